@@ -1,0 +1,29 @@
+//! The `palpate` command line: one file per subcommand, each with its `Args` and `run`.
+
+use clap::{Parser, Subcommand};
+
+pub mod bench;
+
+/// palpate: learn how a soft object deforms when touched, and play it back at haptic rates.
+#[derive(Debug, Parser)]
+#[command(name = "palpate", version, about, long_about = None)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// Subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Benchmarks that print a table and, as their last line, one JSON object.
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
+}
+
+/// Runs a parsed command line.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Bench(b) => bench::run(b),
+    }
+}

@@ -1,0 +1,5 @@
+//! palpate's offline side: mesh and dataset I/O, the static (seed 000) and motion (seed 001)
+//! fitters, the residual diagnosis, and the `palpate` command-line program's subcommands.
+
+pub mod cli;
+pub mod mesh;

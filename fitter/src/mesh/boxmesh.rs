@@ -1,0 +1,98 @@
+//! A built-in structured box mesher (six Kuhn tetrahedra per cell) for tests and benchmarks.
+
+use super::Mesh;
+use std::collections::BTreeMap;
+
+/// Meshes the box [0, size] with `cells` cells per axis, six tetrahedra per cell (Kuhn
+/// subdivision along the main diagonal, conforming across cells). Node groups: `bottom` (z = 0),
+/// `top`, `left` (x = 0), `right`, `front` (y = 0), `back`.
+pub fn box_mesh(size: [f64; 3], cells: [usize; 3]) -> Mesh {
+    let [nx, ny, nz] = cells;
+    let id = |i: usize, j: usize, k: usize| (k * (ny + 1) + j) * (nx + 1) + i;
+    let mut nodes = Vec::with_capacity((nx + 1) * (ny + 1) * (nz + 1));
+    for k in 0..=nz {
+        for j in 0..=ny {
+            for i in 0..=nx {
+                nodes.push([
+                    size[0] * i as f64 / nx as f64,
+                    size[1] * j as f64 / ny as f64,
+                    size[2] * k as f64 / nz as f64,
+                ]);
+            }
+        }
+    }
+    const PERMS: [[usize; 3]; 6] = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
+    let mut tets = Vec::with_capacity(6 * nx * ny * nz);
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                for p in PERMS {
+                    let mut c = [i, j, k];
+                    let mut t = [id(c[0], c[1], c[2]); 4];
+                    for (s, axis) in p.iter().enumerate() {
+                        c[*axis] += 1;
+                        t[s + 1] = id(c[0], c[1], c[2]);
+                    }
+                    if signed_volume(&nodes, &t) < 0.0 {
+                        t.swap(2, 3);
+                    }
+                    tets.push(t);
+                }
+            }
+        }
+    }
+    let mut groups: BTreeMap<String, Vec<usize>> = BTreeMap::new();
+    for (n, p) in nodes.iter().enumerate() {
+        let tol = 1e-12 * (size[0] + size[1] + size[2]);
+        let mut put = |name: &str, on: bool| {
+            if on {
+                groups.entry(name.to_string()).or_default().push(n);
+            }
+        };
+        put("left", p[0].abs() < tol);
+        put("right", (p[0] - size[0]).abs() < tol);
+        put("front", p[1].abs() < tol);
+        put("back", (p[1] - size[1]).abs() < tol);
+        put("bottom", p[2].abs() < tol);
+        put("top", (p[2] - size[2]).abs() < tol);
+    }
+    let node_tags = (1..=nodes.len() as u64).collect();
+    Mesh { nodes, node_tags, tets, node_groups: groups }
+}
+
+/// Cells per axis for a box of `size` with about `target_tets` tetrahedra and near-cubic cells.
+pub fn cells_for_target(size: [f64; 3], target_tets: usize) -> [usize; 3] {
+    let vol = size[0] * size[1] * size[2];
+    let h = (vol * 6.0 / target_tets.max(6) as f64).cbrt();
+    [
+        ((size[0] / h).round() as usize).max(1),
+        ((size[1] / h).round() as usize).max(1),
+        ((size[2] / h).round() as usize).max(1),
+    ]
+}
+
+fn signed_volume(nodes: &[[f64; 3]], t: &[usize; 4]) -> f64 {
+    let a = nodes[t[0]];
+    let d = |n: usize| [nodes[n][0] - a[0], nodes[n][1] - a[1], nodes[n][2] - a[2]];
+    let (u, v, w) = (d(t[1]), d(t[2]), d(t[3]));
+    (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0]) + u[2] * (v[0] * w[1] - v[1] * w[0]))
+        / 6.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn box_mesh_volumes_sum_and_surface_is_closed() {
+        let m = box_mesh([0.1, 0.1, 0.05], [4, 4, 2]);
+        assert_eq!(m.tets.len(), 6 * 32);
+        let v: f64 = m.tets.iter().map(|t| signed_volume(&m.nodes, t)).sum();
+        assert!((v - 0.1 * 0.1 * 0.05).abs() < 1e-15);
+        assert!(m.tets.iter().all(|t| signed_volume(&m.nodes, t) > 0.0));
+        // Closed surface of a box: 2 triangles per boundary cell face.
+        let tris = m.boundary_triangles();
+        assert_eq!(tris.len(), 2 * (2 * 16 + 2 * 8 + 2 * 8));
+        assert_eq!(m.group("bottom").unwrap().len(), 25);
+    }
+}

@@ -1,0 +1,204 @@
+//! Linear tetrahedron kernels (seed 000 §3.1.5–3.1.6, §3.4): shape-function gradients, B_e, V_e,
+//! C_e = V_e B_eᵀ F B_e and D_e = V_e B_eᵀ G B_e, and K_e = λ_e C_e + α_e D_e.
+//!
+//! This module is the one implementation of the element maths: the runtime calls it in `f32`, the
+//! fitter in `f64`. Everything here is generic over nalgebra's [`RealField`] and allocation-free.
+//!
+//! Conventions: the 12-vector of an element stacks its four nodes' (x, y, z); strain is the
+//! 6-vector (ε_xx, ε_yy, ε_zz, γ_xy, γ_yz, γ_zx) of eq. 3.3 with engineering shear strains.
+
+use nalgebra::{Matrix3, RealField, SMatrix, SVector, Vector3};
+
+/// Number of entries of a packed symmetric 12 × 12 matrix (upper triangle, row by row).
+pub const PACKED_LEN: usize = 78;
+
+/// 6 × 12 strain-displacement matrix B_e (eq. 3.17).
+pub type StrainMatrix<T> = SMatrix<T, 6, 12>;
+/// 12 × 12 element matrix.
+pub type ElementMatrix<T> = SMatrix<T, 12, 12>;
+
+/// Why an element cannot be used.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ElementDefect {
+    /// Signed volume is not finite.
+    NonFinite,
+    /// |V_e| is below the tolerance relative to the element's edge length cubed (a flat sliver).
+    ZeroVolume,
+    /// Signed volume is negative: node order gives an inverted tetrahedron.
+    Inverted,
+}
+
+/// Shape-function gradients ∇φ_i (eqs. 3.11–3.12) and rest volume V_e of one linear tetrahedron.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TetGeometry<T: RealField + Copy> {
+    /// ∇φ_i for the four nodes; they sum to zero.
+    pub grad: [Vector3<T>; 4],
+    /// Rest volume V_e > 0.
+    pub volume: T,
+}
+
+/// Signed volume of a tetrahedron, positive when (x1−x0, x2−x0, x3−x0) is right-handed.
+pub fn signed_volume<T: RealField + Copy>(x: &[Vector3<T>; 4]) -> T {
+    let dm = Matrix3::from_columns(&[x[1] - x[0], x[2] - x[0], x[3] - x[0]]);
+    dm.determinant() / T::from_f64(6.0).unwrap()
+}
+
+/// Shape-function gradients and volume of the rest tetrahedron `x` (eqs. 3.11–3.12).
+///
+/// φ_i(x) = a_i x + b_i y + c_i z + d_i with φ_i(x_j) = δ_ij; the gradients (a_i, b_i, c_i) are the
+/// rows of D_m⁻¹ (D_m = [x1−x0, x2−x0, x3−x0]) for nodes 1..3, and ∇φ_0 = −Σ ∇φ_i.
+/// Rejects inverted, non-finite and flat elements (|V| < 1e-9 · ℓ³, ℓ the longest edge).
+pub fn tet_geometry<T: RealField + Copy>(x: &[Vector3<T>; 4]) -> Result<TetGeometry<T>, ElementDefect> {
+    let dm = Matrix3::from_columns(&[x[1] - x[0], x[2] - x[0], x[3] - x[0]]);
+    let six_v = dm.determinant();
+    if !six_v.is_finite() {
+        return Err(ElementDefect::NonFinite);
+    }
+    let mut longest = T::zero();
+    for i in 0..4 {
+        for j in (i + 1)..4 {
+            longest = longest.max((x[j] - x[i]).norm());
+        }
+    }
+    let tol = T::from_f64(6e-9).unwrap() * longest * longest * longest;
+    if six_v.abs() <= tol {
+        return Err(ElementDefect::ZeroVolume);
+    }
+    if six_v < T::zero() {
+        return Err(ElementDefect::Inverted);
+    }
+    let inv = dm.try_inverse().ok_or(ElementDefect::ZeroVolume)?;
+    let g1 = inv.row(0).transpose();
+    let g2 = inv.row(1).transpose();
+    let g3 = inv.row(2).transpose();
+    let g0 = -(g1 + g2 + g3);
+    Ok(TetGeometry { grad: [g0, g1, g2, g3], volume: six_v / T::from_f64(6.0).unwrap() })
+}
+
+/// B_e (eq. 3.17): rows (ε_xx, ε_yy, ε_zz, γ_xy, γ_yz, γ_zx), columns (u0x, u0y, u0z, u1x, …).
+pub fn strain_matrix<T: RealField + Copy>(g: &TetGeometry<T>) -> StrainMatrix<T> {
+    let mut b = StrainMatrix::<T>::zeros();
+    for (a, grad) in g.grad.iter().enumerate() {
+        let (bx, by, bz) = (grad.x, grad.y, grad.z);
+        let c = 3 * a;
+        b[(0, c)] = bx;
+        b[(1, c + 1)] = by;
+        b[(2, c + 2)] = bz;
+        b[(3, c)] = by;
+        b[(3, c + 1)] = bx;
+        b[(4, c + 1)] = bz;
+        b[(4, c + 2)] = by;
+        b[(5, c)] = bz;
+        b[(5, c + 2)] = bx;
+    }
+    b
+}
+
+/// The constant matrix F of eq. 3.33.
+pub fn material_f<T: RealField + Copy>() -> SMatrix<T, 6, 6> {
+    let h = T::from_f64(0.5).unwrap();
+    SMatrix::<T, 6, 6>::from_diagonal(&SVector::<T, 6>::from([T::one(), T::one(), T::one(), h, h, h]))
+}
+
+/// The constant matrix G of eq. 3.34.
+pub fn material_g<T: RealField + Copy>() -> SMatrix<T, 6, 6> {
+    let mut g = SMatrix::<T, 6, 6>::zeros();
+    for i in 0..3 {
+        for j in 0..3 {
+            g[(i, j)] = if i == j { -T::one() } else { T::one() };
+        }
+        g[(i + 3, i + 3)] = -T::one();
+    }
+    g
+}
+
+/// C_e = V_e B_eᵀ F B_e and D_e = V_e B_eᵀ G B_e (eq. 3.63).
+pub fn element_cd<T: RealField + Copy>(g: &TetGeometry<T>) -> (ElementMatrix<T>, ElementMatrix<T>) {
+    let b = strain_matrix(g);
+    let bt = b.transpose();
+    let c = (bt * material_f::<T>() * b) * g.volume;
+    let d = (bt * material_g::<T>() * b) * g.volume;
+    (c, d)
+}
+
+/// K_e = λ_e C_e + α_e D_e (eq. 3.63).
+pub fn element_stiffness<T: RealField + Copy>(g: &TetGeometry<T>, lambda: T, alpha: T) -> ElementMatrix<T> {
+    let (c, d) = element_cd(g);
+    c * lambda + d * alpha
+}
+
+/// Index of (i, j) in the packed upper triangle of a symmetric 12 × 12 matrix.
+#[inline]
+pub const fn packed_index(i: usize, j: usize) -> usize {
+    let (r, c) = if i <= j { (i, j) } else { (j, i) };
+    // Row r starts after rows 0..r, which hold 12, 11, …, 13 − r entries.
+    r * 12 - (r * r.saturating_sub(1)) / 2 + (c - r)
+}
+
+/// Packs the upper triangle of a symmetric 12 × 12 matrix row by row into 78 values.
+pub fn pack_symmetric<T: RealField + Copy>(m: &ElementMatrix<T>, out: &mut [T; PACKED_LEN]) {
+    let mut k = 0;
+    for i in 0..12 {
+        for j in i..12 {
+            out[k] = m[(i, j)];
+            k += 1;
+        }
+    }
+}
+
+/// Inverse of [`pack_symmetric`].
+pub fn unpack_symmetric<T: RealField + Copy>(p: &[T; PACKED_LEN]) -> ElementMatrix<T> {
+    let mut m = ElementMatrix::<T>::zeros();
+    let mut k = 0;
+    for i in 0..12 {
+        for j in i..12 {
+            m[(i, j)] = p[k];
+            m[(j, i)] = p[k];
+            k += 1;
+        }
+    }
+    m
+}
+
+/// Deformation gradient F = Σ_a x_a ∇φ_aᵀ of a linear tetrahedron at positions `x`.
+pub fn deformation_gradient<T: RealField + Copy>(g: &TetGeometry<T>, x: &[Vector3<T>; 4]) -> Matrix3<T> {
+    let mut f = Matrix3::<T>::zeros();
+    for a in 0..4 {
+        f += x[a] * g.grad[a].transpose();
+    }
+    f
+}
+
+/// Unrotated element strain ε_e = B_e (R_eᵀ x_e − x_0e) (eq. 3.49), as a 6-vector with engineering
+/// shear. Computed from F as sym(RᵀF) − I, which equals eq. 3.49 because B_e applied to the rest
+/// positions gives the identity gradient.
+pub fn warped_strain<T: RealField + Copy>(r: &Matrix3<T>, f: &Matrix3<T>) -> SVector<T, 6> {
+    let h = r.transpose() * f;
+    let one = T::one();
+    SVector::<T, 6>::from([
+        h[(0, 0)] - one,
+        h[(1, 1)] - one,
+        h[(2, 2)] - one,
+        h[(0, 1)] + h[(1, 0)],
+        h[(1, 2)] + h[(2, 1)],
+        h[(2, 0)] + h[(0, 2)],
+    ])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn packed_index_matches_pack_order() {
+        let mut k = 0;
+        for i in 0..12 {
+            for j in i..12 {
+                assert_eq!(packed_index(i, j), k);
+                assert_eq!(packed_index(j, i), k);
+                k += 1;
+            }
+        }
+        assert_eq!(k, PACKED_LEN);
+    }
+}

@@ -1,0 +1,1 @@
+//! Shared helpers for palpate's cross-crate and hardware-in-the-loop tests (see `tests/tests/`).
