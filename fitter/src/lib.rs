@@ -2,4 +2,5 @@
 //! fitters, the residual diagnosis, and the `palpate` command-line program's subcommands.
 
 pub mod cli;
+pub mod io;
 pub mod mesh;

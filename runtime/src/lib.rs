@@ -6,6 +6,7 @@
 //! (seed 000): element kernels, per-element rotations, incremental loading and a preconditioned
 //! conjugate-gradient solve per tick, loaded from a `palpate-protocol` model.
 
+pub mod contact_rule;
 pub mod element;
 pub mod material;
 pub mod rotation;

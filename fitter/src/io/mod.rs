@@ -1,0 +1,3 @@
+//! File output helpers shared by every command: nothing is lost on a crash or error.
+
+pub mod atomic;
