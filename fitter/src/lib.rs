@@ -2,5 +2,6 @@
 //! fitters, the residual diagnosis, and the `palpate` command-line program's subcommands.
 
 pub mod cli;
+pub mod dataset;
 pub mod io;
 pub mod mesh;
