@@ -6,4 +6,5 @@
 //!   (postcard inside a checked container; see `MODEL-FORMAT.md`).
 //! - [`link`]: the probe's wire protocol (postcard + COBS + CRC-32 frames; see `LINK-FORMAT.md`).
 
+pub mod link;
 pub mod model;
