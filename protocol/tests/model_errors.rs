@@ -2,8 +2,13 @@
 
 mod common;
 
-use common::{grid_mesh, model_on, reseal, set_f32, set_u32, tiny_model, u32_bytes, wrap, BlendKind, OwnedBlend, OwnedModel};
-use palpate_protocol::model::{decode, encode, validate, Field, Invalid, MalformedKind, ModelError, ParameterLayout};
+use common::{
+    grid_mesh, model_on, reseal, set_f32, set_u32, tiny_model, u32_bytes, wrap, BlendKind,
+    OwnedBlend, OwnedModel,
+};
+use palpate_protocol::model::{
+    decode, encode, validate, Field, Invalid, MalformedKind, ModelError, ParameterLayout,
+};
 
 fn invalid(what: Invalid) -> Result<(), ModelError> {
     Err(ModelError::InvalidContent { what })
@@ -16,12 +21,21 @@ fn content_error(m: &OwnedModel) -> ModelError {
     let err = decode(&bytes).expect_err("corrupted model decoded");
     assert_eq!(validate(&m.record()).map(|_| ()), Err(err));
     let mut out = vec![0u8; bytes.len()];
-    assert_eq!(encode(&m.record(), &mut out), Err(err), "encode must refuse what decode refuses");
+    assert_eq!(
+        encode(&m.record(), &mut out),
+        Err(err),
+        "encode must refuse what decode refuses"
+    );
     err
 }
 
 fn grid() -> OwnedModel {
-    model_on(&grid_mesh(2, 2, 1, 0.05), ParameterLayout::Global, BlendKind::None, 1)
+    model_on(
+        &grid_mesh(2, 2, 1, 0.05),
+        ParameterLayout::Global,
+        BlendKind::None,
+        1,
+    )
 }
 
 #[test]
@@ -36,7 +50,10 @@ fn bad_magic() {
     b[0] = b'X';
     assert_eq!(decode(&b), Err(ModelError::BadMagic { found: *b"XALP" }));
     let e = decode(&b).unwrap_err().to_string();
-    assert_eq!(e, "not a palpate model: magic bytes are 58 41 4c 50, expected \"PALP\"");
+    assert_eq!(
+        e,
+        "not a palpate model: magic bytes are 58 41 4c 50, expected \"PALP\""
+    );
 }
 
 #[test]
@@ -46,7 +63,13 @@ fn unsupported_version_and_wrong_kind() {
         let mut b = good.clone();
         b[4..6].copy_from_slice(&v.to_le_bytes());
         reseal(&mut b);
-        assert_eq!(decode(&b), Err(ModelError::UnsupportedVersion { found: v, supported: 1 }));
+        assert_eq!(
+            decode(&b),
+            Err(ModelError::UnsupportedVersion {
+                found: v,
+                supported: 1
+            })
+        );
     }
     let mut b = good.clone();
     b[6..8].copy_from_slice(&2u16.to_le_bytes());
@@ -60,7 +83,14 @@ fn truncated_at_every_length() {
     let b = tiny_model().encode();
     for len in 0..b.len() {
         let needed = if len < 12 { 12 } else { b.len() };
-        assert_eq!(decode(&b[..len]), Err(ModelError::Truncated { needed, available: len }), "len {len}");
+        assert_eq!(
+            decode(&b[..len]),
+            Err(ModelError::Truncated {
+                needed,
+                available: len
+            }),
+            "len {len}"
+        );
     }
     let mut long = b.clone();
     long.extend_from_slice(&[0, 0, 0]);
@@ -81,24 +111,53 @@ fn single_bit_flips() {
             b[byte] ^= 1 << bit;
             let err = decode(&b).unwrap_err();
             match byte {
-                0..=3 => assert!(matches!(err, ModelError::BadMagic { .. }), "{byte}.{bit}: {err:?}"),
-                4..=5 => assert!(matches!(err, ModelError::UnsupportedVersion { .. }), "{byte}.{bit}: {err:?}"),
-                6..=7 => assert!(matches!(err, ModelError::WrongKind { .. }), "{byte}.{bit}: {err:?}"),
+                0..=3 => assert!(
+                    matches!(err, ModelError::BadMagic { .. }),
+                    "{byte}.{bit}: {err:?}"
+                ),
+                4..=5 => assert!(
+                    matches!(err, ModelError::UnsupportedVersion { .. }),
+                    "{byte}.{bit}: {err:?}"
+                ),
+                6..=7 => assert!(
+                    matches!(err, ModelError::WrongKind { .. }),
+                    "{byte}.{bit}: {err:?}"
+                ),
                 8..=11 => {
                     let len = u32::from_le_bytes(b[8..12].try_into().unwrap()) as usize;
                     if len + 16 > n {
-                        assert_eq!(err, ModelError::Truncated { needed: len + 16, available: n });
+                        assert_eq!(
+                            err,
+                            ModelError::Truncated {
+                                needed: len + 16,
+                                available: n
+                            }
+                        );
                     } else {
-                        assert_eq!(err, ModelError::TrailingBytes { extra: n - len - 16 });
+                        assert_eq!(
+                            err,
+                            ModelError::TrailingBytes {
+                                extra: n - len - 16
+                            }
+                        );
                     }
                 }
                 _ if byte >= n - 4 => {
                     let flipped = u32::from_le_bytes(b[n - 4..].try_into().unwrap());
-                    assert_eq!(err, ModelError::CrcMismatch { stored: flipped, computed: stored });
+                    assert_eq!(
+                        err,
+                        ModelError::CrcMismatch {
+                            stored: flipped,
+                            computed: stored
+                        }
+                    );
                 }
                 _ => assert_eq!(
                     err,
-                    ModelError::CrcMismatch { stored, computed: common::crc32c(&b[..n - 4]) },
+                    ModelError::CrcMismatch {
+                        stored,
+                        computed: common::crc32c(&b[..n - 4])
+                    },
                     "{byte}.{bit}"
                 ),
             }
@@ -117,27 +176,39 @@ fn malformed_payloads_name_the_field() {
     p[0] = 1;
     assert_eq!(
         decode(&wrap(&p)),
-        Err(ModelError::Malformed { field: Field::Units, kind: MalformedKind::UnknownVariant { found: 1 } })
+        Err(ModelError::Malformed {
+            field: Field::Units,
+            kind: MalformedKind::UnknownVariant { found: 1 }
+        })
     );
     // A provenance string that is not UTF-8 (byte 0xFF inside "palpate").
     let mut p = payload.to_vec();
     p[2] = 0xFF;
     assert_eq!(
         decode(&wrap(&p)),
-        Err(ModelError::Malformed { field: Field::ProvenanceTool, kind: MalformedKind::BadUtf8 })
+        Err(ModelError::Malformed {
+            field: Field::ProvenanceTool,
+            kind: MalformedKind::BadUtf8
+        })
     );
     // Blend discriminant (the last payload byte) 3 does not exist.
     let mut p = payload.to_vec();
     *p.last_mut().unwrap() = 3;
     assert_eq!(
         decode(&wrap(&p)),
-        Err(ModelError::Malformed { field: Field::Blend, kind: MalformedKind::UnknownVariant { found: 3 } })
+        Err(ModelError::Malformed {
+            field: Field::Blend,
+            kind: MalformedKind::UnknownVariant { found: 3 }
+        })
     );
     // Cut inside d_packed (payload offset 0x1f7 − 12 + 100).
     let p = &payload[..0x1f7 - 12 + 100];
     assert_eq!(
         decode(&wrap(p)),
-        Err(ModelError::Malformed { field: Field::DPacked, kind: MalformedKind::UnexpectedEnd })
+        Err(ModelError::Malformed {
+            field: Field::DPacked,
+            kind: MalformedKind::UnexpectedEnd
+        })
     );
     // node_count as an over-long varint (6 continuation bytes).
     let mut p = payload[..0x2a - 12].to_vec();
@@ -145,14 +216,25 @@ fn malformed_payloads_name_the_field() {
     p.extend_from_slice(&payload[0x2a - 12 + 1..]);
     assert_eq!(
         decode(&wrap(&p)),
-        Err(ModelError::Malformed { field: Field::NodeCount, kind: MalformedKind::BadVarint })
+        Err(ModelError::Malformed {
+            field: Field::NodeCount,
+            kind: MalformedKind::BadVarint
+        })
     );
     // One byte too many after the record.
     let mut p = payload.to_vec();
     p.push(0);
-    assert_eq!(decode(&wrap(&p)), Err(ModelError::PayloadTrailingBytes { extra: 1 }));
-    let msg = decode(&wrap(&payload[..0x1f7 - 12 + 100])).unwrap_err().to_string();
-    assert_eq!(msg, "malformed model payload in field `d_packed`: the payload ends inside it");
+    assert_eq!(
+        decode(&wrap(&p)),
+        Err(ModelError::PayloadTrailingBytes { extra: 1 })
+    );
+    let msg = decode(&wrap(&payload[..0x1f7 - 12 + 100]))
+        .unwrap_err()
+        .to_string();
+    assert_eq!(
+        msg,
+        "malformed model payload in field `d_packed`: the payload ends inside it"
+    );
 }
 
 #[test]
@@ -164,32 +246,65 @@ fn index_out_of_range_names_array_and_element() {
     assert_eq!(
         err,
         ModelError::InvalidContent {
-            what: Invalid::IndexOutOfRange { array: Field::Tets, position: 22, index: n, bound: n }
+            what: Invalid::IndexOutOfRange {
+                array: Field::Tets,
+                position: 22,
+                index: n,
+                bound: n
+            }
         }
     );
-    assert_eq!(err.to_string(), format!("invalid model: tets[22] (element 5, corner 2): index {n} out of range (must be < {n})"));
+    assert_eq!(
+        err.to_string(),
+        format!(
+            "invalid model: tets[22] (element 5, corner 2): index {n} out of range (must be < {n})"
+        )
+    );
 
     let mut m = grid();
     set_u32(&mut m.surface_triangles, 7, 10_000);
     assert_eq!(
         validate(&m.record()),
-        invalid(Invalid::IndexOutOfRange { array: Field::SurfaceTriangles, position: 7, index: 10_000, bound: n })
+        invalid(Invalid::IndexOutOfRange {
+            array: Field::SurfaceTriangles,
+            position: 7,
+            index: 10_000,
+            bound: n
+        })
     );
     let mut m = grid();
     let last = m.fixed_nodes.len() / 4 - 1;
     set_u32(&mut m.fixed_nodes, last, n + 3);
     assert_eq!(
         validate(&m.record()),
-        invalid(Invalid::IndexOutOfRange { array: Field::FixedNodes, position: last as u64, index: n + 3, bound: n })
+        invalid(Invalid::IndexOutOfRange {
+            array: Field::FixedNodes,
+            position: last as u64,
+            index: n + 3,
+            bound: n
+        })
     );
-    let mut m = model_on(&grid_mesh(2, 1, 1, 0.05), ParameterLayout::PerElement, BlendKind::Strain, 2);
-    if let OwnedBlend::Strain { neighbour_index, .. } = &mut m.blend {
+    let mut m = model_on(
+        &grid_mesh(2, 1, 1, 0.05),
+        ParameterLayout::PerElement,
+        BlendKind::Strain,
+        2,
+    );
+    if let OwnedBlend::Strain {
+        neighbour_index, ..
+    } = &mut m.blend
+    {
         set_u32(neighbour_index, 9, 12);
     }
     assert_eq!(
         content_error(&m),
         ModelError::InvalidContent {
-            what: Invalid::IndexOutOfRange { array: Field::NeighbourIndex, position: 9, index: 12, bound: 12 }
+            what: Invalid::IndexOutOfRange {
+                array: Field::NeighbourIndex,
+                position: 9,
+                index: 12,
+                bound: 12
+            }
         }
     );
 }
@@ -199,28 +314,73 @@ fn non_finite_values_are_located() {
     let mut m = grid();
     set_f32(&mut m.rest_positions, 3 * 5 + 1, f32::NAN);
     let err = content_error(&m);
-    assert_eq!(err, ModelError::InvalidContent { what: Invalid::NonFinite { array: Field::RestPositions, position: 16 } });
-    assert_eq!(err.to_string(), "invalid model: rest_positions[16] (node 5, y): not a finite number");
+    assert_eq!(
+        err,
+        ModelError::InvalidContent {
+            what: Invalid::NonFinite {
+                array: Field::RestPositions,
+                position: 16
+            }
+        }
+    );
+    assert_eq!(
+        err.to_string(),
+        "invalid model: rest_positions[16] (node 5, y): not a finite number"
+    );
 
     let mut m = grid();
     set_f32(&mut m.d_packed, 78 * 3 + 10, f32::INFINITY);
-    assert_eq!(validate(&m.record()), invalid(Invalid::NonFinite { array: Field::DPacked, position: 244 }));
+    assert_eq!(
+        validate(&m.record()),
+        invalid(Invalid::NonFinite {
+            array: Field::DPacked,
+            position: 244
+        })
+    );
 
     let mut m = grid();
     set_f32(&mut m.lambda, 0, f32::NEG_INFINITY);
-    assert_eq!(validate(&m.record()), invalid(Invalid::NonFinite { array: Field::Lambda, position: 0 }));
+    assert_eq!(
+        validate(&m.record()),
+        invalid(Invalid::NonFinite {
+            array: Field::Lambda,
+            position: 0
+        })
+    );
 
-    let mut m = model_on(&grid_mesh(1, 1, 1, 0.05), ParameterLayout::Global, BlendKind::Deformation, 2);
+    let mut m = model_on(
+        &grid_mesh(1, 1, 1, 0.05),
+        ParameterLayout::Global,
+        BlendKind::Deformation,
+        2,
+    );
     if let OwnedBlend::Deformation { weights_alpha, .. } = &mut m.blend {
         set_f32(weights_alpha, 1, f32::NAN);
     }
-    assert_eq!(validate(&m.record()), invalid(Invalid::NonFinite { array: Field::BlendWeightsAlpha, position: 1 }));
+    assert_eq!(
+        validate(&m.record()),
+        invalid(Invalid::NonFinite {
+            array: Field::BlendWeightsAlpha,
+            position: 1
+        })
+    );
 
-    let mut m = model_on(&grid_mesh(1, 1, 1, 0.05), ParameterLayout::Global, BlendKind::Strain, 2);
+    let mut m = model_on(
+        &grid_mesh(1, 1, 1, 0.05),
+        ParameterLayout::Global,
+        BlendKind::Strain,
+        2,
+    );
     if let OwnedBlend::Strain { decay, .. } = &mut m.blend {
         *decay = f32::NAN;
     }
-    assert_eq!(validate(&m.record()), invalid(Invalid::NonFinite { array: Field::StrainDecay, position: 0 }));
+    assert_eq!(
+        validate(&m.record()),
+        invalid(Invalid::NonFinite {
+            array: Field::StrainDecay,
+            position: 0
+        })
+    );
 }
 
 #[test]
@@ -230,7 +390,13 @@ fn negative_values() {
     set_f32(&mut m.c_packed, 78 * 4 + 63, -1.0);
     assert_eq!(
         content_error(&m),
-        ModelError::InvalidContent { what: Invalid::Negative { array: Field::CPacked, position: 375, value: -1.0 } }
+        ModelError::InvalidContent {
+            what: Invalid::Negative {
+                array: Field::CPacked,
+                position: 375,
+                value: -1.0
+            }
+        }
     );
     // An off-diagonal C entry may be negative (it is for every real element), D's diagonal too.
     let mut m = grid();
@@ -238,16 +404,43 @@ fn negative_values() {
     set_f32(&mut m.d_packed, 78 * 4 + 63, -1.0);
     assert_eq!(validate(&m.record()), Ok(()));
 
-    let mut m = model_on(&grid_mesh(1, 1, 1, 0.05), ParameterLayout::Global, BlendKind::Strain, 2);
+    let mut m = model_on(
+        &grid_mesh(1, 1, 1, 0.05),
+        ParameterLayout::Global,
+        BlendKind::Strain,
+        2,
+    );
     if let OwnedBlend::Strain { decay, .. } = &mut m.blend {
         *decay = -2.0;
     }
-    assert_eq!(validate(&m.record()), invalid(Invalid::Negative { array: Field::StrainDecay, position: 0, value: -2.0 }));
-    let mut m = model_on(&grid_mesh(1, 1, 1, 0.05), ParameterLayout::Global, BlendKind::Strain, 2);
-    if let OwnedBlend::Strain { neighbour_weight, .. } = &mut m.blend {
+    assert_eq!(
+        validate(&m.record()),
+        invalid(Invalid::Negative {
+            array: Field::StrainDecay,
+            position: 0,
+            value: -2.0
+        })
+    );
+    let mut m = model_on(
+        &grid_mesh(1, 1, 1, 0.05),
+        ParameterLayout::Global,
+        BlendKind::Strain,
+        2,
+    );
+    if let OwnedBlend::Strain {
+        neighbour_weight, ..
+    } = &mut m.blend
+    {
         set_f32(neighbour_weight, 3, -0.5);
     }
-    assert_eq!(validate(&m.record()), invalid(Invalid::Negative { array: Field::NeighbourWeight, position: 3, value: -0.5 }));
+    assert_eq!(
+        validate(&m.record()),
+        invalid(Invalid::Negative {
+            array: Field::NeighbourWeight,
+            position: 3,
+            value: -0.5
+        })
+    );
 }
 
 /// An inverted element (two nodes swapped) is reported with its index and its signed volume.
@@ -255,18 +448,30 @@ fn negative_values() {
 fn inverted_element() {
     let mut m = grid();
     let (a, b) = (4 * 7 + 1, 4 * 7 + 2);
-    let (va, vb) = (m.tets[4 * a..4 * a + 4].to_vec(), m.tets[4 * b..4 * b + 4].to_vec());
+    let (va, vb) = (
+        m.tets[4 * a..4 * a + 4].to_vec(),
+        m.tets[4 * b..4 * b + 4].to_vec(),
+    );
     m.tets[4 * a..4 * a + 4].copy_from_slice(&vb);
     m.tets[4 * b..4 * b + 4].copy_from_slice(&va);
     let err = content_error(&m);
-    let ModelError::InvalidContent { what: Invalid::Inverted { element, volume } } = err else {
+    let ModelError::InvalidContent {
+        what: Invalid::Inverted { element, volume },
+    } = err
+    else {
         panic!("{err:?}")
     };
     assert_eq!(element, 7);
     // Kuhn tets of a cube of edge h have volume h³/6; h = 0.05 is exact to f32 rounding (1e-7).
     let expected = -0.05f64.powi(3) / 6.0;
-    assert!((volume - expected).abs() < 1e-6 * expected.abs(), "{volume}");
-    assert_eq!(err.to_string(), "invalid model: element 7: inverted rest element (signed volume -2.08e-5 m³)");
+    assert!(
+        (volume - expected).abs() < 1e-6 * expected.abs(),
+        "{volume}"
+    );
+    assert_eq!(
+        err.to_string(),
+        "invalid model: element 7: inverted rest element (signed volume -2.08e-5 m³)"
+    );
 }
 
 /// A flat element (four coplanar nodes) is ZeroVolume, not Inverted; the relative tolerance
@@ -278,21 +483,49 @@ fn zero_volume_element() {
     m.tets[4 * 4 * 9..4 * 4 * 10].copy_from_slice(&u32_bytes(&[0, 1, 2, 3]));
     assert_eq!(
         content_error(&m),
-        ModelError::InvalidContent { what: Invalid::ZeroVolume { element: 9, volume: 0.0 } }
+        ModelError::InvalidContent {
+            what: Invalid::ZeroVolume {
+                element: 9,
+                volume: 0.0
+            }
+        }
     );
 
     // Tiny model with node 3 lowered to height z: ℓ = √2 (edge 1–2), V = z/6.
-    for (z, ok) in [(1e-7f32, false), (-1e-7, false), (1e-4, true), (-1e-4, false)] {
+    for (z, ok) in [
+        (1e-7f32, false),
+        (-1e-7, false),
+        (1e-4, true),
+        (-1e-4, false),
+    ] {
         let mut m = tiny_model();
         set_f32(&mut m.rest_positions, 11, z);
         let r = validate(&m.record());
         let volume = z as f64 / 6.0;
         match (ok, r) {
             (true, Ok(())) => {}
-            (false, Err(ModelError::InvalidContent { what: Invalid::ZeroVolume { element: 0, volume: v } })) if z.abs() < 1e-6 => {
+            (
+                false,
+                Err(ModelError::InvalidContent {
+                    what:
+                        Invalid::ZeroVolume {
+                            element: 0,
+                            volume: v,
+                        },
+                }),
+            ) if z.abs() < 1e-6 => {
                 assert!((v - volume).abs() < 1e-15, "{v}")
             }
-            (false, Err(ModelError::InvalidContent { what: Invalid::Inverted { element: 0, volume: v } })) if z < -1e-6 => {
+            (
+                false,
+                Err(ModelError::InvalidContent {
+                    what:
+                        Invalid::Inverted {
+                            element: 0,
+                            volume: v,
+                        },
+                }),
+            ) if z < -1e-6 => {
                 assert!((v - volume).abs() < 1e-15, "{v}")
             }
             (_, r) => panic!("z = {z}: {r:?}"),
@@ -306,8 +539,16 @@ fn repeated_node_in_a_tet() {
     let node = u32::from_le_bytes(m.tets[4 * 4 * 3..4 * 4 * 3 + 4].try_into().unwrap());
     set_u32(&mut m.tets, 4 * 3 + 2, node);
     let err = content_error(&m);
-    assert_eq!(err, ModelError::InvalidContent { what: Invalid::RepeatedNode { element: 3, node } });
-    assert_eq!(err.to_string(), format!("invalid model: element 3: node {node} appears twice"));
+    assert_eq!(
+        err,
+        ModelError::InvalidContent {
+            what: Invalid::RepeatedNode { element: 3, node }
+        }
+    );
+    assert_eq!(
+        err.to_string(),
+        format!("invalid model: element 3: node {node} appears twice")
+    );
 }
 
 #[test]
@@ -317,27 +558,69 @@ fn degenerate_surface_triangle() {
     set_u32(&mut m.surface_triangles, 3 * 2, 0);
     set_u32(&mut m.surface_triangles, 3 * 2 + 1, 1);
     set_u32(&mut m.surface_triangles, 3 * 2 + 2, 2);
-    assert_eq!(content_error(&m), ModelError::InvalidContent { what: Invalid::DegenerateTriangle { triangle: 2, area: 0.0 } });
+    assert_eq!(
+        content_error(&m),
+        ModelError::InvalidContent {
+            what: Invalid::DegenerateTriangle {
+                triangle: 2,
+                area: 0.0
+            }
+        }
+    );
 }
 
 /// Unphysical parameters name the set and (per-element layout) the element.
 #[test]
 fn unphysical_parameters() {
-    let mut m = model_on(&grid_mesh(2, 1, 1, 0.05), ParameterLayout::PerElement, BlendKind::Deformation, 3);
+    let mut m = model_on(
+        &grid_mesh(2, 1, 1, 0.05),
+        ParameterLayout::PerElement,
+        BlendKind::Deformation,
+        3,
+    );
     let t = m.element_count as usize;
     // Set 2, element 5: ν = 0.6.
-    set_f32(&mut m.alpha, 2 * t + 5, 0.6 * f32::from_le_bytes(m.lambda[4 * (2 * t + 5)..][..4].try_into().unwrap()));
+    set_f32(
+        &mut m.alpha,
+        2 * t + 5,
+        0.6 * f32::from_le_bytes(m.lambda[4 * (2 * t + 5)..][..4].try_into().unwrap()),
+    );
     let err = content_error(&m);
-    let ModelError::InvalidContent { what: Invalid::Unphysical { set: 2, element: Some(5), .. } } = err else {
+    let ModelError::InvalidContent {
+        what:
+            Invalid::Unphysical {
+                set: 2,
+                element: Some(5),
+                ..
+            },
+    } = err
+    else {
         panic!("{err:?}")
     };
-    assert!(err.to_string().starts_with("invalid model: parameter set 2, element 5: unphysical λ = "), "{err}");
+    assert!(
+        err.to_string()
+            .starts_with("invalid model: parameter set 2, element 5: unphysical λ = "),
+        "{err}"
+    );
 
-    for (lambda, alpha) in [(-1000.0f32, -100.0f32), (0.0, 0.0), (1000.0, -1000.0), (1000.0, 500.0)] {
+    for (lambda, alpha) in [
+        (-1000.0f32, -100.0f32),
+        (0.0, 0.0),
+        (1000.0, -1000.0),
+        (1000.0, 500.0),
+    ] {
         let mut m = grid();
         set_f32(&mut m.lambda, 0, lambda);
         set_f32(&mut m.alpha, 0, alpha);
-        assert_eq!(validate(&m.record()), invalid(Invalid::Unphysical { set: 0, element: None, lambda, alpha }));
+        assert_eq!(
+            validate(&m.record()),
+            invalid(Invalid::Unphysical {
+                set: 0,
+                element: None,
+                lambda,
+                alpha
+            })
+        );
     }
     // Just inside the bounds is accepted: ν = −0.99 and ν = 0.49.
     for alpha in [-990.0f32, 490.0] {
@@ -355,23 +638,46 @@ fn length_errors() {
     let n = m.node_count as u64;
     assert_eq!(
         content_error(&m),
-        ModelError::InvalidContent { what: Invalid::LengthMismatch { array: Field::NodeTags, expected: n, found: n - 1 } }
+        ModelError::InvalidContent {
+            what: Invalid::LengthMismatch {
+                array: Field::NodeTags,
+                expected: n,
+                found: n - 1
+            }
+        }
     );
     let mut m = grid();
     m.c_packed.push(0);
     let bytes = m.c_packed.len() as u64;
-    assert_eq!(validate(&m.record()), invalid(Invalid::PartialValue { array: Field::CPacked, bytes }));
+    assert_eq!(
+        validate(&m.record()),
+        invalid(Invalid::PartialValue {
+            array: Field::CPacked,
+            bytes
+        })
+    );
     let mut m = grid();
     m.surface_triangles.extend_from_slice(&u32_bytes(&[0]));
     let found = m.surface_triangles.len() as u64 / 4;
     assert_eq!(
         validate(&m.record()),
-        invalid(Invalid::LengthNotMultiple { array: Field::SurfaceTriangles, found, multiple: 3 })
+        invalid(Invalid::LengthNotMultiple {
+            array: Field::SurfaceTriangles,
+            found,
+            multiple: 3
+        })
     );
     let mut m = grid();
     m.element_count += 1;
     let t = m.element_count as u64;
-    assert_eq!(validate(&m.record()), invalid(Invalid::LengthMismatch { array: Field::Tets, expected: 4 * t, found: 4 * (t - 1) }));
+    assert_eq!(
+        validate(&m.record()),
+        invalid(Invalid::LengthMismatch {
+            array: Field::Tets,
+            expected: 4 * t,
+            found: 4 * (t - 1)
+        })
+    );
 
     let mut m = grid();
     m.element_count = 0;
@@ -383,21 +689,40 @@ fn length_errors() {
     m.count = 2;
     m.lambda = common::f32_bytes(&[1000.0, 1000.0]);
     m.alpha = common::f32_bytes(&[300.0, 300.0]);
-    assert_eq!(content_error(&m), ModelError::InvalidContent { what: Invalid::UnblendedSetCount { count: 2 } });
+    assert_eq!(
+        content_error(&m),
+        ModelError::InvalidContent {
+            what: Invalid::UnblendedSetCount { count: 2 }
+        }
+    );
 
-    let mut m = model_on(&grid_mesh(1, 1, 1, 0.05), ParameterLayout::Global, BlendKind::Strain, 2);
+    let mut m = model_on(
+        &grid_mesh(1, 1, 1, 0.05),
+        ParameterLayout::Global,
+        BlendKind::Strain,
+        2,
+    );
     if let OwnedBlend::Strain { neighbours, .. } = &mut m.blend {
         *neighbours = 0;
     }
     assert_eq!(validate(&m.record()), invalid(Invalid::NoNeighbours));
-    let mut m = model_on(&grid_mesh(1, 1, 1, 0.05), ParameterLayout::Global, BlendKind::Deformation, 2);
+    let mut m = model_on(
+        &grid_mesh(1, 1, 1, 0.05),
+        ParameterLayout::Global,
+        BlendKind::Deformation,
+        2,
+    );
     if let OwnedBlend::Deformation { centres, .. } = &mut m.blend {
         centres.truncate(centres.len() - 12);
     }
     let expected = 2 * 3 * m.node_count as u64;
     assert_eq!(
         validate(&m.record()),
-        invalid(Invalid::LengthMismatch { array: Field::BlendCentres, expected, found: expected - 3 })
+        invalid(Invalid::LengthMismatch {
+            array: Field::BlendCentres,
+            expected,
+            found: expected - 3
+        })
     );
 }
 
@@ -406,24 +731,47 @@ fn fixed_node_errors() {
     let mut m = grid();
     m.fixed_nodes.clear();
     let err = content_error(&m);
-    assert_eq!(err, ModelError::InvalidContent { what: Invalid::NoFixedNode });
-    assert_eq!(err.to_string(), "invalid model: no fixed (Dirichlet) node: the static stiffness matrix would be singular");
+    assert_eq!(
+        err,
+        ModelError::InvalidContent {
+            what: Invalid::NoFixedNode
+        }
+    );
+    assert_eq!(
+        err.to_string(),
+        "invalid model: no fixed (Dirichlet) node: the static stiffness matrix would be singular"
+    );
 
     let mut m = grid();
     m.fixed_nodes = u32_bytes(&(0..m.node_count).collect::<Vec<_>>());
-    assert_eq!(content_error(&m), ModelError::InvalidContent { what: Invalid::NoFreeNode });
+    assert_eq!(
+        content_error(&m),
+        ModelError::InvalidContent {
+            what: Invalid::NoFreeNode
+        }
+    );
 
     let mut m = grid();
     m.fixed_nodes = u32_bytes(&[0, 1, 4, 3]);
     assert_eq!(
         content_error(&m),
-        ModelError::InvalidContent { what: Invalid::FixedNodesNotIncreasing { position: 3, previous: 4, index: 3 } }
+        ModelError::InvalidContent {
+            what: Invalid::FixedNodesNotIncreasing {
+                position: 3,
+                previous: 4,
+                index: 3
+            }
+        }
     );
     // A repeated fixed node is the same error.
     let mut m = grid();
     m.fixed_nodes = u32_bytes(&[0, 1, 1]);
     assert_eq!(
         validate(&m.record()),
-        invalid(Invalid::FixedNodesNotIncreasing { position: 2, previous: 1, index: 1 })
+        invalid(Invalid::FixedNodesNotIncreasing {
+            position: 2,
+            previous: 1,
+            index: 1
+        })
     );
 }

@@ -37,7 +37,9 @@ fn check_against_postcard(payload: &[u8]) {
     let theirs = postcard::take_from_bytes::<ModelRecord>(payload);
     match (&ours, &theirs) {
         (Err(ModelError::Malformed { .. }), Err(_)) => {}
-        (Err(ModelError::PayloadTrailingBytes { extra }), Ok((_, rest))) => assert_eq!(*extra, rest.len()),
+        (Err(ModelError::PayloadTrailingBytes { extra }), Ok((_, rest))) => {
+            assert_eq!(*extra, rest.len())
+        }
         (Ok(r), Ok((p, rest))) => {
             assert!(rest.is_empty());
             assert_eq!(r, p);

@@ -51,7 +51,11 @@ fn encode_capacity() {
     let mut short = vec![0u8; len - 1];
     assert_eq!(
         encode(&record, &mut short),
-        Err(ModelError::CapacityExceeded { what: Capacity::OutputBuffer, needed: len, available: len - 1 })
+        Err(ModelError::CapacityExceeded {
+            what: Capacity::OutputBuffer,
+            needed: len,
+            available: len - 1
+        })
     );
     let mut long = vec![0xAAu8; len + 10];
     assert_eq!(encode(&record, &mut long).unwrap(), len);
@@ -84,7 +88,15 @@ fn tiny_model_by_hand() -> Vec<u8> {
     bytes_field(b"", &mut p);
     p.push(4); // node_count
     p.push(1); // element_count
-    for arr in [&m.rest_positions, &m.node_tags, &m.tets, &m.fixed_nodes, &m.surface_triangles, &m.c_packed, &m.d_packed] {
+    for arr in [
+        &m.rest_positions,
+        &m.node_tags,
+        &m.tets,
+        &m.fixed_nodes,
+        &m.surface_triangles,
+        &m.c_packed,
+        &m.d_packed,
+    ] {
         bytes_field(arr, &mut p);
     }
     p.push(0x00); // layout = Global
@@ -104,12 +116,19 @@ fn tiny_model_by_hand() -> Vec<u8> {
 /// The hex dump between the markers in MODEL-FORMAT.md, as bytes.
 fn documented_tiny_model() -> Vec<u8> {
     let doc = include_str!("../MODEL-FORMAT.md");
-    let start = doc.find("<!-- tiny-model-hex-begin -->").expect("begin marker");
+    let start = doc
+        .find("<!-- tiny-model-hex-begin -->")
+        .expect("begin marker");
     let end = doc.find("<!-- tiny-model-hex-end -->").expect("end marker");
     let mut out = Vec::new();
-    for line in doc[start..end].lines().filter(|l| l.len() > 6 && l.as_bytes()[4] == b':') {
+    for line in doc[start..end]
+        .lines()
+        .filter(|l| l.len() > 6 && l.as_bytes()[4] == b':')
+    {
         for h in line[5..].split_whitespace() {
-            out.push(u8::from_str_radix(h, 16).unwrap_or_else(|_| panic!("bad hex {h:?} in {line:?}")));
+            out.push(
+                u8::from_str_radix(h, 16).unwrap_or_else(|_| panic!("bad hex {h:?} in {line:?}")),
+            );
         }
     }
     out
@@ -135,10 +154,29 @@ fn tiny_model_exact_bytes() {
     let by_hand = tiny_model_by_hand();
     assert_eq!(encoded, by_hand);
     if encoded != documented_tiny_model() {
-        panic!("MODEL-FORMAT.md's hex dump differs from the encoder; the encoder writes:\n{}", hex_dump(&encoded));
+        panic!(
+            "MODEL-FORMAT.md's hex dump differs from the encoder; the encoder writes:\n{}",
+            hex_dump(&encoded)
+        );
     }
     // Spot checks against the spec's offsets: header, 312-byte C_e as varint b8 02.
-    assert_eq!(&encoded[..12], &[0x50, 0x41, 0x4c, 0x50, 1, 0, 1, 0, (encoded.len() - 16) as u8, ((encoded.len() - 16) >> 8) as u8, 0, 0]);
+    assert_eq!(
+        &encoded[..12],
+        &[
+            0x50,
+            0x41,
+            0x4c,
+            0x50,
+            1,
+            0,
+            1,
+            0,
+            (encoded.len() - 16) as u8,
+            ((encoded.len() - 16) >> 8) as u8,
+            0,
+            0
+        ]
+    );
     assert_eq!(encoded.len(), 834);
     assert_eq!(decode(&encoded).unwrap(), tiny_model().record());
 }

@@ -11,13 +11,18 @@ use serde::Deserialize;
 
 use super::container::{self, HEADER_LEN};
 use super::error::{Capacity, Field, MalformedKind, ModelError};
-use super::record::{Blend, F32s, ModelRecord, ParameterLayout, ParameterSets, Provenance, U32s, Units};
+use super::record::{
+    Blend, F32s, ModelRecord, ParameterLayout, ParameterSets, Provenance, U32s, Units,
+};
 use super::validate::validate;
 
 /// Bytes [`encode`] writes for `record`: header, payload and CRC. Does not validate.
 pub fn encoded_len(record: &ModelRecord) -> Result<usize, ModelError> {
     let payload = postcard::serialize_with_flavor(record, postcard::ser_flavors::Size::default())
-        .map_err(|e| ModelError::Malformed { field: Field::Record, kind: e.into() })?;
+        .map_err(|e| ModelError::Malformed {
+        field: Field::Record,
+        kind: e.into(),
+    })?;
     container::container_len(payload)
 }
 
@@ -36,12 +41,18 @@ pub fn encode(record: &ModelRecord, out: &mut [u8]) -> Result<usize, ModelError>
     })?;
     let payload_len = total - HEADER_LEN - container::CRC_LEN;
     let written = postcard::to_slice(record, &mut out[HEADER_LEN..HEADER_LEN + payload_len])
-        .map_err(|e| ModelError::Malformed { field: Field::Record, kind: e.into() })?
+        .map_err(|e| ModelError::Malformed {
+            field: Field::Record,
+            kind: e.into(),
+        })?
         .len();
     if written != payload_len {
         // serialized_size and to_slice run the same serializer; a difference is a postcard bug,
         // reported rather than written as a container with a wrong length.
-        return Err(ModelError::Malformed { field: Field::Record, kind: MalformedKind::BadEncoding });
+        return Err(ModelError::Malformed {
+            field: Field::Record,
+            kind: MalformedKind::BadEncoding,
+        });
     }
     // container_len checked that the payload length fits u32.
     Ok(container::seal(out, payload_len as u32))
@@ -59,7 +70,9 @@ pub fn decode(bytes: &[u8]) -> Result<ModelRecord<'_>, ModelError> {
 
 /// Deserialises a payload field by field (the order of `ModelRecord`'s serde derive).
 fn decode_payload(payload: &[u8]) -> Result<ModelRecord<'_>, ModelError> {
-    let mut w = Walker { de: Deserializer::from_flavor(Slice::new(payload)) };
+    let mut w = Walker {
+        de: Deserializer::from_flavor(Slice::new(payload)),
+    };
     let units = match w.variant(Field::Units)? {
         0 => Units::Si,
         found => return Err(unknown(Field::Units, found)),
@@ -108,10 +121,10 @@ fn decode_payload(payload: &[u8]) -> Result<ModelRecord<'_>, ModelError> {
         },
         found => return Err(unknown(Field::Blend, found)),
     };
-    let rest = w
-        .de
-        .finalize()
-        .map_err(|e| ModelError::Malformed { field: Field::Record, kind: e.into() })?;
+    let rest = w.de.finalize().map_err(|e| ModelError::Malformed {
+        field: Field::Record,
+        kind: e.into(),
+    })?;
     if !rest.is_empty() {
         return Err(ModelError::PayloadTrailingBytes { extra: rest.len() });
     }
@@ -133,7 +146,10 @@ fn decode_payload(payload: &[u8]) -> Result<ModelRecord<'_>, ModelError> {
 }
 
 fn unknown(field: Field, found: u32) -> ModelError {
-    ModelError::Malformed { field, kind: MalformedKind::UnknownVariant { found } }
+    ModelError::Malformed {
+        field,
+        kind: MalformedKind::UnknownVariant { found },
+    }
 }
 
 /// A postcard deserializer that names the field it is reading when it fails.
@@ -143,7 +159,10 @@ struct Walker<'de> {
 
 impl<'de> Walker<'de> {
     fn take<T: Deserialize<'de>>(&mut self, field: Field) -> Result<T, ModelError> {
-        T::deserialize(&mut self.de).map_err(|e| ModelError::Malformed { field, kind: e.into() })
+        T::deserialize(&mut self.de).map_err(|e| ModelError::Malformed {
+            field,
+            kind: e.into(),
+        })
     }
 
     /// An enum discriminant: postcard writes the variant index as a varint u32.

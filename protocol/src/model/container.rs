@@ -48,14 +48,22 @@ fn u32_at(b: &[u8], at: usize) -> u32 {
 /// Order: magic, header length, version, kind, total length (truncated / trailing), CRC.
 pub(crate) fn open(bytes: &[u8]) -> Result<&[u8], ModelError> {
     if bytes.len() >= MAGIC.len() && bytes[..4] != MAGIC {
-        return Err(ModelError::BadMagic { found: [bytes[0], bytes[1], bytes[2], bytes[3]] });
+        return Err(ModelError::BadMagic {
+            found: [bytes[0], bytes[1], bytes[2], bytes[3]],
+        });
     }
     if bytes.len() < HEADER_LEN {
-        return Err(ModelError::Truncated { needed: HEADER_LEN, available: bytes.len() });
+        return Err(ModelError::Truncated {
+            needed: HEADER_LEN,
+            available: bytes.len(),
+        });
     }
     let version = u16_at(bytes, 4);
     if version != MODEL_FORMAT_VERSION {
-        return Err(ModelError::UnsupportedVersion { found: version, supported: MODEL_FORMAT_VERSION });
+        return Err(ModelError::UnsupportedVersion {
+            found: version,
+            supported: MODEL_FORMAT_VERSION,
+        });
     }
     let kind = u16_at(bytes, 6);
     if kind != KIND_MODEL {
@@ -65,12 +73,17 @@ pub(crate) fn open(bytes: &[u8]) -> Result<&[u8], ModelError> {
     let total = HEADER_LEN as u64 + payload_len + CRC_LEN as u64;
     if (bytes.len() as u64) < total {
         let needed = usize::try_from(total).unwrap_or(usize::MAX);
-        return Err(ModelError::Truncated { needed, available: bytes.len() });
+        return Err(ModelError::Truncated {
+            needed,
+            available: bytes.len(),
+        });
     }
     // total ≤ bytes.len() here, so it fits usize.
     let total = total as usize;
     if bytes.len() > total {
-        return Err(ModelError::TrailingBytes { extra: bytes.len() - total });
+        return Err(ModelError::TrailingBytes {
+            extra: bytes.len() - total,
+        });
     }
     let body_end = total - CRC_LEN;
     let stored = u32_at(bytes, body_end);
@@ -91,11 +104,13 @@ pub(crate) fn container_len(payload_len: usize) -> Result<usize, ModelError> {
             available: u32::MAX as usize,
         });
     }
-    payload_len.checked_add(HEADER_LEN + CRC_LEN).ok_or(ModelError::CapacityExceeded {
-        what: Capacity::PayloadLength,
-        needed: usize::MAX,
-        available: u32::MAX as usize,
-    })
+    payload_len
+        .checked_add(HEADER_LEN + CRC_LEN)
+        .ok_or(ModelError::CapacityExceeded {
+            what: Capacity::PayloadLength,
+            needed: usize::MAX,
+            available: u32::MAX as usize,
+        })
 }
 
 /// Writes header and CRC around a payload already in `out[HEADER_LEN .. HEADER_LEN + payload_len]`;

@@ -424,7 +424,12 @@ fn write_at(f: &mut fmt::Formatter<'_>, array: Field, position: u64) -> fmt::Res
             write!(f, " (triangle {}, corner {})", position / 3, position % 3)
         }
         Field::CPacked | Field::DPacked => {
-            write!(f, " (element {}, packed entry {})", position / 78, position % 78)
+            write!(
+                f,
+                " (element {}, packed entry {})",
+                position / 78,
+                position % 78
+            )
         }
         _ => Ok(()),
     }

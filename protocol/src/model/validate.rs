@@ -48,16 +48,25 @@ pub fn validate(record: &ModelRecord) -> Result<(), ModelError> {
 
 /// The number of whole values in a byte array.
 fn values(array: Field, bytes: &[u8]) -> Result<u64, Invalid> {
-    if bytes.len() % 4 != 0 {
-        return Err(Invalid::PartialValue { array, bytes: bytes.len() as u64 });
+    // Not `is_multiple_of`: the workspace's rust-version is 1.85.
+    let whole = bytes.len() / 4;
+    if 4 * whole != bytes.len() {
+        return Err(Invalid::PartialValue {
+            array,
+            bytes: bytes.len() as u64,
+        });
     }
-    Ok(bytes.len() as u64 / 4)
+    Ok(whole as u64)
 }
 
 fn exact(array: Field, bytes: &[u8], expected: u64) -> Result<(), Invalid> {
     let found = values(array, bytes)?;
     if found != expected {
-        return Err(Invalid::LengthMismatch { array, expected, found });
+        return Err(Invalid::LengthMismatch {
+            array,
+            expected,
+            found,
+        });
     }
     Ok(())
 }
@@ -74,7 +83,11 @@ fn lengths(r: &ModelRecord) -> Result<(), Invalid> {
     values(Field::FixedNodes, r.fixed_nodes.0)?;
     let tris = values(Field::SurfaceTriangles, r.surface_triangles.0)?;
     if tris % 3 != 0 {
-        return Err(Invalid::LengthNotMultiple { array: Field::SurfaceTriangles, found: tris, multiple: 3 });
+        return Err(Invalid::LengthNotMultiple {
+            array: Field::SurfaceTriangles,
+            found: tris,
+            multiple: 3,
+        });
     }
     exact(Field::CPacked, r.c_packed.0, PACKED_LEN * t)?;
     exact(Field::DPacked, r.d_packed.0, PACKED_LEN * t)?;
@@ -99,7 +112,11 @@ fn lengths(r: &ModelRecord) -> Result<(), Invalid> {
                 return Err(Invalid::UnblendedSetCount { count: p.count });
             }
         }
-        Blend::Deformation { centres, weights_lambda, weights_alpha } => {
+        Blend::Deformation {
+            centres,
+            weights_lambda,
+            weights_alpha,
+        } => {
             exact(Field::BlendCentres, centres.0, sets.saturating_mul(3 * n))?;
             exact(Field::BlendWeightsLambda, weights_lambda.0, sets)?;
             exact(Field::BlendWeightsAlpha, weights_alpha.0, sets)?;
@@ -119,7 +136,11 @@ fn lengths(r: &ModelRecord) -> Result<(), Invalid> {
             let k = neighbours as u64;
             exact(Field::NeighbourIndex, neighbour_index.0, t * k)?;
             exact(Field::NeighbourWeight, neighbour_weight.0, t * k)?;
-            exact(Field::BlendCentres, centres.0, sets.saturating_mul(t).saturating_mul(6))?;
+            exact(
+                Field::BlendCentres,
+                centres.0,
+                sets.saturating_mul(t).saturating_mul(6),
+            )?;
             exact(Field::BlendWeightsLambda, weights_lambda.0, t * sets)?;
             exact(Field::BlendWeightsAlpha, weights_alpha.0, t * sets)?;
         }
@@ -130,7 +151,12 @@ fn lengths(r: &ModelRecord) -> Result<(), Invalid> {
 fn in_range(array: Field, indices: U32s, bound: u32) -> Result<(), Invalid> {
     for (position, index) in indices.iter().enumerate() {
         if index >= bound {
-            return Err(Invalid::IndexOutOfRange { array, position: position as u64, index, bound });
+            return Err(Invalid::IndexOutOfRange {
+                array,
+                position: position as u64,
+                index,
+                bound,
+            });
         }
     }
     Ok(())
@@ -145,7 +171,10 @@ fn indices(r: &ModelRecord) -> Result<(), Invalid> {
         for i in 0..4 {
             for j in (i + 1)..4 {
                 if nodes[i] == nodes[j] {
-                    return Err(Invalid::RepeatedNode { element: element as u32, node: nodes[i] });
+                    return Err(Invalid::RepeatedNode {
+                        element: element as u32,
+                        node: nodes[i],
+                    });
                 }
             }
         }
@@ -156,7 +185,11 @@ fn indices(r: &ModelRecord) -> Result<(), Invalid> {
     for (position, index) in r.fixed_nodes.iter().enumerate() {
         if let Some(previous) = previous {
             if index <= previous {
-                return Err(Invalid::FixedNodesNotIncreasing { position: position as u64, previous, index });
+                return Err(Invalid::FixedNodesNotIncreasing {
+                    position: position as u64,
+                    previous,
+                    index,
+                });
             }
         }
         previous = Some(index);
@@ -171,7 +204,10 @@ fn indices(r: &ModelRecord) -> Result<(), Invalid> {
     }
 
     in_range(Field::SurfaceTriangles, r.surface_triangles, n)?;
-    if let Blend::Strain { neighbour_index, .. } = r.blend {
+    if let Blend::Strain {
+        neighbour_index, ..
+    } = r.blend
+    {
         in_range(Field::NeighbourIndex, neighbour_index, r.element_count)?;
     }
     Ok(())
@@ -179,7 +215,10 @@ fn indices(r: &ModelRecord) -> Result<(), Invalid> {
 
 fn finite(array: Field, values: F32s) -> Result<(), Invalid> {
     match values.iter().position(|v| !v.is_finite()) {
-        Some(position) => Err(Invalid::NonFinite { array, position: position as u64 }),
+        Some(position) => Err(Invalid::NonFinite {
+            array,
+            position: position as u64,
+        }),
         None => Ok(()),
     }
 }
@@ -187,7 +226,11 @@ fn finite(array: Field, values: F32s) -> Result<(), Invalid> {
 fn non_negative(array: Field, values: F32s) -> Result<(), Invalid> {
     for (position, value) in values.iter().enumerate() {
         if value < 0.0 {
-            return Err(Invalid::Negative { array, position: position as u64, value });
+            return Err(Invalid::Negative {
+                array,
+                position: position as u64,
+                value,
+            });
         }
     }
     Ok(())
@@ -210,7 +253,11 @@ fn numbers(r: &ModelRecord) -> Result<(), Invalid> {
             let position = e * PACKED_LEN + packed_diagonal(i);
             let value = r.c_packed.get(position as usize).unwrap_or(0.0);
             if value < 0.0 {
-                return Err(Invalid::Negative { array: Field::CPacked, position, value });
+                return Err(Invalid::Negative {
+                    array: Field::CPacked,
+                    position,
+                    value,
+                });
             }
         }
     }
@@ -218,17 +265,35 @@ fn numbers(r: &ModelRecord) -> Result<(), Invalid> {
     finite(Field::Alpha, r.parameters.alpha)?;
     match r.blend {
         Blend::None => {}
-        Blend::Deformation { centres, weights_lambda, weights_alpha } => {
+        Blend::Deformation {
+            centres,
+            weights_lambda,
+            weights_alpha,
+        } => {
             finite(Field::BlendCentres, centres)?;
             finite(Field::BlendWeightsLambda, weights_lambda)?;
             finite(Field::BlendWeightsAlpha, weights_alpha)?;
         }
-        Blend::Strain { decay, neighbour_weight, centres, weights_lambda, weights_alpha, .. } => {
+        Blend::Strain {
+            decay,
+            neighbour_weight,
+            centres,
+            weights_lambda,
+            weights_alpha,
+            ..
+        } => {
             if !decay.is_finite() {
-                return Err(Invalid::NonFinite { array: Field::StrainDecay, position: 0 });
+                return Err(Invalid::NonFinite {
+                    array: Field::StrainDecay,
+                    position: 0,
+                });
             }
             if decay < 0.0 {
-                return Err(Invalid::Negative { array: Field::StrainDecay, position: 0, value: decay });
+                return Err(Invalid::Negative {
+                    array: Field::StrainDecay,
+                    position: 0,
+                    value: decay,
+                });
             }
             finite(Field::NeighbourWeight, neighbour_weight)?;
             // w_{e,e'} = exp(−c‖c_e − c_e'‖²) > 0; a negative weight could make the locally
@@ -253,7 +318,11 @@ fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 
 fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
@@ -296,7 +365,10 @@ fn geometry(r: &ModelRecord) -> Result<(), Invalid> {
         let area = 0.5 * libm::sqrt(dot(n, n));
         let l = longest_edge(&x);
         if area <= MIN_RELATIVE_AREA * l * l {
-            return Err(Invalid::DegenerateTriangle { triangle: triangle as u32, area });
+            return Err(Invalid::DegenerateTriangle {
+                triangle: triangle as u32,
+                area,
+            });
         }
     }
     Ok(())
@@ -317,7 +389,12 @@ fn parameters(r: &ModelRecord) -> Result<(), Invalid> {
                 ParameterLayout::Global => None,
                 ParameterLayout::PerElement => Some((i % per_set) as u32),
             };
-            return Err(Invalid::Unphysical { set: (i / per_set) as u32, element, lambda, alpha });
+            return Err(Invalid::Unphysical {
+                set: (i / per_set) as u32,
+                element,
+                lambda,
+                alpha,
+            });
         }
     }
     Ok(())

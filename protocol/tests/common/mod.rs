@@ -2,7 +2,9 @@
 //! independent container writer (from the spec in `MODEL-FORMAT.md`, not from the crate).
 #![allow(dead_code)]
 
-use palpate_protocol::model::{Blend, F32s, ModelRecord, ParameterLayout, ParameterSets, Provenance, U32s, Units};
+use palpate_protocol::model::{
+    Blend, F32s, ModelRecord, ParameterLayout, ParameterSets, Provenance, U32s, Units,
+};
 
 pub fn f32_bytes(v: &[f32]) -> Vec<u8> {
     v.iter().flat_map(|x| x.to_le_bytes()).collect()
@@ -24,7 +26,11 @@ pub fn set_u32(bytes: &mut [u8], i: usize, v: u32) {
 #[derive(Clone, Debug)]
 pub enum OwnedBlend {
     None,
-    Deformation { centres: Vec<u8>, weights_lambda: Vec<u8>, weights_alpha: Vec<u8> },
+    Deformation {
+        centres: Vec<u8>,
+        weights_lambda: Vec<u8>,
+        weights_alpha: Vec<u8>,
+    },
     Strain {
         decay: f32,
         neighbours: u32,
@@ -63,7 +69,11 @@ impl OwnedModel {
     pub fn record(&self) -> ModelRecord<'_> {
         let blend = match &self.blend {
             OwnedBlend::None => Blend::None,
-            OwnedBlend::Deformation { centres, weights_lambda, weights_alpha } => Blend::Deformation {
+            OwnedBlend::Deformation {
+                centres,
+                weights_lambda,
+                weights_alpha,
+            } => Blend::Deformation {
                 centres: F32s(centres),
                 weights_lambda: F32s(weights_lambda),
                 weights_alpha: F32s(weights_alpha),
@@ -131,7 +141,8 @@ impl OwnedModel {
 
 /// The postcard payload of `record` (the serde derive, no validation).
 pub fn payload_of(record: &ModelRecord) -> Vec<u8> {
-    let size = postcard::serialize_with_flavor(record, postcard::ser_flavors::Size::default()).unwrap();
+    let size =
+        postcard::serialize_with_flavor(record, postcard::ser_flavors::Size::default()).unwrap();
     let mut buf = vec![0u8; size];
     let n = postcard::to_slice(record, &mut buf).unwrap().len();
     assert_eq!(n, size);
@@ -174,7 +185,8 @@ fn sub(a: P3, b: P3) -> P3 {
 }
 
 fn det3(a: P3, b: P3, c: P3) -> f64 {
-    a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) + a[2] * (b[0] * c[1] - b[1] * c[0])
+    a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+        + a[2] * (b[0] * c[1] - b[1] * c[0])
 }
 
 /// Packed C_e = V Bᵀ F B and D_e = V Bᵀ G B (seed 000 eqs. 3.33–3.34, 3.63) of one tetrahedron.
@@ -183,11 +195,21 @@ pub fn element_cd(x: [P3; 4]) -> ([f32; 78], [f32; 78]) {
     let det = det3(a, b, c);
     let v = det / 6.0;
     // Rows of D_m⁻¹ (D_m = [a b c] as columns) are the gradients of φ_1..φ_3: inv = adj / det.
-    let cross = |p: P3, q: P3| [p[1] * q[2] - p[2] * q[1], p[2] * q[0] - p[0] * q[2], p[0] * q[1] - p[1] * q[0]];
+    let cross = |p: P3, q: P3| {
+        [
+            p[1] * q[2] - p[2] * q[1],
+            p[2] * q[0] - p[0] * q[2],
+            p[0] * q[1] - p[1] * q[0],
+        ]
+    };
     let g1 = cross(b, c).map(|e| e / det);
     let g2 = cross(c, a).map(|e| e / det);
     let g3 = cross(a, b).map(|e| e / det);
-    let g0 = [-(g1[0] + g2[0] + g3[0]), -(g1[1] + g2[1] + g3[1]), -(g1[2] + g2[2] + g3[2])];
+    let g0 = [
+        -(g1[0] + g2[0] + g3[0]),
+        -(g1[1] + g2[1] + g3[1]),
+        -(g1[2] + g2[2] + g3[2]),
+    ];
     let grads = [g0, g1, g2, g3];
     let mut bm = [[0.0f64; 12]; 6];
     for (n, g) in grads.iter().enumerate() {
@@ -256,7 +278,14 @@ pub fn grid_mesh(nx: usize, ny: usize, nz: usize, h: f64) -> Mesh {
             }
         }
     }
-    let perms = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
+    let perms = [
+        [0, 1, 2],
+        [0, 2, 1],
+        [1, 0, 2],
+        [1, 2, 0],
+        [2, 0, 1],
+        [2, 1, 0],
+    ];
     let mut tets = Vec::new();
     for k in 0..nz {
         for j in 0..ny {
@@ -278,7 +307,11 @@ pub fn grid_mesh(nx: usize, ny: usize, nz: usize, h: f64) -> Mesh {
         }
     }
     let triangles = boundary(&nodes, &tets);
-    Mesh { nodes, tets, triangles }
+    Mesh {
+        nodes,
+        tets,
+        triangles,
+    }
 }
 
 /// Faces used by exactly one tet, wound so their normal points away from the tet's fourth node.
@@ -291,7 +324,10 @@ fn boundary(nodes: &[P3], tets: &[[u32; 4]]) -> Vec<[u32; 3]> {
             let face = [f[0], f[1], f[2]];
             let mut key = face;
             key.sort();
-            faces.entry(key).and_modify(|e| e.0 += 1).or_insert((1, face, t[skip]));
+            faces
+                .entry(key)
+                .and_modify(|e| e.0 += 1)
+                .or_insert((1, face, t[skip]));
         }
     }
     let mut out: Vec<[u32; 3]> = faces
@@ -325,11 +361,21 @@ pub enum BlendKind {
 pub fn model_on(mesh: &Mesh, layout: ParameterLayout, blend: BlendKind, sets: u32) -> OwnedModel {
     let n = mesh.nodes.len();
     let t = mesh.tets.len();
-    let sets = if matches!(blend, BlendKind::None) { 1 } else { sets };
-    let rest: Vec<f32> = mesh.nodes.iter().flat_map(|p| p.map(|v| v as f32)).collect();
+    let sets = if matches!(blend, BlendKind::None) {
+        1
+    } else {
+        sets
+    };
+    let rest: Vec<f32> = mesh
+        .nodes
+        .iter()
+        .flat_map(|p| p.map(|v| v as f32))
+        .collect();
     let tags: Vec<u32> = (0..n as u32).map(|i| 1000 + 7 * i).collect();
     let tets: Vec<u32> = mesh.tets.iter().flatten().copied().collect();
-    let fixed: Vec<u32> = (0..n as u32).filter(|&i| mesh.nodes[i as usize][2] == 0.0).collect();
+    let fixed: Vec<u32> = (0..n as u32)
+        .filter(|&i| mesh.nodes[i as usize][2] == 0.0)
+        .collect();
     let tris: Vec<u32> = mesh.triangles.iter().flatten().copied().collect();
     let mut c = Vec::new();
     let mut d = Vec::new();
@@ -357,7 +403,11 @@ pub fn model_on(mesh: &Mesh, layout: ParameterLayout, blend: BlendKind, sets: u3
         BlendKind::None => OwnedBlend::None,
         BlendKind::Deformation => {
             let centres: Vec<f32> = (0..sets as usize)
-                .flat_map(|s| rest.iter().enumerate().map(move |(i, v)| v + 1e-3 * (s * 3 + i % 3) as f32))
+                .flat_map(|s| {
+                    rest.iter()
+                        .enumerate()
+                        .map(move |(i, v)| v + 1e-3 * (s * 3 + i % 3) as f32)
+                })
                 .collect();
             OwnedBlend::Deformation {
                 centres: f32_bytes(&centres),
@@ -367,10 +417,18 @@ pub fn model_on(mesh: &Mesh, layout: ParameterLayout, blend: BlendKind, sets: u3
         }
         BlendKind::Strain => {
             let k = 2.min(t as u32);
-            let index: Vec<u32> = (0..t as u32).flat_map(|e| (0..k).map(move |j| (e + j) % t as u32)).collect();
-            let weight: Vec<f32> = (0..t * k as usize).map(|i| if i % k as usize == 0 { 1.0 } else { 0.5 }).collect();
-            let centres: Vec<f32> = (0..sets as usize * t * 6).map(|i| 1e-3 * (i % 11) as f32 - 5e-3).collect();
-            let wl: Vec<f32> = (0..t * sets as usize).map(|i| 3.0 - 0.5 * i as f32).collect();
+            let index: Vec<u32> = (0..t as u32)
+                .flat_map(|e| (0..k).map(move |j| (e + j) % t as u32))
+                .collect();
+            let weight: Vec<f32> = (0..t * k as usize)
+                .map(|i| if i % k as usize == 0 { 1.0 } else { 0.5 })
+                .collect();
+            let centres: Vec<f32> = (0..sets as usize * t * 6)
+                .map(|i| 1e-3 * (i % 11) as f32 - 5e-3)
+                .collect();
+            let wl: Vec<f32> = (0..t * sets as usize)
+                .map(|i| 3.0 - 0.5 * i as f32)
+                .collect();
             let wa: Vec<f32> = (0..t * sets as usize).map(|i| 0.125 * i as f32).collect();
             OwnedBlend::Strain {
                 decay: 400.0,
@@ -408,7 +466,12 @@ pub fn model_on(mesh: &Mesh, layout: ParameterLayout, blend: BlendKind, sets: u3
 /// The tiny model of `MODEL-FORMAT.md`: the unit corner tetrahedron, bottom face fixed,
 /// one global (λ, α) = (20 kPa, 6 kPa) (E ≈ 10.4 kPa, ν = 0.3), no blending.
 pub fn tiny_model() -> OwnedModel {
-    let x: [P3; 4] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    let x: [P3; 4] = [
+        [0.0, 0.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.0, 0.0, 1.0],
+    ];
     let (c, d) = element_cd(x);
     let rest: Vec<f32> = x.iter().flat_map(|p| p.map(|v| v as f32)).collect();
     OwnedModel {
