@@ -7,7 +7,8 @@ use common::{
     OwnedBlend, OwnedModel,
 };
 use palpate_protocol::model::{
-    decode, encode, validate, Field, Invalid, MalformedKind, ModelError, ParameterLayout,
+    decode, encode, node_coverage_scratch_len, validate, validate_node_coverage, Capacity, Field,
+    Invalid, MalformedKind, ModelError, ParameterLayout,
 };
 
 fn invalid(what: Invalid) -> Result<(), ModelError> {
@@ -774,4 +775,56 @@ fn fixed_node_errors() {
             index: 1
         })
     );
+}
+
+/// A free node outside every tet passes `decode` (it needs memory to find) but not
+/// `validate_node_coverage`; a fixed orphan is harmless and accepted.
+#[test]
+fn orphan_free_node() {
+    let mut m = grid();
+    let n = m.node_count;
+    // Append node n at a fresh position, belonging to no tet.
+    m.node_count += 1;
+    m.rest_positions
+        .extend_from_slice(&common::f32_bytes(&[1.0, 1.0, 1.0]));
+    m.node_tags.extend_from_slice(&u32_bytes(&[99_999]));
+    let bytes = m.encode();
+    let record = decode(&bytes).unwrap();
+    let mut scratch = vec![0xFFu8; node_coverage_scratch_len(record.node_count)];
+    let err = validate_node_coverage(&record, &mut scratch).unwrap_err();
+    assert_eq!(
+        err,
+        ModelError::InvalidContent {
+            what: Invalid::OrphanNode { node: n }
+        }
+    );
+    assert_eq!(
+        err.to_string(),
+        format!("invalid model: node {n} is free but belongs to no tetrahedron: the stiffness matrix would be singular")
+    );
+    let needed = scratch.len();
+    assert_eq!(
+        validate_node_coverage(&record, &mut scratch[..needed - 1]),
+        Err(ModelError::CapacityExceeded {
+            what: Capacity::Scratch,
+            needed,
+            available: needed - 1
+        })
+    );
+    // Fixing the orphan makes it harmless (its dofs are removed).
+    let mut fixed: Vec<u32> = m
+        .fixed_nodes
+        .chunks(4)
+        .map(|b| u32::from_le_bytes(b.try_into().unwrap()))
+        .collect();
+    fixed.push(n);
+    m.fixed_nodes = u32_bytes(&fixed);
+    let bytes = m.encode();
+    assert_eq!(
+        validate_node_coverage(&decode(&bytes).unwrap(), &mut scratch),
+        Ok(())
+    );
+    // Every valid grid model covers all its nodes.
+    let g = grid();
+    assert_eq!(validate_node_coverage(&g.record(), &mut scratch), Ok(()));
 }

@@ -85,6 +85,8 @@ pub enum Capacity {
     OutputBuffer,
     /// The container's u32 payload-length field (payload larger than 4 GiB − 1).
     PayloadLength,
+    /// The scratch buffer given to [`validate_node_coverage`](super::validate_node_coverage).
+    Scratch,
 }
 
 /// How a payload failed to parse, for [`ModelError::Malformed`] (postcard's deserialisation
@@ -344,6 +346,12 @@ pub enum Invalid {
     NoFixedNode,
     /// Every node is fixed: there is nothing to simulate.
     NoFreeNode,
+    /// A free node belongs to no tetrahedron, so it has no stiffness and the system matrix would
+    /// be singular (found by [`validate_node_coverage`](super::validate_node_coverage)).
+    OrphanNode {
+        /// The node.
+        node: u32,
+    },
 }
 
 impl fmt::Display for ModelError {
@@ -382,6 +390,7 @@ impl fmt::Display for ModelError {
                 let what = match what {
                     Capacity::OutputBuffer => "output buffer",
                     Capacity::PayloadLength => "payload length field",
+                    Capacity::Scratch => "scratch buffer",
                 };
                 write!(f, "{what} too small: {needed} bytes needed, {available} available")
             }
@@ -503,6 +512,10 @@ impl fmt::Display for Invalid {
                 "no fixed (Dirichlet) node: the static stiffness matrix would be singular",
             ),
             Invalid::NoFreeNode => f.write_str("every node is fixed: nothing can move"),
+            Invalid::OrphanNode { node } => write!(
+                f,
+                "node {node} is free but belongs to no tetrahedron: the stiffness matrix would be singular"
+            ),
         }
     }
 }

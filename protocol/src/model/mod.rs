@@ -5,6 +5,9 @@
 //!   how big it must be); nothing invalid is ever written.
 //! - [`decode`] checks the container, borrows every array and string from the input (no
 //!   allocation, no copy) and [`validate`]s the record: **a model that decodes is safe to run**.
+//!   The one check that needs memory — every free node belongs to a tetrahedron — is
+//!   [`validate_node_coverage`], with one bit of caller scratch per node; the runtime runs it
+//!   when it sizes its storage.
 //! - Every failure is one variant of [`ModelError`], saying what and where.
 //!
 //! ```
@@ -69,4 +72,7 @@ pub use codec::{decode, encode, encoded_len};
 pub use container::{CRC_LEN, HEADER_LEN, KIND_MODEL, MAGIC};
 pub use error::{Capacity, Field, Invalid, MalformedKind, ModelError};
 pub use record::*;
-pub use validate::{validate, MIN_RELATIVE_AREA, MIN_RELATIVE_VOLUME};
+pub use validate::{
+    node_coverage_scratch_len, validate, validate_node_coverage, MIN_RELATIVE_AREA,
+    MIN_RELATIVE_VOLUME,
+};

@@ -12,7 +12,7 @@
 //!    [`MIN_RELATIVE_VOLUME`] · ℓ³, every surface triangle with area above [`MIN_RELATIVE_AREA`] · ℓ²;
 //! 5. parameters: every (λ, α) of every set (and element) physical.
 
-use super::error::{Field, Invalid, ModelError};
+use super::error::{Capacity, Field, Invalid, ModelError};
 use super::record::{Blend, F32s, ModelRecord, ParameterLayout, U32s};
 
 /// A rest tetrahedron must have |V_e| > `MIN_RELATIVE_VOLUME` · ℓ³, ℓ its longest edge (a
@@ -395,6 +395,46 @@ fn parameters(r: &ModelRecord) -> Result<(), Invalid> {
                 lambda,
                 alpha,
             });
+        }
+    }
+    Ok(())
+}
+
+/// Bytes of scratch [`validate_node_coverage`] needs for `node_count` nodes (one bit per node).
+pub const fn node_coverage_scratch_len(node_count: u32) -> usize {
+    (node_count as usize).div_ceil(8)
+}
+
+/// Checks that every free node belongs to at least one tetrahedron; an orphan free node has no
+/// stiffness, so the system matrix would be singular ([`Invalid::OrphanNode`]).
+///
+/// [`validate`] (and so [`decode`](super::decode)) cannot check this without memory; this
+/// takes one bit per node of caller scratch ([`node_coverage_scratch_len`] bytes, else
+/// [`ModelError::CapacityExceeded`] with [`Capacity::Scratch`]). Call it on a record that passed
+/// [`validate`] — the runtime when it sizes its storage, the fitter before writing.
+pub fn validate_node_coverage(record: &ModelRecord, scratch: &mut [u8]) -> Result<(), ModelError> {
+    let needed = node_coverage_scratch_len(record.node_count);
+    let available = scratch.len();
+    let marks = scratch
+        .get_mut(..needed)
+        .ok_or(ModelError::CapacityExceeded {
+            what: Capacity::Scratch,
+            needed,
+            available,
+        })?;
+    marks.fill(0);
+    let mut mark = |node: u32| {
+        // Out-of-range indices were rejected by `validate`; ignore them rather than panic if the
+        // caller skipped it.
+        if let Some(m) = marks.get_mut(node as usize / 8) {
+            *m |= 1 << (node % 8);
+        }
+    };
+    record.tets.iter().for_each(&mut mark);
+    record.fixed_nodes.iter().for_each(&mut mark);
+    for node in 0..record.node_count {
+        if marks[node as usize / 8] & (1 << (node % 8)) == 0 {
+            return Err(Invalid::OrphanNode { node }.into());
         }
     }
     Ok(())
