@@ -3,5 +3,6 @@
 
 pub mod cli;
 pub mod dataset;
+pub mod forward;
 pub mod io;
 pub mod mesh;

@@ -1,0 +1,282 @@
+//! Assembly of K' = Σ R_e K_e R_eᵀ (eq. 3.53) over the free dofs, the right-hand side
+//! f + K'' x₀ (K'' = Σ R_e K_e, eq. 3.54) with the fixed nodes eliminated, element force vectors,
+//! and the sparse Cholesky factorisation (symbolic part computed once per problem).
+
+use faer::linalg::solvers::Solve;
+use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
+use faer::sparse::{SparseColMat, SparseColMatRef, Triplet};
+use faer::{MatMut, Side};
+use nalgebra::{Matrix3, SVector};
+use palpate_runtime::element::ElementMatrix;
+
+use super::{ForwardError, Material, StaticProblem};
+
+/// The fixed sparsity pattern of K' (both triangles) and where each element entry lands.
+#[derive(Debug, Clone)]
+pub(super) struct Pattern {
+    /// Pattern with zero values (the values are supplied per assembly).
+    matrix: SparseColMat<usize, f64>,
+    /// For element e, local entry (a, b) (a, b in 0..12): index into the value array, or
+    /// `u32::MAX` when either dof is fixed. 144 entries per element.
+    scatter: Vec<u32>,
+    /// Symbolic Cholesky of the pattern (lower triangle), reused by every factorisation.
+    symbolic: SymbolicLlt<usize>,
+}
+
+impl Pattern {
+    pub(super) fn new(
+        tets: &[[usize; 4]],
+        free_index: &[usize],
+        free_count: usize,
+    ) -> Result<Self, ForwardError> {
+        let nd = 3 * free_count;
+        let dof = |t: &[usize; 4], a: usize| -> Option<usize> {
+            let f = free_index[t[a / 3]];
+            (f != usize::MAX).then(|| 3 * f + a % 3)
+        };
+        let mut trip = Vec::with_capacity(tets.len() * 144);
+        for t in tets {
+            for a in 0..12 {
+                for b in 0..12 {
+                    if let (Some(i), Some(j)) = (dof(t, a), dof(t, b)) {
+                        trip.push(Triplet::new(i, j, 0.0));
+                    }
+                }
+            }
+        }
+        let matrix = SparseColMat::<usize, f64>::try_new_from_triplets(nd, nd, &trip)
+            .map_err(|e| ForwardError::Sparse(format!("{e:?}")))?;
+        let (cp, ri) = (matrix.symbolic().col_ptr(), matrix.symbolic().row_idx());
+        let mut scatter = Vec::with_capacity(tets.len() * 144);
+        for t in tets {
+            for a in 0..12 {
+                for b in 0..12 {
+                    scatter.push(match (dof(t, a), dof(t, b)) {
+                        (Some(i), Some(j)) => {
+                            let col = &ri[cp[j]..cp[j + 1]];
+                            let k = col
+                                .binary_search(&i)
+                                .expect("entry is in the pattern by construction");
+                            (cp[j] + k) as u32
+                        }
+                        _ => u32::MAX,
+                    });
+                }
+            }
+        }
+        let symbolic = SymbolicLlt::try_new(matrix.symbolic(), Side::Lower)
+            .map_err(|e| ForwardError::Sparse(format!("symbolic Cholesky: {e:?}")))?;
+        Ok(Self {
+            matrix,
+            scatter,
+            symbolic,
+        })
+    }
+}
+
+/// A numerically factorised K' (sparse Cholesky LLᵀ over the free dofs) together with the
+/// assembled values, so that one factorisation serves the solve and any number of Jacobian
+/// products (§5.3, eq. 5.71).
+pub struct Factorised {
+    llt: Llt<usize, f64>,
+    values: Vec<f64>,
+    n: usize,
+}
+
+impl Factorised {
+    /// Solves K' y = b in place (b over the free dofs).
+    pub fn solve_in_place(&self, b: &mut [f64]) {
+        debug_assert_eq!(b.len(), self.n);
+        self.llt
+            .solve_in_place(MatMut::from_column_major_slice_mut(b, self.n, 1));
+    }
+    /// The assembled K' values (same pattern as every assembly of this problem).
+    pub fn values(&self) -> &[f64] {
+        &self.values
+    }
+    /// Number of free dofs.
+    pub fn dim(&self) -> usize {
+        self.n
+    }
+}
+
+/// 12 × 12 block-diagonal rotation of one element applied as R M Rᵀ.
+pub fn rotate_sandwich(m: &ElementMatrix<f64>, r: &Matrix3<f64>) -> ElementMatrix<f64> {
+    let mut out = ElementMatrix::<f64>::zeros();
+    let rt = r.transpose();
+    for a in 0..4 {
+        for b in 0..4 {
+            let blk: Matrix3<f64> = m.fixed_view::<3, 3>(3 * a, 3 * b).into_owned();
+            out.fixed_view_mut::<3, 3>(3 * a, 3 * b)
+                .copy_from(&(r * blk * rt));
+        }
+    }
+    out
+}
+
+/// R v for a 12-vector (block-diagonal R).
+pub fn rotate_vec(r: &Matrix3<f64>, v: &SVector<f64, 12>) -> SVector<f64, 12> {
+    let mut out = SVector::<f64, 12>::zeros();
+    for a in 0..4 {
+        let p = r * v.fixed_rows::<3>(3 * a);
+        out.fixed_rows_mut::<3>(3 * a).copy_from(&p);
+    }
+    out
+}
+
+/// Rᵀ v for a 12-vector.
+pub fn rotate_vec_t(r: &Matrix3<f64>, v: &SVector<f64, 12>) -> SVector<f64, 12> {
+    rotate_vec(&r.transpose(), v)
+}
+
+impl StaticProblem {
+    /// K_e = λ_e C_e + α_e D_e (eq. 3.63).
+    pub fn element_stiffness(&self, e: usize, material: &Material) -> ElementMatrix<f64> {
+        let (l, a) = material.at(e);
+        self.c[e] * l + self.d[e] * a
+    }
+
+    /// The 12-vector of positions of element e.
+    pub fn element_positions(&self, e: usize, x: &[[f64; 3]]) -> SVector<f64, 12> {
+        let t = &self.tets[e];
+        SVector::<f64, 12>::from_fn(|k, _| x[t[k / 3]][k % 3])
+    }
+
+    /// The element displacement in the unrotated frame, R_eᵀ x_e − x₀e (eq. 3.49's argument).
+    pub fn unrotated_displacement(
+        &self,
+        e: usize,
+        r: &Matrix3<f64>,
+        x: &[[f64; 3]],
+    ) -> SVector<f64, 12> {
+        rotate_vec_t(r, &self.element_positions(e, x)) - self.element_positions(e, &self.x0)
+    }
+
+    /// Assembles the values of K' = Σ R_e K_e R_eᵀ over the free dofs (eq. 3.53).
+    pub fn stiffness_values(&self, material: &Material, rotations: &[Matrix3<f64>]) -> Vec<f64> {
+        let mut values = vec![0.0; self.pattern.matrix.symbolic().row_idx().len()];
+        for e in 0..self.tets.len() {
+            let ke = rotate_sandwich(&self.element_stiffness(e, material), &rotations[e]);
+            let sc = &self.pattern.scatter[144 * e..144 * e + 144];
+            for a in 0..12 {
+                for b in 0..12 {
+                    let k = sc[12 * a + b];
+                    if k != u32::MAX {
+                        values[k as usize] += ke[(a, b)];
+                    }
+                }
+            }
+        }
+        values
+    }
+
+    /// Assembles and factorises K' (numeric Cholesky reusing the symbolic factorisation).
+    pub fn factorise(
+        &self,
+        material: &Material,
+        rotations: &[Matrix3<f64>],
+    ) -> Result<Factorised, ForwardError> {
+        let values = self.stiffness_values(material, rotations);
+        let m = SparseColMatRef::new(self.pattern.matrix.symbolic(), &values);
+        let llt = Llt::try_new_with_symbolic(self.pattern.symbolic.clone(), m, Side::Lower)
+            .map_err(|e| ForwardError::Factorisation(format!("{e:?}")))?;
+        Ok(Factorised {
+            llt,
+            values,
+            n: self.free_dofs(),
+        })
+    }
+
+    /// y = K' v over the free dofs, with K' given by its assembled `values`.
+    pub fn stiffness_mul(&self, values: &[f64], v: &[f64]) -> Vec<f64> {
+        let sym = self.pattern.matrix.symbolic();
+        let (cp, ri) = (sym.col_ptr(), sym.row_idx());
+        let mut y = vec![0.0; v.len()];
+        for j in 0..v.len() {
+            let vj = v[j];
+            for k in cp[j]..cp[j + 1] {
+                y[ri[k]] += values[k] * vj;
+            }
+        }
+        y
+    }
+
+    /// Internal elastic forces f_int(x) = Σ_e R_e K_e (R_eᵀ x_e − x₀e) (eq. 3.50), full 3n vector.
+    pub fn internal_forces(
+        &self,
+        material: &Material,
+        rotations: &[Matrix3<f64>],
+        x: &[[f64; 3]],
+    ) -> Vec<f64> {
+        let mut f = vec![0.0; 3 * self.x0.len()];
+        for e in 0..self.tets.len() {
+            let u = self.unrotated_displacement(e, &rotations[e], x);
+            let fe = rotate_vec(&rotations[e], &(self.element_stiffness(e, material) * u));
+            for (k, &n) in self.tets[e].iter().enumerate() {
+                for dd in 0..3 {
+                    f[3 * n + dd] += fe[3 * k + dd];
+                }
+            }
+        }
+        f
+    }
+
+    /// Right-hand side over the free dofs for the rotations `rotations`: f + K'' x₀ with the
+    /// fixed nodes (held at x₀) moved to the right: f_f + (K''x₀)_f − K'_{f,c} x₀,c.
+    pub fn rhs(&self, material: &Material, rotations: &[Matrix3<f64>], f_ext: &[f64]) -> Vec<f64> {
+        let mut b = self.gather_free(f_ext);
+        for e in 0..self.tets.len() {
+            let t = &self.tets[e];
+            if t.iter().all(|&i| self.fixed[i]) {
+                continue;
+            }
+            let r = &rotations[e];
+            let ke = self.element_stiffness(e, material);
+            let x0e = self.element_positions(e, &self.x0);
+            let mut xc = SVector::<f64, 12>::zeros();
+            for (k, &n) in t.iter().enumerate() {
+                if self.fixed[n] {
+                    xc.fixed_rows_mut::<3>(3 * k)
+                        .copy_from(&x0e.fixed_rows::<3>(3 * k));
+                }
+            }
+            let g = rotate_vec(r, &(ke * (x0e - rotate_vec_t(r, &xc))));
+            for (k, &n) in t.iter().enumerate() {
+                let fi = self.free_index[n];
+                if fi != usize::MAX {
+                    for dd in 0..3 {
+                        b[3 * fi + dd] += g[3 * k + dd];
+                    }
+                }
+            }
+        }
+        b
+    }
+
+    /// Restricts a full 3n vector to the free dofs.
+    pub fn gather_free(&self, full: &[f64]) -> Vec<f64> {
+        let mut out = vec![0.0; self.free_dofs()];
+        for (n, &fi) in self.free_index.iter().enumerate() {
+            if fi != usize::MAX {
+                out[3 * fi..3 * fi + 3].copy_from_slice(&full[3 * n..3 * n + 3]);
+            }
+        }
+        out
+    }
+
+    /// Positions from free-dof values (fixed nodes at x₀).
+    pub fn positions_from_free(&self, free: &[f64]) -> Vec<[f64; 3]> {
+        self.x0
+            .iter()
+            .enumerate()
+            .map(|(n, p)| {
+                let fi = self.free_index[n];
+                if fi == usize::MAX {
+                    *p
+                } else {
+                    [free[3 * fi], free[3 * fi + 1], free[3 * fi + 2]]
+                }
+            })
+            .collect()
+    }
+}
