@@ -2,6 +2,10 @@
 //! f̄_i): in-memory types here; reading, writing and marker embedding in the submodules.
 //! The on-disk format is documented in `docs/dataset.md`.
 
+pub mod embed;
+pub mod read;
+pub mod write;
+
 use crate::mesh::Mesh;
 
 /// A static contact-measurement dataset, validated and ready to fit.

@@ -2,6 +2,7 @@
 //! tests and benchmarks, Gmsh 4.1 input and VTK output.
 
 pub mod boxmesh;
+pub mod gmsh;
 
 use std::collections::{BTreeMap, HashMap};
 
@@ -31,22 +32,36 @@ impl Mesh {
                 let tri = [t[f[0]], t[f[1]], t[f[2]]];
                 let mut key = tri;
                 key.sort_unstable();
-                count.entry(key).and_modify(|e| e.0 += 1).or_insert((1, tri));
+                count
+                    .entry(key)
+                    .and_modify(|e| e.0 += 1)
+                    .or_insert((1, tri));
             }
         }
-        let mut out: Vec<[usize; 3]> = count.into_values().filter(|(n, _)| *n == 1).map(|(_, t)| t).collect();
+        let mut out: Vec<[usize; 3]> = count
+            .into_values()
+            .filter(|(n, _)| *n == 1)
+            .map(|(_, t)| t)
+            .collect();
         out.sort_unstable();
         out
     }
 
     /// Node indices of a physical group, or an error naming the group and the groups present.
     pub fn group(&self, name: &str) -> anyhow::Result<&[usize]> {
-        self.node_groups.get(name).map(|v| v.as_slice()).ok_or_else(|| {
-            anyhow::anyhow!(
-                "no physical group named {name:?} in the mesh (groups present: {})",
-                self.node_groups.keys().cloned().collect::<Vec<_>>().join(", ")
-            )
-        })
+        self.node_groups
+            .get(name)
+            .map(|v| v.as_slice())
+            .ok_or_else(|| {
+                anyhow::anyhow!(
+                    "no physical group named {name:?} in the mesh (groups present: {})",
+                    self.node_groups
+                        .keys()
+                        .cloned()
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )
+            })
     }
 
     /// Axis-aligned bounding box (min, max).

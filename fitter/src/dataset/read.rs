@@ -1,0 +1,520 @@
+//! Reading and validating a static dataset folder (format: `docs/dataset.md`).
+//!
+//! Every rejection names the file, the line and the field, and says what was expected and what
+//! was found. Checks, in order: `dataset.toml` (syntax, known keys, units = "SI", positive probe
+//! radius, non-negative noise); the mesh (via [`read_msh`]: syntax, tetrahedra only, zero-volume or
+//! inverted elements); the fixed group (present and not empty); `markers.csv` (numbers, duplicate
+//! ids, distance to the surface); `contacts.csv` (numbers, duplicate measurement ids, positive
+//! radius, a radius that loads at least one node under the runtime's contact rule);
+//! `measurements.csv` (numbers, unknown markers, measurements without a contact, a marker measured
+//! twice); finally every contact must have at least one measured marker.
+
+mod csv;
+
+use super::embed::{
+    embed_point, embedding_tolerance, median_surface_edge, EMBED_TOLERANCE_FRACTION,
+};
+use super::{Marker, Measurement, StaticDataset};
+use crate::mesh::gmsh::{read_msh, MeshError};
+use csv::Table;
+use palpate_runtime::contact_rule::{contact_weights, lumped_surface_areas, ContactRuleError};
+use serde::Deserialize;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use toml::Spanned;
+
+/// Name of the metadata file in a dataset folder.
+pub const DATASET_TOML: &str = "dataset.toml";
+/// Name of the marker file.
+pub const MARKERS_CSV: &str = "markers.csv";
+/// Name of the measured-positions file.
+pub const MEASUREMENTS_CSV: &str = "measurements.csv";
+/// Name of the contact file.
+pub const CONTACTS_CSV: &str = "contacts.csv";
+
+/// Why a dataset could not be read or written. Every variant names the file; those about content
+/// also name the line (1-based) and the field.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum DatasetError {
+    /// A file could not be read.
+    #[error("{file}: cannot read: {source}")]
+    Io {
+        /// The file.
+        file: PathBuf,
+        /// The operating-system error.
+        source: std::io::Error,
+    },
+    /// `dataset.toml` is not valid TOML or misses/misspells a key.
+    #[error("{file}:{line}: {message}")]
+    Toml {
+        /// The file.
+        file: PathBuf,
+        /// 1-based line.
+        line: usize,
+        /// The TOML parser's message (names the key).
+        message: String,
+    },
+    /// A value is malformed or out of range.
+    #[error("{file}:{line}: field `{field}`: expected {expected}, found {found}")]
+    Field {
+        /// The file.
+        file: PathBuf,
+        /// 1-based line.
+        line: usize,
+        /// Column or key name.
+        field: String,
+        /// What is allowed.
+        expected: String,
+        /// What the file holds.
+        found: String,
+    },
+    /// An id appears twice where it must be unique.
+    #[error("{file}:{line}: field `{field}`: {id:?} appears twice (first on line {first_line})")]
+    DuplicateId {
+        /// The file.
+        file: PathBuf,
+        /// 1-based line of the repetition.
+        line: usize,
+        /// The id column.
+        field: String,
+        /// The repeated id (for measurements.csv: "measurement/marker").
+        id: String,
+        /// Line of the first occurrence.
+        first_line: usize,
+    },
+    /// `measurements.csv` names a marker that `markers.csv` does not define.
+    #[error("{file}:{line}: field `marker`: unknown marker {marker:?} (not in markers.csv)")]
+    UnknownMarker {
+        /// The file.
+        file: PathBuf,
+        /// 1-based line.
+        line: usize,
+        /// The marker id.
+        marker: String,
+    },
+    /// `measurements.csv` names a measurement that `contacts.csv` does not define.
+    #[error("{file}:{line}: field `measurement`: measurement {measurement:?} has no contact in contacts.csv")]
+    MeasurementWithoutContact {
+        /// The file.
+        file: PathBuf,
+        /// 1-based line.
+        line: usize,
+        /// The measurement id.
+        measurement: String,
+    },
+    /// A contact has no measured marker at all.
+    #[error(
+        "{file}:{line}: field `measurement`: contact {measurement:?} has no rows in measurements.csv; every measurement needs at least one observed marker"
+    )]
+    ContactWithoutMeasurements {
+        /// The file (contacts.csv).
+        file: PathBuf,
+        /// 1-based line of the contact.
+        line: usize,
+        /// The measurement id.
+        measurement: String,
+    },
+    /// A marker's rest position is too far from the mesh surface to embed it.
+    #[error(
+        "{file}:{line}: fields `x,y,z`: marker {marker:?} is {distance:.3e} m from the mesh surface; the tolerance is {tolerance:.3e} m ({fraction} × median surface edge {median_edge:.3e} m)",
+        fraction = EMBED_TOLERANCE_FRACTION
+    )]
+    MarkerFarFromSurface {
+        /// The file.
+        file: PathBuf,
+        /// 1-based line.
+        line: usize,
+        /// The marker id.
+        marker: String,
+        /// Its distance to the surface (m).
+        distance: f64,
+        /// The tolerance (m).
+        tolerance: f64,
+        /// The mesh's median boundary edge length (m).
+        median_edge: f64,
+    },
+    /// The fixed group is missing from the mesh or holds no node.
+    #[error("{file}:{line}: field `fixed_group`: {problem}")]
+    FixedGroup {
+        /// The file (dataset.toml).
+        file: PathBuf,
+        /// 1-based line of the key.
+        line: usize,
+        /// What is wrong.
+        problem: String,
+    },
+    /// The contact rule loads no node for this contact.
+    #[error(
+        "{file}:{line}: field `radius`: contact {measurement:?} loads no node: no free surface node within {radius:.3e} m of the contact point (nearest at {nearest:.3e} m)"
+    )]
+    ContactCoversNoNode {
+        /// The file (contacts.csv).
+        file: PathBuf,
+        /// 1-based line.
+        line: usize,
+        /// The measurement id.
+        measurement: String,
+        /// The probe radius used (m).
+        radius: f64,
+        /// Distance to the nearest free surface node (m).
+        nearest: f64,
+    },
+    /// The mesh file is invalid (the error names the mesh file and where).
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// Writing a dataset file failed.
+    #[error("{file}: cannot write: {message}")]
+    Write {
+        /// The file.
+        file: PathBuf,
+        /// The underlying error chain.
+        message: String,
+    },
+}
+
+/// `dataset.toml`, with the position of every value for error messages.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DatasetToml {
+    name: Spanned<String>,
+    #[serde(default)]
+    description: Option<String>,
+    units: Spanned<String>,
+    mesh: Spanned<String>,
+    fixed_group: Spanned<String>,
+    probe_radius: Spanned<f64>,
+    #[serde(default)]
+    marker_noise: Option<Spanned<f64>>,
+    #[serde(default)]
+    gravity: Option<Spanned<[f64; 3]>>,
+}
+
+fn line_of(text: &str, offset: usize) -> usize {
+    text.as_bytes()[..offset.min(text.len())]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        + 1
+}
+
+impl StaticDataset {
+    /// Reads and validates the dataset folder `dir` (see the module docs for the checks).
+    pub fn read(dir: impl AsRef<Path>) -> Result<StaticDataset, DatasetError> {
+        let dir = dir.as_ref();
+        let toml_file = dir.join(DATASET_TOML);
+        let text = std::fs::read_to_string(&toml_file).map_err(|source| DatasetError::Io {
+            file: toml_file.clone(),
+            source,
+        })?;
+        let meta: DatasetToml = toml::from_str(&text).map_err(|e| DatasetError::Toml {
+            file: toml_file.clone(),
+            line: e.span().map(|s| line_of(&text, s.start)).unwrap_or(1),
+            message: e.message().trim().to_string(),
+        })?;
+        let at = |span: std::ops::Range<usize>| line_of(&text, span.start);
+        let field = |key: &str, span: std::ops::Range<usize>, expected: &str, found: String| {
+            DatasetError::Field {
+                file: toml_file.clone(),
+                line: at(span),
+                field: key.to_string(),
+                expected: expected.to_string(),
+                found,
+            }
+        };
+        if meta.units.get_ref() != "SI" {
+            return Err(field(
+                "units",
+                meta.units.span(),
+                "\"SI\" (metres, newtons, seconds)",
+                format!("{:?}", meta.units.get_ref()),
+            ));
+        }
+        let probe_radius = *meta.probe_radius.get_ref();
+        if !(probe_radius.is_finite() && probe_radius > 0.0) {
+            return Err(field(
+                "probe_radius",
+                meta.probe_radius.span(),
+                "a positive length in m",
+                probe_radius.to_string(),
+            ));
+        }
+        let marker_noise = match &meta.marker_noise {
+            Some(s) if !(s.get_ref().is_finite() && *s.get_ref() >= 0.0) => {
+                return Err(field(
+                    "marker_noise",
+                    s.span(),
+                    "a non-negative length in m",
+                    s.get_ref().to_string(),
+                ))
+            }
+            Some(s) => Some(*s.get_ref()),
+            None => None,
+        };
+        let gravity = match &meta.gravity {
+            Some(g) if !g.get_ref().iter().all(|v| v.is_finite()) => {
+                return Err(field(
+                    "gravity",
+                    g.span(),
+                    "three finite numbers (m/s²)",
+                    format!("{:?}", g.get_ref()),
+                ))
+            }
+            Some(g) => Some(*g.get_ref()),
+            None => None,
+        };
+
+        let mesh = read_msh(dir.join(meta.mesh.get_ref()))?;
+        let fixed_group = meta.fixed_group.get_ref().clone();
+        let fixed_nodes = match mesh.node_groups.get(&fixed_group) {
+            None => {
+                return Err(DatasetError::FixedGroup {
+                    file: toml_file.clone(),
+                    line: at(meta.fixed_group.span()),
+                    problem: format!(
+                        "the mesh {} has no physical group {:?} (groups present: {})",
+                        meta.mesh.get_ref(),
+                        fixed_group,
+                        mesh.node_groups
+                            .keys()
+                            .map(|k| format!("{k:?}"))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                })
+            }
+            Some(n) if n.is_empty() => {
+                return Err(DatasetError::FixedGroup {
+                    file: toml_file.clone(),
+                    line: at(meta.fixed_group.span()),
+                    problem: format!("physical group {fixed_group:?} of the mesh holds no node"),
+                })
+            }
+            Some(n) => n.clone(),
+        };
+        let surface = mesh.boundary_triangles();
+
+        let markers = read_markers(&dir.join(MARKERS_CSV), &mesh, &surface)?;
+        let (mut measurements, contact_lines) = read_contacts(
+            &dir.join(CONTACTS_CSV),
+            &mesh,
+            &surface,
+            &fixed_nodes,
+            probe_radius,
+        )?;
+        read_measurements(&dir.join(MEASUREMENTS_CSV), &markers, &mut measurements)?;
+        for (m, line) in measurements.iter().zip(contact_lines) {
+            if m.observed.is_empty() {
+                return Err(DatasetError::ContactWithoutMeasurements {
+                    file: dir.join(CONTACTS_CSV),
+                    line,
+                    measurement: m.id.clone(),
+                });
+            }
+        }
+        Ok(StaticDataset {
+            name: meta.name.into_inner(),
+            description: meta.description.unwrap_or_default(),
+            mesh,
+            fixed_group,
+            fixed_nodes,
+            surface,
+            probe_radius,
+            marker_noise,
+            gravity,
+            markers,
+            measurements,
+        })
+    }
+}
+
+/// `markers.csv`: `marker,x,y,z`; each marker embedded in the surface.
+fn read_markers(
+    file: &Path,
+    mesh: &crate::mesh::Mesh,
+    surface: &[[usize; 3]],
+) -> Result<Vec<Marker>, DatasetError> {
+    let table = Table::read(file.to_path_buf())?;
+    let rows = table.rows(&["marker", "x", "y", "z"], 0)?;
+    let median_edge = median_surface_edge(mesh, surface);
+    let tolerance = embedding_tolerance(mesh, surface);
+    let mut first: HashMap<&str, usize> = HashMap::new();
+    let mut markers = Vec::with_capacity(rows.len());
+    for r in &rows {
+        let id = r.id(0)?;
+        if let Some(&first_line) = first.get(id) {
+            return Err(DatasetError::DuplicateId {
+                file: file.to_path_buf(),
+                line: r.line,
+                field: "marker".into(),
+                id: id.into(),
+                first_line,
+            });
+        }
+        first.insert(id, r.line);
+        let rest = r.vec3(1)?;
+        let far = |distance: f64| DatasetError::MarkerFarFromSurface {
+            file: file.to_path_buf(),
+            line: r.line,
+            marker: id.into(),
+            distance,
+            tolerance,
+            median_edge,
+        };
+        // A mesh with tetrahedra always has boundary triangles; `None` cannot happen, but is
+        // reported as "infinitely far" rather than a panic.
+        let e = embed_point(mesh, surface, rest).ok_or_else(|| far(f64::INFINITY))?;
+        if e.distance > tolerance {
+            return Err(far(e.distance));
+        }
+        markers.push(Marker {
+            id: id.into(),
+            rest,
+            triangle: e.triangle,
+            barycentric: e.barycentric,
+            distance: e.distance,
+        });
+    }
+    Ok(markers)
+}
+
+/// `contacts.csv`: `measurement,x,y,z,fx,fy,fz[,radius]`; checks the contact rule loads a node.
+/// Returns the measurements (no observations yet) and their line numbers.
+fn read_contacts(
+    file: &Path,
+    mesh: &crate::mesh::Mesh,
+    surface: &[[usize; 3]],
+    fixed: &[usize],
+    default_radius: f64,
+) -> Result<(Vec<Measurement>, Vec<usize>), DatasetError> {
+    let table = Table::read(file.to_path_buf())?;
+    let rows = table.rows(
+        &["measurement", "x", "y", "z", "fx", "fy", "fz", "radius"],
+        1,
+    )?;
+    // The runtime's rule (runtime/src/contact_rule.rs): free surface nodes within the radius,
+    // weighted by lumped surface area.
+    let mut areas = vec![0.0; mesh.nodes.len()];
+    lumped_surface_areas(|i| mesh.nodes[i], surface.iter().copied(), &mut areas);
+    let mut is_fixed = vec![false; mesh.nodes.len()];
+    fixed.iter().for_each(|&i| is_fixed[i] = true);
+    let mut first: HashMap<&str, usize> = HashMap::new();
+    let mut out = Vec::with_capacity(rows.len());
+    let mut lines = Vec::with_capacity(rows.len());
+    for r in &rows {
+        let id = r.id(0)?;
+        if let Some(&first_line) = first.get(id) {
+            return Err(DatasetError::DuplicateId {
+                file: file.to_path_buf(),
+                line: r.line,
+                field: "measurement".into(),
+                id: id.into(),
+                first_line,
+            });
+        }
+        first.insert(id, r.line);
+        let contact = r.vec3(1)?;
+        let force = r.vec3(4)?;
+        let radius = if r.has(7) {
+            r.positive(7)?
+        } else {
+            default_radius
+        };
+        match contact_weights(
+            contact,
+            radius,
+            |i| mesh.nodes[i],
+            &areas,
+            |i| is_fixed[i],
+            |_, _| {},
+        ) {
+            Ok(_) => {}
+            Err(ContactRuleError::NoNodeInRadius { nearest }) => {
+                return Err(DatasetError::ContactCoversNoNode {
+                    file: file.to_path_buf(),
+                    line: r.line,
+                    measurement: id.into(),
+                    radius,
+                    nearest,
+                })
+            }
+            Err(ContactRuleError::BadInput) => {
+                // Unreachable after the checks above (finite contact, positive radius); report
+                // it as a field error rather than panic.
+                return Err(DatasetError::Field {
+                    file: file.to_path_buf(),
+                    line: r.line,
+                    field: "radius".into(),
+                    expected: "a positive radius and a finite contact point".into(),
+                    found: format!("radius {radius}, contact {contact:?}"),
+                });
+            }
+        }
+        out.push(Measurement {
+            id: id.into(),
+            contact,
+            force,
+            radius,
+            observed: Vec::new(),
+        });
+        lines.push(r.line);
+    }
+    Ok((out, lines))
+}
+
+/// `measurements.csv`: `measurement,marker,x,y,z`; observations sorted by marker index.
+fn read_measurements(
+    file: &Path,
+    markers: &[Marker],
+    measurements: &mut [Measurement],
+) -> Result<(), DatasetError> {
+    let table = Table::read(file.to_path_buf())?;
+    let rows = table.rows(&["measurement", "marker", "x", "y", "z"], 0)?;
+    let marker_index: HashMap<&str, usize> = markers
+        .iter()
+        .enumerate()
+        .map(|(i, m)| (m.id.as_str(), i))
+        .collect();
+    let measurement_index: HashMap<String, usize> = measurements
+        .iter()
+        .enumerate()
+        .map(|(i, m)| (m.id.clone(), i))
+        .collect();
+    let mut first: HashMap<(usize, usize), usize> = HashMap::new();
+    for r in &rows {
+        let mid = r.id(0)?;
+        let Some(&mi) = measurement_index.get(mid) else {
+            return Err(DatasetError::MeasurementWithoutContact {
+                file: file.to_path_buf(),
+                line: r.line,
+                measurement: mid.into(),
+            });
+        };
+        let kid = r.id(1)?;
+        let Some(&ki) = marker_index.get(kid) else {
+            return Err(DatasetError::UnknownMarker {
+                file: file.to_path_buf(),
+                line: r.line,
+                marker: kid.into(),
+            });
+        };
+        if let Some(&first_line) = first.get(&(mi, ki)) {
+            return Err(DatasetError::DuplicateId {
+                file: file.to_path_buf(),
+                line: r.line,
+                field: "marker".into(),
+                id: format!("{mid}/{kid}"),
+                first_line,
+            });
+        }
+        first.insert((mi, ki), r.line);
+        measurements[mi].observed.push((ki, r.vec3(2)?));
+    }
+    for m in measurements.iter_mut() {
+        m.observed.sort_by_key(|o| o.0);
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests;

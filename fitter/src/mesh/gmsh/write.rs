@@ -1,0 +1,204 @@
+//! MSH 4.1 ASCII output.
+
+use super::MeshError;
+use crate::io::atomic::write_atomic_with;
+use crate::mesh::Mesh;
+use std::collections::BTreeSet;
+use std::io::Write;
+use std::path::Path;
+
+/// Writes `mesh` as Gmsh MSH 4.1 ASCII, atomically.
+///
+/// Layout (chosen so that both [`super::read_msh`] and Gmsh read back exactly the same node groups):
+/// - one volume entity (tag 1, no physical group) holding all nodes, in mesh order with their
+///   [`Mesh::node_tags`] (1, 2, … if the mesh has none), and all tetrahedra, tagged 1…n;
+/// - for the k-th node group (k = 1, 2, … in name order): a surface entity of tag k carrying the
+///   boundary triangles whose three nodes all belong to the group, in the physical surface group
+///   (dim 2, tag k) with the group's name; every group node not on such a triangle gets its own
+///   point entity with one point element, in the physical point group (dim 0, tag k) of the same
+///   name. Reading merges both by name, so every group comes back node for node.
+pub fn write_msh(mesh: &Mesh, path: impl AsRef<Path>) -> Result<(), MeshError> {
+    let path = path.as_ref();
+    let invalid = |message: String| MeshError::InvalidMesh {
+        file: path.to_path_buf(),
+        message,
+    };
+    let n = mesh.nodes.len();
+    let tags: Vec<u64> = if mesh.node_tags.is_empty() {
+        (1..=n as u64).collect()
+    } else {
+        mesh.node_tags.clone()
+    };
+    if tags.len() != n {
+        return Err(invalid(format!("{} node tags for {} nodes", tags.len(), n)));
+    }
+    let mut distinct = BTreeSet::new();
+    for &t in &tags {
+        if t == 0 || !distinct.insert(t) {
+            return Err(invalid(format!("node tag {t} is zero or repeated")));
+        }
+    }
+    if let Some(t) = mesh.tets.iter().find(|t| t.iter().any(|&i| i >= n)) {
+        return Err(invalid(format!(
+            "tetrahedron {t:?} refers to a node index ≥ {n}"
+        )));
+    }
+    for (name, members) in &mesh.node_groups {
+        if name.contains('"') || name.contains('\n') {
+            return Err(invalid(format!(
+                "group name {name:?} holds a quote or newline"
+            )));
+        }
+        if let Some(i) = members.iter().find(|&&i| i >= n) {
+            return Err(invalid(format!(
+                "group {name:?} refers to node index {i} ≥ {n}"
+            )));
+        }
+    }
+
+    // Per group: boundary triangles inside it, and the leftover nodes.
+    let boundary = mesh.boundary_triangles();
+    let groups: Vec<(&String, Vec<[usize; 3]>, Vec<usize>)> = mesh
+        .node_groups
+        .iter()
+        .map(|(name, members)| {
+            let inside: BTreeSet<usize> = members.iter().copied().collect();
+            let tris: Vec<[usize; 3]> = boundary
+                .iter()
+                .filter(|t| t.iter().all(|i| inside.contains(i)))
+                .copied()
+                .collect();
+            let covered: BTreeSet<usize> = tris.iter().flatten().copied().collect();
+            let rest = inside.difference(&covered).copied().collect();
+            (name, tris, rest)
+        })
+        .collect();
+
+    let bbox = |idx: &mut dyn Iterator<Item = usize>| {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for i in idx {
+            for d in 0..3 {
+                lo[d] = lo[d].min(mesh.nodes[i][d]);
+                hi[d] = hi[d].max(mesh.nodes[i][d]);
+            }
+        }
+        (lo, hi)
+    };
+
+    write_atomic_with(path, |w| {
+        writeln!(w, "$MeshFormat\n4.1 0 8\n$EndMeshFormat")?;
+        // Physical names: surface and point groups share the group's name and number.
+        let mut names = Vec::new();
+        for (k, (name, tris, rest)) in groups.iter().enumerate() {
+            if !tris.is_empty() {
+                names.push(format!("2 {} \"{}\"", k + 1, name));
+            }
+            if !rest.is_empty() || tris.is_empty() {
+                names.push(format!("0 {} \"{}\"", k + 1, name));
+            }
+        }
+        writeln!(w, "$PhysicalNames\n{}", names.len())?;
+        for l in &names {
+            writeln!(w, "{l}")?;
+        }
+        writeln!(w, "$EndPhysicalNames")?;
+
+        // Entities.
+        let n_points: usize = groups.iter().map(|g| g.2.len()).sum();
+        let n_surfaces = groups.iter().filter(|g| !g.1.is_empty()).count();
+        writeln!(w, "$Entities\n{} 0 {} 1", n_points, n_surfaces)?;
+        let mut point_tag = 0;
+        let mut point_entities = Vec::new();
+        for (k, (_, _, rest)) in groups.iter().enumerate() {
+            for &i in rest {
+                point_tag += 1;
+                let p = mesh.nodes[i];
+                writeln!(
+                    w,
+                    "{} {:e} {:e} {:e} 1 {}",
+                    point_tag,
+                    p[0],
+                    p[1],
+                    p[2],
+                    k + 1
+                )?;
+                point_entities.push((point_tag, i));
+            }
+        }
+        for (k, (_, tris, _)) in groups.iter().enumerate() {
+            if !tris.is_empty() {
+                let (lo, hi) = bbox(&mut tris.iter().flatten().copied());
+                writeln!(
+                    w,
+                    "{} {:e} {:e} {:e} {:e} {:e} {:e} 1 {} 0",
+                    k + 1,
+                    lo[0],
+                    lo[1],
+                    lo[2],
+                    hi[0],
+                    hi[1],
+                    hi[2],
+                    k + 1
+                )?;
+            }
+        }
+        let (lo, hi) = bbox(&mut (0..n));
+        writeln!(
+            w,
+            "1 {:e} {:e} {:e} {:e} {:e} {:e} 0 0",
+            lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]
+        )?;
+        writeln!(w, "$EndEntities")?;
+
+        // Nodes: one block on the volume.
+        let (min_tag, max_tag) = (
+            distinct.first().copied().unwrap_or(0),
+            distinct.last().copied().unwrap_or(0),
+        );
+        writeln!(w, "$Nodes\n1 {n} {min_tag} {max_tag}\n3 1 0 {n}")?;
+        for t in &tags {
+            writeln!(w, "{t}")?;
+        }
+        for p in &mesh.nodes {
+            // `{:?}` prints the shortest text that parses back to the same f64.
+            writeln!(w, "{:?} {:?} {:?}", p[0], p[1], p[2])?;
+        }
+        writeln!(w, "$EndNodes")?;
+
+        // Elements: tetrahedra, then group triangles, then group points.
+        let n_tris: usize = groups.iter().map(|g| g.1.len()).sum();
+        let total = mesh.tets.len() + n_tris + n_points;
+        let blocks = 1 + n_surfaces + n_points;
+        writeln!(w, "$Elements\n{blocks} {total} 1 {total}")?;
+        writeln!(w, "3 1 4 {}", mesh.tets.len())?;
+        let mut etag = 0usize;
+        for t in &mesh.tets {
+            etag += 1;
+            writeln!(
+                w,
+                "{} {} {} {} {}",
+                etag, tags[t[0]], tags[t[1]], tags[t[2]], tags[t[3]]
+            )?;
+        }
+        for (k, (_, tris, _)) in groups.iter().enumerate() {
+            if !tris.is_empty() {
+                writeln!(w, "2 {} 2 {}", k + 1, tris.len())?;
+                for t in tris {
+                    etag += 1;
+                    writeln!(w, "{} {} {} {}", etag, tags[t[0]], tags[t[1]], tags[t[2]])?;
+                }
+            }
+        }
+        for (ptag, i) in point_entities {
+            etag += 1;
+            writeln!(w, "0 {ptag} 15 1\n{etag} {}", tags[i])?;
+        }
+        writeln!(w, "$EndElements")?;
+        Ok(())
+    })
+    .map_err(|e| MeshError::Write {
+        file: path.to_path_buf(),
+        message: format!("{e:#}"),
+    })
+}
