@@ -3,6 +3,7 @@
 
 pub mod cli;
 pub mod dataset;
+pub mod fsr;
 pub mod forward;
 pub mod io;
 pub mod mesh;

@@ -173,7 +173,7 @@ impl I2c for SimAds1x15 {
 }
 
 /// The calibration the simulator presses with by default: the power law fitted to the
-/// Interlink FSR 402 datasheet points by `palpate calibrate-fsr` (F = 1.58e-3 · G^1.27,
+/// Interlink FSR 402 datasheet points by `palpate calibrate-fsr` (F = 1.708e-3 · G^1.292,
 /// G in µS), on the nRF52840 board's 10 kΩ / 3.3 V divider.
 pub fn default_calibration() -> Calibration {
     Calibration {
@@ -182,8 +182,8 @@ pub fn default_calibration() -> Calibration {
             v_supply_v: 3.3,
         },
         curve: ForceCurve::PowerLaw {
-            gain: 1.58e-3,
-            exponent: 1.27,
+            gain: 1.708e-3,
+            exponent: 1.292,
         },
         usable_min_n: 0.2,
         usable_max_n: 100.0,

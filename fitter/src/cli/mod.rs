@@ -3,6 +3,7 @@
 use clap::{Parser, Subcommand};
 
 pub mod bench;
+pub mod calibrate_fsr;
 
 /// palpate: learn how a soft object deforms when touched, and play it back at haptic rates.
 #[derive(Debug, Parser)]
@@ -19,11 +20,14 @@ pub enum Command {
     /// Benchmarks that print a table and, as their last line, one JSON object.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Fit an FSR calibration (balance readings or datasheet points) and write the probe's calibration.
+    CalibrateFsr(calibrate_fsr::Args),
 }
 
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Bench(b) => bench::run(b),
+        Command::CalibrateFsr(a) => calibrate_fsr::run(a),
     }
 }
