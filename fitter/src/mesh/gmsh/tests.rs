@@ -197,3 +197,52 @@ fn corrupt_binary_is_wrapped_with_file_and_offset() {
     let e = read_msh(&p).unwrap_err().to_string();
     assert!(e.contains("bad.msh: binary MSH parse error at byte"), "{e}");
 }
+
+#[test]
+fn bundled_sponge_mesh_reads() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/sponge/sponge.msh");
+    let (m, r) = read_msh_with_report(path).unwrap();
+    // Counts printed by Gmsh when make_mesh.py wrote the file.
+    assert_eq!((m.nodes.len(), m.tets.len()), (1089, 4379));
+    assert_eq!(r.reoriented, 0);
+    for g in ["bottom", "top", "sides", "sponge"] {
+        assert!(!m.node_groups[g].is_empty(), "{g}");
+    }
+    assert_eq!(m.node_groups["sponge"].len(), 1089);
+    let on =
+        |g: &str, f: &dyn Fn([f64; 3]) -> bool| m.node_groups[g].iter().all(|&i| f(m.nodes[i]));
+    assert!(on("bottom", &|p| p[2].abs() < 1e-12));
+    assert!(on("top", &|p| (p[2] - 0.05).abs() < 1e-12));
+    assert!(on("sides", &|p| {
+        p[0].abs() < 1e-12
+            || (p[0] - 0.1).abs() < 1e-12
+            || p[1].abs() < 1e-12
+            || (p[1] - 0.1).abs() < 1e-12
+    }));
+    let vols: Vec<f64> = m
+        .tets
+        .iter()
+        .map(|t| assemble::signed_volume(&t.map(|i| m.nodes[i])))
+        .collect();
+    assert!(vols.iter().all(|&v| v > 0.0));
+    // 10 × 10 × 5 cm = 5e-4 m³; Gmsh prints 16 digits, so the sum is exact to ~1e-15 relative.
+    assert!((vols.iter().sum::<f64>() - 5e-4).abs() < 1e-9);
+}
+
+#[test]
+fn whole_mesh_group_round_trips_as_a_volume_group() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/sponge/sponge.msh");
+    let m = read_msh(path).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("sponge.msh");
+    write_msh(&m, &p).unwrap();
+    let text = std::fs::read_to_string(&p).unwrap();
+    assert!(
+        text.contains("3 3 \"sponge\""),
+        "the all-node group becomes a physical volume"
+    );
+    let back = read_msh(&p).unwrap();
+    assert_eq!(back.node_groups, m.node_groups);
+    assert_eq!(back.tets, m.tets);
+    assert_eq!(back.node_tags, m.node_tags);
+}

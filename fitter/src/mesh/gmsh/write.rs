@@ -10,13 +10,15 @@ use std::path::Path;
 /// Writes `mesh` as Gmsh MSH 4.1 ASCII, atomically.
 ///
 /// Layout (chosen so that both [`super::read_msh`] and Gmsh read back exactly the same node groups):
-/// - one volume entity (tag 1, no physical group) holding all nodes, in mesh order with their
+/// - one volume entity (tag 1) holding all nodes, in mesh order with their
 ///   [`Mesh::node_tags`] (1, 2, … if the mesh has none), and all tetrahedra, tagged 1…n;
 /// - for the k-th node group (k = 1, 2, … in name order): a surface entity of tag k carrying the
 ///   boundary triangles whose three nodes all belong to the group, in the physical surface group
 ///   (dim 2, tag k) with the group's name; every group node not on such a triangle gets its own
 ///   point entity with one point element, in the physical point group (dim 0, tag k) of the same
 ///   name. Reading merges both by name, so every group comes back node for node.
+/// - a group holding every node of the mesh is written as a physical volume group (dim 3, tag k)
+///   on the volume entity instead.
 pub fn write_msh(mesh: &Mesh, path: impl AsRef<Path>) -> Result<(), MeshError> {
     let path = path.as_ref();
     let invalid = |message: String| MeshError::InvalidMesh {
@@ -63,6 +65,10 @@ pub fn write_msh(mesh: &Mesh, path: impl AsRef<Path>) -> Result<(), MeshError> {
         .iter()
         .map(|(name, members)| {
             let inside: BTreeSet<usize> = members.iter().copied().collect();
+            if inside.len() == n {
+                // The whole mesh: a physical volume group, no surface or point entities.
+                return (name, Vec::new(), Vec::new());
+            }
             let tris: Vec<[usize; 3]> = boundary
                 .iter()
                 .filter(|t| t.iter().all(|i| inside.contains(i)))
@@ -86,6 +92,21 @@ pub fn write_msh(mesh: &Mesh, path: impl AsRef<Path>) -> Result<(), MeshError> {
         (lo, hi)
     };
 
+    let whole = |k: usize| {
+        mesh.node_groups.values().nth(k).is_some_and(|m| {
+            m.len() >= n && m.iter().copied().collect::<BTreeSet<usize>>().len() == n
+        })
+    };
+    let volume_groups: Vec<String> = (0..groups.len())
+        .filter(|&k| whole(k))
+        .map(|k| (k + 1).to_string())
+        .collect();
+
+    let volume_physicals = std::iter::once(volume_groups.len().to_string())
+        .chain(volume_groups.iter().cloned())
+        .collect::<Vec<_>>()
+        .join(" ");
+
     write_atomic_with(path, |w| {
         writeln!(w, "$MeshFormat\n4.1 0 8\n$EndMeshFormat")?;
         // Physical names: surface and point groups share the group's name and number.
@@ -94,7 +115,9 @@ pub fn write_msh(mesh: &Mesh, path: impl AsRef<Path>) -> Result<(), MeshError> {
             if !tris.is_empty() {
                 names.push(format!("2 {} \"{}\"", k + 1, name));
             }
-            if !rest.is_empty() || tris.is_empty() {
+            if whole(k) {
+                names.push(format!("3 {} \"{}\"", k + 1, name));
+            } else if !rest.is_empty() || tris.is_empty() {
                 names.push(format!("0 {} \"{}\"", k + 1, name));
             }
         }
@@ -146,8 +169,8 @@ pub fn write_msh(mesh: &Mesh, path: impl AsRef<Path>) -> Result<(), MeshError> {
         let (lo, hi) = bbox(&mut (0..n));
         writeln!(
             w,
-            "1 {:e} {:e} {:e} {:e} {:e} {:e} 0 0",
-            lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]
+            "1 {:e} {:e} {:e} {:e} {:e} {:e} {} 0",
+            lo[0], lo[1], lo[2], hi[0], hi[1], hi[2], volume_physicals
         )?;
         writeln!(w, "$EndEntities")?;
 
