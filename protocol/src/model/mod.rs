@@ -6,7 +6,7 @@
 //! - [`decode`] checks the container, borrows every array and string from the input (no
 //!   allocation, no copy) and [`validate`]s the record: **a model that decodes is safe to run**.
 //!   The one check that needs memory — every free node belongs to a tetrahedron — is
-//!   [`validate_node_coverage`], with one bit of caller scratch per node; the runtime runs it
+//!   [`validate_node_coverage`], with one bit of caller scratch per node; a loader should run it
 //!   when it sizes its storage.
 //! - Every failure is one variant of [`ModelError`], saying what and where.
 //!
