@@ -382,6 +382,10 @@ fn non_finite_values_are_located() {
             position: 0
         })
     );
+    assert_eq!(
+        validate(&m.record()).unwrap_err().to_string(),
+        "invalid model: blend.decay: not a finite number"
+    );
 }
 
 #[test]

@@ -422,6 +422,10 @@ impl fmt::Display for Field {
 /// Writes `array[position]` and, for arrays with a per-node or per-element structure, which node
 /// or element the value belongs to.
 fn write_at(f: &mut fmt::Formatter<'_>, array: Field, position: u64) -> fmt::Result {
+    if array == Field::StrainDecay {
+        // A scalar: no position to show.
+        return write!(f, "{array}");
+    }
     write!(f, "{array}[{position}]")?;
     match array {
         Field::RestPositions => {
