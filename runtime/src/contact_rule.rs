@@ -36,7 +36,11 @@ pub fn lumped_surface_areas(
         let (a, b, c) = (pos(t[0]), pos(t[1]), pos(t[2]));
         let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
         let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-        let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+        let n = [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ];
         let area = 0.5 * libm::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
         for &i in &t {
             if let Some(slot) = areas.get_mut(i) {
@@ -55,6 +59,28 @@ pub fn contact_weights(
     pos: impl Fn(usize) -> [f64; 3],
     areas: &[f64],
     is_fixed: impl Fn(usize) -> bool,
+    emit: impl FnMut(usize, f64),
+) -> Result<usize, ContactRuleError> {
+    contact_weights_by(
+        contact,
+        radius,
+        areas.len(),
+        pos,
+        |i| areas[i],
+        is_fixed,
+        emit,
+    )
+}
+
+/// [`contact_weights`] with the lumped areas given by an accessor (the runtime keeps them in
+/// `f32` storage), over nodes `0..node_count`.
+pub fn contact_weights_by(
+    contact: [f64; 3],
+    radius: f64,
+    node_count: usize,
+    pos: impl Fn(usize) -> [f64; 3],
+    area: impl Fn(usize) -> f64,
+    is_fixed: impl Fn(usize) -> bool,
     mut emit: impl FnMut(usize, f64),
 ) -> Result<usize, ContactRuleError> {
     if !(radius.is_finite() && radius > 0.0 && contact.iter().all(|v| v.is_finite())) {
@@ -65,15 +91,15 @@ pub fn contact_weights(
         let d = [p[0] - contact[0], p[1] - contact[1], p[2] - contact[2]];
         libm::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
     };
-    let candidate = |i: usize| areas[i] > 0.0 && !is_fixed(i);
+    let candidate = |i: usize| area(i) > 0.0 && !is_fixed(i);
     let mut total = 0.0;
     let mut nearest = f64::INFINITY;
-    for i in 0..areas.len() {
+    for i in 0..node_count {
         if candidate(i) {
             let d = dist(i);
             nearest = nearest.min(d);
             if d <= radius {
-                total += areas[i];
+                total += area(i);
             }
         }
     }
@@ -81,9 +107,9 @@ pub fn contact_weights(
         return Err(ContactRuleError::NoNodeInRadius { nearest });
     }
     let mut count = 0;
-    for i in 0..areas.len() {
+    for i in 0..node_count {
         if candidate(i) && dist(i) <= radius {
-            emit(i, areas[i] / total);
+            emit(i, area(i) / total);
             count += 1;
         }
     }

@@ -48,7 +48,9 @@ pub fn signed_volume<T: RealField + Copy>(x: &[Vector3<T>; 4]) -> T {
 /// φ_i(x) = a_i x + b_i y + c_i z + d_i with φ_i(x_j) = δ_ij; the gradients (a_i, b_i, c_i) are the
 /// rows of D_m⁻¹ (D_m = [x1−x0, x2−x0, x3−x0]) for nodes 1..3, and ∇φ_0 = −Σ ∇φ_i.
 /// Rejects inverted, non-finite and flat elements (|V| < 1e-9 · ℓ³, ℓ the longest edge).
-pub fn tet_geometry<T: RealField + Copy>(x: &[Vector3<T>; 4]) -> Result<TetGeometry<T>, ElementDefect> {
+pub fn tet_geometry<T: RealField + Copy>(
+    x: &[Vector3<T>; 4],
+) -> Result<TetGeometry<T>, ElementDefect> {
     let dm = Matrix3::from_columns(&[x[1] - x[0], x[2] - x[0], x[3] - x[0]]);
     let six_v = dm.determinant();
     if !six_v.is_finite() {
@@ -72,7 +74,10 @@ pub fn tet_geometry<T: RealField + Copy>(x: &[Vector3<T>; 4]) -> Result<TetGeome
     let g2 = inv.row(1).transpose();
     let g3 = inv.row(2).transpose();
     let g0 = -(g1 + g2 + g3);
-    Ok(TetGeometry { grad: [g0, g1, g2, g3], volume: six_v / T::from_f64(6.0).unwrap() })
+    Ok(TetGeometry {
+        grad: [g0, g1, g2, g3],
+        volume: six_v / T::from_f64(6.0).unwrap(),
+    })
 }
 
 /// B_e (eq. 3.17): rows (ε_xx, ε_yy, ε_zz, γ_xy, γ_yz, γ_zx), columns (u0x, u0y, u0z, u1x, …).
@@ -97,7 +102,14 @@ pub fn strain_matrix<T: RealField + Copy>(g: &TetGeometry<T>) -> StrainMatrix<T>
 /// The constant matrix F of eq. 3.33.
 pub fn material_f<T: RealField + Copy>() -> SMatrix<T, 6, 6> {
     let h = T::from_f64(0.5).unwrap();
-    SMatrix::<T, 6, 6>::from_diagonal(&SVector::<T, 6>::from([T::one(), T::one(), T::one(), h, h, h]))
+    SMatrix::<T, 6, 6>::from_diagonal(&SVector::<T, 6>::from([
+        T::one(),
+        T::one(),
+        T::one(),
+        h,
+        h,
+        h,
+    ]))
 }
 
 /// The constant matrix G of eq. 3.34.
@@ -122,7 +134,11 @@ pub fn element_cd<T: RealField + Copy>(g: &TetGeometry<T>) -> (ElementMatrix<T>,
 }
 
 /// K_e = λ_e C_e + α_e D_e (eq. 3.63).
-pub fn element_stiffness<T: RealField + Copy>(g: &TetGeometry<T>, lambda: T, alpha: T) -> ElementMatrix<T> {
+pub fn element_stiffness<T: RealField + Copy>(
+    g: &TetGeometry<T>,
+    lambda: T,
+    alpha: T,
+) -> ElementMatrix<T> {
     let (c, d) = element_cd(g);
     c * lambda + d * alpha
 }
@@ -161,7 +177,10 @@ pub fn unpack_symmetric<T: RealField + Copy>(p: &[T; PACKED_LEN]) -> ElementMatr
 }
 
 /// Deformation gradient F = Σ_a x_a ∇φ_aᵀ of a linear tetrahedron at positions `x`.
-pub fn deformation_gradient<T: RealField + Copy>(g: &TetGeometry<T>, x: &[Vector3<T>; 4]) -> Matrix3<T> {
+pub fn deformation_gradient<T: RealField + Copy>(
+    g: &TetGeometry<T>,
+    x: &[Vector3<T>; 4],
+) -> Matrix3<T> {
     let mut f = Matrix3::<T>::zeros();
     for a in 0..4 {
         f += x[a] * g.grad[a].transpose();
@@ -188,6 +207,168 @@ pub fn warped_strain<T: RealField + Copy>(r: &Matrix3<T>, f: &Matrix3<T>) -> SVe
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::SymmetricEigen;
+
+    fn reference_tet() -> [Vector3<f64>; 4] {
+        [
+            Vector3::new(0.01, -0.02, 0.0),
+            Vector3::new(0.05, 0.0, 0.01),
+            Vector3::new(0.0, 0.04, 0.005),
+            Vector3::new(0.015, 0.01, 0.045),
+        ]
+    }
+
+    /// Elastic energy ½ V εᵀ E ε of a displacement with E = λF + αG (eqs. 3.20, 3.38).
+    fn energy(g: &TetGeometry<f64>, u: &SVector<f64, 12>, lambda: f64, alpha: f64) -> f64 {
+        let eps = strain_matrix(g) * u;
+        let e = material_f::<f64>() * lambda + material_g::<f64>() * alpha;
+        0.5 * g.volume * (eps.transpose() * e * eps)[(0, 0)]
+    }
+
+    #[test]
+    fn stiffness_matches_finite_differences_of_energy() {
+        let g = tet_geometry(&reference_tet()).unwrap();
+        let (lambda, alpha) = (14_000.0, 4_000.0);
+        let k = element_stiffness(&g, lambda, alpha);
+        let mut u = SVector::<f64, 12>::zeros();
+        for i in 0..12 {
+            u[i] = 1e-3 * ((i as f64 * 0.77).sin());
+        }
+        // Central differences of the energy's gradient: ∂²E/∂u_i∂u_j.
+        let h = 1e-6;
+        let mut worst: f64 = 0.0;
+        let scale = k.amax();
+        for i in 0..12 {
+            for j in 0..12 {
+                let mut e = [[0.0; 2]; 2];
+                for (a, si) in [1.0, -1.0].iter().enumerate() {
+                    for (b, sj) in [1.0, -1.0].iter().enumerate() {
+                        let mut v = u;
+                        v[i] += si * h;
+                        v[j] += sj * h;
+                        e[a][b] = energy(&g, &v, lambda, alpha);
+                    }
+                }
+                let fd = (e[0][0] - e[0][1] - e[1][0] + e[1][1]) / (4.0 * h * h);
+                worst = worst.max((fd - k[(i, j)]).abs() / scale);
+            }
+        }
+        // The energy is exactly quadratic; 1e-6 relative is the round-off of the difference quotient.
+        assert!(worst < 1e-6, "worst relative FD mismatch {worst:e}");
+    }
+
+    #[test]
+    fn c_and_d_are_symmetric_with_rigid_modes_in_null_space() {
+        let g = tet_geometry(&reference_tet()).unwrap();
+        let (c, d) = element_cd(&g);
+        for m in [&c, &d] {
+            assert!((m - m.transpose()).amax() < 1e-12 * m.amax());
+        }
+        // Rigid modes: three translations and three infinitesimal rotations ω × x.
+        let x = reference_tet();
+        let mut modes = [[0.0f64; 12]; 6];
+        for a in 0..4 {
+            for k in 0..3 {
+                modes[k][3 * a + k] = 1.0;
+            }
+            for (r, axis) in [Vector3::x(), Vector3::y(), Vector3::z()]
+                .iter()
+                .enumerate()
+            {
+                let v = axis.cross(&x[a]);
+                for k in 0..3 {
+                    modes[3 + r][3 * a + k] = v[k];
+                }
+            }
+        }
+        for m in [&c, &d] {
+            for mode in &modes {
+                let v = SVector::<f64, 12>::from_column_slice(mode);
+                assert!(
+                    (m * v).amax() < 1e-10 * m.amax(),
+                    "rigid mode not in null space"
+                );
+            }
+        }
+        // C is positive semi-definite (F is positive definite): 6 zero and 6 positive eigenvalues.
+        let ev = SymmetricEigen::new(c).eigenvalues;
+        let mut ev: Vec<f64> = ev.iter().copied().collect();
+        ev.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        let top = ev[11];
+        assert!(ev[..6].iter().all(|v| v.abs() < 1e-10 * top), "{ev:?}");
+        assert!(ev[6..].iter().all(|v| *v > 1e-6 * top), "{ev:?}");
+        // K = λC + αD is positive semi-definite for physical parameters (E > 0, −1 < ν < 0.5).
+        for nu in [-0.9, 0.0, 0.3, 0.49] {
+            let lambda = 1.0 / ((1.0 + nu) * (1.0 - 2.0 * nu));
+            let k = c * lambda + d * (lambda * nu);
+            let ev = SymmetricEigen::new(k).eigenvalues;
+            assert!(ev.iter().all(|v| *v > -1e-9 * ev.amax()), "ν = {nu}: {ev}");
+        }
+    }
+
+    #[test]
+    fn shape_gradients_reproduce_linear_fields_and_reject_bad_elements() {
+        let x = reference_tet();
+        let g = tet_geometry(&x).unwrap();
+        // ∇φ of a linear interpolant of φ(x) = a·x + b is a.
+        let a = Vector3::new(0.3, -1.2, 2.0);
+        let grad: Vector3<f64> = (0..4).map(|i| g.grad[i] * (a.dot(&x[i]) + 0.7)).sum();
+        assert!((grad - a).norm() < 1e-12);
+        let mut inv = x;
+        inv.swap(1, 2);
+        assert_eq!(tet_geometry(&inv), Err(ElementDefect::Inverted));
+        let flat = [x[0], x[1], x[2], (x[0] + x[1]) * 0.5];
+        assert_eq!(tet_geometry(&flat), Err(ElementDefect::ZeroVolume));
+        let mut nan = x;
+        nan[3].x = f64::NAN;
+        assert_eq!(tet_geometry(&nan), Err(ElementDefect::NonFinite));
+    }
+
+    #[test]
+    fn gradient_kernel_equals_packed_c_d_kernel() {
+        // The runtime's matrix-free σ∇φ kernel must be the same operator as λC_e + αD_e.
+        let x = reference_tet();
+        let g = tet_geometry(&x).unwrap();
+        let (lambda, alpha) = (14_000.0, 4_000.0);
+        let k = element_stiffness(&g, lambda, alpha);
+        let grad32: [f32; 9] = core::array::from_fn(|i| g.grad[1 + i / 3][i % 3] as f32);
+        let r = [1.0f32, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+        let v: [[f32; 3]; 4] =
+            core::array::from_fn(|a| core::array::from_fn(|k| ((3 * a + k) as f32 * 0.37).sin()));
+        let y = crate::kernel::warped_apply(
+            &v,
+            &grad32,
+            &r,
+            g.volume as f32,
+            lambda as f32,
+            alpha as f32,
+        );
+        let mut vv = SVector::<f64, 12>::zeros();
+        for i in 0..12 {
+            vv[i] = v[i / 3][i % 3] as f64;
+        }
+        let yr = k * vv;
+        for i in 0..12 {
+            assert!(
+                (y[i / 3][i % 3] as f64 - yr[i]).abs() < 1e-5 * yr.amax(),
+                "{i}: {} vs {}",
+                y[i / 3][i % 3],
+                yr[i]
+            );
+        }
+        let mut cp = [0.0f64; PACKED_LEN];
+        let mut dp = [0.0f64; PACKED_LEN];
+        let (c, d) = element_cd(&g);
+        pack_symmetric(&c, &mut cp);
+        pack_symmetric(&d, &mut dp);
+        let c32 = cp.map(|v| v as f32);
+        let d32 = dp.map(|v| v as f32);
+        let yp =
+            crate::kernel::warped_apply_packed(&v, &c32, &d32, &r, lambda as f32, alpha as f32);
+        for i in 0..12 {
+            assert!((yp[i / 3][i % 3] as f64 - yr[i]).abs() < 1e-5 * yr.amax());
+        }
+    }
 
     #[test]
     fn packed_index_matches_pack_order() {

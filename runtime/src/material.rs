@@ -16,11 +16,17 @@ impl LambdaAlpha {
     /// From Young's modulus E (Pa) and Poisson ratio ν (eqs. 3.41–3.42).
     pub fn from_young_poisson(young: f64, poisson: f64) -> Self {
         let lambda = young / ((1.0 + poisson) * (1.0 - 2.0 * poisson));
-        Self { lambda, alpha: lambda * poisson }
+        Self {
+            lambda,
+            alpha: lambda * poisson,
+        }
     }
     /// From the Lamé constants (λ_L, μ): α = λ_L and λ = 2μ + 2λ_L.
     pub fn from_lame(lame_lambda: f64, mu: f64) -> Self {
-        Self { lambda: 2.0 * mu + 2.0 * lame_lambda, alpha: lame_lambda }
+        Self {
+            lambda: 2.0 * mu + 2.0 * lame_lambda,
+            alpha: lame_lambda,
+        }
     }
     /// Poisson ratio ν = α/λ (eq. 3.39).
     pub fn poisson(&self) -> f64 {
@@ -39,7 +45,11 @@ impl LambdaAlpha {
     /// non-rigid motions.
     pub fn is_physical(&self) -> bool {
         let nu = self.poisson();
-        self.lambda.is_finite() && self.alpha.is_finite() && self.lambda > 0.0 && nu > -1.0 && nu < 0.5
+        self.lambda.is_finite()
+            && self.alpha.is_finite()
+            && self.lambda > 0.0
+            && nu > -1.0
+            && nu < 0.5
     }
 }
 

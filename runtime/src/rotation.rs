@@ -72,7 +72,8 @@ mod tests {
     use nalgebra::Rotation3;
 
     fn is_proper_rotation(r: &Matrix3<f64>) -> bool {
-        (r.transpose() * r - Matrix3::identity()).norm() < 1e-8 && (r.determinant() - 1.0).abs() < 1e-8
+        (r.transpose() * r - Matrix3::identity()).norm() < 1e-8
+            && (r.determinant() - 1.0).abs() < 1e-8
     }
 
     #[test]
@@ -111,11 +112,14 @@ mod tests {
     fn iterative_agrees_with_svd_for_random_deformations() {
         let mut seed = 12345u64;
         let mut rnd = || {
-            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
         };
         for _ in 0..200 {
-            let rot = Rotation3::from_euler_angles(3.0 * rnd(), 3.0 * rnd(), 3.0 * rnd()).into_inner();
+            let rot =
+                Rotation3::from_euler_angles(3.0 * rnd(), 3.0 * rnd(), 3.0 * rnd()).into_inner();
             let mut s = Matrix3::identity();
             for v in s.iter_mut() {
                 *v += 0.3 * rnd();

@@ -1,1 +1,3 @@
 //! Shared helpers for palpate's cross-crate and hardware-in-the-loop tests (see `tests/tests/`).
+
+pub mod model;

@@ -4,9 +4,14 @@ use clap::Subcommand;
 
 /// Which benchmark to run.
 #[derive(Debug, Subcommand)]
-pub enum BenchCommand {}
+pub enum BenchCommand {
+    /// The haptic tick (runtime) on a generated block, against a per-tick sparse direct solve.
+    Runtime(super::bench_runtime::Args),
+}
 
 /// Runs a benchmark.
 pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
-    match cmd {}
+    match cmd {
+        BenchCommand::Runtime(a) => super::bench_runtime::run(a),
+    }
 }

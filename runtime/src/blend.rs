@@ -1,0 +1,142 @@
+//! Run-time blending of fitted parameter sets for non-linear materials (seed 000 §6.2.3–6.2.4).
+//!
+//! Biharmonic RBFs φ(r) = r interpolate each fitted set exactly at its own centre. Outside the
+//! fitted range RBFs extrapolate badly (the thesis warns of it), so the blended (λ, α) are clamped
+//! to the range spanned by the fitted sets (per element for per-element sets), and α is then kept
+//! inside the physical band −0.999 λ < α < 0.499 λ. The runtime therefore never leaves the
+//! convex range of what was measured.
+
+use crate::runtime::Runtime;
+use palpate_protocol::model::{Blend, ParameterLayout};
+
+/// Biharmonic basis φ(r) = r (eqs. 6.2–6.5).
+#[inline(always)]
+pub fn phi(r: f32) -> f32 {
+    r
+}
+
+/// Recomputes (λ_e, α_e) from the current state (no-op for linear materials).
+pub(crate) fn blend_parameters(rt: &mut Runtime<'_>) {
+    let rec = rt.record;
+    let ps = rec.parameters;
+    let sets = ps.count as usize;
+    let per_element = ps.layout == ParameterLayout::PerElement;
+    let t = rt.t;
+    let set_value = |arr: &palpate_protocol::model::F32s<'_>, s: usize, e: usize| -> f32 {
+        arr.get(if per_element { s * t + e } else { s })
+            .unwrap_or(0.0)
+    };
+    match rec.blend {
+        Blend::None => {}
+        Blend::Deformation {
+            centres,
+            weights_lambda,
+            weights_alpha,
+        } => {
+            // λ = Σ_i w_i^λ φ(‖x − x̄_i‖) (eq. 6.2), α likewise (eq. 6.3); x over all nodes.
+            let mut lam = 0.0f32;
+            let mut alp = 0.0f32;
+            let n3 = 3 * rt.n;
+            for s in 0..sets {
+                let mut d2 = 0.0f64;
+                for k in 0..n3 {
+                    let x = rt.x0[k] + rt.u[k];
+                    let c = centres.get(s * n3 + k).unwrap_or(x);
+                    d2 += ((x - c) as f64) * ((x - c) as f64);
+                }
+                let ph = phi(libm::sqrt(d2) as f32);
+                lam += weights_lambda.get(s).unwrap_or(0.0) * ph;
+                alp += weights_alpha.get(s).unwrap_or(0.0) * ph;
+            }
+            for e in 0..t {
+                let (l, a) = clamp_to_sets(
+                    lam,
+                    alp,
+                    sets,
+                    |s| set_value(&ps.lambda, s, e),
+                    |s| set_value(&ps.alpha, s, e),
+                );
+                rt.lam[e] = l;
+                rt.alp[e] = a;
+            }
+        }
+        Blend::Strain {
+            neighbours,
+            neighbour_index,
+            neighbour_weight,
+            centres,
+            weights_lambda,
+            weights_alpha,
+            ..
+        } => {
+            // λ_e = Σ_l w_{e,l}^λ φ(‖e − ē_l‖_e) (eqs. 6.9–6.11) with the locally weighted metric.
+            let k = neighbours as usize;
+            for e in 0..t {
+                let mut lam = 0.0f32;
+                let mut alp = 0.0f32;
+                for l in 0..sets {
+                    let mut d2 = 0.0f32;
+                    for j in 0..k {
+                        let nb = neighbour_index.get(e * k + j).unwrap_or(e as u32) as usize;
+                        let w = neighbour_weight.get(e * k + j).unwrap_or(0.0);
+                        if nb >= t {
+                            continue;
+                        }
+                        let mut s2 = 0.0f32;
+                        for c in 0..6 {
+                            let cur = rt.strain.get(6 * nb + c).copied().unwrap_or(0.0);
+                            let cen = centres.get((l * t + nb) * 6 + c).unwrap_or(cur);
+                            s2 += (cur - cen) * (cur - cen);
+                        }
+                        d2 += w * s2;
+                    }
+                    let ph = phi(libm::sqrtf(d2.max(0.0)));
+                    lam += weights_lambda.get(e * sets + l).unwrap_or(0.0) * ph;
+                    alp += weights_alpha.get(e * sets + l).unwrap_or(0.0) * ph;
+                }
+                let (l, a) = clamp_to_sets(
+                    lam,
+                    alp,
+                    sets,
+                    |s| set_value(&ps.lambda, s, e),
+                    |s| set_value(&ps.alpha, s, e),
+                );
+                rt.lam[e] = l;
+                rt.alp[e] = a;
+            }
+        }
+    }
+}
+
+/// Clamps blended (λ, α) to the range of the fitted sets and to the physical band.
+fn clamp_to_sets(
+    lam: f32,
+    alp: f32,
+    sets: usize,
+    set_lambda: impl Fn(usize) -> f32,
+    set_alpha: impl Fn(usize) -> f32,
+) -> (f32, f32) {
+    let (mut lo_l, mut hi_l, mut lo_a, mut hi_a) = (
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+    );
+    for s in 0..sets {
+        lo_l = lo_l.min(set_lambda(s));
+        hi_l = hi_l.max(set_lambda(s));
+        lo_a = lo_a.min(set_alpha(s));
+        hi_a = hi_a.max(set_alpha(s));
+    }
+    let l = if lam.is_finite() {
+        lam.clamp(lo_l, hi_l)
+    } else {
+        set_lambda(0)
+    };
+    let a = if alp.is_finite() {
+        alp.clamp(lo_a, hi_a)
+    } else {
+        set_alpha(0)
+    };
+    (l, a.clamp(-0.999 * l, 0.499 * l))
+}

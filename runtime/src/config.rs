@@ -1,0 +1,63 @@
+//! Runtime configuration: solver budget, incremental-loading step, kernel and preconditioner.
+
+/// Which matrix-free element kernel applies K' = Σ R_e K_e R_eᵀ.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kernel {
+    /// Shape-function-gradient form (σ ∇φ), ~150 flops and 100 B per element: the default.
+    Gradient,
+    /// The model's packed C_e, D_e (eq. 3.63), ~400 flops and 624 B per element.
+    Packed,
+}
+
+/// Preconditioner of the conjugate-gradient solve.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Preconditioner {
+    /// Diagonal (Jacobi).
+    Jacobi,
+    /// 3 × 3 node blocks of K' (block Jacobi), exact for the rotated element blocks.
+    BlockJacobi,
+}
+
+/// Settings of a [`crate::Runtime`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RuntimeConfig {
+    /// PCG stops when ‖r‖ ≤ tolerance · scale (scale: applied load and probe reaction).
+    pub tolerance: f32,
+    /// PCG iterations allowed per tick (the tick's budget).
+    pub max_iterations: u32,
+    /// Incremental loading: the applied load moves toward the commanded load by at most this
+    /// many newtons per tick (∆f of seed 000 §6.1). `f32::INFINITY` applies it at once.
+    pub load_step: f32,
+    /// Position-driven probe: the probe moves toward its commanded position by at most this many
+    /// metres per tick.
+    pub probe_step: f32,
+    /// Stiffness warping on (eqs. 3.53–3.54) or off (R_e = I, the linear model).
+    pub warp: bool,
+    /// Iterations of the warm-started rotation extraction per tick.
+    pub rotation_iterations: u32,
+    /// Element kernel.
+    pub kernel: Kernel,
+    /// Preconditioner.
+    pub preconditioner: Preconditioner,
+    /// Non-linear materials: re-blend parameters every this many ticks (≥ 1).
+    pub blend_every: u32,
+    /// Absolute residual floor (N) below which a solve counts as converged whatever the scale.
+    pub absolute_tolerance: f32,
+}
+
+impl Default for RuntimeConfig {
+    fn default() -> Self {
+        Self {
+            tolerance: 1e-4,
+            max_iterations: 200,
+            load_step: f32::INFINITY,
+            probe_step: f32::INFINITY,
+            warp: true,
+            rotation_iterations: 2,
+            kernel: Kernel::Gradient,
+            preconditioner: Preconditioner::BlockJacobi,
+            blend_every: 1,
+            absolute_tolerance: 1e-9,
+        }
+    }
+}

@@ -1,0 +1,212 @@
+//! The per-element hot kernels of the warped stiffness, matrix-free.
+//!
+//! For an isotropic element E = λF + αG (eq. 3.38) the stress of a displacement gradient H is
+//! σ = α tr(ε) I + (λ − 2α) ε with ε = sym(H) (α is Lamé's first constant, λ − 2α = 2μ). The
+//! element force is f_a = V_e σ ∇φ_a, which is exactly K_e u_e = V_e B_eᵀ E B_e u_e (eq. 3.21) —
+//! the same matrix as λ C_e + α D_e, evaluated without forming it. Warping (eqs. 3.50–3.53)
+//! rotates the gradient into the rest frame (Rᵀ H) and the stress back (R σ).
+//!
+//! Data per element, structure-of-arrays: `grad` holds ∇φ_1..∇φ_3 (∇φ_0 = −Σ), 9 values;
+//! `rot` holds R_e row-major, 9 values.
+
+/// 3 × 3 row-major matrix.
+pub type M3 = [f32; 9];
+
+/// H = Σ_{a=1..3} (v_a − v_0) ⊗ ∇φ_a, row-major (H_ij = Σ_a (v_a − v_0)_i ∇φ_a,j).
+#[inline(always)]
+pub fn gradient_of(v: &[[f32; 3]; 4], g: &[f32; 9]) -> M3 {
+    let mut h = [0.0f32; 9];
+    for a in 0..3 {
+        let d = [
+            v[a + 1][0] - v[0][0],
+            v[a + 1][1] - v[0][1],
+            v[a + 1][2] - v[0][2],
+        ];
+        let ga = [g[3 * a], g[3 * a + 1], g[3 * a + 2]];
+        for i in 0..3 {
+            for j in 0..3 {
+                h[3 * i + j] += d[i] * ga[j];
+            }
+        }
+    }
+    h
+}
+
+/// Rᵀ H.
+#[inline(always)]
+pub fn rt_mul(r: &M3, h: &M3) -> M3 {
+    let mut o = [0.0f32; 9];
+    for i in 0..3 {
+        for j in 0..3 {
+            o[3 * i + j] = r[i] * h[j] + r[3 + i] * h[3 + j] + r[6 + i] * h[6 + j];
+        }
+    }
+    o
+}
+
+/// R S.
+#[inline(always)]
+pub fn r_mul(r: &M3, s: &M3) -> M3 {
+    let mut o = [0.0f32; 9];
+    for i in 0..3 {
+        for j in 0..3 {
+            o[3 * i + j] = r[3 * i] * s[j] + r[3 * i + 1] * s[3 + j] + r[3 * i + 2] * s[6 + j];
+        }
+    }
+    o
+}
+
+/// σ(H) = α tr(ε) I + (λ − 2α) ε, ε = sym(H) (symmetric, row-major).
+#[inline(always)]
+pub fn stress(h: &M3, lambda: f32, alpha: f32) -> M3 {
+    let two_mu = lambda - 2.0 * alpha;
+    let tr = h[0] + h[4] + h[8];
+    let s01 = 0.5 * two_mu * (h[1] + h[3]);
+    let s02 = 0.5 * two_mu * (h[2] + h[6]);
+    let s12 = 0.5 * two_mu * (h[5] + h[7]);
+    [
+        alpha * tr + two_mu * h[0],
+        s01,
+        s02,
+        s01,
+        alpha * tr + two_mu * h[4],
+        s12,
+        s02,
+        s12,
+        alpha * tr + two_mu * h[8],
+    ]
+}
+
+/// Nodal forces f_a = P ∇φ_a (a = 1..3), f_0 = −Σ f_a, for P = V R σ.
+#[inline(always)]
+pub fn nodal_forces(p: &M3, g: &[f32; 9]) -> [[f32; 3]; 4] {
+    let mut f = [[0.0f32; 3]; 4];
+    for a in 0..3 {
+        for i in 0..3 {
+            let v = p[3 * i] * g[3 * a] + p[3 * i + 1] * g[3 * a + 1] + p[3 * i + 2] * g[3 * a + 2];
+            f[a + 1][i] = v;
+            f[0][i] -= v;
+        }
+    }
+    f
+}
+
+/// Warped element stiffness times a displacement: R K_e Rᵀ v_e.
+#[inline(always)]
+pub fn warped_apply(
+    v: &[[f32; 3]; 4],
+    g: &[f32; 9],
+    r: &M3,
+    volume: f32,
+    lambda: f32,
+    alpha: f32,
+) -> [[f32; 3]; 4] {
+    let h = rt_mul(r, &gradient_of(v, g));
+    let s = stress(&h, lambda, alpha);
+    let mut p = r_mul(r, &s);
+    p.iter_mut().for_each(|x| *x *= volume);
+    nodal_forces(&p, g)
+}
+
+/// Warped internal force R K_e (Rᵀ x_e − x_0e) from the deformation gradient F = I + H(u):
+/// the rest-frame displacement gradient is Rᵀ F − I (eq. 3.49 in gradient form).
+/// Also returns the rest-frame strain tensor sym(RᵀF) − I (for strain-space blending).
+#[inline(always)]
+pub fn warped_internal_force(
+    u: &[[f32; 3]; 4],
+    g: &[f32; 9],
+    r: &M3,
+    volume: f32,
+    lambda: f32,
+    alpha: f32,
+) -> ([[f32; 3]; 4], M3) {
+    let mut f = gradient_of(u, g);
+    f[0] += 1.0;
+    f[4] += 1.0;
+    f[8] += 1.0;
+    let mut h = rt_mul(r, &f);
+    h[0] -= 1.0;
+    h[4] -= 1.0;
+    h[8] -= 1.0;
+    let s = stress(&h, lambda, alpha);
+    let mut p = r_mul(r, &s);
+    p.iter_mut().for_each(|x| *x *= volume);
+    (nodal_forces(&p, g), h)
+}
+
+/// Diagonal 3 × 3 block of R K_e Rᵀ for node `a` (0..4), packed (xx, yy, zz, xy, yz, zx):
+/// V [ (λ/2) (R∇φ_a)(R∇φ_a)ᵀ + μ |∇φ_a|² I ], μ = λ/2 − α.
+#[inline(always)]
+pub fn diagonal_block(
+    a: usize,
+    g: &[f32; 9],
+    r: &M3,
+    volume: f32,
+    lambda: f32,
+    alpha: f32,
+) -> [f32; 6] {
+    let ga = if a == 0 {
+        [
+            -(g[0] + g[3] + g[6]),
+            -(g[1] + g[4] + g[7]),
+            -(g[2] + g[5] + g[8]),
+        ]
+    } else {
+        [g[3 * (a - 1)], g[3 * (a - 1) + 1], g[3 * (a - 1) + 2]]
+    };
+    let rg = [
+        r[0] * ga[0] + r[1] * ga[1] + r[2] * ga[2],
+        r[3] * ga[0] + r[4] * ga[1] + r[5] * ga[2],
+        r[6] * ga[0] + r[7] * ga[1] + r[8] * ga[2],
+    ];
+    let half = 0.5 * lambda * volume;
+    let iso = (0.5 * lambda - alpha) * volume * (ga[0] * ga[0] + ga[1] * ga[1] + ga[2] * ga[2]);
+    [
+        half * rg[0] * rg[0] + iso,
+        half * rg[1] * rg[1] + iso,
+        half * rg[2] * rg[2] + iso,
+        half * rg[0] * rg[1],
+        half * rg[1] * rg[2],
+        half * rg[2] * rg[0],
+    ]
+}
+
+/// Warped element stiffness times a displacement using the packed C_e, D_e of the model
+/// (eq. 3.63): R (λ C_e + α D_e) Rᵀ v_e. The alternative kernel, compared by `bench runtime`.
+#[inline(always)]
+pub fn warped_apply_packed(
+    v: &[[f32; 3]; 4],
+    c: &[f32; 78],
+    d: &[f32; 78],
+    r: &M3,
+    lambda: f32,
+    alpha: f32,
+) -> [[f32; 3]; 4] {
+    let mut w = [0.0f32; 12];
+    for a in 0..4 {
+        for i in 0..3 {
+            w[3 * a + i] = r[i] * v[a][0] + r[3 + i] * v[a][1] + r[6 + i] * v[a][2];
+        }
+    }
+    let mut y = [0.0f32; 12];
+    let mut k = 0;
+    for i in 0..12 {
+        let kii = lambda * c[k] + alpha * d[k];
+        y[i] += kii * w[i];
+        k += 1;
+        for j in (i + 1)..12 {
+            let kij = lambda * c[k] + alpha * d[k];
+            y[i] += kij * w[j];
+            y[j] += kij * w[i];
+            k += 1;
+        }
+    }
+    let mut out = [[0.0f32; 3]; 4];
+    for a in 0..4 {
+        for i in 0..3 {
+            out[a][i] =
+                r[3 * i] * y[3 * a] + r[3 * i + 1] * y[3 * a + 1] + r[3 * i + 2] * y[3 * a + 2];
+        }
+    }
+    out
+}
