@@ -7,3 +7,4 @@ pub mod fsr;
 pub mod forward;
 pub mod io;
 pub mod mesh;
+pub mod plot;
