@@ -3,8 +3,9 @@
 
 pub mod cli;
 pub mod dataset;
-pub mod fsr;
 pub mod forward;
+pub mod fsr;
 pub mod io;
 pub mod mesh;
 pub mod plot;
+pub mod motion;

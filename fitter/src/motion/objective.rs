@@ -1,0 +1,171 @@
+//! The objective: the marker term of eq. 15 and its force analogue, per time step, with the
+//! partial derivatives ∂φ/∂x, ∂φ/∂v and ∂φ/∂q the gradient methods need.
+//!
+//! Φ = Σ_n Δt [ w_m ½ Σ_i ‖x̄_i(x^n) − x_i*(t_n)‖² + w_f ½ Σ_c ‖F_c(x^n, v^n) − F_c*(t_n)‖² ],
+//! the rectangle-rule discretisation of eq. 15's time integral. F_c = −Σ_{a ∈ clamp c} f_a is the
+//! force the clamp exerts on the body through its nodes' internal (elastic + viscous) forces: what
+//! a load cell in the clamp reads, without the clamp nodes' own weight and inertia (tared).
+
+use super::forces::param_derivatives;
+use super::hyperelastic::{self as he, FParts, HyperParams};
+use super::model::{Material, Model, Observations, ParamKind};
+use super::viscosity as visc;
+use super::MotionError;
+
+/// One step's objective contribution and partial derivatives.
+#[derive(Debug, Clone, Default)]
+pub struct StepTerm {
+    /// φ_n Δt.
+    pub phi: f64,
+    /// Σ‖x̄ − x*‖² over observed markers.
+    pub marker_sq: f64,
+    /// Number of observed markers.
+    pub marker_count: usize,
+    /// Σ‖F − F*‖² over observed clamp forces.
+    pub force_sq: f64,
+    /// Number of observed clamp forces.
+    pub force_count: usize,
+}
+
+/// Reaction force F_c of clamp `c` at state (x, v).
+pub fn clamp_force(
+    model: &Model,
+    mat: &Material,
+    c: usize,
+    x: &[f64],
+    v: &[f64],
+) -> Result<[f64; 3], MotionError> {
+    let mut out = [0.0; 3];
+    for &e in &model.clamp_elems[c] {
+        let fe = super::forces::element_internal(model, mat, e, x, v)?;
+        for (a, &node) in model.tets[e].iter().enumerate() {
+            if model.node_clamp[node] == c {
+                for i in 0..3 {
+                    out[i] -= fe[3 * a + i];
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Evaluates step `n` (1-based). With `grad = Some((gx, gv, acc))` it adds ∂(φΔt)/∂x and ∂/∂v
+/// (free dofs) and ∂/∂(per-element kind) into `acc[kind][e]` for kinds in `kinds`.
+#[allow(clippy::type_complexity)]
+pub fn step_term(
+    model: &Model,
+    mat: &Material,
+    obs: &Observations,
+    n: usize,
+    x: &[f64],
+    v: &[f64],
+    kinds: &[bool; 5],
+    grad: Option<(&mut [f64], &mut [f64], &mut [Vec<f64>; 5])>,
+) -> Result<StepTerm, MotionError> {
+    let dt = model.dt;
+    let mut term = StepTerm::default();
+    let mut grad = grad;
+    if let Some(row) = obs.markers.get(n - 1) {
+        for (i, target) in row.iter().enumerate() {
+            let Some(t) = target else { continue };
+            let m = &model.markers[i];
+            let p = model.marker_position(m, x);
+            let e = [p[0] - t[0], p[1] - t[1], p[2] - t[2]];
+            let sq = e[0] * e[0] + e[1] * e[1] + e[2] * e[2];
+            term.marker_sq += sq;
+            term.marker_count += 1;
+            term.phi += 0.5 * obs.marker_weight * dt * sq;
+            if let Some((gx, _, _)) = grad.as_mut() {
+                for &(node, w) in &m.weights {
+                    for k in 0..3 {
+                        let fr = model.free[3 * node + k];
+                        if fr != usize::MAX {
+                            gx[fr] += obs.marker_weight * dt * e[k] * w;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    if let Some(row) = obs.forces.get(n - 1) {
+        for (c, target) in row.iter().enumerate() {
+            let Some(t) = target else { continue };
+            let fc = clamp_force(model, mat, c, x, v)?;
+            let e = [fc[0] - t[0], fc[1] - t[1], fc[2] - t[2]];
+            let sq = e[0] * e[0] + e[1] * e[1] + e[2] * e[2];
+            term.force_sq += sq;
+            term.force_count += 1;
+            term.phi += 0.5 * obs.force_weight * dt * sq;
+            let Some((gx, gv, acc)) = grad.as_mut() else {
+                continue;
+            };
+            let w = obs.force_weight * dt;
+            for &el in &model.clamp_elems[c] {
+                let tet = model.tets[el];
+                let rt = &model.rest[el];
+                let s = FParts::new(he::deformation_gradient(rt, &model.gather(el, x)))
+                    .ok_or(MotionError::Inverted { element: el })?;
+                let hp = HyperParams {
+                    lambda: mat.get(ParamKind::Lambda, el),
+                    mu: mat.get(ParamKind::Mu, el),
+                    stiffening: 0.0,
+                };
+                let ke = he::element_tangent(rt, &s, &hp);
+                let de =
+                    visc::Rate::new(&visc::velocity_gradient(rt, &model.gather(el, v))).map(|r| {
+                        visc::element_damping(
+                            rt,
+                            &r,
+                            mat.get(ParamKind::Nu, el),
+                            mat.get(ParamKind::PowerH, el),
+                        )
+                    });
+                for a in 0..4 {
+                    if model.node_clamp[tet[a]] != c {
+                        continue;
+                    }
+                    for col in 0..12 {
+                        let fr = model.free[3 * tet[col / 3] + col % 3];
+                        if fr == usize::MAX {
+                            continue;
+                        }
+                        let mut sk = 0.0;
+                        let mut sd = 0.0;
+                        for i in 0..3 {
+                            sk += e[i] * ke[3 * a + i][col];
+                            if let Some(d) = &de {
+                                sd += e[i] * d[3 * a + i][col];
+                            }
+                        }
+                        gx[fr] += w * sk;
+                        gv[fr] += w * sd;
+                    }
+                }
+            }
+            let mut k2 = *kinds;
+            k2[ParamKind::Density as usize] = false; // F_c holds internal forces only
+            param_derivatives(
+                model,
+                mat,
+                &k2,
+                x,
+                v,
+                None,
+                Some(&model.clamp_elems[c]),
+                |el, kind, g| {
+                    let tet = model.tets[el];
+                    let mut s = 0.0;
+                    for a in 0..4 {
+                        if model.node_clamp[tet[a]] == c {
+                            for i in 0..3 {
+                                s -= e[i] * g[3 * a + i];
+                            }
+                        }
+                    }
+                    acc[kind as usize][el] += w * s;
+                },
+            )?;
+        }
+    }
+    Ok(term)
+}

@@ -1,0 +1,217 @@
+//! Forward simulation: elastostatic start (§3.4) and BDF2 steps (eq. 2) solved by Newton.
+//!
+//! Unknowns per step are the free velocities v^{n}; positions follow from
+//! x^{n} = (4x^{n−1} − x^{n−2})/3 + (2Δt/3) v^{n}. Clamped dofs are prescribed: their positions
+//! come from the clamp pose and their velocities from the same BDF2 relation, so the scheme is
+//! consistent on every node. Before t = 0 the body rests (v(t ≤ 0) = 0, x^{−1} = x^{0}).
+
+use super::forces::assemble;
+use super::model::{Material, Model};
+use super::sparse::Factor;
+use super::MotionError;
+
+/// Converged end-of-step data handed to a step observer.
+pub struct StepView<'a> {
+    /// Step index n ≥ 1.
+    pub n: usize,
+    /// Positions x^n (full dofs).
+    pub x: &'a [f64],
+    /// Velocities v^n (full dofs).
+    pub v: &'a [f64],
+    /// x^{n−1}, x^{n−2}, v^{n−1}, v^{n−2} (full dofs).
+    pub prev: [&'a [f64]; 4],
+    /// Cholesky factor of S = 3M/(2Δt) + 2Δt K/3 + D at the converged state (present when the
+    /// caller asked for factors).
+    pub factor: Option<&'a Factor>,
+    /// K values at the converged state (free pattern).
+    pub k: &'a [f64],
+}
+
+/// Counters of one forward run.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SimStats {
+    /// Newton iterations over all steps (linear solves).
+    pub newton_iterations: usize,
+    /// Steps that hit the iteration cap without reaching the tolerance.
+    pub unconverged_steps: usize,
+    /// Largest final residual norm over steps (N).
+    pub max_residual: f64,
+}
+
+/// Elastostatic equilibrium f(x, 0) + f_ext = 0 with clamps at their step-0 pose (§3.4).
+/// Returns x⁰ and the factor of K₀ at x⁰ (needed by eq. 14 and the direct method's s_x⁰).
+pub fn static_start(model: &Model, mat: &Material) -> Result<(Vec<f64>, Factor), MotionError> {
+    let ndof = 3 * model.nodes.len();
+    let mut x: Vec<f64> = model.nodes.iter().flatten().copied().collect();
+    model.apply_clamps(0, &mut x);
+    let v = vec![0.0; ndof];
+    let fext = model.gravity_load(mat);
+    let mut f = vec![0.0; ndof];
+    let mut k = vec![0.0; model.pattern.nnz()];
+    let resid =
+        |x: &[f64], f: &mut [f64], k: Option<&mut [f64]>| -> Result<(Vec<f64>, f64), MotionError> {
+            assemble(model, mat, x, &v, f, k, None)?;
+            let mut r = vec![0.0; model.nfree];
+            for (d, &fr) in model.free.iter().enumerate() {
+                if fr != usize::MAX {
+                    r[fr] = f[d] + fext[d];
+                }
+            }
+            let nrm = r.iter().map(|z| z * z).sum::<f64>().sqrt();
+            Ok((r, nrm))
+        };
+    for _ in 0..60 {
+        let (r, nrm) = resid(&x, &mut f, Some(&mut k))?;
+        let factor = model
+            .pattern
+            .factor(&k)
+            .ok_or(MotionError::NotPositiveDefinite { step: 0 })?;
+        if nrm < model.newton.tol {
+            return Ok((x, factor));
+        }
+        let mut dx = r;
+        factor.solve_in_place(&mut dx);
+        // Backtracking on the residual norm: full steps near equilibrium, halved when a step
+        // would invert an element or increase the residual.
+        let mut alpha = 1.0;
+        loop {
+            let mut xt = x.clone();
+            for (d, &fr) in model.free.iter().enumerate() {
+                if fr != usize::MAX {
+                    xt[d] += alpha * dx[fr];
+                }
+            }
+            match resid(&xt, &mut f, None) {
+                Ok((_, n2)) if n2 < nrm || alpha < 1e-3 => {
+                    x = xt;
+                    break;
+                }
+                _ if alpha < 1e-6 => {
+                    return Err(MotionError::NoConvergence {
+                        step: 0,
+                        residual: nrm,
+                    })
+                }
+                _ => alpha *= 0.5,
+            }
+        }
+    }
+    let (_, nrm) = resid(&x, &mut f, None)?;
+    Err(MotionError::NoConvergence {
+        step: 0,
+        residual: nrm,
+    })
+}
+
+/// Runs the forward simulation from the rest shape or the elastostatic start.
+///
+/// `on_start(x⁰, K₀ factor)` is called once (factor `None` for a rest-shape start), then
+/// `on_step` after every converged step. With `factors = true` each step's S is factorised at
+/// the converged state (one extra factorisation per step) and handed to `on_step`.
+pub fn simulate(
+    model: &Model,
+    mat: &Material,
+    factors: bool,
+    mut on_start: impl FnMut(&[f64], Option<&Factor>),
+    mut on_step: impl FnMut(&StepView<'_>) -> Result<(), MotionError>,
+) -> Result<SimStats, MotionError> {
+    let ndof = 3 * model.nodes.len();
+    let (x0, k0) = if model.static_start {
+        let (x, f) = static_start(model, mat)?;
+        (x, Some(f))
+    } else {
+        let mut x: Vec<f64> = model.nodes.iter().flatten().copied().collect();
+        model.apply_clamps(0, &mut x);
+        (x, None)
+    };
+    on_start(&x0, k0.as_ref());
+    drop(k0);
+    let c = 1.5 / model.dt;
+    let a2 = 2.0 * model.dt / 3.0;
+    let fext = model.gravity_load(mat);
+    let mvals = model.mass_values(mat);
+    let (mut xm2, mut xm1) = (x0.clone(), x0);
+    let (mut vm2, mut vm1) = (vec![0.0; ndof], vec![0.0; ndof]);
+    let mut f = vec![0.0; ndof];
+    let mut kv = vec![0.0; model.pattern.nnz()];
+    let mut dv = vec![0.0; model.pattern.nnz()];
+    let mut sv = vec![0.0; model.pattern.nnz()];
+    let mut mw = vec![0.0; ndof];
+    let mut stats = SimStats::default();
+    for n in 1..=model.steps {
+        let xa: Vec<f64> = (0..ndof).map(|d| (4.0 * xm1[d] - xm2[d]) / 3.0).collect();
+        let b: Vec<f64> = (0..ndof).map(|d| (4.0 * vm1[d] - vm2[d]) / 3.0).collect();
+        let mut x = vec![0.0; ndof];
+        model.apply_clamps(n, &mut x);
+        let mut v = vm1.clone();
+        for d in 0..ndof {
+            if model.free[d] == usize::MAX {
+                v[d] = (x[d] - xa[d]) / a2;
+            } else {
+                x[d] = xa[d] + a2 * v[d];
+            }
+        }
+        let mut iter = 0;
+        let last_factor: Option<Factor>;
+        loop {
+            assemble(model, mat, &x, &v, &mut f, Some(&mut kv), Some(&mut dv))?;
+            let vb: Vec<f64> = (0..ndof).map(|d| v[d] - b[d]).collect();
+            mw.iter_mut().for_each(|z| *z = 0.0);
+            model.mass_mul(mat, &vb, &mut mw);
+            let mut r = vec![0.0; model.nfree];
+            for (d, &fr) in model.free.iter().enumerate() {
+                if fr != usize::MAX {
+                    r[fr] = f[d] + fext[d] - c * mw[d];
+                }
+            }
+            let nrm = r.iter().map(|z| z * z).sum::<f64>().sqrt();
+            if !nrm.is_finite() {
+                return Err(MotionError::NonFinite(format!("residual at step {n}")));
+            }
+            let done = nrm < model.newton.tol || iter >= model.newton.max_iter;
+            if done && !factors {
+                stats.max_residual = stats.max_residual.max(nrm);
+                if nrm >= model.newton.tol {
+                    stats.unconverged_steps += 1;
+                }
+                last_factor = None;
+                break;
+            }
+            for i in 0..sv.len() {
+                sv[i] = c * mvals[i] + a2 * kv[i] + dv[i];
+            }
+            let fac = model
+                .pattern
+                .factor(&sv)
+                .ok_or(MotionError::NotPositiveDefinite { step: n })?;
+            if done {
+                stats.max_residual = stats.max_residual.max(nrm);
+                if nrm >= model.newton.tol {
+                    stats.unconverged_steps += 1;
+                }
+                last_factor = Some(fac);
+                break;
+            }
+            fac.solve_in_place(&mut r);
+            for (d, &fr) in model.free.iter().enumerate() {
+                if fr != usize::MAX {
+                    v[d] += r[fr];
+                    x[d] = xa[d] + a2 * v[d];
+                }
+            }
+            iter += 1;
+            stats.newton_iterations += 1;
+        }
+        on_step(&StepView {
+            n,
+            x: &x,
+            v: &v,
+            prev: [&xm1, &xm2, &vm1, &vm2],
+            factor: last_factor.as_ref(),
+            k: &kv,
+        })?;
+        xm2 = std::mem::replace(&mut xm1, x);
+        vm2 = std::mem::replace(&mut vm1, v);
+    }
+    Ok(stats)
+}
