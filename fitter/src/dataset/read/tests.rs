@@ -367,3 +367,18 @@ fn bad_header_and_short_rows_are_rejected() {
         ],
     );
 }
+
+#[test]
+fn example_dataset_in_models_reads() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/dataset-example");
+    let d = StaticDataset::read(dir).unwrap();
+    assert_eq!((d.markers.len(), d.measurements.len()), (9, 2));
+    // p1 misses m9 (occluded); p2 sees all nine.
+    assert_eq!(d.measurements[0].observed.len(), 8);
+    assert_eq!(d.measurements[1].observed.len(), 9);
+    assert_eq!(d.measurements[0].radius, 0.01);
+    assert_eq!(d.measurements[1].radius, 0.008);
+    assert_eq!(d.gravity, Some([0.0, 0.0, -9.81]));
+    // The markers lie on the flat top face of the sponge: distance 0 up to round-off.
+    assert!(d.markers.iter().all(|m| m.distance < 1e-15));
+}
