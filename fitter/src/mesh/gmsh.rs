@@ -232,10 +232,13 @@ struct RawMsh {
     /// (dimension, entity tag) → physical tags.
     entity_physicals: Vec<((i32, i32), Vec<i32>)>,
     /// Node blocks: (dimension, entity tag, [(node tag, xyz)]).
-    node_blocks: Vec<(i32, i32, Vec<(u64, [f64; 3])>)>,
+    node_blocks: Vec<NodeBlock>,
     /// Element blocks.
     element_blocks: Vec<RawElements>,
 }
+
+/// (dimension, entity tag, [(node tag, xyz)]).
+type NodeBlock = (i32, i32, Vec<(u64, [f64; 3])>);
 
 #[derive(Debug)]
 struct RawElements {

@@ -86,8 +86,8 @@ fn good_dataset_reads_embeds_and_round_trips() {
     for m in &d.markers {
         assert!(m.distance < 1e-15, "{m:?}");
         let p = m.interpolate(|i| d.mesh.nodes[i]);
-        for k in 0..3 {
-            assert!((p[k] - m.rest[k]).abs() < 1e-15);
+        for (a, b) in p.iter().zip(&m.rest) {
+            assert!((a - b).abs() < 1e-15);
         }
     }
     // Round trip through StaticDataset::write.

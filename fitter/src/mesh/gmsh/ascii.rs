@@ -160,11 +160,8 @@ pub(super) fn parse(file: &Path, bytes: &[u8]) -> Result<RawMsh, MeshError> {
     })?;
     let mut t = Tokens::new(file, text);
     let mut raw = RawMsh::default();
-    loop {
-        let (line, section) = match t.next("a section") {
-            Ok(s) => s,
-            Err(_) => break, // end of file between sections
-        };
+    // `next` fails only at the end of the file, which is where reading stops between sections.
+    while let Ok((line, section)) = t.next("a section") {
         match section {
             "$MeshFormat" => {
                 // Checked by `is_binary`; skip its content.

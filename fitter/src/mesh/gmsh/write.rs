@@ -60,7 +60,9 @@ pub fn write_msh(mesh: &Mesh, path: impl AsRef<Path>) -> Result<(), MeshError> {
 
     // Per group: boundary triangles inside it, and the leftover nodes.
     let boundary = mesh.boundary_triangles();
-    let groups: Vec<(&String, Vec<[usize; 3]>, Vec<usize>)> = mesh
+    // (name, boundary triangles inside the group, group nodes on none of them)
+    type GroupLayout<'a> = (&'a String, Vec<[usize; 3]>, Vec<usize>);
+    let groups: Vec<GroupLayout> = mesh
         .node_groups
         .iter()
         .map(|(name, members)| {
