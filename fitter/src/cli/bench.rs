@@ -7,11 +7,14 @@ use clap::Subcommand;
 pub enum BenchCommand {
     /// The haptic tick (runtime) on a generated block, against a per-tick sparse direct solve.
     Runtime(super::bench_runtime::Args),
+    /// Motion fitting (Real2Sim) on the MyFEM anchor bar: simulation, gradients, LBFGS.
+    Motion(super::bench_motion::Args),
 }
 
 /// Runs a benchmark.
 pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
     match cmd {
         BenchCommand::Runtime(a) => super::bench_runtime::run(a),
+        BenchCommand::Motion(a) => super::bench_motion::run(a),
     }
 }

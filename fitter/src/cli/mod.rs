@@ -3,6 +3,9 @@
 use clap::{Parser, Subcommand};
 
 pub mod bench;
+pub mod bench_motion;
+pub mod motion_evidence;
+pub mod bench_runtime;
 pub mod calibrate_fsr;
 
 /// palpate: learn how a soft object deforms when touched, and play it back at haptic rates.
@@ -22,6 +25,8 @@ pub enum Command {
     Bench(bench::BenchCommand),
     /// Fit an FSR calibration (balance readings or datasheet points) and write the probe's calibration.
     CalibrateFsr(calibrate_fsr::Args),
+    /// Motion-fitter evidence runs (coarsening, recover, vhb, bimaterial) into docs/results/motion.
+    MotionEvidence(motion_evidence::Args),
 }
 
 /// Runs a parsed command line.
@@ -29,5 +34,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Bench(b) => bench::run(b),
         Command::CalibrateFsr(a) => calibrate_fsr::run(a),
+        Command::MotionEvidence(a) => motion_evidence::run(a),
     }
 }
