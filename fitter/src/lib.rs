@@ -6,6 +6,7 @@ pub mod dataset;
 pub mod forward;
 pub mod fsr;
 pub mod io;
+pub mod link;
 pub mod mesh;
 pub mod plot;
 pub mod motion;
