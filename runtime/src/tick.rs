@@ -440,6 +440,24 @@ impl<'a> Runtime<'a> {
         }
     }
 
+    /// Internal elastic forces f_int(x) = Σ R_e K_e (R_eᵀ x_e − x₀_e) of the current state with the
+    /// current rotations (3 per node, N). `out` must hold 3 values per node.
+    pub fn internal_forces(&self, out: &mut [f32]) -> Result<(), crate::RuntimeError> {
+        if out.len() != 3 * self.n {
+            return Err(crate::RuntimeError::ModelShape { what: "internal force buffer", expected: 3 * self.n, found: out.len() });
+        }
+        out.iter_mut().for_each(|v| *v = 0.0);
+        for e in 0..self.t {
+            let ids = self.element_ids(e);
+            let g = self.element_grad(e);
+            let r = self.element_rot(e);
+            let u = gather(self.u, &ids);
+            let (f, _) = warped_internal_force(&u, &g, &r, self.vol[e], self.lam[e], self.alp[e]);
+            scatter_add(out, &ids, &f);
+        }
+        Ok(())
+    }
+
     /// Recomputes rotations, strains and blended parameters for the current displacements.
     pub(crate) fn refresh_state(&mut self) {
         // A jump to an arbitrary state needs more than the per-tick warm-started iterations.

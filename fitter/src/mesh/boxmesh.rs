@@ -7,21 +7,33 @@ use std::collections::BTreeMap;
 /// subdivision along the main diagonal, conforming across cells). Node groups: `bottom` (z = 0),
 /// `top`, `left` (x = 0), `right`, `front` (y = 0), `back`.
 pub fn box_mesh(size: [f64; 3], cells: [usize; 3]) -> Mesh {
-    let [nx, ny, nz] = cells;
+    let grid = |k: usize| (0..=cells[k]).map(|i| size[k] * i as f64 / cells[k] as f64).collect::<Vec<_>>();
+    box_mesh_graded([&grid(0), &grid(1), &grid(2)])
+}
+
+/// Like [`box_mesh`], on arbitrary increasing grid coordinates per axis (graded meshes for
+/// contact problems: fine under the probe, coarse far away).
+pub fn box_mesh_graded(grid: [&[f64]; 3]) -> Mesh {
+    let [nx, ny, nz] = [grid[0].len() - 1, grid[1].len() - 1, grid[2].len() - 1];
+    let size = [grid[0][nx] - grid[0][0], grid[1][ny] - grid[1][0], grid[2][nz] - grid[2][0]];
+    let origin = [grid[0][0], grid[1][0], grid[2][0]];
     let id = |i: usize, j: usize, k: usize| (k * (ny + 1) + j) * (nx + 1) + i;
     let mut nodes = Vec::with_capacity((nx + 1) * (ny + 1) * (nz + 1));
     for k in 0..=nz {
         for j in 0..=ny {
             for i in 0..=nx {
-                nodes.push([
-                    size[0] * i as f64 / nx as f64,
-                    size[1] * j as f64 / ny as f64,
-                    size[2] * k as f64 / nz as f64,
-                ]);
+                nodes.push([grid[0][i], grid[1][j], grid[2][k]]);
             }
         }
     }
-    const PERMS: [[usize; 3]; 6] = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
+    const PERMS: [[usize; 3]; 6] = [
+        [0, 1, 2],
+        [0, 2, 1],
+        [1, 0, 2],
+        [1, 2, 0],
+        [2, 0, 1],
+        [2, 1, 0],
+    ];
     let mut tets = Vec::with_capacity(6 * nx * ny * nz);
     for k in 0..nz {
         for j in 0..ny {
@@ -49,15 +61,48 @@ pub fn box_mesh(size: [f64; 3], cells: [usize; 3]) -> Mesh {
                 groups.entry(name.to_string()).or_default().push(n);
             }
         };
-        put("left", p[0].abs() < tol);
-        put("right", (p[0] - size[0]).abs() < tol);
-        put("front", p[1].abs() < tol);
-        put("back", (p[1] - size[1]).abs() < tol);
-        put("bottom", p[2].abs() < tol);
-        put("top", (p[2] - size[2]).abs() < tol);
+        put("left", (p[0] - origin[0]).abs() < tol);
+        put("right", (p[0] - origin[0] - size[0]).abs() < tol);
+        put("front", (p[1] - origin[1]).abs() < tol);
+        put("back", (p[1] - origin[1] - size[1]).abs() < tol);
+        put("bottom", (p[2] - origin[2]).abs() < tol);
+        put("top", (p[2] - origin[2] - size[2]).abs() < tol);
     }
     let node_tags = (1..=nodes.len() as u64).collect();
-    Mesh { nodes, node_tags, tets, node_groups: groups }
+    Mesh {
+        nodes,
+        node_tags,
+        tets,
+        node_groups: groups,
+    }
+}
+
+/// Grid coordinates on [lo, hi] with spacing `fine` inside [fine_lo, fine_hi] and cells growing
+/// by `ratio` per cell outside it (capped at `coarse`).
+pub fn graded_axis(lo: f64, hi: f64, fine_lo: f64, fine_hi: f64, fine: f64, ratio: f64, coarse: f64) -> Vec<f64> {
+    let n_fine = ((fine_hi - fine_lo) / fine).round().max(1.0) as usize;
+    let mut pts: Vec<f64> = (0..=n_fine).map(|i| fine_lo + (fine_hi - fine_lo) * i as f64 / n_fine as f64).collect();
+    let grow = |from: f64, to: f64| {
+        let mut out = Vec::new();
+        let dir = (to - from).signum();
+        let mut h = fine;
+        let mut x = from;
+        while (to - x) * dir > 1e-12 {
+            h = (h * ratio).min(coarse);
+            x += dir * h;
+            if (to - x) * dir < 0.5 * h {
+                x = to;
+            }
+            out.push(x);
+        }
+        out
+    };
+    let mut left = grow(fine_lo, lo);
+    left.reverse();
+    let right = grow(fine_hi, hi);
+    left.append(&mut pts);
+    left.extend(right);
+    left
 }
 
 /// Cells per axis for a box of `size` with about `target_tets` tetrahedra and near-cubic cells.
@@ -75,7 +120,8 @@ fn signed_volume(nodes: &[[f64; 3]], t: &[usize; 4]) -> f64 {
     let a = nodes[t[0]];
     let d = |n: usize| [nodes[n][0] - a[0], nodes[n][1] - a[1], nodes[n][2] - a[2]];
     let (u, v, w) = (d(t[1]), d(t[2]), d(t[3]));
-    (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0]) + u[2] * (v[0] * w[1] - v[1] * w[0]))
+    (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
+        + u[2] * (v[0] * w[1] - v[1] * w[0]))
         / 6.0
 }
 

@@ -1,0 +1,65 @@
+//! The runtime allocates nothing after construction: a counting global allocator watches
+//! thousands of ticks with moving force-driven and position-driven contacts.
+
+use palpate_fitter::mesh::boxmesh::box_mesh;
+use palpate_runtime::material::LambdaAlpha;
+use palpate_runtime::{Probe, Runtime, RuntimeConfig, StorageRequirement};
+use palpate_tests::model::ModelBuffers;
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+struct Counting;
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+#[allow(unsafe_code)]
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
+        // SAFETY: forwards to the system allocator with the caller's layout.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: ptr was allocated by System.alloc with this layout.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
+        // SAFETY: forwards to the system allocator.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+#[test]
+fn thousands_of_ticks_allocate_nothing() {
+    let m = box_mesh([0.1, 0.1, 0.05], [6, 6, 3]);
+    let fixed = m.group("bottom").unwrap().to_vec();
+    let p = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
+    let buf = ModelBuffers::homogeneous(&m, &fixed, p.lambda, p.alpha);
+    let cfg = RuntimeConfig { load_step: 0.05, probe_step: 1e-4, ..Default::default() };
+    let need = StorageRequirement::for_model(&buf.record(), &cfg);
+    let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
+    let mut rt = Runtime::new(buf.record(), &mut fs, &mut us, cfg).unwrap();
+    let before = ALLOCATIONS.load(Ordering::SeqCst);
+    let mut solved = 0;
+    for k in 0..3000 {
+        let s = k as f32 / 3000.0;
+        if k < 1500 {
+            rt.set_contact_force([0.02 + 0.06 * s, 0.05, 0.05], [0.0, 0.0, -0.5], 0.015).unwrap();
+        } else {
+            if k == 1500 {
+                rt.clear_loads();
+            }
+            rt.set_probe(Probe::Sphere { center: [0.05, 0.02 + 0.06 * s, 0.058], radius: 0.01 }).unwrap();
+        }
+        let rep = rt.tick();
+        solved += rep.iterations;
+    }
+    let after = ALLOCATIONS.load(Ordering::SeqCst);
+    assert_eq!(after - before, 0, "the runtime allocated {} times during 3000 ticks", after - before);
+    assert!(solved > 0);
+    // The sphere really pressed the surface in the position-driven half.
+    assert!(rt.reaction()[2] > 0.0, "reaction {:?}", rt.reaction());
+}
