@@ -3,10 +3,13 @@
 
 pub mod cli;
 pub mod dataset;
+pub mod export;
 pub mod forward;
+pub mod static_fit;
 pub mod fsr;
 pub mod io;
 pub mod link;
 pub mod mesh;
+pub mod report;
 pub mod plot;
 pub mod motion;

@@ -3,6 +3,8 @@
 use clap::{Parser, Subcommand};
 
 pub mod bench;
+pub mod bench_fit;
+pub mod fit;
 pub mod bench_motion;
 pub mod motion_evidence;
 pub mod bench_runtime;
@@ -23,6 +25,8 @@ pub enum Command {
     /// Benchmarks that print a table and, as their last line, one JSON object.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Fit material parameters to a static contact dataset (seed 000) and export a model.
+    Fit(fit::Args),
     /// Fit an FSR calibration (balance readings or datasheet points) and write the probe's calibration.
     CalibrateFsr(calibrate_fsr::Args),
     /// Motion-fitter evidence runs (coarsening, recover, vhb, bimaterial) into docs/results/motion.
@@ -33,6 +37,7 @@ pub enum Command {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Bench(b) => bench::run(b),
+        Command::Fit(a) => fit::run(a),
         Command::CalibrateFsr(a) => calibrate_fsr::run(a),
         Command::MotionEvidence(a) => motion_evidence::run(a),
     }

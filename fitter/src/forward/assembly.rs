@@ -90,6 +90,10 @@ impl Factorised {
         self.llt
             .solve_in_place(MatMut::from_column_major_slice_mut(b, self.n, 1));
     }
+    /// Solves K' Y = B in place for several right-hand sides (columns of `b`).
+    pub fn solve_in_place_mat(&self, b: MatMut<'_, f64>) {
+        self.llt.solve_in_place(b);
+    }
     /// The assembled K' values (same pattern as every assembly of this problem).
     pub fn values(&self) -> &[f64] {
         &self.values

@@ -1,0 +1,3 @@
+//! Human- and machine-readable reports of fits.
+
+pub mod static_report;
