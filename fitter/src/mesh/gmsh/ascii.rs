@@ -40,6 +40,12 @@ pub(super) fn is_binary(file: &Path, bytes: &[u8]) -> Result<bool, MeshError> {
     }
 }
 
+/// Counts come from the file: never pre-allocate more than a file of this kind could hold, so a
+/// corrupt count fails with "end of file" instead of exhausting memory.
+fn prealloc(count: usize) -> usize {
+    count.min(1 << 16)
+}
+
 fn quote(s: &str) -> String {
     if s.is_empty() {
         "end of line".to_string()
@@ -224,7 +230,7 @@ fn entities(t: &mut Tokens, raw: &mut RawMsh) -> Result<(), MeshError> {
                 t.float("entity coordinate")?;
             }
             let np = t.count("number of physical tags")?;
-            let mut phys = Vec::with_capacity(np);
+            let mut phys = Vec::with_capacity(prealloc(np));
             for _ in 0..np {
                 phys.push(t.int("physical tag")?);
             }
@@ -255,11 +261,11 @@ fn nodes(t: &mut Tokens, raw: &mut RawMsh) -> Result<(), MeshError> {
             _ => return Err(t.err(line, "parametric flag (0 or 1)", tok)),
         };
         let n = t.count("number of nodes in block")?;
-        let mut tags = Vec::with_capacity(n);
+        let mut tags = Vec::with_capacity(prealloc(n));
         for _ in 0..n {
             tags.push(t.uint("node tag")?);
         }
-        let mut block = Vec::with_capacity(n);
+        let mut block = Vec::with_capacity(prealloc(n));
         for tag in tags {
             let x = [t.float("node x")?, t.float("node y")?, t.float("node z")?];
             if parametric {
@@ -292,7 +298,7 @@ fn elements(t: &mut Tokens, raw: &mut RawMsh) -> Result<(), MeshError> {
             3 | 4 => Some(4),
             _ => None,
         };
-        let mut elements = Vec::with_capacity(n);
+        let mut elements = Vec::with_capacity(prealloc(n));
         for _ in 0..n {
             // One element per line: its tag, then its node tags.
             t.next_line_if_done();

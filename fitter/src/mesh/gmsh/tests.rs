@@ -246,3 +246,43 @@ fn whole_mesh_group_round_trips_as_a_volume_group() {
     assert_eq!(back.tets, m.tets);
     assert_eq!(back.node_tags, m.node_tags);
 }
+
+#[test]
+fn absurd_counts_fail_cleanly() {
+    let text = tiny("0 0 -1", "2 1 3 2 5").replace("3 1 0 5\n", "3 1 0 99999999999999\n");
+    let e = err_text(&text);
+    assert!(e.contains("t.msh:"), "{e}");
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(256))]
+    /// Any corruption of a valid file (a byte replaced, the file cut) is an error or a mesh,
+    /// never a panic.
+    #[test]
+    fn corrupted_ascii_never_panics(at in 0usize..600, byte in proptest::prelude::any::<u8>(), cut in 0usize..700) {
+        let mut bytes = tiny("0 0 -1", "2 1 3 2 5").into_bytes();
+        let n = bytes.len();
+        bytes[at % n] = byte;
+        bytes.truncate(cut.max(1).min(n));
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("t.msh");
+        std::fs::write(&p, &bytes).unwrap();
+        let _ = read_msh(&p);
+    }
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(256))]
+    /// The same for binary files (parsed by mshio).
+    #[test]
+    fn corrupted_binary_never_panics(at in 0usize..9000, byte in proptest::prelude::any::<u8>(), cut in 0usize..9000) {
+        let mut bytes = std::fs::read(fixture("cube-binary.msh")).unwrap();
+        let n = bytes.len();
+        bytes[at % n] = byte;
+        bytes.truncate(cut.max(40).min(n));
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("b.msh");
+        std::fs::write(&p, &bytes).unwrap();
+        let _ = read_msh(&p);
+    }
+}
