@@ -11,6 +11,8 @@ pub enum BenchCommand {
     Runtime(super::bench_runtime::Args),
     /// Motion fitting (Real2Sim) on the MyFEM anchor bar: simulation, gradients, LBFGS.
     Motion(super::bench_motion::Args),
+    /// The probe link over a pty: frames/s, written → solved latency at 1 kHz, host CPU.
+    Link(super::bench_link::Args),
 }
 
 /// Runs a benchmark.
@@ -19,5 +21,6 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Fit(a) => super::bench_fit::run(a),
         BenchCommand::Runtime(a) => super::bench_runtime::run(a),
         BenchCommand::Motion(a) => super::bench_motion::run(a),
+        BenchCommand::Link(a) => super::bench_link::run(a),
     }
 }

@@ -9,6 +9,10 @@ pub mod bench_motion;
 pub mod motion_evidence;
 pub mod bench_runtime;
 pub mod calibrate_fsr;
+pub mod haptic;
+pub mod probe;
+pub mod probe_sim;
+pub mod bench_link;
 
 /// palpate: learn how a soft object deforms when touched, and play it back at haptic rates.
 #[derive(Debug, Parser)]
@@ -29,6 +33,12 @@ pub enum Command {
     Fit(fit::Args),
     /// Fit an FSR calibration (balance readings or datasheet points) and write the probe's calibration.
     CalibrateFsr(calibrate_fsr::Args),
+    /// Read the probe's force stream live, record it to CSV, report the link's counters.
+    Probe(probe::Args),
+    /// Run the probe firmware library on the host behind a simulated ADC, streaming a scripted force.
+    ProbeSim(probe_sim::Args),
+    /// Drive the runtime with the live force stream (force-driven contact) and report latency.
+    Haptic(haptic::Args),
     /// Motion-fitter evidence runs (coarsening, recover, vhb, bimaterial) into docs/results/motion.
     MotionEvidence(motion_evidence::Args),
 }
@@ -39,6 +49,9 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(b) => bench::run(b),
         Command::Fit(a) => fit::run(a),
         Command::CalibrateFsr(a) => calibrate_fsr::run(a),
+        Command::Probe(a) => probe::run(a),
+        Command::ProbeSim(a) => probe_sim::run(a),
+        Command::Haptic(a) => haptic::run(a),
         Command::MotionEvidence(a) => motion_evidence::run(a),
     }
 }

@@ -89,7 +89,12 @@ impl<W: Write> Write for FaultyWriter<W> {
             return Ok(buf.len());
         }
         self.scratch.clear();
-        if self.plan.burst_every > 0 && self.counts.writes.is_multiple_of(u64::from(self.plan.burst_every)) {
+        if self.plan.burst_every > 0
+            && self
+                .counts
+                .writes
+                .is_multiple_of(u64::from(self.plan.burst_every))
+        {
             self.counts.bursts += 1;
             for _ in 0..self.plan.burst_len {
                 let b = self.next() as u8;

@@ -5,6 +5,7 @@
 
 pub mod faults;
 pub mod gate;
+pub mod haptic;
 pub mod port;
 pub mod sender;
 pub mod stats;
