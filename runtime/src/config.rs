@@ -43,6 +43,9 @@ pub struct RuntimeConfig {
     pub blend_every: u32,
     /// Absolute residual floor (N) below which a solve counts as converged whatever the scale.
     pub absolute_tolerance: f32,
+    /// Aggregates of the two-level preconditioner's coarse space (rigid modes per aggregate;
+    /// 0 = block/point Jacobi only). Capped at nodes / 8.
+    pub coarse_aggregates: u32,
 }
 
 impl Default for RuntimeConfig {
@@ -58,6 +61,7 @@ impl Default for RuntimeConfig {
             preconditioner: Preconditioner::BlockJacobi,
             blend_every: 1,
             absolute_tolerance: 1e-9,
+            coarse_aggregates: 64,
         }
     }
 }

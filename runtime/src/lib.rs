@@ -17,6 +17,7 @@
 //! ```
 
 pub mod blend;
+pub mod coarse;
 pub mod config;
 pub mod contact_rule;
 pub mod element;

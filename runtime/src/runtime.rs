@@ -104,6 +104,8 @@ pub struct Runtime<'a> {
     pub(crate) quat: &'a mut [f32],   // 4 (w, i, j, k)
     pub(crate) strain: &'a mut [f32], // 6 (strain blending only)
     pub(crate) cd: &'a mut [f32],     // 156 (packed kernel only)
+    pub(crate) coarse: crate::coarse::Coarse<'a>,
+    pub(crate) coarse_capacity: usize,
     // state
     pub(crate) probe: Probe,
     pub(crate) probe_cmd: Probe,
@@ -177,6 +179,7 @@ impl<'a> Runtime<'a> {
         } else {
             0
         };
+        let coarse_capacity = crate::coarse::aggregate_capacity(config.coarse_aggregates, n);
         let mut rt = Runtime {
             record,
             config,
@@ -207,6 +210,12 @@ impl<'a> Runtime<'a> {
             quat: fc.take(4 * t)?,
             strain: fc.take(strain_len)?,
             cd: fc.take(cd_len)?,
+            coarse: crate::coarse::Coarse::new(
+                coarse_capacity,
+                uc.take(n)?,
+                fc.take(crate::coarse::coarse_f32s(coarse_capacity))?,
+            ),
+            coarse_capacity,
             probe: Probe::None,
             probe_cmd: Probe::None,
             tick_count: 0,
@@ -216,6 +225,17 @@ impl<'a> Runtime<'a> {
         };
         rt.load_geometry()?;
         rt.load_parameters()?;
+        let flag = &*rt.flag;
+        rt.coarse.build(
+            rt.coarse_capacity,
+            rt.x0,
+            |i| flag[i] == FIXED,
+            rt.tets,
+            rt.grad,
+            rt.vol,
+            rt.lam,
+            rt.alp,
+        );
         rt.reset();
         Ok(rt)
     }

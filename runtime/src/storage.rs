@@ -15,8 +15,8 @@ pub const F32_PER_ELEMENT: usize = 9 + 3 + 9 + 4;
 pub const F32_PER_ELEMENT_STRAIN: usize = 6;
 /// Extra `f32` per element for the packed-matrix kernel: C_e and D_e (2 × 78).
 pub const F32_PER_ELEMENT_PACKED: usize = 2 * 78;
-/// `u32` values per node: constraint flag.
-pub const U32_PER_NODE: usize = 1;
+/// `u32` values per node: constraint flag and coarse aggregate.
+pub const U32_PER_NODE: usize = 2;
 /// `u32` values per element: the four node indices.
 pub const U32_PER_ELEMENT: usize = 4;
 
@@ -41,10 +41,8 @@ impl StorageRequirement {
         if config.kernel == Kernel::Packed {
             per_element += F32_PER_ELEMENT_PACKED;
         }
-        Self {
-            f32s: n * F32_PER_NODE + t * per_element,
-            u32s: n * U32_PER_NODE + t * U32_PER_ELEMENT,
-        }
+        let coarse = crate::coarse::coarse_f32s(crate::coarse::aggregate_capacity(config.coarse_aggregates, n));
+        Self { f32s: n * F32_PER_NODE + t * per_element + coarse, u32s: n * U32_PER_NODE + t * U32_PER_ELEMENT }
     }
 
     /// Total bytes of the two pools.

@@ -75,6 +75,7 @@ impl<'a> Runtime<'a> {
     }
 
     /// Advances the applied load and the probe toward their commands (incremental loading).
+    #[inline(never)]
     fn advance_loads(&mut self) -> f32 {
         let step = self.config.load_step;
         let mut diff2 = 0.0f64;
@@ -122,6 +123,7 @@ impl<'a> Runtime<'a> {
     }
 
     /// R_e from the current state (eqs. 3.55–3.58) and, for strain blending, ε_e (eq. 6.8).
+    #[inline(never)]
     fn update_rotations(&mut self, iters: usize) {
         if !self.config.warp {
             return;
@@ -167,6 +169,7 @@ impl<'a> Runtime<'a> {
     }
 
     /// Updates which surface nodes the probe holds and their targets; returns the count.
+    #[inline(never)]
     fn update_contact_set(&mut self) -> u32 {
         let mut count = 0;
         for i in 0..self.n {
@@ -273,6 +276,7 @@ impl<'a> Runtime<'a> {
     }
 
     /// r_full = f_app − f_int(u) and the preconditioner blocks (inverted in place).
+    #[inline(never)]
     fn residual_and_preconditioner(&mut self) {
         self.r_full.copy_from_slice(self.f_app);
         self.precond.iter_mut().for_each(|v| *v = 0.0);
@@ -334,6 +338,7 @@ impl<'a> Runtime<'a> {
     }
 
     /// q = K' p (matrix-free, all elements).
+    #[inline(never)]
     fn apply_stiffness(&mut self) {
         self.q.iter_mut().for_each(|v| *v = 0.0);
         let packed = self.config.kernel == Kernel::Packed;
@@ -378,6 +383,7 @@ impl<'a> Runtime<'a> {
     }
 
     /// z = S M⁻¹ r.
+    #[inline(never)]
     fn precondition(&mut self) {
         for i in 0..self.n {
             let m = &self.precond[6 * i..6 * i + 6];
@@ -386,10 +392,13 @@ impl<'a> Runtime<'a> {
             self.z[3 * i + 1] = m[3] * r[0] + m[1] * r[1] + m[4] * r[2];
             self.z[3 * i + 2] = m[5] * r[0] + m[4] * r[1] + m[2] * r[2];
         }
+        // Two-level: add the coarse correction P A_c⁻¹ Pᵀ r (r is already filtered).
+        self.coarse.apply(self.x0, self.r, self.z);
         Self::filter(self.flag, self.normal, self.z);
     }
 
     /// Preconditioned CG for K' δ = r_full on the filtered space. Returns (iterations, ‖r‖, status).
+    #[inline(never)]
     fn pcg(&mut self, scale: f32) -> (u32, f32, SolveStatus) {
         let tol = self.config.tolerance * scale + self.config.absolute_tolerance;
         self.delta.iter_mut().for_each(|v| *v = 0.0);

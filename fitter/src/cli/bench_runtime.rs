@@ -305,6 +305,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     ];
     let mut direct = run_direct(&model, &args, p)?;
     direct.sort_by(|a, b| a.total_cmp(b));
+    for r in &runs {
+        let mut it = r.iters.clone();
+        it.sort_unstable();
+        let slow: Vec<usize> = (0..r.times_us.len()).filter(|&k| r.times_us[k] > 3.0 * percentile(&{
+            let mut t = r.times_us.clone();
+            t.sort_by(|a, b| a.total_cmp(b));
+            t
+        }, 0.5)).collect();
+        println!(
+            "{}: PCG iterations p50 {} p99 {} max {}; {} ticks slower than 3× the median (iterations there: {:?})",
+            r.name,
+            it[it.len() / 2],
+            it[(it.len() * 99) / 100],
+            it[it.len() - 1],
+            slow.len(),
+            slow.iter().take(8).map(|&k| r.iters[k]).collect::<Vec<_>>()
+        );
+    }
     println!("{:<10} {:>9} {:>9} {:>9} {:>10} {:>12} {:>14} {:>10}", "kernel", "p50_us", "p99_us", "max_us", "mean_iter", "max_rel_res", "max_err_conv", "bytes");
     let mut summary = Vec::new();
     for r in &runs {
