@@ -25,10 +25,38 @@ pub struct Args {
     /// FD columns timed for the extrapolation.
     #[arg(long, default_value_t = 20)]
     pub fd_columns: usize,
+    /// Instead of the benchmark, run the evidence: the §5.1 trade-off (marker error and roughness
+    /// vs γ_s for the stiff-inclusion case) with plots and JSON into this folder.
+    #[arg(long)]
+    pub evidence: Option<std::path::PathBuf>,
+    /// Instead of the benchmark, write the synthetic example dataset of the bundled sponge into
+    /// this folder (ground truth in `truth.toml`).
+    #[arg(long)]
+    pub sponge_dataset: Option<std::path::PathBuf>,
+    /// Mesh of the sponge dataset.
+    #[arg(long, default_value = "models/sponge/sponge.msh")]
+    pub sponge_mesh: std::path::PathBuf,
 }
 
 /// Runs the benchmark.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if let Some(dir) = &args.sponge_dataset {
+        crate::static_fit::evidence::write_sponge_dataset(&args.sponge_mesh, dir)?;
+        println!("wrote {}", dir.display());
+        return Ok(());
+    }
+    if let Some(dir) = &args.evidence {
+        let rows = crate::static_fit::evidence::tradeoff(dir, [5, 5, 3])?;
+        println!(
+            "wrote {}/tradeoff_error.svg, tradeoff_roughness.svg, tradeoff.json",
+            dir.display()
+        );
+        println!(
+            "{}",
+            serde_json::json!({"bench": "fit-evidence", "tradeoff": rows})
+        );
+        return Ok(());
+    }
     let size = [0.1, 0.1, 0.05];
     let cells = crate::mesh::boxmesh::cells_for_target(size, args.tets);
     let mut spec = SyntheticSpec::block(cells);

@@ -18,6 +18,7 @@
 pub mod blend;
 pub mod completion;
 pub mod displacement;
+pub mod evidence;
 pub mod force;
 pub mod input;
 pub mod loo;

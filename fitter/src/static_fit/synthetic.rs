@@ -109,6 +109,16 @@ pub struct Synthetic {
 pub fn synthesise(spec: &SyntheticSpec) -> Result<Synthetic, FitError> {
     let mesh = box_mesh(spec.size, spec.cells);
     let fixed = mesh.node_groups.get("bottom").cloned().unwrap_or_default();
+    synthesise_on(mesh, fixed, spec)
+}
+
+/// Makes a synthetic dataset on a given mesh with the given fixed nodes (`size`/`cells` of the
+/// spec are ignored).
+pub fn synthesise_on(
+    mesh: Mesh,
+    fixed: Vec<usize>,
+    spec: &SyntheticSpec,
+) -> Result<Synthetic, FitError> {
     let surface = mesh.boundary_triangles();
     let problem = StaticProblem::new(&mesh, &fixed, &surface)?;
     let truth = match spec.inclusion {
