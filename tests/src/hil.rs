@@ -6,6 +6,7 @@ use palpate_fitter::link::sender::{run_sender, SenderOptions, SenderReport};
 use palpate_fitter::link::FrameReader;
 use palpate_probe::sim::{Profile, SimProbe};
 use palpate_protocol::link::{Config, ForceSample, Frame, LinkStats};
+
 use serialport::{SerialPort, TTYPort};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -42,7 +43,8 @@ pub struct HilRun {
 }
 
 /// Runs `profile` through the simulated probe for `opts.seconds` over a fresh pty pair, with
-/// `plan` faults on the wire and an optional unplug of the host end.
+/// `plan` faults on the wire and an optional unplug of the host end. `on_batch` gets the
+/// samples of each read as they arrive (the host side's live hook, e.g. the runtime).
 pub fn run_link(
     config: Config,
     profile: Profile,
@@ -51,6 +53,7 @@ pub fn run_link(
     plan: FaultPlan,
     seed: u64,
     unplug: Option<Unplug>,
+    mut on_batch: impl FnMut(&[ForceSample]),
 ) -> HilRun {
     let (mut master, mut slave) = TTYPort::pair().expect("pty pair");
     master.set_timeout(Duration::from_millis(500)).unwrap();
@@ -75,12 +78,19 @@ pub fn run_link(
     let mut reopen_at_len = None;
     let deadline = Instant::now() + Duration::from_secs(60);
     loop {
+        let mut batch = Vec::new();
         let n = reader
             .poll(|f, at| match f {
-                Frame::Sample(s) => delivered.push((s, at)),
+                Frame::Sample(s) => {
+                    delivered.push((s, at));
+                    batch.push(s);
+                }
                 f => other.push(f),
             })
             .unwrap_or(0);
+        if !batch.is_empty() {
+            on_batch(&batch);
+        }
         if let Some(u) = unplugged {
             if delivered.len() >= u.after_samples {
                 unplugged = None;

@@ -22,6 +22,7 @@ fn fast(seconds: f64) -> SenderOptions {
         pacing: Pacing::AsFastAsPossible,
         version: LINK_VERSION,
         stall: None,
+        adc_fault: None,
     }
 }
 
@@ -37,7 +38,16 @@ fn window(plan: FaultPlan, seconds: f64) -> FaultPlan {
 #[test]
 fn clean_link_delivers_ten_simulated_seconds_at_1khz_in_order_and_on_profile() {
     let cfg = default_config();
-    let run = run_link(cfg, PROFILE, 2, fast(10.0), FaultPlan::default(), 1, None);
+    let run = run_link(
+        cfg,
+        PROFILE,
+        2,
+        fast(10.0),
+        FaultPlan::default(),
+        1,
+        None,
+        |_| {},
+    );
     assert_link_invariants(&run);
     assert_eq!(run.delivered.len(), 10_000);
     assert_eq!(run.stats.rejected(), 0);
@@ -89,6 +99,7 @@ fn real_time_segment_records_write_to_arrival_latency() {
         pacing: Pacing::RealTime,
         version: LINK_VERSION,
         stall: None,
+        adc_fault: None,
     };
     let run = run_link(
         default_config(),
@@ -98,6 +109,7 @@ fn real_time_segment_records_write_to_arrival_latency() {
         FaultPlan::default(),
         2,
         None,
+        |_| {},
     );
     assert_link_invariants(&run);
     assert_eq!(run.stats.missing_samples, 0);
@@ -127,7 +139,16 @@ fn one_percent_byte_corruption_never_delivers_a_bad_frame_and_counts_every_loss(
         },
         10.0,
     );
-    let run = run_link(default_config(), PROFILE, 2, fast(10.0), plan, 3, None);
+    let run = run_link(
+        default_config(),
+        PROFILE,
+        2,
+        fast(10.0),
+        plan,
+        3,
+        None,
+        |_| {},
+    );
     assert_link_invariants(&run);
     // ~26 bytes per frame at 1 %: about a fifth of the frames are hit.
     assert!(run.faults.writes_damaged > 1000, "{:?}", run.faults);
@@ -151,7 +172,16 @@ fn dropped_bytes_are_counted_as_losses_and_never_misdelivered() {
         },
         5.0,
     );
-    let run = run_link(default_config(), PROFILE, 2, fast(5.0), plan, 4, None);
+    let run = run_link(
+        default_config(),
+        PROFILE,
+        2,
+        fast(5.0),
+        plan,
+        4,
+        None,
+        |_| {},
+    );
     assert_link_invariants(&run);
     assert!(run.faults.dropped > 300, "{:?}", run.faults);
     assert!(run.stats.missing_samples <= 2 * run.faults.writes_damaged);
@@ -170,7 +200,16 @@ fn garbage_bursts_cost_at_most_the_frame_they_hit() {
         },
         5.0,
     );
-    let run = run_link(default_config(), PROFILE, 2, fast(5.0), plan, 5, None);
+    let run = run_link(
+        default_config(),
+        PROFILE,
+        2,
+        fast(5.0),
+        plan,
+        5,
+        None,
+        |_| {},
+    );
     assert_link_invariants(&run);
     assert!(run.faults.bursts >= 190, "{:?}", run.faults);
     assert!(
@@ -199,6 +238,7 @@ fn a_stalled_sender_shows_up_as_an_exact_gap_and_an_overrun_report() {
         FaultPlan::default(),
         6,
         None,
+        |_| {},
     );
     assert_link_invariants(&run);
     // 250 ms at 1 kHz: the slots 2000 … 2249 were never sampled.
@@ -224,6 +264,7 @@ fn unplug_and_replug_loses_only_what_was_sent_while_away_and_counts_it() {
         pacing: Pacing::RealTime,
         version: LINK_VERSION,
         stall: None,
+        adc_fault: None,
     };
     let unplug = Unplug {
         after_samples: 500,
@@ -237,6 +278,7 @@ fn unplug_and_replug_loses_only_what_was_sent_while_away_and_counts_it() {
         FaultPlan::default(),
         7,
         Some(unplug),
+        |_| {},
     );
     assert_link_invariants(&run);
     assert!(
@@ -271,6 +313,7 @@ fn a_probe_speaking_another_protocol_version_is_refused_entirely() {
         FaultPlan::default(),
         8,
         None,
+        |_| {},
     );
     assert!(run.delivered.is_empty() && run.other.is_empty());
     assert_eq!(run.stats.rejected_version, run.sent.frames_written);

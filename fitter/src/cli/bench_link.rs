@@ -173,6 +173,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         pacing: Pacing::AsFastAsPossible,
         version: LINK_VERSION,
         stall: None,
+        adc_fault: None,
     };
     let mut decoded = 0u64;
     let tp = phase(opts, args.rate, |b| {
@@ -205,6 +206,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         pacing: Pacing::RealTime,
         version: LINK_VERSION,
         stall: None,
+        adc_fault: None,
     };
     let lp = phase(opts, args.rate, |b| {
         Ok(hl

@@ -116,6 +116,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         pacing: Pacing::RealTime,
         version: LINK_VERSION,
         stall: None,
+        adc_fault: None,
     };
     let plan = FaultPlan {
         corrupt: args.corrupt,

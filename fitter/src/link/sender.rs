@@ -29,6 +29,26 @@ pub struct Stall {
     pub duration_s: f64,
 }
 
+/// A converter fault injected for a window of simulated time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AdcFault {
+    /// Start, simulated seconds.
+    pub at_s: f64,
+    /// Length, simulated seconds.
+    pub duration_s: f64,
+    /// What goes wrong.
+    pub kind: AdcFaultKind,
+}
+
+/// Kinds of converter fault.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AdcFaultKind {
+    /// The conversion register stops changing (mid-scale value): the probe must flag `STUCK`.
+    Frozen,
+    /// Every read is NACKed: the probe must flag `ADC_ERROR`.
+    Nack,
+}
+
 /// Sender options.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SenderOptions {
@@ -40,6 +60,8 @@ pub struct SenderOptions {
     pub version: u8,
     /// Optional stall.
     pub stall: Option<Stall>,
+    /// Optional converter fault.
+    pub adc_fault: Option<AdcFault>,
 }
 
 /// What the sender did.
@@ -108,6 +130,13 @@ pub fn run_sender<W: Write>(
                     std::hint::spin_loop();
                 }
             }
+        }
+        if let Some(f) = opts.adc_fault {
+            let t = now_us as f64 * 1e-6;
+            let on = t >= f.at_s && t < f.at_s + f.duration_s;
+            let bus = sim.probe.adc_mut().bus_mut();
+            bus.frozen = (on && f.kind == AdcFaultKind::Frozen).then_some(0x4000);
+            bus.fail_next = u32::from(on && f.kind == AdcFaultKind::Nack);
         }
         let Some(s) = sim.step(now_us) else { continue };
         let mut frames = [Some(Frame::Sample(s)), sim.probe.take_overrun()];
