@@ -216,3 +216,140 @@ fn inclusion_map_correlates_with_truth_at_noise_floor() {
         f.floor_m
     );
 }
+
+/// Blending reproduces each fitted set at its own centre (RBF interpolation, eqs. 6.2–6.5 and
+/// 6.9–6.10): exact up to the LU solve's round-off (1e-9 relative), and clamps outside the range.
+#[test]
+fn blends_reproduce_each_set_at_its_centre() {
+    let mut spec = SyntheticSpec::block([3, 3, 2]);
+    spec.contacts = vec![
+        crate::forward::Contact {
+            point: [0.05, 0.05, 0.05],
+            force: [0.0, 0.0, -1.0],
+            radius: 0.04,
+        },
+        crate::forward::Contact {
+            point: [0.05, 0.05, 0.05],
+            force: [0.0, 0.0, -3.0],
+            radius: 0.04,
+        },
+        crate::forward::Contact {
+            point: [0.05, 0.05, 0.05],
+            force: [1.0, 0.0, -2.0],
+            radius: 0.04,
+        },
+    ];
+    let syn = synthesise(&spec).unwrap();
+    let p = &syn.input.problem;
+    let t = p.element_count();
+    let sets: Vec<crate::forward::Material> = (0..3)
+        .map(|i| {
+            let e = 20_000.0 * (1.0 + 0.3 * i as f64);
+            let per: Vec<LambdaAlpha> = (0..t)
+                .map(|k| {
+                    LambdaAlpha::from_young_poisson(
+                        e * (1.0 + 0.01 * k as f64),
+                        0.3 - 0.02 * i as f64,
+                    )
+                })
+                .collect();
+            crate::forward::Material::per_element(&per)
+        })
+        .collect();
+    let homog: Vec<crate::forward::Material> = sets
+        .iter()
+        .map(|m| crate::forward::Material {
+            lambda: vec![m.lambda[0]],
+            alpha: vec![m.alpha[0]],
+        })
+        .collect();
+    let bd = blend::deformation_blend(&homog, &syn.exact).unwrap();
+    for (i, x) in syn.exact.iter().enumerate() {
+        let (l, a) = blend::eval_deformation(&bd, &homog, x).unwrap();
+        assert!(
+            rel(l, homog[i].lambda[0]) < 1e-9 && rel(a, homog[i].alpha[0]) < 1e-9,
+            "set {i}: {l} {a}"
+        );
+    }
+    let bs = blend::strain_blend(p, &sets, &syn.exact, 8).unwrap();
+    for (i, x) in syn.exact.iter().enumerate() {
+        let strains = p.strains(x, &p.rotations(x, true));
+        let m = blend::eval_strain(&bs, &sets, &strains).unwrap();
+        for e in 0..t {
+            assert!(
+                rel(m.lambda[e], sets[i].lambda[e]) < 1e-9,
+                "set {i} element {e}: λ {} vs {}",
+                m.lambda[e],
+                sets[i].lambda[e]
+            );
+            assert!(
+                rel(m.alpha[e], sets[i].alpha[e]) < 1e-9,
+                "set {i} element {e}: α"
+            );
+        }
+    }
+    // Far outside the fitted deformations the blend is clamped to the fitted range.
+    let far: Vec<[f64; 3]> = syn.exact[1]
+        .iter()
+        .zip(&p.x0)
+        .map(|(x, x0)| {
+            [0; 3]
+                .map(|_| 0.0)
+                .iter()
+                .enumerate()
+                .map(|(d, _)| x0[d] + 10.0 * (x[d] - x0[d]))
+                .collect::<Vec<_>>()
+                .try_into()
+                .unwrap()
+        })
+        .collect();
+    let (l, _) = blend::eval_deformation(&bd, &homog, &far).unwrap();
+    let (lo, hi) = homog.iter().fold((f64::INFINITY, 0.0f64), |(a, b), m| {
+        (a.min(m.lambda[0]), b.max(m.lambda[0]))
+    });
+    assert!(l >= lo && l <= hi, "clamped λ {l} in [{lo}, {hi}]");
+}
+
+/// Leave-one-out on homogeneous data: the held-out contact is predicted to the noise floor
+/// (the model class is right, so generalisation error ≈ marker noise σ√3 = 0.173 mm; bound 1.2×).
+#[test]
+fn leave_one_out_predicts_held_out_contact_at_noise_floor() {
+    let mut spec = SyntheticSpec::block([4, 4, 2]);
+    spec.markers = 60;
+    spec.noise = 1e-4;
+    spec.contacts.truncate(3);
+    let syn = synthesise(&spec).unwrap();
+    let mut o = FitOptions::new(Method::Displacement, Layout::Homogeneous, Sets::Single);
+    o.initial = LambdaAlpha::from_young_poisson(10_000.0, 0.2);
+    let loo = loo::leave_one_out(&syn.input, &o).unwrap();
+    assert_eq!(loo.len(), 3);
+    for h in &loo {
+        assert!(
+            h.residual.rms < 1.2 * 1e-4 * 3f64.sqrt(),
+            "held out {}: rms {}",
+            h.residual.id,
+            h.residual.rms
+        );
+    }
+}
+
+/// Force-based inhomogeneous per-measurement fit with γ on the L-curve (noise-free, every node
+/// observed through markers on the free surface + completion): runs through the automatic γ
+/// choice and reproduces the markers of the noise-free data (measured 4e-10 m; bound 1e-6 m,
+/// i.e. 1e-3 of the ~1 mm displacements).
+#[test]
+fn force_inhomogeneous_with_l_curve_fits_markers() {
+    let mut spec = SyntheticSpec::block([3, 3, 2]);
+    spec.contacts.truncate(2);
+    for c in spec.contacts.iter_mut() {
+        c.radius = 0.04;
+    }
+    let syn = synthesise(&spec).unwrap();
+    let mut o = FitOptions::new(Method::Force, Layout::Inhomogeneous, Sets::PerMeasurement);
+    o.max_iterations = 5;
+    o.l_curve_points = 5;
+    let r = fit_static(&syn.input, &o, |_, _| {}).unwrap();
+    assert!(matches!(r.gamma_choice, GammaChoice::LCurve { .. }));
+    eprintln!("force inhomogeneous: rms {} m, γ {:?}", r.rms(), r.gammas);
+    assert!(r.rms() < 1e-6, "rms {}", r.rms());
+}
