@@ -6,13 +6,17 @@ pub mod bench;
 pub mod bench_fit;
 pub mod fit;
 pub mod bench_motion;
+pub mod fit_motion;
 pub mod motion_evidence;
 pub mod bench_runtime;
+pub mod simulate;
 pub mod calibrate_fsr;
 pub mod haptic;
 pub mod probe;
 pub mod probe_sim;
 pub mod bench_link;
+pub mod specimen;
+pub mod diagnose;
 
 /// palpate: learn how a soft object deforms when touched, and play it back at haptic rates.
 #[derive(Debug, Parser)]
@@ -29,6 +33,8 @@ pub enum Command {
     /// Benchmarks that print a table and, as their last line, one JSON object.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Simulate one static interaction with the runtime; writes displacements CSV and VTK.
+    Simulate(simulate::Args),
     /// Fit material parameters to a static contact dataset (seed 000) and export a model.
     Fit(fit::Args),
     /// Fit an FSR calibration (balance readings or datasheet points) and write the probe's calibration.
@@ -41,17 +47,27 @@ pub enum Command {
     Haptic(haptic::Args),
     /// Motion-fitter evidence runs (coarsening, recover, vhb, bimaterial) into docs/results/motion.
     MotionEvidence(motion_evidence::Args),
+    /// Fit visco-elastic parameters to a motion dataset (Real2Sim).
+    FitMotion(fit_motion::Args),
+    /// Simulate a stand-in specimen with undeclared effects as a static dataset (+ truth.json).
+    Specimen(specimen::Args),
+    /// Trace a static dataset's residual to missing effects, adopt those that earn their place, report.
+    Diagnose(diagnose::Args),
 }
 
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Bench(b) => bench::run(b),
+        Command::Simulate(a) => simulate::run(a),
         Command::Fit(a) => fit::run(a),
         Command::CalibrateFsr(a) => calibrate_fsr::run(a),
         Command::Probe(a) => probe::run(a),
         Command::ProbeSim(a) => probe_sim::run(a),
         Command::Haptic(a) => haptic::run(a),
         Command::MotionEvidence(a) => motion_evidence::run(a),
+        Command::FitMotion(a) => fit_motion::run(a),
+        Command::Specimen(a) => specimen::run(a),
+        Command::Diagnose(a) => diagnose::run(a),
     }
 }

@@ -12,6 +12,7 @@
 //! - [`scenario`]: synthetic set-ups (bars with moving clamps) shared by bench, evidence, tests;
 //! - [`dataset`]: the motion dataset reader (docs/motion-dataset.md).
 
+pub mod dataset;
 pub mod forces;
 pub mod gradient;
 pub mod hyperelastic;

@@ -1,9 +1,14 @@
-//! Log-parameter LBFGS (§4.3) with a backtracking line search under the regular Wolfe conditions
-//! (c₁ = 1e-4, c₂ = 0.999 as in the paper), via argmin's `Vec<f64>` backend.
+//! Log-parameter LBFGS (§4.3) with the Moré–Thuente line search (strong Wolfe conditions,
+//! c₁ = 1e-4, c₂ = 0.9), via argmin's `Vec<f64>` backend.
 //!
 //! The optimiser works on z = ln q, so dΦ/dz = q · dΦ/dq. A failed simulation (inverted element,
-//! indefinite system, NaN) returns Φ = +∞, which makes the line search back off; the reasons are
-//! collected and shown to the user. For per-element parameters an optional neighbour-smoothness
+//! indefinite system, NaN) is an infinitely bad point. argmin's Moré–Thuente aborts on a
+//! non-finite value, so the line search is handed a finite stand-in that has the same effect as
+//! +∞ — a value 10⁶ × (1 + |Φ| of the last good point) with a gradient pointing back towards it —
+//! which makes it bracket and back off; the reasons are collected and shown to the user.
+//! (argmin's backtracking search was tried first: with the curvature condition it can only
+//! shrink the step, and its inner executor has no iteration cap, so it stalls forever when the
+//! first LBFGS step is too short.) For per-element parameters an optional neighbour-smoothness
 //! regulariser R = w Σ_{(e,f) face neighbours} (z_e − z_f)² (per kind, in log space: the motion
 //! analogue of the static fitter's L_s) is added.
 
@@ -11,8 +16,7 @@ use super::gradient::{evaluate, Evaluation, Method};
 use super::model::{Material, Model, Observations, Param};
 use super::MotionError;
 use argmin::core::{CostFunction, Error as ArgminError, Executor, Gradient, State};
-use argmin::solver::linesearch::condition::WolfeCondition;
-use argmin::solver::linesearch::BacktrackingLineSearch;
+use argmin::solver::linesearch::MoreThuenteLineSearch;
 use argmin::solver::quasinewton::LBFGS;
 use std::sync::Mutex;
 
@@ -120,6 +124,7 @@ impl Problem<'_> {
         let out = evaluate(self.model, &mat, self.params, self.obs, Some(self.method));
         let mut c = self.cache.lock().expect("cache lock");
         c.evaluations += 1;
+        let out_ok = out.is_ok();
         let (value, grad) = match out {
             Ok(ev) => {
                 let g = ev.grad.expect("gradient requested");
@@ -132,14 +137,21 @@ impl Problem<'_> {
                 if !c.failures.contains(&msg) {
                     c.failures.push(msg);
                 }
-                (f64::INFINITY, vec![0.0; z.len()])
+                match &c.best {
+                    Some((phi, zb)) => {
+                        let big = 1e6 * (1.0 + phi.abs());
+                        let g: Vec<f64> = z.iter().zip(zb).map(|(a, b)| big * (a - b)).collect();
+                        (big, g)
+                    }
+                    None => (f64::INFINITY, vec![0.0; z.len()]),
+                }
             }
         };
         c.z = z.to_vec();
         c.value = value;
         c.grad = grad.clone();
         c.history.push(value);
-        if value.is_finite() && c.best.as_ref().is_none_or(|b| value < b.0) {
+        if out_ok && c.best.as_ref().is_none_or(|b| value < b.0) {
             c.best = Some((value, z.to_vec()));
         }
         (self.progress)(c.evaluations, value);
@@ -238,9 +250,8 @@ pub fn fit(
             problem.cache.lock().expect("cache").failures.join("; ")
         )));
     }
-    let cond = WolfeCondition::new(1e-4, 0.999).map_err(|e| MotionError::Invalid(e.to_string()))?;
-    let ls = BacktrackingLineSearch::new(cond)
-        .rho(0.5)
+    let ls = MoreThuenteLineSearch::new()
+        .with_c(1e-4, 0.9)
         .map_err(|e| MotionError::Invalid(e.to_string()))?;
     let solver = LBFGS::new(ls, settings.memory)
         .with_tolerance_grad(settings.tol_grad)
