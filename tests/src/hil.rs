@@ -45,6 +45,8 @@ pub struct HilRun {
 /// Runs `profile` through the simulated probe for `opts.seconds` over a fresh pty pair, with
 /// `plan` faults on the wire and an optional unplug of the host end. `on_batch` gets the
 /// samples of each read as they arrive (the host side's live hook, e.g. the runtime).
+// Each argument is one independent knob of a test scenario; a builder would only rename them.
+#[allow(clippy::too_many_arguments)]
 pub fn run_link(
     config: Config,
     profile: Profile,
