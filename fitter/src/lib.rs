@@ -13,3 +13,5 @@ pub mod mesh;
 pub mod report;
 pub mod plot;
 pub mod motion;
+pub mod specimen;
+pub mod diagnose;

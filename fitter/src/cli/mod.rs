@@ -17,6 +17,7 @@ pub mod probe_sim;
 pub mod bench_link;
 pub mod specimen;
 pub mod diagnose;
+pub mod diagnose_evidence;
 
 /// palpate: learn how a soft object deforms when touched, and play it back at haptic rates.
 #[derive(Debug, Parser)]
@@ -53,6 +54,8 @@ pub enum Command {
     Specimen(specimen::Args),
     /// Trace a static dataset's residual to missing effects, adopt those that earn their place, report.
     Diagnose(diagnose::Args),
+    /// Every specimen effect × seeds through diagnose: the confusion table (docs/results/diagnose).
+    DiagnoseEvidence(diagnose_evidence::Args),
 }
 
 /// Runs a parsed command line.
@@ -69,5 +72,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::FitMotion(a) => fit_motion::run(a),
         Command::Specimen(a) => specimen::run(a),
         Command::Diagnose(a) => diagnose::run(a),
+        Command::DiagnoseEvidence(a) => diagnose_evidence::run(a),
     }
 }

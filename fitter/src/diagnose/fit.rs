@@ -1,0 +1,182 @@
+//! Levenberg–Marquardt on the augmented model with a forward-difference Jacobian (the models
+//! have at most a few dozen parameters, so k + 1 warm-started solves per measurement per
+//! iteration is cheap on a small mesh), and the Gauss–Newton covariance s² (JᵀJ)⁻¹ for the
+//! parameter uncertainties.
+
+use nalgebra::{DMatrix, DVector};
+
+use super::model::{s_of, Context, Model, Simulated};
+use super::DiagnoseError;
+
+/// Forward-difference step on the dimensionless θ. The fixed-point tolerance is 1e-11 m, so the
+/// solver noise in a residual column is ≈ 1e-11 / (σ h) ≈ 2e-3 (for σ = 50 µm) against columns of
+/// order u/σ ≈ 10–100: negligible; the truncation error is O(h) relative.
+const FD_STEP: f64 = 1e-4;
+
+/// A fitted model.
+#[derive(Debug, Clone)]
+pub struct Fitted {
+    /// The model.
+    pub model: Model,
+    /// Parameters (dimensionless, see [`super::model`]).
+    pub theta: Vec<f64>,
+    /// χ² = Σ ((simulated − measured)/σ)².
+    pub chi2: f64,
+    /// Number of residual entries.
+    pub n: usize,
+    /// Standard deviation of each θ from the Gauss–Newton covariance s² (JᵀJ)⁻¹ with
+    /// s² = max(1, χ²/(n − k)) (inflated when the residual exceeds the declared noise).
+    pub theta_sd: Vec<f64>,
+    /// LM iterations.
+    pub iterations: usize,
+    /// The simulation at θ.
+    pub sim: Simulated,
+    /// Measurements fitted.
+    pub subset: Vec<usize>,
+}
+
+fn chi2(r: &[f64]) -> f64 {
+    r.iter().map(|v| v * v).sum()
+}
+
+/// Starting θ for the base model: E from the best displacement scale of a 10 kPa solve.
+pub fn initial_theta(
+    ctx: &Context,
+    subset: &[usize],
+) -> Result<(Vec<f64>, Simulated), DiagnoseError> {
+    let model = Model::base();
+    let e0: f64 = 1e4;
+    let theta = vec![e0.ln(), s_of(0.3)];
+    let sim = model.simulate(ctx, &theta, subset, None)?;
+    let (mut num, mut den) = (0.0, 0.0);
+    for (&i, ms) in subset.iter().zip(&sim.markers) {
+        for (&(k, meas), p) in ctx.meas[i].observed.iter().zip(ms) {
+            let rest = ctx.marker_rest[k];
+            for d in 0..3 {
+                let us = p[d] - rest[d];
+                num += us * (meas[d] - rest[d]);
+                den += us * us;
+            }
+        }
+    }
+    let a = if num > 0.0 && den > 0.0 {
+        num / den
+    } else {
+        1.0
+    };
+    Ok((vec![(e0 / a).ln(), s_of(0.3)], sim))
+}
+
+fn jacobian(
+    ctx: &Context,
+    model: &Model,
+    theta: &[f64],
+    subset: &[usize],
+    base: &Simulated,
+    r0: &[f64],
+) -> Result<DMatrix<f64>, DiagnoseError> {
+    let k = theta.len();
+    let mut j = DMatrix::zeros(r0.len(), k);
+    for c in 0..k {
+        let mut t = theta.to_vec();
+        t[c] += FD_STEP;
+        let markers = if model.affects_solve(c, ctx.grid) {
+            model.simulate(ctx, &t, subset, Some(&base.x))?.markers
+        } else {
+            model.markers_from(ctx, &t, subset, &base.x)
+        };
+        let r = model.residuals(ctx, subset, &markers);
+        for (row, (a, b)) in r.iter().zip(r0).enumerate() {
+            j[(row, c)] = (a - b) / FD_STEP;
+        }
+    }
+    Ok(j)
+}
+
+/// Fits `model` to the measurements `subset` from `theta0` (warm-started from `warm`).
+pub fn fit(
+    ctx: &Context,
+    model: &Model,
+    theta0: Vec<f64>,
+    subset: &[usize],
+    warm: Option<&[Vec<[f64; 3]>]>,
+    max_iterations: usize,
+) -> Result<Fitted, DiagnoseError> {
+    let mut theta = theta0;
+    let mut sim = model.simulate(ctx, &theta, subset, warm)?;
+    let mut r = model.residuals(ctx, subset, &sim.markers);
+    let mut c2 = chi2(&r);
+    let mut damping = 1e-3;
+    let mut iterations = 0;
+    let mut h = DMatrix::zeros(theta.len(), theta.len());
+    for _ in 0..max_iterations {
+        iterations += 1;
+        let j = jacobian(ctx, model, &theta, subset, &sim, &r)?;
+        h = j.transpose() * &j;
+        let g = j.transpose() * DVector::from_column_slice(&r);
+        let mut accepted = false;
+        for _ in 0..10 {
+            let mut a = h.clone();
+            for d in 0..theta.len() {
+                a[(d, d)] += damping * h[(d, d)].max(1e-12);
+            }
+            let Some(step) = a.cholesky().map(|c| c.solve(&(-&g))) else {
+                damping *= 10.0;
+                continue;
+            };
+            let trial: Vec<f64> = theta.iter().zip(step.iter()).map(|(t, s)| t + s).collect();
+            if let Ok(s) = model.simulate(ctx, &trial, subset, Some(&sim.x)) {
+                let rt = model.residuals(ctx, subset, &s.markers);
+                let ct = chi2(&rt);
+                if ct.is_finite() && ct < c2 {
+                    let gain = (c2 - ct) / c2.max(1e-300);
+                    theta = trial;
+                    sim = s;
+                    r = rt;
+                    c2 = ct;
+                    damping = (damping / 3.0).max(1e-9);
+                    accepted = true;
+                    if gain < 1e-7 {
+                        return Ok(finish(ctx, model, theta, c2, &h, iterations, sim, subset));
+                    }
+                    break;
+                }
+            }
+            damping *= 4.0;
+        }
+        if !accepted {
+            break;
+        }
+    }
+    Ok(finish(ctx, model, theta, c2, &h, iterations, sim, subset))
+}
+
+#[allow(clippy::too_many_arguments)]
+fn finish(
+    ctx: &Context,
+    model: &Model,
+    theta: Vec<f64>,
+    c2: f64,
+    h: &DMatrix<f64>,
+    iterations: usize,
+    sim: Simulated,
+    subset: &[usize],
+) -> Fitted {
+    let n = ctx.residual_len(subset);
+    let k = theta.len();
+    let s2 = (c2 / (n.saturating_sub(k).max(1)) as f64).max(1.0);
+    let theta_sd = match h.clone().try_inverse() {
+        Some(inv) if h.nrows() == k => (0..k).map(|d| (s2 * inv[(d, d)].max(0.0)).sqrt()).collect(),
+        _ => vec![f64::NAN; k],
+    };
+    Fitted {
+        model: model.clone(),
+        theta,
+        chi2: c2,
+        n,
+        theta_sd,
+        iterations,
+        sim,
+        subset: subset.to_vec(),
+    }
+}

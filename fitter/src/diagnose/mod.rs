@@ -1,0 +1,476 @@
+//! Residual diagnosis (issue 6): fit the simplest model (warped linear homogeneous,
+//! displacement-based), look at the residual ([`signature`]), hold every candidate effect of the
+//! library ([`model::Candidate`]) against it by refitting the augmented model ([`fit`]), adopt the
+//! best one if it earns its parameters, repeat until nothing significant is left, and report
+//! ([`report`]).
+//!
+//! Selection (stated in every report): candidates are ranked by the Bayesian information criterion
+//! with unknown noise variance, BIC = n ln(χ²/n) + k ln n (n residual entries, k parameters). The
+//! best candidate is adopted only if (a) ΔBIC < −[`DiagnoseOptions::bic_threshold`] and (b) leave-one-
+//! measurement-out cross-validation confirms it: the held-out RMS marker error of the augmented
+//! model is at least [`DiagnoseOptions::min_holdout_gain`] lower than the current model's. (a) alone
+//! over-adopts when the residual is dominated by model-form error of the coarse linear model (n is
+//! large, so any extra parameter that absorbs a little of it passes); (b) makes the parameter earn
+//! its place on data it was not fitted to.
+
+pub mod fit;
+pub mod model;
+pub mod report;
+pub mod signature;
+
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::dataset::StaticDataset;
+use fit::{fit, initial_theta, Fitted};
+use model::{poisson_of, Candidate, Context, Model, ALL_CANDIDATES};
+use signature::{evidence_points, signature, Signature};
+
+/// Errors of the diagnosis.
+#[derive(Debug, thiserror::Error)]
+pub enum DiagnoseError {
+    /// The dataset cannot be diagnosed.
+    #[error("{0}")]
+    Input(String),
+    /// The forward model failed.
+    #[error(transparent)]
+    Forward(#[from] crate::forward::ForwardError),
+    /// A fit left the physical range.
+    #[error("the fit diverged: {0}")]
+    Diverged(String),
+    /// Writing the report failed.
+    #[error("writing the report: {0}")]
+    Write(String),
+}
+
+/// Options of [`run_diagnosis`].
+#[derive(Debug, Clone, Serialize)]
+pub struct DiagnoseOptions {
+    /// Candidates to try.
+    pub candidates: Vec<Candidate>,
+    /// Inhomogeneity grid (nodes per axis).
+    pub grid: [usize; 3],
+    /// Most effects adopted.
+    pub max_effects: usize,
+    /// LM iterations per fit.
+    pub max_iterations: usize,
+    /// LM iterations of each leave-one-out refit (warm-started from the full fit).
+    pub holdout_iterations: usize,
+    /// ΔBIC must be below −this.
+    pub bic_threshold: f64,
+    /// Held-out RMS must drop by at least this fraction.
+    pub min_holdout_gain: f64,
+    /// How many BIC-ranked candidates are cross-validated per round.
+    pub cv_candidates: usize,
+}
+
+impl Default for DiagnoseOptions {
+    fn default() -> Self {
+        Self {
+            candidates: ALL_CANDIDATES.to_vec(),
+            grid: [2, 2, 2],
+            max_effects: 3,
+            max_iterations: 8,
+            holdout_iterations: 4,
+            bic_threshold: 10.0,
+            min_holdout_gain: 0.10,
+            cv_candidates: 2,
+        }
+    }
+}
+
+/// Error figures of a model (m for markers, N for forces).
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Errors {
+    /// RMS marker error on the fitted data.
+    pub fitted_rms: f64,
+    /// Largest marker error on the fitted data.
+    pub fitted_max: f64,
+    /// RMS marker error on held-out measurements (leave-one-out).
+    pub heldout_rms: f64,
+    /// Largest held-out marker error.
+    pub heldout_max: f64,
+    /// RMS implied-force error on the fitted data: |s_i − 1| |f_i| with s_i the best scale of the
+    /// simulated displacement onto the measured one (the force error the markers imply).
+    pub force_rms: f64,
+    /// Largest implied-force error on the fitted data.
+    pub force_max: f64,
+    /// RMS implied-force error on held-out measurements.
+    pub heldout_force_rms: f64,
+}
+
+/// A fitted parameter with its uncertainty (1 σ from the Gauss–Newton covariance), in physical units.
+#[derive(Debug, Clone, Serialize)]
+pub struct ParamValue {
+    /// Name.
+    pub name: String,
+    /// Value.
+    pub value: f64,
+    /// Standard deviation.
+    pub sd: f64,
+    /// Unit.
+    pub unit: String,
+}
+
+/// One candidate tried in a round.
+#[derive(Debug, Clone, Serialize)]
+pub struct Tried {
+    /// Candidate.
+    pub candidate: Candidate,
+    /// Extra parameters.
+    pub extra_params: usize,
+    /// RMS marker error of the refit (m).
+    pub rms: f64,
+    /// ΔBIC against the current model (negative = better).
+    pub delta_bic: f64,
+    /// Held-out RMS (m), computed for the best-ranked candidate only.
+    pub heldout_rms: Option<f64>,
+}
+
+/// One round of the loop.
+#[derive(Debug, Clone, Serialize)]
+pub struct Step {
+    /// Round number (1-based).
+    pub round: usize,
+    /// Effects in the model at the start of the round.
+    pub model: Vec<Candidate>,
+    /// Residual signature of that model.
+    pub signature: Signature,
+    /// Candidates tried, best first.
+    pub tried: Vec<Tried>,
+    /// Adopted effect, if any.
+    pub adopted: Option<Candidate>,
+    /// Why (or why not).
+    pub reason: String,
+    /// Errors of the model at the start of the round.
+    pub before: Errors,
+    /// Errors after adopting (if adopted).
+    pub after: Option<Errors>,
+    /// Fitted values of the adopted effect's parameters.
+    pub new_params: Vec<ParamValue>,
+    /// Evidence plot data: x label, y label, points before and after adoption.
+    pub evidence: Option<(String, String, Vec<(f64, f64)>, Vec<(f64, f64)>)>,
+}
+
+/// The report of [`run_diagnosis`].
+#[derive(Debug, Clone, Serialize)]
+pub struct DiagnosisReport {
+    /// Dataset name.
+    pub dataset: String,
+    /// Selection rule in words.
+    pub criterion: String,
+    /// σ (m) used to scale residuals.
+    pub sigma: f64,
+    /// Whether σ was declared.
+    pub sigma_declared: bool,
+    /// Noise floor of the RMS marker error, σ √3 (m).
+    pub noise_floor: f64,
+    /// Options.
+    pub options: DiagnoseOptions,
+    /// The loop, round by round.
+    pub steps: Vec<Step>,
+    /// Effects adopted, in order.
+    pub adopted: Vec<Candidate>,
+    /// Errors of the simplest model.
+    pub before: Errors,
+    /// Errors of the final model.
+    pub after: Errors,
+    /// Every parameter of the final model.
+    pub final_params: Vec<ParamValue>,
+    /// Young's modulus (Pa) and Poisson ratio of the final model's base material.
+    pub young_poisson: (f64, f64),
+    /// Wall-clock seconds.
+    pub seconds: f64,
+    /// The final fit (parameters, simulation) for export.
+    #[serde(skip)]
+    pub final_fit: Option<Fitted>,
+    /// The prepared context (for export).
+    #[serde(skip)]
+    pub context: Option<Context>,
+}
+
+fn stats(v: &[f64]) -> (f64, f64) {
+    let rms = (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+    (rms, v.iter().copied().fold(0.0, f64::max))
+}
+
+fn marker_norms(ctx: &Context, f: &Fitted) -> Vec<f64> {
+    signature::residual_vectors(ctx, f)
+        .iter()
+        .flatten()
+        .map(|(_, e)| (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]).sqrt())
+        .collect()
+}
+
+fn force_errors(ctx: &Context, f: &Fitted) -> Vec<f64> {
+    let sig = signature(ctx, f);
+    sig.per_measurement
+        .iter()
+        .zip(&f.subset)
+        .map(|(p, &i)| {
+            let fm = f.model.model_force(ctx, &f.theta, i);
+            (p.scale - 1.0).abs() * (fm[0] * fm[0] + fm[1] * fm[1] + fm[2] * fm[2]).sqrt()
+        })
+        .collect()
+}
+
+/// Leave-one-measurement-out: refit without each measurement (warm-started from the full fit),
+/// predict it. Returns (held-out marker error norms, held-out implied-force errors).
+fn holdout(
+    ctx: &Context,
+    full: &Fitted,
+    iterations: usize,
+) -> Result<(Vec<f64>, Vec<f64>), DiagnoseError> {
+    let all: Vec<usize> = (0..ctx.meas.len()).collect();
+    let (mut errs, mut ferrs) = (Vec::new(), Vec::new());
+    for &i in &all {
+        let sub: Vec<usize> = all.iter().copied().filter(|&j| j != i).collect();
+        let warm: Vec<Vec<[f64; 3]>> = sub.iter().map(|&j| full.sim.x[j].clone()).collect();
+        let f = fit(
+            ctx,
+            &full.model,
+            full.theta.clone(),
+            &sub,
+            Some(&warm),
+            iterations,
+        )?;
+        let sim = full.model.simulate(
+            ctx,
+            &f.theta,
+            &[i],
+            Some(std::slice::from_ref(&full.sim.x[i])),
+        )?;
+        let held = Fitted {
+            subset: vec![i],
+            sim,
+            theta: f.theta.clone(),
+            ..f
+        };
+        errs.extend(marker_norms(ctx, &held));
+        ferrs.extend(force_errors(ctx, &held));
+    }
+    Ok((errs, ferrs))
+}
+
+fn errors(ctx: &Context, f: &Fitted, held: &(Vec<f64>, Vec<f64>)) -> Errors {
+    let (fitted_rms, fitted_max) = stats(&marker_norms(ctx, f));
+    let (force_rms, force_max) = stats(&force_errors(ctx, f));
+    let (heldout_rms, heldout_max) = stats(&held.0);
+    Errors {
+        fitted_rms,
+        fitted_max,
+        heldout_rms,
+        heldout_max,
+        force_rms,
+        force_max,
+        heldout_force_rms: stats(&held.1).0,
+    }
+}
+
+fn bic(f: &Fitted) -> f64 {
+    let n = f.n as f64;
+    n * (f.chi2 / n).max(1e-300).ln() + f.theta.len() as f64 * n.ln()
+}
+
+/// Physical values of the parameters of `c` in fit `f`.
+pub fn effect_params(ctx: &Context, f: &Fitted, c: Candidate) -> Vec<ParamValue> {
+    let Some(o) = f.model.offset(c, ctx.grid) else {
+        return Vec::new();
+    };
+    c.param_names(ctx.grid)
+        .into_iter()
+        .enumerate()
+        .map(|(j, (name, unit, scale))| ParamValue {
+            name,
+            value: f.theta[o + j] * scale,
+            sd: f.theta_sd[o + j] * scale,
+            unit: unit.into(),
+        })
+        .collect()
+}
+
+/// E and ν of a fit with their uncertainties (delta method).
+pub fn base_params(f: &Fitted) -> Vec<ParamValue> {
+    let e = f.theta[0].exp();
+    let nu = poisson_of(f.theta[1]);
+    let dnu = 0.75 * (1.0 - f.theta[1].tanh().powi(2));
+    vec![
+        ParamValue {
+            name: "Young's modulus E".into(),
+            value: e,
+            sd: e * f.theta_sd[0],
+            unit: "Pa".into(),
+        },
+        ParamValue {
+            name: "Poisson ratio ν".into(),
+            value: nu,
+            sd: dnu * f.theta_sd[1],
+            unit: "".into(),
+        },
+    ]
+}
+
+/// Runs the diagnosis loop on a dataset.
+pub fn run_diagnosis(
+    ds: &StaticDataset,
+    o: &DiagnoseOptions,
+) -> Result<DiagnosisReport, DiagnoseError> {
+    run_diagnosis_with(ds, o, |_| {})
+}
+
+/// [`run_diagnosis`] with a progress callback (one line per stage).
+pub fn run_diagnosis_with(
+    ds: &StaticDataset,
+    o: &DiagnoseOptions,
+    mut progress: impl FnMut(&str),
+) -> Result<DiagnosisReport, DiagnoseError> {
+    let started = Instant::now();
+    let ctx = Context::new(ds, o.grid)?;
+    let all: Vec<usize> = (0..ctx.meas.len()).collect();
+    let (theta0, sim0) = initial_theta(&ctx, &all)?;
+    progress("fitting the simplest model (linear homogeneous, displacement-based)");
+    let mut current = fit(
+        &ctx,
+        &Model::base(),
+        theta0,
+        &all,
+        Some(&sim0.x),
+        o.max_iterations,
+    )?;
+    let mut current_held = holdout(&ctx, &current, o.holdout_iterations)?;
+    let first = errors(&ctx, &current, &current_held);
+    let mut steps = Vec::new();
+    for round in 1..=o.max_effects + 1 {
+        let before = errors(&ctx, &current, &current_held);
+        let sig = signature(&ctx, &current);
+        let bic0 = bic(&current);
+        let mut tried: Vec<(Tried, Fitted)> = Vec::new();
+        if current.model.effects.len() < o.max_effects {
+            for &c in &o.candidates {
+                if current.model.effects.contains(&c) {
+                    continue;
+                }
+                progress(&format!("round {round}: trying {}", c.name()));
+                let m = current.model.with(c);
+                let mut t = current.theta.clone();
+                t.resize(m.param_count(o.grid), 0.0);
+                match fit(&ctx, &m, t, &all, Some(&current.sim.x), o.max_iterations) {
+                    Ok(f) => {
+                        let (rms, _) = stats(&marker_norms(&ctx, &f));
+                        tried.push((
+                            Tried {
+                                candidate: c,
+                                extra_params: c.params(o.grid),
+                                rms,
+                                delta_bic: bic(&f) - bic0,
+                                heldout_rms: None,
+                            },
+                            f,
+                        ));
+                    }
+                    Err(DiagnoseError::Diverged(_)) => continue,
+                    Err(e) => return Err(e),
+                }
+            }
+        }
+        tried.sort_by(|a, b| a.0.delta_bic.total_cmp(&b.0.delta_bic));
+        let mut step = Step {
+            round,
+            model: current.model.effects.clone(),
+            signature: sig,
+            tried: Vec::new(),
+            adopted: None,
+            reason: String::new(),
+            before,
+            after: None,
+            new_params: Vec::new(),
+            evidence: None,
+        };
+        let mut adopted = None;
+        // Cross-validate the best-ranked candidates (at most `cv_candidates`) that pass the BIC
+        // threshold, in BIC order; adopt the first one the held-out data confirms.
+        let mut reasons = Vec::new();
+        for (best, bf) in tried
+            .iter_mut()
+            .filter(|(t, _)| t.delta_bic < -o.bic_threshold)
+            .take(o.cv_candidates)
+        {
+            progress(&format!(
+                "round {round}: cross-validating {}",
+                best.candidate.name()
+            ));
+            let held = holdout(&ctx, bf, o.holdout_iterations)?;
+            let h = stats(&held.0).0;
+            best.heldout_rms = Some(h);
+            let gain = 1.0 - h / before.heldout_rms;
+            if gain >= o.min_holdout_gain {
+                reasons.push(format!(
+                    "adopt {}: ΔBIC = {:.1} (< −{}) and held-out RMS {:.1} µm → {:.1} µm ({:.0}% lower, ≥ {:.0}% required)",
+                    best.candidate.name(), best.delta_bic, o.bic_threshold, 1e6 * before.heldout_rms, 1e6 * h, 100.0 * gain, 100.0 * o.min_holdout_gain
+                ));
+                adopted = Some((best.candidate, bf.clone(), held));
+                break;
+            }
+            reasons.push(format!(
+                "{} has ΔBIC = {:.1} but held-out RMS {:.1} µm → {:.1} µm ({:.0}% lower, {:.0}% required): rejected",
+                best.candidate.name(), best.delta_bic, 1e6 * before.heldout_rms, 1e6 * h, 100.0 * gain, 100.0 * o.min_holdout_gain
+            ));
+        }
+        if tried.is_empty() {
+            reasons.push(format!(
+                "the model already holds {} effects (the maximum): stop",
+                current.model.effects.len()
+            ));
+        } else if adopted.is_none() {
+            let b = &tried[0].0;
+            reasons.push(format!(
+                "nothing significant left (best ΔBIC {:.1} for {}; threshold −{})",
+                b.delta_bic,
+                b.candidate.name(),
+                o.bic_threshold
+            ));
+        }
+        step.reason = reasons.join("; ");
+        step.tried = tried.iter().map(|(t, _)| t.clone()).collect();
+        match adopted {
+            Some((c, f, held)) => {
+                let (xl, yl, before_pts) = evidence_points(c, &ctx, &current);
+                let (_, _, after_pts) = evidence_points(c, &ctx, &f);
+                step.evidence = Some((xl.into(), yl.into(), before_pts, after_pts));
+                step.adopted = Some(c);
+                step.new_params = effect_params(&ctx, &f, c);
+                step.after = Some(errors(&ctx, &f, &held));
+                current = f;
+                current_held = held;
+                steps.push(step);
+            }
+            None => {
+                steps.push(step);
+                break;
+            }
+        }
+    }
+    let after = errors(&ctx, &current, &current_held);
+    let mut final_params = base_params(&current);
+    for &c in &current.model.effects {
+        final_params.extend(effect_params(&ctx, &current, c));
+    }
+    Ok(DiagnosisReport {
+        dataset: ds.name.clone(),
+        criterion: "rank by BIC = n ln(χ²/n) + k ln n; adopt the best if ΔBIC < −threshold AND leave-one-measurement-out held-out RMS drops by ≥ min_holdout_gain".into(),
+        sigma: ctx.sigma,
+        sigma_declared: ctx.sigma_declared,
+        noise_floor: ctx.sigma * 3f64.sqrt(),
+        options: o.clone(),
+        adopted: current.model.effects.clone(),
+        steps,
+        before: first,
+        after,
+        young_poisson: (current.theta[0].exp(), poisson_of(current.theta[1])),
+        final_params,
+        seconds: started.elapsed().as_secs_f64(),
+        final_fit: Some(current),
+        context: Some(ctx),
+    })
+}

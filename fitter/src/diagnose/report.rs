@@ -1,0 +1,209 @@
+//! Writing a [`DiagnosisReport`]: `diagnosis.md` (step by step), `diagnosis.json` (everything),
+//! and one SVG per adopted effect showing the residual against the variable that gave it away
+//! (before and after adoption). All files go through `write_atomic`.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use super::{DiagnoseError, DiagnosisReport, Errors};
+use crate::io::atomic::write_atomic;
+use crate::plot::{lines, Series, Style};
+
+fn um(v: f64) -> String {
+    format!("{:.1}", v * 1e6)
+}
+
+fn error_rows(s: &mut String, label: &str, e: &Errors) {
+    let _ = writeln!(
+        s,
+        "| {label} | {} | {} | {} | {} | {:.4} | {:.4} | {:.4} |",
+        um(e.fitted_rms),
+        um(e.fitted_max),
+        um(e.heldout_rms),
+        um(e.heldout_max),
+        e.force_rms,
+        e.force_max,
+        e.heldout_force_rms
+    );
+}
+
+/// The Markdown text of a report.
+pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# Diagnosis of `{}`\n", r.dataset);
+    let verdict = if r.adopted.is_empty() {
+        "**clean**: no effect adopted".to_string()
+    } else {
+        format!(
+            "adopted: **{}**",
+            r.adopted
+                .iter()
+                .map(|c| c.name())
+                .collect::<Vec<_>>()
+                .join(" → ")
+        )
+    };
+    let _ = writeln!(s, "Verdict: {verdict}. Selection rule: {}.", r.criterion);
+    let _ = writeln!(
+        s,
+        "Marker noise σ = {} µm ({}); noise floor of the RMS marker error σ√3 = {} µm. Run time {:.1} s.\n",
+        um(r.sigma),
+        if r.sigma_declared { "declared" } else { "not declared: 100 µm used to scale" },
+        um(r.noise_floor),
+        r.seconds
+    );
+    let _ = writeln!(s, "## Error before and after\n");
+    let _ = writeln!(s, "Markers in µm; implied-force error in N (|s − 1|·|f|, s the best scale of simulated onto measured displacement). Held-out = leave-one-measurement-out.\n");
+    let _ = writeln!(s, "| model | fitted RMS | fitted max | held-out RMS | held-out max | force RMS | force max | held-out force RMS |");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|");
+    error_rows(&mut s, "simplest (linear homogeneous)", &r.before);
+    error_rows(&mut s, "final", &r.after);
+    let _ = writeln!(s, "\n## Final parameters (±1σ, Gauss–Newton covariance)\n");
+    let _ = writeln!(s, "| parameter | value | ±1σ | unit |\n|---|---|---|---|");
+    for p in &r.final_params {
+        let _ = writeln!(
+            s,
+            "| {} | {:.5e} | {:.2e} | {} |",
+            p.name, p.value, p.sd, p.unit
+        );
+    }
+    for st in &r.steps {
+        let model = if st.model.is_empty() {
+            "simplest".to_string()
+        } else {
+            st.model
+                .iter()
+                .map(|c| c.name())
+                .collect::<Vec<_>>()
+                .join(" + ")
+        };
+        let _ = writeln!(s, "\n## Round {} (model: {model})\n", st.round);
+        let sig = &st.signature;
+        let _ = writeln!(s, "Residual signature:\n");
+        let _ = writeln!(s, "- scale factor (measured/simulated displacement) vs force: correlation {:.2}; per measurement (|f| N → s): {}", sig.scale_vs_force,
+            sig.per_measurement.iter().map(|p| format!("{:.2}→{:.3}", p.force, p.scale)).collect::<Vec<_>>().join(", "));
+        let _ = writeln!(
+            s,
+            "- rigid-body part (one transform for all measurements): {:.0}% of the residual energy",
+            100.0 * sig.rigid_fraction
+        );
+        let _ = writeln!(
+            s,
+            "- persistent part (same at a marker in every measurement): {:.0}%",
+            100.0 * sig.persistent_fraction
+        );
+        let _ = writeln!(
+            s,
+            "- RMS vs distance from the contact (upper bin edge mm: µm): {}",
+            sig.vs_distance
+                .iter()
+                .map(|(d, r, _)| format!("{:.0}: {}", d * 1e3, um(*r)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        let _ = writeln!(
+            s,
+            "- per measurement RMS (µm): {}",
+            sig.per_measurement
+                .iter()
+                .map(|p| format!("{} {}", p.id, um(p.rms)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        let _ = writeln!(
+            s,
+            "- worst markers (RMS µm): {}\n",
+            sig.worst_markers
+                .iter()
+                .map(|(id, v)| format!("{id} {}", um(*v)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        if !st.tried.is_empty() {
+            let _ = writeln!(s, "| candidate | extra params | refit RMS µm | ΔBIC | held-out RMS µm |\n|---|---|---|---|---|");
+            for t in &st.tried {
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {} | {:.1} | {} |",
+                    t.candidate.name(),
+                    t.extra_params,
+                    um(t.rms),
+                    t.delta_bic,
+                    t.heldout_rms.map(um).unwrap_or_else(|| "–".into())
+                );
+            }
+        }
+        let _ = writeln!(s, "\nDecision: {}", st.reason);
+        if let Some(a) = &st.after {
+            let _ = writeln!(s, "\n| | fitted RMS | fitted max | held-out RMS | held-out max | force RMS | force max | held-out force RMS |\n|---|---|---|---|---|---|---|---|");
+            error_rows(&mut s, "before", &st.before);
+            error_rows(&mut s, "after", a);
+            let _ = writeln!(s, "\nNew parameters:\n");
+            for p in &st.new_params {
+                let _ = writeln!(
+                    s,
+                    "- {} = {:.4e} ± {:.2e} {}",
+                    p.name, p.value, p.sd, p.unit
+                );
+            }
+        }
+        for (round, file) in plots {
+            if *round == st.round {
+                let _ = writeln!(s, "\n![evidence]({file})");
+            }
+        }
+    }
+    s
+}
+
+/// Writes `diagnosis.md`, `diagnosis.json` and the evidence plots into `dir`; returns the paths.
+pub fn write_report(r: &DiagnosisReport, dir: &Path) -> Result<Vec<PathBuf>, DiagnoseError> {
+    std::fs::create_dir_all(dir)
+        .map_err(|e| DiagnoseError::Write(format!("{}: {e}", dir.display())))?;
+    let mut written = Vec::new();
+    let mut plots = Vec::new();
+    for st in &r.steps {
+        if let (Some(c), Some((xl, yl, before, after))) = (st.adopted, &st.evidence) {
+            let file = format!("round{}-{}.svg", st.round, c.name());
+            let path = dir.join(&file);
+            let title = format!(
+                "round {}: {} (before and after adoption)",
+                st.round,
+                c.name()
+            );
+            let style = if before.len() > 40 {
+                Style::Points
+            } else {
+                Style::LinePoints
+            };
+            let mut b = before.clone();
+            let mut a = after.clone();
+            if style == Style::LinePoints {
+                b.sort_by(|p, q| p.0.total_cmp(&q.0));
+                a.sort_by(|p, q| p.0.total_cmp(&q.0));
+            }
+            lines(
+                &path,
+                &title,
+                xl,
+                yl,
+                &[
+                    Series::new("before", &b, style),
+                    Series::new("after", &a, style),
+                ],
+            )
+            .map_err(|e| DiagnoseError::Write(e.to_string()))?;
+            plots.push((st.round, file));
+            written.push(path);
+        }
+    }
+    let md = markdown(r, &plots);
+    let json = serde_json::to_string_pretty(r).map_err(|e| DiagnoseError::Write(e.to_string()))?;
+    for (name, text) in [("diagnosis.md", md), ("diagnosis.json", json)] {
+        let p = dir.join(name);
+        write_atomic(&p, text.as_bytes())
+            .map_err(|e| DiagnoseError::Write(format!("{}: {e:#}", p.display())))?;
+        written.push(p);
+    }
+    Ok(written)
+}
