@@ -109,7 +109,13 @@ fn fit_with(
                         start,
                     )?);
                 }
-                let fit = fit_force(&input.problem, &xbar, &forces, &fo)?;
+                let mut fit = fit_force(&input.problem, &xbar, &forces, &fo)?;
+                // With sparse markers the completion/refit alternation can drift in overall
+                // scale (softer parameters → larger completed displacements → softer refit).
+                // The force-based solve fixes the parameters' shape; the observed markers fix
+                // their scale: for small strains u(s·p) ≈ u(p)/s, so each set is rescaled by
+                // s = ⟨u_sim, u_sim⟩ / ⟨u_sim, u_meas⟩ over its measurements' observed markers.
+                rescale_to_markers(input, &mut fit.params, &solve)?;
                 for (k, m) in fit.params.iter().enumerate() {
                     if let Err(e) = m.check(input.problem.element_count()) {
                         return Err(FitError::Diverged(format!(
@@ -188,6 +194,46 @@ fn fit_with(
         roughness: rough,
         seconds: started.elapsed().as_secs_f64(),
     })
+}
+
+/// Rescales every set so that the simulated marker displacements match the observed ones in the
+/// least-squares sense (see the call site).
+fn rescale_to_markers(
+    input: &FitInput,
+    params: &mut [Material],
+    solve: &SolveOptions,
+) -> Result<(), FitError> {
+    let n_sets = params.len();
+    let mut num = vec![0.0; n_sets];
+    let mut den = vec![0.0; n_sets];
+    for (i, m) in input.measurements.iter().enumerate() {
+        let set = FitInput::set_of(i, n_sets);
+        if params[set].check(input.problem.element_count()).is_err() {
+            continue;
+        }
+        let x = input
+            .problem
+            .solve_forces(&params[set], &m.force, None, solve)?
+            .solution
+            .x;
+        for &(k, meas) in &m.observed {
+            let sim = input.marker_position(k, &x);
+            let rest = input.markers[k].interpolate(|n| input.problem.x0[n]);
+            for d in 0..3 {
+                let us = sim[d] - rest[d];
+                num[set] += us * us;
+                den[set] += us * (meas[d] - rest[d]);
+            }
+        }
+    }
+    for (set, m) in params.iter_mut().enumerate() {
+        if num[set] > 0.0 && den[set] > 0.0 {
+            let s = num[set] / den[set];
+            m.lambda.iter_mut().for_each(|v| *v *= s);
+            m.alpha.iter_mut().for_each(|v| *v *= s);
+        }
+    }
+    Ok(())
 }
 
 /// The reference γ of the force method: the RMS column norm of A (N/Pa) at the rest-completed
