@@ -162,7 +162,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         rms = r.eval.rms_marker;
         fitted = r.q.clone();
         println!(
-            "| LBFGS optimisation (m = 5, backtracking Wolfe, adjoint) | {:.2} | — | — | {} iterations, {} evaluations; fitted λ {:.1}, μ {:.1}, ν {:.4}, h {:.4}; RMS {:.2e} m |",
+            "| LBFGS optimisation (m = 5, Moré–Thuente strong Wolfe, adjoint) | {:.2} | — | — | {} iterations, {} evaluations; fitted λ {:.1}, μ {:.1}, ν {:.4}, h {:.4}; RMS {:.2e} m |",
             opt_s, iters, evals, r.q[0], r.q[1], r.q[2], r.q[3], rms
         );
         for f in &r.failures {
