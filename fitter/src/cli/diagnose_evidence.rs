@@ -58,6 +58,7 @@ struct Run {
 /// Runs the evidence.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let mut runs = Vec::new();
+    let mut failures: Vec<String> = Vec::new();
     let injected: Vec<Option<Effect>> = std::iter::once(None)
         .chain(ALL_EFFECTS.iter().copied().map(Some))
         .collect();
@@ -71,12 +72,29 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     }]
                 })
                 .unwrap_or_default();
-            let s = generate(&SpecimenOptions {
+            let outcome = generate(&SpecimenOptions {
                 seed,
                 effects,
                 ..Default::default()
-            })?;
-            let r = run_diagnosis(&s.dataset, &DiagnoseOptions::default())?;
+            })
+            .map_err(anyhow::Error::from)
+            .and_then(|s| {
+                run_diagnosis(&s.dataset, &DiagnoseOptions::default()).map_err(anyhow::Error::from)
+            });
+            let r = match outcome {
+                Ok(r) => r,
+                Err(err) => {
+                    println!(
+                        "{:<13} seed {seed}: FAILED: {err:#}",
+                        e.map_or("none", |e| e.name())
+                    );
+                    failures.push(format!(
+                        "{} seed {seed}: {err:#}",
+                        e.map_or("none", |e| e.name())
+                    ));
+                    continue;
+                }
+            };
             let run = Run {
                 injected: e.map_or("none", |e| e.name()).into(),
                 magnitude: e.map_or(0.0, |e| e.default_magnitude()),
@@ -103,8 +121,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 run.seconds
             );
             runs.push(run);
+            write_tables(&args, &injected, &runs, &failures)?;
         }
     }
+    write_tables(&args, &injected, &runs, &failures)?;
+    let correct = runs.iter().filter(|r| r.correct).count();
+    println!(
+        "{correct}/{} correct; wrote {}",
+        runs.len(),
+        args.output.join("confusion.md").display()
+    );
+    Ok(())
+}
+
+fn write_tables(
+    args: &Args,
+    injected: &[Option<Effect>],
+    runs: &[Run],
+    failures: &[String],
+) -> anyhow::Result<()> {
     let mut md = String::new();
     let _ = writeln!(md, "# diagnose confusion table\n");
     let _ = writeln!(md, "Produced by `palpate diagnose-evidence --seeds {}` (specimen defaults: 8×8×4 cm block, dataset mesh 6×6×3 cells, Neo-Hookean truth on a 2× finer mesh, E = 20 kPa, ν = 0.35, 8 contacts of 0.375–1.5 N, σ = 50 µm declared → noise floor σ√3 = 86.6 µm). Rows: effect injected (default magnitude); columns: first effect diagnose adopted, counted over seeds.\n",
@@ -121,7 +156,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .join(" | ")
     );
     let _ = writeln!(md, "|---|{}", "---|".repeat(cols.len()));
-    for &e in &injected {
+    for &e in injected {
         let name = e.map_or("none", |e| e.name());
         let cells: Vec<String> = cols
             .iter()
@@ -144,7 +179,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let correct = runs.iter().filter(|r| r.correct).count();
     let _ = writeln!(md, "\nCorrect first choice: {correct}/{} runs (bold = the expected column; noise and occlusion are expected to stay clean).\n", runs.len());
     let _ = writeln!(md, "| injected | magnitude | seed | adopted | RMS before µm | RMS after µm | held-out before µm | held-out after µm | after ≤ 1.5 floor | s |\n|---|---|---|---|---|---|---|---|---|---|");
-    for r in &runs {
+    for r in runs {
         let _ = writeln!(
             md,
             "| {} | {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.1} |",
@@ -167,6 +202,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             if r.within_1_5_floor { "yes" } else { "no" },
             r.seconds
         );
+    }
+    for f in failures {
+        let _ = writeln!(md, "\nFailed run: {f}");
     }
     std::fs::create_dir_all(&args.output)?;
     write_atomic(&args.output.join("confusion.md"), md.as_bytes())?;

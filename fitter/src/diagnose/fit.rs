@@ -8,8 +8,8 @@ use nalgebra::{DMatrix, DVector};
 use super::model::{s_of, Context, Model, Simulated};
 use super::DiagnoseError;
 
-/// Forward-difference step on the dimensionless θ. The fixed-point tolerance is 1e-11 m, so the
-/// solver noise in a residual column is ≈ 1e-11 / (σ h) ≈ 2e-3 (for σ = 50 µm) against columns of
+/// Forward-difference step on the dimensionless θ. The fixed-point tolerance is 1e-10 m, so the
+/// solver noise in a residual column is ≈ 1e-10 / (σ h) ≈ 1e-2 (for σ = 100 µm) against columns of
 /// order u/σ ≈ 10–100: negligible; the truncation error is O(h) relative.
 const FD_STEP: f64 = 1e-4;
 

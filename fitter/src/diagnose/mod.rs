@@ -72,7 +72,7 @@ impl Default for DiagnoseOptions {
             grid: [2, 2, 2],
             max_effects: 3,
             max_iterations: 8,
-            holdout_iterations: 4,
+            holdout_iterations: 3,
             bic_threshold: 10.0,
             min_holdout_gain: 0.10,
             cv_candidates: 2,

@@ -279,8 +279,10 @@ pub fn generate(o: &SpecimenOptions) -> Result<Specimen, SpecimenError> {
         p.gravity = [0.0, 0.0, -9.81];
         p.forces = forces;
         p.fixed_displacement = fixed_disp;
-        p.load_steps = 8;
-        p.tol = 1e-9;
+        // 1e-7 N on probe forces of 0.4–1.5 N: a relative residual of 1e-7, far below any
+        // effect; stiffening needs more increments for Newton to converge.
+        p.load_steps = if stiff > 0.0 { 16 } else { 8 };
+        p.tol = 1e-7;
         p
     };
     // The rest scan: under gravity when that effect is on.
