@@ -66,6 +66,68 @@ pub fn warp_rotation_iterative<T: RealField + Copy>(
     q.to_rotation_matrix().into_inner()
 }
 
+/// The runtime's f32 fast path of [`warp_rotation_iterative`]: plain arrays, and each step's
+/// rotation exp(ω) replaced by the normalised first-order quaternion (1, ω/2), which needs no
+/// trigonometry. The fixed point is the same (ω = 0 there), every iterate is a unit quaternion
+/// (a proper rotation), and warm-started from the previous tick one step suffices. `q` is
+/// (w, x, y, z); `r` receives R row-major.
+#[inline(always)]
+pub fn warp_rotation_fast(f: &[f32; 9], q: &mut [f32; 4], iterations: usize, r: &mut [f32; 9]) {
+    quat_to_matrix(q, r);
+    if !f.iter().all(|v| v.is_finite()) {
+        return;
+    }
+    for _ in 0..iterations {
+        // ω = Σ_c r_c × f_c / |Σ_c r_c · f_c|  (columns c)
+        let mut om = [0.0f32; 3];
+        let mut dot = 0.0f32;
+        for c in 0..3 {
+            let rc = [r[c], r[3 + c], r[6 + c]];
+            let fc = [f[c], f[3 + c], f[6 + c]];
+            om[0] += rc[1] * fc[2] - rc[2] * fc[1];
+            om[1] += rc[2] * fc[0] - rc[0] * fc[2];
+            om[2] += rc[0] * fc[1] - rc[1] * fc[0];
+            dot += rc[0] * fc[0] + rc[1] * fc[1] + rc[2] * fc[2];
+        }
+        let inv = 1.0 / (dot.abs() + 1e-9);
+        let h = [0.5 * om[0] * inv, 0.5 * om[1] * inv, 0.5 * om[2] * inv];
+        if h[0] * h[0] + h[1] * h[1] + h[2] * h[2] < 1e-14 {
+            break;
+        }
+        // q ← normalise((1, h) ⊗ q)
+        let (w, x, y, z) = (q[0], q[1], q[2], q[3]);
+        let nq = [
+            w - h[0] * x - h[1] * y - h[2] * z,
+            x + h[0] * w + h[1] * z - h[2] * y,
+            y - h[0] * z + h[1] * w + h[2] * x,
+            z + h[0] * y - h[1] * x + h[2] * w,
+        ];
+        let n = libm::sqrtf(nq[0] * nq[0] + nq[1] * nq[1] + nq[2] * nq[2] + nq[3] * nq[3]);
+        if !(n > 0.0) || !n.is_finite() {
+            break;
+        }
+        for k in 0..4 {
+            q[k] = nq[k] / n;
+        }
+        quat_to_matrix(q, r);
+    }
+}
+
+/// Rotation matrix (row-major) of a unit quaternion (w, x, y, z).
+#[inline(always)]
+pub fn quat_to_matrix(q: &[f32; 4], r: &mut [f32; 9]) {
+    let (w, x, y, z) = (q[0], q[1], q[2], q[3]);
+    r[0] = 1.0 - 2.0 * (y * y + z * z);
+    r[1] = 2.0 * (x * y - w * z);
+    r[2] = 2.0 * (x * z + w * y);
+    r[3] = 2.0 * (x * y + w * z);
+    r[4] = 1.0 - 2.0 * (x * x + z * z);
+    r[5] = 2.0 * (y * z - w * x);
+    r[6] = 2.0 * (x * z - w * y);
+    r[7] = 2.0 * (y * z + w * x);
+    r[8] = 1.0 - 2.0 * (x * x + y * y);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -98,6 +160,41 @@ mod tests {
         let ri = warp_rotation_iterative(&f, &mut q, 100);
         assert!(is_proper_rotation(&ri), "iterative: {ri}");
         assert!((ri - rot).norm() < 1e-6, "iterative {ri} vs {rot}");
+    }
+
+    #[test]
+    fn fast_path_agrees_with_svd_and_stays_proper() {
+        let mut seed = 99u64;
+        let mut rnd = || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+        };
+        for case in 0..200 {
+            let rot = Rotation3::from_euler_angles(1.5 * rnd(), 1.5 * rnd(), 1.5 * rnd()).into_inner();
+            let mut s = Matrix3::identity();
+            for v in s.iter_mut() {
+                *v += 0.2 * rnd();
+            }
+            let f = rot * s;
+            let f32m: [f32; 9] = core::array::from_fn(|k| f[(k / 3, k % 3)] as f32);
+            let mut q = [1.0f32, 0.0, 0.0, 0.0];
+            let mut r = [0.0f32; 9];
+            warp_rotation_fast(&f32m, &mut q, 200, &mut r);
+            let rm = Matrix3::from_fn(|i, j| r[3 * i + j] as f64);
+            assert!((rm.transpose() * rm - Matrix3::identity()).norm() < 1e-5);
+            assert!((rm.determinant() - 1.0).abs() < 1e-5);
+            if f.determinant() > 0.05 {
+                let expect = warp_rotation_svd(&f);
+                assert!((rm - expect).norm() < 1e-4, "case {case}: {rm} vs {expect}");
+            }
+        }
+        // Inverted element: still a proper rotation.
+        let f = [1.0f32, 0.0, 0.0, 0.0, 0.8, 0.0, 0.0, 0.0, -0.3];
+        let mut q = [1.0f32, 0.0, 0.0, 0.0];
+        let mut r = [0.0f32; 9];
+        warp_rotation_fast(&f, &mut q, 100, &mut r);
+        let rm = Matrix3::from_fn(|i, j| r[3 * i + j] as f64);
+        assert!((rm.determinant() - 1.0).abs() < 1e-5);
     }
 
     #[test]

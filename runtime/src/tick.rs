@@ -16,10 +16,13 @@
 
 use crate::blend::blend_parameters;
 use crate::config::{Kernel, Preconditioner};
-use crate::kernel::{diagonal_block, warped_apply, warped_apply_packed, warped_internal_force, M3};
-use crate::rotation::warp_rotation_iterative;
+use crate::kernel::{
+    diagonal_block, warped_apply, warped_apply_lanes, warped_apply_packed, warped_internal_force,
+    warped_internal_force_lanes, LANES, M3,
+};
+use crate::rotation::warp_rotation_fast;
 use crate::runtime::{norm, Probe, Runtime, SolveStatus, TickReport, FIXED, FREE, PROBED};
-use nalgebra::{Matrix3, Quaternion, UnitQuaternion};
+use nalgebra::Matrix3;
 
 #[inline(always)]
 fn gather(v: &[f32], ids: &[usize; 4]) -> [[f32; 3]; 4] {
@@ -134,27 +137,14 @@ impl<'a> Runtime<'a> {
             let g = self.element_grad(e);
             let u = gather(self.u, &ids);
             let h = crate::kernel::gradient_of(&u, &g);
-            let f = Matrix3::new(
-                1.0 + h[0],
-                h[1],
-                h[2], //
-                h[3],
-                1.0 + h[4],
-                h[5], //
-                h[6],
-                h[7],
-                1.0 + h[8],
-            );
-            let q = &mut self.quat[4 * e..4 * e + 4];
-            let mut uq = UnitQuaternion::new_unchecked(Quaternion::new(q[0], q[1], q[2], q[3]));
-            let r = warp_rotation_iterative(&f, &mut uq, iters);
-            q.copy_from_slice(&[uq.w, uq.i, uq.j, uq.k]);
-            let ro = &mut self.rot[9 * e..9 * e + 9];
-            for i in 0..3 {
-                for j in 0..3 {
-                    ro[3 * i + j] = r[(i, j)];
-                }
-            }
+            let fm = [1.0 + h[0], h[1], h[2], h[3], 1.0 + h[4], h[5], h[6], h[7], 1.0 + h[8]];
+            let mut q = [self.quat[4 * e], self.quat[4 * e + 1], self.quat[4 * e + 2], self.quat[4 * e + 3]];
+            let mut ro = [0.0f32; 9];
+            warp_rotation_fast(&fm, &mut q, iters, &mut ro);
+            self.quat[4 * e..4 * e + 4].copy_from_slice(&q);
+            self.rot[9 * e..9 * e + 9].copy_from_slice(&ro);
+            let f = Matrix3::from_row_slice(&fm);
+            let r = Matrix3::from_row_slice(&ro);
             if want_strain {
                 let rt_f = r.transpose() * f;
                 let s = &mut self.strain[6 * e..6 * e + 6];
@@ -280,7 +270,53 @@ impl<'a> Runtime<'a> {
     fn residual_and_preconditioner(&mut self) {
         self.r_full.copy_from_slice(self.f_app);
         self.precond.iter_mut().for_each(|v| *v = 0.0);
-        for e in 0..self.t {
+        // Internal forces LANES elements at a time (SIMD), the remainder one by one below.
+        let batched = self.t / LANES * LANES;
+        let mut e0 = 0;
+        while e0 < batched {
+            let mut ids = [[0usize; LANES]; 4];
+            let mut v = [[[0.0f32; LANES]; 3]; 4];
+            let mut g = [[0.0f32; LANES]; 9];
+            let mut r = [[0.0f32; LANES]; 9];
+            let mut vol = [0.0f32; LANES];
+            let mut lam = [0.0f32; LANES];
+            let mut alp = [0.0f32; LANES];
+            for l in 0..LANES {
+                let e = e0 + l;
+                for a in 0..4 {
+                    let i = self.tets[4 * e + a] as usize;
+                    ids[a][l] = i;
+                    for k in 0..3 {
+                        v[a][k][l] = self.u[3 * i + k];
+                    }
+                }
+                for k in 0..9 {
+                    g[k][l] = self.grad[9 * e + k];
+                    r[k][l] = self.rot[9 * e + k];
+                }
+                vol[l] = self.vol[e];
+                lam[l] = self.lam[e];
+                alp[l] = self.alp[e];
+            }
+            let f = warped_internal_force_lanes(&v, &g, &r, &vol, &lam, &alp);
+            for l in 0..LANES {
+                let e = e0 + l;
+                let ge = self.element_grad(e);
+                let re = self.element_rot(e);
+                for a in 0..4 {
+                    let i = ids[a][l];
+                    self.r_full[3 * i] -= f[a][0][l];
+                    self.r_full[3 * i + 1] -= f[a][1][l];
+                    self.r_full[3 * i + 2] -= f[a][2][l];
+                    let b = diagonal_block(a, &ge, &re, vol[l], lam[l], alp[l]);
+                    for j in 0..6 {
+                        self.precond[6 * i + j] += b[j];
+                    }
+                }
+            }
+            e0 += LANES;
+        }
+        for e in batched..self.t {
             let ids = self.element_ids(e);
             let g = self.element_grad(e);
             let r = self.element_rot(e);
@@ -337,21 +373,58 @@ impl<'a> Runtime<'a> {
         }
     }
 
-    /// q = K' p (matrix-free, all elements).
+    /// q = K' p (matrix-free, all elements). The gradient kernel runs [`LANES`] elements at a time
+    /// (structure-of-arrays, SIMD); the remainder and the packed kernel run element by element.
     #[inline(never)]
     fn apply_stiffness(&mut self) {
         self.q.iter_mut().for_each(|v| *v = 0.0);
         let packed = self.config.kernel == Kernel::Packed;
-        for e in 0..self.t {
+        let batched = if packed { 0 } else { self.t / LANES * LANES };
+        let mut e0 = 0;
+        while e0 < batched {
+            let mut ids = [[0usize; LANES]; 4];
+            let mut v = [[[0.0f32; LANES]; 3]; 4];
+            let mut g = [[0.0f32; LANES]; 9];
+            let mut r = [[0.0f32; LANES]; 9];
+            let mut vol = [0.0f32; LANES];
+            let mut lam = [0.0f32; LANES];
+            let mut alp = [0.0f32; LANES];
+            for l in 0..LANES {
+                let e = e0 + l;
+                for a in 0..4 {
+                    let i = self.tets[4 * e + a] as usize;
+                    ids[a][l] = i;
+                    for k in 0..3 {
+                        v[a][k][l] = self.p[3 * i + k];
+                    }
+                }
+                for k in 0..9 {
+                    g[k][l] = self.grad[9 * e + k];
+                    r[k][l] = self.rot[9 * e + k];
+                }
+                vol[l] = self.vol[e];
+                lam[l] = self.lam[e];
+                alp[l] = self.alp[e];
+            }
+            let f = warped_apply_lanes(&v, &g, &r, &vol, &lam, &alp);
+            for l in 0..LANES {
+                for a in 0..4 {
+                    let i = 3 * ids[a][l];
+                    self.q[i] += f[a][0][l];
+                    self.q[i + 1] += f[a][1][l];
+                    self.q[i + 2] += f[a][2][l];
+                }
+            }
+            e0 += LANES;
+        }
+        for e in batched..self.t {
             let ids = self.element_ids(e);
             let r = self.element_rot(e);
             let v = gather(self.p, &ids);
             let f = if packed {
                 let base = 2 * 78 * e;
                 let c: &[f32; 78] = self.cd[base..base + 78].try_into().unwrap_or(&[0.0; 78]);
-                let d: &[f32; 78] = self.cd[base + 78..base + 156]
-                    .try_into()
-                    .unwrap_or(&[0.0; 78]);
+                let d: &[f32; 78] = self.cd[base + 78..base + 156].try_into().unwrap_or(&[0.0; 78]);
                 warped_apply_packed(&v, c, d, &r, self.lam[e], self.alp[e])
             } else {
                 let g = self.element_grad(e);

@@ -297,3 +297,43 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     Ok(())
 }
+
+/// What a haptic replay measured.
+#[derive(Debug, Clone, Copy)]
+pub struct Replay {
+    /// Samples that led to a solve.
+    pub solved: usize,
+    /// Frame written → solved state, median (µs).
+    pub p50_us: f64,
+    /// Frame written → solved state, 99th percentile (µs).
+    pub p99_us: f64,
+    /// Mean PCG iterations per solve.
+    pub mean_iterations: f64,
+    /// Samples missing or frames rejected by the receiver.
+    pub lost: u64,
+}
+
+/// A haptic replay for `palpate demo`: the simulated probe (firmware library behind a mock ADC)
+/// presses with a scripted profile, its frames cross a real pseudo-terminal pair at 1 kHz in real
+/// time, and `runtime` solves a force-driven contact at `point` for every sample.
+pub fn replay(runtime: Runtime<'_>, point: [f32; 3], radius: f32, seconds: f64) -> anyhow::Result<Replay> {
+    let contact = Contact { point, direction: [0.0, 0.0, -1.0], radius };
+    let mut hl = HapticLoop::new(runtime, ForceGate::new(20, 100.0), contact);
+    let opts = SenderOptions { seconds, pacing: Pacing::RealTime, version: LINK_VERSION, stall: None, adc_fault: None };
+    let lp = phase(opts, 1000, |b| Ok(hl.on_batch(b).context("runtime tick")?.map_or(0, |r| r.1.iterations)))?;
+    let mut e2e = Vec::new();
+    for &(seq, _arrival, solved) in &lp.events {
+        if let Some(Some(written)) = lp.sent.written_at.get(seq as usize) {
+            e2e.push(solved.duration_since(*written).as_secs_f64() * 1e6);
+        }
+    }
+    let e2e = Percentiles::of(&mut e2e);
+    let mean_iterations = lp.iterations.iter().sum::<f64>() / lp.iterations.len().max(1) as f64;
+    Ok(Replay {
+        solved: e2e.n,
+        p50_us: e2e.p50,
+        p99_us: e2e.p99,
+        mean_iterations,
+        lost: lp.stats.missing_samples + lp.stats.rejected(),
+    })
+}

@@ -89,6 +89,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let (lo, hi) = ds.mesh.bounds();
     let contact = [(lo[0] + hi[0]) as f32 / 2.0, (lo[1] + hi[1]) as f32 / 2.0, hi[2] as f32];
     let replay = crate::cli::bench_link::replay(rt, contact, ds.probe_radius as f32, args.haptic_seconds)?;
+    let lost = replay.lost;
 
     // The table.
     let b = &report.before;
@@ -115,8 +116,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         a.force_rms
     );
     println!(
-        "\nhaptic replay: {} samples solved, latency frame-arrival → solved p50 {:.0} µs, p99 {:.0} µs; mean PCG iterations {:.1}; runtime memory {} bytes",
-        replay.solved, replay.p50_us, replay.p99_us, replay.mean_iterations, footprint
+        "\nhaptic replay: {} samples solved ({} lost), latency frame written → solved p50 {:.0} µs, p99 {:.0} µs; mean PCG iterations {:.1}; runtime memory {} bytes",
+        replay.solved, lost, replay.p50_us, replay.p99_us, replay.mean_iterations, footprint
     );
     println!("demo finished in {:.1} s", t0.elapsed().as_secs_f64());
     Ok(())

@@ -9,6 +9,7 @@ pub mod bench_motion;
 pub mod fit_motion;
 pub mod motion_evidence;
 pub mod bench_runtime;
+pub mod demo;
 pub mod simulate;
 pub mod calibrate_fsr;
 pub mod haptic;
@@ -34,6 +35,8 @@ pub enum Command {
     /// Benchmarks that print a table and, as their last line, one JSON object.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// The whole loop on the bundled data: fit, diagnose, export, haptic replay over a pty.
+    Demo(demo::Args),
     /// Simulate one static interaction with the runtime; writes displacements CSV and VTK.
     Simulate(simulate::Args),
     /// Fit material parameters to a static contact dataset (seed 000) and export a model.
@@ -62,6 +65,7 @@ pub enum Command {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Bench(b) => bench::run(b),
+        Command::Demo(a) => demo::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Fit(a) => fit::run(a),
         Command::CalibrateFsr(a) => calibrate_fsr::run(a),
