@@ -52,7 +52,9 @@ impl<'a> F32s<'a> {
     }
     /// All values in order.
     pub fn iter(&self) -> impl Iterator<Item = f32> + 'a {
-        self.0.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        self.0
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
     }
 }
 
@@ -73,7 +75,9 @@ impl<'a> U32s<'a> {
     }
     /// All values in order.
     pub fn iter(&self) -> impl Iterator<Item = u32> + 'a {
-        self.0.chunks_exact(4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        self.0
+            .chunks_exact(4)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
     }
 }
 
