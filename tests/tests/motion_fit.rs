@@ -6,7 +6,9 @@ use palpate_fitter::motion::optimize::{fit, FitSettings};
 use palpate_fitter::motion::scenario::{bar_model, nine_markers, record, two_sinusoids};
 
 /// μ and ν from a 2× wrong start on a 24-tet bar, 40 steps: noise-free data, so the optimum is
-/// the truth; 1 % tolerance covers the optimiser's stopping rule (relative Φ change 1e-10).
+/// the truth. The cost tolerance is tightened to 1e-14 because with the default (relative Φ
+/// change 1e-10) LBFGS stopped with ν 1.4 % off: on this short, stiff motion the viscosity
+/// moves the markers little, so Φ is flat along ν. 1 % on both parameters.
 #[test]
 fn lbfgs_recovers_mu_and_viscosity() {
     let size = [0.02, 0.08, 0.02];
@@ -38,7 +40,7 @@ fn lbfgs_recovers_mu_and_viscosity() {
         &params,
         &[1.0e4, 24.0],
         &obs,
-        &FitSettings::default(),
+        &FitSettings { tol_cost: 1e-14, ..FitSettings::default() },
         &[],
         &|_, _| {},
     )
