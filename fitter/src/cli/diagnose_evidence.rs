@@ -142,7 +142,7 @@ fn write_tables(
 ) -> anyhow::Result<()> {
     let mut md = String::new();
     let _ = writeln!(md, "# diagnose confusion table\n");
-    let _ = writeln!(md, "Produced by `palpate diagnose-evidence --seeds {}` (specimen defaults: 8×8×4 cm block, dataset mesh 6×6×3 cells, Neo-Hookean truth on a 2× finer mesh, E = 20 kPa, ν = 0.35, 8 contacts of 0.375–1.5 N, σ = 50 µm declared → noise floor σ√3 = 86.6 µm). Rows: effect injected (default magnitude); columns: first effect diagnose adopted, counted over seeds.\n",
+    let _ = writeln!(md, "Produced by `palpate diagnose-evidence --seeds {}` (specimen defaults: 8×8×4 cm block, dataset mesh 6×6×3 cells, Neo-Hookean truth on a 2× finer mesh, E = 20 kPa, ν = 0.35, 8 contacts of 0.375–1.5 N, σ = 100 µm declared → noise floor σ√3 = 173.2 µm). Rows: effect injected (default magnitude); columns: first effect diagnose adopted, counted over seeds.\n",
         args.seeds.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(","));
     let cols: Vec<Option<Candidate>> = std::iter::once(None)
         .chain(ALL_CANDIDATES.iter().copied().map(Some))
