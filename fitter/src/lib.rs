@@ -3,15 +3,15 @@
 
 pub mod cli;
 pub mod dataset;
+pub mod diagnose;
 pub mod export;
 pub mod forward;
-pub mod static_fit;
 pub mod fsr;
 pub mod io;
 pub mod link;
 pub mod mesh;
-pub mod report;
-pub mod plot;
 pub mod motion;
+pub mod plot;
+pub mod report;
 pub mod specimen;
-pub mod diagnose;
+pub mod static_fit;

@@ -64,7 +64,13 @@ impl<'a> Coarse<'a> {
     pub fn new(capacity: usize, agg: &'a mut [u32], storage: &'a mut [f32]) -> Self {
         let (geo, rest) = storage.split_at_mut((4 * capacity).min(storage.len()));
         let (g, l) = rest.split_at_mut((6 * capacity).min(rest.len()));
-        Coarse { m: 0, agg, geo, g, l }
+        Coarse {
+            m: 0,
+            agg,
+            geo,
+            g,
+            l,
+        }
     }
 
     /// Builds aggregates by binning the free nodes' rest positions on a grid of about
@@ -108,7 +114,11 @@ impl<'a> Coarse<'a> {
         let cell = |i: usize| -> usize {
             let mut id = 0;
             for k in (0..3).rev() {
-                let t = if ext[k] > 0.0 { (x0[3 * i + k] - lo[k]) / ext[k] } else { 0.0 };
+                let t = if ext[k] > 0.0 {
+                    (x0[3 * i + k] - lo[k]) / ext[k]
+                } else {
+                    0.0
+                };
                 let b = ((t * dims[k] as f32) as usize).min(dims[k] - 1);
                 id = id * dims[k] + b;
             }
@@ -163,7 +173,9 @@ impl<'a> Coarse<'a> {
                 continue;
             }
             let a = a as usize;
-            let d2: f32 = (0..3).map(|k| (x0[3 * i + k] - c.geo[4 * a + k]) * (x0[3 * i + k] - c.geo[4 * a + k])).sum();
+            let d2: f32 = (0..3)
+                .map(|k| (x0[3 * i + k] - c.geo[4 * a + k]) * (x0[3 * i + k] - c.geo[4 * a + k]))
+                .sum();
             c.geo[4 * a + 3] = c.geo[4 * a + 3].max(libm::sqrtf(d2));
         }
         for a in 0..m {
@@ -176,7 +188,12 @@ impl<'a> Coarse<'a> {
         c.l[..dim * dim].iter_mut().for_each(|v| *v = 0.0);
         let ident = [1.0f32, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
         for e in 0..vol.len() {
-            let ids = [tets[4 * e] as usize, tets[4 * e + 1] as usize, tets[4 * e + 2] as usize, tets[4 * e + 3] as usize];
+            let ids = [
+                tets[4 * e] as usize,
+                tets[4 * e + 1] as usize,
+                tets[4 * e + 2] as usize,
+                tets[4 * e + 3] as usize,
+            ];
             let mut ge = [0.0f32; 9];
             ge.copy_from_slice(&grad[9 * e..9 * e + 9]);
             let aggs = ids.map(|i| c.agg[i]);

@@ -271,7 +271,8 @@ fn warped_lanes(
     for i in 0..3 {
         for j in 0..3 {
             for l in 0..LANES {
-                hh[3 * i + j][l] = r[i][l] * h[j][l] + r[3 + i][l] * h[3 + j][l] + r[6 + i][l] * h[6 + j][l];
+                hh[3 * i + j][l] =
+                    r[i][l] * h[j][l] + r[3 + i][l] * h[3 + j][l] + r[6 + i][l] * h[6 + j][l];
             }
         }
     }
@@ -309,8 +310,10 @@ fn warped_lanes(
     for i in 0..3 {
         for j in 0..3 {
             for l in 0..LANES {
-                p[3 * i + j][l] =
-                    volume[l] * (r[3 * i][l] * s[j][l] + r[3 * i + 1][l] * s[3 + j][l] + r[3 * i + 2][l] * s[6 + j][l]);
+                p[3 * i + j][l] = volume[l]
+                    * (r[3 * i][l] * s[j][l]
+                        + r[3 * i + 1][l] * s[3 + j][l]
+                        + r[3 * i + 2][l] * s[6 + j][l]);
             }
         }
     }
@@ -319,7 +322,9 @@ fn warped_lanes(
     for a in 0..3 {
         for i in 0..3 {
             for l in 0..LANES {
-                let val = p[3 * i][l] * g[3 * a][l] + p[3 * i + 1][l] * g[3 * a + 1][l] + p[3 * i + 2][l] * g[3 * a + 2][l];
+                let val = p[3 * i][l] * g[3 * a][l]
+                    + p[3 * i + 1][l] * g[3 * a + 1][l]
+                    + p[3 * i + 2][l] * g[3 * a + 2][l];
                 f[a + 1][i][l] = val;
                 f[0][i][l] -= val;
             }

@@ -166,11 +166,14 @@ mod tests {
     fn fast_path_agrees_with_svd_and_stays_proper() {
         let mut seed = 99u64;
         let mut rnd = || {
-            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
         };
         for case in 0..200 {
-            let rot = Rotation3::from_euler_angles(1.5 * rnd(), 1.5 * rnd(), 1.5 * rnd()).into_inner();
+            let rot =
+                Rotation3::from_euler_angles(1.5 * rnd(), 1.5 * rnd(), 1.5 * rnd()).into_inner();
             let mut s = Matrix3::identity();
             for v in s.iter_mut() {
                 *v += 0.2 * rnd();

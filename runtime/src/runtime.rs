@@ -528,7 +528,11 @@ impl<'a> Runtime<'a> {
     /// another runtime of the same model, e.g. to compare solver settings on the same tick.
     pub fn copy_state_from(&mut self, other: &Runtime<'_>) -> Result<(), RuntimeError> {
         if other.n != self.n || other.t != self.t {
-            return Err(RuntimeError::ModelShape { what: "state of another model", expected: self.n, found: other.n });
+            return Err(RuntimeError::ModelShape {
+                what: "state of another model",
+                expected: self.n,
+                found: other.n,
+            });
         }
         self.u.copy_from_slice(other.u);
         self.f_cmd.copy_from_slice(other.f_cmd);
@@ -555,10 +559,16 @@ impl<'a> Runtime<'a> {
     /// replays and blending checks.
     pub fn set_displacements(&mut self, u: &[f32]) -> Result<(), RuntimeError> {
         if u.len() != 3 * self.n {
-            return Err(RuntimeError::ModelShape { what: "displacements", expected: 3 * self.n, found: u.len() });
+            return Err(RuntimeError::ModelShape {
+                what: "displacements",
+                expected: 3 * self.n,
+                found: u.len(),
+            });
         }
         if !u.iter().all(|v| v.is_finite()) {
-            return Err(RuntimeError::NonFiniteInput { what: "displacements" });
+            return Err(RuntimeError::NonFiniteInput {
+                what: "displacements",
+            });
         }
         self.u.copy_from_slice(u);
         for i in 0..self.n {

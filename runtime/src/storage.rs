@@ -41,8 +41,14 @@ impl StorageRequirement {
         if config.kernel == Kernel::Packed {
             per_element += F32_PER_ELEMENT_PACKED;
         }
-        let coarse = crate::coarse::coarse_f32s(crate::coarse::aggregate_capacity(config.coarse_aggregates, n));
-        Self { f32s: n * F32_PER_NODE + t * per_element + coarse, u32s: n * U32_PER_NODE + t * U32_PER_ELEMENT }
+        let coarse = crate::coarse::coarse_f32s(crate::coarse::aggregate_capacity(
+            config.coarse_aggregates,
+            n,
+        ));
+        Self {
+            f32s: n * F32_PER_NODE + t * per_element + coarse,
+            u32s: n * U32_PER_NODE + t * U32_PER_ELEMENT,
+        }
     }
 
     /// Total bytes of the two pools.

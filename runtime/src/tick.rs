@@ -137,8 +137,23 @@ impl<'a> Runtime<'a> {
             let g = self.element_grad(e);
             let u = gather(self.u, &ids);
             let h = crate::kernel::gradient_of(&u, &g);
-            let fm = [1.0 + h[0], h[1], h[2], h[3], 1.0 + h[4], h[5], h[6], h[7], 1.0 + h[8]];
-            let mut q = [self.quat[4 * e], self.quat[4 * e + 1], self.quat[4 * e + 2], self.quat[4 * e + 3]];
+            let fm = [
+                1.0 + h[0],
+                h[1],
+                h[2],
+                h[3],
+                1.0 + h[4],
+                h[5],
+                h[6],
+                h[7],
+                1.0 + h[8],
+            ];
+            let mut q = [
+                self.quat[4 * e],
+                self.quat[4 * e + 1],
+                self.quat[4 * e + 2],
+                self.quat[4 * e + 3],
+            ];
             let mut ro = [0.0f32; 9];
             warp_rotation_fast(&fm, &mut q, iters, &mut ro);
             self.quat[4 * e..4 * e + 4].copy_from_slice(&q);
@@ -424,7 +439,9 @@ impl<'a> Runtime<'a> {
             let f = if packed {
                 let base = 2 * 78 * e;
                 let c: &[f32; 78] = self.cd[base..base + 78].try_into().unwrap_or(&[0.0; 78]);
-                let d: &[f32; 78] = self.cd[base + 78..base + 156].try_into().unwrap_or(&[0.0; 78]);
+                let d: &[f32; 78] = self.cd[base + 78..base + 156]
+                    .try_into()
+                    .unwrap_or(&[0.0; 78]);
                 warped_apply_packed(&v, c, d, &r, self.lam[e], self.alp[e])
             } else {
                 let g = self.element_grad(e);
@@ -526,7 +543,11 @@ impl<'a> Runtime<'a> {
     /// current rotations (3 per node, N). `out` must hold 3 values per node.
     pub fn internal_forces(&self, out: &mut [f32]) -> Result<(), crate::RuntimeError> {
         if out.len() != 3 * self.n {
-            return Err(crate::RuntimeError::ModelShape { what: "internal force buffer", expected: 3 * self.n, found: out.len() });
+            return Err(crate::RuntimeError::ModelShape {
+                what: "internal force buffer",
+                expected: 3 * self.n,
+                found: out.len(),
+            });
         }
         out.iter_mut().for_each(|v| *v = 0.0);
         for e in 0..self.t {

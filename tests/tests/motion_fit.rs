@@ -40,7 +40,10 @@ fn lbfgs_recovers_mu_and_viscosity() {
         &params,
         &[1.0e4, 24.0],
         &obs,
-        &FitSettings { tol_cost: 1e-14, ..FitSettings::default() },
+        &FitSettings {
+            tol_cost: 1e-14,
+            ..FitSettings::default()
+        },
         &[],
         &|_, _| {},
     )

@@ -38,7 +38,11 @@ fn thousands_of_ticks_allocate_nothing() {
     let fixed = m.group("bottom").unwrap().to_vec();
     let p = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
     let buf = ModelBuffers::homogeneous(&m, &fixed, p.lambda, p.alpha);
-    let cfg = RuntimeConfig { load_step: 0.05, probe_step: 1e-4, ..Default::default() };
+    let cfg = RuntimeConfig {
+        load_step: 0.05,
+        probe_step: 1e-4,
+        ..Default::default()
+    };
     let need = StorageRequirement::for_model(&buf.record(), &cfg);
     let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
     let mut rt = Runtime::new(buf.record(), &mut fs, &mut us, cfg).unwrap();
@@ -47,18 +51,28 @@ fn thousands_of_ticks_allocate_nothing() {
     for k in 0..3000 {
         let s = k as f32 / 3000.0;
         if k < 1500 {
-            rt.set_contact_force([0.02 + 0.06 * s, 0.05, 0.05], [0.0, 0.0, -0.5], 0.015).unwrap();
+            rt.set_contact_force([0.02 + 0.06 * s, 0.05, 0.05], [0.0, 0.0, -0.5], 0.015)
+                .unwrap();
         } else {
             if k == 1500 {
                 rt.clear_loads();
             }
-            rt.set_probe(Probe::Sphere { center: [0.05, 0.02 + 0.06 * s, 0.058], radius: 0.01 }).unwrap();
+            rt.set_probe(Probe::Sphere {
+                center: [0.05, 0.02 + 0.06 * s, 0.058],
+                radius: 0.01,
+            })
+            .unwrap();
         }
         let rep = rt.tick();
         solved += rep.iterations;
     }
     let after = ALLOCATIONS.load(Ordering::SeqCst);
-    assert_eq!(after - before, 0, "the runtime allocated {} times during 3000 ticks", after - before);
+    assert_eq!(
+        after - before,
+        0,
+        "the runtime allocated {} times during 3000 ticks",
+        after - before
+    );
     assert!(solved > 0);
     // The sphere really pressed the surface in the position-driven half.
     assert!(rt.reaction()[2] > 0.0, "reaction {:?}", rt.reaction());

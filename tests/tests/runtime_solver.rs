@@ -77,9 +77,15 @@ fn run_to_rest(rt: &mut Runtime<'_>, max_ticks: usize) -> usize {
     for tick in 0..max_ticks {
         let rep = rt.tick();
         assert_ne!(rep.status, SolveStatus::Rejected);
-        let umax = rt.displacements().iter().fold(0.0f32, |a, v| a.max(v.abs()));
+        let umax = rt
+            .displacements()
+            .iter()
+            .fold(0.0f32, |a, v| a.max(v.abs()));
         last = rep.step / umax.max(1e-30);
-        if rep.load_fraction >= 1.0 && rep.step <= 1e-6 * umax && rep.status == SolveStatus::Converged {
+        if rep.load_fraction >= 1.0
+            && rep.step <= 1e-6 * umax
+            && rep.status == SolveStatus::Converged
+        {
             return tick + 1;
         }
     }
@@ -209,7 +215,13 @@ fn patch_test_linear_field_is_reproduced() {
     // field, so it passes the patch test only for small fields; at 1e-3 of the amplitude the
     // rotation effect (≈ 4e-5 rad) is below 1e-3 of the field.
     for (warp, amp) in [(false, 1.0), (true, 1e-3)] {
-        let lin = |x: [f64; 3]| [2e-3 * amp * x[2] / 0.05, -1e-3 * amp * x[2] / 0.05, -3e-3 * amp * x[2] / 0.05];
+        let lin = |x: [f64; 3]| {
+            [
+                2e-3 * amp * x[2] / 0.05,
+                -1e-3 * amp * x[2] / 0.05,
+                -3e-3 * amp * x[2] / 0.05,
+            ]
+        };
         let mut ul = vec![0.0; 3 * m.nodes.len()];
         for (i, x) in m.nodes.iter().enumerate() {
             ul[3 * i..3 * i + 3].copy_from_slice(&lin(*x));

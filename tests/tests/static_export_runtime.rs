@@ -21,12 +21,21 @@ fn exported_fit_reproduces_fitted_markers_in_the_runtime() {
         &syn.mesh.node_tags,
         &fit.params,
         &BlendData::None,
-        &ProvenanceInfo { tool: "test".into(), source: "synthetic".into(), notes: String::new() },
+        &ProvenanceInfo {
+            tool: "test".into(),
+            source: "synthetic".into(),
+            notes: String::new(),
+        },
     )
     .unwrap();
     let bytes = buffers.encode().unwrap();
     let record = palpate_protocol::model::decode(&bytes).unwrap();
-    let cfg = RuntimeConfig { tolerance: 1e-7, max_iterations: 5000, rotation_iterations: 8, ..Default::default() };
+    let cfg = RuntimeConfig {
+        tolerance: 1e-7,
+        max_iterations: 5000,
+        rotation_iterations: 8,
+        ..Default::default()
+    };
     let need = StorageRequirement::for_model(&record, &cfg);
     let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
     let mut rt = Runtime::new(record, &mut fs, &mut us, cfg).unwrap();
@@ -35,11 +44,19 @@ fn exported_fit_reproduces_fitted_markers_in_the_runtime() {
     for (i, m) in input.measurements.iter().enumerate() {
         rt.reset();
         let c = m.contact;
-        rt.set_contact_force(c.point.map(|v| v as f32), c.force.map(|v| v as f32), c.radius as f32).unwrap();
+        rt.set_contact_force(
+            c.point.map(|v| v as f32),
+            c.force.map(|v| v as f32),
+            c.radius as f32,
+        )
+        .unwrap();
         let mut settled = false;
         for _ in 0..200 {
             let rep = rt.tick();
-            let umax = rt.displacements().iter().fold(0.0f32, |a, v| a.max(v.abs()));
+            let umax = rt
+                .displacements()
+                .iter()
+                .fold(0.0f32, |a, v| a.max(v.abs()));
             // f32 resolves about 1e-7 of a position; 1e-5 of the displacement is settled.
             if rep.status == SolveStatus::Converged && rep.step <= 1e-5 * umax {
                 settled = true;
@@ -50,18 +67,30 @@ fn exported_fit_reproduces_fitted_markers_in_the_runtime() {
         let u = rt.displacements();
         let x0 = &syn.mesh.nodes;
         for &(k, _) in &m.observed {
-            let runtime_pos = input.markers[k].interpolate(|n| [0, 1, 2].map(|d| x0[n][d] + u[3 * n + d] as f64));
+            let runtime_pos =
+                input.markers[k].interpolate(|n| [0, 1, 2].map(|d| x0[n][d] + u[3 * n + d] as f64));
             let fitted_pos = input.markers[k].interpolate(|n| fit.deformed[i][n]);
             let rest = input.markers[k].rest;
-            let disp = (0..3).map(|d| (fitted_pos[d] - rest[d]).powi(2)).sum::<f64>().sqrt();
+            let disp = (0..3)
+                .map(|d| (fitted_pos[d] - rest[d]).powi(2))
+                .sum::<f64>()
+                .sqrt();
             largest = largest.max(disp);
-            let err = (0..3).map(|d| (runtime_pos[d] - fitted_pos[d]).powi(2)).sum::<f64>().sqrt();
+            let err = (0..3)
+                .map(|d| (runtime_pos[d] - fitted_pos[d]).powi(2))
+                .sum::<f64>()
+                .sqrt();
             worst = worst.max(err);
         }
     }
-    eprintln!("largest marker displacement {largest:e} m, worst runtime-vs-fitter difference {worst:e} m");
+    eprintln!(
+        "largest marker displacement {largest:e} m, worst runtime-vs-fitter difference {worst:e} m"
+    );
     // f32 runtime with an iterative solver vs the f64 direct forward model: agreement to 1e-4 of
     // the largest marker displacement (a few µm on these ~cm displacements would be 1e-4).
     assert!(largest > 1e-3);
-    assert!(worst < 1e-4 * largest + 1e-7, "worst {worst:e} m vs largest displacement {largest:e} m");
+    assert!(
+        worst < 1e-4 * largest + 1e-7,
+        "worst {worst:e} m vs largest displacement {largest:e} m"
+    );
 }

@@ -316,11 +316,31 @@ pub struct Replay {
 /// A haptic replay for `palpate demo`: the simulated probe (firmware library behind a mock ADC)
 /// presses with a scripted profile, its frames cross a real pseudo-terminal pair at 1 kHz in real
 /// time, and `runtime` solves a force-driven contact at `point` for every sample.
-pub fn replay(runtime: Runtime<'_>, point: [f32; 3], radius: f32, seconds: f64) -> anyhow::Result<Replay> {
-    let contact = Contact { point, direction: [0.0, 0.0, -1.0], radius };
+pub fn replay(
+    runtime: Runtime<'_>,
+    point: [f32; 3],
+    radius: f32,
+    seconds: f64,
+) -> anyhow::Result<Replay> {
+    let contact = Contact {
+        point,
+        direction: [0.0, 0.0, -1.0],
+        radius,
+    };
     let mut hl = HapticLoop::new(runtime, ForceGate::new(20, 100.0), contact);
-    let opts = SenderOptions { seconds, pacing: Pacing::RealTime, version: LINK_VERSION, stall: None, adc_fault: None };
-    let lp = phase(opts, 1000, |b| Ok(hl.on_batch(b).context("runtime tick")?.map_or(0, |r| r.1.iterations)))?;
+    let opts = SenderOptions {
+        seconds,
+        pacing: Pacing::RealTime,
+        version: LINK_VERSION,
+        stall: None,
+        adc_fault: None,
+    };
+    let lp = phase(opts, 1000, |b| {
+        Ok(hl
+            .on_batch(b)
+            .context("runtime tick")?
+            .map_or(0, |r| r.1.iterations))
+    })?;
     let mut e2e = Vec::new();
     for &(seq, _arrival, solved) in &lp.events {
         if let Some(Some(written)) = lp.sent.written_at.get(seq as usize) {

@@ -12,8 +12,12 @@ use faer::linalg::solvers::SolveCore;
 use faer::sparse::{Pair, SparseColMat, SymbolicSparseColMat};
 use faer::{Conj, Mat, Side};
 use nalgebra::Vector3;
-use palpate_protocol::model::{Blend, ModelRecord, ParameterLayout, ParameterSets, Provenance, Units, F32s, U32s};
-use palpate_runtime::element::{element_cd, element_stiffness, pack_symmetric, tet_geometry, PACKED_LEN};
+use palpate_protocol::model::{
+    Blend, F32s, ModelRecord, ParameterLayout, ParameterSets, Provenance, U32s, Units,
+};
+use palpate_runtime::element::{
+    element_cd, element_stiffness, pack_symmetric, tet_geometry, PACKED_LEN,
+};
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::{Kernel, Preconditioner, Runtime, RuntimeConfig, StorageRequirement};
 use serde_json::json;
@@ -59,7 +63,10 @@ impl BenchModel {
     pub fn block(tets: usize, p: LambdaAlpha) -> Self {
         let size = [0.1, 0.1, 0.05];
         let mesh = box_mesh(size, cells_for_target(size, tets));
-        let fixed = mesh.group("bottom").expect("box mesh has a bottom group").to_vec();
+        let fixed = mesh
+            .group("bottom")
+            .expect("box mesh has a bottom group")
+            .to_vec();
         let le = |v: &mut Vec<u8>, x: f32| v.extend_from_slice(&x.to_le_bytes());
         let lu = |v: &mut Vec<u8>, x: u32| v.extend_from_slice(&x.to_le_bytes());
         let mut b: [Vec<u8>; 9] = Default::default();
@@ -75,7 +82,8 @@ impl BenchModel {
             for i in t {
                 lu(&mut b[2], *i as u32);
             }
-            let g = tet_geometry(&t.map(|i| Vector3::from(mesh.nodes[i]))).expect("box mesh tets are valid");
+            let g = tet_geometry(&t.map(|i| Vector3::from(mesh.nodes[i])))
+                .expect("box mesh tets are valid");
             let (c, d) = element_cd(&g);
             let (mut cp, mut dp) = ([0.0; PACKED_LEN], [0.0; PACKED_LEN]);
             pack_symmetric(&c, &mut cp);
@@ -89,7 +97,11 @@ impl BenchModel {
         }
         le(&mut b[7], p.lambda as f32);
         le(&mut b[8], p.alpha as f32);
-        Self { mesh, fixed, bytes: b }
+        Self {
+            mesh,
+            fixed,
+            bytes: b,
+        }
     }
 
     /// The model record borrowing the buffers.
@@ -97,7 +109,12 @@ impl BenchModel {
         let b = &self.bytes;
         ModelRecord {
             units: Units::Si,
-            provenance: Provenance { tool: "palpate bench runtime", created: "", source: "generated block", notes: "" },
+            provenance: Provenance {
+                tool: "palpate bench runtime",
+                created: "",
+                source: "generated block",
+                notes: "",
+            },
             node_count: self.mesh.nodes.len() as u32,
             element_count: self.mesh.tets.len() as u32,
             rest_positions: F32s(&b[0]),
@@ -143,7 +160,12 @@ struct KernelRun {
     cpu_mean_us: f64,
 }
 
-fn run_kernel(model: &BenchModel, args: &Args, kernel: Kernel, name: &'static str) -> anyhow::Result<KernelRun> {
+fn run_kernel(
+    model: &BenchModel,
+    args: &Args,
+    kernel: Kernel,
+    name: &'static str,
+) -> anyhow::Result<KernelRun> {
     let cfg = RuntimeConfig {
         tolerance: args.tolerance,
         max_iterations: 100,
@@ -157,7 +179,11 @@ fn run_kernel(model: &BenchModel, args: &Args, kernel: Kernel, name: &'static st
     let need = StorageRequirement::for_model(&rec, &cfg);
     let (mut f, mut u) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
     let mut rt = Runtime::new(rec, &mut f, &mut u, cfg)?;
-    let ref_cfg = RuntimeConfig { tolerance: 1e-9, max_iterations: 5000, ..cfg };
+    let ref_cfg = RuntimeConfig {
+        tolerance: 1e-9,
+        max_iterations: 5000,
+        ..cfg
+    };
     let (mut f2, mut u2) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
     let mut reference = Runtime::new(model.record(), &mut f2, &mut u2, ref_cfg)?;
     // Settle the initial contact so the run measures steady haptic ticks.
@@ -211,7 +237,10 @@ fn run_kernel(model: &BenchModel, args: &Args, kernel: Kernel, name: &'static st
 /// K' and of the warped right-hand side, faer Cholesky refactored every tick (symbolic analysis
 /// once, as a direct haptic loop would).
 fn run_direct(model: &BenchModel, args: &Args, p: LambdaAlpha) -> anyhow::Result<Vec<f64>> {
-    let cfg = RuntimeConfig { tolerance: args.tolerance, ..Default::default() };
+    let cfg = RuntimeConfig {
+        tolerance: args.tolerance,
+        ..Default::default()
+    };
     let rec = model.record();
     let need = StorageRequirement::for_model(&rec, &cfg);
     let (mut f, mut u) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
@@ -228,8 +257,15 @@ fn run_direct(model: &BenchModel, args: &Args, p: LambdaAlpha) -> anyhow::Result
             }
         }
     }
-    let geo: Vec<_> = mesh.tets.iter().map(|t| tet_geometry(&t.map(|i| Vector3::from(mesh.nodes[i]))).unwrap()).collect();
-    let ke: Vec<_> = geo.iter().map(|g| element_stiffness(g, p.lambda, p.alpha)).collect();
+    let geo: Vec<_> = mesh
+        .tets
+        .iter()
+        .map(|t| tet_geometry(&t.map(|i| Vector3::from(mesh.nodes[i]))).unwrap())
+        .collect();
+    let ke: Vec<_> = geo
+        .iter()
+        .map(|g| element_stiffness(g, p.lambda, p.alpha))
+        .collect();
     // Pattern (lower triangle) once.
     let mut pairs = Vec::new();
     for t in &mesh.tets {
@@ -242,8 +278,10 @@ fn run_direct(model: &BenchModel, args: &Args, p: LambdaAlpha) -> anyhow::Result
             }
         }
     }
-    let (symbolic, argsort) = SymbolicSparseColMat::<usize>::try_new_from_indices(nfree, nfree, &pairs)?;
-    let llt_symbolic = faer::sparse::linalg::solvers::SymbolicLlt::try_new(symbolic.as_ref(), Side::Lower)?;
+    let (symbolic, argsort) =
+        SymbolicSparseColMat::<usize>::try_new_from_indices(nfree, nfree, &pairs)?;
+    let llt_symbolic =
+        faer::sparse::linalg::solvers::SymbolicLlt::try_new(symbolic.as_ref(), Side::Lower)?;
     let mut times = Vec::new();
     rt.set_contact_force(contact_point(0, args.ticks), [0.0, 0.0, -0.5], 0.015)?;
     for _ in 0..20 {
@@ -255,7 +293,9 @@ fn run_direct(model: &BenchModel, args: &Args, p: LambdaAlpha) -> anyhow::Result
         rt.set_contact_force(contact_point(k, args.ticks), [0.0, 0.0, -0.5], 0.015)?;
         let t0 = Instant::now();
         // Rotations as the runtime computed them for its current state.
-        let rots: Vec<[f32; 9]> = (0..mesh.tets.len()).map(|e| rt.element_rotation(e).unwrap_or([0.0; 9])).collect();
+        let rots: Vec<[f32; 9]> = (0..mesh.tets.len())
+            .map(|e| rt.element_rotation(e).unwrap_or([0.0; 9]))
+            .collect();
         let mut rhs = Mat::<f64>::zeros(nfree, 1);
         let mut v = 0;
         let mut contact = vec![0.0f64; 3 * n];
@@ -284,7 +324,8 @@ fn run_direct(model: &BenchModel, args: &Args, p: LambdaAlpha) -> anyhow::Result
             // K'' x₀ − K' x₀ term of the displacement form.
             let mut x0 = nalgebra::SVector::<f64, 12>::zeros();
             for a in 0..4 {
-                x0.fixed_rows_mut::<3>(3 * a).copy_from(&Vector3::from(mesh.nodes[t[a]]));
+                x0.fixed_rows_mut::<3>(3 * a)
+                    .copy_from(&Vector3::from(mesh.nodes[t[a]]));
             }
             let corr = rk * x0 - k_rot * x0;
             for a in 0..12 {
@@ -302,8 +343,12 @@ fn run_direct(model: &BenchModel, args: &Args, p: LambdaAlpha) -> anyhow::Result
             }
         }
         let mat = SparseColMat::<usize, f64>::new_from_argsort(symbolic.clone(), &argsort, &vals)?;
-        let llt = faer::sparse::linalg::solvers::Llt::try_new_with_symbolic(llt_symbolic.clone(), mat.as_ref(), Side::Lower)
-            .map_err(|e| anyhow::anyhow!("Cholesky failed: {e:?}"))?;
+        let llt = faer::sparse::linalg::solvers::Llt::try_new_with_symbolic(
+            llt_symbolic.clone(),
+            mat.as_ref(),
+            Side::Lower,
+        )
+        .map_err(|e| anyhow::anyhow!("Cholesky failed: {e:?}"))?;
         llt.solve_in_place_with_conj(Conj::No, rhs.as_mut());
         times.push(t0.elapsed().as_secs_f64() * 1e6);
         std::hint::black_box(&rhs);
@@ -318,7 +363,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let model = BenchModel::block(args.tets, p);
     let tets = model.mesh.tets.len();
     let dofs = 3 * (model.mesh.nodes.len() - model.fixed.len());
-    println!("palpate bench runtime: {tets} tets, {dofs} free dofs, {} ticks, tolerance {:e}", args.ticks, args.tolerance);
+    println!(
+        "palpate bench runtime: {tets} tets, {dofs} free dofs, {} ticks, tolerance {:e}",
+        args.ticks, args.tolerance
+    );
     let mut runs = vec![run_kernel(&model, &args, Kernel::Gradient, "gradient")?];
     if !args.gradient_only {
         runs.push(run_kernel(&model, &args, Kernel::Packed, "packed")?);
@@ -328,11 +376,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for r in &runs {
         let mut it = r.iters.clone();
         it.sort_unstable();
-        let slow: Vec<usize> = (0..r.times_us.len()).filter(|&k| r.times_us[k] > 3.0 * percentile(&{
-            let mut t = r.times_us.clone();
-            t.sort_by(|a, b| a.total_cmp(b));
-            t
-        }, 0.5)).collect();
+        let slow: Vec<usize> = (0..r.times_us.len())
+            .filter(|&k| {
+                r.times_us[k]
+                    > 3.0
+                        * percentile(
+                            &{
+                                let mut t = r.times_us.clone();
+                                t.sort_by(|a, b| a.total_cmp(b));
+                                t
+                            },
+                            0.5,
+                        )
+            })
+            .collect();
         println!(
             "{}: PCG iterations p50 {} p99 {} max {}; {} ticks slower than 3× the median (iterations there: {:?})",
             r.name,
@@ -343,7 +400,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             slow.iter().take(8).map(|&k| r.iters[k]).collect::<Vec<_>>()
         );
     }
-    println!("{:<10} {:>9} {:>9} {:>9} {:>10} {:>12} {:>14} {:>10}", "kernel", "p50_us", "p99_us", "max_us", "mean_iter", "max_rel_res", "max_err_conv", "bytes");
+    println!(
+        "{:<10} {:>9} {:>9} {:>9} {:>10} {:>12} {:>14} {:>10}",
+        "kernel", "p50_us", "p99_us", "max_us", "mean_iter", "max_rel_res", "max_err_conv", "bytes"
+    );
     let mut summary = Vec::new();
     for r in &runs {
         let mut t = r.times_us.clone();
@@ -362,7 +422,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             max_err,
             r.bytes
         );
-        summary.push((percentile(&t, 0.5), percentile(&t, 0.99), *t.last().unwrap_or(&f64::NAN), mean_it, max_res, max_err, r.bytes, r.cpu_mean_us));
+        summary.push((
+            percentile(&t, 0.5),
+            percentile(&t, 0.99),
+            *t.last().unwrap_or(&f64::NAN),
+            mean_it,
+            max_res,
+            max_err,
+            r.bytes,
+            r.cpu_mean_us,
+        ));
         println!("{:<10} mean wall {:.1} µs, mean thread CPU {:.1} µs per tick (CPU excludes time the thread waited for a core)", r.name, r.times_us.iter().sum::<f64>() / r.times_us.len().max(1) as f64, r.cpu_mean_us);
     }
     println!(
@@ -374,7 +443,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         direct.len()
     );
     let g = summary[0];
-    let packed = summary.get(1).copied().unwrap_or((f64::NAN, f64::NAN, f64::NAN, f64::NAN, f32::NAN, f64::NAN, 0, f64::NAN));
+    let packed = summary.get(1).copied().unwrap_or((
+        f64::NAN,
+        f64::NAN,
+        f64::NAN,
+        f64::NAN,
+        f32::NAN,
+        f64::NAN,
+        0,
+        f64::NAN,
+    ));
     println!(
         "ratios: packed/gradient p50 = {:.2}, direct/gradient p50 = {:.1}",
         packed.0 / g.0,

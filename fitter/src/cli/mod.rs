@@ -4,21 +4,21 @@ use clap::{Parser, Subcommand};
 
 pub mod bench;
 pub mod bench_fit;
-pub mod fit;
-pub mod bench_motion;
-pub mod fit_motion;
-pub mod motion_evidence;
-pub mod bench_runtime;
-pub mod demo;
-pub mod simulate;
-pub mod calibrate_fsr;
-pub mod haptic;
-pub mod probe;
-pub mod probe_sim;
 pub mod bench_link;
-pub mod specimen;
+pub mod bench_motion;
+pub mod bench_runtime;
+pub mod calibrate_fsr;
+pub mod demo;
 pub mod diagnose;
 pub mod diagnose_evidence;
+pub mod fit;
+pub mod fit_motion;
+pub mod haptic;
+pub mod motion_evidence;
+pub mod probe;
+pub mod probe_sim;
+pub mod simulate;
+pub mod specimen;
 
 /// palpate: learn how a soft object deforms when touched, and play it back at haptic rates.
 #[derive(Debug, Parser)]

@@ -69,11 +69,16 @@ pub struct Args {
 fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
     let parts: Vec<&str> = s.split(',').collect();
     if parts.len() != 3 {
-        return Err(format!("expected three comma-separated numbers x,y,z, found {s:?}"));
+        return Err(format!(
+            "expected three comma-separated numbers x,y,z, found {s:?}"
+        ));
     }
     let mut v = [0.0; 3];
     for (k, p) in parts.iter().enumerate() {
-        v[k] = p.trim().parse::<f64>().map_err(|e| format!("component {} ({p:?}): {e}", k + 1))?;
+        v[k] = p
+            .trim()
+            .parse::<f64>()
+            .map_err(|e| format!("component {} ({p:?}): {e}", k + 1))?;
         if !v[k].is_finite() {
             return Err(format!("component {} is not finite", k + 1));
         }
@@ -90,16 +95,35 @@ pub fn mesh_from_record(rec: &ModelRecord<'_>) -> Mesh {
     let tets = (0..rec.element_count as usize)
         .map(|e| [0, 1, 2, 3].map(|k| rec.tets.get(4 * e + k).unwrap_or(0) as usize))
         .collect();
-    let node_tags = (0..n).map(|i| rec.node_tags.get(i).unwrap_or(i as u32 + 1) as u64).collect();
-    Mesh { nodes, node_tags, tets, node_groups: Default::default() }
+    let node_tags = (0..n)
+        .map(|i| rec.node_tags.get(i).unwrap_or(i as u32 + 1) as u64)
+        .collect();
+    Mesh {
+        nodes,
+        node_tags,
+        tets,
+        node_groups: Default::default(),
+    }
 }
 
 /// Builds model buffers for a mesh file with a homogeneous material.
-pub fn model_from_mesh(path: &Path, young: f64, poisson: f64, fixed_group: &str) -> anyhow::Result<ModelBuffers> {
-    let mesh = crate::mesh::gmsh::read_msh(path).with_context(|| format!("reading mesh {}", path.display()))?;
-    let fixed = mesh.group(fixed_group).with_context(|| format!("mesh {}", path.display()))?.to_vec();
+pub fn model_from_mesh(
+    path: &Path,
+    young: f64,
+    poisson: f64,
+    fixed_group: &str,
+) -> anyhow::Result<ModelBuffers> {
+    let mesh = crate::mesh::gmsh::read_msh(path)
+        .with_context(|| format!("reading mesh {}", path.display()))?;
+    let fixed = mesh
+        .group(fixed_group)
+        .with_context(|| format!("mesh {}", path.display()))?
+        .to_vec();
     if fixed.is_empty() {
-        bail!("mesh {}: fixed group {fixed_group:?} has no nodes", path.display());
+        bail!(
+            "mesh {}: fixed group {fixed_group:?} has no nodes",
+            path.display()
+        );
     }
     let p = LambdaAlpha::from_young_poisson(young, poisson);
     if !p.is_physical() {
@@ -112,13 +136,21 @@ pub fn model_from_mesh(path: &Path, young: f64, poisson: f64, fixed_group: &str)
         source: path.display().to_string(),
         notes: format!("homogeneous E = {young} Pa, ν = {poisson}"),
     };
-    Ok(ModelBuffers::new(&problem, &mesh.node_tags, &[Material::homogeneous(p)], &BlendData::None, &prov)?)
+    Ok(ModelBuffers::new(
+        &problem,
+        &mesh.node_tags,
+        &[Material::homogeneous(p)],
+        &BlendData::None,
+        &prov,
+    )?)
 }
 
 /// Reads `node,fx,fy,fz` (Gmsh tags) into (node index, force).
 fn read_node_forces(path: &Path, tags: &[u64]) -> anyhow::Result<Vec<(usize, [f32; 3])>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let index: std::collections::HashMap<u64, usize> = tags.iter().enumerate().map(|(i, t)| (*t, i)).collect();
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let index: std::collections::HashMap<u64, usize> =
+        tags.iter().enumerate().map(|(i, t)| (*t, i)).collect();
     let mut out = Vec::new();
     for (ln, line) in text.lines().enumerate() {
         let line = line.trim();
@@ -128,10 +160,17 @@ fn read_node_forces(path: &Path, tags: &[u64]) -> anyhow::Result<Vec<(usize, [f3
         let f: Vec<&str> = line.split(',').map(str::trim).collect();
         let at = |field: &str| format!("{}:{}: field {field}", path.display(), ln + 1);
         if f.len() != 4 {
-            bail!("{}:{}: expected 4 fields node,fx,fy,fz, found {}", path.display(), ln + 1, f.len());
+            bail!(
+                "{}:{}: expected 4 fields node,fx,fy,fz, found {}",
+                path.display(),
+                ln + 1,
+                f.len()
+            );
         }
         let tag: u64 = f[0].parse().with_context(|| at("node"))?;
-        let node = *index.get(&tag).with_context(|| format!("{}: no node with Gmsh tag {tag}", at("node")))?;
+        let node = *index
+            .get(&tag)
+            .with_context(|| format!("{}: no node with Gmsh tag {tag}", at("node")))?;
         let mut v = [0.0f32; 3];
         for k in 0..3 {
             let name = ["fx", "fy", "fz"][k];
@@ -152,7 +191,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let record = match (&args.model, &args.mesh) {
         (Some(m), None) => {
             bytes = std::fs::read(m).with_context(|| format!("reading model {}", m.display()))?;
-            palpate_protocol::model::decode(&bytes).map_err(|e| anyhow::anyhow!("model {}: {e}", m.display()))?
+            palpate_protocol::model::decode(&bytes)
+                .map_err(|e| anyhow::anyhow!("model {}: {e}", m.display()))?
         }
         (None, Some(mesh)) => {
             buffers = model_from_mesh(
@@ -163,7 +203,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             )?;
             buffers.record()
         }
-        _ => bail!("give either --model FILE or --mesh FILE.msh --young E --poisson NU --fixed GROUP"),
+        _ => bail!(
+            "give either --model FILE or --mesh FILE.msh --young E --poisson NU --fixed GROUP"
+        ),
     };
     let mesh = mesh_from_record(&record);
     let increments = args.increments.max(1);
@@ -199,9 +241,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 if n == 0.0 {
                     bail!("--flat-axis must not be zero");
                 }
-                Probe::Flat { center: p.map(|v| v as f32), axis: a.map(|v| (v / n) as f32), radius: args.probe_radius as f32 }
+                Probe::Flat {
+                    center: p.map(|v| v as f32),
+                    axis: a.map(|v| (v / n) as f32),
+                    radius: args.probe_radius as f32,
+                }
             }
-            None => Probe::Sphere { center: p.map(|v| v as f32), radius: args.probe_radius as f32 },
+            None => Probe::Sphere {
+                center: p.map(|v| v as f32),
+                radius: args.probe_radius as f32,
+            },
         };
         // Incremental loading of the probe: start just outside the body along the push direction
         // is not known in general, so move from the final position's distance to the bounding box.
@@ -224,29 +273,66 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         if rep.status == SolveStatus::Rejected {
             bail!("the solve failed at tick {ticks} (non-finite or indefinite): the load may invert elements");
         }
-        let umax = rt.displacements().iter().fold(0.0f32, |a, v| a.max(v.abs()));
+        let umax = rt
+            .displacements()
+            .iter()
+            .fold(0.0f32, |a, v| a.max(v.abs()));
         last = Some(rep);
-        if rep.load_fraction >= 1.0 && rep.step <= 1e-6 * umax.max(1e-12) && rep.status == SolveStatus::Converged {
+        if rep.load_fraction >= 1.0
+            && rep.step <= 1e-6 * umax.max(1e-12)
+            && rep.status == SolveStatus::Converged
+        {
             break;
         }
     }
     let rep = last.context("no tick ran")?;
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
     let u = rt.displacements();
     write_atomic_with(&args.out.join("displacements.csv"), |w| {
         writeln!(w, "node,ux,uy,uz")?;
         for i in 0..mesh.nodes.len() {
-            writeln!(w, "{},{:e},{:e},{:e}", mesh.node_tags[i], u[3 * i], u[3 * i + 1], u[3 * i + 2])?;
+            writeln!(
+                w,
+                "{},{:e},{:e},{:e}",
+                mesh.node_tags[i],
+                u[3 * i],
+                u[3 * i + 1],
+                u[3 * i + 2]
+            )?;
         }
         Ok(())
     })?;
-    let disp: Vec<[f64; 3]> = (0..mesh.nodes.len()).map(|i| [0, 1, 2].map(|k| u[3 * i + k] as f64)).collect();
-    let deformed: Vec<[f64; 3]> = (0..mesh.nodes.len()).map(|i| [0, 1, 2].map(|k| mesh.nodes[i][k] + disp[i][k])).collect();
-    let params: Vec<f64> = (0..mesh.tets.len())
-        .map(|e| rt.element_parameters(e).map(|(l, a)| LambdaAlpha { lambda: l as f64, alpha: a as f64 }.young()).unwrap_or(0.0))
+    let disp: Vec<[f64; 3]> = (0..mesh.nodes.len())
+        .map(|i| [0, 1, 2].map(|k| u[3 * i + k] as f64))
         .collect();
-    write_vtk(args.out.join("deformed.vtu"), &mesh, &deformed, &[Field::vector("displacement", &disp)], &[Field::scalar("young_modulus", &params)])?;
-    let umax = disp.iter().map(|d| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()).fold(0.0, f64::max);
+    let deformed: Vec<[f64; 3]> = (0..mesh.nodes.len())
+        .map(|i| [0, 1, 2].map(|k| mesh.nodes[i][k] + disp[i][k]))
+        .collect();
+    let params: Vec<f64> = (0..mesh.tets.len())
+        .map(|e| {
+            rt.element_parameters(e)
+                .map(|(l, a)| {
+                    LambdaAlpha {
+                        lambda: l as f64,
+                        alpha: a as f64,
+                    }
+                    .young()
+                })
+                .unwrap_or(0.0)
+        })
+        .collect();
+    write_vtk(
+        args.out.join("deformed.vtu"),
+        &mesh,
+        &deformed,
+        &[Field::vector("displacement", &disp)],
+        &[Field::scalar("young_modulus", &params)],
+    )?;
+    let umax = disp
+        .iter()
+        .map(|d| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt())
+        .fold(0.0, f64::max);
     let summary = serde_json::json!({
         "ticks": ticks,
         "status": format!("{:?}", rep.status),
@@ -256,7 +342,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "contact_nodes": rep.contact_nodes,
         "warp": !args.no_warp,
     });
-    crate::io::atomic::write_atomic(&args.out.join("summary.json"), serde_json::to_string_pretty(&summary)?.as_bytes())?;
+    crate::io::atomic::write_atomic(
+        &args.out.join("summary.json"),
+        serde_json::to_string_pretty(&summary)?.as_bytes(),
+    )?;
     println!(
         "simulated {} nodes, {} tets in {ticks} ticks ({:?}, relative residual {:.1e}); max |u| = {:.3} mm; probe reaction {:?} N",
         mesh.nodes.len(),
@@ -266,6 +355,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         umax * 1e3,
         rep.reaction
     );
-    println!("wrote {}/displacements.csv, deformed.vtu, summary.json", args.out.display());
+    println!(
+        "wrote {}/displacements.csv, deformed.vtu, summary.json",
+        args.out.display()
+    );
     Ok(())
 }

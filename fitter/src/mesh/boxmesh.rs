@@ -7,7 +7,11 @@ use std::collections::BTreeMap;
 /// subdivision along the main diagonal, conforming across cells). Node groups: `bottom` (z = 0),
 /// `top`, `left` (x = 0), `right`, `front` (y = 0), `back`.
 pub fn box_mesh(size: [f64; 3], cells: [usize; 3]) -> Mesh {
-    let grid = |k: usize| (0..=cells[k]).map(|i| size[k] * i as f64 / cells[k] as f64).collect::<Vec<_>>();
+    let grid = |k: usize| {
+        (0..=cells[k])
+            .map(|i| size[k] * i as f64 / cells[k] as f64)
+            .collect::<Vec<_>>()
+    };
     box_mesh_graded([&grid(0), &grid(1), &grid(2)])
 }
 
@@ -15,7 +19,11 @@ pub fn box_mesh(size: [f64; 3], cells: [usize; 3]) -> Mesh {
 /// contact problems: fine under the probe, coarse far away).
 pub fn box_mesh_graded(grid: [&[f64]; 3]) -> Mesh {
     let [nx, ny, nz] = [grid[0].len() - 1, grid[1].len() - 1, grid[2].len() - 1];
-    let size = [grid[0][nx] - grid[0][0], grid[1][ny] - grid[1][0], grid[2][nz] - grid[2][0]];
+    let size = [
+        grid[0][nx] - grid[0][0],
+        grid[1][ny] - grid[1][0],
+        grid[2][nz] - grid[2][0],
+    ];
     let origin = [grid[0][0], grid[1][0], grid[2][0]];
     let id = |i: usize, j: usize, k: usize| (k * (ny + 1) + j) * (nx + 1) + i;
     let mut nodes = Vec::with_capacity((nx + 1) * (ny + 1) * (nz + 1));
@@ -79,9 +87,19 @@ pub fn box_mesh_graded(grid: [&[f64]; 3]) -> Mesh {
 
 /// Grid coordinates on [lo, hi] with spacing `fine` inside [fine_lo, fine_hi] and cells growing
 /// by `ratio` per cell outside it (capped at `coarse`).
-pub fn graded_axis(lo: f64, hi: f64, fine_lo: f64, fine_hi: f64, fine: f64, ratio: f64, coarse: f64) -> Vec<f64> {
+pub fn graded_axis(
+    lo: f64,
+    hi: f64,
+    fine_lo: f64,
+    fine_hi: f64,
+    fine: f64,
+    ratio: f64,
+    coarse: f64,
+) -> Vec<f64> {
     let n_fine = ((fine_hi - fine_lo) / fine).round().max(1.0) as usize;
-    let mut pts: Vec<f64> = (0..=n_fine).map(|i| fine_lo + (fine_hi - fine_lo) * i as f64 / n_fine as f64).collect();
+    let mut pts: Vec<f64> = (0..=n_fine)
+        .map(|i| fine_lo + (fine_hi - fine_lo) * i as f64 / n_fine as f64)
+        .collect();
     let grow = |from: f64, to: f64| {
         let mut out = Vec::new();
         let dir = (to - from).signum();
