@@ -318,17 +318,20 @@ impl<'a> Coarse<'a> {
             }
             g[i] = s / lii;
         }
+        // Lᵀ y = g by column sweeps: row i of L is contiguous, so each step reads one row
+        // instead of a strided column (the strided form cost more than the whole element pass).
         for i in (0..dim).rev() {
             let lii = l[i * dim + i];
             if lii == 0.0 {
                 g[i] = 0.0;
                 continue;
             }
-            let mut s = g[i];
-            for k in (i + 1)..dim {
-                s -= l[k * dim + i] * g[k];
+            let yi = g[i] / lii;
+            g[i] = yi;
+            let row = &l[i * dim..i * dim + i];
+            for (gk, lik) in g[..i].iter_mut().zip(row) {
+                *gk -= lik * yi;
             }
-            g[i] = s / lii;
         }
         for i in 0..n {
             let a = self.agg[i];
