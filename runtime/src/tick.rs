@@ -52,7 +52,51 @@ fn dot(a: &[f32], b: &[f32]) -> f32 {
     s
 }
 
+/// `LANES` consecutive elements gathered structure-of-arrays for the batched kernels.
+struct Lanes {
+    ids: [[usize; LANES]; 4],
+    v: [[[f32; LANES]; 3]; 4],
+    g: [[f32; LANES]; 9],
+    r: [[f32; LANES]; 9],
+    vol: [f32; LANES],
+    lam: [f32; LANES],
+    alp: [f32; LANES],
+}
+
 impl<'a> Runtime<'a> {
+    /// Gathers elements `e0..e0 + LANES`: node ids, the nodal values of `src` (3 per node), ∇φ,
+    /// R, V, λ, α.
+    #[inline(always)]
+    fn gather_lanes(&self, e0: usize, src: &[f32]) -> Lanes {
+        let mut o = Lanes {
+            ids: [[0; LANES]; 4],
+            v: [[[0.0; LANES]; 3]; 4],
+            g: [[0.0; LANES]; 9],
+            r: [[0.0; LANES]; 9],
+            vol: [0.0; LANES],
+            lam: [0.0; LANES],
+            alp: [0.0; LANES],
+        };
+        for l in 0..LANES {
+            let e = e0 + l;
+            for a in 0..4 {
+                let i = self.tets[4 * e + a] as usize;
+                o.ids[a][l] = i;
+                for k in 0..3 {
+                    o.v[a][k][l] = src[3 * i + k];
+                }
+            }
+            for k in 0..9 {
+                o.g[k][l] = self.grad[9 * e + k];
+                o.r[k][l] = self.rot[9 * e + k];
+            }
+            o.vol[l] = self.vol[e];
+            o.lam[l] = self.lam[e];
+            o.alp[l] = self.alp[e];
+        }
+        o
+    }
+
     #[inline(always)]
     fn element_ids(&self, e: usize) -> [usize; 4] {
         [
@@ -289,30 +333,15 @@ impl<'a> Runtime<'a> {
         let batched = self.t / LANES * LANES;
         let mut e0 = 0;
         while e0 < batched {
-            let mut ids = [[0usize; LANES]; 4];
-            let mut v = [[[0.0f32; LANES]; 3]; 4];
-            let mut g = [[0.0f32; LANES]; 9];
-            let mut r = [[0.0f32; LANES]; 9];
-            let mut vol = [0.0f32; LANES];
-            let mut lam = [0.0f32; LANES];
-            let mut alp = [0.0f32; LANES];
-            for l in 0..LANES {
-                let e = e0 + l;
-                for a in 0..4 {
-                    let i = self.tets[4 * e + a] as usize;
-                    ids[a][l] = i;
-                    for k in 0..3 {
-                        v[a][k][l] = self.u[3 * i + k];
-                    }
-                }
-                for k in 0..9 {
-                    g[k][l] = self.grad[9 * e + k];
-                    r[k][l] = self.rot[9 * e + k];
-                }
-                vol[l] = self.vol[e];
-                lam[l] = self.lam[e];
-                alp[l] = self.alp[e];
-            }
+            let Lanes {
+                ids,
+                v,
+                g,
+                r,
+                vol,
+                lam,
+                alp,
+            } = self.gather_lanes(e0, self.u);
             let f = warped_internal_force_lanes(&v, &g, &r, &vol, &lam, &alp);
             for l in 0..LANES {
                 let e = e0 + l;
@@ -397,30 +426,15 @@ impl<'a> Runtime<'a> {
         let batched = if packed { 0 } else { self.t / LANES * LANES };
         let mut e0 = 0;
         while e0 < batched {
-            let mut ids = [[0usize; LANES]; 4];
-            let mut v = [[[0.0f32; LANES]; 3]; 4];
-            let mut g = [[0.0f32; LANES]; 9];
-            let mut r = [[0.0f32; LANES]; 9];
-            let mut vol = [0.0f32; LANES];
-            let mut lam = [0.0f32; LANES];
-            let mut alp = [0.0f32; LANES];
-            for l in 0..LANES {
-                let e = e0 + l;
-                for a in 0..4 {
-                    let i = self.tets[4 * e + a] as usize;
-                    ids[a][l] = i;
-                    for k in 0..3 {
-                        v[a][k][l] = self.p[3 * i + k];
-                    }
-                }
-                for k in 0..9 {
-                    g[k][l] = self.grad[9 * e + k];
-                    r[k][l] = self.rot[9 * e + k];
-                }
-                vol[l] = self.vol[e];
-                lam[l] = self.lam[e];
-                alp[l] = self.alp[e];
-            }
+            let Lanes {
+                ids,
+                v,
+                g,
+                r,
+                vol,
+                lam,
+                alp,
+            } = self.gather_lanes(e0, self.p);
             let f = warped_apply_lanes(&v, &g, &r, &vol, &lam, &alp);
             for l in 0..LANES {
                 for a in 0..4 {
