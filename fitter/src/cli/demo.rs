@@ -87,7 +87,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             fit.rms()
         ),
     };
-    let model_path = args.out.join("model.palp");
+    let simplest_path = args.out.join("model-simplest.palp");
     let buffers = ModelBuffers::new(
         &input.problem,
         &ds.mesh.node_tags,
@@ -95,8 +95,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &BlendData::None,
         &prov,
     )?;
-    let bytes = buffers.write(&model_path)?;
-    println!("      {} ({} bytes)", model_path.display(), bytes);
+    let bytes = buffers.write(&simplest_path)?;
+    println!(
+        "      {} ({} bytes): the simplest model",
+        simplest_path.display(),
+        bytes
+    );
+    let model_path = args.out.join("model.palp");
+    let diagnosed =
+        crate::diagnose::export::diagnosed_model(&report, &ds, &prov.tool, &prov.source)?;
+    let bytes = diagnosed.write(&model_path)?;
+    println!(
+        "      {} ({} bytes): the diagnosed model (replayed below)",
+        model_path.display(),
+        bytes
+    );
 
     // 4. Haptic replay: the simulated probe streams forces over a pseudo-terminal; the runtime
     //    solves one warped tick per sample.

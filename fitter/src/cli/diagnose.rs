@@ -15,7 +15,7 @@ use crate::diagnose::{run_diagnosis_with, DiagnoseOptions};
 pub struct Args {
     /// Static dataset directory.
     pub dataset: PathBuf,
-    /// Report directory (diagnosis.md, diagnosis.json, evidence plots).
+    /// Report directory (diagnosis.md, diagnosis.json, evidence plots, model.palp for the runtime).
     #[arg(short, long, default_value = "diagnosis")]
     pub output: PathBuf,
     /// Candidates to try (default: all).
@@ -24,10 +24,23 @@ pub struct Args {
     /// Most effects to adopt.
     #[arg(long, default_value_t = 3)]
     pub max_effects: usize,
+    /// Gauge length L0 (mm) of tension-test CSVs (stretch λ = 1 + Δ/L0); fitted if not given.
+    #[arg(long)]
+    pub gauge_length: Option<f64>,
 }
 
 /// Runs the diagnosis.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    // A CSV file or a directory of CSVs without dataset.toml: measured curves (diagnose::curve).
+    if crate::diagnose::curve::read::is_curve_input(&args.dataset) {
+        return crate::diagnose::curve::cli::run(
+            &args.dataset,
+            &args.output,
+            &args.candidates,
+            args.max_effects,
+            args.gauge_length,
+        );
+    }
     let ds = StaticDataset::read(&args.dataset)
         .with_context(|| format!("reading {}", args.dataset.display()))?;
     let mut o = DiagnoseOptions {
@@ -57,7 +70,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .collect::<anyhow::Result<Vec<Candidate>>>()?;
     }
     let r = run_diagnosis_with(&ds, &o, |msg| eprintln!("{msg}"))?;
-    let files = write_report(&r, &args.output)?;
+    let mut files = write_report(&r, &args.output)?;
+    let model_path = args.output.join("model.palp");
+    let buffers = crate::diagnose::export::diagnosed_model(
+        &r,
+        &ds,
+        &format!("palpate {} diagnose", env!("CARGO_PKG_VERSION")),
+        &format!("{} ({})", ds.name, args.dataset.display()),
+    )?;
+    buffers
+        .write(&model_path)
+        .with_context(|| format!("writing {}", model_path.display()))?;
+    files.push(model_path);
     println!(
         "{}: {}; RMS marker error {:.1} → {:.1} µm fitted, {:.1} → {:.1} µm held out (noise floor {:.1} µm)",
         r.dataset,

@@ -13,6 +13,8 @@
 //! large, so any extra parameter that absorbs a little of it passes); (b) makes the parameter earn
 //! its place on data it was not fitted to.
 
+pub mod curve;
+pub mod export;
 pub mod fit;
 pub mod model;
 pub mod report;

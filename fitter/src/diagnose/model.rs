@@ -36,8 +36,9 @@ pub enum Candidate {
     /// Inhomogeneity: log E varies over the bounding box as a trilinear field on a coarse grid
     /// (default 3 × 3 × 2 nodes; the first node is the reference, so grid − 1 params).
     Inhomogeneity,
-    /// Strain stiffening (non-linear material): secant modulus E_e = E exp(β (‖ε_e‖ / 0.1)²) from
-    /// the element's warped strain, by two fixed-point passes. 1 param (β).
+    /// Strain stiffening (non-linear material): secant modulus E_e = E (1 + β (‖ε_e‖ / 0.1)²)
+    /// from the element's warped strain (E / (1 + |β| …) for β < 0), solved to its fixed point.
+    /// 1 param (β).
     Stiffening,
 }
 
@@ -328,6 +329,37 @@ fn trilinear(c: [f64; 3], lo: [f64; 3], hi: [f64; 3], g: [usize; 3]) -> Vec<(usi
     out
 }
 
+/// Most secant passes of the stiffening fixed point.
+const STIFFENING_PASSES: usize = 12;
+/// The stiffening fixed point stops when no element's log-modulus moves by more than this.
+const STIFFENING_TOLERANCE: f64 = 1e-5;
+
+/// The stiffening law's per-element log-modulus offsets at state `x` and their gains
+/// ∂T/∂ln‖ε‖. With s = ‖ε_e‖/0.1 the secant modulus is E (1 + β s²) for β ≥ 0 — the small-strain
+/// form of a c (I₁ − 3)² term over Neo-Hookean, whose secant grows with the squared strain — and
+/// E / (1 + |β| s²) for β < 0 (softening), so it stays positive for any β.
+fn stiffening_target(ctx: &Context, x: &[[f64; 3]], beta: f64) -> (Vec<f64>, Vec<f64>) {
+    let rot = ctx.problem.rotations(x, true);
+    ctx.problem
+        .strains(x, &rot)
+        .iter()
+        .map(|st| {
+            let q = beta.abs() * st.iter().map(|v| v * v).sum::<f64>() / 0.01;
+            let g = 2.0 * q / (1.0 + q);
+            if beta >= 0.0 {
+                ((1.0 + q).ln(), g)
+            } else {
+                (-(1.0 + q).ln(), -g)
+            }
+        })
+        .unzip()
+}
+
+/// Per-element log-E offsets of the stiffening effect at state `x` (see [`stiffening_target`]).
+fn stiffening_log_e(ctx: &Context, x: &[[f64; 3]], beta: f64) -> Vec<f64> {
+    stiffening_target(ctx, x, beta).0
+}
+
 /// A model: the base material plus an ordered set of effects.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 pub struct Model {
@@ -511,21 +543,28 @@ impl Model {
                 .solution
                 .x;
             if let Some(beta) = self.block(Candidate::Stiffening, theta, ctx.grid) {
-                // Secant stiffening: two fixed-point passes E_e ← E exp(β (‖ε_e‖/0.1)²) at the
-                // strains of the previous pass.
-                for _ in 0..2 {
-                    let rot = ctx.problem.rotations(&x, true);
-                    let st = ctx.problem.strains(&x, &rot);
-                    let extra: Vec<f64> = st
-                        .iter()
-                        .map(|s| beta[0] * s.iter().map(|v| v * v).sum::<f64>() / 0.01)
-                        .collect();
-                    let mat = self.material(theta, log_e.as_deref(), Some(&extra))?;
+                // The secant material is a fixed point m = T(ε(x(m))); solve it by Newton on
+                // each element's log-modulus offset, with the local estimate ∂ln‖ε‖/∂m ≈ −1
+                // (strain inversely proportional to the local modulus) — plain substitution
+                // diverges once the stiffening doubles the modulus (its gain reaches 2).
+                let mut m = vec![0.0; ctx.problem.element_count()];
+                for _ in 0..STIFFENING_PASSES {
+                    let (target, gain) = stiffening_target(ctx, &x, beta[0]);
+                    let mut change = 0.0f64;
+                    for e in 0..m.len() {
+                        let step = (target[e] - m[e]) / (1.0 + gain[e]).max(0.25);
+                        m[e] += step;
+                        change = change.max(step.abs());
+                    }
+                    let mat = self.material(theta, log_e.as_deref(), Some(&m))?;
                     x = ctx
                         .problem
                         .solve_forces(&mat, &fvec, Some(&x), &ctx.solve)?
                         .solution
                         .x;
+                    if change < STIFFENING_TOLERANCE {
+                        break;
+                    }
                 }
             }
             xs.push(x);
@@ -534,6 +573,21 @@ impl Model {
             markers: self.markers_from(ctx, theta, subset, &xs),
             x: xs,
         })
+    }
+
+    /// The material the model uses at the solved state `x` (the secant moduli of the stiffening
+    /// effect evaluated at x's strains): what the runtime export blends between.
+    pub fn material_at(
+        &self,
+        ctx: &Context,
+        theta: &[f64],
+        x: &[[f64; 3]],
+    ) -> Result<Material, DiagnoseError> {
+        let log_e = self.log_e_field(ctx, theta);
+        let extra = self
+            .block(Candidate::Stiffening, theta, ctx.grid)
+            .map(|b| stiffening_log_e(ctx, x, b[0]));
+        self.material(theta, log_e.as_deref(), extra.as_deref())
     }
 
     /// Marker positions from solved node positions (support motion and registration applied).

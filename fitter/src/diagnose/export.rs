@@ -1,0 +1,101 @@
+//! The diagnosed model for the runtime (issue 6, step 5: "the final model exported").
+//!
+//! What of the final model the runtime can play back, and how:
+//! - the base material (E, ν) → one global (λ, α) set (seed 000 eqs. 3.36–3.38);
+//! - inhomogeneity (trilinear log-E field) → per-element (λ_e, α_e);
+//! - strain stiffening (secant E_e = E (1 + β (‖ε_e‖/0.1)²)) → the thesis' non-linear
+//!   inhomogeneous material: one per-element set per measurement, at that measurement's fitted
+//!   state, blended in strain space (eqs. 6.7–6.11) with the measurement strains as centres.
+//!
+//! The other effects describe the measurement, not the object — calibration (belongs to the probe's
+//! force calibration), tilt (the probe's direction), registration (the tracker), compliant boundary
+//! (the rig), gravity preload (the rest scan) — so they are not in the runtime model; the provenance
+//! notes list them with their fitted values so the user knows what the rig needs.
+
+use crate::dataset::StaticDataset;
+use crate::export::{ModelBuffers, ProvenanceInfo};
+use crate::forward::Material;
+use crate::static_fit::blend::{strain_blend, BlendData};
+
+use super::model::{Candidate, Context, Model};
+use super::{effect_params, DiagnoseError, DiagnosisReport};
+
+/// Neighbours of the strain-space blend (as the static fitter's export).
+const BLEND_NEIGHBOURS: usize = 8;
+
+/// The runtime's parameter sets and blend for `model` at `theta`, given its solved states `xs`
+/// (one per measurement): one set without stiffening; with it, one per-element set per state,
+/// blended in strain space.
+pub fn runtime_material(
+    ctx: &Context,
+    model: &Model,
+    theta: &[f64],
+    xs: &[Vec<[f64; 3]>],
+) -> Result<(Vec<Material>, BlendData), DiagnoseError> {
+    if !model.effects.contains(&Candidate::Stiffening) {
+        return Ok((
+            vec![model.material_at(ctx, theta, &ctx.problem.x0)?],
+            BlendData::None,
+        ));
+    }
+    let sets: Vec<Material> = xs
+        .iter()
+        .map(|x| model.material_at(ctx, theta, x))
+        .collect::<Result<_, _>>()?;
+    let blend = strain_blend(&ctx.problem, &sets, xs, BLEND_NEIGHBOURS)
+        .map_err(|e| DiagnoseError::Input(format!("strain blend of the export: {e}")))?;
+    Ok((sets, blend))
+}
+
+/// Builds the runtime model of a diagnosis.
+pub fn diagnosed_model(
+    r: &DiagnosisReport,
+    ds: &StaticDataset,
+    tool: &str,
+    source: &str,
+) -> Result<ModelBuffers, DiagnoseError> {
+    let (Some(f), Some(ctx)) = (&r.final_fit, &r.context) else {
+        return Err(DiagnoseError::Input(
+            "the diagnosis kept no final fit to export".into(),
+        ));
+    };
+    let (sets, blend) = runtime_material(ctx, &f.model, &f.theta, &f.sim.x)?;
+    let mut notes = vec![format!(
+        "palpate diagnose: base E = {:.6e} Pa, nu = {:.4}; adopted: {}",
+        r.young_poisson.0,
+        r.young_poisson.1,
+        if r.adopted.is_empty() {
+            "none".to_string()
+        } else {
+            r.adopted
+                .iter()
+                .map(|c| c.name())
+                .collect::<Vec<_>>()
+                .join(", ")
+        }
+    )];
+    for &c in &r.adopted {
+        let in_model = matches!(c, Candidate::Inhomogeneity | Candidate::Stiffening);
+        let values: Vec<String> = effect_params(ctx, f, c)
+            .iter()
+            .map(|p| format!("{} = {:.4e} ± {:.1e} {}", p.name, p.value, p.sd, p.unit))
+            .collect();
+        notes.push(format!(
+            "{}: {} [{}]",
+            c.name(),
+            if in_model {
+                "in this model"
+            } else {
+                "a property of the measurement, not in this model"
+            },
+            values.join("; ")
+        ));
+    }
+    let prov = ProvenanceInfo {
+        tool: tool.to_string(),
+        source: source.to_string(),
+        notes: notes.join("\n"),
+    };
+    ModelBuffers::new(&ctx.problem, &ds.mesh.node_tags, &sets, &blend, &prov)
+        .map_err(|e| DiagnoseError::Write(e.to_string()))
+}
