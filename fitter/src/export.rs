@@ -1,7 +1,8 @@
-//! Export of a fitted static model as a palpate model file (`protocol::model`): rest mesh, fixed
+//! Export of a fitted model as a palpate model file (`protocol::model`): rest mesh, fixed
 //! nodes, surface, per-element C_e/D_e from the shared `element_cd` (packed symmetric), the fitted
 //! parameter sets and the blending data, f64 → f32, with provenance (tool and command, UTC time,
-//! source). Files are written atomically.
+//! source). Files are written atomically. Static fits ([`ModelBuffers::new`]) and motion fits
+//! ([`ModelBuffers::from_mesh`]) share one record builder ([`ModelBuffers::build`]).
 
 use std::path::Path;
 
@@ -9,9 +10,10 @@ use palpate_protocol::model::{
     encode, encoded_len, Blend, F32s, ModelError, ModelRecord, ParameterLayout, ParameterSets,
     Provenance, U32s, Units,
 };
-use palpate_runtime::element::{element_cd, pack_symmetric, PACKED_LEN};
+use palpate_runtime::element::{element_cd, pack_symmetric, tet_geometry, TetGeometry, PACKED_LEN};
 
 use crate::forward::{Material, StaticProblem};
+use crate::mesh::Mesh;
 use crate::static_fit::blend::BlendData;
 
 /// Errors of the export.
@@ -124,8 +126,25 @@ pub fn utc_now() -> String {
     )
 }
 
+/// The geometry a model record is built from: rest mesh, per-element rest geometry, fixed nodes
+/// and surface. Both the static fit ([`ModelBuffers::new`]) and the motion fit
+/// ([`ModelBuffers::from_mesh`]) go through this one description.
+#[derive(Debug, Clone, Copy)]
+pub struct ModelGeometry<'a> {
+    /// Rest positions (m).
+    pub x0: &'a [[f64; 3]],
+    /// Tetrahedra (node indices).
+    pub tets: &'a [[usize; 4]],
+    /// Rest geometry of each element (from the shared `tet_geometry`).
+    pub geometry: &'a [TetGeometry<f64>],
+    /// `fixed[i]`: node i is held at rest in the runtime.
+    pub fixed: &'a [bool],
+    /// Boundary triangles.
+    pub surface: &'a [[usize; 3]],
+}
+
 impl ModelBuffers {
-    /// Builds the buffers from a problem, its node tags, fitted sets and blend.
+    /// Builds the buffers from a static problem, its node tags, fitted sets and blend.
     pub fn new(
         problem: &StaticProblem,
         node_tags: &[u64],
@@ -133,7 +152,89 @@ impl ModelBuffers {
         blend: &BlendData,
         prov: &ProvenanceInfo,
     ) -> Result<Self, ExportError> {
-        let t = problem.element_count();
+        let geom = ModelGeometry {
+            x0: &problem.x0,
+            tets: &problem.tets,
+            geometry: &problem.geometry,
+            fixed: &problem.fixed,
+            surface: &problem.surface,
+        };
+        Self::build(&geom, node_tags, sets, blend, prov)
+    }
+
+    /// Builds the buffers of a single parameter set (no blending) from a mesh, its fixed nodes
+    /// (indices) and per-element or global thesis parameters (λ_e, α_e) — the motion fitter's
+    /// export. The surface is the mesh boundary.
+    pub fn from_mesh(
+        mesh: &Mesh,
+        fixed: &[usize],
+        params: &Material,
+        prov: &ProvenanceInfo,
+    ) -> Result<Self, ExportError> {
+        let n = mesh.nodes.len();
+        let mut is_fixed = vec![false; n];
+        for &i in fixed {
+            *is_fixed.get_mut(i).ok_or_else(|| {
+                ExportError::Sets(format!("fixed node {i} out of range ({n} nodes)"))
+            })? = true;
+        }
+        if fixed.is_empty() {
+            return Err(ExportError::Sets(
+                "no fixed nodes: the runtime needs at least one clamped node".into(),
+            ));
+        }
+        let mut geometry = Vec::with_capacity(mesh.tets.len());
+        for (e, t) in mesh.tets.iter().enumerate() {
+            if let Some(&node) = t.iter().find(|&&i| i >= n) {
+                return Err(ExportError::Sets(format!(
+                    "element {e} refers to node {node} ({n} nodes)"
+                )));
+            }
+            let x = t.map(|i| nalgebra::Vector3::from(mesh.nodes[i]));
+            geometry.push(tet_geometry(&x).map_err(|d| {
+                ExportError::Sets(format!("element {e}: unusable rest geometry ({d:?})"))
+            })?);
+        }
+        let surface = mesh.boundary_triangles();
+        let geom = ModelGeometry {
+            x0: &mesh.nodes,
+            tets: &mesh.tets,
+            geometry: &geometry,
+            fixed: &is_fixed,
+            surface: &surface,
+        };
+        Self::build(
+            &geom,
+            &mesh.node_tags,
+            std::slice::from_ref(params),
+            &BlendData::None,
+            prov,
+        )
+    }
+
+    /// The one record-building path: element C_e/D_e from the shared `element_cd`, f64 → f32.
+    pub fn build(
+        geom: &ModelGeometry<'_>,
+        node_tags: &[u64],
+        sets: &[Material],
+        blend: &BlendData,
+        prov: &ProvenanceInfo,
+    ) -> Result<Self, ExportError> {
+        let t = geom.tets.len();
+        let node_count = geom.x0.len();
+        if node_tags.len() != node_count || geom.fixed.len() != node_count {
+            return Err(ExportError::Sets(format!(
+                "{} node tags and {} fixed flags for {node_count} nodes",
+                node_tags.len(),
+                geom.fixed.len()
+            )));
+        }
+        if geom.geometry.len() != t {
+            return Err(ExportError::Sets(format!(
+                "{} element geometries for {t} elements",
+                geom.geometry.len()
+            )));
+        }
         if sets.is_empty() {
             return Err(ExportError::Sets("no parameter set".into()));
         }
@@ -153,7 +254,7 @@ impl ModelBuffers {
         let mut c = Vec::with_capacity(t * PACKED_LEN * 4);
         let mut d = Vec::with_capacity(t * PACKED_LEN * 4);
         let mut buf = [0.0f64; PACKED_LEN];
-        for g in &problem.geometry {
+        for g in geom.geometry {
             let (ce, de) = element_cd(g);
             pack_symmetric(&ce, &mut buf);
             c.extend(f32s(buf.iter().copied()));
@@ -190,24 +291,14 @@ impl ModelBuffers {
             },
         };
         Ok(Self {
-            node_count: problem.node_count() as u32,
+            node_count: node_count as u32,
             element_count: t as u32,
-            rest: f32s(problem.x0.iter().flat_map(|p| p.iter().copied())),
+            rest: f32s(geom.x0.iter().flat_map(|p| p.iter().copied())),
             tags: u32s(tags),
-            tets: u32s(
-                problem
-                    .tets
-                    .iter()
-                    .flat_map(|t| t.iter().map(|&n| n as u32)),
-            ),
-            fixed: u32s(
-                (0..problem.node_count())
-                    .filter(|&i| problem.fixed[i])
-                    .map(|i| i as u32),
-            ),
+            tets: u32s(geom.tets.iter().flat_map(|t| t.iter().map(|&n| n as u32))),
+            fixed: u32s((0..node_count).filter(|&i| geom.fixed[i]).map(|i| i as u32)),
             surface: u32s(
-                problem
-                    .surface
+                geom.surface
                     .iter()
                     .flat_map(|t| t.iter().map(|&n| n as u32)),
             ),

@@ -1,6 +1,7 @@
 //! `palpate fit-motion <dataset>`: fit visco-elastic parameters to a motion dataset
 //! (docs/motion-dataset.md) with log-parameter LBFGS and adjoint (or direct) gradients.
 
+use crate::export::ProvenanceInfo;
 use crate::motion::gradient::Method;
 use crate::motion::model::{Material, Param, ParamKind};
 use crate::motion::optimize::{fit, FitSettings};
@@ -32,6 +33,11 @@ pub struct Args {
     /// Write the fitted parameters (JSON) here.
     #[arg(short, long)]
     pub output: Option<PathBuf>,
+    /// Export the fit as a runtime model (.palp): Lamé → thesis (λ, α) per element, clamp groups
+    /// fixed; viscosity, density and the large-strain response are not kept (stated in the
+    /// model's provenance).
+    #[arg(long)]
+    pub export: Option<PathBuf>,
 }
 
 /// Runs the fit and prints the report.
@@ -165,6 +171,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!(
             "wrote {} (fitted parameters; viscosity is not used by the static runtime)",
             out.display()
+        );
+    }
+    if let Some(path) = &args.export {
+        let prov = ProvenanceInfo {
+            tool: format!(
+                "palpate {} {}",
+                env!("CARGO_PKG_VERSION"),
+                std::env::args().collect::<Vec<_>>().join(" ")
+            ),
+            source: args.dataset.display().to_string(),
+            notes: format!(
+                "fit-motion: RMS marker {:.4e} m, RMS force {:.4e} N, {} simulations",
+                r.eval.rms_marker, r.eval.rms_force, r.evaluations
+            ),
+        };
+        let buffers = crate::motion::export::model_buffers(&ds.mesh, &ds.model, &fitted, &prov)
+            .with_context(|| format!("exporting {}", path.display()))?;
+        let n = buffers.write(path)?;
+        println!(
+            "wrote {} ({n} bytes): runtime model; {}",
+            path.display(),
+            crate::motion::export::lost_in_export(&fitted)
         );
     }
     Ok(())

@@ -1,8 +1,10 @@
 //! Global internal forces f(x, v) (eqs. 16–17), their tangents K = −∂f/∂x and D = −∂f/∂v on the
 //! free pattern, and the parameter derivatives ∂F/∂q of the step residual's force terms.
 
-use super::hyperelastic::{self as he, FParts, HyperParams};
+use super::elastic::ElasticState;
+use super::hyperelastic::{self as he, FParts};
 use super::model::{Material, Model, ParamKind};
+use super::spline::{Response, SplineMaterial};
 use super::viscosity as visc;
 use super::MotionError;
 
@@ -24,15 +26,9 @@ pub fn element_internal(
     v: &[f64],
 ) -> Result<[f64; 12], MotionError> {
     let t = &model.rest[e];
-    let s = FParts::new(he::deformation_gradient(t, &model.gather(e, x)))
-        .ok_or(MotionError::Inverted { element: e })?;
-    let hp = HyperParams {
-        lambda: mat.get(ParamKind::Lambda, e),
-        mu: mat.get(ParamKind::Mu, e),
-        stiffening: 0.0,
-    };
+    let s = ElasticState::new(mat, e, he::deformation_gradient(t, &model.gather(e, x)))?;
     let mut fe = [0.0; 12];
-    he::add_stress_forces(t, &he::pk1(&s, &hp), 1.0, &mut fe);
+    he::add_stress_forces(t, &s.pk1(), 1.0, &mut fe);
     if let Some(r) = visc::Rate::new(&visc::velocity_gradient(t, &model.gather(e, v))) {
         let sig = visc::stress(&r, mat.get(ParamKind::Nu, e), mat.get(ParamKind::PowerH, e));
         he::add_stress_forces(t, &sig, 1.0, &mut fe);
@@ -60,19 +56,11 @@ pub fn assemble(
     }
     for (e, tet) in model.tets.iter().enumerate() {
         let t = &model.rest[e];
-        let s = FParts::new(he::deformation_gradient(t, &model.gather(e, x)))
-            .ok_or(MotionError::Inverted { element: e })?;
-        let hp = HyperParams {
-            lambda: mat.get(ParamKind::Lambda, e),
-            mu: mat.get(ParamKind::Mu, e),
-            stiffening: 0.0,
-        };
+        let s = ElasticState::new(mat, e, he::deformation_gradient(t, &model.gather(e, x)))?;
         let mut fe = [0.0; 12];
-        he::add_stress_forces(t, &he::pk1(&s, &hp), 1.0, &mut fe);
+        he::add_stress_forces(t, &s.pk1(), 1.0, &mut fe);
         if let Some(k) = kvals.as_deref_mut() {
-            model
-                .pattern
-                .add_element(e, &he::element_tangent(t, &s, &hp), 1.0, k);
+            model.pattern.add_element(e, &s.tangent(t), 1.0, k);
         }
         if let Some(r) = visc::Rate::new(&visc::velocity_gradient(t, &model.gather(e, v))) {
             let (nu, h) = (mat.get(ParamKind::Nu, e), mat.get(ParamKind::PowerH, e));
@@ -95,20 +83,24 @@ pub fn assemble(
     Ok(())
 }
 
-/// Calls `sink(e, kind, ∂F_e/∂kind)` for every element and every kind in `kinds`, where
+/// Calls `sink(e, slot, ∂F_e/∂q_slot)` for every element and every derivative slot with
+/// `slots[slot]` set (slots: the five material kinds, then the spline control values, see
+/// [`super::model::Param::slot`]), where
 /// F = f(x, v) + f_ext − c M (v − b) is the force part of the BDF2 residual (eq. 2) and
 /// `inertia = Some((c, v − b))` (full dofs) includes the density's mass term; `None` drops it
 /// (elastostatic initial condition, eq. 14). `elems` restricts the pass to some elements.
 pub fn param_derivatives(
     model: &Model,
     mat: &Material,
-    kinds: &[bool; 5],
+    kinds: &[bool],
     x: &[f64],
     v: &[f64],
     inertia: Option<(f64, &[f64])>,
     elems: Option<&[usize]>,
-    mut sink: impl FnMut(usize, ParamKind, &[f64; 12]),
+    mut sink: impl FnMut(usize, usize, &[f64; 12]),
 ) -> Result<(), MotionError> {
+    let nf = mat.spline.as_ref().map_or(0, |s| s.len(Response::F));
+    let any_spline = kinds.iter().skip(5).any(|&b| b);
     let all: Vec<usize>;
     let list = match elems {
         Some(l) => l,
@@ -119,17 +111,37 @@ pub fn param_derivatives(
     };
     for &e in list {
         let t = &model.rest[e];
-        let s = FParts::new(he::deformation_gradient(t, &model.gather(e, x)))
-            .ok_or(MotionError::Inverted { element: e })?;
-        if kinds[ParamKind::Lambda as usize] {
-            let mut g = [0.0; 12];
-            he::add_stress_forces(t, &he::pk1_dlambda(&s), 1.0, &mut g);
-            sink(e, ParamKind::Lambda, &g);
+        let fgrad = he::deformation_gradient(t, &model.gather(e, x));
+        if kinds[ParamKind::Lambda as usize] || kinds[ParamKind::Mu as usize] {
+            let s = FParts::new(fgrad).ok_or(MotionError::Inverted { element: e })?;
+            if kinds[ParamKind::Lambda as usize] {
+                let mut g = [0.0; 12];
+                he::add_stress_forces(t, &he::pk1_dlambda(&s), 1.0, &mut g);
+                sink(e, ParamKind::Lambda as usize, &g);
+            }
+            if kinds[ParamKind::Mu as usize] {
+                let mut g = [0.0; 12];
+                he::add_stress_forces(t, &he::pk1_dmu(&s), 1.0, &mut g);
+                sink(e, ParamKind::Mu as usize, &g);
+            }
         }
-        if kinds[ParamKind::Mu as usize] {
-            let mut g = [0.0; 12];
-            he::add_stress_forces(t, &he::pk1_dmu(&s), 1.0, &mut g);
-            sink(e, ParamKind::Mu, &g);
+        if any_spline {
+            if let Some(sp) = &mat.spline {
+                let st = sp
+                    .state(&fgrad)
+                    .ok_or(MotionError::Inverted { element: e })?;
+                SplineMaterial::pk1_dcontrols(&st, |r, i, dp| {
+                    let slot = match r {
+                        Response::F => 5 + i,
+                        Response::H => 5 + nf + i,
+                    };
+                    if kinds.get(slot).copied().unwrap_or(false) {
+                        let mut g = [0.0; 12];
+                        he::add_stress_forces(t, dp, 1.0, &mut g);
+                        sink(e, slot, &g);
+                    }
+                });
+            }
         }
         if kinds[ParamKind::Nu as usize] || kinds[ParamKind::PowerH as usize] {
             let r = visc::Rate::new(&visc::velocity_gradient(t, &model.gather(e, v)));
@@ -139,14 +151,14 @@ pub fn param_derivatives(
                 if let Some(r) = &r {
                     he::add_stress_forces(t, &visc::stress_dnu(r, h), 1.0, &mut g);
                 }
-                sink(e, ParamKind::Nu, &g);
+                sink(e, ParamKind::Nu as usize, &g);
             }
             if kinds[ParamKind::PowerH as usize] {
                 let mut g = [0.0; 12];
                 if let Some(r) = &r {
                     he::add_stress_forces(t, &visc::stress_dh(r, nu, h), 1.0, &mut g);
                 }
-                sink(e, ParamKind::PowerH, &g);
+                sink(e, ParamKind::PowerH as usize, &g);
             }
         }
         if kinds[ParamKind::Density as usize] {
@@ -169,7 +181,7 @@ pub fn param_derivatives(
                     g[r] -= c * acc;
                 }
             }
-            sink(e, ParamKind::Density, &g);
+            sink(e, ParamKind::Density as usize, &g);
         }
     }
     Ok(())

@@ -7,7 +7,7 @@
 //! up to the Newton tolerance. Density enters M and f_ext; its terms (§4.3) are included.
 
 use super::forces::param_derivatives;
-use super::model::{Material, Model, Observations, Param, ParamKind};
+use super::model::{Material, Model, Observations, Param};
 use super::objective::{step_term, StepTerm};
 use super::sim::{simulate, SimStats};
 use super::sparse::Factor;
@@ -39,22 +39,31 @@ pub struct Evaluation {
     pub stored_bytes: usize,
 }
 
-fn param_table(model: &Model, params: &[Param]) -> (Vec<[usize; 5]>, [bool; 5]) {
-    let mut t = vec![[usize::MAX; 5]; model.tets.len()];
-    let mut kinds = [false; 5];
+/// Per element, the parameter index of each derivative slot (`usize::MAX` = not a parameter),
+/// and which slots are active. Spline control values are global: every element maps them.
+fn param_table(
+    model: &Model,
+    mat: &Material,
+    params: &[Param],
+) -> Result<(Vec<Vec<usize>>, Vec<bool>), MotionError> {
+    mat.check_params(params)?;
+    let ns = mat.slots();
+    let mut t = vec![vec![usize::MAX; ns]; model.tets.len()];
+    let mut kinds = vec![false; ns];
     for (p, par) in params.iter().enumerate() {
-        kinds[par.kind as usize] = true;
+        let slot = par.slot(mat);
+        kinds[slot] = true;
         match par.element {
-            None => t.iter_mut().for_each(|r| r[par.kind as usize] = p),
-            Some(e) => t[e][par.kind as usize] = p,
+            Some(e) if !par.kind.is_spline() => t[e][slot] = p,
+            _ => t.iter_mut().for_each(|r| r[slot] = p),
         }
     }
-    (t, kinds)
+    Ok((t, kinds))
 }
 
-fn reduce(acc: &[Vec<f64>; 5], table: &[[usize; 5]], grad: &mut [f64]) {
+fn reduce(acc: &[Vec<f64>], table: &[Vec<usize>], grad: &mut [f64]) {
     for (e, row) in table.iter().enumerate() {
-        for k in 0..5 {
+        for k in 0..row.len() {
             if row[k] != usize::MAX && !acc[k].is_empty() {
                 grad[row[k]] += acc[k][e];
             }
@@ -102,7 +111,7 @@ pub fn evaluate(
                 |s| {
                     add(
                         &mut total,
-                        step_term(model, mat, obs, s.n, s.x, s.v, &[false; 5], None)?,
+                        step_term(model, mat, obs, s.n, s.x, s.v, &[], None)?,
                     );
                     Ok(())
                 },
@@ -114,16 +123,19 @@ pub fn evaluate(
     }
 }
 
-fn zeros_acc(kinds: &[bool; 5], ne: usize) -> [Vec<f64>; 5] {
-    std::array::from_fn(|k| if kinds[k] { vec![0.0; ne] } else { Vec::new() })
+fn zeros_acc(kinds: &[bool], ne: usize) -> Vec<Vec<f64>> {
+    kinds
+        .iter()
+        .map(|&k| if k { vec![0.0; ne] } else { Vec::new() })
+        .collect()
 }
 
 /// G_p (free dofs) for every parameter at a state: ∂F/∂q of the residual's force part.
 fn g_columns(
     model: &Model,
     mat: &Material,
-    table: &[[usize; 5]],
-    kinds: &[bool; 5],
+    table: &[Vec<usize>],
+    kinds: &[bool],
     np: usize,
     x: &[f64],
     v: &[f64],
@@ -131,7 +143,7 @@ fn g_columns(
 ) -> Result<Vec<Vec<f64>>, MotionError> {
     let mut g = vec![vec![0.0; model.nfree]; np];
     param_derivatives(model, mat, kinds, x, v, inertia, None, |e, kind, ge| {
-        let p = table[e][kind as usize];
+        let p = table[e][kind];
         if p == usize::MAX {
             return;
         }
@@ -153,7 +165,7 @@ fn direct(
     params: &[Param],
     obs: &Observations,
 ) -> Result<Evaluation, MotionError> {
-    let (table, kinds) = param_table(model, params);
+    let (table, kinds) = param_table(model, mat, params)?;
     let np = params.len();
     let nf = model.nfree;
     let ndof = 3 * model.nodes.len();
@@ -266,7 +278,7 @@ fn adjoint(
     params: &[Param],
     obs: &Observations,
 ) -> Result<Evaluation, MotionError> {
-    let (table, kinds) = param_table(model, params);
+    let (table, kinds) = param_table(model, mat, params)?;
     let np = params.len();
     let nf = model.nfree;
     let ndof = 3 * model.nodes.len();
@@ -348,7 +360,7 @@ fn adjoint(
                         s += rfull[3 * node + k] * g[3 * a + k];
                     }
                 }
-                acc[kind as usize][e] += s;
+                acc[kind][e] += s;
             },
         )?;
         let mut kr = vec![0.0; nf];
@@ -384,12 +396,11 @@ fn adjoint(
                         s += lfull[3 * node + k] * g[3 * a + k];
                     }
                 }
-                acc[kind as usize][e] += s;
+                acc[kind][e] += s;
             },
         )?;
     }
     let mut grad = vec![0.0; np];
     reduce(&acc, &table, &mut grad);
-    let _ = ParamKind::ALL;
     Ok(finish(&total, stats, Some(grad), stored))
 }

@@ -10,9 +10,14 @@
 //! - [`optimize`]: log-parameter LBFGS (§4.3) with a Wolfe line search (argmin);
 //! - [`statics`]: a reusable quasi-static hyperelastic solver (specimen generator, issue 6);
 //! - [`scenario`]: synthetic set-ups (bars with moving clamps) shared by bench, evidence, tests;
-//! - [`dataset`]: the motion dataset reader (docs/motion-dataset.md).
+//! - [`dataset`]: the motion dataset reader (docs/motion-dataset.md);
+//! - [`spline`], [`elastic`]: the principal-stretch spline material of §4.2 (eqs. 18–20) and the
+//!   per-element switch between it and Neo-Hookean;
+//! - [`export`]: a motion fit as a runtime model (Lamé → thesis (λ, α)).
 
 pub mod dataset;
+pub mod elastic;
+pub mod export;
 pub mod forces;
 pub mod gradient;
 pub mod hyperelastic;
@@ -22,6 +27,7 @@ pub mod optimize;
 pub mod scenario;
 pub mod sim;
 pub mod sparse;
+pub mod spline;
 pub mod statics;
 pub mod viscosity;
 

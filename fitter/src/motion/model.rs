@@ -3,6 +3,7 @@
 
 use super::hyperelastic::RestTet;
 use super::sparse::Pattern;
+use super::spline::{Response, SplineMaterial};
 use super::MotionError;
 use crate::mesh::Mesh;
 use nalgebra::{Matrix3, Vector3};
@@ -29,10 +30,16 @@ pub enum ParamKind {
     PowerH = 3,
     /// Density ρ (kg/m³).
     Density = 4,
+    /// A control value of the spline f′ of §4.2 (Pa); `Param::element` holds the control index.
+    SplineF = 5,
+    /// A control value J·h′(J) of the spline h′ of §4.2 (Pa); `Param::element` holds the
+    /// control index.
+    SplineH = 6,
 }
 
 impl ParamKind {
-    /// All kinds in index order.
+    /// All per-element material kinds in index order (the spline kinds are separate: their
+    /// parameters are control points, see [`Param`]).
     pub const ALL: [ParamKind; 5] = [
         Self::Lambda,
         Self::Mu,
@@ -48,6 +55,20 @@ impl ParamKind {
             Self::Nu => "nu",
             Self::PowerH => "h",
             Self::Density => "density",
+            Self::SplineF => "spline_f",
+            Self::SplineH => "spline_h",
+        }
+    }
+    /// True for the spline control-value kinds (optimised linearly, not in log space).
+    pub fn is_spline(self) -> bool {
+        matches!(self, Self::SplineF | Self::SplineH)
+    }
+    /// The spline response a spline kind refers to.
+    pub fn response(self) -> Option<Response> {
+        match self {
+            Self::SplineF => Some(Response::F),
+            Self::SplineH => Some(Response::H),
+            _ => None,
         }
     }
     /// Parses a command-line name.
@@ -57,12 +78,30 @@ impl ParamKind {
 }
 
 /// One optimisation parameter: a material kind, global (all elements) or of one element.
+///
+/// For the spline kinds ([`ParamKind::SplineF`], [`ParamKind::SplineH`]) the material is global
+/// and `element` is `Some(i)`: control point i of that spline.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Param {
     /// Which quantity.
     pub kind: ParamKind,
-    /// `None` = the same value in every element; `Some(e)` = element e only.
+    /// `None` = the same value in every element; `Some(e)` = element e only (control point e for
+    /// the spline kinds).
     pub element: Option<usize>,
+}
+
+impl Param {
+    /// The derivative slot of this parameter: the kind index for material kinds, 5 + i for f′
+    /// control i, 5 + (f′ count) + i for h′ control i. Gradient passes accumulate per element
+    /// and slot.
+    pub fn slot(&self, mat: &Material) -> usize {
+        let nf = mat.spline.as_ref().map_or(0, |s| s.len(Response::F));
+        match (self.kind, self.element) {
+            (ParamKind::SplineF, Some(i)) => 5 + i,
+            (ParamKind::SplineH, Some(i)) => 5 + nf + i,
+            (k, _) => k as usize,
+        }
+    }
 }
 
 /// Per-element material values.
@@ -70,6 +109,12 @@ pub struct Param {
 pub struct Material {
     /// Values indexed `[kind as usize][element]`.
     pub values: [Vec<f64>; 5],
+    /// The principal-stretch material of §4.2; when present it replaces Neo-Hookean (λ, μ unused).
+    pub spline: Option<SplineMaterial>,
+    /// Strain-stiffening coefficient c of the c (I₁ − 3)² term of [`super::hyperelastic`]
+    /// (Pa; a Yeoh-type second-order term) added to Neo-Hookean. Not a fit parameter: it makes
+    /// non-Neo-Hookean ground truths for the spline evidence. 0 = the paper's eq. 16.
+    pub stiffening: f64,
 }
 
 impl Material {
@@ -83,7 +128,58 @@ impl Material {
                 vec![h; n],
                 vec![density; n],
             ],
+            spline: None,
+            stiffening: 0.0,
         }
+    }
+    /// Derivative slots (see [`Param::slot`]): 5 material kinds plus the spline controls.
+    pub fn slots(&self) -> usize {
+        5 + self
+            .spline
+            .as_ref()
+            .map_or(0, |s| s.len(Response::F) + s.len(Response::H))
+    }
+    /// Checks that every parameter refers to something this material has.
+    pub fn check_params(&self, params: &[Param]) -> Result<(), MotionError> {
+        for (i, p) in params.iter().enumerate() {
+            match (p.kind.response(), &self.spline) {
+                (Some(r), Some(s)) => match p.element {
+                    Some(c) if c < s.len(r) => {}
+                    _ => {
+                        return Err(MotionError::Invalid(format!(
+                            "parameter {i}: {} needs a control index below {}, found {:?}",
+                            p.kind.name(),
+                            s.len(r),
+                            p.element
+                        )))
+                    }
+                },
+                (Some(_), None) => {
+                    return Err(MotionError::Invalid(format!(
+                        "parameter {i}: {} but the material has no response splines",
+                        p.kind.name()
+                    )))
+                }
+                (None, Some(_)) if matches!(p.kind, ParamKind::Lambda | ParamKind::Mu) => {
+                    return Err(MotionError::Invalid(format!(
+                        "parameter {i}: {} has no effect with the spline material (fit its \
+                         control values instead)",
+                        p.kind.name()
+                    )))
+                }
+                (None, _) => {
+                    if let Some(e) = p.element {
+                        if e >= self.values[0].len() {
+                            return Err(MotionError::Invalid(format!(
+                                "parameter {i}: element {e} out of range ({} elements)",
+                                self.values[0].len()
+                            )));
+                        }
+                    }
+                }
+            }
+        }
+        Ok(())
     }
     /// Value of `kind` in element `e`.
     pub fn get(&self, kind: ParamKind, e: usize) -> f64 {
@@ -92,6 +188,12 @@ impl Material {
     /// Writes the parameter values `q` (linear, not log) into the material.
     pub fn set(&mut self, params: &[Param], q: &[f64]) {
         for (p, &v) in params.iter().zip(q) {
+            if let Some(r) = p.kind.response() {
+                if let (Some(s), Some(i)) = (self.spline.as_mut(), p.element) {
+                    s.set_value(r, i, v);
+                }
+                continue;
+            }
             match p.element {
                 None => self.values[p.kind as usize].iter_mut().for_each(|x| *x = v),
                 Some(e) => self.values[p.kind as usize][e] = v,
@@ -103,6 +205,10 @@ impl Material {
         params
             .iter()
             .map(|p| match p.element {
+                _ if p.kind.is_spline() => match (p.kind.response(), &self.spline, p.element) {
+                    (Some(r), Some(s), Some(i)) => s.value(r, i),
+                    _ => f64::NAN,
+                },
                 None => {
                     let v = &self.values[p.kind as usize];
                     v.iter().sum::<f64>() / v.len() as f64

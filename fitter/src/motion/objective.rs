@@ -6,8 +6,9 @@
 //! force the clamp exerts on the body through its nodes' internal (elastic + viscous) forces: what
 //! a load cell in the clamp reads, without the clamp nodes' own weight and inertia (tared).
 
+use super::elastic::ElasticState;
 use super::forces::param_derivatives;
-use super::hyperelastic::{self as he, FParts, HyperParams};
+use super::hyperelastic as he;
 use super::model::{Material, Model, Observations, ParamKind};
 use super::viscosity as visc;
 use super::MotionError;
@@ -50,7 +51,8 @@ pub fn clamp_force(
 }
 
 /// Evaluates step `n` (1-based). With `grad = Some((gx, gv, acc))` it adds ∂(φΔt)/∂x and ∂/∂v
-/// (free dofs) and ∂/∂(per-element kind) into `acc[kind][e]` for kinds in `kinds`.
+/// (free dofs) and ∂/∂(per-element slot) into `acc[slot][e]` for slots set in `kinds` (see
+/// [`super::model::Param::slot`]).
 #[allow(clippy::type_complexity)]
 pub fn step_term(
     model: &Model,
@@ -59,8 +61,8 @@ pub fn step_term(
     n: usize,
     x: &[f64],
     v: &[f64],
-    kinds: &[bool; 5],
-    grad: Option<(&mut [f64], &mut [f64], &mut [Vec<f64>; 5])>,
+    kinds: &[bool],
+    grad: Option<(&mut [f64], &mut [f64], &mut [Vec<f64>])>,
 ) -> Result<StepTerm, MotionError> {
     let dt = model.dt;
     let mut term = StepTerm::default();
@@ -103,14 +105,9 @@ pub fn step_term(
             for &el in &model.clamp_elems[c] {
                 let tet = model.tets[el];
                 let rt = &model.rest[el];
-                let s = FParts::new(he::deformation_gradient(rt, &model.gather(el, x)))
-                    .ok_or(MotionError::Inverted { element: el })?;
-                let hp = HyperParams {
-                    lambda: mat.get(ParamKind::Lambda, el),
-                    mu: mat.get(ParamKind::Mu, el),
-                    stiffening: 0.0,
-                };
-                let ke = he::element_tangent(rt, &s, &hp);
+                let s =
+                    ElasticState::new(mat, el, he::deformation_gradient(rt, &model.gather(el, x)))?;
+                let ke = s.tangent(rt);
                 let de =
                     visc::Rate::new(&visc::velocity_gradient(rt, &model.gather(el, v))).map(|r| {
                         visc::element_damping(
@@ -142,7 +139,7 @@ pub fn step_term(
                     }
                 }
             }
-            let mut k2 = *kinds;
+            let mut k2 = kinds.to_vec();
             k2[ParamKind::Density as usize] = false; // F_c holds internal forces only
             param_derivatives(
                 model,
@@ -162,7 +159,7 @@ pub fn step_term(
                             }
                         }
                     }
-                    acc[kind as usize][el] += w * s;
+                    acc[kind][el] += w * s;
                 },
             )?;
         }

@@ -1,7 +1,13 @@
 //! Log-parameter LBFGS (§4.3) with the Moré–Thuente line search (strong Wolfe conditions,
 //! c₁ = 1e-4, c₂ = 0.9), via argmin's `Vec<f64>` backend.
 //!
-//! The optimiser works on z = ln q, so dΦ/dz = q · dΦ/dq. A failed simulation (inverted element,
+//! The optimiser works on z = ln q, so dΦ/dz = q · dΦ/dq — except for the spline control values
+//! of §4.2, which may be negative (J h′(J) is −μ at rest): the paper optimises them directly, so
+//! here q = s·z with s the RMS of the starting control values of that spline (a fixed scale that
+//! puts them on the same O(1) footing as the log-parameters for LBFGS's initial Hessian). With the
+//! spline material the objective also carries the paper's penalty on negative spline slopes,
+//! R = w Σ min(0, slope)² ([`SplineMaterial::slope_penalty`]), w from
+//! [`SplineMaterial::slope_weight`] or automatic ([`auto_slope_weight`]). A failed simulation (inverted element,
 //! indefinite system, NaN) is an infinitely bad point. argmin's Moré–Thuente aborts on a
 //! non-finite value, so the line search is handed a finite stand-in that has the same effect as
 //! +∞ — a value 10⁶ × (1 + |Φ| of the last good point) with a gradient pointing back towards it —
@@ -14,6 +20,7 @@
 
 use super::gradient::{evaluate, Evaluation, Method};
 use super::model::{Material, Model, Observations, Param};
+use super::spline::{Response, SplineMaterial};
 use super::MotionError;
 use argmin::core::{CostFunction, Error as ArgminError, Executor, Gradient, State};
 use argmin::solver::linesearch::MoreThuenteLineSearch;
@@ -76,6 +83,44 @@ pub fn auto_smoothness_weight(phi0: f64, pairs: usize) -> f64 {
     1e-3 * phi0 / pairs.max(1) as f64
 }
 
+/// Automatic slope-penalty weight: 1e-2 · Φ(q₀) / (samples · scale²), i.e. a negative slope as
+/// large as the typical control value at every sample point would cost 1 % of the starting misfit
+/// ("slightly penalizes", §4.2): enough to push the line search away from softening branches,
+/// too small to compete with a real misfit reduction.
+pub fn auto_slope_weight(phi0: f64, samples: usize, scale: f64) -> f64 {
+    1e-2 * phi0 / (samples.max(1) as f64 * scale * scale)
+}
+
+/// How one parameter maps to the optimiser's variable.
+#[derive(Debug, Clone, Copy)]
+enum Transform {
+    /// q = exp z.
+    Log,
+    /// q = s z.
+    Linear(f64),
+}
+
+impl Transform {
+    fn q(self, z: f64) -> f64 {
+        match self {
+            Self::Log => z.exp(),
+            Self::Linear(s) => s * z,
+        }
+    }
+    fn z(self, q: f64) -> f64 {
+        match self {
+            Self::Log => q.ln(),
+            Self::Linear(s) => q / s,
+        }
+    }
+    fn dq_dz(self, q: f64) -> f64 {
+        match self {
+            Self::Log => q,
+            Self::Linear(s) => s,
+        }
+    }
+}
+
 struct Problem<'a> {
     model: &'a Model,
     base: &'a Material,
@@ -84,6 +129,8 @@ struct Problem<'a> {
     method: Method,
     pairs: Vec<(usize, usize)>,
     weight: f64,
+    transforms: Vec<Transform>,
+    slope_weight: f64,
     cache: &'a Mutex<Cache>,
     progress: &'a (dyn Fn(usize, f64) + Sync),
 }
@@ -111,6 +158,24 @@ impl Problem<'_> {
         r
     }
 
+    /// w·R of the spline slopes; adds dR/dz of the spline parameters into `gz`.
+    fn slope_penalty(&self, sp: &SplineMaterial, gz: &mut [f64]) -> f64 {
+        if self.slope_weight == 0.0 {
+            return 0.0;
+        }
+        let nf = sp.len(Response::F);
+        let mut gc = vec![0.0; nf + sp.len(Response::H)];
+        let r = sp.slope_penalty(&mut gc);
+        for (p, par) in self.params.iter().enumerate() {
+            let (Some(resp), Some(i)) = (par.kind.response(), par.element) else {
+                continue;
+            };
+            let c = if resp == Response::F { i } else { nf + i };
+            gz[p] += self.slope_weight * gc[c] * self.transforms[p].dq_dz(0.0);
+        }
+        self.slope_weight * r
+    }
+
     fn compute(&self, z: &[f64]) -> (f64, Vec<f64>) {
         {
             let c = self.cache.lock().expect("cache lock");
@@ -118,7 +183,11 @@ impl Problem<'_> {
                 return (c.value, c.grad.clone());
             }
         }
-        let q: Vec<f64> = z.iter().map(|v| v.exp()).collect();
+        let q: Vec<f64> = z
+            .iter()
+            .zip(&self.transforms)
+            .map(|(v, t)| t.q(*v))
+            .collect();
         let mut mat = self.base.clone();
         mat.set(self.params, &q);
         let out = evaluate(self.model, &mat, self.params, self.obs, Some(self.method));
@@ -128,8 +197,16 @@ impl Problem<'_> {
         let (value, grad) = match out {
             Ok(ev) => {
                 let g = ev.grad.expect("gradient requested");
-                let mut gz: Vec<f64> = g.iter().zip(&q).map(|(g, q)| g * q).collect();
-                let v = ev.phi + self.regulariser(z, &mut gz);
+                let mut gz: Vec<f64> = g
+                    .iter()
+                    .zip(&q)
+                    .zip(&self.transforms)
+                    .map(|((g, q), t)| g * t.dq_dz(*q))
+                    .collect();
+                let mut v = ev.phi + self.regulariser(z, &mut gz);
+                if let Some(sp) = &mat.spline {
+                    v += self.slope_penalty(sp, &mut gz);
+                }
                 (v, gz)
             }
             Err(e) => {
@@ -175,7 +252,7 @@ impl Gradient for Problem<'_> {
     }
 }
 
-/// Fits `params` starting from `q0` (linear values; must be > 0). `progress(evals, Φ)` is called
+/// Fits `params` starting from `q0` (linear values; must be > 0 except spline control values). `progress(evals, Φ)` is called
 /// after every simulation. Neighbour pairs for the regulariser are taken from `pairs`
 /// (element pairs); only per-element parameters of the same kind on both elements are coupled.
 #[allow(clippy::too_many_arguments)]
@@ -189,17 +266,46 @@ pub fn fit(
     element_pairs: &[(usize, usize)],
     progress: &(dyn Fn(usize, f64) + Sync),
 ) -> Result<FitResult, MotionError> {
+    base.check_params(params)?;
+    if q0.len() != params.len() {
+        return Err(MotionError::Invalid(format!(
+            "{} starting values for {} parameters",
+            q0.len(),
+            params.len()
+        )));
+    }
     if let Some((i, v)) = q0
         .iter()
         .enumerate()
-        .find(|(_, v)| !(**v > 0.0 && v.is_finite()))
+        .find(|(i, v)| !v.is_finite() || (!params[*i].kind.is_spline() && !(**v > 0.0)))
     {
         return Err(MotionError::Invalid(format!(
             "parameter {} ({:?}) must start positive for the log transform, found {v}",
             i, params[i]
         )));
     }
-    let z0: Vec<f64> = q0.iter().map(|v| v.ln()).collect();
+    let spline_scale = |r: Response| {
+        let v: Vec<f64> = params
+            .iter()
+            .zip(q0)
+            .filter(|(p, _)| p.kind.response() == Some(r))
+            .map(|(_, q)| q * q)
+            .collect();
+        let rms = (v.iter().sum::<f64>() / v.len().max(1) as f64).sqrt();
+        if rms > 0.0 {
+            rms
+        } else {
+            1.0
+        }
+    };
+    let transforms: Vec<Transform> = params
+        .iter()
+        .map(|p| match p.kind.response() {
+            Some(r) => Transform::Linear(spline_scale(r)),
+            None => Transform::Log,
+        })
+        .collect();
+    let z0: Vec<f64> = q0.iter().zip(&transforms).map(|(v, t)| t.z(*v)).collect();
     let mut index = std::collections::HashMap::new();
     for (p, par) in params.iter().enumerate() {
         if let Some(e) = par.element {
@@ -224,6 +330,8 @@ pub fn fit(
         method: settings.method,
         pairs,
         weight: 0.0,
+        transforms: transforms.clone(),
+        slope_weight: 0.0,
         cache: &cache_cell,
         progress,
     };
@@ -250,6 +358,15 @@ pub fn fit(
             problem.cache.lock().expect("cache").failures.join("; ")
         )));
     }
+    if let Some(sp) = &base.spline {
+        if params.iter().any(|p| p.kind.is_spline()) {
+            let samples = sp.f.samples().len() + sp.h.samples().len();
+            problem.slope_weight = sp
+                .slope_weight
+                .unwrap_or_else(|| auto_slope_weight(phi0, samples, spline_scale(Response::F)));
+            problem.cache.lock().expect("cache").grad.clear(); // Φ changes with the weight
+        }
+    }
     let ls = MoreThuenteLineSearch::new()
         .with_c(1e-4, 0.9)
         .map_err(|e| MotionError::Invalid(e.to_string()))?;
@@ -267,7 +384,11 @@ pub fn fit(
     let run = run.map(|_| ()).map_err(|e| e.to_string());
     let cache = std::mem::take(&mut *cache_cell.lock().expect("cache"));
     let (phi, zbest) = cache.best.clone().unwrap_or((phi0, z0));
-    let q: Vec<f64> = zbest.iter().map(|v| v.exp()).collect();
+    let q: Vec<f64> = zbest
+        .iter()
+        .zip(&transforms)
+        .map(|(v, t)| t.q(*v))
+        .collect();
     let mut mat = base.clone();
     mat.set(params, &q);
     let eval = evaluate(model, &mat, params, obs, None)?;
