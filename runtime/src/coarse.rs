@@ -74,7 +74,8 @@ impl<'a> Coarse<'a> {
     }
 
     /// Builds aggregates by binning the free nodes' rest positions on a grid of about
-    /// `capacity` cells, then assembles and factorises A_c. `fixed(i)` tells fixed nodes.
+    /// `capacity` cells, then assembles and factorises A_c. `fixed(i)` tells fixed nodes,
+    /// `grad_of(e)` element e's ∇φ₁..₃; `vol` has one value per element.
     #[allow(clippy::too_many_arguments)]
     pub fn build(
         &mut self,
@@ -82,7 +83,7 @@ impl<'a> Coarse<'a> {
         x0: &[f32],
         fixed: impl Fn(usize) -> bool,
         tets: &[u32],
-        grad: &[f32],
+        grad_of: impl Fn(usize) -> [f32; 9],
         vol: &[f32],
         lam: &[f32],
         alp: &[f32],
@@ -194,8 +195,7 @@ impl<'a> Coarse<'a> {
                 tets[4 * e + 2] as usize,
                 tets[4 * e + 3] as usize,
             ];
-            let mut ge = [0.0f32; 9];
-            ge.copy_from_slice(&grad[9 * e..9 * e + 9]);
+            let ge = grad_of(e);
             let aggs = ids.map(|i| c.agg[i]);
             for (j0, &a) in aggs.iter().enumerate() {
                 if a == u32::MAX || aggs[..j0].contains(&a) {
@@ -312,10 +312,7 @@ impl<'a> Coarse<'a> {
                 g[i] = 0.0;
                 continue;
             }
-            let mut s = g[i];
-            for k in 0..i {
-                s -= l[i * dim + k] * g[k];
-            }
+            let s = g[i] - crate::kernel::dot_lanes(&l[i * dim..i * dim + i], &g[..i]);
             g[i] = s / lii;
         }
         // Lᵀ y = g by column sweeps: row i of L is contiguous, so each step reads one row

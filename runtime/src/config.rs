@@ -46,6 +46,12 @@ pub struct RuntimeConfig {
     /// Aggregates of the two-level preconditioner's coarse space (rigid modes per aggregate;
     /// 0 = block/point Jacobi only). Capped at nodes / 8.
     pub coarse_aggregates: u32,
+    /// The block-Jacobi preconditioner (the 3 × 3 node blocks of K' = Σ R_e K_e R_eᵀ) is rebuilt
+    /// only when the rotations have moved by more than this angle (rad, an upper bound summed
+    /// over ticks) since it was last built, and on every tick for non-linear materials (their
+    /// λ_e, α_e change). A preconditioner only needs to be close: this changes iteration counts,
+    /// never the solution. 0 rebuilds it every tick.
+    pub precond_refresh_angle: f32,
 }
 
 impl Default for RuntimeConfig {
@@ -62,6 +68,7 @@ impl Default for RuntimeConfig {
             blend_every: 1,
             absolute_tolerance: 1e-9,
             coarse_aggregates: 64,
+            precond_refresh_angle: 0.05,
         }
     }
 }

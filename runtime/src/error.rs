@@ -68,6 +68,10 @@ pub enum RuntimeError {
         /// What was given.
         what: &'static str,
     },
+    /// The model failed one of the protocol's checks (e.g. a free node that belongs to no
+    /// tetrahedron, [`palpate_protocol::model::Invalid::OrphanNode`], whose stiffness would be
+    /// zero and the system singular).
+    InvalidModel(palpate_protocol::model::ModelError),
     /// No free surface node lies within the contact radius.
     ContactCoversNoNode {
         /// Distance to the nearest free surface node (m).
@@ -98,6 +102,7 @@ impl fmt::Display for RuntimeError {
             ),
             Self::NodeOutOfRange { node, nodes } => write!(f, "node {node} out of range ({nodes} nodes)"),
             Self::NonFiniteInput { what } => write!(f, "{what} is not finite (or not positive)"),
+            Self::InvalidModel(e) => write!(f, "invalid model: {e}"),
             Self::ContactCoversNoNode { nearest } => write!(
                 f,
                 "contact radius covers no free surface node (nearest is {nearest:e} m away)"

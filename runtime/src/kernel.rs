@@ -211,6 +211,44 @@ pub fn warped_apply_packed(
     out
 }
 
+/// a · b with `LANES` independent partial sums, so the reduction vectorises (a single running
+/// sum is a serial chain of dependent adds, one per 4 cycles). Lengths must match (extra
+/// entries of the longer slice are ignored).
+#[inline]
+pub fn dot_lanes(a: &[f32], b: &[f32]) -> f32 {
+    let mut acc = [0.0f32; LANES];
+    let (ca, cb) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for l in 0..LANES {
+            acc[l] += x[l] * y[l];
+        }
+    }
+    let mut s = 0.0f32;
+    for (x, y) in ra.iter().zip(rb) {
+        s += x * y;
+    }
+    acc.iter().sum::<f32>() + s
+}
+
+/// ‖v‖² accumulated in f64 with `LANES` independent partial sums (see [`dot_lanes`]).
+#[inline]
+pub fn norm2_lanes(v: &[f32]) -> f64 {
+    let mut acc = [0.0f64; LANES];
+    let c = v.chunks_exact(LANES);
+    let rest = c.remainder();
+    for x in c {
+        for l in 0..LANES {
+            acc[l] += (x[l] as f64) * (x[l] as f64);
+        }
+    }
+    let mut s = 0.0f64;
+    for x in rest {
+        s += (*x as f64) * (*x as f64);
+    }
+    acc.iter().sum::<f64>() + s
+}
+
 /// Lanes of the batched kernel: eight elements at once, structure-of-arrays, so the arithmetic
 /// compiles to 8-wide SIMD (AVX2) or 2 × 4-wide (SSE2 / NEON) without target-specific code.
 pub const LANES: usize = 8;
@@ -230,6 +268,71 @@ pub fn warped_apply_lanes(
     warped_lanes(v, g, r, volume, lambda, alpha, false)
 }
 
+/// Batched R K_e Rᵀ v_e from the *rotated* gradients ĝ_a = R ∇φ_a (a = 1..3): with
+/// M = Σ_a (v_a − v_0) ĝ_aᵀ = H Rᵀ, the warped force is f_a = V σ(M) ĝ_a, because for the
+/// isotropic σ(ε) = α tr(ε) I + 2μ ε one has R σ(sym(RᵀH)) Rᵀ = σ(sym(H Rᵀ)). The same operator
+/// as [`warped_apply_lanes`] without the two 3 × 3 rotation products (a third of the work of a
+/// PCG iteration's element pass).
+#[inline(always)]
+#[allow(clippy::needless_range_loop)]
+pub fn rotated_apply_lanes(
+    v: &[[[f32; LANES]; 3]; 4],
+    gh: &[[f32; LANES]; 9],
+    volume: &[f32; LANES],
+    lambda: &[f32; LANES],
+    alpha: &[f32; LANES],
+) -> [[[f32; LANES]; 3]; 4] {
+    let m = gradient_of_lanes(v, gh);
+    let mut p = [[0.0f32; LANES]; 9];
+    for l in 0..LANES {
+        let two_mu = lambda[l] - 2.0 * alpha[l];
+        let tr = m[0][l] + m[4][l] + m[8][l];
+        let vol = volume[l];
+        let s01 = vol * 0.5 * two_mu * (m[1][l] + m[3][l]);
+        let s02 = vol * 0.5 * two_mu * (m[2][l] + m[6][l]);
+        let s12 = vol * 0.5 * two_mu * (m[5][l] + m[7][l]);
+        p[0][l] = vol * (alpha[l] * tr + two_mu * m[0][l]);
+        p[4][l] = vol * (alpha[l] * tr + two_mu * m[4][l]);
+        p[8][l] = vol * (alpha[l] * tr + two_mu * m[8][l]);
+        p[1][l] = s01;
+        p[3][l] = s01;
+        p[2][l] = s02;
+        p[6][l] = s02;
+        p[5][l] = s12;
+        p[7][l] = s12;
+    }
+    let mut f = [[[0.0f32; LANES]; 3]; 4];
+    for a in 0..3 {
+        for i in 0..3 {
+            for l in 0..LANES {
+                let val = p[3 * i][l] * gh[3 * a][l]
+                    + p[3 * i + 1][l] * gh[3 * a + 1][l]
+                    + p[3 * i + 2][l] * gh[3 * a + 2][l];
+                f[a + 1][i][l] = val;
+                f[0][i][l] -= val;
+            }
+        }
+    }
+    f
+}
+
+/// ĝ_a = R ∇φ_a (a = 1..3) lane by lane, the input of [`rotated_apply_lanes`].
+#[inline(always)]
+#[allow(clippy::needless_range_loop)]
+pub fn rotate_gradients_lanes(g: &[[f32; LANES]; 9], r: &[[f32; LANES]; 9]) -> [[f32; LANES]; 9] {
+    let mut o = [[0.0f32; LANES]; 9];
+    for a in 0..3 {
+        for i in 0..3 {
+            for l in 0..LANES {
+                o[3 * a + i][l] = r[3 * i][l] * g[3 * a][l]
+                    + r[3 * i + 1][l] * g[3 * a + 1][l]
+                    + r[3 * i + 2][l] * g[3 * a + 2][l];
+            }
+        }
+    }
+    o
+}
+
 /// Batched warped internal force R K_e (R_eᵀ x_e − x₀_e) for displacements `v`: the same as
 /// [`warped_internal_force`], lane by lane (the rest-frame gradient is Rᵀ(I + H) − I).
 #[inline(always)]
@@ -244,6 +347,81 @@ pub fn warped_internal_force_lanes(
     warped_lanes(v, g, r, volume, lambda, alpha, true)
 }
 
+/// [`warped_internal_force_lanes`] from the displacement gradient H = Σ_a (u_a − u_0) ⊗ ∇φ_a
+/// already formed (the fused rotation-and-residual pass needs H for the rotation first).
+#[inline(always)]
+pub fn warped_internal_force_from_h_lanes(
+    h: &[[f32; LANES]; 9],
+    g: &[[f32; LANES]; 9],
+    r: &[[f32; LANES]; 9],
+    volume: &[f32; LANES],
+    lambda: &[f32; LANES],
+    alpha: &[f32; LANES],
+) -> [[[f32; LANES]; 3]; 4] {
+    warped_from_h(h, g, r, volume, lambda, alpha, true)
+}
+
+/// [`gradient_of`] lane by lane: H = Σ_a (v_a − v_0) ⊗ ∇φ_a.
+#[inline(always)]
+#[allow(clippy::needless_range_loop)]
+pub fn gradient_of_lanes(v: &[[[f32; LANES]; 3]; 4], g: &[[f32; LANES]; 9]) -> [[f32; LANES]; 9] {
+    let mut h = [[0.0f32; LANES]; 9];
+    for a in 0..3 {
+        for i in 0..3 {
+            for j in 0..3 {
+                for l in 0..LANES {
+                    h[3 * i + j][l] += (v[a + 1][i][l] - v[0][i][l]) * g[3 * a + j][l];
+                }
+            }
+        }
+    }
+    h
+}
+
+/// [`diagonal_block`] for the four nodes of [`LANES`] elements: `out[a][j][l]` is entry j
+/// (xx, yy, zz, xy, yz, zx) of node a's block in lane l.
+#[inline(always)]
+#[allow(clippy::needless_range_loop)]
+pub fn diagonal_blocks_lanes(
+    g: &[[f32; LANES]; 9],
+    r: &[[f32; LANES]; 9],
+    volume: &[f32; LANES],
+    lambda: &[f32; LANES],
+    alpha: &[f32; LANES],
+) -> [[[f32; LANES]; 6]; 4] {
+    let mut out = [[[0.0f32; LANES]; 6]; 4];
+    for a in 0..4 {
+        for l in 0..LANES {
+            let ga = if a == 0 {
+                [
+                    -(g[0][l] + g[3][l] + g[6][l]),
+                    -(g[1][l] + g[4][l] + g[7][l]),
+                    -(g[2][l] + g[5][l] + g[8][l]),
+                ]
+            } else {
+                let b = 3 * (a - 1);
+                [g[b][l], g[b + 1][l], g[b + 2][l]]
+            };
+            let rg = [
+                r[0][l] * ga[0] + r[1][l] * ga[1] + r[2][l] * ga[2],
+                r[3][l] * ga[0] + r[4][l] * ga[1] + r[5][l] * ga[2],
+                r[6][l] * ga[0] + r[7][l] * ga[1] + r[8][l] * ga[2],
+            ];
+            let half = 0.5 * lambda[l] * volume[l];
+            let iso = (0.5 * lambda[l] - alpha[l])
+                * volume[l]
+                * (ga[0] * ga[0] + ga[1] * ga[1] + ga[2] * ga[2]);
+            out[a][0][l] = half * rg[0] * rg[0] + iso;
+            out[a][1][l] = half * rg[1] * rg[1] + iso;
+            out[a][2][l] = half * rg[2] * rg[2] + iso;
+            out[a][3][l] = half * rg[0] * rg[1];
+            out[a][4][l] = half * rg[1] * rg[2];
+            out[a][5][l] = half * rg[2] * rg[0];
+        }
+    }
+    out
+}
+
 #[inline(always)]
 #[allow(clippy::needless_range_loop)]
 fn warped_lanes(
@@ -255,17 +433,28 @@ fn warped_lanes(
     alpha: &[f32; LANES],
     affine: bool,
 ) -> [[[f32; LANES]; 3]; 4] {
-    // H = Σ_a (v_a − v_0) ⊗ ∇φ_a
-    let mut h = [[0.0f32; LANES]; 9];
-    for a in 0..3 {
-        for i in 0..3 {
-            for j in 0..3 {
-                for l in 0..LANES {
-                    h[3 * i + j][l] += (v[a + 1][i][l] - v[0][i][l]) * g[3 * a + j][l];
-                }
-            }
-        }
-    }
+    warped_from_h(
+        &gradient_of_lanes(v, g),
+        g,
+        r,
+        volume,
+        lambda,
+        alpha,
+        affine,
+    )
+}
+
+#[inline(always)]
+#[allow(clippy::needless_range_loop)]
+fn warped_from_h(
+    h: &[[f32; LANES]; 9],
+    g: &[[f32; LANES]; 9],
+    r: &[[f32; LANES]; 9],
+    volume: &[f32; LANES],
+    lambda: &[f32; LANES],
+    alpha: &[f32; LANES],
+    affine: bool,
+) -> [[[f32; LANES]; 3]; 4] {
     // Ĥ = Rᵀ H
     let mut hh = [[0.0f32; LANES]; 9];
     for i in 0..3 {

@@ -7,6 +7,7 @@
 //! always return a proper rotation: the maximiser of tr(Rᵀ F) over SO(3), i.e.
 //! R = U diag(1, 1, det(U Vᵀ)) Vᵀ (the smallest singular direction is flipped, as in invertible FEM).
 
+use crate::kernel::LANES;
 use nalgebra::{Matrix3, RealField, UnitQuaternion, Vector3};
 
 /// Proper rotation of F by SVD with the reflection fixed (eq. 3.58 made safe). Reference version;
@@ -110,6 +111,91 @@ pub fn warp_rotation_fast(f: &[f32; 9], q: &mut [f32; 4], iterations: usize, r: 
             q[k] = nq[k] / n;
         }
         quat_to_matrix(q, r);
+    }
+}
+
+/// [`warp_rotation_fast`] for [`LANES`] elements at once (structure of arrays: `f[k][l]` is entry
+/// k of lane l's F), so the update compiles to SIMD. Lane by lane it takes the same steps: a lane
+/// whose F is not finite keeps its rotation, and a lane whose increment is below the scalar
+/// version's stopping threshold is left unchanged (the scalar loop stops there; later iterations
+/// would find the same increment again). Returns an upper bound of the angle (rad) by which any
+/// lane's rotation moved: each step (1, h) turns by 2 atan|h| ≤ 2 |h|₁.
+#[inline(always)]
+#[allow(clippy::needless_range_loop)]
+pub fn warp_rotation_fast_lanes(
+    f: &[[f32; LANES]; 9],
+    q: &mut [[f32; LANES]; 4],
+    iterations: usize,
+    r: &mut [[f32; LANES]; 9],
+) -> f32 {
+    let mut moved = [0.0f32; LANES];
+    let mut finite = [true; LANES];
+    for k in 0..9 {
+        for l in 0..LANES {
+            finite[l] &= f[k][l].is_finite();
+        }
+    }
+    quat_to_matrix_lanes(q, r);
+    for _ in 0..iterations {
+        let mut nq = [[0.0f32; LANES]; 4];
+        let mut n2 = [0.0f32; LANES];
+        let mut take = [false; LANES];
+        for l in 0..LANES {
+            let mut om = [0.0f32; 3];
+            let mut dot = 0.0f32;
+            for c in 0..3 {
+                let rc = [r[c][l], r[3 + c][l], r[6 + c][l]];
+                let fc = [f[c][l], f[3 + c][l], f[6 + c][l]];
+                om[0] += rc[1] * fc[2] - rc[2] * fc[1];
+                om[1] += rc[2] * fc[0] - rc[0] * fc[2];
+                om[2] += rc[0] * fc[1] - rc[1] * fc[0];
+                dot += rc[0] * fc[0] + rc[1] * fc[1] + rc[2] * fc[2];
+            }
+            let inv = 1.0 / (dot.abs() + 1e-9);
+            let h = [0.5 * om[0] * inv, 0.5 * om[1] * inv, 0.5 * om[2] * inv];
+            let (w, x, y, z) = (q[0][l], q[1][l], q[2][l], q[3][l]);
+            nq[0][l] = w - h[0] * x - h[1] * y - h[2] * z;
+            nq[1][l] = x + h[0] * w + h[1] * z - h[2] * y;
+            nq[2][l] = y - h[0] * z + h[1] * w + h[2] * x;
+            nq[3][l] = z + h[0] * y - h[1] * x + h[2] * w;
+            n2[l] = nq[0][l] * nq[0][l]
+                + nq[1][l] * nq[1][l]
+                + nq[2][l] * nq[2][l]
+                + nq[3][l] * nq[3][l];
+            take[l] = finite[l] && h[0] * h[0] + h[1] * h[1] + h[2] * h[2] >= 1e-14;
+            let angle = 2.0 * (h[0].abs() + h[1].abs() + h[2].abs());
+            moved[l] += if take[l] { angle } else { 0.0 };
+        }
+        let mut n = [0.0f32; LANES];
+        for l in 0..LANES {
+            n[l] = libm::sqrtf(n2[l]);
+        }
+        for l in 0..LANES {
+            let ok = take[l] && n[l] > 0.0 && n[l].is_finite();
+            let s = if ok { 1.0 / n[l] } else { 0.0 };
+            for k in 0..4 {
+                q[k][l] = if ok { nq[k][l] * s } else { q[k][l] };
+            }
+        }
+        quat_to_matrix_lanes(q, r);
+    }
+    moved.iter().fold(0.0f32, |m, &a| if a > m { a } else { m })
+}
+
+/// [`quat_to_matrix`] lane by lane.
+#[inline(always)]
+pub fn quat_to_matrix_lanes(q: &[[f32; LANES]; 4], r: &mut [[f32; LANES]; 9]) {
+    for l in 0..LANES {
+        let (w, x, y, z) = (q[0][l], q[1][l], q[2][l], q[3][l]);
+        r[0][l] = 1.0 - 2.0 * (y * y + z * z);
+        r[1][l] = 2.0 * (x * y - w * z);
+        r[2][l] = 2.0 * (x * z + w * y);
+        r[3][l] = 2.0 * (x * y + w * z);
+        r[4][l] = 1.0 - 2.0 * (x * x + z * z);
+        r[5][l] = 2.0 * (y * z - w * x);
+        r[6][l] = 2.0 * (x * z - w * y);
+        r[7][l] = 2.0 * (y * z + w * x);
+        r[8][l] = 1.0 - 2.0 * (x * x + y * y);
     }
 }
 

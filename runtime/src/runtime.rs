@@ -5,6 +5,7 @@ use crate::config::{Kernel, RuntimeConfig};
 use crate::contact_rule::{contact_weights_by, lumped_surface_areas, ContactRuleError};
 use crate::element::{element_cd, pack_symmetric, tet_geometry, ElementDefect, PACKED_LEN};
 use crate::error::RuntimeError;
+use crate::kernel::LANES;
 use crate::storage::{Carver, StorageRequirement};
 use nalgebra::Vector3;
 use palpate_protocol::model::{Blend, ModelRecord, ParameterLayout};
@@ -77,6 +78,8 @@ pub struct Runtime<'a> {
     pub(crate) config: RuntimeConfig,
     pub(crate) n: usize,
     pub(crate) t: usize,
+    /// Elements padded to whole [`LANES`] blocks (see [`crate::storage::padded_elements`]).
+    pub(crate) tp: usize,
     // per node (3 values each unless noted)
     pub(crate) x0: &'a mut [f32],
     pub(crate) u: &'a mut [f32],
@@ -94,14 +97,22 @@ pub struct Runtime<'a> {
     pub(crate) prescribed: &'a mut [f32], // 1 per node: target n·x
     pub(crate) area: &'a mut [f32],       // 1 per node
     pub(crate) flag: &'a mut [u32],       // 1 per node
-    // per element
-    pub(crate) tets: &'a mut [u32],   // 4
-    pub(crate) grad: &'a mut [f32],   // 9
-    pub(crate) vol: &'a mut [f32],    // 1
-    pub(crate) lam: &'a mut [f32],    // 1
-    pub(crate) alp: &'a mut [f32],    // 1
-    pub(crate) rot: &'a mut [f32],    // 9
-    pub(crate) quat: &'a mut [f32],   // 4 (w, i, j, k)
+    // per padded element; grad, rot and quat blocked by LANES (see `blk`)
+    pub(crate) tets: &'a mut [u32], // 4, element-major
+    pub(crate) grad: &'a mut [f32], // 9, blocked
+    pub(crate) vol: &'a mut [f32],  // 1
+    pub(crate) lam: &'a mut [f32],  // 1
+    pub(crate) alp: &'a mut [f32],  // 1
+    pub(crate) rot: &'a mut [f32],  // 9, blocked
+    pub(crate) quat: &'a mut [f32], // 4 (w, i, j, k), blocked
+    pub(crate) ghat: &'a mut [f32], // 9, blocked: R∇φ₁..₃ for the PCG kernel
+    pub(crate) ef: &'a mut [f32],   // 12, blocked: element forces of the PCG product
+    /// Node → element-force incidences (CSR): node i's entries are `inc[inc_start[i]..
+    /// inc_start[i + 1]]`, each the index in `ef` of one (element, corner)'s x component (y and
+    /// z follow at +LANES, +2·LANES).
+    pub(crate) inc_start: &'a mut [u32], // n + 1
+    pub(crate) inc: &'a mut [u32],  // 4 per element
+    // per element (unpadded)
     pub(crate) strain: &'a mut [f32], // 6 (strain blending only)
     pub(crate) cd: &'a mut [f32],     // 156 (packed kernel only)
     pub(crate) coarse: crate::coarse::Coarse<'a>,
@@ -113,6 +124,18 @@ pub struct Runtime<'a> {
     pub(crate) f_cmd_norm: f32,
     pub(crate) reaction: [f32; 3],
     pub(crate) reaction_norm: f32,
+    /// Whether `precond` holds the (inverted) blocks of some recent K'.
+    pub(crate) precond_valid: bool,
+    /// Upper bound of how far (rad) any rotation moved since `precond` was built.
+    pub(crate) precond_drift: f32,
+}
+
+/// Index of value `k` (of `width`) of element `e` in a LANES-blocked per-element array: blocks of
+/// LANES elements, each holding value 0 of all its lanes, then value 1, … so the batched kernels
+/// load each value of eight elements with one vector load.
+#[inline(always)]
+pub(crate) fn blk(e: usize, k: usize, width: usize) -> usize {
+    (e / LANES) * width * LANES + k * LANES + e % LANES
 }
 
 fn shape(what: &'static str, expected: usize, found: usize) -> Result<(), RuntimeError> {
@@ -140,6 +163,7 @@ impl<'a> Runtime<'a> {
     ) -> Result<Self, RuntimeError> {
         let n = record.node_count as usize;
         let t = record.element_count as usize;
+        let tp = crate::storage::padded_elements(t);
         shape("rest_positions", 3 * n, record.rest_positions.len())?;
         shape("tets", 4 * t, record.tets.len())?;
         shape("c_packed", PACKED_LEN * t, record.c_packed.len())?;
@@ -185,6 +209,7 @@ impl<'a> Runtime<'a> {
             config,
             n,
             t,
+            tp,
             x0: fc.take(3 * n)?,
             u: fc.take(3 * n)?,
             u_good: fc.take(3 * n)?,
@@ -201,13 +226,17 @@ impl<'a> Runtime<'a> {
             prescribed: fc.take(n)?,
             area: fc.take(n)?,
             flag: uc.take(n)?,
-            tets: uc.take(4 * t)?,
-            grad: fc.take(9 * t)?,
-            vol: fc.take(t)?,
-            lam: fc.take(t)?,
-            alp: fc.take(t)?,
-            rot: fc.take(9 * t)?,
-            quat: fc.take(4 * t)?,
+            tets: uc.take(4 * tp)?,
+            grad: fc.take(9 * tp)?,
+            vol: fc.take(tp)?,
+            lam: fc.take(tp)?,
+            alp: fc.take(tp)?,
+            rot: fc.take(9 * tp)?,
+            quat: fc.take(4 * tp)?,
+            ghat: fc.take(9 * tp)?,
+            ef: fc.take(12 * tp)?,
+            inc_start: uc.take(n + 1)?,
+            inc: uc.take(4 * tp)?,
             strain: fc.take(strain_len)?,
             cd: fc.take(cd_len)?,
             coarse: crate::coarse::Coarse::new(
@@ -222,17 +251,29 @@ impl<'a> Runtime<'a> {
             f_cmd_norm: 0.0,
             reaction: [0.0; 3],
             reaction_norm: 0.0,
+            precond_valid: false,
+            precond_drift: 0.0,
         };
         rt.load_geometry()?;
         rt.load_parameters()?;
+        // Every free node must belong to a tetrahedron (else K' is singular). The protocol's check
+        // needs one bit per node of scratch: the coarse aggregate array (n u32, filled below) is
+        // free until the coarse space is built.
+        palpate_protocol::model::validate_node_coverage(
+            &rt.record,
+            bytemuck::cast_slice_mut(&mut *rt.coarse.agg),
+        )
+        .map_err(RuntimeError::InvalidModel)?;
+        rt.build_incidence();
         let flag = &*rt.flag;
+        let grad = &*rt.grad;
         rt.coarse.build(
             rt.coarse_capacity,
             rt.x0,
             |i| flag[i] == FIXED,
-            rt.tets,
-            rt.grad,
-            rt.vol,
+            &rt.tets[..4 * t],
+            |e| core::array::from_fn(|k| grad[blk(e, k, 9)]),
+            &rt.vol[..t],
             rt.lam,
             rt.alp,
         );
@@ -328,7 +369,7 @@ impl<'a> Runtime<'a> {
                 .map_err(|_: ElementDefect| RuntimeError::BadElement { element: e })?;
             for a in 0..3 {
                 for k in 0..3 {
-                    self.grad[9 * e + 3 * a + k] = geo.grad[a + 1][k] as f32;
+                    self.grad[blk(e, 3 * a + k, 9)] = geo.grad[a + 1][k] as f32;
                 }
             }
             self.vol[e] = geo.volume as f32;
@@ -364,6 +405,30 @@ impl<'a> Runtime<'a> {
             }
         }
         Ok(())
+    }
+
+    /// Fills the node → element-force incidence lists (counting sort by node; the coarse
+    /// aggregate array, filled later, serves as the cursor).
+    fn build_incidence(&mut self) {
+        let (n, t) = (self.n, self.t);
+        let start = &mut *self.inc_start;
+        start.iter_mut().for_each(|v| *v = 0);
+        for &i in &self.tets[..4 * t] {
+            start[i as usize + 1] += 1;
+        }
+        for i in 0..n {
+            start[i + 1] += start[i];
+        }
+        let cursor = &mut *self.coarse.agg;
+        cursor.copy_from_slice(&start[..n]);
+        for e in 0..t {
+            for a in 0..4 {
+                let i = self.tets[4 * e + a] as usize;
+                let pos = (e / LANES) * 12 * LANES + 3 * a * LANES + e % LANES;
+                self.inc[cursor[i] as usize] = pos as u32;
+                cursor[i] += 1;
+            }
+        }
     }
 
     fn load_parameters(&mut self) -> Result<(), RuntimeError> {
@@ -402,11 +467,15 @@ impl<'a> Runtime<'a> {
         ] {
             v.iter_mut().for_each(|x| *x = 0.0);
         }
-        for e in 0..self.t {
-            self.rot[9 * e..9 * e + 9]
-                .copy_from_slice(&[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]);
-            self.quat[4 * e..4 * e + 4].copy_from_slice(&[1.0, 0.0, 0.0, 0.0]);
+        for e in 0..self.tp {
+            for k in 0..9 {
+                self.rot[blk(e, k, 9)] = if k % 4 == 0 { 1.0 } else { 0.0 };
+            }
+            for k in 0..4 {
+                self.quat[blk(e, k, 4)] = if k == 0 { 1.0 } else { 0.0 };
+            }
         }
+        self.ghat.copy_from_slice(self.grad);
         for f in self.flag.iter_mut() {
             if *f == PROBED {
                 *f = FREE;
@@ -418,6 +487,7 @@ impl<'a> Runtime<'a> {
         self.reaction = [0.0; 3];
         self.reaction_norm = 0.0;
         self.tick_count = 0;
+        self.precond_valid = false;
     }
 
     /// Removes every commanded load and the probe (the object relaxes over the next ticks).
@@ -543,6 +613,7 @@ impl<'a> Runtime<'a> {
         self.flag.copy_from_slice(other.flag);
         self.rot.copy_from_slice(other.rot);
         self.quat.copy_from_slice(other.quat);
+        self.ghat.copy_from_slice(other.ghat);
         self.lam.copy_from_slice(other.lam);
         self.alp.copy_from_slice(other.alp);
         self.probe = other.probe;
@@ -551,6 +622,7 @@ impl<'a> Runtime<'a> {
         self.reaction = other.reaction;
         self.reaction_norm = other.reaction_norm;
         self.tick_count = other.tick_count;
+        self.precond_valid = false;
         Ok(())
     }
 
@@ -611,10 +683,10 @@ impl<'a> Runtime<'a> {
     }
     /// Current rotation R_e (row-major) of an element.
     pub fn element_rotation(&self, e: usize) -> Option<[f32; 9]> {
-        let r = self.rot.get(9 * e..9 * e + 9)?;
-        let mut o = [0.0; 9];
-        o.copy_from_slice(r);
-        Some(o)
+        if e >= self.t {
+            return None;
+        }
+        Some(core::array::from_fn(|k| self.rot[blk(e, k, 9)]))
     }
     /// Gmsh tag of a node (or its index + 1 if the model carries no tags).
     pub fn node_tag(&self, i: usize) -> u32 {
@@ -654,9 +726,5 @@ impl<'a> Runtime<'a> {
 }
 
 pub(crate) fn norm(v: &[f32]) -> f32 {
-    let mut s = 0.0f64;
-    for x in v {
-        s += (*x as f64) * (*x as f64);
-    }
-    libm::sqrt(s) as f32
+    libm::sqrt(crate::kernel::norm2_lanes(v)) as f32
 }

@@ -9,16 +9,25 @@ use palpate_protocol::model::{Blend, ModelRecord};
 /// `f32` values per node: x₀, u, u_good, f_cmd, f_app, r, r_full, z, p, q, δ, normal (3 each),
 /// preconditioner block (6), prescribed normal position, lumped area.
 pub const F32_PER_NODE: usize = 12 * 3 + 6 + 2;
-/// `f32` values per element without blending: ∇φ₁..₃ (9), V, λ, α, R (9), quaternion (4).
-pub const F32_PER_ELEMENT: usize = 9 + 3 + 9 + 4;
+/// Element arrays are padded to a whole number of [`crate::kernel::LANES`]-element blocks so
+/// every element pass runs the batched (SIMD) kernels without a scalar remainder; the padding
+/// elements have zero volume and gradients, so they contribute nothing.
+pub const fn padded_elements(t: usize) -> usize {
+    t.div_ceil(crate::kernel::LANES) * crate::kernel::LANES
+}
+
+/// `f32` values per (padded) element without blending: ∇φ₁..₃ (9), V, λ, α, R (9),
+/// quaternion (4), rotated gradients R∇φ₁..₃ (9), element forces of the PCG product (12).
+pub const F32_PER_ELEMENT: usize = 9 + 3 + 9 + 4 + 9 + 12;
 /// Extra `f32` per element for strain-space blending: the current strain (6).
 pub const F32_PER_ELEMENT_STRAIN: usize = 6;
 /// Extra `f32` per element for the packed-matrix kernel: C_e and D_e (2 × 78).
 pub const F32_PER_ELEMENT_PACKED: usize = 2 * 78;
-/// `u32` values per node: constraint flag and coarse aggregate.
-pub const U32_PER_NODE: usize = 2;
-/// `u32` values per element: the four node indices.
-pub const U32_PER_ELEMENT: usize = 4;
+/// `u32` values per node: constraint flag, coarse aggregate, start of its incidence list (plus
+/// one more value in all).
+pub const U32_PER_NODE: usize = 3;
+/// `u32` values per element: the four node indices and their four incidence entries.
+pub const U32_PER_ELEMENT: usize = 8;
 
 /// How much storage a model needs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -34,7 +43,8 @@ impl StorageRequirement {
     pub fn for_model(record: &ModelRecord<'_>, config: &RuntimeConfig) -> Self {
         let n = record.node_count as usize;
         let t = record.element_count as usize;
-        let mut per_element = F32_PER_ELEMENT;
+        let tp = padded_elements(t);
+        let mut per_element = 0;
         if matches!(record.blend, Blend::Strain { .. }) {
             per_element += F32_PER_ELEMENT_STRAIN;
         }
@@ -46,8 +56,8 @@ impl StorageRequirement {
             n,
         ));
         Self {
-            f32s: n * F32_PER_NODE + t * per_element + coarse,
-            u32s: n * U32_PER_NODE + t * U32_PER_ELEMENT,
+            f32s: n * F32_PER_NODE + tp * F32_PER_ELEMENT + t * per_element + coarse,
+            u32s: n * U32_PER_NODE + 1 + tp * U32_PER_ELEMENT,
         }
     }
 

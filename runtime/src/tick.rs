@@ -17,12 +17,11 @@
 use crate::blend::blend_parameters;
 use crate::config::{Kernel, Preconditioner};
 use crate::kernel::{
-    diagonal_block, warped_apply, warped_apply_lanes, warped_apply_packed, warped_internal_force,
-    warped_internal_force_lanes, LANES, M3,
+    diagonal_blocks_lanes, gradient_of_lanes, rotate_gradients_lanes, rotated_apply_lanes,
+    warped_apply_packed, warped_internal_force, warped_internal_force_from_h_lanes, LANES, M3,
 };
-use crate::rotation::warp_rotation_fast;
-use crate::runtime::{norm, Probe, Runtime, SolveStatus, TickReport, FIXED, FREE, PROBED};
-use nalgebra::Matrix3;
+use crate::rotation::warp_rotation_fast_lanes;
+use crate::runtime::{blk, norm, Probe, Runtime, SolveStatus, TickReport, FIXED, FREE, PROBED};
 
 #[inline(always)]
 fn gather(v: &[f32], ids: &[usize; 4]) -> [[f32; 3]; 4] {
@@ -45,56 +44,50 @@ fn scatter_add(v: &mut [f32], ids: &[usize; 4], f: &[[f32; 3]; 4]) {
 }
 
 fn dot(a: &[f32], b: &[f32]) -> f32 {
-    let mut s = 0.0f32;
-    for (x, y) in a.iter().zip(b) {
-        s += x * y;
-    }
-    s
+    crate::kernel::dot_lanes(a, b)
 }
 
-/// `LANES` consecutive elements gathered structure-of-arrays for the batched kernels.
-struct Lanes {
-    ids: [[usize; LANES]; 4],
-    v: [[[f32; LANES]; 3]; 4],
-    g: [[f32; LANES]; 9],
-    r: [[f32; LANES]; 9],
-    vol: [f32; LANES],
-    lam: [f32; LANES],
-    alp: [f32; LANES],
+/// Block `b` of a LANES-blocked per-element array of `W` values per element (see `blk`): one
+/// contiguous run of `W · LANES` values.
+#[inline(always)]
+fn block<const W: usize>(arr: &[f32], b: usize) -> [[f32; LANES]; W] {
+    let mut o = [[0.0f32; LANES]; W];
+    let base = b * W * LANES;
+    for (k, ok) in o.iter_mut().enumerate() {
+        ok.copy_from_slice(&arr[base + k * LANES..base + (k + 1) * LANES]);
+    }
+    o
+}
+
+/// Writes block `b` of a LANES-blocked array (inverse of [`block`]).
+#[inline(always)]
+fn store_block<const W: usize>(arr: &mut [f32], b: usize, v: &[[f32; LANES]; W]) {
+    let base = b * W * LANES;
+    for (k, vk) in v.iter().enumerate() {
+        arr[base + k * LANES..base + (k + 1) * LANES].copy_from_slice(vk);
+    }
 }
 
 impl<'a> Runtime<'a> {
-    /// Gathers elements `e0..e0 + LANES`: node ids, the nodal values of `src` (3 per node), ∇φ,
-    /// R, V, λ, α.
+    /// Node ids of the elements of block `b` and the nodal values of `src` (3 per node) there.
     #[inline(always)]
-    fn gather_lanes(&self, e0: usize, src: &[f32]) -> Lanes {
-        let mut o = Lanes {
-            ids: [[0; LANES]; 4],
-            v: [[[0.0; LANES]; 3]; 4],
-            g: [[0.0; LANES]; 9],
-            r: [[0.0; LANES]; 9],
-            vol: [0.0; LANES],
-            lam: [0.0; LANES],
-            alp: [0.0; LANES],
-        };
+    fn gather_nodes(&self, b: usize, src: &[f32]) -> ([[usize; LANES]; 4], [[[f32; LANES]; 3]; 4]) {
+        let mut ids = [[0usize; LANES]; 4];
+        let mut v = [[[0.0f32; LANES]; 3]; 4];
+        let tets = &self.tets[4 * LANES * b..4 * LANES * (b + 1)];
         for l in 0..LANES {
-            let e = e0 + l;
             for a in 0..4 {
-                let i = self.tets[4 * e + a] as usize;
-                o.ids[a][l] = i;
-                for k in 0..3 {
-                    o.v[a][k][l] = src[3 * i + k];
+                let i = tets[4 * l + a] as usize;
+                ids[a][l] = i;
+                // One bounds check per node (ids < n by construction).
+                if let Some(x) = src.get(3 * i..3 * i + 3) {
+                    v[a][0][l] = x[0];
+                    v[a][1][l] = x[1];
+                    v[a][2][l] = x[2];
                 }
             }
-            for k in 0..9 {
-                o.g[k][l] = self.grad[9 * e + k];
-                o.r[k][l] = self.rot[9 * e + k];
-            }
-            o.vol[l] = self.vol[e];
-            o.lam[l] = self.lam[e];
-            o.alp[l] = self.alp[e];
         }
-        o
+        (ids, v)
     }
 
     #[inline(always)]
@@ -109,16 +102,12 @@ impl<'a> Runtime<'a> {
 
     #[inline(always)]
     fn element_grad(&self, e: usize) -> [f32; 9] {
-        let mut g = [0.0; 9];
-        g.copy_from_slice(&self.grad[9 * e..9 * e + 9]);
-        g
+        core::array::from_fn(|k| self.grad[blk(e, k, 9)])
     }
 
     #[inline(always)]
     fn element_rot(&self, e: usize) -> M3 {
-        let mut r = [0.0; 9];
-        r.copy_from_slice(&self.rot[9 * e..9 * e + 9]);
-        r
+        core::array::from_fn(|k| self.rot[blk(e, k, 9)])
     }
 
     /// Advances the applied load and the probe toward their commands (incremental loading).
@@ -169,52 +158,56 @@ impl<'a> Runtime<'a> {
         }
     }
 
-    /// R_e from the current state (eqs. 3.55–3.58) and, for strain blending, ε_e (eq. 6.8).
+    /// R_e from the current state (eqs. 3.55–3.58) and, for strain blending, ε_e (eq. 6.8) —
+    /// also without warping (R_e = I), where ε_e is the linear strain sym(H). Runs LANES elements
+    /// at a time (SIMD).
     #[inline(never)]
     fn update_rotations(&mut self, iters: usize) {
-        if !self.config.warp {
+        let warp = self.config.warp;
+        let mut moved = 0.0f32;
+        let want_strain = !self.strain.is_empty();
+        if !warp && !want_strain {
             return;
         }
-        let want_strain = !self.strain.is_empty();
-        for e in 0..self.t {
-            let ids = self.element_ids(e);
-            let g = self.element_grad(e);
-            let u = gather(self.u, &ids);
-            let h = crate::kernel::gradient_of(&u, &g);
-            let fm = [
-                1.0 + h[0],
-                h[1],
-                h[2],
-                h[3],
-                1.0 + h[4],
-                h[5],
-                h[6],
-                h[7],
-                1.0 + h[8],
-            ];
-            let mut q = [
-                self.quat[4 * e],
-                self.quat[4 * e + 1],
-                self.quat[4 * e + 2],
-                self.quat[4 * e + 3],
-            ];
-            let mut ro = [0.0f32; 9];
-            warp_rotation_fast(&fm, &mut q, iters, &mut ro);
-            self.quat[4 * e..4 * e + 4].copy_from_slice(&q);
-            self.rot[9 * e..9 * e + 9].copy_from_slice(&ro);
-            let f = Matrix3::from_row_slice(&fm);
-            let r = Matrix3::from_row_slice(&ro);
+        for b in 0..self.tp / LANES {
+            let (_, v) = self.gather_nodes(b, self.u);
+            let g = block::<9>(self.grad, b);
+            // F = I + H
+            let mut f = gradient_of_lanes(&v, &g);
+            for k in [0, 4, 8] {
+                for fl in f[k].iter_mut() {
+                    *fl += 1.0;
+                }
+            }
+            let mut r = block::<9>(self.rot, b);
+            if warp {
+                let mut q = block::<4>(self.quat, b);
+                moved = moved.max(warp_rotation_fast_lanes(&f, &mut q, iters, &mut r));
+                store_block(self.quat, b, &q);
+                store_block(self.rot, b, &r);
+                store_block(self.ghat, b, &rotate_gradients_lanes(&g, &r));
+            }
             if want_strain {
-                let rt_f = r.transpose() * f;
-                let s = &mut self.strain[6 * e..6 * e + 6];
-                s[0] = rt_f[(0, 0)] - 1.0;
-                s[1] = rt_f[(1, 1)] - 1.0;
-                s[2] = rt_f[(2, 2)] - 1.0;
-                s[3] = rt_f[(0, 1)] + rt_f[(1, 0)];
-                s[4] = rt_f[(1, 2)] + rt_f[(2, 1)];
-                s[5] = rt_f[(2, 0)] + rt_f[(0, 2)];
+                // ε = sym(RᵀF) − I, engineering shear (R = I without warping).
+                for l in 0..LANES {
+                    let e = b * LANES + l;
+                    if e >= self.t {
+                        break;
+                    }
+                    let rt_f = |i: usize, j: usize| {
+                        r[i][l] * f[j][l] + r[3 + i][l] * f[3 + j][l] + r[6 + i][l] * f[6 + j][l]
+                    };
+                    let s = &mut self.strain[6 * e..6 * e + 6];
+                    s[0] = rt_f(0, 0) - 1.0;
+                    s[1] = rt_f(1, 1) - 1.0;
+                    s[2] = rt_f(2, 2) - 1.0;
+                    s[3] = rt_f(0, 1) + rt_f(1, 0);
+                    s[4] = rt_f(1, 2) + rt_f(2, 1);
+                    s[5] = rt_f(2, 0) + rt_f(0, 2);
+                }
             }
         }
+        self.precond_drift += moved;
     }
 
     /// Updates which surface nodes the probe holds and their targets; returns the count.
@@ -324,66 +317,84 @@ impl<'a> Runtime<'a> {
         }
     }
 
-    /// r_full = f_app − f_int(u) and the preconditioner blocks (inverted in place).
+    /// Whether the preconditioner blocks must be rebuilt this tick (see
+    /// [`crate::RuntimeConfig::precond_refresh_angle`]).
+    fn precond_due(&self) -> bool {
+        !self.precond_valid
+            || self.precond_drift > self.config.precond_refresh_angle
+            || !matches!(self.record.blend, palpate_protocol::model::Blend::None)
+    }
+
+    /// One pass over the elements, LANES at a time (SIMD; padding elements contribute zero):
+    /// r_full = f_app − f_int(u); with `rotate = Some(iterations)` first R_e (and R∇φ) from the
+    /// current state, fused here so u and ∇φ are gathered once; with `diag` the 3 × 3 node
+    /// blocks of K' for the preconditioner, inverted in place.
     #[inline(never)]
-    fn residual_and_preconditioner(&mut self) {
-        self.r_full.copy_from_slice(self.f_app);
-        self.precond.iter_mut().for_each(|v| *v = 0.0);
-        // Internal forces LANES elements at a time (SIMD), the remainder one by one below.
-        let batched = self.t / LANES * LANES;
-        let mut e0 = 0;
-        while e0 < batched {
-            let Lanes {
-                ids,
-                v,
-                g,
-                r,
-                vol,
-                lam,
-                alp,
-            } = self.gather_lanes(e0, self.u);
-            let f = warped_internal_force_lanes(&v, &g, &r, &vol, &lam, &alp);
-            for l in 0..LANES {
-                let e = e0 + l;
-                let ge = self.element_grad(e);
-                let re = self.element_rot(e);
-                for a in 0..4 {
-                    let i = ids[a][l];
-                    self.r_full[3 * i] -= f[a][0][l];
-                    self.r_full[3 * i + 1] -= f[a][1][l];
-                    self.r_full[3 * i + 2] -= f[a][2][l];
-                    let b = diagonal_block(a, &ge, &re, vol[l], lam[l], alp[l]);
-                    for j in 0..6 {
-                        self.precond[6 * i + j] += b[j];
+    fn element_pass(&mut self, rotate: Option<usize>, diag: bool) {
+        if diag {
+            self.precond.iter_mut().for_each(|v| *v = 0.0);
+            self.precond_valid = true;
+            self.precond_drift = 0.0;
+        }
+        let mut moved = 0.0f32;
+        for b in 0..self.tp / LANES {
+            let (ids, v) = self.gather_nodes(b, self.u);
+            let g = block::<9>(self.grad, b);
+            let mut r = block::<9>(self.rot, b);
+            let e0 = b * LANES;
+            let mut vol = [0.0f32; LANES];
+            let mut lam = [0.0f32; LANES];
+            let mut alp = [0.0f32; LANES];
+            vol.copy_from_slice(&self.vol[e0..e0 + LANES]);
+            lam.copy_from_slice(&self.lam[e0..e0 + LANES]);
+            alp.copy_from_slice(&self.alp[e0..e0 + LANES]);
+            let h = gradient_of_lanes(&v, &g);
+            if let Some(iters) = rotate {
+                let mut f = h;
+                for k in [0, 4, 8] {
+                    for fl in f[k].iter_mut() {
+                        *fl += 1.0;
+                    }
+                }
+                let mut q = block::<4>(self.quat, b);
+                moved = moved.max(warp_rotation_fast_lanes(&f, &mut q, iters, &mut r));
+                store_block(self.quat, b, &q);
+                store_block(self.rot, b, &r);
+                store_block(self.ghat, b, &rotate_gradients_lanes(&g, &r));
+            }
+            let f = warped_internal_force_from_h_lanes(&h, &g, &r, &vol, &lam, &alp);
+            self.store_element_forces(b, &f);
+            if diag {
+                let d = diagonal_blocks_lanes(&g, &r, &vol, &lam, &alp);
+                for l in 0..LANES {
+                    for a in 0..4 {
+                        if let Some(x) = self.precond.get_mut(6 * ids[a][l]..6 * ids[a][l] + 6) {
+                            for j in 0..6 {
+                                x[j] += d[a][j][l];
+                            }
+                        }
                     }
                 }
             }
-            e0 += LANES;
         }
-        for e in batched..self.t {
-            let ids = self.element_ids(e);
-            let g = self.element_grad(e);
-            let r = self.element_rot(e);
-            let (v, l, a) = (self.vol[e], self.lam[e], self.alp[e]);
-            let u = gather(self.u, &ids);
-            let (mut f, _) = warped_internal_force(&u, &g, &r, v, l, a);
-            for fa in f.iter_mut() {
-                for c in fa.iter_mut() {
-                    *c = -*c;
-                }
-            }
-            scatter_add(self.r_full, &ids, &f);
-            for (k, &node) in ids.iter().enumerate() {
-                let b = diagonal_block(k, &g, &r, v, l, a);
-                for j in 0..6 {
-                    self.precond[6 * node + j] += b[j];
-                }
+        for i in 0..self.n {
+            let fi = self.node_force(i);
+            for k in 0..3 {
+                self.r_full[3 * i + k] = self.f_app[3 * i + k] - fi[k];
             }
         }
-        let block = self.config.preconditioner == Preconditioner::BlockJacobi;
+        self.precond_drift += moved;
+        if diag {
+            self.invert_precond();
+        }
+    }
+
+    /// Inverts the assembled 3 × 3 node blocks in place (or keeps their diagonal for Jacobi).
+    fn invert_precond(&mut self) {
+        let block_jacobi = self.config.preconditioner == Preconditioner::BlockJacobi;
         for i in 0..self.n {
             let b = &mut self.precond[6 * i..6 * i + 6];
-            if block {
+            if block_jacobi {
                 // Invert the symmetric 3 × 3 block (xx, yy, zz, xy, yz, zx) by cofactors.
                 let (a, d, f, bb, e, c) = (b[0], b[1], b[2], b[3], b[4], b[5]);
                 let c00 = d * f - e * e;
@@ -418,51 +429,73 @@ impl<'a> Runtime<'a> {
     }
 
     /// q = K' p (matrix-free, all elements). The gradient kernel runs [`LANES`] elements at a time
-    /// (structure-of-arrays, SIMD); the remainder and the packed kernel run element by element.
+    /// (structure-of-arrays, SIMD); the packed kernel runs element by element.
     #[inline(never)]
     fn apply_stiffness(&mut self) {
-        self.q.iter_mut().for_each(|v| *v = 0.0);
-        let packed = self.config.kernel == Kernel::Packed;
-        let batched = if packed { 0 } else { self.t / LANES * LANES };
-        let mut e0 = 0;
-        while e0 < batched {
-            let Lanes {
-                ids,
-                v,
-                g,
-                r,
-                vol,
-                lam,
-                alp,
-            } = self.gather_lanes(e0, self.p);
-            let f = warped_apply_lanes(&v, &g, &r, &vol, &lam, &alp);
-            for l in 0..LANES {
-                for a in 0..4 {
-                    let i = 3 * ids[a][l];
-                    self.q[i] += f[a][0][l];
-                    self.q[i + 1] += f[a][1][l];
-                    self.q[i + 2] += f[a][2][l];
-                }
-            }
-            e0 += LANES;
-        }
-        for e in batched..self.t {
-            let ids = self.element_ids(e);
-            let r = self.element_rot(e);
-            let v = gather(self.p, &ids);
-            let f = if packed {
+        if self.config.kernel == Kernel::Packed {
+            self.q.iter_mut().for_each(|v| *v = 0.0);
+            for e in 0..self.t {
+                let ids = self.element_ids(e);
+                let r = self.element_rot(e);
+                let v = gather(self.p, &ids);
                 let base = 2 * 78 * e;
                 let c: &[f32; 78] = self.cd[base..base + 78].try_into().unwrap_or(&[0.0; 78]);
                 let d: &[f32; 78] = self.cd[base + 78..base + 156]
                     .try_into()
                     .unwrap_or(&[0.0; 78]);
-                warped_apply_packed(&v, c, d, &r, self.lam[e], self.alp[e])
-            } else {
-                let g = self.element_grad(e);
-                warped_apply(&v, &g, &r, self.vol[e], self.lam[e], self.alp[e])
-            };
-            scatter_add(self.q, &ids, &f);
+                let f = warped_apply_packed(&v, c, d, &r, self.lam[e], self.alp[e]);
+                scatter_add(self.q, &ids, &f);
+            }
+            return;
         }
+        for b in 0..self.tp / LANES {
+            let (_, v) = self.gather_nodes(b, self.p);
+            let gh = block::<9>(self.ghat, b);
+            let e0 = b * LANES;
+            let mut vol = [0.0f32; LANES];
+            let mut lam = [0.0f32; LANES];
+            let mut alp = [0.0f32; LANES];
+            vol.copy_from_slice(&self.vol[e0..e0 + LANES]);
+            lam.copy_from_slice(&self.lam[e0..e0 + LANES]);
+            alp.copy_from_slice(&self.alp[e0..e0 + LANES]);
+            let f = rotated_apply_lanes(&v, &gh, &vol, &lam, &alp);
+            // Element forces go to a buffer with plain vector stores; the node pass below sums
+            // them. Scattering them instead costs 96 dependent read-modify-writes per block.
+            self.store_element_forces(b, &f);
+        }
+        for i in 0..self.n {
+            let acc = self.node_force(i);
+            self.q[3 * i..3 * i + 3].copy_from_slice(&acc);
+        }
+    }
+
+    /// Stores block `b`'s element forces in `ef` (plain vector stores; see [`Self::node_force`]).
+    #[inline(always)]
+    fn store_element_forces(&mut self, b: usize, f: &[[[f32; LANES]; 3]; 4]) {
+        let ef = &mut self.ef[12 * LANES * b..12 * LANES * (b + 1)];
+        for a in 0..4 {
+            for k in 0..3 {
+                ef[(3 * a + k) * LANES..(3 * a + k + 1) * LANES].copy_from_slice(&f[a][k]);
+            }
+        }
+    }
+
+    /// Σ of the stored element forces on node `i` over its incidences: a gather with
+    /// independent sums, instead of a scatter whose read-modify-writes to shared nodes form
+    /// store-to-load dependency chains.
+    #[inline(always)]
+    fn node_force(&self, i: usize) -> [f32; 3] {
+        let (s, e) = (self.inc_start[i] as usize, self.inc_start[i + 1] as usize);
+        let mut acc = [0.0f32; 3];
+        for &pos in &self.inc[s..e] {
+            let p = pos as usize;
+            if let Some(x) = self.ef.get(p..p + 2 * LANES + 1) {
+                acc[0] += x[0];
+                acc[1] += x[LANES];
+                acc[2] += x[2 * LANES];
+            }
+        }
+        acc
     }
 
     /// Applies the constraint filter S to a vector in place.
@@ -508,10 +541,15 @@ impl<'a> Runtime<'a> {
         self.delta.iter_mut().for_each(|v| *v = 0.0);
         self.r.copy_from_slice(self.r_full);
         Self::filter(self.flag, self.normal, self.r);
+        let rnorm0 = norm(self.r);
+        if rnorm0 <= tol {
+            // Nothing to solve: skip the preconditioner (most steady haptic ticks).
+            return (0, rnorm0, SolveStatus::Converged);
+        }
         self.precondition();
         self.p.copy_from_slice(self.z);
         let mut rz = dot(self.r, self.z);
-        let mut rnorm = norm(self.r);
+        let mut rnorm = rnorm0;
         let mut it = 0;
         while it < self.config.max_iterations {
             if rnorm <= tol {
@@ -577,6 +615,7 @@ impl<'a> Runtime<'a> {
 
     /// Recomputes rotations, strains and blended parameters for the current displacements.
     pub(crate) fn refresh_state(&mut self) {
+        self.precond_valid = false;
         // A jump to an arbitrary state needs more than the per-tick warm-started iterations.
         self.update_rotations(50);
         blend_parameters(self);
@@ -586,13 +625,24 @@ impl<'a> Runtime<'a> {
     pub fn tick(&mut self) -> TickReport {
         self.u_good.copy_from_slice(self.u);
         let load_fraction = self.advance_loads();
-        self.update_rotations(self.config.rotation_iterations as usize);
-        if self.tick_count % self.config.blend_every.max(1) as u64 == 0 {
-            blend_parameters(self);
-        }
+        // The contact set and the probe-held positions use u and last tick's reactions only, so
+        // they come first: rotations and forces are then those of the state being solved from.
         let contact_nodes = self.update_contact_set();
         self.apply_prescribed();
-        self.residual_and_preconditioner();
+        let iters = self.config.rotation_iterations as usize;
+        if self.config.warp && matches!(self.record.blend, palpate_protocol::model::Blend::None) {
+            // Linear material: rotations and internal forces in one pass.
+            let diag = self.precond_due();
+            self.element_pass(Some(iters), diag);
+        } else {
+            // Blending needs every element's strain before any force.
+            self.update_rotations(iters);
+            if self.tick_count % self.config.blend_every.max(1) as u64 == 0 {
+                blend_parameters(self);
+            }
+            let diag = self.precond_due();
+            self.element_pass(None, diag);
+        }
         let scale = norm(self.f_app).max(self.reaction_norm);
         let (iterations, rnorm, mut status) = self.pcg(scale);
         let mut step = 0.0f32;
