@@ -50,7 +50,7 @@ pub struct Coarse<'a> {
     pub m: usize,
     /// Aggregate of each node (`u32::MAX` for fixed nodes).
     pub agg: &'a mut [u32],
-    /// Centroid (3) and scale (1) per aggregate.
+    /// Centroid (3) and inverse scale 1/s (1) per aggregate (s while building).
     pub geo: &'a mut [f32],
     /// Coarse vector (6m).
     pub g: &'a mut [f32],
@@ -232,6 +232,11 @@ impl<'a> Coarse<'a> {
             }
         }
         c.factorise(dim);
+        // From here on the apply multiplies by 1/s (a division per node and mode was most of
+        // the restriction and prolongation cost).
+        for a in 0..m {
+            c.geo[4 * a + 3] = 1.0 / c.geo[4 * a + 3];
+        }
     }
 
     /// In-place dense Cholesky (lower); vanishing pivots drop their mode (row and column zero).
@@ -288,11 +293,11 @@ impl<'a> Coarse<'a> {
             }
             let a = a as usize;
             let ri = [r[3 * i], r[3 * i + 1], r[3 * i + 2]];
-            let s = self.geo[4 * a + 3];
+            let inv_s = self.geo[4 * a + 3];
             let d = [
-                (x0[3 * i] - self.geo[4 * a]) / s,
-                (x0[3 * i + 1] - self.geo[4 * a + 1]) / s,
-                (x0[3 * i + 2] - self.geo[4 * a + 2]) / s,
+                (x0[3 * i] - self.geo[4 * a]) * inv_s,
+                (x0[3 * i + 1] - self.geo[4 * a + 1]) * inv_s,
+                (x0[3 * i + 2] - self.geo[4 * a + 2]) * inv_s,
             ];
             let g = &mut self.g[6 * a..6 * a + 6];
             g[0] += ri[0];
@@ -336,11 +341,11 @@ impl<'a> Coarse<'a> {
                 continue;
             }
             let a = a as usize;
-            let s = self.geo[4 * a + 3];
+            let inv_s = self.geo[4 * a + 3];
             let d = [
-                (x0[3 * i] - self.geo[4 * a]) / s,
-                (x0[3 * i + 1] - self.geo[4 * a + 1]) / s,
-                (x0[3 * i + 2] - self.geo[4 * a + 2]) / s,
+                (x0[3 * i] - self.geo[4 * a]) * inv_s,
+                (x0[3 * i + 1] - self.geo[4 * a + 1]) * inv_s,
+                (x0[3 * i + 2] - self.geo[4 * a + 2]) * inv_s,
             ];
             let y = &self.g[6 * a..6 * a + 6];
             // translation + ω × d

@@ -2,9 +2,13 @@
 //! anchor (ANCHORS.md): 10 × 10 × 5 cm, E = 10 kPa, ν = 0.3, bottom fixed, 0.5 N spread over the
 //! surface nodes within 1.5 cm of a contact point that moves across the top face over the run.
 //!
-//! Measures, in one run: per-tick wall time (p50/p99/max) of the runtime for each kernel, its PCG
-//! iterations and relative residual, its error against a converged solve of the same tick, and
-//! the same tick done with faer's sparse Cholesky refactored per tick (the direct baseline).
+//! Measures, in one run: per-tick wall time and thread CPU time (p50/p99/max) of the runtime,
+//! its PCG iterations and relative residual, its error against a converged solve of the same
+//! tick, and the same tick done with faer's sparse Cholesky refactored per tick (the direct
+//! baseline). `--compare` runs several solver settings side by side, tick by tick in the same
+//! run (so machine noise hits them alike), including per-tick iteration budgets: a tick that
+//! exhausts its budget keeps its iterate and reports its residual, and the bench reports that
+//! tick's error against a converged solve and how far the run drifts from the converged run.
 
 use crate::mesh::boxmesh::{box_mesh, cells_for_target};
 use crate::mesh::Mesh;
@@ -19,7 +23,9 @@ use palpate_runtime::element::{
     element_cd, element_stiffness, pack_symmetric, tet_geometry, PACKED_LEN,
 };
 use palpate_runtime::material::LambdaAlpha;
-use palpate_runtime::{Kernel, Preconditioner, Runtime, RuntimeConfig, StorageRequirement};
+use palpate_runtime::{
+    Kernel, Preconditioner, Runtime, RuntimeConfig, SolveStatus, StorageRequirement,
+};
 use serde_json::json;
 use std::time::Instant;
 
@@ -44,9 +50,23 @@ pub struct Args {
     /// Warm-started rotation-extraction iterations per tick.
     #[arg(long, default_value_t = RuntimeConfig::default().rotation_iterations)]
     pub rotation_iterations: u32,
+    /// PCG iterations allowed per tick (the tick's budget). A tick that exhausts it keeps its
+    /// iterate, reports its residual, and the next tick continues from there.
+    #[arg(long, default_value_t = 100)]
+    pub max_iterations: u32,
+    /// Rebuild the block-Jacobi preconditioner after this much rotation (rad; 0: every tick).
+    #[arg(long, default_value_t = RuntimeConfig::default().precond_refresh_angle)]
+    pub precond_refresh_angle: f32,
     /// Skip the packed-matrix kernel run.
     #[arg(long)]
     pub gradient_only: bool,
+    /// Compare solver settings tick by tick in one run: the converged solve, the per-tick
+    /// budgets of `--budgets`, the preconditioner rebuilt every tick, 32 aggregates.
+    #[arg(long)]
+    pub compare: bool,
+    /// Per-tick iteration budgets compared by `--compare`.
+    #[arg(long, value_delimiter = ',', default_values_t = vec![6u32, 8, 10])]
+    pub budgets: Vec<u32>,
 }
 
 /// Owned buffers of a benchmark model.
@@ -149,88 +169,225 @@ fn percentile(sorted: &[f64], q: f64) -> f64 {
     sorted[i.min(sorted.len() - 1)]
 }
 
-struct KernelRun {
-    name: &'static str,
-    times_us: Vec<f64>,
-    iters: Vec<u32>,
-    rel_res: Vec<f32>,
-    err_vs_converged: Vec<f64>,
-    bytes: usize,
-    /// Thread CPU time per tick (µs), mean over the run: robust to other load on the machine.
-    cpu_mean_us: f64,
+fn sorted(v: &[f64]) -> Vec<f64> {
+    let mut t = v.to_vec();
+    t.sort_by(|a, b| a.total_cmp(b));
+    t
 }
 
-fn run_kernel(
-    model: &BenchModel,
-    args: &Args,
-    kernel: Kernel,
-    name: &'static str,
-) -> anyhow::Result<KernelRun> {
-    let cfg = RuntimeConfig {
-        tolerance: args.tolerance,
-        max_iterations: 100,
-        kernel,
-        preconditioner: Preconditioner::BlockJacobi,
-        coarse_aggregates: args.aggregates,
-        rotation_iterations: args.rotation_iterations,
-        ..Default::default()
-    };
-    let rec = model.record();
-    let need = StorageRequirement::for_model(&rec, &cfg);
-    let (mut f, mut u) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let mut rt = Runtime::new(rec, &mut f, &mut u, cfg)?;
-    let ref_cfg = RuntimeConfig {
-        tolerance: 1e-9,
-        max_iterations: 5000,
-        ..cfg
-    };
-    let (mut f2, mut u2) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let mut reference = Runtime::new(model.record(), &mut f2, &mut u2, ref_cfg)?;
+/// CPU time of the calling thread (s), nanosecond resolution: unlike wall time it excludes the
+/// time the thread waited for a core on a shared machine.
+fn thread_cpu() -> f64 {
+    let t = rustix::time::clock_gettime(rustix::time::ClockId::ThreadCPUTime);
+    t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
+}
+
+fn rel_diff(a: &[f32], b: &[f32]) -> f64 {
+    let mut num = 0.0f64;
+    let mut den = 0.0f64;
+    for (x, y) in a.iter().zip(b) {
+        num += ((x - y) as f64).powi(2);
+        den += (*y as f64).powi(2);
+    }
+    (num / den.max(1e-300)).sqrt()
+}
+
+/// One solver setting under test.
+#[derive(Clone)]
+struct Variant {
+    name: String,
+    cfg: RuntimeConfig,
+}
+
+/// What one variant did, tick by tick.
+#[derive(Default)]
+struct Record {
+    wall_us: Vec<f64>,
+    cpu_us: Vec<f64>,
+    iters: Vec<u32>,
+    capped: Vec<bool>,
+    rel_res: Vec<f32>,
+    /// ‖u − u_conv‖/‖u_conv‖ against a converged solve (tolerance 1e-9) of the same tick from
+    /// the same state: every 50th tick and every tick that exhausted its budget.
+    err_checked: Vec<(usize, f64)>,
+    /// ‖u − u_A‖/‖u_A‖ against the first variant's state after the same tick (compare mode).
+    drift: Vec<f64>,
+    bytes: usize,
+}
+
+fn settle(rt: &mut Runtime<'_>, ticks: usize) -> anyhow::Result<()> {
     // Settle the initial contact so the run measures steady haptic ticks.
-    rt.set_contact_force(contact_point(0, args.ticks), [0.0, 0.0, -0.5], 0.015)?;
+    rt.set_contact_force(contact_point(0, ticks), [0.0, 0.0, -0.5], 0.015)?;
     for _ in 0..20 {
         rt.tick();
     }
-    let mut run = KernelRun {
-        name,
-        times_us: Vec::new(),
-        iters: Vec::new(),
-        rel_res: Vec::new(),
-        err_vs_converged: Vec::new(),
-        bytes: rt.footprint_bytes(),
-        cpu_mean_us: f64::NAN,
+    Ok(())
+}
+
+/// Runs the variants over the probe path. Interleaved: tick k of every variant, in rotating
+/// order, before tick k + 1 of any. The timed pass touches nothing else.
+fn timed_pass(
+    model: &BenchModel,
+    variants: &[Variant],
+    ticks: usize,
+    interleave: bool,
+) -> anyhow::Result<Vec<Record>> {
+    let mut storage: Vec<(Vec<f32>, Vec<u32>)> = variants
+        .iter()
+        .map(|v| {
+            let need = StorageRequirement::for_model(&model.record(), &v.cfg);
+            (vec![0f32; need.f32s], vec![0u32; need.u32s])
+        })
+        .collect();
+    let mut rts = Vec::new();
+    for ((f, u), v) in storage.iter_mut().zip(variants) {
+        rts.push(Runtime::new(model.record(), f, u, v.cfg)?);
+    }
+    let mut recs: Vec<Record> = rts
+        .iter()
+        .map(|rt| Record {
+            bytes: rt.footprint_bytes(),
+            ..Default::default()
+        })
+        .collect();
+    let one_tick = |rt: &mut Runtime<'_>, rec: &mut Record, k: usize| -> anyhow::Result<()> {
+        let c0 = thread_cpu();
+        let t0 = Instant::now();
+        rt.set_contact_force(contact_point(k, ticks), [0.0, 0.0, -0.5], 0.015)?;
+        let rep = rt.tick();
+        let wall = t0.elapsed().as_secs_f64() * 1e6;
+        rec.cpu_us.push((thread_cpu() - c0) * 1e6);
+        rec.wall_us.push(wall);
+        rec.iters.push(rep.iterations);
+        rec.capped.push(rep.status == SolveStatus::BudgetExhausted);
+        rec.rel_res.push(rep.rel_residual);
+        Ok(())
     };
-    let mut cpu_total = 0.0;
-    for k in 0..args.ticks {
-        let check = k % 50 == 25;
+    if interleave {
+        for rt in rts.iter_mut() {
+            settle(rt, ticks)?;
+        }
+        let m = rts.len();
+        for k in 0..ticks {
+            for j in 0..m {
+                let v = (j + k) % m;
+                one_tick(&mut rts[v], &mut recs[v], k)?;
+            }
+            for v in 0..m {
+                let d = rel_diff(rts[v].displacements(), rts[0].displacements());
+                recs[v].drift.push(d);
+            }
+        }
+    } else {
+        for (rt, rec) in rts.iter_mut().zip(recs.iter_mut()) {
+            settle(rt, ticks)?;
+            for k in 0..ticks {
+                one_tick(rt, rec, k)?;
+            }
+        }
+    }
+    Ok(recs)
+}
+
+/// Untimed replay of one variant (the runtime is deterministic, so it retraces the timed pass;
+/// checked by the iteration counts): error against a converged solve of the same tick from the
+/// same state, every 50th tick and at every tick that exhausted its budget.
+fn accuracy_pass(
+    model: &BenchModel,
+    variant: &Variant,
+    ticks: usize,
+    rec: &mut Record,
+) -> anyhow::Result<()> {
+    let need = StorageRequirement::for_model(&model.record(), &variant.cfg);
+    let (mut f, mut u) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
+    let mut rt = Runtime::new(model.record(), &mut f, &mut u, variant.cfg)?;
+    let ref_cfg = RuntimeConfig {
+        tolerance: 1e-9,
+        max_iterations: 5000,
+        ..variant.cfg
+    };
+    let (mut f2, mut u2) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
+    let mut reference = Runtime::new(model.record(), &mut f2, &mut u2, ref_cfg)?;
+    settle(&mut rt, ticks)?;
+    for k in 0..ticks {
+        let check = k % 50 == 25 || rec.capped[k];
         if check {
             reference.copy_state_from(&rt)?;
         }
-        let c0 = crate::link::stats::thread_cpu_seconds();
-        let t0 = Instant::now();
-        rt.set_contact_force(contact_point(k, args.ticks), [0.0, 0.0, -0.5], 0.015)?;
+        rt.set_contact_force(contact_point(k, ticks), [0.0, 0.0, -0.5], 0.015)?;
         let rep = rt.tick();
-        run.times_us.push(t0.elapsed().as_secs_f64() * 1e6);
-        if let (Some(a), Some(b)) = (c0, crate::link::stats::thread_cpu_seconds()) {
-            cpu_total += b - a;
-        }
-        run.iters.push(rep.iterations);
-        run.rel_res.push(rep.rel_residual);
+        anyhow::ensure!(
+            rep.iterations == rec.iters[k],
+            "{}: replay of tick {k} took {} PCG iterations, the timed pass {} (not deterministic)",
+            variant.name,
+            rep.iterations,
+            rec.iters[k]
+        );
         if check {
-            reference.set_contact_force(contact_point(k, args.ticks), [0.0, 0.0, -0.5], 0.015)?;
+            reference.set_contact_force(contact_point(k, ticks), [0.0, 0.0, -0.5], 0.015)?;
             reference.tick();
-            let (a, b) = (rt.displacements(), reference.displacements());
-            let mut num = 0.0f64;
-            let mut den = 0.0f64;
-            for i in 0..a.len() {
-                num += ((a[i] - b[i]) as f64).powi(2);
-                den += (b[i] as f64).powi(2);
-            }
-            run.err_vs_converged.push((num / den.max(1e-300)).sqrt());
+            rec.err_checked
+                .push((k, rel_diff(rt.displacements(), reference.displacements())));
         }
     }
-    run.cpu_mean_us = cpu_total / args.ticks.max(1) as f64 * 1e6;
-    Ok(run)
+    Ok(())
+}
+
+/// Summary figures of one variant.
+struct Summary {
+    wall: [f64; 3],
+    cpu: [f64; 3],
+    cpu_mean: f64,
+    iters_mean: f64,
+    iters: [u32; 3],
+    capped: usize,
+    max_res_converged: f32,
+    max_res_capped: f32,
+    err_converged: f64,
+    err_capped: f64,
+    drift_max: f64,
+    drift_p99: f64,
+}
+
+fn summarise(r: &Record) -> Summary {
+    let (w, c) = (sorted(&r.wall_us), sorted(&r.cpu_us));
+    let mut it = r.iters.clone();
+    it.sort_unstable();
+    let pick = |q: f64| it[((it.len() as f64 - 1.0) * q).round() as usize];
+    let fold32 = |f: &dyn Fn(usize) -> bool| {
+        (0..r.rel_res.len())
+            .filter(|&k| f(k))
+            .fold(0.0f32, |a, k| a.max(r.rel_res[k]))
+    };
+    let errs = |capped: bool| {
+        r.err_checked
+            .iter()
+            .filter(|(k, _)| r.capped[*k] == capped)
+            .fold(0.0f64, |a, (_, e)| a.max(*e))
+    };
+    let d = sorted(&r.drift);
+    Summary {
+        wall: [
+            percentile(&w, 0.5),
+            percentile(&w, 0.99),
+            *w.last().unwrap_or(&f64::NAN),
+        ],
+        cpu: [
+            percentile(&c, 0.5),
+            percentile(&c, 0.99),
+            *c.last().unwrap_or(&f64::NAN),
+        ],
+        cpu_mean: r.cpu_us.iter().sum::<f64>() / r.cpu_us.len().max(1) as f64,
+        iters_mean: r.iters.iter().map(|v| *v as f64).sum::<f64>() / r.iters.len().max(1) as f64,
+        iters: [pick(0.5), pick(0.99), pick(1.0)],
+        capped: r.capped.iter().filter(|c| **c).count(),
+        max_res_converged: fold32(&|k| !r.capped[k]),
+        max_res_capped: fold32(&|k| r.capped[k]),
+        err_converged: errs(false),
+        err_capped: errs(true),
+        drift_max: *d.last().unwrap_or(&f64::NAN),
+        drift_p99: percentile(&d, 0.99),
+    }
 }
 
 /// The same tick with a sparse direct solver: rotations from the runtime's state, f64 assembly of
@@ -367,97 +524,150 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "palpate bench runtime: {tets} tets, {dofs} free dofs, {} ticks, tolerance {:e}",
         args.ticks, args.tolerance
     );
-    let mut runs = vec![run_kernel(&model, &args, Kernel::Gradient, "gradient")?];
-    if !args.gradient_only {
-        runs.push(run_kernel(&model, &args, Kernel::Packed, "packed")?);
+    let base = RuntimeConfig {
+        tolerance: args.tolerance,
+        max_iterations: args.max_iterations,
+        kernel: Kernel::Gradient,
+        preconditioner: Preconditioner::BlockJacobi,
+        coarse_aggregates: args.aggregates,
+        rotation_iterations: args.rotation_iterations,
+        precond_refresh_angle: args.precond_refresh_angle,
+        ..Default::default()
+    };
+    let mut variants = vec![Variant {
+        name: if args.compare {
+            "converged".into()
+        } else {
+            "gradient".into()
+        },
+        cfg: base,
+    }];
+    if args.compare {
+        for &b in &args.budgets {
+            variants.push(Variant {
+                name: format!("budget {b}"),
+                cfg: RuntimeConfig {
+                    max_iterations: b,
+                    ..base
+                },
+            });
+        }
+        variants.push(Variant {
+            name: "precond every tick".into(),
+            cfg: RuntimeConfig {
+                precond_refresh_angle: 0.0,
+                ..base
+            },
+        });
+        variants.push(Variant {
+            name: "32 aggregates".into(),
+            cfg: RuntimeConfig {
+                coarse_aggregates: 32,
+                ..base
+            },
+        });
+    } else if !args.gradient_only {
+        variants.push(Variant {
+            name: "packed".into(),
+            cfg: RuntimeConfig {
+                kernel: Kernel::Packed,
+                ..base
+            },
+        });
+    }
+    let mut recs = timed_pass(&model, &variants, args.ticks, args.compare)?;
+    for (v, r) in variants.iter().zip(recs.iter_mut()) {
+        accuracy_pass(&model, v, args.ticks, r)?;
     }
     let mut direct = run_direct(&model, &args, p)?;
     direct.sort_by(|a, b| a.total_cmp(b));
-    for r in &runs {
-        let mut it = r.iters.clone();
-        it.sort_unstable();
-        let slow: Vec<usize> = (0..r.times_us.len())
-            .filter(|&k| {
-                r.times_us[k]
-                    > 3.0
-                        * percentile(
-                            &{
-                                let mut t = r.times_us.clone();
-                                t.sort_by(|a, b| a.total_cmp(b));
-                                t
-                            },
-                            0.5,
-                        )
-            })
+    let sums: Vec<Summary> = recs.iter().map(summarise).collect();
+    if args.compare {
+        println!("tick by tick in one run, rotating order; drift = ‖u − u_converged‖/‖u_converged‖ after the same tick");
+    }
+    println!(
+        "{:<20} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>6} {:>11} {:>6} {:>10} {:>10} {:>10} {:>10} {:>10}",
+        "variant", "p50_us", "p99_us", "max_us", "cpu_p50", "cpu_p99", "cpu_max", "iters", "p50/p99/max",
+        "capped", "res_conv", "err_conv", "res_capped", "err_capped", "drift_max"
+    );
+    for (v, s) in variants.iter().zip(&sums) {
+        println!(
+            "{:<20} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>6.2} {:>11} {:>6} {:>10.2e} {:>10.2e} {:>10.2e} {:>10.2e} {:>10.2e}",
+            v.name,
+            s.wall[0],
+            s.wall[1],
+            s.wall[2],
+            s.cpu[0],
+            s.cpu[1],
+            s.cpu[2],
+            s.iters_mean,
+            format!("{}/{}/{}", s.iters[0], s.iters[1], s.iters[2]),
+            s.capped,
+            s.max_res_converged,
+            s.err_converged,
+            s.max_res_capped,
+            s.err_capped,
+            s.drift_max,
+        );
+    }
+    let g = &sums[0];
+    for (v, s) in variants.iter().zip(&sums).skip(1) {
+        println!(
+            "ratio {} / {}: wall p50 {:.2} p99 {:.2}; CPU p50 {:.2} p99 {:.2} mean {:.2}",
+            v.name,
+            variants[0].name,
+            s.wall[0] / g.wall[0],
+            s.wall[1] / g.wall[1],
+            s.cpu[0] / g.cpu[0],
+            s.cpu[1] / g.cpu[1],
+            s.cpu_mean / g.cpu_mean,
+        );
+    }
+    for (v, r) in variants.iter().zip(&recs) {
+        let slow: Vec<u32> = (0..r.iters.len())
+            .filter(|&k| r.iters[k] >= 5)
+            .map(|k| r.iters[k])
             .collect();
         println!(
-            "{}: PCG iterations p50 {} p99 {} max {}; {} ticks slower than 3× the median (iterations there: {:?})",
-            r.name,
-            it[it.len() / 2],
-            it[(it.len() * 99) / 100],
-            it[it.len() - 1],
+            "{}: {} ticks with ≥ 5 PCG iterations ({:?}…); {} B runtime state ({:.0} B/element)",
+            v.name,
             slow.len(),
-            slow.iter().take(8).map(|&k| r.iters[k]).collect::<Vec<_>>()
-        );
-    }
-    println!(
-        "{:<10} {:>9} {:>9} {:>9} {:>10} {:>12} {:>14} {:>10}",
-        "kernel", "p50_us", "p99_us", "max_us", "mean_iter", "max_rel_res", "max_err_conv", "bytes"
-    );
-    let mut summary = Vec::new();
-    for r in &runs {
-        let mut t = r.times_us.clone();
-        t.sort_by(|a, b| a.total_cmp(b));
-        let mean_it = r.iters.iter().map(|v| *v as f64).sum::<f64>() / r.iters.len().max(1) as f64;
-        let max_res = r.rel_res.iter().fold(0.0f32, |a, v| a.max(*v));
-        let max_err = r.err_vs_converged.iter().fold(0.0f64, |a, v| a.max(*v));
-        println!(
-            "{:<10} {:>9.1} {:>9.1} {:>9.1} {:>10.2} {:>12.2e} {:>14.2e} {:>10}",
-            r.name,
-            percentile(&t, 0.5),
-            percentile(&t, 0.99),
-            t.last().copied().unwrap_or(f64::NAN),
-            mean_it,
-            max_res,
-            max_err,
-            r.bytes
-        );
-        summary.push((
-            percentile(&t, 0.5),
-            percentile(&t, 0.99),
-            *t.last().unwrap_or(&f64::NAN),
-            mean_it,
-            max_res,
-            max_err,
+            &slow[..slow.len().min(12)],
             r.bytes,
-            r.cpu_mean_us,
-        ));
-        println!("{:<10} mean wall {:.1} µs, mean thread CPU {:.1} µs per tick (CPU excludes time the thread waited for a core)", r.name, r.times_us.iter().sum::<f64>() / r.times_us.len().max(1) as f64, r.cpu_mean_us);
+            r.bytes as f64 / tets as f64
+        );
     }
     println!(
-        "{:<10} {:>9.1} {:>9.1} {:>9.1}   (faer sparse Cholesky, refactored per tick, {} ticks)",
+        "{:<20} {:>8.1} {:>8.1} {:>8.1}   (faer sparse Cholesky, refactored per tick, {} ticks); direct/{} p50 = {:.1}",
         "direct",
         percentile(&direct, 0.5),
         percentile(&direct, 0.99),
         direct.last().copied().unwrap_or(f64::NAN),
-        direct.len()
+        direct.len(),
+        variants[0].name,
+        percentile(&direct, 0.5) / g.wall[0]
     );
-    let g = summary[0];
-    let packed = summary.get(1).copied().unwrap_or((
-        f64::NAN,
-        f64::NAN,
-        f64::NAN,
-        f64::NAN,
-        f32::NAN,
-        f64::NAN,
-        0,
-        f64::NAN,
-    ));
-    println!(
-        "ratios: packed/gradient p50 = {:.2}, direct/gradient p50 = {:.1}",
-        packed.0 / g.0,
-        percentile(&direct, 0.5) / g.0
-    );
+    let variant_json: Vec<_> = variants
+        .iter()
+        .zip(&sums)
+        .map(|(v, s)| {
+            json!({
+                "name": v.name,
+                "max_iterations": v.cfg.max_iterations,
+                "aggregates": v.cfg.coarse_aggregates,
+                "precond_refresh_angle": v.cfg.precond_refresh_angle,
+                "p50_us": s.wall[0], "p99_us": s.wall[1], "max_us": s.wall[2],
+                "cpu_p50_us": s.cpu[0], "cpu_p99_us": s.cpu[1], "cpu_max_us": s.cpu[2],
+                "mean_pcg_iters": s.iters_mean, "p99_pcg_iters": s.iters[1], "max_pcg_iters": s.iters[2],
+                "capped_ticks": s.capped,
+                "rel_residual": s.max_res_converged,
+                "max_rel_error_vs_converged": s.err_converged,
+                "capped_max_rel_residual": s.max_res_capped,
+                "capped_max_rel_error_vs_converged": s.err_capped,
+                "drift_max": s.drift_max, "drift_p99": s.drift_p99,
+            })
+        })
+        .collect();
     println!(
         "{}",
         json!({
@@ -466,20 +676,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "dofs": dofs,
             "ticks": args.ticks,
             "kernel": "gradient",
-            "p50_us": g.0,
-            "p99_us": g.1,
-            "max_us": g.2,
-            "mean_pcg_iters": g.3,
-            "rel_residual": g.4,
-            "max_rel_error_vs_converged": g.5,
-            "bytes": g.6,
-            "bytes_per_element": g.6 as f64 / tets as f64,
-            "cpu_mean_us": g.7,
-            "packed_p50_us": packed.0,
-            "packed_p99_us": packed.1,
+            "p50_us": g.wall[0],
+            "p99_us": g.wall[1],
+            "max_us": g.wall[2],
+            "cpu_p50_us": g.cpu[0],
+            "cpu_p99_us": g.cpu[1],
+            "cpu_mean_us": g.cpu_mean,
+            "mean_pcg_iters": g.iters_mean,
+            "max_pcg_iters": g.iters[2],
+            "rel_residual": g.max_res_converged,
+            "max_rel_error_vs_converged": g.err_converged,
+            "capped_ticks": g.capped,
+            "bytes": recs[0].bytes,
+            "bytes_per_element": recs[0].bytes as f64 / tets as f64,
             "aggregates": args.aggregates,
+            "max_iterations": args.max_iterations,
             "direct_p50_us": percentile(&direct, 0.5),
             "direct_p99_us": percentile(&direct, 0.99),
+            "variants": variant_json,
         })
     );
     Ok(())
