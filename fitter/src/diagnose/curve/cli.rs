@@ -1,0 +1,88 @@
+//! Command-line glue of `palpate diagnose <csv file | directory of csv files>`: runs the curve
+//! diagnosis and prints one summary line per dataset (anyhow only here, at the CLI boundary).
+
+use super::model::{Candidate, Law, HYPERELASTIC};
+use super::report::write_report;
+use super::{diagnose_path, CurveOptions};
+use std::path::Path;
+
+/// Every candidate name the curve library knows.
+pub fn candidate_names() -> Vec<String> {
+    let mut v: Vec<Candidate> = HYPERELASTIC
+        .iter()
+        .map(|&l: &Law| Candidate::Hyperelastic(l))
+        .collect();
+    v.extend([
+        Candidate::Viscosity,
+        Candidate::Offset,
+        Candidate::PowerLaw,
+        Candidate::Saturation,
+        Candidate::Threshold,
+        Candidate::Drift,
+    ]);
+    v.into_iter().map(|c| c.name()).collect()
+}
+
+/// Runs the diagnosis of `path`, writing reports under `output` (one sub-directory per dataset
+/// when the path holds several).
+pub fn run(
+    path: &Path,
+    output: &Path,
+    candidates: &[String],
+    max_effects: usize,
+    gauge_mm: Option<f64>,
+) -> anyhow::Result<()> {
+    let known = candidate_names();
+    for c in candidates {
+        if !known.contains(&c.trim().to_string()) {
+            anyhow::bail!(
+                "unknown candidate {c:?}; known for curves: {}",
+                known.join(", ")
+            );
+        }
+    }
+    if let Some(l) = gauge_mm {
+        anyhow::ensure!(
+            l > 0.0 && l.is_finite(),
+            "--gauge-length must be > 0 mm, found {l}"
+        );
+    }
+    let o = CurveOptions {
+        gauge_mm,
+        max_effects,
+        candidates: (!candidates.is_empty())
+            .then(|| candidates.iter().map(|c| c.trim().to_string()).collect()),
+        ..Default::default()
+    };
+    let ds = diagnose_path(path, &o, &mut |m| eprintln!("{m}"))?;
+    for d in &ds {
+        let dir = if ds.len() == 1 {
+            output.to_path_buf()
+        } else {
+            output.join(&d.name)
+        };
+        let files = write_report(d, &dir)?;
+        println!(
+            "{}: {}; RMS {} → {} fitted, {} → {} held out ({})",
+            d.name,
+            if d.adopted.is_empty() {
+                "clean (no effect adopted)".to_string()
+            } else {
+                format!("adopted {}", d.adopted.join(", "))
+            },
+            fmt(d.before.fitted_rms),
+            fmt(d.after.fitted_rms),
+            fmt(d.before.heldout_rms),
+            fmt(d.after.heldout_rms),
+            d.unit
+        );
+        for f in files {
+            println!("wrote {}", f.display());
+        }
+    }
+    Ok(())
+}
+
+fn fmt(v: f64) -> String {
+    format!("{v:.4e}")
+}

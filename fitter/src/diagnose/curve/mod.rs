@@ -1,0 +1,286 @@
+//! Diagnosis of measured 1-D curves (issue 6 on real data): tension / relaxation records, material
+//! stress–strain tests and FSR calibrations. Same mechanism as the static diagnosis: fit the
+//! simplest model the data declares (force ∝ displacement, stress ∝ strain, FSR conductance ∝
+//! force through the divider), read the residual's signature ([`signature`]), refit every
+//! candidate effect of the library ([`model`]) with a small Levenberg–Marquardt ([`lm`], [`fit`]),
+//! adopt the best one only if it lowers BIC and the held-out RMS by a margin ([`select`]), repeat,
+//! and report ([`report`]).
+//!
+//! Nothing about which effect is present comes from anywhere but the data: the format is read
+//! from the header ([`read`]), every candidate the format admits is tried on every dataset.
+
+pub mod cli;
+pub mod fit;
+pub mod lm;
+pub mod model;
+pub mod read;
+pub mod report;
+pub mod select;
+pub mod signature;
+
+use model::{Family, Model, Scale};
+use read::{CurveData, Format, Group};
+use select::{param_values, select, Errors, ParamValue, Step};
+use std::path::Path;
+use std::time::Instant;
+
+/// Errors of the curve diagnosis.
+#[derive(Debug, thiserror::Error)]
+pub enum CurveError {
+    /// A file or directory cannot be read.
+    #[error("{path}: {message}")]
+    Io {
+        /// Path.
+        path: String,
+        /// OS error.
+        message: String,
+    },
+    /// A file's content is malformed.
+    #[error("{file}:{line}: {message}")]
+    Format {
+        /// File.
+        file: String,
+        /// 1-based line.
+        line: usize,
+        /// What was expected and found.
+        message: String,
+    },
+    /// The input cannot be diagnosed.
+    #[error("{0}")]
+    Input(String),
+    /// The simplest model could not be fitted.
+    #[error("{0}: the fit failed (no finite prediction)")]
+    Fit(String),
+    /// Writing the report failed.
+    #[error("writing the report: {0}")]
+    Write(String),
+}
+
+/// Options.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct CurveOptions {
+    /// Gauge length L0 of tension data, mm (`None`: fitted by the hyperelastic candidates).
+    pub gauge_mm: Option<f64>,
+    /// ADC resolution of FSR balance data, bits.
+    pub adc_bits: u32,
+    /// Samples kept per file (time series are thinned, see [`read::decimate`]).
+    pub max_points: usize,
+    /// Most effects adopted.
+    pub max_effects: usize,
+    /// ΔBIC must be below −this.
+    pub bic_threshold: f64,
+    /// Held-out RMS must drop by at least this fraction.
+    pub min_holdout_gain: f64,
+    /// Candidate names to try (`None`: all).
+    pub candidates: Option<Vec<String>>,
+    /// LM iterations of a full fit.
+    pub max_iterations: usize,
+    /// LM iterations of each held-out refit (warm-started).
+    pub holdout_iterations: usize,
+    /// Diagnose stress–strain files of a directory jointly (one specimen).
+    pub joint: bool,
+    /// Diagnose every file of a directory on its own.
+    pub per_file: bool,
+}
+
+impl Default for CurveOptions {
+    fn default() -> Self {
+        Self {
+            gauge_mm: None,
+            adc_bits: 10,
+            max_points: 600,
+            max_effects: 3,
+            bic_threshold: 10.0,
+            min_holdout_gain: 0.05,
+            candidates: None,
+            max_iterations: 60,
+            holdout_iterations: 25,
+            joint: false,
+            per_file: false,
+        }
+    }
+}
+
+/// The diagnosis of one dataset.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct CurveDiagnosis {
+    /// Dataset name.
+    pub name: String,
+    /// Format.
+    pub format: Format,
+    /// Source files.
+    pub sources: Vec<String>,
+    /// Files/runs.
+    pub groups: Vec<String>,
+    /// Samples used (after thinning) and samples read.
+    pub samples: (usize, usize),
+    /// Unit of the response and of every error figure.
+    pub unit: String,
+    /// Selection rule in words.
+    pub criterion: String,
+    /// Held-out scheme in words.
+    pub holdout: String,
+    /// Rounds.
+    pub steps: Vec<Step>,
+    /// Effects adopted, in order.
+    pub adopted: Vec<String>,
+    /// Simplest model and its errors.
+    pub before_model: String,
+    /// Errors of the simplest model.
+    pub before: Errors,
+    /// Final model.
+    pub after_model: String,
+    /// Errors of the final model.
+    pub after: Errors,
+    /// Parameters of the simplest model.
+    pub before_params: Vec<ParamValue>,
+    /// Parameters of the final model.
+    pub final_params: Vec<ParamValue>,
+    /// Caveats stated with the result.
+    pub notes: Vec<String>,
+    /// Options.
+    pub options: CurveOptions,
+    /// Wall-clock seconds.
+    pub seconds: f64,
+    /// The data used (for plots).
+    #[serde(skip)]
+    pub data: Vec<Group>,
+    /// The selection (fits, held-out predictions).
+    #[serde(skip)]
+    pub selection: Option<select::Selection>,
+}
+
+/// Diagnoses one dataset.
+pub fn diagnose(
+    data: &CurveData,
+    o: &CurveOptions,
+    log: &mut dyn FnMut(&str),
+) -> Result<CurveDiagnosis, CurveError> {
+    let t0 = Instant::now();
+    let ts = data.format.is_time_series();
+    let groups: Vec<Group> = data
+        .groups
+        .iter()
+        .map(|g| {
+            if ts {
+                read::decimate(g, o.max_points)
+            } else {
+                g.clone()
+            }
+        })
+        .collect();
+    if data.format == Format::FsrBalance {
+        let full = f64::from((1u32 << o.adc_bits.min(31)) - 1);
+        for g in &groups {
+            if let Some(i) = g.y.iter().position(|&c| c > full) {
+                return Err(CurveError::Input(format!(
+                    "{}: line {}: {} counts exceed the {}-bit full scale {full}: give --adc-bits",
+                    g.name, g.line[i], g.y[i], o.adc_bits
+                )));
+            }
+        }
+    }
+    let x_max = groups
+        .iter()
+        .flat_map(|g| g.x.iter())
+        .fold(0.0f64, |m, v| m.max(v.abs()));
+    if x_max <= 0.0 {
+        return Err(CurveError::Input(format!(
+            "{}: the load variable is zero everywhere",
+            data.name
+        )));
+    }
+    let scale = Scale {
+        x_max,
+        duration: groups
+            .iter()
+            .map(|g| g.t.last().unwrap_or(&0.0) - g.t.first().unwrap_or(&0.0))
+            .fold(0.0, f64::max),
+        order_mean: groups.iter().map(|g| g.order).sum::<f64>() / groups.len() as f64,
+    };
+    let family = Family::of(data.format, o.gauge_mm, o.adc_bits);
+    let sel = select(Model::simplest(family, scale), &groups, ts, o, log)
+        .ok_or_else(|| CurveError::Fit(data.name.clone()))?;
+    let mut notes = data.warnings.clone();
+    match data.format {
+        Format::Tension => {
+            notes.push("The cross-section is unknown: moduli are effective force scales (modulus × area, N); the stretch is λ = 1 + Δ/L0.".into());
+            notes.push(match o.gauge_mm {
+                Some(l) => format!("Gauge length L0 = {l} mm (given)."),
+                None => "Gauge length not given (--gauge-length): L0 is a fitted parameter of every hyperelastic law.".into(),
+            });
+        }
+        Format::StressStrain => notes.push(
+            "Engineering (nominal) stress against engineering strain, λ = 1 + ε (uniaxial, incompressible forms).".into(),
+        ),
+        Format::FsrBalance => notes.push(format!(
+            "Response in ADC counts of a {}-bit converter (N = {}); force = mass × {} m/s².",
+            o.adc_bits,
+            (1u32 << o.adc_bits.min(31)) - 1,
+            read::G_STANDARD
+        )),
+        Format::FsrDatasheet => notes.push("Response is ln R: errors are in natural-log units (0.1 ≈ 10 % in R).".into()),
+    }
+    if ts {
+        notes.push("Parameter uncertainties assume independent residuals; samples of a time series are correlated, so they are lower bounds.".into());
+    }
+    let first = &sel.fits[0];
+    let last = sel.fits.last().expect("at least the simplest fit");
+    let unit = data.format.labels().1.to_string();
+    Ok(CurveDiagnosis {
+        name: data.name.clone(),
+        format: data.format,
+        sources: data.sources.iter().map(|p| p.display().to_string()).collect(),
+        groups: groups.iter().map(|g| g.name.clone()).collect(),
+        samples: (
+            groups.iter().map(|g| g.x.len()).sum(),
+            data.groups.iter().map(|g| g.x.len()).sum(),
+        ),
+        unit,
+        criterion: format!(
+            "adopt the candidate with the lowest held-out RMS among those with ΔBIC < −{} (BIC = n ln(RSS/n) + k ln n) and a held-out RMS ≥ {:.0} % below the current model's; repeat until none passes (at most {} effects)",
+            o.bic_threshold,
+            100.0 * o.min_holdout_gain,
+            o.max_effects
+        ),
+        holdout: sel.holdout.clone(),
+        adopted: sel
+            .steps
+            .iter()
+            .filter_map(|s| s.adopted.map(|c| c.name()))
+            .collect(),
+        before_model: first.model.describe(),
+        before: sel.errors[0],
+        after_model: last.model.describe(),
+        after: *sel.errors.last().expect("non-empty"),
+        before_params: param_values(first),
+        final_params: param_values(last),
+        steps: sel.steps.clone(),
+        notes,
+        options: o.clone(),
+        seconds: t0.elapsed().as_secs_f64(),
+        data: groups,
+        selection: Some(sel),
+    })
+}
+
+/// Reads `path` (file or directory) and diagnoses every dataset in it.
+pub fn diagnose_path(
+    path: &Path,
+    o: &CurveOptions,
+    log: &mut dyn FnMut(&str),
+) -> Result<Vec<CurveDiagnosis>, CurveError> {
+    let sets = read::read_path(path, o.joint, o.per_file)?;
+    let mut out = Vec::new();
+    for d in &sets {
+        log(&format!(
+            "{}: {} ({} files/runs, {} samples)",
+            d.name,
+            d.format.name(),
+            d.groups.len(),
+            d.len()
+        ));
+        out.push(diagnose(d, o, log)?);
+    }
+    Ok(out)
+}
