@@ -563,22 +563,47 @@ impl<'a> Runtime<'a> {
                 return (it, rnorm, SolveStatus::Rejected);
             }
             let alpha = rz / pq;
-            for k in 0..3 * self.n {
-                self.delta[k] += alpha * self.p[k];
-                self.r_full[k] -= alpha * self.q[k];
+            // One pass: δ += αp, r_full −= αq, r −= α S q (S applied node by node), and the
+            // block-Jacobi part of z with ‖r‖² on the way.
+            let mut rr = 0.0f64;
+            for i in 0..self.n {
+                let mut qi = [self.q[3 * i], self.q[3 * i + 1], self.q[3 * i + 2]];
+                for k in 0..3 {
+                    self.delta[3 * i + k] += alpha * self.p[3 * i + k];
+                    self.r_full[3 * i + k] -= alpha * qi[k];
+                }
+                match self.flag[i] {
+                    FIXED => qi = [0.0; 3],
+                    PROBED => {
+                        let n = &self.normal[3 * i..3 * i + 3];
+                        let d = qi[0] * n[0] + qi[1] * n[1] + qi[2] * n[2];
+                        for k in 0..3 {
+                            qi[k] -= d * n[k];
+                        }
+                    }
+                    _ => {}
+                }
+                let mut ri = [0.0f32; 3];
+                for k in 0..3 {
+                    ri[k] = self.r[3 * i + k] - alpha * qi[k];
+                    self.r[3 * i + k] = ri[k];
+                    rr += (ri[k] as f64) * (ri[k] as f64);
+                }
+                let m = &self.precond[6 * i..6 * i + 6];
+                self.z[3 * i] = m[0] * ri[0] + m[3] * ri[1] + m[5] * ri[2];
+                self.z[3 * i + 1] = m[3] * ri[0] + m[1] * ri[1] + m[4] * ri[2];
+                self.z[3 * i + 2] = m[5] * ri[0] + m[4] * ri[1] + m[2] * ri[2];
             }
-            Self::filter(self.flag, self.normal, self.q);
-            for k in 0..3 * self.n {
-                self.r[k] -= alpha * self.q[k];
-            }
-            self.precondition();
+            // Two-level: add the coarse correction P A_c⁻¹ Pᵀ r (r is filtered), then filter z.
+            self.coarse.apply(self.x0, self.r, self.z);
+            Self::filter(self.flag, self.normal, self.z);
             let rz_new = dot(self.r, self.z);
             let beta = rz_new / rz;
             rz = rz_new;
-            for k in 0..3 * self.n {
-                self.p[k] = self.z[k] + beta * self.p[k];
+            for (pk, zk) in self.p.iter_mut().zip(self.z.iter()) {
+                *pk = zk + beta * *pk;
             }
-            rnorm = norm(self.r);
+            rnorm = libm::sqrt(rr) as f32;
             it += 1;
             if !rnorm.is_finite() {
                 return (it, rnorm, SolveStatus::Rejected);
