@@ -59,7 +59,8 @@ fn alternatives(p: &Param, model: &Model) -> Vec<f64> {
     } else {
         match p.name.as_str() {
             "L0" => vec![x, x / 3.0, 3.0 * x],
-            "alpha" => vec![2.0, 5.0, -2.0],
+            "alpha" | "alpha1" => vec![2.0, 5.0, -2.0],
+            "alpha2" => vec![-2.0, 8.0, 1.0],
             "F_sat" => vec![x, x / 5.0],
             "F0" => vec![0.0, 0.05 * x],
             _ => vec![p.start],

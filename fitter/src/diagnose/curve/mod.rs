@@ -136,6 +136,8 @@ pub struct CurveDiagnosis {
     pub before_params: Vec<ParamValue>,
     /// Parameters of the final model.
     pub final_params: Vec<ParamValue>,
+    /// Per file/run: (name, samples, held-out RMS of the simplest model, of the final model).
+    pub per_group: Vec<(String, usize, f64, f64)>,
     /// Caveats stated with the result.
     pub notes: Vec<String>,
     /// Options.
@@ -227,6 +229,22 @@ pub fn diagnose(
     let first = &sel.fits[0];
     let last = sel.fits.last().expect("at least the simplest fit");
     let unit = data.format.labels().1.to_string();
+    let held_rms = |k: usize, gi: usize| {
+        let g = &groups[gi];
+        let h = &sel.heldout[k][gi];
+        let s: f64 = g.y.iter().zip(h).map(|(y, p)| (p - y) * (p - y)).sum();
+        (s / g.y.len().max(1) as f64).sqrt()
+    };
+    let per_group = (0..groups.len())
+        .map(|gi| {
+            (
+                groups[gi].name.clone(),
+                groups[gi].x.len(),
+                held_rms(0, gi),
+                held_rms(sel.heldout.len() - 1, gi),
+            )
+        })
+        .collect();
     Ok(CurveDiagnosis {
         name: data.name.clone(),
         format: data.format,
@@ -256,6 +274,7 @@ pub fn diagnose(
         before_params: param_values(first),
         final_params: param_values(last),
         steps: sel.steps.clone(),
+        per_group,
         notes,
         options: o.clone(),
         seconds: t0.elapsed().as_secs_f64(),

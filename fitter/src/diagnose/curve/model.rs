@@ -8,7 +8,8 @@
 //! - Neo-Hookean: P = μ (λ − λ⁻²);
 //! - Mooney–Rivlin: P = 2 (λ − λ⁻²)(C10 + C01/λ);
 //! - Yeoh: P = 2 (λ − λ⁻²)(C10 + 2 C20 (I₁ − 3) + 3 C30 (I₁ − 3)²), I₁ = λ² + 2/λ;
-//! - Ogden (one term): P = (2μ/α)(λ^(α−1) − λ^(−α/2−1)) (α = 2 is Neo-Hookean).
+//! - Ogden (one term): P = (2μ/α)(λ^(α−1) − λ^(−α/2−1)) (α = 2 is Neo-Hookean);
+//! - Ogden (two terms): the sum of two such terms (μ1, α1, μ2, α2).
 //!
 //! For tension data the cross-section is unknown, so the moduli are *effective*: force scales
 //! A0·μ in N. L0 is given (`--gauge-length`) or, if not, fitted as a parameter.
@@ -40,6 +41,8 @@ pub enum Law {
     Ogden,
     /// Three-term Yeoh.
     Yeoh,
+    /// Two-term Ogden.
+    Ogden2,
 }
 
 impl Law {
@@ -51,15 +54,17 @@ impl Law {
             Law::MooneyRivlin => "mooney-rivlin",
             Law::Ogden => "ogden",
             Law::Yeoh => "yeoh",
+            Law::Ogden2 => "ogden-2",
         }
     }
-    /// Complexity rank: a law replaces the current one only if its rank is higher.
+    /// Complexity rank: a law replaces the current one only if its rank is at least as high.
     pub fn rank(self) -> usize {
         match self {
             Law::Linear => 0,
             Law::NeoHookean => 1,
             Law::MooneyRivlin | Law::Ogden => 2,
             Law::Yeoh => 3,
+            Law::Ogden2 => 4,
         }
     }
     fn moduli(self) -> &'static [&'static str] {
@@ -69,12 +74,19 @@ impl Law {
             Law::MooneyRivlin => &["C10", "C01"],
             Law::Ogden => &["mu"],
             Law::Yeoh => &["C10", "C20", "C30"],
+            Law::Ogden2 => &["mu1", "mu2"],
         }
     }
 }
 
 /// Every hyperelastic law of the library.
-pub const HYPERELASTIC: [Law; 4] = [Law::NeoHookean, Law::MooneyRivlin, Law::Ogden, Law::Yeoh];
+pub const HYPERELASTIC: [Law; 5] = [
+    Law::NeoHookean,
+    Law::MooneyRivlin,
+    Law::Ogden,
+    Law::Yeoh,
+    Law::Ogden2,
+];
 
 /// A candidate effect: what an augmented model adds to the current one.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -245,16 +257,18 @@ impl Model {
         }
     }
 
-    /// Candidates that can augment this model given the data (`groups`: how many files/runs).
-    pub fn candidates(&self, groups: usize) -> Vec<Candidate> {
+    /// Candidates that can augment this model given the data (`groups`: how many files/runs;
+    /// `rate_info`: whether the record can tell viscosity from elasticity at all — it has
+    /// unloading, a hold, or several rates; a single monotone pull at one rate cannot).
+    pub fn candidates(&self, groups: usize, rate_info: bool) -> Vec<Candidate> {
         let mut v = Vec::new();
         if self.family.mechanical() {
             for l in HYPERELASTIC {
-                if l.rank() > self.law.rank() {
+                if l != self.law && l.rank() >= self.law.rank() {
                     v.push(Candidate::Hyperelastic(l));
                 }
             }
-            if self.branches < 3 {
+            if self.branches < 3 && rate_info {
                 v.push(Candidate::Viscosity);
             }
             if !self.offset {
@@ -308,7 +322,14 @@ impl Model {
                 parts.push("offset".into());
             }
         } else {
-            parts.push("divider, conductance ∝ force".into());
+            parts.push(
+                if matches!(self.family, Family::FsrCounts { .. }) {
+                    "divider, conductance ∝ force"
+                } else {
+                    "conductance ∝ force"
+                }
+                .into(),
+            );
             for (on, n) in [
                 (self.power, "power-law response"),
                 (self.saturation, "saturation"),
@@ -349,6 +370,10 @@ impl Model {
                 }
                 if self.law == Law::Ogden {
                     v.push(p("alpha", "1", false, false, 2.0));
+                }
+                if self.law == Law::Ogden2 {
+                    v.push(p("alpha1", "1", false, false, 2.0));
+                    v.push(p("alpha2", "1", false, false, -2.0));
                 }
                 if self.gauge_fitted() {
                     v.push(p("L0", "mm", true, false, self.scale.x_max.max(1e-9)));
@@ -432,7 +457,10 @@ impl Model {
             .map(|m| val(m))
             .collect::<Option<_>>()?;
         let l0 = gauge.or_else(|| val("L0")).unwrap_or(1.0);
-        let alpha = val("alpha").unwrap_or(2.0);
+        let alpha = match self.law {
+            Law::Ogden2 => [val("alpha1")?, val("alpha2")?],
+            _ => [val("alpha").unwrap_or(2.0), 0.0],
+        };
         let mut pe: Vec<f64> = Vec::with_capacity(g.x.len());
         for &x in &g.x {
             let p = if self.law == Law::Linear {
@@ -487,7 +515,7 @@ impl Model {
 
 /// Nominal (first Piola) uniaxial stress of an incompressible hyperelastic law at stretch λ,
 /// with moduli `c` (see the module table).
-pub fn elastic(law: Law, c: &[f64], alpha: f64, lam: f64) -> f64 {
+pub fn elastic(law: Law, c: &[f64], alpha: [f64; 2], lam: f64) -> f64 {
     let d = lam - lam.powi(-2);
     match law {
         Law::Linear => c[0] * (lam - 1.0),
@@ -497,13 +525,17 @@ pub fn elastic(law: Law, c: &[f64], alpha: f64, lam: f64) -> f64 {
             let i1 = lam * lam + 2.0 / lam - 3.0;
             2.0 * d * (c[0] + 2.0 * c[1] * i1 + 3.0 * c[2] * i1 * i1)
         }
-        Law::Ogden => {
-            // Guard α → 0, where (2μ/α)(λ^(α−1) − λ^(−α/2−1)) → 3 μ ln λ / λ.
-            if alpha.abs() < 1e-6 {
-                3.0 * c[0] * lam.ln() / lam
-            } else {
-                2.0 * c[0] / alpha * (lam.powf(alpha - 1.0) - lam.powf(-alpha / 2.0 - 1.0))
-            }
-        }
+        Law::Ogden => ogden_term(c[0], alpha[0], lam),
+        Law::Ogden2 => ogden_term(c[0], alpha[0], lam) + ogden_term(c[1], alpha[1], lam),
+    }
+}
+
+/// One Ogden term (2μ/α)(λ^(α−1) − λ^(−α/2−1)), guarded at α → 0 where it tends to
+/// 3 μ ln λ / λ.
+fn ogden_term(mu: f64, alpha: f64, lam: f64) -> f64 {
+    if alpha.abs() < 1e-6 {
+        3.0 * mu * lam.ln() / lam
+    } else {
+        2.0 * mu / alpha * (lam.powf(alpha - 1.0) - lam.powf(-alpha / 2.0 - 1.0))
     }
 }

@@ -320,7 +320,11 @@ pub fn parse(text: &str, name: &str) -> Result<(Format, Vec<Group>, Vec<String>)
     }
     if !warnings.is_empty() {
         for g in &mut groups {
-            let mut steps: Vec<f64> = g.t.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.0).collect();
+            let mut steps: Vec<f64> =
+                g.t.windows(2)
+                    .map(|w| w[1] - w[0])
+                    .filter(|d| *d > 0.0)
+                    .collect();
             steps.sort_by(f64::total_cmp);
             let dt = steps.get(steps.len() / 2).copied().unwrap_or(1.0);
             let t0 = g.t[0];

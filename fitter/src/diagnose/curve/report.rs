@@ -201,6 +201,15 @@ fn markdown(d: &CurveDiagnosis, plots: &[String]) -> String {
         "\nHeld out: {}. Selection: {}.\n",
         d.holdout, d.criterion
     );
+    let _ = writeln!(
+        s,
+        "Held-out RMS per file/run:\n\n| file/run | samples | {} | {} |\n|---|---|---|---|",
+        d.before_model, d.after_model
+    );
+    for (n, k, b, a) in &d.per_group {
+        let _ = writeln!(s, "| {n} | {k} | {} | {} |", g4(*b), g4(*a));
+    }
+    let _ = writeln!(s);
     for st in &d.steps {
         let _ = writeln!(s, "## Round {}: {}\n", st.round, st.model);
         let _ = writeln!(

@@ -10,7 +10,7 @@
 use super::fit::{fit, residuals, Fit, Mask};
 use super::model::{Candidate, Model};
 use super::read::Group;
-use super::signature::{signature, Signature, Variable};
+use super::signature::{directions, holds, rates, signature, Signature, Variable};
 use super::CurveOptions;
 
 /// Error figures in the response's unit.
@@ -199,6 +199,28 @@ fn errors(f: &Fit, groups: &[Group], held: &[Vec<f64>]) -> Errors {
     }
 }
 
+/// Whether a time-series record can separate viscosity from elasticity: it has unloading, a
+/// hold at non-zero load, or loading rates differing by more than 1.5× between files. A single
+/// monotone pull at one rate cannot: any viscous branch is then just another shape function of x.
+pub fn has_rate_information(groups: &[Group]) -> bool {
+    let dirs = directions(groups);
+    if dirs.iter().flatten().any(|&d| d < 0) || !holds(groups, &dirs).is_empty() {
+        return true;
+    }
+    let mean_rates: Vec<f64> = groups
+        .iter()
+        .zip(&dirs)
+        .filter_map(|(g, d)| {
+            let r = rates(g);
+            let v: Vec<f64> = (0..r.len()).filter(|&i| d[i] > 0).map(|i| r[i]).collect();
+            (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+        })
+        .collect();
+    let lo = mean_rates.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = mean_rates.iter().copied().fold(0.0, f64::max);
+    lo > 0.0 && hi / lo > 1.5
+}
+
 /// BIC with unknown noise variance: n ln(RSS/n) + k ln n.
 pub fn bic(f: &Fit) -> f64 {
     let n = f.n as f64;
@@ -239,6 +261,7 @@ pub fn select(
     log: &mut dyn FnMut(&str),
 ) -> Option<Selection> {
     let (holdout, folds) = folds(groups);
+    let rate_info = time_series && has_rate_information(groups);
     let mut cur = fit(&start, groups, None, None, o.max_iterations)?;
     let mut cur_held = cross_validate(&cur, groups, &folds, o)?;
     let mut cur_err = errors(&cur, groups, &cur_held);
@@ -262,7 +285,7 @@ pub fn select(
         let mut fits = Vec::new();
         let cands: Vec<Candidate> = cur
             .model
-            .candidates(groups.len())
+            .candidates(groups.len(), rate_info)
             .into_iter()
             .filter(|c| o.candidates.as_ref().is_none_or(|l| l.contains(&c.name())))
             .collect();
