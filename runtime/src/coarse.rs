@@ -252,7 +252,7 @@ impl<'a> Coarse<'a> {
             for k in 0..j {
                 d -= l[j * dim + k] as f64 * l[j * dim + k] as f64;
             }
-            if !(d > floor as f64) || !d.is_finite() {
+            if d.is_nan() || d <= floor as f64 || !d.is_finite() {
                 for k in 0..dim {
                     l[j * dim + k] = 0.0;
                     l[k * dim + j] = 0.0;

@@ -182,8 +182,8 @@ pub fn deformation_gradient<T: RealField + Copy>(
     x: &[Vector3<T>; 4],
 ) -> Matrix3<T> {
     let mut f = Matrix3::<T>::zeros();
-    for a in 0..4 {
-        f += x[a] * g.grad[a].transpose();
+    for (xa, ga) in x.iter().zip(g.grad.iter()) {
+        f += xa * ga.transpose();
     }
     f
 }

@@ -104,7 +104,7 @@ pub fn warp_rotation_fast(f: &[f32; 9], q: &mut [f32; 4], iterations: usize, r: 
             z + h[0] * y - h[1] * x + h[2] * w,
         ];
         let n = libm::sqrtf(nq[0] * nq[0] + nq[1] * nq[1] + nq[2] * nq[2] + nq[3] * nq[3]);
-        if !(n > 0.0) || !n.is_finite() {
+        if n.is_nan() || n <= 0.0 || !n.is_finite() {
             break;
         }
         for k in 0..4 {

@@ -555,8 +555,8 @@ impl<'a> Runtime<'a> {
                 what: "nodal force",
             });
         }
-        for k in 0..3 {
-            self.f_cmd[3 * node + k] += force[k];
+        for (f, add) in self.f_cmd[3 * node..3 * node + 3].iter_mut().zip(force) {
+            *f += add;
         }
         self.f_cmd_norm = norm(self.f_cmd);
         Ok(())

@@ -310,8 +310,8 @@ impl<'a> Runtime<'a> {
                     self.x0[3 * i + 2] + self.u[3 * i + 2],
                 ];
                 let gap = self.prescribed[i] - (n[0] * x[0] + n[1] * x[1] + n[2] * x[2]);
-                for k in 0..3 {
-                    self.u[3 * i + k] += gap * n[k];
+                for (u, nk) in self.u[3 * i..3 * i + 3].iter_mut().zip(n) {
+                    *u += gap * nk;
                 }
             }
         }
@@ -379,8 +379,9 @@ impl<'a> Runtime<'a> {
         }
         for i in 0..self.n {
             let fi = self.node_force(i);
-            for k in 0..3 {
-                self.r_full[3 * i + k] = self.f_app[3 * i + k] - fi[k];
+            let rows = self.r_full[3 * i..3 * i + 3].iter_mut();
+            for ((r, a), f) in rows.zip(&self.f_app[3 * i..3 * i + 3]).zip(fi) {
+                *r = a - f;
             }
         }
         self.precond_drift += moved;
@@ -418,12 +419,10 @@ impl<'a> Runtime<'a> {
                     b.copy_from_slice(&[0.0; 6]);
                 }
             } else {
-                for k in 0..3 {
-                    b[k] = if b[k] > 0.0 { 1.0 / b[k] } else { 0.0 };
+                for v in b[..3].iter_mut() {
+                    *v = if *v > 0.0 { 1.0 / *v } else { 0.0 };
                 }
-                for k in 3..6 {
-                    b[k] = 0.0;
-                }
+                b[3..].fill(0.0);
             }
         }
     }
@@ -559,7 +558,7 @@ impl<'a> Runtime<'a> {
             // r_full tracks the unfiltered residual (reactions at held nodes); q is then filtered.
             // p is filtered, so p·(S q) = p·q.
             let pq = dot(self.p, self.q);
-            if !(pq > 0.0) || !pq.is_finite() {
+            if pq.is_nan() || pq <= 0.0 || !pq.is_finite() {
                 return (it, rnorm, SolveStatus::Rejected);
             }
             let alpha = rz / pq;
@@ -568,17 +567,20 @@ impl<'a> Runtime<'a> {
             let mut rr = 0.0f64;
             for i in 0..self.n {
                 let mut qi = [self.q[3 * i], self.q[3 * i + 1], self.q[3 * i + 2]];
-                for k in 0..3 {
-                    self.delta[3 * i + k] += alpha * self.p[3 * i + k];
-                    self.r_full[3 * i + k] -= alpha * qi[k];
+                let pi = &self.p[3 * i..3 * i + 3];
+                for (d, p) in self.delta[3 * i..3 * i + 3].iter_mut().zip(pi) {
+                    *d += alpha * p;
+                }
+                for (r, q) in self.r_full[3 * i..3 * i + 3].iter_mut().zip(qi) {
+                    *r -= alpha * q;
                 }
                 match self.flag[i] {
                     FIXED => qi = [0.0; 3],
                     PROBED => {
                         let n = &self.normal[3 * i..3 * i + 3];
                         let d = qi[0] * n[0] + qi[1] * n[1] + qi[2] * n[2];
-                        for k in 0..3 {
-                            qi[k] -= d * n[k];
+                        for (q, nk) in qi.iter_mut().zip(n) {
+                            *q -= d * nk;
                         }
                     }
                     _ => {}
@@ -662,7 +664,10 @@ impl<'a> Runtime<'a> {
         } else {
             // Blending needs every element's strain before any force.
             self.update_rotations(iters);
-            if self.tick_count % self.config.blend_every.max(1) as u64 == 0 {
+            // `%` rather than `is_multiple_of`: the workspace's MSRV is 1.85.
+            #[allow(clippy::manual_is_multiple_of)]
+            let due = self.tick_count % self.config.blend_every.max(1) as u64 == 0;
+            if due {
                 blend_parameters(self);
             }
             let diag = self.precond_due();
@@ -690,8 +695,8 @@ impl<'a> Runtime<'a> {
         let mut reaction = [0.0f32; 3];
         for i in 0..self.n {
             if self.flag[i] == PROBED {
-                for k in 0..3 {
-                    reaction[k] += self.r_full[3 * i + k];
+                for (rk, f) in reaction.iter_mut().zip(&self.r_full[3 * i..3 * i + 3]) {
+                    *rk += f;
                 }
             }
         }
