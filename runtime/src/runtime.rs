@@ -154,7 +154,9 @@ impl<'a> Runtime<'a> {
     /// Builds a runtime for `record` in the caller's storage (sized by
     /// [`StorageRequirement::for_model`]). Computes ∇φ and V_e from the rest positions with the
     /// shared element kernels and checks the model's C_e/D_e against them (relative 1e-3), so what
-    /// runs is what was fitted. Nothing is allocated, here or later.
+    /// runs is what was fitted, and runs the protocol's node-coverage check
+    /// ([`palpate_protocol::model::validate_node_coverage`]: a free node in no tetrahedron is
+    /// [`RuntimeError::InvalidModel`]). Nothing is allocated, here or later.
     pub fn new(
         record: ModelRecord<'a>,
         f32_storage: &'a mut [f32],
