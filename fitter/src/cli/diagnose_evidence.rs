@@ -29,7 +29,8 @@ pub struct Args {
 pub fn expected(e: Option<Effect>) -> Option<Candidate> {
     match e? {
         Effect::Stiffening => Some(Candidate::Stiffening),
-        Effect::Inclusion | Effect::SoftLayer => Some(Candidate::Inhomogeneity),
+        Effect::Inclusion => Some(Candidate::Inclusion),
+        Effect::SoftLayer => Some(Candidate::Layer),
         Effect::Calibration => Some(Candidate::Calibration),
         Effect::Boundary => Some(Candidate::Boundary),
         Effect::Registration => Some(Candidate::Registration),

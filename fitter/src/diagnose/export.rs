@@ -2,7 +2,7 @@
 //!
 //! What of the final model the runtime can play back, and how:
 //! - the base material (E, ν) → one global (λ, α) set (seed 000 eqs. 3.36–3.38);
-//! - inhomogeneity (trilinear log-E field) → per-element (λ_e, α_e);
+//! - inhomogeneity (trilinear log-E field), layer, inclusion → per-element (λ_e, α_e);
 //! - strain stiffening (secant E_e = E (1 + β (‖ε_e‖/0.1)²)) → the thesis' non-linear
 //!   inhomogeneous material: one per-element set per measurement, at that measurement's fitted
 //!   state, blended in strain space (eqs. 6.7–6.11) with the measurement strains as centres.
@@ -75,7 +75,13 @@ pub fn diagnosed_model(
         }
     )];
     for &c in &r.adopted {
-        let in_model = matches!(c, Candidate::Inhomogeneity | Candidate::Stiffening);
+        let in_model = matches!(
+            c,
+            Candidate::Inhomogeneity
+                | Candidate::Layer
+                | Candidate::Inclusion
+                | Candidate::Stiffening
+        );
         let values: Vec<String> = effect_params(ctx, f, c)
             .iter()
             .map(|p| format!("{} = {:.4e} ± {:.1e} {}", p.name, p.value, p.sd, p.unit))

@@ -7,11 +7,17 @@
 //! Selection (stated in every report): candidates are ranked by the Bayesian information criterion
 //! with unknown noise variance, BIC = n ln(χ²/n) + k ln n (n residual entries, k parameters). The
 //! best candidate is adopted only if (a) ΔBIC < −[`DiagnoseOptions::bic_threshold`] and (b) leave-one-
-//! measurement-out cross-validation confirms it: the held-out RMS marker error of the augmented
-//! model is at least [`DiagnoseOptions::min_holdout_gain`] lower than the current model's. (a) alone
-//! over-adopts when the residual is dominated by model-form error of the coarse linear model (n is
-//! large, so any extra parameter that absorbs a little of it passes); (b) makes the parameter earn
-//! its place on data it was not fitted to.
+//! measurement-out cross-validation confirms it: every measurement is refitted without and predicted;
+//! the same criterion on the held-out predictions, n ln(χ²_new/χ²_old) + k ln n, must be negative,
+//! and the held-out error in excess of the noise floor, √(RMS² − 3σ²), must drop by at least
+//! [`DiagnoseOptions::min_holdout_gain`]. (a) alone over-adopts when the residual is dominated by
+//! model-form error of the coarse linear model (n is large, so any extra parameter that absorbs a
+//! little of it passes); (b) makes the parameter pay for itself on data it was not fitted to, and
+//! explain a real part of what the noise does not. The held-out ΔBIC alone is not enough: on a clean
+//! specimen the 7-parameter inhomogeneity field absorbs part of the coarse mesh's discretisation
+//! error (held-out ΔBIC −58, but only 7 % of the excess error); measuring the gain against the
+//! excess rather than the whole RMS (the first version) no longer hides effects whose gain is small
+//! next to the marker noise but large next to what the model gets wrong.
 
 pub mod curve;
 pub mod export;
@@ -61,8 +67,10 @@ pub struct DiagnoseOptions {
     pub holdout_iterations: usize,
     /// ΔBIC must be below −this.
     pub bic_threshold: f64,
-    /// Held-out RMS must drop by at least this fraction.
+    /// The held-out error in excess of the noise floor √(RMS² − 3σ²) (σ declared; else the
+    /// held-out RMS itself) must drop by at least this fraction.
     pub min_holdout_gain: f64,
+
     /// How many BIC-ranked candidates are cross-validated per round.
     pub cv_candidates: usize,
 }
@@ -126,8 +134,14 @@ pub struct Tried {
     pub rms: f64,
     /// ΔBIC against the current model (negative = better).
     pub delta_bic: f64,
-    /// Held-out RMS (m), computed for the best-ranked candidate only.
+    /// Held-out RMS (m), computed for the best-ranked candidates only.
     pub heldout_rms: Option<f64>,
+    /// Paired t statistic of the held-out χ² reductions (cross-validated candidates only).
+    pub heldout_t: Option<f64>,
+    /// ΔBIC on the held-out predictions (cross-validated candidates only; must be < 0).
+    pub heldout_delta_bic: Option<f64>,
+    /// Held-out RMS implied-force error (N; cross-validated candidates only).
+    pub heldout_force_rms: Option<f64>,
 }
 
 /// One round of the loop.
@@ -217,15 +231,51 @@ fn force_errors(ctx: &Context, f: &Fitted) -> Vec<f64> {
         .collect()
 }
 
+/// Held-out errors of a model.
+#[derive(Debug, Clone)]
+struct Held {
+    /// Held-out marker error norms (m), all measurements.
+    markers: Vec<f64>,
+    /// Held-out implied-force errors (N), one per measurement.
+    forces: Vec<f64>,
+    /// Held-out χ² (Σ|r|²/σ²) of each measurement.
+    chi2: Vec<f64>,
+}
+
+/// The paired one-sided t statistic of the held-out χ² reductions d_i = χ²_i(old) − χ²_i(new)
+/// over the held-out measurements: mean(d) / (sd(d)/√m). Large when the new model predicts
+/// held-out measurements better consistently, not just on one.
+fn paired_t(old: &Held, new: &Held) -> f64 {
+    let d: Vec<f64> = old.chi2.iter().zip(&new.chi2).map(|(a, b)| a - b).collect();
+    let m = d.len() as f64;
+    if m < 2.0 {
+        return 0.0;
+    }
+    let mean = d.iter().sum::<f64>() / m;
+    let var = d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (m - 1.0);
+    if var <= 0.0 {
+        return if mean > 0.0 { f64::INFINITY } else { 0.0 };
+    }
+    mean / (var / m).sqrt()
+}
+
+/// The information criterion on held-out predictions: n ln(χ²_new/χ²_old) + k ln n over the
+/// leave-one-out residuals (n entries, k extra parameters). Negative when the held-out gain pays
+/// for the extra parameters at the same price BIC charges on the fitted data.
+fn heldout_delta_bic(old: &Held, new: &Held, k: usize) -> f64 {
+    let n = old.markers.len() as f64 * 3.0;
+    let (a, b) = (old.chi2.iter().sum::<f64>(), new.chi2.iter().sum::<f64>());
+    if !(a > 0.0 && b > 0.0) {
+        return f64::INFINITY;
+    }
+    n * (b / a).ln() + k as f64 * n.ln()
+}
+
 /// Leave-one-measurement-out: refit without each measurement (warm-started from the full fit),
-/// predict it. Returns (held-out marker error norms, held-out implied-force errors).
-fn holdout(
-    ctx: &Context,
-    full: &Fitted,
-    iterations: usize,
-) -> Result<(Vec<f64>, Vec<f64>), DiagnoseError> {
+/// predict it.
+fn holdout(ctx: &Context, full: &Fitted, iterations: usize) -> Result<Held, DiagnoseError> {
     let all: Vec<usize> = (0..ctx.meas.len()).collect();
-    let (mut errs, mut ferrs) = (Vec::new(), Vec::new());
+    let (mut errs, mut ferrs, mut sse) = (Vec::new(), Vec::new(), Vec::new());
     for &i in &all {
         let sub: Vec<usize> = all.iter().copied().filter(|&j| j != i).collect();
         let warm: Vec<Vec<[f64; 3]>> = sub.iter().map(|&j| full.sim.x[j].clone()).collect();
@@ -249,16 +299,22 @@ fn holdout(
             theta: f.theta.clone(),
             ..f
         };
-        errs.extend(marker_norms(ctx, &held));
+        let norms = marker_norms(ctx, &held);
+        sse.push(norms.iter().map(|e| e * e).sum::<f64>() / (ctx.sigma * ctx.sigma));
+        errs.extend(norms);
         ferrs.extend(force_errors(ctx, &held));
     }
-    Ok((errs, ferrs))
+    Ok(Held {
+        markers: errs,
+        forces: ferrs,
+        chi2: sse,
+    })
 }
 
-fn errors(ctx: &Context, f: &Fitted, held: &(Vec<f64>, Vec<f64>)) -> Errors {
+fn errors(ctx: &Context, f: &Fitted, held: &Held) -> Errors {
     let (fitted_rms, fitted_max) = stats(&marker_norms(ctx, f));
     let (force_rms, force_max) = stats(&force_errors(ctx, f));
-    let (heldout_rms, heldout_max) = stats(&held.0);
+    let (heldout_rms, heldout_max) = stats(&held.markers);
     Errors {
         fitted_rms,
         fitted_max,
@@ -266,7 +322,7 @@ fn errors(ctx: &Context, f: &Fitted, held: &(Vec<f64>, Vec<f64>)) -> Errors {
         heldout_max,
         force_rms,
         force_max,
-        heldout_force_rms: stats(&held.1).0,
+        heldout_force_rms: stats(&held.forces).0,
     }
 }
 
@@ -356,7 +412,7 @@ pub fn run_diagnosis_with(
                 progress(&format!("round {round}: trying {}", c.name()));
                 let m = current.model.with(c);
                 let mut t = current.theta.clone();
-                t.resize(m.param_count(o.grid), 0.0);
+                t.extend(c.start(o.grid));
                 match fit(&ctx, &m, t, &all, Some(&current.sim.x), o.max_iterations) {
                     Ok(f) => {
                         let (rms, _) = stats(&marker_norms(&ctx, &f));
@@ -367,6 +423,9 @@ pub fn run_diagnosis_with(
                                 rms,
                                 delta_bic: bic(&f) - bic0,
                                 heldout_rms: None,
+                                heldout_t: None,
+                                heldout_delta_bic: None,
+                                heldout_force_rms: None,
                             },
                             f,
                         ));
@@ -403,21 +462,42 @@ pub fn run_diagnosis_with(
                 best.candidate.name()
             ));
             let held = holdout(&ctx, bf, o.holdout_iterations)?;
-            let h = stats(&held.0).0;
+            let h = stats(&held.markers).0;
+            let t = paired_t(&current_held, &held);
+            let cv_bic = heldout_delta_bic(&current_held, &held, best.extra_params);
             best.heldout_rms = Some(h);
+            best.heldout_t = Some(t);
+            best.heldout_delta_bic = Some(cv_bic);
+            best.heldout_force_rms = Some(stats(&held.forces).0);
             let gain = 1.0 - h / before.heldout_rms;
-            if gain >= o.min_holdout_gain {
-                reasons.push(format!(
-                    "adopt {}: ΔBIC = {:.1} (< −{}) and held-out RMS {:.1} µm → {:.1} µm ({:.0}% lower, ≥ {:.0}% required)",
-                    best.candidate.name(), best.delta_bic, o.bic_threshold, 1e6 * before.heldout_rms, 1e6 * h, 100.0 * gain, 100.0 * o.min_holdout_gain
-                ));
+            let verdict = format!(
+                "{}: ΔBIC = {:.1}; held-out RMS {:.1} µm → {:.1} µm ({:+.1}%), implied force {:.4} N → {:.4} N, held-out ΔBIC {:.1} (< 0 required; paired t of the per-measurement held-out χ² reductions {:.2})",
+                best.candidate.name(), best.delta_bic, 1e6 * before.heldout_rms, 1e6 * h, -100.0 * gain, before.heldout_force_rms, stats(&held.forces).0, cv_bic, t
+            );
+            let excess = |r: f64| {
+                if ctx.sigma_declared {
+                    (r * r - 3.0 * ctx.sigma * ctx.sigma).max(0.0).sqrt()
+                } else {
+                    r
+                }
+            };
+            let excess_gain = 1.0 - excess(h) / excess(before.heldout_rms).max(1e-300);
+            let verdict = format!(
+                "{verdict}; {} {:.0}% lower (≥ {:.0}% required)",
+                if ctx.sigma_declared {
+                    "held-out error in excess of the noise floor"
+                } else {
+                    "held-out RMS"
+                },
+                100.0 * excess_gain,
+                100.0 * o.min_holdout_gain
+            );
+            if cv_bic < 0.0 && excess_gain >= o.min_holdout_gain {
+                reasons.push(format!("adopt {verdict}"));
                 adopted = Some((best.candidate, bf.clone(), held));
                 break;
             }
-            reasons.push(format!(
-                "{} has ΔBIC = {:.1} but held-out RMS {:.1} µm → {:.1} µm ({:.0}% lower, {:.0}% required): rejected",
-                best.candidate.name(), best.delta_bic, 1e6 * before.heldout_rms, 1e6 * h, 100.0 * gain, 100.0 * o.min_holdout_gain
-            ));
+            reasons.push(format!("reject {verdict}"));
         }
         if tried.is_empty() {
             reasons.push(format!(
@@ -460,7 +540,7 @@ pub fn run_diagnosis_with(
     }
     Ok(DiagnosisReport {
         dataset: ds.name.clone(),
-        criterion: "rank by BIC = n ln(χ²/n) + k ln n; adopt the best if ΔBIC < −threshold AND leave-one-measurement-out held-out RMS drops by ≥ min_holdout_gain".into(),
+        criterion: "rank by BIC = n ln(χ²/n) + k ln n; adopt the best if ΔBIC < −threshold AND on leave-one-measurement-out predictions n ln(χ²_new/χ²_old) + k ln n < 0 AND the held-out error in excess of the noise floor drops by ≥ min_holdout_gain".into(),
         sigma: ctx.sigma,
         sigma_declared: ctx.sigma_declared,
         noise_floor: ctx.sigma * 3f64.sqrt(),

@@ -36,6 +36,14 @@ pub enum Candidate {
     /// Inhomogeneity: log E varies over the bounding box as a trilinear field on a coarse grid
     /// (default 3 × 3 × 2 nodes; the first node is the reference, so grid − 1 params).
     Inhomogeneity,
+    /// Layered material: log E varies with depth below the probed face (along the mean reported
+    /// force direction), piecewise linear over [`LAYER_NODES`] equally spaced depths, the deepest
+    /// node the reference. LAYER_NODES − 1 params.
+    Layer,
+    /// A stiff or soft inclusion: log E += a exp(−½ ‖x_e − p‖² / r²), a Gaussian blob with
+    /// contrast a, centre p = p₀ + h θ (h the half width, p₀ below the mean contact point at a
+    /// quarter of the depth) and radius r = ½ h exp(θ_r). 5 params (a, p, θ_r).
+    Inclusion,
     /// Strain stiffening (non-linear material): secant modulus E_e = E (1 + β (‖ε_e‖ / 0.1)²)
     /// from the element's warped strain (E / (1 + |β| …) for β < 0), solved to its fixed point.
     /// 1 param (β).
@@ -43,13 +51,15 @@ pub enum Candidate {
 }
 
 /// Every candidate, in the order they are tried.
-pub const ALL_CANDIDATES: [Candidate; 7] = [
+pub const ALL_CANDIDATES: [Candidate; 9] = [
     Candidate::Calibration,
     Candidate::Tilt,
     Candidate::Boundary,
     Candidate::Registration,
     Candidate::Gravity,
     Candidate::Inhomogeneity,
+    Candidate::Layer,
+    Candidate::Inclusion,
     Candidate::Stiffening,
 ];
 
@@ -63,6 +73,8 @@ impl Candidate {
             Candidate::Registration => "registration",
             Candidate::Gravity => "gravity",
             Candidate::Inhomogeneity => "inhomogeneity",
+            Candidate::Layer => "layer",
+            Candidate::Inclusion => "inclusion",
             Candidate::Stiffening => "stiffening",
         }
     }
@@ -74,7 +86,20 @@ impl Candidate {
             Candidate::Tilt | Candidate::Boundary => 2,
             Candidate::Registration => 6,
             Candidate::Inhomogeneity => grid[0] * grid[1] * grid[2] - 1,
+            Candidate::Layer => LAYER_NODES - 1,
+            Candidate::Inclusion => 5,
         }
+    }
+
+    /// Starting values of its block when it is added to a fitted model (zero = the effect is
+    /// absent, except the inclusion, whose position and size are invisible at zero contrast and
+    /// so start at a modest contrast).
+    pub fn start(self, grid: [usize; 3]) -> Vec<f64> {
+        let mut v = vec![0.0; self.params(grid)];
+        if self == Candidate::Inclusion {
+            v[0] = 0.5;
+        }
+        v
     }
 
     /// Whether its parameters change the FEM solve (else they act on the solved markers only).
@@ -105,6 +130,16 @@ impl Candidate {
                 .map(|k| (format!("Δlog E at grid node {k}"), "", 1.0))
                 .collect(),
             Candidate::Stiffening => vec![v("stiffening β", "", 1.0)],
+            Candidate::Layer => (0..LAYER_NODES - 1)
+                .map(|k| (format!("Δlog E at depth {k}/{}", LAYER_NODES - 1), "", 1.0))
+                .collect(),
+            Candidate::Inclusion => vec![
+                v("log contrast a", "", 1.0),
+                v("centre offset x / h", "", 1.0),
+                v("centre offset y / h", "", 1.0),
+                v("centre offset z / h", "", 1.0),
+                v("log radius θ_r (r = h/2 e^θ_r)", "", 1.0),
+            ],
         }
     }
 }
@@ -159,6 +194,12 @@ pub struct Context {
     pub solve: SolveOptions,
     /// Rest position of each marker on the model (interpolated from the mesh).
     pub marker_rest: Vec<[f64; 3]>,
+    /// Element centroids (m).
+    pub centroids: Vec<[f64; 3]>,
+    /// Depth of each element centroid below the probed face, as a fraction of the total depth.
+    pub depth: Vec<f64>,
+    /// Starting centre of the inclusion candidate.
+    pub inclusion_start: [f64; 3],
 }
 
 fn norm(v: [f64; 3]) -> f64 {
@@ -262,6 +303,44 @@ impl Context {
                 trilinear(c, lo, hi, grid)
             })
             .collect();
+        let centroids: Vec<[f64; 3]> = ds
+            .mesh
+            .tets
+            .iter()
+            .map(|t| {
+                let mut c = [0.0; 3];
+                for &n in t {
+                    for d in 0..3 {
+                        c[d] += 0.25 * ds.mesh.nodes[n][d];
+                    }
+                }
+                c
+            })
+            .collect();
+        // Depth along the mean pushing direction nz, from the probed face (smallest x·nz).
+        let along = |x: &[f64; 3]| x[0] * nz[0] + x[1] * nz[1] + x[2] * nz[2];
+        let top = ds
+            .mesh
+            .nodes
+            .iter()
+            .map(along)
+            .fold(f64::INFINITY, f64::min);
+        let bottom = ds
+            .mesh
+            .nodes
+            .iter()
+            .map(along)
+            .fold(f64::NEG_INFINITY, f64::max);
+        let span = (bottom - top).max(1e-12);
+        let depth = centroids.iter().map(|c| (along(c) - top) / span).collect();
+        let mut contact_mean = [0.0; 3];
+        for m in &meas {
+            for d in 0..3 {
+                contact_mean[d] += m.point[d] / meas.len() as f64;
+            }
+        }
+        let shift = 0.25 * span - (along(&contact_mean) - top);
+        let inclusion_start = [0, 1, 2].map(|d| contact_mean[d] + shift * nz[d]);
         let marker_rest = ds
             .markers
             .iter()
@@ -289,6 +368,9 @@ impl Context {
                 max_fixed_point: 40,
             },
             marker_rest,
+            centroids,
+            depth,
+            inclusion_start,
         })
     }
 
@@ -328,6 +410,9 @@ fn trilinear(c: [f64; 3], lo: [f64; 3], hi: [f64; 3], g: [usize; 3]) -> Vec<(usi
     }
     out
 }
+
+/// Depth nodes of the layer candidate.
+pub const LAYER_NODES: usize = 4;
 
 /// Most secant passes of the stiffening fixed point.
 const STIFFENING_PASSES: usize = 12;
@@ -458,19 +543,44 @@ impl Model {
         out
     }
 
-    /// Per-element log-E offsets of the inhomogeneity field (zeros without it).
+    /// Per-element log-E offsets of the spatial material effects (inhomogeneity, layer,
+    /// inclusion); `None` without any.
     fn log_e_field(&self, ctx: &Context, theta: &[f64]) -> Option<Vec<f64>> {
-        let b = self.block(Candidate::Inhomogeneity, theta, ctx.grid)?;
-        Some(
-            ctx.grid_weights
-                .iter()
-                .map(|ws| {
-                    ws.iter()
-                        .map(|&(k, w)| if k == 0 { 0.0 } else { w * b[k - 1] })
-                        .sum()
-                })
-                .collect(),
-        )
+        let grid = self.block(Candidate::Inhomogeneity, theta, ctx.grid);
+        let layer = self.block(Candidate::Layer, theta, ctx.grid);
+        let blob = self.block(Candidate::Inclusion, theta, ctx.grid);
+        if grid.is_none() && layer.is_none() && blob.is_none() {
+            return None;
+        }
+        let mut out = vec![0.0; ctx.centroids.len()];
+        if let Some(b) = grid {
+            for (o, ws) in out.iter_mut().zip(&ctx.grid_weights) {
+                *o += ws
+                    .iter()
+                    .map(|&(k, w)| if k == 0 { 0.0 } else { w * b[k - 1] })
+                    .sum::<f64>();
+            }
+        }
+        if let Some(b) = layer {
+            // Nodes at depth k/(L−1); the deepest (k = L−1) is the reference.
+            let last = (LAYER_NODES - 1) as f64;
+            for (o, &d) in out.iter_mut().zip(&ctx.depth) {
+                let t = (d.clamp(0.0, 1.0) * last).min(last - 1e-12);
+                let k = t.floor() as usize;
+                let w = t - k as f64;
+                let at = |j: usize| if j < LAYER_NODES - 1 { b[j] } else { 0.0 };
+                *o += (1.0 - w) * at(k) + w * at(k + 1);
+            }
+        }
+        if let Some(b) = blob {
+            let p = [0, 1, 2].map(|d| ctx.inclusion_start[d] + ctx.half * b[1 + d]);
+            let r = 0.5 * ctx.half * b[4].clamp(-5.0, 5.0).exp();
+            for (o, c) in out.iter_mut().zip(&ctx.centroids) {
+                let d2: f64 = (0..3).map(|d| (c[d] - p[d]).powi(2)).sum();
+                *o += b[0] * (-0.5 * d2 / (r * r)).exp();
+            }
+        }
+        Some(out)
     }
 
     fn material(

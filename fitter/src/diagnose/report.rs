@@ -120,16 +120,22 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
                 .join(", ")
         );
         if !st.tried.is_empty() {
-            let _ = writeln!(s, "| candidate | extra params | refit RMS µm | ΔBIC | held-out RMS µm |\n|---|---|---|---|---|");
+            let _ = writeln!(s, "| candidate | extra params | refit RMS µm | ΔBIC | held-out RMS µm | held-out ΔBIC | held-out paired t |\n|---|---|---|---|---|---|---|");
             for t in &st.tried {
                 let _ = writeln!(
                     s,
-                    "| {} | {} | {} | {:.1} | {} |",
+                    "| {} | {} | {} | {:.1} | {} | {} | {} |",
                     t.candidate.name(),
                     t.extra_params,
                     um(t.rms),
                     t.delta_bic,
-                    t.heldout_rms.map(um).unwrap_or_else(|| "–".into())
+                    t.heldout_rms.map(um).unwrap_or_else(|| "–".into()),
+                    t.heldout_delta_bic
+                        .map(|v| format!("{v:.1}"))
+                        .unwrap_or_else(|| "–".into()),
+                    t.heldout_t
+                        .map(|v| format!("{v:.2}"))
+                        .unwrap_or_else(|| "–".into())
                 );
             }
         }

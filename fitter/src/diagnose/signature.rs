@@ -295,7 +295,7 @@ pub fn evidence_points(
                     .collect(),
             )
         }
-        Candidate::Inhomogeneity => {
+        Candidate::Inhomogeneity | Candidate::Layer | Candidate::Inclusion => {
             let mut pts = Vec::new();
             for (&i, r) in f.subset.iter().zip(&res) {
                 let c = ctx.meas[i].point;
