@@ -91,8 +91,8 @@ impl BenchModel {
         let lu = |v: &mut Vec<u8>, x: u32| v.extend_from_slice(&x.to_le_bytes());
         let mut b: [Vec<u8>; 9] = Default::default();
         for p in &mesh.nodes {
-            for k in 0..3 {
-                le(&mut b[0], p[k] as f32);
+            for v in p {
+                le(&mut b[0], *v as f32);
             }
         }
         for t in &mesh.node_tags {
@@ -480,9 +480,9 @@ fn run_direct(model: &BenchModel, args: &Args, p: LambdaAlpha) -> anyhow::Result
             let k_rot = rk * big.transpose();
             // K'' x₀ − K' x₀ term of the displacement form.
             let mut x0 = nalgebra::SVector::<f64, 12>::zeros();
-            for a in 0..4 {
+            for (a, &node) in t.iter().enumerate() {
                 x0.fixed_rows_mut::<3>(3 * a)
-                    .copy_from(&Vector3::from(mesh.nodes[t[a]]));
+                    .copy_from(&Vector3::from(mesh.nodes[node]));
             }
             let corr = rk * x0 - k_rot * x0;
             for a in 0..12 {
