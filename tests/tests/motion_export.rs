@@ -162,3 +162,30 @@ fn motion_fit_export_loads_and_matches_the_static_solve() {
         "worst {worst:e} m vs largest {largest:e} m"
     );
 }
+
+/// With the spline material of §4.2 the export keeps its rest tangent: for the Neo-Hookean
+/// initialisation (eq. 19) that is exactly the Neo-Hookean (λ, μ) (1e-12 relative: the splines
+/// reproduce the quadratics exactly), and the provenance names what is dropped.
+#[test]
+fn spline_material_exports_its_rest_tangent() {
+    use palpate_fitter::motion::export::lost_in_export;
+    use palpate_fitter::motion::spline::{Spline, SplineMaterial};
+    let (l, m) = (3.0e4, 1.2e4);
+    let mut mat = Material::uniform(4, 0.0, 0.0, 3.0, 1.0, 1000.0);
+    mat.spline = Some(
+        SplineMaterial::neo_hookean(
+            l,
+            m,
+            Spline::uniform_knots(0.5, 1.7, 5),
+            Spline::uniform_knots(0.7, 1.3, 5),
+        )
+        .unwrap(),
+    );
+    let p = runtime_parameters(&mat);
+    let want = LambdaAlpha::from_lame(l, m);
+    assert_eq!(p.lambda.len(), 1);
+    assert!((p.lambda[0] - want.lambda).abs() <= 1e-12 * want.lambda);
+    assert!((p.alpha[0] - want.alpha).abs() <= 1e-12 * want.alpha);
+    let note = lost_in_export(&mat);
+    assert!(note.contains("rest tangent") && note.contains("stress at rest"));
+}

@@ -15,6 +15,7 @@ pub mod fit;
 pub mod fit_motion;
 pub mod haptic;
 pub mod motion_evidence;
+pub mod motion_evidence_spline;
 pub mod probe;
 pub mod probe_sim;
 pub mod simulate;

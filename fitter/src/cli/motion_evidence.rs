@@ -1,5 +1,5 @@
-//! `palpate motion-evidence {coarsening,recover,vhb,bimaterial}`: the four evidence runs of the
-//! motion-fitter issue. Each prints a Markdown table and writes `<out>/<name>.md` and `.json`.
+//! `palpate motion-evidence {coarsening,recover,vhb,bimaterial,spline}`: the evidence runs of the
+//! motion-fitter issue (`spline` lives in `motion_evidence_spline.rs`). Each prints a Markdown table and writes `<out>/<name>.md` and `.json`.
 
 use crate::io::atomic::write_atomic;
 use crate::mesh::boxmesh::box_mesh;
@@ -24,6 +24,8 @@ pub enum Which {
     Vhb,
     /// Per-element μ on a bi-material bar.
     Bimaterial,
+    /// Spline material (§4.2) vs Neo-Hookean on a strain-stiffening synthetic tensile bar.
+    Spline,
     /// Writes the example motion dataset `models/motion-example` (simulated, known truth).
     Example,
 }
@@ -50,6 +52,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Which::Recover => recover()?,
         Which::Vhb => vhb(&args.vhb_dir)?,
         Which::Bimaterial => bimaterial()?,
+        Which::Spline => super::motion_evidence_spline::spline()?,
         Which::Example => return example(Path::new("models/motion-example")),
     };
     let md = format!(

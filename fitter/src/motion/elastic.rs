@@ -9,6 +9,9 @@ use super::MotionError;
 use nalgebra::Matrix3;
 
 /// Kinematic state of one element under its elastic law.
+// The spline state is larger (SVD + basis weights); it lives on the stack per element, never
+// in collections, so boxing it would only add an allocation per element evaluation.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy)]
 pub enum ElasticState<'a> {
     /// Neo-Hookean (eq. 16).

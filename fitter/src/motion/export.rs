@@ -49,12 +49,16 @@ pub fn lost_in_export(mat: &Material) -> String {
         let v = &mat.values[k as usize];
         v.iter().sum::<f64>() / v.len().max(1) as f64
     };
-    let elastic = if mat.spline.is_some() {
-        "the spline (principal-stretch, seed 001 §4.2) material's large-strain response: only its \
-         rest tangent (small-strain Lamé constants) is kept"
-    } else {
-        "the large-strain Neo-Hookean response (seed 001 eq. 16): the runtime uses its rest \
-         linearisation with stiffness warping (equal for small strains, any rotation)"
+    let elastic = match &mat.spline {
+        Some(sp) => format!(
+            "the spline (principal-stretch, seed 001 §4.2) material's large-strain response: only \
+             its rest tangent (small-strain Lame constants) is kept, and its stress at rest \
+             f'(1) + h'(1) = {:.4e} Pa is dropped",
+            sp.rest_stress()
+        ),
+        None => "the large-strain Neo-Hookean response (seed 001 eq. 16): the runtime uses its \
+                 rest linearisation with stiffness warping (equal for small strains, any rotation)"
+            .to_string(),
     };
     format!(
         "motion fit exported to the static runtime; lost: viscosity nu = {:.4e} Pa s^h and \

@@ -277,7 +277,7 @@ pub fn fit(
     if let Some((i, v)) = q0
         .iter()
         .enumerate()
-        .find(|(i, v)| !v.is_finite() || (!params[*i].kind.is_spline() && !(**v > 0.0)))
+        .find(|(i, v)| !v.is_finite() || (!params[*i].kind.is_spline() && **v <= 0.0))
     {
         return Err(MotionError::Invalid(format!(
             "parameter {} ({:?}) must start positive for the log transform, found {v}",

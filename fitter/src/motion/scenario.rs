@@ -55,6 +55,44 @@ pub fn bar_model(
     Ok((mesh, model))
 }
 
+/// A tensile test: a bar of `size` (long axis y) meshed with `cells`, its `front` face (y = 0)
+/// fixed and its `back` face pulled along y by `elongation(t)` (m); no gravity (a tared load
+/// cell), lumped mass, no markers. The observable is the reaction force of clamp 1 (`back`).
+pub fn tension_bar(
+    size: [f64; 3],
+    cells: [usize; 3],
+    dt: f64,
+    steps: usize,
+    elongation: &dyn Fn(f64) -> f64,
+) -> Result<(Mesh, Model), MotionError> {
+    let mesh = box_mesh(size, cells);
+    let group = |g: &str| mesh.node_groups.get(g).cloned().unwrap_or_default();
+    let clamps = vec![
+        Clamp {
+            name: "front".into(),
+            nodes: group("front"),
+            poses: vec![Pose::identity(); steps + 1],
+        },
+        Clamp {
+            name: "back".into(),
+            nodes: group("back"),
+            poses: (0..=steps)
+                .map(|n| Pose::translation([0.0, elongation(n as f64 * dt), 0.0]))
+                .collect(),
+        },
+    ];
+    let model = Model::new(
+        &mesh,
+        clamps,
+        Vec::new(),
+        dt,
+        steps,
+        [0.0; 3],
+        MassKind::Lumped,
+    )?;
+    Ok((mesh, model))
+}
+
 /// Nine surface markers at ⅓, ⅔ and the top of a bar of `size` (three per height).
 pub fn nine_markers(size: [f64; 3]) -> Vec<[f64; 3]> {
     let mut m = Vec::new();

@@ -72,7 +72,7 @@ impl Spline {
             )));
         }
         for (i, w) in knots.windows(2).enumerate() {
-            if !(w[1] > w[0]) || !w[0].is_finite() || !w[1].is_finite() {
+            if w[1] <= w[0] || !w[0].is_finite() || !w[1].is_finite() {
                 return Err(MotionError::Invalid(format!(
                     "spline knots must be finite and strictly increasing: knot {} = {} then {}",
                     i, w[0], w[1]
@@ -363,7 +363,7 @@ impl SplineMaterial {
         let svd = f.svd(true, true);
         let (u, vt) = (svd.u?, svd.v_t?);
         let s = svd.singular_values;
-        if s.iter().any(|&x| !(x > 0.0)) {
+        if s.iter().any(|&x| x.is_nan() || x <= 0.0) {
             return None;
         }
         let j = s[0] * s[1] * s[2];
@@ -477,6 +477,12 @@ impl SplineMaterial {
         let (_, fpp) = self.f.eval(1.0);
         let (sh, shp) = self.h.eval(1.0);
         (shp, 0.5 * (fpp - sh))
+    }
+
+    /// Principal stress at F = I: ψ(1) = f′(1) + h′(1) (eq. 20). Neo-Hookean gives 0; a free fit
+    /// can make it non-zero — the residual stress at rest the paper warns about (§4.2).
+    pub fn rest_stress(&self) -> f64 {
+        self.f.eval(1.0).0 + self.h.eval(1.0).0
     }
 
     /// Negative-slope penalty of §4.2: Σ over the sample points of both response functions of
