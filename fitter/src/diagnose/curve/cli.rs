@@ -15,6 +15,7 @@ pub fn candidate_names() -> Vec<String> {
     v.extend([
         Candidate::Viscosity,
         Candidate::Offset,
+        Candidate::Slack,
         Candidate::PowerLaw,
         Candidate::Saturation,
         Candidate::Threshold,

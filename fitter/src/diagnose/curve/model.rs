@@ -1,5 +1,6 @@
 //! The 1-D model library: an elastic law (linear, or hyperelastic in uniaxial form), optional
-//! viscous branches integrated over the recorded time series, a zero offset; for FSRs a divider
+//! viscous branches integrated over the recorded time series, a zero offset, slack (tension only:
+//! F = max(F_model, 0), the specimen buckles instead of carrying compression); for FSRs a divider
 //! model with optional power-law response, conductance saturation, turn-on threshold and drift.
 //!
 //! Mechanical (tension: F in N against grip displacement Δ; stress–strain: nominal stress P against
@@ -97,6 +98,9 @@ pub enum Candidate {
     Viscosity,
     /// A zero offset of the response (load-cell zero).
     Offset,
+    /// The specimen cannot carry compression: a membrane or strip slackens (buckles) when the
+    /// model force would turn negative, so the measured force stays at zero (tension only).
+    Slack,
     /// Power-law sensor response.
     PowerLaw,
     /// Sensor conductance saturation.
@@ -114,6 +118,7 @@ impl Candidate {
             Candidate::Hyperelastic(l) => format!("hyperelastic-{}", l.name()),
             Candidate::Viscosity => "viscosity".into(),
             Candidate::Offset => "offset".into(),
+            Candidate::Slack => "slack".into(),
             Candidate::PowerLaw => "power-law-response".into(),
             Candidate::Saturation => "saturation".into(),
             Candidate::Threshold => "turn-on-threshold".into(),
@@ -128,6 +133,7 @@ impl Candidate {
             }
             Candidate::Viscosity => "viscosity (hysteresis, rate dependence, relaxation)",
             Candidate::Offset => "zero offset of the load cell",
+            Candidate::Slack => "slack: the specimen buckles instead of carrying compression",
             Candidate::PowerLaw => "non-linear (power-law) sensor response",
             Candidate::Saturation => "sensor saturation at high force",
             Candidate::Threshold => "sensor turn-on threshold",
@@ -218,6 +224,8 @@ pub struct Model {
     pub branches: usize,
     /// Zero offset.
     pub offset: bool,
+    /// Tension only (force clipped at zero).
+    pub slack: bool,
     /// FSR power-law response.
     pub power: bool,
     /// FSR saturation.
@@ -249,6 +257,7 @@ impl Model {
             law: Law::Linear,
             branches: 0,
             offset: false,
+            slack: false,
             power: false,
             saturation: false,
             threshold: false,
@@ -274,6 +283,9 @@ impl Model {
             if !self.offset {
                 v.push(Candidate::Offset);
             }
+            if !self.slack && matches!(self.family, Family::Tension { .. }) {
+                v.push(Candidate::Slack);
+            }
         } else {
             if !self.power {
                 v.push(Candidate::PowerLaw);
@@ -298,6 +310,7 @@ impl Model {
             Candidate::Hyperelastic(l) => m.law = l,
             Candidate::Viscosity => m.branches += 1,
             Candidate::Offset => m.offset = true,
+            Candidate::Slack => m.slack = true,
             Candidate::PowerLaw => m.power = true,
             Candidate::Saturation => m.saturation = true,
             Candidate::Threshold => m.threshold = true,
@@ -320,6 +333,9 @@ impl Model {
             }
             if self.offset {
                 parts.push("offset".into());
+            }
+            if self.slack {
+                parts.push("slack".into());
             }
         } else {
             parts.push(
@@ -484,6 +500,9 @@ impl Model {
                 h = (-dt / tau).exp() * h + beta * (-dt / (2.0 * tau)).exp() * (pe[k] - pe[k - 1]);
                 out[k] += h;
             }
+        }
+        if self.slack {
+            out.iter_mut().for_each(|v| *v = v.max(0.0));
         }
         if let Some(o) = val("offset") {
             out.iter_mut().for_each(|v| *v += o);

@@ -10,6 +10,9 @@ use crate::plot::{lines, Series, Style};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+/// Plot points.
+type Points = Vec<(f64, f64)>;
+
 fn thin(v: Vec<(f64, f64)>, max: usize) -> Vec<(f64, f64)> {
     let stride = v.len().div_ceil(max.max(1)).max(1);
     v.into_iter().step_by(stride).collect()
@@ -47,16 +50,16 @@ pub fn write_report(d: &CurveDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, Curv
     };
     let first = &sel.fits[0];
     let last = sel.fits.last().expect("non-empty");
-    let mut owned: Vec<(String, Vec<(f64, f64)>, Style)> = Vec::new();
+    let mut owned: Vec<(String, Points, Style)> = Vec::new();
     for &gi in &picks {
         let g = &groups[gi];
         let meas: Vec<(f64, f64)> = g.x.iter().copied().zip(g.y.iter().copied()).collect();
         let style = if ts { Style::Line } else { Style::Points };
-        owned.push((format!("{} measured", g.name), thin(meas, 2000), style));
+        owned.push((format!("{} measured", g.name), thin(meas, 1000), style));
         for (lab, f) in [("simplest", first), ("final", last)] {
             if let Some(p) = f.model.predict(&f.theta, g) {
                 let pts = g.x.iter().copied().zip(p).collect();
-                owned.push((format!("{} {lab}", g.name), thin(pts, 2000), Style::Line));
+                owned.push((format!("{} {lab}", g.name), thin(pts, 1000), Style::Line));
             }
         }
     }
@@ -99,7 +102,7 @@ pub fn write_report(d: &CurveDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, Curv
         for (lab, f) in [("before", Some(before)), ("after", after)] {
             let Some(f) = f else { continue };
             for (name, pts) in evidence(var, groups, &resid_of(f, groups), ts) {
-                owned.push((format!("{lab}: {name}"), thin(pts, 3000)));
+                owned.push((format!("{lab}: {name}"), thin(pts, 800)));
             }
         }
         let series: Vec<Series> = owned

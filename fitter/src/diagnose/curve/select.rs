@@ -244,6 +244,7 @@ pub fn evidence_variable(c: Candidate, sig: &Signature) -> Variable {
         Candidate::Viscosity => &[Variable::Direction, Variable::Rate, Variable::HoldTime],
         Candidate::Saturation => &[Variable::Top, Variable::Magnitude],
         Candidate::Drift => &[Variable::Group],
+        Candidate::Slack => &[Variable::Direction, Variable::Magnitude],
         _ => &[Variable::Magnitude],
     };
     sig.signals
