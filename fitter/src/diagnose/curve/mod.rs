@@ -61,7 +61,8 @@ pub enum CurveError {
 pub struct CurveOptions {
     /// Gauge length L0 of tension data, mm (`None`: fitted by the hyperelastic candidates).
     pub gauge_mm: Option<f64>,
-    /// ADC resolution of FSR balance data, bits.
+    /// ADC resolution of FSR balance data, bits: the smallest resolution assumed; raised to the
+    /// smallest one that holds the largest count in the data (stated in the report).
     pub adc_bits: u32,
     /// Samples kept per file (time series are thinned, see [`read::decimate`]).
     pub max_points: usize,
@@ -171,15 +172,20 @@ pub fn diagnose(
             }
         })
         .collect();
+    let mut bits = o.adc_bits.clamp(1, 31);
     if data.format == Format::FsrBalance {
-        let full = f64::from((1u32 << o.adc_bits.min(31)) - 1);
-        for g in &groups {
-            if let Some(i) = g.y.iter().position(|&c| c > full) {
-                return Err(CurveError::Input(format!(
-                    "{}: line {}: {} counts exceed the {}-bit full scale {full}: give --adc-bits",
-                    g.name, g.line[i], g.y[i], o.adc_bits
-                )));
-            }
+        let top = groups
+            .iter()
+            .flat_map(|g| g.y.iter())
+            .fold(0.0f64, |m, &c| m.max(c));
+        while bits < 31 && f64::from((1u32 << bits) - 1) < top {
+            bits += 1;
+        }
+        if f64::from((1u32 << bits) - 1) < top {
+            return Err(CurveError::Input(format!(
+                "{}: {top} counts exceed any 31-bit converter",
+                data.name
+            )));
         }
     }
     let x_max = groups
@@ -200,7 +206,7 @@ pub fn diagnose(
             .fold(0.0, f64::max),
         order_mean: groups.iter().map(|g| g.order).sum::<f64>() / groups.len() as f64,
     };
-    let family = Family::of(data.format, o.gauge_mm, o.adc_bits);
+    let family = Family::of(data.format, o.gauge_mm, bits);
     let sel = select(Model::simplest(family, scale), &groups, ts, o, log)
         .ok_or_else(|| CurveError::Fit(data.name.clone()))?;
     let mut notes = data.warnings.clone();
@@ -216,9 +222,9 @@ pub fn diagnose(
             "Engineering (nominal) stress against engineering strain, λ = 1 + ε (uniaxial, incompressible forms).".into(),
         ),
         Format::FsrBalance => notes.push(format!(
-            "Response in ADC counts of a {}-bit converter (N = {}); force = mass × {} m/s².",
+            "Response in ADC counts of a {bits}-bit converter (N = {}: {} bits assumed, raised to hold the largest count); force = mass × {} m/s².",
+            (1u32 << bits) - 1,
             o.adc_bits,
-            (1u32 << o.adc_bits.min(31)) - 1,
             read::G_STANDARD
         )),
         Format::FsrDatasheet => notes.push("Response is ln R: errors are in natural-log units (0.1 ≈ 10 % in R).".into()),
