@@ -367,8 +367,15 @@ fn inputs_are_detected_by_header_and_broken_stress_strain_time_is_repaired() {
         "engineering_strain,engineering_stress_MPa,time_s\n0,0,0.8\n0.1,0.01,0.9\n0.2,0.02,0.10\n0.3,0.03,0.11\n",
     )
     .unwrap();
+    // A CSV of another kind in the same directory is skipped, with a warning naming it.
+    std::fs::write(dir.path().join("c.csv"), "note,value\nx,1\n").unwrap();
     assert!(is_curve_input(dir.path()));
     let sets = read_path(dir.path(), false, false).unwrap();
+    assert!(
+        sets[0].warnings.iter().any(|w| w.contains("c.csv:1:")),
+        "{:?}",
+        sets[0].warnings
+    );
     let formats: Vec<Format> = sets.iter().map(|d| d.format).collect();
     assert_eq!(formats, [Format::FsrDatasheet, Format::StressStrain]);
     let ss = &sets[1];

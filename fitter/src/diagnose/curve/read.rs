@@ -184,7 +184,7 @@ pub fn parse(text: &str, name: &str) -> Result<(Format, Vec<Group>, Vec<String>)
         .unwrap_or_else(|| name.to_string());
     let mut groups: Vec<Group> = Vec::new();
     for (line, l) in lines {
-        let cells: Vec<&str> = l.split(',').map(str::trim).collect();
+        let cells: Vec<&str> = l.split(',').map(|c| c.trim().trim_matches('"')).collect();
         let cell = |c: usize, col: &str| -> Result<f64, CurveError> {
             let s = cells.get(c).ok_or_else(|| CurveError::Format {
                 file: name.into(),
@@ -377,9 +377,22 @@ pub fn read_path(path: &Path, joint: bool, per_file: bool) -> Result<Vec<CurveDa
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "curves".into());
     let mut out: Vec<CurveData> = Vec::new();
+    let mut skipped: Vec<String> = Vec::new();
     // Index in `out` of the joint dataset of each format.
     let mut joint_of: Vec<(Format, usize)> = Vec::new();
     for f in &files {
+        // In a directory, a CSV whose header is none of the formats (notes, exports of other
+        // tools) is skipped with a warning; a recognised file with a bad cell is still an error.
+        let head = std::fs::read_to_string(f)
+            .ok()
+            .and_then(|t| t.lines().find(|l| !l.trim().is_empty()).map(str::to_string));
+        if head.as_deref().and_then(detect).is_none() {
+            skipped.push(format!(
+                "{}:1: header is none of the known formats: skipped",
+                f.display()
+            ));
+            continue;
+        }
         let mut d = read_file(f)?;
         let split = per_file || (d.format == Format::StressStrain && !joint);
         if split {
@@ -410,7 +423,15 @@ pub fn read_path(path: &Path, joint: bool, per_file: bool) -> Result<Vec<CurveDa
             }
         }
     }
+    if out.is_empty() {
+        return Err(CurveError::Input(format!(
+            "{}: no .csv file with a known header ({})",
+            path.display(),
+            skipped.join("; ")
+        )));
+    }
     for d in &mut out {
+        d.warnings.extend(skipped.iter().cloned());
         if d.format != Format::FsrBalance {
             for (i, g) in d.groups.iter_mut().enumerate() {
                 g.order = i as f64;
