@@ -135,18 +135,33 @@ pub fn element_forces(t: &RestTet, x: &[Vector3<f64>; 4], p: &HyperParams) -> Op
 }
 
 /// Element tangent K_e = −∂f_e/∂x_e (12 × 12, row-major `k[row][col]`), symmetric.
+///
+/// Closed form of V dP[e_j ∇φ_bᵀ] ∇φ_a (from [`dpk1`] with H = F⁻ᵀ, h_a = H ∇φ_a, f_a = F ∇φ_a,
+/// g_ab = ∇φ_a·∇φ_b, c = λ(J² − 1)/2 − μ):
+/// K[3a+i][3b+j] = V [ μ δ_ij g_ab + λJ² h_a,i h_b,j − c h_b,i h_a,j
+///                     + 4c_s (2 f_a,i f_b,j + (I₁ − 3) δ_ij g_ab) ].
+/// (The per-direction evaluation through `dpk1` was the motion simulator's hottest loop.)
 pub fn element_tangent(t: &RestTet, s: &FParts, p: &HyperParams) -> [[f64; 12]; 12] {
+    let h: [Vector3<f64>; 4] = std::array::from_fn(|a| s.f_inv_t * t.grad[a]);
+    let fg: [Vector3<f64>; 4] = std::array::from_fn(|a| s.f * t.grad[a]);
+    let j2 = s.j * s.j;
+    let c = 0.5 * p.lambda * (j2 - 1.0) - p.mu;
+    let lj2 = p.lambda * j2;
+    let ks = 4.0 * p.stiffening;
+    let diag = p.mu + ks * (s.i1 - 3.0);
+    let v = t.volume;
     let mut k = [[0.0; 12]; 12];
-    for b in 0..4 {
-        for j in 0..3 {
-            let mut e = Vector3::zeros();
-            e[j] = 1.0;
-            let df = e * t.grad[b].transpose();
-            let dp = dpk1(s, p, &df);
-            for a in 0..4 {
-                let col = dp * t.grad[a] * t.volume;
-                for i in 0..3 {
-                    k[3 * a + i][3 * b + j] = col[i];
+    for a in 0..4 {
+        for b in 0..4 {
+            let gab = t.grad[a].dot(&t.grad[b]);
+            for i in 0..3 {
+                for jj in 0..3 {
+                    let mut val = lj2 * h[a][i] * h[b][jj] - c * h[b][i] * h[a][jj]
+                        + 2.0 * ks * fg[a][i] * fg[b][jj];
+                    if i == jj {
+                        val += diag * gab;
+                    }
+                    k[3 * a + i][3 * b + jj] = v * val;
                 }
             }
         }

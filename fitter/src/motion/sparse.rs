@@ -5,10 +5,14 @@
 //! Cholesky analysis (fill-reducing ordering + elimination tree) is done once and reused for
 //! every numeric factorisation of every Newton iteration, time step and simulation.
 
-use faer::linalg::solvers::Solve;
-use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::sparse::linalg::cholesky::{
+    factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky,
+};
+use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
-use faer::{MatMut, Side};
+use faer::{Conj, MatMut, Side};
+use std::sync::Arc;
 
 /// Sparsity pattern of the free-dof system with element scatter maps.
 #[derive(Debug, Clone)]
@@ -20,20 +24,29 @@ pub struct Pattern {
     /// Per element: value index of local entry (r, c) at `r * 12 + c`, or `usize::MAX` if either
     /// dof is fixed.
     elem_map: Vec<[usize; 144]>,
-    symbolic: SymbolicLlt<usize>,
+    symbolic: Arc<SymbolicCholesky<usize>>,
     factor_len: usize,
 }
 
 /// A numeric Cholesky factor S = L Lᵀ of a matrix on [`Pattern`].
 #[derive(Debug, Clone)]
-pub struct Factor(Llt<usize, f64>);
+pub struct Factor {
+    symbolic: Arc<SymbolicCholesky<usize>>,
+    values: Vec<f64>,
+}
 
 impl Factor {
     /// Solves S x = b in place.
     pub fn solve_in_place(&self, b: &mut [f64]) {
         let n = b.len();
-        self.0
-            .solve_in_place(MatMut::from_column_major_slice_mut(b, n, 1));
+        let par = faer::get_global_parallelism();
+        let mut buf = MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(1, par));
+        LltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
+            Conj::No,
+            MatMut::from_column_major_slice_mut(b, n, 1),
+            par,
+            MemStack::new(&mut buf),
+        );
     }
 }
 
@@ -90,20 +103,24 @@ impl Pattern {
             elem_map.push(m);
         }
         let sym = SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
-        let symbolic = SymbolicLlt::try_new(sym, Side::Lower)?;
-        let factor_len = faer::sparse::linalg::cholesky::factorize_symbolic_cholesky(
+        // Supernodal: measured faster than faer's automatic choice (simplicial) on these 3D
+        // tetrahedral systems (bench motion, see docs/results/motion/bench.md).
+        let symbolic = factorize_symbolic_cholesky(
             sym,
             Side::Lower,
             Default::default(),
-            Default::default(),
-        )?
-        .len_val();
+            CholeskySymbolicParams {
+                supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SUPERNODAL,
+                ..Default::default()
+            },
+        )?;
+        let factor_len = symbolic.len_val();
         Ok(Self {
             n,
             col_ptr,
             row_idx,
             elem_map,
-            symbolic,
+            symbolic: Arc::new(symbolic),
             factor_len,
         })
     }
@@ -160,9 +177,27 @@ impl Pattern {
             &self.row_idx,
         );
         let mat = SparseColMatRef::new(sym, values);
-        Llt::try_new_with_symbolic(self.symbolic.clone(), mat, Side::Lower)
-            .ok()
-            .map(Factor)
+        let par = faer::get_global_parallelism();
+        let mut out = vec![0.0; self.factor_len];
+        let mut buf = MemBuffer::new(
+            self.symbolic
+                .factorize_numeric_llt_scratch::<f64>(par, Default::default()),
+        );
+        self.symbolic
+            .factorize_numeric_llt(
+                &mut out,
+                mat,
+                Side::Lower,
+                Default::default(),
+                par,
+                MemStack::new(&mut buf),
+                Default::default(),
+            )
+            .ok()?;
+        Some(Factor {
+            symbolic: self.symbolic.clone(),
+            values: out,
+        })
     }
 
     /// Bytes of one numeric factor (L's stored values; the adjoint tape keeps one per step).

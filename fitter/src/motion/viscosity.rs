@@ -59,22 +59,25 @@ pub fn stress_dh(r: &Rate, nu: f64, h: f64) -> Matrix3<f64> {
 
 /// Damping tangent D_e = −∂f_e/∂v_e (12 × 12, row-major).
 ///
-/// dσ = ν [ (h−1) γ̇^(h−2) dγ̇ E + γ̇^(h−1) dE ], dE = dḞ + dḞᵀ, dγ̇ = E : dE / (2γ̇).
+/// dσ = ν [ (h−1) γ̇^(h−2) dγ̇ E + γ̇^(h−1) dE ], dE = dḞ + dḞᵀ, dγ̇ = E : dE / (2γ̇). With
+/// dḞ = e_j ∇φ_bᵀ, w_b = E ∇φ_b and g_ab = ∇φ_a·∇φ_b this is, in closed form,
+/// D[3a+i][3b+j] = V ν [ (h−1) γ̇^(h−3) w_a,i w_b,j + γ̇^(h−1) (δ_ij g_ab + ∇φ_b,i ∇φ_a,j) ].
 pub fn element_damping(t: &RestTet, r: &Rate, nu: f64, h: f64) -> [[f64; 12]; 12] {
     let mut d = [[0.0; 12]; 12];
     let gh1 = r.gamma.powf(h - 1.0);
-    for b in 0..4 {
-        for j in 0..3 {
-            let mut ej = Vector3::zeros();
-            ej[j] = 1.0;
-            let dl = ej * t.grad[b].transpose();
-            let de = dl + dl.transpose();
-            let dg = r.e.component_mul(&de).sum() / (2.0 * r.gamma);
-            let ds = r.e * (nu * (h - 1.0) * gh1 / r.gamma * dg) + de * (nu * gh1);
-            for a in 0..4 {
-                let col = ds * t.grad[a] * t.volume;
-                for i in 0..3 {
-                    d[3 * a + i][3 * b + j] = col[i];
+    let c1 = t.volume * nu * (h - 1.0) * gh1 / (r.gamma * r.gamma);
+    let c2 = t.volume * nu * gh1;
+    let w: [Vector3<f64>; 4] = std::array::from_fn(|a| r.e * t.grad[a]);
+    for a in 0..4 {
+        for b in 0..4 {
+            let gab = t.grad[a].dot(&t.grad[b]);
+            for i in 0..3 {
+                for j in 0..3 {
+                    let mut val = c1 * w[a][i] * w[b][j] + c2 * t.grad[b][i] * t.grad[a][j];
+                    if i == j {
+                        val += c2 * gab;
+                    }
+                    d[3 * a + i][3 * b + j] = val;
                 }
             }
         }
