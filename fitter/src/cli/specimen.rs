@@ -11,7 +11,9 @@ use crate::specimen::{generate, Effect, EffectSpec, SpecimenOptions};
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Effects to inject, comma-separated (stiffening, inclusion, soft-layer, calibration,
-    /// boundary, registration, gravity, tilt, noise, occlusion), or `none`.
+    /// boundary, registration, gravity, tilt, noise, occlusion), or `none`; or `viscosity` alone
+    /// (magnitude: viscous time τ = ν/μ in s, default 2), which writes tension-test curves at two
+    /// stretch rates in the VHB records' format instead of a static dataset.
     #[arg(long, value_delimiter = ',', default_value = "none")]
     pub effect: Vec<String>,
     /// Magnitudes, one per effect in the same order (default: each effect's realistic default).
@@ -66,6 +68,9 @@ pub fn parse_effects(names: &[String], magnitudes: &[f64]) -> anyhow::Result<Vec
 
 /// Runs the generator.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.effect.iter().any(|e| e.trim() == "viscosity") {
+        return run_viscous(&args);
+    }
     let effects = parse_effects(&args.effect, &args.magnitude)?;
     let o = SpecimenOptions {
         seed: args.seed,
@@ -85,6 +90,48 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         s.dataset.markers.len(),
         s.truth.truth_mesh[0],
         s.truth.truth_mesh[1]
+    );
+    Ok(())
+}
+
+/// `--effect viscosity`: tension-test curves of a visco-elastic strip (see
+/// [`crate::specimen::viscous`]).
+fn run_viscous(args: &Args) -> anyhow::Result<()> {
+    use crate::specimen::viscous::{generate_viscous, ViscousOptions};
+    let others: Vec<&String> = args
+        .effect
+        .iter()
+        .filter(|e| !matches!(e.trim(), "viscosity" | "none" | ""))
+        .collect();
+    if !others.is_empty() {
+        anyhow::bail!(
+            "viscosity writes tension-test curves, not a static contact dataset; it cannot be combined with {:?}",
+            others
+        );
+    }
+    if args.magnitude.len() > 1 {
+        anyhow::bail!(
+            "--magnitude has {} values but --effect names 1 effect",
+            args.magnitude.len()
+        );
+    }
+    let mut o = ViscousOptions {
+        seed: args.seed,
+        ..Default::default()
+    };
+    if let Some(&m) = args.magnitude.first() {
+        o.tau = m;
+    }
+    let s = generate_viscous(&o)?;
+    s.write(&args.output)
+        .with_context(|| format!("writing {}", args.output.display()))?;
+    println!(
+        "viscous specimen written to {}: {} tension tests (rates {:?} 1/s, peak stretch {}, τ = {} s); ground truth in truth.json",
+        args.output.display(),
+        s.files.len(),
+        o.rates,
+        o.stretch,
+        o.tau
     );
     Ok(())
 }

@@ -12,6 +12,7 @@
 
 pub mod effect;
 pub mod generate;
+pub mod viscous;
 
 pub use effect::{Effect, EffectSpec};
 pub use generate::{generate, Specimen, SpecimenOptions, Truth};
