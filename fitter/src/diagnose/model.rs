@@ -415,9 +415,9 @@ fn trilinear(c: [f64; 3], lo: [f64; 3], hi: [f64; 3], g: [usize; 3]) -> Vec<(usi
 pub const LAYER_NODES: usize = 4;
 
 /// Most secant passes of the stiffening fixed point.
-const STIFFENING_PASSES: usize = 12;
+const STIFFENING_PASSES: usize = 30;
 /// The stiffening fixed point stops when no element's log-modulus moves by more than this.
-const STIFFENING_TOLERANCE: f64 = 1e-5;
+const STIFFENING_TOLERANCE: f64 = 1e-6;
 
 /// The stiffening law's per-element log-modulus offsets at state `x` and their gains
 /// ∂T/∂ln‖ε‖. With s = ‖ε_e‖/0.1 the secant modulus is E (1 + β s²) for β ≥ 0 — the small-strain
@@ -658,7 +658,14 @@ impl Model {
                 // (strain inversely proportional to the local modulus) — plain substitution
                 // diverges once the stiffening doubles the modulus (its gain reaches 2).
                 let mut m = vec![0.0; ctx.problem.element_count()];
-                for _ in 0..STIFFENING_PASSES {
+                // Each pass is one linear solve with the rotations and the material of the
+                // current state (a joint fixed point); the rotations are converged to the
+                // forward model's own tolerance by the final solve.
+                let pass = SolveOptions {
+                    max_fixed_point: 0,
+                    ..ctx.solve
+                };
+                for k in 0..=STIFFENING_PASSES {
                     let (target, gain) = stiffening_target(ctx, &x, beta[0]);
                     let mut change = 0.0f64;
                     for e in 0..m.len() {
@@ -666,13 +673,14 @@ impl Model {
                         m[e] += step;
                         change = change.max(step.abs());
                     }
+                    let last = change < STIFFENING_TOLERANCE || k == STIFFENING_PASSES;
                     let mat = self.material(theta, log_e.as_deref(), Some(&m))?;
                     x = ctx
                         .problem
-                        .solve_forces(&mat, &fvec, Some(&x), &ctx.solve)?
+                        .solve_forces(&mat, &fvec, Some(&x), if last { &ctx.solve } else { &pass })?
                         .solution
                         .x;
-                    if change < STIFFENING_TOLERANCE {
+                    if last {
                         break;
                     }
                 }
