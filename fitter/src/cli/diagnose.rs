@@ -41,6 +41,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.gauge_length,
         );
     }
+    if !args.dataset.exists() {
+        anyhow::bail!("{}: no such file or directory", args.dataset.display());
+    }
+    if args.dataset.is_dir() && !args.dataset.join("dataset.toml").exists() {
+        anyhow::bail!(
+            "{}: neither a static dataset (no dataset.toml) nor measured curves (no CSV file with a \
+             recognised header); see docs/dataset.md and docs/diagnose.md",
+            args.dataset.display()
+        );
+    }
     let ds = StaticDataset::read(&args.dataset)
         .with_context(|| format!("reading {}", args.dataset.display()))?;
     let mut o = DiagnoseOptions {
