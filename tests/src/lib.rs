@@ -2,3 +2,4 @@
 
 pub mod hil;
 pub mod model;
+pub mod settle;

@@ -10,7 +10,7 @@ use palpate_fitter::diagnose::model::{s_of, Candidate, Context, Model};
 use palpate_fitter::export::{ModelBuffers, ProvenanceInfo};
 use palpate_fitter::forward::Load;
 use palpate_fitter::specimen::{generate, SpecimenOptions};
-use palpate_runtime::{Runtime, RuntimeConfig, SolveStatus, StorageRequirement};
+use palpate_runtime::{Runtime, RuntimeConfig, StorageRequirement};
 
 #[test]
 fn stiffening_model_exports_as_strain_blend_and_replays() {
@@ -71,18 +71,7 @@ fn stiffening_model_exports_as_strain_blend_and_replays() {
             m.radius as f32,
         )
         .expect("contact");
-        let mut settled = false;
-        for _ in 0..400 {
-            let rep = rt.tick();
-            let umax = rt
-                .displacements()
-                .iter()
-                .fold(0.0f32, |a, v| a.max(v.abs()));
-            if rep.status == SolveStatus::Converged && rep.step <= 1e-5 * umax {
-                settled = true;
-                break;
-            }
-        }
+        let settled = palpate_tests::settle::settle(&mut rt, 400, 1e-5);
         assert!(settled, "measurement {i} did not settle");
         let u = rt.displacements();
         for n in 0..x0.len() {

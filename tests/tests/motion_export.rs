@@ -9,7 +9,7 @@ use palpate_fitter::motion::model::{Material, Param, ParamKind};
 use palpate_fitter::motion::optimize::{fit, FitSettings};
 use palpate_fitter::motion::scenario::{bar_model, nine_markers, record, two_sinusoids};
 use palpate_runtime::material::LambdaAlpha;
-use palpate_runtime::{Runtime, RuntimeConfig, SolveStatus, StorageRequirement};
+use palpate_runtime::{Runtime, RuntimeConfig, StorageRequirement};
 
 /// (λ_L, μ) → (λ, α) → (λ_L, μ): α = λ_L and μ = λ/2 − α. Two additions and a halving, so
 /// the round trip is exact to a few ulps: 1e-12 relative over seven orders of magnitude and
@@ -112,18 +112,7 @@ fn motion_fit_export_loads_and_matches_the_static_solve() {
         radius as f32,
     )
     .unwrap();
-    let mut settled = false;
-    for _ in 0..400 {
-        let rep = rt.tick();
-        let umax = rt
-            .displacements()
-            .iter()
-            .fold(0.0f32, |a, v| a.max(v.abs()));
-        if rep.status == SolveStatus::Converged && rep.step <= 1e-6 * umax {
-            settled = true;
-            break;
-        }
-    }
+    let settled = palpate_tests::settle::settle(&mut rt, 400, 1e-6);
     assert!(settled, "the runtime did not settle");
     let u = rt.displacements().to_vec();
 

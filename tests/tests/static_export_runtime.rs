@@ -6,7 +6,7 @@ use palpate_fitter::export::{ModelBuffers, ProvenanceInfo};
 use palpate_fitter::static_fit::blend::BlendData;
 use palpate_fitter::static_fit::synthetic::{synthesise, SyntheticSpec};
 use palpate_fitter::static_fit::{fit_static, FitOptions, Layout, Method, Sets};
-use palpate_runtime::{Runtime, RuntimeConfig, SolveStatus, StorageRequirement};
+use palpate_runtime::{Runtime, RuntimeConfig, StorageRequirement};
 
 #[test]
 fn exported_fit_reproduces_fitted_markers_in_the_runtime() {
@@ -50,19 +50,7 @@ fn exported_fit_reproduces_fitted_markers_in_the_runtime() {
             c.radius as f32,
         )
         .unwrap();
-        let mut settled = false;
-        for _ in 0..200 {
-            let rep = rt.tick();
-            let umax = rt
-                .displacements()
-                .iter()
-                .fold(0.0f32, |a, v| a.max(v.abs()));
-            // f32 resolves about 1e-7 of a position; 1e-5 of the displacement is settled.
-            if rep.status == SolveStatus::Converged && rep.step <= 1e-5 * umax {
-                settled = true;
-                break;
-            }
-        }
+        let settled = palpate_tests::settle::settle(&mut rt, 200, 1e-5);
         assert!(settled, "measurement {i} did not settle");
         let u = rt.displacements();
         let x0 = &syn.mesh.nodes;

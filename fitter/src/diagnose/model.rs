@@ -289,33 +289,10 @@ impl Context {
                 node_volume[n] += 0.25 * g.volume;
             }
         }
-        let grid_weights = ds
-            .mesh
-            .tets
+        let centroids = crate::static_fit::blend::centroids(&problem);
+        let grid_weights = centroids
             .iter()
-            .map(|t| {
-                let mut c = [0.0; 3];
-                for &n in t {
-                    for d in 0..3 {
-                        c[d] += 0.25 * ds.mesh.nodes[n][d];
-                    }
-                }
-                trilinear(c, lo, hi, grid)
-            })
-            .collect();
-        let centroids: Vec<[f64; 3]> = ds
-            .mesh
-            .tets
-            .iter()
-            .map(|t| {
-                let mut c = [0.0; 3];
-                for &n in t {
-                    for d in 0..3 {
-                        c[d] += 0.25 * ds.mesh.nodes[n][d];
-                    }
-                }
-                c
-            })
+            .map(|&c| trilinear(c, lo, hi, grid))
             .collect();
         // Depth along the mean pushing direction nz, from the probed face (smallest x·nz).
         let along = |x: &[f64; 3]| x[0] * nz[0] + x[1] * nz[1] + x[2] * nz[2];
