@@ -48,6 +48,10 @@ pub enum Candidate {
     /// from the element's warped strain (E / (1 + |β| …) for β < 0), solved to its fixed point.
     /// 1 param (β).
     Stiffening,
+    /// Marker noise above the declared level. Not a model candidate (not in [`ALL_CANDIDATES`],
+    /// never part of a [`Model`]): it changes no prediction, only how large the residual floor
+    /// is. Adopted after the structural loop by the nugget test of [`super::noise`]. 0 params.
+    Noise,
 }
 
 /// Every candidate, in the order they are tried.
@@ -76,6 +80,7 @@ impl Candidate {
             Candidate::Layer => "layer",
             Candidate::Inclusion => "inclusion",
             Candidate::Stiffening => "stiffening",
+            Candidate::Noise => "noise",
         }
     }
 
@@ -88,6 +93,7 @@ impl Candidate {
             Candidate::Inhomogeneity => grid[0] * grid[1] * grid[2] - 1,
             Candidate::Layer => LAYER_NODES - 1,
             Candidate::Inclusion => 5,
+            Candidate::Noise => 0,
         }
     }
 
@@ -140,6 +146,7 @@ impl Candidate {
                 v("centre offset z / h", "", 1.0),
                 v("log radius θ_r (r = h/2 e^θ_r)", "", 1.0),
             ],
+            Candidate::Noise => Vec::new(),
         }
     }
 }

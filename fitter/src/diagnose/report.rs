@@ -58,6 +58,21 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
     let _ = writeln!(s, "|---|---|---|---|---|---|---|---|");
     error_rows(&mut s, "simplest (linear homogeneous)", &r.before);
     error_rows(&mut s, "final", &r.after);
+    if let Some(n) = &r.noise {
+        let _ = writeln!(s, "\n## Marker noise\n");
+        let _ = writeln!(
+            s,
+            "{}{}. Estimator: local nugget — at every marker an affine field is fitted to its {} nearest neighbours' residuals (same measurement) and extrapolated to the marker; the median of |d|²/(3(1 + v)) over its Gaussian value gives σ̂² ({} neighbourhoods in {} measurements); interval: bootstrap over measurements.",
+            if n.fired { "**Adopted `noise`**: " } else { "" },
+            n.statement,
+            r.options.noise.neighbours,
+            n.neighbourhoods,
+            n.measurements
+        );
+        if !r.noise_evidence.is_empty() {
+            let _ = writeln!(s, "\n![marker noise](noise.svg)");
+        }
+    }
     let _ = writeln!(s, "\n## Final parameters (±1σ, Gauss–Newton covariance)\n");
     let _ = writeln!(s, "| parameter | value | ±1σ | unit |\n|---|---|---|---|");
     for p in &r.final_params {
@@ -200,6 +215,38 @@ pub fn write_report(r: &DiagnosisReport, dir: &Path) -> Result<Vec<PathBuf>, Dia
             )
             .map_err(|e| DiagnoseError::Write(e.to_string()))?;
             plots.push((st.round, file));
+            written.push(path);
+        }
+    }
+    if let Some(n) = &r.noise {
+        if !r.noise_evidence.is_empty() {
+            let path = dir.join("noise.svg");
+            let pts: Vec<(f64, f64)> = r
+                .noise_evidence
+                .iter()
+                .map(|&(d, e)| (1e3 * d, 1e6 * e))
+                .collect();
+            let xmax = pts.iter().map(|p| p.0).fold(0.0, f64::max);
+            let est = [(0.0, 1e6 * n.estimate), (xmax, 1e6 * n.estimate)];
+            let declared: Vec<(f64, f64)> = n
+                .declared
+                .map(|d| vec![(0.0, 1e6 * d), (xmax, 1e6 * d)])
+                .unwrap_or_default();
+            let mut series = vec![
+                Series::new("nugget error per marker", &pts, Style::Points),
+                Series::new("estimated σ̂", &est, Style::Line),
+            ];
+            if !declared.is_empty() {
+                series.push(Series::new("declared σ", &declared, Style::Line));
+            }
+            lines(
+                &path,
+                "marker noise: local prediction error |d|/√(3(1+v)) vs distance from the contact",
+                "distance from the contact (mm)",
+                "normalised nugget error (µm)",
+                &series,
+            )
+            .map_err(|e| DiagnoseError::Write(e.to_string()))?;
             written.push(path);
         }
     }

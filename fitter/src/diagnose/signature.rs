@@ -295,7 +295,9 @@ pub fn evidence_points(
                     .collect(),
             )
         }
-        Candidate::Inhomogeneity | Candidate::Layer | Candidate::Inclusion => {
+        // Noise: the marker error against distance from the contact shows it spread evenly
+        // (the noise report plots the nugget itself, see `super::noise`).
+        Candidate::Inhomogeneity | Candidate::Layer | Candidate::Inclusion | Candidate::Noise => {
             let mut pts = Vec::new();
             for (&i, r) in f.subset.iter().zip(&res) {
                 let c = ctx.meas[i].point;
