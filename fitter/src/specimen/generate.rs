@@ -40,6 +40,11 @@ pub struct SpecimenOptions {
     pub seed: u64,
     /// Effects injected (and never declared).
     pub effects: Vec<EffectSpec>,
+    /// Reference world for measuring an effect's signal: the force applied is the force the
+    /// dataset reports (so a calibration effect changes the reported forces and the truth follows
+    /// them). `diagnose-evidence --sweep` compares a specimen's truth with this world's truth to
+    /// get what the effect does to the markers beyond what the reported data explain.
+    pub apply_reported_force: bool,
 }
 
 impl Default for SpecimenOptions {
@@ -56,6 +61,7 @@ impl Default for SpecimenOptions {
             noise: 1e-4,
             seed: 1,
             effects: Vec::new(),
+            apply_reported_force: false,
         }
     }
 }
@@ -364,9 +370,14 @@ pub fn generate(o: &SpecimenOptions) -> Result<Specimen, SpecimenError> {
             Some(m) => nominal.map(|v| v * (fm / o.max_force).powf(m)),
             None => nominal,
         };
+        let applied = if o.apply_reported_force {
+            reported
+        } else {
+            nominal
+        };
         let true_force = match o.magnitude(Effect::Tilt) {
-            Some(m) => [0, 1, 2].map(|d| nominal[d] + m * fm * tilt_dir[d]),
-            None => nominal,
+            Some(m) => [0, 1, 2].map(|d| applied[d] + m * fm * tilt_dir[d]),
+            None => applied,
         };
         let fvec = lin_fine.force_vector(&Load::contact(point, true_force, o.probe_radius))?;
         let forces: Vec<(usize, [f64; 3])> = (0..fine.nodes.len())
