@@ -155,6 +155,13 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
             }
         }
         let _ = writeln!(s, "\nDecision: {}", st.reason);
+        if !st.ambiguous_with.is_empty() {
+            let _ = writeln!(
+                s,
+                "\n**Ambiguous**: {} also explain(s) this residual and predict(s) the held-out measurements better than the adopted effect; more measurements (other contact points and force levels) are needed to tell them apart.",
+                st.ambiguous_with.iter().map(|c| c.name()).collect::<Vec<_>>().join(", ")
+            );
+        }
         if let Some(a) = &st.after {
             let _ = writeln!(s, "\n| | fitted RMS | fitted max | held-out RMS | held-out max | force RMS | force max | held-out force RMS |\n|---|---|---|---|---|---|---|---|");
             error_rows(&mut s, "before", &st.before);
