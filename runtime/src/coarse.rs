@@ -231,49 +231,11 @@ impl<'a> Coarse<'a> {
                 }
             }
         }
-        c.factorise(dim);
+        crate::dense::cholesky_in_place(c.l, dim);
         // From here on the apply multiplies by 1/s (a division per node and mode was most of
         // the restriction and prolongation cost).
         for a in 0..m {
             c.geo[4 * a + 3] = 1.0 / c.geo[4 * a + 3];
-        }
-    }
-
-    /// In-place dense Cholesky (lower); vanishing pivots drop their mode (row and column zero).
-    fn factorise(&mut self, dim: usize) {
-        let l = &mut *self.l;
-        let mut maxd = 0.0f32;
-        for i in 0..dim {
-            maxd = maxd.max(l[i * dim + i].abs());
-        }
-        let floor = 1e-6 * maxd;
-        for j in 0..dim {
-            let mut d = l[j * dim + j] as f64;
-            for k in 0..j {
-                d -= l[j * dim + k] as f64 * l[j * dim + k] as f64;
-            }
-            if d.is_nan() || d <= floor as f64 || !d.is_finite() {
-                for k in 0..dim {
-                    l[j * dim + k] = 0.0;
-                    l[k * dim + j] = 0.0;
-                }
-                continue;
-            }
-            let djj = libm::sqrt(d);
-            l[j * dim + j] = djj as f32;
-            for i in (j + 1)..dim {
-                let mut s = l[i * dim + j] as f64;
-                for k in 0..j {
-                    s -= l[i * dim + k] as f64 * l[j * dim + k] as f64;
-                }
-                l[i * dim + j] = (s / djj) as f32;
-            }
-        }
-        // Clear the strict upper triangle (it held A_c).
-        for i in 0..dim {
-            for j in (i + 1)..dim {
-                l[i * dim + j] = 0.0;
-            }
         }
     }
 
@@ -308,33 +270,7 @@ impl<'a> Coarse<'a> {
             g[4] += d[2] * ri[0] - d[0] * ri[2];
             g[5] += d[0] * ri[1] - d[1] * ri[0];
         }
-        // Forward and back substitution; dropped modes (zero pivot) stay zero.
-        let l = &*self.l;
-        let g = &mut *self.g;
-        for i in 0..dim {
-            let lii = l[i * dim + i];
-            if lii == 0.0 {
-                g[i] = 0.0;
-                continue;
-            }
-            let s = g[i] - crate::kernel::dot_lanes(&l[i * dim..i * dim + i], &g[..i]);
-            g[i] = s / lii;
-        }
-        // Lᵀ y = g by column sweeps: row i of L is contiguous, so each step reads one row
-        // instead of a strided column (the strided form cost more than the whole element pass).
-        for i in (0..dim).rev() {
-            let lii = l[i * dim + i];
-            if lii == 0.0 {
-                g[i] = 0.0;
-                continue;
-            }
-            let yi = g[i] / lii;
-            g[i] = yi;
-            let row = &l[i * dim..i * dim + i];
-            for (gk, lik) in g[..i].iter_mut().zip(row) {
-                *gk -= lik * yi;
-            }
-        }
+        crate::dense::cholesky_solve(self.l, dim, self.g);
         for i in 0..n {
             let a = self.agg[i];
             if a == u32::MAX {

@@ -52,6 +52,13 @@ pub struct RuntimeConfig {
     /// λ_e, α_e change). A preconditioner only needs to be close: this changes iteration counts,
     /// never the solution. 0 rebuilds it every tick.
     pub precond_refresh_angle: f32,
+    /// Start each solve from the energy-optimal multiple of the previous tick's increment
+    /// (a one-dimensional Galerkin predictor, one extra K' product; see `tick.rs`).
+    pub predictor: bool,
+    /// How [`crate::Runtime::set_contact_force`] spreads a force: the lumped rule static fits
+    /// use (default), or the consistent rule whose loads are continuous in the contact point
+    /// (a sliding probe; see [`crate::contact_rule`]).
+    pub contact_rule: crate::contact_rule::ContactRule,
 }
 
 impl Default for RuntimeConfig {
@@ -69,6 +76,8 @@ impl Default for RuntimeConfig {
             absolute_tolerance: 1e-9,
             coarse_aggregates: 64,
             precond_refresh_angle: 0.05,
+            predictor: true,
+            contact_rule: crate::contact_rule::ContactRule::Lumped,
         }
     }
 }

@@ -72,7 +72,8 @@ pub enum RuntimeError {
     /// tetrahedron, [`palpate_protocol::model::Invalid::OrphanNode`], whose stiffness would be
     /// zero and the system singular).
     InvalidModel(palpate_protocol::model::ModelError),
-    /// No free surface node lies within the contact radius.
+    /// The contact rule loads no free node (lumped rule: no free surface node within the radius;
+    /// consistent rule: the probe ball touches no surface triangle with a free node).
     ContactCoversNoNode {
         /// Distance to the nearest free surface node (m).
         nearest: f32,

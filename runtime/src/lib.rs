@@ -20,6 +20,7 @@ pub mod blend;
 pub mod coarse;
 pub mod config;
 pub mod contact_rule;
+pub mod dense;
 pub mod element;
 pub mod error;
 pub mod kernel;
@@ -30,6 +31,7 @@ pub mod storage;
 mod tick;
 
 pub use config::{Kernel, Preconditioner, RuntimeConfig};
+pub use contact_rule::ContactRule;
 pub use error::RuntimeError;
 pub use runtime::{Probe, Runtime, SolveStatus, TickReport};
 pub use storage::StorageRequirement;

@@ -2,7 +2,9 @@
 //! tick by tick (see [`crate::tick`]) without allocating.
 
 use crate::config::{Kernel, RuntimeConfig};
-use crate::contact_rule::{contact_weights_by, lumped_surface_areas, ContactRuleError};
+use crate::contact_rule::{
+    contact_integrals, contact_weights_by, lumped_surface_areas, ContactRule, ContactRuleError,
+};
 use crate::element::{element_cd, pack_symmetric, tet_geometry, ElementDefect, PACKED_LEN};
 use crate::error::RuntimeError;
 use crate::kernel::LANES;
@@ -92,6 +94,8 @@ pub struct Runtime<'a> {
     pub(crate) p: &'a mut [f32],
     pub(crate) q: &'a mut [f32],
     pub(crate) delta: &'a mut [f32],
+    /// The previous tick's increment δ, the predictor's direction (see `pcg`).
+    pub(crate) delta_prev: &'a mut [f32],
     pub(crate) normal: &'a mut [f32],
     pub(crate) precond: &'a mut [f32],    // 6 per node
     pub(crate) prescribed: &'a mut [f32], // 1 per node: target n·x
@@ -223,6 +227,7 @@ impl<'a> Runtime<'a> {
             p: fc.take(3 * n)?,
             q: fc.take(3 * n)?,
             delta: fc.take(3 * n)?,
+            delta_prev: fc.take(3 * n)?,
             normal: fc.take(3 * n)?,
             precond: fc.take(6 * n)?,
             prescribed: fc.take(n)?,
@@ -466,6 +471,7 @@ impl<'a> Runtime<'a> {
             &mut *self.f_cmd,
             &mut *self.f_app,
             &mut *self.delta,
+            &mut *self.delta_prev,
         ] {
             v.iter_mut().for_each(|x| *x = 0.0);
         }
@@ -499,8 +505,9 @@ impl<'a> Runtime<'a> {
         self.probe_cmd = Probe::None;
     }
 
-    /// Commands a force-driven contact: `force` (N) spread over the free surface nodes within
-    /// `radius` of `point` by the shared contact rule ([`crate::contact_rule`]). Replaces earlier
+    /// Commands a force-driven contact: `force` (N) spread as a uniform pressure over the rest
+    /// surface within `radius` of `point` by the configured contact rule
+    /// ([`crate::RuntimeConfig::contact_rule`], [`crate::contact_rule`]). Replaces earlier
     /// commanded forces; incremental loading moves the applied load toward it. Returns the
     /// number of loaded nodes.
     pub fn set_contact_force(
@@ -517,31 +524,70 @@ impl<'a> Runtime<'a> {
         let x0 = &*self.x0;
         let flag = &*self.flag;
         let area = &*self.area;
+        let tris = self.record.surface_triangles;
         let f_cmd = &mut *self.f_cmd;
         f_cmd.iter_mut().for_each(|x| *x = 0.0);
-        let count = contact_weights_by(
-            [point[0] as f64, point[1] as f64, point[2] as f64],
-            radius as f64,
-            self.n,
-            |i| [x0[3 * i] as f64, x0[3 * i + 1] as f64, x0[3 * i + 2] as f64],
-            |i| area[i] as f64,
-            |i| flag[i] == FIXED,
-            |i, w| {
-                for k in 0..3 {
-                    f_cmd[3 * i + k] = (w as f32) * force[k];
-                }
-            },
-        )
-        .map_err(|e| match e {
+        let c = [point[0] as f64, point[1] as f64, point[2] as f64];
+        let pos = |i: usize| [x0[3 * i] as f64, x0[3 * i + 1] as f64, x0[3 * i + 2] as f64];
+        let to_runtime = |e| match e {
             ContactRuleError::NoNodeInRadius { nearest } => RuntimeError::ContactCoversNoNode {
                 nearest: nearest as f32,
             },
             ContactRuleError::BadInput => RuntimeError::NonFiniteInput {
                 what: "contact point or radius",
             },
-        })?;
+        };
+        let count = match self.config.contact_rule {
+            ContactRule::Lumped => contact_weights_by(
+                c,
+                radius as f64,
+                self.n,
+                pos,
+                |i| area[i] as f64,
+                |i| flag[i] == FIXED,
+                |i, w| {
+                    for k in 0..3 {
+                        f_cmd[3 * i + k] = (w as f32) * force[k];
+                    }
+                },
+            )
+            .map_err(to_runtime)?,
+            ContactRule::Consistent => {
+                // One pass accumulating the raw integrals ∫ N_i dA, then one scaling by 1/Σ.
+                let (total, _) = contact_integrals(
+                    c,
+                    radius as f64,
+                    self.n,
+                    pos,
+                    tris.len() / 3,
+                    |k| [0, 1, 2].map(|j| tris.get(3 * k + j).map_or(usize::MAX, |v| v as usize)),
+                    |i| flag[i] == FIXED,
+                    |i, l| {
+                        for k in 0..3 {
+                            f_cmd[3 * i + k] += (l as f32) * force[k];
+                        }
+                    },
+                )
+                .map_err(to_runtime)?;
+                let inv = (1.0 / total) as f32;
+                let mut count = 0;
+                for f in f_cmd.chunks_exact_mut(3) {
+                    if f.iter().any(|v| *v != 0.0) {
+                        count += 1;
+                    }
+                    f.iter_mut().for_each(|v| *v *= inv);
+                }
+                count
+            }
+        };
         self.f_cmd_norm = norm(f_cmd);
         Ok(count)
+    }
+
+    /// The commanded force on `node` (N), None out of range.
+    pub fn commanded_force(&self, node: usize) -> Option<[f32; 3]> {
+        let f = self.f_cmd.get(3 * node..3 * node + 3)?;
+        Some([f[0], f[1], f[2]])
     }
 
     /// Commands an explicit nodal force (N) on top of the current commanded load.
@@ -607,6 +653,7 @@ impl<'a> Runtime<'a> {
             });
         }
         self.u.copy_from_slice(other.u);
+        self.delta_prev.copy_from_slice(other.delta_prev);
         self.f_cmd.copy_from_slice(other.f_cmd);
         self.f_app.copy_from_slice(other.f_app);
         self.r_full.copy_from_slice(other.r_full);

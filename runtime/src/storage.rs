@@ -6,9 +6,9 @@ use crate::config::{Kernel, RuntimeConfig};
 use crate::error::RuntimeError;
 use palpate_protocol::model::{Blend, ModelRecord};
 
-/// `f32` values per node: x₀, u, u_good, f_cmd, f_app, r, r_full, z, p, q, δ, normal (3 each),
-/// preconditioner block (6), prescribed normal position, lumped area.
-pub const F32_PER_NODE: usize = 12 * 3 + 6 + 2;
+/// `f32` values per node: x₀, u, u_good, f_cmd, f_app, r, r_full, z, p, q, δ, previous δ, normal
+/// (3 each), preconditioner block (6), prescribed normal position, lumped area.
+pub const F32_PER_NODE: usize = 13 * 3 + 6 + 2;
 /// Element arrays are padded to a whole number of [`crate::kernel::LANES`]-element blocks so
 /// every element pass runs the batched (SIMD) kernels without a scalar remainder; the padding
 /// elements have zero volume and gradients, so they contribute nothing.

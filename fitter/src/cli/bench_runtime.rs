@@ -1,6 +1,8 @@
 //! `palpate bench runtime`: the haptic tick on a generated block, the scenario of the VegaFEM
 //! anchor (ANCHORS.md): 10 × 10 × 5 cm, E = 10 kPa, ν = 0.3, bottom fixed, 0.5 N spread over the
-//! surface nodes within 1.5 cm of a contact point that moves across the top face over the run.
+//! surface within 1.5 cm of a contact point that slides across the top face over the run —
+//! by default with the consistent contact rule (a sliding probe's loads change continuously);
+//! `--rule lumped` spreads it over whole nodes as the anchor did (loads jump at the rim).
 //!
 //! Measures, in one run: per-tick wall time and thread CPU time (p50/p99/max) of the runtime,
 //! its PCG iterations and relative residual, its error against a converged solve of the same
@@ -24,7 +26,7 @@ use palpate_runtime::element::{
 };
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::{
-    Kernel, Preconditioner, Runtime, RuntimeConfig, SolveStatus, StorageRequirement,
+    ContactRule, Kernel, Preconditioner, Runtime, RuntimeConfig, SolveStatus, StorageRequirement,
 };
 use serde_json::json;
 use std::time::Instant;
@@ -57,6 +59,12 @@ pub struct Args {
     /// Rebuild the block-Jacobi preconditioner after this much rotation (rad; 0: every tick).
     #[arg(long, default_value_t = RuntimeConfig::default().precond_refresh_angle)]
     pub precond_refresh_angle: f32,
+    /// How the probe force becomes nodal forces (runtime/src/contact_rule.rs): `consistent`
+    /// (uniform pressure integrated consistently, continuous in the contact point) or `lumped`
+    /// (whole nodes within the radius by lumped area: the VegaFEM anchor scenario, whose loads
+    /// jump when a node crosses the rim).
+    #[arg(long, value_enum, default_value_t = Rule::Consistent)]
+    pub rule: Rule,
     /// Skip the packed-matrix kernel run.
     #[arg(long)]
     pub gradient_only: bool,
@@ -67,6 +75,35 @@ pub struct Args {
     /// Per-tick iteration budgets compared by `--compare`.
     #[arg(long, value_delimiter = ',', default_values_t = vec![6u32, 8, 10])]
     pub budgets: Vec<u32>,
+}
+
+/// Contact rule of the scripted probe.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Rule {
+    /// Uniform pressure, consistent nodal forces (continuous in the contact: a sliding probe).
+    Consistent,
+    /// The anchor's rule: free surface nodes within the radius by lumped area.
+    Lumped,
+}
+
+impl Rule {
+    fn runtime(self) -> ContactRule {
+        match self {
+            Rule::Consistent => ContactRule::Consistent,
+            Rule::Lumped => ContactRule::Lumped,
+        }
+    }
+}
+
+/// Probe force (N) and radius (m) of the scenario.
+const FORCE: [f32; 3] = [0.0, 0.0, -0.5];
+const RADIUS: f32 = 0.015;
+
+/// Commands tick `k`'s contact (inside the timed region: it is part of the tick); the rule is the
+/// runtime's configured one.
+fn command(rt: &mut Runtime<'_>, k: usize, ticks: usize) -> anyhow::Result<()> {
+    rt.set_contact_force(contact_point(k, ticks), FORCE, RADIUS)?;
+    Ok(())
 }
 
 /// Owned buffers of a benchmark model.
@@ -217,7 +254,7 @@ struct Record {
 
 fn settle(rt: &mut Runtime<'_>, ticks: usize) -> anyhow::Result<()> {
     // Settle the initial contact so the run measures steady haptic ticks.
-    rt.set_contact_force(contact_point(0, ticks), [0.0, 0.0, -0.5], 0.015)?;
+    command(rt, 0, ticks)?;
     for _ in 0..20 {
         rt.tick();
     }
@@ -253,7 +290,7 @@ fn timed_pass(
     let one_tick = |rt: &mut Runtime<'_>, rec: &mut Record, k: usize| -> anyhow::Result<()> {
         let c0 = thread_cpu();
         let t0 = Instant::now();
-        rt.set_contact_force(contact_point(k, ticks), [0.0, 0.0, -0.5], 0.015)?;
+        command(rt, k, ticks)?;
         let rep = rt.tick();
         let wall = t0.elapsed().as_secs_f64() * 1e6;
         rec.cpu_us.push((thread_cpu() - c0) * 1e6);
@@ -314,7 +351,7 @@ fn accuracy_pass(
         if check {
             reference.copy_state_from(&rt)?;
         }
-        rt.set_contact_force(contact_point(k, ticks), [0.0, 0.0, -0.5], 0.015)?;
+        command(&mut rt, k, ticks)?;
         let rep = rt.tick();
         anyhow::ensure!(
             rep.iterations == rec.iters[k],
@@ -324,7 +361,7 @@ fn accuracy_pass(
             rec.iters[k]
         );
         if check {
-            reference.set_contact_force(contact_point(k, ticks), [0.0, 0.0, -0.5], 0.015)?;
+            command(&mut reference, k, ticks)?;
             reference.tick();
             rec.err_checked
                 .push((k, rel_diff(rt.displacements(), reference.displacements())));
@@ -396,6 +433,7 @@ fn summarise(r: &Record) -> Summary {
 fn run_direct(model: &BenchModel, args: &Args, p: LambdaAlpha) -> anyhow::Result<Vec<f64>> {
     let cfg = RuntimeConfig {
         tolerance: args.tolerance,
+        contact_rule: args.rule.runtime(),
         ..Default::default()
     };
     let rec = model.record();
@@ -440,15 +478,15 @@ fn run_direct(model: &BenchModel, args: &Args, p: LambdaAlpha) -> anyhow::Result
     let llt_symbolic =
         faer::sparse::linalg::solvers::SymbolicLlt::try_new(symbolic.as_ref(), Side::Lower)?;
     let mut times = Vec::new();
-    rt.set_contact_force(contact_point(0, args.ticks), [0.0, 0.0, -0.5], 0.015)?;
+    command(&mut rt, 0, args.ticks)?;
     for _ in 0..20 {
         rt.tick();
     }
     let mut vals = vec![0.0f64; pairs.len()];
     let stride = (args.ticks / args.direct_ticks.max(1)).max(1);
     for k in (0..args.ticks).step_by(stride).take(args.direct_ticks) {
-        rt.set_contact_force(contact_point(k, args.ticks), [0.0, 0.0, -0.5], 0.015)?;
         let t0 = Instant::now();
+        command(&mut rt, k, args.ticks)?;
         // Rotations as the runtime computed them for its current state.
         let rots: Vec<[f32; 9]> = (0..mesh.tets.len())
             .map(|e| rt.element_rotation(e).unwrap_or([0.0; 9]))
@@ -456,15 +494,10 @@ fn run_direct(model: &BenchModel, args: &Args, p: LambdaAlpha) -> anyhow::Result
         let mut rhs = Mat::<f64>::zeros(nfree, 1);
         let mut v = 0;
         let mut contact = vec![0.0f64; 3 * n];
-        palpate_runtime::contact_rule::contact_weights(
-            [contact_point(k, args.ticks)[0] as f64, 0.05, 0.05],
-            0.015,
-            |i| mesh.nodes[i],
-            &(0..n).map(|i| rt.lumped_area(i) as f64).collect::<Vec<_>>(),
-            |i| rt.is_fixed(i),
-            |i, w| contact[3 * i + 2] = -0.5 * w,
-        )
-        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        // The nodal forces the runtime was commanded (its rule), in f64.
+        for (i, c) in contact.iter_mut().enumerate() {
+            *c = rt.commanded_force(i / 3).map_or(0.0, |f| f[i % 3] as f64);
+        }
         for (i, c) in contact.iter().enumerate() {
             if dof[i] != usize::MAX {
                 rhs[(dof[i], 0)] += c;
@@ -521,8 +554,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let tets = model.mesh.tets.len();
     let dofs = 3 * (model.mesh.nodes.len() - model.fixed.len());
     println!(
-        "palpate bench runtime: {tets} tets, {dofs} free dofs, {} ticks, tolerance {:e}",
-        args.ticks, args.tolerance
+        "palpate bench runtime: {tets} tets, {dofs} free dofs, {} ticks, tolerance {:e}, {:?} contact rule",
+        args.ticks, args.tolerance, args.rule
     );
     let base = RuntimeConfig {
         tolerance: args.tolerance,
@@ -532,6 +565,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         coarse_aggregates: args.aggregates,
         rotation_iterations: args.rotation_iterations,
         precond_refresh_angle: args.precond_refresh_angle,
+        contact_rule: args.rule.runtime(),
         ..Default::default()
     };
     let mut variants = vec![Variant {
@@ -552,6 +586,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 },
             });
         }
+        variants.push(Variant {
+            name: "no predictor".into(),
+            cfg: RuntimeConfig {
+                predictor: false,
+                ..base
+            },
+        });
         variants.push(Variant {
             name: "precond every tick".into(),
             cfg: RuntimeConfig {
@@ -672,6 +713,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "{}",
         json!({
             "bench": "runtime",
+            "rule": format!("{:?}", args.rule).to_lowercase(),
             "tets": tets,
             "dofs": dofs,
             "ticks": args.ticks,
