@@ -69,9 +69,13 @@ pub struct Args {
     #[arg(long)]
     pub gradient_only: bool,
     /// Compare solver settings tick by tick in one run: the converged solve, the per-tick
-    /// budgets of `--budgets`, the preconditioner rebuilt every tick, 32 aggregates.
+    /// budgets of `--budgets`, no predictor, the preconditioner rebuilt every tick, the coarse
+    /// sizes of `--compare-aggregates`, one rotation iteration per tick.
     #[arg(long)]
     pub compare: bool,
+    /// Coarse-space sizes compared by `--compare`.
+    #[arg(long, value_delimiter = ',', default_values_t = vec![32u32])]
+    pub compare_aggregates: Vec<u32>,
     /// Per-tick iteration budgets compared by `--compare`.
     #[arg(long, value_delimiter = ',', default_values_t = vec![6u32, 8, 10])]
     pub budgets: Vec<u32>,
@@ -600,10 +604,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 ..base
             },
         });
+        for &m in &args.compare_aggregates {
+            variants.push(Variant {
+                name: format!("{m} aggregates"),
+                cfg: RuntimeConfig {
+                    coarse_aggregates: m,
+                    ..base
+                },
+            });
+        }
         variants.push(Variant {
-            name: "32 aggregates".into(),
+            name: "1 rotation iteration".into(),
             cfg: RuntimeConfig {
-                coarse_aggregates: 32,
+                rotation_iterations: 1,
                 ..base
             },
         });
