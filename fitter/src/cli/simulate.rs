@@ -11,9 +11,20 @@ use crate::static_fit::blend::BlendData;
 use anyhow::{bail, Context};
 use palpate_protocol::model::ModelRecord;
 use palpate_runtime::material::LambdaAlpha;
-use palpate_runtime::{Probe, Runtime, RuntimeConfig, SolveStatus, StorageRequirement};
+use palpate_runtime::{
+    ContactRule, Probe, Runtime, RuntimeConfig, SolveStatus, StorageRequirement,
+};
 use std::io::Write;
 use std::path::{Path, PathBuf};
+
+/// The contact rule on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum RuleArg {
+    /// Whole surface nodes within the radius, by lumped area.
+    Lumped,
+    /// Uniform pressure integrated consistently.
+    Consistent,
+}
 
 /// Arguments of `palpate simulate`.
 #[derive(Debug, clap::Args)]
@@ -39,9 +50,14 @@ pub struct Args {
     /// Contact force fx,fy,fz (N).
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true, requires = "contact")]
     pub force: Option<[f64; 3]>,
-    /// Contact radius (m): the force is spread over the free surface nodes within it.
+    /// Contact radius (m): the force is spread over the free surface within it.
     #[arg(long, default_value_t = 0.015)]
     pub radius: f64,
+    /// How the contact force is spread (runtime/src/contact_rule.rs): `lumped` (whole surface
+    /// nodes within the radius by lumped area, the rule of static datasets and fits) or
+    /// `consistent` (uniform pressure integrated on the surface inside the ball).
+    #[arg(long, value_enum, default_value_t = RuleArg::Lumped)]
+    pub contact_rule: RuleArg,
     /// Position-driven probe: final position x,y,z (m) of the probe (sphere centre, or a point
     /// of the flat face).
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true, conflicts_with = "contact")]
@@ -214,6 +230,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         tolerance: 1e-6,
         max_iterations: 20_000,
         rotation_iterations: 8,
+        contact_rule: match args.contact_rule {
+            RuleArg::Lumped => ContactRule::Lumped,
+            RuleArg::Consistent => ContactRule::Consistent,
+        },
         ..Default::default()
     };
     let need = StorageRequirement::for_model(&record, &cfg);
