@@ -44,16 +44,26 @@ fn reference_world_applies_the_reported_force() {
     // tolerance 5 %.
     let signal = signal_rms(&s.truth, &reference.truth);
     let (mut sum, mut n) = (0.0, 0usize);
-    for (a, b) in reference.truth.measurements.iter().zip(&s.truth.measurements) {
+    for (a, b) in reference
+        .truth
+        .measurements
+        .iter()
+        .zip(&s.truth.measurements)
+    {
         let ratio = b.true_force[2] / b.reported_force[2] - 1.0;
         for (p, m) in a.markers.iter().zip(&s.dataset.markers) {
-            sum += (0..3).map(|d| (ratio * (p[d] - m.rest[d])).powi(2)).sum::<f64>();
+            sum += (0..3)
+                .map(|d| (ratio * (p[d] - m.rest[d])).powi(2))
+                .sum::<f64>();
             n += 1;
         }
     }
     let linear = (sum / n as f64).sqrt();
     eprintln!("signal {signal:.3e} m, linear estimate {linear:.3e} m");
-    assert!((signal / linear - 1.0).abs() < 0.05, "signal {signal}, linear {linear}");
+    assert!(
+        (signal / linear - 1.0).abs() < 0.05,
+        "signal {signal}, linear {linear}"
+    );
     // A world compared with itself has no signal (exact: same deterministic solve).
     assert_eq!(signal_rms(&s.truth, &s.truth), 0.0);
 }
