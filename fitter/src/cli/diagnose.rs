@@ -13,7 +13,7 @@ use crate::diagnose::{run_diagnosis_with, DiagnoseOptions};
 /// Options.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Static dataset directory.
+    /// Static or motion dataset directory, or measured curves (CSV file or directory).
     pub dataset: PathBuf,
     /// Report directory (diagnosis.md, diagnosis.json, evidence plots, model.palp for the runtime).
     #[arg(short, long, default_value = "diagnosis")]
@@ -46,9 +46,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     if args.dataset.is_dir() && !args.dataset.join("dataset.toml").exists() {
         anyhow::bail!(
-            "{}: neither a static dataset (no dataset.toml) nor measured curves (no CSV file with a \
-             recognised header); see docs/dataset.md and docs/diagnose.md",
+            "{}: not a static dataset (no dataset.toml), not a motion dataset (no dataset.toml \
+             with `dt`, plus trajectories.csv) and not measured curves (no CSV file with a \
+             recognised header); see docs/dataset.md, docs/motion-dataset.md and docs/diagnose.md",
             args.dataset.display()
+        );
+    }
+    // dataset.toml with `dt`/`clamps`: a motion dataset (docs/motion-dataset.md).
+    if args.dataset.is_dir() && crate::diagnose::motion::is_motion_dataset(&args.dataset) {
+        return crate::diagnose::motion::cli::run(
+            &args.dataset,
+            &args.output,
+            &args.candidates,
+            args.max_effects,
         );
     }
     let ds = StaticDataset::read(&args.dataset)

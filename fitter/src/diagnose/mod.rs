@@ -32,6 +32,7 @@ pub mod curve;
 pub mod export;
 pub mod fit;
 pub mod model;
+pub mod motion;
 pub mod noise;
 pub mod report;
 pub mod signature;

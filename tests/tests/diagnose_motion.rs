@@ -1,0 +1,259 @@
+//! `palpate diagnose` on motion datasets (issue 6 on top of the motion fitter): a viscous
+//! specimen must be diagnosed as viscous and forecast to the noise floor; an elastic one must come
+//! back clean; `palpate diagnose <dir>` must recognise a motion dataset on disk.
+//!
+//! Specimens: the example dataset's set-up (a 2 × 8 × 2 cm bar of 24 tets standing on a base
+//! moved by two sinusoids, 45 steps at 180 Hz, nine markers, density declared) simulated by the
+//! motion fitter's own forward model (Neo-Hookean eq. 16 + viscosity eq. 17, BDF2) with marker
+//! noise σ = 0.1 mm. The noise floor of the RMS marker error is σ√3 = 173.2 µm.
+
+use palpate_fitter::diagnose::motion::{diagnose, MotionDiagnosis, MotionOptions};
+use palpate_fitter::motion::dataset::{DatasetToml, Initial, MotionDataset};
+use palpate_fitter::motion::model::{Material, Model};
+use palpate_fitter::motion::scenario::{bar_model, nine_markers, record, two_sinusoids};
+use std::fmt::Write as _;
+
+const SIGMA: f64 = 1e-4;
+const SIZE: [f64; 3] = [0.02, 0.08, 0.02];
+const DT: f64 = 1.0 / 180.0;
+const STEPS: usize = 45;
+
+fn truth(model: &Model, nu: f64) -> Material {
+    Material::uniform(model.tets.len(), 1.0e4, 2.0e4, nu, 1.0, 47.0)
+}
+
+/// Truth λ = 1e4, μ = 2e4 Pa, h = 1, ρ = 47 kg/m³ and viscosity `nu` (Pa s).
+fn specimen(nu: f64, seed: u64) -> MotionDataset {
+    let (mesh, model) = bar_model(
+        SIZE,
+        [1, 4, 1],
+        DT,
+        STEPS,
+        &two_sinusoids,
+        &nine_markers(SIZE),
+    )
+    .unwrap();
+    let mut obs = record(&model, &truth(&model, nu), SIGMA, seed).unwrap();
+    // Markers only, like the example dataset (no load cell).
+    obs.forces
+        .iter_mut()
+        .for_each(|r| r.iter_mut().for_each(|f| *f = None));
+    MotionDataset {
+        config: DatasetToml {
+            mesh: "mesh.msh".into(),
+            dt: DT,
+            steps: Some(STEPS),
+            density: Some(47.0),
+            gravity: [0.0, -9.81, 0.0],
+            clamps: vec!["front".into()],
+            mass: None,
+            static_start: None,
+            marker_weight: None,
+            force_weight: None,
+            initial: Initial {
+                lambda: 2.0e4,
+                mu: 1.0e4,
+                nu: 6.0,
+                h: 1.3,
+            },
+        },
+        mesh,
+        model,
+        obs,
+    }
+}
+
+fn run(ds: &MotionDataset, label: &str) -> MotionDiagnosis {
+    let r = diagnose(ds, label, &MotionOptions::default(), &|m| eprintln!("{m}")).unwrap();
+    eprintln!(
+        "{label}: adopted {:?}; RMS fitted {:.1} -> {:.1} µm, held out {:.1} -> {:.1} µm",
+        r.adopted,
+        1e6 * r.before.rms_fit,
+        1e6 * r.after.rms_fit,
+        1e6 * r.before.rms_held,
+        1e6 * r.after.rms_held
+    );
+    r
+}
+
+/// ν = 400 Pa s (viscous time ν/μ = 20 ms = 3.6 steps) on seeds 1 and 2: viscosity is named
+/// first, the held-out forecast error comes down to the noise floor and ν is recovered.
+/// Measured: seed 1 held out 208.2 → 174.4 µm, ν = 428; seed 2 204.1 → 179.5 µm, ν = 388.
+/// Tolerances: held-out RMS ≤ 1.5 σ√3 (the issue's bar; measured ≤ 1.04×); ν within 20 %
+/// (measured 7 % and 3 %; the rest of the 20 % covers the λ–μ–ν correlation of this nearly
+/// rigid, weakly excited bar, whose λ is itself only known to ±100 %).
+#[test]
+fn viscous_specimen_is_diagnosed_viscous_and_forecast_to_the_noise_floor() {
+    let floor = SIGMA * 3f64.sqrt();
+    for seed in [1, 2] {
+        let r = run(&specimen(400.0, seed), &format!("viscous seed {seed}"));
+        assert!(
+            r.adopted
+                .first()
+                .is_some_and(|a| a.starts_with("viscosity")),
+            "seed {seed}: adopted {:?}",
+            r.adopted
+        );
+        assert!(
+            r.after.rms_held <= 1.5 * floor,
+            "seed {seed}: held-out RMS {:.1} µm > 1.5 × {:.1} µm",
+            1e6 * r.after.rms_held,
+            1e6 * floor
+        );
+        assert!(r.after.rms_held < r.before.rms_held);
+        let nu = r.after_values.iter().find(|v| v.name == "nu").unwrap();
+        assert!(
+            (nu.value / 400.0 - 1.0).abs() < 0.2,
+            "seed {seed}: nu = {}",
+            nu.value
+        );
+        assert!(nu.sigma.is_some_and(|s| s > 0.0 && s.is_finite()));
+    }
+}
+
+/// ν = 0: nothing is adopted on seeds 1 and 2 (measured: the best viscosity candidate has
+/// ΔBIC +6.5 / +15.1 and changes the held-out RMS by −0.4 % / 0.0 %).
+#[test]
+fn elastic_specimen_comes_back_clean() {
+    for seed in [1, 2] {
+        let r = run(&specimen(0.0, seed), &format!("elastic seed {seed}"));
+        assert!(r.adopted.is_empty(), "seed {seed}: adopted {:?}", r.adopted);
+        assert_eq!(r.before.rms_held, r.after.rms_held);
+        // The elastic fit itself is at the noise floor (within 10 %: 34 × 9 markers give the
+        // RMS a relative sampling error of ≈ 2.3 %, plus the bias of fitting 2 parameters).
+        assert!((r.before.rms_fit / (SIGMA * 3f64.sqrt()) - 1.0).abs() < 0.1);
+    }
+}
+
+/// How large viscosity's signal is in this set-up: the RMS over markers and steps of the
+/// noise-free trajectory with ν minus the one with ν = 0 (same λ, μ). The example dataset's
+/// ν = 12 Pa s is far below its own noise floor (0.2 mm · √3 = 346 µm); ν = 400 is above this
+/// test's floor. Measured: 12.8 µm (3.7 % of the example's floor) and 88.3 µm (51 % of this
+/// test's floor — detected because the lag is coherent over 306 marker samples while the noise is
+/// not). Tolerances: < 5 % and > 30 % of the respective floors, margins of 1.35× and 1.7× on the
+/// measured values for solver-level changes.
+#[test]
+fn viscosity_signal_against_the_noise_floor() {
+    let (_, model) = bar_model(
+        SIZE,
+        [1, 4, 1],
+        DT,
+        STEPS,
+        &two_sinusoids,
+        &nine_markers(SIZE),
+    )
+    .unwrap();
+    let clean = |nu: f64| record(&model, &truth(&model, nu), 0.0, 1).unwrap();
+    let base = clean(0.0);
+    let signal = |nu: f64| {
+        let o = clean(nu);
+        let (mut s, mut c) = (0.0, 0usize);
+        for (a, b) in o
+            .markers
+            .iter()
+            .flatten()
+            .zip(base.markers.iter().flatten())
+        {
+            let (a, b) = (a.unwrap(), b.unwrap());
+            s += (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>();
+            c += 1;
+        }
+        (s / c as f64).sqrt()
+    };
+    let (s12, s400) = (signal(12.0), signal(400.0));
+    eprintln!(
+        "viscosity signal: nu 12 -> {:.2} µm, nu 400 -> {:.2} µm",
+        1e6 * s12,
+        1e6 * s400
+    );
+    assert!(s12 < 0.05 * 2e-4 * 3f64.sqrt(), "nu 12 signal {s12}");
+    assert!(s400 > 0.3 * SIGMA * 3f64.sqrt(), "nu 400 signal {s400}");
+}
+
+/// Writes a motion dataset directory (docs/motion-dataset.md) for `ds`.
+fn write_dataset(ds: &MotionDataset, dir: &std::path::Path) {
+    palpate_fitter::mesh::gmsh::write_msh(&ds.mesh, dir.join("mesh.msh")).unwrap();
+    let markers = nine_markers(SIZE);
+    let mut k = String::from("marker,x,y,z\n");
+    for (i, p) in markers.iter().enumerate() {
+        writeln!(k, "m{i},{},{},{}", p[0], p[1], p[2]).unwrap();
+    }
+    std::fs::write(dir.join("markers.csv"), k).unwrap();
+    let mut t = String::from("t,marker,x,y,z\n");
+    for (n, row) in ds.obs.markers.iter().enumerate() {
+        for (i, p) in row.iter().enumerate() {
+            let p = p.unwrap();
+            writeln!(t, "{},m{i},{},{},{}", (n + 1) as f64 * DT, p[0], p[1], p[2]).unwrap();
+        }
+    }
+    std::fs::write(dir.join("trajectories.csv"), t).unwrap();
+    let mut c = String::from("t,clamp,ux,uy,uz\n");
+    for n in 0..=STEPS {
+        let u = two_sinusoids(n as f64 * DT);
+        writeln!(c, "{},front,{},{},{}", n as f64 * DT, u[0], u[1], u[2]).unwrap();
+    }
+    std::fs::write(dir.join("clamps.csv"), c).unwrap();
+    std::fs::write(
+        dir.join("dataset.toml"),
+        format!(
+            "dt = {DT}\ndensity = 47.0\ngravity = [0.0, -9.81, 0.0]\nclamps = [\"front\"]\n\n\
+             [initial]\nlambda = 20000.0\nmu = 10000.0\nnu = 6.0\nh = 1.3\n"
+        ),
+    )
+    .unwrap();
+}
+
+fn cli_args(
+    dataset: &std::path::Path,
+    out: &std::path::Path,
+) -> palpate_fitter::cli::diagnose::Args {
+    palpate_fitter::cli::diagnose::Args {
+        dataset: dataset.to_path_buf(),
+        output: out.to_path_buf(),
+        candidates: Vec::new(),
+        max_effects: 2,
+        gauge_length: None,
+    }
+}
+
+/// `palpate diagnose <dir>` recognises a motion dataset written to disk, names viscosity and
+/// writes the report, the plot and the runtime model; a directory that is none of the known
+/// inputs gets an error naming what was looked for.
+#[test]
+fn cli_recognises_a_motion_dataset_on_disk() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("viscous");
+    std::fs::create_dir_all(&dir).unwrap();
+    write_dataset(&specimen(400.0, 1), &dir);
+    let out = tmp.path().join("report");
+    palpate_fitter::cli::diagnose::run(cli_args(&dir, &out)).unwrap();
+    for f in [
+        "diagnosis.md",
+        "diagnosis.json",
+        "residual-vs-speed.svg",
+        "model.palp",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let md = std::fs::read_to_string(out.join("diagnosis.md")).unwrap();
+    assert!(md.contains("**Result**: adopted viscosity"), "{md}");
+    let json = std::fs::read_to_string(out.join("diagnosis.json")).unwrap();
+    let top = json
+        .rfind("\"adopted\": [")
+        .expect("top-level adopted list");
+    assert!(json[top..]
+        .trim_start_matches("\"adopted\": [")
+        .trim_start()
+        .starts_with("\"viscosity"));
+
+    let empty = tmp.path().join("nothing");
+    std::fs::create_dir_all(&empty).unwrap();
+    std::fs::write(empty.join("readme.txt"), "not data").unwrap();
+    let e = palpate_fitter::cli::diagnose::run(cli_args(&empty, &out))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("not a motion dataset") && e.contains("trajectories.csv"),
+        "{e}"
+    );
+}
