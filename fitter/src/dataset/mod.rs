@@ -3,6 +3,7 @@
 //! The on-disk format is documented in `docs/dataset.md`.
 
 pub mod embed;
+pub mod mesh_error;
 pub mod read;
 pub mod write;
 

@@ -3,6 +3,7 @@
 
 pub mod boxmesh;
 pub mod gmsh;
+pub mod refine;
 pub mod vtk;
 
 use std::collections::{BTreeMap, HashMap};
