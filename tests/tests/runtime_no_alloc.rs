@@ -7,7 +7,7 @@
 
 use palpate_fitter::mesh::boxmesh::box_mesh;
 use palpate_runtime::material::LambdaAlpha;
-use palpate_runtime::{Probe, Runtime, RuntimeConfig, StorageRequirement};
+use palpate_runtime::{ContactRule, Probe, Runtime, RuntimeConfig, StorageRequirement};
 use palpate_tests::model::ModelBuffers;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
@@ -54,50 +54,54 @@ fn thousands_of_ticks_allocate_nothing() {
     let fixed = m.group("bottom").unwrap().to_vec();
     let p = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
     let buf = ModelBuffers::homogeneous(&m, &fixed, p.lambda, p.alpha);
-    let cfg = RuntimeConfig {
-        load_step: 0.05,
-        probe_step: 1e-4,
-        ..Default::default()
-    };
-    let need = StorageRequirement::for_model(&buf.record(), &cfg);
-    let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let mut rt = Runtime::new(buf.record(), &mut fs, &mut us, cfg).unwrap();
     // The watch works: a Vec made on this thread while watched is counted.
     WATCHED.with(|w| w.set(true));
     let probe: Vec<u8> = std::hint::black_box(Vec::with_capacity(16));
     WATCHED.with(|w| w.set(false));
     drop(probe);
     assert_eq!(ALLOCATIONS.swap(0, Ordering::SeqCst), 1);
-    let before = ALLOCATIONS.load(Ordering::SeqCst);
-    WATCHED.with(|w| w.set(true));
-    let mut solved = 0;
-    for k in 0..3000 {
-        let s = k as f32 / 3000.0;
-        if k < 1500 {
-            rt.set_contact_force([0.02 + 0.06 * s, 0.05, 0.05], [0.0, 0.0, -0.5], 0.015)
+    // Both force-driven contact rules (the consistent one integrates rim triangles every tick).
+    for rule in [ContactRule::Lumped, ContactRule::Consistent] {
+        let cfg = RuntimeConfig {
+            load_step: 0.05,
+            probe_step: 1e-4,
+            contact_rule: rule,
+            ..Default::default()
+        };
+        let need = StorageRequirement::for_model(&buf.record(), &cfg);
+        let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
+        let mut rt = Runtime::new(buf.record(), &mut fs, &mut us, cfg).unwrap();
+        let before = ALLOCATIONS.load(Ordering::SeqCst);
+        WATCHED.with(|w| w.set(true));
+        let mut solved = 0;
+        for k in 0..3000 {
+            let s = k as f32 / 3000.0;
+            if k < 1500 {
+                rt.set_contact_force([0.02 + 0.06 * s, 0.05, 0.05], [0.0, 0.0, -0.5], 0.015)
+                    .unwrap();
+            } else {
+                if k == 1500 {
+                    rt.clear_loads();
+                }
+                rt.set_probe(Probe::Sphere {
+                    center: [0.05, 0.02 + 0.06 * s, 0.058],
+                    radius: 0.01,
+                })
                 .unwrap();
-        } else {
-            if k == 1500 {
-                rt.clear_loads();
             }
-            rt.set_probe(Probe::Sphere {
-                center: [0.05, 0.02 + 0.06 * s, 0.058],
-                radius: 0.01,
-            })
-            .unwrap();
+            let rep = rt.tick();
+            solved += rep.iterations;
         }
-        let rep = rt.tick();
-        solved += rep.iterations;
+        WATCHED.with(|w| w.set(false));
+        let after = ALLOCATIONS.load(Ordering::SeqCst);
+        assert_eq!(
+            after - before,
+            0,
+            "{rule:?}: the runtime allocated {} times during 3000 ticks",
+            after - before
+        );
+        assert!(solved > 0);
+        // The sphere really pressed the surface in the position-driven half.
+        assert!(rt.reaction()[2] > 0.0, "reaction {:?}", rt.reaction());
     }
-    WATCHED.with(|w| w.set(false));
-    let after = ALLOCATIONS.load(Ordering::SeqCst);
-    assert_eq!(
-        after - before,
-        0,
-        "the runtime allocated {} times during 3000 ticks",
-        after - before
-    );
-    assert!(solved > 0);
-    // The sphere really pressed the surface in the position-driven half.
-    assert!(rt.reaction()[2] > 0.0, "reaction {:?}", rt.reaction());
 }
