@@ -26,7 +26,8 @@ use palpate_runtime::element::{
 };
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::{
-    ContactRule, Kernel, Preconditioner, Runtime, RuntimeConfig, SolveStatus, StorageRequirement,
+    ContactRule, Kernel, Preconditioner, Probe, Runtime, RuntimeConfig, SolveStatus,
+    StorageRequirement,
 };
 use serde_json::json;
 use std::time::Instant;
@@ -65,6 +66,10 @@ pub struct Args {
     /// jump when a node crosses the rim).
     #[arg(long, value_enum, default_value_t = Rule::Consistent)]
     pub rule: Rule,
+    /// How the probe touches the object: `force` (a force spread by `--rule`) or `sphere` (a
+    /// rigid sphere pressed 2 mm in, position-driven: the haptic device's case).
+    #[arg(long, value_enum, default_value_t = Touch::Force)]
+    pub touch: Touch,
     /// Skip the packed-matrix kernel run.
     #[arg(long)]
     pub gradient_only: bool,
@@ -103,10 +108,34 @@ impl Rule {
 const FORCE: [f32; 3] = [0.0, 0.0, -0.5];
 const RADIUS: f32 = 0.015;
 
-/// Commands tick `k`'s contact (inside the timed region: it is part of the tick); the rule is the
-/// runtime's configured one.
-fn command(rt: &mut Runtime<'_>, k: usize, ticks: usize) -> anyhow::Result<()> {
-    rt.set_contact_force(contact_point(k, ticks), FORCE, RADIUS)?;
+/// How the scripted probe touches the object.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Touch {
+    /// Force-driven: 0.5 N spread by the contact rule (`--rule`).
+    Force,
+    /// Position-driven: a rigid sphere of 1 cm radius pressed 2 mm into the top face (hard
+    /// frictionless contact, the runtime returns the reaction force), what a force-feedback
+    /// device drives.
+    Sphere,
+}
+
+/// Sphere probe of the position-driven scenario: radius and indentation (m).
+const SPHERE_RADIUS: f32 = 0.01;
+const SPHERE_DEPTH: f32 = 0.002;
+
+/// Commands tick `k`'s contact (inside the timed region: it is part of the tick); the force rule is
+/// the runtime's configured one.
+fn command(rt: &mut Runtime<'_>, k: usize, ticks: usize, touch: Touch) -> anyhow::Result<()> {
+    let c = contact_point(k, ticks);
+    match touch {
+        Touch::Force => {
+            rt.set_contact_force(c, FORCE, RADIUS)?;
+        }
+        Touch::Sphere => rt.set_probe(Probe::Sphere {
+            center: [c[0], c[1], c[2] + SPHERE_RADIUS - SPHERE_DEPTH],
+            radius: SPHERE_RADIUS,
+        })?,
+    }
     Ok(())
 }
 
@@ -256,9 +285,9 @@ struct Record {
     bytes: usize,
 }
 
-fn settle(rt: &mut Runtime<'_>, ticks: usize) -> anyhow::Result<()> {
+fn settle(rt: &mut Runtime<'_>, ticks: usize, touch: Touch) -> anyhow::Result<()> {
     // Settle the initial contact so the run measures steady haptic ticks.
-    command(rt, 0, ticks)?;
+    command(rt, 0, ticks, touch)?;
     for _ in 0..20 {
         rt.tick();
     }
@@ -269,6 +298,7 @@ fn settle(rt: &mut Runtime<'_>, ticks: usize) -> anyhow::Result<()> {
 /// order, before tick k + 1 of any. The timed pass touches nothing else.
 fn timed_pass(
     model: &BenchModel,
+    touch: Touch,
     variants: &[Variant],
     ticks: usize,
     interleave: bool,
@@ -294,7 +324,7 @@ fn timed_pass(
     let one_tick = |rt: &mut Runtime<'_>, rec: &mut Record, k: usize| -> anyhow::Result<()> {
         let c0 = thread_cpu();
         let t0 = Instant::now();
-        command(rt, k, ticks)?;
+        command(rt, k, ticks, touch)?;
         let rep = rt.tick();
         let wall = t0.elapsed().as_secs_f64() * 1e6;
         rec.cpu_us.push((thread_cpu() - c0) * 1e6);
@@ -306,7 +336,7 @@ fn timed_pass(
     };
     if interleave {
         for rt in rts.iter_mut() {
-            settle(rt, ticks)?;
+            settle(rt, ticks, touch)?;
         }
         let m = rts.len();
         for k in 0..ticks {
@@ -321,7 +351,7 @@ fn timed_pass(
         }
     } else {
         for (rt, rec) in rts.iter_mut().zip(recs.iter_mut()) {
-            settle(rt, ticks)?;
+            settle(rt, ticks, touch)?;
             for k in 0..ticks {
                 one_tick(rt, rec, k)?;
             }
@@ -335,6 +365,7 @@ fn timed_pass(
 /// same state, every 50th tick and at every tick that exhausted its budget.
 fn accuracy_pass(
     model: &BenchModel,
+    touch: Touch,
     variant: &Variant,
     ticks: usize,
     rec: &mut Record,
@@ -349,13 +380,13 @@ fn accuracy_pass(
     };
     let (mut f2, mut u2) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
     let mut reference = Runtime::new(model.record(), &mut f2, &mut u2, ref_cfg)?;
-    settle(&mut rt, ticks)?;
+    settle(&mut rt, ticks, touch)?;
     for k in 0..ticks {
         let check = k % 50 == 25 || rec.capped[k];
         if check {
             reference.copy_state_from(&rt)?;
         }
-        command(&mut rt, k, ticks)?;
+        command(&mut rt, k, ticks, touch)?;
         let rep = rt.tick();
         anyhow::ensure!(
             rep.iterations == rec.iters[k],
@@ -365,7 +396,7 @@ fn accuracy_pass(
             rec.iters[k]
         );
         if check {
-            command(&mut reference, k, ticks)?;
+            command(&mut reference, k, ticks, touch)?;
             reference.tick();
             rec.err_checked
                 .push((k, rel_diff(rt.displacements(), reference.displacements())));
@@ -482,7 +513,7 @@ fn run_direct(model: &BenchModel, args: &Args, p: LambdaAlpha) -> anyhow::Result
     let llt_symbolic =
         faer::sparse::linalg::solvers::SymbolicLlt::try_new(symbolic.as_ref(), Side::Lower)?;
     let mut times = Vec::new();
-    command(&mut rt, 0, args.ticks)?;
+    command(&mut rt, 0, args.ticks, Touch::Force)?;
     for _ in 0..20 {
         rt.tick();
     }
@@ -490,7 +521,7 @@ fn run_direct(model: &BenchModel, args: &Args, p: LambdaAlpha) -> anyhow::Result
     let stride = (args.ticks / args.direct_ticks.max(1)).max(1);
     for k in (0..args.ticks).step_by(stride).take(args.direct_ticks) {
         let t0 = Instant::now();
-        command(&mut rt, k, args.ticks)?;
+        command(&mut rt, k, args.ticks, Touch::Force)?;
         // Rotations as the runtime computed them for its current state.
         let rots: Vec<[f32; 9]> = (0..mesh.tets.len())
             .map(|e| rt.element_rotation(e).unwrap_or([0.0; 9]))
@@ -629,11 +660,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             },
         });
     }
-    let mut recs = timed_pass(&model, &variants, args.ticks, args.compare)?;
+    let mut recs = timed_pass(&model, args.touch, &variants, args.ticks, args.compare)?;
     for (v, r) in variants.iter().zip(recs.iter_mut()) {
-        accuracy_pass(&model, v, args.ticks, r)?;
+        accuracy_pass(&model, args.touch, v, args.ticks, r)?;
     }
-    let mut direct = run_direct(&model, &args, p)?;
+    // The direct baseline solves the force-driven tick (the sphere's contact constraints are not
+    // in it): skipped for the sphere.
+    let mut direct = if args.touch == Touch::Force {
+        run_direct(&model, &args, p)?
+    } else {
+        Vec::new()
+    };
     direct.sort_by(|a, b| a.total_cmp(b));
     let sums: Vec<Summary> = recs.iter().map(summarise).collect();
     if args.compare {
@@ -727,6 +764,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         json!({
             "bench": "runtime",
             "rule": format!("{:?}", args.rule).to_lowercase(),
+            "touch": format!("{:?}", args.touch).to_lowercase(),
             "tets": tets,
             "dofs": dofs,
             "ticks": args.ticks,
