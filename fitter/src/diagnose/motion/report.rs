@@ -74,15 +74,17 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
         let _ = writeln!(md, "Signature: {}.\n", s.reading);
         let _ = writeln!(
             md,
-            "- lag along the relative marker velocity: e ≈ {:.3e} s · u_rel, {:.1} % of the residual energy",
+            "- lag along the relative marker velocity: e ≈ {:.3e} s · u_rel, {:.1} % of the residual energy (ΔBIC {:.1})",
             s.speed_coef_s,
-            100.0 * s.speed_share
+            100.0 * s.speed_share,
+            s.speed_dbic
         );
         let _ = writeln!(
             md,
-            "- along the acceleration: e ≈ {:.3e} s² · a, {:.1} % of the residual energy",
+            "- along the acceleration: e ≈ {:.3e} s² · a, {:.1} % of the residual energy (ΔBIC {:.1})",
             s.accel_coef_s2,
-            100.0 * s.accel_share
+            100.0 * s.accel_share,
+            s.accel_dbic
         );
         let _ = writeln!(
             md,

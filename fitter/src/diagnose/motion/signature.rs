@@ -19,6 +19,12 @@ pub struct Signature {
     pub accel_coef_s2: f64,
     /// Share of the residual energy c_a·a explains.
     pub accel_share: f64,
+    /// Significance of the lag: ΔBIC of the 1-parameter regression e ≈ c_u·u_rel against e ≈ 0,
+    /// n ln(1 − share) + ln n over the n scalar residuals (< −10: a real structure, not noise —
+    /// the share itself is small when white marker noise dominates the residual energy).
+    pub speed_dbic: f64,
+    /// Same for the acceleration regression.
+    pub accel_dbic: f64,
     /// RMS residual (m) in 8 equal time bins: (bin centre t (s), RMS).
     pub time_bins: Vec<(f64, f64)>,
     /// RMS of the last time bin over the first (drift of the forecast).
@@ -105,6 +111,9 @@ pub fn signature(ds: &MotionDataset, split: Split, m: &FittedModel) -> Signature
     }
     let (speed_coef_s, speed_share) = scalar_fit(&speed_pairs);
     let (accel_coef_s2, accel_share) = scalar_fit(&accel_pairs);
+    let nn = (3 * speed_pairs.len()).max(1) as f64;
+    let dbic = |share: f64| nn * (1.0 - share).max(f64::MIN_POSITIVE).ln() + nn.ln();
+    let (speed_dbic, accel_dbic) = (dbic(speed_share), dbic(accel_share));
     let rms = |(s, c): (f64, usize)| if c == 0 { 0.0 } else { (s / c as f64).sqrt() };
     let time_bins: Vec<(f64, f64)> = tb
         .iter()
@@ -132,26 +141,30 @@ pub fn signature(ds: &MotionDataset, split: Split, m: &FittedModel) -> Signature
         _ => 0.0,
     };
     let speed_bins = quantile_bins(&mut speed_sq, bins);
-    let reading = if speed_share >= accel_share && speed_share > 0.2 {
+    let reading = if speed_dbic <= accel_dbic && speed_dbic < -10.0 {
         format!(
-            "{:.0} % of the residual energy is a lag along the marker velocity (e ≈ {:.2e} s · u): \
-             what a missing rate-dependent (viscous) force leaves",
+            "a lag along the marker velocity (e ≈ {:.2e} s · u_rel; {:.1} % of the residual \
+             energy, ΔBIC {:.1}): what a missing rate-dependent (viscous) force leaves",
+            speed_coef_s,
             100.0 * speed_share,
-            speed_coef_s
+            speed_dbic
         )
-    } else if accel_share > 0.2 {
+    } else if accel_dbic < -10.0 {
         format!(
-            "{:.0} % of the residual energy follows the acceleration (e ≈ {:.2e} s² · a): \
-             inertia (mass/density) is off",
+            "the residual follows the acceleration (e ≈ {:.2e} s² · a; {:.1} % of the residual \
+             energy, ΔBIC {:.1}): inertia (mass/density) is off",
+            accel_coef_s2,
             100.0 * accel_share,
-            accel_coef_s2
+            accel_dbic
         )
     } else {
         format!(
-            "no strong structure: velocity explains {:.0} %, acceleration {:.0} % of the residual \
-             energy; last/first time-bin RMS {:.2}",
+            "no significant structure: velocity explains {:.1} % (ΔBIC {:.1}), acceleration \
+             {:.1} % (ΔBIC {:.1}) of the residual energy; last/first time-bin RMS {:.2}",
             100.0 * speed_share,
+            speed_dbic,
             100.0 * accel_share,
+            accel_dbic,
             drift_ratio
         )
     };
@@ -160,6 +173,8 @@ pub fn signature(ds: &MotionDataset, split: Split, m: &FittedModel) -> Signature
         speed_share,
         accel_coef_s2,
         accel_share,
+        speed_dbic,
+        accel_dbic,
         time_bins,
         drift_ratio,
         per_marker,
