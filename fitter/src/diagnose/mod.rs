@@ -215,6 +215,9 @@ pub struct DiagnosisReport {
     pub noise_evidence: Vec<(f64, f64)>,
     /// Errors of the simplest model.
     pub before: Errors,
+    /// The dataset mesh's own discretisation error under the simplest model (`None` when the
+    /// refined mesh would exceed [`MESH_ERROR_MAX_TETS`] or a refined solve failed).
+    pub mesh_error: Option<MeshErrorSummary>,
     /// Errors of the final model.
     pub after: Errors,
     /// Every parameter of the final model.
@@ -230,6 +233,25 @@ pub struct DiagnosisReport {
     #[serde(skip)]
     pub context: Option<Context>,
 }
+
+/// The simplest model solved again on the dataset mesh refined once
+/// ([`crate::dataset::mesh_error`]): u_h − u_{h/2} at the observed markers. Reported, not yet used
+/// by the selection rule: a residual structure of this size can be the mesh rather than a missing
+/// effect (e.g. a "layer" of softer material compensating linear tetrahedra that are too stiff
+/// under the probe).
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct MeshErrorSummary {
+    /// RMS over the observed markers (m).
+    pub rms: f64,
+    /// Largest marker difference (m).
+    pub max: f64,
+    /// Tetrahedra of the refined mesh.
+    pub refined_tets: usize,
+}
+
+/// The mesh-error estimate is skipped when the refined mesh would have more tetrahedra than this
+/// (its direct solves would dominate the diagnosis).
+pub const MESH_ERROR_MAX_TETS: usize = 200_000;
 
 fn stats(v: &[f64]) -> (f64, f64) {
     let rms = (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
@@ -423,6 +445,22 @@ pub fn run_diagnosis_with(
     )?;
     let mut current_held = holdout(&ctx, &current, o.holdout_iterations)?;
     let first = errors(&ctx, &current, &current_held);
+    let mesh_error = if 8 * ds.mesh.tets.len() <= MESH_ERROR_MAX_TETS {
+        progress("estimating the mesh's discretisation error (simplest model on the mesh refined once)");
+        let p = palpate_runtime::material::LambdaAlpha::from_young_poisson(
+            current.theta[0].exp(),
+            poisson_of(current.theta[1]),
+        );
+        crate::dataset::mesh_error::mesh_error(ds, p)
+            .ok()
+            .map(|e| MeshErrorSummary {
+                rms: e.rms,
+                max: e.max,
+                refined_tets: e.refined_tets,
+            })
+    } else {
+        None
+    };
     let mut steps = Vec::new();
     for round in 1..=o.max_effects + 1 {
         let before = errors(&ctx, &current, &current_held);
@@ -620,6 +658,7 @@ pub fn run_diagnosis_with(
         noise_evidence,
         steps,
         before: first,
+        mesh_error,
         after,
         young_poisson: (current.theta[0].exp(), poisson_of(current.theta[1])),
         final_params,

@@ -52,6 +52,15 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
         um(r.noise_floor),
         r.seconds
     );
+    if let Some(m) = &r.mesh_error {
+        let _ = writeln!(
+            s,
+            "Discretisation error of the dataset mesh: the simplest model solved again on the mesh refined once ({} tets) moves the markers by {} µm RMS (max {} µm). Residual structure of that size can be the mesh rather than a missing effect.\n",
+            m.refined_tets,
+            um(m.rms),
+            um(m.max)
+        );
+    }
     let _ = writeln!(s, "## Error before and after\n");
     let _ = writeln!(s, "Markers in µm; implied-force error in N (|s − 1|·|f|, s the best scale of simulated onto measured displacement). Held-out = leave-one-measurement-out.\n");
     let _ = writeln!(s, "| model | fitted RMS | fitted max | held-out RMS | held-out max | force RMS | force max | held-out force RMS |");
