@@ -187,7 +187,8 @@ pub fn triangle_load(v: [[f64; 3]; 3], contact: [f64; 3], radius: f64) -> [f64; 
         u[0] * w[1] - u[1] * w[0],
     ];
     let area = 0.5 * libm::sqrt(sq(n));
-    if !(area > 0.0) {
+    // Degenerate (or NaN) area: nothing to load.
+    if area.is_nan() || area <= 0.0 {
         return [0.0; 3];
     }
     let ramp = libm::sqrt(2.0 * area) / q as f64;
@@ -262,7 +263,7 @@ pub fn contact_integrals(
         }
         count += loaded as usize;
     }
-    if !(total > 0.0) {
+    if total.is_nan() || total <= 0.0 {
         // Only now look for the nearest free surface node, for the error message.
         let mut nearest = f64::INFINITY;
         for k in 0..tri_count {

@@ -143,9 +143,9 @@ fn resultant_acts_at_the_contact_point() {
     ] {
         let w = weights(&m, &tris, &fixed, c, r);
         let mut x = [0.0; 3];
-        for (i, wi) in w.iter().enumerate() {
-            for d in 0..3 {
-                x[d] += wi * m.nodes[i][d];
+        for (wi, p) in w.iter().zip(&m.nodes) {
+            for (xd, pd) in x.iter_mut().zip(p) {
+                *xd += wi * pd;
             }
         }
         for d in 0..2 {

@@ -446,7 +446,9 @@ pub fn run_diagnosis_with(
     let mut current_held = holdout(&ctx, &current, o.holdout_iterations)?;
     let first = errors(&ctx, &current, &current_held);
     let mesh_error = if 8 * ds.mesh.tets.len() <= MESH_ERROR_MAX_TETS {
-        progress("estimating the mesh's discretisation error (simplest model on the mesh refined once)");
+        progress(
+            "estimating the mesh's discretisation error (simplest model on the mesh refined once)",
+        );
         let p = palpate_runtime::material::LambdaAlpha::from_young_poisson(
             current.theta[0].exp(),
             poisson_of(current.theta[1]),
