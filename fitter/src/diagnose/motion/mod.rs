@@ -468,8 +468,10 @@ pub fn diagnose(
         });
         let Some(i) = best else { break };
         let (_, m, c) = trials.swap_remove(i);
+        // A trial passes only when it was fitted; a missing fit ends the loop rather than panics.
+        let Some(m) = m else { break };
         adopted.push(c);
-        cur = m.expect("a passing trial was fitted");
+        cur = m;
     }
     let mut sp_b = Vec::new();
     let final_signature = signature(ds, split, &cur);
