@@ -419,3 +419,62 @@ fn viscous_strip_that_buckles_on_unloading_adopts_slack() {
     // With both effects the model is the generator's: held-out within 1.5 σ.
     assert!(d.after.heldout_rms < 1.5 * sigma, "after {:?}", d.after);
 }
+
+/// A data folder with one subdirectory per instrument (as `../shared/data` is laid out) is
+/// diagnosed one subdirectory at a time, each into its own report folder; a folder with nothing
+/// diagnosable anywhere is an error that says what was looked for.
+#[test]
+fn a_folder_of_instrument_folders_is_diagnosed_one_by_one() {
+    let root = tempfile::tempdir().unwrap();
+    let mut noise = Noise(11);
+    for name in ["strip-a", "strip-b"] {
+        let sub = root.path().join(name);
+        std::fs::create_dir(&sub).unwrap();
+        for (i, xm) in [10.0, 20.0, 30.0].into_iter().enumerate() {
+            let (t, x) = triangle(xm, 1.0, 10.0);
+            let f: Vec<f64> = x
+                .iter()
+                .map(|&d| 0.08 * d + 0.005 * noise.gauss())
+                .collect();
+            std::fs::write(sub.join(format!("run{i}.csv")), tension_csv(&t, &x, &f)).unwrap();
+        }
+    }
+    std::fs::create_dir(root.path().join("notes")).unwrap();
+    let out = tempfile::tempdir().unwrap();
+    let args = |dataset: &Path, output: &Path| palpate_fitter::cli::diagnose::Args {
+        dataset: dataset.to_path_buf(),
+        output: output.to_path_buf(),
+        candidates: Vec::new(),
+        max_effects: 3,
+        gauge_length: None,
+    };
+    palpate_fitter::cli::diagnose::run(args(root.path(), out.path())).unwrap();
+    for name in ["strip-a", "strip-b"] {
+        let reports: Vec<_> = walk(&out.path().join(name))
+            .into_iter()
+            .filter(|p| p.ends_with("diagnosis.md"))
+            .collect();
+        assert_eq!(reports.len(), 1, "{name}: {reports:?}");
+    }
+    assert!(!out.path().join("notes").exists());
+    let empty = tempfile::tempdir().unwrap();
+    std::fs::create_dir(empty.path().join("sub")).unwrap();
+    let e = palpate_fitter::cli::diagnose::run(args(empty.path(), out.path()))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("no subdirectory is any of these"), "{e}");
+}
+
+/// Every file below `dir`.
+fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            out.extend(walk(&p));
+        } else {
+            out.push(p);
+        }
+    }
+    out
+}

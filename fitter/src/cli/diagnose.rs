@@ -1,7 +1,7 @@
 //! `palpate diagnose <dataset>`: fit the simplest model, trace the residual to the effects the
 //! model lacks, adopt those that earn their parameters, and report before/after.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context as _;
 
@@ -29,40 +29,79 @@ pub struct Args {
     pub gauge_length: Option<f64>,
 }
 
-/// Runs the diagnosis.
+/// Whether `path` is something `diagnose` reads directly: measured curves, or a directory with a
+/// `dataset.toml` (static or motion dataset).
+fn diagnosable(path: &Path) -> bool {
+    crate::diagnose::curve::read::is_curve_input(path)
+        || (path.is_dir() && path.join("dataset.toml").exists())
+}
+
+/// Runs the diagnosis. A directory that is not itself a dataset or a set of curves but holds such
+/// subdirectories (e.g. a data folder with one folder per instrument) is diagnosed one
+/// subdirectory at a time, each into `<output>/<name>`.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.dataset.is_dir() && !diagnosable(&args.dataset) {
+        let mut subs: Vec<PathBuf> = std::fs::read_dir(&args.dataset)
+            .with_context(|| format!("listing {}", args.dataset.display()))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.is_dir() && diagnosable(p))
+            .collect();
+        subs.sort();
+        if !subs.is_empty() {
+            let mut failed = Vec::new();
+            for sub in &subs {
+                let name = sub
+                    .file_name()
+                    .map(|n| n.to_os_string())
+                    .unwrap_or_default();
+                println!("== {}", sub.display());
+                if let Err(e) = diagnose_one(&args, sub, &args.output.join(name)) {
+                    eprintln!("{}: {e:#}", sub.display());
+                    failed.push(sub.display().to_string());
+                }
+            }
+            if !failed.is_empty() {
+                anyhow::bail!(
+                    "{} of {} subdirectories could not be diagnosed: {}",
+                    failed.len(),
+                    subs.len(),
+                    failed.join(", ")
+                );
+            }
+            return Ok(());
+        }
+    }
+    diagnose_one(&args, &args.dataset, &args.output)
+}
+
+/// Diagnoses one dataset or set of curves at `path` into `output`.
+fn diagnose_one(args: &Args, path: &Path, output: &Path) -> anyhow::Result<()> {
     // A CSV file or a directory of CSVs without dataset.toml: measured curves (diagnose::curve).
-    if crate::diagnose::curve::read::is_curve_input(&args.dataset) {
+    if crate::diagnose::curve::read::is_curve_input(path) {
         return crate::diagnose::curve::cli::run(
-            &args.dataset,
-            &args.output,
+            path,
+            output,
             &args.candidates,
             args.max_effects,
             args.gauge_length,
         );
     }
-    if !args.dataset.exists() {
-        anyhow::bail!("{}: no such file or directory", args.dataset.display());
+    if !path.exists() {
+        anyhow::bail!("{}: no such file or directory", path.display());
     }
-    if args.dataset.is_dir() && !args.dataset.join("dataset.toml").exists() {
+    if path.is_dir() && !path.join("dataset.toml").exists() {
         anyhow::bail!(
             "{}: not a static dataset (no dataset.toml), not a motion dataset (no dataset.toml \
              with `dt`, plus trajectories.csv) and not measured curves (no CSV file with a \
-             recognised header); see docs/dataset.md, docs/motion-dataset.md and docs/diagnose.md",
-            args.dataset.display()
+             recognised header), and no subdirectory is any of these; see docs/dataset.md, docs/motion-dataset.md and docs/diagnose.md",
+            path.display()
         );
     }
     // dataset.toml with `dt`/`clamps`: a motion dataset (docs/motion-dataset.md).
-    if args.dataset.is_dir() && crate::diagnose::motion::is_motion_dataset(&args.dataset) {
-        return crate::diagnose::motion::cli::run(
-            &args.dataset,
-            &args.output,
-            &args.candidates,
-            args.max_effects,
-        );
+    if path.is_dir() && crate::diagnose::motion::is_motion_dataset(path) {
+        return crate::diagnose::motion::cli::run(path, output, &args.candidates, args.max_effects);
     }
-    let ds = StaticDataset::read(&args.dataset)
-        .with_context(|| format!("reading {}", args.dataset.display()))?;
+    let ds = StaticDataset::read(path).with_context(|| format!("reading {}", path.display()))?;
     let mut o = DiagnoseOptions {
         max_effects: args.max_effects,
         ..Default::default()
@@ -90,13 +129,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .collect::<anyhow::Result<Vec<Candidate>>>()?;
     }
     let r = run_diagnosis_with(&ds, &o, |msg| eprintln!("{msg}"))?;
-    let mut files = write_report(&r, &args.output)?;
-    let model_path = args.output.join("model.palp");
+    let mut files = write_report(&r, output)?;
+    let model_path = output.join("model.palp");
     let buffers = crate::diagnose::export::diagnosed_model(
         &r,
         &ds,
         &format!("palpate {} diagnose", env!("CARGO_PKG_VERSION")),
-        &format!("{} ({})", ds.name, args.dataset.display()),
+        &format!("{} ({})", ds.name, path.display()),
     )?;
     buffers
         .write(&model_path)
