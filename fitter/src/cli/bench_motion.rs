@@ -65,10 +65,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ParamKind::PowerH,
     ]
     .into_iter()
-    .map(|kind| Param {
-        kind,
-        element: None,
-    })
+    .map(Param::global)
     .collect();
     let q0 = [2.0e4, 1.0e4, 6.0, 1.3];
     let mut start = truth.clone();

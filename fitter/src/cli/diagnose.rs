@@ -29,6 +29,30 @@ pub struct Args {
     pub gauge_length: Option<f64>,
 }
 
+/// The candidates named in `--candidates` (`what` names the library in the error: "candidate",
+/// "motion candidate"), each looked up by name in `all`.
+pub(crate) fn pick_candidates<C: Copy>(
+    names: &[String],
+    all: &[C],
+    name: impl Fn(C) -> &'static str,
+    what: &str,
+) -> anyhow::Result<Vec<C>> {
+    names
+        .iter()
+        .map(|n| {
+            all.iter()
+                .copied()
+                .find(|&c| name(c) == n.trim())
+                .ok_or_else(|| {
+                    anyhow::anyhow!(
+                        "unknown {what} {n:?}; known: {}",
+                        all.iter().map(|&c| name(c)).collect::<Vec<_>>().join(", ")
+                    )
+                })
+        })
+        .collect()
+}
+
 /// Whether `path` is something `diagnose` reads directly: measured curves, or a directory with a
 /// `dataset.toml` (static or motion dataset).
 fn diagnosable(path: &Path) -> bool {
@@ -107,26 +131,12 @@ fn diagnose_one(args: &Args, path: &Path, output: &Path) -> anyhow::Result<()> {
         ..Default::default()
     };
     if !args.candidates.is_empty() {
-        o.candidates = args
-            .candidates
-            .iter()
-            .map(|n| {
-                ALL_CANDIDATES
-                    .iter()
-                    .copied()
-                    .find(|c| c.name() == n.trim())
-                    .ok_or_else(|| {
-                        anyhow::anyhow!(
-                            "unknown candidate {n:?}; known: {}",
-                            ALL_CANDIDATES
-                                .iter()
-                                .map(|c| c.name())
-                                .collect::<Vec<_>>()
-                                .join(", ")
-                        )
-                    })
-            })
-            .collect::<anyhow::Result<Vec<Candidate>>>()?;
+        o.candidates = pick_candidates(
+            &args.candidates,
+            &ALL_CANDIDATES,
+            Candidate::name,
+            "candidate",
+        )?;
     }
     let r = run_diagnosis_with(&ds, &o, |msg| eprintln!("{msg}"))?;
     let mut files = write_report(&r, output)?;

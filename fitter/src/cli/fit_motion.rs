@@ -52,10 +52,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let kind = ParamKind::parse(name).with_context(|| {
             format!("--params: unknown parameter {name:?} (lambda, mu, nu, h, density)")
         })?;
-        params.push(Param {
-            kind,
-            element: None,
-        });
+        params.push(Param::global(kind));
     }
     for name in &args.per_element {
         let kind = ParamKind::parse(name)

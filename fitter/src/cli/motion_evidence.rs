@@ -69,16 +69,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn globals(kinds: &[ParamKind]) -> Vec<Param> {
-    kinds
-        .iter()
-        .map(|&kind| Param {
-            kind,
-            element: None,
-        })
-        .collect()
-}
-
 fn progress(label: &str) -> impl Fn(usize, f64) + Sync + '_ {
     move |n, phi| {
         if n % 10 == 0 {
@@ -103,7 +93,7 @@ fn coarsening() -> anyhow::Result<(&'static str, String, serde_json::Value)> {
     let fine = [3, 22, 3];
     let (_, fm) = bar_model(size, fine, dt, steps, &two_sinusoids, &markers)?;
     let mut truth = Material::uniform(fm.tets.len(), 0.0, 0.0, 0.0, 1.0, 47.0);
-    truth.set(&globals(&VE), &truth_q);
+    truth.set(&Param::globals(&VE), &truth_q);
     eprintln!("ground truth: {} tets", fm.tets.len());
     let obs = record(&fm, &truth, 0.0, 1)?;
     let mut md = format!(
@@ -114,7 +104,7 @@ fn coarsening() -> anyhow::Result<(&'static str, String, serde_json::Value)> {
     for cells in [[2, 15, 2], [1, 11, 1], [1, 7, 1]] {
         let (_, m) = bar_model(size, cells, dt, steps, &two_sinusoids, &markers)?;
         let mut base = Material::uniform(m.tets.len(), 0.0, 0.0, 0.0, 1.0, 47.0);
-        base.set(&globals(&VE), &truth_q);
+        base.set(&Param::globals(&VE), &truth_q);
         let before = evaluate(&m, &base, &[], &obs, None)?;
         let t = Instant::now();
         let settings = FitSettings {
@@ -125,7 +115,7 @@ fn coarsening() -> anyhow::Result<(&'static str, String, serde_json::Value)> {
         let r = fit(
             &m,
             &base,
-            &globals(&VE),
+            &Param::globals(&VE),
             &truth_q,
             &obs,
             &settings,
@@ -172,7 +162,7 @@ fn recover() -> anyhow::Result<(&'static str, String, serde_json::Value)> {
     let truth_q = [1.0e4, 2.0e4, 12.0, 0.9];
     let start = [2.0e4, 1.0e4, 6.0, 1.3];
     let mut truth = Material::uniform(m.tets.len(), 0.0, 0.0, 0.0, 1.0, 47.0);
-    truth.set(&globals(&VE), &truth_q);
+    truth.set(&Param::globals(&VE), &truth_q);
     let mut md = String::from(
         "# Recovering known parameters from noisy synthetic motion\n\nSame bar and motion as the benchmark on a 360-tet mesh; truth λ = 10 kPa, μ = 20 kPa, ν = 12, h = 0.9; start (20 kPa, 10 kPa, 6, 1.3); Gaussian marker noise (fixed seed) on every coordinate of every frame.\n\n| noise σ (mm) | λ | μ | ν | h | λ err % | μ err % | ν err % | h err % | RMS (mm) | evaluations |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
@@ -182,7 +172,7 @@ fn recover() -> anyhow::Result<(&'static str, String, serde_json::Value)> {
         let r = fit(
             &m,
             &truth,
-            &globals(&VE),
+            &Param::globals(&VE),
             &start,
             &obs,
             &FitSettings::default(),
@@ -414,7 +404,7 @@ fn vhb(dir: &Path) -> anyhow::Result<(&'static str, String, serde_json::Value)> 
             vec![0.0, 0.0, 2.0e3, 0.5],
         ),
     ] {
-        let params = globals(&kinds);
+        let params = Param::globals(&kinds);
         let mut q0 = q0;
         if q0[0] == 0.0 {
             q0[0] = carry.get(ParamKind::Lambda, 0);

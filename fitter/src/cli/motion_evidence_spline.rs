@@ -138,14 +138,8 @@ pub fn spline() -> anyhow::Result<(&'static str, String, serde_json::Value)> {
 
     // 1. Neo-Hookean: λ, μ in log space from a 2× soft start.
     let nh_params = [
-        Param {
-            kind: ParamKind::Lambda,
-            element: None,
-        },
-        Param {
-            kind: ParamKind::Mu,
-            element: None,
-        },
+        Param::global(ParamKind::Lambda),
+        Param::global(ParamKind::Mu),
     ];
     let r_nh = fit(
         m_fit,

@@ -91,6 +91,19 @@ pub struct Param {
 }
 
 impl Param {
+    /// A global parameter (the same value in every element).
+    pub fn global(kind: ParamKind) -> Self {
+        Self {
+            kind,
+            element: None,
+        }
+    }
+
+    /// Global parameters of `kinds`, in order.
+    pub fn globals(kinds: &[ParamKind]) -> Vec<Self> {
+        kinds.iter().map(|&k| Self::global(k)).collect()
+    }
+
     /// The derivative slot of this parameter: the kind index for material kinds, 5 + i for f′
     /// control i, 5 + (f′ count) + i for h′ control i. Gradient passes accumulate per element
     /// and slot.

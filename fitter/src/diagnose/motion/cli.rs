@@ -20,25 +20,12 @@ pub fn run(
         ..Default::default()
     };
     if !candidates.is_empty() {
-        o.candidates = candidates
-            .iter()
-            .map(|n| {
-                ALL_CANDIDATES
-                    .iter()
-                    .copied()
-                    .find(|c| c.name() == n.trim())
-                    .ok_or_else(|| {
-                        anyhow::anyhow!(
-                            "unknown motion candidate {n:?}; known: {}",
-                            ALL_CANDIDATES
-                                .iter()
-                                .map(|c| c.name())
-                                .collect::<Vec<_>>()
-                                .join(", ")
-                        )
-                    })
-            })
-            .collect::<anyhow::Result<Vec<Candidate>>>()?;
+        o.candidates = crate::cli::diagnose::pick_candidates(
+            candidates,
+            &ALL_CANDIDATES,
+            Candidate::name,
+            "motion candidate",
+        )?;
     }
     let label = dataset.display().to_string();
     let r = diagnose(&ds, &label, &o, &|m| eprintln!("{m}"))?;

@@ -73,17 +73,6 @@ pub struct FittedModel {
     pub failures: Vec<String>,
 }
 
-/// Global parameters of `kinds`.
-pub fn params_of(kinds: &[ParamKind]) -> Vec<Param> {
-    kinds
-        .iter()
-        .map(|&kind| Param {
-            kind,
-            element: None,
-        })
-        .collect()
-}
-
 /// The model and observations restricted to the fitted steps.
 pub fn fitted_part(ds: &MotionDataset, split: Split) -> (Model, Observations) {
     let mut m = ds.model.clone();
@@ -165,7 +154,7 @@ pub fn fit_model(
     screen_iters: u64,
 ) -> Result<FittedModel, MotionDiagnoseError> {
     let (model, obs) = fitted_part(ds, split);
-    let params = params_of(kinds);
+    let params = Param::globals(kinds);
     let quiet = |_: usize, _: f64| {};
     let run = |q0: &[f64], iters: u64| {
         let settings = FitSettings {
@@ -242,7 +231,7 @@ fn uncertainty(
     if n <= k {
         return None;
     }
-    let params = params_of(kinds);
+    let params = Param::globals(kinds);
     let h: f64 = 1e-3;
     let mut cols = Vec::with_capacity(k);
     for j in 0..k {
