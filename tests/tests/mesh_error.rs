@@ -18,3 +18,37 @@ fn mesh_error_is_sizeable_under_a_probe() {
     assert!(e.max >= e.rms);
     assert_eq!(e.per_measurement.len(), s.dataset.measurements.len());
 }
+
+/// The refined dataset is the same object: 8× the tetrahedra, the fixed face still exactly the
+/// bottom face (7 × 7 → 13 × 13 nodes on the 6 × 6 cells), every marker's surface point in the same
+/// place (re-located on a child triangle; round-off only, 1e-12 m), the same measurements; and the
+/// mesh error measured against it is the one [`mesh_error`] reports (same computation, 1e-15 m).
+#[test]
+fn refined_dataset_is_the_same_object() {
+    use palpate_fitter::dataset::mesh_error::mesh_error_against;
+    use palpate_fitter::dataset::refine::refine_dataset;
+    let s = generate(&SpecimenOptions::default()).expect("specimen");
+    let ds = &s.dataset;
+    let fine = refine_dataset(ds).expect("refine");
+    assert_eq!(fine.mesh.tets.len(), 8 * ds.mesh.tets.len());
+    assert_eq!(ds.fixed_nodes.len(), 49);
+    assert_eq!(fine.fixed_nodes.len(), 169);
+    let z_min = ds.mesh.bounds().0[2];
+    assert!(fine
+        .fixed_nodes
+        .iter()
+        .all(|&n| (fine.mesh.nodes[n][2] - z_min).abs() < 1e-12));
+    assert_eq!(fine.markers.len(), ds.markers.len());
+    for (a, b) in ds.markers.iter().zip(&fine.markers) {
+        let pa = a.interpolate(|n| ds.mesh.nodes[n]);
+        let pb = b.interpolate(|n| fine.mesh.nodes[n]);
+        let d = (0..3).map(|k| (pa[k] - pb[k]).powi(2)).sum::<f64>().sqrt();
+        assert!(d < 1e-12, "marker {}: moved {d:e} m", a.id);
+        assert_eq!(a.rest, b.rest);
+    }
+    assert_eq!(fine.measurements.len(), ds.measurements.len());
+    let p = LambdaAlpha::from_young_poisson(20e3, 0.35);
+    let a = mesh_error(ds, p).expect("mesh error");
+    let b = mesh_error_against(ds, &fine, p).expect("mesh error against");
+    assert!((a.rms - b.rms).abs() < 1e-15 && a.refined_tets == b.refined_tets);
+}

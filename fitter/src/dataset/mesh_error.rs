@@ -7,10 +7,9 @@
 //! (the shared lumped rule on each mesh) and the model's homogeneous (λ, α). For displacements
 //! converging as O(h²) it is ≈ 3/4 of the true error u_h − u; it is reported as measured.
 
-use crate::dataset::embed::embed_point;
+use crate::dataset::refine::{refine_dataset, RefineError};
 use crate::dataset::StaticDataset;
 use crate::forward::{ForwardError, Load, Material, SolveOptions, StaticProblem};
-use crate::mesh::refine::refine_with_midpoints;
 use palpate_runtime::material::LambdaAlpha;
 
 /// Marker-level difference between the model on the dataset mesh and on the mesh refined once.
@@ -32,33 +31,24 @@ pub enum MeshErrorError {
     /// A forward solve failed.
     #[error(transparent)]
     Forward(#[from] ForwardError),
-    /// A marker could not be located on the refined surface.
-    #[error("marker {0:?} does not lie on the refined mesh's surface")]
-    Embed(String),
+    /// The dataset could not be carried over to the refined mesh.
+    #[error(transparent)]
+    Refine(#[from] RefineError),
 }
 
 /// Estimates the discretisation error of the homogeneous warped-linear model `material` on `ds`.
 pub fn mesh_error(ds: &StaticDataset, material: LambdaAlpha) -> Result<MeshError, MeshErrorError> {
-    let (fine, mid) = refine_with_midpoints(&ds.mesh);
-    // Fixed: the dataset's fixed nodes and the midpoints of edges between two of them.
-    let fixed: std::collections::HashSet<usize> = ds.fixed_nodes.iter().copied().collect();
-    let mut fixed_f = ds.fixed_nodes.clone();
-    for (&(a, b), &m) in &mid {
-        if fixed.contains(&a) && fixed.contains(&b) {
-            fixed_f.push(m);
-        }
-    }
-    fixed_f.sort_unstable();
-    let surf_f = fine.boundary_triangles();
+    mesh_error_against(ds, &refine_dataset(ds)?, material)
+}
+
+/// [`mesh_error`] against an already refined copy `fine` of `ds` ([`refine_dataset`]).
+pub fn mesh_error_against(
+    ds: &StaticDataset,
+    fine: &StaticDataset,
+    material: LambdaAlpha,
+) -> Result<MeshError, MeshErrorError> {
     let coarse = StaticProblem::new(&ds.mesh, &ds.fixed_nodes, &ds.surface)?;
-    let refined = StaticProblem::new(&fine, &fixed_f, &surf_f)?;
-    let emb: Vec<_> = ds
-        .markers
-        .iter()
-        .map(|m| {
-            embed_point(&fine, &surf_f, m.rest).ok_or_else(|| MeshErrorError::Embed(m.id.clone()))
-        })
-        .collect::<Result<_, _>>()?;
+    let refined = StaticProblem::new(&fine.mesh, &fine.fixed_nodes, &fine.surface)?;
     let mat = Material::homogeneous(material);
     let opts = SolveOptions::default();
     let (mut sum2, mut count, mut max) = (0.0, 0usize, 0.0f64);
@@ -70,13 +60,7 @@ pub fn mesh_error(ds: &StaticDataset, material: LambdaAlpha) -> Result<MeshError
         let (mut s2, mut c) = (0.0, 0usize);
         for &(k, _) in &meas.observed {
             let pc = ds.markers[k].interpolate(|i| xc[i]);
-            let e = &emb[k];
-            let mut pf = [0.0; 3];
-            for (&n, &b) in e.triangle.iter().zip(&e.barycentric) {
-                for d in 0..3 {
-                    pf[d] += b * xf[n][d];
-                }
-            }
+            let pf = fine.markers[k].interpolate(|i| xf[i]);
             let d2: f64 = (0..3).map(|d| (pc[d] - pf[d]).powi(2)).sum();
             s2 += d2;
             c += 1;
@@ -90,6 +74,6 @@ pub fn mesh_error(ds: &StaticDataset, material: LambdaAlpha) -> Result<MeshError
         rms: (sum2 / count.max(1) as f64).sqrt(),
         max,
         per_measurement: per,
-        refined_tets: fine.tets.len(),
+        refined_tets: fine.mesh.tets.len(),
     })
 }

@@ -5,6 +5,7 @@
 pub mod embed;
 pub mod mesh_error;
 pub mod read;
+pub mod refine;
 pub mod write;
 
 use crate::mesh::Mesh;

@@ -12,7 +12,6 @@
 //! (the rig), gravity preload (the rest scan) — so they are not in the runtime model; the provenance
 //! notes list them with their fitted values so the user knows what the rig needs.
 
-use crate::dataset::StaticDataset;
 use crate::export::{ModelBuffers, ProvenanceInfo};
 use crate::forward::Material;
 use crate::static_fit::blend::{strain_blend, BlendData};
@@ -50,7 +49,6 @@ pub fn runtime_material(
 /// Builds the runtime model of a diagnosis.
 pub fn diagnosed_model(
     r: &DiagnosisReport,
-    ds: &StaticDataset,
     tool: &str,
     source: &str,
 ) -> Result<ModelBuffers, DiagnoseError> {
@@ -102,6 +100,6 @@ pub fn diagnosed_model(
         source: source.to_string(),
         notes: notes.join("\n"),
     };
-    ModelBuffers::new(&ctx.problem, &ds.mesh.node_tags, &sets, &blend, &prov)
+    ModelBuffers::new(&ctx.problem, &ctx.node_tags, &sets, &blend, &prov)
         .map_err(|e| DiagnoseError::Write(e.to_string()))
 }

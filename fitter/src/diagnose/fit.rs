@@ -4,6 +4,7 @@
 //! parameter uncertainties.
 
 use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
 
 use super::model::{s_of, Context, Model, Simulated};
 use super::DiagnoseError;
@@ -76,19 +77,25 @@ fn jacobian(
     r0: &[f64],
 ) -> Result<DMatrix<f64>, DiagnoseError> {
     let k = theta.len();
+    // The columns are independent solves: one per core (the diagnosis spends most of its time
+    // here).
+    let columns: Vec<Vec<f64>> = (0..k)
+        .into_par_iter()
+        .map(|c| {
+            let mut t = theta.to_vec();
+            t[c] += FD_STEP;
+            let markers = if model.affects_solve(c, ctx.grid) {
+                model.simulate(ctx, &t, subset, Some(&base.x))?.markers
+            } else {
+                model.markers_from(ctx, &t, subset, &base.x)
+            };
+            let r = model.residuals(ctx, subset, &markers);
+            Ok(r.iter().zip(r0).map(|(a, b)| (a - b) / FD_STEP).collect())
+        })
+        .collect::<Result<_, DiagnoseError>>()?;
     let mut j = DMatrix::zeros(r0.len(), k);
-    for c in 0..k {
-        let mut t = theta.to_vec();
-        t[c] += FD_STEP;
-        let markers = if model.affects_solve(c, ctx.grid) {
-            model.simulate(ctx, &t, subset, Some(&base.x))?.markers
-        } else {
-            model.markers_from(ctx, &t, subset, &base.x)
-        };
-        let r = model.residuals(ctx, subset, &markers);
-        for (row, (a, b)) in r.iter().zip(r0).enumerate() {
-            j[(row, c)] = (a - b) / FD_STEP;
-        }
+    for (c, col) in columns.iter().enumerate() {
+        j.column_mut(c).copy_from_slice(col);
     }
     Ok(j)
 }

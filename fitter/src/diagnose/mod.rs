@@ -39,6 +39,7 @@ pub mod signature;
 
 use std::time::Instant;
 
+use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::dataset::StaticDataset;
@@ -87,6 +88,27 @@ pub struct DiagnoseOptions {
     pub cv_candidates: usize,
     /// The marker-noise test run after the structural loop.
     pub noise: NoiseOptions,
+    /// Which mesh the models are solved on.
+    pub mesh: MeshChoice,
+    /// [`MeshChoice::Auto`] refines when the dataset mesh's discretisation error (RMS at the
+    /// markers) exceeds this fraction of the noise floor σ√3.
+    pub refine_above: f64,
+    /// [`MeshChoice::Auto`] never refines beyond this many tetrahedra (each forward solve grows
+    /// with them; the loop makes thousands).
+    pub refine_max_tets: usize,
+}
+
+/// Which mesh the diagnosis solves its models on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum MeshChoice {
+    /// The dataset's own mesh.
+    Dataset,
+    /// The dataset mesh refined once (every tetrahedron into eight).
+    Refined,
+    /// Refined once when the dataset mesh's own discretisation error is a large part of the
+    /// noise floor (see [`DiagnoseOptions::refine_above`]), else the dataset's mesh.
+    Auto,
 }
 
 impl Default for DiagnoseOptions {
@@ -101,6 +123,9 @@ impl Default for DiagnoseOptions {
             min_holdout_gain: 0.10,
             cv_candidates: 2,
             noise: NoiseOptions::default(),
+            mesh: MeshChoice::Auto,
+            refine_above: 0.5,
+            refine_max_tets: 12_000,
         }
     }
 }
@@ -218,6 +243,8 @@ pub struct DiagnosisReport {
     /// The dataset mesh's own discretisation error under the simplest model (`None` when the
     /// refined mesh would exceed [`MESH_ERROR_MAX_TETS`] or a refined solve failed).
     pub mesh_error: Option<MeshErrorSummary>,
+    /// The mesh the models were solved on, and why.
+    pub solved_on: SolvedOn,
     /// Errors of the final model.
     pub after: Errors,
     /// Every parameter of the final model.
@@ -247,6 +274,19 @@ pub struct MeshErrorSummary {
     pub max: f64,
     /// Tetrahedra of the refined mesh.
     pub refined_tets: usize,
+}
+
+/// The mesh the diagnosis solved on.
+#[derive(Debug, Clone, Serialize)]
+pub struct SolvedOn {
+    /// Tetrahedra of that mesh.
+    pub tets: usize,
+    /// Whether it is the dataset mesh refined once.
+    pub refined: bool,
+    /// Fitted RMS marker error (m) of the simplest model on the dataset's own mesh.
+    pub dataset_mesh_rms: f64,
+    /// Why this mesh.
+    pub reason: String,
 }
 
 /// The mesh-error estimate is skipped when the refined mesh would have more tetrahedra than this
@@ -322,34 +362,40 @@ fn heldout_delta_bic(old: &Held, new: &Held, k: usize) -> f64 {
 /// predict it.
 fn holdout(ctx: &Context, full: &Fitted, iterations: usize) -> Result<Held, DiagnoseError> {
     let all: Vec<usize> = (0..ctx.meas.len()).collect();
+    // Each held-out refit is independent: one per core.
+    let per: Vec<(Vec<f64>, Vec<f64>)> = all
+        .par_iter()
+        .map(|&i| {
+            let sub: Vec<usize> = all.iter().copied().filter(|&j| j != i).collect();
+            let warm: Vec<Vec<[f64; 3]>> = sub.iter().map(|&j| full.sim.x[j].clone()).collect();
+            let f = fit(
+                ctx,
+                &full.model,
+                full.theta.clone(),
+                &sub,
+                Some(&warm),
+                iterations,
+            )?;
+            let sim = full.model.simulate(
+                ctx,
+                &f.theta,
+                &[i],
+                Some(std::slice::from_ref(&full.sim.x[i])),
+            )?;
+            let held = Fitted {
+                subset: vec![i],
+                sim,
+                theta: f.theta.clone(),
+                ..f
+            };
+            Ok((marker_norms(ctx, &held), force_errors(ctx, &held)))
+        })
+        .collect::<Result<_, DiagnoseError>>()?;
     let (mut errs, mut ferrs, mut sse) = (Vec::new(), Vec::new(), Vec::new());
-    for &i in &all {
-        let sub: Vec<usize> = all.iter().copied().filter(|&j| j != i).collect();
-        let warm: Vec<Vec<[f64; 3]>> = sub.iter().map(|&j| full.sim.x[j].clone()).collect();
-        let f = fit(
-            ctx,
-            &full.model,
-            full.theta.clone(),
-            &sub,
-            Some(&warm),
-            iterations,
-        )?;
-        let sim = full.model.simulate(
-            ctx,
-            &f.theta,
-            &[i],
-            Some(std::slice::from_ref(&full.sim.x[i])),
-        )?;
-        let held = Fitted {
-            subset: vec![i],
-            sim,
-            theta: f.theta.clone(),
-            ..f
-        };
-        let norms = marker_norms(ctx, &held);
+    for (norms, forces) in per {
         sse.push(norms.iter().map(|e| e * e).sum::<f64>() / (ctx.sigma * ctx.sigma));
         errs.extend(norms);
-        ferrs.extend(force_errors(ctx, &held));
+        ferrs.extend(forces);
     }
     Ok(Held {
         markers: errs,
@@ -416,6 +462,54 @@ pub fn base_params(f: &Fitted) -> Vec<ParamValue> {
     ]
 }
 
+/// Whether to solve on the refined mesh, and why (in words for the report).
+fn mesh_decision(
+    o: &DiagnoseOptions,
+    tets: usize,
+    mesh_error: Option<&MeshErrorSummary>,
+    floor: f64,
+) -> Result<(bool, String), DiagnoseError> {
+    match (o.mesh, mesh_error) {
+        (MeshChoice::Dataset, _) => Ok((false, "the dataset mesh (as asked)".into())),
+        (MeshChoice::Refined, Some(e)) => Ok((
+            true,
+            format!("the dataset mesh refined once, {} tetrahedra (as asked)", e.refined_tets),
+        )),
+        (MeshChoice::Refined, None) => Err(DiagnoseError::Input(format!(
+            "the refined mesh was asked for but could not be built or solved ({} tetrahedra → {}; limit {MESH_ERROR_MAX_TETS})",
+            tets,
+            8 * tets
+        ))),
+        (MeshChoice::Auto, None) => Ok((
+            false,
+            "the dataset mesh (its discretisation error could not be estimated)".into(),
+        )),
+        (MeshChoice::Auto, Some(e)) => {
+            let big = e.rms > o.refine_above * floor;
+            let fits = e.refined_tets <= o.refine_max_tets;
+            let why = format!(
+                "the dataset mesh's discretisation error at the markers is {:.1} µm RMS, {:.0}% of the noise floor {:.1} µm (refine above {:.0}%, up to {} tetrahedra)",
+                1e6 * e.rms,
+                100.0 * e.rms / floor,
+                1e6 * floor,
+                100.0 * o.refine_above,
+                o.refine_max_tets
+            );
+            Ok(match (big, fits) {
+                (true, true) => (
+                    true,
+                    format!("the dataset mesh refined once ({} tetrahedra): {why}", e.refined_tets),
+                ),
+                (true, false) => (
+                    false,
+                    format!("the dataset mesh, although {why}: the refined mesh ({} tetrahedra) is over the limit", e.refined_tets),
+                ),
+                _ => (false, format!("the dataset mesh: {why}")),
+            })
+        }
+    }
+}
+
 /// Runs the diagnosis loop on a dataset.
 pub fn run_diagnosis(
     ds: &StaticDataset,
@@ -431,38 +525,73 @@ pub fn run_diagnosis_with(
     mut progress: impl FnMut(&str),
 ) -> Result<DiagnosisReport, DiagnoseError> {
     let started = Instant::now();
-    let ctx = Context::new(ds, o.grid)?;
-    let all: Vec<usize> = (0..ctx.meas.len()).collect();
-    let (theta0, sim0) = initial_theta(&ctx, &all)?;
+    let coarse = Context::new(ds, o.grid)?;
+    let all: Vec<usize> = (0..coarse.meas.len()).collect();
+    let (theta0, sim0) = initial_theta(&coarse, &all)?;
     progress("fitting the simplest model (linear homogeneous, displacement-based)");
-    let mut current = fit(
-        &ctx,
+    let coarse_fit = fit(
+        &coarse,
         &Model::base(),
         theta0,
         &all,
         Some(&sim0.x),
         o.max_iterations,
     )?;
-    let mut current_held = holdout(&ctx, &current, o.holdout_iterations)?;
-    let first = errors(&ctx, &current, &current_held);
-    let mesh_error = if 8 * ds.mesh.tets.len() <= MESH_ERROR_MAX_TETS {
-        progress(
-            "estimating the mesh's discretisation error (simplest model on the mesh refined once)",
-        );
-        let p = palpate_runtime::material::LambdaAlpha::from_young_poisson(
-            current.theta[0].exp(),
-            poisson_of(current.theta[1]),
-        );
-        crate::dataset::mesh_error::mesh_error(ds, p)
-            .ok()
-            .map(|e| MeshErrorSummary {
-                rms: e.rms,
-                max: e.max,
-                refined_tets: e.refined_tets,
-            })
+    let refined = if 8 * ds.mesh.tets.len() <= MESH_ERROR_MAX_TETS {
+        crate::dataset::refine::refine_dataset(ds).ok()
     } else {
         None
     };
+    let mesh_error = match &refined {
+        Some(fine) => {
+            progress(
+                "estimating the mesh's discretisation error (simplest model on the mesh refined once)",
+            );
+            let p = palpate_runtime::material::LambdaAlpha::from_young_poisson(
+                coarse_fit.theta[0].exp(),
+                poisson_of(coarse_fit.theta[1]),
+            );
+            crate::dataset::mesh_error::mesh_error_against(ds, fine, p)
+                .ok()
+                .map(|e| MeshErrorSummary {
+                    rms: e.rms,
+                    max: e.max,
+                    refined_tets: e.refined_tets,
+                })
+        }
+        None => None,
+    };
+    let floor = coarse.sigma * 3f64.sqrt();
+    let (refine, reason) = mesh_decision(o, ds.mesh.tets.len(), mesh_error.as_ref(), floor)?;
+    let dataset_mesh_rms = stats(&marker_norms(&coarse, &coarse_fit)).0;
+    let (ctx, mut current) = match refined.filter(|_| refine) {
+        Some(fine) => {
+            progress(&format!(
+                "refitting the simplest model on the refined mesh ({} tetrahedra)",
+                fine.mesh.tets.len()
+            ));
+            let ctx = Context::new(&fine, o.grid)?;
+            let sim = Model::base().simulate(&ctx, &coarse_fit.theta, &all, None)?;
+            let f = fit(
+                &ctx,
+                &Model::base(),
+                coarse_fit.theta.clone(),
+                &all,
+                Some(&sim.x),
+                o.max_iterations,
+            )?;
+            (ctx, f)
+        }
+        None => (coarse, coarse_fit),
+    };
+    let solved_on = SolvedOn {
+        tets: ctx.problem.element_count(),
+        refined: refine,
+        dataset_mesh_rms,
+        reason,
+    };
+    let mut current_held = holdout(&ctx, &current, o.holdout_iterations)?;
+    let first = errors(&ctx, &current, &current_held);
     let mut steps = Vec::new();
     for round in 1..=o.max_effects + 1 {
         let before = errors(&ctx, &current, &current_held);
@@ -661,6 +790,7 @@ pub fn run_diagnosis_with(
         steps,
         before: first,
         mesh_error,
+        solved_on,
         after,
         young_poisson: (current.theta[0].exp(), poisson_of(current.theta[1])),
         final_params,

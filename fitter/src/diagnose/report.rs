@@ -61,6 +61,13 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
             um(m.max)
         );
     }
+    let _ = writeln!(
+        s,
+        "Models solved on {} ({} tets); the simplest model's fitted RMS on the dataset's own mesh: {} µm.\n",
+        r.solved_on.reason,
+        r.solved_on.tets,
+        um(r.solved_on.dataset_mesh_rms)
+    );
     let _ = writeln!(s, "## Error before and after\n");
     let _ = writeln!(s, "Markers in µm; implied-force error in N (|s − 1|·|f|, s the best scale of simulated onto measured displacement). Held-out = leave-one-measurement-out.\n");
     let _ = writeln!(s, "| model | fitted RMS | fitted max | held-out RMS | held-out max | force RMS | force max | held-out force RMS |");
