@@ -446,6 +446,7 @@ fn a_folder_of_instrument_folders_is_diagnosed_one_by_one() {
         output: output.to_path_buf(),
         candidates: Vec::new(),
         max_effects: 3,
+        mesh: palpate_fitter::diagnose::MeshChoice::Auto,
         gauge_length: None,
     };
     palpate_fitter::cli::diagnose::run(args(root.path(), out.path())).unwrap();

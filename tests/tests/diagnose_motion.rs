@@ -235,6 +235,7 @@ fn cli_args(
         output: out.to_path_buf(),
         candidates: Vec::new(),
         max_effects: 2,
+        mesh: palpate_fitter::diagnose::MeshChoice::Auto,
         gauge_length: None,
     }
 }

@@ -28,6 +28,7 @@
 //! `noise` ([`model::Candidate::Noise`]): no parameter of the model changes, the finding is that
 //! the declared noise level is wrong, and the noise floor is recomputed with σ̂.
 
+pub mod approx_error;
 pub mod curve;
 pub mod export;
 pub mod fit;
@@ -43,6 +44,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::dataset::StaticDataset;
+use approx_error::Correction;
 use fit::{fit, initial_theta, Fitted};
 use model::{poisson_of, Candidate, Context, Model, ALL_CANDIDATES};
 use noise::{estimate_noise, NoiseFinding, NoiseOptions};
@@ -90,11 +92,11 @@ pub struct DiagnoseOptions {
     pub noise: NoiseOptions,
     /// Which mesh the models are solved on.
     pub mesh: MeshChoice,
-    /// [`MeshChoice::Auto`] refines when the dataset mesh's discretisation error (RMS at the
-    /// markers) exceeds this fraction of the noise floor σ√3.
+    /// [`MeshChoice::Auto`] corrects when the dataset mesh's discretisation error (RMS at the
+    /// markers) exceeds this fraction of the noise floor σ√3: above one half it inflates the
+    /// floor by more than 12 % (√(1 + ½²)), as much as the smallest gain an effect must show.
     pub refine_above: f64,
-    /// [`MeshChoice::Auto`] never refines beyond this many tetrahedra (each forward solve grows
-    /// with them; the loop makes thousands).
+    /// [`MeshChoice::Auto`] never uses a refined mesh of more than this many tetrahedra.
     pub refine_max_tets: usize,
 }
 
@@ -104,10 +106,14 @@ pub struct DiagnoseOptions {
 pub enum MeshChoice {
     /// The dataset's own mesh.
     Dataset,
-    /// The dataset mesh refined once (every tetrahedron into eight).
+    /// The dataset mesh refined once (every tetrahedron into eight): exact, 8× the elements,
+    /// ≈ 100× the time of a full diagnosis.
     Refined,
-    /// Refined once when the dataset mesh's own discretisation error is a large part of the
-    /// noise floor (see [`DiagnoseOptions::refine_above`]), else the dataset's mesh.
+    /// The dataset mesh with the approximation-error correction from the mesh refined once
+    /// ([`approx_error`]): the refined model's predictions at each adopted fit, the coarse cost.
+    Corrected,
+    /// [`MeshChoice::Corrected`] when the dataset mesh's own discretisation error is a large part
+    /// of the noise floor (see [`DiagnoseOptions::refine_above`]), else the dataset's mesh.
     Auto,
 }
 
@@ -125,7 +131,7 @@ impl Default for DiagnoseOptions {
             noise: NoiseOptions::default(),
             mesh: MeshChoice::Auto,
             refine_above: 0.5,
-            refine_max_tets: 12_000,
+            refine_max_tets: 200_000,
         }
     }
 }
@@ -281,8 +287,10 @@ pub struct MeshErrorSummary {
 pub struct SolvedOn {
     /// Tetrahedra of that mesh.
     pub tets: usize,
-    /// Whether it is the dataset mesh refined once.
-    pub refined: bool,
+    /// The choice made (never [`MeshChoice::Auto`]).
+    pub choice: MeshChoice,
+    /// RMS of the final approximation-error correction (m), when corrected.
+    pub correction_rms: Option<f64>,
     /// Fitted RMS marker error (m) of the simplest model on the dataset's own mesh.
     pub dataset_mesh_rms: f64,
     /// Why this mesh.
@@ -462,33 +470,37 @@ pub fn base_params(f: &Fitted) -> Vec<ParamValue> {
     ]
 }
 
-/// Whether to solve on the refined mesh, and why (in words for the report).
+/// Which mesh to solve on ([`MeshChoice::Auto`] resolved), and why (in words for the report).
 fn mesh_decision(
     o: &DiagnoseOptions,
     tets: usize,
     mesh_error: Option<&MeshErrorSummary>,
     floor: f64,
-) -> Result<(bool, String), DiagnoseError> {
+) -> Result<(MeshChoice, String), DiagnoseError> {
     match (o.mesh, mesh_error) {
-        (MeshChoice::Dataset, _) => Ok((false, "the dataset mesh (as asked)".into())),
-        (MeshChoice::Refined, Some(e)) => Ok((
-            true,
-            format!("the dataset mesh refined once, {} tetrahedra (as asked)", e.refined_tets),
+        (MeshChoice::Dataset, _) => Ok((MeshChoice::Dataset, "the dataset mesh (as asked)".into())),
+        (c @ (MeshChoice::Refined | MeshChoice::Corrected), Some(e)) => Ok((
+            c,
+            format!(
+                "the dataset mesh {} the mesh refined once, {} tetrahedra (as asked)",
+                if c == MeshChoice::Refined { "replaced by" } else { "corrected by" },
+                e.refined_tets
+            ),
         )),
-        (MeshChoice::Refined, None) => Err(DiagnoseError::Input(format!(
+        (MeshChoice::Refined | MeshChoice::Corrected, None) => Err(DiagnoseError::Input(format!(
             "the refined mesh was asked for but could not be built or solved ({} tetrahedra → {}; limit {MESH_ERROR_MAX_TETS})",
             tets,
             8 * tets
         ))),
         (MeshChoice::Auto, None) => Ok((
-            false,
+            MeshChoice::Dataset,
             "the dataset mesh (its discretisation error could not be estimated)".into(),
         )),
         (MeshChoice::Auto, Some(e)) => {
             let big = e.rms > o.refine_above * floor;
             let fits = e.refined_tets <= o.refine_max_tets;
             let why = format!(
-                "the dataset mesh's discretisation error at the markers is {:.1} µm RMS, {:.0}% of the noise floor {:.1} µm (refine above {:.0}%, up to {} tetrahedra)",
+                "the dataset mesh's discretisation error at the markers is {:.1} µm RMS, {:.0}% of the noise floor {:.1} µm (correct above {:.0}%, up to {} tetrahedra)",
                 1e6 * e.rms,
                 100.0 * e.rms / floor,
                 1e6 * floor,
@@ -497,17 +509,35 @@ fn mesh_decision(
             );
             Ok(match (big, fits) {
                 (true, true) => (
-                    true,
-                    format!("the dataset mesh refined once ({} tetrahedra): {why}", e.refined_tets),
+                    MeshChoice::Corrected,
+                    format!("the dataset mesh with the approximation-error correction from the mesh refined once ({} tetrahedra): {why}", e.refined_tets),
                 ),
                 (true, false) => (
-                    false,
+                    MeshChoice::Dataset,
                     format!("the dataset mesh, although {why}: the refined mesh ({} tetrahedra) is over the limit", e.refined_tets),
                 ),
-                _ => (false, format!("the dataset mesh: {why}")),
+                _ => (MeshChoice::Dataset, format!("the dataset mesh: {why}")),
             })
         }
     }
+}
+
+/// Refreshes the approximation-error correction at fit `f` (all measurements) and refits.
+fn refresh(
+    ctx: &mut Context,
+    corr: &mut Correction,
+    f: &Fitted,
+    iterations: usize,
+) -> Result<Fitted, DiagnoseError> {
+    ctx.correction = Some(corr.delta(ctx, &f.model, &f.theta, &f.sim.x)?);
+    fit(
+        ctx,
+        &f.model,
+        f.theta.clone(),
+        &f.subset,
+        Some(&f.sim.x),
+        iterations,
+    )
 }
 
 /// Runs the diagnosis loop on a dataset.
@@ -562,10 +592,11 @@ pub fn run_diagnosis_with(
         None => None,
     };
     let floor = coarse.sigma * 3f64.sqrt();
-    let (refine, reason) = mesh_decision(o, ds.mesh.tets.len(), mesh_error.as_ref(), floor)?;
+    let (choice, reason) = mesh_decision(o, ds.mesh.tets.len(), mesh_error.as_ref(), floor)?;
     let dataset_mesh_rms = stats(&marker_norms(&coarse, &coarse_fit)).0;
-    let (ctx, mut current) = match refined.filter(|_| refine) {
-        Some(fine) => {
+    let mut correction = None;
+    let (mut ctx, mut current) = match (choice, refined) {
+        (MeshChoice::Refined, Some(fine)) => {
             progress(&format!(
                 "refitting the simplest model on the refined mesh ({} tetrahedra)",
                 fine.mesh.tets.len()
@@ -582,11 +613,28 @@ pub fn run_diagnosis_with(
             )?;
             (ctx, f)
         }
-        None => (coarse, coarse_fit),
+        (MeshChoice::Corrected, Some(fine)) => {
+            progress(&format!(
+                "refitting the simplest model with the approximation-error correction ({} tetrahedra)",
+                fine.mesh.tets.len()
+            ));
+            let mut corr = Correction::new(&fine, o.grid)?;
+            let mut ctx = coarse;
+            // Two refreshes: δ at the dataset-mesh fit, then at the corrected fit (E moves by
+            // the mesh's stiffness error, a few per cent, and δ with it).
+            let mut f = coarse_fit;
+            for _ in 0..2 {
+                f = refresh(&mut ctx, &mut corr, &f, o.max_iterations)?;
+            }
+            correction = Some(corr);
+            (ctx, f)
+        }
+        _ => (coarse, coarse_fit),
     };
-    let solved_on = SolvedOn {
+    let mut solved_on = SolvedOn {
         tets: ctx.problem.element_count(),
-        refined: refine,
+        choice,
+        correction_rms: None,
         dataset_mesh_rms,
         reason,
     };
@@ -741,6 +789,15 @@ pub fn run_diagnosis_with(
                 step.after = Some(errors(&ctx, &f, &held));
                 current = f;
                 current_held = held;
+                if let Some(corr) = correction.as_mut() {
+                    // δ at the adopted model, so the next round's residual is the refined
+                    // model's.
+                    progress(&format!(
+                        "round {round}: refreshing the approximation-error correction"
+                    ));
+                    current = refresh(&mut ctx, corr, &current, o.max_iterations)?;
+                    current_held = holdout(&ctx, &current, o.holdout_iterations)?;
+                }
                 steps.push(step);
             }
             None => {
@@ -750,6 +807,7 @@ pub fn run_diagnosis_with(
         }
     }
     let after = errors(&ctx, &current, &current_held);
+    solved_on.correction_rms = ctx.correction.as_deref().map(approx_error::delta_rms);
     progress("estimating the marker noise level (local nugget)");
     let fields: Vec<noise::Field> = signature::residual_vectors(&ctx, &current)
         .iter()
@@ -798,4 +856,50 @@ pub fn run_diagnosis_with(
         final_fit: Some(current),
         context: Some(ctx),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn estimate(rms: f64, refined_tets: usize) -> MeshErrorSummary {
+        MeshErrorSummary {
+            rms,
+            max: 2.0 * rms,
+            refined_tets,
+        }
+    }
+
+    /// The auto rule corrects exactly when the mesh error is over the threshold fraction of the
+    /// floor and the refined mesh is within the limit; a forced choice is obeyed, and a forced
+    /// refinement that cannot be made is an error naming the sizes.
+    #[test]
+    fn mesh_decision_follows_the_rule() {
+        let o = DiagnoseOptions::default();
+        let floor = 173.2e-6;
+        let limit = o.refine_max_tets;
+        let decide = |e: Option<MeshErrorSummary>| mesh_decision(&o, 648, e.as_ref(), floor);
+        let corrected = |e| decide(Some(e)).unwrap().0 == MeshChoice::Corrected;
+        assert!(corrected(estimate(0.51 * floor, 5184)));
+        assert!(!corrected(estimate(0.49 * floor, 5184)));
+        let (c, why) = decide(Some(estimate(0.9 * floor, limit + 1))).unwrap();
+        assert!(c == MeshChoice::Dataset && why.contains("over the limit"), "{why}");
+        assert_eq!(decide(None).unwrap().0, MeshChoice::Dataset);
+        for asked in [MeshChoice::Refined, MeshChoice::Corrected] {
+            let forced = DiagnoseOptions {
+                mesh: asked,
+                ..DiagnoseOptions::default()
+            };
+            let got = mesh_decision(&forced, 648, Some(&estimate(0.0, 5184)), floor);
+            assert_eq!(got.unwrap().0, asked);
+            let e = mesh_decision(&forced, 648, None, floor).unwrap_err().to_string();
+            assert!(e.contains("648") && e.contains("5184"), "{e}");
+        }
+        let never = DiagnoseOptions {
+            mesh: MeshChoice::Dataset,
+            ..DiagnoseOptions::default()
+        };
+        let got = mesh_decision(&never, 648, Some(&estimate(floor, 5184)), floor);
+        assert_eq!(got.unwrap().0, MeshChoice::Dataset);
+    }
 }

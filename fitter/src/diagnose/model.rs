@@ -209,6 +209,9 @@ pub struct Context {
     pub inclusion_start: [f64; 3],
     /// Node tags of the mesh solved on (for the export).
     pub node_tags: Vec<u64>,
+    /// Approximation-error correction δ added to every predicted marker (per measurement, aligned
+    /// with its observed markers; [`super::approx_error`]); `None` = the plain dataset-mesh model.
+    pub correction: Option<Vec<Vec<[f64; 3]>>>,
 }
 
 fn norm(v: [f64; 3]) -> f64 {
@@ -358,6 +361,7 @@ impl Context {
             depth,
             inclusion_start,
             node_tags: ds.mesh.node_tags.clone(),
+            correction: None,
         })
     }
 
@@ -726,10 +730,15 @@ impl Model {
                     let w = cross(arm, f).map(|v| v * b[1] * 1e-4 / (ctx.half * ctx.half));
                     (t, w)
                 });
+                let delta = ctx.correction.as_ref().map(|c| &c[i]);
                 m.observed
                     .iter()
-                    .map(|&(k, _)| {
+                    .enumerate()
+                    .map(|(j, &(k, _))| {
                         let mut p = ctx.markers[k].interpolate(|n| x[n]);
+                        if let Some(d) = delta {
+                            p = [0, 1, 2].map(|a| p[a] + d[j][a]);
+                        }
                         if let Some((t, w)) = support {
                             let r = [0, 1, 2].map(|d| p[d] - ctx.base[d]);
                             let wr = cross(w, r);

@@ -63,9 +63,13 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
     }
     let _ = writeln!(
         s,
-        "Models solved on {} ({} tets); the simplest model's fitted RMS on the dataset's own mesh: {} µm.\n",
+        "Models solved on {} ({} tets{}); the simplest model's fitted RMS on the dataset's own mesh, uncorrected: {} µm.\n",
         r.solved_on.reason,
         r.solved_on.tets,
+        r.solved_on
+            .correction_rms
+            .map(|c| format!("; final correction δ = {} µm RMS", um(c)))
+            .unwrap_or_default(),
         um(r.solved_on.dataset_mesh_rms)
     );
     let _ = writeln!(s, "## Error before and after\n");
