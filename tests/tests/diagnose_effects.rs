@@ -95,9 +95,9 @@ fn diagnose_names_compliant_boundary() {
     named(Effect::Boundary, Candidate::Boundary);
 }
 
-/// `--mesh auto` on the clean specimen: the dataset mesh's discretisation error (114 µm RMS, 66 %
-/// of the 173.2 µm floor) is over the threshold (50 %), so the residual is corrected by the
-/// approximation error from the mesh refined once (5,184 tets). With it the simplest model's
+/// `--mesh auto` on the clean specimen: the dataset mesh's discretisation error is 114 µm RMS,
+/// 66 % of the 173.2 µm floor, and the residual is corrected by the approximation error from the
+/// mesh refined once (5,184 tets). With it the simplest model's
 /// residual is down to the marker noise (measured on the refined mesh itself: 168.3 µm vs
 /// 201.8 µm uncorrected; asserted ≤ 1.02 × floor, as the RMS of 3 × 8 × ~95 noise samples scatters
 /// by ≈ 1.5 %) and E is the truth's within 5 % (20.76 kPa vs 20 kPa refined; the rest is

@@ -51,14 +51,16 @@ fn uniaxial_neo_hookean_bar_matches_homogeneous_solution() {
 }
 
 /// Lateral stretch t of the uniaxial state F = diag(t, s, t) with zero lateral stress:
-/// P₁₁ = λ/2 (J² − 1)/t + μ (t − 1/t) + 4c (I₁ − 3) t = 0, J = s t², I₁ = s² + 2t².
+/// P₁₁ = λ/2 (J² − 1)/t + μ (t − 1/t) + 2c (Ī₁ − 3) J^(−2/3) (2t − ⅔ I₁/t) = 0, J = s t²,
+/// I₁ = s² + 2t², Ī₁ = J^(−2/3) I₁.
 fn lateral_stretch(p: &HyperParams, s: f64) -> f64 {
     let f = |t: f64| {
         let j = s * t * t;
         let i1 = s * s + 2.0 * t * t;
+        let j23 = j.powf(-2.0 / 3.0);
         0.5 * p.lambda * (j * j - 1.0) / t
             + p.mu * (t - 1.0 / t)
-            + 4.0 * p.stiffening * (i1 - 3.0) * t
+            + 2.0 * p.stiffening * (j23 * i1 - 3.0) * j23 * (2.0 * t - 2.0 / 3.0 * i1 / t)
     };
     let (mut a, mut b) = (0.3, 1.0);
     for _ in 0..200 {

@@ -2,7 +2,7 @@
 //! against Neo-Hookean (eq. 16) on a response Neo-Hookean cannot produce.
 //!
 //! Ground truth: a synthetic tensile bar whose material is Neo-Hookean plus a Yeoh-type
-//! strain-stiffening term c (I₁ − 3)² (hyperelastic.rs; used for the ground truth only — it is
+//! strain-stiffening term c (Ī₁ − 3)² (hyperelastic.rs; used for the ground truth only — it is
 //! not separable in principal stretches, so the spline family does not contain it either).
 //! Both models are fitted to the clamp force of one loading and evaluated on two held-out
 //! loadings: a different amplitude and rate inside the fitted strain range, and a larger
@@ -225,7 +225,7 @@ pub fn spline() -> anyhow::Result<(&'static str, String, serde_json::Value)> {
          clamp's reaction force and 9 side markers (¼, ½, ¾ of the length on three faces; they \
          see the lateral contraction), noise-free, marker weight {MARKER_WEIGHT:e} N²/m² (1 mm ≙ 1 N). \
          Ground truth: Neo-Hookean λ = {:.0} kPa, μ = {:.0} kPa **plus a Yeoh-type stiffening term \
-         c (I₁ − 3)², c = {:.0} kPa** (hyperelastic.rs; ground truth only; not separable in \
+         c (Ī₁ − 3)² on the isochoric Ī₁ = J^(−2/3) I₁, c = {:.0} kPa** (hyperelastic.rs; ground truth only; not separable in \
          principal stretches, so not in the spline family either), Newtonian ν = {nu0} Pa s, \
          ρ = {rho0} kg/m³ (ν, ρ known, not fitted). Fitted on the first loading; the other two \
          are held out. Same mesh for truth and fits: with the true law the error would be 0.\n\n\

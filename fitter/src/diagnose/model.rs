@@ -411,8 +411,9 @@ const STIFFENING_PASSES: usize = 30;
 const STIFFENING_TOLERANCE: f64 = 1e-6;
 
 /// The stiffening law's per-element log-modulus offsets at state `x` and their gains
-/// ∂T/∂ln‖ε‖. With s = ‖ε_e‖/0.1 the secant modulus is E (1 + β s²) for β ≥ 0 — the small-strain
-/// form of a c (I₁ − 3)² term over Neo-Hookean, whose secant grows with the squared strain — and
+/// ∂T/∂ln‖ε‖. With s = ‖ε_e‖/0.1 the secant modulus is E (1 + β s²) for β ≥ 0 — the leading
+/// form of a Yeoh c (Ī₁ − 3)² term over Neo-Hookean (Ī₁ − 3 is quadratic in the strain, so the
+/// secant grows with the squared strain) — and
 /// E / (1 + |β| s²) for β < 0 (softening), so it stays positive for any β.
 fn stiffening_target(ctx: &Context, x: &[[f64; 3]], beta: f64) -> (Vec<f64>, Vec<f64>) {
     let rot = ctx.problem.rotations(x, true);

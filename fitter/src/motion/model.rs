@@ -124,7 +124,7 @@ pub struct Material {
     pub values: [Vec<f64>; 5],
     /// The principal-stretch material of §4.2; when present it replaces Neo-Hookean (λ, μ unused).
     pub spline: Option<SplineMaterial>,
-    /// Strain-stiffening coefficient c of the c (I₁ − 3)² term of [`super::hyperelastic`]
+    /// Strain-stiffening coefficient c of the c (Ī₁ − 3)² term (Ī₁ = J^(−2/3) I₁) of [`super::hyperelastic`]
     /// (Pa; a Yeoh-type second-order term) added to Neo-Hookean. Not a fit parameter: it makes
     /// non-Neo-Hookean ground truths for the spline evidence. 0 = the paper's eq. 16.
     pub stiffening: f64,

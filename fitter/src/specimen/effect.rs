@@ -9,7 +9,7 @@ use super::SpecimenError;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Effect {
-    /// Strain stiffening beyond Neo-Hookean: c (I₁ − 3)² with c = magnitude × μ.
+    /// Strain stiffening beyond Neo-Hookean: c (Ī₁ − 3)² (Yeoh's second-order term on the isochoric invariant Ī₁ = J^(−2/3) I₁) with c = magnitude × μ.
     Stiffening,
     /// A stiff spherical inclusion under the top face: E_inclusion = (1 + magnitude) E.
     Inclusion,
