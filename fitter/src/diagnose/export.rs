@@ -72,6 +72,14 @@ pub fn diagnosed_model(
                 .join(", ")
         }
     )];
+    if let Some(d) = r.solved_on.correction_rms {
+        // The fit is the refined mesh's (through the approximation-error correction); this model
+        // is on the dataset mesh, whose linear tetrahedra are stiffer: say by how much.
+        notes.push(format!(
+            "fitted with the approximation-error correction from the mesh refined once; this model is on the dataset mesh, whose markers differ from the refined model's by {:.1} um RMS (delta)",
+            1e6 * d
+        ));
+    }
     for &c in &r.adopted {
         let in_model = matches!(
             c,
