@@ -112,7 +112,12 @@ fn diagnose_corrected_mesh_reaches_the_noise_floor() {
         ..Default::default()
     };
     let r = run_diagnosis(&s.dataset, &o).expect("diagnosis");
-    assert_eq!(r.solved_on.choice, MeshChoice::Corrected, "{}", r.solved_on.reason);
+    assert_eq!(
+        r.solved_on.choice,
+        MeshChoice::Corrected,
+        "{}",
+        r.solved_on.reason
+    );
     let delta = r.solved_on.correction_rms.expect("a correction");
     assert!(delta > 50e-6, "correction δ {delta:e} m RMS");
     assert!(r.adopted.is_empty(), "adopted {:?}", r.adopted);

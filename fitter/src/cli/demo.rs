@@ -102,8 +102,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bytes
     );
     let model_path = args.out.join("model.palp");
-    let diagnosed =
-        crate::diagnose::export::diagnosed_model(&report, &prov.tool, &prov.source)?;
+    let diagnosed = crate::diagnose::export::diagnosed_model(&report, &prov.tool, &prov.source)?;
     let bytes = diagnosed.write(&model_path)?;
     println!(
         "      {} ({} bytes): the diagnosed model (replayed below)",

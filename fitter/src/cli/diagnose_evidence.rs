@@ -154,11 +154,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             if name != "none" && !ALL_EFFECTS.iter().any(|e| e.name() == name) {
                 anyhow::bail!(
                     "--effects: unknown effect {name:?}; known: none, {}",
-                    ALL_EFFECTS.iter().map(|e| e.name()).collect::<Vec<_>>().join(", ")
+                    ALL_EFFECTS
+                        .iter()
+                        .map(|e| e.name())
+                        .collect::<Vec<_>>()
+                        .join(", ")
                 );
             }
         }
-        injected.retain(|e| args.effects.iter().any(|n| n == e.map_or("none", |e| e.name())));
+        injected.retain(|e| {
+            args.effects
+                .iter()
+                .any(|n| n == e.map_or("none", |e| e.name()))
+        });
     }
     for &e in &injected {
         for &seed in &args.seeds {
@@ -176,9 +184,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 ..Default::default()
             })
             .map_err(anyhow::Error::from)
-            .and_then(|s| {
-                run_diagnosis(&s.dataset, &args.options()).map_err(anyhow::Error::from)
-            });
+            .and_then(|s| run_diagnosis(&s.dataset, &args.options()).map_err(anyhow::Error::from));
             let r = match outcome {
                 Ok(r) => r,
                 Err(err) => {
@@ -240,7 +246,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!(
         "{correct}/{} correct; wrote {}",
         runs.len(),
-        args.output.join(format!("{}.md", args.table_name())).display()
+        args.output
+            .join(format!("{}.md", args.table_name()))
+            .display()
     );
     Ok(())
 }
@@ -343,7 +351,9 @@ fn write_tables(
     println!(
         "{correct}/{} correct; wrote {}",
         runs.len(),
-        args.output.join(format!("{}.md", args.table_name())).display()
+        args.output
+            .join(format!("{}.md", args.table_name()))
+            .display()
     );
     Ok(())
 }

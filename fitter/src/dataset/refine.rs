@@ -46,7 +46,11 @@ pub fn refine_dataset(ds: &StaticDataset) -> Result<StaticDataset, RefineError> 
     let surface = mesh.boundary_triangles();
     // The re-located point must be the same point: allow round-off of the coordinates only.
     let (lo, hi) = ds.mesh.bounds();
-    let tol = 1e-9 * (0..3).map(|d| hi[d] - lo[d]).fold(0.0, f64::max).max(1e-300);
+    let tol = 1e-9
+        * (0..3)
+            .map(|d| hi[d] - lo[d])
+            .fold(0.0, f64::max)
+            .max(1e-300);
     let markers = ds
         .markers
         .iter()

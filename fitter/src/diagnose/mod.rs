@@ -889,7 +889,10 @@ mod tests {
         assert!(corrected(estimate(0.51 * floor, 5184)));
         assert!(!corrected(estimate(0.49 * floor, 5184)));
         let (c, why) = decide(Some(estimate(0.9 * floor, limit + 1))).unwrap();
-        assert!(c == MeshChoice::Dataset && why.contains("over the limit"), "{why}");
+        assert!(
+            c == MeshChoice::Dataset && why.contains("over the limit"),
+            "{why}"
+        );
         assert_eq!(decide(None).unwrap().0, MeshChoice::Dataset);
         let always = DiagnoseOptions::default();
         let got = mesh_decision(&always, 648, Some(&estimate(1e-9, 5184)), floor);
@@ -901,7 +904,9 @@ mod tests {
             };
             let got = mesh_decision(&forced, 648, Some(&estimate(0.0, 5184)), floor);
             assert_eq!(got.unwrap().0, asked);
-            let e = mesh_decision(&forced, 648, None, floor).unwrap_err().to_string();
+            let e = mesh_decision(&forced, 648, None, floor)
+                .unwrap_err()
+                .to_string();
             assert!(e.contains("648") && e.contains("5184"), "{e}");
         }
         let never = DiagnoseOptions {

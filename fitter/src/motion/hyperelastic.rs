@@ -335,7 +335,10 @@ mod tests {
             ..plain
         };
         let s = FParts::new(deformation_gradient(&t, &x)).unwrap();
-        let (k0, k1) = (element_tangent(&t, &s, &plain), element_tangent(&t, &s, &stiff));
+        let (k0, k1) = (
+            element_tangent(&t, &s, &plain),
+            element_tangent(&t, &s, &stiff),
+        );
         let scale = k0.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
         for r in 0..12 {
             for c in 0..12 {
