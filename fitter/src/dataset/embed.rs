@@ -54,10 +54,18 @@ pub fn embedding_tolerance(mesh: &Mesh, surface: &[[usize; 3]]) -> f64 {
 /// The closest point to `p` on the surface triangles (ties go to the first triangle), or `None`
 /// for an empty surface.
 pub fn embed_point(mesh: &Mesh, surface: &[[usize; 3]], p: [f64; 3]) -> Option<Embedding> {
+    embed_point_in(&mesh.nodes, surface, p)
+}
+
+/// [`embed_point`] on node positions `nodes` (any configuration of the mesh).
+pub fn embed_point_in(
+    nodes: &[[f64; 3]],
+    surface: &[[usize; 3]],
+    p: [f64; 3],
+) -> Option<Embedding> {
     let mut best: Option<Embedding> = None;
     for &t in surface {
-        let (bary, q) =
-            closest_point_on_triangle(p, mesh.nodes[t[0]], mesh.nodes[t[1]], mesh.nodes[t[2]]);
+        let (bary, q) = closest_point_on_triangle(p, nodes[t[0]], nodes[t[1]], nodes[t[2]]);
         let d = norm(sub(p, q));
         if best.as_ref().is_none_or(|b| d < b.distance) {
             best = Some(Embedding {

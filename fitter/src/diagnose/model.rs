@@ -461,6 +461,9 @@ pub struct Simulated {
     pub x: Vec<Vec<[f64; 3]>>,
     /// Simulated marker positions (per measurement, aligned with `observed`).
     pub markers: Vec<Vec<[f64; 3]>>,
+    /// Marker embeddings (triangle, barycentric) of the gravity candidate's rest scan, one per
+    /// marker (`None`: the dataset's own embedding).
+    pub embedding: Option<Vec<([usize; 3], [f64; 3])>>,
 }
 
 impl Model {
@@ -688,10 +691,62 @@ impl Model {
             }
             xs.push(x);
         }
+        let embedding = match self.block(Candidate::Gravity, theta, ctx.grid) {
+            Some(rho) => Some(self.rest_scan_embedding(ctx, theta, log_e.as_deref(), rho[0])?),
+            None => None,
+        };
         Ok(Simulated {
-            markers: self.markers_from(ctx, theta, subset, &xs),
+            markers: self.markers_from(ctx, theta, subset, &xs, embedding.as_deref()),
             x: xs,
+            embedding,
         })
+    }
+
+    /// Where the markers sit on the unloaded object when the rest scan was taken under gravity
+    /// (the gravity candidate: "the rest scan was taken under gravity"). The dataset embeds each
+    /// marker's scanned position at the nearest surface point; under a preload that scan is the
+    /// sagged position, so on a side face the nearest point is a material point shifted by the
+    /// sag, and the model would apply the sag twice. The material point X of marker k solves
+    /// X + u_g(X) = rest_k with u_g the gravity-only displacement at θ: one fixed-point step
+    /// from the dataset's embedding (u_g varies slowly over the surface; the sag is a fraction of
+    /// an element), re-located on the surface.
+    fn rest_scan_embedding(
+        &self,
+        ctx: &Context,
+        theta: &[f64],
+        log_e: Option<&[f64]>,
+        rho: f64,
+    ) -> Result<Vec<([usize; 3], [f64; 3])>, DiagnoseError> {
+        let rho = rho * 1000.0;
+        let mut fvec = vec![0.0; 3 * ctx.node_volume.len()];
+        for (n, v) in ctx.node_volume.iter().enumerate() {
+            for d in 0..3 {
+                fvec[3 * n + d] = rho * v * ctx.gravity[d];
+            }
+        }
+        let mat = self.material(theta, log_e, None)?;
+        let xg = ctx
+            .problem
+            .solve_forces(&mat, &fvec, None, &ctx.solve)?
+            .solution
+            .x;
+        Ok(ctx
+            .markers
+            .iter()
+            .zip(&ctx.marker_rest)
+            .map(|(m, surface_point)| {
+                let sagged = m.interpolate(|n| xg[n]);
+                let q = [0, 1, 2].map(|d| m.rest[d] - (sagged[d] - surface_point[d]));
+                match crate::dataset::embed::embed_point_in(
+                    &ctx.problem.x0,
+                    &ctx.problem.surface,
+                    q,
+                ) {
+                    Some(e) => (e.triangle, e.barycentric),
+                    None => (m.triangle, m.barycentric),
+                }
+            })
+            .collect())
     }
 
     /// The material the model uses at the solved state `x` (the secant moduli of the stiffening
@@ -716,6 +771,7 @@ impl Model {
         theta: &[f64],
         subset: &[usize],
         xs: &[Vec<[f64; 3]>],
+        embedding: Option<&[([usize; 3], [f64; 3])]>,
     ) -> Vec<Vec<[f64; 3]>> {
         let boundary = self.block(Candidate::Boundary, theta, ctx.grid);
         let reg = self.block(Candidate::Registration, theta, ctx.grid);
@@ -736,7 +792,19 @@ impl Model {
                     .iter()
                     .enumerate()
                     .map(|(j, &(k, _))| {
-                        let mut p = ctx.markers[k].interpolate(|n| x[n]);
+                        let mut p = match embedding {
+                            Some(e) => {
+                                let (t, b) = e[k];
+                                let mut p = [0.0; 3];
+                                for (&n, &w) in t.iter().zip(&b) {
+                                    for d in 0..3 {
+                                        p[d] += w * x[n][d];
+                                    }
+                                }
+                                p
+                            }
+                            None => ctx.markers[k].interpolate(|n| x[n]),
+                        };
                         if let Some(d) = delta {
                             p = [0, 1, 2].map(|a| p[a] + d[j][a]);
                         }
