@@ -437,6 +437,16 @@ fn stiffening_log_e(ctx: &Context, x: &[[f64; 3]], beta: f64) -> Vec<f64> {
     stiffening_target(ctx, x, beta).0
 }
 
+/// Adds the gravity candidate's lumped body force ρ V_n g (ρ in 1000 kg/m³) to `fvec`.
+fn add_gravity(ctx: &Context, rho: f64, fvec: &mut [f64]) {
+    let rho = rho * 1000.0;
+    for (n, v) in ctx.node_volume.iter().enumerate() {
+        for d in 0..3 {
+            fvec[3 * n + d] += rho * v * ctx.gravity[d];
+        }
+    }
+}
+
 /// A model: the base material plus an ordered set of effects.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 pub struct Model {
@@ -633,12 +643,7 @@ impl Model {
                 .force_vector(&Load::contact(m.point, f, m.radius))
                 .map_err(|e| DiagnoseError::Input(format!("measurement {:?}: {e}", m.id)))?;
             if let Some(rho) = self.block(Candidate::Gravity, theta, ctx.grid) {
-                let rho = rho[0] * 1000.0;
-                for (n, v) in ctx.node_volume.iter().enumerate() {
-                    for d in 0..3 {
-                        fvec[3 * n + d] += rho * v * ctx.gravity[d];
-                    }
-                }
+                add_gravity(ctx, rho[0], &mut fvec);
             }
             let start = warm.map(|w| w[k].as_slice());
             let stiffening = self.block(Candidate::Stiffening, theta, ctx.grid);
@@ -717,13 +722,8 @@ impl Model {
         log_e: Option<&[f64]>,
         rho: f64,
     ) -> Result<Vec<([usize; 3], [f64; 3])>, DiagnoseError> {
-        let rho = rho * 1000.0;
         let mut fvec = vec![0.0; 3 * ctx.node_volume.len()];
-        for (n, v) in ctx.node_volume.iter().enumerate() {
-            for d in 0..3 {
-                fvec[3 * n + d] = rho * v * ctx.gravity[d];
-            }
-        }
+        add_gravity(ctx, rho, &mut fvec);
         let mat = self.material(theta, log_e, None)?;
         let xg = ctx
             .problem
@@ -795,13 +795,7 @@ impl Model {
                         let mut p = match embedding {
                             Some(e) => {
                                 let (t, b) = e[k];
-                                let mut p = [0.0; 3];
-                                for (&n, &w) in t.iter().zip(&b) {
-                                    for d in 0..3 {
-                                        p[d] += w * x[n][d];
-                                    }
-                                }
-                                p
+                                std::array::from_fn(|d| (0..3).map(|j| b[j] * x[t[j]][d]).sum())
                             }
                             None => ctx.markers[k].interpolate(|n| x[n]),
                         };
