@@ -29,7 +29,7 @@
 //! Why two: under the lumped rule the nodal loads jump whenever a node crosses the rim — by ~4 %
 //! of the probe force on a 5 mm mesh with a 15 mm probe. A probe sliding over the surface then
 //! "pops" (a haptic artefact) and each jump costs the runtime ~20 PCG iterations in one tick
-//! (`palpate bench runtime --rule lumped`); the consistent load changes by O(speed) per tick. Away
+//! (`palpate-lab bench runtime --rule lumped`); the consistent load changes by O(speed) per tick. Away
 //! from the rim both give the same loads (A_i/ΣA). Static datasets keep the lumped rule because
 //! every dataset, specimen and fit so far was made with it; a model replayed with the consistent
 //! rule differs from its fit only at rim nodes.

@@ -1,9 +1,9 @@
 //! Hardware-in-the-loop harness: the firmware library (simulated ADC) writes frames into one
 //! end of a real pseudo-terminal pair, the host link reads them from the other end.
 
-use palpate_fitter::link::faults::{FaultCounts, FaultPlan, FaultyWriter};
-use palpate_fitter::link::sender::{run_sender, SenderOptions, SenderReport};
-use palpate_fitter::link::FrameReader;
+use palpate_link::faults::{FaultCounts, FaultPlan, FaultyWriter};
+use palpate_link::sender::{run_sender, SenderOptions, SenderReport};
+use palpate_link::FrameReader;
 use palpate_probe::sim::{Profile, SimProbe};
 use palpate_protocol::link::{Config, ForceSample, Frame, LinkStats};
 

@@ -2,7 +2,7 @@
 //! same for real models; this one lets runtime tests choose parameters and blends directly).
 
 use nalgebra::Vector3;
-use palpate_fitter::mesh::Mesh;
+use palpate_fem::mesh::Mesh;
 use palpate_protocol::model::{
     Blend, F32s, ModelRecord, ParameterLayout, ParameterSets, Provenance, U32s, Units,
 };

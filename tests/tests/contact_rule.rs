@@ -2,8 +2,8 @@
 //! uniform pressure over the surface inside the probe ball, continuous in the contact point;
 //! compared with the lumped rule, and checked in the runtime.
 
-use palpate_fitter::mesh::boxmesh::box_mesh;
-use palpate_fitter::mesh::Mesh;
+use palpate_fem::mesh::boxmesh::box_mesh;
+use palpate_fem::mesh::Mesh;
 use palpate_runtime::contact_rule::{
     contact_weights, contact_weights_consistent, lumped_surface_areas, ContactRuleError,
 };

@@ -1,12 +1,12 @@
-//! `palpate diagnose` on measured curves (fitter/src/diagnose/curve): synthetic curves written as
+//! `palpate diagnose` on measured curves (fitter/diagnose/src/curve): synthetic curves written as
 //! CSV files in the real-data column formats, each with (or without) an effect the simplest
 //! model lacks. The generators are independent of the fitted models (fine-step integration,
 //! closed forms written here), so the tests check the library, not a copy of itself.
 
-use palpate_fitter::diagnose::curve::lm::{fd_jacobian, levenberg_marquardt, linear_lsq};
-use palpate_fitter::diagnose::curve::model::{elastic, Family, Law, Model, Scale};
-use palpate_fitter::diagnose::curve::read::{parse, Group};
-use palpate_fitter::diagnose::curve::{diagnose_path, CurveDiagnosis, CurveError, CurveOptions};
+use palpate_diagnose::curve::lm::{fd_jacobian, levenberg_marquardt, linear_lsq};
+use palpate_diagnose::curve::model::{elastic, Family, Law, Model, Scale};
+use palpate_diagnose::curve::read::{parse, Group};
+use palpate_diagnose::curve::{diagnose_path, CurveDiagnosis, CurveError, CurveOptions};
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -353,7 +353,7 @@ fn jacobian_and_lm_against_analytic_references() {
 
 #[test]
 fn inputs_are_detected_by_header_and_broken_stress_strain_time_is_repaired() {
-    use palpate_fitter::diagnose::curve::read::{is_curve_input, read_path, Format};
+    use palpate_diagnose::curve::read::{is_curve_input, read_path, Format};
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(
         dir.path().join("a.csv"),
@@ -441,15 +441,15 @@ fn a_folder_of_instrument_folders_is_diagnosed_one_by_one() {
     }
     std::fs::create_dir(root.path().join("notes")).unwrap();
     let out = tempfile::tempdir().unwrap();
-    let args = |dataset: &Path, output: &Path| palpate_fitter::cli::diagnose::Args {
+    let args = |dataset: &Path, output: &Path| palpate_diagnose::run::Request {
         dataset: dataset.to_path_buf(),
         output: output.to_path_buf(),
         candidates: Vec::new(),
         max_effects: 3,
-        mesh: palpate_fitter::diagnose::MeshChoice::Auto,
+        mesh: palpate_diagnose::MeshChoice::Auto,
         gauge_length: None,
     };
-    palpate_fitter::cli::diagnose::run(args(root.path(), out.path())).unwrap();
+    palpate_diagnose::run::run(&args(root.path(), out.path())).unwrap();
     for name in ["strip-a", "strip-b"] {
         let reports: Vec<_> = walk(&out.path().join(name))
             .into_iter()
@@ -460,7 +460,7 @@ fn a_folder_of_instrument_folders_is_diagnosed_one_by_one() {
     assert!(!out.path().join("notes").exists());
     let empty = tempfile::tempdir().unwrap();
     std::fs::create_dir(empty.path().join("sub")).unwrap();
-    let e = palpate_fitter::cli::diagnose::run(args(empty.path(), out.path()))
+    let e = palpate_diagnose::run::run(&args(empty.path(), out.path()))
         .unwrap_err()
         .to_string();
     assert!(e.contains("no subdirectory is any of these"), "{e}");

@@ -7,15 +7,15 @@
 //! machine, more than the few seconds the team rules ask for: these are the loop's end-to-end
 //! checks and cannot be made smaller without making the specimens too coarse to mean anything.
 
-use palpate_fitter::diagnose::export::runtime_fit;
-use palpate_fitter::diagnose::model::Candidate;
-use palpate_fitter::diagnose::{run_diagnosis, DiagnoseOptions, MeshChoice};
-use palpate_fitter::specimen::{generate, Effect, EffectSpec, SpecimenOptions};
+use palpate_diagnose::export::runtime_fit;
+use palpate_diagnose::model::Candidate;
+use palpate_diagnose::{run_diagnosis, DiagnoseOptions, MeshChoice};
+use palpate_specimen::{generate, Effect, EffectSpec, SpecimenOptions};
 
-fn diagnose(effect: Option<Effect>, seed: u64) -> palpate_fitter::diagnose::DiagnosisReport {
+fn diagnose(effect: Option<Effect>, seed: u64) -> palpate_diagnose::DiagnosisReport {
     // One adoption round is what these tests assert on (the first effect named and the error
     // after it); the second round would re-try all remaining candidates and double the time.
-    // The full loop runs in `palpate diagnose-evidence` (docs/results/diagnose/confusion.md).
+    // The full loop runs in `palpate-lab diagnose-evidence` (docs/results/diagnose/confusion.md).
     // On the dataset's own mesh: these check the selection loop, whose decisions the refined
     // mesh only sharpens (`diagnose_refined_mesh_reaches_the_noise_floor` checks the refinement),
     // at an eighth of the cost.

@@ -5,12 +5,12 @@
 //! own solution — and that solution must differ from the linear one by much more than the
 //! playback error, or the test would prove nothing.
 
-use palpate_fitter::diagnose::export::runtime_material;
-use palpate_fitter::diagnose::model::{s_of, Candidate, Context, Model};
-use palpate_fitter::export::{ModelBuffers, ProvenanceInfo};
-use palpate_fitter::forward::Load;
-use palpate_fitter::specimen::{generate, SpecimenOptions};
+use palpate_diagnose::export::runtime_material;
+use palpate_diagnose::model::{s_of, Candidate, Context, Model};
+use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
+use palpate_fem::forward::Load;
 use palpate_runtime::{Runtime, RuntimeConfig, StorageRequirement};
+use palpate_specimen::{generate, SpecimenOptions};
 
 #[test]
 fn stiffening_model_exports_as_strain_blend_and_replays() {

@@ -4,8 +4,8 @@
 //! the re-located markers must predict the measurements better than the dataset's nearest-point
 //! embedding, which on the side faces sits at a sag-shifted material point.
 
-use palpate_fitter::diagnose::model::{s_of, Candidate, Context, Model};
-use palpate_fitter::specimen::{generate, Effect, EffectSpec, SpecimenOptions};
+use palpate_diagnose::model::{s_of, Candidate, Context, Model};
+use palpate_specimen::{generate, Effect, EffectSpec, SpecimenOptions};
 
 fn rms(ctx: &Context, markers: &[Vec<[f64; 3]>]) -> f64 {
     let (mut s, mut n) = (0.0, 0usize);

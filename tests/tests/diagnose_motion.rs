@@ -7,10 +7,10 @@
 //! motion fitter's own forward model (Neo-Hookean eq. 16 + viscosity eq. 17, BDF2) with marker
 //! noise σ = 0.1 mm. The noise floor of the RMS marker error is σ√3 = 173.2 µm.
 
-use palpate_fitter::diagnose::motion::{diagnose, MotionDiagnosis, MotionOptions};
-use palpate_fitter::motion::dataset::{DatasetToml, Initial, MotionDataset};
-use palpate_fitter::motion::model::{Material, Model};
-use palpate_fitter::motion::scenario::{bar_model, nine_markers, record, two_sinusoids};
+use palpate_diagnose::motion::{diagnose, MotionDiagnosis, MotionOptions};
+use palpate_motion::dataset::{DatasetToml, Initial, MotionDataset};
+use palpate_motion::model::{Material, Model};
+use palpate_motion::scenario::{bar_model, nine_markers, record, two_sinusoids};
 use std::fmt::Write as _;
 
 const SIGMA: f64 = 1e-4;
@@ -195,7 +195,7 @@ fn viscosity_signal_against_the_noise_floor() {
 
 /// Writes a motion dataset directory (docs/motion-dataset.md) for `ds`.
 fn write_dataset(ds: &MotionDataset, dir: &std::path::Path) {
-    palpate_fitter::mesh::gmsh::write_msh(&ds.mesh, dir.join("mesh.msh")).unwrap();
+    palpate_fem::mesh::gmsh::write_msh(&ds.mesh, dir.join("mesh.msh")).unwrap();
     let markers = nine_markers(SIZE);
     let mut k = String::from("marker,x,y,z\n");
     for (i, p) in markers.iter().enumerate() {
@@ -226,16 +226,13 @@ fn write_dataset(ds: &MotionDataset, dir: &std::path::Path) {
     .unwrap();
 }
 
-fn cli_args(
-    dataset: &std::path::Path,
-    out: &std::path::Path,
-) -> palpate_fitter::cli::diagnose::Args {
-    palpate_fitter::cli::diagnose::Args {
+fn cli_args(dataset: &std::path::Path, out: &std::path::Path) -> palpate_diagnose::run::Request {
+    palpate_diagnose::run::Request {
         dataset: dataset.to_path_buf(),
         output: out.to_path_buf(),
         candidates: Vec::new(),
         max_effects: 2,
-        mesh: palpate_fitter::diagnose::MeshChoice::Auto,
+        mesh: palpate_diagnose::MeshChoice::Auto,
         gauge_length: None,
     }
 }
@@ -250,7 +247,7 @@ fn cli_recognises_a_motion_dataset_on_disk() {
     std::fs::create_dir_all(&dir).unwrap();
     write_dataset(&specimen(400.0, 1), &dir);
     let out = tmp.path().join("report");
-    palpate_fitter::cli::diagnose::run(cli_args(&dir, &out)).unwrap();
+    palpate_diagnose::run::run(&cli_args(&dir, &out)).unwrap();
     for f in [
         "diagnosis.md",
         "diagnosis.json",
@@ -273,7 +270,7 @@ fn cli_recognises_a_motion_dataset_on_disk() {
     let empty = tmp.path().join("nothing");
     std::fs::create_dir_all(&empty).unwrap();
     std::fs::write(empty.join("readme.txt"), "not data").unwrap();
-    let e = palpate_fitter::cli::diagnose::run(cli_args(&empty, &out))
+    let e = palpate_diagnose::run::run(&cli_args(&empty, &out))
         .unwrap_err()
         .to_string();
     assert!(

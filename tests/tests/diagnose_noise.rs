@@ -5,13 +5,13 @@
 //! σ̂ = 194.8 µm; over all 22 specimen runs (default magnitudes, seeds 1–2) the non-noise
 //! effects give 97–111 µm on this base fit, never a lower bound above 125 µm.
 
-use palpate_fitter::diagnose::fit::{fit, initial_theta};
-use palpate_fitter::diagnose::model::{Context, Model};
-use palpate_fitter::diagnose::noise::{estimate_noise, Field, NoiseOptions};
-use palpate_fitter::diagnose::signature::residual_vectors;
-use palpate_fitter::specimen::{generate, Effect, EffectSpec, SpecimenOptions};
+use palpate_diagnose::fit::{fit, initial_theta};
+use palpate_diagnose::model::{Context, Model};
+use palpate_diagnose::noise::{estimate_noise, Field, NoiseOptions};
+use palpate_diagnose::signature::residual_vectors;
+use palpate_specimen::{generate, Effect, EffectSpec, SpecimenOptions};
 
-fn nugget(effect: Option<Effect>, seed: u64) -> palpate_fitter::diagnose::noise::NoiseFinding {
+fn nugget(effect: Option<Effect>, seed: u64) -> palpate_diagnose::noise::NoiseFinding {
     let effects = effect
         .map(|e| {
             vec![EffectSpec {

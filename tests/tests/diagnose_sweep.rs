@@ -2,8 +2,8 @@
 //! noise-free truth minus the truth of the reference world (same seed, the reported force
 //! applied, nothing else injected).
 
-use palpate_fitter::cli::diagnose_evidence::signal_rms;
-use palpate_fitter::specimen::{generate, Effect, EffectSpec, SpecimenOptions};
+use palpate_specimen::signal_rms;
+use palpate_specimen::{generate, Effect, EffectSpec, SpecimenOptions};
 
 fn spec(effect: Effect, magnitude: f64) -> Vec<EffectSpec> {
     vec![EffectSpec { effect, magnitude }]

@@ -1,9 +1,9 @@
 //! Hardware-in-the-loop tests of the probe link over a real pseudo-terminal pair: the firmware
 //! library (behind a simulated ADS1015) on one end, the host link on the other.
 
-use palpate_fitter::link::faults::FaultPlan;
-use palpate_fitter::link::sender::{Pacing, SenderOptions, Stall};
-use palpate_fitter::link::Percentiles;
+use palpate_link::faults::FaultPlan;
+use palpate_link::sender::{Pacing, SenderOptions, Stall};
+use palpate_link::Percentiles;
 use palpate_probe::sim::{default_config, Profile};
 use palpate_protocol::link::{status, ErrorCode, ErrorReport, Frame, LINK_VERSION};
 use palpate_tests::hil::{assert_link_invariants, run_link, Unplug};
@@ -93,7 +93,7 @@ fn clean_link_delivers_ten_simulated_seconds_at_1khz_in_order_and_on_profile() {
 fn real_time_segment_records_write_to_arrival_latency() {
     // One real second at 1 kHz: the bytes pace at the true rate, so arrival − write is the
     // link's latency (pty + reader wake-up). Recorded, not asserted against a time budget
-    // (timing belongs to `palpate bench link`); asserted: nothing lost, latencies positive.
+    // (timing belongs to `palpate-lab bench link`); asserted: nothing lost, latencies positive.
     let opts = SenderOptions {
         seconds: 1.0,
         pacing: Pacing::RealTime,

@@ -3,11 +3,11 @@
 //! corrupts 1 % of the bytes; the runtime must only ever be fed forces the probe vouched for
 //! (or the fail-safe zero), and keep solving.
 
-use palpate_fitter::cli::bench_runtime::BenchModel;
-use palpate_fitter::link::faults::FaultPlan;
-use palpate_fitter::link::gate::ForceGate;
-use palpate_fitter::link::haptic::{Contact, HapticLoop};
-use palpate_fitter::link::sender::{AdcFault, AdcFaultKind, Pacing, SenderOptions};
+use palpate_fem::block_model::BlockModel;
+use palpate_link::faults::FaultPlan;
+use palpate_link::gate::ForceGate;
+use palpate_link::haptic::{Contact, HapticLoop};
+use palpate_link::sender::{AdcFault, AdcFaultKind, Pacing, SenderOptions};
 use palpate_probe::sim::{default_config, Profile};
 use palpate_protocol::link::{status, LINK_VERSION};
 use palpate_runtime::material::LambdaAlpha;
@@ -18,7 +18,7 @@ use std::collections::HashMap;
 fn run(fault: AdcFault, hold: u32) {
     // A stiff block (E = 10 MPa: the 250 N the saturated probe can report stays a small strain)
     // of ~200 tets, pressed on the top face centre.
-    let model = BenchModel::block(200, LambdaAlpha::from_young_poisson(10e6, 0.3));
+    let model = BlockModel::block(200, LambdaAlpha::from_young_poisson(10e6, 0.3)).unwrap();
     let rec = model.record();
     let cfg = RuntimeConfig {
         max_iterations: 200,

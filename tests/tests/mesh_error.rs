@@ -1,10 +1,10 @@
-//! The dataset mesh's discretisation error (fitter/src/dataset/mesh_error.rs): u_h − u_{h/2} at the
+//! The dataset mesh's discretisation error (fitter/fem/src/dataset/mesh_error.rs): u_h − u_{h/2} at the
 //! markers of a homogeneous warped-linear model, on a clean specimen (Neo-Hookean truth on a 2×
 //! finer mesh, so the linear model's marker error on the 6 × 6 × 3 dataset mesh is partly this).
 
-use palpate_fitter::dataset::mesh_error::mesh_error;
-use palpate_fitter::specimen::{generate, SpecimenOptions};
+use palpate_fem::dataset::mesh_error::mesh_error;
 use palpate_runtime::material::LambdaAlpha;
+use palpate_specimen::{generate, SpecimenOptions};
 
 /// On the default specimen (6 × 6 × 3 cells, probe radius 1 cm) the estimate is well above zero
 /// and below the marker displacements (measured 115.8 µm RMS, max 886 µm; one refinement further
@@ -25,8 +25,8 @@ fn mesh_error_is_sizeable_under_a_probe() {
 /// mesh error measured against it is the one [`mesh_error`] reports (same computation, 1e-15 m).
 #[test]
 fn refined_dataset_is_the_same_object() {
-    use palpate_fitter::dataset::mesh_error::mesh_error_against;
-    use palpate_fitter::dataset::refine::refine_dataset;
+    use palpate_fem::dataset::mesh_error::mesh_error_against;
+    use palpate_fem::dataset::refine::refine_dataset;
     let s = generate(&SpecimenOptions::default()).expect("specimen");
     let ds = &s.dataset;
     let fine = refine_dataset(ds).expect("refine");
@@ -60,10 +60,10 @@ fn refined_dataset_is_the_same_object() {
 /// follow); and the correction is not small (the mesh error, > 50 µm RMS).
 #[test]
 fn correction_makes_the_coarse_model_predict_the_refined_one() {
-    use palpate_fitter::dataset::refine::refine_dataset;
-    use palpate_fitter::diagnose::approx_error::{delta_rms, Correction};
-    use palpate_fitter::diagnose::model::{s_of, Context, Model};
-    use palpate_fitter::specimen::{Effect, EffectSpec};
+    use palpate_diagnose::approx_error::{delta_rms, Correction};
+    use palpate_diagnose::model::{s_of, Context, Model};
+    use palpate_fem::dataset::refine::refine_dataset;
+    use palpate_specimen::{Effect, EffectSpec};
     let s = generate(&SpecimenOptions {
         effects: vec![EffectSpec {
             effect: Effect::Occlusion,

@@ -1,6 +1,6 @@
 //! The motion dataset reader on the bundled example and on broken copies of it.
 
-use palpate_fitter::motion::dataset::load;
+use palpate_motion::dataset::load;
 use std::path::Path;
 
 fn example() -> std::path::PathBuf {

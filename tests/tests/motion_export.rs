@@ -2,12 +2,12 @@
 //! the exported file loads in `palpate_runtime`, and a small static load on it matches the
 //! fitter's own f64 warped static solve with the same (λ, α).
 
-use palpate_fitter::export::ProvenanceInfo;
-use palpate_fitter::forward::{Load, SolveOptions, StaticProblem};
-use palpate_fitter::motion::export::{clamp_nodes, model_buffers, runtime_parameters};
-use palpate_fitter::motion::model::{Material, Param, ParamKind};
-use palpate_fitter::motion::optimize::{fit, FitSettings};
-use palpate_fitter::motion::scenario::{bar_model, nine_markers, record, two_sinusoids};
+use palpate_fem::export::ProvenanceInfo;
+use palpate_fem::forward::{Load, SolveOptions, StaticProblem};
+use palpate_motion::export::{clamp_nodes, model_buffers, runtime_parameters};
+use palpate_motion::model::{Material, Param, ParamKind};
+use palpate_motion::optimize::{fit, FitSettings};
+use palpate_motion::scenario::{bar_model, nine_markers, record, two_sinusoids};
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::{Runtime, RuntimeConfig, StorageRequirement};
 
@@ -157,8 +157,8 @@ fn motion_fit_export_loads_and_matches_the_static_solve() {
 /// reproduce the quadratics exactly), and the provenance names what is dropped.
 #[test]
 fn spline_material_exports_its_rest_tangent() {
-    use palpate_fitter::motion::export::lost_in_export;
-    use palpate_fitter::motion::spline::{Spline, SplineMaterial};
+    use palpate_motion::export::lost_in_export;
+    use palpate_motion::spline::{Spline, SplineMaterial};
     let (l, m) = (3.0e4, 1.2e4);
     let mut mat = Material::uniform(4, 0.0, 0.0, 3.0, 1.0, 1000.0);
     mat.spline = Some(

@@ -1,9 +1,9 @@
 //! End-to-end motion fit: LBFGS in log space recovers known parameters from noise-free
 //! synthetic markers, and a failed simulation is reported, not fatal.
 
-use palpate_fitter::motion::model::{Material, Param, ParamKind};
-use palpate_fitter::motion::optimize::{fit, FitSettings};
-use palpate_fitter::motion::scenario::{bar_model, nine_markers, record, two_sinusoids};
+use palpate_motion::model::{Material, Param, ParamKind};
+use palpate_motion::optimize::{fit, FitSettings};
+use palpate_motion::scenario::{bar_model, nine_markers, record, two_sinusoids};
 
 /// μ and ν from a 2× wrong start on a 24-tet bar, 40 steps: noise-free data, so the optimum is
 /// the truth. The cost tolerance is tightened to 1e-14 because with the default (relative Φ

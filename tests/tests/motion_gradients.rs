@@ -2,16 +2,16 @@
 //! other and with central finite differences for every parameter type, with marker and force
 //! observations, from an elastostatic start.
 
-use palpate_fitter::motion::gradient::{evaluate, Method};
-use palpate_fitter::motion::model::{MassKind, Material, Param, ParamKind};
-use palpate_fitter::motion::scenario::{bar_model, nine_markers, record};
+use palpate_motion::gradient::{evaluate, Method};
+use palpate_motion::model::{MassKind, Material, Param, ParamKind};
+use palpate_motion::scenario::{bar_model, nine_markers, record};
 
 fn setup(
     mass: MassKind,
 ) -> (
-    palpate_fitter::motion::model::Model,
+    palpate_motion::model::Model,
     Material,
-    palpate_fitter::motion::model::Observations,
+    palpate_motion::model::Observations,
 ) {
     let size = [0.02, 0.08, 0.02];
     let (_, mut model) = bar_model(
@@ -19,7 +19,7 @@ fn setup(
         [1, 4, 1],
         1.0 / 180.0,
         24,
-        &|t| palpate_fitter::motion::scenario::two_sinusoids(t),
+        &|t| palpate_motion::scenario::two_sinusoids(t),
         &nine_markers(size),
     )
     .unwrap();

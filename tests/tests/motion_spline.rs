@@ -3,12 +3,12 @@
 //! direct/adjoint gradients with respect to spline control values against finite differences.
 
 use nalgebra::{Matrix3, Rotation3, Vector3};
-use palpate_fitter::motion::elastic::ElasticState;
-use palpate_fitter::motion::gradient::{evaluate, Method};
-use palpate_fitter::motion::hyperelastic::{self as he, RestTet};
-use palpate_fitter::motion::model::{Material, Param, ParamKind};
-use palpate_fitter::motion::scenario::{bar_model, nine_markers, record, two_sinusoids};
-use palpate_fitter::motion::spline::{Response, Spline, SplineMaterial};
+use palpate_motion::elastic::ElasticState;
+use palpate_motion::gradient::{evaluate, Method};
+use palpate_motion::hyperelastic::{self as he, RestTet};
+use palpate_motion::model::{Material, Param, ParamKind};
+use palpate_motion::scenario::{bar_model, nine_markers, record, two_sinusoids};
+use palpate_motion::spline::{Response, Spline, SplineMaterial};
 
 const LAMBDA: f64 = 1.0e4;
 const MU: f64 = 2.0e4;

@@ -1,8 +1,8 @@
 //! The quasi-static hyperelastic solver (`motion::statics`) against independent references.
 
-use palpate_fitter::mesh::boxmesh::box_mesh;
-use palpate_fitter::motion::hyperelastic::HyperParams;
-use palpate_fitter::motion::statics::{solve_static, StaticProblem};
+use palpate_fem::mesh::boxmesh::box_mesh;
+use palpate_motion::hyperelastic::HyperParams;
+use palpate_motion::statics::{solve_static, StaticProblem};
 
 /// Uniaxial stretch of a Neo-Hookean bar with the lateral faces free: the end reaction at
 /// stretch s must equal the analytic homogeneous solution. For eq. 16 uniaxial stress with

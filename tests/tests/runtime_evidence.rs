@@ -3,8 +3,8 @@
 //! removes, and exact RBF blending at the fitted centres.
 
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Vector3};
-use palpate_fitter::mesh::boxmesh::{box_mesh, box_mesh_graded, graded_axis};
-use palpate_fitter::mesh::Mesh;
+use palpate_fem::mesh::boxmesh::{box_mesh, box_mesh_graded, graded_axis};
+use palpate_fem::mesh::Mesh;
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::{Probe, Runtime, RuntimeConfig, SolveStatus, StorageRequirement};
 use palpate_tests::model::{f32_bytes, u32_bytes, ModelBuffers};

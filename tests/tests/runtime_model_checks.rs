@@ -3,7 +3,7 @@
 //! also when warping is off (the linear strain sym(H), R = I).
 
 use nalgebra::Vector3;
-use palpate_fitter::mesh::boxmesh::box_mesh;
+use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_protocol::model::{validate_node_coverage, Invalid, ModelError, ParameterLayout};
 use palpate_runtime::element::tet_geometry;
 use palpate_runtime::material::LambdaAlpha;

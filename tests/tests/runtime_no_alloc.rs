@@ -5,7 +5,7 @@
 //! thread allocates now and then (a few small blocks, at times that depend on how long the
 //! test takes), and those are not the runtime's.
 
-use palpate_fitter::mesh::boxmesh::box_mesh;
+use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::{ContactRule, Probe, Runtime, RuntimeConfig, StorageRequirement};
 use palpate_tests::model::ModelBuffers;

@@ -2,8 +2,8 @@
 //! direct solve, an f64 equilibrium check of the warped solution, and the patch test.
 
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
-use palpate_fitter::mesh::boxmesh::box_mesh;
-use palpate_fitter::mesh::Mesh;
+use palpate_fem::mesh::boxmesh::box_mesh;
+use palpate_fem::mesh::Mesh;
 use palpate_runtime::contact_rule::{contact_weights, lumped_surface_areas};
 use palpate_runtime::element::{element_stiffness, tet_geometry};
 use palpate_runtime::material::LambdaAlpha;

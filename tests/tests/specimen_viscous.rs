@@ -4,8 +4,8 @@
 //! record would be read and must name viscosity first. The same strip without viscosity (τ = 0)
 //! must not adopt viscosity: its loading and unloading curves coincide.
 
-use palpate_fitter::diagnose::curve::{diagnose_path, CurveOptions};
-use palpate_fitter::specimen::viscous::{generate_viscous, ViscousOptions};
+use palpate_diagnose::curve::{diagnose_path, CurveOptions};
+use palpate_specimen::viscous::{generate_viscous, ViscousOptions};
 
 fn diagnose(tau: f64, seed: u64) -> Vec<String> {
     let s = generate_viscous(&ViscousOptions {

@@ -2,11 +2,11 @@
 //! runtime and driven with each measured contact, reproduces the fitter's own predicted marker
 //! positions (what is fitted is what is simulated).
 
-use palpate_fitter::export::{ModelBuffers, ProvenanceInfo};
-use palpate_fitter::static_fit::blend::BlendData;
-use palpate_fitter::static_fit::synthetic::{synthesise, SyntheticSpec};
-use palpate_fitter::static_fit::{fit_static, FitOptions, Layout, Method, Sets};
+use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
 use palpate_runtime::{Runtime, RuntimeConfig, StorageRequirement};
+use palpate_static_fit::blend::BlendData;
+use palpate_static_fit::synthetic::{synthesise, SyntheticSpec};
+use palpate_static_fit::{fit_static, FitOptions, Layout, Method, Sets};
 
 #[test]
 fn exported_fit_reproduces_fitted_markers_in_the_runtime() {
@@ -81,4 +81,44 @@ fn exported_fit_reproduces_fitted_markers_in_the_runtime() {
         worst < 1e-4 * largest + 1e-7,
         "worst {worst:e} m vs largest displacement {largest:e} m"
     );
+}
+
+mod exported_model_decodes {
+    use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
+    use palpate_fem::forward::{Material, StaticProblem};
+    use palpate_fem::mesh::boxmesh::box_mesh;
+    use palpate_protocol::model::decode;
+    use palpate_runtime::element::element_cd;
+    use palpate_static_fit::blend::deformation_blend;
+
+    /// Exported models decode, and the decoded C_e/λ/α equal the f64 values rounded to f32.
+    #[test]
+    fn exported_model_decodes_with_the_fitted_values() {
+        let mesh = box_mesh([0.1, 0.1, 0.05], [2, 2, 1]);
+        let fixed = mesh.node_groups["bottom"].clone();
+        let p = StaticProblem::new(&mesh, &fixed, &mesh.boundary_triangles()).unwrap();
+        let sets = vec![
+            Material::from_young_poisson(2e4, 0.3),
+            Material::from_young_poisson(3e4, 0.25),
+        ];
+        let deformed = vec![
+            p.x0.clone(),
+            p.x0.iter().map(|x| [x[0], x[1], x[2] * 0.99]).collect(),
+        ];
+        let blend = deformation_blend(&sets, &deformed).unwrap();
+        let prov = ProvenanceInfo {
+            tool: "test".into(),
+            source: "synthetic".into(),
+            notes: String::new(),
+        };
+        let b = ModelBuffers::new(&p, &mesh.node_tags, &sets, &blend, &prov).unwrap();
+        let bytes = b.encode().unwrap();
+        let rec = decode(&bytes).unwrap();
+        assert_eq!(rec.element_count as usize, mesh.tets.len());
+        assert_eq!(rec.parameters.count, 2);
+        assert_eq!(rec.parameters.lambda.get(1), Some(sets[1].lambda[0] as f32));
+        let (c0, _) = element_cd(&p.geometry[0]);
+        assert_eq!(rec.c_packed.get(0), Some(c0[(0, 0)] as f32));
+        assert!(rec.provenance.created.ends_with('Z') && rec.provenance.created.len() == 20);
+    }
 }

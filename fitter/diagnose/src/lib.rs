@@ -1,0 +1,925 @@
+//! Residual diagnosis (issue 6): fit the simplest model (warped linear homogeneous,
+//! displacement-based), look at the residual ([`signature`]), hold every candidate effect of the
+//! library ([`model::Candidate`]) against it by refitting the augmented model ([`fit`]), adopt the
+//! best one if it earns its parameters, repeat until nothing significant is left, and report
+//! ([`report`]).
+//!
+//! Selection (stated in every report): candidates are ranked by the Bayesian information criterion
+//! with unknown noise variance, BIC = n ln(χ²/n) + k ln n (n residual entries, k parameters). The
+//! best [`DiagnoseOptions::cv_candidates`] are shortlisted; a candidate passes only if (a) ΔBIC <
+//! −[`DiagnoseOptions::bic_threshold`] and (b) leave-one-
+//! measurement-out cross-validation confirms it: every measurement is refitted without and predicted;
+//! the same criterion on the held-out predictions, n ln(χ²_new/χ²_old) + k ln n, must be negative,
+//! and the held-out error in excess of the noise floor, √(RMS² − 3σ²), must drop by at least
+//! [`DiagnoseOptions::min_holdout_gain`]; the first in fitted-BIC order that passes is adopted, and a
+//! later shortlisted one that also passes with a lower held-out ΔBIC is reported as an ambiguity
+//! ([`Step::ambiguous_with`]). (a) alone over-adopts when the residual is dominated by
+//! model-form error of the coarse linear model (n is large, so any extra parameter that absorbs a
+//! little of it passes); (b) makes the parameter pay for itself on data it was not fitted to, and
+//! explain a real part of what the noise does not. The held-out ΔBIC alone is not enough: on a clean
+//! specimen the 7-parameter inhomogeneity field absorbs part of the coarse mesh's discretisation
+//! error (held-out ΔBIC −58, but only 7 % of the excess error); measuring the gain against the
+//! excess rather than the whole RMS (the first version) no longer hides effects whose gain is small
+//! next to the marker noise but large next to what the model gets wrong.
+//!
+//! After the structural loop, the white-noise level of the final residual is estimated apart from
+//! smooth model-form error ([`noise`]: a local nugget estimator with a bootstrap interval over
+//! measurements). Marker noise significantly above the declared σ is reported as the effect
+//! `noise` ([`model::Candidate::Noise`]): no parameter of the model changes, the finding is that
+//! the declared noise level is wrong, and the noise floor is recomputed with σ̂.
+
+/// The version the reports and exported models name as their tool.
+pub const VERSION: &str = env!("CARGO_PKG_VERSION");
+
+pub mod approx_error;
+pub mod curve;
+pub mod export;
+pub mod fit;
+pub mod model;
+pub mod motion;
+pub mod noise;
+pub mod report;
+pub mod run;
+pub mod signature;
+
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use approx_error::Correction;
+use fit::{fit, initial_theta, Fitted};
+use model::{poisson_of, Candidate, Context, Model, ALL_CANDIDATES};
+use noise::{estimate_noise, NoiseFinding, NoiseOptions};
+use palpate_fem::dataset::StaticDataset;
+use signature::{evidence_points, signature, Signature};
+
+/// Errors of the diagnosis.
+#[derive(Debug, thiserror::Error)]
+pub enum DiagnoseError {
+    /// The dataset cannot be diagnosed.
+    #[error("{0}")]
+    Input(String),
+    /// The forward model failed.
+    #[error(transparent)]
+    Forward(#[from] palpate_fem::forward::ForwardError),
+    /// A fit left the physical range.
+    #[error("the fit diverged: {0}")]
+    Diverged(String),
+    /// Writing the report failed.
+    #[error("writing the report: {0}")]
+    Write(String),
+}
+
+/// Options of [`run_diagnosis`].
+#[derive(Debug, Clone, Serialize)]
+pub struct DiagnoseOptions {
+    /// Candidates to try.
+    pub candidates: Vec<Candidate>,
+    /// Inhomogeneity grid (nodes per axis).
+    pub grid: [usize; 3],
+    /// Most effects adopted.
+    pub max_effects: usize,
+    /// LM iterations per fit.
+    pub max_iterations: usize,
+    /// LM iterations of each leave-one-out refit (warm-started from the full fit).
+    pub holdout_iterations: usize,
+    /// ΔBIC must be below −this.
+    pub bic_threshold: f64,
+    /// The held-out error in excess of the noise floor √(RMS² − 3σ²) (σ declared; else the
+    /// held-out RMS itself) must drop by at least this fraction.
+    pub min_holdout_gain: f64,
+
+    /// How many BIC-ranked candidates are cross-validated per round.
+    pub cv_candidates: usize,
+    /// The marker-noise test run after the structural loop.
+    pub noise: NoiseOptions,
+    /// Which mesh the models are solved on.
+    pub mesh: MeshChoice,
+    /// [`MeshChoice::Auto`] corrects when the dataset mesh's discretisation error (RMS at the
+    /// markers) exceeds this fraction of the noise floor σ√3. Default 0: always, when the refined
+    /// mesh is affordable — the correction costs a few refined solves per adopted effect and
+    /// removes error the model would otherwise blame on an effect; a threshold made the choice
+    /// flip between specimens of one kind (the stiff inclusion lowers the fitted E's mesh error
+    /// from 116 to under 87 µm, half the floor, on one seed but not the other).
+    pub refine_above: f64,
+    /// [`MeshChoice::Auto`] never uses a refined mesh of more than this many tetrahedra: each
+    /// refresh solves every measurement on it (with stiffening, a fixed point of such solves), and
+    /// a dataset mesh of over 6k tets is usually fine enough for its own error to be small.
+    pub refine_max_tets: usize,
+}
+
+/// Which mesh the diagnosis solves its models on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum MeshChoice {
+    /// The dataset's own mesh.
+    Dataset,
+    /// The dataset mesh refined once (every tetrahedron into eight): exact, 8× the elements,
+    /// ≈ 100× the time of a full diagnosis.
+    Refined,
+    /// The dataset mesh with the approximation-error correction from the mesh refined once
+    /// ([`approx_error`]): the refined model's predictions at each adopted fit, the coarse cost.
+    Corrected,
+    /// [`MeshChoice::Corrected`] when the dataset mesh's own discretisation error is a large part
+    /// of the noise floor (see [`DiagnoseOptions::refine_above`]), else the dataset's mesh.
+    Auto,
+}
+
+impl Default for DiagnoseOptions {
+    fn default() -> Self {
+        Self {
+            candidates: ALL_CANDIDATES.to_vec(),
+            grid: [2, 2, 2],
+            max_effects: 3,
+            max_iterations: 8,
+            holdout_iterations: 3,
+            bic_threshold: 10.0,
+            min_holdout_gain: 0.10,
+            cv_candidates: 2,
+            noise: NoiseOptions::default(),
+            mesh: MeshChoice::Auto,
+            refine_above: 0.0,
+            refine_max_tets: 50_000,
+        }
+    }
+}
+
+/// Error figures of a model (m for markers, N for forces).
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Errors {
+    /// RMS marker error on the fitted data.
+    pub fitted_rms: f64,
+    /// Largest marker error on the fitted data.
+    pub fitted_max: f64,
+    /// RMS marker error on held-out measurements (leave-one-out).
+    pub heldout_rms: f64,
+    /// Largest held-out marker error.
+    pub heldout_max: f64,
+    /// RMS implied-force error on the fitted data: |s_i − 1| |f_i| with s_i the best scale of the
+    /// simulated displacement onto the measured one (the force error the markers imply).
+    pub force_rms: f64,
+    /// Largest implied-force error on the fitted data.
+    pub force_max: f64,
+    /// RMS implied-force error on held-out measurements.
+    pub heldout_force_rms: f64,
+}
+
+/// A fitted parameter with its uncertainty (1 σ from the Gauss–Newton covariance), in physical units.
+#[derive(Debug, Clone, Serialize)]
+pub struct ParamValue {
+    /// Name.
+    pub name: String,
+    /// Value.
+    pub value: f64,
+    /// Standard deviation.
+    pub sd: f64,
+    /// Unit.
+    pub unit: String,
+}
+
+/// One candidate tried in a round.
+#[derive(Debug, Clone, Serialize)]
+pub struct Tried {
+    /// Candidate.
+    pub candidate: Candidate,
+    /// Extra parameters.
+    pub extra_params: usize,
+    /// RMS marker error of the refit (m).
+    pub rms: f64,
+    /// ΔBIC against the current model (negative = better).
+    pub delta_bic: f64,
+    /// Held-out RMS (m), computed for the best-ranked candidates only.
+    pub heldout_rms: Option<f64>,
+    /// Paired t statistic of the held-out χ² reductions (cross-validated candidates only).
+    pub heldout_t: Option<f64>,
+    /// ΔBIC on the held-out predictions (cross-validated candidates only; must be < 0).
+    pub heldout_delta_bic: Option<f64>,
+    /// Held-out RMS implied-force error (N; cross-validated candidates only).
+    pub heldout_force_rms: Option<f64>,
+}
+
+/// One round of the loop.
+#[derive(Debug, Clone, Serialize)]
+pub struct Step {
+    /// Round number (1-based).
+    pub round: usize,
+    /// Effects in the model at the start of the round.
+    pub model: Vec<Candidate>,
+    /// Residual signature of that model.
+    pub signature: Signature,
+    /// Candidates tried, best first.
+    pub tried: Vec<Tried>,
+    /// Adopted effect, if any.
+    pub adopted: Option<Candidate>,
+    /// Why (or why not).
+    pub reason: String,
+    /// Shortlisted candidates that also pass the held-out test and predict the held-out data
+    /// better than the adopted one (held-out ΔBIC): alternatives the data cannot rule out.
+    pub ambiguous_with: Vec<Candidate>,
+    /// Errors of the model at the start of the round.
+    pub before: Errors,
+    /// Errors after adopting (if adopted).
+    pub after: Option<Errors>,
+    /// Fitted values of the adopted effect's parameters.
+    pub new_params: Vec<ParamValue>,
+    /// Evidence plot data: x label, y label, points before and after adoption.
+    pub evidence: Option<(String, String, Vec<(f64, f64)>, Vec<(f64, f64)>)>,
+}
+
+/// The report of [`run_diagnosis`].
+#[derive(Debug, Clone, Serialize)]
+pub struct DiagnosisReport {
+    /// Dataset name.
+    pub dataset: String,
+    /// Selection rule in words.
+    pub criterion: String,
+    /// σ (m) used to scale residuals.
+    pub sigma: f64,
+    /// Whether σ was declared.
+    pub sigma_declared: bool,
+    /// Noise floor of the RMS marker error, σ √3 (m).
+    pub noise_floor: f64,
+    /// Options.
+    pub options: DiagnoseOptions,
+    /// The loop, round by round.
+    pub steps: Vec<Step>,
+    /// Effects adopted, in order (the structural effects of the final model, then `noise` if
+    /// the marker noise exceeds the declared level).
+    pub adopted: Vec<Candidate>,
+    /// The marker-noise finding on the final model's residual (`None` if no marker has enough
+    /// neighbours to estimate it).
+    pub noise: Option<NoiseFinding>,
+    /// Evidence plot of the noise finding: (distance from the contact m, normalised nugget error
+    /// m) per marker neighbourhood.
+    pub noise_evidence: Vec<(f64, f64)>,
+    /// Errors of the simplest model.
+    pub before: Errors,
+    /// The dataset mesh's own discretisation error under the simplest model (`None` when the
+    /// refined mesh would exceed [`MESH_ERROR_MAX_TETS`] or a refined solve failed).
+    pub mesh_error: Option<MeshErrorSummary>,
+    /// The mesh the models were solved on, and why.
+    pub solved_on: SolvedOn,
+    /// Errors of the final model.
+    pub after: Errors,
+    /// Every parameter of the final model.
+    pub final_params: Vec<ParamValue>,
+    /// Young's modulus (Pa) and Poisson ratio of the final model's base material.
+    pub young_poisson: (f64, f64),
+    /// Wall-clock seconds.
+    pub seconds: f64,
+    /// The final fit (parameters, simulation) for export.
+    #[serde(skip)]
+    pub final_fit: Option<Fitted>,
+    /// The prepared context (for export).
+    #[serde(skip)]
+    pub context: Option<Context>,
+}
+
+/// The simplest model solved again on the dataset mesh refined once
+/// ([`palpate_fem::dataset::mesh_error`]): u_h − u_{h/2} at the observed markers. Reported, not yet used
+/// by the selection rule: a residual structure of this size can be the mesh rather than a missing
+/// effect (e.g. a "layer" of softer material compensating linear tetrahedra that are too stiff
+/// under the probe).
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct MeshErrorSummary {
+    /// RMS over the observed markers (m).
+    pub rms: f64,
+    /// Largest marker difference (m).
+    pub max: f64,
+    /// Tetrahedra of the refined mesh.
+    pub refined_tets: usize,
+}
+
+/// The mesh the diagnosis solved on.
+#[derive(Debug, Clone, Serialize)]
+pub struct SolvedOn {
+    /// Tetrahedra of that mesh.
+    pub tets: usize,
+    /// The choice made (never [`MeshChoice::Auto`]).
+    pub choice: MeshChoice,
+    /// RMS of the final approximation-error correction (m), when corrected.
+    pub correction_rms: Option<f64>,
+    /// Fitted RMS marker error (m) of the simplest model on the dataset's own mesh.
+    pub dataset_mesh_rms: f64,
+    /// Why this mesh.
+    pub reason: String,
+}
+
+/// The mesh-error estimate is skipped when the refined mesh would have more tetrahedra than this
+/// (its direct solves would dominate the diagnosis).
+pub const MESH_ERROR_MAX_TETS: usize = 200_000;
+
+fn stats(v: &[f64]) -> (f64, f64) {
+    let rms = (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+    (rms, v.iter().copied().fold(0.0, f64::max))
+}
+
+fn marker_norms(ctx: &Context, f: &Fitted) -> Vec<f64> {
+    signature::residual_vectors(ctx, f)
+        .iter()
+        .flatten()
+        .map(|(_, e)| (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]).sqrt())
+        .collect()
+}
+
+fn force_errors(ctx: &Context, f: &Fitted) -> Vec<f64> {
+    let sig = signature(ctx, f);
+    sig.per_measurement
+        .iter()
+        .zip(&f.subset)
+        .map(|(p, &i)| {
+            let fm = f.model.model_force(ctx, &f.theta, i);
+            (p.scale - 1.0).abs() * (fm[0] * fm[0] + fm[1] * fm[1] + fm[2] * fm[2]).sqrt()
+        })
+        .collect()
+}
+
+/// Held-out errors of a model.
+#[derive(Debug, Clone)]
+struct Held {
+    /// Held-out marker error norms (m), all measurements.
+    markers: Vec<f64>,
+    /// Held-out implied-force errors (N), one per measurement.
+    forces: Vec<f64>,
+    /// Held-out χ² (Σ|r|²/σ²) of each measurement.
+    chi2: Vec<f64>,
+}
+
+/// The paired one-sided t statistic of the held-out χ² reductions d_i = χ²_i(old) − χ²_i(new)
+/// over the held-out measurements: mean(d) / (sd(d)/√m). Large when the new model predicts
+/// held-out measurements better consistently, not just on one.
+fn paired_t(old: &Held, new: &Held) -> f64 {
+    let d: Vec<f64> = old.chi2.iter().zip(&new.chi2).map(|(a, b)| a - b).collect();
+    let m = d.len() as f64;
+    if m < 2.0 {
+        return 0.0;
+    }
+    let mean = d.iter().sum::<f64>() / m;
+    let var = d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (m - 1.0);
+    if var <= 0.0 {
+        return if mean > 0.0 { f64::INFINITY } else { 0.0 };
+    }
+    mean / (var / m).sqrt()
+}
+
+/// The information criterion on held-out predictions: n ln(χ²_new/χ²_old) + k ln n over the
+/// leave-one-out residuals (n entries, k extra parameters). Negative when the held-out gain pays
+/// for the extra parameters at the same price BIC charges on the fitted data.
+fn heldout_delta_bic(old: &Held, new: &Held, k: usize) -> f64 {
+    let n = old.markers.len() as f64 * 3.0;
+    let (a, b) = (old.chi2.iter().sum::<f64>(), new.chi2.iter().sum::<f64>());
+    if !(a > 0.0 && b > 0.0) {
+        return f64::INFINITY;
+    }
+    n * (b / a).ln() + k as f64 * n.ln()
+}
+
+/// Leave-one-measurement-out: refit without each measurement (warm-started from the full fit),
+/// predict it.
+fn holdout(ctx: &Context, full: &Fitted, iterations: usize) -> Result<Held, DiagnoseError> {
+    let all: Vec<usize> = (0..ctx.meas.len()).collect();
+    // Each held-out refit is independent: one per core.
+    let per: Vec<(Vec<f64>, Vec<f64>)> = all
+        .par_iter()
+        .map(|&i| {
+            let sub: Vec<usize> = all.iter().copied().filter(|&j| j != i).collect();
+            let warm: Vec<Vec<[f64; 3]>> = sub.iter().map(|&j| full.sim.x[j].clone()).collect();
+            let f = fit(
+                ctx,
+                &full.model,
+                full.theta.clone(),
+                &sub,
+                Some(&warm),
+                iterations,
+            )?;
+            let sim = full.model.simulate(
+                ctx,
+                &f.theta,
+                &[i],
+                Some(std::slice::from_ref(&full.sim.x[i])),
+            )?;
+            let held = Fitted {
+                subset: vec![i],
+                sim,
+                theta: f.theta.clone(),
+                ..f
+            };
+            Ok((marker_norms(ctx, &held), force_errors(ctx, &held)))
+        })
+        .collect::<Result<_, DiagnoseError>>()?;
+    let (mut errs, mut ferrs, mut sse) = (Vec::new(), Vec::new(), Vec::new());
+    for (norms, forces) in per {
+        sse.push(norms.iter().map(|e| e * e).sum::<f64>() / (ctx.sigma * ctx.sigma));
+        errs.extend(norms);
+        ferrs.extend(forces);
+    }
+    Ok(Held {
+        markers: errs,
+        forces: ferrs,
+        chi2: sse,
+    })
+}
+
+fn errors(ctx: &Context, f: &Fitted, held: &Held) -> Errors {
+    let (fitted_rms, fitted_max) = stats(&marker_norms(ctx, f));
+    let (force_rms, force_max) = stats(&force_errors(ctx, f));
+    let (heldout_rms, heldout_max) = stats(&held.markers);
+    Errors {
+        fitted_rms,
+        fitted_max,
+        heldout_rms,
+        heldout_max,
+        force_rms,
+        force_max,
+        heldout_force_rms: stats(&held.forces).0,
+    }
+}
+
+fn bic(f: &Fitted) -> f64 {
+    let n = f.n as f64;
+    n * (f.chi2 / n).max(1e-300).ln() + f.theta.len() as f64 * n.ln()
+}
+
+/// Physical values of the parameters of `c` in fit `f`.
+pub fn effect_params(ctx: &Context, f: &Fitted, c: Candidate) -> Vec<ParamValue> {
+    let Some(o) = f.model.offset(c, ctx.grid) else {
+        return Vec::new();
+    };
+    c.param_names(ctx.grid)
+        .into_iter()
+        .enumerate()
+        .map(|(j, (name, unit, scale))| ParamValue {
+            name,
+            value: f.theta[o + j] * scale,
+            sd: f.theta_sd[o + j] * scale,
+            unit: unit.into(),
+        })
+        .collect()
+}
+
+/// E and ν of a fit with their uncertainties (delta method).
+pub fn base_params(f: &Fitted) -> Vec<ParamValue> {
+    let e = f.theta[0].exp();
+    let nu = poisson_of(f.theta[1]);
+    let dnu = 0.75 * (1.0 - f.theta[1].tanh().powi(2));
+    vec![
+        ParamValue {
+            name: "Young's modulus E".into(),
+            value: e,
+            sd: e * f.theta_sd[0],
+            unit: "Pa".into(),
+        },
+        ParamValue {
+            name: "Poisson ratio ν".into(),
+            value: nu,
+            sd: dnu * f.theta_sd[1],
+            unit: "".into(),
+        },
+    ]
+}
+
+/// Which mesh to solve on ([`MeshChoice::Auto`] resolved), and why (in words for the report).
+fn mesh_decision(
+    o: &DiagnoseOptions,
+    tets: usize,
+    mesh_error: Option<&MeshErrorSummary>,
+    floor: f64,
+) -> Result<(MeshChoice, String), DiagnoseError> {
+    match (o.mesh, mesh_error) {
+        (MeshChoice::Dataset, _) => Ok((MeshChoice::Dataset, "the dataset mesh (as asked)".into())),
+        (c @ (MeshChoice::Refined | MeshChoice::Corrected), Some(e)) => Ok((
+            c,
+            format!(
+                "the dataset mesh {} the mesh refined once, {} tetrahedra (as asked)",
+                if c == MeshChoice::Refined { "replaced by" } else { "corrected by" },
+                e.refined_tets
+            ),
+        )),
+        (MeshChoice::Refined | MeshChoice::Corrected, None) => Err(DiagnoseError::Input(format!(
+            "the refined mesh was asked for but could not be built or solved ({} tetrahedra → {}; limit {MESH_ERROR_MAX_TETS})",
+            tets,
+            8 * tets
+        ))),
+        (MeshChoice::Auto, None) => Ok((
+            MeshChoice::Dataset,
+            "the dataset mesh (its discretisation error could not be estimated)".into(),
+        )),
+        (MeshChoice::Auto, Some(e)) => {
+            let big = e.rms > o.refine_above * floor;
+            let fits = e.refined_tets <= o.refine_max_tets;
+            let why = format!(
+                "the dataset mesh's discretisation error at the markers is {:.1} µm RMS, {:.0}% of the noise floor {:.1} µm (correct above {:.0}%, up to {} tetrahedra)",
+                1e6 * e.rms,
+                100.0 * e.rms / floor,
+                1e6 * floor,
+                100.0 * o.refine_above,
+                o.refine_max_tets
+            );
+            Ok(match (big, fits) {
+                (true, true) => (
+                    MeshChoice::Corrected,
+                    format!("the dataset mesh with the approximation-error correction from the mesh refined once ({} tetrahedra): {why}", e.refined_tets),
+                ),
+                (true, false) => (
+                    MeshChoice::Dataset,
+                    format!("the dataset mesh, although {why}: the refined mesh ({} tetrahedra) is over the limit", e.refined_tets),
+                ),
+                _ => (MeshChoice::Dataset, format!("the dataset mesh: {why}")),
+            })
+        }
+    }
+}
+
+/// Refreshes the approximation-error correction at fit `f` (all measurements) and refits.
+fn refresh(
+    ctx: &mut Context,
+    corr: &mut Correction,
+    f: &Fitted,
+    iterations: usize,
+) -> Result<Fitted, DiagnoseError> {
+    ctx.correction = Some(corr.delta(ctx, &f.model, &f.theta, &f.sim.x)?);
+    fit(
+        ctx,
+        &f.model,
+        f.theta.clone(),
+        &f.subset,
+        Some(&f.sim.x),
+        iterations,
+    )
+}
+
+/// Runs the diagnosis loop on a dataset.
+pub fn run_diagnosis(
+    ds: &StaticDataset,
+    o: &DiagnoseOptions,
+) -> Result<DiagnosisReport, DiagnoseError> {
+    run_diagnosis_with(ds, o, |_| {})
+}
+
+/// [`run_diagnosis`] with a progress callback (one line per stage).
+pub fn run_diagnosis_with(
+    ds: &StaticDataset,
+    o: &DiagnoseOptions,
+    mut progress: impl FnMut(&str),
+) -> Result<DiagnosisReport, DiagnoseError> {
+    let started = Instant::now();
+    let coarse = Context::new(ds, o.grid)?;
+    let all: Vec<usize> = (0..coarse.meas.len()).collect();
+    let (theta0, sim0) = initial_theta(&coarse, &all)?;
+    progress("fitting the simplest model (linear homogeneous, displacement-based)");
+    let coarse_fit = fit(
+        &coarse,
+        &Model::base(),
+        theta0,
+        &all,
+        Some(&sim0.x),
+        o.max_iterations,
+    )?;
+    let refined = if 8 * ds.mesh.tets.len() <= MESH_ERROR_MAX_TETS {
+        palpate_fem::dataset::refine::refine_dataset(ds).ok()
+    } else {
+        None
+    };
+    let mesh_error = match &refined {
+        Some(fine) => {
+            progress(
+                "estimating the mesh's discretisation error (simplest model on the mesh refined once)",
+            );
+            let p = palpate_runtime::material::LambdaAlpha::from_young_poisson(
+                coarse_fit.theta[0].exp(),
+                poisson_of(coarse_fit.theta[1]),
+            );
+            palpate_fem::dataset::mesh_error::mesh_error_against(ds, fine, p)
+                .ok()
+                .map(|e| MeshErrorSummary {
+                    rms: e.rms,
+                    max: e.max,
+                    refined_tets: e.refined_tets,
+                })
+        }
+        None => None,
+    };
+    let floor = coarse.sigma * 3f64.sqrt();
+    let (choice, reason) = mesh_decision(o, ds.mesh.tets.len(), mesh_error.as_ref(), floor)?;
+    let dataset_mesh_rms = stats(&marker_norms(&coarse, &coarse_fit)).0;
+    let mut correction = None;
+    let (mut ctx, mut current) = match (choice, refined) {
+        (MeshChoice::Refined, Some(fine)) => {
+            progress(&format!(
+                "refitting the simplest model on the refined mesh ({} tetrahedra)",
+                fine.mesh.tets.len()
+            ));
+            let ctx = Context::new(&fine, o.grid)?;
+            let sim = Model::base().simulate(&ctx, &coarse_fit.theta, &all, None)?;
+            let f = fit(
+                &ctx,
+                &Model::base(),
+                coarse_fit.theta.clone(),
+                &all,
+                Some(&sim.x),
+                o.max_iterations,
+            )?;
+            (ctx, f)
+        }
+        (MeshChoice::Corrected, Some(fine)) => {
+            progress(&format!(
+                "refitting the simplest model with the approximation-error correction ({} tetrahedra)",
+                fine.mesh.tets.len()
+            ));
+            let mut corr = Correction::new(&fine, o.grid)?;
+            let mut ctx = coarse;
+            // Two refreshes: δ at the dataset-mesh fit, then at the corrected fit (E moves by
+            // the mesh's stiffness error, a few per cent, and δ with it).
+            let mut f = coarse_fit;
+            for _ in 0..2 {
+                f = refresh(&mut ctx, &mut corr, &f, o.max_iterations)?;
+            }
+            correction = Some(corr);
+            (ctx, f)
+        }
+        _ => (coarse, coarse_fit),
+    };
+    let mut solved_on = SolvedOn {
+        tets: ctx.problem.element_count(),
+        choice,
+        correction_rms: None,
+        dataset_mesh_rms,
+        reason,
+    };
+    let mut current_held = holdout(&ctx, &current, o.holdout_iterations)?;
+    let first = errors(&ctx, &current, &current_held);
+    let mut steps = Vec::new();
+    for round in 1..=o.max_effects + 1 {
+        let before = errors(&ctx, &current, &current_held);
+        let sig = signature(&ctx, &current);
+        let bic0 = bic(&current);
+        let mut tried: Vec<(Tried, Fitted)> = Vec::new();
+        if current.model.effects.len() < o.max_effects {
+            for &c in &o.candidates {
+                if current.model.effects.contains(&c) {
+                    continue;
+                }
+                progress(&format!("round {round}: trying {}", c.name()));
+                let m = current.model.with(c);
+                let mut t = current.theta.clone();
+                t.extend(c.start(o.grid));
+                match fit(&ctx, &m, t, &all, Some(&current.sim.x), o.max_iterations) {
+                    Ok(f) => {
+                        let (rms, _) = stats(&marker_norms(&ctx, &f));
+                        tried.push((
+                            Tried {
+                                candidate: c,
+                                extra_params: c.params(o.grid),
+                                rms,
+                                delta_bic: bic(&f) - bic0,
+                                heldout_rms: None,
+                                heldout_t: None,
+                                heldout_delta_bic: None,
+                                heldout_force_rms: None,
+                            },
+                            f,
+                        ));
+                    }
+                    Err(DiagnoseError::Diverged(_)) => continue,
+                    Err(e) => return Err(e),
+                }
+            }
+        }
+        tried.sort_by(|a, b| a.0.delta_bic.total_cmp(&b.0.delta_bic));
+        let mut step = Step {
+            round,
+            model: current.model.effects.clone(),
+            signature: sig,
+            tried: Vec::new(),
+            adopted: None,
+            reason: String::new(),
+            ambiguous_with: Vec::new(),
+            before,
+            after: None,
+            new_params: Vec::new(),
+            evidence: None,
+        };
+        let mut adopted: Option<(Candidate, Fitted, Held, f64)> = None;
+        // Cross-validate the best-ranked candidates (at most `cv_candidates`) that pass the BIC
+        // threshold; adopt the first, in fitted-BIC order, that the held-out data confirm. The
+        // others are cross-validated too: one that also passes with a lower held-out ΔBIC is an
+        // equally good explanation these measurements cannot tell apart, and the report says so.
+        // Adopting by held-out ΔBIC instead trades one wrong name for another (calibration p =
+        // 0.3, seed 2: inhomogeneity −248.5 fitted / −208.1 held out, calibration −169.2 /
+        // −255.1; but inclusion seed 1: inclusion −688.6 / −430.2, support rotation −581.7 /
+        // −564.1), so the order stays and the ambiguity is reported.
+        let mut reasons = Vec::new();
+        let mut ambiguous = Vec::new();
+        for (best, bf) in tried
+            .iter_mut()
+            .filter(|(t, _)| t.delta_bic < -o.bic_threshold)
+            .take(o.cv_candidates)
+        {
+            progress(&format!(
+                "round {round}: cross-validating {}",
+                best.candidate.name()
+            ));
+            let held = holdout(&ctx, bf, o.holdout_iterations)?;
+            let h = stats(&held.markers).0;
+            let t = paired_t(&current_held, &held);
+            let cv_bic = heldout_delta_bic(&current_held, &held, best.extra_params);
+            best.heldout_rms = Some(h);
+            best.heldout_t = Some(t);
+            best.heldout_delta_bic = Some(cv_bic);
+            best.heldout_force_rms = Some(stats(&held.forces).0);
+            let gain = 1.0 - h / before.heldout_rms;
+            let verdict = format!(
+                "{}: ΔBIC = {:.1}; held-out RMS {:.1} µm → {:.1} µm ({:+.1}%), implied force {:.4} N → {:.4} N, held-out ΔBIC {:.1} (< 0 required; paired t of the per-measurement held-out χ² reductions {:.2})",
+                best.candidate.name(), best.delta_bic, 1e6 * before.heldout_rms, 1e6 * h, -100.0 * gain, before.heldout_force_rms, stats(&held.forces).0, cv_bic, t
+            );
+            let excess = |r: f64| {
+                if ctx.sigma_declared {
+                    (r * r - 3.0 * ctx.sigma * ctx.sigma).max(0.0).sqrt()
+                } else {
+                    r
+                }
+            };
+            let excess_gain = 1.0 - excess(h) / excess(before.heldout_rms).max(1e-300);
+            let verdict = format!(
+                "{verdict}; {} {:.0}% lower (≥ {:.0}% required)",
+                if ctx.sigma_declared {
+                    "held-out error in excess of the noise floor"
+                } else {
+                    "held-out RMS"
+                },
+                100.0 * excess_gain,
+                100.0 * o.min_holdout_gain
+            );
+            let passes = cv_bic < 0.0 && excess_gain >= o.min_holdout_gain;
+            match &adopted {
+                None if passes => {
+                    reasons.push(format!("adopt {verdict}"));
+                    adopted = Some((best.candidate, bf.clone(), held, cv_bic));
+                }
+                Some(a) if passes && cv_bic < a.3 => {
+                    reasons.push(format!(
+                        "AMBIGUOUS: {verdict} — also passes and predicts the held-out measurements better than {} (held-out ΔBIC {:.1}); these measurements cannot tell the two apart",
+                        a.0.name(),
+                        a.3
+                    ));
+                    ambiguous.push(best.candidate);
+                }
+                Some(_) if passes => {
+                    reasons.push(format!("also passes (second in order) {verdict}"))
+                }
+                _ => reasons.push(format!("reject {verdict}")),
+            }
+        }
+        step.ambiguous_with = ambiguous;
+        if tried.is_empty() {
+            reasons.push(format!(
+                "the model already holds {} effects (the maximum): stop",
+                current.model.effects.len()
+            ));
+        } else if adopted.is_none() {
+            let b = &tried[0].0;
+            reasons.push(format!(
+                "nothing significant left (best ΔBIC {:.1} for {}; threshold −{})",
+                b.delta_bic,
+                b.candidate.name(),
+                o.bic_threshold
+            ));
+        }
+        step.reason = reasons.join("; ");
+        step.tried = tried.iter().map(|(t, _)| t.clone()).collect();
+        match adopted {
+            Some((c, f, held, _)) => {
+                let (xl, yl, before_pts) = evidence_points(c, &ctx, &current);
+                let (_, _, after_pts) = evidence_points(c, &ctx, &f);
+                step.evidence = Some((xl.into(), yl.into(), before_pts, after_pts));
+                step.adopted = Some(c);
+                step.new_params = effect_params(&ctx, &f, c);
+                step.after = Some(errors(&ctx, &f, &held));
+                current = f;
+                current_held = held;
+                if let Some(corr) = correction.as_mut() {
+                    // δ at the adopted model, so the next round's residual is the refined
+                    // model's.
+                    progress(&format!(
+                        "round {round}: refreshing the approximation-error correction"
+                    ));
+                    current = refresh(&mut ctx, corr, &current, o.max_iterations)?;
+                    current_held = holdout(&ctx, &current, o.holdout_iterations)?;
+                }
+                steps.push(step);
+            }
+            None => {
+                steps.push(step);
+                break;
+            }
+        }
+    }
+    let after = errors(&ctx, &current, &current_held);
+    solved_on.correction_rms = ctx.correction.as_deref().map(approx_error::delta_rms);
+    progress("estimating the marker noise level (local nugget)");
+    let fields: Vec<noise::Field> = signature::residual_vectors(&ctx, &current)
+        .iter()
+        .map(|r| r.iter().map(|&(k, e)| (ctx.marker_rest[k], e)).collect())
+        .collect();
+    let noise = estimate_noise(&fields, ctx.sigma_declared.then_some(ctx.sigma), &o.noise);
+    let noise_evidence = noise
+        .as_ref()
+        .map(|n| {
+            n.points
+                .iter()
+                .map(|&(i, p, e)| {
+                    let c = ctx.meas[current.subset[i]].point;
+                    let d = (0..3).map(|a| (p[a] - c[a]).powi(2)).sum::<f64>().sqrt();
+                    (d, e)
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let mut adopted = current.model.effects.clone();
+    if noise.as_ref().is_some_and(|n| n.fired) {
+        adopted.push(Candidate::Noise);
+    }
+    let mut final_params = base_params(&current);
+    for &c in &current.model.effects {
+        final_params.extend(effect_params(&ctx, &current, c));
+    }
+    Ok(DiagnosisReport {
+        dataset: ds.name.clone(),
+        criterion: "rank by BIC = n ln(χ²/n) + k ln n; shortlist the best cv_candidates with ΔBIC < −threshold; a shortlisted candidate passes if on leave-one-measurement-out predictions n ln(χ²_new/χ²_old) + k ln n < 0 AND the held-out error in excess of the noise floor drops by ≥ min_holdout_gain; adopt the first that passes (fitted-BIC order) and report any later one that also passes with a lower held-out ΔBIC as ambiguous; repeat; then `noise` if the one-sided 95 % lower bound of the nugget estimate σ̂ of the final residual exceeds (1 + margin) × the declared σ".into(),
+        sigma: ctx.sigma,
+        sigma_declared: ctx.sigma_declared,
+        noise_floor: ctx.sigma * 3f64.sqrt(),
+        options: o.clone(),
+        adopted,
+        noise,
+        noise_evidence,
+        steps,
+        before: first,
+        mesh_error,
+        solved_on,
+        after,
+        young_poisson: (current.theta[0].exp(), poisson_of(current.theta[1])),
+        final_params,
+        seconds: started.elapsed().as_secs_f64(),
+        final_fit: Some(current),
+        context: Some(ctx),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn estimate(rms: f64, refined_tets: usize) -> MeshErrorSummary {
+        MeshErrorSummary {
+            rms,
+            max: 2.0 * rms,
+            refined_tets,
+        }
+    }
+
+    /// The auto rule corrects exactly when the mesh error is over the threshold fraction of the
+    /// floor and the refined mesh is within the limit; a forced choice is obeyed, and a forced
+    /// refinement that cannot be made is an error naming the sizes.
+    #[test]
+    fn mesh_decision_follows_the_rule() {
+        let o = DiagnoseOptions {
+            refine_above: 0.5,
+            ..DiagnoseOptions::default()
+        };
+        let floor = 173.2e-6;
+        let limit = o.refine_max_tets;
+        let decide = |e: Option<MeshErrorSummary>| mesh_decision(&o, 648, e.as_ref(), floor);
+        let corrected = |e| decide(Some(e)).unwrap().0 == MeshChoice::Corrected;
+        assert!(corrected(estimate(0.51 * floor, 5184)));
+        assert!(!corrected(estimate(0.49 * floor, 5184)));
+        let (c, why) = decide(Some(estimate(0.9 * floor, limit + 1))).unwrap();
+        assert!(
+            c == MeshChoice::Dataset && why.contains("over the limit"),
+            "{why}"
+        );
+        assert_eq!(decide(None).unwrap().0, MeshChoice::Dataset);
+        let always = DiagnoseOptions::default();
+        let got = mesh_decision(&always, 648, Some(&estimate(1e-9, 5184)), floor);
+        assert_eq!(got.unwrap().0, MeshChoice::Corrected);
+        for asked in [MeshChoice::Refined, MeshChoice::Corrected] {
+            let forced = DiagnoseOptions {
+                mesh: asked,
+                ..DiagnoseOptions::default()
+            };
+            let got = mesh_decision(&forced, 648, Some(&estimate(0.0, 5184)), floor);
+            assert_eq!(got.unwrap().0, asked);
+            let e = mesh_decision(&forced, 648, None, floor)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("648") && e.contains("5184"), "{e}");
+        }
+        let never = DiagnoseOptions {
+            mesh: MeshChoice::Dataset,
+            ..DiagnoseOptions::default()
+        };
+        let got = mesh_decision(&never, 648, Some(&estimate(floor, 5184)), floor);
+        assert_eq!(got.unwrap().0, MeshChoice::Dataset);
+    }
+}

@@ -1,0 +1,839 @@
+//! The augmented forward model: the warped linear homogeneous FEM of seed 000 (the simplest model
+//! a static dataset can be fitted with) plus any set of candidate effects, each adding a few
+//! parameters. Parameters θ are dimensionless (each block has a documented scale) so one finite
+//! difference step fits all.
+//!
+//! Layout: θ₀ = log E (Pa), θ₁ = s with ν = −1/4 + 3/4 · tanh(s) (any real θ is physical), then
+//! one block per effect in the order of [`Model::effects`].
+
+use palpate_runtime::material::LambdaAlpha;
+use serde::Serialize;
+
+use super::DiagnoseError;
+use palpate_fem::dataset::{Marker, StaticDataset};
+use palpate_fem::forward::{Load, Material, SolveOptions, StaticProblem};
+use palpate_specimen::generate::rotate;
+
+/// A candidate effect of the library (each an augmented model with extra parameters).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Candidate {
+    /// Force-sensor calibration curve: f_model = f_reported · (|f_reported| / f_ref)^p. 1 param
+    /// (p). A global scale is not separable from E in a linear model, so only the power is fitted.
+    Calibration,
+    /// Tilted probe / tangential friction: f_model = f_reported + |f_reported| (a t₁ + b t₂) with
+    /// t₁, t₂ perpendicular to the mean reported direction. 2 params (a, b).
+    Tilt,
+    /// Compliant support: the fixed face moves rigidly by c_t F (translation, c_t in 1e-4 m/N)
+    /// and rotates by c_r (r × F) / h² (c_r in 1e-4 rad m/N·m, h the half width). 2 params.
+    Boundary,
+    /// Marker registration offset: one rigid transform (rotation vector in 1e-3 rad, translation
+    /// in 1e-4 m) about the mesh centre on every simulated marker. 6 params.
+    Registration,
+    /// Gravity preload: body force ρ g (ρ in 1000 kg/m³, g = the declared gravity or 9.81 m/s²
+    /// along −z) acting in every measurement. 1 param.
+    Gravity,
+    /// Inhomogeneity: log E varies over the bounding box as a trilinear field on a coarse grid
+    /// (default 3 × 3 × 2 nodes; the first node is the reference, so grid − 1 params).
+    Inhomogeneity,
+    /// Layered material: log E varies with depth below the probed face (along the mean reported
+    /// force direction), piecewise linear over [`LAYER_NODES`] equally spaced depths, the deepest
+    /// node the reference. LAYER_NODES − 1 params.
+    Layer,
+    /// A stiff or soft inclusion: log E += a exp(−½ ‖x_e − p‖² / r²), a Gaussian blob with
+    /// contrast a, centre p = p₀ + h θ (h the half width, p₀ below the mean contact point at a
+    /// quarter of the depth) and radius r = ½ h exp(θ_r). 5 params (a, p, θ_r).
+    Inclusion,
+    /// Strain stiffening (non-linear material): secant modulus E_e = E (1 + β (‖ε_e‖ / 0.1)²)
+    /// from the element's warped strain (E / (1 + |β| …) for β < 0), solved to its fixed point.
+    /// 1 param (β).
+    Stiffening,
+    /// Marker noise above the declared level. Not a model candidate (not in [`ALL_CANDIDATES`],
+    /// never part of a [`Model`]): it changes no prediction, only how large the residual floor
+    /// is. Adopted after the structural loop by the nugget test of [`super::noise`]. 0 params.
+    Noise,
+}
+
+/// Every candidate, in the order they are tried.
+pub const ALL_CANDIDATES: [Candidate; 9] = [
+    Candidate::Calibration,
+    Candidate::Tilt,
+    Candidate::Boundary,
+    Candidate::Registration,
+    Candidate::Gravity,
+    Candidate::Inhomogeneity,
+    Candidate::Layer,
+    Candidate::Inclusion,
+    Candidate::Stiffening,
+];
+
+impl Candidate {
+    /// Name (as in reports).
+    pub fn name(self) -> &'static str {
+        match self {
+            Candidate::Calibration => "calibration",
+            Candidate::Tilt => "tilt",
+            Candidate::Boundary => "boundary",
+            Candidate::Registration => "registration",
+            Candidate::Gravity => "gravity",
+            Candidate::Inhomogeneity => "inhomogeneity",
+            Candidate::Layer => "layer",
+            Candidate::Inclusion => "inclusion",
+            Candidate::Stiffening => "stiffening",
+            Candidate::Noise => "noise",
+        }
+    }
+
+    /// Number of parameters the effect adds.
+    pub fn params(self, grid: [usize; 3]) -> usize {
+        match self {
+            Candidate::Calibration | Candidate::Gravity | Candidate::Stiffening => 1,
+            Candidate::Tilt | Candidate::Boundary => 2,
+            Candidate::Registration => 6,
+            Candidate::Inhomogeneity => grid[0] * grid[1] * grid[2] - 1,
+            Candidate::Layer => LAYER_NODES - 1,
+            Candidate::Inclusion => 5,
+            Candidate::Noise => 0,
+        }
+    }
+
+    /// Starting values of its block when it is added to a fitted model (zero = the effect is
+    /// absent, except the inclusion, whose position and size are invisible at zero contrast and
+    /// so start at a modest contrast).
+    pub fn start(self, grid: [usize; 3]) -> Vec<f64> {
+        let mut v = vec![0.0; self.params(grid)];
+        if self == Candidate::Inclusion {
+            v[0] = 0.5;
+        }
+        v
+    }
+
+    /// Whether its parameters change the FEM solve (else they act on the solved markers only).
+    fn affects_solve(self) -> bool {
+        !matches!(self, Candidate::Boundary | Candidate::Registration)
+    }
+
+    /// Names and physical units of its parameters (after scaling), for reports.
+    pub fn param_names(self, grid: [usize; 3]) -> Vec<(String, &'static str, f64)> {
+        let v = |n: &str, u, s| (n.to_string(), u, s);
+        match self {
+            Candidate::Calibration => vec![v("power p", "", 1.0)],
+            Candidate::Tilt => vec![v("tangential a", "", 1.0), v("tangential b", "", 1.0)],
+            Candidate::Boundary => vec![
+                v("support compliance c_t", "m/N", 1e-4),
+                v("support rotation c_r", "m/N", 1e-4),
+            ],
+            Candidate::Registration => vec![
+                v("rotation ωx", "rad", 1e-3),
+                v("rotation ωy", "rad", 1e-3),
+                v("rotation ωz", "rad", 1e-3),
+                v("translation tx", "m", 1e-4),
+                v("translation ty", "m", 1e-4),
+                v("translation tz", "m", 1e-4),
+            ],
+            Candidate::Gravity => vec![v("density ρ", "kg/m³", 1000.0)],
+            Candidate::Inhomogeneity => (1..grid[0] * grid[1] * grid[2])
+                .map(|k| (format!("Δlog E at grid node {k}"), "", 1.0))
+                .collect(),
+            Candidate::Stiffening => vec![v("stiffening β", "", 1.0)],
+            Candidate::Layer => (0..LAYER_NODES - 1)
+                .map(|k| (format!("Δlog E at depth {k}/{}", LAYER_NODES - 1), "", 1.0))
+                .collect(),
+            Candidate::Inclusion => vec![
+                v("log contrast a", "", 1.0),
+                v("centre offset x / h", "", 1.0),
+                v("centre offset y / h", "", 1.0),
+                v("centre offset z / h", "", 1.0),
+                v("log radius θ_r (r = h/2 e^θ_r)", "", 1.0),
+            ],
+            Candidate::Noise => Vec::new(),
+        }
+    }
+}
+
+/// One measurement as the model sees it.
+#[derive(Debug, Clone)]
+pub struct MeasData {
+    /// Id.
+    pub id: String,
+    /// Contact point (m).
+    pub point: [f64; 3],
+    /// Reported force (N).
+    pub force: [f64; 3],
+    /// Probe radius (m).
+    pub radius: f64,
+    /// Observed markers.
+    pub observed: Vec<(usize, [f64; 3])>,
+}
+
+/// Everything fixed about a dataset: forward problem, markers, measurements, reference points.
+#[derive(Debug, Clone)]
+pub struct Context {
+    /// The forward problem on the mesh solved on (the dataset's, or it refined once).
+    pub problem: StaticProblem,
+    /// Markers.
+    pub markers: Vec<Marker>,
+    /// Measurements.
+    pub meas: Vec<MeasData>,
+    /// Residual scale σ (m): the declared marker noise, or 0.1 mm.
+    pub sigma: f64,
+    /// Whether σ was declared by the dataset.
+    pub sigma_declared: bool,
+    /// Largest reported force magnitude (N), the calibration reference.
+    pub f_ref: f64,
+    /// Mesh bounding-box centre (registration pivot).
+    pub centre: [f64; 3],
+    /// Centroid of the fixed nodes (support pivot).
+    pub base: [f64; 3],
+    /// Half the smaller horizontal box width (m).
+    pub half: f64,
+    /// Tangent basis perpendicular to the mean reported force.
+    pub tangents: [[f64; 3]; 2],
+    /// Gravity vector used by the gravity candidate (m/s²).
+    pub gravity: [f64; 3],
+    /// Lumped volume per node (m³).
+    pub node_volume: Vec<f64>,
+    /// Trilinear weights of each element centroid on the inhomogeneity grid: (grid node, weight).
+    pub grid_weights: Vec<Vec<(usize, f64)>>,
+    /// Inhomogeneity grid size.
+    pub grid: [usize; 3],
+    /// Forward-solver options.
+    pub solve: SolveOptions,
+    /// Rest position of each marker on the model (interpolated from the mesh).
+    pub marker_rest: Vec<[f64; 3]>,
+    /// Element centroids (m).
+    pub centroids: Vec<[f64; 3]>,
+    /// Depth of each element centroid below the probed face, as a fraction of the total depth.
+    pub depth: Vec<f64>,
+    /// Starting centre of the inclusion candidate.
+    pub inclusion_start: [f64; 3],
+    /// Node tags of the mesh solved on (for the export).
+    pub node_tags: Vec<u64>,
+    /// Approximation-error correction δ added to every predicted marker (per measurement, aligned
+    /// with its observed markers; [`super::approx_error`]); `None` = the plain dataset-mesh model.
+    pub correction: Option<Vec<Vec<[f64; 3]>>>,
+}
+
+fn norm(v: [f64; 3]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+impl Context {
+    /// Prepares a dataset.
+    pub fn new(ds: &StaticDataset, grid: [usize; 3]) -> Result<Self, DiagnoseError> {
+        if ds.measurements.len() < 2 {
+            return Err(DiagnoseError::Input(format!(
+                "dataset {:?} has {} measurements; diagnosis needs at least 2 (one is held out)",
+                ds.name,
+                ds.measurements.len()
+            )));
+        }
+        if grid.contains(&0) {
+            return Err(DiagnoseError::Input(
+                "inhomogeneity grid needs ≥ 1 node per axis".into(),
+            ));
+        }
+        let problem = StaticProblem::new(&ds.mesh, &ds.fixed_nodes, &ds.surface)?;
+        let meas: Vec<MeasData> = ds
+            .measurements
+            .iter()
+            .map(|m| MeasData {
+                id: m.id.clone(),
+                point: m.contact,
+                force: m.force,
+                radius: m.radius,
+                observed: m.observed.clone(),
+            })
+            .collect();
+        for m in &meas {
+            if m.observed.is_empty() {
+                return Err(DiagnoseError::Input(format!(
+                    "measurement {:?} has no observed marker",
+                    m.id
+                )));
+            }
+        }
+        let f_ref = meas.iter().map(|m| norm(m.force)).fold(0.0, f64::max);
+        if f_ref <= 0.0 {
+            return Err(DiagnoseError::Input("every reported force is zero".into()));
+        }
+        let (lo, hi) = ds.mesh.bounds();
+        let centre = [0, 1, 2].map(|d| 0.5 * (lo[d] + hi[d]));
+        let mut base = [0.0; 3];
+        for &n in &ds.fixed_nodes {
+            for d in 0..3 {
+                base[d] += ds.mesh.nodes[n][d] / ds.fixed_nodes.len() as f64;
+            }
+        }
+        let half = 0.5 * (hi[0] - lo[0]).min(hi[1] - lo[1]).max(1e-9);
+        let mut mean = [0.0; 3];
+        for m in &meas {
+            let n = norm(m.force).max(1e-300);
+            for d in 0..3 {
+                mean[d] += m.force[d] / n;
+            }
+        }
+        let nz = if norm(mean) > 1e-9 {
+            mean.map(|v| v / norm(mean))
+        } else {
+            [0.0, 0.0, -1.0]
+        };
+        let helper = if nz[0].abs() < 0.9 {
+            [1.0, 0.0, 0.0]
+        } else {
+            [0.0, 1.0, 0.0]
+        };
+        let t1 = cross(nz, helper);
+        let t1 = t1.map(|v| v / norm(t1));
+        let t2 = cross(nz, t1);
+        let gravity = ds.gravity.unwrap_or([0.0, 0.0, -9.81]);
+        let mut node_volume = vec![0.0; ds.mesh.nodes.len()];
+        for (t, g) in ds.mesh.tets.iter().zip(&problem.geometry) {
+            for &n in t {
+                node_volume[n] += 0.25 * g.volume;
+            }
+        }
+        let centroids = palpate_static_fit::blend::centroids(&problem);
+        let grid_weights = centroids
+            .iter()
+            .map(|&c| trilinear(c, lo, hi, grid))
+            .collect();
+        // Depth along the mean pushing direction nz, from the probed face (smallest x·nz).
+        let along = |x: &[f64; 3]| x[0] * nz[0] + x[1] * nz[1] + x[2] * nz[2];
+        let top = ds
+            .mesh
+            .nodes
+            .iter()
+            .map(along)
+            .fold(f64::INFINITY, f64::min);
+        let bottom = ds
+            .mesh
+            .nodes
+            .iter()
+            .map(along)
+            .fold(f64::NEG_INFINITY, f64::max);
+        let span = (bottom - top).max(1e-12);
+        let depth = centroids.iter().map(|c| (along(c) - top) / span).collect();
+        let mut contact_mean = [0.0; 3];
+        for m in &meas {
+            for d in 0..3 {
+                contact_mean[d] += m.point[d] / meas.len() as f64;
+            }
+        }
+        let shift = 0.25 * span - (along(&contact_mean) - top);
+        let inclusion_start = [0, 1, 2].map(|d| contact_mean[d] + shift * nz[d]);
+        let marker_rest = ds
+            .markers
+            .iter()
+            .map(|m| m.interpolate(|n| ds.mesh.nodes[n]))
+            .collect();
+        Ok(Self {
+            problem,
+            markers: ds.markers.clone(),
+            meas,
+            sigma: ds.marker_noise.unwrap_or(1e-4),
+            sigma_declared: ds.marker_noise.is_some(),
+            f_ref,
+            centre,
+            base,
+            half,
+            tangents: [t1, t2],
+            gravity,
+            node_volume,
+            grid_weights,
+            grid,
+            solve: SolveOptions {
+                increments: 3,
+                warp: true,
+                tolerance: 1e-9,
+                max_fixed_point: 40,
+            },
+            marker_rest,
+            centroids,
+            depth,
+            inclusion_start,
+            node_tags: ds.mesh.node_tags.clone(),
+            correction: None,
+        })
+    }
+
+    /// Number of residual entries of the measurements `subset`.
+    pub fn residual_len(&self, subset: &[usize]) -> usize {
+        subset
+            .iter()
+            .map(|&i| 3 * self.meas[i].observed.len())
+            .sum()
+    }
+}
+
+/// Trilinear weights of point `c` on a grid of `g` nodes spanning [lo, hi].
+fn trilinear(c: [f64; 3], lo: [f64; 3], hi: [f64; 3], g: [usize; 3]) -> Vec<(usize, f64)> {
+    let mut axis = [(0usize, 0usize, 1.0f64); 3];
+    for d in 0..3 {
+        if g[d] == 1 {
+            axis[d] = (0, 0, 1.0);
+            continue;
+        }
+        let t = ((c[d] - lo[d]) / (hi[d] - lo[d]).max(1e-300)).clamp(0.0, 1.0) * (g[d] - 1) as f64;
+        let i = (t.floor() as usize).min(g[d] - 2);
+        axis[d] = (i, i + 1, 1.0 - (t - i as f64));
+    }
+    let mut out = Vec::with_capacity(8);
+    for corner in 0..8 {
+        let mut idx = [0usize; 3];
+        let mut w = 1.0;
+        for d in 0..3 {
+            let hi_side = corner >> d & 1 == 1;
+            idx[d] = if hi_side { axis[d].1 } else { axis[d].0 };
+            w *= if hi_side { 1.0 - axis[d].2 } else { axis[d].2 };
+        }
+        if w > 0.0 {
+            out.push(((idx[2] * g[1] + idx[1]) * g[0] + idx[0], w));
+        }
+    }
+    out
+}
+
+/// Depth nodes of the layer candidate.
+pub const LAYER_NODES: usize = 4;
+
+/// Most secant passes of the stiffening fixed point.
+const STIFFENING_PASSES: usize = 30;
+/// The stiffening fixed point stops when no element's log-modulus moves by more than this.
+const STIFFENING_TOLERANCE: f64 = 1e-6;
+
+/// The stiffening law's per-element log-modulus offsets at state `x` and their gains
+/// ∂T/∂ln‖ε‖. With s = ‖ε_e‖/0.1 the secant modulus is E (1 + β s²) for β ≥ 0 — the leading
+/// form of a Yeoh c (Ī₁ − 3)² term over Neo-Hookean (Ī₁ − 3 is quadratic in the strain, so the
+/// secant grows with the squared strain) — and
+/// E / (1 + |β| s²) for β < 0 (softening), so it stays positive for any β.
+fn stiffening_target(ctx: &Context, x: &[[f64; 3]], beta: f64) -> (Vec<f64>, Vec<f64>) {
+    let rot = ctx.problem.rotations(x, true);
+    ctx.problem
+        .strains(x, &rot)
+        .iter()
+        .map(|st| {
+            let q = beta.abs() * st.iter().map(|v| v * v).sum::<f64>() / 0.01;
+            let g = 2.0 * q / (1.0 + q);
+            if beta >= 0.0 {
+                ((1.0 + q).ln(), g)
+            } else {
+                (-(1.0 + q).ln(), -g)
+            }
+        })
+        .unzip()
+}
+
+/// Per-element log-E offsets of the stiffening effect at state `x` (see [`stiffening_target`]).
+fn stiffening_log_e(ctx: &Context, x: &[[f64; 3]], beta: f64) -> Vec<f64> {
+    stiffening_target(ctx, x, beta).0
+}
+
+/// Adds the gravity candidate's lumped body force ρ V_n g (ρ in 1000 kg/m³) to `fvec`.
+fn add_gravity(ctx: &Context, rho: f64, fvec: &mut [f64]) {
+    let rho = rho * 1000.0;
+    for (n, v) in ctx.node_volume.iter().enumerate() {
+        for d in 0..3 {
+            fvec[3 * n + d] += rho * v * ctx.gravity[d];
+        }
+    }
+}
+
+/// A model: the base material plus an ordered set of effects.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct Model {
+    /// Adopted effects, in adoption order.
+    pub effects: Vec<Candidate>,
+}
+
+/// ν from θ₁.
+pub fn poisson_of(s: f64) -> f64 {
+    -0.25 + 0.75 * s.tanh()
+}
+
+/// θ₁ from ν.
+pub fn s_of(nu: f64) -> f64 {
+    ((nu + 0.25) / 0.75).clamp(-0.999_999, 0.999_999).atanh()
+}
+
+/// Simulated positions of a measurement: node positions and the observed markers' positions.
+#[derive(Debug, Clone)]
+pub struct Simulated {
+    /// Node positions per simulated measurement.
+    pub x: Vec<Vec<[f64; 3]>>,
+    /// Simulated marker positions (per measurement, aligned with `observed`).
+    pub markers: Vec<Vec<[f64; 3]>>,
+    /// Marker embeddings (triangle, barycentric) of the gravity candidate's rest scan, one per
+    /// marker (`None`: the dataset's own embedding).
+    pub embedding: Option<Vec<([usize; 3], [f64; 3])>>,
+}
+
+impl Model {
+    /// The base model.
+    pub fn base() -> Self {
+        Self {
+            effects: Vec::new(),
+        }
+    }
+
+    /// With one more effect.
+    pub fn with(&self, c: Candidate) -> Self {
+        let mut m = self.clone();
+        m.effects.push(c);
+        m
+    }
+
+    /// Total parameter count.
+    pub fn param_count(&self, grid: [usize; 3]) -> usize {
+        2 + self.effects.iter().map(|c| c.params(grid)).sum::<usize>()
+    }
+
+    /// Offset of effect `c`'s block in θ.
+    pub fn offset(&self, c: Candidate, grid: [usize; 3]) -> Option<usize> {
+        let mut o = 2;
+        for &e in &self.effects {
+            if e == c {
+                return Some(o);
+            }
+            o += e.params(grid);
+        }
+        None
+    }
+
+    /// Whether θ_j changes the FEM solve.
+    pub fn affects_solve(&self, j: usize, grid: [usize; 3]) -> bool {
+        if j < 2 {
+            return true;
+        }
+        let mut o = 2;
+        for &e in &self.effects {
+            let k = e.params(grid);
+            if j < o + k {
+                return e.affects_solve();
+            }
+            o += k;
+        }
+        false
+    }
+
+    fn block<'a>(&self, c: Candidate, theta: &'a [f64], grid: [usize; 3]) -> Option<&'a [f64]> {
+        self.offset(c, grid).map(|o| &theta[o..o + c.params(grid)])
+    }
+
+    /// The force the model applies for measurement `i`.
+    pub fn model_force(&self, ctx: &Context, theta: &[f64], i: usize) -> [f64; 3] {
+        let f = ctx.meas[i].force;
+        let fm = norm(f);
+        let mut out = f;
+        if let Some(p) = self.block(Candidate::Calibration, theta, ctx.grid) {
+            let k = if fm > 0.0 {
+                (fm / ctx.f_ref).powf(p[0])
+            } else {
+                1.0
+            };
+            out = out.map(|v| v * k);
+        }
+        if let Some(t) = self.block(Candidate::Tilt, theta, ctx.grid) {
+            let [t1, t2] = ctx.tangents;
+            out = [0, 1, 2].map(|d| out[d] + fm * (t[0] * t1[d] + t[1] * t2[d]));
+        }
+        out
+    }
+
+    /// Per-element log-E offsets of the spatial material effects (inhomogeneity, layer,
+    /// inclusion); `None` without any.
+    fn log_e_field(&self, ctx: &Context, theta: &[f64]) -> Option<Vec<f64>> {
+        let grid = self.block(Candidate::Inhomogeneity, theta, ctx.grid);
+        let layer = self.block(Candidate::Layer, theta, ctx.grid);
+        let blob = self.block(Candidate::Inclusion, theta, ctx.grid);
+        if grid.is_none() && layer.is_none() && blob.is_none() {
+            return None;
+        }
+        let mut out = vec![0.0; ctx.centroids.len()];
+        if let Some(b) = grid {
+            for (o, ws) in out.iter_mut().zip(&ctx.grid_weights) {
+                *o += ws
+                    .iter()
+                    .map(|&(k, w)| if k == 0 { 0.0 } else { w * b[k - 1] })
+                    .sum::<f64>();
+            }
+        }
+        if let Some(b) = layer {
+            // Nodes at depth k/(L−1); the deepest (k = L−1) is the reference.
+            let last = (LAYER_NODES - 1) as f64;
+            for (o, &d) in out.iter_mut().zip(&ctx.depth) {
+                let t = (d.clamp(0.0, 1.0) * last).min(last - 1e-12);
+                let k = t.floor() as usize;
+                let w = t - k as f64;
+                let at = |j: usize| if j < LAYER_NODES - 1 { b[j] } else { 0.0 };
+                *o += (1.0 - w) * at(k) + w * at(k + 1);
+            }
+        }
+        if let Some(b) = blob {
+            let p = [0, 1, 2].map(|d| ctx.inclusion_start[d] + ctx.half * b[1 + d]);
+            let r = 0.5 * ctx.half * b[4].clamp(-5.0, 5.0).exp();
+            for (o, c) in out.iter_mut().zip(&ctx.centroids) {
+                let d2: f64 = (0..3).map(|d| (c[d] - p[d]).powi(2)).sum();
+                *o += b[0] * (-0.5 * d2 / (r * r)).exp();
+            }
+        }
+        Some(out)
+    }
+
+    fn material(
+        &self,
+        theta: &[f64],
+        log_e: Option<&[f64]>,
+        extra: Option<&[f64]>,
+    ) -> Result<Material, DiagnoseError> {
+        let nu = poisson_of(theta[1]);
+        let check = |e: f64| {
+            if e.is_finite() && e > 0.0 && e < 1e15 {
+                Ok(LambdaAlpha::from_young_poisson(e, nu))
+            } else {
+                Err(DiagnoseError::Diverged(format!(
+                    "Young's modulus {e:e} Pa left the physical range"
+                )))
+            }
+        };
+        match (log_e, extra) {
+            (None, None) => Ok(Material::homogeneous(check(theta[0].exp())?)),
+            _ => {
+                let n = log_e
+                    .map(|v| v.len())
+                    .or(extra.map(|v| v.len()))
+                    .unwrap_or(0);
+                let ps: Result<Vec<_>, _> = (0..n)
+                    .map(|e| {
+                        check(
+                            (theta[0] + log_e.map_or(0.0, |v| v[e]) + extra.map_or(0.0, |v| v[e]))
+                                .exp(),
+                        )
+                    })
+                    .collect();
+                Ok(Material::per_element(&ps?))
+            }
+        }
+    }
+
+    /// Solves the measurements in `subset` (warm-started from `warm` if given: one x per
+    /// measurement in `subset` order) and returns node and marker positions.
+    pub fn simulate(
+        &self,
+        ctx: &Context,
+        theta: &[f64],
+        subset: &[usize],
+        warm: Option<&[Vec<[f64; 3]>]>,
+    ) -> Result<Simulated, DiagnoseError> {
+        let log_e = self.log_e_field(ctx, theta);
+        let mut xs = Vec::with_capacity(subset.len());
+        for (k, &i) in subset.iter().enumerate() {
+            let m = &ctx.meas[i];
+            let f = self.model_force(ctx, theta, i);
+            let mut fvec = ctx
+                .problem
+                .force_vector(&Load::contact(m.point, f, m.radius))
+                .map_err(|e| DiagnoseError::Input(format!("measurement {:?}: {e}", m.id)))?;
+            if let Some(rho) = self.block(Candidate::Gravity, theta, ctx.grid) {
+                add_gravity(ctx, rho[0], &mut fvec);
+            }
+            let start = warm.map(|w| w[k].as_slice());
+            let stiffening = self.block(Candidate::Stiffening, theta, ctx.grid);
+            // Warm-started (a Jacobian column, an LM trial, a held-out refit): the secant moduli
+            // at the warm state are already close to the fixed point, so start there rather than
+            // from the linear material (measured: a stiffening-only diagnosis of a 648-tet
+            // specimen takes 14.8 s of CPU instead of 28 s, with identical scores).
+            let m0 = match (stiffening, start) {
+                (Some(b), Some(w)) => Some(stiffening_log_e(ctx, w, b[0])),
+                _ => None,
+            };
+            let mat = self.material(theta, log_e.as_deref(), m0.as_deref())?;
+            let mut x = ctx
+                .problem
+                .solve_forces(&mat, &fvec, start, &ctx.solve)?
+                .solution
+                .x;
+            if let Some(beta) = stiffening {
+                // The secant material is a fixed point m = T(ε(x(m))); solve it by Newton on
+                // each element's log-modulus offset, with the local estimate ∂ln‖ε‖/∂m ≈ −1
+                // (strain inversely proportional to the local modulus) — plain substitution
+                // diverges once the stiffening doubles the modulus (its gain reaches 2).
+                let mut m = m0.unwrap_or_else(|| vec![0.0; ctx.problem.element_count()]);
+                // Each pass is one linear solve with the rotations and the material of the
+                // current state (a joint fixed point); the rotations are converged to the
+                // forward model's own tolerance by the final solve.
+                let pass = SolveOptions {
+                    max_fixed_point: 0,
+                    ..ctx.solve
+                };
+                for k in 0..=STIFFENING_PASSES {
+                    let (target, gain) = stiffening_target(ctx, &x, beta[0]);
+                    let mut change = 0.0f64;
+                    for e in 0..m.len() {
+                        let step = (target[e] - m[e]) / (1.0 + gain[e]).max(0.25);
+                        m[e] += step;
+                        change = change.max(step.abs());
+                    }
+                    let last = change < STIFFENING_TOLERANCE || k == STIFFENING_PASSES;
+                    let mat = self.material(theta, log_e.as_deref(), Some(&m))?;
+                    x = ctx
+                        .problem
+                        .solve_forces(&mat, &fvec, Some(&x), if last { &ctx.solve } else { &pass })?
+                        .solution
+                        .x;
+                    if last {
+                        break;
+                    }
+                }
+            }
+            xs.push(x);
+        }
+        let embedding = match self.block(Candidate::Gravity, theta, ctx.grid) {
+            Some(rho) => Some(self.rest_scan_embedding(ctx, theta, log_e.as_deref(), rho[0])?),
+            None => None,
+        };
+        Ok(Simulated {
+            markers: self.markers_from(ctx, theta, subset, &xs, embedding.as_deref()),
+            x: xs,
+            embedding,
+        })
+    }
+
+    /// Where the markers sit on the unloaded object when the rest scan was taken under gravity
+    /// (the gravity candidate: "the rest scan was taken under gravity"). The dataset embeds each
+    /// marker's scanned position at the nearest surface point; under a preload that scan is the
+    /// sagged position, so on a side face the nearest point is a material point shifted by the
+    /// sag, and the model would apply the sag twice. The material point X of marker k solves
+    /// X + u_g(X) = rest_k with u_g the gravity-only displacement at θ: one fixed-point step
+    /// from the dataset's embedding (u_g varies slowly over the surface; the sag is a fraction of
+    /// an element), re-located on the surface.
+    fn rest_scan_embedding(
+        &self,
+        ctx: &Context,
+        theta: &[f64],
+        log_e: Option<&[f64]>,
+        rho: f64,
+    ) -> Result<Vec<([usize; 3], [f64; 3])>, DiagnoseError> {
+        let mut fvec = vec![0.0; 3 * ctx.node_volume.len()];
+        add_gravity(ctx, rho, &mut fvec);
+        let mat = self.material(theta, log_e, None)?;
+        let xg = ctx
+            .problem
+            .solve_forces(&mat, &fvec, None, &ctx.solve)?
+            .solution
+            .x;
+        Ok(ctx
+            .markers
+            .iter()
+            .zip(&ctx.marker_rest)
+            .map(|(m, surface_point)| {
+                let sagged = m.interpolate(|n| xg[n]);
+                let q = [0, 1, 2].map(|d| m.rest[d] - (sagged[d] - surface_point[d]));
+                match palpate_fem::dataset::embed::embed_point_in(
+                    &ctx.problem.x0,
+                    &ctx.problem.surface,
+                    q,
+                ) {
+                    Some(e) => (e.triangle, e.barycentric),
+                    None => (m.triangle, m.barycentric),
+                }
+            })
+            .collect())
+    }
+
+    /// The material the model uses at the solved state `x` (the secant moduli of the stiffening
+    /// effect evaluated at x's strains): what the runtime export blends between.
+    pub fn material_at(
+        &self,
+        ctx: &Context,
+        theta: &[f64],
+        x: &[[f64; 3]],
+    ) -> Result<Material, DiagnoseError> {
+        let log_e = self.log_e_field(ctx, theta);
+        let extra = self
+            .block(Candidate::Stiffening, theta, ctx.grid)
+            .map(|b| stiffening_log_e(ctx, x, b[0]));
+        self.material(theta, log_e.as_deref(), extra.as_deref())
+    }
+
+    /// Marker positions from solved node positions (support motion and registration applied).
+    pub fn markers_from(
+        &self,
+        ctx: &Context,
+        theta: &[f64],
+        subset: &[usize],
+        xs: &[Vec<[f64; 3]>],
+        embedding: Option<&[([usize; 3], [f64; 3])]>,
+    ) -> Vec<Vec<[f64; 3]>> {
+        let boundary = self.block(Candidate::Boundary, theta, ctx.grid);
+        let reg = self.block(Candidate::Registration, theta, ctx.grid);
+        subset
+            .iter()
+            .zip(xs)
+            .map(|(&i, x)| {
+                let m = &ctx.meas[i];
+                let f = self.model_force(ctx, theta, i);
+                let support = boundary.map(|b| {
+                    let t = f.map(|v| v * b[0] * 1e-4);
+                    let arm = [0, 1, 2].map(|d| m.point[d] - ctx.base[d]);
+                    let w = cross(arm, f).map(|v| v * b[1] * 1e-4 / (ctx.half * ctx.half));
+                    (t, w)
+                });
+                let delta = ctx.correction.as_ref().map(|c| &c[i]);
+                m.observed
+                    .iter()
+                    .enumerate()
+                    .map(|(j, &(k, _))| {
+                        let mut p = match embedding {
+                            Some(e) => {
+                                let (t, b) = e[k];
+                                std::array::from_fn(|d| (0..3).map(|j| b[j] * x[t[j]][d]).sum())
+                            }
+                            None => ctx.markers[k].interpolate(|n| x[n]),
+                        };
+                        if let Some(d) = delta {
+                            p = [0, 1, 2].map(|a| p[a] + d[j][a]);
+                        }
+                        if let Some((t, w)) = support {
+                            let r = [0, 1, 2].map(|d| p[d] - ctx.base[d]);
+                            let wr = cross(w, r);
+                            p = [0, 1, 2].map(|d| p[d] + t[d] + wr[d]);
+                        }
+                        if let Some(g) = reg {
+                            let w = [g[0], g[1], g[2]].map(|v| v * 1e-3);
+                            let r = rotate(w, [0, 1, 2].map(|d| p[d] - ctx.centre[d]));
+                            p = [0, 1, 2].map(|d| ctx.centre[d] + r[d] + g[3 + d] * 1e-4);
+                        }
+                        p
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// Scaled residuals (simulated − measured)/σ of `subset`, stacked.
+    pub fn residuals(
+        &self,
+        ctx: &Context,
+        subset: &[usize],
+        markers: &[Vec<[f64; 3]>],
+    ) -> Vec<f64> {
+        let mut r = Vec::with_capacity(ctx.residual_len(subset));
+        for (&i, sim) in subset.iter().zip(markers) {
+            for (&(_, meas), p) in ctx.meas[i].observed.iter().zip(sim) {
+                for d in 0..3 {
+                    r.push((p[d] - meas[d]) / ctx.sigma);
+                }
+            }
+        }
+        r
+    }
+}

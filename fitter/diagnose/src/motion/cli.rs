@@ -1,0 +1,72 @@
+//! `palpate diagnose <motion dataset>`: load, diagnose, write the report and `model.palp`.
+
+use super::report::write_report;
+use super::{diagnose, Candidate, MotionOptions, ALL_CANDIDATES};
+use anyhow::Context as _;
+use palpate_fem::export::ProvenanceInfo;
+use std::path::Path;
+
+/// Runs the motion diagnosis from the command line.
+pub fn run(
+    dataset: &Path,
+    output: &Path,
+    candidates: &[String],
+    max_effects: usize,
+) -> anyhow::Result<()> {
+    let ds = palpate_motion::dataset::load(dataset)
+        .with_context(|| format!("reading motion dataset {}", dataset.display()))?;
+    let mut o = MotionOptions {
+        max_effects,
+        ..Default::default()
+    };
+    if !candidates.is_empty() {
+        o.candidates = crate::run::pick_candidates(
+            candidates,
+            &ALL_CANDIDATES,
+            Candidate::name,
+            "motion candidate",
+        )?;
+    }
+    let label = dataset.display().to_string();
+    let r = diagnose(&ds, &label, &o, &|m| eprintln!("{m}"))?;
+    let mut files = write_report(&r, output)?;
+    if let Some(mat) = &r.material {
+        let prov = ProvenanceInfo {
+            tool: format!("palpate {} diagnose", crate::VERSION),
+            source: label.clone(),
+            notes: format!(
+                "motion diagnosis: adopted [{}]; RMS marker error {:.4e} m fitted, {:.4e} m held out",
+                r.adopted.join(", "),
+                r.after.rms_fit,
+                r.after.rms_held
+            ),
+        };
+        let path = output.join("model.palp");
+        match palpate_motion::export::model_buffers(&ds.mesh, &ds.model, mat, &prov) {
+            Ok(b) => {
+                b.write(&path)
+                    .with_context(|| format!("writing {}", path.display()))?;
+                files.push(path);
+            }
+            Err(e) => eprintln!("note: model.palp not written: {e}"),
+        }
+    }
+    println!(
+        "{}: {}; RMS marker error {:.1} → {:.1} µm fitted, {:.1} → {:.1} µm held out (forecast of the last {} steps)",
+        r.dataset,
+        if r.adopted.is_empty() {
+            "clean (no effect adopted)".to_string()
+        } else {
+            format!("adopted {}", r.adopted.join(", "))
+        },
+        1e6 * r.before.rms_fit,
+        1e6 * r.after.rms_fit,
+        1e6 * r.before.rms_held,
+        1e6 * r.after.rms_held,
+        r.split.steps - r.split.fit_steps
+    );
+    for f in files {
+        println!("wrote {}", f.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,263 @@
+//! One model of the motion diagnosis: fitted on the first steps of the trajectory (the fitted
+//! part), then simulated over the whole trajectory so the last steps are a forecast (the
+//! held-out part). Residuals are kept per marker and step.
+
+use super::MotionDiagnoseError;
+use nalgebra::DMatrix;
+use palpate_motion::dataset::MotionDataset;
+use palpate_motion::model::{Material, Model, Observations, Param, ParamKind};
+use palpate_motion::optimize::{fit, FitSettings};
+use palpate_motion::sim::simulate;
+use palpate_motion::MotionError;
+use serde::Serialize;
+
+/// Where the trajectory is cut: steps `1..=fit_steps` are fitted, `fit_steps+1..=steps` held out.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Split {
+    /// Last fitted step.
+    pub fit_steps: usize,
+    /// Last simulated step.
+    pub steps: usize,
+}
+
+/// Simulated marker states and residuals of one model over the whole trajectory.
+#[derive(Debug, Clone, Default)]
+pub struct Trajectory {
+    /// Simulated marker positions, `pos[n][i]` at step n + 1 (m).
+    pub pos: Vec<Vec<[f64; 3]>>,
+    /// Simulated marker velocities (m/s).
+    pub vel: Vec<Vec<[f64; 3]>>,
+    /// Residual simulated − measured (m); `None` where the marker was not observed.
+    pub res: Vec<Vec<Option<[f64; 3]>>>,
+}
+
+/// Marker error figures of one model.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct Scores {
+    /// Scalar residual entries (3 per observed marker) on the fitted steps.
+    pub n_fit: usize,
+    /// Σ‖e‖² on the fitted steps (m²).
+    pub chi2_fit: f64,
+    /// RMS marker error √(Σ‖e‖²/count) on the fitted steps (m).
+    pub rms_fit: f64,
+    /// Largest marker error on the fitted steps (m).
+    pub max_fit: f64,
+    /// Scalar residual entries on the held-out steps.
+    pub n_held: usize,
+    /// Σ‖e‖² on the held-out steps (m²).
+    pub chi2_held: f64,
+    /// RMS marker error on the held-out steps (m).
+    pub rms_held: f64,
+    /// Largest marker error on the held-out steps (m).
+    pub max_held: f64,
+}
+
+/// A fitted model.
+#[derive(Debug, Clone)]
+pub struct FittedModel {
+    /// Free (global) parameters.
+    pub kinds: Vec<ParamKind>,
+    /// Fitted values (linear), in the order of `kinds`.
+    pub values: Vec<f64>,
+    /// 1σ of the values (Gauss–Newton, `None` if JᵀJ is singular).
+    pub sigma: Option<Vec<f64>>,
+    /// The full material (fixed quantities included).
+    pub material: Material,
+    /// Error figures.
+    pub scores: Scores,
+    /// Residuals per marker and step.
+    pub traj: Trajectory,
+    /// Simulations the optimiser ran.
+    pub evaluations: usize,
+    /// Optimiser notes (failed trial points, why it stopped).
+    pub failures: Vec<String>,
+}
+
+/// The model and observations restricted to the fitted steps.
+pub fn fitted_part(ds: &MotionDataset, split: Split) -> (Model, Observations) {
+    let mut m = ds.model.clone();
+    m.steps = split.fit_steps;
+    let mut o = ds.obs.clone();
+    o.markers.truncate(split.fit_steps);
+    o.forces.truncate(split.fit_steps);
+    (m, o)
+}
+
+/// Simulates `mat` over the whole `model` and records marker states and residuals.
+pub fn run_trajectory(
+    model: &Model,
+    mat: &Material,
+    obs: &Observations,
+) -> Result<Trajectory, MotionError> {
+    let mut t = Trajectory::default();
+    simulate(
+        model,
+        mat,
+        false,
+        |_, _| {},
+        |s| {
+            let mut pos = Vec::with_capacity(model.markers.len());
+            let mut vel = Vec::with_capacity(model.markers.len());
+            let mut res = Vec::with_capacity(model.markers.len());
+            for (i, m) in model.markers.iter().enumerate() {
+                let p = model.marker_position(m, s.x);
+                let v = model.marker_position(m, s.v);
+                let target = obs.markers.get(s.n - 1).and_then(|r| r[i]);
+                res.push(target.map(|q| [p[0] - q[0], p[1] - q[1], p[2] - q[2]]));
+                pos.push(p);
+                vel.push(v);
+            }
+            t.pos.push(pos);
+            t.vel.push(vel);
+            t.res.push(res);
+            Ok(())
+        },
+    )?;
+    Ok(t)
+}
+
+/// Error figures of a trajectory.
+pub fn scores(t: &Trajectory, split: Split) -> Scores {
+    let mut s = Scores::default();
+    let (mut cf, mut ch) = (0usize, 0usize);
+    for (n, row) in t.res.iter().enumerate() {
+        for e in row.iter().flatten() {
+            let sq = e[0] * e[0] + e[1] * e[1] + e[2] * e[2];
+            if n < split.fit_steps {
+                s.chi2_fit += sq;
+                s.max_fit = s.max_fit.max(sq.sqrt());
+                cf += 1;
+            } else {
+                s.chi2_held += sq;
+                s.max_held = s.max_held.max(sq.sqrt());
+                ch += 1;
+            }
+        }
+    }
+    s.n_fit = 3 * cf;
+    s.n_held = 3 * ch;
+    s.rms_fit = (s.chi2_fit / cf.max(1) as f64).sqrt();
+    s.rms_held = (s.chi2_held / ch.max(1) as f64).sqrt();
+    s
+}
+
+/// Fits `kinds` (global) on the fitted steps from each start in `starts` (values for `kinds`;
+/// the others stay as in `base`); with several starts each is screened for `screen_iters`
+/// LBFGS iterations and the best is continued to `max_iters`.
+pub fn fit_model(
+    ds: &MotionDataset,
+    split: Split,
+    base: &Material,
+    kinds: &[ParamKind],
+    starts: &[Vec<f64>],
+    max_iters: u64,
+    screen_iters: u64,
+) -> Result<FittedModel, MotionDiagnoseError> {
+    let (model, obs) = fitted_part(ds, split);
+    let params = Param::globals(kinds);
+    let quiet = |_: usize, _: f64| {};
+    let run = |q0: &[f64], iters: u64| {
+        let settings = FitSettings {
+            max_iters: iters,
+            ..Default::default()
+        };
+        fit(&model, base, &params, q0, &obs, &settings, &[], &quiet)
+    };
+    let mut best: Option<palpate_motion::optimize::FitResult> = None;
+    let mut evaluations = 0;
+    let mut notes = Vec::new();
+    if starts.len() > 1 {
+        for q0 in starts {
+            match run(q0, screen_iters) {
+                Ok(r) => {
+                    evaluations += r.evaluations;
+                    if best.as_ref().is_none_or(|b| r.phi < b.phi) {
+                        best = Some(r);
+                    }
+                }
+                Err(e) => notes.push(format!("start {q0:?}: {e}")),
+            }
+        }
+    }
+    let q0 = best
+        .as_ref()
+        .map_or_else(|| starts[0].clone(), |b| b.q.clone());
+    let r = run(&q0, max_iters)?;
+    evaluations += r.evaluations;
+    notes.extend(r.failures.iter().cloned());
+    let mut material = base.clone();
+    material.set(&params, &r.q);
+    let traj = run_trajectory(&ds.model, &material, &ds.obs)?;
+    let sc = scores(&traj, split);
+    let sigma = uncertainty(&model, &obs, base, kinds, &r.q, sc.chi2_fit, sc.n_fit);
+    Ok(FittedModel {
+        kinds: kinds.to_vec(),
+        values: r.q,
+        sigma,
+        material,
+        scores: sc,
+        traj,
+        evaluations,
+        failures: notes,
+    })
+}
+
+/// Observed residual entries on the fitted steps as one vector.
+fn residual_vector(
+    model: &Model,
+    obs: &Observations,
+    mat: &Material,
+) -> Result<Vec<f64>, MotionError> {
+    let t = run_trajectory(model, mat, obs)?;
+    Ok(t.res
+        .iter()
+        .flat_map(|r| r.iter().flatten().flat_map(|e| e.iter().copied()))
+        .collect())
+}
+
+/// Gauss–Newton 1σ of the values: cov(z) = s²(JᵀJ)⁻¹ with z = ln q, J by central differences
+/// (step 1e-3 in z, i.e. 0.1 % of each value), s² = χ²/(n − k); σ_q = q σ_z. `None` when a
+/// perturbed simulation fails or JᵀJ is singular (an unidentified parameter).
+fn uncertainty(
+    model: &Model,
+    obs: &Observations,
+    base: &Material,
+    kinds: &[ParamKind],
+    q: &[f64],
+    chi2: f64,
+    n: usize,
+) -> Option<Vec<f64>> {
+    let k = kinds.len();
+    if n <= k {
+        return None;
+    }
+    let params = Param::globals(kinds);
+    let h: f64 = 1e-3;
+    let mut cols = Vec::with_capacity(k);
+    for j in 0..k {
+        let mut r = [Vec::new(), Vec::new()];
+        for (s, sign) in [1.0, -1.0].into_iter().enumerate() {
+            let mut qq = q.to_vec();
+            qq[j] *= (sign * h).exp();
+            let mut mat = base.clone();
+            mat.set(&params, &qq);
+            r[s] = residual_vector(model, obs, &mat).ok()?;
+        }
+        cols.push(
+            r[0].iter()
+                .zip(&r[1])
+                .map(|(a, b)| (a - b) / (2.0 * h))
+                .collect::<Vec<f64>>(),
+        );
+    }
+    let rows = cols[0].len();
+    let j = DMatrix::from_fn(rows, k, |i, c| cols[c][i]);
+    let jtj = j.transpose() * &j;
+    let s2 = chi2 / (n - k) as f64;
+    let inv = jtj.cholesky()?.inverse();
+    Some(
+        (0..k)
+            .map(|i| q[i] * (s2 * inv[(i, i)]).max(0.0).sqrt())
+            .collect(),
+    )
+}

@@ -1,0 +1,507 @@
+//! Residual diagnosis of a motion dataset (issue 6 on top of the motion fitter, issue 4):
+//! fit the simplest model the dataset supports (Neo-Hookean, no viscosity), look at the residual
+//! per marker and step ([`signature`]), hold each candidate effect against it by refitting, keep
+//! the one that predicts held-out data, repeat, and report ([`report`]).
+//!
+//! **Held-out data = a forecast.** Parameters are fitted on the first
+//! (1 − [`MotionOptions::holdout_fraction`]) of the time steps; the whole trajectory is simulated
+//! and only the last steps are scored as held out. An extra parameter must therefore predict
+//! motion it was not fitted to.
+//!
+//! **The simplest model.** Neo-Hookean (λ, μ) with viscosity ν = 0 *held fixed* (not a parameter
+//! of the optimiser, so its log transform never sees 0; the viscous stress ν γ̇^(h−1)(∇v + ∇vᵀ)
+//! of eq. 17 is then exactly zero, h = 1 is irrelevant), density as declared in dataset.toml
+//! (1000 kg/m³ if not).
+//!
+//! **Adoption rule** (stated in every report): with n scalar marker residuals on the fitted steps,
+//! χ² their sum of squares and k the number of free parameters, BIC = n ln(χ²/n) + k ln n
+//! (unknown noise variance). A candidate passes if (a) ΔBIC < −[`MotionOptions::bic_threshold`]
+//! on the fitted steps, (b) the same criterion on the held-out steps,
+//! n_h ln(χ²_h,new/χ²_h,old) + Δk ln n_h, is negative, and (c) the held-out RMS marker error
+//! drops by at least [`MotionOptions::min_holdout_gain`]. The first passing candidate in
+//! fitted-ΔBIC order is adopted; repeat until none passes.
+
+pub mod cli;
+pub mod fit;
+pub mod report;
+pub mod signature;
+
+use fit::{fit_model, FittedModel, Scores, Split};
+use palpate_motion::dataset::{DatasetError, MotionDataset};
+use palpate_motion::model::{Material, ParamKind};
+use palpate_motion::MotionError;
+use serde::Serialize;
+use signature::{signature, Signature};
+use std::path::Path;
+
+/// Errors of the motion diagnosis.
+#[derive(Debug, thiserror::Error)]
+pub enum MotionDiagnoseError {
+    /// The dataset cannot be diagnosed (what and why).
+    #[error("{0}")]
+    Input(String),
+    /// Reading the dataset failed.
+    #[error(transparent)]
+    Dataset(#[from] DatasetError),
+    /// The simulator or optimiser failed.
+    #[error(transparent)]
+    Motion(#[from] MotionError),
+    /// Writing the report or the model failed.
+    #[error("writing the report: {0}")]
+    Write(String),
+}
+
+/// True when `dir` holds a motion dataset: a `dataset.toml` with a `dt` key (the static format
+/// has none) — [`palpate_motion::dataset::load`] then needs `trajectories.csv` or `forces.csv`.
+pub fn is_motion_dataset(dir: &Path) -> bool {
+    let Ok(text) = std::fs::read_to_string(dir.join("dataset.toml")) else {
+        return false;
+    };
+    text.parse::<toml::Table>()
+        .is_ok_and(|t| t.contains_key("dt") || t.contains_key("clamps"))
+}
+
+/// A candidate effect the simplest motion model lacks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum Candidate {
+    /// Power-law viscosity of eq. 17: ν and h free (2 parameters).
+    Viscosity,
+    /// Newtonian viscosity: ν free, h = 1 (1 parameter).
+    ViscosityNewtonian,
+    /// Density free (1 parameter); only identifiable with measured clamp forces.
+    Density,
+}
+
+/// Every candidate, in the order they are tried.
+pub const ALL_CANDIDATES: [Candidate; 3] = [
+    Candidate::Viscosity,
+    Candidate::ViscosityNewtonian,
+    Candidate::Density,
+];
+
+impl Candidate {
+    /// Name used on the command line and in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Viscosity => "viscosity",
+            Self::ViscosityNewtonian => "viscosity-newtonian",
+            Self::Density => "density",
+        }
+    }
+    /// Parameters it frees.
+    pub fn kinds(self) -> &'static [ParamKind] {
+        match self {
+            Self::Viscosity => &[ParamKind::Nu, ParamKind::PowerH],
+            Self::ViscosityNewtonian => &[ParamKind::Nu],
+            Self::Density => &[ParamKind::Density],
+        }
+    }
+    /// Effects that exclude each other (the two viscosity laws).
+    fn conflicts(self, other: Candidate) -> bool {
+        matches!(
+            (self, other),
+            (Self::Viscosity, Self::ViscosityNewtonian)
+                | (Self::ViscosityNewtonian, Self::Viscosity)
+        )
+    }
+}
+
+/// Options of [`diagnose`].
+#[derive(Debug, Clone, Serialize)]
+pub struct MotionOptions {
+    /// Candidates to try.
+    pub candidates: Vec<Candidate>,
+    /// Fraction of the time steps held out at the end of the trajectory.
+    pub holdout_fraction: f64,
+    /// Most effects adopted.
+    pub max_effects: usize,
+    /// LBFGS iteration cap of each fit.
+    pub max_iters: u64,
+    /// LBFGS iterations of each screened start of a new non-linear parameter.
+    pub screen_iters: u64,
+    /// Fitted ΔBIC must be below −this.
+    pub bic_threshold: f64,
+    /// Held-out RMS must drop by at least this fraction.
+    pub min_holdout_gain: f64,
+}
+
+impl Default for MotionOptions {
+    fn default() -> Self {
+        Self {
+            candidates: ALL_CANDIDATES.to_vec(),
+            holdout_fraction: 0.25,
+            max_effects: 2,
+            max_iters: 150,
+            screen_iters: 15,
+            bic_threshold: 10.0,
+            min_holdout_gain: 0.05,
+        }
+    }
+}
+
+/// A fitted parameter with its 1σ.
+#[derive(Debug, Clone, Serialize)]
+pub struct Value {
+    /// Name (lambda, mu, nu, h, density).
+    pub name: String,
+    /// Value (SI).
+    pub value: f64,
+    /// 1σ (Gauss–Newton; `None` when not available).
+    pub sigma: Option<f64>,
+}
+
+/// One candidate's refit and scores.
+#[derive(Debug, Clone, Serialize)]
+pub struct Trial {
+    /// Candidate name.
+    pub candidate: String,
+    /// False when the candidate was not fitted (see `reason`).
+    pub fitted: bool,
+    /// Free parameters of the augmented model.
+    pub k: usize,
+    /// Fitted values.
+    pub values: Vec<Value>,
+    /// Error figures.
+    pub scores: Scores,
+    /// ΔBIC on the fitted steps.
+    pub delta_bic: f64,
+    /// ΔBIC on the held-out steps.
+    pub heldout_delta_bic: f64,
+    /// Relative change of the held-out RMS (negative = better).
+    pub heldout_gain: f64,
+    /// Passes the rule.
+    pub passed: bool,
+    /// Why it passed or failed.
+    pub reason: String,
+    /// Simulations.
+    pub evaluations: usize,
+}
+
+/// One round: the residual of the current model and what was tried against it.
+#[derive(Debug, Clone, Serialize)]
+pub struct Round {
+    /// 1-based.
+    pub round: usize,
+    /// Effects adopted before this round.
+    pub model: Vec<String>,
+    /// Signature of the current residual.
+    pub signature: Signature,
+    /// Candidates tried.
+    pub trials: Vec<Trial>,
+    /// Adopted candidate, if any.
+    pub adopted: Option<String>,
+}
+
+/// The diagnosis of a motion dataset.
+#[derive(Debug, Clone, Serialize)]
+pub struct MotionDiagnosis {
+    /// Dataset label.
+    pub dataset: String,
+    /// Tets, markers, steps, dt.
+    pub size: (usize, usize, usize, f64),
+    /// Split into fitted and held-out steps.
+    pub split: Split,
+    /// Whether dataset.toml declares the density.
+    pub density_declared: bool,
+    /// Options used.
+    pub options: MotionOptions,
+    /// The rule, in words.
+    pub rule: String,
+    /// Rounds.
+    pub rounds: Vec<Round>,
+    /// Adopted effects in order.
+    pub adopted: Vec<String>,
+    /// Simplest model: parameters and scores.
+    pub before_values: Vec<Value>,
+    /// Simplest model's scores.
+    pub before: Scores,
+    /// Final model's parameters (all five material quantities; fixed ones with `sigma: None`).
+    pub after_values: Vec<Value>,
+    /// Final model's scores.
+    pub after: Scores,
+    /// Signature of the final residual.
+    pub final_signature: Signature,
+    /// Residual vs relative marker speed, simplest model (for the plot).
+    pub speed_before: Vec<(f64, f64)>,
+    /// Same for the final model.
+    pub speed_after: Vec<(f64, f64)>,
+    /// Final material (for export; not serialised).
+    #[serde(skip)]
+    pub material: Option<Material>,
+}
+
+fn values_of(m: &FittedModel) -> Vec<Value> {
+    ParamKind::ALL
+        .iter()
+        .map(|&k| {
+            let i = m.kinds.iter().position(|&x| x == k);
+            let value = match i {
+                Some(i) => m.values[i],
+                None => m.material.get(k, 0),
+            };
+            Value {
+                name: format!("{}{}", k.name(), if i.is_some() { "" } else { " (fixed)" }),
+                value,
+                sigma: i.and_then(|i| m.sigma.as_ref().map(|s| s[i])),
+            }
+        })
+        .collect()
+}
+
+fn bic(chi2: f64, n: usize, k: usize) -> f64 {
+    let n = n.max(1) as f64;
+    n * (chi2.max(f64::MIN_POSITIVE) / n).ln() + k as f64 * n.ln()
+}
+
+/// Starting values of a candidate's parameters, given the current fit.
+fn starts(c: Candidate, cur: &FittedModel, ds: &MotionDataset) -> Vec<Vec<f64>> {
+    let base: Vec<f64> = cur.values.clone();
+    let mu = cur.material.get(ParamKind::Mu, 0);
+    let dt = ds.model.dt;
+    match c {
+        // Viscous time τ = ν/μ over three decades around the step: 0.03, 0.3 and 3 Δt.
+        Candidate::Viscosity | Candidate::ViscosityNewtonian => [0.03, 0.3, 3.0]
+            .iter()
+            .map(|f| {
+                let mut q = base.clone();
+                q.push(mu * f * dt);
+                if c == Candidate::Viscosity {
+                    q.push(1.0);
+                }
+                q
+            })
+            .collect(),
+        Candidate::Density => {
+            let mut q = base;
+            q.push(cur.material.get(ParamKind::Density, 0));
+            vec![q]
+        }
+    }
+}
+
+/// Runs the diagnosis. `log` receives one line per fit.
+pub fn diagnose(
+    ds: &MotionDataset,
+    label: &str,
+    o: &MotionOptions,
+    log: &dyn Fn(&str),
+) -> Result<MotionDiagnosis, MotionDiagnoseError> {
+    let observed = ds.obs.markers.iter().flatten().flatten().count();
+    if observed == 0 {
+        return Err(MotionDiagnoseError::Input(format!(
+            "{label}: no marker observations (trajectories.csv): the motion diagnosis reads the \
+             residual of tracked markers; a forces-only dataset can be fitted with \
+             `palpate fit-motion` but not diagnosed"
+        )));
+    }
+    let steps = ds.model.steps;
+    if steps < 8 {
+        return Err(MotionDiagnoseError::Input(format!(
+            "{label}: {steps} time steps; the diagnosis needs at least 8 (the last {:.0} % are \
+             held out as a forecast)",
+            100.0 * o.holdout_fraction
+        )));
+    }
+    let fit_steps =
+        ((steps as f64 * (1.0 - o.holdout_fraction)).round() as usize).clamp(2, steps - 1);
+    let split = Split { fit_steps, steps };
+    let ne = ds.model.tets.len();
+    let init = &ds.config.initial;
+    let density = ds.config.density.unwrap_or(1000.0);
+    let has_forces = ds.obs.forces.iter().flatten().flatten().count() > 0;
+    let base = Material::uniform(ne, init.lambda, init.mu, 0.0, 1.0, density);
+    log(&format!(
+        "{label}: {ne} tets, {} markers, {steps} steps of {:.4} s; fitting steps 1..={fit_steps}, \
+         forecasting {}..={steps}",
+        ds.model.markers.len(),
+        ds.model.dt,
+        fit_steps + 1
+    ));
+    let elastic = [ParamKind::Lambda, ParamKind::Mu];
+    let simplest = fit_model(
+        ds,
+        split,
+        &base,
+        &elastic,
+        &[vec![init.lambda, init.mu]],
+        o.max_iters,
+        o.screen_iters,
+    )?;
+    log(&format!(
+        "simplest (elastic): RMS {:.1} µm fitted, {:.1} µm held out",
+        1e6 * simplest.scores.rms_fit,
+        1e6 * simplest.scores.rms_held
+    ));
+    let mut cur = simplest.clone();
+    let mut adopted: Vec<Candidate> = Vec::new();
+    let mut rounds = Vec::new();
+    for round in 1..=o.max_effects.max(1) {
+        let sig = signature(ds, split, &cur);
+        let mut trials: Vec<(Trial, Option<FittedModel>, Candidate)> = Vec::new();
+        for &c in &o.candidates {
+            if adopted.iter().any(|&a| a == c || a.conflicts(c)) {
+                continue;
+            }
+            let skip = |reason: String| Trial {
+                candidate: c.name().into(),
+                fitted: false,
+                k: cur.kinds.len() + c.kinds().len(),
+                values: Vec::new(),
+                scores: Scores::default(),
+                delta_bic: f64::NAN,
+                heldout_delta_bic: f64::NAN,
+                heldout_gain: f64::NAN,
+                passed: false,
+                reason,
+                evaluations: 0,
+            };
+            if c == Candidate::Density && !has_forces {
+                trials.push((
+                    skip(
+                        "not identifiable from markers alone: with prescribed clamps the motion \
+                         depends on λ/ρ, μ/ρ, ν/ρ only (M a = f_int + M g), so ρ needs measured \
+                         clamp forces (forces.csv)"
+                            .into(),
+                    ),
+                    None,
+                    c,
+                ));
+                continue;
+            }
+            let mut kinds = cur.kinds.clone();
+            kinds.extend_from_slice(c.kinds());
+            let r = fit_model(
+                ds,
+                split,
+                &cur.material,
+                &kinds,
+                &starts(c, &cur, ds),
+                o.max_iters,
+                o.screen_iters,
+            );
+            let m = match r {
+                Ok(m) => m,
+                Err(e) => {
+                    trials.push((skip(format!("fit failed: {e}")), None, c));
+                    continue;
+                }
+            };
+            let dk = c.kinds().len();
+            let s0 = &cur.scores;
+            let s1 = &m.scores;
+            let delta_bic = bic(s1.chi2_fit, s1.n_fit, kinds.len())
+                - bic(s0.chi2_fit, s0.n_fit, cur.kinds.len());
+            let heldout_delta_bic = s1.n_held as f64 * (s1.chi2_held / s0.chi2_held).ln()
+                + dk as f64 * (s1.n_held.max(1) as f64).ln();
+            let heldout_gain = s1.rms_held / s0.rms_held - 1.0;
+            let a = delta_bic < -o.bic_threshold;
+            let b = heldout_delta_bic < 0.0;
+            let g = heldout_gain <= -o.min_holdout_gain;
+            let passed = a && b && g;
+            let reason = if passed {
+                format!(
+                    "passes: ΔBIC {delta_bic:.1} < −{}, held-out ΔBIC {heldout_delta_bic:.1} < 0, \
+                     held-out RMS {:+.1} % (≤ −{:.0} %)",
+                    o.bic_threshold,
+                    100.0 * heldout_gain,
+                    100.0 * o.min_holdout_gain
+                )
+            } else {
+                let mut why = Vec::new();
+                if !a {
+                    why.push(format!("ΔBIC {delta_bic:.1} not < −{}", o.bic_threshold));
+                }
+                if !b {
+                    why.push(format!("held-out ΔBIC {heldout_delta_bic:.1} not < 0"));
+                }
+                if !g {
+                    why.push(format!(
+                        "held-out RMS {:+.1} % (needs ≤ −{:.0} %)",
+                        100.0 * heldout_gain,
+                        100.0 * o.min_holdout_gain
+                    ));
+                }
+                format!("fails: {}", why.join("; "))
+            };
+            log(&format!(
+                "round {round}: {}: RMS {:.1}/{:.1} µm, ΔBIC {delta_bic:.1}, held-out ΔBIC \
+                 {heldout_delta_bic:.1}, {reason}",
+                c.name(),
+                1e6 * s1.rms_fit,
+                1e6 * s1.rms_held
+            ));
+            let values = values_of(&m)
+                .into_iter()
+                .filter(|v| !v.name.ends_with("(fixed)"))
+                .collect();
+            trials.push((
+                Trial {
+                    candidate: c.name().into(),
+                    fitted: true,
+                    k: kinds.len(),
+                    values,
+                    scores: m.scores,
+                    delta_bic,
+                    heldout_delta_bic,
+                    heldout_gain,
+                    passed,
+                    reason,
+                    evaluations: m.evaluations,
+                },
+                Some(m),
+                c,
+            ));
+        }
+        let best = trials
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| t.0.passed)
+            .min_by(|a, b| a.1 .0.delta_bic.total_cmp(&b.1 .0.delta_bic))
+            .map(|(i, _)| i);
+        let adopted_name = best.map(|i| trials[i].2.name().to_string());
+        rounds.push(Round {
+            round,
+            model: adopted.iter().map(|c| c.name().to_string()).collect(),
+            signature: sig,
+            trials: trials.iter().map(|t| t.0.clone()).collect(),
+            adopted: adopted_name,
+        });
+        let Some(i) = best else { break };
+        let (_, m, c) = trials.swap_remove(i);
+        // A trial passes only when it was fitted; a missing fit ends the loop rather than panics.
+        let Some(m) = m else { break };
+        adopted.push(c);
+        cur = m;
+    }
+    let mut sp_b = Vec::new();
+    let final_signature = signature(ds, split, &cur);
+    sp_b.extend(signature(ds, split, &simplest).speed_bins);
+    Ok(MotionDiagnosis {
+        dataset: label.to_string(),
+        size: (ne, ds.model.markers.len(), steps, ds.model.dt),
+        split,
+        density_declared: ds.config.density.is_some(),
+        options: o.clone(),
+        rule: format!(
+            "BIC = n ln(χ²/n) + k ln n over the n scalar marker residuals (unknown noise \
+             variance). Parameters are fitted on steps 1..={fit_steps}; the whole trajectory is \
+             simulated and steps {}..={steps} are scored as held out (a forecast). A candidate \
+             passes if ΔBIC < −{} on the fitted steps AND the held-out ΔBIC (same formula on the \
+             held-out residuals) < 0 AND the held-out RMS drops by ≥ {:.0} %; the first passing \
+             candidate in fitted-ΔBIC order is adopted; repeat until none passes.",
+            fit_steps + 1,
+            o.bic_threshold,
+            100.0 * o.min_holdout_gain
+        ),
+        rounds,
+        adopted: adopted.iter().map(|c| c.name().to_string()).collect(),
+        before_values: values_of(&simplest),
+        before: simplest.scores,
+        after_values: values_of(&cur),
+        after: cur.scores,
+        speed_before: sp_b,
+        speed_after: final_signature.speed_bins.clone(),
+        final_signature,
+        material: Some(cur.material.clone()),
+    })
+}

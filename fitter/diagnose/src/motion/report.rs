@@ -1,0 +1,204 @@
+//! Report of a motion diagnosis: `diagnosis.md`, `diagnosis.json`, `residual-vs-speed.svg`.
+
+use super::{MotionDiagnoseError, MotionDiagnosis, Value};
+use palpate_fem::io::atomic::write_atomic;
+use palpate_plot::{lines, Series, Style};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+fn um(v: f64) -> String {
+    format!("{:.1}", 1e6 * v)
+}
+
+fn value_table(md: &mut String, vals: &[Value]) {
+    md.push_str("| parameter | value | 1σ |\n|---|---|---|\n");
+    for v in vals {
+        let s = v.sigma.map_or("—".to_string(), |s| format!("{s:.3e}"));
+        let _ = writeln!(md, "| {} | {:.4e} | {s} |", v.name, v.value);
+    }
+}
+
+/// The Markdown report.
+pub fn markdown(r: &MotionDiagnosis) -> String {
+    let mut md = String::new();
+    let (ne, nm, steps, dt) = r.size;
+    let _ = writeln!(md, "# Motion diagnosis: {}\n", r.dataset);
+    let _ = writeln!(
+        md,
+        "{ne} tets, {nm} markers, {steps} steps of {dt:.5} s. Fitted steps 1–{}, held out (forecast) \
+         steps {}–{steps}. Density {}.\n",
+        r.split.fit_steps,
+        r.split.fit_steps + 1,
+        if r.density_declared {
+            "declared in dataset.toml (held fixed unless a candidate frees it)"
+        } else {
+            "not declared: 1000 kg/m³ assumed"
+        }
+    );
+    let _ = writeln!(
+        md,
+        "**Result**: {}.\n",
+        if r.adopted.is_empty() {
+            "clean — no effect adopted (the elastic model is enough)".to_string()
+        } else {
+            format!("adopted {}", r.adopted.join(", "))
+        }
+    );
+    md.push_str("| marker error | simplest (elastic) | final | \n|---|---|---|\n");
+    let _ = writeln!(
+        md,
+        "| RMS fitted (µm) | {} | {} |\n| max fitted (µm) | {} | {} |\n| RMS held out (µm) | {} | {} |\n| max held out (µm) | {} | {} |\n",
+        um(r.before.rms_fit),
+        um(r.after.rms_fit),
+        um(r.before.max_fit),
+        um(r.after.max_fit),
+        um(r.before.rms_held),
+        um(r.after.rms_held),
+        um(r.before.max_held),
+        um(r.after.max_held)
+    );
+    let _ = writeln!(md, "**Rule**: {}\n", r.rule);
+    md.push_str("## Simplest model: Neo-Hookean, ν = 0 held fixed\n\n");
+    value_table(&mut md, &r.before_values);
+    for rd in &r.rounds {
+        let _ = writeln!(
+            md,
+            "\n## Round {} (model: elastic{})\n",
+            rd.round,
+            rd.model
+                .iter()
+                .map(|m| format!(" + {m}"))
+                .collect::<String>()
+        );
+        let s = &rd.signature;
+        let _ = writeln!(md, "Signature: {}.\n", s.reading);
+        let _ = writeln!(
+            md,
+            "- lag along the relative marker velocity: e ≈ {:.3e} s · u_rel, {:.1} % of the residual energy (ΔBIC {:.1})",
+            s.speed_coef_s,
+            100.0 * s.speed_share,
+            s.speed_dbic
+        );
+        let _ = writeln!(
+            md,
+            "- along the acceleration: e ≈ {:.3e} s² · a, {:.1} % of the residual energy (ΔBIC {:.1})",
+            s.accel_coef_s2,
+            100.0 * s.accel_share,
+            s.accel_dbic
+        );
+        let _ = writeln!(
+            md,
+            "- over time (RMS µm per eighth of the record): {} (last/first {:.2})",
+            s.time_bins
+                .iter()
+                .map(|b| um(b.1))
+                .collect::<Vec<_>>()
+                .join(", "),
+            s.drift_ratio
+        );
+        let _ = writeln!(
+            md,
+            "- per marker (RMS µm): {} (worst/median {:.2})\n",
+            s.per_marker
+                .iter()
+                .map(|(n, v)| format!("{n} {}", um(*v)))
+                .collect::<Vec<_>>()
+                .join(", "),
+            s.worst_marker_ratio
+        );
+        md.push_str("| candidate | k | RMS fitted (µm) | RMS held out (µm) | ΔBIC | held-out ΔBIC | held-out RMS | decision |\n|---|---|---|---|---|---|---|---|\n");
+        for t in &rd.trials {
+            if t.fitted {
+                let _ = writeln!(
+                    md,
+                    "| {} | {} | {} | {} | {:.1} | {:.1} | {:+.1} % | {} |",
+                    t.candidate,
+                    t.k,
+                    um(t.scores.rms_fit),
+                    um(t.scores.rms_held),
+                    t.delta_bic,
+                    t.heldout_delta_bic,
+                    100.0 * t.heldout_gain,
+                    t.reason
+                );
+            } else {
+                let _ = writeln!(
+                    md,
+                    "| {} | {} | — | — | — | — | — | not fitted: {} |",
+                    t.candidate, t.k, t.reason
+                );
+            }
+        }
+        for t in rd.trials.iter().filter(|t| t.fitted) {
+            let _ = writeln!(
+                md,
+                "\n{} fit: {}",
+                t.candidate,
+                t.values
+                    .iter()
+                    .map(|v| match v.sigma {
+                        Some(s) => format!("{} = {:.4e} ± {s:.2e}", v.name, v.value),
+                        None => format!("{} = {:.4e}", v.name, v.value),
+                    })
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
+        let _ = writeln!(
+            md,
+            "\nAdopted: {}.",
+            rd.adopted.as_deref().unwrap_or("nothing")
+        );
+    }
+    md.push_str("\n## Final model\n\n");
+    value_table(&mut md, &r.after_values);
+    md.push_str(
+        "\n1σ: Gauss–Newton s²(JᵀJ)⁻¹ on the fitted steps (J by central differences in log \
+         parameters, s² = χ²/(n − k)); marker errors within a trajectory are correlated in time, \
+         so these are lower bounds. Values are those fitted on the fitted steps (the model whose \
+         forecast is scored).\n",
+    );
+    let _ = writeln!(
+        md,
+        "\nFinal residual: {}.\n\n![residual vs speed](residual-vs-speed.svg)\n",
+        r.final_signature.reading
+    );
+    md
+}
+
+/// Writes the report files into `dir`; returns their paths.
+pub fn write_report(r: &MotionDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, MotionDiagnoseError> {
+    let w = |e: String| MotionDiagnoseError::Write(e);
+    std::fs::create_dir_all(dir).map_err(|e| w(format!("{}: {e}", dir.display())))?;
+    let mut out = Vec::new();
+    let p = dir.join("diagnosis.md");
+    write_atomic(&p, markdown(r).as_bytes()).map_err(|e| w(e.to_string()))?;
+    out.push(p);
+    let p = dir.join("diagnosis.json");
+    let json = serde_json::to_string_pretty(r).map_err(|e| w(e.to_string()))?;
+    write_atomic(&p, json.as_bytes()).map_err(|e| w(e.to_string()))?;
+    out.push(p);
+    let p = dir.join("residual-vs-speed.svg");
+    let scale = |v: &[(f64, f64)]| -> Vec<(f64, f64)> {
+        v.iter().map(|&(x, y)| (1e3 * x, 1e6 * y)).collect()
+    };
+    let (b, a) = (scale(&r.speed_before), scale(&r.speed_after));
+    let after_label = if r.adopted.is_empty() {
+        "final (= elastic)".to_string()
+    } else {
+        format!("elastic + {}", r.adopted.join(" + "))
+    };
+    lines(
+        &p,
+        "RMS marker residual vs marker speed relative to the clamp (octile bins)",
+        "|u_rel| (mm/s)",
+        "RMS residual (µm)",
+        &[
+            Series::new("elastic (simplest)", &b, Style::LinePoints),
+            Series::new(&after_label, &a, Style::LinePoints),
+        ],
+    )
+    .map_err(|e| w(e.to_string()))?;
+    out.push(p);
+    Ok(out)
+}

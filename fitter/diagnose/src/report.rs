@@ -1,0 +1,289 @@
+//! Writing a [`DiagnosisReport`]: `diagnosis.md` (step by step), `diagnosis.json` (everything),
+//! and one SVG per adopted effect showing the residual against the variable that gave it away
+//! (before and after adoption). All files go through `write_atomic`.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use super::{DiagnoseError, DiagnosisReport, Errors};
+use palpate_fem::io::atomic::write_atomic;
+use palpate_plot::{lines, Series, Style};
+
+fn um(v: f64) -> String {
+    format!("{:.1}", v * 1e6)
+}
+
+fn error_rows(s: &mut String, label: &str, e: &Errors) {
+    let _ = writeln!(
+        s,
+        "| {label} | {} | {} | {} | {} | {:.4} | {:.4} | {:.4} |",
+        um(e.fitted_rms),
+        um(e.fitted_max),
+        um(e.heldout_rms),
+        um(e.heldout_max),
+        e.force_rms,
+        e.force_max,
+        e.heldout_force_rms
+    );
+}
+
+/// The Markdown text of a report.
+pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "# Diagnosis of `{}`\n", r.dataset);
+    let verdict = if r.adopted.is_empty() {
+        "**clean**: no effect adopted".to_string()
+    } else {
+        format!(
+            "adopted: **{}**",
+            r.adopted
+                .iter()
+                .map(|c| c.name())
+                .collect::<Vec<_>>()
+                .join(" → ")
+        )
+    };
+    let _ = writeln!(s, "Verdict: {verdict}. Selection rule: {}.", r.criterion);
+    let _ = writeln!(
+        s,
+        "Marker noise σ = {} µm ({}); noise floor of the RMS marker error σ√3 = {} µm. Run time {:.1} s.\n",
+        um(r.sigma),
+        if r.sigma_declared { "declared" } else { "not declared: 100 µm used to scale" },
+        um(r.noise_floor),
+        r.seconds
+    );
+    if let Some(m) = &r.mesh_error {
+        let _ = writeln!(
+            s,
+            "Discretisation error of the dataset mesh: the simplest model solved again on the mesh refined once ({} tets) moves the markers by {} µm RMS (max {} µm). Residual structure of that size can be the mesh rather than a missing effect.\n",
+            m.refined_tets,
+            um(m.rms),
+            um(m.max)
+        );
+    }
+    let _ = writeln!(
+        s,
+        "Models solved on {} ({} tets{}); the simplest model's fitted RMS on the dataset's own mesh, uncorrected: {} µm.\n",
+        r.solved_on.reason,
+        r.solved_on.tets,
+        r.solved_on
+            .correction_rms
+            .map(|c| format!("; final correction δ = {} µm RMS", um(c)))
+            .unwrap_or_default(),
+        um(r.solved_on.dataset_mesh_rms)
+    );
+    let _ = writeln!(s, "## Error before and after\n");
+    let _ = writeln!(s, "Markers in µm; implied-force error in N (|s − 1|·|f|, s the best scale of simulated onto measured displacement). Held-out = leave-one-measurement-out.\n");
+    let _ = writeln!(s, "| model | fitted RMS | fitted max | held-out RMS | held-out max | force RMS | force max | held-out force RMS |");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|");
+    error_rows(&mut s, "simplest (linear homogeneous)", &r.before);
+    error_rows(&mut s, "final", &r.after);
+    if let Some(n) = &r.noise {
+        let _ = writeln!(s, "\n## Marker noise\n");
+        let _ = writeln!(
+            s,
+            "{}{}. Estimator: local nugget — at every marker an affine field is fitted to its {} nearest neighbours' residuals (same measurement) and extrapolated to the marker; the median of |d|²/(3(1 + v)) over its Gaussian value gives σ̂² ({} neighbourhoods in {} measurements); interval: bootstrap over measurements.",
+            if n.fired { "**Adopted `noise`**: " } else { "" },
+            n.statement,
+            r.options.noise.neighbours,
+            n.neighbourhoods,
+            n.measurements
+        );
+        if !r.noise_evidence.is_empty() {
+            let _ = writeln!(s, "\n![marker noise](noise.svg)");
+        }
+    }
+    let _ = writeln!(s, "\n## Final parameters (±1σ, Gauss–Newton covariance)\n");
+    let _ = writeln!(s, "| parameter | value | ±1σ | unit |\n|---|---|---|---|");
+    for p in &r.final_params {
+        let _ = writeln!(
+            s,
+            "| {} | {:.5e} | {:.2e} | {} |",
+            p.name, p.value, p.sd, p.unit
+        );
+    }
+    for st in &r.steps {
+        let model = if st.model.is_empty() {
+            "simplest".to_string()
+        } else {
+            st.model
+                .iter()
+                .map(|c| c.name())
+                .collect::<Vec<_>>()
+                .join(" + ")
+        };
+        let _ = writeln!(s, "\n## Round {} (model: {model})\n", st.round);
+        let sig = &st.signature;
+        let _ = writeln!(s, "Residual signature:\n");
+        let _ = writeln!(s, "- scale factor (measured/simulated displacement) vs force: correlation {:.2}; per measurement (|f| N → s): {}", sig.scale_vs_force,
+            sig.per_measurement.iter().map(|p| format!("{:.2}→{:.3}", p.force, p.scale)).collect::<Vec<_>>().join(", "));
+        let _ = writeln!(
+            s,
+            "- rigid-body part (one transform for all measurements): {:.0}% of the residual energy",
+            100.0 * sig.rigid_fraction
+        );
+        let _ = writeln!(
+            s,
+            "- persistent part (same at a marker in every measurement): {:.0}%",
+            100.0 * sig.persistent_fraction
+        );
+        let _ = writeln!(
+            s,
+            "- RMS vs distance from the contact (upper bin edge mm: µm): {}",
+            sig.vs_distance
+                .iter()
+                .map(|(d, r, _)| format!("{:.0}: {}", d * 1e3, um(*r)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        let _ = writeln!(
+            s,
+            "- per measurement RMS (µm): {}",
+            sig.per_measurement
+                .iter()
+                .map(|p| format!("{} {}", p.id, um(p.rms)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        let _ = writeln!(
+            s,
+            "- worst markers (RMS µm): {}\n",
+            sig.worst_markers
+                .iter()
+                .map(|(id, v)| format!("{id} {}", um(*v)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        if !st.tried.is_empty() {
+            let _ = writeln!(s, "| candidate | extra params | refit RMS µm | ΔBIC | held-out RMS µm | held-out ΔBIC | held-out paired t |\n|---|---|---|---|---|---|---|");
+            for t in &st.tried {
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {} | {:.1} | {} | {} | {} |",
+                    t.candidate.name(),
+                    t.extra_params,
+                    um(t.rms),
+                    t.delta_bic,
+                    t.heldout_rms.map(um).unwrap_or_else(|| "–".into()),
+                    t.heldout_delta_bic
+                        .map(|v| format!("{v:.1}"))
+                        .unwrap_or_else(|| "–".into()),
+                    t.heldout_t
+                        .map(|v| format!("{v:.2}"))
+                        .unwrap_or_else(|| "–".into())
+                );
+            }
+        }
+        let _ = writeln!(s, "\nDecision: {}", st.reason);
+        if !st.ambiguous_with.is_empty() {
+            let _ = writeln!(
+                s,
+                "\n**Ambiguous**: {} also explain(s) this residual and predict(s) the held-out measurements better than the adopted effect; more measurements (other contact points and force levels) are needed to tell them apart.",
+                st.ambiguous_with.iter().map(|c| c.name()).collect::<Vec<_>>().join(", ")
+            );
+        }
+        if let Some(a) = &st.after {
+            let _ = writeln!(s, "\n| | fitted RMS | fitted max | held-out RMS | held-out max | force RMS | force max | held-out force RMS |\n|---|---|---|---|---|---|---|---|");
+            error_rows(&mut s, "before", &st.before);
+            error_rows(&mut s, "after", a);
+            let _ = writeln!(s, "\nNew parameters:\n");
+            for p in &st.new_params {
+                let _ = writeln!(
+                    s,
+                    "- {} = {:.4e} ± {:.2e} {}",
+                    p.name, p.value, p.sd, p.unit
+                );
+            }
+        }
+        for (round, file) in plots {
+            if *round == st.round {
+                let _ = writeln!(s, "\n![evidence]({file})");
+            }
+        }
+    }
+    s
+}
+
+/// Writes `diagnosis.md`, `diagnosis.json` and the evidence plots into `dir`; returns the paths.
+pub fn write_report(r: &DiagnosisReport, dir: &Path) -> Result<Vec<PathBuf>, DiagnoseError> {
+    std::fs::create_dir_all(dir)
+        .map_err(|e| DiagnoseError::Write(format!("{}: {e}", dir.display())))?;
+    let mut written = Vec::new();
+    let mut plots = Vec::new();
+    for st in &r.steps {
+        if let (Some(c), Some((xl, yl, before, after))) = (st.adopted, &st.evidence) {
+            let file = format!("round{}-{}.svg", st.round, c.name());
+            let path = dir.join(&file);
+            let title = format!(
+                "round {}: {} (before and after adoption)",
+                st.round,
+                c.name()
+            );
+            let style = if before.len() > 40 {
+                Style::Points
+            } else {
+                Style::LinePoints
+            };
+            let mut b = before.clone();
+            let mut a = after.clone();
+            if style == Style::LinePoints {
+                b.sort_by(|p, q| p.0.total_cmp(&q.0));
+                a.sort_by(|p, q| p.0.total_cmp(&q.0));
+            }
+            lines(
+                &path,
+                &title,
+                xl,
+                yl,
+                &[
+                    Series::new("before", &b, style),
+                    Series::new("after", &a, style),
+                ],
+            )
+            .map_err(|e| DiagnoseError::Write(e.to_string()))?;
+            plots.push((st.round, file));
+            written.push(path);
+        }
+    }
+    if let Some(n) = &r.noise {
+        if !r.noise_evidence.is_empty() {
+            let path = dir.join("noise.svg");
+            let pts: Vec<(f64, f64)> = r
+                .noise_evidence
+                .iter()
+                .map(|&(d, e)| (1e3 * d, 1e6 * e))
+                .collect();
+            let xmax = pts.iter().map(|p| p.0).fold(0.0, f64::max);
+            let est = [(0.0, 1e6 * n.estimate), (xmax, 1e6 * n.estimate)];
+            let declared: Vec<(f64, f64)> = n
+                .declared
+                .map(|d| vec![(0.0, 1e6 * d), (xmax, 1e6 * d)])
+                .unwrap_or_default();
+            let mut series = vec![
+                Series::new("nugget error per marker", &pts, Style::Points),
+                Series::new("estimated σ̂", &est, Style::Line),
+            ];
+            if !declared.is_empty() {
+                series.push(Series::new("declared σ", &declared, Style::Line));
+            }
+            lines(
+                &path,
+                "marker noise: local prediction error |d|/√(3(1+v)) vs distance from the contact",
+                "distance from the contact (mm)",
+                "normalised nugget error (µm)",
+                &series,
+            )
+            .map_err(|e| DiagnoseError::Write(e.to_string()))?;
+            written.push(path);
+        }
+    }
+    let md = markdown(r, &plots);
+    let json = serde_json::to_string_pretty(r).map_err(|e| DiagnoseError::Write(e.to_string()))?;
+    for (name, text) in [("diagnosis.md", md), ("diagnosis.json", json)] {
+        let p = dir.join(name);
+        write_atomic(&p, text.as_bytes())
+            .map_err(|e| DiagnoseError::Write(format!("{}: {e:#}", p.display())))?;
+        written.push(p);
+    }
+    Ok(written)
+}

@@ -1,0 +1,169 @@
+//! One diagnosis request, whatever the input: a static dataset, a motion dataset, measured
+//! curves, or a folder of these — recognised, dispatched to its diagnosis, reported, and (for
+//! static and motion datasets) exported as the diagnosed model. `palpate diagnose` is a thin shell
+//! over [`run`].
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context as _;
+
+use crate::model::{Candidate, ALL_CANDIDATES};
+use crate::report::write_report;
+use crate::{run_diagnosis_with, DiagnoseOptions, MeshChoice};
+use palpate_fem::dataset::StaticDataset;
+
+/// What to diagnose and how.
+#[derive(Debug, Clone)]
+pub struct Request {
+    /// Static or motion dataset directory, measured curves (CSV file or directory), or a folder
+    /// holding such inputs.
+    pub dataset: PathBuf,
+    /// Report directory.
+    pub output: PathBuf,
+    /// Candidates to try by name (empty: all).
+    pub candidates: Vec<String>,
+    /// Most effects to adopt.
+    pub max_effects: usize,
+    /// Mesh of static datasets' models.
+    pub mesh: MeshChoice,
+    /// Gauge length L0 (mm) of tension-test CSVs; fitted if `None`.
+    pub gauge_length: Option<f64>,
+}
+
+/// The candidates named in `--candidates` (`what` names the library in the error: "candidate",
+/// "motion candidate"), each looked up by name in `all`.
+pub fn pick_candidates<C: Copy>(
+    names: &[String],
+    all: &[C],
+    name: impl Fn(C) -> &'static str,
+    what: &str,
+) -> anyhow::Result<Vec<C>> {
+    names
+        .iter()
+        .map(|n| {
+            all.iter()
+                .copied()
+                .find(|&c| name(c) == n.trim())
+                .ok_or_else(|| {
+                    anyhow::anyhow!(
+                        "unknown {what} {n:?}; known: {}",
+                        all.iter().map(|&c| name(c)).collect::<Vec<_>>().join(", ")
+                    )
+                })
+        })
+        .collect()
+}
+
+/// Whether `path` is something `diagnose` reads directly: measured curves, or a directory with a
+/// `dataset.toml` (static or motion dataset).
+fn diagnosable(path: &Path) -> bool {
+    crate::curve::read::is_curve_input(path)
+        || (path.is_dir() && path.join("dataset.toml").exists())
+}
+
+/// Runs the diagnosis. A directory that is not itself a dataset or a set of curves but holds such
+/// subdirectories (e.g. a data folder with one folder per instrument) is diagnosed one
+/// subdirectory at a time, each into `<output>/<name>`.
+pub fn run(args: &Request) -> anyhow::Result<()> {
+    if args.dataset.is_dir() && !diagnosable(&args.dataset) {
+        let mut subs: Vec<PathBuf> = std::fs::read_dir(&args.dataset)
+            .with_context(|| format!("listing {}", args.dataset.display()))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.is_dir() && diagnosable(p))
+            .collect();
+        subs.sort();
+        if !subs.is_empty() {
+            let mut failed = Vec::new();
+            for sub in &subs {
+                let name = sub
+                    .file_name()
+                    .map(|n| n.to_os_string())
+                    .unwrap_or_default();
+                println!("== {}", sub.display());
+                if let Err(e) = diagnose_one(args, sub, &args.output.join(name)) {
+                    eprintln!("{}: {e:#}", sub.display());
+                    failed.push(sub.display().to_string());
+                }
+            }
+            if !failed.is_empty() {
+                anyhow::bail!(
+                    "{} of {} subdirectories could not be diagnosed: {}",
+                    failed.len(),
+                    subs.len(),
+                    failed.join(", ")
+                );
+            }
+            return Ok(());
+        }
+    }
+    diagnose_one(args, &args.dataset, &args.output)
+}
+
+/// Diagnoses one dataset or set of curves at `path` into `output`.
+fn diagnose_one(args: &Request, path: &Path, output: &Path) -> anyhow::Result<()> {
+    // A CSV file or a directory of CSVs without dataset.toml: measured curves (diagnose::curve).
+    if crate::curve::read::is_curve_input(path) {
+        return crate::curve::cli::run(
+            path,
+            output,
+            &args.candidates,
+            args.max_effects,
+            args.gauge_length,
+        );
+    }
+    if !path.exists() {
+        anyhow::bail!("{}: no such file or directory", path.display());
+    }
+    if path.is_dir() && !path.join("dataset.toml").exists() {
+        anyhow::bail!(
+            "{}: not a static dataset (no dataset.toml), not a motion dataset (no dataset.toml \
+             with `dt`, plus trajectories.csv) and not measured curves (no CSV file with a \
+             recognised header), and no subdirectory is any of these; see docs/dataset.md, docs/motion-dataset.md and docs/diagnose.md",
+            path.display()
+        );
+    }
+    // dataset.toml with `dt`/`clamps`: a motion dataset (docs/motion-dataset.md).
+    if path.is_dir() && crate::motion::is_motion_dataset(path) {
+        return crate::motion::cli::run(path, output, &args.candidates, args.max_effects);
+    }
+    let ds = StaticDataset::read(path).with_context(|| format!("reading {}", path.display()))?;
+    let mut o = DiagnoseOptions {
+        max_effects: args.max_effects,
+        mesh: args.mesh,
+        ..Default::default()
+    };
+    if !args.candidates.is_empty() {
+        o.candidates = pick_candidates(
+            &args.candidates,
+            &ALL_CANDIDATES,
+            Candidate::name,
+            "candidate",
+        )?;
+    }
+    let r = run_diagnosis_with(&ds, &o, |msg| eprintln!("{msg}"))?;
+    let mut files = write_report(&r, output)?;
+    let model_path = output.join("model.palp");
+    let buffers = crate::export::diagnosed_model(
+        &r,
+        &format!("palpate {} diagnose", crate::VERSION),
+        &format!("{} ({})", ds.name, path.display()),
+    )?;
+    buffers
+        .write(&model_path)
+        .with_context(|| format!("writing {}", model_path.display()))?;
+    files.push(model_path);
+    println!(
+        "{}: {}; RMS marker error {:.1} → {:.1} µm fitted, {:.1} → {:.1} µm held out (noise floor {:.1} µm)",
+        r.dataset,
+        if r.adopted.is_empty() { "clean (no effect adopted)".to_string() } else { format!("adopted {}", r.adopted.iter().map(|c| c.name()).collect::<Vec<_>>().join(", ")) },
+        1e6 * r.before.fitted_rms,
+        1e6 * r.after.fitted_rms,
+        1e6 * r.before.heldout_rms,
+        1e6 * r.after.heldout_rms,
+        1e6 * r.noise_floor
+    );
+    for f in files {
+        println!("wrote {}", f.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,384 @@
+//! Every bad-input case of the dataset format, each checking that the message names the file,
+//! the line and the field (or, for mesh geometry, the element).
+
+use crate::dataset::StaticDataset;
+use crate::mesh::boxmesh::box_mesh;
+use crate::mesh::gmsh::write_msh;
+use crate::mesh::Mesh;
+use std::path::Path;
+
+const TOML: &str =
+    "name = \"tiny\"\ndescription = \"a 10 x 10 x 5 cm box, two pokes\"\nunits = \"SI\"\n\
+mesh = \"mesh.msh\"\nfixed_group = \"bottom\"\nprobe_radius = 0.02\nmarker_noise = 1e-4\n";
+const MARKERS: &str =
+    "marker,x,y,z\nm1,0.03,0.04,0.05\nm2,0.07,0.06,0.05\n# a comment\nm3,0.1,0.05,0.02\n";
+const MEASUREMENTS: &str =
+    "measurement,marker,x,y,z\np1,m1,0.03,0.04,0.049\np1,m2,0.07,0.06,0.0495\n\
+p2,m1,0.03,0.04,0.0498\np2,m3,0.1,0.05,0.0199\n";
+const CONTACTS: &str = "measurement,x,y,z,fx,fy,fz,radius\np1,0.05,0.05,0.05,0,0,-1.5,0.02\np2,0.05,0.05,0.05,0,0,-0.5\n";
+
+/// 10 × 10 × 5 cm box, 25 mm cells (median surface edge 25 mm, embedding tolerance 6.25 mm),
+/// plus an empty group "nothing".
+fn mesh() -> Mesh {
+    let mut m = box_mesh([0.1, 0.1, 0.05], [4, 4, 2]);
+    m.node_groups.insert("nothing".into(), vec![]);
+    m
+}
+
+fn write_dataset(dir: &Path, files: &[(&str, &str)], mesh: &Mesh) {
+    write_msh(mesh, dir.join("mesh.msh")).unwrap();
+    let defaults = [
+        ("dataset.toml", TOML),
+        ("markers.csv", MARKERS),
+        ("measurements.csv", MEASUREMENTS),
+        ("contacts.csv", CONTACTS),
+    ];
+    for (name, text) in defaults {
+        let text = files
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|(_, t)| *t)
+            .unwrap_or(text);
+        std::fs::write(dir.join(name), text).unwrap();
+    }
+}
+
+/// Reads the default dataset with `files` replaced; returns the error message.
+fn error_with(files: &[(&str, &str)]) -> String {
+    error_with_mesh(files, &mesh())
+}
+
+fn error_with_mesh(files: &[(&str, &str)], mesh: &Mesh) -> String {
+    let dir = tempfile::tempdir().unwrap();
+    write_dataset(dir.path(), files, mesh);
+    StaticDataset::read(dir.path()).unwrap_err().to_string()
+}
+
+fn assert_has(msg: &str, parts: &[&str]) {
+    for p in parts {
+        assert!(msg.contains(p), "message {msg:?} lacks {p:?}");
+    }
+}
+
+#[test]
+fn good_dataset_reads_embeds_and_round_trips() {
+    let dir = tempfile::tempdir().unwrap();
+    write_dataset(dir.path(), &[], &mesh());
+    let d = StaticDataset::read(dir.path()).unwrap();
+    assert_eq!(d.name, "tiny");
+    assert_eq!(d.markers.len(), 3);
+    assert_eq!(d.measurements.len(), 2);
+    assert_eq!(d.fixed_nodes.len(), 25);
+    assert_eq!(d.marker_noise, Some(1e-4));
+    // p2 has no radius column: the default probe radius applies.
+    assert_eq!(d.measurements[1].radius, 0.02);
+    // p2 observed m1 and m3 (m2 occluded), sorted by marker index.
+    assert_eq!(
+        d.measurements[1]
+            .observed
+            .iter()
+            .map(|o| o.0)
+            .collect::<Vec<_>>(),
+        vec![0, 2]
+    );
+    // Markers on the surface embed at distance 0 and interpolate back to their rest position
+    // (exactly up to round-off of a 3-term barycentric sum).
+    for m in &d.markers {
+        assert!(m.distance < 1e-15, "{m:?}");
+        let p = m.interpolate(|i| d.mesh.nodes[i]);
+        for (a, b) in p.iter().zip(&m.rest) {
+            assert!((a - b).abs() < 1e-15);
+        }
+    }
+    // Round trip through StaticDataset::write.
+    let out = tempfile::tempdir().unwrap();
+    d.write(out.path()).unwrap();
+    let e = StaticDataset::read(out.path()).unwrap();
+    assert_eq!(e.markers, d.markers);
+    assert_eq!(e.measurements, d.measurements);
+    assert_eq!(e.mesh.nodes, d.mesh.nodes);
+    assert_eq!(e.mesh.tets, d.mesh.tets);
+    assert_eq!(
+        (e.probe_radius, e.marker_noise, e.gravity),
+        (d.probe_radius, d.marker_noise, d.gravity)
+    );
+    assert_eq!(e.description, d.description);
+}
+
+#[test]
+fn units_other_than_si_are_rejected() {
+    let toml = TOML.replace("units = \"SI\"", "units = \"mm\"");
+    let e = error_with(&[("dataset.toml", &toml)]);
+    assert_has(
+        &e,
+        &[
+            "dataset.toml:3:",
+            "field `units`",
+            "expected \"SI\"",
+            "found \"mm\"",
+        ],
+    );
+}
+
+#[test]
+fn unknown_or_missing_toml_keys_are_named() {
+    let toml = TOML.replace("probe_radius", "probe_radios");
+    let e = error_with(&[("dataset.toml", &toml)]);
+    assert_has(&e, &["dataset.toml:6:", "probe_radios"]);
+    let toml = TOML.replace("fixed_group = \"bottom\"\n", "");
+    let e = error_with(&[("dataset.toml", &toml)]);
+    assert_has(&e, &["dataset.toml:", "fixed_group"]);
+}
+
+#[test]
+fn malformed_number_names_file_line_field() {
+    let markers = MARKERS.replace("m2,0.07,0.06", "m2,0.07,0.06x");
+    let e = error_with(&[("markers.csv", &markers)]);
+    assert_has(
+        &e,
+        &[
+            "markers.csv:3:",
+            "field `y`",
+            "expected a number",
+            "found \"0.06x\"",
+        ],
+    );
+}
+
+#[test]
+fn nan_and_infinity_are_rejected() {
+    let meas = MEASUREMENTS.replace("p2,m3,0.1,0.05,0.0199", "p2,m3,0.1,NaN,0.0199");
+    let e = error_with(&[("measurements.csv", &meas)]);
+    assert_has(
+        &e,
+        &[
+            "measurements.csv:5:",
+            "field `y`",
+            "finite number",
+            "found \"NaN\"",
+        ],
+    );
+    let contacts = CONTACTS.replace("0,0,-1.5", "0,0,-inf");
+    let e = error_with(&[("contacts.csv", &contacts)]);
+    assert_has(
+        &e,
+        &[
+            "contacts.csv:2:",
+            "field `fz`",
+            "finite number",
+            "found \"-inf\"",
+        ],
+    );
+}
+
+#[test]
+fn unknown_marker_is_rejected() {
+    let meas = MEASUREMENTS.replace("p2,m3", "p2,m9");
+    let e = error_with(&[("measurements.csv", &meas)]);
+    assert_has(
+        &e,
+        &[
+            "measurements.csv:5:",
+            "field `marker`",
+            "unknown marker \"m9\"",
+        ],
+    );
+}
+
+#[test]
+fn duplicate_ids_are_rejected() {
+    let markers = MARKERS.replace("m3,", "m1,");
+    let e = error_with(&[("markers.csv", &markers)]);
+    assert_has(
+        &e,
+        &[
+            "markers.csv:5:",
+            "field `marker`",
+            "\"m1\" appears twice (first on line 2)",
+        ],
+    );
+    let contacts = CONTACTS.replace("p2,", "p1,");
+    let e = error_with(&[("contacts.csv", &contacts)]);
+    assert_has(
+        &e,
+        &[
+            "contacts.csv:3:",
+            "field `measurement`",
+            "\"p1\" appears twice",
+        ],
+    );
+    let meas = format!("{MEASUREMENTS}p1,m1,0.03,0.04,0.049\n");
+    let e = error_with(&[("measurements.csv", &meas)]);
+    assert_has(
+        &e,
+        &[
+            "measurements.csv:6:",
+            "field `marker`",
+            "\"p1/m1\" appears twice (first on line 2)",
+        ],
+    );
+}
+
+#[test]
+fn measurement_without_contact_is_rejected() {
+    let meas = format!("{MEASUREMENTS}p3,m1,0.03,0.04,0.049\n");
+    let e = error_with(&[("measurements.csv", &meas)]);
+    assert_has(
+        &e,
+        &[
+            "measurements.csv:6:",
+            "field `measurement`",
+            "\"p3\" has no contact",
+        ],
+    );
+}
+
+#[test]
+fn contact_without_measurement_rows_is_rejected() {
+    let contacts = format!("{CONTACTS}p3,0.05,0.05,0.05,0,0,-1\n");
+    let e = error_with(&[("contacts.csv", &contacts)]);
+    assert_has(
+        &e,
+        &[
+            "contacts.csv:4:",
+            "field `measurement`",
+            "\"p3\" has no rows in measurements.csv",
+        ],
+    );
+}
+
+#[test]
+fn marker_far_from_surface_says_how_far() {
+    // 10 mm above the top face; tolerance 0.25 × 25 mm = 6.25 mm.
+    let markers = MARKERS.replace("m2,0.07,0.06,0.05", "m2,0.07,0.06,0.06");
+    let e = error_with(&[("markers.csv", &markers)]);
+    assert_has(
+        &e,
+        &[
+            "markers.csv:3:",
+            "fields `x,y,z`",
+            "\"m2\" is 1.000e-2 m",
+            "tolerance is 6.250e-3 m",
+        ],
+    );
+}
+
+#[test]
+fn missing_or_empty_fixed_group_is_rejected() {
+    let toml = TOML.replace("\"bottom\"", "\"floor\"");
+    let e = error_with(&[("dataset.toml", &toml)]);
+    assert_has(
+        &e,
+        &[
+            "dataset.toml:5:",
+            "field `fixed_group`",
+            "no physical group \"floor\"",
+            "\"bottom\"",
+        ],
+    );
+    let toml = TOML.replace("\"bottom\"", "\"nothing\"");
+    let e = error_with(&[("dataset.toml", &toml)]);
+    assert_has(
+        &e,
+        &[
+            "dataset.toml:5:",
+            "field `fixed_group`",
+            "\"nothing\" of the mesh holds no node",
+        ],
+    );
+}
+
+#[test]
+fn contact_radius_covering_no_node_is_rejected() {
+    // Centre of a top cell: the nearest node is √2 × 12.5 mm = 17.68 mm away.
+    let contacts = CONTACTS.replace(
+        "p1,0.05,0.05,0.05,0,0,-1.5,0.02",
+        "p1,0.0125,0.0125,0.05,0,0,-1.5,0.005",
+    );
+    let e = error_with(&[("contacts.csv", &contacts)]);
+    assert_has(
+        &e,
+        &[
+            "contacts.csv:2:",
+            "field `radius`",
+            "\"p1\" loads no node",
+            "5.000e-3 m",
+            "nearest at 1.768e-2 m",
+        ],
+    );
+    let contacts = CONTACTS.replace(",0.02\n", ",-0.02\n");
+    let e = error_with(&[("contacts.csv", &contacts)]);
+    assert_has(
+        &e,
+        &[
+            "contacts.csv:2:",
+            "field `radius`",
+            "expected a positive number",
+        ],
+    );
+}
+
+#[test]
+fn contact_on_fixed_nodes_only_is_rejected() {
+    // On the bottom face: the only nodes within 5 mm are fixed, and the rule skips fixed nodes.
+    let contacts = CONTACTS.replace(
+        "p1,0.05,0.05,0.05,0,0,-1.5,0.02",
+        "p1,0.05,0.05,0.0,0,0,1,0.005",
+    );
+    let e = error_with(&[("contacts.csv", &contacts)]);
+    assert_has(&e, &["contacts.csv:2:", "field `radius`", "loads no node"]);
+}
+
+#[test]
+fn inverted_and_zero_volume_elements_are_rejected() {
+    // Node (1,1,1) of the 4 × 4 × 2 grid, index 31, sits at (25, 25, 25) mm.
+    let mut m = mesh();
+    assert_eq!(m.nodes[31], [0.025, 0.025, 0.025]);
+    m.nodes[31][2] = 0.0; // onto the bottom plane: the Kuhn tets below it go flat
+    let e = error_with_mesh(&[], &m);
+    assert_has(&e, &["mesh.msh", "has zero volume"]);
+    let mut m = mesh();
+    m.nodes[31] = [0.06, 0.06, 0.025]; // across its neighbours: they fold over
+    let e = error_with_mesh(&[], &m);
+    assert_has(&e, &["mesh.msh", "is inverted", "element"]);
+}
+
+#[test]
+fn bad_header_and_short_rows_are_rejected() {
+    let markers = MARKERS.replace("marker,x,y,z", "id,x,y,z");
+    let e = error_with(&[("markers.csv", &markers)]);
+    assert_has(
+        &e,
+        &[
+            "markers.csv:1:",
+            "field `header`",
+            "\"marker,x,y,z\"",
+            "found \"id,x,y,z\"",
+        ],
+    );
+    let meas = MEASUREMENTS.replace("p1,m2,0.07,0.06,0.0495", "p1,m2,0.07,0.06");
+    let e = error_with(&[("measurements.csv", &meas)]);
+    assert_has(
+        &e,
+        &[
+            "measurements.csv:3:",
+            "field `row`",
+            "expected 5 comma-separated fields",
+        ],
+    );
+}
+
+#[test]
+fn example_dataset_in_models_reads() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/dataset-example");
+    let d = StaticDataset::read(dir).unwrap();
+    assert_eq!((d.markers.len(), d.measurements.len()), (9, 2));
+    // p1 misses m9 (occluded); p2 sees all nine.
+    assert_eq!(d.measurements[0].observed.len(), 8);
+    assert_eq!(d.measurements[1].observed.len(), 9);
+    assert_eq!(d.measurements[0].radius, 0.01);
+    assert_eq!(d.measurements[1].radius, 0.008);
+    assert_eq!(d.gravity, Some([0.0, 0.0, -9.81]));
+    // The markers lie on the flat top face of the sponge: distance 0 up to round-off.
+    assert!(d.markers.iter().all(|m| m.distance < 1e-15));
+}

@@ -1,0 +1,5 @@
+//! File output helpers shared by every command: nothing is lost on a crash or error.
+
+pub mod atomic;
+pub mod text;
+pub use text::parse_vec3;

@@ -1,0 +1,288 @@
+use super::*;
+use crate::mesh::boxmesh::box_mesh;
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("src/mesh/gmsh/testdata")
+        .join(name)
+}
+
+fn total_volume(m: &Mesh) -> f64 {
+    m.tets
+        .iter()
+        .map(|t| assemble::signed_volume(&t.map(|i| m.nodes[i])))
+        .sum()
+}
+
+/// Two tetrahedra sharing face (1, 2, 3); `node5` is the apex of the second, `tet2` its node list.
+fn tiny(node5: &str, tet2: &str) -> String {
+    format!(
+        "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$PhysicalNames\n1\n2 7 \"base\"\n$EndPhysicalNames\n\
+         $Entities\n0 0 1 1\n1 0 0 0 1 1 0 1 7 0\n1 0 0 -1 1 1 1 0 0\n$EndEntities\n\
+         $Nodes\n1 5 1 5\n3 1 0 5\n1\n2\n3\n4\n5\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n{node5}\n$EndNodes\n\
+         $Elements\n2 3 1 3\n3 1 4 2\n1 1 2 3 4\n{tet2}\n2 1 2 1\n3 1 2 3\n$EndElements\n"
+    )
+}
+
+fn read_text(text: &str) -> Result<(Mesh, MshReport), MeshError> {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("t.msh");
+    std::fs::write(&p, text).unwrap();
+    read_msh_with_report(&p)
+}
+
+fn err_text(text: &str) -> String {
+    read_text(text).unwrap_err().to_string()
+}
+
+#[test]
+fn reads_gmsh_ascii_fixture_with_groups_and_unit_volume() {
+    let (m, r) = read_msh_with_report(fixture("cube-ascii.msh")).unwrap();
+    // Counts printed by Gmsh itself when it wrote the fixture (make_cube.py).
+    assert_eq!(m.tets.len(), 100);
+    assert_eq!(m.nodes.len(), 45);
+    assert_eq!(m.node_groups["bottom"].len(), 12);
+    assert_eq!(m.node_groups["body"].len(), 45);
+    // The unnamed point group (tag 3) on the corner (0, 0, 1).
+    let corner = &m.node_groups["group-3"];
+    assert_eq!(corner.len(), 1);
+    assert_eq!(m.nodes[corner[0]], [0.0, 0.0, 1.0]);
+    assert!(m.node_groups["bottom"]
+        .iter()
+        .all(|&i| m.nodes[i][2].abs() < 1e-12));
+    assert_eq!(
+        r.reoriented, 0,
+        "Gmsh writes positively oriented tetrahedra"
+    );
+    assert!(!r.binary);
+    // Unit cube: volumes sum to 1 up to round-off of ~100 terms.
+    assert!((total_volume(&m) - 1.0).abs() < 1e-12);
+}
+
+#[test]
+fn binary_fixture_matches_ascii_fixture() {
+    let (a, _) = read_msh_with_report(fixture("cube-ascii.msh")).unwrap();
+    let (b, rb) = read_msh_with_report(fixture("cube-binary.msh")).unwrap();
+    assert!(rb.binary);
+    assert_eq!(a.node_tags, b.node_tags);
+    // Gmsh prints 16 significant digits in ASCII; binary holds the exact doubles.
+    for (p, q) in a.nodes.iter().zip(&b.nodes) {
+        for k in 0..3 {
+            assert!((p[k] - q[k]).abs() <= 1e-15, "{p:?} vs {q:?}");
+        }
+    }
+    assert_eq!(a.tets, b.tets);
+    assert_eq!(a.node_groups, b.node_groups);
+}
+
+#[test]
+fn write_then_read_is_exact() {
+    let mut m = box_mesh([0.1, 0.07, 0.05], [3, 2, 2]);
+    // Sparse, shuffled tags and a group that is not a surface patch (two loose nodes).
+    m.node_tags = (0..m.nodes.len() as u64).map(|i| 1000 - 7 * i).collect();
+    m.node_groups.insert("probe points".into(), vec![0, 17]);
+    m.node_groups.insert("empty".into(), vec![]);
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("m.msh");
+    write_msh(&m, &p).unwrap();
+    let back = read_msh(&p).unwrap();
+    assert_eq!(
+        back.nodes, m.nodes,
+        "coordinates are printed with round-trip precision"
+    );
+    assert_eq!(back.node_tags, m.node_tags);
+    assert_eq!(back.tets, m.tets);
+    assert_eq!(back.node_groups, m.node_groups);
+}
+
+#[test]
+fn tiny_mesh_reads() {
+    let (m, r) = read_text(&tiny("0 0 -1", "2 1 3 2 5")).unwrap();
+    assert_eq!(m.tets.len(), 2);
+    assert_eq!(r.reoriented, 0);
+    assert_eq!(r.boundary_elements, 1);
+    assert_eq!(m.node_groups["base"], vec![0, 1, 2]);
+}
+
+#[test]
+fn negatively_listed_tetrahedra_are_reoriented_and_counted() {
+    // Second tet listed as 1 2 3 5 (negative volume, same geometry).
+    let (m, r) = read_text(&tiny("0 0 -1", "2 1 2 3 5")).unwrap();
+    assert_eq!(r.reoriented, 1);
+    assert!((total_volume(&m) - 2.0 / 6.0).abs() < 1e-15);
+}
+
+#[test]
+fn folded_element_is_reported_as_inverted() {
+    // Apex 5 moved to the same side as apex 4: element 2 overlaps element 1.
+    let e = err_text(&tiny("0.2 0.2 0.5", "2 1 3 2 5"));
+    assert!(
+        e.contains("t.msh") && e.contains("element 2 is inverted") && e.contains("element 1"),
+        "{e}"
+    );
+}
+
+#[test]
+fn zero_volume_element_names_its_tag() {
+    let e = err_text(&tiny("0.5 0.5 0", "2 1 3 2 5"));
+    assert!(
+        e.contains("t.msh") && e.contains("element 2 has zero volume"),
+        "{e}"
+    );
+}
+
+#[test]
+fn malformed_number_names_line_and_token() {
+    let e = err_text(&tiny("0 0 -1x", "2 1 3 2 5"));
+    // Line 25 holds the coordinates of node 5.
+    assert!(
+        e.contains("t.msh:25: expected node z (a number), found \"-1x\""),
+        "{e}"
+    );
+}
+
+#[test]
+fn non_finite_coordinate_is_rejected() {
+    let e = err_text(&tiny("0 NaN -1", "2 1 3 2 5"));
+    assert!(e.contains("node 5 has a non-finite coordinate"), "{e}");
+}
+
+#[test]
+fn unknown_and_duplicate_nodes_are_rejected() {
+    let e = err_text(&tiny("0 0 -1", "2 1 3 2 9"));
+    assert!(e.contains("element 2 refers to node 9"), "{e}");
+    let dup = tiny("0 0 -1", "2 1 3 2 5").replace("4\n5\n0 0 0", "4\n4\n0 0 0");
+    let e = err_text(&dup);
+    assert!(e.contains("node tag 4 appears twice"), "{e}");
+}
+
+#[test]
+fn other_volume_elements_and_versions_are_rejected() {
+    let hex = tiny("0 0 -1", "2 1 3 2 5").replace("3 1 4 2\n", "3 1 5 2\n");
+    let e = err_text(&hex);
+    assert!(
+        e.contains("element 1 has Gmsh type 5 (8-node hexahedron)"),
+        "{e}"
+    );
+    let old = tiny("0 0 -1", "2 1 3 2 5").replace("4.1 0 8", "2.2 0 8");
+    let e = err_text(&old);
+    assert!(
+        e.contains("t.msh:2: expected MSH format version 4.1") && e.contains("\"2.2\""),
+        "{e}"
+    );
+    let short = tiny("0 0 -1", "2 1 3 2");
+    let e = err_text(&short);
+    assert!(
+        e.contains("t.msh:31: expected 4 node tags for element 2 of type 4, found \"3 node tags\""),
+        "{e}"
+    );
+}
+
+#[test]
+fn truncated_file_says_end_of_file() {
+    let text = tiny("0 0 -1", "2 1 3 2 5");
+    let cut = &text[..text.find("$EndNodes").unwrap() - 8];
+    let e = err_text(cut);
+    assert!(e.contains("found end of file"), "{e}");
+}
+
+#[test]
+fn corrupt_binary_is_wrapped_with_file_and_offset() {
+    let mut bytes = std::fs::read(fixture("cube-binary.msh")).unwrap();
+    let at = bytes.windows(6).position(|w| w == b"$Nodes").unwrap();
+    bytes.truncate(at + 40);
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("bad.msh");
+    std::fs::write(&p, &bytes).unwrap();
+    let e = read_msh(&p).unwrap_err().to_string();
+    assert!(e.contains("bad.msh: binary MSH parse error at byte"), "{e}");
+}
+
+#[test]
+fn bundled_sponge_mesh_reads() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/sponge/sponge.msh");
+    let (m, r) = read_msh_with_report(path).unwrap();
+    // Counts printed by Gmsh when make_mesh.py wrote the file.
+    assert_eq!((m.nodes.len(), m.tets.len()), (1089, 4379));
+    assert_eq!(r.reoriented, 0);
+    for g in ["bottom", "top", "sides", "sponge"] {
+        assert!(!m.node_groups[g].is_empty(), "{g}");
+    }
+    assert_eq!(m.node_groups["sponge"].len(), 1089);
+    let on =
+        |g: &str, f: &dyn Fn([f64; 3]) -> bool| m.node_groups[g].iter().all(|&i| f(m.nodes[i]));
+    assert!(on("bottom", &|p| p[2].abs() < 1e-12));
+    assert!(on("top", &|p| (p[2] - 0.05).abs() < 1e-12));
+    assert!(on("sides", &|p| {
+        p[0].abs() < 1e-12
+            || (p[0] - 0.1).abs() < 1e-12
+            || p[1].abs() < 1e-12
+            || (p[1] - 0.1).abs() < 1e-12
+    }));
+    let vols: Vec<f64> = m
+        .tets
+        .iter()
+        .map(|t| assemble::signed_volume(&t.map(|i| m.nodes[i])))
+        .collect();
+    assert!(vols.iter().all(|&v| v > 0.0));
+    // 10 × 10 × 5 cm = 5e-4 m³; Gmsh prints 16 digits, so the sum is exact to ~1e-15 relative.
+    assert!((vols.iter().sum::<f64>() - 5e-4).abs() < 1e-9);
+}
+
+#[test]
+fn whole_mesh_group_round_trips_as_a_volume_group() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/sponge/sponge.msh");
+    let m = read_msh(path).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("sponge.msh");
+    write_msh(&m, &p).unwrap();
+    let text = std::fs::read_to_string(&p).unwrap();
+    assert!(
+        text.contains("3 3 \"sponge\""),
+        "the all-node group becomes a physical volume"
+    );
+    let back = read_msh(&p).unwrap();
+    assert_eq!(back.node_groups, m.node_groups);
+    assert_eq!(back.tets, m.tets);
+    assert_eq!(back.node_tags, m.node_tags);
+}
+
+#[test]
+fn absurd_counts_fail_cleanly() {
+    let text = tiny("0 0 -1", "2 1 3 2 5").replace("3 1 0 5\n", "3 1 0 99999999999999\n");
+    let e = err_text(&text);
+    assert!(e.contains("t.msh:"), "{e}");
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(256))]
+    /// Any corruption of a valid file (a byte replaced, the file cut) is an error or a mesh,
+    /// never a panic.
+    #[test]
+    fn corrupted_ascii_never_panics(at in 0usize..600, byte in proptest::prelude::any::<u8>(), cut in 0usize..700) {
+        let mut bytes = tiny("0 0 -1", "2 1 3 2 5").into_bytes();
+        let n = bytes.len();
+        bytes[at % n] = byte;
+        bytes.truncate(cut.max(1).min(n));
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("t.msh");
+        std::fs::write(&p, &bytes).unwrap();
+        let _ = read_msh(&p);
+    }
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(256))]
+    /// The same for binary files (parsed by mshio).
+    #[test]
+    fn corrupted_binary_never_panics(at in 0usize..9000, byte in proptest::prelude::any::<u8>(), cut in 0usize..9000) {
+        let mut bytes = std::fs::read(fixture("cube-binary.msh")).unwrap();
+        let n = bytes.len();
+        bytes[at % n] = byte;
+        bytes.truncate(cut.max(40).min(n));
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("b.msh");
+        std::fs::write(&p, &bytes).unwrap();
+        let _ = read_msh(&p);
+    }
+}

@@ -1,0 +1,26 @@
+//! `palpate-lab bench …`: benchmark subcommands (figures go to BENCHMARKS.md with their commands).
+
+use clap::Subcommand;
+
+/// Which benchmark to run.
+#[derive(Debug, Subcommand)]
+pub enum BenchCommand {
+    /// Displacement-based non-linear inhomogeneous static fit (adjoint Jacobians) vs finite differences.
+    Fit(super::bench_fit::Args),
+    /// The haptic tick (runtime) on a generated block, against a per-tick sparse direct solve.
+    Runtime(super::bench_runtime::Args),
+    /// Motion fitting (Real2Sim) on the MyFEM anchor bar: simulation, gradients, LBFGS.
+    Motion(super::bench_motion::Args),
+    /// The probe link over a pty: frames/s, written → solved latency at 1 kHz, host CPU.
+    Link(super::bench_link::Args),
+}
+
+/// Runs a benchmark.
+pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
+    match cmd {
+        BenchCommand::Fit(a) => super::bench_fit::run(a),
+        BenchCommand::Runtime(a) => super::bench_runtime::run(a),
+        BenchCommand::Motion(a) => super::bench_motion::run(a),
+        BenchCommand::Link(a) => super::bench_link::run(a),
+    }
+}

@@ -1,0 +1,42 @@
+//! The lab tool's commands: one file per command, each with its `Args` and `run`.
+
+use clap::{Parser, Subcommand};
+
+pub mod bench;
+pub mod bench_fit;
+pub mod bench_link;
+pub mod bench_motion;
+pub mod bench_runtime;
+pub mod diagnose_evidence;
+pub mod motion_evidence;
+pub mod motion_evidence_spline;
+
+/// palpate-lab: benchmarks and evidence runs of the palpate project.
+#[derive(Debug, Parser)]
+#[command(name = "palpate-lab", version, about, long_about = None)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// Subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Benchmarks that print a table and, as their last line, one JSON object.
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
+    /// Motion-fitter evidence runs (coarsening, recover, vhb, bimaterial) into docs/results/motion.
+    MotionEvidence(motion_evidence::Args),
+    /// Every specimen effect × seeds through diagnose: the confusion table (docs/results/diagnose).
+    DiagnoseEvidence(diagnose_evidence::Args),
+}
+
+/// Runs a parsed command line.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Bench(b) => bench::run(b),
+        Command::MotionEvidence(a) => motion_evidence::run(a),
+        Command::DiagnoseEvidence(a) => diagnose_evidence::run(a),
+    }
+}

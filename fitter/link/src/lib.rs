@@ -1,0 +1,56 @@
+//! The host side of the probe link (`protocol/LINK-FORMAT.md`): reading frames from a serial
+//! port with arrival times, writing frames, gating untrusted forces before they reach the
+//! runtime, fault injection for the hardware-in-the-loop tests, the simulated probe as a
+//! sender, stream statistics, the haptic replay over a pseudo-terminal, and the FSR calibration
+//! fit whose result the probe firmware applies.
+
+pub mod faults;
+pub mod fsr;
+pub mod gate;
+pub mod haptic;
+pub mod model_source;
+pub mod port;
+pub mod replay;
+pub mod sender;
+pub mod stats;
+
+pub use gate::{ForceGate, GateDecision};
+pub use port::{FrameReader, StdWrite};
+pub use stats::Percentiles;
+
+/// Errors of the host link.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum LinkHostError {
+    /// The serial device could not be opened.
+    #[error("opening serial port {path}: {source}")]
+    Open {
+        /// Device path.
+        path: String,
+        /// Cause.
+        source: serialport::Error,
+    },
+    /// Reading or writing the device failed.
+    #[error("{what} on {path}: {source}")]
+    Io {
+        /// Operation.
+        what: &'static str,
+        /// Device path.
+        path: String,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// The probe speaks another protocol version.
+    #[error("probe on {path} speaks link protocol version {found}, this host speaks {expected}")]
+    Version {
+        /// Device path.
+        path: String,
+        /// Peer version.
+        found: u8,
+        /// Ours.
+        expected: u8,
+    },
+    /// A frame could not be encoded.
+    #[error("encoding a frame: {0}")]
+    Encode(palpate_protocol::link::LinkError),
+}

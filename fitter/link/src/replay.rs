@@ -1,0 +1,206 @@
+//! A haptic replay over a real pseudo-terminal: the simulated probe (firmware library behind a
+//! mock ADC) writes frames on one end, the host link and the runtime read and solve on the other.
+//! `palpate demo` plays its diagnosed model this way; the link benchmark measures it.
+
+use crate::faults::{FaultPlan, FaultyWriter};
+use crate::gate::ForceGate;
+use crate::haptic::{Contact, HapticLoop};
+use crate::port::FrameReader;
+use crate::sender::{run_sender, Pacing, SenderOptions, SenderReport};
+use crate::stats::{process_cpu_seconds, thread_cpu_seconds, Percentiles};
+use anyhow::Context;
+use palpate_probe::sim::{default_config, Profile, SimProbe};
+use palpate_protocol::link::{ForceSample, Frame, LinkStats, LINK_VERSION};
+use palpate_runtime::Runtime;
+use serialport::{SerialPort, TTYPort};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// What one pass of simulated probe frames through a pseudo-terminal measured.
+pub struct Phase {
+    /// sent.
+    pub sent: SenderReport,
+    /// (seq, arrival, solved)
+    /// events.
+    pub events: Vec<(u32, Instant, Instant)>,
+    /// stats.
+    pub stats: LinkStats,
+    /// wall s.
+    pub wall_s: f64,
+    /// rx cpu s.
+    pub rx_cpu_s: Option<f64>,
+    /// proc cpu s.
+    pub proc_cpu_s: Option<f64>,
+    /// iterations.
+    pub iterations: Vec<f64>,
+    /// superseded.
+    pub superseded: u64,
+}
+
+/// Streams simulated probe frames (the firmware library behind a mock ADC pressing with a
+/// 0.5 N, 1 s profile) through a real pseudo-terminal pair and hands every batch that arrives to
+/// `on_batch`, which returns its PCG iterations.
+pub fn phase(
+    opts: SenderOptions,
+    rate: u16,
+    mut on_batch: impl FnMut(&[ForceSample]) -> anyhow::Result<u32>,
+) -> anyhow::Result<Phase> {
+    let (mut master, mut slave) = TTYPort::pair().context("creating a pseudo-terminal pair")?;
+    master.set_timeout(Duration::from_millis(500))?;
+    slave.set_timeout(Duration::from_millis(20))?;
+    let mut cfg = default_config();
+    cfg.rate_hz = rate;
+    let sim = SimProbe::new(
+        cfg,
+        Profile::Press {
+            peak: 0.5,
+            period_s: 1.0,
+        },
+        2,
+    )
+    .map_err(|e| anyhow::anyhow!("sim probe: {e}"))?;
+    let done = Arc::new(AtomicBool::new(false));
+    let stop = Arc::new(AtomicBool::new(false));
+    let (done2, stop2) = (done.clone(), stop.clone());
+    let base = Instant::now();
+    let sender = std::thread::spawn(move || {
+        let (rep, sink) = run_sender(
+            FaultyWriter::new(master, FaultPlan::default(), 1),
+            sim,
+            &opts,
+            base,
+            &stop2,
+        );
+        done2.store(true, Ordering::SeqCst);
+        // The master end stays open (inside the join result) until the reader has drained it.
+        (rep, sink)
+    });
+    let mut reader = FrameReader::new(slave);
+    let mut events = Vec::new();
+    let mut iterations = Vec::new();
+    let (cpu0, pcpu0) = (thread_cpu_seconds(), process_cpu_seconds());
+    let t0 = Instant::now();
+    let mut quiet = None;
+    let mut err = None;
+    let mut batch: Vec<ForceSample> = Vec::new();
+    let mut superseded = 0u64;
+    loop {
+        batch.clear();
+        let mut arrival = None;
+        let polled = reader.poll(|f, at| {
+            if let Frame::Sample(s) = f {
+                batch.push(s);
+                arrival = Some(at);
+            }
+        });
+        if let (Some(last), Some(at)) = (batch.last(), arrival) {
+            match on_batch(&batch) {
+                Ok(it) => {
+                    events.push((last.seq, at, Instant::now()));
+                    iterations.push(f64::from(it));
+                    superseded += batch.len() as u64 - 1;
+                }
+                Err(e) => err = Some(e),
+            }
+        }
+        let n = match polled {
+            Ok(n) => n,
+            Err(e) if done.load(Ordering::SeqCst) => {
+                let _ = e; // the far end closed after sending everything
+                0
+            }
+            Err(e) => return Err(e.into()),
+        };
+        if let Some(e) = err.take() {
+            stop.store(true, Ordering::SeqCst);
+            let _ = sender.join();
+            return Err(e);
+        }
+        if n == 0 && done.load(Ordering::SeqCst) {
+            if quiet.get_or_insert_with(Instant::now).elapsed() > Duration::from_millis(100) {
+                break;
+            }
+        } else {
+            quiet = None;
+        }
+    }
+    let wall_s = events
+        .last()
+        .map_or(0.0, |e| e.1.duration_since(t0).as_secs_f64());
+    let rx_cpu_s = cpu0.zip(thread_cpu_seconds()).map(|(a, b)| b - a);
+    let proc_cpu_s = pcpu0.zip(process_cpu_seconds()).map(|(a, b)| b - a);
+    let (sent, _master) = sender
+        .join()
+        .map_err(|_| anyhow::anyhow!("sender thread panicked"))?;
+    Ok(Phase {
+        sent,
+        events,
+        stats: *reader.stats(),
+        wall_s,
+        rx_cpu_s,
+        proc_cpu_s,
+        iterations,
+        superseded,
+    })
+}
+
+/// What a haptic replay measured.
+#[derive(Debug, Clone, Copy)]
+pub struct Replay {
+    /// Samples that led to a solve.
+    pub solved: usize,
+    /// Frame written → solved state, median (µs).
+    pub p50_us: f64,
+    /// Frame written → solved state, 99th percentile (µs).
+    pub p99_us: f64,
+    /// Mean PCG iterations per solve.
+    pub mean_iterations: f64,
+    /// Samples missing or frames rejected by the receiver.
+    pub lost: u64,
+}
+
+/// A haptic replay for `palpate demo`: the simulated probe (firmware library behind a mock ADC)
+/// presses with a scripted profile, its frames cross a real pseudo-terminal pair at 1 kHz in real
+/// time, and `runtime` solves a force-driven contact at `point` for every sample.
+pub fn replay(
+    runtime: Runtime<'_>,
+    point: [f32; 3],
+    radius: f32,
+    seconds: f64,
+) -> anyhow::Result<Replay> {
+    let contact = Contact {
+        point,
+        direction: [0.0, 0.0, -1.0],
+        radius,
+    };
+    let mut hl = HapticLoop::new(runtime, ForceGate::new(20, 100.0), contact);
+    let opts = SenderOptions {
+        seconds,
+        pacing: Pacing::RealTime,
+        version: LINK_VERSION,
+        stall: None,
+        adc_fault: None,
+    };
+    let lp = phase(opts, 1000, |b| {
+        Ok(hl
+            .on_batch(b)
+            .context("runtime tick")?
+            .map_or(0, |r| r.1.iterations))
+    })?;
+    let mut e2e = Vec::new();
+    for &(seq, _arrival, solved) in &lp.events {
+        if let Some(Some(written)) = lp.sent.written_at.get(seq as usize) {
+            e2e.push(solved.duration_since(*written).as_secs_f64() * 1e6);
+        }
+    }
+    let e2e = Percentiles::of(&mut e2e);
+    let mean_iterations = lp.iterations.iter().sum::<f64>() / lp.iterations.len().max(1) as f64;
+    Ok(Replay {
+        solved: e2e.n,
+        p50_us: e2e.p50,
+        p99_us: e2e.p99,
+        mean_iterations,
+        lost: lp.stats.missing_samples + lp.stats.rejected(),
+    })
+}

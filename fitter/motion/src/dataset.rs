@@ -1,0 +1,456 @@
+//! Motion dataset reader (format: docs/motion-dataset.md).
+//!
+//! A directory with `dataset.toml`, `mesh.msh` (Gmsh 4.1, physical groups name the clamps),
+//! `markers.csv` (`marker,x,y,z` rest) and any of `trajectories.csv` (`t,marker,x,y,z`),
+//! `clamps.csv` (`t,clamp,tx,ty,tz,qw,qx,qy,qz` or `t,clamp,ux,uy,uz`) and `forces.csv`
+//! (`t,clamp,fx,fy,fz`). Times must lie on the step grid t = n·dt (within 1e-3·dt); clamp poses
+//! are linearly interpolated between given times (held after the last row); missing
+//! trajectory rows are dropped frames.
+
+use super::model::{Clamp, MassKind, Model, Observations, Pose};
+use palpate_fem::mesh::Mesh;
+use serde::Deserialize;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+/// Errors naming the file, line and field.
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetError {
+    /// File unreadable.
+    #[error("{file}: {source}")]
+    Io {
+        /// File.
+        file: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// Bad content at a line (1-based; 0 = whole file).
+    #[error("{file}:{line}: {what}")]
+    Bad {
+        /// File.
+        file: PathBuf,
+        /// Line.
+        line: usize,
+        /// What is wrong (field, expected vs found).
+        what: String,
+    },
+}
+
+/// `dataset.toml`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DatasetToml {
+    /// Mesh file (default `mesh.msh`).
+    #[serde(default = "default_mesh")]
+    pub mesh: String,
+    /// Time step = capture period (s).
+    pub dt: f64,
+    /// Steps to simulate (default: up to the last observation).
+    pub steps: Option<usize>,
+    /// Density (kg/m³), if known.
+    pub density: Option<f64>,
+    /// Gravity (m/s²), default (0, 0, −9.81).
+    #[serde(default = "default_gravity")]
+    pub gravity: [f64; 3],
+    /// Clamp group names (physical groups in the mesh).
+    pub clamps: Vec<String>,
+    /// `"lumped"` (default) or `"consistent"`.
+    #[serde(default)]
+    pub mass: Option<String>,
+    /// Start from elastostatic equilibrium (default true).
+    #[serde(default)]
+    pub static_start: Option<bool>,
+    /// Weight of the marker term (default 1).
+    pub marker_weight: Option<f64>,
+    /// Weight of the force term (default 1).
+    pub force_weight: Option<f64>,
+    /// Initial guesses (Pa, Pa, Pa·s^h, -, kg/m³).
+    #[serde(default)]
+    pub initial: Initial,
+}
+
+/// Initial parameter guesses.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Initial {
+    /// λ.
+    pub lambda: f64,
+    /// μ.
+    pub mu: f64,
+    /// ν.
+    pub nu: f64,
+    /// h.
+    pub h: f64,
+}
+
+impl Default for Initial {
+    fn default() -> Self {
+        Self {
+            lambda: 1e4,
+            mu: 1e4,
+            nu: 1.0,
+            h: 1.0,
+        }
+    }
+}
+
+fn default_mesh() -> String {
+    "mesh.msh".into()
+}
+fn default_gravity() -> [f64; 3] {
+    [0.0, 0.0, -9.81]
+}
+
+/// A loaded dataset.
+#[derive(Debug, Clone)]
+pub struct MotionDataset {
+    /// Parsed `dataset.toml`.
+    pub config: DatasetToml,
+    /// The mesh.
+    pub mesh: Mesh,
+    /// The model (clamps, markers, time grid).
+    pub model: Model,
+    /// Observations.
+    pub obs: Observations,
+}
+
+fn read(file: &Path) -> Result<String, DatasetError> {
+    std::fs::read_to_string(file).map_err(|source| DatasetError::Io {
+        file: file.into(),
+        source,
+    })
+}
+
+fn bad(file: &Path, line: usize, what: impl Into<String>) -> DatasetError {
+    DatasetError::Bad {
+        file: file.into(),
+        line,
+        what: what.into(),
+    }
+}
+
+/// CSV rows after the header, checked against the expected header names.
+fn csv(
+    file: &Path,
+    headers: &[&[&str]],
+) -> Result<Option<(usize, Vec<(usize, Vec<String>)>)>, DatasetError> {
+    if !file.exists() {
+        return Ok(None);
+    }
+    let text = read(file)?;
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty() && !l.starts_with('#'));
+    let (_, head) = lines
+        .next()
+        .ok_or_else(|| bad(file, 1, "empty file (expected a header line)"))?;
+    let cols: Vec<&str> = head.split(',').map(|s| s.trim()).collect();
+    let which = headers
+        .iter()
+        .position(|h| *h == cols.as_slice())
+        .ok_or_else(|| {
+            bad(
+                file,
+                1,
+                format!(
+                    "header {:?}, expected one of {}",
+                    cols,
+                    headers
+                        .iter()
+                        .map(|h| h.join(","))
+                        .collect::<Vec<_>>()
+                        .join(" | ")
+                ),
+            )
+        })?;
+    let n = headers[which].len();
+    let mut rows = Vec::new();
+    for (i, l) in lines {
+        let f: Vec<String> = l.split(',').map(|s| s.trim().to_string()).collect();
+        if f.len() != n {
+            return Err(bad(
+                file,
+                i + 1,
+                format!(
+                    "{} fields, expected {n} ({})",
+                    f.len(),
+                    headers[which].join(",")
+                ),
+            ));
+        }
+        rows.push((i + 1, f));
+    }
+    Ok(Some((which, rows)))
+}
+
+fn num(file: &Path, line: usize, field: &str, s: &str) -> Result<f64, DatasetError> {
+    let v: f64 = s.parse().map_err(|_| {
+        bad(
+            file,
+            line,
+            format!("field {field}: expected a number, found {s:?}"),
+        )
+    })?;
+    if !v.is_finite() {
+        return Err(bad(file, line, format!("field {field}: not finite ({s})")));
+    }
+    Ok(v)
+}
+
+fn step_of(file: &Path, line: usize, t: f64, dt: f64) -> Result<usize, DatasetError> {
+    let n = (t / dt).round();
+    if n < 0.0 || (t - n * dt).abs() > 1e-3 * dt {
+        return Err(bad(
+            file,
+            line,
+            format!("field t: {t} s is not on the step grid n·{dt} s"),
+        ));
+    }
+    Ok(n as usize)
+}
+
+/// Loads a motion dataset directory.
+pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
+    let tf = dir.join("dataset.toml");
+    let config: DatasetToml =
+        toml::from_str(&read(&tf)?).map_err(|e| bad(&tf, 0, e.to_string()))?;
+    if !(config.dt > 0.0) {
+        return Err(bad(
+            &tf,
+            0,
+            format!("field dt: must be > 0, found {}", config.dt),
+        ));
+    }
+    let mass = match config.mass.as_deref() {
+        None | Some("lumped") => MassKind::Lumped,
+        Some("consistent") => MassKind::Consistent,
+        Some(o) => {
+            return Err(bad(
+                &tf,
+                0,
+                format!("field mass: expected \"lumped\" or \"consistent\", found {o:?}"),
+            ))
+        }
+    };
+    let mf = dir.join(&config.mesh);
+    let mesh = palpate_fem::mesh::gmsh::read_msh(&mf).map_err(|e| bad(&mf, 0, e.to_string()))?;
+    let dt = config.dt;
+    // Markers.
+    let kf = dir.join("markers.csv");
+    let (_, krows) = csv(&kf, &[&["marker", "x", "y", "z"]])?
+        .ok_or_else(|| bad(&kf, 0, "missing (required)"))?;
+    let mut marker_pts = Vec::new();
+    let mut marker_index = HashMap::new();
+    for (line, f) in &krows {
+        if marker_index
+            .insert(f[0].clone(), marker_pts.len())
+            .is_some()
+        {
+            return Err(bad(&kf, *line, format!("marker {:?} listed twice", f[0])));
+        }
+        marker_pts.push((
+            f[0].clone(),
+            [
+                num(&kf, *line, "x", &f[1])?,
+                num(&kf, *line, "y", &f[2])?,
+                num(&kf, *line, "z", &f[3])?,
+            ],
+        ));
+    }
+    // Trajectories, clamps, forces.
+    let jf = dir.join("trajectories.csv");
+    let traj = csv(&jf, &[&["t", "marker", "x", "y", "z"]])?;
+    let cf = dir.join("clamps.csv");
+    let clamps_csv = csv(
+        &cf,
+        &[
+            &["t", "clamp", "tx", "ty", "tz", "qw", "qx", "qy", "qz"],
+            &["t", "clamp", "ux", "uy", "uz"],
+        ],
+    )?;
+    let ff = dir.join("forces.csv");
+    let forces = csv(&ff, &[&["t", "clamp", "fx", "fy", "fz"]])?;
+    let clamp_index: HashMap<&str, usize> = config
+        .clamps
+        .iter()
+        .enumerate()
+        .map(|(i, c)| (c.as_str(), i))
+        .collect();
+    let mut last_step = 0;
+    for (file, rows) in [(&jf, &traj), (&ff, &forces)] {
+        if let Some((_, rows)) = rows {
+            for (line, f) in rows {
+                last_step = last_step.max(step_of(file, *line, num(file, *line, "t", &f[0])?, dt)?);
+            }
+        }
+    }
+    let steps = config.steps.unwrap_or(last_step);
+    if steps == 0 {
+        return Err(bad(
+            &tf,
+            0,
+            "no observations after t = 0 and no `steps` given: nothing to simulate",
+        ));
+    }
+    // Clamp poses: samples per clamp, interpolated onto the grid.
+    let mut samples: Vec<Vec<(f64, [f64; 3], [f64; 4])>> = vec![Vec::new(); config.clamps.len()];
+    if let Some((kind, rows)) = &clamps_csv {
+        for (line, f) in rows {
+            let c = *clamp_index.get(f[1].as_str()).ok_or_else(|| {
+                bad(
+                    &cf,
+                    *line,
+                    format!(
+                        "field clamp: {:?} is not in dataset.toml clamps {:?}",
+                        f[1], config.clamps
+                    ),
+                )
+            })?;
+            let t = num(&cf, *line, "t", &f[0])?;
+            let names = if *kind == 0 {
+                ["tx", "ty", "tz"]
+            } else {
+                ["ux", "uy", "uz"]
+            };
+            let tr = [
+                num(&cf, *line, names[0], &f[2])?,
+                num(&cf, *line, names[1], &f[3])?,
+                num(&cf, *line, names[2], &f[4])?,
+            ];
+            let q = if *kind == 0 {
+                let q = [
+                    num(&cf, *line, "qw", &f[5])?,
+                    num(&cf, *line, "qx", &f[6])?,
+                    num(&cf, *line, "qy", &f[7])?,
+                    num(&cf, *line, "qz", &f[8])?,
+                ];
+                let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+                if (n - 1.0).abs() > 1e-3 {
+                    return Err(bad(
+                        &cf,
+                        *line,
+                        format!("quaternion norm {n:.4}, expected 1"),
+                    ));
+                }
+                q
+            } else {
+                [1.0, 0.0, 0.0, 0.0]
+            };
+            if let Some(prev) = samples[c].last() {
+                if t <= prev.0 {
+                    return Err(bad(
+                        &cf,
+                        *line,
+                        format!(
+                            "field t: {t} not after previous time {} for clamp {:?}",
+                            prev.0, f[1]
+                        ),
+                    ));
+                }
+            }
+            samples[c].push((t, tr, q));
+        }
+    }
+    let mut clamps = Vec::new();
+    for (c, name) in config.clamps.iter().enumerate() {
+        let nodes = mesh
+            .group(name)
+            .map_err(|e| bad(&tf, 0, format!("field clamps: {e}")))?
+            .to_vec();
+        let s = &samples[c];
+        let poses = (0..=steps)
+            .map(|n| {
+                let t = n as f64 * dt;
+                if s.is_empty() {
+                    return Pose::identity();
+                }
+                let j = s.iter().rposition(|r| r.0 <= t).unwrap_or(0);
+                let (a, b) = (s[j], s[(j + 1).min(s.len() - 1)]);
+                let w = if b.0 > a.0 {
+                    ((t - a.0) / (b.0 - a.0)).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                let tr = [0, 1, 2].map(|i| a.1[i] + w * (b.1[i] - a.1[i]));
+                // Normalised linear quaternion blend (nlerp) between samples, same hemisphere.
+                let sgn = if a.2.iter().zip(&b.2).map(|(x, y)| x * y).sum::<f64>() < 0.0 {
+                    -1.0
+                } else {
+                    1.0
+                };
+                let q = [0, 1, 2, 3].map(|i| a.2[i] + w * (sgn * b.2[i] - a.2[i]));
+                Pose::from_quaternion(tr, q)
+            })
+            .collect();
+        clamps.push(Clamp {
+            name: name.clone(),
+            nodes,
+            poses,
+        });
+    }
+    let mut model = Model::new(&mesh, clamps, Vec::new(), dt, steps, config.gravity, mass)
+        .map_err(|e| bad(&tf, 0, e.to_string()))?;
+    model.static_start = config.static_start.unwrap_or(true);
+    model.markers = marker_pts
+        .iter()
+        .map(|(n, p)| model.marker_at(n, *p))
+        .collect();
+    let mut obs = Observations {
+        markers: vec![vec![None; marker_pts.len()]; steps],
+        forces: vec![vec![None; config.clamps.len()]; steps],
+        marker_weight: config.marker_weight.unwrap_or(1.0),
+        force_weight: config.force_weight.unwrap_or(1.0),
+    };
+    if let Some((_, rows)) = &traj {
+        for (line, f) in rows {
+            let n = step_of(&jf, *line, num(&jf, *line, "t", &f[0])?, dt)?;
+            let i = *marker_index.get(&f[1]).ok_or_else(|| {
+                bad(
+                    &jf,
+                    *line,
+                    format!("field marker: {:?} not in markers.csv", f[1]),
+                )
+            })?;
+            if n >= 1 && n <= steps {
+                obs.markers[n - 1][i] = Some([
+                    num(&jf, *line, "x", &f[2])?,
+                    num(&jf, *line, "y", &f[3])?,
+                    num(&jf, *line, "z", &f[4])?,
+                ]);
+            }
+        }
+    }
+    if let Some((_, rows)) = &forces {
+        for (line, f) in rows {
+            let n = step_of(&ff, *line, num(&ff, *line, "t", &f[0])?, dt)?;
+            let c = *clamp_index.get(f[1].as_str()).ok_or_else(|| {
+                bad(
+                    &ff,
+                    *line,
+                    format!("field clamp: {:?} not in dataset.toml clamps", f[1]),
+                )
+            })?;
+            if n >= 1 && n <= steps {
+                obs.forces[n - 1][c] = Some([
+                    num(&ff, *line, "fx", &f[2])?,
+                    num(&ff, *line, "fy", &f[3])?,
+                    num(&ff, *line, "fz", &f[4])?,
+                ]);
+            }
+        }
+    }
+    if traj.is_none() && forces.is_none() {
+        return Err(bad(
+            dir,
+            0,
+            "neither trajectories.csv nor forces.csv present: nothing to fit",
+        ));
+    }
+    Ok(MotionDataset {
+        config,
+        mesh,
+        model,
+        obs,
+    })
+}

@@ -1,0 +1,610 @@
+//! The simulation model: rest geometry, clamps, markers, observations, per-element material and
+//! the parameter vector the optimiser sees.
+
+use super::hyperelastic::RestTet;
+use super::sparse::Pattern;
+use super::spline::{Response, SplineMaterial};
+use super::MotionError;
+use nalgebra::{Matrix3, Vector3};
+use palpate_fem::mesh::Mesh;
+
+/// Which mass matrix to use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MassKind {
+    /// Row-sum lumped: ρV/4 per node of each element.
+    Lumped,
+    /// Consistent linear-tet mass: ρV/20 (1 + δ_ab) I₃.
+    Consistent,
+}
+
+/// A material quantity that can be a parameter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ParamKind {
+    /// Lamé's first parameter λ (Pa).
+    Lambda = 0,
+    /// Shear modulus μ (Pa).
+    Mu = 1,
+    /// Viscosity coefficient ν of eq. 17 (Pa s^h).
+    Nu = 2,
+    /// Power-law index h of eq. 17.
+    PowerH = 3,
+    /// Density ρ (kg/m³).
+    Density = 4,
+    /// A control value of the spline f′ of §4.2 (Pa); `Param::element` holds the control index.
+    SplineF = 5,
+    /// A control value J·h′(J) of the spline h′ of §4.2 (Pa); `Param::element` holds the
+    /// control index.
+    SplineH = 6,
+}
+
+impl ParamKind {
+    /// All per-element material kinds in index order (the spline kinds are separate: their
+    /// parameters are control points, see [`Param`]).
+    pub const ALL: [ParamKind; 5] = [
+        Self::Lambda,
+        Self::Mu,
+        Self::Nu,
+        Self::PowerH,
+        Self::Density,
+    ];
+    /// Short name as used on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Lambda => "lambda",
+            Self::Mu => "mu",
+            Self::Nu => "nu",
+            Self::PowerH => "h",
+            Self::Density => "density",
+            Self::SplineF => "spline_f",
+            Self::SplineH => "spline_h",
+        }
+    }
+    /// True for the spline control-value kinds (optimised linearly, not in log space).
+    pub fn is_spline(self) -> bool {
+        matches!(self, Self::SplineF | Self::SplineH)
+    }
+    /// The spline response a spline kind refers to.
+    pub fn response(self) -> Option<Response> {
+        match self {
+            Self::SplineF => Some(Response::F),
+            Self::SplineH => Some(Response::H),
+            _ => None,
+        }
+    }
+    /// Parses a command-line name.
+    pub fn parse(s: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|k| k.name() == s)
+    }
+}
+
+/// One optimisation parameter: a material kind, global (all elements) or of one element.
+///
+/// For the spline kinds ([`ParamKind::SplineF`], [`ParamKind::SplineH`]) the material is global
+/// and `element` is `Some(i)`: control point i of that spline.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Param {
+    /// Which quantity.
+    pub kind: ParamKind,
+    /// `None` = the same value in every element; `Some(e)` = element e only (control point e for
+    /// the spline kinds).
+    pub element: Option<usize>,
+}
+
+impl Param {
+    /// A global parameter (the same value in every element).
+    pub fn global(kind: ParamKind) -> Self {
+        Self {
+            kind,
+            element: None,
+        }
+    }
+
+    /// Global parameters of `kinds`, in order.
+    pub fn globals(kinds: &[ParamKind]) -> Vec<Self> {
+        kinds.iter().map(|&k| Self::global(k)).collect()
+    }
+
+    /// The derivative slot of this parameter: the kind index for material kinds, 5 + i for f′
+    /// control i, 5 + (f′ count) + i for h′ control i. Gradient passes accumulate per element
+    /// and slot.
+    pub fn slot(&self, mat: &Material) -> usize {
+        let nf = mat.spline.as_ref().map_or(0, |s| s.len(Response::F));
+        match (self.kind, self.element) {
+            (ParamKind::SplineF, Some(i)) => 5 + i,
+            (ParamKind::SplineH, Some(i)) => 5 + nf + i,
+            (k, _) => k as usize,
+        }
+    }
+}
+
+/// Per-element material values.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Material {
+    /// Values indexed `[kind as usize][element]`.
+    pub values: [Vec<f64>; 5],
+    /// The principal-stretch material of §4.2; when present it replaces Neo-Hookean (λ, μ unused).
+    pub spline: Option<SplineMaterial>,
+    /// Strain-stiffening coefficient c of the c (Ī₁ − 3)² term (Ī₁ = J^(−2/3) I₁) of [`super::hyperelastic`]
+    /// (Pa; a Yeoh-type second-order term) added to Neo-Hookean. Not a fit parameter: it makes
+    /// non-Neo-Hookean ground truths for the spline evidence. 0 = the paper's eq. 16.
+    pub stiffening: f64,
+}
+
+impl Material {
+    /// The same values in every one of `n` elements.
+    pub fn uniform(n: usize, lambda: f64, mu: f64, nu: f64, h: f64, density: f64) -> Self {
+        Self {
+            values: [
+                vec![lambda; n],
+                vec![mu; n],
+                vec![nu; n],
+                vec![h; n],
+                vec![density; n],
+            ],
+            spline: None,
+            stiffening: 0.0,
+        }
+    }
+    /// Derivative slots (see [`Param::slot`]): 5 material kinds plus the spline controls.
+    pub fn slots(&self) -> usize {
+        5 + self
+            .spline
+            .as_ref()
+            .map_or(0, |s| s.len(Response::F) + s.len(Response::H))
+    }
+    /// Checks that every parameter refers to something this material has.
+    pub fn check_params(&self, params: &[Param]) -> Result<(), MotionError> {
+        for (i, p) in params.iter().enumerate() {
+            match (p.kind.response(), &self.spline) {
+                (Some(r), Some(s)) => match p.element {
+                    Some(c) if c < s.len(r) => {}
+                    _ => {
+                        return Err(MotionError::Invalid(format!(
+                            "parameter {i}: {} needs a control index below {}, found {:?}",
+                            p.kind.name(),
+                            s.len(r),
+                            p.element
+                        )))
+                    }
+                },
+                (Some(_), None) => {
+                    return Err(MotionError::Invalid(format!(
+                        "parameter {i}: {} but the material has no response splines",
+                        p.kind.name()
+                    )))
+                }
+                (None, Some(_)) if matches!(p.kind, ParamKind::Lambda | ParamKind::Mu) => {
+                    return Err(MotionError::Invalid(format!(
+                        "parameter {i}: {} has no effect with the spline material (fit its \
+                         control values instead)",
+                        p.kind.name()
+                    )))
+                }
+                (None, _) => {
+                    if let Some(e) = p.element {
+                        if e >= self.values[0].len() {
+                            return Err(MotionError::Invalid(format!(
+                                "parameter {i}: element {e} out of range ({} elements)",
+                                self.values[0].len()
+                            )));
+                        }
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+    /// Value of `kind` in element `e`.
+    pub fn get(&self, kind: ParamKind, e: usize) -> f64 {
+        self.values[kind as usize][e]
+    }
+    /// Writes the parameter values `q` (linear, not log) into the material.
+    pub fn set(&mut self, params: &[Param], q: &[f64]) {
+        for (p, &v) in params.iter().zip(q) {
+            if let Some(r) = p.kind.response() {
+                if let (Some(s), Some(i)) = (self.spline.as_mut(), p.element) {
+                    s.set_value(r, i, v);
+                }
+                continue;
+            }
+            match p.element {
+                None => self.values[p.kind as usize].iter_mut().for_each(|x| *x = v),
+                Some(e) => self.values[p.kind as usize][e] = v,
+            }
+        }
+    }
+    /// Reads the parameter values (for a global parameter, the mean over elements).
+    pub fn read(&self, params: &[Param]) -> Vec<f64> {
+        params
+            .iter()
+            .map(|p| match p.element {
+                _ if p.kind.is_spline() => match (p.kind.response(), &self.spline, p.element) {
+                    (Some(r), Some(s), Some(i)) => s.value(r, i),
+                    _ => f64::NAN,
+                },
+                None => {
+                    let v = &self.values[p.kind as usize];
+                    v.iter().sum::<f64>() / v.len() as f64
+                }
+                Some(e) => self.values[p.kind as usize][e],
+            })
+            .collect()
+    }
+}
+
+/// A rigid pose x = R X + t.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    /// Rotation R.
+    pub r: Matrix3<f64>,
+    /// Translation t (m).
+    pub t: Vector3<f64>,
+}
+
+impl Pose {
+    /// The identity pose.
+    pub fn identity() -> Self {
+        Self {
+            r: Matrix3::identity(),
+            t: Vector3::zeros(),
+        }
+    }
+    /// A pure translation.
+    pub fn translation(t: [f64; 3]) -> Self {
+        Self {
+            r: Matrix3::identity(),
+            t: Vector3::from(t),
+        }
+    }
+    /// From a translation and a unit quaternion (w, x, y, z); the quaternion is normalised.
+    pub fn from_quaternion(t: [f64; 3], q: [f64; 4]) -> Self {
+        let uq = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            q[0], q[1], q[2], q[3],
+        ));
+        Self {
+            r: *uq.to_rotation_matrix().matrix(),
+            t: Vector3::from(t),
+        }
+    }
+    /// Applies the pose to a rest point.
+    pub fn apply(&self, x: &[f64; 3]) -> [f64; 3] {
+        let p = self.r * Vector3::from(*x) + self.t;
+        [p[0], p[1], p[2]]
+    }
+}
+
+/// A clamped node group moving rigidly (a moving Dirichlet boundary).
+#[derive(Debug, Clone)]
+pub struct Clamp {
+    /// Group name (mesh physical group).
+    pub name: String,
+    /// Node indices.
+    pub nodes: Vec<usize>,
+    /// Pose at each time step 0..=steps.
+    pub poses: Vec<Pose>,
+}
+
+/// A virtual marker: a fixed linear combination of node positions (barycentric in a tet).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Marker {
+    /// Name from markers.csv.
+    pub name: String,
+    /// (node, weight) pairs; weights sum to 1.
+    pub weights: Vec<(usize, f64)>,
+}
+
+/// Observed data per time step, aligned with the simulation steps 1..=steps (index 0 = step 1).
+#[derive(Debug, Clone, Default)]
+pub struct Observations {
+    /// `markers[n][i]`: target position of marker i at step n+1, `None` for a dropped frame.
+    pub markers: Vec<Vec<Option<[f64; 3]>>>,
+    /// `forces[n][c]`: measured reaction force on clamp c at step n+1.
+    pub forces: Vec<Vec<Option<[f64; 3]>>>,
+    /// Weight of the marker term (eq. 15), default 1.
+    pub marker_weight: f64,
+    /// Weight of the force term (½ Σ dt ‖F − F*‖²), default 1.
+    pub force_weight: f64,
+}
+
+/// Newton settings (paper §4.3: residual < 1e-6 N or 20 iterations).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NewtonSettings {
+    /// Stop when ‖r‖₂ < tol (N).
+    pub tol: f64,
+    /// Iteration cap per step.
+    pub max_iter: usize,
+}
+
+impl Default for NewtonSettings {
+    fn default() -> Self {
+        Self {
+            tol: 1e-6,
+            max_iter: 20,
+        }
+    }
+}
+
+/// Everything fixed during an optimisation.
+#[derive(Debug, Clone)]
+pub struct Model {
+    /// Rest node positions.
+    pub nodes: Vec<[f64; 3]>,
+    /// Tetrahedra.
+    pub tets: Vec<[usize; 4]>,
+    /// Rest geometry per tet.
+    pub rest: Vec<RestTet>,
+    /// dof → free index, `usize::MAX` for clamped dofs.
+    pub free: Vec<usize>,
+    /// Number of free dofs.
+    pub nfree: usize,
+    /// Free-dof sparsity pattern with reused symbolic Cholesky.
+    pub pattern: Pattern,
+    /// Moving clamps.
+    pub clamps: Vec<Clamp>,
+    /// Elements touching each clamp (for reaction forces).
+    pub clamp_elems: Vec<Vec<usize>>,
+    /// clamp index of each node (`usize::MAX` = none).
+    pub node_clamp: Vec<usize>,
+    /// Gravity (m/s²).
+    pub gravity: [f64; 3],
+    /// Mass matrix kind.
+    pub mass: MassKind,
+    /// Time step (s).
+    pub dt: f64,
+    /// Number of steps simulated after t = 0.
+    pub steps: usize,
+    /// Newton settings.
+    pub newton: NewtonSettings,
+    /// Virtual markers.
+    pub markers: Vec<Marker>,
+    /// Start from elastostatic equilibrium (§3.4) instead of the rest shape.
+    pub static_start: bool,
+}
+
+impl Model {
+    /// Builds a model; clamps must not share nodes and each must have `steps + 1` poses.
+    pub fn new(
+        mesh: &Mesh,
+        clamps: Vec<Clamp>,
+        markers: Vec<Marker>,
+        dt: f64,
+        steps: usize,
+        gravity: [f64; 3],
+        mass: MassKind,
+    ) -> Result<Self, MotionError> {
+        let mut rest = Vec::with_capacity(mesh.tets.len());
+        for (e, t) in mesh.tets.iter().enumerate() {
+            let x = t.map(|n| Vector3::from(mesh.nodes[n]));
+            let g = palpate_runtime::element::tet_geometry(&x).map_err(|d| {
+                MotionError::BadElement {
+                    element: e,
+                    why: format!("{d:?}"),
+                }
+            })?;
+            rest.push(RestTet {
+                grad: g.grad,
+                volume: g.volume,
+            });
+        }
+        let nn = mesh.nodes.len();
+        let mut node_clamp = vec![usize::MAX; nn];
+        for (c, cl) in clamps.iter().enumerate() {
+            if cl.poses.len() != steps + 1 {
+                return Err(MotionError::Invalid(format!(
+                    "clamp {:?}: {} poses for {} steps (expected {})",
+                    cl.name,
+                    cl.poses.len(),
+                    steps,
+                    steps + 1
+                )));
+            }
+            for &n in &cl.nodes {
+                if n >= nn {
+                    return Err(MotionError::Invalid(format!(
+                        "clamp {:?}: node index {n} out of range",
+                        cl.name
+                    )));
+                }
+                if node_clamp[n] != usize::MAX && node_clamp[n] != c {
+                    return Err(MotionError::Invalid(format!(
+                        "node {n} is in clamps {:?} and {:?}",
+                        clamps[node_clamp[n]].name, cl.name
+                    )));
+                }
+                node_clamp[n] = c;
+            }
+        }
+        let mut free = vec![usize::MAX; 3 * nn];
+        let mut nfree = 0;
+        for n in 0..nn {
+            if node_clamp[n] == usize::MAX {
+                for i in 0..3 {
+                    free[3 * n + i] = nfree;
+                    nfree += 1;
+                }
+            }
+        }
+        if nfree == 0 {
+            return Err(MotionError::Invalid(
+                "every node is clamped: nothing to simulate".into(),
+            ));
+        }
+        let mut clamp_elems = vec![Vec::new(); clamps.len()];
+        for (e, t) in mesh.tets.iter().enumerate() {
+            let mut seen = Vec::new();
+            for &n in t {
+                let c = node_clamp[n];
+                if c != usize::MAX && !seen.contains(&c) {
+                    seen.push(c);
+                    clamp_elems[c].push(e);
+                }
+            }
+        }
+        let pattern = Pattern::new(&mesh.tets, &free, nfree)
+            .map_err(|e| MotionError::Invalid(format!("sparse analysis failed: {e:?}")))?;
+        Ok(Self {
+            nodes: mesh.nodes.clone(),
+            tets: mesh.tets.clone(),
+            rest,
+            free,
+            nfree,
+            pattern,
+            clamps,
+            clamp_elems,
+            node_clamp,
+            gravity,
+            mass,
+            dt,
+            steps,
+            newton: NewtonSettings::default(),
+            markers,
+            static_start: true,
+        })
+    }
+
+    /// Prescribed positions of all clamped dofs at step `n` written into `x` (full dofs).
+    pub fn apply_clamps(&self, n: usize, x: &mut [f64]) {
+        for cl in &self.clamps {
+            for &node in &cl.nodes {
+                let p = cl.poses[n].apply(&self.nodes[node]);
+                x[3 * node..3 * node + 3].copy_from_slice(&p);
+            }
+        }
+    }
+
+    /// Marker position from full-dof positions `x`.
+    pub fn marker_position(&self, m: &Marker, x: &[f64]) -> [f64; 3] {
+        let mut p = [0.0; 3];
+        for &(n, w) in &m.weights {
+            for i in 0..3 {
+                p[i] += w * x[3 * n + i];
+            }
+        }
+        p
+    }
+
+    /// Barycentric marker at rest point `p`: the containing tet (or, outside the mesh, the tet
+    /// whose smallest barycentric coordinate is largest — linear extrapolation a hair outside).
+    pub fn marker_at(&self, name: &str, p: [f64; 3]) -> Marker {
+        let mut best = (f64::NEG_INFINITY, 0usize, [0.0; 4]);
+        for (e, t) in self.tets.iter().enumerate() {
+            let r = &self.rest[e];
+            let x0 = Vector3::from(self.nodes[t[0]]);
+            let d = Vector3::from(p) - x0;
+            let mut w = [0.0; 4];
+            for a in 1..4 {
+                w[a] = r.grad[a].dot(&d);
+            }
+            w[0] = 1.0 - w[1] - w[2] - w[3];
+            let m = w.iter().cloned().fold(f64::INFINITY, f64::min);
+            if m > best.0 {
+                best = (m, e, w);
+            }
+        }
+        let t = self.tets[best.1];
+        Marker {
+            name: name.to_string(),
+            weights: (0..4).map(|a| (t[a], best.2[a])).collect(),
+        }
+    }
+
+    /// Element mass matrix (12 × 12) for ρV = `m`.
+    pub fn element_mass(&self, m: f64) -> [[f64; 12]; 12] {
+        let mut me = [[0.0; 12]; 12];
+        for a in 0..4 {
+            for b in 0..4 {
+                let w = match self.mass {
+                    MassKind::Lumped => {
+                        if a == b {
+                            m / 4.0
+                        } else {
+                            0.0
+                        }
+                    }
+                    MassKind::Consistent => m / 20.0 * if a == b { 2.0 } else { 1.0 },
+                };
+                for i in 0..3 {
+                    me[3 * a + i][3 * b + i] = w;
+                }
+            }
+        }
+        me
+    }
+
+    /// Gravity load (full dofs): ρ_e V_e g / 4 per node of each element.
+    pub fn gravity_load(&self, mat: &Material) -> Vec<f64> {
+        let mut f = vec![0.0; 3 * self.nodes.len()];
+        for (e, t) in self.tets.iter().enumerate() {
+            let m = mat.get(ParamKind::Density, e) * self.rest[e].volume / 4.0;
+            for &n in t {
+                for i in 0..3 {
+                    f[3 * n + i] += m * self.gravity[i];
+                }
+            }
+        }
+        f
+    }
+
+    /// y = M w over all dofs (element-wise, so consistent mass couples clamped and free nodes).
+    pub fn mass_mul(&self, mat: &Material, w: &[f64], y: &mut [f64]) {
+        for (e, t) in self.tets.iter().enumerate() {
+            let m = mat.get(ParamKind::Density, e) * self.rest[e].volume;
+            match self.mass {
+                MassKind::Lumped => {
+                    for &n in t {
+                        for i in 0..3 {
+                            y[3 * n + i] += m / 4.0 * w[3 * n + i];
+                        }
+                    }
+                }
+                MassKind::Consistent => {
+                    for &a in t {
+                        for &b in t {
+                            let s = m / 20.0 * if a == b { 2.0 } else { 1.0 };
+                            for i in 0..3 {
+                                y[3 * a + i] += s * w[3 * b + i];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Mass matrix values on the free pattern.
+    pub fn mass_values(&self, mat: &Material) -> Vec<f64> {
+        let mut v = vec![0.0; self.pattern.nnz()];
+        for e in 0..self.tets.len() {
+            let me = self.element_mass(mat.get(ParamKind::Density, e) * self.rest[e].volume);
+            self.pattern.add_element(e, &me, 1.0, &mut v);
+        }
+        v
+    }
+
+    /// Gathers the four nodes' 3-vectors of element `e` from a full-dof vector.
+    pub fn gather(&self, e: usize, x: &[f64]) -> [Vector3<f64>; 4] {
+        self.tets[e].map(|n| Vector3::new(x[3 * n], x[3 * n + 1], x[3 * n + 2]))
+    }
+
+    /// Free-dof restriction of a full vector.
+    pub fn restrict(&self, full: &[f64]) -> Vec<f64> {
+        let mut out = vec![0.0; self.nfree];
+        for (d, &f) in self.free.iter().enumerate() {
+            if f != usize::MAX {
+                out[f] = full[d];
+            }
+        }
+        out
+    }
+
+    /// Full vector (zeros on clamped dofs) from a free-dof vector.
+    pub fn expand(&self, free_vec: &[f64]) -> Vec<f64> {
+        let mut out = vec![0.0; self.free.len()];
+        for (d, &f) in self.free.iter().enumerate() {
+            if f != usize::MAX {
+                out[d] = free_vec[f];
+            }
+        }
+        out
+    }
+}

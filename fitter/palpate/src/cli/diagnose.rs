@@ -1,0 +1,41 @@
+//! `palpate diagnose <dataset>`: fit the simplest model, trace the residual to the effects the
+//! model lacks, adopt those that earn their parameters, and report before/after.
+
+use std::path::PathBuf;
+
+use palpate_diagnose::MeshChoice;
+
+/// Options.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Static or motion dataset directory, or measured curves (CSV file or directory).
+    pub dataset: PathBuf,
+    /// Report directory (diagnosis.md, diagnosis.json, evidence plots, model.palp for the runtime).
+    #[arg(short, long, default_value = "diagnosis")]
+    pub output: PathBuf,
+    /// Candidates to try (default: all).
+    #[arg(long, value_delimiter = ',')]
+    pub candidates: Vec<String>,
+    /// Most effects to adopt.
+    #[arg(long, default_value_t = 3)]
+    pub max_effects: usize,
+    /// Mesh of static datasets' models: `auto` refines the dataset mesh once when its own
+    /// discretisation error is a large part of the noise floor; `dataset`, `refined` force one.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub mesh: MeshChoice,
+    /// Gauge length L0 (mm) of tension-test CSVs (stretch λ = 1 + Δ/L0); fitted if not given.
+    #[arg(long)]
+    pub gauge_length: Option<f64>,
+}
+
+/// Runs the command.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    palpate_diagnose::run::run(&palpate_diagnose::run::Request {
+        dataset: args.dataset,
+        output: args.output,
+        candidates: args.candidates,
+        max_effects: args.max_effects,
+        mesh: args.mesh,
+        gauge_length: args.gauge_length,
+    })
+}

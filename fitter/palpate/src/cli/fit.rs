@@ -1,0 +1,171 @@
+//! `palpate fit <dataset> --material … --method … [--gamma-s …] [--gamma-m …] -o model.palp`:
+//! fit a static dataset (seed 000 chapter 5), export the model and write the report beside it.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::ValueEnum;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use palpate_fem::dataset::StaticDataset;
+use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
+use palpate_static_fit::blend::{deformation_blend, strain_blend, BlendData};
+use palpate_static_fit::loo::leave_one_out;
+use palpate_static_fit::{fit_static, FitInput, FitOptions, Gammas, Layout, Method, Sets};
+
+/// Material class (seed 000 §5.2.2 / §6.2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum MaterialClass {
+    /// One (λ, α) for everything.
+    LinearHomogeneous,
+    /// One (λ_e, α_e) per element.
+    LinearInhomogeneous,
+    /// One (λ, α) per measurement, blended by RBFs over deformations.
+    NonlinearHomogeneous,
+    /// One (λ_e, α_e) per element and measurement, blended in strain space.
+    NonlinearInhomogeneous,
+}
+
+/// Inverse method.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum MethodArg {
+    /// Force-based linear least squares (§5.2).
+    Force,
+    /// Displacement-based non-linear least squares (§5.3).
+    Displacement,
+}
+
+/// Arguments of `palpate fit`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Dataset folder (dataset.toml, mesh, markers.csv, measurements.csv, contacts.csv).
+    pub dataset: PathBuf,
+    /// Material class.
+    #[arg(long, value_enum, default_value = "linear-homogeneous")]
+    pub material: MaterialClass,
+    /// Inverse method.
+    #[arg(long, value_enum, default_value = "displacement")]
+    pub method: MethodArg,
+    /// Spatial smoothness γ_s (both parameter types); chosen on the L-curve when omitted.
+    #[arg(long)]
+    pub gamma_s: Option<f64>,
+    /// Cross-measurement smoothness γ_m (both types); defaults to γ_s.
+    #[arg(long)]
+    pub gamma_m: Option<f64>,
+    /// Fit without stiffness warping (R_e = I).
+    #[arg(long)]
+    pub no_warp: bool,
+    /// Maximum iterations.
+    #[arg(long, default_value_t = 30)]
+    pub max_iterations: usize,
+    /// Also run leave-one-out validation (one extra fit per measurement).
+    #[arg(long)]
+    pub leave_one_out: bool,
+    /// Output model file; the report goes to `<model>.report/`.
+    #[arg(short, long)]
+    pub out: PathBuf,
+}
+
+/// Runs `palpate fit`.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let command = std::env::args().collect::<Vec<_>>().join(" ");
+    let ds = StaticDataset::read(&args.dataset)
+        .with_context(|| format!("reading dataset {}", args.dataset.display()))?;
+    let input = FitInput::from_dataset(&ds)?;
+    let (layout, sets) = match args.material {
+        MaterialClass::LinearHomogeneous => (Layout::Homogeneous, Sets::Single),
+        MaterialClass::LinearInhomogeneous => (Layout::Inhomogeneous, Sets::Single),
+        MaterialClass::NonlinearHomogeneous => (Layout::Homogeneous, Sets::PerMeasurement),
+        MaterialClass::NonlinearInhomogeneous => (Layout::Inhomogeneous, Sets::PerMeasurement),
+    };
+    let method = match args.method {
+        MethodArg::Force => Method::Force,
+        MethodArg::Displacement => Method::Displacement,
+    };
+    let mut o = FitOptions::new(method, layout, sets);
+    o.warp = !args.no_warp;
+    o.max_iterations = args.max_iterations;
+    o.gammas = args
+        .gamma_s
+        .map(|s| Gammas::new(s, args.gamma_m.unwrap_or(s)));
+    if args.gamma_s.is_none() && args.gamma_m.is_some() {
+        anyhow::bail!("--gamma-m needs --gamma-s (or omit both to choose γ on the L-curve)");
+    }
+    let bar = ProgressBar::new_spinner();
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}")
+            .expect("static template"),
+    );
+    let fit = fit_static(&input, &o, |stage, rec| {
+        bar.set_message(format!(
+            "{stage}: iteration {} objective {:.4e} rms {:.4} mm",
+            rec.iteration,
+            rec.objective,
+            rec.rms_m * 1e3
+        ));
+        bar.tick();
+    })?;
+    bar.finish_with_message(format!(
+        "fitted in {:.1} s, RMS marker error {:.4} mm",
+        fit.seconds,
+        fit.rms() * 1e3
+    ));
+    let blend = match (layout, sets) {
+        (_, Sets::Single) => BlendData::None,
+        (Layout::Homogeneous, Sets::PerMeasurement) => {
+            deformation_blend(&fit.params, &fit.deformed)?
+        }
+        (Layout::Inhomogeneous, Sets::PerMeasurement) => {
+            strain_blend(&input.problem, &fit.params, &fit.deformed, 8)?
+        }
+    };
+    let prov = ProvenanceInfo {
+        tool: format!("palpate {} {}", env!("CARGO_PKG_VERSION"), command),
+        source: format!("{} ({})", ds.name, args.dataset.display()),
+        notes: format!(
+            "{:?} {:?} {:?}; RMS marker error {:.6e} m; γ {:?}",
+            method,
+            layout,
+            sets,
+            fit.rms(),
+            fit.gammas
+        ),
+    };
+    let bytes = ModelBuffers::new(
+        &input.problem,
+        &ds.mesh.node_tags,
+        &fit.params,
+        &blend,
+        &prov,
+    )?
+    .write(&args.out)?;
+    let loo = if args.leave_one_out {
+        Some(leave_one_out(&input, &o)?)
+    } else {
+        None
+    };
+    let dir = args.out.with_extension("report");
+    let files = palpate_static_fit::report::static_report::write_report(
+        &dir,
+        &ds.name,
+        &command,
+        &ds.mesh,
+        &input,
+        &fit,
+        loo.as_deref(),
+    )?;
+    println!(
+        "{}",
+        palpate_static_fit::report::static_report::markdown(
+            &ds.name,
+            &command,
+            &fit,
+            loo.as_deref()
+        )
+    );
+    println!("model: {} ({bytes} bytes)", args.out.display());
+    for f in files {
+        println!("wrote {}", f.display());
+    }
+    Ok(())
+}

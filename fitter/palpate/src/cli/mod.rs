@@ -1,0 +1,64 @@
+//! The `palpate` command line: one file per subcommand, each with its `Args` and `run`.
+
+use clap::{Parser, Subcommand};
+
+pub mod calibrate_fsr;
+pub mod demo;
+pub mod diagnose;
+pub mod fit;
+pub mod fit_motion;
+pub mod haptic;
+pub mod probe;
+pub mod probe_sim;
+pub mod simulate;
+pub mod specimen;
+
+/// palpate: learn how a soft object deforms when touched, and play it back at haptic rates.
+#[derive(Debug, Parser)]
+#[command(name = "palpate", version, about, long_about = None)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// Subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// The whole loop on the bundled data: fit, diagnose, export, haptic replay over a pty.
+    Demo(demo::Args),
+    /// Simulate one static interaction with the runtime; writes displacements CSV and VTK.
+    Simulate(simulate::Args),
+    /// Fit material parameters to a static contact dataset (seed 000) and export a model.
+    Fit(fit::Args),
+    /// Fit an FSR calibration (balance readings or datasheet points) and write the probe's calibration.
+    CalibrateFsr(calibrate_fsr::Args),
+    /// Read the probe's force stream live, record it to CSV, report the link's counters.
+    Probe(probe::Args),
+    /// Run the probe firmware library on the host behind a simulated ADC, streaming a scripted force.
+    ProbeSim(probe_sim::Args),
+    /// Drive the runtime with the live force stream (force-driven contact) and report latency.
+    Haptic(haptic::Args),
+    /// Fit visco-elastic parameters to a motion dataset (Real2Sim).
+    FitMotion(fit_motion::Args),
+    /// Simulate a stand-in specimen with undeclared effects as a static dataset (+ truth.json).
+    Specimen(specimen::Args),
+    /// Trace a static dataset's residual to missing effects, adopt those that earn their place, report.
+    Diagnose(diagnose::Args),
+}
+
+/// Runs a parsed command line.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Demo(a) => demo::run(a),
+        Command::Simulate(a) => simulate::run(a),
+        Command::Fit(a) => fit::run(a),
+        Command::CalibrateFsr(a) => calibrate_fsr::run(a),
+        Command::Probe(a) => probe::run(a),
+        Command::ProbeSim(a) => probe_sim::run(a),
+        Command::Haptic(a) => haptic::run(a),
+        Command::FitMotion(a) => fit_motion::run(a),
+        Command::Specimen(a) => specimen::run(a),
+        Command::Diagnose(a) => diagnose::run(a),
+    }
+}

@@ -1,0 +1,680 @@
+//! Small plotting helpers for every report in palpate: line/scatter plots with several series,
+//! histograms and bar charts, as SVG or PNG (chosen by the file extension), written atomically.
+//!
+//! plotters needs a font to lay out any text; the project ships DejaVu Sans
+//! (`fitter/assets/DejaVuSans.ttf`) and registers it as `sans-serif` on first use, so plots do not
+//! depend on the fonts of the machine.
+//!
+//! ```no_run
+//! use palpate_plot::{lines, Series, Style};
+//! let pts = [(0.0, 1.0), (1.0, 0.5), (2.0, 0.2)];
+//! lines("error.svg", "Marker error", "iteration", "rms error (m)", &[Series::new("fit", &pts, Style::LinePoints)])?;
+//! # Ok::<(), palpate_plot::PlotError>(())
+//! ```
+
+use palpate_fem::io::atomic::write_atomic;
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use std::path::{Path, PathBuf};
+
+static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+const SIZE: (u32, u32) = (900, 560);
+
+/// How a series is drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Style {
+    /// Connected line.
+    Line,
+    /// Markers only (scatter).
+    Points,
+    /// Line with markers.
+    LinePoints,
+}
+
+/// One named series of (x, y) points.
+#[derive(Debug, Clone, Copy)]
+pub struct Series<'a> {
+    /// Legend entry.
+    pub name: &'a str,
+    /// The points, in drawing order.
+    pub points: &'a [(f64, f64)],
+    /// How to draw them.
+    pub style: Style,
+}
+
+impl<'a> Series<'a> {
+    /// A series.
+    pub fn new(name: &'a str, points: &'a [(f64, f64)], style: Style) -> Self {
+        Series {
+            name,
+            points,
+            style,
+        }
+    }
+}
+
+/// Axis scales of a line plot.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Axes {
+    /// Logarithmic x axis (points with x ≤ 0 are left out).
+    pub x_log: bool,
+    /// Logarithmic y axis (points with y ≤ 0 are left out).
+    pub y_log: bool,
+}
+
+/// Why a plot was not written.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum PlotError {
+    /// The extension is neither `.svg` nor `.png`.
+    #[error("{file}: unknown plot extension: expected .svg or .png")]
+    Extension {
+        /// The file.
+        file: PathBuf,
+    },
+    /// Nothing to draw (no finite points, no values, no bars).
+    #[error("{file}: nothing to plot: {what}")]
+    Empty {
+        /// The file.
+        file: PathBuf,
+        /// What was empty.
+        what: String,
+    },
+    /// plotters failed to draw.
+    #[error("{file}: drawing failed: {message}")]
+    Draw {
+        /// The file.
+        file: PathBuf,
+        /// plotters' error.
+        message: String,
+    },
+    /// Writing or encoding the file failed.
+    #[error("{file}: cannot write: {message}")]
+    Write {
+        /// The file.
+        file: PathBuf,
+        /// The underlying error chain.
+        message: String,
+    },
+}
+
+/// A line/scatter plot of several series with linear axes.
+pub fn lines(
+    path: impl AsRef<Path>,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[Series],
+) -> Result<(), PlotError> {
+    lines_with(path, title, x_label, y_label, series, Axes::default())
+}
+
+/// A line/scatter plot with a choice of linear or logarithmic axes (e.g. an L-curve). Non-finite
+/// points, and non-positive ones on a log axis, are left out.
+pub fn lines_with(
+    path: impl AsRef<Path>,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[Series],
+    axes: Axes,
+) -> Result<(), PlotError> {
+    let path = path.as_ref();
+    // Log axes are drawn as linear axes over log10 of the data, labelled with the powers.
+    let tf = |v: f64, log: bool| {
+        if log {
+            (v > 0.0).then(|| v.log10())
+        } else {
+            Some(v)
+        }
+    };
+    let data: Vec<(&Series, Vec<(f64, f64)>)> = series
+        .iter()
+        .map(|s| {
+            let pts = s
+                .points
+                .iter()
+                .filter_map(|&(x, y)| Some((tf(x, axes.x_log)?, tf(y, axes.y_log)?)))
+                .filter(|(x, y)| x.is_finite() && y.is_finite())
+                .collect();
+            (s, pts)
+        })
+        .collect();
+    let all: Vec<(f64, f64)> = data.iter().flat_map(|(_, p)| p.iter().copied()).collect();
+    if all.is_empty() {
+        return Err(PlotError::Empty {
+            file: path.to_path_buf(),
+            what: "no finite points in any series".into(),
+        });
+    }
+    let xr = padded(all.iter().map(|p| p.0));
+    let yr = padded(all.iter().map(|p| p.1));
+    let ctx = LinesCtx {
+        title,
+        x_label,
+        y_label,
+        data: &data,
+        xr,
+        yr,
+        axes,
+        legend: series.len() > 1 || series.iter().any(|s| !s.name.is_empty()),
+    };
+    render_impl(path, &|r| draw_lines(r, &ctx), &|r| draw_lines(r, &ctx))
+}
+
+struct LinesCtx<'a> {
+    title: &'a str,
+    x_label: &'a str,
+    y_label: &'a str,
+    data: &'a [(&'a Series<'a>, Vec<(f64, f64)>)],
+    xr: (f64, f64),
+    yr: (f64, f64),
+    axes: Axes,
+    legend: bool,
+}
+
+fn draw_lines<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, c: &LinesCtx) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    let LinesCtx {
+        title,
+        x_label,
+        y_label,
+        data,
+        xr,
+        yr,
+        axes,
+        legend,
+    } = *c;
+    // Log axes: label only the integer powers of ten (the others would print rounded powers).
+    let fmt = |log: bool, span: f64| {
+        move |v: &f64| {
+            if !log {
+                tick(*v, span)
+            } else if (v - v.round()).abs() < 1e-6 {
+                format!("1e{}", v.round())
+            } else {
+                String::new()
+            }
+        }
+    };
+    {
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 24))
+            .margin(12)
+            .x_label_area_size(45)
+            .y_label_area_size(80)
+            .build_cartesian_2d(xr.0..xr.1, yr.0..yr.1)?;
+        chart
+            .configure_mesh()
+            .x_desc(x_label)
+            .y_desc(y_label)
+            .x_label_formatter(&fmt(axes.x_log, xr.1 - xr.0))
+            .y_label_formatter(&fmt(axes.y_log, yr.1 - yr.0))
+            .label_style(("sans-serif", 14))
+            .draw()?;
+        for (k, (s, pts)) in data.iter().enumerate() {
+            let color = Palette99::pick(k).to_rgba();
+            let line = matches!(s.style, Style::Line | Style::LinePoints);
+            let dots = matches!(s.style, Style::Points | Style::LinePoints);
+            if line {
+                chart
+                    .draw_series(LineSeries::new(pts.iter().copied(), color.stroke_width(2)))?
+                    .label(s.name)
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
+                    });
+            }
+            if dots {
+                let a =
+                    chart.draw_series(pts.iter().map(|&p| Circle::new(p, 3, color.filled())))?;
+                if !line {
+                    a.label(s.name)
+                        .legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));
+                }
+            }
+        }
+        if legend {
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK)
+                .label_font(("sans-serif", 14))
+                .draw()?;
+        }
+        Ok(())
+    }
+}
+
+/// A histogram of `values` in `bins` equal bins over their range (non-finite values left out).
+pub fn histogram(
+    path: impl AsRef<Path>,
+    title: &str,
+    x_label: &str,
+    values: &[f64],
+    bins: usize,
+) -> Result<(), PlotError> {
+    let path = path.as_ref();
+    let v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() || bins == 0 {
+        return Err(PlotError::Empty {
+            file: path.to_path_buf(),
+            what: "no finite values or zero bins".into(),
+        });
+    }
+    let (lo, hi) = v
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+            (a.min(x), b.max(x))
+        });
+    // A constant sample gets a bin of width 1e-9·|value| (or 1) around it.
+    let (lo, hi) = if hi > lo {
+        (lo, hi)
+    } else {
+        (
+            lo - 0.5 * lo.abs().max(1.0) * 1e-9,
+            hi + 0.5 * hi.abs().max(1.0) * 1e-9,
+        )
+    };
+    let counts = bin_counts(&v, lo, hi, bins);
+    let w = (hi - lo) / bins as f64;
+    let top = *counts.iter().max().unwrap_or(&1) as f64 * 1.08;
+    let ctx = HistCtx {
+        title,
+        x_label,
+        lo,
+        hi,
+        w,
+        top,
+        counts: &counts,
+    };
+    render_impl(path, &|r| draw_histogram(r, &ctx), &|r| {
+        draw_histogram(r, &ctx)
+    })
+}
+
+struct HistCtx<'a> {
+    title: &'a str,
+    x_label: &'a str,
+    lo: f64,
+    hi: f64,
+    w: f64,
+    top: f64,
+    counts: &'a [usize],
+}
+
+fn draw_histogram<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, c: &HistCtx) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    let HistCtx {
+        title,
+        x_label,
+        lo,
+        hi,
+        w,
+        top,
+        counts,
+    } = *c;
+    {
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 24))
+            .margin(12)
+            .x_label_area_size(45)
+            .y_label_area_size(60)
+            .build_cartesian_2d(lo..hi, 0.0..top.max(1.0))?;
+        chart
+            .configure_mesh()
+            .x_desc(x_label)
+            .y_desc("count")
+            .x_label_formatter(&|v| tick(*v, hi - lo))
+            .y_label_formatter(&|v| tick(*v, top))
+            .label_style(("sans-serif", 14))
+            .draw()?;
+        let color = Palette99::pick(0).to_rgba();
+        chart.draw_series(counts.iter().enumerate().map(|(k, &c)| {
+            let x0 = lo + k as f64 * w;
+            let mut r = Rectangle::new([(x0, 0.0), (x0 + w, c as f64)], color.filled());
+            r.set_margin(0, 0, 1, 1);
+            r
+        }))?;
+        Ok(())
+    }
+}
+
+/// A bar chart of labelled values (negative values draw downward from zero).
+pub fn bars(
+    path: impl AsRef<Path>,
+    title: &str,
+    y_label: &str,
+    bars: &[(&str, f64)],
+) -> Result<(), PlotError> {
+    let path = path.as_ref();
+    let b: Vec<(&str, f64)> = bars
+        .iter()
+        .copied()
+        .filter(|(_, v)| v.is_finite())
+        .collect();
+    if b.is_empty() {
+        return Err(PlotError::Empty {
+            file: path.to_path_buf(),
+            what: "no bars with finite values".into(),
+        });
+    }
+    let lo = b.iter().map(|x| x.1).fold(0.0, f64::min);
+    let hi = b.iter().map(|x| x.1).fold(0.0, f64::max);
+    let pad = 0.08 * (hi - lo).max(f64::MIN_POSITIVE);
+    let ctx = BarsCtx {
+        title,
+        y_label,
+        bars: &b,
+        lo,
+        hi,
+        pad,
+    };
+    render_impl(path, &|r| draw_bars(r, &ctx), &|r| draw_bars(r, &ctx))
+}
+
+struct BarsCtx<'a> {
+    title: &'a str,
+    y_label: &'a str,
+    bars: &'a [(&'a str, f64)],
+    lo: f64,
+    hi: f64,
+    pad: f64,
+}
+
+fn draw_bars<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, c: &BarsCtx) -> DrawResult
+where
+    DB::ErrorType: 'static,
+{
+    let BarsCtx {
+        title,
+        y_label,
+        bars: b,
+        lo,
+        hi,
+        pad,
+    } = *c;
+    let n = b.len();
+    {
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 24))
+            .margin(12)
+            .x_label_area_size(45)
+            .y_label_area_size(80)
+            .build_cartesian_2d(
+                -0.5..(n as f64 - 0.5),
+                (lo - if lo < 0.0 { pad } else { 0.0 })..(hi + pad),
+            )?;
+        chart
+            .configure_mesh()
+            .disable_x_mesh()
+            .y_desc(y_label)
+            .x_labels(n + 1)
+            // Bars sit at integer x; plotters puts its "nice" ticks there when asked for n + 1.
+            .x_label_formatter(&|v| {
+                let i = v.round();
+                if (v - i).abs() < 1e-6 && i >= 0.0 {
+                    b.get(i as usize)
+                        .map(|x| x.0.to_string())
+                        .unwrap_or_default()
+                } else {
+                    String::new()
+                }
+            })
+            .y_label_formatter(&|v| tick(*v, hi - lo + pad))
+            .label_style(("sans-serif", 14))
+            .draw()?;
+        let color = Palette99::pick(0).to_rgba();
+        chart.draw_series(b.iter().enumerate().map(|(i, &(_, v))| {
+            Rectangle::new([(i as f64 - 0.4, 0.0), (i as f64 + 0.4, v)], color.filled())
+        }))?;
+        Ok(())
+    }
+}
+
+/// Counts of `v` in `bins` equal bins over [lo, hi] (the last bin closed).
+fn bin_counts(v: &[f64], lo: f64, hi: f64, bins: usize) -> Vec<usize> {
+    let mut counts = vec![0usize; bins];
+    for &x in v {
+        let k = (((x - lo) / (hi - lo)) * bins as f64).floor() as isize;
+        counts[k.clamp(0, bins as isize - 1) as usize] += 1;
+    }
+    counts
+}
+
+/// Range of finite values with 5% padding (a unit range around a single value).
+fn padded(v: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (lo, hi) = v.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+        (a.min(x), b.max(x))
+    });
+    if hi > lo {
+        let p = 0.05 * (hi - lo);
+        (lo - p, hi + p)
+    } else {
+        let p = 0.5 * lo.abs().max(1e-12);
+        (lo - p, hi + p)
+    }
+}
+
+/// Tick label: plain for moderate magnitudes, scientific otherwise; values within 1e-9 of the
+/// axis span from zero are zero (round-off of the tick positions).
+fn tick(v: f64, span: f64) -> String {
+    let v = if v.abs() < 1e-9 * span.abs() { 0.0 } else { v };
+    let a = v.abs();
+    if a == 0.0 || (1e-3..1e5).contains(&a) {
+        let s = format!("{v:.4}");
+        let s = s.trim_end_matches('0').trim_end_matches('.');
+        if s == "-0" {
+            "0".into()
+        } else {
+            s.into()
+        }
+    } else {
+        format!("{v:.2e}")
+    }
+}
+
+fn register_font() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        // The bundled file is a valid TrueType font; if registration ever failed, drawing text
+        // would report FontUnavailable as a PlotError::Draw, so the result can be ignored here.
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
+    });
+}
+
+type DrawResult = Result<(), Box<dyn std::error::Error>>;
+
+/// Renders onto an SVG or PNG canvas chosen by the extension (`svg` and `png` are the same
+/// generic drawing function at the two backends), then writes the file atomically.
+fn render_impl(
+    path: &Path,
+    svg: &dyn Fn(DrawingArea<SVGBackend, Shift>) -> DrawResult,
+    png: &dyn Fn(DrawingArea<BitMapBackend, Shift>) -> DrawResult,
+) -> Result<(), PlotError> {
+    register_font();
+    let file = || path.to_path_buf();
+    let draw_err = |e: Box<dyn std::error::Error>| PlotError::Draw {
+        file: file(),
+        message: e.to_string(),
+    };
+    let bytes = match path.extension().and_then(|e| e.to_str()) {
+        Some("svg") => {
+            let mut s = String::new();
+            {
+                let root = SVGBackend::with_string(&mut s, SIZE).into_drawing_area();
+                root.fill(&WHITE).map_err(|e| draw_err(e.into()))?;
+                svg(root.clone()).map_err(draw_err)?;
+                root.present().map_err(|e| draw_err(e.into()))?;
+            }
+            s.into_bytes()
+        }
+        Some("png") => {
+            let mut rgb = vec![0u8; (SIZE.0 * SIZE.1 * 3) as usize];
+            {
+                let root = BitMapBackend::with_buffer(&mut rgb, SIZE).into_drawing_area();
+                root.fill(&WHITE).map_err(|e| draw_err(e.into()))?;
+                png(root.clone()).map_err(draw_err)?;
+                root.present().map_err(|e| draw_err(e.into()))?;
+            }
+            encode_png(&rgb).map_err(|e| PlotError::Write {
+                file: file(),
+                message: e.to_string(),
+            })?
+        }
+        _ => return Err(PlotError::Extension { file: file() }),
+    };
+    write_atomic(path, &bytes).map_err(|e| PlotError::Write {
+        file: file(),
+        message: format!("{e:#}"),
+    })
+}
+
+fn encode_png(rgb: &[u8]) -> Result<Vec<u8>, png::EncodingError> {
+    let mut out = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut out, SIZE.0, SIZE.1);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut w = enc.write_header()?;
+        w.write_image_data(rgb)?;
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn decode_png(bytes: &[u8]) -> (u32, u32, Vec<u8>) {
+        let dec = png::Decoder::new(std::io::Cursor::new(bytes));
+        let mut r = dec.read_info().unwrap();
+        let mut buf = vec![0; r.output_buffer_size()];
+        let info = r.next_frame(&mut buf).unwrap();
+        (info.width, info.height, buf)
+    }
+
+    #[test]
+    fn line_plot_svg_holds_title_labels_and_series() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("l.svg");
+        let a: Vec<(f64, f64)> = (0..20)
+            .map(|i| (i as f64, (i as f64 * 0.3).sin()))
+            .collect();
+        let b: Vec<(f64, f64)> = (0..20).map(|i| (i as f64, 0.05 * i as f64)).collect();
+        lines(
+            &p,
+            "Marker error",
+            "iteration",
+            "error (m)",
+            &[
+                Series::new("sine", &a, Style::Line),
+                Series::new("ramp", &b, Style::Points),
+            ],
+        )
+        .unwrap();
+        let s = std::fs::read_to_string(&p).unwrap();
+        for text in ["Marker error", "iteration", "error (m)", "sine", "ramp"] {
+            assert!(s.contains(text), "svg lacks {text}");
+        }
+        // 20 scatter markers plus the legend marker.
+        assert!(s.matches("<circle").count() >= 21);
+        assert!(s.contains("<polyline"));
+    }
+
+    #[test]
+    fn log_axes_png_is_a_real_image() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("lcurve.png");
+        let pts: Vec<(f64, f64)> = (0..12)
+            .map(|i| (10f64.powi(i - 6), 1.0 / (1.0 + 10f64.powi(i - 6))))
+            .collect();
+        lines_with(
+            &p,
+            "L-curve",
+            "gamma",
+            "residual",
+            &[Series::new("fit", &pts, Style::LinePoints)],
+            Axes {
+                x_log: true,
+                y_log: true,
+            },
+        )
+        .unwrap();
+        let (w, h, px) = decode_png(&std::fs::read(&p).unwrap());
+        assert_eq!((w, h), SIZE);
+        // Not blank: a good share of pixels is not white (text, axes, the curve).
+        let ink = px.chunks(3).filter(|c| c.iter().any(|&v| v < 200)).count();
+        assert!(ink > 2000, "only {ink} non-white pixels");
+    }
+
+    #[test]
+    fn histogram_counts_and_files() {
+        assert_eq!(
+            bin_counts(&[0.0, 0.1, 0.5, 0.99, 1.0], 0.0, 1.0, 2),
+            vec![2, 3]
+        );
+        let dir = tempfile::tempdir().unwrap();
+        let v: Vec<f64> = (0..500)
+            .map(|i| ((i * 7919) % 1000) as f64 / 1000.0)
+            .collect();
+        histogram(dir.path().join("h.svg"), "Fitted E", "E (Pa)", &v, 20).unwrap();
+        let s = std::fs::read_to_string(dir.path().join("h.svg")).unwrap();
+        assert!(s.contains("Fitted E") && s.matches("<rect").count() >= 20);
+        histogram(dir.path().join("h.png"), "Fitted E", "E (Pa)", &v, 20).unwrap();
+        assert!(std::fs::metadata(dir.path().join("h.png")).unwrap().len() > 5000);
+    }
+
+    #[test]
+    fn bar_chart_names_every_bar() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("b.svg");
+        bars(
+            &p,
+            "Error per measurement",
+            "rms (mm)",
+            &[("p1", 0.4), ("p2", 1.2), ("p3", -0.3)],
+        )
+        .unwrap();
+        let s = std::fs::read_to_string(&p).unwrap();
+        for text in ["Error per measurement", "p1", "p2", "p3", "rms (mm)"] {
+            assert!(s.contains(text), "svg lacks {text}");
+        }
+        bars(
+            dir.path().join("b.png"),
+            "Error per measurement",
+            "rms (mm)",
+            &[("p1", 0.4)],
+        )
+        .unwrap();
+    }
+
+    #[test]
+    fn bad_requests_are_errors_not_panics() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = lines(
+            dir.path().join("x.pdf"),
+            "t",
+            "x",
+            "y",
+            &[Series::new("a", &[(0.0, 1.0)], Style::Line)],
+        );
+        assert!(e
+            .unwrap_err()
+            .to_string()
+            .contains("x.pdf: unknown plot extension"));
+        let e = lines(
+            dir.path().join("x.svg"),
+            "t",
+            "x",
+            "y",
+            &[Series::new("a", &[(f64::NAN, 1.0)], Style::Line)],
+        );
+        assert!(e.unwrap_err().to_string().contains("nothing to plot"));
+        let e = histogram(dir.path().join("h.svg"), "t", "x", &[], 10);
+        assert!(e.is_err());
+    }
+}

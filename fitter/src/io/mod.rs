@@ -1,3 +1,0 @@
-//! File output helpers shared by every command: nothing is lost on a crash or error.
-
-pub mod atomic;
