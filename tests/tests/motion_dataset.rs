@@ -80,3 +80,88 @@ fn errors_name_file_line_and_field() {
     });
     assert!(e.contains("dataset.toml") && e.contains("base"), "{e}");
 }
+
+/// Appends `row` to `file` in a copy of the example and returns the loader's error.
+fn with_row(file: &'static str, row: &'static str) -> String {
+    broken(move |d| {
+        let mut t = std::fs::read_to_string(d.join(file)).unwrap();
+        t.push_str(row);
+        std::fs::write(d.join(file), t).unwrap();
+    })
+}
+
+/// Replaces `from` by `to` in the example's dataset.toml and returns the loader's error.
+fn with_toml(from: &'static str, to: &'static str) -> String {
+    broken(move |d| {
+        let t = std::fs::read_to_string(d.join("dataset.toml")).unwrap();
+        assert!(t.contains(from));
+        std::fs::write(d.join("dataset.toml"), t.replacen(from, to, 1)).unwrap();
+    })
+}
+
+/// Step counts are bounded before anything is allocated: times and `steps` from the issue's
+/// reproducers (capacity overflow, 24 GB allocations, a million steps) are refused with the line
+/// and field, quickly.
+#[test]
+fn step_counts_are_bounded_before_allocation() {
+    let t0 = std::time::Instant::now();
+    for t in ["1e20", "1e12", "5555.0"] {
+        let row: &'static str = Box::leak(format!("{t},m0,0,0.0267,0.01\n").into_boxed_str());
+        let e = with_row("trajectories.csv", row);
+        assert!(
+            e.contains("trajectories.csv:") && e.contains("field t") && e.contains("at most"),
+            "t = {t}: {e}"
+        );
+    }
+    for steps in ["18446744073709551615", "2000000000000000000", "4000000000"] {
+        let to: &'static str =
+            Box::leak(format!("dt = 0.005555555555555556\nsteps = {steps}").into_boxed_str());
+        let e = with_toml("dt = 0.005555555555555556", to);
+        assert!(
+            e.contains("dataset.toml") && e.contains("steps"),
+            "steps = {steps}: {e}"
+        );
+    }
+    // Tiny dt: the existing rows now sit on huge step numbers.
+    let e = with_toml("dt = 0.005555555555555556", "dt = 1e-9");
+    assert!(e.contains("field t") || e.contains("steps"), "{e}");
+    // Steps far past the data: no information, refused with what would be accepted.
+    let e = with_toml(
+        "dt = 0.005555555555555556",
+        "dt = 0.005555555555555556\nsteps = 1000",
+    );
+    assert!(
+        e.contains("last observation is step 45") && e.contains("≤ 90"),
+        "{e}"
+    );
+    let e = with_toml("dt = 0.005555555555555556", "dt = inf");
+    assert!(e.contains("field dt"), "{e}");
+    assert!(
+        t0.elapsed().as_secs_f64() < 30.0,
+        "bounds are checked before work"
+    );
+}
+
+/// A trajectory row given twice is an error naming both lines, not silently overwritten.
+#[test]
+fn duplicate_rows_are_refused() {
+    let e = with_row(
+        "trajectories.csv",
+        "0.005556,m0,0.0001344,0.0265321,0.0098414\n",
+    );
+    assert!(
+        e.contains("given twice") && e.contains("first at line 2") && e.contains("m0"),
+        "{e}"
+    );
+}
+
+/// A marker metres outside a centimetre bar (wrong units or frame) is refused with its name,
+/// its distance and what is allowed.
+#[test]
+fn markers_far_outside_the_body_are_refused() {
+    let e = with_row("markers.csv", "far,5.0,0.02,0.01\n");
+    assert!(
+        e.contains("markers.csv:") && e.contains("\"far\"") && e.contains("outside the mesh"),
+        "{e}"
+    );
+}

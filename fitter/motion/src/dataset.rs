@@ -198,6 +198,20 @@ fn num(file: &Path, line: usize, field: &str, s: &str) -> Result<f64, DatasetErr
     Ok(v)
 }
 
+/// The most steps a motion dataset may ask for. The forward simulation keeps every step's state
+/// and the adjoint keeps its tape, so memory and time grow linearly with the step count: 100,000
+/// steps is 100 s at 1 kHz or 17 min at 100 Hz of capture — far more than one fit can use, and
+/// small enough that a typo in `t`, `dt` or `steps` is refused instead of allocating gigabytes.
+pub const MAX_STEPS: usize = 100_000;
+
+/// How far past the last observation `steps` may reach, as a multiple of the last observed
+/// step: steps after the data carry no information for the fit.
+pub const MAX_STEPS_PAST_DATA: usize = 2;
+
+/// How far a marker may sit outside the mesh's bounding box, as a fraction of the box diagonal:
+/// enough for markers on stand-offs, not for a marker in the wrong units or the wrong frame.
+pub const MARKER_OUTSIDE_FRACTION: f64 = 0.25;
+
 fn step_of(file: &Path, line: usize, t: f64, dt: f64) -> Result<usize, DatasetError> {
     let n = (t / dt).round();
     if n < 0.0 || (t - n * dt).abs() > 1e-3 * dt {
@@ -205,6 +219,17 @@ fn step_of(file: &Path, line: usize, t: f64, dt: f64) -> Result<usize, DatasetEr
             file,
             line,
             format!("field t: {t} s is not on the step grid n·{dt} s"),
+        ));
+    }
+    // Checked before the cast: `as usize` saturates, and the count sizes allocations.
+    if n > MAX_STEPS as f64 {
+        return Err(bad(
+            file,
+            line,
+            format!(
+                "field t: {t} s is step {n:.0} of dt = {dt} s; at most {MAX_STEPS} steps are \
+                 supported (check the units of t and dt)"
+            ),
         ));
     }
     Ok(n as usize)
@@ -215,11 +240,11 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
     let tf = dir.join("dataset.toml");
     let config: DatasetToml =
         toml::from_str(&read(&tf)?).map_err(|e| bad(&tf, 0, e.to_string()))?;
-    if !(config.dt > 0.0) {
+    if !(config.dt > 0.0 && config.dt.is_finite()) {
         return Err(bad(
             &tf,
             0,
-            format!("field dt: must be > 0, found {}", config.dt),
+            format!("field dt: must be finite and > 0, found {}", config.dt),
         ));
     }
     let mass = match config.mass.as_deref() {
@@ -258,6 +283,7 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
             ],
         ));
     }
+    check_markers_near_mesh(&kf, &krows, &marker_pts, &mesh)?;
     // Trajectories, clamps, forces.
     let jf = dir.join("trajectories.csv");
     let traj = csv(&jf, &[&["t", "marker", "x", "y", "z"]])?;
@@ -286,6 +312,26 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
         }
     }
     let steps = config.steps.unwrap_or(last_step);
+    if steps > MAX_STEPS {
+        return Err(bad(
+            &tf,
+            0,
+            format!("field steps: {steps}, at most {MAX_STEPS} steps are supported"),
+        ));
+    }
+    if last_step > 0 && steps > MAX_STEPS_PAST_DATA * last_step {
+        return Err(bad(
+            &tf,
+            0,
+            format!(
+                "field steps: {steps}, but the last observation is step {last_step} (t = {} s); \
+                 steps past {MAX_STEPS_PAST_DATA}× the data carry no information — declare \
+                 steps ≤ {} or leave it out",
+                last_step as f64 * dt,
+                MAX_STEPS_PAST_DATA * last_step
+            ),
+        ));
+    }
     if steps == 0 {
         return Err(bad(
             &tf,
@@ -403,6 +449,7 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
         force_weight: config.force_weight.unwrap_or(1.0),
     };
     if let Some((_, rows)) = &traj {
+        let mut seen_markers: HashMap<(usize, usize), usize> = HashMap::new();
         for (line, f) in rows {
             let n = step_of(&jf, *line, num(&jf, *line, "t", &f[0])?, dt)?;
             let i = *marker_index.get(&f[1]).ok_or_else(|| {
@@ -412,6 +459,16 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
                     format!("field marker: {:?} not in markers.csv", f[1]),
                 )
             })?;
+            if let Some(first) = seen_markers.insert((n, i), *line) {
+                return Err(bad(
+                    &jf,
+                    *line,
+                    format!(
+                        "marker {:?} at t = {} s is given twice (first at line {first})",
+                        f[1], f[0]
+                    ),
+                ));
+            }
             if n >= 1 && n <= steps {
                 obs.markers[n - 1][i] = Some([
                     num(&jf, *line, "x", &f[2])?,
@@ -422,6 +479,7 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
         }
     }
     if let Some((_, rows)) = &forces {
+        let mut seen_forces: HashMap<(usize, usize), usize> = HashMap::new();
         for (line, f) in rows {
             let n = step_of(&ff, *line, num(&ff, *line, "t", &f[0])?, dt)?;
             let c = *clamp_index.get(f[1].as_str()).ok_or_else(|| {
@@ -431,6 +489,16 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
                     format!("field clamp: {:?} not in dataset.toml clamps", f[1]),
                 )
             })?;
+            if let Some(first) = seen_forces.insert((n, c), *line) {
+                return Err(bad(
+                    &ff,
+                    *line,
+                    format!(
+                        "clamp {:?} at t = {} s is given twice (first at line {first})",
+                        f[1], f[0]
+                    ),
+                ));
+            }
             if n >= 1 && n <= steps {
                 obs.forces[n - 1][c] = Some([
                     num(&ff, *line, "fx", &f[2])?,
@@ -453,4 +521,43 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
         model,
         obs,
     })
+}
+
+/// Refuses markers far outside the body: a marker in other units or another frame would be
+/// embedded by extrapolating a boundary element's shape functions and fitted as if it were real.
+fn check_markers_near_mesh(
+    file: &Path,
+    rows: &[(usize, Vec<String>)],
+    markers: &[(String, [f64; 3])],
+    mesh: &Mesh,
+) -> Result<(), DatasetError> {
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for p in &mesh.nodes {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let diagonal = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
+    let allowed = MARKER_OUTSIDE_FRACTION * diagonal;
+    for ((line, _), (name, p)) in rows.iter().zip(markers) {
+        let outside = (0..3)
+            .map(|k| (lo[k] - p[k]).max(p[k] - hi[k]).max(0.0).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        if outside > allowed {
+            return Err(bad(
+                file,
+                *line,
+                format!(
+                    "marker {name:?} at ({:.4}, {:.4}, {:.4}) m lies {outside:.4} m outside the \
+                     mesh's bounding box [{:.4}, {:.4}] × [{:.4}, {:.4}] × [{:.4}, {:.4}] m; \
+                     markers may sit at most {allowed:.4} m ({MARKER_OUTSIDE_FRACTION} × the \
+                     box diagonal) off the body (check units and frame)",
+                    p[0], p[1], p[2], lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
