@@ -1,4 +1,5 @@
-//! Frames out through an `embedded-io` writer, encoded on the stack.
+//! Frames out through an `embedded-io` writer, encoded on the stack into a fixed-capacity
+//! `heapless::Vec` of one frame's bound.
 
 use palpate_protocol::link::{codec, Frame, LinkError, MAX_FRAME_ENCODED};
 
@@ -47,10 +48,9 @@ impl<W: embedded_io::Write> FrameWriter<W> {
 
     /// Encodes and writes one frame.
     pub fn send(&mut self, frame: &Frame) -> Result<(), TxError<W::Error>> {
-        let mut buf = [0u8; MAX_FRAME_ENCODED];
-        let n =
-            codec::encode_with_version(self.version, frame, &mut buf).map_err(TxError::Encode)?;
-        self.w.write_all(&buf[..n]).map_err(TxError::Write)?;
+        let mut buf = heapless::Vec::<u8, MAX_FRAME_ENCODED>::new();
+        codec::encode_into_with_version(self.version, frame, &mut buf).map_err(TxError::Encode)?;
+        self.w.write_all(&buf).map_err(TxError::Write)?;
         self.sent = self.sent.wrapping_add(1);
         Ok(())
     }

@@ -5,6 +5,15 @@ use super::{Frame, LinkError, Rejection, LINK_VERSION, MAX_FRAME_BODY, MAX_FRAME
 
 /// CRC-32C (Castagnoli, `CRC_32_ISCSI`), the CRC postcard's `use-crc` flavours use; it detects
 /// every burst of up to 32 bits and, for frames of this length, every error of up to 5 bits.
+///
+/// Computed here with the `crc` crate rather than through postcard's `to_slice_crc32` /
+/// `from_bytes_crc32` (so the workspace does not enable postcard's `use-crc`): the frame CRC
+/// covers the version byte, which is outside postcard's payload, and the receiver must check
+/// the CRC *before* the version and the postcard layout, reporting both CRC values
+/// ([`Rejection::Crc`]) and refusing trailing bytes. postcard's CRC flavour deserialises first
+/// and then reports a bare `DeserializeBadCrc` (a damaged frame would be counted as `Decode`),
+/// and ignores bytes after the CRC. The encoder could use it with a digest pre-fed with the
+/// version byte (same bytes), but one CRC path for both directions is simpler to keep right.
 pub const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
 
 /// Encodes `frame` with the current [`LINK_VERSION`] into `out`, delimiter included, and
@@ -42,6 +51,33 @@ pub fn encode_with_version(version: u8, frame: &Frame, out: &mut [u8]) -> Result
     Ok(used + 1)
 }
 
+/// Appends `frame`, encoded with the current [`LINK_VERSION`] and delimiter included, to the
+/// fixed-capacity `out` (e.g. a transmit buffer collecting several frames) and returns the
+/// number of bytes appended. If the frame does not fit in the remaining capacity, `out` is left
+/// as it was and the error is [`LinkError::BufferTooSmall`] with `got` = the remaining capacity.
+/// An empty `heapless::Vec<u8, MAX_FRAME_ENCODED>` always suffices.
+pub fn encode_into<const N: usize>(
+    frame: &Frame,
+    out: &mut heapless::Vec<u8, N>,
+) -> Result<usize, LinkError> {
+    encode_into_with_version(LINK_VERSION, frame, out)
+}
+
+/// Like [`encode_into`] with an explicit version byte (see [`encode_with_version`]).
+pub fn encode_into_with_version<const N: usize>(
+    version: u8,
+    frame: &Frame,
+    out: &mut heapless::Vec<u8, N>,
+) -> Result<usize, LinkError> {
+    let start = out.len();
+    // Expose the spare capacity as a slice (filling to N cannot exceed the capacity), encode
+    // into it, then keep exactly the bytes written.
+    out.resize(N, 0).map_err(|_| LinkError::Serialize)?;
+    let result = encode_with_version(version, frame, &mut out[start..]);
+    out.truncate(start + *result.as_ref().unwrap_or(&0));
+    result
+}
+
 /// Decodes the COBS bytes of one frame (delimiter stripped) in place and checks length, CRC,
 /// version, postcard layout (no bytes left over) and content.
 pub fn decode(encoded: &mut [u8]) -> Result<Frame, Rejection> {
@@ -65,5 +101,15 @@ pub fn decode(encoded: &mut [u8]) -> Result<Frame, Rejection> {
         return Err(Rejection::Decode);
     }
     frame.validate().map_err(Rejection::Invalid)?;
+    // The hello's version field repeats the frame's version byte: a disagreement is an
+    // inconsistent (or forged) identity, refused rather than trusted.
+    if let Frame::Hello(h) = frame {
+        if h.protocol_version != u16::from(payload[0]) {
+            return Err(Rejection::HelloVersionMismatch {
+                frame_version: payload[0],
+                hello_version: h.protocol_version,
+            });
+        }
+    }
     Ok(frame)
 }

@@ -70,6 +70,15 @@ pub enum Rejection {
         /// The repeated sequence number.
         seq: u32,
     },
+    /// An intact [`Hello`](super::Hello) claims a protocol version other than the frame's
+    /// version byte (e.g. a hello saying 2 inside a version-1 frame): the peer's identity is
+    /// inconsistent, so the hello is refused rather than restarting the sequence.
+    HelloVersionMismatch {
+        /// The frame's version byte (the version this receiver speaks).
+        frame_version: u8,
+        /// The `protocol_version` the hello claims.
+        hello_version: u16,
+    },
 }
 
 impl fmt::Display for Rejection {
@@ -100,6 +109,13 @@ impl fmt::Display for Rejection {
             Rejection::Decode => write!(f, "payload is not a valid postcard frame"),
             Rejection::Invalid(what) => write!(f, "invalid frame content: {what}"),
             Rejection::Duplicate { seq } => write!(f, "duplicate sample sequence number {seq}"),
+            Rejection::HelloVersionMismatch {
+                frame_version,
+                hello_version,
+            } => write!(
+                f,
+                "hello claims protocol version {hello_version} inside a version-{frame_version} frame"
+            ),
         }
     }
 }

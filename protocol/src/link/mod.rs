@@ -5,7 +5,8 @@
 //!   sample, error report) and their validation.
 //! - [`calibration`]: the FSR front end (divider → conductance) and force curve, evaluated
 //!   identically by the firmware, the host and the fitter.
-//! - [`codec`]: encode one frame into a caller buffer; decode one frame in place.
+//! - [`codec`]: encode one frame into a caller buffer (a slice, or appended to a
+//!   `heapless::Vec`); decode one frame in place.
 //! - [`receiver`]: a fixed-buffer byte accumulator that resynchronises after garbage, counts
 //!   every rejected and missing frame, and never delivers a corrupted one.
 //!
@@ -28,7 +29,7 @@ pub mod receiver;
 pub use calibration::{Calibration, Divider, ForceCurve, MAX_KNOTS};
 pub use error::{LinkError, Rejection};
 pub use frame::{status, Config, ErrorCode, ErrorReport, ForceSample, Frame, Hello};
-pub use receiver::{LinkStats, Receiver};
+pub use receiver::{LinkStats, Receiver, SEQ_WINDOW};
 
 /// Protocol version carried in the first byte of every frame. Bump on any change of the frame
 /// layout; only ever append enum variants.
