@@ -8,7 +8,13 @@ mod cli;
 
 fn main() {
     let cli = cli::Cli::parse();
+    // Exit status: 0 a clean result, 1 an error (nothing written), 2 a result written with
+    // warnings the user must read.
     if let Err(e) = cli::run(cli) {
+        if let Some(w) = e.downcast_ref::<cli::WrittenWithWarnings>() {
+            eprintln!("warning: {w}");
+            std::process::exit(2);
+        }
         eprintln!("error: {e:#}");
         std::process::exit(1);
     }

@@ -89,6 +89,9 @@ pub struct DisplacementFit {
     pub deformed: Vec<Vec<[f64; 3]>>,
     /// Number of accepted iterations.
     pub iterations: usize,
+    /// Whether the relative decrease fell below the tolerance, or no damped step could decrease
+    /// the objective any more (a stationary point to round-off) — not stopped by the cap.
+    pub converged: bool,
 }
 
 /// Parameter layout: column of (type, set, slot), type 0 = log E, 1 = s.
@@ -430,6 +433,7 @@ pub fn fit_displacement(
     progress(&history[0]);
     let mut mu = 0.0;
     let mut iterations = 0;
+    let mut stationary = false;
     let started = Instant::now();
     let _ = started;
     for it in 1..=opts.max_iterations {
@@ -495,6 +499,7 @@ pub fn fit_displacement(
                             history,
                             deformed: states.into_iter().map(|s| s.x).collect(),
                             iterations,
+                            converged: true,
                         });
                     }
                     break;
@@ -503,6 +508,7 @@ pub fn fit_displacement(
             mu *= 4.0;
         }
         if !accepted {
+            stationary = true;
             break;
         }
     }
@@ -512,6 +518,7 @@ pub fn fit_displacement(
         history,
         deformed: states.into_iter().map(|s| s.x).collect(),
         iterations,
+        converged: stationary,
     })
 }
 

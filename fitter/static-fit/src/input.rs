@@ -35,6 +35,9 @@ pub struct FitInput {
 impl FitInput {
     /// Builds the fit input from a validated dataset.
     pub fn from_dataset(ds: &StaticDataset) -> Result<Self, FitError> {
+        // Data that cannot determine even one homogeneous (λ, α) pair are refused here, before
+        // any solver returns its starting guess as if it were a fit.
+        palpate_fem::sanity::check_static_data(ds, 2).into_result()?;
         let problem = StaticProblem::new(&ds.mesh, &ds.fixed_nodes, &ds.surface)?;
         let mut measurements = Vec::with_capacity(ds.measurements.len());
         for m in &ds.measurements {

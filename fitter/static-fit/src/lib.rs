@@ -48,12 +48,22 @@ pub enum FitError {
     /// Input is inconsistent.
     #[error("{0}")]
     Input(String),
+    /// The data cannot determine the parameters (zero forces, markers that do not move, fewer
+    /// observations than parameters): refused before fitting.
+    #[error("the data cannot be fitted:\n{0}")]
+    Refused(palpate_fem::sanity::Refused),
     /// The least-squares system is rank deficient.
     #[error("the least-squares system is singular: {0}")]
     Singular(String),
     /// A fit produced non-finite or non-physical values.
     #[error("the fit diverged: {0}")]
     Diverged(String),
+}
+
+impl From<palpate_fem::sanity::Refused> for FitError {
+    fn from(r: palpate_fem::sanity::Refused) -> Self {
+        Self::Refused(r)
+    }
 }
 
 /// One (λ, α) pair for all elements, or one per element (§3.4).
@@ -245,6 +255,11 @@ pub struct FitResult {
     pub roughness: [f64; 2],
     /// Wall-clock seconds.
     pub seconds: f64,
+    /// Whether the inverse met its tolerance (false: stopped at the iteration cap).
+    pub converged: bool,
+    /// What the sanity gates found in the result (parameters at bounds, the iteration cap):
+    /// a result with an error finding is not exported by the command line.
+    pub findings: palpate_fem::sanity::Findings,
 }
 
 impl FitResult {

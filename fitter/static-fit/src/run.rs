@@ -78,7 +78,7 @@ fn fit_with(
         warp: o.warp,
         ..o.solve
     };
-    let (params, history, force_res) = match o.method {
+    let (params, history, force_res, converged) = match o.method {
         Method::Force => {
             let fo = ForceOptions {
                 layout: o.layout,
@@ -97,6 +97,7 @@ fn fit_with(
             let mut xbar: Vec<Vec<[f64; 3]>> = Vec::new();
             let mut history = Vec::new();
             let mut last = None;
+            let mut settled = false;
             for it in 0..o.max_iterations.max(1) {
                 let prev = std::mem::take(&mut xbar);
                 for i in 0..input.measurements.len() {
@@ -151,11 +152,12 @@ fn fit_with(
                 // Completion is exact when every free node is observed; otherwise alternate until
                 // the parameters settle (relative change of λ below 1e-6).
                 if change < 1e-6 {
+                    settled = true;
                     break;
                 }
             }
             let fit = last.expect("at least one iteration");
-            (fit.params, history, Some(fit.force_residuals))
+            (fit.params, history, Some(fit.force_residuals), settled)
         }
         Method::Displacement => {
             let mut d = DisplacementOptions::new(o.layout, o.sets);
@@ -165,10 +167,22 @@ fn fit_with(
             d.initial = o.initial;
             d.max_iterations = o.max_iterations;
             let fit = fit_displacement(input, &d, |r| progress(r))?;
-            (fit.params, fit.history, None)
+            (fit.params, fit.history, None, fit.converged)
         }
     };
     let (per_measurement, deformed) = input.evaluate(&params, &solve, force_res.as_deref())?;
+    // The result's own gates: a fit that ran into a parameter bound or its iteration cap is
+    // reported as such (and not exported by the command line), never passed off as a result.
+    let mut findings = palpate_fem::sanity::check_material(&params);
+    findings.extend(palpate_fem::sanity::check_iterations(
+        match o.method {
+            Method::Force => "the force-based completion/refit alternation",
+            Method::Displacement => "the displacement-based Levenberg–Marquardt fit",
+        },
+        history.len().saturating_sub(1),
+        o.max_iterations,
+        converged,
+    ));
     let pairs = if o.layout == Layout::Inhomogeneous {
         spatial_pairs(&input.problem.tets)
     } else {
@@ -193,6 +207,8 @@ fn fit_with(
         deformed,
         roughness: rough,
         seconds: started.elapsed().as_secs_f64(),
+        converged,
+        findings,
     })
 }
 

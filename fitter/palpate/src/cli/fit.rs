@@ -47,10 +47,10 @@ pub struct Args {
     #[arg(long, value_enum, default_value = "displacement")]
     pub method: MethodArg,
     /// Spatial smoothness γ_s (both parameter types); chosen on the L-curve when omitted.
-    #[arg(long)]
+    #[arg(long, value_parser = super::output::non_negative, allow_hyphen_values = true)]
     pub gamma_s: Option<f64>,
     /// Cross-measurement smoothness γ_m (both types); defaults to γ_s.
-    #[arg(long)]
+    #[arg(long, value_parser = super::output::non_negative, allow_hyphen_values = true)]
     pub gamma_m: Option<f64>,
     /// Fit without stiffness warping (R_e = I).
     #[arg(long)]
@@ -69,6 +69,7 @@ pub struct Args {
 /// Runs `palpate fit`.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let command = std::env::args().collect::<Vec<_>>().join(" ");
+    super::output::check_writable(&args.out)?;
     let ds = StaticDataset::read(&args.dataset)
         .with_context(|| format!("reading dataset {}", args.dataset.display()))?;
     let input = FitInput::from_dataset(&ds)?;
@@ -110,6 +111,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         fit.seconds,
         fit.rms() * 1e3
     ));
+    for w in fit.findings.warnings() {
+        eprintln!("{w}");
+    }
+    if fit.findings.has_errors() {
+        anyhow::bail!(
+            "the fit is not a result, nothing was written:\n{}",
+            fit.findings
+                .0
+                .iter()
+                .map(|f| f.to_string())
+                .collect::<Vec<_>>()
+                .join("\n")
+        );
+    }
     let blend = match (layout, sets) {
         (_, Sets::Single) => BlendData::None,
         (Layout::Homogeneous, Sets::PerMeasurement) => {
@@ -131,22 +146,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             fit.gammas
         ),
     };
-    let bytes = ModelBuffers::new(
+    let buffers = ModelBuffers::new(
         &input.problem,
         &ds.mesh.node_tags,
         &fit.params,
         &blend,
         &prov,
-    )?
-    .write(&args.out)?;
+    )?;
     let loo = if args.leave_one_out {
         Some(leave_one_out(&input, &o)?)
     } else {
         None
     };
+    // The report is written beside its place and swapped in right after the model, so a run
+    // killed part-way never leaves a new model next to half of an old report.
     let dir = args.out.with_extension("report");
+    let staged = super::output::Staged::new(&dir)?;
     let files = palpate_static_fit::report::static_report::write_report(
-        &dir,
+        &staged.path,
         &ds.name,
         &command,
         &ds.mesh,
@@ -154,6 +171,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &fit,
         loo.as_deref(),
     )?;
+    let bytes = buffers.write(&args.out)?;
+    let files = staged.commit(files)?;
     println!(
         "{}",
         palpate_static_fit::report::static_report::markdown(
@@ -166,6 +185,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!("model: {} ({bytes} bytes)", args.out.display());
     for f in files {
         println!("wrote {}", f.display());
+    }
+    let warnings = fit.findings.warnings().count();
+    if warnings > 0 {
+        for w in fit.findings.warnings() {
+            eprintln!("{w}");
+        }
+        return Err(super::WrittenWithWarnings(warnings).into());
     }
     Ok(())
 }

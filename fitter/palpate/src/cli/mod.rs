@@ -8,6 +8,7 @@ pub mod diagnose;
 pub mod fit;
 pub mod fit_motion;
 pub mod haptic;
+pub mod output;
 pub mod probe;
 pub mod probe_sim;
 pub mod simulate;
@@ -46,6 +47,23 @@ pub enum Command {
     /// Trace a static dataset's residual to missing effects, adopt those that earn their place, report.
     Diagnose(diagnose::Args),
 }
+
+/// A command wrote its result but found things the user must know (a fit that stopped at its
+/// iteration cap, elements at a parameter bound): `palpate` exits with status 2.
+#[derive(Debug)]
+pub struct WrittenWithWarnings(pub usize);
+
+impl std::fmt::Display for WrittenWithWarnings {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "the result was written with {} warning(s) (above and in the report)",
+            self.0
+        )
+    }
+}
+
+impl std::error::Error for WrittenWithWarnings {}
 
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {

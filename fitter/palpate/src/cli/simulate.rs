@@ -74,9 +74,10 @@ pub struct Args {
     /// Linear model (no stiffness warping).
     #[arg(long)]
     pub no_warp: bool,
-    /// Load increments of the incremental loading (seed 000 §6.1).
-    #[arg(long, default_value_t = 10)]
-    pub increments: usize,
+    /// Load increments of the incremental loading (seed 000 §6.1), 1–1000: each increment is at
+    /// least one solve, and a thousand already resolve any load path a static model can follow.
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub increments: u32,
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
@@ -224,7 +225,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ),
     };
     let mesh = mesh_from_record(&record);
-    let increments = args.increments.max(1);
+    let increments = args.increments.max(1) as usize;
     let cfg = RuntimeConfig {
         warp: !args.no_warp,
         tolerance: 1e-6,
@@ -285,9 +286,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if total_force > 0.0 {
         rt.set_load_steps((total_force / increments as f64) as f32, f32::INFINITY);
     }
+    let diagonal = palpate_fem::sanity::bounding_diagonal(&mesh.nodes);
     let mut last = None;
     let mut ticks = 0;
-    for _ in 0..(increments + 2000) {
+    let mut settled = false;
+    let cap = increments + 2000;
+    for _ in 0..cap {
         let rep = rt.tick();
         ticks += 1;
         if rep.status == SolveStatus::Rejected {
@@ -302,13 +306,49 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             && rep.step <= 1e-6 * umax.max(1e-12)
             && rep.status == SolveStatus::Converged
         {
+            settled = true;
+            break;
+        }
+        // Ten times the object's size is no deformation: stop instead of running to the cap.
+        if !umax.is_finite() || f64::from(umax) > 10.0 * diagonal {
             break;
         }
     }
     let rep = last.context("no tick ran")?;
+    let u = rt.displacements();
+    let disp: Vec<[f64; 3]> = (0..mesh.nodes.len())
+        .map(|i| [0, 1, 2].map(|k| u[3 * i + k] as f64))
+        .collect();
+    // Gates before anything is written: a load far outside the model's range, a solve that never
+    // settled, a probe or contact that touches nothing are errors, not results.
+    let mut findings = palpate_fem::sanity::check_displacements(&mesh.nodes, &disp);
+    if !settled {
+        findings.error(
+            "not-settled",
+            format!(
+                "the incremental solve did not reach equilibrium within {ticks} ticks (cap {cap}): \
+                 load fraction {:.3}, last step {:.3e} m, relative residual {:.1e}",
+                rep.load_fraction, rep.step, rep.rel_residual
+            ),
+        );
+    }
+    if rep.contact_nodes == 0 && args.probe.is_some() {
+        let (lo, hi) = mesh.bounds();
+        findings.error(
+            "no-contact",
+            format!(
+                "the probe touches no node of the object (bounding box [{:.4}, {:.4}] × [{:.4}, \
+                 {:.4}] × [{:.4}, {:.4}] m): nothing would move",
+                lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
+            ),
+        );
+    }
+    let findings = findings.into_result()?;
+    for w in findings.warnings() {
+        eprintln!("{w}");
+    }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
-    let u = rt.displacements();
     write_atomic_with(&args.out.join("displacements.csv"), |w| {
         writeln!(w, "node,ux,uy,uz")?;
         for i in 0..mesh.nodes.len() {
@@ -323,9 +363,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         Ok(())
     })?;
-    let disp: Vec<[f64; 3]> = (0..mesh.nodes.len())
-        .map(|i| [0, 1, 2].map(|k| u[3 * i + k] as f64))
-        .collect();
     let deformed: Vec<[f64; 3]> = (0..mesh.nodes.len())
         .map(|i| [0, 1, 2].map(|k| mesh.nodes[i][k] + disp[i][k]))
         .collect();

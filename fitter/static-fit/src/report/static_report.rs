@@ -105,6 +105,21 @@ pub fn markdown(name: &str, command: &str, fit: &FitResult, loo: Option<&[HeldOu
         fit.history.len().saturating_sub(1),
         fit.rms() * 1e3
     );
+    if !fit.converged || !fit.findings.0.is_empty() {
+        let _ = writeln!(
+            s,
+            "**{}** Sanity findings:\n",
+            if fit.converged {
+                "Converged."
+            } else {
+                "NOT CONVERGED."
+            }
+        );
+        for f in &fit.findings.0 {
+            let _ = writeln!(s, "- {f}");
+        }
+        let _ = writeln!(s);
+    }
     let g = fit.gammas;
     let _ = writeln!(
         s,

@@ -1,0 +1,221 @@
+//! The `palpate` program as a user runs it, on inputs that must not give a confident answer:
+//! degenerate static data, absurd loads, a probe nowhere near the object, out-of-range options.
+//! Each must exit non-zero, name what is wrong, and write nothing.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn palpate() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_palpate"))
+}
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// A copy of the bundled sponge dataset with `edit` applied to each CSV row of `file` (the header
+/// is kept).
+fn sponge_with(
+    dir: &Path,
+    file: &str,
+    edit: impl Fn(usize, Vec<String>) -> Vec<String>,
+) -> PathBuf {
+    let src = repo().join("models/sponge/dataset");
+    let dst = dir.join("dataset");
+    std::fs::create_dir_all(&dst).unwrap();
+    for e in std::fs::read_dir(&src).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), dst.join(e.file_name())).unwrap();
+    }
+    let text = std::fs::read_to_string(dst.join(file)).unwrap();
+    let mut out = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        if i == 0 || line.trim().is_empty() || line.starts_with('#') {
+            out.push(line.to_string());
+            continue;
+        }
+        let fields = line.split(',').map(String::from).collect();
+        out.push(edit(i, fields).join(","));
+    }
+    std::fs::write(dst.join(file), out.join("\n") + "\n").unwrap();
+    dst
+}
+
+/// Runs `palpate fit` and returns (exit code, stderr); asserts nothing was written.
+fn fit_refused(dataset: &Path, extra: &[&str]) -> (i32, String) {
+    let out = dataset.parent().unwrap().join("out");
+    let model = out.join("model.palp");
+    let o = palpate()
+        .args(["fit"])
+        .arg(dataset)
+        .args(extra)
+        .arg("-o")
+        .arg(&model)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(!model.exists(), "a model was written: {err}");
+    assert!(
+        !out.join("model.report").exists(),
+        "a report was written: {err}"
+    );
+    (o.status.code().unwrap_or(-1), err)
+}
+
+#[test]
+fn fit_refuses_zero_forces() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = sponge_with(tmp.path(), "contacts.csv", |_, mut f| {
+        f[4] = "0".into();
+        f[5] = "0".into();
+        f[6] = "0".into();
+        f
+    });
+    let (code, err) = fit_refused(&ds, &[]);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("zero-forces") && err.contains("zero probe force"),
+        "{err}"
+    );
+}
+
+#[test]
+fn fit_refuses_markers_that_never_move() {
+    let tmp = tempfile::tempdir().unwrap();
+    let markers =
+        std::fs::read_to_string(repo().join("models/sponge/dataset/markers.csv")).unwrap();
+    let rest: std::collections::HashMap<String, Vec<String>> = markers
+        .lines()
+        .skip(1)
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| {
+            let f: Vec<String> = l.split(',').map(String::from).collect();
+            (f[0].clone(), f[1..4].to_vec())
+        })
+        .collect();
+    let ds = sponge_with(tmp.path(), "measurements.csv", |_, f| {
+        let mut g = f[..2].to_vec();
+        g.extend(rest[&f[1]].iter().cloned());
+        g
+    });
+    let (code, err) = fit_refused(&ds, &[]);
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("markers-still"), "{err}");
+}
+
+#[test]
+fn fit_refuses_a_parameter_at_its_bound() {
+    // A meganewton on one contact of a sponge: the (λ, α) fit runs into ν = −1.
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = sponge_with(tmp.path(), "contacts.csv", |i, mut f| {
+        if i == 1 {
+            f[6] = "-1e6".into();
+        }
+        f
+    });
+    let (code, err) = fit_refused(&ds, &[]);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("parameter-at-bound") && err.contains("ν"),
+        "{err}"
+    );
+}
+
+#[test]
+fn fit_refuses_nonsense_regularisation() {
+    let ds = repo().join("models/sponge/dataset");
+    for g in ["NaN", "inf", "-1"] {
+        let o = palpate()
+            .args(["fit"])
+            .arg(&ds)
+            .args(["--gamma-s", g, "-o", "/nonexistent-palpate/m.palp"])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "--gamma-s {g}: {err}"); // clap's usage error
+        assert!(
+            err.contains("--gamma-s") && err.contains("finite number ≥ 0"),
+            "{err}"
+        );
+    }
+}
+
+#[test]
+fn fit_checks_its_output_before_fitting() {
+    let t0 = std::time::Instant::now();
+    let o = palpate()
+        .args(["fit"])
+        .arg(repo().join("models/sponge/dataset"))
+        .args(["-o", "/proc/palpate-cannot-write-here/model.palp"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("output") && err.contains("model.palp"),
+        "{err}"
+    );
+    assert!(
+        t0.elapsed().as_secs_f64() < 5.0,
+        "checked before the fit ran"
+    );
+}
+
+fn simulate(extra: &[&str], out: &Path) -> (i32, String) {
+    let o = palpate()
+        .args(["simulate", "--mesh"])
+        .arg(repo().join("models/sponge/sponge.msh"))
+        .args(["--young", "2e4", "--poisson", "0.3", "--fixed", "bottom"])
+        .args(extra)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap();
+    (
+        o.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&o.stderr).to_string(),
+    )
+}
+
+#[test]
+fn simulate_refuses_loads_beyond_the_model() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("sim");
+    let t0 = std::time::Instant::now();
+    let (code, err) = simulate(
+        &["--contact", "0.05,0.05,0.05", "--force", "0,0,-1e6"],
+        &out,
+    );
+    assert_eq!(code, 1, "{err}");
+    assert!(err.contains("displacement-beyond-size"), "{err}");
+    assert!(!out.exists(), "nothing written");
+    assert!(
+        t0.elapsed().as_secs_f64() < 30.0,
+        "stops early, not at the tick cap"
+    );
+    // A probe nowhere near the object.
+    let (code, err) = simulate(&["--probe", "5,5,5"], &out);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("no-contact") && err.contains("bounding box"),
+        "{err}"
+    );
+    // Increments are bounded.
+    let (code, err) = simulate(
+        &[
+            "--contact",
+            "0.05,0.05,0.05",
+            "--force",
+            "0,0,-1",
+            "--increments",
+            "1000000000",
+        ],
+        &out,
+    );
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--increments"), "{err}");
+    // And an ordinary press still works.
+    let (code, err) = simulate(&["--contact", "0.05,0.05,0.05", "--force", "0,0,-1"], &out);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.join("displacements.csv").exists());
+}
