@@ -12,6 +12,9 @@ use super::model::{Candidate, Model};
 use super::read::Group;
 use super::signature::{directions, holds, rates, signature, Signature, Variable};
 use super::CurveOptions;
+use crate::select::{
+    self as engine, CandidateModel, Current, Gate, Outcome, Policy, Rank, Score, Screen, Verdict,
+};
 
 /// Error figures in the response's unit.
 #[derive(Debug, Clone, Copy, serde::Serialize)]
@@ -26,18 +29,8 @@ pub struct Errors {
     pub heldout_max: f64,
 }
 
-/// A fitted parameter with its 1σ uncertainty from the Gauss–Newton covariance.
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct ParamValue {
-    /// Name.
-    pub name: String,
-    /// Value.
-    pub value: f64,
-    /// Standard deviation (`NaN` if the covariance is singular).
-    pub sd: f64,
-    /// Unit.
-    pub unit: String,
-}
+/// A fitted parameter with its 1σ uncertainty (one type with the static diagnosis).
+pub use crate::select::ParamValue;
 
 /// A candidate tried in a round.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -223,8 +216,7 @@ pub fn has_rate_information(groups: &[Group]) -> bool {
 
 /// BIC with unknown noise variance: n ln(RSS/n) + k ln n.
 pub fn bic(f: &Fit) -> f64 {
-    let n = f.n as f64;
-    n * (f.rss / n).max(f64::MIN_POSITIVE).ln() + f.theta.len() as f64 * n.ln()
+    crate::select::bic(f.rss, f.n, f.theta.len())
 }
 
 /// Measured − model per group.
@@ -253,6 +245,202 @@ pub fn evidence_variable(c: Candidate, sig: &Signature) -> Variable {
         .map_or(wanted[0], |s| s.variable)
 }
 
+/// The curve diagnosis as the selection engine sees it.
+struct CurveModel<'a> {
+    groups: &'a [Group],
+    folds: Vec<Mask>,
+    time_series: bool,
+    /// Whether viscous candidates can be told from elastic ones ([`has_rate_information`]).
+    rate_info: bool,
+    o: &'a CurveOptions,
+    log: &'a mut dyn FnMut(&str),
+}
+
+/// Held-out predictions of a fit and its errors; `None` when a fold's refit failed (the
+/// candidate then cannot pass: its held-out RMS counts as infinite).
+type CurveHeld = Option<(Vec<Vec<f64>>, Errors)>;
+
+/// The curve gate's figures of one candidate: held-out RMS and gain.
+struct CurveGate {
+    heldout_rms: f64,
+    gain: f64,
+}
+
+impl CandidateModel for CurveModel<'_> {
+    type Candidate = Candidate;
+    type Fitted = Fit;
+    type Held = CurveHeld;
+    type Observed = Signature;
+    type Summary = ();
+    type Detail = CurveGate;
+    type Adoption = ();
+    type Error = std::convert::Infallible;
+
+    fn observe(&mut self, _round: usize, f: &Fit, _held: &CurveHeld) -> Signature {
+        signature(self.groups, &resid_of(f, self.groups), self.time_series)
+    }
+
+    fn candidates(&mut self, cur: &Fit, _adopted: &[Candidate]) -> Vec<Candidate> {
+        // The model knows which candidates it can still take (and which exclude each other).
+        let wanted = |c: &Candidate| {
+            self.o
+                .candidates
+                .as_ref()
+                .is_none_or(|l| l.contains(&c.name()))
+        };
+        cur.model
+            .candidates(self.groups.len(), self.rate_info)
+            .into_iter()
+            .filter(wanted)
+            .collect()
+    }
+
+    fn fit_with(
+        &mut self,
+        _round: usize,
+        cur: &Fit,
+        c: Candidate,
+    ) -> Result<Outcome<Fit>, Self::Error> {
+        let m = cur.model.with(c);
+        let warm = Some((&cur.model, cur.theta.as_slice()));
+        Ok(
+            match fit(&m, self.groups, None, warm, self.o.max_iterations) {
+                Some(f) => Outcome::Fitted(f),
+                None => {
+                    (self.log)(&format!("  {}: fit failed", c.name()));
+                    Outcome::Dropped
+                }
+            },
+        )
+    }
+
+    fn score(&self, f: &Fit) -> Score {
+        Score {
+            chi2: f.rss,
+            n: f.n,
+            k: f.theta.len(),
+        }
+    }
+
+    fn summarise(&self, _f: &Fit) {}
+
+    fn heldout(&mut self, _round: usize, _c: Candidate, f: &Fit) -> Result<CurveHeld, Self::Error> {
+        let held = cross_validate(f, self.groups, &self.folds, self.o);
+        Ok(held.map(|h| {
+            let e = errors(f, self.groups, &h);
+            (h, e)
+        }))
+    }
+
+    fn gate(
+        &mut self,
+        cur: &Current<'_, Self>,
+        cand: &engine::Candidate<'_, Self>,
+    ) -> Gate<CurveGate> {
+        let o = self.o;
+        let cur_rms = cur.held.as_ref().map_or(f64::NAN, |h| h.1.heldout_rms);
+        let hr = cand
+            .held
+            .as_ref()
+            .map_or(f64::INFINITY, |h| h.1.heldout_rms);
+        let db = cand.delta_bic;
+        let gain = 1.0 - hr / cur_rms;
+        let passes = db < -o.bic_threshold && gain >= o.min_holdout_gain;
+        (self.log)(&format!(
+            "  {:<28} ΔBIC {:>10.1}  held-out RMS {:.4e} (gain {:+.1} %){}",
+            cand.candidate.name(),
+            db,
+            hr,
+            100.0 * gain,
+            if passes { "  passes" } else { "" }
+        ));
+        Gate {
+            passes,
+            // Ambiguities are not reported by the curve diagnosis.
+            heldout_delta_bic: f64::NAN,
+            heldout_rank: hr,
+            detail: CurveGate {
+                heldout_rms: hr,
+                gain,
+            },
+        }
+    }
+
+    fn adopt(
+        &mut self,
+        cur: &Current<'_, Self>,
+        c: Candidate,
+        f: Fit,
+        held: CurveHeld,
+    ) -> Result<(Fit, CurveHeld, ()), Self::Error> {
+        (self.log)(&format!("round {}: adopt {}", cur.round, c.name()));
+        Ok((f, held, ()))
+    }
+}
+
+/// The curve report's rounds from the engine's verdict (tried best held-out first).
+fn curve_steps(v: &Verdict<CurveModel<'_>>, o: &CurveOptions) -> Vec<Step> {
+    v.rounds
+        .iter()
+        .map(|r| {
+            let (cur, cur_held) = &v.path[r.round - 1];
+            let tried: Vec<Tried> = r
+                .ranked()
+                .map(|a| {
+                    let s = a.score.expect("the curve diagnosis records fitted candidates only");
+                    let g = a.gate.as_ref().expect("every fitted candidate is gated");
+                    Tried {
+                        candidate: a.candidate.name(),
+                        extra_params: s.k as i64 - cur.theta.len() as i64,
+                        rms: (s.chi2 / s.n as f64).sqrt(),
+                        delta_bic: a.delta_bic,
+                        heldout_rms: g.detail.heldout_rms,
+                        gain: g.detail.gain,
+                        passed: g.passes,
+                    }
+                })
+                .collect();
+            let before = cur_held.as_ref().expect("the current model has held-out predictions").1;
+            let adopted = r.adopted_attempt();
+            let reason = match (adopted, r.stop) {
+                (Some(a), _) => {
+                    let g = a.gate.as_ref().expect("gated");
+                    format!(
+                        "{} lowers the held-out RMS by {:.1} % (≥ {:.0} %) and BIC by {:.1} (> {:.0}); best held-out of {} passing",
+                        a.candidate.name(),
+                        100.0 * g.detail.gain,
+                        100.0 * o.min_holdout_gain,
+                        -a.delta_bic,
+                        o.bic_threshold,
+                        tried.iter().filter(|t| t.passed).count()
+                    )
+                }
+                (None, Some(engine::Stop::Limit)) => format!(
+                    "a candidate passes, but the limit of {} effects is reached",
+                    o.max_effects
+                ),
+                (None, Some(engine::Stop::NothingToTry)) => "no candidate left to try".into(),
+                (None, _) => format!(
+                    "no candidate lowers the held-out RMS by ≥ {:.0} % with ΔBIC < −{:.0}: nothing significant is left",
+                    100.0 * o.min_holdout_gain,
+                    o.bic_threshold
+                ),
+            };
+            Step {
+                round: r.round,
+                model: cur.model.describe(),
+                signature: r.observed.clone(),
+                tried,
+                adopted: adopted.map(|a| a.candidate),
+                reason,
+                before,
+                after: adopted.and_then(|a| a.held.as_ref().and_then(|h| h.as_ref().map(|h| h.1))),
+                evidence: adopted.map(|a| evidence_variable(a.candidate, &r.observed)),
+            }
+        })
+        .collect()
+}
+
 /// Runs the loop from `start`.
 pub fn select(
     start: Model,
@@ -263,140 +451,53 @@ pub fn select(
 ) -> Option<Selection> {
     let (holdout, folds) = folds(groups);
     let rate_info = time_series && has_rate_information(groups);
-    let mut cur = fit(&start, groups, None, None, o.max_iterations)?;
-    let mut cur_held = cross_validate(&cur, groups, &folds, o)?;
-    let mut cur_err = errors(&cur, groups, &cur_held);
+    let cur = fit(&start, groups, None, None, o.max_iterations)?;
+    let cur_held = cross_validate(&cur, groups, &folds, o)?;
+    let cur_err = errors(&cur, groups, &cur_held);
     log(&format!(
         "{}: RMS {:.4e} fitted, {:.4e} held out",
         cur.model.describe(),
         cur_err.fitted_rms,
         cur_err.heldout_rms
     ));
-    let mut sel = Selection {
-        holdout,
-        steps: vec![],
-        fits: vec![cur.clone()],
-        heldout: vec![cur_held.clone()],
-        errors: vec![cur_err],
+    let policy = Policy {
+        // One round more than effects: the last one reports a candidate that would still pass.
+        rounds: o.max_effects + 1,
+        max_adopted: o.max_effects,
+        rank: Rank::Heldout,
+        screen: Screen::All,
     };
-    for round in 1..=o.max_effects + 1 {
-        let sig = signature(groups, &resid_of(&cur, groups), time_series);
-        let cur_bic = bic(&cur);
-        let mut tried = Vec::new();
-        let mut fits = Vec::new();
-        let cands: Vec<Candidate> = cur
-            .model
-            .candidates(groups.len(), rate_info)
-            .into_iter()
-            .filter(|c| o.candidates.as_ref().is_none_or(|l| l.contains(&c.name())))
-            .collect();
-        for c in cands {
-            let m = cur.model.with(c);
-            let Some(f) = fit(
-                &m,
-                groups,
-                None,
-                Some((&cur.model, &cur.theta)),
-                o.max_iterations,
-            ) else {
-                log(&format!("  {}: fit failed", c.name()));
-                continue;
-            };
-            let held = cross_validate(&f, groups, &folds, o);
-            let e = held.as_ref().map(|h| errors(&f, groups, h));
-            let hr = e.map_or(f64::INFINITY, |e| e.heldout_rms);
-            let db = bic(&f) - cur_bic;
-            let gain = 1.0 - hr / cur_err.heldout_rms;
-            let passed = db < -o.bic_threshold && gain >= o.min_holdout_gain;
-            log(&format!(
-                "  {:<28} ΔBIC {:>10.1}  held-out RMS {:.4e} (gain {:+.1} %){}",
-                c.name(),
-                db,
-                hr,
-                100.0 * gain,
-                if passed { "  passes" } else { "" }
-            ));
-            tried.push(Tried {
-                candidate: c.name(),
-                extra_params: f.theta.len() as i64 - cur.theta.len() as i64,
-                rms: (f.rss / f.n as f64).sqrt(),
-                delta_bic: db,
-                heldout_rms: hr,
-                gain,
-                passed,
-            });
-            fits.push((c, f, held, e));
-        }
-        let mut order: Vec<usize> = (0..tried.len()).collect();
-        order.sort_by(|&a, &b| tried[a].heldout_rms.total_cmp(&tried[b].heldout_rms));
-        let best = order.iter().copied().find(|&i| tried[i].passed);
-        let tried_sorted: Vec<Tried> = order.iter().map(|&i| tried[i].clone()).collect();
-        let model_name = cur.model.describe();
-        let before = cur_err;
-        match best {
-            Some(i) if round <= o.max_effects => {
-                let (c, f, held, e) = fits.swap_remove(i);
-                let (held, e) = (held.expect("passed implies held-out"), e.expect("passed"));
-                let reason = format!(
-                    "{} lowers the held-out RMS by {:.1} % (≥ {:.0} %) and BIC by {:.1} (> {:.0}); best held-out of {} passing",
-                    c.name(),
-                    100.0 * tried[i].gain,
-                    100.0 * o.min_holdout_gain,
-                    -tried[i].delta_bic,
-                    o.bic_threshold,
-                    tried.iter().filter(|t| t.passed).count()
-                );
-                log(&format!("round {round}: adopt {}", c.name()));
-                sel.steps.push(Step {
-                    round,
-                    model: model_name,
-                    evidence: Some(evidence_variable(c, &sig)),
-                    signature: sig,
-                    tried: tried_sorted,
-                    adopted: Some(c),
-                    reason,
-                    before,
-                    after: Some(e),
-                });
-                cur = f;
-                cur_held = held;
-                cur_err = e;
-                sel.fits.push(cur.clone());
-                sel.heldout.push(cur_held.clone());
-                sel.errors.push(cur_err);
-            }
-            other => {
-                let reason = if other.is_some() {
-                    format!(
-                        "a candidate passes, but the limit of {} effects is reached",
-                        o.max_effects
-                    )
-                } else if tried.is_empty() {
-                    "no candidate left to try".into()
-                } else {
-                    format!(
-                        "no candidate lowers the held-out RMS by ≥ {:.0} % with ΔBIC < −{:.0}: nothing significant is left",
-                        100.0 * o.min_holdout_gain,
-                        o.bic_threshold
-                    )
-                };
-                log(&format!("round {round}: {reason}"));
-                sel.steps.push(Step {
-                    round,
-                    model: model_name,
-                    signature: sig,
-                    tried: tried_sorted,
-                    adopted: None,
-                    reason,
-                    before,
-                    after: None,
-                    evidence: None,
-                });
-                break;
-            }
-        }
+    let mut model = CurveModel {
+        groups,
+        folds,
+        time_series,
+        rate_info,
+        o,
+        log: &mut *log,
+    };
+    let verdict = match engine::select(&mut model, &policy, cur, Some((cur_held, cur_err))) {
+        Ok(v) => v,
+        Err(never) => match never {},
+    };
+    let steps = curve_steps(&verdict, o);
+    let (mut fits, mut heldout, mut errors) = (Vec::new(), Vec::new(), Vec::new());
+    for (f, h) in verdict.path {
+        let (h, e) = h.expect("an adopted model has held-out predictions");
+        fits.push(f);
+        heldout.push(h);
+        errors.push(e);
     }
-    Some(sel)
+    // The last round says why the loop stopped (the engine's verdict borrows `log` until here).
+    if let Some(st) = steps.last().filter(|st| st.adopted.is_none()) {
+        log(&format!("round {}: {}", st.round, st.reason));
+    }
+    Some(Selection {
+        holdout,
+        steps,
+        fits,
+        heldout,
+        errors,
+    })
 }
 
 /// Physical parameter values with 1σ (delta method through θ = ln v for positive parameters).

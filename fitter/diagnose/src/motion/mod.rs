@@ -26,6 +26,9 @@ pub mod fit;
 pub mod report;
 pub mod signature;
 
+use crate::select::{
+    self, select, CandidateModel, Current, Gate, Outcome, Policy, Rank, Score, Screen, Verdict,
+};
 use fit::{fit_model, FittedModel, Scores, Split};
 use palpate_motion::dataset::{DatasetError, MotionDataset};
 use palpate_motion::model::{Material, ParamKind};
@@ -248,11 +251,6 @@ fn values_of(m: &FittedModel) -> Vec<Value> {
         .collect()
 }
 
-fn bic(chi2: f64, n: usize, k: usize) -> f64 {
-    let n = n.max(1) as f64;
-    n * (chi2.max(f64::MIN_POSITIVE) / n).ln() + k as f64 * n.ln()
-}
-
 /// Starting values of a candidate's parameters, given the current fit.
 fn starts(c: Candidate, cur: &FittedModel, ds: &MotionDataset) -> Vec<Vec<f64>> {
     let base: Vec<f64> = cur.values.clone();
@@ -277,6 +275,223 @@ fn starts(c: Candidate, cur: &FittedModel, ds: &MotionDataset) -> Vec<Vec<f64>> 
             vec![q]
         }
     }
+}
+
+/// The motion diagnosis as the selection engine sees it.
+struct MotionModel<'a> {
+    ds: &'a MotionDataset,
+    split: Split,
+    o: &'a MotionOptions,
+    /// Measured clamp forces: the density is identifiable only with them.
+    has_forces: bool,
+    log: &'a dyn Fn(&str),
+}
+
+/// The motion gate's figures of one candidate.
+struct MotionGate {
+    heldout_delta_bic: f64,
+    heldout_gain: f64,
+    reason: String,
+}
+
+impl CandidateModel for MotionModel<'_> {
+    type Candidate = Candidate;
+    type Fitted = FittedModel;
+    /// The held-out (forecast) figures are part of every fit's scores.
+    type Held = Scores;
+    type Observed = Signature;
+    /// Free values (fixed ones left out), scores, simulations run.
+    type Summary = (Vec<Value>, Scores, usize);
+    type Detail = MotionGate;
+    type Adoption = ();
+    type Error = MotionDiagnoseError;
+
+    fn observe(&mut self, _round: usize, f: &FittedModel, _held: &Scores) -> Signature {
+        signature(self.ds, self.split, f)
+    }
+
+    fn candidates(&mut self, _current: &FittedModel, adopted: &[Candidate]) -> Vec<Candidate> {
+        let open = |c: &Candidate| !adopted.iter().any(|&a| a == *c || a.conflicts(*c));
+        self.o.candidates.iter().copied().filter(open).collect()
+    }
+
+    fn fit_with(
+        &mut self,
+        _round: usize,
+        cur: &FittedModel,
+        c: Candidate,
+    ) -> Result<Outcome<FittedModel>, MotionDiagnoseError> {
+        if c == Candidate::Density && !self.has_forces {
+            return Ok(Outcome::NotFitted(
+                "not identifiable from markers alone: with prescribed clamps the motion \
+                 depends on λ/ρ, μ/ρ, ν/ρ only (M a = f_int + M g), so ρ needs measured \
+                 clamp forces (forces.csv)"
+                    .into(),
+            ));
+        }
+        let mut kinds = cur.kinds.clone();
+        kinds.extend_from_slice(c.kinds());
+        let r = fit_model(
+            self.ds,
+            self.split,
+            &cur.material,
+            &kinds,
+            &starts(c, cur, self.ds),
+            self.o.max_iters,
+            self.o.screen_iters,
+        );
+        // A failed fit is a finding about this candidate, not the end of the diagnosis.
+        Ok(match r {
+            Ok(m) => Outcome::Fitted(m),
+            Err(e) => Outcome::NotFitted(format!("fit failed: {e}")),
+        })
+    }
+
+    fn score(&self, m: &FittedModel) -> Score {
+        Score {
+            chi2: m.scores.chi2_fit,
+            n: m.scores.n_fit,
+            k: m.kinds.len(),
+        }
+    }
+
+    fn summarise(&self, m: &FittedModel) -> (Vec<Value>, Scores, usize) {
+        let values = values_of(m)
+            .into_iter()
+            .filter(|v| !v.name.ends_with("(fixed)"))
+            .collect();
+        (values, m.scores, m.evaluations)
+    }
+
+    fn heldout(
+        &mut self,
+        _round: usize,
+        _c: Candidate,
+        m: &FittedModel,
+    ) -> Result<Scores, MotionDiagnoseError> {
+        Ok(m.scores)
+    }
+
+    fn gate(
+        &mut self,
+        cur: &Current<'_, Self>,
+        cand: &select::Candidate<'_, Self>,
+    ) -> Gate<MotionGate> {
+        let o = self.o;
+        let (s0, s1) = (cur.held, cand.held);
+        let delta_bic = cand.delta_bic;
+        let dk = cand.candidate.kinds().len();
+        let heldout_delta_bic = s1.n_held as f64 * (s1.chi2_held / s0.chi2_held).ln()
+            + dk as f64 * (s1.n_held.max(1) as f64).ln();
+        let heldout_gain = s1.rms_held / s0.rms_held - 1.0;
+        let a = delta_bic < -o.bic_threshold;
+        let b = heldout_delta_bic < 0.0;
+        let g = heldout_gain <= -o.min_holdout_gain;
+        let passes = a && b && g;
+        let reason = if passes {
+            format!(
+                "passes: ΔBIC {delta_bic:.1} < −{}, held-out ΔBIC {heldout_delta_bic:.1} < 0, \
+                 held-out RMS {:+.1} % (≤ −{:.0} %)",
+                o.bic_threshold,
+                100.0 * heldout_gain,
+                100.0 * o.min_holdout_gain
+            )
+        } else {
+            let mut why = Vec::new();
+            if !a {
+                why.push(format!("ΔBIC {delta_bic:.1} not < −{}", o.bic_threshold));
+            }
+            if !b {
+                why.push(format!("held-out ΔBIC {heldout_delta_bic:.1} not < 0"));
+            }
+            if !g {
+                why.push(format!(
+                    "held-out RMS {:+.1} % (needs ≤ −{:.0} %)",
+                    100.0 * heldout_gain,
+                    100.0 * o.min_holdout_gain
+                ));
+            }
+            format!("fails: {}", why.join("; "))
+        };
+        (self.log)(&format!(
+            "round {}: {}: RMS {:.1}/{:.1} µm, ΔBIC {delta_bic:.1}, held-out ΔBIC \
+             {heldout_delta_bic:.1}, {reason}",
+            cur.round,
+            cand.candidate.name(),
+            1e6 * s1.rms_fit,
+            1e6 * s1.rms_held
+        ));
+        Gate {
+            passes,
+            heldout_delta_bic,
+            heldout_rank: s1.rms_held,
+            detail: MotionGate {
+                heldout_delta_bic,
+                heldout_gain,
+                reason,
+            },
+        }
+    }
+
+    fn adopt(
+        &mut self,
+        _cur: &Current<'_, Self>,
+        _c: Candidate,
+        m: FittedModel,
+        held: Scores,
+    ) -> Result<(FittedModel, Scores, ()), MotionDiagnoseError> {
+        Ok((m, held, ()))
+    }
+}
+
+/// The motion report's rounds from the engine's verdict (trials in the order tried).
+fn motion_rounds(v: &Verdict<MotionModel<'_>>) -> Vec<Round> {
+    v.rounds
+        .iter()
+        .map(|r| {
+            // Round r starts from path[r − 1]; a candidate adds its kinds to that model's.
+            let k0 = v.path[r.round - 1].0.kinds.len();
+            let trials = r
+                .attempts
+                .iter()
+                .map(|a| match (&a.summary, &a.gate, &a.score) {
+                    (Some((values, scores, evaluations)), Some(g), Some(s)) => Trial {
+                        candidate: a.candidate.name().into(),
+                        fitted: true,
+                        k: s.k,
+                        values: values.clone(),
+                        scores: *scores,
+                        delta_bic: a.delta_bic,
+                        heldout_delta_bic: g.detail.heldout_delta_bic,
+                        heldout_gain: g.detail.heldout_gain,
+                        passed: g.passes,
+                        reason: g.detail.reason.clone(),
+                        evaluations: *evaluations,
+                    },
+                    _ => Trial {
+                        candidate: a.candidate.name().into(),
+                        fitted: false,
+                        k: k0 + a.candidate.kinds().len(),
+                        values: Vec::new(),
+                        scores: Scores::default(),
+                        delta_bic: f64::NAN,
+                        heldout_delta_bic: f64::NAN,
+                        heldout_gain: f64::NAN,
+                        passed: false,
+                        reason: a.not_fitted.clone().unwrap_or_default(),
+                        evaluations: 0,
+                    },
+                })
+                .collect();
+            Round {
+                round: r.round,
+                model: r.model.iter().map(|c| c.name().to_string()).collect(),
+                signature: r.observed.clone(),
+                trials,
+                adopted: r.adopted_attempt().map(|a| a.candidate.name().to_string()),
+            }
+        })
+        .collect()
 }
 
 /// Runs the diagnosis. `log` receives one line per fit.
@@ -332,147 +547,29 @@ pub fn diagnose(
         1e6 * simplest.scores.rms_fit,
         1e6 * simplest.scores.rms_held
     ));
-    let mut cur = simplest.clone();
-    let mut adopted: Vec<Candidate> = Vec::new();
-    let mut rounds = Vec::new();
-    for round in 1..=o.max_effects.max(1) {
-        let sig = signature(ds, split, &cur);
-        let mut trials: Vec<(Trial, Option<FittedModel>, Candidate)> = Vec::new();
-        for &c in &o.candidates {
-            if adopted.iter().any(|&a| a == c || a.conflicts(c)) {
-                continue;
-            }
-            let skip = |reason: String| Trial {
-                candidate: c.name().into(),
-                fitted: false,
-                k: cur.kinds.len() + c.kinds().len(),
-                values: Vec::new(),
-                scores: Scores::default(),
-                delta_bic: f64::NAN,
-                heldout_delta_bic: f64::NAN,
-                heldout_gain: f64::NAN,
-                passed: false,
-                reason,
-                evaluations: 0,
-            };
-            if c == Candidate::Density && !has_forces {
-                trials.push((
-                    skip(
-                        "not identifiable from markers alone: with prescribed clamps the motion \
-                         depends on λ/ρ, μ/ρ, ν/ρ only (M a = f_int + M g), so ρ needs measured \
-                         clamp forces (forces.csv)"
-                            .into(),
-                    ),
-                    None,
-                    c,
-                ));
-                continue;
-            }
-            let mut kinds = cur.kinds.clone();
-            kinds.extend_from_slice(c.kinds());
-            let r = fit_model(
-                ds,
-                split,
-                &cur.material,
-                &kinds,
-                &starts(c, &cur, ds),
-                o.max_iters,
-                o.screen_iters,
-            );
-            let m = match r {
-                Ok(m) => m,
-                Err(e) => {
-                    trials.push((skip(format!("fit failed: {e}")), None, c));
-                    continue;
-                }
-            };
-            let dk = c.kinds().len();
-            let s0 = &cur.scores;
-            let s1 = &m.scores;
-            let delta_bic = bic(s1.chi2_fit, s1.n_fit, kinds.len())
-                - bic(s0.chi2_fit, s0.n_fit, cur.kinds.len());
-            let heldout_delta_bic = s1.n_held as f64 * (s1.chi2_held / s0.chi2_held).ln()
-                + dk as f64 * (s1.n_held.max(1) as f64).ln();
-            let heldout_gain = s1.rms_held / s0.rms_held - 1.0;
-            let a = delta_bic < -o.bic_threshold;
-            let b = heldout_delta_bic < 0.0;
-            let g = heldout_gain <= -o.min_holdout_gain;
-            let passed = a && b && g;
-            let reason = if passed {
-                format!(
-                    "passes: ΔBIC {delta_bic:.1} < −{}, held-out ΔBIC {heldout_delta_bic:.1} < 0, \
-                     held-out RMS {:+.1} % (≤ −{:.0} %)",
-                    o.bic_threshold,
-                    100.0 * heldout_gain,
-                    100.0 * o.min_holdout_gain
-                )
-            } else {
-                let mut why = Vec::new();
-                if !a {
-                    why.push(format!("ΔBIC {delta_bic:.1} not < −{}", o.bic_threshold));
-                }
-                if !b {
-                    why.push(format!("held-out ΔBIC {heldout_delta_bic:.1} not < 0"));
-                }
-                if !g {
-                    why.push(format!(
-                        "held-out RMS {:+.1} % (needs ≤ −{:.0} %)",
-                        100.0 * heldout_gain,
-                        100.0 * o.min_holdout_gain
-                    ));
-                }
-                format!("fails: {}", why.join("; "))
-            };
-            log(&format!(
-                "round {round}: {}: RMS {:.1}/{:.1} µm, ΔBIC {delta_bic:.1}, held-out ΔBIC \
-                 {heldout_delta_bic:.1}, {reason}",
-                c.name(),
-                1e6 * s1.rms_fit,
-                1e6 * s1.rms_held
-            ));
-            let values = values_of(&m)
-                .into_iter()
-                .filter(|v| !v.name.ends_with("(fixed)"))
-                .collect();
-            trials.push((
-                Trial {
-                    candidate: c.name().into(),
-                    fitted: true,
-                    k: kinds.len(),
-                    values,
-                    scores: m.scores,
-                    delta_bic,
-                    heldout_delta_bic,
-                    heldout_gain,
-                    passed,
-                    reason,
-                    evaluations: m.evaluations,
-                },
-                Some(m),
-                c,
-            ));
-        }
-        let best = trials
-            .iter()
-            .enumerate()
-            .filter(|(_, t)| t.0.passed)
-            .min_by(|a, b| a.1 .0.delta_bic.total_cmp(&b.1 .0.delta_bic))
-            .map(|(i, _)| i);
-        let adopted_name = best.map(|i| trials[i].2.name().to_string());
-        rounds.push(Round {
-            round,
-            model: adopted.iter().map(|c| c.name().to_string()).collect(),
-            signature: sig,
-            trials: trials.iter().map(|t| t.0.clone()).collect(),
-            adopted: adopted_name,
-        });
-        let Some(i) = best else { break };
-        let (_, m, c) = trials.swap_remove(i);
-        // A trial passes only when it was fitted; a missing fit ends the loop rather than panics.
-        let Some(m) = m else { break };
-        adopted.push(c);
-        cur = m;
-    }
+    let mut engine = MotionModel {
+        ds,
+        split,
+        o,
+        has_forces,
+        log,
+    };
+    let rounds_max = o.max_effects.max(1);
+    let policy = Policy {
+        rounds: rounds_max,
+        max_adopted: rounds_max,
+        rank: Rank::FittedBic,
+        // The held-out steps are simulated with every fit (a forecast): gating is free.
+        screen: Screen::All,
+    };
+    let verdict = select(&mut engine, &policy, simplest.clone(), simplest.scores)?;
+    let rounds = motion_rounds(&verdict);
+    let adopted = verdict.adopted();
+    let cur = verdict
+        .path
+        .last()
+        .map(|p| p.0.clone())
+        .expect("the start is on the path");
     let mut sp_b = Vec::new();
     let final_signature = signature(ds, split, &cur);
     sp_b.extend(signature(ds, split, &simplest).speed_bins);

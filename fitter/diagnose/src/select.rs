@@ -1,0 +1,510 @@
+//! The selection engine shared by the three diagnoses (static datasets, motion datasets, measured
+//! curves): greedy forward selection of candidate effects, gated by the fitted BIC and by held-out
+//! data.
+//!
+//! Each diagnosis knows how to fit its own model with one more effect, how to predict data it was
+//! not fitted to and what its gate's numbers are ([`CandidateModel`]); the loop, the bookkeeping
+//! of what was tried and the verdict ([`Verdict`]) are written once, here ([`select`]). The
+//! diagnoses turn the verdict into their own report records, whose JSON field names predate the
+//! engine and are kept so that downstream readers do not break.
+//!
+//! One round: every open candidate is fitted on top of the current model and scored by
+//! ΔBIC = BIC(augmented) − BIC(current); the fitted ones are ranked ([`Rank`]); the held-out gate is
+//! run on all of them or on a BIC shortlist ([`Screen`]); the first in rank order that passes is
+//! adopted (unless the effect limit is reached), and the round repeats from the augmented model.
+//! The loop stops when nothing passes, nothing is left to try, the limit is reached or the rounds
+//! run out ([`Stop`]).
+
+use serde::Serialize;
+
+/// A fitted parameter with its 1σ uncertainty from the Gauss–Newton covariance, in physical units
+/// (static and curve diagnoses; the motion diagnosis' `Value` has another JSON shape and stays).
+#[derive(Debug, Clone, Serialize)]
+pub struct ParamValue {
+    /// Name.
+    pub name: String,
+    /// Value.
+    pub value: f64,
+    /// Standard deviation (`NaN` if the covariance is singular).
+    pub sd: f64,
+    /// Unit.
+    pub unit: String,
+}
+
+/// BIC with unknown noise variance: n ln(χ²/n) + k ln n (n residual entries, k free parameters).
+///
+/// χ²/n is floored at the smallest positive `f64` (an exact fit must not give −∞, which would
+/// make every ΔBIC against it NaN), and n at 1.
+pub fn bic(chi2: f64, n: usize, k: usize) -> f64 {
+    let n = n.max(1) as f64;
+    n * (chi2 / n).max(f64::MIN_POSITIVE).ln() + k as f64 * n.ln()
+}
+
+/// What the BIC of a fit is computed from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Score {
+    /// Sum of squared residuals on the fitted data (in whatever scaling the diagnosis uses; only
+    /// ratios enter ΔBIC).
+    pub chi2: f64,
+    /// Scalar residual entries on the fitted data.
+    pub n: usize,
+    /// Free parameters.
+    pub k: usize,
+}
+
+impl Score {
+    /// [`bic`] of this score.
+    pub fn bic(&self) -> f64 {
+        bic(self.chi2, self.n, self.k)
+    }
+}
+
+/// What became of fitting one candidate.
+#[derive(Debug)]
+pub enum Outcome<F> {
+    /// Fitted: scored, possibly gated.
+    Fitted(F),
+    /// Not fitted, and the verdict says why (e.g. not identifiable from these data).
+    NotFitted(String),
+    /// Not fitted, and not worth a line in the verdict (e.g. the fit left the physical range).
+    Dropped,
+}
+
+/// The gate's verdict on one candidate.
+#[derive(Debug, Clone)]
+pub struct Gate<D> {
+    /// Passes every test of the diagnosis' gate.
+    pub passes: bool,
+    /// ΔBIC on held-out data: of two candidates that pass, the later one in rank order with the
+    /// lower value is reported as an ambiguity ([`Judgement::Ambiguous`]). `NaN` when the
+    /// diagnosis does not report ambiguities.
+    pub heldout_delta_bic: f64,
+    /// Key of [`Rank::Heldout`] (lower = better, e.g. the held-out RMS).
+    pub heldout_rank: f64,
+    /// The diagnosis' own figures and words.
+    pub detail: D,
+}
+
+/// The order candidates are considered in for adoption.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Rank {
+    /// By fitted ΔBIC, lowest first (static and motion diagnoses).
+    FittedBic,
+    /// By [`Gate::heldout_rank`], lowest first (curve diagnosis).
+    Heldout,
+}
+
+/// Which fitted candidates the held-out gate is run on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Screen {
+    /// Every fitted candidate, right after its fit (cheap held-out data: a forecast or a few
+    /// small refits).
+    All,
+    /// Only the first `size` in rank order with ΔBIC < −`bic_threshold` (held-out data cost a
+    /// refit per measurement, so only the likely winners pay for it).
+    Shortlist {
+        /// ΔBIC must be below −this to be shortlisted.
+        bic_threshold: f64,
+        /// Most candidates shortlisted per round.
+        size: usize,
+    },
+}
+
+/// The loop's limits and orders.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Policy {
+    /// Most rounds (a round that adopts nothing ends the loop earlier).
+    pub rounds: usize,
+    /// Most effects adopted: a round after that only reports what would have passed.
+    pub max_adopted: usize,
+    /// Adoption order.
+    pub rank: Rank,
+    /// Which candidates are gated.
+    pub screen: Screen,
+}
+
+/// Where a gated candidate stands, in rank order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Judgement {
+    /// The first that passes: adopted, unless the effect limit is reached.
+    Best,
+    /// Passes too, and predicts the held-out data better than the best ([`Gate::heldout_delta_bic`]).
+    Ambiguous,
+    /// Passes too, second in order.
+    AlsoPasses,
+    /// Fails the gate.
+    Rejected,
+}
+
+/// Why the loop ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Stop {
+    /// No candidate was fitted in the last round.
+    NothingToTry,
+    /// Candidates were fitted, none passes the gate.
+    NothingPasses,
+    /// A candidate passes, but [`Policy::max_adopted`] effects are in the model.
+    Limit,
+    /// Every round of [`Policy::rounds`] adopted an effect.
+    Rounds,
+}
+
+/// The current model and its held-out evidence, as the gate sees them.
+pub struct Current<'a, M: CandidateModel + ?Sized> {
+    /// Round (1-based).
+    pub round: usize,
+    /// The current fit.
+    pub fitted: &'a M::Fitted,
+    /// Its held-out evidence.
+    pub held: &'a M::Held,
+    /// What the diagnosis read of it at the start of the round.
+    pub observed: &'a M::Observed,
+}
+
+/// One fitted candidate, as the gate sees it.
+pub struct Candidate<'a, M: CandidateModel + ?Sized> {
+    /// The candidate.
+    pub candidate: M::Candidate,
+    /// The augmented fit.
+    pub fitted: &'a M::Fitted,
+    /// Its held-out evidence.
+    pub held: &'a M::Held,
+    /// Its fitted ΔBIC against the current model.
+    pub delta_bic: f64,
+}
+
+/// A model with candidate effects that can be fitted and predicted on held-out data: what a
+/// diagnosis supplies to [`select`].
+pub trait CandidateModel {
+    /// A candidate effect.
+    type Candidate: Copy + PartialEq;
+    /// A fitted model.
+    type Fitted: Clone;
+    /// Held-out evidence of a fitted model (its predictions of data it was not fitted to).
+    type Held: Clone;
+    /// What the diagnosis reads of the current model at the start of a round (its residual
+    /// signature, its error figures).
+    type Observed;
+    /// What the diagnosis records of a fitted candidate, whether adopted or not.
+    type Summary;
+    /// The diagnosis' figures and words of a gate verdict.
+    type Detail;
+    /// What the diagnosis records of an adoption.
+    type Adoption;
+    /// Errors that end the diagnosis.
+    type Error;
+
+    /// Reads the current model at the start of a round.
+    fn observe(&mut self, round: usize, fitted: &Self::Fitted, held: &Self::Held)
+        -> Self::Observed;
+    /// The candidates open against the current model, in the order they are tried.
+    fn candidates(
+        &mut self,
+        current: &Self::Fitted,
+        adopted: &[Self::Candidate],
+    ) -> Vec<Self::Candidate>;
+    /// Fits the current model augmented by `candidate`.
+    fn fit_with(
+        &mut self,
+        round: usize,
+        current: &Self::Fitted,
+        candidate: Self::Candidate,
+    ) -> Result<Outcome<Self::Fitted>, Self::Error>;
+    /// The fitted figures BIC is computed from.
+    fn score(&self, fitted: &Self::Fitted) -> Score;
+    /// What the verdict keeps of a fitted candidate (the fit itself is dropped unless adopted).
+    fn summarise(&self, fitted: &Self::Fitted) -> Self::Summary;
+    /// Held-out evidence of a fitted candidate.
+    fn heldout(
+        &mut self,
+        round: usize,
+        candidate: Self::Candidate,
+        fitted: &Self::Fitted,
+    ) -> Result<Self::Held, Self::Error>;
+    /// The diagnosis' gate (its thresholds, its words).
+    fn gate(
+        &mut self,
+        current: &Current<'_, Self>,
+        candidate: &Candidate<'_, Self>,
+    ) -> Gate<Self::Detail>;
+    /// Adopts `candidate`: returns the model the next round starts from (the diagnosis may refit
+    /// it, e.g. after refreshing a correction) and what the verdict records of the adoption.
+    #[allow(clippy::type_complexity)]
+    fn adopt(
+        &mut self,
+        current: &Current<'_, Self>,
+        candidate: Self::Candidate,
+        fitted: Self::Fitted,
+        held: Self::Held,
+    ) -> Result<(Self::Fitted, Self::Held, Self::Adoption), Self::Error>;
+}
+
+/// One candidate tried in a round.
+pub struct Attempt<M: CandidateModel + ?Sized> {
+    /// The candidate.
+    pub candidate: M::Candidate,
+    /// Why it was not fitted (`None` when it was).
+    pub not_fitted: Option<String>,
+    /// Its fitted figures (`None` when not fitted).
+    pub score: Option<Score>,
+    /// What the diagnosis keeps of its fit (`None` when not fitted).
+    pub summary: Option<M::Summary>,
+    /// Fitted ΔBIC against the current model (`NaN` when not fitted).
+    pub delta_bic: f64,
+    /// Held-out evidence (`None` when not gated).
+    pub held: Option<M::Held>,
+    /// The gate's verdict (`None` when not gated).
+    pub gate: Option<Gate<M::Detail>>,
+    /// Where it stands among the gated candidates (`None` when not gated).
+    pub judgement: Option<Judgement>,
+}
+
+/// One round of the loop.
+pub struct Round<M: CandidateModel + ?Sized> {
+    /// Round (1-based).
+    pub round: usize,
+    /// Effects in the model at the start of the round, in the order adopted.
+    pub model: Vec<M::Candidate>,
+    /// What the diagnosis read of that model.
+    pub observed: M::Observed,
+    /// Candidates, in the order tried.
+    pub attempts: Vec<Attempt<M>>,
+    /// Indices into `attempts` in rank order ([`Policy::rank`]).
+    pub ranked: Vec<usize>,
+    /// Index into `attempts` of the adopted candidate.
+    pub adopted: Option<usize>,
+    /// What the diagnosis recorded of the adoption.
+    pub adoption: Option<M::Adoption>,
+    /// Why the loop ended, on its last round.
+    pub stop: Option<Stop>,
+}
+
+impl<M: CandidateModel + ?Sized> Round<M> {
+    /// Attempts in rank order.
+    pub fn ranked(&self) -> impl Iterator<Item = &Attempt<M>> {
+        self.ranked.iter().map(|&i| &self.attempts[i])
+    }
+    /// The adopted attempt.
+    pub fn adopted_attempt(&self) -> Option<&Attempt<M>> {
+        self.adopted.map(|i| &self.attempts[i])
+    }
+}
+
+/// The result of [`select`].
+pub struct Verdict<M: CandidateModel + ?Sized> {
+    /// The rounds.
+    pub rounds: Vec<Round<M>>,
+    /// The starting model, then the model after each adoption (as returned by
+    /// [`CandidateModel::adopt`]), each with its held-out evidence. Round r starts from
+    /// `path[r − 1]`.
+    pub path: Vec<(M::Fitted, M::Held)>,
+    /// Why the loop ended.
+    pub stop: Stop,
+}
+
+impl<M: CandidateModel + ?Sized> Verdict<M> {
+    /// Effects adopted, in order.
+    pub fn adopted(&self) -> Vec<M::Candidate> {
+        self.rounds
+            .iter()
+            .filter_map(|r| r.adopted_attempt().map(|a| a.candidate))
+            .collect()
+    }
+}
+
+/// Greedy forward selection from `start` (with its held-out evidence `held`): round after round,
+/// try every open candidate, adopt the best one that passes the gate, stop when none passes, none
+/// is left or the policy's limits are reached.
+pub fn select<M: CandidateModel>(
+    model: &mut M,
+    policy: &Policy,
+    start: M::Fitted,
+    held: M::Held,
+) -> Result<Verdict<M>, M::Error> {
+    let mut path = vec![(start, held)];
+    let mut adopted: Vec<M::Candidate> = Vec::new();
+    let mut rounds = Vec::new();
+    let mut stop = Stop::Rounds;
+    for round in 1..=policy.rounds {
+        let (cur, cur_held) = path.last().expect("the start is on the path");
+        let observed = model.observe(round, cur, cur_held);
+        let bic0 = model.score(cur).bic();
+        let mut attempts: Vec<Attempt<M>> = Vec::new();
+        let mut fits: Vec<Option<M::Fitted>> = Vec::new();
+        for c in model.candidates(cur, &adopted) {
+            let f = match model.fit_with(round, cur, c)? {
+                Outcome::Dropped => continue,
+                Outcome::NotFitted(why) => {
+                    attempts.push(Attempt {
+                        candidate: c,
+                        not_fitted: Some(why),
+                        score: None,
+                        summary: None,
+                        delta_bic: f64::NAN,
+                        held: None,
+                        gate: None,
+                        judgement: None,
+                    });
+                    fits.push(None);
+                    continue;
+                }
+                Outcome::Fitted(f) => f,
+            };
+            let score = model.score(&f);
+            let mut a = Attempt {
+                candidate: c,
+                not_fitted: None,
+                score: Some(score),
+                summary: Some(model.summarise(&f)),
+                delta_bic: score.bic() - bic0,
+                held: None,
+                gate: None,
+                judgement: None,
+            };
+            if policy.screen == Screen::All {
+                let h = model.heldout(round, c, &f)?;
+                let now = Current {
+                    round,
+                    fitted: cur,
+                    held: cur_held,
+                    observed: &observed,
+                };
+                a.gate = Some(model.gate(
+                    &now,
+                    &Candidate {
+                        candidate: c,
+                        fitted: &f,
+                        held: &h,
+                        delta_bic: a.delta_bic,
+                    },
+                ));
+                a.held = Some(h);
+            }
+            attempts.push(a);
+            fits.push(Some(f));
+        }
+        // Stable sorts: ties keep the order tried, as every diagnosis did before the engine.
+        let mut ranked: Vec<usize> = (0..attempts.len()).collect();
+        match policy.rank {
+            Rank::FittedBic => {
+                ranked.sort_by(|&a, &b| attempts[a].delta_bic.total_cmp(&attempts[b].delta_bic))
+            }
+            Rank::Heldout => {
+                let key =
+                    |a: &Attempt<M>| a.gate.as_ref().map_or(f64::INFINITY, |g| g.heldout_rank);
+                ranked.sort_by(|&a, &b| key(&attempts[a]).total_cmp(&key(&attempts[b])))
+            }
+        }
+        if let Screen::Shortlist {
+            bic_threshold,
+            size,
+        } = policy.screen
+        {
+            let shortlist: Vec<usize> = ranked
+                .iter()
+                .copied()
+                .filter(|&i| fits[i].is_some() && attempts[i].delta_bic < -bic_threshold)
+                .take(size)
+                .collect();
+            for i in shortlist {
+                let (c, f) = (
+                    attempts[i].candidate,
+                    fits[i].as_ref().expect("shortlisted fits"),
+                );
+                let h = model.heldout(round, c, f)?;
+                let now = Current {
+                    round,
+                    fitted: cur,
+                    held: cur_held,
+                    observed: &observed,
+                };
+                let g = model.gate(
+                    &now,
+                    &Candidate {
+                        candidate: c,
+                        fitted: f,
+                        held: &h,
+                        delta_bic: attempts[i].delta_bic,
+                    },
+                );
+                attempts[i].gate = Some(g);
+                attempts[i].held = Some(h);
+            }
+        }
+        let mut best: Option<usize> = None;
+        for &i in &ranked {
+            let Some(g) = &attempts[i].gate else { continue };
+            let j = match best {
+                None if g.passes => {
+                    best = Some(i);
+                    Judgement::Best
+                }
+                Some(b) if g.passes => {
+                    let lead = attempts[b]
+                        .gate
+                        .as_ref()
+                        .map_or(f64::NAN, |g| g.heldout_delta_bic);
+                    if g.heldout_delta_bic < lead {
+                        Judgement::Ambiguous
+                    } else {
+                        Judgement::AlsoPasses
+                    }
+                }
+                _ => Judgement::Rejected,
+            };
+            attempts[i].judgement = Some(j);
+        }
+        let mut this = Round {
+            round,
+            model: adopted.clone(),
+            observed,
+            attempts,
+            ranked,
+            adopted: None,
+            adoption: None,
+            stop: None,
+        };
+        match best {
+            Some(i) if round <= policy.max_adopted => {
+                let f = fits[i].take().expect("a gated candidate was fitted");
+                let h = this.attempts[i]
+                    .held
+                    .clone()
+                    .expect("a gated candidate has held-out evidence");
+                let c = this.attempts[i].candidate;
+                let now = Current {
+                    round,
+                    fitted: cur,
+                    held: cur_held,
+                    observed: &this.observed,
+                };
+                let (f, h, adoption) = model.adopt(&now, c, f, h)?;
+                this.adopted = Some(i);
+                this.adoption = Some(adoption);
+                rounds.push(this);
+                adopted.push(c);
+                path.push((f, h));
+            }
+            other => {
+                stop = if other.is_some() {
+                    Stop::Limit
+                } else if this.attempts.is_empty() {
+                    Stop::NothingToTry
+                } else {
+                    Stop::NothingPasses
+                };
+                this.stop = Some(stop);
+                rounds.push(this);
+                break;
+            }
+        }
+    }
+    if stop == Stop::Rounds {
+        if let Some(last) = rounds.last_mut() {
+            last.stop = Some(Stop::Rounds);
+        }
+    }
+    Ok(Verdict { rounds, path, stop })
+}
