@@ -158,6 +158,9 @@ pub struct Replay {
     pub mean_iterations: f64,
     /// Samples missing or frames rejected by the receiver.
     pub lost: u64,
+    /// Latency pairs whose "solved" instant preceded "written" (excluded from the percentiles;
+    /// should be 0 — a non-zero count means the figures are not to be trusted).
+    pub non_monotonic: usize,
 }
 
 /// A haptic replay for `palpate demo`: the simulated probe (firmware library behind a mock ADC)
@@ -189,9 +192,15 @@ pub fn replay(
             .map_or(0, |r| r.1.iterations))
     })?;
     let mut e2e = Vec::new();
+    let mut non_monotonic = 0;
     for &(seq, _arrival, solved) in &lp.events {
         if let Some(Some(written)) = lp.sent.written_at.get(seq as usize) {
-            e2e.push(solved.duration_since(*written).as_secs_f64() * 1e6);
+            // Both instants come from one monotonic clock and "written" is taken before the
+            // write, so a pair out of order is a measurement fault: counted, never clamped to 0.
+            match solved.checked_duration_since(*written) {
+                Some(d) => e2e.push(d.as_secs_f64() * 1e6),
+                None => non_monotonic += 1,
+            }
         }
     }
     let e2e = Percentiles::of(&mut e2e);
@@ -202,5 +211,6 @@ pub fn replay(
         p99_us: e2e.p99,
         mean_iterations,
         lost: lp.stats.missing_samples + lp.stats.rejected(),
+        non_monotonic,
     })
 }

@@ -69,7 +69,10 @@ pub struct SenderOptions {
 pub struct SenderReport {
     /// Every sample the probe produced, in order (sent or not).
     pub samples: Vec<ForceSample>,
-    /// Wall instant each sample's frame finished writing (`None`: the write failed).
+    /// Wall instant just before each sample's frame was written (`None`: the write failed).
+    /// Taken before the write, not after: the receiver may decode and solve the frame before the
+    /// writing thread returns from `write`, and a "written" instant after "solved" would make a
+    /// latency negative (and `Instant::duration_since` silently saturate it to zero).
     pub written_at: Vec<Option<Instant>>,
     /// Frames of any kind written.
     pub frames_written: u64,
@@ -140,6 +143,7 @@ pub fn run_sender<W: Write>(
         }
         let Some(s) = sim.step(now_us) else { continue };
         let mut frames = [Some(Frame::Sample(s)), sim.probe.take_overrun()];
+        let before_write = Instant::now();
         // An overrun report goes after the sample whose sequence number shows the gap.
         let mut ok = true;
         for (i, f) in frames.iter_mut().enumerate() {
@@ -155,7 +159,7 @@ pub fn run_sender<W: Write>(
             }
         }
         rep.samples.push(s);
-        rep.written_at.push(ok.then(Instant::now));
+        rep.written_at.push(ok.then_some(before_write));
     }
     let _ = tx.flush();
     (rep, tx.into_inner().0)

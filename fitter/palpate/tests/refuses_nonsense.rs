@@ -219,3 +219,22 @@ fn simulate_refuses_loads_beyond_the_model() {
     assert_eq!(code, 0, "{err}");
     assert!(out.join("displacements.csv").exists());
 }
+
+/// `palpate probe` on a port where nothing streams is an error, not "0 samples" and exit 0.
+#[test]
+fn probe_with_no_data_is_an_error() {
+    use serialport::SerialPort;
+    let (master, slave) = serialport::TTYPort::pair().expect("a pseudo-terminal pair");
+    let path = slave.name().expect("the slave end has a path");
+    let o = palpate()
+        .args(["probe", "--port", &path, "--seconds", "0.5"])
+        .output()
+        .unwrap();
+    drop(master);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("no force sample received") && err.contains(&path),
+        "{err}"
+    );
+}

@@ -173,6 +173,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "\nhaptic replay: {} samples solved ({} lost), latency frame written → solved p50 {:.0} µs, p99 {:.0} µs; mean PCG iterations {:.1}; runtime memory {} bytes",
         replay.solved, lost, replay.p50_us, replay.p99_us, replay.mean_iterations, footprint
     );
+    if replay.non_monotonic > 0 {
+        println!(
+            "warning: {} latency pairs were out of clock order and are excluded from the figures",
+            replay.non_monotonic
+        );
+    }
     println!("demo finished in {:.1} s", t0.elapsed().as_secs_f64());
     Ok(())
 }

@@ -91,6 +91,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     eprintln!();
     let st = *reader.stats();
+    if rows.is_empty() {
+        anyhow::bail!(
+            "no force sample received from {} in {:.1} s ({} frames rejected, {} bytes \
+             discarded, {} bytes read): check the port, the baud rate and that the probe is streaming",
+            args.port,
+            args.seconds,
+            st.rejected(),
+            st.bytes_discarded,
+            st.bytes
+        );
+    }
     println!(
         "{} samples in {:.1} s; link: {:?}",
         rows.len(),
