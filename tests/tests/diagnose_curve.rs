@@ -479,3 +479,43 @@ fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
     }
     out
 }
+
+/// Curves that no model can be fitted to honestly are refused with the file's line, never
+/// reported as "clean" with an infinite RMS or explained by a hyperelastic law: a stress of 1e300
+/// (its square overflows) and a tension test whose force is negative throughout.
+#[test]
+fn implausible_curves_are_refused_not_called_clean() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = String::from(
+        "time_s,true_strain,true_stress_MPa,engineering_strain,engineering_stress_MPa\n",
+    );
+    for k in 1..40 {
+        let e = 0.05 * k as f64;
+        let stress = if k == 20 { 1e300 } else { 0.1 * e };
+        s.push_str(&format!(
+            "{},{},{},{},{}\n",
+            0.1 * k as f64,
+            e,
+            stress,
+            e,
+            stress
+        ));
+    }
+    std::fs::write(dir.path().join("huge.csv"), s).unwrap();
+    let e = diagnose_path(dir.path(), &CurveOptions::default(), &mut |_| {})
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("line 21") && e.contains("1e300"), "{e}");
+
+    let dir = tempfile::tempdir().unwrap();
+    let (t, x) = triangle(20.0, 1.0, 10.0);
+    let f: Vec<f64> = x.iter().map(|x| -0.08 * x - 0.001).collect();
+    std::fs::write(dir.path().join("negative.csv"), tension_csv(&t, &x, &f)).unwrap();
+    let e = diagnose_path(dir.path(), &CurveOptions::default(), &mut |_| {})
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("negative in all") && e.contains("flip the sign"),
+        "{e}"
+    );
+}

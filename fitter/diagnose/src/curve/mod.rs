@@ -172,6 +172,7 @@ pub fn diagnose(
             }
         })
         .collect();
+    check_plausible(data, &groups)?;
     let mut bits = o.adc_bits.clamp(1, 31);
     if data.format == Format::FsrBalance {
         let top = groups
@@ -232,6 +233,18 @@ pub fn diagnose(
     if ts {
         notes.push("Parameter uncertainties assume independent residuals; samples of a time series are correlated, so they are lower bounds.".into());
     }
+    // A residual that is not a finite number is no verdict: never "clean" with RMS inf.
+    if let Some(e) = sel
+        .errors
+        .iter()
+        .find(|e| !(e.fitted_rms.is_finite() && e.heldout_rms.is_finite()))
+    {
+        return Err(CurveError::Input(format!(
+            "{}: the fit's residual is not finite (fitted RMS {}, held out {}): the data's \
+             magnitudes are outside what the models can represent",
+            data.name, e.fitted_rms, e.heldout_rms
+        )));
+    }
     let first = &sel.fits[0];
     let last = sel.fits.last().expect("at least the simplest fit");
     let unit = data.format.labels().1.to_string();
@@ -287,6 +300,51 @@ pub fn diagnose(
         data: groups,
         selection: Some(sel),
     })
+}
+
+/// The largest magnitude a load or response may have: its square must not overflow in a
+/// residual sum, and no instrument of these formats reads anywhere near it (stresses in MPa,
+/// forces in N, ADC counts, ln Ω).
+pub const MAX_MAGNITUDE: f64 = 1e12;
+
+/// Refuses data no model can be fitted to honestly: magnitudes whose squares overflow, and a
+/// tension or stress–strain response that is negative throughout (compression, or a sign
+/// convention the hyperelastic tension laws do not share — a law would be "adopted" for it).
+fn check_plausible(data: &CurveData, groups: &[Group]) -> Result<(), CurveError> {
+    for g in groups {
+        for (k, (&x, &y)) in g.x.iter().zip(&g.y).enumerate() {
+            if !(x.abs() <= MAX_MAGNITUDE && y.abs() <= MAX_MAGNITUDE) {
+                let line = g.line.get(k).copied().unwrap_or(0);
+                return Err(CurveError::Input(format!(
+                    "{} ({}) line {line}: value {:e} outside ±{MAX_MAGNITUDE:e}: not a \
+                     measurement of this kind (check the units and columns)",
+                    data.name,
+                    g.name,
+                    if x.abs() > MAX_MAGNITUDE { x } else { y }
+                )));
+            }
+        }
+    }
+    if matches!(data.format, Format::Tension | Format::StressStrain) {
+        let (mut positive, mut negative) = (0usize, 0usize);
+        for y in groups.iter().flat_map(|g| g.y.iter()) {
+            if *y > 0.0 {
+                positive += 1;
+            } else if *y < 0.0 {
+                negative += 1;
+            }
+        }
+        if negative > 0 && positive == 0 {
+            let (_, label) = data.format.labels();
+            return Err(CurveError::Input(format!(
+                "{}: the {label} is negative in all {negative} samples: a tension test pulls \
+                 (positive response); if this is a compression test or another sign \
+                 convention, flip the sign of the column",
+                data.name
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// Reads `path` (file or directory) and diagnoses every dataset in it.
