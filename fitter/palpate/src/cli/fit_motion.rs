@@ -42,6 +42,9 @@ pub struct Args {
 
 /// Runs the fit and prints the report.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    for out in [&args.output, &args.export].into_iter().flatten() {
+        super::output::check_writable(out)?;
+    }
     let ds = palpate_motion::dataset::load(&args.dataset)?;
     let ne = ds.model.tets.len();
     let init = &ds.config.initial;
@@ -157,6 +160,43 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for f in &r.failures {
         println!("note: {f}");
     }
+    // The result's gates: elastic parameters at the bounds of what a soft object can be refuse
+    // the export; Newton steps that never met their tolerance and an LBFGS run stopped by its cap
+    // are said loudly (stderr, exit status 2).
+    let elastic: Vec<palpate_fem::forward::Material> =
+        (0..fitted.values[0].len().max(fitted.values[1].len()))
+            .map(|e| {
+                let at = |k: usize| fitted.values[k][e.min(fitted.values[k].len() - 1)];
+                palpate_fem::forward::Material::homogeneous(LambdaAlpha::from_lame(at(0), at(1)))
+            })
+            .collect();
+    let mut findings = palpate_fem::sanity::Findings::default();
+    for (e, m) in elastic.iter().enumerate() {
+        for mut f in palpate_fem::sanity::check_material(std::slice::from_ref(m)).0 {
+            if elastic.len() > 1 {
+                f.message = format!("element {e}: {}", f.message);
+            }
+            findings.0.push(f);
+        }
+    }
+    let stats = r.eval.stats;
+    if stats.unconverged_steps > 0 {
+        findings.warn(
+            "newton-not-converged",
+            format!(
+                "{} of {} time steps of the fitted simulation did not meet the Newton tolerance \
+                 (largest residual {:.3e} N): the fitted trajectory is not an accurate solution",
+                stats.unconverged_steps, ds.model.steps, stats.max_residual
+            ),
+        );
+    }
+    findings.extend(palpate_fem::sanity::check_iterations(
+        "LBFGS",
+        r.iterations as usize,
+        args.max_iters as usize,
+        r.iterations < args.max_iters,
+    ));
+    let findings = findings.into_result()?;
     if let Some(out) = &args.output {
         let json = serde_json::json!({
             "dataset": args.dataset.display().to_string(),
@@ -194,6 +234,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             path.display(),
             palpate_motion::export::lost_in_export(&fitted)
         );
+    }
+    let warnings = findings.warnings().count();
+    if warnings > 0 {
+        for w in findings.warnings() {
+            eprintln!("{w}");
+        }
+        return Err(super::WrittenWithWarnings(warnings).into());
     }
     Ok(())
 }
