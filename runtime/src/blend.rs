@@ -6,8 +6,9 @@
 //! inside the physical band −0.999 λ < α < 0.499 λ. The runtime therefore never leaves the
 //! convex range of what was measured.
 
-use crate::runtime::Runtime;
-use palpate_protocol::model::{Blend, ParameterLayout};
+use crate::elements::ElementState;
+use crate::nodes::NodeState;
+use palpate_protocol::model::{Blend, ModelRecord, ParameterLayout};
 
 /// Biharmonic basis φ(r) = r (eqs. 6.2–6.5).
 #[inline(always)]
@@ -15,13 +16,18 @@ pub fn phi(r: f32) -> f32 {
     r
 }
 
-/// Recomputes (λ_e, α_e) from the current state (no-op for linear materials).
-pub(crate) fn blend_parameters(rt: &mut Runtime<'_>) {
-    let rec = rt.record;
+/// Recomputes (λ_e, α_e) of `elements` from the current state — the node positions for
+/// deformation-space blending, the element strains for strain-space blending — (no-op for
+/// linear materials).
+pub(crate) fn blend_parameters(
+    rec: &ModelRecord<'_>,
+    nodes: &NodeState<'_>,
+    elements: &mut ElementState<'_>,
+) {
     let ps = rec.parameters;
     let sets = ps.count as usize;
     let per_element = ps.layout == ParameterLayout::PerElement;
-    let t = rt.t;
+    let t = elements.t;
     let set_value = |arr: &palpate_protocol::model::F32s<'_>, s: usize, e: usize| -> f32 {
         arr.get(if per_element { s * t + e } else { s })
             .unwrap_or(0.0)
@@ -36,11 +42,11 @@ pub(crate) fn blend_parameters(rt: &mut Runtime<'_>) {
             // λ = Σ_i w_i^λ φ(‖x − x̄_i‖) (eq. 6.2), α likewise (eq. 6.3); x over all nodes.
             let mut lam = 0.0f32;
             let mut alp = 0.0f32;
-            let n3 = 3 * rt.n;
+            let n3 = 3 * nodes.n;
             for s in 0..sets {
                 let mut d2 = 0.0f64;
                 for k in 0..n3 {
-                    let x = rt.x0[k] + rt.u[k];
+                    let x = nodes.x0[k] + nodes.u[k];
                     let c = centres.get(s * n3 + k).unwrap_or(x);
                     d2 += ((x - c) as f64) * ((x - c) as f64);
                 }
@@ -56,8 +62,8 @@ pub(crate) fn blend_parameters(rt: &mut Runtime<'_>) {
                     |s| set_value(&ps.lambda, s, e),
                     |s| set_value(&ps.alpha, s, e),
                 );
-                rt.lam[e] = l;
-                rt.alp[e] = a;
+                elements.lam[e] = l;
+                elements.alp[e] = a;
             }
         }
         Blend::Strain {
@@ -84,7 +90,7 @@ pub(crate) fn blend_parameters(rt: &mut Runtime<'_>) {
                         }
                         let mut s2 = 0.0f32;
                         for c in 0..6 {
-                            let cur = rt.strain.get(6 * nb + c).copied().unwrap_or(0.0);
+                            let cur = elements.strain.get(6 * nb + c).copied().unwrap_or(0.0);
                             let cen = centres.get((l * t + nb) * 6 + c).unwrap_or(cur);
                             s2 += (cur - cen) * (cur - cen);
                         }
@@ -101,8 +107,8 @@ pub(crate) fn blend_parameters(rt: &mut Runtime<'_>) {
                     |s| set_value(&ps.lambda, s, e),
                     |s| set_value(&ps.alpha, s, e),
                 );
-                rt.lam[e] = l;
-                rt.alp[e] = a;
+                elements.lam[e] = l;
+                elements.alp[e] = a;
             }
         }
     }

@@ -22,7 +22,7 @@ pub fn aggregate_capacity(requested: u32, nodes: usize) -> usize {
 
 /// f32 values the coarse space needs for `m` aggregates: centroids and scales (4m), the coarse
 /// vector (6m) and the dense factor ((6m)²).
-pub fn coarse_f32s(m: usize) -> usize {
+pub const fn coarse_f32s(m: usize) -> usize {
     4 * m + 6 * m + 36 * m * m
 }
 

@@ -231,7 +231,12 @@ pub fn triangle_load(v: [[f64; 3]; 3], contact: [f64; 3], radius: f64) -> [f64; 
 /// **add**) and returns (Σ of the emitted integrals, loaded triangles). `tri(k)` gives surface
 /// triangle k of `tri_count`; a triangle with a node id ≥ `node_count` is skipped. The weights
 /// of [`contact_weights_consistent`] are these integrals divided by the sum.
+///
+/// Not inlined: kept out of its callers so the haptic tick's contact command compiles as it
+/// did before the runtime's rooms redesign (inlined, the per-tick force command measured ~3 %
+/// slower on the 5k-tet bench).
 #[allow(clippy::too_many_arguments)]
+#[inline(never)]
 pub fn contact_integrals(
     contact: [f64; 3],
     radius: f64,

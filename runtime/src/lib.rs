@@ -19,19 +19,27 @@
 pub mod blend;
 pub mod coarse;
 pub mod config;
+mod contact;
 pub mod contact_rule;
 pub mod dense;
 pub mod element;
+mod elements;
 pub mod error;
 pub mod kernel;
 pub mod material;
+mod nodes;
+pub mod pcg;
+mod precond;
 pub mod rotation;
 mod runtime;
+mod stiffness;
 pub mod storage;
 mod tick;
 
 pub use config::{Kernel, Preconditioner, RuntimeConfig};
+pub use contact::Probe;
 pub use contact_rule::ContactRule;
 pub use error::RuntimeError;
-pub use runtime::{Probe, Runtime, SolveStatus, TickReport};
+pub use runtime::Runtime;
 pub use storage::StorageRequirement;
+pub use tick::{SolveStatus, TickReport};

@@ -1,14 +1,23 @@
 //! Caller-provided storage: the runtime never allocates. [`StorageRequirement::for_model`] says how
 //! many `f32` and `u32` values a model needs; the caller provides them once (a `Vec` on a host, a
 //! `static` array on a microcontroller) and [`Carver`] cuts them into the runtime's arrays.
+//!
+//! Why one description: the size asked of the caller and the slices cut from it must agree, and
+//! when they were written twice (constants here, carving in the constructor) every new array had
+//! to be added in two places. Now each room of the runtime (nodes, contact set, elements, element
+//! forces, preconditioner, PCG work) lists its arrays once, as a `RoomLayout` of lengths per
+//! pool in carving order; `Layout` gathers the rooms. [`StorageRequirement::for_model`] sums
+//! that list and `Runtime::new` carves it, room by room, array by array (faer's `StackReq`
+//! pattern), so the two can never disagree.
 
 use crate::config::{Kernel, RuntimeConfig};
 use crate::error::RuntimeError;
 use palpate_protocol::model::{Blend, ModelRecord};
 
-/// `f32` values per node: x₀, u, u_good, f_cmd, f_app, r, r_full, z, p, q, δ, previous δ, normal
-/// (3 each), preconditioner block (6), prescribed normal position, lumped area.
-pub const F32_PER_NODE: usize = 13 * 3 + 6 + 2;
+/// `f32` values per node: x₀, u, u_good, f_cmd, f_app, r_full, δ, previous δ (the node state,
+/// 3 each), lumped area (1); normal (3) and prescribed normal position (1) (the contact set);
+/// r, z, p, q (the PCG work, 3 each); preconditioner block (6). Derived from `Layout`.
+pub const F32_PER_NODE: usize = Layout::per_node().0;
 /// Element arrays are padded to a whole number of [`crate::kernel::LANES`]-element blocks so
 /// every element pass runs the batched (SIMD) kernels without a scalar remainder; the padding
 /// elements have zero volume and gradients, so they contribute nothing.
@@ -18,16 +27,20 @@ pub const fn padded_elements(t: usize) -> usize {
 
 /// `f32` values per (padded) element without blending: ∇φ₁..₃ (9), V, λ, α, R (9),
 /// quaternion (4), rotated gradients R∇φ₁..₃ (9), element forces of the PCG product (12).
-pub const F32_PER_ELEMENT: usize = 9 + 3 + 9 + 4 + 9 + 12;
-/// Extra `f32` per element for strain-space blending: the current strain (6).
-pub const F32_PER_ELEMENT_STRAIN: usize = 6;
-/// Extra `f32` per element for the packed-matrix kernel: C_e and D_e (2 × 78).
-pub const F32_PER_ELEMENT_PACKED: usize = 2 * 78;
+/// Derived from `Layout`.
+pub const F32_PER_ELEMENT: usize = Layout::per_padded_element().0;
+/// Extra `f32` per element for strain-space blending: the current strain (6). Derived from
+/// `Layout`.
+pub const F32_PER_ELEMENT_STRAIN: usize = Layout::per_element(true, false);
+/// Extra `f32` per element for the packed-matrix kernel: C_e and D_e (2 × 78). Derived from
+/// `Layout`.
+pub const F32_PER_ELEMENT_PACKED: usize = Layout::per_element(false, true);
 /// `u32` values per node: constraint flag, coarse aggregate, start of its incidence list (plus
-/// one more value in all).
-pub const U32_PER_NODE: usize = 3;
-/// `u32` values per element: the four node indices and their four incidence entries.
-pub const U32_PER_ELEMENT: usize = 8;
+/// one more value in all). Derived from `Layout`.
+pub const U32_PER_NODE: usize = Layout::per_node().1;
+/// `u32` values per element: the four node indices and their four incidence entries. Derived
+/// from `Layout`.
+pub const U32_PER_ELEMENT: usize = Layout::per_padded_element().1;
 
 /// How much storage a model needs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -39,31 +52,197 @@ pub struct StorageRequirement {
 }
 
 impl StorageRequirement {
-    /// Storage needed to run `record` with `config`.
+    /// Storage needed to run `record` with `config`: the sum of the runtime's `Layout`.
     pub fn for_model(record: &ModelRecord<'_>, config: &RuntimeConfig) -> Self {
-        let n = record.node_count as usize;
-        let t = record.element_count as usize;
-        let tp = padded_elements(t);
-        let mut per_element = 0;
-        if matches!(record.blend, Blend::Strain { .. }) {
-            per_element += F32_PER_ELEMENT_STRAIN;
-        }
-        if config.kernel == Kernel::Packed {
-            per_element += F32_PER_ELEMENT_PACKED;
-        }
-        let coarse = crate::coarse::coarse_f32s(crate::coarse::aggregate_capacity(
-            config.coarse_aggregates,
-            n,
-        ));
+        let layout = Layout::of(&Dims::of(record, config));
         Self {
-            f32s: n * F32_PER_NODE + tp * F32_PER_ELEMENT + t * per_element + coarse,
-            u32s: n * U32_PER_NODE + 1 + tp * U32_PER_ELEMENT,
+            f32s: layout.f32s(),
+            u32s: layout.u32s(),
         }
     }
 
     /// Total bytes of the two pools.
     pub fn bytes(&self) -> usize {
         4 * (self.f32s + self.u32s)
+    }
+}
+
+/// The sizes a layout depends on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Dims {
+    /// Nodes n.
+    pub nodes: usize,
+    /// Elements t.
+    pub elements: usize,
+    /// Elements padded to whole LANES blocks ([`padded_elements`]).
+    pub padded: usize,
+    /// The model blends in strain space (each element keeps its strain).
+    pub strain: bool,
+    /// The packed-matrix kernel runs (each element keeps C_e, D_e).
+    pub packed: bool,
+    /// Aggregates of the coarse space ([`crate::coarse::aggregate_capacity`]).
+    pub aggregates: usize,
+}
+
+impl Dims {
+    /// The sizes of `record` run with `config`.
+    pub(crate) fn of(record: &ModelRecord<'_>, config: &RuntimeConfig) -> Self {
+        let n = record.node_count as usize;
+        let t = record.element_count as usize;
+        Self {
+            nodes: n,
+            elements: t,
+            padded: padded_elements(t),
+            strain: matches!(record.blend, Blend::Strain { .. }),
+            packed: config.kernel == Kernel::Packed,
+            aggregates: crate::coarse::aggregate_capacity(config.coarse_aggregates, n),
+        }
+    }
+}
+
+/// The arrays of one room: the length of each, from the `f32` pool (`F` arrays) and from the
+/// `u32` pool (`U` arrays), in carving order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct RoomLayout<const F: usize, const U: usize> {
+    /// Lengths of the `f32` arrays.
+    pub f32s: [usize; F],
+    /// Lengths of the `u32` arrays.
+    pub u32s: [usize; U],
+}
+
+impl<const F: usize, const U: usize> RoomLayout<F, U> {
+    /// Total `f32` values of the room.
+    pub const fn f32_total(&self) -> usize {
+        sum(&self.f32s)
+    }
+
+    /// Total `u32` values of the room.
+    pub const fn u32_total(&self) -> usize {
+        sum(&self.u32s)
+    }
+
+    /// Cuts the room's arrays, in layout order, off the two pools.
+    #[allow(clippy::type_complexity)]
+    pub fn carve<'a>(
+        &self,
+        f: &mut Carver<'a, f32>,
+        u: &mut Carver<'a, u32>,
+    ) -> Result<([&'a mut [f32]; F], [&'a mut [u32]; U]), RuntimeError> {
+        Ok((f.take_array(self.f32s)?, u.take_array(self.u32s)?))
+    }
+}
+
+const fn sum<const K: usize>(lens: &[usize; K]) -> usize {
+    let mut s = 0;
+    let mut k = 0;
+    while k < K {
+        s += lens[k];
+        k += 1;
+    }
+    s
+}
+
+/// The runtime's whole storage: every room's arrays. `Runtime::new` carves the rooms in the
+/// order of the fields; [`Layout::f32s`] and [`Layout::u32s`] sum them. Both destructure the
+/// struct exhaustively, so a room added here must be both sized and carved.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Layout {
+    /// [`crate::nodes::NodeState`].
+    pub nodes: RoomLayout<9, 0>,
+    /// [`crate::contact::ContactSet`].
+    pub contact: RoomLayout<2, 1>,
+    /// [`crate::pcg::PcgWork`].
+    pub work: RoomLayout<4, 0>,
+    /// [`crate::precond::TwoLevel`].
+    pub precond: RoomLayout<2, 1>,
+    /// [`crate::elements::ElementState`].
+    pub elements: RoomLayout<9, 1>,
+    /// [`crate::stiffness::ElementForces`].
+    pub forces: RoomLayout<1, 2>,
+}
+
+impl Layout {
+    /// The layout for `d`.
+    pub(crate) const fn of(d: &Dims) -> Self {
+        Self {
+            nodes: crate::nodes::NodeState::layout(d),
+            contact: crate::contact::ContactSet::layout(d),
+            work: crate::pcg::PcgWork::layout(d),
+            elements: crate::elements::ElementState::layout(d),
+            forces: crate::stiffness::ElementForces::layout(d),
+            precond: crate::precond::TwoLevel::layout(d),
+        }
+    }
+
+    /// Total `f32` values.
+    pub(crate) const fn f32s(&self) -> usize {
+        let Layout {
+            nodes,
+            contact,
+            work,
+            elements,
+            forces,
+            precond,
+        } = self;
+        nodes.f32_total()
+            + contact.f32_total()
+            + work.f32_total()
+            + elements.f32_total()
+            + forces.f32_total()
+            + precond.f32_total()
+    }
+
+    /// Total `u32` values.
+    pub(crate) const fn u32s(&self) -> usize {
+        let Layout {
+            nodes,
+            contact,
+            work,
+            elements,
+            forces,
+            precond,
+        } = self;
+        nodes.u32_total()
+            + contact.u32_total()
+            + work.u32_total()
+            + elements.u32_total()
+            + forces.u32_total()
+            + precond.u32_total()
+    }
+
+    const fn dims(nodes: usize, elements: usize, padded: usize, s: bool, p: bool) -> Dims {
+        Dims {
+            nodes,
+            elements,
+            padded,
+            strain: s,
+            packed: p,
+            aggregates: 0,
+        }
+    }
+
+    /// (`f32`, `u32`) values one more node adds.
+    const fn per_node() -> (usize, usize) {
+        let (a, b) = (
+            Self::of(&Self::dims(1, 0, 0, false, false)),
+            Self::of(&Self::dims(0, 0, 0, false, false)),
+        );
+        (a.f32s() - b.f32s(), a.u32s() - b.u32s())
+    }
+
+    /// (`f32`, `u32`) values one more padded element adds.
+    const fn per_padded_element() -> (usize, usize) {
+        let (a, b) = (
+            Self::of(&Self::dims(0, 0, 1, false, false)),
+            Self::of(&Self::dims(0, 0, 0, false, false)),
+        );
+        (a.f32s() - b.f32s(), a.u32s() - b.u32s())
+    }
+
+    /// `f32` values one more (unpadded) element adds with strain blending / the packed kernel.
+    const fn per_element(strain: bool, packed: bool) -> usize {
+        Self::of(&Self::dims(0, 1, 0, strain, packed)).f32s()
+            - Self::of(&Self::dims(0, 1, 0, false, false)).f32s()
     }
 }
 
@@ -111,5 +290,58 @@ impl<'a, T: Copy + Default> Carver<'a, T> {
         self.rest = tail;
         head.iter_mut().for_each(|v| *v = T::default());
         Ok(head)
+    }
+
+    /// Takes the next `K` arrays of the given lengths, zeroed, in order.
+    pub fn take_array<const K: usize>(
+        &mut self,
+        lens: [usize; K],
+    ) -> Result<[&'a mut [T]; K], RuntimeError> {
+        let mut out: [&'a mut [T]; K] = core::array::from_fn(|_| <&mut [T]>::default());
+        for (o, n) in out.iter_mut().zip(lens) {
+            *o = self.take(n)?;
+        }
+        Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The layout sums to what the constants written by hand before the rooms redesign said
+    /// (47 f32 and 3 u32 per node, 46 f32 and 8 u32 per padded element, 6 / 156 f32 per element
+    /// for strain blending / the packed kernel, the coarse space, one more u32).
+    #[test]
+    fn layout_matches_the_former_formula() {
+        assert_eq!(F32_PER_NODE, 13 * 3 + 6 + 2);
+        assert_eq!(F32_PER_ELEMENT, 9 + 3 + 9 + 4 + 9 + 12);
+        assert_eq!(F32_PER_ELEMENT_STRAIN, 6);
+        assert_eq!(F32_PER_ELEMENT_PACKED, 2 * 78);
+        assert_eq!(U32_PER_NODE, 3);
+        assert_eq!(U32_PER_ELEMENT, 8);
+        for (n, t, s, p, m) in [
+            (10, 7, false, false, 1),
+            (1000, 5184, true, false, 64),
+            (37, 1, true, true, 4),
+            (0, 0, false, true, 0),
+        ] {
+            let tp = padded_elements(t);
+            let d = Dims {
+                nodes: n,
+                elements: t,
+                padded: tp,
+                strain: s,
+                packed: p,
+                aggregates: m,
+            };
+            let l = Layout::of(&d);
+            let per_element = if s { 6 } else { 0 } + if p { 156 } else { 0 };
+            assert_eq!(
+                l.f32s(),
+                n * 47 + tp * 46 + t * per_element + crate::coarse::coarse_f32s(m)
+            );
+            assert_eq!(l.u32s(), n * 3 + 1 + tp * 8);
+        }
     }
 }

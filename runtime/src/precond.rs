@@ -1,0 +1,134 @@
+//! The PCG's preconditioner: the 3 × 3 node blocks of K' (block Jacobi, or their diagonal for
+//! Jacobi) plus the coarse correction of rigid modes on aggregates ([`crate::coarse`]), an
+//! additive two-level Schwarz preconditioner M⁻¹, filtered by the constraints: z = S M⁻¹ r.
+//!
+//! This room changes when the preconditioner or its refresh policy changes.
+
+use crate::coarse::Coarse;
+use crate::config::Preconditioner as Kind;
+use crate::contact::ContactSet;
+use crate::error::RuntimeError;
+use crate::pcg::{Preconditioner, Projection};
+use crate::storage::{Carver, Dims, RoomLayout};
+
+/// Node blocks and coarse space.
+pub(crate) struct TwoLevel<'a> {
+    /// The inverted node blocks (xx, yy, zz, xy, yz, zx), 6 per node.
+    pub blocks: &'a mut [f32],
+    /// Whether `blocks` holds the (inverted) blocks of some recent K'.
+    pub valid: bool,
+    /// Upper bound of how far (rad) any rotation moved since `blocks` was built.
+    pub drift: f32,
+    /// The coarse space (sized for [`Dims::aggregates`]).
+    pub coarse: Coarse<'a>,
+}
+
+impl<'a> TwoLevel<'a> {
+    /// The room's arrays, in carving order (see [`crate::storage::Layout`]).
+    pub(crate) const fn layout(d: &Dims) -> RoomLayout<2, 1> {
+        RoomLayout {
+            f32s: [6 * d.nodes, crate::coarse::coarse_f32s(d.aggregates)],
+            u32s: [d.nodes],
+        }
+    }
+
+    /// Cuts the room from the pools (zeroed; [`Coarse::build`] fills the coarse space).
+    pub(crate) fn carve(
+        layout: RoomLayout<2, 1>,
+        d: &Dims,
+        f: &mut Carver<'a, f32>,
+        u: &mut Carver<'a, u32>,
+    ) -> Result<Self, RuntimeError> {
+        let ([blocks, coarse], [agg]) = layout.carve(f, u)?;
+        Ok(Self {
+            blocks,
+            valid: false,
+            drift: 0.0,
+            coarse: Coarse::new(d.aggregates, agg, coarse),
+        })
+    }
+
+    /// Whether the node blocks must be rebuilt this tick: never built, the rotations moved by
+    /// more than `refresh_angle` since (see [`crate::RuntimeConfig::precond_refresh_angle`]), or
+    /// a non-linear material (`linear` false) whose λ_e, α_e change every tick.
+    pub(crate) fn due(&self, refresh_angle: f32, linear: bool) -> bool {
+        !self.valid || self.drift > refresh_angle || !linear
+    }
+
+    /// Zeroes the node blocks before an assembly pass adds the element blocks into them.
+    pub(crate) fn begin_assembly(&mut self) {
+        self.blocks.iter_mut().for_each(|v| *v = 0.0);
+        self.valid = true;
+        self.drift = 0.0;
+    }
+
+    /// Inverts the assembled 3 × 3 node blocks in place (or keeps their inverted diagonal for
+    /// Jacobi).
+    pub(crate) fn invert(&mut self, kind: Kind) {
+        let block_jacobi = kind == Kind::BlockJacobi;
+        for b in self.blocks.chunks_exact_mut(6) {
+            if block_jacobi {
+                // Invert the symmetric 3 × 3 block (xx, yy, zz, xy, yz, zx) by cofactors.
+                let (a, d, f, bb, e, c) = (b[0], b[1], b[2], b[3], b[4], b[5]);
+                let c00 = d * f - e * e;
+                let c01 = c * e - bb * f;
+                let c02 = bb * e - c * d;
+                let det = a * c00 + bb * c01 + c * c02;
+                if det.abs() > 0.0 && det.is_finite() {
+                    let inv = 1.0 / det;
+                    let c11 = a * f - c * c;
+                    let c12 = bb * c - a * e;
+                    let c22 = a * d - bb * bb;
+                    b.copy_from_slice(&[
+                        c00 * inv,
+                        c11 * inv,
+                        c22 * inv,
+                        c01 * inv,
+                        c12 * inv,
+                        c02 * inv,
+                    ]);
+                } else {
+                    b.copy_from_slice(&[0.0; 6]);
+                }
+            } else {
+                for v in b[..3].iter_mut() {
+                    *v = if *v > 0.0 { 1.0 / *v } else { 0.0 };
+                }
+                b[3..].fill(0.0);
+            }
+        }
+    }
+}
+
+/// z = S M⁻¹ r: the two-level preconditioner with the rest positions its coarse modes need and
+/// the constraint filter, borrowed for one solve.
+pub(crate) struct TwoLevelApply<'r, 'a> {
+    /// The preconditioner.
+    pub precond: &'r mut TwoLevel<'a>,
+    /// Rest positions (the coarse rotation modes are about aggregate centroids).
+    pub x0: &'r [f32],
+    /// The filter S.
+    pub contact: &'r ContactSet<'a>,
+}
+
+impl Preconditioner for TwoLevelApply<'_, '_> {
+    /// The node block: z_i = B_i⁻¹ r_i (B_i symmetric, stored xx, yy, zz, xy, yz, zx).
+    #[inline(always)]
+    fn apply_node(&self, i: usize, r: [f32; 3]) -> [f32; 3] {
+        match self.precond.blocks.get(6 * i..6 * i + 6) {
+            Some(m) => [
+                m[0] * r[0] + m[3] * r[1] + m[5] * r[2],
+                m[3] * r[0] + m[1] * r[1] + m[4] * r[2],
+                m[5] * r[0] + m[4] * r[1] + m[2] * r[2],
+            ],
+            None => [0.0; 3],
+        }
+    }
+
+    /// Two-level: adds the coarse correction P A_c⁻¹ Pᵀ r (r is already filtered), then filters.
+    #[inline(never)]
+    fn finish(&mut self, r: &[f32], z: &mut [f32]) {
+        self.precond.coarse.apply(self.x0, r, z);
+        self.contact.project(z);
+    }
+}
