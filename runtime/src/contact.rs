@@ -59,24 +59,33 @@ pub(crate) struct ContactSet<'a> {
     pub reaction: [f32; 3],
     /// ‖reaction‖, part of the PCG's residual scale.
     pub reaction_norm: f32,
+    /// Contact-rule weight of each node for a unit force at the last contact (lumped: the
+    /// node's share; consistent: its raw integral ∫N_i dA, scaled by `weight_scale`).
+    pub weight: &'a mut [f32],
+    /// 1/Σ of the consistent rule's integrals (1 for the lumped rule).
+    pub weight_scale: f32,
+    /// The (point, radius) the weights were computed for: a haptic loop commands a new force at
+    /// the same point every sample, and only the magnitude changes — the geometric search over
+    /// nodes and triangles is done once per contact point, not once per sample.
+    pub weights_for: Option<([f32; 3], f32)>,
 }
 
 impl<'a> ContactSet<'a> {
     /// The room's arrays, in carving order (see [`crate::storage::Layout`]).
-    pub(crate) const fn layout(d: &Dims) -> RoomLayout<2, 1> {
+    pub(crate) const fn layout(d: &Dims) -> RoomLayout<3, 1> {
         RoomLayout {
-            f32s: [3 * d.nodes, d.nodes],
+            f32s: [3 * d.nodes, d.nodes, d.nodes],
             u32s: [d.nodes],
         }
     }
 
     /// Cuts the room from the pools (zeroed: every node free).
     pub(crate) fn carve(
-        layout: RoomLayout<2, 1>,
+        layout: RoomLayout<3, 1>,
         f: &mut Carver<'a, f32>,
         u: &mut Carver<'a, u32>,
     ) -> Result<Self, RuntimeError> {
-        let ([normal, prescribed], [flag]) = layout.carve(f, u)?;
+        let ([normal, prescribed, weight], [flag]) = layout.carve(f, u)?;
         Ok(Self {
             flag,
             normal,
@@ -85,6 +94,9 @@ impl<'a> ContactSet<'a> {
             probe_cmd: Probe::None,
             reaction: [0.0; 3],
             reaction_norm: 0.0,
+            weight,
+            weight_scale: 1.0,
+            weights_for: None,
         })
     }
 

@@ -185,12 +185,42 @@ impl<'a> Runtime<'a> {
             });
         }
         let n = self.nodes.n;
+        let key = (point, radius);
+        if self.contact.weights_for != Some(key) {
+            self.contact.weights_for = None;
+            self.contact.weight_scale = self.compute_contact_weights(point, radius)?;
+            self.contact.weights_for = Some(key);
+        }
+        let (weight, scale) = (&*self.contact.weight, self.contact.weight_scale);
+        let f_cmd = &mut *self.nodes.f_cmd;
+        let mut count = 0;
+        for i in 0..n {
+            let w = weight[i];
+            for k in 0..3 {
+                f_cmd[3 * i + k] = (w * force[k]) * scale;
+            }
+            if w != 0.0 && force.iter().any(|v| *v != 0.0) {
+                count += 1;
+            }
+        }
+        self.nodes.f_cmd_norm = norm(f_cmd);
+        Ok(count)
+    }
+
+    /// The contact rule's weights for a unit force at `point` within `radius` into
+    /// `contact.weight`; returns the scale (1/Σ for the consistent rule, 1 for the lumped one).
+    fn compute_contact_weights(
+        &mut self,
+        point: [f32; 3],
+        radius: f32,
+    ) -> Result<f32, RuntimeError> {
+        let n = self.nodes.n;
         let x0 = &*self.nodes.x0;
         let flag = &*self.contact.flag;
         let area = &*self.nodes.area;
         let tris = self.record.surface_triangles;
-        let f_cmd = &mut *self.nodes.f_cmd;
-        f_cmd.iter_mut().for_each(|x| *x = 0.0);
+        let weight = &mut *self.contact.weight;
+        weight.iter_mut().for_each(|x| *x = 0.0);
         let c = [point[0] as f64, point[1] as f64, point[2] as f64];
         let pos = |i: usize| [x0[3 * i] as f64, x0[3 * i + 1] as f64, x0[3 * i + 2] as f64];
         let to_runtime = |e| match e {
@@ -201,21 +231,20 @@ impl<'a> Runtime<'a> {
                 what: "contact point or radius",
             },
         };
-        let count = match self.config.contact_rule {
-            ContactRule::Lumped => contact_weights_by(
-                c,
-                radius as f64,
-                n,
-                pos,
-                |i| area[i] as f64,
-                |i| flag[i] == FIXED,
-                |i, w| {
-                    for k in 0..3 {
-                        f_cmd[3 * i + k] = (w as f32) * force[k];
-                    }
-                },
-            )
-            .map_err(to_runtime)?,
+        match self.config.contact_rule {
+            ContactRule::Lumped => {
+                contact_weights_by(
+                    c,
+                    radius as f64,
+                    n,
+                    pos,
+                    |i| area[i] as f64,
+                    |i| flag[i] == FIXED,
+                    |i, w| weight[i] = w as f32,
+                )
+                .map_err(to_runtime)?;
+                Ok(1.0)
+            }
             ContactRule::Consistent => {
                 // One pass accumulating the raw integrals ∫ N_i dA, then one scaling by 1/Σ.
                 let (total, _) = contact_integrals(
@@ -226,26 +255,12 @@ impl<'a> Runtime<'a> {
                     tris.len() / 3,
                     |k| [0, 1, 2].map(|j| tris.get(3 * k + j).map_or(usize::MAX, |v| v as usize)),
                     |i| flag[i] == FIXED,
-                    |i, l| {
-                        for k in 0..3 {
-                            f_cmd[3 * i + k] += (l as f32) * force[k];
-                        }
-                    },
+                    |i, l| weight[i] += l as f32,
                 )
                 .map_err(to_runtime)?;
-                let inv = (1.0 / total) as f32;
-                let mut count = 0;
-                for f in f_cmd.chunks_exact_mut(3) {
-                    if f.iter().any(|v| *v != 0.0) {
-                        count += 1;
-                    }
-                    f.iter_mut().for_each(|v| *v *= inv);
-                }
-                count
+                Ok((1.0 / total) as f32)
             }
-        };
-        self.nodes.f_cmd_norm = norm(f_cmd);
-        Ok(count)
+        }
     }
 
     /// The commanded force on `node` (N), None out of range.

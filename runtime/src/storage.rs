@@ -150,7 +150,7 @@ pub(crate) struct Layout {
     /// [`crate::nodes::NodeState`].
     pub nodes: RoomLayout<9, 0>,
     /// [`crate::contact::ContactSet`].
-    pub contact: RoomLayout<2, 1>,
+    pub contact: RoomLayout<3, 1>,
     /// [`crate::pcg::PcgWork`].
     pub work: RoomLayout<4, 0>,
     /// [`crate::precond::TwoLevel`].
@@ -310,11 +310,12 @@ mod tests {
     use super::*;
 
     /// The layout sums to what the constants written by hand before the rooms redesign said
-    /// (47 f32 and 3 u32 per node, 46 f32 and 8 u32 per padded element, 6 / 156 f32 per element
+    /// (47 f32 and 3 u32 per node — 48 f32 since the contact weights are cached —, 46 f32 and 8 u32 per padded element, 6 / 156 f32 per element
     /// for strain blending / the packed kernel, the coarse space, one more u32).
     #[test]
     fn layout_matches_the_former_formula() {
-        assert_eq!(F32_PER_NODE, 13 * 3 + 6 + 2);
+        // + 1: the contact weights cached per contact point (issue 12).
+        assert_eq!(F32_PER_NODE, 13 * 3 + 6 + 2 + 1);
         assert_eq!(F32_PER_ELEMENT, 9 + 3 + 9 + 4 + 9 + 12);
         assert_eq!(F32_PER_ELEMENT_STRAIN, 6);
         assert_eq!(F32_PER_ELEMENT_PACKED, 2 * 78);
@@ -339,7 +340,7 @@ mod tests {
             let per_element = if s { 6 } else { 0 } + if p { 156 } else { 0 };
             assert_eq!(
                 l.f32s(),
-                n * 47 + tp * 46 + t * per_element + crate::coarse::coarse_f32s(m)
+                n * 48 + tp * 46 + t * per_element + crate::coarse::coarse_f32s(m)
             );
             assert_eq!(l.u32s(), n * 3 + 1 + tp * 8);
         }

@@ -100,7 +100,12 @@ fn run(fault: AdcFault, hold: u32) {
     let delivered_seqs: Vec<u32> = run.delivered.iter().map(|(s, _)| s.seq).collect();
     let mut last_trusted: Option<(usize, f32)> = None;
     let mut k = 0;
-    for &(seq, force) in &hl.commanded {
+    // The ring holds the last COMMAND_HISTORY solves; this run is shorter, so it holds them all.
+    assert!(
+        hl.solves as usize <= palpate_link::haptic::COMMAND_HISTORY,
+        "the run outgrew the command history"
+    );
+    for &(seq, force) in hl.commanded.oldest_ordered() {
         while k < delivered_seqs.len() && delivered_seqs[k] <= seq {
             let s = sent[&delivered_seqs[k]];
             if trusted(&s) && s.force_n <= 300.0 {
@@ -126,25 +131,25 @@ fn run(fault: AdcFault, hold: u32) {
     }
     let held = hl
         .commanded
-        .iter()
+        .oldest_ordered()
         .filter(|(q, f)| !trusted(&sent[q]) && *f != 0.0)
         .count();
     let released = hl
         .commanded
-        .iter()
+        .oldest_ordered()
         .filter(|(q, f)| !trusted(&sent[q]) && *f == 0.0)
         .count();
     eprintln!(
         "{:?}: {} delivered, {} solves ({} superseded), {} on untrusted samples held, {} released",
         fault.kind,
         run.delivered.len(),
-        hl.commanded.len(),
+        hl.solves,
         hl.superseded,
         held,
         released
     );
     assert_eq!(
-        hl.commanded.len(),
+        hl.solves as usize,
         run.delivered.len(),
         "one solve per delivered sample"
     );

@@ -5,6 +5,7 @@
 //! solving stale forces would only add latency to the one that matters).
 
 use super::gate::{ForceGate, GateDecision};
+use heapless::HistoryBuf;
 use palpate_protocol::link::ForceSample;
 use palpate_runtime::{Runtime, RuntimeError, TickReport};
 
@@ -19,6 +20,9 @@ pub struct Contact {
     pub radius: f32,
 }
 
+/// Solves remembered in [`HapticLoop::commanded`]: 16 s at 1 kHz (128 KiB).
+pub const COMMAND_HISTORY: usize = 16_384;
+
 /// Gate + runtime.
 pub struct HapticLoop<'a> {
     /// The runtime.
@@ -27,8 +31,12 @@ pub struct HapticLoop<'a> {
     pub gate: ForceGate,
     /// The contact.
     pub contact: Contact,
-    /// `(seq, force N)` of every solve, in order: exactly what the runtime was fed.
-    pub commanded: Vec<(u32, f32)>,
+    /// `(seq, force N)` of the last [`COMMAND_HISTORY`] solves, oldest first via
+    /// `oldest_ordered()`: exactly what the runtime was fed. A fixed ring, because a haptic
+    /// session runs for hours and its memory must not grow with it.
+    pub commanded: Box<HistoryBuf<(u32, f32), COMMAND_HISTORY>>,
+    /// Solves since the start (the ring keeps only the most recent).
+    pub solves: u64,
     /// Samples gated but superseded by a newer one in the same batch.
     pub superseded: u64,
 }
@@ -45,7 +53,8 @@ impl<'a> HapticLoop<'a> {
             runtime,
             gate,
             contact,
-            commanded: Vec::new(),
+            commanded: Box::new(HistoryBuf::new()),
+            solves: 0,
             superseded: 0,
         }
     }
@@ -85,7 +94,8 @@ impl<'a> HapticLoop<'a> {
         let c = self.contact;
         self.runtime
             .set_contact_force(c.point, c.direction.map(|d| d * f), c.radius)?;
-        self.commanded.push((seq, f));
+        self.commanded.write((seq, f));
+        self.solves += 1;
         Ok((decision, self.runtime.tick()))
     }
 }
