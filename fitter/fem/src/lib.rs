@@ -12,3 +12,4 @@ pub mod export;
 pub mod forward;
 pub mod io;
 pub mod mesh;
+pub mod rng;

@@ -6,12 +6,13 @@
 use serde::Serialize;
 
 use super::effect::{Effect, EffectSpec};
-use super::{Rng, SpecimenError};
+use super::{rng, SpecimenError};
 use palpate_fem::dataset::embed::embed_point;
 use palpate_fem::dataset::{Marker, Measurement, StaticDataset};
 use palpate_fem::forward::{Load, StaticProblem as LinearProblem};
 use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_fem::mesh::Mesh;
+use palpate_fem::rng::SplitMix64;
 use palpate_motion::hyperelastic::HyperParams;
 use palpate_motion::statics::{solve_static, StaticProblem as HyperProblem};
 
@@ -216,7 +217,7 @@ pub fn generate(o: &SpecimenOptions) -> Result<Specimen, SpecimenError> {
         )));
     }
     let size = o.size;
-    let mut rng = Rng::new(o.seed);
+    let mut rng = rng(o.seed);
     let coarse = box_mesh(size, o.cells);
     let fine = box_mesh(size, o.cells.map(|c| c * o.refine));
     let fixed_c = coarse
@@ -321,7 +322,7 @@ pub fn generate(o: &SpecimenOptions) -> Result<Specimen, SpecimenError> {
 
     // Effect directions (drawn even when unused so the contact stream is the same for every
     // effect set: a clean and an effected specimen of one seed probe the same points).
-    let unit = |rng: &mut Rng| {
+    let unit = |rng: &mut SplitMix64| {
         let v = [rng.normal(), rng.normal(), rng.normal()];
         let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-12);
         v.map(|x| x / n)

@@ -19,6 +19,8 @@ pub use effect::{Effect, EffectSpec};
 pub use generate::{generate, Specimen, SpecimenOptions, Truth};
 pub use signal::signal_rms;
 
+use palpate_fem::rng::SplitMix64;
+
 /// Errors of the specimen generator.
 #[derive(Debug, thiserror::Error)]
 pub enum SpecimenError {
@@ -66,29 +68,8 @@ pub enum SpecimenError {
     },
 }
 
-/// A small deterministic generator (SplitMix64) with Gaussian samples (Box–Muller); own copy so
-/// the specimen stream stays fixed whatever other modules do with theirs.
-#[derive(Debug, Clone)]
-pub struct Rng(u64);
-
-impl Rng {
-    /// Seeded generator.
-    pub fn new(seed: u64) -> Self {
-        Self(seed ^ 0x5EED_0006_D1A6_0005)
-    }
-    /// Uniform in [0, 1).
-    pub fn uniform(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^= z >> 31;
-        (z >> 11) as f64 / (1u64 << 53) as f64
-    }
-    /// Standard normal sample.
-    pub fn normal(&mut self) -> f64 {
-        let u1 = self.uniform().max(1e-300);
-        let u2 = self.uniform();
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-    }
+/// The specimen stream: [`SplitMix64`] (Box–Muller normals) seeded with
+/// `seed ^ 0x5EED_0006_D1A6_0005`, so it stays fixed whatever other modules do with theirs.
+pub fn rng(seed: u64) -> SplitMix64 {
+    SplitMix64::new(seed ^ 0x5EED_0006_D1A6_0005)
 }

@@ -15,7 +15,7 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use super::{Rng, SpecimenError};
+use super::{rng, SpecimenError};
 use palpate_fem::io::atomic::write_atomic;
 use palpate_motion::model::Material;
 use palpate_motion::scenario::{record, tension_bar};
@@ -177,7 +177,7 @@ pub fn generate_viscous(o: &ViscousOptions) -> Result<ViscousSpecimen, SpecimenE
         .iter()
         .flat_map(|f| f.true_force.iter())
         .fold(0.0f64, |a, v| a.max(v.abs()));
-    let mut rng = Rng::new(o.seed);
+    let mut rng = rng(o.seed);
     for f in &mut files {
         let half = (o.stretch - 1.0) / f.rate;
         let dt = 2.0 * half / o.steps as f64;
