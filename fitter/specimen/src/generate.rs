@@ -123,11 +123,11 @@ pub struct Specimen {
 
 impl Specimen {
     /// Writes the dataset and `truth.json` into `dir`.
-    pub fn write(&self, dir: &std::path::Path) -> anyhow::Result<()> {
+    pub fn write(&self, dir: &std::path::Path) -> Result<(), SpecimenError> {
         self.dataset.write(dir)?;
-        let json = serde_json::to_string_pretty(&self.truth)?;
-        palpate_fem::io::atomic::write_atomic(&dir.join("truth.json"), json.as_bytes())?;
-        Ok(())
+        let file = dir.join("truth.json");
+        let json = super::to_json(&file, &self.truth)?;
+        super::write_file(&file, json.as_bytes())
     }
 }
 

@@ -20,9 +20,12 @@ pub use generate::{generate, Specimen, SpecimenOptions, Truth};
 pub use signal::signal_rms;
 
 use palpate_fem::rng::SplitMix64;
+use serde::Serialize;
 
-/// Errors of the specimen generator.
+/// Every error of this crate (generating and writing specimens): one flat enum; each message
+/// names what and where.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum SpecimenError {
     /// An effect name was not recognised.
     #[error("unknown effect {name:?}; known effects: {known}")]
@@ -66,6 +69,33 @@ pub enum SpecimenError {
         /// Which mesh.
         mesh: &'static str,
     },
+    /// The dataset could not be written.
+    #[error(transparent)]
+    Dataset(#[from] palpate_fem::dataset::read::DatasetError),
+    /// A file could not be written.
+    #[error("writing {file}: {message}")]
+    Write {
+        /// The file.
+        file: std::path::PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+}
+
+/// Writes `bytes` to `file` atomically, the error naming the file.
+fn write_file(file: &std::path::Path, bytes: &[u8]) -> Result<(), SpecimenError> {
+    palpate_fem::io::atomic::write_atomic(file, bytes).map_err(|e| SpecimenError::Write {
+        file: file.into(),
+        message: format!("{e:#}"),
+    })
+}
+
+/// Pretty JSON of `v`, the error naming the file it was meant for.
+fn to_json(file: &std::path::Path, v: &impl Serialize) -> Result<String, SpecimenError> {
+    serde_json::to_string_pretty(v).map_err(|e| SpecimenError::Write {
+        file: file.into(),
+        message: e.to_string(),
+    })
 }
 
 /// The specimen stream: [`SplitMix64`] (Box–Muller normals) seeded with

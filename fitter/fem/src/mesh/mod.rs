@@ -59,19 +59,18 @@ impl Mesh {
     }
 
     /// Node indices of a physical group, or an error naming the group and the groups present.
-    pub fn group(&self, name: &str) -> anyhow::Result<&[usize]> {
+    pub fn group(&self, name: &str) -> Result<&[usize], gmsh::MeshError> {
         self.node_groups
             .get(name)
             .map(|v| v.as_slice())
-            .ok_or_else(|| {
-                anyhow::anyhow!(
-                    "no physical group named {name:?} in the mesh (groups present: {})",
-                    self.node_groups
-                        .keys()
-                        .cloned()
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                )
+            .ok_or_else(|| gmsh::MeshError::NoGroup {
+                name: name.to_string(),
+                present: self
+                    .node_groups
+                    .keys()
+                    .cloned()
+                    .collect::<Vec<_>>()
+                    .join(", "),
             })
     }
 
