@@ -17,7 +17,7 @@ pub fn records(text: &str, comments: bool) -> impl Iterator<Item = (usize, &str)
     text.lines()
         .enumerate()
         .map(|(i, l)| (i + 1, l.trim()))
-        .filter(move |(_, l)| !l.is_empty() && !(comments && l.starts_with('#')))
+        .filter(move |(_, l)| !(l.is_empty() || (comments && l.starts_with('#'))))
 }
 
 /// The comma-separated fields of a record, each trimmed.
