@@ -200,14 +200,14 @@ fn bad_contacts_are_errors() {
 fn runtime_consistent_rule_and_predictor() {
     use palpate_runtime::material::LambdaAlpha;
     use palpate_runtime::{ContactRule, Runtime, RuntimeConfig, SolveStatus, StorageRequirement};
-    use palpate_tests::model::ModelBuffers;
+    use palpate_tests::model;
     let m = box_mesh([0.1, 0.1, 0.05], [14, 14, 7]);
     let tris = m.boundary_triangles();
     let fixed_list = m.group("bottom").unwrap().to_vec();
     let mut fixed = vec![false; m.nodes.len()];
     fixed_list.iter().for_each(|&i| fixed[i] = true);
     let p = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
-    let buf = ModelBuffers::homogeneous(&m, &fixed_list, p.lambda, p.alpha);
+    let buf = model::homogeneous(&m, &fixed_list, p.lambda, p.alpha);
     let run = |predictor: bool| {
         let cfg = RuntimeConfig {
             contact_rule: ContactRule::Consistent,

@@ -10,20 +10,8 @@ use palpate_diagnose::curve::{diagnose_path, CurveDiagnosis, CurveError, CurveOp
 use std::fmt::Write as _;
 use std::path::Path;
 
-/// Deterministic Gaussian noise (xorshift + Box–Muller), so the tests do not depend on a crate.
-struct Noise(u64);
-impl Noise {
-    fn uniform(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        ((self.0 >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    }
-    fn gauss(&mut self) -> f64 {
-        let (a, b) = (self.uniform(), self.uniform());
-        (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
-    }
-}
+/// Deterministic Gaussian noise (xorshift + Box–Muller, `palpate_fem::rng`).
+use palpate_fem::rng::XorShift64 as Noise;
 
 fn tension_csv(t: &[f64], x: &[f64], f: &[f64]) -> String {
     let mut s = String::from("time_s,displacement_mm,force_N\n");
@@ -63,7 +51,7 @@ fn neo_hookean_tension_adopts_hyperelastic_nonlinearity() {
     // σ = 5 mN. Loading only, slow: no rate effect in the data.
     let dir = tempfile::tempdir().unwrap();
     let (mu, l0, sigma) = (0.5, 50.0, 0.005);
-    let mut noise = Noise(0x9e37_79b9_7f4a_7c15);
+    let mut noise = Noise::new(0x9e37_79b9_7f4a_7c15);
     for (k, lam_max) in [2.0, 3.0, 4.0].into_iter().enumerate() {
         let n = 300;
         let x: Vec<f64> = (0..=n)
@@ -74,7 +62,7 @@ fn neo_hookean_tension_adopts_hyperelastic_nonlinearity() {
             .iter()
             .map(|&d| {
                 let lam = 1.0 + d / l0;
-                mu * (lam - lam.powi(-2)) + sigma * noise.gauss()
+                mu * (lam - lam.powi(-2)) + sigma * noise.normal()
             })
             .collect();
         std::fs::write(
@@ -125,12 +113,12 @@ fn standard_linear_solid_at_three_rates_adopts_viscosity() {
     // k = 0.05 N/mm, β = 1, τ = 4 s; triangles to 20 mm at 0.5, 1.5 and 4 mm/s, σ = 5 mN.
     let dir = tempfile::tempdir().unwrap();
     let (k, beta, tau, sigma) = (0.05, 1.0, 4.0, 0.005);
-    let mut noise = Noise(42);
+    let mut noise = Noise::new(42);
     for (i, rate) in [0.5, 1.5, 4.0].into_iter().enumerate() {
         let (t, x) = triangle(20.0, rate, 20.0);
         let f: Vec<f64> = sls_force(&t, &x, k, beta, tau)
             .into_iter()
-            .map(|v| v + sigma * noise.gauss())
+            .map(|v| v + sigma * noise.normal())
             .collect();
         std::fs::write(
             dir.path().join(format!("rate{i}.csv")),
@@ -169,12 +157,12 @@ fn standard_linear_solid_at_three_rates_adopts_viscosity() {
 fn linear_data_with_noise_comes_back_clean() {
     // Tension: three files, F = 0.08 N/mm · Δ + noise (σ = 5 mN), loading and unloading.
     let dir = tempfile::tempdir().unwrap();
-    let mut noise = Noise(7);
+    let mut noise = Noise::new(7);
     for (i, xm) in [10.0, 20.0, 30.0].into_iter().enumerate() {
         let (t, x) = triangle(xm, 1.0, 10.0);
         let f: Vec<f64> = x
             .iter()
-            .map(|&d| 0.08 * d + 0.005 * noise.gauss())
+            .map(|&d| 0.08 * d + 0.005 * noise.normal())
             .collect();
         std::fs::write(
             dir.path().join(format!("lin{i}.csv")),
@@ -198,7 +186,7 @@ fn linear_data_with_noise_comes_back_clean() {
     );
     for i in 0..=400 {
         let e = 2.0 * i as f64 / 400.0;
-        let p = 0.3 * e + 0.004 * noise.gauss();
+        let p = 0.3 * e + 0.004 * noise.normal();
         let _ = writeln!(
             s,
             "{},{},{},{},{}",
@@ -219,13 +207,13 @@ fn fsr_power_law_sensor_adopts_nonlinear_response() {
     // Four balance runs of a divider (10 bit) with conductance ∝ F^0.6 (a typical FSR), counts
     // rounded and σ = 8 counts. The linear-conductance model bends the wrong way.
     let dir = tempfile::tempdir().unwrap();
-    let mut noise = Noise(11);
+    let mut noise = Noise::new(11);
     let mut s = String::from("run,adc_counts,reference_mass_g\n");
     for run in 1..=4 {
         for m in (0..=1000).step_by(50) {
             let f = m as f64 * 9.81e-3;
             let u = 0.8 * f.powf(0.6);
-            let c = (1023.0 * u / (1.0 + u) + 8.0 * noise.gauss())
+            let c = (1023.0 * u / (1.0 + u) + 8.0 * noise.normal())
                 .round()
                 .clamp(0.0, 1023.0);
             let _ = writeln!(s, "{run},{c},{m}");
@@ -397,12 +385,12 @@ fn viscous_strip_that_buckles_on_unloading_adopts_slack() {
     // is max(F, 0) + noise — the effect the real VHB membrane showed.
     let dir = tempfile::tempdir().unwrap();
     let (k, beta, tau, sigma) = (0.05, 2.0, 10.0, 0.005);
-    let mut noise = Noise(5);
+    let mut noise = Noise::new(5);
     for (i, rate) in [0.5, 1.5, 4.0].into_iter().enumerate() {
         let (t, x) = triangle(20.0, rate, 20.0);
         let f: Vec<f64> = sls_force(&t, &x, k, beta, tau)
             .into_iter()
-            .map(|v| v.max(0.0) + sigma * noise.gauss())
+            .map(|v| v.max(0.0) + sigma * noise.normal())
             .collect();
         std::fs::write(
             dir.path().join(format!("strip{i}.csv")),
@@ -426,7 +414,7 @@ fn viscous_strip_that_buckles_on_unloading_adopts_slack() {
 #[test]
 fn a_folder_of_instrument_folders_is_diagnosed_one_by_one() {
     let root = tempfile::tempdir().unwrap();
-    let mut noise = Noise(11);
+    let mut noise = Noise::new(11);
     for name in ["strip-a", "strip-b"] {
         let sub = root.path().join(name);
         std::fs::create_dir(&sub).unwrap();
@@ -434,7 +422,7 @@ fn a_folder_of_instrument_folders_is_diagnosed_one_by_one() {
             let (t, x) = triangle(xm, 1.0, 10.0);
             let f: Vec<f64> = x
                 .iter()
-                .map(|&d| 0.08 * d + 0.005 * noise.gauss())
+                .map(|&d| 0.08 * d + 0.005 * noise.normal())
                 .collect();
             std::fs::write(sub.join(format!("run{i}.csv")), tension_csv(&t, &x, &f)).unwrap();
         }

@@ -14,7 +14,7 @@ use palpate_protocol::link::codec::encode;
 use palpate_protocol::link::{ForceSample, Frame, Receiver, MAX_FRAME_ENCODED};
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::{Runtime, RuntimeConfig, SolveStatus, StorageRequirement};
-use palpate_tests::model::ModelBuffers;
+use palpate_tests::model;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -83,7 +83,7 @@ fn millions_of_samples_through_link_and_runtime_in_fixed_memory() {
     let m = box_mesh([0.04, 0.04, 0.02], [2, 2, 1]);
     let fixed = m.group("bottom").unwrap().to_vec();
     let p = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
-    let buf = ModelBuffers::homogeneous(&m, &fixed, p.lambda, p.alpha);
+    let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
     let cfg = RuntimeConfig {
         max_iterations: 100,
         ..Default::default()

@@ -3,11 +3,12 @@
 //! removes, and exact RBF blending at the fitted centres.
 
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Vector3};
+use palpate_fem::forward::Material;
 use palpate_fem::mesh::boxmesh::{box_mesh, box_mesh_graded, graded_axis};
 use palpate_fem::mesh::Mesh;
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::{Probe, Runtime, RuntimeConfig, SolveStatus, StorageRequirement};
-use palpate_tests::model::{f32_bytes, u32_bytes, ModelBuffers};
+use palpate_tests::model::{self, BlendData, ModelBuffers};
 
 fn runtime<'a>(
     buf: &'a ModelBuffers,
@@ -34,7 +35,7 @@ fn cantilever_tip(cells: [usize; 3]) -> f64 {
     let fixed = m.group("left").unwrap().to_vec();
     let tip = m.group("right").unwrap().to_vec();
     let p = LambdaAlpha::from_young_poisson(1e6, 0.0);
-    let buf = ModelBuffers::homogeneous(&m, &fixed, p.lambda, p.alpha);
+    let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
     let cfg = RuntimeConfig {
         warp: false,
         tolerance: 1e-8,
@@ -91,7 +92,7 @@ fn punch_stiffness(fine: f64) -> f64 {
     let m = box_mesh_graded([&xy, &xy, &z]);
     let fixed = m.group("bottom").unwrap().to_vec();
     let p = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
-    let buf = ModelBuffers::homogeneous(&m, &fixed, p.lambda, p.alpha);
+    let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
     let cfg = RuntimeConfig {
         warp: false,
         tolerance: 1e-7,
@@ -139,7 +140,7 @@ fn warping_removes_ghost_forces_of_large_rotations() {
     let fixed = m.group("left").unwrap().to_vec();
     let tip = m.group("right").unwrap().to_vec();
     let p = LambdaAlpha::from_young_poisson(1e6, 0.3);
-    let buf = ModelBuffers::homogeneous(&m, &fixed, p.lambda, p.alpha);
+    let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
     // A tip load whose linear deflection on this (locking) mesh is about half the length. (At
     // twice this load the lagged-rotation fixed point of the warped model stops converging: it
     // has no geometric stiffness term; see the runtime notes.)
@@ -199,7 +200,7 @@ fn warped_internal_forces_rotate_with_a_rigid_rotation_of_90_degrees() {
     // rotated ones (no ghost forces); the linear model produces forces of the order of K (Q−I) x₀.
     let m = box_mesh([0.1, 0.01, 0.01], [10, 1, 1]);
     let p = LambdaAlpha::from_young_poisson(1e6, 0.3);
-    let buf = ModelBuffers::homogeneous(&m, &[], p.lambda, p.alpha);
+    let buf = model::homogeneous(&m, &[], p.lambda, p.alpha);
     let n = m.nodes.len();
     // A bent state: u_z = −(x/L)² · 5 mm.
     let bent: Vec<Vector3<f64>> = m
@@ -329,10 +330,12 @@ fn rbf_blending_reproduces_each_set_at_its_centre() {
     let p0 = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
 
     // Homogeneous blending over whole deformations (eqs. 6.2–6.5).
-    let mut buf = ModelBuffers::homogeneous(&m, &fixed, p0.lambda, p0.alpha);
-    buf.sets = 3;
-    buf.lambda = f32_bytes(sets.iter().map(|s| s.0 as f32));
-    buf.alpha = f32_bytes(sets.iter().map(|s| s.1 as f32));
+    let global_sets = sets.map(|s| {
+        Material::homogeneous(LambdaAlpha {
+            lambda: s.0,
+            alpha: s.1,
+        })
+    });
     let centres: Vec<Vec<f64>> = states
         .iter()
         .map(|u| {
@@ -351,10 +354,16 @@ fn rbf_blending_reproduces_each_set_at_its_centre() {
     };
     let wl = phi_solve(&dist, &sets.map(|s| s.0));
     let wa = phi_solve(&dist, &sets.map(|s| s.1));
-    buf.blend_kind = 1;
-    buf.blend_f[0] = f32_bytes(centres.iter().flatten().map(|v| *v as f32));
-    buf.blend_f[1] = f32_bytes(wl.iter().map(|v| *v as f32));
-    buf.blend_f[2] = f32_bytes(wa.iter().map(|v| *v as f32));
+    let buf = model::build(
+        &m,
+        &fixed,
+        &global_sets,
+        &BlendData::Deformation {
+            centres: centres.iter().flatten().copied().collect(),
+            weights_lambda: wl,
+            weights_alpha: wa,
+        },
+    );
     {
         let (mut fs, mut us) = (Vec::new(), Vec::new());
         let mut rt = runtime(&buf, RuntimeConfig::default(), &mut fs, &mut us);
@@ -379,26 +388,39 @@ fn rbf_blending_reproduces_each_set_at_its_centre() {
     let k = 6;
     let decay = 400.0;
     let (nb, nw) = strain_neighbours(&m, k, decay);
-    buf.layout = palpate_protocol::model::ParameterLayout::PerElement;
     let per = |s: usize, e: usize| {
         (
             sets[s].0 * (1.0 + 0.1 * (e % 5) as f64),
             sets[s].1 * (1.0 + 0.1 * (e % 5) as f64),
         )
     };
-    buf.lambda = f32_bytes((0..3).flat_map(|s| (0..t).map(move |e| per(s, e).0 as f32)));
-    buf.alpha = f32_bytes((0..3).flat_map(|s| (0..t).map(move |e| per(s, e).1 as f32)));
-    buf.blend_kind = 0;
+    let element_sets: Vec<Material> = (0..3)
+        .map(|s| {
+            let p: Vec<LambdaAlpha> = (0..t)
+                .map(|e| LambdaAlpha {
+                    lambda: per(s, e).0,
+                    alpha: per(s, e).1,
+                })
+                .collect();
+            Material::per_element(&p)
+        })
+        .collect();
     // Strain centres from the runtime's own strain of each state (eq. 6.8).
     let strains: Vec<Vec<f32>> = {
-        let mut probe_buf = ModelBuffers::homogeneous(&m, &fixed, p0.lambda, p0.alpha);
-        probe_buf.blend_kind = 2;
-        probe_buf.neighbours = k as u32;
-        probe_buf.blend_u = u32_bytes(nb.clone());
-        probe_buf.blend_f[3] = f32_bytes(nw.clone());
-        probe_buf.blend_f[0] = f32_bytes(vec![0.0; 6 * t]);
-        probe_buf.blend_f[1] = f32_bytes(vec![0.0; t]);
-        probe_buf.blend_f[2] = f32_bytes(vec![0.0; t]);
+        let probe_buf = model::build(
+            &m,
+            &fixed,
+            &[Material::homogeneous(p0)],
+            &BlendData::Strain {
+                decay: 0.0,
+                neighbours: k,
+                neighbour_index: nb.clone(),
+                neighbour_weight: nw.iter().map(|&w| f64::from(w)).collect(),
+                centres: vec![0.0; 6 * t],
+                weights_lambda: vec![0.0; t],
+                weights_alpha: vec![0.0; t],
+            },
+        );
         let (mut fs, mut us) = (Vec::new(), Vec::new());
         let mut rt = runtime(&probe_buf, RuntimeConfig::default(), &mut fs, &mut us);
         states
@@ -430,14 +452,20 @@ fn rbf_blending_reproduces_each_set_at_its_centre() {
             wa[e * 3 + s] = a[s] as f32;
         }
     }
-    buf.blend_kind = 2;
-    buf.decay = decay as f32;
-    buf.neighbours = k as u32;
-    buf.blend_u = u32_bytes(nb);
-    buf.blend_f[3] = f32_bytes(nw);
-    buf.blend_f[0] = f32_bytes(strains.iter().flatten().copied());
-    buf.blend_f[1] = f32_bytes(wl);
-    buf.blend_f[2] = f32_bytes(wa);
+    let buf = model::build(
+        &m,
+        &fixed,
+        &element_sets,
+        &BlendData::Strain {
+            decay,
+            neighbours: k,
+            neighbour_index: nb,
+            neighbour_weight: nw.iter().map(|&w| f64::from(w)).collect(),
+            centres: strains.iter().flatten().map(|&v| f64::from(v)).collect(),
+            weights_lambda: wl.iter().map(|&v| f64::from(v)).collect(),
+            weights_alpha: wa.iter().map(|&v| f64::from(v)).collect(),
+        },
+    );
     let (mut fs, mut us) = (Vec::new(), Vec::new());
     let mut rt = runtime(&buf, RuntimeConfig::default(), &mut fs, &mut us);
     for (s, u) in states.iter().enumerate() {

@@ -3,12 +3,13 @@
 //! also when warping is off (the linear strain sym(H), R = I).
 
 use nalgebra::Vector3;
+use palpate_fem::forward::Material;
 use palpate_fem::mesh::boxmesh::box_mesh;
-use palpate_protocol::model::{validate_node_coverage, Invalid, ModelError, ParameterLayout};
+use palpate_protocol::model::{validate_node_coverage, Invalid, ModelError};
 use palpate_runtime::element::tet_geometry;
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::{Runtime, RuntimeConfig, RuntimeError, StorageRequirement};
-use palpate_tests::model::{f32_bytes, u32_bytes, ModelBuffers};
+use palpate_tests::model::{self, BlendData};
 
 #[test]
 fn runtime_new_rejects_an_orphan_free_node() {
@@ -19,7 +20,7 @@ fn runtime_new_rejects_an_orphan_free_node() {
     m.nodes.push([0.2, 0.2, 0.2]);
     m.node_tags.push(orphan as u64 + 1);
     let p = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
-    let buf = ModelBuffers::homogeneous(&m, &fixed, p.lambda, p.alpha);
+    let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
     let expected = ModelError::InvalidContent {
         what: Invalid::OrphanNode {
             node: orphan as u32,
@@ -65,29 +66,27 @@ fn strain_blending_without_warping_follows_the_linear_strain() {
     let dist = eps.iter().map(|v| v * v).sum::<f64>().sqrt();
     let p0 = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
     let p1 = LambdaAlpha::from_young_poisson(30_000.0, 0.3);
-    let mut buf = ModelBuffers::homogeneous(&m, &fixed, p0.lambda, p0.alpha);
-    buf.layout = ParameterLayout::PerElement;
-    buf.sets = 2;
-    buf.lambda = f32_bytes((0..2 * t).map(|k| [p0, p1][k / t].lambda as f32));
-    buf.alpha = f32_bytes((0..2 * t).map(|k| [p0, p1][k / t].alpha as f32));
+    let sets = [p0, p1].map(|p| Material::per_element(&vec![p; t]));
     // Each element's metric uses only itself (one neighbour, weight 1), so the distance of
     // its strain to the two centres is exactly 0 and ‖ε_A‖ at the centres. With φ(r) = r the
     // RBF interpolant through (0 → v0, ‖ε_A‖ → v1) has weights w0 = v1/D, w1 = v0/D.
-    buf.blend_kind = 2;
-    buf.decay = 1.0;
-    buf.neighbours = 1;
-    buf.blend_u = u32_bytes(0..t as u32);
-    buf.blend_f[3] = f32_bytes(vec![1.0; t]);
-    buf.blend_f[0] = f32_bytes((0..2 * t).flat_map(|k| {
-        if k < t {
-            [0.0f32; 6]
-        } else {
-            eps.map(|v| v as f32)
-        }
-    }));
-    let w = |v0: f64, v1: f64| [(v1 / dist) as f32, (v0 / dist) as f32];
-    buf.blend_f[1] = f32_bytes((0..t).flat_map(|_| w(p0.lambda, p1.lambda)));
-    buf.blend_f[2] = f32_bytes((0..t).flat_map(|_| w(p0.alpha, p1.alpha)));
+    let w = |v0: f64, v1: f64| [v1 / dist, v0 / dist];
+    let buf = model::build(
+        &m,
+        &fixed,
+        &sets,
+        &BlendData::Strain {
+            decay: 1.0,
+            neighbours: 1,
+            neighbour_index: (0..t as u32).collect(),
+            neighbour_weight: vec![1.0; t],
+            centres: (0..2 * t)
+                .flat_map(|k| if k < t { [0.0; 6] } else { eps })
+                .collect(),
+            weights_lambda: (0..t).flat_map(|_| w(p0.lambda, p1.lambda)).collect(),
+            weights_alpha: (0..t).flat_map(|_| w(p0.alpha, p1.alpha)).collect(),
+        },
+    );
     let cfg = RuntimeConfig {
         warp: false,
         tolerance: 1e-7,

@@ -8,7 +8,7 @@
 use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::{ContactRule, Probe, Runtime, RuntimeConfig, StorageRequirement};
-use palpate_tests::model::ModelBuffers;
+use palpate_tests::model;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -53,7 +53,7 @@ fn thousands_of_ticks_allocate_nothing() {
     let m = box_mesh([0.1, 0.1, 0.05], [6, 6, 3]);
     let fixed = m.group("bottom").unwrap().to_vec();
     let p = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
-    let buf = ModelBuffers::homogeneous(&m, &fixed, p.lambda, p.alpha);
+    let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
     // The watch works: a Vec made on this thread while watched is counted.
     WATCHED.with(|w| w.set(true));
     let probe: Vec<u8> = std::hint::black_box(Vec::with_capacity(16));

@@ -9,7 +9,7 @@ use palpate_runtime::element::{element_stiffness, tet_geometry};
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::rotation::warp_rotation_svd;
 use palpate_runtime::{Runtime, RuntimeConfig, SolveStatus, StorageRequirement};
-use palpate_tests::model::ModelBuffers;
+use palpate_tests::model;
 
 const E: f64 = 10_000.0;
 const NU: f64 = 0.3;
@@ -96,7 +96,7 @@ fn run_to_rest(rt: &mut Runtime<'_>, max_ticks: usize) -> usize {
 fn pcg_matches_dense_direct_solve_without_warping() {
     let (m, fixed) = sponge([4, 4, 2]);
     let p = LambdaAlpha::from_young_poisson(E, NU);
-    let buf = ModelBuffers::homogeneous(&m, &fixed, p.lambda, p.alpha);
+    let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
     let cfg = RuntimeConfig {
         warp: false,
         tolerance: 1e-7,
@@ -140,7 +140,7 @@ fn pcg_matches_dense_direct_solve_without_warping() {
 fn warped_solution_satisfies_f64_equilibrium() {
     let (m, fixed) = sponge([6, 6, 3]);
     let p = LambdaAlpha::from_young_poisson(E, NU);
-    let buf = ModelBuffers::homogeneous(&m, &fixed, p.lambda, p.alpha);
+    let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
     let cfg = RuntimeConfig {
         tolerance: 1e-6,
         max_iterations: 2000,
@@ -209,7 +209,7 @@ fn patch_test_linear_field_is_reproduced() {
     // nodal loads f = K u_lin must give back exactly u_lin (up to f32 round-off).
     let (m, fixed) = sponge([5, 4, 3]);
     let p = LambdaAlpha::from_young_poisson(E, NU);
-    let buf = ModelBuffers::homogeneous(&m, &fixed, p.lambda, p.alpha);
+    let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
     let k = dense_k(&m, p, None);
     // Warped: the corotational model differs from the linear one by O(θ) for rotations θ of the
     // field, so it passes the patch test only for small fields; at 1e-3 of the amplitude the

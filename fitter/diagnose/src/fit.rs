@@ -1,9 +1,10 @@
-//! Levenberg–Marquardt on the augmented model with a forward-difference Jacobian (the models
+//! Levenberg–Marquardt (the shared [`palpate_fem::lm::minimise`]) on the augmented model with a forward-difference Jacobian (the models
 //! have at most a few dozen parameters, so k + 1 warm-started solves per measurement per
 //! iteration is cheap on a small mesh), and the Gauss–Newton covariance s² (JᵀJ)⁻¹ for the
 //! parameter uncertainties.
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::DMatrix;
+use palpate_fem::lm::{minimise, LmOptions};
 use rayon::prelude::*;
 
 use super::model::{s_of, Context, Model, Simulated};
@@ -34,10 +35,6 @@ pub struct Fitted {
     pub sim: Simulated,
     /// Measurements fitted.
     pub subset: Vec<usize>,
-}
-
-fn chi2(r: &[f64]) -> f64 {
-    r.iter().map(|v| v * v).sum()
 }
 
 /// Starting θ for the base model: E from the best displacement scale of a 10 kPa solve.
@@ -109,53 +106,38 @@ pub fn fit(
     warm: Option<&[Vec<[f64; 3]>]>,
     max_iterations: usize,
 ) -> Result<Fitted, DiagnoseError> {
-    let mut theta = theta0;
-    let mut sim = model.simulate(ctx, &theta, subset, warm)?;
-    let mut r = model.residuals(ctx, subset, &sim.markers);
-    let mut c2 = chi2(&r);
-    let mut damping = 1e-3;
-    let mut iterations = 0;
-    let mut h = DMatrix::zeros(theta.len(), theta.len());
-    for _ in 0..max_iterations {
-        iterations += 1;
-        let j = jacobian(ctx, model, &theta, subset, &sim, &r)?;
-        h = j.transpose() * &j;
-        let g = j.transpose() * DVector::from_column_slice(&r);
-        let mut accepted = false;
-        for _ in 0..10 {
-            let mut a = h.clone();
-            for d in 0..theta.len() {
-                a[(d, d)] += damping * h[(d, d)].max(1e-12);
-            }
-            let Some(step) = a.cholesky().map(|c| c.solve(&(-&g))) else {
-                damping *= 10.0;
-                continue;
-            };
-            let trial: Vec<f64> = theta.iter().zip(step.iter()).map(|(t, s)| t + s).collect();
-            if let Ok(s) = model.simulate(ctx, &trial, subset, Some(&sim.x)) {
-                let rt = model.residuals(ctx, subset, &s.markers);
-                let ct = chi2(&rt);
-                if ct.is_finite() && ct < c2 {
-                    let gain = (c2 - ct) / c2.max(1e-300);
-                    theta = trial;
-                    sim = s;
-                    r = rt;
-                    c2 = ct;
-                    damping = (damping / 3.0).max(1e-9);
-                    accepted = true;
-                    if gain < 1e-7 {
-                        return Ok(finish(ctx, model, theta, c2, &h, iterations, sim, subset));
-                    }
-                    break;
-                }
-            }
-            damping *= 4.0;
-        }
-        if !accepted {
-            break;
-        }
-    }
-    Ok(finish(ctx, model, theta, c2, &h, iterations, sim, subset))
+    let sim = model.simulate(ctx, &theta0, subset, warm)?;
+    let r = model.residuals(ctx, subset, &sim.markers);
+    let o = LmOptions {
+        max_iterations,
+        tries: 10,
+        initial_damping: 1e-3,
+        min_damping: 1e-9,
+        reject_factor: 4.0,
+        rel_tolerance: 1e-7,
+        cost_floor: 1e-300,
+    };
+    let out = minimise(
+        theta0,
+        r,
+        sim,
+        |theta, sim: &Simulated, r| jacobian(ctx, model, theta, subset, sim, r),
+        |trial, sim| {
+            let s = model.simulate(ctx, trial, subset, Some(&sim.x)).ok()?;
+            Some((model.residuals(ctx, subset, &s.markers), s))
+        },
+        &o,
+    )?;
+    Ok(finish(
+        ctx,
+        model,
+        out.theta,
+        out.cost,
+        &out.jtj,
+        out.iterations,
+        out.state,
+        subset,
+    ))
 }
 
 #[allow(clippy::too_many_arguments)]

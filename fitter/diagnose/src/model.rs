@@ -6,6 +6,7 @@
 //! Layout: θ₀ = log E (Pa), θ₁ = s with ν = −1/4 + 3/4 · tanh(s) (any real θ is physical), then
 //! one block per effect in the order of [`Model::effects`].
 
+use nalgebra::Vector3;
 use palpate_runtime::material::LambdaAlpha;
 use serde::Serialize;
 
@@ -214,18 +215,6 @@ pub struct Context {
     pub correction: Option<Vec<Vec<[f64; 3]>>>,
 }
 
-fn norm(v: [f64; 3]) -> f64 {
-    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
 impl Context {
     /// Prepares a dataset.
     pub fn new(ds: &StaticDataset, grid: [usize; 3]) -> Result<Self, DiagnoseError> {
@@ -261,7 +250,10 @@ impl Context {
                 )));
             }
         }
-        let f_ref = meas.iter().map(|m| norm(m.force)).fold(0.0, f64::max);
+        let f_ref = meas
+            .iter()
+            .map(|m| Vector3::from(m.force).norm())
+            .fold(0.0, f64::max);
         if f_ref <= 0.0 {
             return Err(DiagnoseError::Input("every reported force is zero".into()));
         }
@@ -276,24 +268,26 @@ impl Context {
         let half = 0.5 * (hi[0] - lo[0]).min(hi[1] - lo[1]).max(1e-9);
         let mut mean = [0.0; 3];
         for m in &meas {
-            let n = norm(m.force).max(1e-300);
+            let n = Vector3::from(m.force).norm().max(1e-300);
             for d in 0..3 {
                 mean[d] += m.force[d] / n;
             }
         }
-        let nz = if norm(mean) > 1e-9 {
-            mean.map(|v| v / norm(mean))
+        let mean = Vector3::from(mean);
+        let nz = if mean.norm() > 1e-9 {
+            mean / mean.norm()
         } else {
-            [0.0, 0.0, -1.0]
+            Vector3::new(0.0, 0.0, -1.0)
         };
         let helper = if nz[0].abs() < 0.9 {
             [1.0, 0.0, 0.0]
         } else {
             [0.0, 1.0, 0.0]
         };
-        let t1 = cross(nz, helper);
-        let t1 = t1.map(|v| v / norm(t1));
-        let t2 = cross(nz, t1);
+        let t1 = nz.cross(&Vector3::from(helper));
+        let t1 = t1 / t1.norm();
+        let t2 = nz.cross(&t1);
+        let (nz, t1, t2): ([f64; 3], [f64; 3], [f64; 3]) = (nz.into(), t1.into(), t2.into());
         let gravity = ds.gravity.unwrap_or([0.0, 0.0, -9.81]);
         let mut node_volume = vec![0.0; ds.mesh.nodes.len()];
         for (t, g) in ds.mesh.tets.iter().zip(&problem.geometry) {
@@ -531,7 +525,7 @@ impl Model {
     /// The force the model applies for measurement `i`.
     pub fn model_force(&self, ctx: &Context, theta: &[f64], i: usize) -> [f64; 3] {
         let f = ctx.meas[i].force;
-        let fm = norm(f);
+        let fm = Vector3::from(f).norm();
         let mut out = f;
         if let Some(p) = self.block(Candidate::Calibration, theta, ctx.grid) {
             let k = if fm > 0.0 {
@@ -784,7 +778,8 @@ impl Model {
                 let support = boundary.map(|b| {
                     let t = f.map(|v| v * b[0] * 1e-4);
                     let arm = [0, 1, 2].map(|d| m.point[d] - ctx.base[d]);
-                    let w = cross(arm, f).map(|v| v * b[1] * 1e-4 / (ctx.half * ctx.half));
+                    let w = <[f64; 3]>::from(Vector3::from(arm).cross(&Vector3::from(f)))
+                        .map(|v| v * b[1] * 1e-4 / (ctx.half * ctx.half));
                     (t, w)
                 });
                 let delta = ctx.correction.as_ref().map(|c| &c[i]);
@@ -804,7 +799,7 @@ impl Model {
                         }
                         if let Some((t, w)) = support {
                             let r = [0, 1, 2].map(|d| p[d] - ctx.base[d]);
-                            let wr = cross(w, r);
+                            let wr = Vector3::from(w).cross(&Vector3::from(r));
                             p = [0, 1, 2].map(|d| p[d] + t[d] + wr[d]);
                         }
                         if let Some(g) = reg {

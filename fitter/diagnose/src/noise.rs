@@ -22,7 +22,7 @@
 use serde::Serialize;
 
 use nalgebra::{DMatrix, Matrix3, SymmetricEigen};
-use palpate_specimen::Rng;
+use palpate_specimen::rng;
 
 /// Median of a χ² variable with 3 degrees of freedom, divided by 3 (the median of |d|²/(3σ²)
 /// for Gaussian d).
@@ -214,7 +214,7 @@ pub fn estimate_noise(
         return None;
     }
     let estimate = sigma2_of(&all).sqrt();
-    let mut rng = Rng::new(o.seed);
+    let mut rng = rng(o.seed);
     let mut boot: Vec<f64> = (0..o.bootstrap)
         .map(|_| {
             let mut terms = Vec::with_capacity(all.len());
@@ -309,7 +309,7 @@ mod tests {
     /// `bump` m and 3 cm width under a moving contact, like the model error under a probe) plus
     /// white noise of `sigma` per axis.
     fn fields(sigma: f64, bump: f64, seed: u64) -> Vec<Field> {
-        let mut rng = Rng::new(seed);
+        let mut rng = rng(seed);
         (0..8)
             .map(|i| {
                 let c = [0.02 + 0.005 * i as f64, 0.06 - 0.004 * i as f64, 0.04];

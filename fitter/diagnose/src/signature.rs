@@ -2,15 +2,11 @@
 //! scale factor against load magnitude, against distance from the contact, its rigid-body part,
 //! its persistent per-marker part over space) and the (x, y) points that show a given effect.
 
-use nalgebra::{Matrix6, Vector6};
+use nalgebra::{Matrix6, Vector3, Vector6};
 use serde::Serialize;
 
 use super::fit::Fitted;
 use super::model::{Candidate, Context};
-
-fn norm(v: [f64; 3]) -> f64 {
-    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
-}
 
 /// Residual signature of one measurement.
 #[derive(Debug, Clone, Serialize)]
@@ -89,13 +85,8 @@ fn rigid_fit(points: &[[f64; 3]], e: &[[f64; 3]], c: [f64; 3]) -> ([f64; 3], [f6
     let total: f64 = e.iter().map(|r| r.iter().map(|v| v * v).sum::<f64>()).sum();
     let mut left = 0.0;
     for (p, r) in points.iter().zip(e) {
-        let q = [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
-        let w = [x[3], x[4], x[5]];
-        let wq = [
-            w[1] * q[2] - w[2] * q[1],
-            w[2] * q[0] - w[0] * q[2],
-            w[0] * q[1] - w[1] * q[0],
-        ];
+        let q = Vector3::from(*p) - Vector3::from(c);
+        let wq = Vector3::new(x[3], x[4], x[5]).cross(&q);
         left += (0..3).map(|d| (r[d] - x[d] - wq[d]).powi(2)).sum::<f64>();
     }
     (
@@ -160,7 +151,7 @@ pub fn signature(ctx: &Context, f: &Fitted) -> Signature {
         let m = &ctx.meas[i];
         let pts: Vec<[f64; 3]> = r.iter().map(|&(k, _)| ctx.marker_rest[k]).collect();
         let es: Vec<[f64; 3]> = r.iter().map(|&(_, e)| e).collect();
-        let norms: Vec<f64> = es.iter().map(|&e| norm(e)).collect();
+        let norms: Vec<f64> = es.iter().map(|&e| Vector3::from(e).norm()).collect();
         let (t, w, _) = rigid_fit(&pts, &es, ctx.centre);
         let mut mean = [0.0; 3];
         for e in &es {
@@ -170,7 +161,7 @@ pub fn signature(ctx: &Context, f: &Fitted) -> Signature {
         }
         per.push(MeasurementSignature {
             id: m.id.clone(),
-            force: norm(m.force),
+            force: Vector3::from(m.force).norm(),
             rms: (norms.iter().map(|v| v * v).sum::<f64>() / norms.len().max(1) as f64).sqrt(),
             max: norms.iter().copied().fold(0.0, f64::max),
             scale: scale(ctx, i, sim),
@@ -183,7 +174,7 @@ pub fn signature(ctx: &Context, f: &Fitted) -> Signature {
             }
             sumsq[k] += e.iter().map(|v| v * v).sum::<f64>();
             count[k] += 1;
-            let dist = norm([p[0] - m.point[0], p[1] - m.point[1], p[2] - m.point[2]]);
+            let dist = (Vector3::from(*p) - Vector3::from(m.point)).norm();
             let b = ((dist / bin) as usize).min(bins.len() - 1);
             bins[b].0 += e.iter().map(|v| v * v).sum::<f64>();
             bins[b].1 += 1;
@@ -261,7 +252,7 @@ pub fn evidence_points(
             "rigid translation of the residual (mm)",
             sig.per_measurement
                 .iter()
-                .map(|p| (p.force, 1e3 * norm(p.rigid.0)))
+                .map(|p| (p.force, 1e3 * Vector3::from(p.rigid.0).norm()))
                 .collect(),
         ),
         Candidate::Registration => (
@@ -272,7 +263,8 @@ pub fn evidence_points(
                 .map(|p| {
                     (
                         p.force,
-                        1e3 * (norm(p.rigid.0) + ctx.half * norm(p.rigid.1)),
+                        1e3 * (Vector3::from(p.rigid.0).norm()
+                            + ctx.half * Vector3::from(p.rigid.1).norm()),
                     )
                 })
                 .collect(),
@@ -303,7 +295,10 @@ pub fn evidence_points(
                 let c = ctx.meas[i].point;
                 for &(k, e) in r {
                     let p = ctx.marker_rest[k];
-                    pts.push((norm([p[0] - c[0], p[1] - c[1], p[2] - c[2]]), 1e3 * norm(e)));
+                    pts.push((
+                        (Vector3::from(p) - Vector3::from(c)).norm(),
+                        1e3 * Vector3::from(e).norm(),
+                    ));
                 }
             }
             ("distance from the contact (m)", "marker error (mm)", pts)

@@ -11,5 +11,7 @@ pub mod dataset;
 pub mod export;
 pub mod forward;
 pub mod io;
+pub mod lm;
 pub mod mesh;
+pub mod rng;
 pub mod sanity;

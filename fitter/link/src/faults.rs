@@ -1,6 +1,7 @@
 //! A writer that damages what passes through it — byte corruption, dropped bytes, bursts of
 //! garbage — with a seeded generator and exact counts, for the fault tests and demos.
 
+use palpate_fem::rng::XorShift64Star;
 use std::io::Write;
 
 /// What to inject.
@@ -40,7 +41,7 @@ pub struct FaultCounts {
 pub struct FaultyWriter<W> {
     inner: W,
     plan: FaultPlan,
-    rng: u64,
+    rng: XorShift64Star,
     counts: FaultCounts,
     scratch: Vec<u8>,
 }
@@ -51,7 +52,7 @@ impl<W: Write> FaultyWriter<W> {
         Self {
             inner,
             plan,
-            rng: seed | 1,
+            rng: XorShift64Star::new(seed | 1),
             counts: FaultCounts::default(),
             scratch: Vec::new(),
         }
@@ -68,11 +69,7 @@ impl<W: Write> FaultyWriter<W> {
     }
 
     fn next(&mut self) -> u64 {
-        // xorshift64*
-        self.rng ^= self.rng >> 12;
-        self.rng ^= self.rng << 25;
-        self.rng ^= self.rng >> 27;
-        self.rng.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        self.rng.next_u64()
     }
 
     fn chance(&mut self, p: f64) -> bool {

@@ -18,7 +18,9 @@ pub use gate::{ForceGate, GateDecision};
 pub use port::{FrameReader, StdWrite};
 pub use stats::Percentiles;
 
-/// Errors of the host link.
+/// Every error of this crate (the serial link, the replay over a pseudo-terminal, the model the
+/// haptic commands play): one flat enum; each message names what and where. The FSR calibration
+/// keeps its own [`fsr::FsrError`] (file, line, field).
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum LinkHostError {
@@ -53,4 +55,27 @@ pub enum LinkHostError {
     /// A frame could not be encoded.
     #[error("encoding a frame: {0}")]
     Encode(palpate_protocol::link::LinkError),
+    /// A model file could not be read or decoded.
+    #[error("model {file}: {message}")]
+    Model {
+        /// The file.
+        file: std::path::PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+    /// The generated block model could not be built.
+    #[error("generating the block model: {0}")]
+    Block(#[source] palpate_fem::export::ExportError),
+    /// The pseudo-terminal pair of a replay could not be made or set up.
+    #[error("pseudo-terminal: {0}")]
+    Pty(#[source] serialport::Error),
+    /// The simulated probe could not be configured.
+    #[error("sim probe: {0}")]
+    SimProbe(String),
+    /// The runtime rejected a tick of the haptic loop.
+    #[error("runtime tick: {0}")]
+    Tick(#[source] palpate_runtime::RuntimeError),
+    /// The replay's sender thread panicked.
+    #[error("sender thread panicked")]
+    SenderPanicked,
 }

@@ -1,12 +1,13 @@
 //! What the haptic commands play: a model file's bytes or a generated block, and the runtime
 //! configuration of the haptic loop.
 
-use anyhow::Context;
 use palpate_fem::block_model::BlockModel;
 use palpate_protocol::model::ModelRecord;
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::RuntimeConfig;
 use std::path::{Path, PathBuf};
+
+use crate::LinkHostError;
 
 /// A model's bytes: read from a file or generated.
 pub enum ModelSource {
@@ -18,24 +19,31 @@ pub enum ModelSource {
 
 impl ModelSource {
     /// Reads `path`, or generates a block of about `tets` tetrahedra.
-    pub fn load(path: Option<&Path>, tets: usize) -> anyhow::Result<Self> {
+    pub fn load(path: Option<&Path>, tets: usize) -> Result<Self, LinkHostError> {
         Ok(match path {
             Some(p) => Self::File(
                 p.into(),
-                std::fs::read(p).with_context(|| format!("reading model {}", p.display()))?,
+                std::fs::read(p).map_err(|e| LinkHostError::Model {
+                    file: p.into(),
+                    message: format!("reading: {e}"),
+                })?,
             ),
             None => Self::Block(Box::new(
                 BlockModel::block(tets, LambdaAlpha::from_young_poisson(10e3, 0.3))
-                    .context("generating the block model")?,
+                    .map_err(LinkHostError::Block)?,
             )),
         })
     }
 
     /// The model record.
-    pub fn record(&self) -> anyhow::Result<ModelRecord<'_>> {
+    pub fn record(&self) -> Result<ModelRecord<'_>, LinkHostError> {
         match self {
-            Self::File(p, b) => palpate_protocol::model::decode(b)
-                .map_err(|e| anyhow::anyhow!("model {}: {e}", p.display())),
+            Self::File(p, b) => {
+                palpate_protocol::model::decode(b).map_err(|e| LinkHostError::Model {
+                    file: p.clone(),
+                    message: e.to_string(),
+                })
+            }
             Self::Block(m) => Ok(m.record()),
         }
     }

@@ -8,7 +8,7 @@ use crate::haptic::{Contact, HapticLoop};
 use crate::port::FrameReader;
 use crate::sender::{run_sender, Pacing, SenderOptions, SenderReport};
 use crate::stats::{process_cpu_seconds, thread_cpu_seconds, Percentiles};
-use anyhow::Context;
+use crate::LinkHostError;
 use palpate_probe::sim::{default_config, Profile, SimProbe};
 use palpate_protocol::link::{ForceSample, Frame, LinkStats, LINK_VERSION};
 use palpate_runtime::Runtime;
@@ -44,11 +44,15 @@ pub struct Phase {
 pub fn phase(
     opts: SenderOptions,
     rate: u16,
-    mut on_batch: impl FnMut(&[ForceSample]) -> anyhow::Result<u32>,
-) -> anyhow::Result<Phase> {
-    let (mut master, mut slave) = TTYPort::pair().context("creating a pseudo-terminal pair")?;
-    master.set_timeout(Duration::from_millis(500))?;
-    slave.set_timeout(Duration::from_millis(20))?;
+    mut on_batch: impl FnMut(&[ForceSample]) -> Result<u32, LinkHostError>,
+) -> Result<Phase, LinkHostError> {
+    let (mut master, mut slave) = TTYPort::pair().map_err(LinkHostError::Pty)?;
+    master
+        .set_timeout(Duration::from_millis(500))
+        .map_err(LinkHostError::Pty)?;
+    slave
+        .set_timeout(Duration::from_millis(20))
+        .map_err(LinkHostError::Pty)?;
     let mut cfg = default_config();
     cfg.rate_hz = rate;
     let sim = SimProbe::new(
@@ -59,7 +63,7 @@ pub fn phase(
         },
         2,
     )
-    .map_err(|e| anyhow::anyhow!("sim probe: {e}"))?;
+    .map_err(|e| LinkHostError::SimProbe(e.to_string()))?;
     let done = Arc::new(AtomicBool::new(false));
     let stop = Arc::new(AtomicBool::new(false));
     let (done2, stop2) = (done.clone(), stop.clone());
@@ -110,7 +114,13 @@ pub fn phase(
                 let _ = e; // the far end closed after sending everything
                 0
             }
-            Err(e) => return Err(e.into()),
+            Err(source) => {
+                return Err(LinkHostError::Io {
+                    what: "reading",
+                    path: "the pseudo-terminal".into(),
+                    source,
+                })
+            }
         };
         if let Some(e) = err.take() {
             stop.store(true, Ordering::SeqCst);
@@ -130,9 +140,7 @@ pub fn phase(
         .map_or(0.0, |e| e.1.duration_since(t0).as_secs_f64());
     let rx_cpu_s = cpu0.zip(thread_cpu_seconds()).map(|(a, b)| b - a);
     let proc_cpu_s = pcpu0.zip(process_cpu_seconds()).map(|(a, b)| b - a);
-    let (sent, _master) = sender
-        .join()
-        .map_err(|_| anyhow::anyhow!("sender thread panicked"))?;
+    let (sent, _master) = sender.join().map_err(|_| LinkHostError::SenderPanicked)?;
     Ok(Phase {
         sent,
         events,
@@ -171,7 +179,7 @@ pub fn replay(
     point: [f32; 3],
     radius: f32,
     seconds: f64,
-) -> anyhow::Result<Replay> {
+) -> Result<Replay, LinkHostError> {
     let contact = Contact {
         point,
         direction: [0.0, 0.0, -1.0],
@@ -188,7 +196,7 @@ pub fn replay(
     let lp = phase(opts, 1000, |b| {
         Ok(hl
             .on_batch(b)
-            .context("runtime tick")?
+            .map_err(LinkHostError::Tick)?
             .map_or(0, |r| r.1.iterations))
     })?;
     let mut e2e = Vec::new();

@@ -8,6 +8,7 @@
 //! trajectory rows are dropped frames.
 
 use super::model::{Clamp, MassKind, Model, Observations, Pose};
+use palpate_fem::io::csv::{self, NumberError};
 use palpate_fem::mesh::Mesh;
 use serde::Deserialize;
 use std::collections::HashMap;
@@ -138,14 +139,11 @@ fn csv(
         return Ok(None);
     }
     let text = read(file)?;
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty() && !l.starts_with('#'));
+    let mut lines = csv::records(&text, true);
     let (_, head) = lines
         .next()
         .ok_or_else(|| bad(file, 1, "empty file (expected a header line)"))?;
-    let cols: Vec<&str> = head.split(',').map(|s| s.trim()).collect();
+    let cols = csv::fields(head);
     let which = headers
         .iter()
         .position(|h| *h == cols.as_slice())
@@ -166,12 +164,12 @@ fn csv(
         })?;
     let n = headers[which].len();
     let mut rows = Vec::new();
-    for (i, l) in lines {
-        let f: Vec<String> = l.split(',').map(|s| s.trim().to_string()).collect();
+    for (line, l) in lines {
+        let f: Vec<String> = csv::fields(l).into_iter().map(String::from).collect();
         if f.len() != n {
             return Err(bad(
                 file,
-                i + 1,
+                line,
                 format!(
                     "{} fields, expected {n} ({})",
                     f.len(),
@@ -179,23 +177,20 @@ fn csv(
                 ),
             ));
         }
-        rows.push((i + 1, f));
+        rows.push((line, f));
     }
     Ok(Some((which, rows)))
 }
 
 fn num(file: &Path, line: usize, field: &str, s: &str) -> Result<f64, DatasetError> {
-    let v: f64 = s.parse().map_err(|_| {
-        bad(
+    csv::finite(s).map_err(|e| match e {
+        NumberError::NotANumber => bad(
             file,
             line,
             format!("field {field}: expected a number, found {s:?}"),
-        )
-    })?;
-    if !v.is_finite() {
-        return Err(bad(file, line, format!("field {field}: not finite ({s})")));
-    }
-    Ok(v)
+        ),
+        NumberError::NotFinite => bad(file, line, format!("field {field}: not finite ({s})")),
+    })
 }
 
 /// The most steps a motion dataset may ask for. The forward simulation keeps every step's state

@@ -6,6 +6,8 @@ use super::sim::simulate;
 use super::MotionError;
 use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_fem::mesh::Mesh;
+/// The recordings' noise generator (xorshift64* + Box–Muller), shared from `palpate_fem::rng`.
+pub use palpate_fem::rng::Gauss;
 
 /// The anchor's base motion: 1.5 cm·(1 − cos 6πt) in x and 0.5 cm·(1 − cos 10πt) in z.
 pub fn two_sinusoids(t: f64) -> [f64; 3] {
@@ -151,45 +153,4 @@ pub fn record(
         },
     )?;
     Ok(obs)
-}
-
-/// Deterministic standard-normal generator (xorshift64* + Box–Muller): no dependency, same
-/// numbers on every machine.
-#[derive(Debug, Clone)]
-pub struct Gauss {
-    s: u64,
-    spare: Option<f64>,
-}
-
-impl Gauss {
-    /// Seeds the generator (0 is replaced by a fixed constant).
-    pub fn new(seed: u64) -> Self {
-        Self {
-            s: if seed == 0 {
-                0x9E37_79B9_7F4A_7C15
-            } else {
-                seed
-            },
-            spare: None,
-        }
-    }
-    fn uniform(&mut self) -> f64 {
-        self.s ^= self.s >> 12;
-        self.s ^= self.s << 25;
-        self.s ^= self.s >> 27;
-        let r = self.s.wrapping_mul(0x2545_F491_4F6C_DD1D);
-        ((r >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    }
-    /// Next N(0, 1) sample.
-    #[allow(clippy::should_implement_trait)]
-    pub fn next(&mut self) -> f64 {
-        if let Some(s) = self.spare.take() {
-            return s;
-        }
-        let (u, v) = (self.uniform(), self.uniform());
-        let r = (-2.0 * u.ln()).sqrt();
-        let th = 2.0 * std::f64::consts::PI * v;
-        self.spare = Some(r * th.sin());
-        r * th.cos()
-    }
 }

@@ -6,12 +6,14 @@
 use serde::Serialize;
 
 use super::effect::{Effect, EffectSpec};
-use super::{Rng, SpecimenError};
+use super::{rng, SpecimenError};
+use nalgebra::Vector3;
 use palpate_fem::dataset::embed::embed_point;
 use palpate_fem::dataset::{Marker, Measurement, StaticDataset};
 use palpate_fem::forward::{Load, StaticProblem as LinearProblem};
 use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_fem::mesh::Mesh;
+use palpate_fem::rng::SplitMix64;
 use palpate_motion::hyperelastic::HyperParams;
 use palpate_motion::statics::{solve_static, StaticProblem as HyperProblem};
 
@@ -121,11 +123,11 @@ pub struct Specimen {
 
 impl Specimen {
     /// Writes the dataset and `truth.json` into `dir`.
-    pub fn write(&self, dir: &std::path::Path) -> anyhow::Result<()> {
+    pub fn write(&self, dir: &std::path::Path) -> Result<(), SpecimenError> {
         self.dataset.write(dir)?;
-        let json = serde_json::to_string_pretty(&self.truth)?;
-        palpate_fem::io::atomic::write_atomic(&dir.join("truth.json"), json.as_bytes())?;
-        Ok(())
+        let file = dir.join("truth.json");
+        let json = super::to_json(&file, &self.truth)?;
+        super::write_file(&file, json.as_bytes())
     }
 }
 
@@ -135,14 +137,6 @@ fn hyper(young: f64, nu: f64) -> HyperParams {
         mu: young / (2.0 * (1.0 + nu)),
         stiffening: 0.0,
     }
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 fn centroid(mesh: &Mesh, t: &[usize; 4]) -> [f64; 3] {
@@ -157,15 +151,16 @@ fn centroid(mesh: &Mesh, t: &[usize; 4]) -> [f64; 3] {
 
 /// Rodrigues rotation of v by rotation vector w.
 pub fn rotate(w: [f64; 3], v: [f64; 3]) -> [f64; 3] {
-    let th = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
+    let (w, v) = (Vector3::from(w), Vector3::from(v));
+    let th = w.norm();
     if th < 1e-300 {
-        return v;
+        return v.into();
     }
-    let k = w.map(|x| x / th);
-    let kxv = cross(k, v);
-    let kdv = k[0] * v[0] + k[1] * v[1] + k[2] * v[2];
+    let k = w / th;
+    let kxv = k.cross(&v);
+    let kdv = k.dot(&v);
     let (s, c) = th.sin_cos();
-    [0, 1, 2].map(|d| v[d] * c + kxv[d] * s + k[d] * kdv * (1.0 - c))
+    (v * c + kxv * s + k * kdv * (1.0 - c)).into()
 }
 
 /// Markers: an 8 × 8 grid on the top face and two rows of five on each side face (inset from
@@ -216,7 +211,7 @@ pub fn generate(o: &SpecimenOptions) -> Result<Specimen, SpecimenError> {
         )));
     }
     let size = o.size;
-    let mut rng = Rng::new(o.seed);
+    let mut rng = rng(o.seed);
     let coarse = box_mesh(size, o.cells);
     let fine = box_mesh(size, o.cells.map(|c| c * o.refine));
     let fixed_c = coarse
@@ -321,10 +316,10 @@ pub fn generate(o: &SpecimenOptions) -> Result<Specimen, SpecimenError> {
 
     // Effect directions (drawn even when unused so the contact stream is the same for every
     // effect set: a clean and an effected specimen of one seed probe the same points).
-    let unit = |rng: &mut Rng| {
-        let v = [rng.normal(), rng.normal(), rng.normal()];
-        let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-12);
-        v.map(|x| x / n)
+    let unit = |rng: &mut SplitMix64| {
+        let v = Vector3::new(rng.normal(), rng.normal(), rng.normal());
+        let n = v.norm().max(1e-12);
+        <[f64; 3]>::from(v / n)
     };
     let reg_axis = unit(&mut rng);
     let reg_dir = unit(&mut rng);
@@ -388,12 +383,13 @@ pub fn generate(o: &SpecimenOptions) -> Result<Specimen, SpecimenError> {
             Some(c) => {
                 let t = true_force.map(|f| c * f);
                 let arm = [0, 1, 2].map(|d| point[d] - base_c[d]);
-                let theta = cross(arm, true_force).map(|m| c * m / (half * half));
+                let theta = <[f64; 3]>::from(Vector3::from(arm).cross(&Vector3::from(true_force)))
+                    .map(|m| c * m / (half * half));
                 let disp = fixed_f
                     .iter()
                     .map(|&k| {
                         let r = [0, 1, 2].map(|d| fine.nodes[k][d] - base_c[d]);
-                        let w = cross(theta, r);
+                        let w = Vector3::from(theta).cross(&Vector3::from(r));
                         [0, 1, 2].map(|d| t[d] + w[d])
                     })
                     .collect();

@@ -19,8 +19,13 @@ pub use effect::{Effect, EffectSpec};
 pub use generate::{generate, Specimen, SpecimenOptions, Truth};
 pub use signal::signal_rms;
 
-/// Errors of the specimen generator.
+use palpate_fem::rng::SplitMix64;
+use serde::Serialize;
+
+/// Every error of this crate (generating and writing specimens): one flat enum; each message
+/// names what and where.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum SpecimenError {
     /// An effect name was not recognised.
     #[error("unknown effect {name:?}; known effects: {known}")]
@@ -64,31 +69,37 @@ pub enum SpecimenError {
         /// Which mesh.
         mesh: &'static str,
     },
+    /// The dataset could not be written.
+    #[error(transparent)]
+    Dataset(#[from] palpate_fem::dataset::read::DatasetError),
+    /// A file could not be written.
+    #[error("writing {file}: {message}")]
+    Write {
+        /// The file.
+        file: std::path::PathBuf,
+        /// What went wrong.
+        message: String,
+    },
 }
 
-/// A small deterministic generator (SplitMix64) with Gaussian samples (Box–Muller); own copy so
-/// the specimen stream stays fixed whatever other modules do with theirs.
-#[derive(Debug, Clone)]
-pub struct Rng(u64);
+/// Writes `bytes` to `file` atomically, the error naming the file.
+fn write_file(file: &std::path::Path, bytes: &[u8]) -> Result<(), SpecimenError> {
+    palpate_fem::io::atomic::write_atomic(file, bytes).map_err(|e| SpecimenError::Write {
+        file: file.into(),
+        message: format!("{e:#}"),
+    })
+}
 
-impl Rng {
-    /// Seeded generator.
-    pub fn new(seed: u64) -> Self {
-        Self(seed ^ 0x5EED_0006_D1A6_0005)
-    }
-    /// Uniform in [0, 1).
-    pub fn uniform(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^= z >> 31;
-        (z >> 11) as f64 / (1u64 << 53) as f64
-    }
-    /// Standard normal sample.
-    pub fn normal(&mut self) -> f64 {
-        let u1 = self.uniform().max(1e-300);
-        let u2 = self.uniform();
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-    }
+/// Pretty JSON of `v`, the error naming the file it was meant for.
+fn to_json(file: &std::path::Path, v: &impl Serialize) -> Result<String, SpecimenError> {
+    serde_json::to_string_pretty(v).map_err(|e| SpecimenError::Write {
+        file: file.into(),
+        message: e.to_string(),
+    })
+}
+
+/// The specimen stream: [`SplitMix64`] (Box–Muller normals) seeded with
+/// `seed ^ 0x5EED_0006_D1A6_0005`, so it stays fixed whatever other modules do with theirs.
+pub fn rng(seed: u64) -> SplitMix64 {
+    SplitMix64::new(seed ^ 0x5EED_0006_D1A6_0005)
 }

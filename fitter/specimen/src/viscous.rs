@@ -15,8 +15,7 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use super::{Rng, SpecimenError};
-use palpate_fem::io::atomic::write_atomic;
+use super::{rng, to_json, write_file, SpecimenError};
 use palpate_motion::model::Material;
 use palpate_motion::scenario::{record, tension_bar};
 
@@ -177,7 +176,7 @@ pub fn generate_viscous(o: &ViscousOptions) -> Result<ViscousSpecimen, SpecimenE
         .iter()
         .flat_map(|f| f.true_force.iter())
         .fold(0.0f64, |a, v| a.max(v.abs()));
-    let mut rng = Rng::new(o.seed);
+    let mut rng = rng(o.seed);
     for f in &mut files {
         let half = (o.stretch - 1.0) / f.rate;
         let dt = 2.0 * half / o.steps as f64;
@@ -201,14 +200,13 @@ pub fn generate_viscous(o: &ViscousOptions) -> Result<ViscousSpecimen, SpecimenE
 
 impl ViscousSpecimen {
     /// Writes the curve files and `truth.json` (which diagnose never reads) into `dir`.
-    pub fn write(&self, dir: &Path) -> anyhow::Result<()> {
-        std::fs::create_dir_all(dir)?;
+    pub fn write(&self, dir: &Path) -> Result<(), SpecimenError> {
         for f in &self.files {
             let mut s = String::from("time_s,displacement_mm,force_N\n");
             for r in &f.rows {
                 s += &format!("{:.4},{:.6},{:.6e}\n", r[0], r[1], r[2]);
             }
-            write_atomic(&dir.join(&f.name), s.as_bytes())?;
+            write_file(&dir.join(&f.name), s.as_bytes())?;
         }
         let truth = serde_json::json!({
             "note": "ground truth of a palpate viscous specimen; never read by the fitter or by diagnose",
@@ -219,10 +217,7 @@ impl ViscousSpecimen {
             "gauge_length_mm": 1e3 * self.options.size[1],
             "files": self.files.iter().map(|f| serde_json::json!({"name": f.name, "rate": f.rate, "true_force_n": f.true_force})).collect::<Vec<_>>(),
         });
-        write_atomic(
-            &dir.join("truth.json"),
-            serde_json::to_string_pretty(&truth)?.as_bytes(),
-        )?;
-        Ok(())
+        let file = dir.join("truth.json");
+        write_file(&file, to_json(&file, &truth)?.as_bytes())
     }
 }

@@ -418,6 +418,11 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// Runs the Levenberg–Marquardt iteration.
+///
+/// Kept apart from the shared dense `palpate_fem::lm::minimise` on purpose: the damping here is
+/// μI scaled by the mean Hessian diagonal (not Marquardt's per-parameter scaling), the objective
+/// carries the regularisation terms and adjoint gradients, and above `dense_limit` parameters the
+/// step is matrix-free (CG on Hessian–vector products), which a dense JᵀJ driver cannot do.
 pub fn fit_displacement(
     input: &FitInput,
     opts: &DisplacementOptions,

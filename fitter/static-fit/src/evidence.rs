@@ -82,7 +82,7 @@ pub fn inclusion_figures(syn: &Synthetic, fit: &FitResult) -> InclusionFigures {
 
 /// The §5.1 trade-off: for γ over a log grid, marker RMS error and roughness ‖L_s log E‖ of the
 /// inclusion case; writes `tradeoff_error.svg`, `tradeoff_roughness.svg`, `tradeoff.json`.
-pub fn tradeoff(dir: &Path, cells: [usize; 3]) -> anyhow::Result<Vec<(f64, f64, f64, f64)>> {
+pub fn tradeoff(dir: &Path, cells: [usize; 3]) -> Result<Vec<(f64, f64, f64, f64)>, FitError> {
     let mut rows = Vec::new();
     for k in 0..7 {
         let g = 10f64.powf(-2.0 + 4.0 * k as f64 / 6.0);
@@ -129,17 +129,15 @@ pub fn tradeoff(dir: &Path, cells: [usize; 3]) -> anyhow::Result<Vec<(f64, f64, 
         axes,
     )?;
     let json = serde_json::json!(rows.iter().map(|r| serde_json::json!({"gamma_s": r.0, "rms_m": r.1, "roughness": r.2, "correlation": r.3})).collect::<Vec<_>>());
-    palpate_fem::io::atomic::write_atomic(
-        &dir.join("tradeoff.json"),
-        serde_json::to_string_pretty(&json)?.as_bytes(),
-    )?;
+    let file = dir.join("tradeoff.json");
+    crate::write_file(&file, crate::to_json(&file, &json)?.as_bytes())?;
     Ok(rows)
 }
 
 /// Writes the example dataset of the bundled sponge (`models/sponge/sponge.msh`, bottom fixed):
 /// homogeneous E = 20 kPa, ν = 0.3, four contacts on the top, 100 markers, σ = 0.1 mm; the ground
 /// truth goes to `truth.toml` beside the dataset folder.
-pub fn write_sponge_dataset(mesh_path: &Path, out_dir: &Path) -> anyhow::Result<()> {
+pub fn write_sponge_dataset(mesh_path: &Path, out_dir: &Path) -> Result<(), FitError> {
     let mesh = palpate_fem::mesh::gmsh::read_msh(mesh_path)?;
     let fixed = mesh.group("bottom")?.to_vec();
     let mut spec = SyntheticSpec::block([1, 1, 1]);
@@ -153,6 +151,6 @@ pub fn write_sponge_dataset(mesh_path: &Path, out_dir: &Path) -> anyhow::Result<
         "# Ground truth of the synthetic sponge dataset (made by `palpate-lab bench fit --evidence`).\nyoung_pa = {}\npoisson = {}\nmarker_noise_m = {}\nseed = {}\n",
         spec.young, spec.poisson, spec.noise, spec.seed
     );
-    palpate_fem::io::atomic::write_atomic(&out_dir.join("truth.toml"), truth.as_bytes())?;
+    crate::write_file(&out_dir.join("truth.toml"), truth.as_bytes())?;
     Ok(())
 }

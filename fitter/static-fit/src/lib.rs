@@ -39,8 +39,10 @@ pub use run::{fit_static, FitOptions};
 
 use palpate_fem::forward::{ForwardError, Material};
 
-/// Errors of the static fitters.
+/// Every error of this crate (the fits, the synthetic datasets, the reports and evidence runs):
+/// one flat enum; each message names what and where.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum FitError {
     /// The forward model failed.
     #[error(transparent)]
@@ -58,6 +60,45 @@ pub enum FitError {
     /// A fit produced non-finite or non-physical values.
     #[error("the fit diverged: {0}")]
     Diverged(String),
+    /// A mesh could not be read.
+    #[error(transparent)]
+    Mesh(#[from] palpate_fem::mesh::gmsh::MeshError),
+    /// A dataset could not be written.
+    #[error(transparent)]
+    Dataset(#[from] palpate_fem::dataset::read::DatasetError),
+    /// A VTK file could not be written.
+    #[error(transparent)]
+    Vtk(#[from] palpate_fem::mesh::vtk::VtkError),
+    /// A figure could not be drawn or written.
+    #[error(transparent)]
+    Plot(#[from] palpate_plot::PlotError),
+    /// A report file could not be serialised or written.
+    #[error("writing {file}: {message}")]
+    Write {
+        /// The file.
+        file: std::path::PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+}
+
+/// Writes `bytes` to `file` atomically, the error naming the file.
+pub(crate) fn write_file(file: &std::path::Path, bytes: &[u8]) -> Result<(), FitError> {
+    palpate_fem::io::atomic::write_atomic(file, bytes).map_err(|e| FitError::Write {
+        file: file.into(),
+        message: format!("{e:#}"),
+    })
+}
+
+/// Pretty JSON of `v`, the error naming the file it was meant for.
+pub(crate) fn to_json(
+    file: &std::path::Path,
+    v: &impl serde::Serialize,
+) -> Result<String, FitError> {
+    serde_json::to_string_pretty(v).map_err(|e| FitError::Write {
+        file: file.into(),
+        message: e.to_string(),
+    })
 }
 
 impl From<palpate_fem::sanity::Refused> for FitError {

@@ -6,34 +6,9 @@ use palpate_fem::dataset::{Marker, Measurement, StaticDataset};
 use palpate_fem::forward::{Contact, Load, Material, SolveOptions, StaticProblem};
 use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_fem::mesh::Mesh;
+use palpate_fem::rng::SplitMix64;
 
 use super::{FitError, FitInput, FitMeasurement};
-
-/// A small deterministic generator (SplitMix64) with Gaussian samples (Box–Muller).
-#[derive(Debug, Clone)]
-pub struct Rng(u64);
-
-impl Rng {
-    /// Seeded generator.
-    pub fn new(seed: u64) -> Self {
-        Self(seed)
-    }
-    /// Uniform in [0, 1).
-    pub fn uniform(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^= z >> 31;
-        (z >> 11) as f64 / (1u64 << 53) as f64
-    }
-    /// Standard normal sample.
-    pub fn normal(&mut self) -> f64 {
-        let u1 = self.uniform().max(1e-300);
-        let u2 = self.uniform();
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-    }
-}
 
 /// What to synthesise.
 #[derive(Debug, Clone)]
@@ -146,7 +121,7 @@ pub fn synthesise_on(
             Material::per_element(&params)
         }
     };
-    let mut rng = Rng::new(spec.seed);
+    let mut rng = SplitMix64::new(spec.seed);
     // Markers: free boundary triangles (no fixed node), either every free surface node or random
     // points on random triangles.
     let free_tris: Vec<[usize; 3]> = surface

@@ -314,6 +314,8 @@ fn node(r: &ModelRecord, i: u32) -> [f64; 3] {
     [at(0), at(1), at(2)]
 }
 
+// Written out on purpose: the protocol crate is no_std with no linear-algebra dependency
+// (the fitter crates use nalgebra::Vector3 for the same operations).
 fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }

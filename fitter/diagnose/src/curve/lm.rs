@@ -3,6 +3,8 @@
 //! s² (JᵀJ)⁻¹, s² = ‖r‖²/(n − p), at the optimum.
 
 use nalgebra::{DMatrix, DVector};
+use palpate_fem::lm::{minimise, LmOptions};
+use std::convert::Infallible;
 
 /// Result of a fit.
 #[derive(Debug, Clone)]
@@ -41,61 +43,37 @@ pub fn fd_jacobian(
     j
 }
 
-fn ss(r: &[f64]) -> f64 {
-    r.iter().map(|v| v * v).sum()
-}
-
-/// Minimises ‖f(θ)‖² from `theta0`; `None` if f is undefined at the start.
+/// Minimises ‖f(θ)‖² from `theta0`; `None` if f is undefined at the start. The shared
+/// [`palpate_fem::lm::minimise`] with this module's constants (12 tries, μ ×10 on a rejected
+/// step, floor 1e-12, stop below a 1e-10 relative decrease); the covariance uses J at the optimum.
 pub fn levenberg_marquardt(
     f: &dyn Fn(&[f64]) -> Option<Vec<f64>>,
     theta0: &[f64],
     max_iterations: usize,
 ) -> Option<LmFit> {
-    let mut theta = theta0.to_vec();
-    let mut r = f(&theta)?;
-    let mut cost = ss(&r);
-    let p = theta.len();
-    let mut mu = 1e-3;
-    let mut it = 0;
-    while it < max_iterations {
-        it += 1;
-        let j = fd_jacobian(f, &theta, &r);
-        let jtj = j.transpose() * &j;
-        let g = j.transpose() * DVector::from_column_slice(&r);
-        let mut improved = false;
-        for _ in 0..12 {
-            let mut a = jtj.clone();
-            for d in 0..p {
-                a[(d, d)] += mu * jtj[(d, d)].max(1e-12);
-            }
-            let Some(ch) = a.cholesky() else {
-                mu *= 10.0;
-                continue;
-            };
-            let step = ch.solve(&(-&g));
-            let trial: Vec<f64> = theta.iter().zip(step.iter()).map(|(t, s)| t + s).collect();
-            if let Some(rt) = f(&trial) {
-                let ct = ss(&rt);
-                if ct.is_finite() && ct < cost {
-                    let rel = (cost - ct) / cost.max(f64::MIN_POSITIVE);
-                    theta = trial;
-                    r = rt;
-                    cost = ct;
-                    mu = (mu / 3.0).max(1e-12);
-                    improved = true;
-                    if rel < 1e-10 {
-                        it = max_iterations;
-                    }
-                    break;
-                }
-            }
-            mu *= 10.0;
-        }
-        if !improved {
-            break;
-        }
-    }
-    let n = r.len();
+    let r0 = f(theta0)?;
+    let o = LmOptions {
+        max_iterations,
+        tries: 12,
+        initial_damping: 1e-3,
+        min_damping: 1e-12,
+        reject_factor: 10.0,
+        rel_tolerance: 1e-10,
+        cost_floor: f64::MIN_POSITIVE,
+    };
+    let out = match minimise(
+        theta0.to_vec(),
+        r0,
+        (),
+        |t, _, r| Ok::<_, Infallible>(fd_jacobian(f, t, r)),
+        |t, _| f(t).map(|r| (r, ())),
+        &o,
+    ) {
+        Ok(out) => out,
+        Err(never) => match never {},
+    };
+    let (theta, r, cost) = (out.theta, out.residuals, out.cost);
+    let (n, p) = (r.len(), theta.len());
     let j = fd_jacobian(f, &theta, &r);
     let cov = (n > p)
         .then(|| (j.transpose() * &j).try_inverse())
@@ -104,7 +82,12 @@ pub fn levenberg_marquardt(
     Some(LmFit {
         theta,
         rss: cost,
-        iterations: it,
+        // A converged fit reports the iteration limit (as this solver always has).
+        iterations: if out.converged {
+            max_iterations
+        } else {
+            out.iterations
+        },
         cov,
     })
 }

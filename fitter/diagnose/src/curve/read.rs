@@ -9,6 +9,7 @@
 //! | `force_N, resistance_ohm` | FSR datasheet points | F (N) | ln R (ln Ω) |
 
 use super::CurveError;
+use palpate_fem::io::csv::{self, NumberError};
 use std::path::{Path, PathBuf};
 
 /// Standard gravity for balance readings, m/s².
@@ -148,11 +149,7 @@ fn csv_files(dir: &Path) -> Result<Vec<PathBuf>, CurveError> {
 /// Returns the format, the groups and warnings (repairs made, with their location).
 pub fn parse(text: &str, name: &str) -> Result<(Format, Vec<Group>, Vec<String>), CurveError> {
     let mut warnings = Vec::new();
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .map(|(i, l)| (i + 1, l))
-        .filter(|(_, l)| !l.trim().is_empty());
+    let mut lines = csv::records(text, false);
     let (_, header) = lines.next().ok_or_else(|| CurveError::Format {
         file: name.into(),
         line: 1,
@@ -195,19 +192,16 @@ pub fn parse(text: &str, name: &str) -> Result<(Format, Vec<Group>, Vec<String>)
                     cells.len()
                 ),
             })?;
-            let v: f64 = s.parse().map_err(|_| CurveError::Format {
+            csv::finite(s).map_err(|e| CurveError::Format {
                 file: name.into(),
                 line,
-                message: format!("column `{col}`: expected a number, found {s:?}"),
-            })?;
-            if !v.is_finite() {
-                return Err(CurveError::Format {
-                    file: name.into(),
-                    line,
-                    message: format!("column `{col}`: value {s} is not finite"),
-                });
-            }
-            Ok(v)
+                message: match e {
+                    NumberError::NotANumber => {
+                        format!("column `{col}`: expected a number, found {s:?}")
+                    }
+                    NumberError::NotFinite => format!("column `{col}`: value {s} is not finite"),
+                },
+            })
         };
         let bad = |col: &str, what: String| CurveError::Format {
             file: name.into(),

@@ -4,6 +4,7 @@
 //! forecast) and per marker.
 
 use super::fit::{FittedModel, Split};
+use nalgebra::Vector3;
 use palpate_motion::dataset::MotionDataset;
 use serde::Serialize;
 
@@ -50,10 +51,6 @@ fn clamp_velocity(ds: &MotionDataset, p: [f64; 3], n: usize) -> [f64; 3] {
     [0, 1, 2].map(|i| (a[i] - b[i]) / ds.model.dt)
 }
 
-fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
 /// Rest position of marker i (barycentric weights applied to the rest nodes).
 fn rest_point(ds: &MotionDataset, i: usize) -> [f64; 3] {
     let mut p = [0.0; 3];
@@ -69,9 +66,10 @@ fn rest_point(ds: &MotionDataset, i: usize) -> [f64; 3] {
 fn scalar_fit(pairs: &[([f64; 3], [f64; 3])]) -> (f64, f64) {
     let (mut ex, mut xx, mut ee) = (0.0, 0.0, 0.0);
     for (e, x) in pairs {
-        ex += dot(e, x);
-        xx += dot(x, x);
-        ee += dot(e, e);
+        let (e, x) = (Vector3::from(*e), Vector3::from(*x));
+        ex += e.dot(&x);
+        xx += x.norm_squared();
+        ee += e.norm_squared();
     }
     if xx <= 0.0 || ee <= 0.0 {
         return (0.0, 0.0);
@@ -96,16 +94,17 @@ pub fn signature(ds: &MotionDataset, split: Split, m: &FittedModel) -> Signature
             let Some(e) = e else { continue };
             let u = t.vel[n][i];
             let uc = clamp_velocity(ds, rest[i], n + 1);
-            let ur = [u[0] - uc[0], u[1] - uc[1], u[2] - uc[2]];
+            let ur = Vector3::from(u) - Vector3::from(uc);
             let up = if n == 0 { [0.0; 3] } else { t.vel[n - 1][i] };
             let a = [0, 1, 2].map(|k| (u[k] - up[k]) / dt);
-            speed_pairs.push((*e, ur));
+            speed_pairs.push((*e, ur.into()));
             accel_pairs.push((*e, a));
-            speed_sq.push((dot(&ur, &ur).sqrt(), dot(e, e)));
-            per_marker[i].0 += dot(e, e);
+            let e2 = Vector3::from(*e).norm_squared();
+            speed_sq.push((ur.norm(), e2));
+            per_marker[i].0 += e2;
             per_marker[i].1 += 1;
             let b = (n * bins / split.steps.max(1)).min(bins - 1);
-            tb[b].0 += dot(e, e);
+            tb[b].0 += e2;
             tb[b].1 += 1;
         }
     }

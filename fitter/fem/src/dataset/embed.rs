@@ -6,6 +6,7 @@
 //! 2,000-triangle surface is 400k point–triangle tests, a few milliseconds).
 
 use crate::mesh::Mesh;
+use nalgebra::Vector3;
 
 /// A marker farther from the surface than `EMBED_TOLERANCE_FRACTION` × the median boundary edge
 /// length is rejected: a quarter of an edge is far more than the faceting error of a reasonable
@@ -37,7 +38,7 @@ pub fn median_surface_edge(mesh: &Mesh, surface: &[[usize; 3]]) -> f64 {
     edges.dedup();
     let mut len: Vec<f64> = edges
         .iter()
-        .map(|&(a, b)| norm(sub(mesh.nodes[a], mesh.nodes[b])))
+        .map(|&(a, b)| dist(mesh.nodes[a], mesh.nodes[b]))
         .collect();
     if len.is_empty() {
         return 0.0;
@@ -66,7 +67,7 @@ pub fn embed_point_in(
     let mut best: Option<Embedding> = None;
     for &t in surface {
         let (bary, q) = closest_point_on_triangle(p, nodes[t[0]], nodes[t[1]], nodes[t[2]]);
-        let d = norm(sub(p, q));
+        let d = dist(p, q);
         if best.as_ref().is_none_or(|b| d < b.distance) {
             best = Some(Embedding {
                 triangle: t,
@@ -87,63 +88,55 @@ pub fn closest_point_on_triangle(
     b: [f64; 3],
     c: [f64; 3],
 ) -> ([f64; 3], [f64; 3]) {
-    let ab = sub(b, a);
-    let ac = sub(c, a);
-    let ap = sub(p, a);
-    let d1 = dot(ab, ap);
-    let d2 = dot(ac, ap);
+    let (p, a, b, c) = (v3(p), v3(a), v3(b), v3(c));
+    let ab = b - a;
+    let ac = c - a;
+    let ap = p - a;
+    let d1 = ab.dot(&ap);
+    let d2 = ac.dot(&ap);
     if d1 <= 0.0 && d2 <= 0.0 {
-        return ([1.0, 0.0, 0.0], a);
+        return ([1.0, 0.0, 0.0], a.into());
     }
-    let bp = sub(p, b);
-    let d3 = dot(ab, bp);
-    let d4 = dot(ac, bp);
+    let bp = p - b;
+    let d3 = ab.dot(&bp);
+    let d4 = ac.dot(&bp);
     if d3 >= 0.0 && d4 <= d3 {
-        return ([0.0, 1.0, 0.0], b);
+        return ([0.0, 1.0, 0.0], b.into());
     }
     let vc = d1 * d4 - d3 * d2;
     if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
         let v = d1 / (d1 - d3);
-        return ([1.0 - v, v, 0.0], lerp(a, ab, v));
+        return ([1.0 - v, v, 0.0], (a + ab * v).into());
     }
-    let cp = sub(p, c);
-    let d5 = dot(ab, cp);
-    let d6 = dot(ac, cp);
+    let cp = p - c;
+    let d5 = ab.dot(&cp);
+    let d6 = ac.dot(&cp);
     if d6 >= 0.0 && d5 <= d6 {
-        return ([0.0, 0.0, 1.0], c);
+        return ([0.0, 0.0, 1.0], c.into());
     }
     let vb = d5 * d2 - d1 * d6;
     if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
         let w = d2 / (d2 - d6);
-        return ([1.0 - w, 0.0, w], lerp(a, ac, w));
+        return ([1.0 - w, 0.0, w], (a + ac * w).into());
     }
     let va = d3 * d6 - d5 * d4;
     if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
         let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        return ([0.0, 1.0 - w, w], lerp(b, sub(c, b), w));
+        return ([0.0, 1.0 - w, w], (b + (c - b) * w).into());
     }
     let denom = 1.0 / (va + vb + vc);
     let v = vb * denom;
     let w = vc * denom;
-    let q = [
-        a[0] + ab[0] * v + ac[0] * w,
-        a[1] + ab[1] * v + ac[1] * w,
-        a[2] + ab[2] * v + ac[2] * w,
-    ];
-    ([1.0 - v - w, v, w], q)
+    ([1.0 - v - w, v, w], (a + ab * v + ac * w).into())
 }
 
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+fn v3(a: [f64; 3]) -> Vector3<f64> {
+    Vector3::from(a)
 }
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn norm(a: [f64; 3]) -> f64 {
-    dot(a, a).sqrt()
-}
-fn lerp(a: [f64; 3], d: [f64; 3], t: f64) -> [f64; 3] {
-    [a[0] + t * d[0], a[1] + t * d[1], a[2] + t * d[2]]
+
+/// Distance between two points.
+fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (v3(a) - v3(b)).norm()
 }
 
 #[cfg(test)]
@@ -172,14 +165,14 @@ mod tests {
                 (bary.iter().sum::<f64>() - 1.0).abs() < 1e-14 && bary.iter().all(|&x| x >= 0.0)
             );
             let interp = [0, 1, 2].map(|d| bary[0] * a[d] + bary[1] * b[d] + bary[2] * c[d]);
-            assert!(norm(sub(interp, q)) < 1e-14);
-            let d = norm(sub(p, q));
+            assert!(dist(interp, q) < 1e-14);
+            let d = dist(p, q);
             let mut best = f64::INFINITY;
             for i in 0..=n {
                 for j in 0..=(n - i) {
                     let (v, w) = (i as f64 / n as f64, j as f64 / n as f64);
                     let s = [0, 1, 2].map(|k| a[k] + v * (b[k] - a[k]) + w * (c[k] - a[k]));
-                    best = best.min(norm(sub(p, s)));
+                    best = best.min(dist(p, s));
                 }
             }
             assert!(

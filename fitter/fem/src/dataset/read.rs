@@ -9,14 +9,12 @@
 //! `measurements.csv` (numbers, unknown markers, measurements without a contact, a marker measured
 //! twice); finally every contact must have at least one measured marker.
 
-mod csv;
-
 use super::embed::{
     embed_point, embedding_tolerance, median_surface_edge, EMBED_TOLERANCE_FRACTION,
 };
 use super::{Marker, Measurement, StaticDataset};
+use crate::io::csv::{CsvError, Table};
 use crate::mesh::gmsh::{read_msh, MeshError};
-use csv::Table;
 use palpate_runtime::contact_rule::{contact_weights, lumped_surface_areas, ContactRuleError};
 use serde::Deserialize;
 use std::collections::HashMap;
@@ -171,6 +169,27 @@ pub enum DatasetError {
         /// The underlying error chain.
         message: String,
     },
+}
+
+impl From<CsvError> for DatasetError {
+    fn from(e: CsvError) -> Self {
+        match e {
+            CsvError::Io { file, source } => DatasetError::Io { file, source },
+            CsvError::Field {
+                file,
+                line,
+                field,
+                expected,
+                found,
+            } => DatasetError::Field {
+                file,
+                line,
+                field,
+                expected,
+                found,
+            },
+        }
+    }
 }
 
 /// `dataset.toml`, with the position of every value for error messages.

@@ -1,6 +1,9 @@
 //! Atomic file output: write to a temporary file beside the target, then rename over it, so a
 //! reader never sees a half-written file and a failed run leaves the old file intact.
 
+// Still `anyhow` here (the last use in palpate-fem): `fill` closures of the binaries and the
+// diagnosis reports use `?` on mixed error types, and `curve/report.rs` names `anyhow::Error` while
+// its rewrite is under way. A typed `WriteError` replaces it once those callers move.
 use anyhow::Context;
 use std::io::Write;
 use std::path::Path;

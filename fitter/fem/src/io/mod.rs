@@ -1,5 +1,6 @@
 //! File output helpers shared by every command: nothing is lost on a crash or error.
 
 pub mod atomic;
+pub mod csv;
 pub mod text;
 pub use text::parse_vec3;

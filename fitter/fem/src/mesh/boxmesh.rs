@@ -135,12 +135,7 @@ pub fn cells_for_target(size: [f64; 3], target_tets: usize) -> [usize; 3] {
 }
 
 fn signed_volume(nodes: &[[f64; 3]], t: &[usize; 4]) -> f64 {
-    let a = nodes[t[0]];
-    let d = |n: usize| [nodes[n][0] - a[0], nodes[n][1] - a[1], nodes[n][2] - a[2]];
-    let (u, v, w) = (d(t[1]), d(t[2]), d(t[3]));
-    (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
-        + u[2] * (v[0] * w[1] - v[1] * w[0]))
-        / 6.0
+    super::signed_volume(t.map(|n| nodes[n]))
 }
 
 #[cfg(test)]

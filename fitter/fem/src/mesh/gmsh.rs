@@ -186,6 +186,14 @@ pub enum MeshError {
         /// The underlying error chain.
         message: String,
     },
+    /// A physical group the caller needs is not in the mesh.
+    #[error("no physical group named {name:?} in the mesh (groups present: {present})")]
+    NoGroup {
+        /// The group asked for.
+        name: String,
+        /// Comma-separated groups the mesh has.
+        present: String,
+    },
 }
 
 /// What [`read_msh_with_report`] did besides reading.

@@ -8,6 +8,15 @@ pub mod vtk;
 
 use std::collections::{BTreeMap, HashMap};
 
+use nalgebra::Vector3;
+
+/// Signed volume of a tetrahedron: positive when its corners are ordered right-handed
+/// ((p1 − p0) · ((p2 − p0) × (p3 − p0)) / 6).
+pub fn signed_volume(p: [[f64; 3]; 4]) -> f64 {
+    let [a, b, c, d] = p.map(Vector3::from);
+    (b - a).dot(&(c - a).cross(&(d - a))) / 6.0
+}
+
 /// A linear tetrahedral mesh with named node groups (Gmsh physical groups).
 #[derive(Debug, Clone, Default)]
 pub struct Mesh {
@@ -50,19 +59,18 @@ impl Mesh {
     }
 
     /// Node indices of a physical group, or an error naming the group and the groups present.
-    pub fn group(&self, name: &str) -> anyhow::Result<&[usize]> {
+    pub fn group(&self, name: &str) -> Result<&[usize], gmsh::MeshError> {
         self.node_groups
             .get(name)
             .map(|v| v.as_slice())
-            .ok_or_else(|| {
-                anyhow::anyhow!(
-                    "no physical group named {name:?} in the mesh (groups present: {})",
-                    self.node_groups
-                        .keys()
-                        .cloned()
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                )
+            .ok_or_else(|| gmsh::MeshError::NoGroup {
+                name: name.to_string(),
+                present: self
+                    .node_groups
+                    .keys()
+                    .cloned()
+                    .collect::<Vec<_>>()
+                    .join(", "),
             })
     }
 

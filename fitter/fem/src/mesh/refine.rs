@@ -8,15 +8,7 @@
 
 use std::collections::HashMap;
 
-use super::Mesh;
-
-/// Signed volume × 6 of a tetrahedron.
-fn volume6(p: [[f64; 3]; 4]) -> f64 {
-    let d = |a: [f64; 3], b: [f64; 3]| [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-    let (u, v, w) = (d(p[0], p[1]), d(p[0], p[2]), d(p[0], p[3]));
-    u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
-        + u[2] * (v[0] * w[1] - v[1] * w[0])
-}
+use super::{signed_volume, Mesh};
 
 /// The mesh with every tetrahedron split into eight. New node tags continue after the largest
 /// existing tag.
@@ -65,7 +57,7 @@ pub fn refine_with_midpoints(mesh: &Mesh) -> (Mesh, HashMap<(usize, usize), usiz
             [m02, m03, m13, m23],
             [m02, m13, m12, m23],
         ] {
-            if volume6(c.map(|i| nodes[i])) < 0.0 {
+            if signed_volume(c.map(|i| nodes[i])) < 0.0 {
                 c.swap(2, 3);
             }
             tets.push(c);
@@ -108,18 +100,21 @@ mod tests {
         let vol = |mesh: &Mesh| -> f64 {
             mesh.tets
                 .iter()
-                .map(|t| volume6(t.map(|i| mesh.nodes[i])) / 6.0)
+                .map(|t| signed_volume(t.map(|i| mesh.nodes[i])))
                 .sum()
         };
         assert!((vol(&r) - vol(&m)).abs() < 1e-12 * vol(&m));
-        assert!(r.tets.iter().all(|t| volume6(t.map(|i| r.nodes[i])) > 0.0));
+        assert!(r
+            .tets
+            .iter()
+            .all(|t| signed_volume(t.map(|i| r.nodes[i])) > 0.0));
         assert_eq!(r.tets.len(), 8 * m.tets.len());
         // Bey's red refinement: the eight children of a tetrahedron have equal volumes (a
         // wrong octahedron split would give overlapping children of unequal volume).
         for (t, kids) in m.tets.iter().zip(r.tets.chunks(8)) {
-            let parent = volume6(t.map(|i| m.nodes[i]));
+            let parent = signed_volume(t.map(|i| m.nodes[i]));
             for k in kids {
-                let v = volume6(k.map(|i| r.nodes[i]));
+                let v = signed_volume(k.map(|i| r.nodes[i]));
                 assert!(
                     (v - parent / 8.0).abs() < 1e-12 * parent,
                     "{v} vs {parent}/8"

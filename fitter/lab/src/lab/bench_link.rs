@@ -90,7 +90,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let lp = phase(opts, args.rate, |b| {
         Ok(hl
             .on_batch(b)
-            .context("runtime tick")?
+            .map_err(palpate_link::LinkHostError::Tick)?
             .map_or(0, |r| r.1.iterations))
     })?;
     let (mut e2e, mut link, mut solve) = (Vec::new(), Vec::new(), Vec::new());

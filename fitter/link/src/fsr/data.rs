@@ -2,6 +2,7 @@
 //! Fig. 4.4a) or published force/resistance points.
 
 use super::FsrError;
+use palpate_fem::io::csv;
 use std::path::Path;
 
 /// The rig a count-based calibration was recorded on.
@@ -71,18 +72,15 @@ pub fn read_csv(path: &Path, rig: &Rig) -> Result<(Format, Vec<Point>), FsrError
 
 /// Parses calibration CSV text (`name` is used in errors).
 pub fn parse_csv(text: &str, name: &str, rig: &Rig) -> Result<(Format, Vec<Point>), FsrError> {
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty());
+    let mut lines = csv::records(text, false);
     let (_, header) = lines.next().ok_or_else(|| FsrError::Format {
         file: name.into(),
         line: 1,
         what: "empty file".into(),
     })?;
-    let cols: Vec<String> = header
-        .split(',')
-        .map(|c| c.trim().to_ascii_lowercase())
+    let cols: Vec<String> = csv::fields(header)
+        .into_iter()
+        .map(str::to_ascii_lowercase)
         .collect();
     let format = match cols.iter().map(String::as_str).collect::<Vec<_>>().as_slice() {
         ["run", "adc_counts", "reference_mass_g"] => Format::BalanceCounts,
@@ -98,9 +96,8 @@ pub fn parse_csv(text: &str, name: &str, rig: &Rig) -> Result<(Format, Vec<Point
         }
     };
     let mut points = Vec::new();
-    for (i, l) in lines {
-        let line = i + 1;
-        let f: Vec<&str> = l.split(',').map(str::trim).collect();
+    for (line, l) in lines {
+        let f = csv::fields(l);
         let num = |k: usize| -> Result<f64, FsrError> {
             let s = f.get(k).ok_or_else(|| FsrError::Format {
                 file: name.into(),

@@ -48,12 +48,41 @@ pub enum FsrError {
 }
 
 /// Which fitted curve goes into the calibration.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub enum CurveChoice {
     /// `F = a · G^b`.
     Power,
     /// Monotone piecewise-linear (isotonic regression).
     Monotone,
+}
+
+impl CurveChoice {
+    /// Every choice, in the order a command line lists them.
+    pub const ALL: [CurveChoice; 2] = [CurveChoice::Power, CurveChoice::Monotone];
+
+    /// The name a command line uses (`power`, `monotone`).
+    pub fn name(self) -> &'static str {
+        match self {
+            CurveChoice::Power => "power",
+            CurveChoice::Monotone => "monotone",
+        }
+    }
+}
+
+impl std::fmt::Display for CurveChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for CurveChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::ALL
+            .into_iter()
+            .find(|c| c.name() == s)
+            .ok_or_else(|| format!("{s:?} is not a curve (expected power or monotone)"))
+    }
 }
 
 /// A point the fit left out, and why.

@@ -8,6 +8,13 @@ use palpate_link::fsr::{calibrate, CurveChoice, FitOptions};
 use palpate_protocol::link::{Divider, ForceCurve};
 use std::path::PathBuf;
 
+/// `--curve`: the library's names (listed in `--help`), parsed by its `FromStr`.
+fn curve_parser() -> impl clap::builder::TypedValueParser<Value = CurveChoice> {
+    use clap::builder::TypedValueParser as _;
+    clap::builder::PossibleValuesParser::new(CurveChoice::ALL.map(CurveChoice::name))
+        .try_map(|s| s.parse::<CurveChoice>())
+}
+
 /// Arguments.
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -18,7 +25,7 @@ pub struct Args {
     #[arg(short, long)]
     pub output: Option<PathBuf>,
     /// Curve written into the calibration.
-    #[arg(long, value_enum, default_value = "power")]
+    #[arg(long, default_value = "power", value_parser = curve_parser())]
     pub curve: CurveChoice,
     /// ADC resolution of the rig that recorded counts.
     #[arg(long, default_value_t = 10)]

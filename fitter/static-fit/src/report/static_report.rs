@@ -177,11 +177,11 @@ pub fn write_report(
     input: &FitInput,
     fit: &FitResult,
     loo: Option<&[HeldOut]>,
-) -> anyhow::Result<Vec<PathBuf>> {
+) -> Result<Vec<PathBuf>, crate::FitError> {
     let mut files = Vec::new();
     let md = markdown(name, command, fit, loo);
     let p = dir.join("report.md");
-    palpate_fem::io::atomic::write_atomic(&p, md.as_bytes())?;
+    crate::write_file(&p, md.as_bytes())?;
     files.push(p);
     let json = serde_json::json!({
         "name": name,
@@ -191,7 +191,7 @@ pub fn write_report(
         "leave_one_out": loo,
     });
     let p = dir.join("report.json");
-    palpate_fem::io::atomic::write_atomic(&p, serde_json::to_string_pretty(&json)?.as_bytes())?;
+    crate::write_file(&p, crate::to_json(&p, &json)?.as_bytes())?;
     files.push(p);
     // Plots.
     let bars: Vec<(String, f64)> = fit

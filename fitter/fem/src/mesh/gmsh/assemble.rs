@@ -241,11 +241,7 @@ fn is_even_permutation(tri: [usize; 3], key: [usize; 3]) -> bool {
 }
 
 pub(crate) fn signed_volume(p: &[[f64; 3]; 4]) -> f64 {
-    let d = |k: usize| [p[k][0] - p[0][0], p[k][1] - p[0][1], p[k][2] - p[0][2]];
-    let (u, v, w) = (d(1), d(2), d(3));
-    (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
-        + u[2] * (v[0] * w[1] - v[1] * w[0]))
-        / 6.0
+    crate::mesh::signed_volume(*p)
 }
 
 fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
