@@ -133,11 +133,15 @@ fn millions_of_samples_through_link_and_runtime_in_fixed_memory() {
             timestamp_us: k * 1000,
             raw_counts: (r * 2000.0) as i16,
             force_n,
-            status: if stream.next() % 5000 == 0 { 1 } else { 0 },
+            status: if stream.next().is_multiple_of(5000) {
+                1
+            } else {
+                0
+            },
         };
         seq = seq.wrapping_add(1);
         // One frame in 2,000 is lost on the wire.
-        if stream.next() % 2000 == 0 {
+        if stream.next().is_multiple_of(2000) {
             dropped += 1;
             continue;
         }

@@ -57,7 +57,7 @@ fn check(params: &[Param], mass: MassKind, use_forces: bool) {
     for (p, par) in params.iter().enumerate() {
         let q0 = mat.read(&[*par])[0];
         let h = 1e-5 * q0;
-        let mut phi = |q: f64| {
+        let phi = |q: f64| {
             let mut m = mat.clone();
             m.set(&[*par], &[q]);
             evaluate(&model, &m, params, &obs, None).unwrap().phi

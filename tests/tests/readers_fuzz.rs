@@ -184,7 +184,7 @@ proptest! {
     fn gmsh_reader_survives_mutations(muts in prop::collection::vec(mutation(), 1..4)) {
         let src = repo().join("fitter/fem/src/mesh/gmsh/testdata");
         let dir = mutated_copy(&src, "cube-ascii.msh", &muts);
-        let _ = palpate_fem::mesh::gmsh::read_msh(&dir.path().join("cube-ascii.msh"));
+        let _ = palpate_fem::mesh::gmsh::read_msh(dir.path().join("cube-ascii.msh"));
     }
 
     /// Measured curves (the silicone tension test format).
@@ -212,7 +212,7 @@ fn unmutated_inputs_read() {
     palpate_motion::dataset::load(&repo().join("models/motion-example")).unwrap();
     palpate_fem::dataset::StaticDataset::read(repo().join("models/sponge-specimen")).unwrap();
     palpate_fem::mesh::gmsh::read_msh(
-        &repo().join("fitter/fem/src/mesh/gmsh/testdata/cube-ascii.msh"),
+        repo().join("fitter/fem/src/mesh/gmsh/testdata/cube-ascii.msh"),
     )
     .unwrap();
 }

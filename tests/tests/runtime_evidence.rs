@@ -319,7 +319,7 @@ fn rbf_blending_reproduces_each_set_at_its_centre() {
         (40_000.0, 9_000.0),
     ];
     let phi_solve = |dist: &dyn Fn(usize, usize) -> f64, rhs: &[f64]| -> Vec<f64> {
-        let phi = DMatrix::from_fn(3, 3, |i, j| dist(i, j));
+        let phi = DMatrix::from_fn(3, 3, dist);
         phi.lu()
             .solve(&DVector::from_column_slice(rhs))
             .unwrap()

@@ -1,6 +1,6 @@
 //! Residual diagnosis (issue 6): fit the simplest model (warped linear homogeneous,
-//! displacement-based), look at the residual ([`signature`]), hold every candidate effect of the
-//! library ([`model::Candidate`]) against it by refitting the augmented model ([`fit`]), adopt the
+//! displacement-based), look at the residual ([`signature`](mod@signature)), hold every candidate effect of the
+//! library ([`model::Candidate`]) against it by refitting the augmented model ([`fit`](mod@fit)), adopt the
 //! best one if it earns its parameters, repeat until nothing significant is left, and report
 //! ([`report`]).
 //!

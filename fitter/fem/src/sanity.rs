@@ -110,7 +110,7 @@ pub fn check_static_data(ds: &StaticDataset, parameters: usize) -> Findings {
         .iter()
         .map(|m| norm(m.force))
         .fold(0.0, f64::max);
-    if !(max_force > 0.0) {
+    if max_force.is_nan() || max_force <= 0.0 {
         f.error(
             "zero-forces",
             format!(

@@ -59,7 +59,7 @@ impl<'a> ElasticState<'a> {
     }
 }
 
-/// K_e from a directional stress derivative dP[dF]: column (b, j) is V_e dP[e_j ∇φ_bᵀ] ∇φ_a.
+/// K_e from a directional stress derivative dP\[dF\]: column (b, j) is V_e dP\[e_j ∇φ_bᵀ\] ∇φ_a.
 pub fn tangent_from(t: &RestTet, dp: impl Fn(&Matrix3<f64>) -> Matrix3<f64>) -> [[f64; 12]; 12] {
     let mut k = [[0.0; 12]; 12];
     for b in 0..4 {

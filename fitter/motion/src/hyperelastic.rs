@@ -123,7 +123,7 @@ pub fn pk1_dmu(s: &FParts) -> Matrix3<f64> {
     s.f - s.f_inv_t
 }
 
-/// Directional derivative dP[dF].
+/// Directional derivative dP\[dF\].
 ///
 /// d(F⁻ᵀ) = −F⁻ᵀ dFᵀ F⁻ᵀ, dJ = J tr(F⁻¹ dF), dI₁ = 2 F : dF, and for the stiffening term
 /// d(∂Ī₁/∂F) = J^(−2/3) [−⅔ (F⁻ᵀ:dF)(2F − ⅔ I₁ F⁻ᵀ) + 2 dF − ⅔ dI₁ F⁻ᵀ − ⅔ I₁ d(F⁻ᵀ)].
@@ -169,7 +169,7 @@ pub fn element_forces(t: &RestTet, x: &[Vector3<f64>; 4], p: &HyperParams) -> Op
 ///
 /// Closed form of V dP[e_j ∇φ_bᵀ] ∇φ_a (from [`dpk1`] with H = F⁻ᵀ, h_a = H ∇φ_a, f_a = F ∇φ_a,
 /// g_ab = ∇φ_a·∇φ_b, c = λ(J² − 1)/2 − μ):
-/// K[3a+i][3b+j] = V [ μ δ_ij g_ab + λJ² h_a,i h_b,j − c h_b,i h_a,j
+/// K\[3a+i\]\[3b+j\] = V [ μ δ_ij g_ab + λJ² h_a,i h_b,j − c h_b,i h_a,j
 ///                     + 2c_s G_a,i G_b,j + 2c_s (Ī₁ − 3) J^(−2/3) (2 δ_ij g_ab
 ///                       − ⁴⁄₃ (f_a,i h_b,j + h_a,i f_b,j) + ⁴⁄₉ I₁ h_a,i h_b,j + ⅔ I₁ h_b,i h_a,j) ]
 /// with G_a = (∂Ī₁/∂F) ∇φ_a.

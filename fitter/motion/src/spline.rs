@@ -39,7 +39,7 @@ pub struct Spline {
     pub values: Vec<f64>,
 }
 
-/// Basis weights of one evaluation: s(x) = Σₖ w[k]·c[lo + k], s′(x) = Σₖ dw[k]·c[lo + k].
+/// Basis weights of one evaluation: s(x) = Σₖ w\[k\]·c\[lo + k\], s′(x) = Σₖ dw\[k\]·c\[lo + k\].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Basis {
     /// First control index.
@@ -409,7 +409,7 @@ impl SplineMaterial {
         }
     }
 
-    /// Directional derivative dP[dF] (rotated-frame form, see the module docs).
+    /// Directional derivative dP\[dF\] (rotated-frame form, see the module docs).
     pub fn dpk1(&self, st: &StretchState, df: &Matrix3<f64>) -> Matrix3<f64> {
         let s = &st.s;
         let dfh = st.u.transpose() * df * st.v;

@@ -61,7 +61,7 @@ pub fn stress_dh(r: &Rate, nu: f64, h: f64) -> Matrix3<f64> {
 ///
 /// dσ = ν [ (h−1) γ̇^(h−2) dγ̇ E + γ̇^(h−1) dE ], dE = dḞ + dḞᵀ, dγ̇ = E : dE / (2γ̇). With
 /// dḞ = e_j ∇φ_bᵀ, w_b = E ∇φ_b and g_ab = ∇φ_a·∇φ_b this is, in closed form,
-/// D[3a+i][3b+j] = V ν [ (h−1) γ̇^(h−3) w_a,i w_b,j + γ̇^(h−1) (δ_ij g_ab + ∇φ_b,i ∇φ_a,j) ].
+/// D\[3a+i\]\[3b+j\] = V ν [ (h−1) γ̇^(h−3) w_a,i w_b,j + γ̇^(h−1) (δ_ij g_ab + ∇φ_b,i ∇φ_a,j) ].
 pub fn element_damping(t: &RestTet, r: &Rate, nu: f64, h: f64) -> [[f64; 12]; 12] {
     let mut d = [[0.0; 12]; 12];
     let gh1 = r.gamma.powf(h - 1.0);

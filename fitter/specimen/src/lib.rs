@@ -8,7 +8,7 @@
 //! evidence runs can score what diagnose names against what was injected.
 //!
 //! - [`effect`]: the effect library ([`Effect`]) with magnitude knobs and their defaults;
-//! - [`generate`]: the simulation ([`generate::generate`]).
+//! - [`generate`](mod@generate): the simulation ([`generate::generate`]).
 
 pub mod effect;
 pub mod generate;

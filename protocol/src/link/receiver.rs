@@ -1,7 +1,7 @@
 //! The receiving end of the link: a fixed-size accumulator fed byte by byte.
 //!
 //! Bytes collect until a `0x00` delimiter; the collected bytes are then decoded with
-//! [`codec::decode`](super::codec::decode). Anything that fails — bad COBS, bad CRC, foreign
+//! [`super::codec::decode`]. Anything that fails — bad COBS, bad CRC, foreign
 //! version, bad layout, invalid content, more bytes than any frame can have — is counted and
 //! dropped, and the receiver is back in sync at the next delimiter. Sample sequence numbers
 //! are tracked so every frame lost on the way (including ones whose bytes never arrived at all)

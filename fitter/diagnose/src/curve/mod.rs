@@ -3,7 +3,7 @@
 //! simplest model the data declares (force ∝ displacement, stress ∝ strain, FSR conductance ∝
 //! force through the divider), read the residual's signature ([`signature`]), refit every
 //! candidate effect of the library ([`model`]) with a small Levenberg–Marquardt ([`lm`], [`fit`]),
-//! adopt the best one only if it lowers BIC and the held-out RMS by a margin ([`select`]), repeat,
+//! adopt the best one only if it lowers BIC and the held-out RMS by a margin ([`select`](mod@select)), repeat,
 //! and report ([`report`]).
 //!
 //! Nothing about which effect is present comes from anywhere but the data: the format is read

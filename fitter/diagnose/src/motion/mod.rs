@@ -1,6 +1,6 @@
 //! Residual diagnosis of a motion dataset (issue 6 on top of the motion fitter, issue 4):
 //! fit the simplest model the dataset supports (Neo-Hookean, no viscosity), look at the residual
-//! per marker and step ([`signature`]), hold each candidate effect against it by refitting, keep
+//! per marker and step ([`signature`](mod@signature)), hold each candidate effect against it by refitting, keep
 //! the one that predicts held-out data, repeat, and report ([`report`]).
 //!
 //! **Held-out data = a forecast.** Parameters are fitted on the first

@@ -1,7 +1,7 @@
 //! FSR calibration (thesis §4.2, Fig. 4.4): fit the sensor response — force against sensor
 //! conductance — from balance readings or published points, report residuals, the usable
 //! range and every point left out with the reason, and produce the
-//! [`Calibration`](palpate_protocol::link::Calibration) the probe's config frame carries.
+//! [`palpate_protocol::link::Calibration`] the probe's config frame carries.
 
 pub mod data;
 pub mod fit;
