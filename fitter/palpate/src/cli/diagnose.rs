@@ -30,6 +30,8 @@ pub struct Args {
 
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    // The output is checked before the diagnosis runs (minutes), not after.
+    super::output::check_writable(&args.output.join("diagnosis.md"))?;
     palpate_diagnose::run::run(&palpate_diagnose::run::Request {
         dataset: args.dataset,
         output: args.output,
