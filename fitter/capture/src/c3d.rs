@@ -1,0 +1,247 @@
+//! C3D marker trajectories (via `c3dio`), in metres, with missing samples kept as missing.
+
+use std::path::{Path, PathBuf};
+
+/// Errors of the capture import: each names the file.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum CaptureError {
+    /// The file could not be read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
+    /// The header is not a C3D header, or promises more data than the file holds.
+    #[error("{path}: not a readable C3D file: {what}")]
+    Header {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong, with the numbers.
+        what: String,
+    },
+    /// The C3D parser refused the file.
+    #[error("{path}: C3D parser: {what}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// The parser's message.
+        what: String,
+    },
+    /// `POINT:UNITS` is not a length unit palpate knows.
+    #[error("{path}: POINT:UNITS is {found:?}, expected m, cm or mm")]
+    Units {
+        /// The file.
+        path: PathBuf,
+        /// What the file says.
+        found: String,
+    },
+    /// A label asked for is not in the file.
+    #[error("{path}: no marker labelled {label:?}; the file has {known:?}")]
+    Label {
+        /// The file.
+        path: PathBuf,
+        /// The label asked for.
+        label: String,
+        /// The file's labels.
+        known: Vec<String>,
+    },
+}
+
+/// Marker trajectories of one capture.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Capture {
+    /// The file read.
+    pub source: PathBuf,
+    /// Marker labels, trimmed, in the file's order.
+    pub labels: Vec<String>,
+    /// Frames per second.
+    pub rate_hz: f64,
+    /// Number of the first frame in the capture software's numbering.
+    pub first_frame: usize,
+    /// `positions[frame][marker]` in metres; `None` where the sample is missing (the camera
+    /// system lost the marker: a negative residual in C3D).
+    pub positions: Vec<Vec<Option<[f64; 3]>>>,
+}
+
+/// A gap (the cameras lost the marker). C3D marks it by a negative fourth word — written as −1
+/// (all bits set) by capture software — and usually zero coordinates. `c3dio` splits that word
+/// into seven camera flags and a signed residual byte and drops the sign bit, so a gap reads as
+/// every camera set with residual −1 (times the scale); a valid residual byte above 127 also reads
+/// negative, which is why the sign alone is not the test.
+fn is_gap(m: &c3dio::data::MarkerPoint, scale: f32) -> bool {
+    let unit = if scale != 0.0 { scale.abs() } else { 1.0 };
+    let all_cameras = m.cameras.iter().all(|c| *c);
+    (all_cameras && (m.residual / unit).round() == -1.0) || m.point == [0.0; 3]
+}
+
+/// Bytes of one point sample in the data section: four values (x, y, z, residual/cameras).
+const POINT_BYTES_FLOAT: usize = 16;
+const POINT_BYTES_INTEGER: usize = 8;
+
+/// Reads a C3D file's marker trajectories.
+pub fn read_c3d(path: &Path) -> Result<Capture, CaptureError> {
+    let bytes = std::fs::read(path).map_err(|source| CaptureError::Io {
+        path: path.into(),
+        source,
+    })?;
+    check_header(path, &bytes)?;
+    // The parser is a third-party crate: a file that passes the header check but trips it must
+    // still be an error, not a crash of the whole program.
+    let parsed =
+        std::panic::catch_unwind(|| c3dio::C3d::from_bytes(&bytes).map_err(|e| format!("{e:?}")))
+            .map_err(|_| CaptureError::Parse {
+            path: path.into(),
+            what: "the parser failed on this file (malformed parameter or data section)".into(),
+        })?;
+    let c3d = parsed.map_err(|what| CaptureError::Parse {
+        path: path.into(),
+        what,
+    })?;
+    let p = &c3d.points;
+    let units: String = p.units.iter().collect::<String>().trim().to_lowercase();
+    let scale = match units.as_str() {
+        "m" => 1.0,
+        "cm" => 1e-2,
+        "mm" | "" => 1e-3,
+        _ => {
+            return Err(CaptureError::Units {
+                path: path.into(),
+                found: units,
+            })
+        }
+    };
+    let (frames, markers) = p.points.size();
+    let labels: Vec<String> = (0..markers)
+        .map(|k| {
+            p.labels
+                .get(k)
+                .map_or_else(|| format!("marker {}", k + 1), |s| s.trim().to_string())
+        })
+        .collect();
+    let mut positions = Vec::with_capacity(frames);
+    for f in 0..frames {
+        let mut row = Vec::with_capacity(markers);
+        for k in 0..markers {
+            let m = &p.points[(f, k)];
+            let ok = !is_gap(m, p.scale_factor) && m.point.iter().all(|v| v.is_finite());
+            row.push(ok.then(|| m.point.map(|v| f64::from(v) * scale)));
+        }
+        positions.push(row);
+    }
+    if !(p.frame_rate.is_finite() && p.frame_rate > 0.0) {
+        return Err(CaptureError::Header {
+            path: path.into(),
+            what: format!("point frame rate {} is not a positive number", p.frame_rate),
+        });
+    }
+    Ok(Capture {
+        source: path.into(),
+        labels,
+        rate_hz: f64::from(p.frame_rate),
+        first_frame: usize::from(p.first_frame),
+        positions,
+    })
+}
+
+/// The header promises `frames × markers` samples; the data section must be able to hold them,
+/// so a corrupt or truncated file is refused before the parser sizes anything from it.
+fn check_header(path: &Path, b: &[u8]) -> Result<(), CaptureError> {
+    let bad = |what: String| CaptureError::Header {
+        path: path.into(),
+        what,
+    };
+    if b.len() < 512 {
+        return Err(bad(format!(
+            "{} bytes, shorter than the 512-byte header",
+            b.len()
+        )));
+    }
+    if b[1] != 0x50 {
+        return Err(bad(format!(
+            "byte 2 is {:#04x}, expected the C3D key 0x50",
+            b[1]
+        )));
+    }
+    let param = (usize::from(b[0]).max(1) - 1) * 512;
+    // Processor type (parameter block byte 4): 84 Intel, 85 DEC (both little-endian u16), 86 MIPS.
+    let big_endian = b.get(param + 3) == Some(&86);
+    let u16_at = |i: usize| {
+        let w = [b[i], b[i + 1]];
+        if big_endian {
+            u16::from_be_bytes(w)
+        } else {
+            u16::from_le_bytes(w)
+        }
+    };
+    let (markers, first, last) = (u16_at(2), u16_at(6), u16_at(8));
+    if last < first {
+        return Err(bad(format!("last frame {last} before first frame {first}")));
+    }
+    let frames = usize::from(last - first) + 1;
+    let scale_word = [b[12], b[13], b[14], b[15]];
+    let scale = if big_endian {
+        f32::from_be_bytes(scale_word)
+    } else {
+        f32::from_le_bytes(scale_word)
+    };
+    let per_point = if scale <= 0.0 {
+        POINT_BYTES_FLOAT
+    } else {
+        POINT_BYTES_INTEGER
+    };
+    let need = frames * usize::from(markers) * per_point;
+    if need > b.len() {
+        return Err(bad(format!(
+            "the header promises {frames} frames of {markers} markers ({need} bytes of points), \
+             but the file has {} bytes (truncated?)",
+            b.len()
+        )));
+    }
+    Ok(())
+}
+
+impl Capture {
+    /// The index of marker `label`.
+    pub fn marker(&self, label: &str) -> Result<usize, CaptureError> {
+        self.labels
+            .iter()
+            .position(|l| l == label)
+            .ok_or_else(|| CaptureError::Label {
+                path: self.source.clone(),
+                label: label.into(),
+                known: self.labels.clone(),
+            })
+    }
+
+    /// Seconds from the first frame to frame `f`.
+    pub fn time(&self, f: usize) -> f64 {
+        f as f64 / self.rate_hz
+    }
+
+    /// The first frame at which any of `markers` has moved more than `threshold` (m) from its
+    /// position in frame 0, averaged over those markers (the release of a held object); `None`
+    /// if nothing moves that far. Frames where a marker is missing are skipped.
+    pub fn release_frame(&self, markers: &[usize], threshold: f64) -> Option<usize> {
+        let mean = |f: usize| -> Option<[f64; 3]> {
+            let mut s = [0.0; 3];
+            for &k in markers {
+                let p = (*self.positions.get(f)?.get(k)?)?;
+                for d in 0..3 {
+                    s[d] += p[d] / markers.len() as f64;
+                }
+            }
+            Some(s)
+        };
+        let start = mean(0)?;
+        (1..self.positions.len()).find(|&f| {
+            mean(f).is_some_and(|p| {
+                ((p[0] - start[0]).powi(2) + (p[1] - start[1]).powi(2) + (p[2] - start[2]).powi(2))
+                    .sqrt()
+                    > threshold
+            })
+        })
+    }
+}
