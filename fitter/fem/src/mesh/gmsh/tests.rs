@@ -286,3 +286,30 @@ proptest::proptest! {
         let _ = read_msh(&p);
     }
 }
+
+/// The silicone beam meshed from its STL (`models/mesh_stl.py`, STL in mm scaled to metres): the
+/// counts Gmsh printed, the clamp and free-end groups on their planes, positive volumes summing
+/// to the beam's 30 × 30 × 100 mm.
+#[test]
+fn bundled_beam_mesh_reads() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/silicone-beam/beam.msh");
+    let (m, r) = read_msh_with_report(path).unwrap();
+    assert_eq!((m.nodes.len(), m.tets.len()), (733, 2600));
+    assert_eq!(r.reoriented, 0);
+    let on =
+        |g: &str, f: &dyn Fn([f64; 3]) -> bool| m.node_groups[g].iter().all(|&i| f(m.nodes[i]));
+    assert!(on("clamp", &|p| (p[2] - 0.1).abs() < 1e-9));
+    assert!(on("free_end", &|p| p[2].abs() < 1e-9));
+    assert!(m.node_groups["clamp"].len() > 10);
+    let vols: Vec<f64> = m
+        .tets
+        .iter()
+        .map(|t| assemble::signed_volume(&t.map(|i| m.nodes[i])))
+        .collect();
+    assert!(vols.iter().all(|&v| v > 0.0));
+    assert!(
+        (vols.iter().sum::<f64>() - 9e-5).abs() < 1e-10,
+        "{}",
+        vols.iter().sum::<f64>()
+    );
+}
