@@ -12,6 +12,7 @@
 //! What it must not depend on: the fitters, the diagnosis, the CLI.
 
 pub mod c3d;
+pub mod import;
 pub mod register;
 
 pub use c3d::{read_c3d, Capture, CaptureError};

@@ -8,6 +8,7 @@ pub mod diagnose;
 pub mod fit;
 pub mod fit_motion;
 pub mod haptic;
+pub mod import;
 pub mod output;
 pub mod probe;
 pub mod probe_sim;
@@ -28,6 +29,9 @@ pub struct Cli {
 pub enum Command {
     /// The whole loop on the bundled data: fit, diagnose, export, haptic replay over a pty.
     Demo(demo::Args),
+    /// Import a motion capture (C3D) as a motion dataset, registered to the mesh frame.
+    #[command(subcommand)]
+    Import(import::ImportCommand),
     /// Simulate one static interaction with the runtime; writes displacements CSV and VTK.
     Simulate(simulate::Args),
     /// Fit material parameters to a static contact dataset (seed 000) and export a model.
@@ -69,6 +73,7 @@ impl std::error::Error for WrittenWithWarnings {}
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Demo(a) => demo::run(a),
+        Command::Import(c) => import::run(c),
         Command::Simulate(a) => simulate::run(a),
         Command::Fit(a) => fit::run(a),
         Command::CalibrateFsr(a) => calibrate_fsr::run(a),

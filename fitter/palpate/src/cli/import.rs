@@ -1,0 +1,171 @@
+//! `palpate import c3d <capture.c3d> …`: a motion capture as a palpate motion dataset — the
+//! capture frame registered to the mesh frame (Horn) on a frame at rest, the trajectories from
+//! the release on, the mesh copied beside them.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use palpate_capture::import::{import_motion_dataset, ImportOptions};
+
+/// What to import.
+#[derive(Debug, clap::Subcommand)]
+pub enum ImportCommand {
+    /// A C3D file (Qualisys, Vicon, OptiTrack, Motion Analysis export).
+    C3d(C3dArgs),
+}
+
+/// Options of `palpate import c3d`.
+#[derive(Debug, clap::Args)]
+pub struct C3dArgs {
+    /// The capture.
+    pub capture: PathBuf,
+    /// Tetrahedral mesh of the object in its own frame (Gmsh 4.1; see models/mesh_stl.py).
+    #[arg(long)]
+    pub mesh: PathBuf,
+    /// Marker places in the mesh frame: CSV `marker,x,y,z` (m), labels as in the capture.
+    #[arg(long)]
+    pub places: PathBuf,
+    /// Clamped physical groups of the mesh (comma-separated).
+    #[arg(long, value_delimiter = ',', required = true)]
+    pub clamps: Vec<String>,
+    /// Gravity in the mesh frame, gx,gy,gz (m/s²).
+    #[arg(long, value_parser = parse_vec3_f64, allow_hyphen_values = true)]
+    pub gravity: [f64; 3],
+    /// Density (kg/m³), if known.
+    #[arg(long)]
+    pub density: Option<f64>,
+    /// Frame at rest used for the registration.
+    #[arg(long, default_value_t = 0)]
+    pub rest_frame: usize,
+    /// Release: the last frame held still (simulation starts there). Default: detected as the
+    /// frame before the registration markers' mean first moves more than `--release-threshold`.
+    #[arg(long)]
+    pub release_frame: Option<usize>,
+    /// Movement (m) that detects the release.
+    #[arg(long, default_value_t = 0.5e-3)]
+    pub release_threshold: f64,
+    /// Last frame imported (default: the end of the capture).
+    #[arg(long)]
+    pub last_frame: Option<usize>,
+    /// Output dataset folder.
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+fn parse_vec3_f64(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| {
+            x.trim()
+                .parse::<f64>()
+                .map_err(|_| format!("{x:?} is not a number"))
+        })
+        .collect::<Result<_, _>>()?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|a| a.is_finite()) => Ok([x, y, z]),
+        _ => Err(format!("{s:?}: expected three finite numbers x,y,z")),
+    }
+}
+
+/// Runs the command.
+pub fn run(cmd: ImportCommand) -> anyhow::Result<()> {
+    let ImportCommand::C3d(a) = cmd;
+    let capture = palpate_capture::read_c3d(&a.capture)?;
+    let text = std::fs::read_to_string(&a.places)
+        .with_context(|| format!("reading {}", a.places.display()))?;
+    let mut places = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let l = line.trim();
+        if l.is_empty() || l.starts_with('#') || l.starts_with("marker,") {
+            continue;
+        }
+        let f: Vec<&str> = l.split(',').map(str::trim).collect();
+        let at = |what: &str| format!("{}:{}: {what}", a.places.display(), i + 1);
+        if f.len() != 4 {
+            anyhow::bail!(
+                "{}",
+                at(&format!("expected marker,x,y,z, found {} fields", f.len()))
+            );
+        }
+        let mut p = [0.0; 3];
+        for k in 0..3 {
+            p[k] = f[k + 1]
+                .parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .with_context(|| {
+                    at(&format!(
+                        "field {}: {:?} is not a number",
+                        ["x", "y", "z"][k],
+                        f[k + 1]
+                    ))
+                })?;
+        }
+        places.push((f[0].to_string(), p));
+    }
+    let ids: Vec<usize> = places
+        .iter()
+        .map(|(l, _)| capture.marker(l))
+        .collect::<Result<_, _>>()?;
+    let release_frame = match a.release_frame {
+        Some(f) => f,
+        None => capture
+            .release_frame(&ids, a.release_threshold)
+            .map(|f| f - 1)
+            .with_context(|| {
+                format!(
+                    "{}: no release found (the markers never move {} m from frame 0); give --release-frame",
+                    a.capture.display(),
+                    a.release_threshold
+                )
+            })?,
+    };
+    std::fs::create_dir_all(&a.output)
+        .with_context(|| format!("creating {}", a.output.display()))?;
+    std::fs::copy(&a.mesh, a.output.join("mesh.msh"))
+        .with_context(|| format!("copying {}", a.mesh.display()))?;
+    let mut toml = format!(
+        "mesh = \"mesh.msh\"\nclamps = [{}]\ngravity = [{}, {}, {}]\n",
+        a.clamps
+            .iter()
+            .map(|c| format!("{c:?}"))
+            .collect::<Vec<_>>()
+            .join(", "),
+        a.gravity[0],
+        a.gravity[1],
+        a.gravity[2]
+    );
+    if let Some(d) = a.density {
+        toml.push_str(&format!("density = {d}\n"));
+    }
+    let r = import_motion_dataset(
+        &capture,
+        &ImportOptions {
+            places,
+            rest_frame: a.rest_frame,
+            release_frame,
+            last_frame: a.last_frame,
+            toml,
+        },
+        &a.output,
+    )?;
+    println!(
+        "{}: {} markers at {} Hz, registered on frame {} (RMS {:.2} mm; per marker: {}); release at frame {release_frame}; {} steps",
+        a.capture.display(),
+        capture.labels.len(),
+        capture.rate_hz,
+        a.rest_frame,
+        1e3 * r.transform.rms(),
+        r.labels
+            .iter()
+            .zip(&r.transform.residuals)
+            .map(|(l, e)| format!("{l} {:.2} mm", 1e3 * e))
+            .collect::<Vec<_>>()
+            .join(", "),
+        r.steps
+    );
+    for f in r.files {
+        println!("wrote {}", f.display());
+    }
+    Ok(())
+}
