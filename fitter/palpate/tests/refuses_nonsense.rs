@@ -238,3 +238,27 @@ fn probe_with_no_data_is_an_error() {
         "{err}"
     );
 }
+
+/// A fit stopped by its iteration cap is written but said loudly: exit status 2, the warning on
+/// stderr and "NOT CONVERGED" in the report.
+#[test]
+fn fit_at_its_iteration_cap_exits_2_with_the_warning_in_the_report() {
+    let tmp = tempfile::tempdir().unwrap();
+    let model = tmp.path().join("model.palp");
+    let o = palpate()
+        .args(["fit"])
+        .arg(repo().join("models/sponge/dataset"))
+        .args(["--max-iterations", "1", "-o"])
+        .arg(&model)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("iteration-cap"), "{err}");
+    assert!(model.exists());
+    let report = std::fs::read_to_string(tmp.path().join("model.report/report.md")).unwrap();
+    assert!(
+        report.contains("NOT CONVERGED") && report.contains("iteration-cap"),
+        "{report}"
+    );
+}
