@@ -15,6 +15,11 @@ fn invalid(what: Invalid) -> Result<(), ModelError> {
     Err(ModelError::InvalidContent { what })
 }
 
+/// What `validate` says of a value that is not a finite number.
+fn non_finite(array: Field, position: u64) -> Result<(), ModelError> {
+    invalid(Invalid::NonFinite { array, position })
+}
+
 /// Decodes the unvalidated encoding of `m` (a well-formed container with a correct CRC) and
 /// checks that `decode`, `validate` and `encode` all report the same content error.
 fn content_error(m: &OwnedModel) -> ModelError {
@@ -28,6 +33,11 @@ fn content_error(m: &OwnedModel) -> ModelError {
         "encode must refuse what decode refuses"
     );
     err
+}
+
+/// One hexahedron (five tetrahedra), global parameters, two sets blended by `blend`.
+fn cube(blend: BlendKind) -> OwnedModel {
+    model_on(&grid_mesh(1, 1, 1, 0.05), ParameterLayout::Global, blend, 2)
 }
 
 fn grid() -> OwnedModel {
@@ -331,57 +341,26 @@ fn non_finite_values_are_located() {
 
     let mut m = grid();
     set_f32(&mut m.d_packed, 78 * 3 + 10, f32::INFINITY);
-    assert_eq!(
-        validate(&m.record()),
-        invalid(Invalid::NonFinite {
-            array: Field::DPacked,
-            position: 244
-        })
-    );
+    assert_eq!(validate(&m.record()), non_finite(Field::DPacked, 244));
 
     let mut m = grid();
     set_f32(&mut m.lambda, 0, f32::NEG_INFINITY);
-    assert_eq!(
-        validate(&m.record()),
-        invalid(Invalid::NonFinite {
-            array: Field::Lambda,
-            position: 0
-        })
-    );
+    assert_eq!(validate(&m.record()), non_finite(Field::Lambda, 0));
 
-    let mut m = model_on(
-        &grid_mesh(1, 1, 1, 0.05),
-        ParameterLayout::Global,
-        BlendKind::Deformation,
-        2,
-    );
+    let mut m = cube(BlendKind::Deformation);
     if let OwnedBlend::Deformation { weights_alpha, .. } = &mut m.blend {
         set_f32(weights_alpha, 1, f32::NAN);
     }
     assert_eq!(
         validate(&m.record()),
-        invalid(Invalid::NonFinite {
-            array: Field::BlendWeightsAlpha,
-            position: 1
-        })
+        non_finite(Field::BlendWeightsAlpha, 1)
     );
 
-    let mut m = model_on(
-        &grid_mesh(1, 1, 1, 0.05),
-        ParameterLayout::Global,
-        BlendKind::Strain,
-        2,
-    );
+    let mut m = cube(BlendKind::Strain);
     if let OwnedBlend::Strain { decay, .. } = &mut m.blend {
         *decay = f32::NAN;
     }
-    assert_eq!(
-        validate(&m.record()),
-        invalid(Invalid::NonFinite {
-            array: Field::StrainDecay,
-            position: 0
-        })
-    );
+    assert_eq!(validate(&m.record()), non_finite(Field::StrainDecay, 0));
     assert_eq!(
         validate(&m.record()).unwrap_err().to_string(),
         "invalid model: blend.decay: not a finite number"
@@ -409,12 +388,7 @@ fn negative_values() {
     set_f32(&mut m.d_packed, 78 * 4 + 63, -1.0);
     assert_eq!(validate(&m.record()), Ok(()));
 
-    let mut m = model_on(
-        &grid_mesh(1, 1, 1, 0.05),
-        ParameterLayout::Global,
-        BlendKind::Strain,
-        2,
-    );
+    let mut m = cube(BlendKind::Strain);
     if let OwnedBlend::Strain { decay, .. } = &mut m.blend {
         *decay = -2.0;
     }
@@ -426,12 +400,7 @@ fn negative_values() {
             value: -2.0
         })
     );
-    let mut m = model_on(
-        &grid_mesh(1, 1, 1, 0.05),
-        ParameterLayout::Global,
-        BlendKind::Strain,
-        2,
-    );
+    let mut m = cube(BlendKind::Strain);
     if let OwnedBlend::Strain {
         neighbour_weight, ..
     } = &mut m.blend
@@ -701,22 +670,12 @@ fn length_errors() {
         }
     );
 
-    let mut m = model_on(
-        &grid_mesh(1, 1, 1, 0.05),
-        ParameterLayout::Global,
-        BlendKind::Strain,
-        2,
-    );
+    let mut m = cube(BlendKind::Strain);
     if let OwnedBlend::Strain { neighbours, .. } = &mut m.blend {
         *neighbours = 0;
     }
     assert_eq!(validate(&m.record()), invalid(Invalid::NoNeighbours));
-    let mut m = model_on(
-        &grid_mesh(1, 1, 1, 0.05),
-        ParameterLayout::Global,
-        BlendKind::Deformation,
-        2,
-    );
+    let mut m = cube(BlendKind::Deformation);
     if let OwnedBlend::Deformation { centres, .. } = &mut m.blend {
         centres.truncate(centres.len() - 12);
     }
