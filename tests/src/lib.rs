@@ -3,4 +3,5 @@
 pub mod alloc_watch;
 pub mod hil;
 pub mod model;
+pub mod motion;
 pub mod settle;

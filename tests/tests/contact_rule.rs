@@ -199,8 +199,8 @@ fn bad_contacts_are_errors() {
 #[test]
 fn runtime_consistent_rule_and_predictor() {
     use palpate_runtime::material::LambdaAlpha;
-    use palpate_runtime::{ContactRule, Runtime, RuntimeConfig, SolveStatus, StorageRequirement};
-    use palpate_tests::model;
+    use palpate_runtime::{ContactRule, RuntimeConfig, SolveStatus};
+    use palpate_tests::model::{self, Storage};
     let m = box_mesh([0.1, 0.1, 0.05], [14, 14, 7]);
     let tris = m.boundary_triangles();
     let fixed_list = m.group("bottom").unwrap().to_vec();
@@ -214,9 +214,8 @@ fn runtime_consistent_rule_and_predictor() {
             predictor,
             ..Default::default()
         };
-        let need = StorageRequirement::for_model(&buf.record(), &cfg);
-        let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-        let mut rt = Runtime::new(buf.record(), &mut fs, &mut us, cfg).unwrap();
+        let mut storage = Storage::for_model(&buf.record(), &cfg);
+        let mut rt = storage.runtime(buf.record(), cfg).unwrap();
         let force = [0.0f32, 0.0, -0.5];
         let at = |k: usize| [0.03 + 1e-4 * k as f32, 0.05, 0.05];
         rt.set_contact_force(at(0), force, 0.015).unwrap();

@@ -13,9 +13,9 @@ use palpate_link::haptic::{Contact, HapticLoop};
 use palpate_protocol::link::codec::encode;
 use palpate_protocol::link::{ForceSample, Frame, Receiver, MAX_FRAME_ENCODED};
 use palpate_runtime::material::LambdaAlpha;
-use palpate_runtime::{Runtime, RuntimeConfig, SolveStatus, StorageRequirement};
+use palpate_runtime::{RuntimeConfig, SolveStatus};
 use palpate_tests::alloc_watch::{self, Counting};
-use palpate_tests::model;
+use palpate_tests::model::{self, Storage};
 
 #[global_allocator]
 static GLOBAL: Counting = Counting;
@@ -57,9 +57,8 @@ fn millions_of_samples_through_link_and_runtime_in_fixed_memory() {
         ..Default::default()
     };
     let rec = buf.record();
-    let need = StorageRequirement::for_model(&rec, &cfg);
-    let (mut f, mut u) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let rt = Runtime::new(rec, &mut f, &mut u, cfg).unwrap();
+    let mut storage = Storage::for_model(&rec, &cfg);
+    let rt = storage.runtime(rec, cfg).unwrap();
     const MAX_FORCE: f32 = 100.0;
     let mut hl = HapticLoop::new(
         rt,

@@ -7,9 +7,9 @@
 
 use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_runtime::material::LambdaAlpha;
-use palpate_runtime::{ContactRule, Probe, Runtime, RuntimeConfig, StorageRequirement};
+use palpate_runtime::{ContactRule, Probe, RuntimeConfig};
 use palpate_tests::alloc_watch::{self, Counting};
-use palpate_tests::model;
+use palpate_tests::model::{self, Storage};
 
 #[global_allocator]
 static GLOBAL: Counting = Counting;
@@ -34,9 +34,8 @@ fn thousands_of_ticks_allocate_nothing() {
             contact_rule: rule,
             ..Default::default()
         };
-        let need = StorageRequirement::for_model(&buf.record(), &cfg);
-        let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-        let mut rt = Runtime::new(buf.record(), &mut fs, &mut us, cfg).unwrap();
+        let mut storage = Storage::for_model(&buf.record(), &cfg);
+        let mut rt = storage.runtime(buf.record(), cfg).unwrap();
         let before = alloc_watch::allocations();
         alloc_watch::watch(true);
         let mut solved = 0;
