@@ -15,6 +15,11 @@ fn invalid(what: Invalid) -> Result<(), ModelError> {
     Err(ModelError::InvalidContent { what })
 }
 
+/// What `decode` says of a field it cannot read.
+fn malformed<T>(field: Field, kind: MalformedKind) -> Result<T, ModelError> {
+    Err(ModelError::Malformed { field, kind })
+}
+
 /// What `validate` says of a value that is not a finite number.
 fn non_finite(array: Field, position: u64) -> Result<(), ModelError> {
     invalid(Invalid::NonFinite { array, position })
@@ -187,39 +192,27 @@ fn malformed_payloads_name_the_field() {
     p[0] = 1;
     assert_eq!(
         decode(&wrap(&p)),
-        Err(ModelError::Malformed {
-            field: Field::Units,
-            kind: MalformedKind::UnknownVariant { found: 1 }
-        })
+        malformed(Field::Units, MalformedKind::UnknownVariant { found: 1 })
     );
     // A provenance string that is not UTF-8 (byte 0xFF inside "palpate").
     let mut p = payload.to_vec();
     p[2] = 0xFF;
     assert_eq!(
         decode(&wrap(&p)),
-        Err(ModelError::Malformed {
-            field: Field::ProvenanceTool,
-            kind: MalformedKind::BadUtf8
-        })
+        malformed(Field::ProvenanceTool, MalformedKind::BadUtf8)
     );
     // Blend discriminant (the last payload byte) 3 does not exist.
     let mut p = payload.to_vec();
     *p.last_mut().unwrap() = 3;
     assert_eq!(
         decode(&wrap(&p)),
-        Err(ModelError::Malformed {
-            field: Field::Blend,
-            kind: MalformedKind::UnknownVariant { found: 3 }
-        })
+        malformed(Field::Blend, MalformedKind::UnknownVariant { found: 3 })
     );
     // Cut inside d_packed (payload offset 0x1f7 − 12 + 100).
     let p = &payload[..0x1f7 - 12 + 100];
     assert_eq!(
         decode(&wrap(p)),
-        Err(ModelError::Malformed {
-            field: Field::DPacked,
-            kind: MalformedKind::UnexpectedEnd
-        })
+        malformed(Field::DPacked, MalformedKind::UnexpectedEnd)
     );
     // node_count as an over-long varint (6 continuation bytes).
     let mut p = payload[..0x2a - 12].to_vec();
@@ -227,10 +220,7 @@ fn malformed_payloads_name_the_field() {
     p.extend_from_slice(&payload[0x2a - 12 + 1..]);
     assert_eq!(
         decode(&wrap(&p)),
-        Err(ModelError::Malformed {
-            field: Field::NodeCount,
-            kind: MalformedKind::BadVarint
-        })
+        malformed(Field::NodeCount, MalformedKind::BadVarint)
     );
     // One byte too many after the record.
     let mut p = payload.to_vec();

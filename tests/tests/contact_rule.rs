@@ -19,9 +19,15 @@ fn block() -> (Mesh, Vec<[usize; 3]>, Vec<bool>) {
     (m, tris, fixed)
 }
 
-/// Nodal weights of the consistent rule (summed over a node's triangles).
-fn weights(m: &Mesh, tris: &[[usize; 3]], fixed: &[bool], c: [f64; 3], r: f64) -> Vec<f64> {
-    let mut w = vec![0.0; m.nodes.len()];
+/// The consistent rule on the mesh `m` with surface `tris`, handing each weight to `emit`.
+fn consistent(
+    m: &Mesh,
+    tris: &[[usize; 3]],
+    fixed: &[bool],
+    c: [f64; 3],
+    r: f64,
+    emit: impl FnMut(usize, f64),
+) -> Result<usize, ContactRuleError> {
     contact_weights_consistent(
         c,
         r,
@@ -30,9 +36,14 @@ fn weights(m: &Mesh, tris: &[[usize; 3]], fixed: &[bool], c: [f64; 3], r: f64) -
         tris.len(),
         |k| tris[k],
         |i| fixed[i],
-        |i, x| w[i] += x,
+        emit,
     )
-    .unwrap();
+}
+
+/// Nodal weights of the consistent rule (summed over a node's triangles).
+fn weights(m: &Mesh, tris: &[[usize; 3]], fixed: &[bool], c: [f64; 3], r: f64) -> Vec<f64> {
+    let mut w = vec![0.0; m.nodes.len()];
+    consistent(m, tris, fixed, c, r, |i, x| w[i] += x).unwrap();
     w
 }
 
@@ -163,18 +174,7 @@ fn resultant_acts_at_the_contact_point() {
 #[test]
 fn bad_contacts_are_errors() {
     let (m, tris, fixed) = block();
-    let call = |c: [f64; 3], r: f64| {
-        contact_weights_consistent(
-            c,
-            r,
-            m.nodes.len(),
-            |i| m.nodes[i],
-            tris.len(),
-            |k| tris[k],
-            |i| fixed[i],
-            |_, _| {},
-        )
-    };
+    let call = |c: [f64; 3], r: f64| consistent(&m, &tris, &fixed, c, r, |_, _| {});
     match call([0.05, 0.05, 0.08], 0.01) {
         Err(ContactRuleError::NoNodeInRadius { nearest }) => {
             assert!((nearest - 0.03).abs() < 1e-9, "nearest {nearest}")

@@ -116,18 +116,29 @@ fn through_knots(x: f32, xs: &[f32], ys: &[f32], step: Step) -> f32 {
 }
 
 impl ForceCurve {
+    /// The knots in use of a table curve: (conductances, forces); empty for a power law.
+    fn table(&self) -> (&[f32], &[f32]) {
+        match self {
+            ForceCurve::PowerLaw { .. } => (&[], &[]),
+            ForceCurve::Monotone {
+                len,
+                conductance_us,
+                force_n,
+            } => {
+                let n = (*len as usize).clamp(1, MAX_KNOTS);
+                (&conductance_us[..n], &force_n[..n])
+            }
+        }
+    }
+
     /// Force in N for a conductance in µS (negative conductances read as zero).
     pub fn force_n(&self, conductance_us: f32) -> f32 {
         let g = conductance_us.max(0.0);
         match *self {
             ForceCurve::PowerLaw { gain, exponent } => gain * libm::powf(g, exponent),
-            ForceCurve::Monotone {
-                len,
-                conductance_us: ref gs,
-                force_n: ref fs,
-            } => {
-                let n = (len as usize).clamp(1, MAX_KNOTS);
-                through_knots(g, &gs[..n], &fs[..n], Step::End)
+            ForceCurve::Monotone { .. } => {
+                let (gs, fs) = self.table();
+                through_knots(g, gs, fs, Step::End)
             }
         }
     }
@@ -138,13 +149,9 @@ impl ForceCurve {
         let f = force_n.max(0.0);
         match *self {
             ForceCurve::PowerLaw { gain, exponent } => libm::powf(f / gain, 1.0 / exponent),
-            ForceCurve::Monotone {
-                len,
-                conductance_us: ref gs,
-                force_n: ref fs,
-            } => {
-                let n = (len as usize).clamp(1, MAX_KNOTS);
-                through_knots(f, &fs[..n], &gs[..n], Step::Start)
+            ForceCurve::Monotone { .. } => {
+                let (gs, fs) = self.table();
+                through_knots(f, fs, gs, Step::Start)
             }
         }
     }
