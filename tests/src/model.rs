@@ -8,10 +8,10 @@ pub use palpate_fem::export::{BlendData, ModelBuffers};
 use palpate_fem::export::{ModelGeometry, ProvenanceInfo};
 use palpate_fem::forward::Material;
 use palpate_fem::mesh::Mesh;
-use palpate_protocol::model::ModelRecord;
+pub use palpate_fem::runtime_storage::Storage;
 use palpate_runtime::element::tet_geometry;
 use palpate_runtime::material::LambdaAlpha;
-use palpate_runtime::{Runtime, RuntimeConfig, RuntimeError, StorageRequirement};
+use palpate_runtime::RuntimeConfig;
 
 /// A model of `mesh` with the nodes of `fixed` fixed, parameter sets `sets` (all global or all
 /// per element) and blend `blend`. Panics on an invalid combination (a test bug).
@@ -49,32 +49,6 @@ pub fn homogeneous(mesh: &Mesh, fixed: &[usize], lambda: f64, alpha: f64) -> Mod
         &[Material::homogeneous(LambdaAlpha { lambda, alpha })],
         &BlendData::None,
     )
-}
-
-/// The caller's memory of a runtime, sized once from a model and a configuration.
-pub struct Storage {
-    f32s: Vec<f32>,
-    u32s: Vec<u32>,
-}
-
-impl Storage {
-    /// Zeroed storage of the size the runtime asks for `record` under `config`.
-    pub fn for_model(record: &ModelRecord<'_>, config: &RuntimeConfig) -> Self {
-        let need = StorageRequirement::for_model(record, config);
-        Self {
-            f32s: vec![0f32; need.f32s],
-            u32s: vec![0u32; need.u32s],
-        }
-    }
-
-    /// A runtime of `record` in this storage.
-    pub fn runtime<'a>(
-        &'a mut self,
-        record: ModelRecord<'a>,
-        config: RuntimeConfig,
-    ) -> Result<Runtime<'a>, RuntimeError> {
-        Runtime::new(record, &mut self.f32s, &mut self.u32s, config)
-    }
 }
 
 /// The solver settings under which an exported model is compared with the fitter's f64 solve:

@@ -17,13 +17,7 @@ const PROFILE: Profile = Profile::Sine {
 };
 
 fn fast(seconds: f64) -> SenderOptions {
-    SenderOptions {
-        seconds,
-        pacing: Pacing::AsFastAsPossible,
-        version: LINK_VERSION,
-        stall: None,
-        adc_fault: None,
-    }
+    SenderOptions::clean(seconds, Pacing::AsFastAsPossible)
 }
 
 /// Faults from write 50 to write (total − 50): the link comes up clean and ends clean.
@@ -104,10 +98,7 @@ fn real_time_segment_records_write_to_arrival_latency() {
     // One real second at 1 kHz: the bytes pace at the true rate, so arrival − write is the
     // link's latency (pty + reader wake-up). Recorded, not asserted against a time budget
     // (timing belongs to `palpate-lab bench link`); asserted: nothing lost, latencies positive.
-    let opts = SenderOptions {
-        pacing: Pacing::RealTime,
-        ..fast(1.0)
-    };
+    let opts = SenderOptions::clean(1.0, Pacing::RealTime);
     let run = link(opts, FaultPlan::default(), 2, None);
     assert_link_invariants(&run);
     assert_eq!(run.stats.missing_samples, 0);
@@ -221,10 +212,7 @@ fn a_stalled_sender_shows_up_as_an_exact_gap_and_an_overrun_report() {
 #[test]
 fn unplug_and_replug_loses_only_what_was_sent_while_away_and_counts_it() {
     // Real-time pacing so the unplug lasts a known 30 ms of the 2 s stream.
-    let opts = SenderOptions {
-        pacing: Pacing::RealTime,
-        ..fast(2.0)
-    };
+    let opts = SenderOptions::clean(2.0, Pacing::RealTime);
     let unplug = Unplug {
         after_samples: 500,
         away: Duration::from_millis(30),

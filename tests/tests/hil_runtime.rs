@@ -9,7 +9,7 @@ use palpate_link::gate::ForceGate;
 use palpate_link::haptic::{Contact, HapticLoop};
 use palpate_link::sender::{AdcFault, AdcFaultKind, Pacing, SenderOptions};
 use palpate_probe::sim::{default_config, Profile};
-use palpate_protocol::link::{status, LINK_VERSION};
+use palpate_protocol::link::status;
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::{RuntimeConfig, SolveStatus};
 use palpate_tests::hil::{assert_link_invariants, run_link};
@@ -37,11 +37,8 @@ fn run(fault: AdcFault, hold: u32) {
     let mut hl = HapticLoop::new(rt, ForceGate::new(hold, 300.0), contact);
     let mut statuses = Vec::new();
     let opts = SenderOptions {
-        seconds: 3.0,
-        pacing: Pacing::AsFastAsPossible,
-        version: LINK_VERSION,
-        stall: None,
         adc_fault: Some(fault),
+        ..SenderOptions::clean(3.0, Pacing::AsFastAsPossible)
     };
     // Presses to 400 N once a second: saturates (≥ 0.99 V_s) above ~248 N.
     let profile = Profile::Press {
