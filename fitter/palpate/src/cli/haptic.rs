@@ -11,7 +11,7 @@ use palpate_link::model_source::{haptic_config, ModelSource};
 use palpate_link::port::{open, FrameReader};
 use palpate_link::stats::{thread_cpu_seconds, Percentiles};
 use palpate_link::{GateDecision, LinkHostError};
-use palpate_protocol::link::{Frame, LINK_VERSION};
+use palpate_protocol::link::Frame;
 use palpate_runtime::SolveStatus;
 use serde_json::json;
 use std::path::PathBuf;
@@ -105,13 +105,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             }
         }
         if lat.is_empty() && t0.elapsed() > Duration::from_secs(2) {
-            if let Some(found) = reader.receiver_mut().peer_version() {
-                return Err(LinkHostError::Version {
-                    path: args.port.clone(),
-                    found,
-                    expected: LINK_VERSION,
-                }
-                .into());
+            if let Some(e) = reader.version_mismatch(&args.port) {
+                return Err(e.into());
             }
         }
     }
