@@ -163,19 +163,25 @@ fn standard_linear_solid_at_three_rates_adopts_viscosity() {
     );
 }
 
-#[test]
-fn linear_data_with_noise_comes_back_clean() {
-    // Tension: three files, F = 0.08 N/mm · Δ + noise (σ = 5 mN), loading and unloading.
-    let dir = tempfile::tempdir().unwrap();
-    let mut noise = Noise::new(7);
+/// Three tension files `{name}0.csv` … `{name}2.csv` of a linear spring: F = 0.08 N/mm · Δ plus
+/// σ = 5 mN noise from `noise`, triangles to 10, 20 and 30 mm at 1 mm/s.
+fn linear_files(dir: &Path, name: &str, noise: &mut Noise) {
     for (i, xm) in [10.0, 20.0, 30.0].into_iter().enumerate() {
         let (t, x) = triangle(xm, 1.0, 10.0);
         let f: Vec<f64> = x
             .iter()
             .map(|&d| 0.08 * d + 0.005 * noise.normal())
             .collect();
-        write_tension(&dir.path().join(format!("lin{i}.csv")), &t, &x, &f);
+        write_tension(&dir.join(format!("{name}{i}.csv")), &t, &x, &f);
     }
+}
+
+#[test]
+fn linear_data_with_noise_comes_back_clean() {
+    // Tension: three files, F = 0.08 N/mm · Δ + noise (σ = 5 mN), loading and unloading.
+    let dir = tempfile::tempdir().unwrap();
+    let mut noise = Noise::new(7);
+    linear_files(dir.path(), "lin", &mut noise);
     let d = run(dir.path());
     assert!(d.adopted.is_empty(), "adopted {:?}", d.adopted);
     // The simplest model is right: fitted RMS ≈ σ (within 15 %, n ≈ 1,200).
@@ -414,14 +420,7 @@ fn a_folder_of_instrument_folders_is_diagnosed_one_by_one() {
     for name in ["strip-a", "strip-b"] {
         let sub = root.path().join(name);
         std::fs::create_dir(&sub).unwrap();
-        for (i, xm) in [10.0, 20.0, 30.0].into_iter().enumerate() {
-            let (t, x) = triangle(xm, 1.0, 10.0);
-            let f: Vec<f64> = x
-                .iter()
-                .map(|&d| 0.08 * d + 0.005 * noise.normal())
-                .collect();
-            std::fs::write(sub.join(format!("run{i}.csv")), tension_csv(&t, &x, &f)).unwrap();
-        }
+        linear_files(&sub, "run", &mut noise);
     }
     std::fs::create_dir(root.path().join("notes")).unwrap();
     let out = tempfile::tempdir().unwrap();
