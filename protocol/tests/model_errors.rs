@@ -15,6 +15,16 @@ fn invalid(what: Invalid) -> Result<(), ModelError> {
     Err(ModelError::InvalidContent { what })
 }
 
+/// What `decode` says of a field it cannot read.
+fn malformed<T>(field: Field, kind: MalformedKind) -> Result<T, ModelError> {
+    Err(ModelError::Malformed { field, kind })
+}
+
+/// What `validate` says of a value that is not a finite number.
+fn non_finite(array: Field, position: u64) -> Result<(), ModelError> {
+    invalid(Invalid::NonFinite { array, position })
+}
+
 /// Decodes the unvalidated encoding of `m` (a well-formed container with a correct CRC) and
 /// checks that `decode`, `validate` and `encode` all report the same content error.
 fn content_error(m: &OwnedModel) -> ModelError {
@@ -28,6 +38,11 @@ fn content_error(m: &OwnedModel) -> ModelError {
         "encode must refuse what decode refuses"
     );
     err
+}
+
+/// One hexahedron (five tetrahedra), global parameters, two sets blended by `blend`.
+fn cube(blend: BlendKind) -> OwnedModel {
+    model_on(&grid_mesh(1, 1, 1, 0.05), ParameterLayout::Global, blend, 2)
 }
 
 fn grid() -> OwnedModel {
@@ -177,39 +192,27 @@ fn malformed_payloads_name_the_field() {
     p[0] = 1;
     assert_eq!(
         decode(&wrap(&p)),
-        Err(ModelError::Malformed {
-            field: Field::Units,
-            kind: MalformedKind::UnknownVariant { found: 1 }
-        })
+        malformed(Field::Units, MalformedKind::UnknownVariant { found: 1 })
     );
     // A provenance string that is not UTF-8 (byte 0xFF inside "palpate").
     let mut p = payload.to_vec();
     p[2] = 0xFF;
     assert_eq!(
         decode(&wrap(&p)),
-        Err(ModelError::Malformed {
-            field: Field::ProvenanceTool,
-            kind: MalformedKind::BadUtf8
-        })
+        malformed(Field::ProvenanceTool, MalformedKind::BadUtf8)
     );
     // Blend discriminant (the last payload byte) 3 does not exist.
     let mut p = payload.to_vec();
     *p.last_mut().unwrap() = 3;
     assert_eq!(
         decode(&wrap(&p)),
-        Err(ModelError::Malformed {
-            field: Field::Blend,
-            kind: MalformedKind::UnknownVariant { found: 3 }
-        })
+        malformed(Field::Blend, MalformedKind::UnknownVariant { found: 3 })
     );
     // Cut inside d_packed (payload offset 0x1f7 − 12 + 100).
     let p = &payload[..0x1f7 - 12 + 100];
     assert_eq!(
         decode(&wrap(p)),
-        Err(ModelError::Malformed {
-            field: Field::DPacked,
-            kind: MalformedKind::UnexpectedEnd
-        })
+        malformed(Field::DPacked, MalformedKind::UnexpectedEnd)
     );
     // node_count as an over-long varint (6 continuation bytes).
     let mut p = payload[..0x2a - 12].to_vec();
@@ -217,10 +220,7 @@ fn malformed_payloads_name_the_field() {
     p.extend_from_slice(&payload[0x2a - 12 + 1..]);
     assert_eq!(
         decode(&wrap(&p)),
-        Err(ModelError::Malformed {
-            field: Field::NodeCount,
-            kind: MalformedKind::BadVarint
-        })
+        malformed(Field::NodeCount, MalformedKind::BadVarint)
     );
     // One byte too many after the record.
     let mut p = payload.to_vec();
@@ -331,57 +331,26 @@ fn non_finite_values_are_located() {
 
     let mut m = grid();
     set_f32(&mut m.d_packed, 78 * 3 + 10, f32::INFINITY);
-    assert_eq!(
-        validate(&m.record()),
-        invalid(Invalid::NonFinite {
-            array: Field::DPacked,
-            position: 244
-        })
-    );
+    assert_eq!(validate(&m.record()), non_finite(Field::DPacked, 244));
 
     let mut m = grid();
     set_f32(&mut m.lambda, 0, f32::NEG_INFINITY);
-    assert_eq!(
-        validate(&m.record()),
-        invalid(Invalid::NonFinite {
-            array: Field::Lambda,
-            position: 0
-        })
-    );
+    assert_eq!(validate(&m.record()), non_finite(Field::Lambda, 0));
 
-    let mut m = model_on(
-        &grid_mesh(1, 1, 1, 0.05),
-        ParameterLayout::Global,
-        BlendKind::Deformation,
-        2,
-    );
+    let mut m = cube(BlendKind::Deformation);
     if let OwnedBlend::Deformation { weights_alpha, .. } = &mut m.blend {
         set_f32(weights_alpha, 1, f32::NAN);
     }
     assert_eq!(
         validate(&m.record()),
-        invalid(Invalid::NonFinite {
-            array: Field::BlendWeightsAlpha,
-            position: 1
-        })
+        non_finite(Field::BlendWeightsAlpha, 1)
     );
 
-    let mut m = model_on(
-        &grid_mesh(1, 1, 1, 0.05),
-        ParameterLayout::Global,
-        BlendKind::Strain,
-        2,
-    );
+    let mut m = cube(BlendKind::Strain);
     if let OwnedBlend::Strain { decay, .. } = &mut m.blend {
         *decay = f32::NAN;
     }
-    assert_eq!(
-        validate(&m.record()),
-        invalid(Invalid::NonFinite {
-            array: Field::StrainDecay,
-            position: 0
-        })
-    );
+    assert_eq!(validate(&m.record()), non_finite(Field::StrainDecay, 0));
     assert_eq!(
         validate(&m.record()).unwrap_err().to_string(),
         "invalid model: blend.decay: not a finite number"
@@ -409,12 +378,7 @@ fn negative_values() {
     set_f32(&mut m.d_packed, 78 * 4 + 63, -1.0);
     assert_eq!(validate(&m.record()), Ok(()));
 
-    let mut m = model_on(
-        &grid_mesh(1, 1, 1, 0.05),
-        ParameterLayout::Global,
-        BlendKind::Strain,
-        2,
-    );
+    let mut m = cube(BlendKind::Strain);
     if let OwnedBlend::Strain { decay, .. } = &mut m.blend {
         *decay = -2.0;
     }
@@ -426,12 +390,7 @@ fn negative_values() {
             value: -2.0
         })
     );
-    let mut m = model_on(
-        &grid_mesh(1, 1, 1, 0.05),
-        ParameterLayout::Global,
-        BlendKind::Strain,
-        2,
-    );
+    let mut m = cube(BlendKind::Strain);
     if let OwnedBlend::Strain {
         neighbour_weight, ..
     } = &mut m.blend
@@ -701,22 +660,12 @@ fn length_errors() {
         }
     );
 
-    let mut m = model_on(
-        &grid_mesh(1, 1, 1, 0.05),
-        ParameterLayout::Global,
-        BlendKind::Strain,
-        2,
-    );
+    let mut m = cube(BlendKind::Strain);
     if let OwnedBlend::Strain { neighbours, .. } = &mut m.blend {
         *neighbours = 0;
     }
     assert_eq!(validate(&m.record()), invalid(Invalid::NoNeighbours));
-    let mut m = model_on(
-        &grid_mesh(1, 1, 1, 0.05),
-        ParameterLayout::Global,
-        BlendKind::Deformation,
-        2,
-    );
+    let mut m = cube(BlendKind::Deformation);
     if let OwnedBlend::Deformation { centres, .. } = &mut m.blend {
         centres.truncate(centres.len() - 12);
     }

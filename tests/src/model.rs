@@ -8,8 +8,10 @@ pub use palpate_fem::export::{BlendData, ModelBuffers};
 use palpate_fem::export::{ModelGeometry, ProvenanceInfo};
 use palpate_fem::forward::Material;
 use palpate_fem::mesh::Mesh;
+pub use palpate_fem::runtime_storage::Storage;
 use palpate_runtime::element::tet_geometry;
 use palpate_runtime::material::LambdaAlpha;
+use palpate_runtime::RuntimeConfig;
 
 /// A model of `mesh` with the nodes of `fixed` fixed, parameter sets `sets` (all global or all
 /// per element) and blend `blend`. Panics on an invalid combination (a test bug).
@@ -47,4 +49,15 @@ pub fn homogeneous(mesh: &Mesh, fixed: &[usize], lambda: f64, alpha: f64) -> Mod
         &[Material::homogeneous(LambdaAlpha { lambda, alpha })],
         &BlendData::None,
     )
+}
+
+/// The solver settings under which an exported model is compared with the fitter's f64 solve:
+/// tolerance 1e-7, up to 5000 PCG iterations, 8 rotation iterations.
+pub fn tight_config() -> RuntimeConfig {
+    RuntimeConfig {
+        tolerance: 1e-7,
+        max_iterations: 5000,
+        rotation_iterations: 8,
+        ..Default::default()
+    }
 }

@@ -19,9 +19,15 @@ fn block() -> (Mesh, Vec<[usize; 3]>, Vec<bool>) {
     (m, tris, fixed)
 }
 
-/// Nodal weights of the consistent rule (summed over a node's triangles).
-fn weights(m: &Mesh, tris: &[[usize; 3]], fixed: &[bool], c: [f64; 3], r: f64) -> Vec<f64> {
-    let mut w = vec![0.0; m.nodes.len()];
+/// The consistent rule on the mesh `m` with surface `tris`, handing each weight to `emit`.
+fn consistent(
+    m: &Mesh,
+    tris: &[[usize; 3]],
+    fixed: &[bool],
+    c: [f64; 3],
+    r: f64,
+    emit: impl FnMut(usize, f64),
+) -> Result<usize, ContactRuleError> {
     contact_weights_consistent(
         c,
         r,
@@ -30,9 +36,14 @@ fn weights(m: &Mesh, tris: &[[usize; 3]], fixed: &[bool], c: [f64; 3], r: f64) -
         tris.len(),
         |k| tris[k],
         |i| fixed[i],
-        |i, x| w[i] += x,
+        emit,
     )
-    .unwrap();
+}
+
+/// Nodal weights of the consistent rule (summed over a node's triangles).
+fn weights(m: &Mesh, tris: &[[usize; 3]], fixed: &[bool], c: [f64; 3], r: f64) -> Vec<f64> {
+    let mut w = vec![0.0; m.nodes.len()];
+    consistent(m, tris, fixed, c, r, |i, x| w[i] += x).unwrap();
     w
 }
 
@@ -163,18 +174,7 @@ fn resultant_acts_at_the_contact_point() {
 #[test]
 fn bad_contacts_are_errors() {
     let (m, tris, fixed) = block();
-    let call = |c: [f64; 3], r: f64| {
-        contact_weights_consistent(
-            c,
-            r,
-            m.nodes.len(),
-            |i| m.nodes[i],
-            tris.len(),
-            |k| tris[k],
-            |i| fixed[i],
-            |_, _| {},
-        )
-    };
+    let call = |c: [f64; 3], r: f64| consistent(&m, &tris, &fixed, c, r, |_, _| {});
     match call([0.05, 0.05, 0.08], 0.01) {
         Err(ContactRuleError::NoNodeInRadius { nearest }) => {
             assert!((nearest - 0.03).abs() < 1e-9, "nearest {nearest}")
@@ -199,8 +199,8 @@ fn bad_contacts_are_errors() {
 #[test]
 fn runtime_consistent_rule_and_predictor() {
     use palpate_runtime::material::LambdaAlpha;
-    use palpate_runtime::{ContactRule, Runtime, RuntimeConfig, SolveStatus, StorageRequirement};
-    use palpate_tests::model;
+    use palpate_runtime::{ContactRule, RuntimeConfig, SolveStatus};
+    use palpate_tests::model::{self, Storage};
     let m = box_mesh([0.1, 0.1, 0.05], [14, 14, 7]);
     let tris = m.boundary_triangles();
     let fixed_list = m.group("bottom").unwrap().to_vec();
@@ -214,9 +214,8 @@ fn runtime_consistent_rule_and_predictor() {
             predictor,
             ..Default::default()
         };
-        let need = StorageRequirement::for_model(&buf.record(), &cfg);
-        let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-        let mut rt = Runtime::new(buf.record(), &mut fs, &mut us, cfg).unwrap();
+        let mut storage = Storage::for_model(&buf.record(), &cfg);
+        let mut rt = storage.runtime(buf.record(), cfg).unwrap();
         let force = [0.0f32, 0.0, -0.5];
         let at = |k: usize| [0.03 + 1e-4 * k as f32, 0.05, 0.05];
         rt.set_contact_force(at(0), force, 0.015).unwrap();

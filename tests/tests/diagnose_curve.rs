@@ -21,6 +21,11 @@ fn tension_csv(t: &[f64], x: &[f64], f: &[f64]) -> String {
     s
 }
 
+/// Writes the tension test `(t, x, f)` to `path`.
+fn write_tension(path: &Path, t: &[f64], x: &[f64], f: &[f64]) {
+    std::fs::write(path, tension_csv(t, x, f)).unwrap();
+}
+
 fn run(dir: &Path) -> CurveDiagnosis {
     let mut v = diagnose_path(dir, &CurveOptions::default(), &mut |m| eprintln!("{m}")).unwrap();
     assert_eq!(v.len(), 1, "one dataset expected");
@@ -65,11 +70,7 @@ fn neo_hookean_tension_adopts_hyperelastic_nonlinearity() {
                 mu * (lam - lam.powi(-2)) + sigma * noise.normal()
             })
             .collect();
-        std::fs::write(
-            dir.path().join(format!("pull{k}.csv")),
-            tension_csv(&t, &x, &f),
-        )
-        .unwrap();
+        write_tension(&dir.path().join(format!("pull{k}.csv")), &t, &x, &f);
     }
     let d = run(dir.path());
     assert!(
@@ -108,24 +109,33 @@ fn sls_force(t: &[f64], x: &[f64], k: f64, beta: f64, tau: f64) -> Vec<f64> {
     f
 }
 
+/// Triangles to 20 mm at 0.5, 1.5 and 4 mm/s on the SLS `(k, β, τ)`, written as
+/// `{name}0.csv` … `{name}2.csv`: the force as `measured` makes it of the model's, plus σ noise.
+fn sls_at_three_rates(
+    dir: &Path,
+    name: &str,
+    (k, beta, tau): (f64, f64, f64),
+    sigma: f64,
+    seed: u64,
+    measured: impl Fn(f64) -> f64,
+) {
+    let mut noise = Noise::new(seed);
+    for (i, rate) in [0.5, 1.5, 4.0].into_iter().enumerate() {
+        let (t, x) = triangle(20.0, rate, 20.0);
+        let f: Vec<f64> = sls_force(&t, &x, k, beta, tau)
+            .into_iter()
+            .map(|v| measured(v) + sigma * noise.normal())
+            .collect();
+        write_tension(&dir.join(format!("{name}{i}.csv")), &t, &x, &f);
+    }
+}
+
 #[test]
 fn standard_linear_solid_at_three_rates_adopts_viscosity() {
     // k = 0.05 N/mm, β = 1, τ = 4 s; triangles to 20 mm at 0.5, 1.5 and 4 mm/s, σ = 5 mN.
     let dir = tempfile::tempdir().unwrap();
     let (k, beta, tau, sigma) = (0.05, 1.0, 4.0, 0.005);
-    let mut noise = Noise::new(42);
-    for (i, rate) in [0.5, 1.5, 4.0].into_iter().enumerate() {
-        let (t, x) = triangle(20.0, rate, 20.0);
-        let f: Vec<f64> = sls_force(&t, &x, k, beta, tau)
-            .into_iter()
-            .map(|v| v + sigma * noise.normal())
-            .collect();
-        std::fs::write(
-            dir.path().join(format!("rate{i}.csv")),
-            tension_csv(&t, &x, &f),
-        )
-        .unwrap();
-    }
+    sls_at_three_rates(dir.path(), "rate", (k, beta, tau), sigma, 42, |v| v);
     let d = run(dir.path());
     assert_eq!(
         d.adopted.first().map(String::as_str),
@@ -153,23 +163,25 @@ fn standard_linear_solid_at_three_rates_adopts_viscosity() {
     );
 }
 
-#[test]
-fn linear_data_with_noise_comes_back_clean() {
-    // Tension: three files, F = 0.08 N/mm · Δ + noise (σ = 5 mN), loading and unloading.
-    let dir = tempfile::tempdir().unwrap();
-    let mut noise = Noise::new(7);
+/// Three tension files `{name}0.csv` … `{name}2.csv` of a linear spring: F = 0.08 N/mm · Δ plus
+/// σ = 5 mN noise from `noise`, triangles to 10, 20 and 30 mm at 1 mm/s.
+fn linear_files(dir: &Path, name: &str, noise: &mut Noise) {
     for (i, xm) in [10.0, 20.0, 30.0].into_iter().enumerate() {
         let (t, x) = triangle(xm, 1.0, 10.0);
         let f: Vec<f64> = x
             .iter()
             .map(|&d| 0.08 * d + 0.005 * noise.normal())
             .collect();
-        std::fs::write(
-            dir.path().join(format!("lin{i}.csv")),
-            tension_csv(&t, &x, &f),
-        )
-        .unwrap();
+        write_tension(&dir.join(format!("{name}{i}.csv")), &t, &x, &f);
     }
+}
+
+#[test]
+fn linear_data_with_noise_comes_back_clean() {
+    // Tension: three files, F = 0.08 N/mm · Δ + noise (σ = 5 mN), loading and unloading.
+    let dir = tempfile::tempdir().unwrap();
+    let mut noise = Noise::new(7);
+    linear_files(dir.path(), "lin", &mut noise);
     let d = run(dir.path());
     assert!(d.adopted.is_empty(), "adopted {:?}", d.adopted);
     // The simplest model is right: fitted RMS ≈ σ (within 15 %, n ≈ 1,200).
@@ -385,19 +397,9 @@ fn viscous_strip_that_buckles_on_unloading_adopts_slack() {
     // is max(F, 0) + noise — the effect the real VHB membrane showed.
     let dir = tempfile::tempdir().unwrap();
     let (k, beta, tau, sigma) = (0.05, 2.0, 10.0, 0.005);
-    let mut noise = Noise::new(5);
-    for (i, rate) in [0.5, 1.5, 4.0].into_iter().enumerate() {
-        let (t, x) = triangle(20.0, rate, 20.0);
-        let f: Vec<f64> = sls_force(&t, &x, k, beta, tau)
-            .into_iter()
-            .map(|v| v.max(0.0) + sigma * noise.normal())
-            .collect();
-        std::fs::write(
-            dir.path().join(format!("strip{i}.csv")),
-            tension_csv(&t, &x, &f),
-        )
-        .unwrap();
-    }
+    sls_at_three_rates(dir.path(), "strip", (k, beta, tau), sigma, 5, |v| {
+        v.max(0.0)
+    });
     let d = run(dir.path());
     assert!(
         d.adopted.iter().any(|a| a == "slack") && d.adopted.iter().any(|a| a == "viscosity"),
@@ -418,14 +420,7 @@ fn a_folder_of_instrument_folders_is_diagnosed_one_by_one() {
     for name in ["strip-a", "strip-b"] {
         let sub = root.path().join(name);
         std::fs::create_dir(&sub).unwrap();
-        for (i, xm) in [10.0, 20.0, 30.0].into_iter().enumerate() {
-            let (t, x) = triangle(xm, 1.0, 10.0);
-            let f: Vec<f64> = x
-                .iter()
-                .map(|&d| 0.08 * d + 0.005 * noise.normal())
-                .collect();
-            std::fs::write(sub.join(format!("run{i}.csv")), tension_csv(&t, &x, &f)).unwrap();
-        }
+        linear_files(&sub, "run", &mut noise);
     }
     std::fs::create_dir(root.path().join("notes")).unwrap();
     let out = tempfile::tempdir().unwrap();

@@ -10,7 +10,7 @@
 use palpate_diagnose::export::runtime_fit;
 use palpate_diagnose::model::Candidate;
 use palpate_diagnose::{run_diagnosis, DiagnoseOptions, MeshChoice};
-use palpate_specimen::{generate, Effect, EffectSpec, SpecimenOptions};
+use palpate_specimen::{generate, Effect, SpecimenOptions};
 
 fn diagnose(effect: Option<Effect>, seed: u64) -> palpate_diagnose::DiagnosisReport {
     // One adoption round is what these tests assert on (the first effect named and the error
@@ -24,20 +24,7 @@ fn diagnose(effect: Option<Effect>, seed: u64) -> palpate_diagnose::DiagnosisRep
         mesh: MeshChoice::Dataset,
         ..Default::default()
     };
-    let effects = effect
-        .map(|e| {
-            vec![EffectSpec {
-                effect: e,
-                magnitude: e.default_magnitude(),
-            }]
-        })
-        .unwrap_or_default();
-    let s = generate(&SpecimenOptions {
-        seed,
-        effects,
-        ..Default::default()
-    })
-    .expect("specimen");
+    let s = generate(&SpecimenOptions::with_effect(effect, seed)).expect("specimen");
     let r = run_diagnosis(&s.dataset, &o).expect("diagnosis");
     eprintln!(
         "{effect:?} seed {seed}: adopted {:?}; RMS {:.1} → {:.1} µm (held out {:.1} → {:.1}); floor {:.1} µm; {:.1} s",

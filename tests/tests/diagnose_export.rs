@@ -9,8 +9,8 @@ use palpate_diagnose::export::runtime_material;
 use palpate_diagnose::model::{s_of, Candidate, Context, Model};
 use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
 use palpate_fem::forward::Load;
-use palpate_runtime::{Runtime, RuntimeConfig, StorageRequirement};
 use palpate_specimen::{generate, SpecimenOptions};
+use palpate_tests::model::{tight_config, Storage};
 
 #[test]
 fn stiffening_model_exports_as_strain_blend_and_replays() {
@@ -45,15 +45,9 @@ fn stiffening_model_exports_as_strain_blend_and_replays() {
     .expect("buffers");
     let bytes = buffers.encode().expect("encode");
     let record = palpate_protocol::model::decode(&bytes).expect("decode");
-    let cfg = RuntimeConfig {
-        tolerance: 1e-7,
-        max_iterations: 5000,
-        rotation_iterations: 8,
-        ..Default::default()
-    };
-    let need = StorageRequirement::for_model(&record, &cfg);
-    let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let mut rt = Runtime::new(record, &mut fs, &mut us, cfg).expect("runtime");
+    let cfg = tight_config();
+    let mut storage = Storage::for_model(&record, &cfg);
+    let mut rt = storage.runtime(record, cfg).expect("runtime");
     let x0 = &ctx.problem.x0;
     let (mut worst, mut nonlinearity, mut largest) = (0.0f64, 0.0f64, 0.0f64);
     for &i in &all {

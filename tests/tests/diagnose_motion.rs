@@ -10,12 +10,11 @@
 use palpate_diagnose::motion::{diagnose, MotionDiagnosis, MotionOptions};
 use palpate_motion::dataset::{DatasetToml, Initial, MotionDataset};
 use palpate_motion::model::{Material, Model};
-use palpate_motion::scenario::{bar_model, nine_markers, record, two_sinusoids};
+use palpate_motion::scenario::{nine_markers, record, two_sinusoids};
+use palpate_tests::motion::{bar, DT, SIZE};
 use std::fmt::Write as _;
 
 const SIGMA: f64 = 1e-4;
-const SIZE: [f64; 3] = [0.02, 0.08, 0.02];
-const DT: f64 = 1.0 / 180.0;
 const STEPS: usize = 45;
 
 fn truth(model: &Model, nu: f64) -> Material {
@@ -24,15 +23,7 @@ fn truth(model: &Model, nu: f64) -> Material {
 
 /// Truth λ = 1e4, μ = 2e4 Pa, h = 1, ρ = 47 kg/m³ and viscosity `nu` (Pa s).
 fn specimen(nu: f64, seed: u64) -> MotionDataset {
-    let (mesh, model) = bar_model(
-        SIZE,
-        [1, 4, 1],
-        DT,
-        STEPS,
-        &two_sinusoids,
-        &nine_markers(SIZE),
-    )
-    .unwrap();
+    let (mesh, model) = bar([1, 4, 1], STEPS);
     let mut obs = record(&model, &truth(&model, nu), SIGMA, seed).unwrap();
     // Markers only, like the example dataset (no load cell).
     obs.forces
@@ -157,15 +148,7 @@ fn elastic_specimen_comes_back_clean() {
 /// measured values for solver-level changes.
 #[test]
 fn viscosity_signal_against_the_noise_floor() {
-    let (_, model) = bar_model(
-        SIZE,
-        [1, 4, 1],
-        DT,
-        STEPS,
-        &two_sinusoids,
-        &nine_markers(SIZE),
-    )
-    .unwrap();
+    let (_, model) = bar([1, 4, 1], STEPS);
     let clean = |nu: f64| record(&model, &truth(&model, nu), 0.0, 1).unwrap();
     let base = clean(0.0);
     let signal = |nu: f64| {

@@ -9,23 +9,10 @@ use palpate_diagnose::fit::{fit, initial_theta};
 use palpate_diagnose::model::{Context, Model};
 use palpate_diagnose::noise::{estimate_noise, Field, NoiseOptions};
 use palpate_diagnose::signature::residual_vectors;
-use palpate_specimen::{generate, Effect, EffectSpec, SpecimenOptions};
+use palpate_specimen::{generate, Effect, SpecimenOptions};
 
 fn nugget(effect: Option<Effect>, seed: u64) -> palpate_diagnose::noise::NoiseFinding {
-    let effects = effect
-        .map(|e| {
-            vec![EffectSpec {
-                effect: e,
-                magnitude: e.default_magnitude(),
-            }]
-        })
-        .unwrap_or_default();
-    let s = generate(&SpecimenOptions {
-        seed,
-        effects,
-        ..Default::default()
-    })
-    .expect("specimen");
+    let s = generate(&SpecimenOptions::with_effect(effect, seed)).expect("specimen");
     let ctx = Context::new(&s.dataset, [2, 2, 2]).expect("context");
     let all: Vec<usize> = (0..ctx.meas.len()).collect();
     let (t0, s0) = initial_theta(&ctx, &all).expect("start");

@@ -13,41 +13,9 @@ use palpate_link::haptic::{Contact, HapticLoop};
 use palpate_protocol::link::codec::encode;
 use palpate_protocol::link::{ForceSample, Frame, Receiver, MAX_FRAME_ENCODED};
 use palpate_runtime::material::LambdaAlpha;
-use palpate_runtime::{Runtime, RuntimeConfig, SolveStatus, StorageRequirement};
-use palpate_tests::model;
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-use std::sync::atomic::{AtomicUsize, Ordering};
-
-struct Counting;
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
-std::thread_local! {
-    static WATCHED: Cell<bool> = const { Cell::new(false) };
-}
-
-fn count() {
-    if WATCHED.with(|w| w.get()) {
-        ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
-    }
-}
-
-#[allow(unsafe_code)]
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        count();
-        // SAFETY: forwards to the system allocator with the caller's layout.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: ptr was allocated by System.alloc with this layout.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        count();
-        // SAFETY: forwards to the system allocator.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
+use palpate_runtime::{RuntimeConfig, SolveStatus};
+use palpate_tests::alloc_watch::{self, Counting};
+use palpate_tests::model::{self, Storage};
 
 #[global_allocator]
 static GLOBAL: Counting = Counting;
@@ -89,9 +57,8 @@ fn millions_of_samples_through_link_and_runtime_in_fixed_memory() {
         ..Default::default()
     };
     let rec = buf.record();
-    let need = StorageRequirement::for_model(&rec, &cfg);
-    let (mut f, mut u) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let rt = Runtime::new(rec, &mut f, &mut u, cfg).unwrap();
+    let mut storage = Storage::for_model(&rec, &cfg);
+    let rt = storage.runtime(rec, cfg).unwrap();
     const MAX_FORCE: f32 = 100.0;
     let mut hl = HapticLoop::new(
         rt,
@@ -116,7 +83,7 @@ fn millions_of_samples_through_link_and_runtime_in_fixed_memory() {
         if k == 10_000 {
             // Warmed up: from here on the solving thread must not allocate.
             rss_after_warmup = rss_bytes();
-            WATCHED.with(|w| w.set(true));
+            alloc_watch::watch(true);
         }
         let r = stream.uniform();
         let force_n = match (stream.next() % 1000) as u32 {
@@ -186,9 +153,9 @@ fn millions_of_samples_through_link_and_runtime_in_fixed_memory() {
             max_u = max_u.max(um);
         }
     }
-    WATCHED.with(|w| w.set(false));
+    alloc_watch::watch(false);
     let seconds = t0.elapsed().as_secs_f64();
-    let allocations = ALLOCATIONS.load(Ordering::SeqCst);
+    let allocations = alloc_watch::allocations();
     let st = *rx.stats();
     let rss_end = rss_bytes();
     eprintln!(

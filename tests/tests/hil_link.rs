@@ -6,7 +6,7 @@ use palpate_link::sender::{Pacing, SenderOptions, Stall};
 use palpate_link::Percentiles;
 use palpate_probe::sim::{default_config, Profile};
 use palpate_protocol::link::{status, ErrorCode, ErrorReport, Frame, LINK_VERSION};
-use palpate_tests::hil::{assert_link_invariants, run_link, Unplug};
+use palpate_tests::hil::{assert_link_invariants, run_link, HilRun, Unplug};
 use std::time::Duration;
 
 /// A 0.5 Hz sine between 1 and 9 N: inside the FSR 402 calibration's usable range.
@@ -17,13 +17,7 @@ const PROFILE: Profile = Profile::Sine {
 };
 
 fn fast(seconds: f64) -> SenderOptions {
-    SenderOptions {
-        seconds,
-        pacing: Pacing::AsFastAsPossible,
-        version: LINK_VERSION,
-        stall: None,
-        adc_fault: None,
-    }
+    SenderOptions::clean(seconds, Pacing::AsFastAsPossible)
 }
 
 /// Faults from write 50 to write (total − 50): the link comes up clean and ends clean.
@@ -35,19 +29,29 @@ fn window(plan: FaultPlan, seconds: f64) -> FaultPlan {
     }
 }
 
+/// The link with the default probe configuration, [`PROFILE`] and ±2 counts of noise.
+fn link(opts: SenderOptions, plan: FaultPlan, seed: u64, unplug: Option<Unplug>) -> HilRun {
+    run_link(
+        default_config(),
+        PROFILE,
+        2,
+        opts,
+        plan,
+        seed,
+        unplug,
+        |_| {},
+    )
+}
+
+/// `seconds` as fast as possible with the faults of `plan` inside its [`window`].
+fn faulty(plan: FaultPlan, seconds: f64, seed: u64) -> HilRun {
+    link(fast(seconds), window(plan, seconds), seed, None)
+}
+
 #[test]
 fn clean_link_delivers_ten_simulated_seconds_at_1khz_in_order_and_on_profile() {
     let cfg = default_config();
-    let run = run_link(
-        cfg,
-        PROFILE,
-        2,
-        fast(10.0),
-        FaultPlan::default(),
-        1,
-        None,
-        |_| {},
-    );
+    let run = link(fast(10.0), FaultPlan::default(), 1, None);
     assert_link_invariants(&run);
     assert_eq!(run.delivered.len(), 10_000);
     assert_eq!(run.stats.rejected(), 0);
@@ -94,23 +98,8 @@ fn real_time_segment_records_write_to_arrival_latency() {
     // One real second at 1 kHz: the bytes pace at the true rate, so arrival − write is the
     // link's latency (pty + reader wake-up). Recorded, not asserted against a time budget
     // (timing belongs to `palpate-lab bench link`); asserted: nothing lost, latencies positive.
-    let opts = SenderOptions {
-        seconds: 1.0,
-        pacing: Pacing::RealTime,
-        version: LINK_VERSION,
-        stall: None,
-        adc_fault: None,
-    };
-    let run = run_link(
-        default_config(),
-        PROFILE,
-        2,
-        opts,
-        FaultPlan::default(),
-        2,
-        None,
-        |_| {},
-    );
+    let opts = SenderOptions::clean(1.0, Pacing::RealTime);
+    let run = link(opts, FaultPlan::default(), 2, None);
     assert_link_invariants(&run);
     assert_eq!(run.stats.missing_samples, 0);
     let mut lat: Vec<f64> = run
@@ -132,22 +121,13 @@ fn real_time_segment_records_write_to_arrival_latency() {
 
 #[test]
 fn one_percent_byte_corruption_never_delivers_a_bad_frame_and_counts_every_loss() {
-    let plan = window(
+    let run = faulty(
         FaultPlan {
             corrupt: 0.01,
             ..Default::default()
         },
         10.0,
-    );
-    let run = run_link(
-        default_config(),
-        PROFILE,
-        2,
-        fast(10.0),
-        plan,
         3,
-        None,
-        |_| {},
     );
     assert_link_invariants(&run);
     // ~26 bytes per frame at 1 %: about a fifth of the frames are hit.
@@ -165,22 +145,13 @@ fn one_percent_byte_corruption_never_delivers_a_bad_frame_and_counts_every_loss(
 
 #[test]
 fn dropped_bytes_are_counted_as_losses_and_never_misdelivered() {
-    let plan = window(
+    let run = faulty(
         FaultPlan {
             drop: 0.005,
             ..Default::default()
         },
         5.0,
-    );
-    let run = run_link(
-        default_config(),
-        PROFILE,
-        2,
-        fast(5.0),
-        plan,
         4,
-        None,
-        |_| {},
     );
     assert_link_invariants(&run);
     assert!(run.faults.dropped > 300, "{:?}", run.faults);
@@ -192,23 +163,14 @@ fn dropped_bytes_are_counted_as_losses_and_never_misdelivered() {
 fn garbage_bursts_cost_at_most_the_frame_they_hit() {
     // 40 random bytes before every 25th frame: the receiver resynchronises at the frame's own
     // delimiter, so each burst costs at most that one frame (recovery bound: 1 frame).
-    let plan = window(
+    let run = faulty(
         FaultPlan {
             burst_every: 25,
             burst_len: 40,
             ..Default::default()
         },
         5.0,
-    );
-    let run = run_link(
-        default_config(),
-        PROFILE,
-        2,
-        fast(5.0),
-        plan,
         5,
-        None,
-        |_| {},
     );
     assert_link_invariants(&run);
     assert!(run.faults.bursts >= 190, "{:?}", run.faults);
@@ -230,16 +192,7 @@ fn a_stalled_sender_shows_up_as_an_exact_gap_and_an_overrun_report() {
         }),
         ..fast(4.0)
     };
-    let run = run_link(
-        default_config(),
-        PROFILE,
-        2,
-        opts,
-        FaultPlan::default(),
-        6,
-        None,
-        |_| {},
-    );
+    let run = link(opts, FaultPlan::default(), 6, None);
     assert_link_invariants(&run);
     // 250 ms at 1 kHz: the slots 2000 … 2249 were never sampled.
     assert_eq!(run.stats.missing_samples, 250);
@@ -259,27 +212,12 @@ fn a_stalled_sender_shows_up_as_an_exact_gap_and_an_overrun_report() {
 #[test]
 fn unplug_and_replug_loses_only_what_was_sent_while_away_and_counts_it() {
     // Real-time pacing so the unplug lasts a known 30 ms of the 2 s stream.
-    let opts = SenderOptions {
-        seconds: 2.0,
-        pacing: Pacing::RealTime,
-        version: LINK_VERSION,
-        stall: None,
-        adc_fault: None,
-    };
+    let opts = SenderOptions::clean(2.0, Pacing::RealTime);
     let unplug = Unplug {
         after_samples: 500,
         away: Duration::from_millis(30),
     };
-    let run = run_link(
-        default_config(),
-        PROFILE,
-        2,
-        opts,
-        FaultPlan::default(),
-        7,
-        Some(unplug),
-        |_| {},
-    );
+    let run = link(opts, FaultPlan::default(), 7, Some(unplug));
     assert_link_invariants(&run);
     assert!(
         run.delivered_after_reopen > 1000,
@@ -305,16 +243,7 @@ fn a_probe_speaking_another_protocol_version_is_refused_entirely() {
         version: LINK_VERSION + 1,
         ..fast(0.5)
     };
-    let run = run_link(
-        default_config(),
-        PROFILE,
-        2,
-        opts,
-        FaultPlan::default(),
-        8,
-        None,
-        |_| {},
-    );
+    let run = link(opts, FaultPlan::default(), 8, None);
     assert!(run.delivered.is_empty() && run.other.is_empty());
     assert_eq!(run.stats.rejected_version, run.sent.frames_written);
     assert_eq!(run.stats.rejected(), run.stats.rejected_version);

@@ -9,10 +9,11 @@ use palpate_link::gate::ForceGate;
 use palpate_link::haptic::{Contact, HapticLoop};
 use palpate_link::sender::{AdcFault, AdcFaultKind, Pacing, SenderOptions};
 use palpate_probe::sim::{default_config, Profile};
-use palpate_protocol::link::{status, LINK_VERSION};
+use palpate_protocol::link::status;
 use palpate_runtime::material::LambdaAlpha;
-use palpate_runtime::{Runtime, RuntimeConfig, SolveStatus, StorageRequirement};
+use palpate_runtime::{RuntimeConfig, SolveStatus};
 use palpate_tests::hil::{assert_link_invariants, run_link};
+use palpate_tests::model::Storage;
 use std::collections::HashMap;
 
 fn run(fault: AdcFault, hold: u32) {
@@ -24,9 +25,8 @@ fn run(fault: AdcFault, hold: u32) {
         max_iterations: 200,
         ..Default::default()
     };
-    let need = StorageRequirement::for_model(&rec, &cfg);
-    let (mut f, mut u) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let rt = Runtime::new(rec, &mut f, &mut u, cfg).unwrap();
+    let mut storage = Storage::for_model(&rec, &cfg);
+    let rt = storage.runtime(rec, cfg).unwrap();
     let contact = Contact {
         point: [0.05, 0.05, 0.05],
         direction: [0.0, 0.0, -1.0],
@@ -37,11 +37,8 @@ fn run(fault: AdcFault, hold: u32) {
     let mut hl = HapticLoop::new(rt, ForceGate::new(hold, 300.0), contact);
     let mut statuses = Vec::new();
     let opts = SenderOptions {
-        seconds: 3.0,
-        pacing: Pacing::AsFastAsPossible,
-        version: LINK_VERSION,
-        stall: None,
         adc_fault: Some(fault),
+        ..SenderOptions::clean(3.0, Pacing::AsFastAsPossible)
     };
     // Presses to 400 N once a second: saturates (≥ 0.99 V_s) above ~248 N.
     let profile = Profile::Press {

@@ -7,9 +7,10 @@ use palpate_fem::forward::{Load, SolveOptions, StaticProblem};
 use palpate_motion::export::{clamp_nodes, model_buffers, runtime_parameters};
 use palpate_motion::model::{Material, Param, ParamKind};
 use palpate_motion::optimize::{fit, FitSettings};
-use palpate_motion::scenario::{bar_model, nine_markers, record, two_sinusoids};
+use palpate_motion::scenario::record;
 use palpate_runtime::material::LambdaAlpha;
-use palpate_runtime::{Runtime, RuntimeConfig, StorageRequirement};
+use palpate_tests::model::{tight_config, Storage};
+use palpate_tests::motion::{bar, truth};
 
 /// (λ_L, μ) → (λ, α) → (λ_L, μ): α = λ_L and μ = λ/2 − α. Two additions and a halving, so
 /// the round trip is exact to a few ulps: 1e-12 relative over seven orders of magnitude and
@@ -39,23 +40,10 @@ fn lame_to_thesis_round_trip_is_exact() {
 fn motion_fit_export_loads_and_matches_the_static_solve() {
     // A short motion fit (μ from a 2× wrong start, 24-tet bar, 30 steps) — the export path is
     // what is tested, the fit only has to be a real one.
-    let size = [0.02, 0.08, 0.02];
-    let (mesh, model) = bar_model(
-        size,
-        [2, 6, 2],
-        1.0 / 180.0,
-        30,
-        &two_sinusoids,
-        &nine_markers(size),
-    )
-    .unwrap();
-    let ne = model.tets.len();
-    let truth = Material::uniform(ne, 1.0e4, 2.0e4, 12.0, 1.0, 47.0);
+    let (mesh, model) = bar([2, 6, 2], 30);
+    let truth = truth(&model);
     let obs = record(&model, &truth, 0.0, 1).unwrap();
-    let params = [Param {
-        kind: ParamKind::Mu,
-        element: None,
-    }];
+    let params = [Param::global(ParamKind::Mu)];
     let r = fit(
         &model,
         &truth,
@@ -93,15 +81,9 @@ fn motion_fit_export_loads_and_matches_the_static_solve() {
     assert_eq!(record.fixed_nodes.len(), fixed.len());
 
     // The runtime, loaded from the exported bytes.
-    let cfg = RuntimeConfig {
-        tolerance: 1e-7,
-        max_iterations: 5000,
-        rotation_iterations: 8,
-        ..Default::default()
-    };
-    let need = StorageRequirement::for_model(&record, &cfg);
-    let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let mut rt = Runtime::new(record, &mut fs, &mut us, cfg).unwrap();
+    let cfg = tight_config();
+    let mut storage = Storage::for_model(&record, &cfg);
+    let mut rt = storage.runtime(record, cfg).unwrap();
     // A small sideways push on the free end: 5 mN over a 1 cm radius (≈ 1 mm tip deflection).
     let point = [0.01, 0.08, 0.01];
     let force = [5e-3, 0.0, 0.0];

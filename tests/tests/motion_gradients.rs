@@ -2,9 +2,9 @@
 //! other and with central finite differences for every parameter type, with marker and force
 //! observations, from an elastostatic start.
 
-use palpate_motion::gradient::{evaluate, Method};
 use palpate_motion::model::{MassKind, Material, Param, ParamKind};
-use palpate_motion::scenario::{bar_model, nine_markers, record};
+use palpate_motion::scenario::record;
+use palpate_tests::motion::{assert_gradients_agree, bar, truth};
 
 fn setup(
     mass: MassKind,
@@ -13,24 +13,14 @@ fn setup(
     Material,
     palpate_motion::model::Observations,
 ) {
-    let size = [0.02, 0.08, 0.02];
-    let (_, mut model) = bar_model(
-        size,
-        [1, 4, 1],
-        1.0 / 180.0,
-        24,
-        &|t| palpate_motion::scenario::two_sinusoids(t),
-        &nine_markers(size),
-    )
-    .unwrap();
+    let (_, mut model) = bar([1, 4, 1], 24);
     model.mass = mass;
     // Tight Newton tolerance so the discrete equations hold to round-off: the gradients assume
     // R(v) = 0 exactly, and FD of a loosely converged simulation is noisier than the check.
     model.newton.tol = 1e-11;
     model.newton.max_iter = 50;
     let ne = model.tets.len();
-    let truth = Material::uniform(ne, 1.0e4, 2.0e4, 12.0, 1.0, 47.0);
-    let obs = record(&model, &truth, 0.0, 1).unwrap();
+    let obs = record(&model, &truth(&model), 0.0, 1).unwrap();
     // Evaluate away from the truth, with a non-Newtonian index so ∂/∂h is non-trivial, and
     // per-element variation so per-element derivatives differ between elements.
     let mut mat = Material::uniform(ne, 1.6e4, 1.3e4, 7.0, 0.85, 60.0);
@@ -49,57 +39,18 @@ fn check(params: &[Param], mass: MassKind, use_forces: bool) {
     } else {
         obs.force_weight = 1e3; // make the force term comparable to the marker term
     }
-    let ad = evaluate(&model, &mat, params, &obs, Some(Method::Adjoint)).unwrap();
-    let di = evaluate(&model, &mat, params, &obs, Some(Method::Direct)).unwrap();
-    let (ga, gd) = (ad.grad.unwrap(), di.grad.unwrap());
-    assert!((ad.phi - di.phi).abs() <= 1e-14 * ad.phi.abs());
-    let scale = ga.iter().fold(0.0f64, |m, g| m.max(g.abs()));
-    for (p, par) in params.iter().enumerate() {
-        let q0 = mat.read(&[*par])[0];
-        let h = 1e-5 * q0;
-        let phi = |q: f64| {
-            let mut m = mat.clone();
-            m.set(&[*par], &[q]);
-            evaluate(&model, &m, params, &obs, None).unwrap().phi
-        };
-        let fd = (phi(q0 + h) - phi(q0 - h)) / (2.0 * h);
-        // Adjoint vs direct: same discrete derivative, different order of operations.
-        assert!(
-            (ga[p] - gd[p]).abs() <= 1e-8 * scale.max(ga[p].abs()),
-            "{par:?}: adjoint {} direct {}",
-            ga[p],
-            gd[p]
-        );
-        // Analytic vs FD: relative 1e-4 of the largest component (FD truncation + Newton noise).
-        assert!(
-            (ga[p] - fd).abs() <= 1e-4 * scale.max(fd.abs()),
-            "{par:?}: adjoint {} vs finite difference {fd} (scale {scale})",
-            ga[p]
-        );
-    }
+    assert_gradients_agree(&model, &mat, params, &obs, |_, q0| 1e-5 * q0);
 }
 
 #[test]
 fn global_parameters_markers_lumped() {
-    let params: Vec<Param> = ParamKind::ALL
-        .iter()
-        .map(|&kind| Param {
-            kind,
-            element: None,
-        })
-        .collect();
+    let params = Param::globals(&ParamKind::ALL);
     check(&params, MassKind::Lumped, false);
 }
 
 #[test]
 fn global_parameters_markers_and_forces_consistent_mass() {
-    let params: Vec<Param> = ParamKind::ALL
-        .iter()
-        .map(|&kind| Param {
-            kind,
-            element: None,
-        })
-        .collect();
+    let params = Param::globals(&ParamKind::ALL);
     check(&params, MassKind::Consistent, true);
 }
 

@@ -4,11 +4,11 @@
 
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use palpate_motion::elastic::ElasticState;
-use palpate_motion::gradient::{evaluate, Method};
 use palpate_motion::hyperelastic::{self as he, RestTet};
 use palpate_motion::model::{Material, Param, ParamKind};
-use palpate_motion::scenario::{bar_model, nine_markers, record, two_sinusoids};
+use palpate_motion::scenario::record;
 use palpate_motion::spline::{Response, Spline, SplineMaterial};
+use palpate_tests::motion::{assert_gradients_agree, bar};
 
 const LAMBDA: f64 = 1.0e4;
 const MU: f64 = 2.0e4;
@@ -199,16 +199,7 @@ fn slope_penalty_gradient_matches_finite_differences() {
 /// start, from a perturbed (non-Neo-Hookean) spline against Neo-Hookean data.
 #[test]
 fn control_value_gradients_direct_adjoint_and_fd_agree() {
-    let size = [0.02, 0.08, 0.02];
-    let (_, mut model) = bar_model(
-        size,
-        [1, 4, 1],
-        1.0 / 180.0,
-        24,
-        &two_sinusoids,
-        &nine_markers(size),
-    )
-    .unwrap();
+    let (_, mut model) = bar([1, 4, 1], 24);
     model.newton.tol = 1e-11;
     model.newton.max_iter = 50;
     let ne = model.tets.len();
@@ -236,40 +227,16 @@ fn control_value_gradients_direct_adjoint_and_fd_agree() {
         kind: ParamKind::Nu,
         element: None,
     });
-    let ad = evaluate(&model, &mat, &params, &obs, Some(Method::Adjoint)).unwrap();
-    let di = evaluate(&model, &mat, &params, &obs, Some(Method::Direct)).unwrap();
-    let (ga, gd) = (ad.grad.unwrap(), di.grad.unwrap());
-    let scale = ga.iter().fold(0.0f64, |m, g| m.max(g.abs()));
-    assert!(scale > 0.0);
-    let mut nonzero = 0;
-    for (p, par) in params.iter().enumerate() {
-        let q0 = mat.read(&[*par])[0];
-        let h = if par.kind.is_spline() {
+    let step = |par: &Param, q0: f64| {
+        if par.kind.is_spline() {
             1e-5 * MU
         } else {
             1e-5 * q0
-        };
-        let phi = |q: f64| {
-            let mut m = mat.clone();
-            m.set(&[*par], &[q]);
-            evaluate(&model, &m, &params, &obs, None).unwrap().phi
-        };
-        let fd = (phi(q0 + h) - phi(q0 - h)) / (2.0 * h);
-        assert!(
-            (ga[p] - gd[p]).abs() <= 1e-8 * scale.max(ga[p].abs()),
-            "{par:?}: adjoint {} direct {}",
-            ga[p],
-            gd[p]
-        );
-        assert!(
-            (ga[p] - fd).abs() <= 1e-4 * scale.max(fd.abs()),
-            "{par:?}: adjoint {} vs FD {fd} (scale {scale})",
-            ga[p]
-        );
-        if ga[p].abs() > 1e-3 * scale {
-            nonzero += 1;
         }
-    }
+    };
+    let (ga, scale) = assert_gradients_agree(&model, &mat, &params, &obs, step);
+    assert!(scale > 0.0);
+    let nonzero = ga.iter().filter(|g| g.abs() > 1e-3 * scale).count();
     // The motion stays near rest, so only controls near stretch 1 and J = 1 matter; at least
     // the two or three around 1 of each spline must carry gradient.
     assert!(nonzero >= 4, "only {nonzero} control values carry gradient");

@@ -8,7 +8,8 @@ use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_protocol::model::{validate_node_coverage, Invalid, ModelError};
 use palpate_runtime::element::tet_geometry;
 use palpate_runtime::material::LambdaAlpha;
-use palpate_runtime::{Runtime, RuntimeConfig, RuntimeError, StorageRequirement};
+use palpate_runtime::{RuntimeConfig, RuntimeError};
+use palpate_tests::model::Storage;
 use palpate_tests::model::{self, BlendData};
 
 #[test]
@@ -34,9 +35,8 @@ fn runtime_new_rejects_an_orphan_free_node() {
     );
     // … and the runtime reports the same error instead of building a singular system.
     let cfg = RuntimeConfig::default();
-    let need = StorageRequirement::for_model(&buf.record(), &cfg);
-    let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    match Runtime::new(buf.record(), &mut fs, &mut us, cfg) {
+    let mut storage = Storage::for_model(&buf.record(), &cfg);
+    match storage.runtime(buf.record(), cfg) {
         Err(e) => assert_eq!(e, RuntimeError::InvalidModel(expected)),
         Ok(_) => panic!("a model with an orphan free node was accepted"),
     }
@@ -93,9 +93,8 @@ fn strain_blending_without_warping_follows_the_linear_strain() {
         max_iterations: 2000,
         ..Default::default()
     };
-    let need = StorageRequirement::for_model(&buf.record(), &cfg);
-    let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let mut rt = Runtime::new(buf.record(), &mut fs, &mut us, cfg).unwrap();
+    let mut storage = Storage::for_model(&buf.record(), &cfg);
+    let mut rt = storage.runtime(buf.record(), cfg).unwrap();
 
     let u: Vec<f32> = (0..n)
         .flat_map(|i| {

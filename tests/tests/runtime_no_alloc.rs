@@ -7,43 +7,9 @@
 
 use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_runtime::material::LambdaAlpha;
-use palpate_runtime::{ContactRule, Probe, Runtime, RuntimeConfig, StorageRequirement};
-use palpate_tests::model;
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-use std::sync::atomic::{AtomicUsize, Ordering};
-
-struct Counting;
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
-std::thread_local! {
-    /// Set on the ticking thread while it is watched (const-initialised: reading it from the
-    /// allocator never allocates).
-    static WATCHED: Cell<bool> = const { Cell::new(false) };
-}
-
-fn count() {
-    if WATCHED.with(|w| w.get()) {
-        ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
-    }
-}
-
-#[allow(unsafe_code)]
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        count();
-        // SAFETY: forwards to the system allocator with the caller's layout.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: ptr was allocated by System.alloc with this layout.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        count();
-        // SAFETY: forwards to the system allocator.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
+use palpate_runtime::{ContactRule, Probe, RuntimeConfig};
+use palpate_tests::alloc_watch::{self, Counting};
+use palpate_tests::model::{self, Storage};
 
 #[global_allocator]
 static GLOBAL: Counting = Counting;
@@ -55,11 +21,11 @@ fn thousands_of_ticks_allocate_nothing() {
     let p = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
     let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
     // The watch works: a Vec made on this thread while watched is counted.
-    WATCHED.with(|w| w.set(true));
+    alloc_watch::watch(true);
     let probe: Vec<u8> = std::hint::black_box(Vec::with_capacity(16));
-    WATCHED.with(|w| w.set(false));
+    alloc_watch::watch(false);
     drop(probe);
-    assert_eq!(ALLOCATIONS.swap(0, Ordering::SeqCst), 1);
+    assert_eq!(alloc_watch::take_allocations(), 1);
     // Both force-driven contact rules (the consistent one integrates rim triangles every tick).
     for rule in [ContactRule::Lumped, ContactRule::Consistent] {
         let cfg = RuntimeConfig {
@@ -68,11 +34,10 @@ fn thousands_of_ticks_allocate_nothing() {
             contact_rule: rule,
             ..Default::default()
         };
-        let need = StorageRequirement::for_model(&buf.record(), &cfg);
-        let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-        let mut rt = Runtime::new(buf.record(), &mut fs, &mut us, cfg).unwrap();
-        let before = ALLOCATIONS.load(Ordering::SeqCst);
-        WATCHED.with(|w| w.set(true));
+        let mut storage = Storage::for_model(&buf.record(), &cfg);
+        let mut rt = storage.runtime(buf.record(), cfg).unwrap();
+        let before = alloc_watch::allocations();
+        alloc_watch::watch(true);
         let mut solved = 0;
         for k in 0..3000 {
             let s = k as f32 / 3000.0;
@@ -92,8 +57,8 @@ fn thousands_of_ticks_allocate_nothing() {
             let rep = rt.tick();
             solved += rep.iterations;
         }
-        WATCHED.with(|w| w.set(false));
-        let after = ALLOCATIONS.load(Ordering::SeqCst);
+        alloc_watch::watch(false);
+        let after = alloc_watch::allocations();
         assert_eq!(
             after - before,
             0,

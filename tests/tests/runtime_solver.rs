@@ -8,8 +8,8 @@ use palpate_runtime::contact_rule::{contact_weights, lumped_surface_areas};
 use palpate_runtime::element::{element_stiffness, tet_geometry};
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::rotation::warp_rotation_svd;
-use palpate_runtime::{Runtime, RuntimeConfig, SolveStatus, StorageRequirement};
-use palpate_tests::model;
+use palpate_runtime::{Runtime, RuntimeConfig, SolveStatus};
+use palpate_tests::model::{self, Storage};
 
 const E: f64 = 10_000.0;
 const NU: f64 = 0.3;
@@ -103,9 +103,8 @@ fn pcg_matches_dense_direct_solve_without_warping() {
         max_iterations: 5000,
         ..Default::default()
     };
-    let need = StorageRequirement::for_model(&buf.record(), &cfg);
-    let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let mut rt = Runtime::new(buf.record(), &mut fs, &mut us, cfg).unwrap();
+    let mut storage = Storage::for_model(&buf.record(), &cfg);
+    let mut rt = storage.runtime(buf.record(), cfg).unwrap();
     let (c, force, radius) = ([0.05, 0.05, 0.05], [0.1, -0.05, -0.5], 0.03);
     rt.set_contact_force([0.05, 0.05, 0.05], [0.1, -0.05, -0.5], 0.03)
         .unwrap();
@@ -148,9 +147,8 @@ fn warped_solution_satisfies_f64_equilibrium() {
         rotation_iterations: 10,
         ..Default::default()
     };
-    let need = StorageRequirement::for_model(&buf.record(), &cfg);
-    let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let mut rt = Runtime::new(buf.record(), &mut fs, &mut us, cfg).unwrap();
+    let mut storage = Storage::for_model(&buf.record(), &cfg);
+    let mut rt = storage.runtime(buf.record(), cfg).unwrap();
     // A large load: 3 N on a 10 kPa sponge pushes the top in by ~1 cm with visible rotations.
     let (c, force, radius) = ([0.05, 0.05, 0.05], [0.8, 0.0, -3.0], 0.02);
     rt.set_contact_force([0.05, 0.05, 0.05], [0.8, 0.0, -3.0], 0.02)
@@ -234,9 +232,8 @@ fn patch_test_linear_field_is_reproduced() {
             rotation_iterations: 10,
             ..Default::default()
         };
-        let need = StorageRequirement::for_model(&buf.record(), &cfg);
-        let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-        let mut rt = Runtime::new(buf.record(), &mut fs, &mut us, cfg).unwrap();
+        let mut storage = Storage::for_model(&buf.record(), &cfg);
+        let mut rt = storage.runtime(buf.record(), cfg).unwrap();
         for i in 0..m.nodes.len() {
             if !fixed.contains(&i) {
                 rt.add_nodal_force(

@@ -3,10 +3,10 @@
 //! positions (what is fitted is what is simulated).
 
 use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
-use palpate_runtime::{Runtime, RuntimeConfig, StorageRequirement};
 use palpate_static_fit::blend::BlendData;
 use palpate_static_fit::synthetic::{synthesise, SyntheticSpec};
 use palpate_static_fit::{fit_static, FitOptions, Layout, Method, Sets};
+use palpate_tests::model::{tight_config, Storage};
 
 #[test]
 fn exported_fit_reproduces_fitted_markers_in_the_runtime() {
@@ -30,15 +30,9 @@ fn exported_fit_reproduces_fitted_markers_in_the_runtime() {
     .unwrap();
     let bytes = buffers.encode().unwrap();
     let record = palpate_protocol::model::decode(&bytes).unwrap();
-    let cfg = RuntimeConfig {
-        tolerance: 1e-7,
-        max_iterations: 5000,
-        rotation_iterations: 8,
-        ..Default::default()
-    };
-    let need = StorageRequirement::for_model(&record, &cfg);
-    let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let mut rt = Runtime::new(record, &mut fs, &mut us, cfg).unwrap();
+    let cfg = tight_config();
+    let mut storage = Storage::for_model(&record, &cfg);
+    let mut rt = storage.runtime(record, cfg).unwrap();
     let mut worst = 0.0f64;
     let mut largest = 0.0f64;
     for (i, m) in input.measurements.iter().enumerate() {

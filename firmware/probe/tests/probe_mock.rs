@@ -50,23 +50,32 @@ fn conv(counts: i16) -> T {
     T::write_read(A, vec![0x00], ((counts << 4) as u16).to_be_bytes().to_vec())
 }
 
+/// 1 kHz, no filter, the calibration of [`cal`].
+fn config() -> Config {
+    Config {
+        rate_hz: 1000,
+        filter_cutoff_hz: 0.0,
+        calibration: cal(),
+    }
+}
+
+/// A probe on a mock bus that expects `exp`, started at t = 0 with [`config`].
+fn probe(exp: &[T], stuck_window: u32) -> Probe<Mock> {
+    Probe::new(
+        Ads1x15::new(Mock::new(exp), A, Variant::Ads1015),
+        settings(stuck_window),
+        config(),
+        0,
+    )
+    .unwrap()
+}
+
 #[test]
 fn counts_become_force_and_faults_are_flagged() {
     let mut exp = start();
     exp.extend([conv(1000), conv(2047), conv(0)]);
     exp.push(T::write_read(A, vec![0x00], vec![0, 0]).with_error(ErrorKind::Other));
-    let cfg = Config {
-        rate_hz: 1000,
-        filter_cutoff_hz: 0.0,
-        calibration: cal(),
-    };
-    let mut p = Probe::new(
-        Ads1x15::new(Mock::new(&exp), A, Variant::Ads1015),
-        settings(0),
-        cfg,
-        0,
-    )
-    .unwrap();
+    let mut p = probe(&exp, 0);
 
     // 1000 counts · 2 mV = 2.0 V; G = V / (R (Vs − V)) = 2 / (1e4 · 1.3) S = 153.846 µS; F = 0.01 · G.
     let s = p.poll(0).unwrap();
@@ -98,18 +107,7 @@ fn counts_become_force_and_faults_are_flagged() {
 fn a_frozen_converter_is_flagged_stuck_after_the_window() {
     let mut exp = start();
     exp.extend((0..12).map(|_| conv(900)));
-    let cfg = Config {
-        rate_hz: 1000,
-        filter_cutoff_hz: 0.0,
-        calibration: cal(),
-    };
-    let mut p = Probe::new(
-        Ads1x15::new(Mock::new(&exp), A, Variant::Ads1015),
-        settings(10),
-        cfg,
-        0,
-    )
-    .unwrap();
+    let mut p = probe(&exp, 10);
     let flags: Vec<u8> = (0..12u64)
         .map(|k| p.poll(k * 1000).unwrap().status & status::STUCK)
         .collect();
@@ -122,18 +120,7 @@ fn a_frozen_converter_is_flagged_stuck_after_the_window() {
 fn late_polls_skip_slots_and_report_an_overrun() {
     let mut exp = start();
     exp.extend([conv(500), conv(500)]);
-    let cfg = Config {
-        rate_hz: 1000,
-        filter_cutoff_hz: 0.0,
-        calibration: cal(),
-    };
-    let mut p = Probe::new(
-        Ads1x15::new(Mock::new(&exp), A, Variant::Ads1015),
-        settings(0),
-        cfg,
-        0,
-    )
-    .unwrap();
+    let mut p = probe(&exp, 0);
     assert_eq!(p.poll(0).unwrap().seq, 0);
     assert!(p.poll(999).is_none());
     // 3.5 periods late: slots 1, 2, 3 are gone, this is slot 4, next due at 5 ms.
@@ -153,18 +140,8 @@ fn late_polls_skip_slots_and_report_an_overrun() {
 #[test]
 fn config_out_of_range_is_refused_and_the_old_one_stays() {
     let exp = start();
-    let cfg = Config {
-        rate_hz: 1000,
-        filter_cutoff_hz: 0.0,
-        calibration: cal(),
-    };
-    let mut p = Probe::new(
-        Ads1x15::new(Mock::new(&exp), A, Variant::Ads1015),
-        settings(0),
-        cfg,
-        0,
-    )
-    .unwrap();
+    let mut p = probe(&exp, 0);
+    let cfg = config();
     let mut bad = cfg;
     bad.calibration.divider.v_supply_v = 5.0; // above the ±4.096 V range
     let reply = p.handle(&Frame::Config(bad), 0).unwrap();

@@ -95,15 +95,7 @@ pub fn diagnosed_model(
         "palpate diagnose: base E = {:.6e} Pa, nu = {:.4}; adopted: {}",
         r.young_poisson.0,
         r.young_poisson.1,
-        if r.adopted.is_empty() {
-            "none".to_string()
-        } else {
-            r.adopted
-                .iter()
-                .map(|c| c.name())
-                .collect::<Vec<_>>()
-                .join(", ")
-        }
+        Candidate::names(&r.adopted, ", ", "none")
     )];
     if let Some(d) = r.solved_on.correction_rms {
         let rms = (rf.chi2 / rf.n.max(1) as f64 * 3.0).sqrt() * rctx.sigma;

@@ -69,6 +69,18 @@ pub const ALL_CANDIDATES: [Candidate; 9] = [
 ];
 
 impl Candidate {
+    /// The names of `list` joined by `separator`, or `none` for an empty list.
+    pub fn names(list: &[Candidate], separator: &str, none: &str) -> String {
+        if list.is_empty() {
+            none.to_string()
+        } else {
+            list.iter()
+                .map(|c| c.name())
+                .collect::<Vec<_>>()
+                .join(separator)
+        }
+    }
+
     /// Name (as in reports).
     pub fn name(self) -> &'static str {
         match self {

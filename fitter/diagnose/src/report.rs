@@ -5,6 +5,7 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use super::model::Candidate;
 use super::{DiagnoseError, DiagnosisReport, Errors};
 use palpate_fem::io::atomic::write_atomic;
 use palpate_plot::{lines, Series, Style};
@@ -34,14 +35,7 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
     let verdict = if r.adopted.is_empty() {
         "**clean**: no effect adopted".to_string()
     } else {
-        format!(
-            "adopted: **{}**",
-            r.adopted
-                .iter()
-                .map(|c| c.name())
-                .collect::<Vec<_>>()
-                .join(" → ")
-        )
+        format!("adopted: **{}**", Candidate::names(&r.adopted, " → ", ""))
     };
     let _ = writeln!(s, "Verdict: {verdict}. Selection rule: {}.", r.criterion);
     let _ = writeln!(
@@ -103,15 +97,7 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
         );
     }
     for st in &r.steps {
-        let model = if st.model.is_empty() {
-            "simplest".to_string()
-        } else {
-            st.model
-                .iter()
-                .map(|c| c.name())
-                .collect::<Vec<_>>()
-                .join(" + ")
-        };
+        let model = Candidate::names(&st.model, " + ", "simplest");
         let _ = writeln!(s, "\n## Round {} (model: {model})\n", st.round);
         let sig = &st.signature;
         let _ = writeln!(s, "Residual signature:\n");

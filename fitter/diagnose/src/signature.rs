@@ -3,6 +3,7 @@
 //! its persistent per-marker part over space) and the (x, y) points that show a given effect.
 
 use nalgebra::{Matrix6, Vector3, Vector6};
+use palpate_static_fit::evidence::centred_products;
 use serde::Serialize;
 
 use super::fit::Fitted;
@@ -101,13 +102,7 @@ fn pearson(a: &[f64], b: &[f64]) -> f64 {
     if a.len() < 3 {
         return 0.0;
     }
-    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
-    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
-    for (x, y) in a.iter().zip(b) {
-        sab += (x - ma) * (y - mb);
-        saa += (x - ma).powi(2);
-        sbb += (y - mb).powi(2);
-    }
+    let (sab, saa, sbb) = centred_products(a, b, n);
     if saa > 0.0 && sbb > 0.0 {
         sab / (saa * sbb).sqrt()
     } else {

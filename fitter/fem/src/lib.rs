@@ -14,4 +14,5 @@ pub mod io;
 pub mod lm;
 pub mod mesh;
 pub mod rng;
+pub mod runtime_storage;
 pub mod sanity;

@@ -2,7 +2,7 @@
 //! `embedded-io` adapter so the firmware's frame writer runs over `std::io::Write`.
 
 use super::LinkHostError;
-use palpate_protocol::link::{Frame, LinkStats, Receiver};
+use palpate_protocol::link::{Frame, LinkStats, Receiver, LINK_VERSION};
 use std::io::{ErrorKind, Read};
 use std::time::{Duration, Instant};
 
@@ -67,6 +67,16 @@ impl<R: Read> FrameReader<R> {
     /// Link counters.
     pub fn stats(&self) -> &LinkStats {
         self.rx.stats()
+    }
+
+    /// [`LinkHostError::Version`] for the probe on `path` if it was heard speaking another link
+    /// protocol version.
+    pub fn version_mismatch(&self, path: &str) -> Option<LinkHostError> {
+        self.rx.peer_version().map(|found| LinkHostError::Version {
+            path: path.into(),
+            found,
+            expected: LINK_VERSION,
+        })
     }
 
     /// The receiver (e.g. to read the peer's version or drop a partial frame).

@@ -10,7 +10,7 @@ use crate::sender::{run_sender, Pacing, SenderOptions, SenderReport};
 use crate::stats::{process_cpu_seconds, thread_cpu_seconds, Percentiles};
 use crate::LinkHostError;
 use palpate_probe::sim::{default_config, Profile, SimProbe};
-use palpate_protocol::link::{ForceSample, Frame, LinkStats, LINK_VERSION};
+use palpate_protocol::link::{ForceSample, Frame, LinkStats};
 use palpate_runtime::Runtime;
 use serialport::{SerialPort, TTYPort};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -186,13 +186,7 @@ pub fn replay(
         radius,
     };
     let mut hl = HapticLoop::new(runtime, ForceGate::new(20, 100.0), contact);
-    let opts = SenderOptions {
-        seconds,
-        pacing: Pacing::RealTime,
-        version: LINK_VERSION,
-        stall: None,
-        adc_fault: None,
-    };
+    let opts = SenderOptions::clean(seconds, Pacing::RealTime);
     let lp = phase(opts, 1000, |b| {
         Ok(hl
             .on_batch(b)

@@ -5,7 +5,7 @@
 use super::port::StdWrite;
 use palpate_probe::sim::SimProbe;
 use palpate_probe::tx::FrameWriter;
-use palpate_protocol::link::{ForceSample, Frame};
+use palpate_protocol::link::{ForceSample, Frame, LINK_VERSION};
 use std::io::Write;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -62,6 +62,19 @@ pub struct SenderOptions {
     pub stall: Option<Stall>,
     /// Optional converter fault.
     pub adc_fault: Option<AdcFault>,
+}
+
+impl SenderOptions {
+    /// `seconds` of samples at `pacing`, stamped with [`LINK_VERSION`], without stall or fault.
+    pub fn clean(seconds: f64, pacing: Pacing) -> Self {
+        Self {
+            seconds,
+            pacing,
+            version: LINK_VERSION,
+            stall: None,
+            adc_fault: None,
+        }
+    }
 }
 
 /// What the sender did.

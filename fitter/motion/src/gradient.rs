@@ -9,7 +9,7 @@
 use super::forces::param_derivatives;
 use super::model::{Material, Model, Observations, Param};
 use super::objective::{step_term, StepTerm};
-use super::sim::{simulate, SimStats};
+use super::sim::{simulate, SimStats, StepView};
 use super::sparse::Factor;
 use super::MotionError;
 
@@ -89,6 +89,42 @@ fn add(t: &mut StepTerm, s: StepTerm) {
     t.marker_count += s.marker_count;
     t.force_sq += s.force_sq;
     t.force_count += s.force_count;
+}
+
+/// Adds step `s`'s term of Φ to `total` and its explicit parameter derivatives to `acc`;
+/// returns ∂φ_n/∂x^n and ∂φ_n/∂v^n (free dofs).
+fn observe_step(
+    model: &Model,
+    mat: &Material,
+    obs: &Observations,
+    s: &StepView<'_>,
+    kinds: &[bool],
+    total: &mut StepTerm,
+    acc: &mut [Vec<f64>],
+) -> Result<(Vec<f64>, Vec<f64>), MotionError> {
+    let mut gx = vec![0.0; model.nfree];
+    let mut gv = vec![0.0; model.nfree];
+    add(
+        total,
+        step_term(
+            model,
+            mat,
+            obs,
+            s.n,
+            s.x,
+            s.v,
+            kinds,
+            Some((&mut gx, &mut gv, acc)),
+        )?,
+    );
+    Ok((gx, gv))
+}
+
+/// v^n − (4 v^{n−1} − v^{n−2})/3 (full dofs): the BDF2 velocity term of the step's residual.
+fn bdf2_velocity_residual(s: &StepView<'_>) -> Vec<f64> {
+    (0..s.v.len())
+        .map(|d| s.v[d] - (4.0 * s.prev[2][d] - s.prev[3][d]) / 3.0)
+        .collect()
 }
 
 /// Simulates with material `mat` (parameters already applied) and evaluates Φ and, if
@@ -212,26 +248,10 @@ fn direct(
                 ));
             }
             let (sxm1, sxm2, svm1, svm2) = state.as_mut().expect("initialised");
-            let b: Vec<f64> = (0..ndof)
-                .map(|d| s.v[d] - (4.0 * s.prev[2][d] - s.prev[3][d]) / 3.0)
-                .collect();
+            let b = bdf2_velocity_residual(s);
             let g = g_columns(model, mat, &table, &kinds, np, s.x, s.v, Some((c, &b)))?;
             let factor = s.factor.expect("factors requested");
-            let mut gx = vec![0.0; nf];
-            let mut gv = vec![0.0; nf];
-            add(
-                &mut total,
-                step_term(
-                    model,
-                    mat,
-                    obs,
-                    s.n,
-                    s.x,
-                    s.v,
-                    &kinds,
-                    Some((&mut gx, &mut gv, &mut acc)),
-                )?,
-            );
+            let (gx, gv) = observe_step(model, mat, obs, s, &kinds, &mut total, &mut acc)?;
             for p in 0..np {
                 let sa: Vec<f64> = (0..nf)
                     .map(|i| (4.0 * sxm1[p][i] - sxm2[p][i]) / 3.0)
@@ -295,24 +315,8 @@ fn adjoint(
         true,
         |x0, k0| start = Some((x0.to_vec(), k0.cloned())),
         |s| {
-            let mut gx = vec![0.0; nf];
-            let mut gv = vec![0.0; nf];
-            add(
-                &mut total,
-                step_term(
-                    model,
-                    mat,
-                    obs,
-                    s.n,
-                    s.x,
-                    s.v,
-                    &kinds,
-                    Some((&mut gx, &mut gv, &mut acc)),
-                )?,
-            );
-            let vb = (0..ndof)
-                .map(|d| s.v[d] - (4.0 * s.prev[2][d] - s.prev[3][d]) / 3.0)
-                .collect();
+            let (gx, gv) = observe_step(model, mat, obs, s, &kinds, &mut total, &mut acc)?;
+            let vb = bdf2_velocity_residual(s);
             tape.push(TapeStep {
                 factor: s.factor.expect("factors requested").clone(),
                 k: s.k.to_vec(),

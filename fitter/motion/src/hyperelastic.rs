@@ -14,7 +14,9 @@
 //! the tangent is K_e = −∂f/∂x. This file is the one implementation used by the dynamic motion
 //! simulator and the quasi-static solver [`super::statics`].
 
+use super::MotionError;
 use nalgebra::{Matrix3, Vector3};
+use palpate_fem::mesh::Mesh;
 
 /// Material constants of one element for the hyperelastic kernel (Pa).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -34,6 +36,30 @@ pub struct RestTet {
     pub grad: [Vector3<f64>; 4],
     /// Rest volume V_e.
     pub volume: f64,
+}
+
+impl RestTet {
+    /// The rest geometry of every tetrahedron of `mesh` (the runtime's element maths); a
+    /// degenerate one is [`MotionError::BadElement`].
+    pub fn of_mesh(mesh: &Mesh) -> Result<Vec<Self>, MotionError> {
+        mesh.tets
+            .iter()
+            .enumerate()
+            .map(|(e, t)| {
+                let x = t.map(|n| Vector3::from(mesh.nodes[n]));
+                let g = palpate_runtime::element::tet_geometry(&x).map_err(|d| {
+                    MotionError::BadElement {
+                        element: e,
+                        why: format!("{d:?}"),
+                    }
+                })?;
+                Ok(Self {
+                    grad: g.grad,
+                    volume: g.volume,
+                })
+            })
+            .collect()
+    }
 }
 
 /// F = Σ_a x_a ∇φ_aᵀ.
@@ -213,10 +239,11 @@ pub fn element_tangent(t: &RestTet, s: &FParts, p: &HyperParams) -> [[f64; 12]; 
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn tet() -> (RestTet, [Vector3<f64>; 4]) {
+    /// A 1 cm tetrahedron of no special shape, and its corners.
+    pub(crate) fn tet() -> (RestTet, [Vector3<f64>; 4]) {
         let x = [
             Vector3::new(0.0, 0.0, 0.0),
             Vector3::new(0.01, 0.0, 0.0),

@@ -372,20 +372,7 @@ impl Model {
         gravity: [f64; 3],
         mass: MassKind,
     ) -> Result<Self, MotionError> {
-        let mut rest = Vec::with_capacity(mesh.tets.len());
-        for (e, t) in mesh.tets.iter().enumerate() {
-            let x = t.map(|n| Vector3::from(mesh.nodes[n]));
-            let g = palpate_runtime::element::tet_geometry(&x).map_err(|d| {
-                MotionError::BadElement {
-                    element: e,
-                    why: format!("{d:?}"),
-                }
-            })?;
-            rest.push(RestTet {
-                grad: g.grad,
-                volume: g.volume,
-            });
-        }
+        let rest = RestTet::of_mesh(mesh)?;
         let nn = mesh.nodes.len();
         let mut node_clamp = vec![usize::MAX; nn];
         for (c, cl) in clamps.iter().enumerate() {

@@ -143,19 +143,7 @@ pub fn solve_static(p: &StaticProblem<'_>) -> Result<StaticSolution, MotionError
             p.fixed.len()
         )));
     }
-    let mut rest = Vec::with_capacity(mesh.tets.len());
-    for (e, t) in mesh.tets.iter().enumerate() {
-        let x = t.map(|n| Vector3::from(mesh.nodes[n]));
-        let g =
-            palpate_runtime::element::tet_geometry(&x).map_err(|d| MotionError::BadElement {
-                element: e,
-                why: format!("{d:?}"),
-            })?;
-        rest.push(RestTet {
-            grad: g.grad,
-            volume: g.volume,
-        });
-    }
+    let rest = RestTet::of_mesh(mesh)?;
     let mut is_fixed = vec![false; nn];
     for &n in &p.fixed {
         if n >= nn {

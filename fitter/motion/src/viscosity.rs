@@ -88,23 +88,14 @@ pub fn element_damping(t: &RestTet, r: &Rate, nu: f64, h: f64) -> [[f64; 12]; 12
 #[cfg(test)]
 mod tests {
     use super::super::hyperelastic::add_stress_forces;
+    use super::super::hyperelastic::tests::tet;
     use super::*;
 
     /// The damping tangent is minus the Jacobian of the viscous forces (central differences,
     /// h = 1e-9 m/s on velocities of ~0.1 m/s: truncation ~1e-12 relative, round-off ~1e-7).
     #[test]
     fn damping_tangent_matches_finite_differences_shear_thinning_and_thickening() {
-        let x = [
-            Vector3::new(0.0, 0.0, 0.0),
-            Vector3::new(0.01, 0.0, 0.0),
-            Vector3::new(0.002, 0.012, 0.0),
-            Vector3::new(0.001, 0.003, 0.011),
-        ];
-        let g = palpate_runtime::element::tet_geometry(&x).unwrap();
-        let t = RestTet {
-            grad: g.grad,
-            volume: g.volume,
-        };
+        let (t, _) = tet();
         let v0 = [
             Vector3::new(0.1, -0.05, 0.02),
             Vector3::new(-0.03, 0.08, 0.0),

@@ -12,7 +12,7 @@ use palpate_fem::dataset::embed::embed_point;
 use palpate_fem::dataset::{Marker, Measurement, StaticDataset};
 use palpate_fem::forward::{Load, StaticProblem as LinearProblem};
 use palpate_fem::mesh::boxmesh::box_mesh;
-use palpate_fem::mesh::Mesh;
+use palpate_fem::mesh::centroid;
 use palpate_fem::rng::SplitMix64;
 use palpate_motion::hyperelastic::HyperParams;
 use palpate_motion::statics::{solve_static, StaticProblem as HyperProblem};
@@ -69,6 +69,22 @@ impl Default for SpecimenOptions {
 }
 
 impl SpecimenOptions {
+    /// The default specimen of `seed` with `effect` (if any) injected at its default magnitude.
+    pub fn with_effect(effect: Option<Effect>, seed: u64) -> Self {
+        Self {
+            seed,
+            effects: effect
+                .map(|e| {
+                    vec![EffectSpec {
+                        effect: e,
+                        magnitude: e.default_magnitude(),
+                    }]
+                })
+                .unwrap_or_default(),
+            ..Default::default()
+        }
+    }
+
     /// Magnitude of `e` if injected.
     pub fn magnitude(&self, e: Effect) -> Option<f64> {
         self.effects
@@ -137,16 +153,6 @@ fn hyper(young: f64, nu: f64) -> HyperParams {
         mu: young / (2.0 * (1.0 + nu)),
         stiffening: 0.0,
     }
-}
-
-fn centroid(mesh: &Mesh, t: &[usize; 4]) -> [f64; 3] {
-    let mut c = [0.0; 3];
-    for &n in t {
-        for d in 0..3 {
-            c[d] += 0.25 * mesh.nodes[n][d];
-        }
-    }
-    c
 }
 
 /// Rodrigues rotation of v by rotation vector w.
@@ -231,7 +237,7 @@ pub fn generate(o: &SpecimenOptions) -> Result<Specimen, SpecimenError> {
         .tets
         .iter()
         .map(|t| {
-            let c = centroid(&fine, t);
+            let c = centroid(&fine.nodes, t);
             let mut e = o.young;
             if let Some(m) = o.magnitude(Effect::Inclusion) {
                 let centre = [0.5 * size[0], 0.5 * size[1], 0.6 * size[2]];

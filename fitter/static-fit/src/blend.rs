@@ -17,6 +17,7 @@
 
 use nalgebra::{DMatrix, DVector};
 use palpate_fem::forward::{Material, StaticProblem};
+use palpate_fem::mesh::centroid;
 
 use super::FitError;
 
@@ -43,6 +44,30 @@ fn solve_rbf(phi: DMatrix<f64>, b: &[f64]) -> Result<Vec<f64>, FitError> {
         .ok_or_else(|| FitError::Singular("RBF system is singular (identical centres)".into()))
 }
 
+/// Refuses sets without exactly one fitted deformation each (or no sets at all).
+fn one_deformation_per_set(sets: usize, deformations: usize) -> Result<(), FitError> {
+    if sets != deformations || sets == 0 {
+        return Err(FitError::Input(
+            "blending needs one fitted deformation per set".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// The RBF weights of the λ and α values `bl`, `ba` of the sets (eq. 6.4) on the distance
+/// matrix `phi`; a single set is its own weight.
+fn rbf_weights(
+    phi: DMatrix<f64>,
+    bl: Vec<f64>,
+    ba: Vec<f64>,
+) -> Result<(Vec<f64>, Vec<f64>), FitError> {
+    if bl.len() == 1 {
+        Ok((bl, ba))
+    } else {
+        Ok((solve_rbf(phi.clone(), &bl)?, solve_rbf(phi, &ba)?))
+    }
+}
+
 /// Homogeneous blending (eqs. 6.2–6.5) from per-measurement homogeneous sets and their fitted
 /// deformations.
 pub fn deformation_blend(
@@ -50,11 +75,7 @@ pub fn deformation_blend(
     deformed: &[Vec<[f64; 3]>],
 ) -> Result<BlendData, FitError> {
     let n = sets.len();
-    if n != deformed.len() || n == 0 {
-        return Err(FitError::Input(
-            "blending needs one fitted deformation per set".into(),
-        ));
-    }
+    one_deformation_per_set(n, deformed.len())?;
     let dist = |a: &[[f64; 3]], b: &[[f64; 3]]| -> f64 {
         a.iter()
             .zip(b)
@@ -65,16 +86,7 @@ pub fn deformation_blend(
     let phi = DMatrix::from_fn(n, n, |i, j| dist(&deformed[i], &deformed[j]));
     let bl: Vec<f64> = sets.iter().map(|m| m.lambda[0]).collect();
     let ba: Vec<f64> = sets.iter().map(|m| m.alpha[0]).collect();
-    let weights_lambda = if n == 1 {
-        bl.clone()
-    } else {
-        solve_rbf(phi.clone(), &bl)?
-    };
-    let weights_alpha = if n == 1 {
-        ba.clone()
-    } else {
-        solve_rbf(phi, &ba)?
-    };
+    let (weights_lambda, weights_alpha) = rbf_weights(phi, bl, ba)?;
     let centres = deformed
         .iter()
         .flat_map(|x| x.iter().flat_map(|p| p.iter().copied()))
@@ -91,15 +103,7 @@ pub fn centroids(problem: &StaticProblem) -> Vec<[f64; 3]> {
     problem
         .tets
         .iter()
-        .map(|t| {
-            let mut c = [0.0; 3];
-            for &n in t {
-                for d in 0..3 {
-                    c[d] += 0.25 * problem.x0[n][d];
-                }
-            }
-            c
-        })
+        .map(|t| centroid(&problem.x0, t))
         .collect()
 }
 
@@ -113,11 +117,7 @@ pub fn strain_blend(
 ) -> Result<BlendData, FitError> {
     let n = sets.len();
     let t = problem.element_count();
-    if n != deformed.len() || n == 0 {
-        return Err(FitError::Input(
-            "blending needs one fitted deformation per set".into(),
-        ));
-    }
+    one_deformation_per_set(n, deformed.len())?;
     let k = k.clamp(1, t);
     let cen = centroids(problem);
     // k nearest centroids by brute force over a uniform grid would be faster; t is small (≤ 1e4)
@@ -171,11 +171,7 @@ pub fn strain_blend(
         });
         let bl: Vec<f64> = sets.iter().map(|m| m.at(e).0).collect();
         let ba: Vec<f64> = sets.iter().map(|m| m.at(e).1).collect();
-        let (wl, wa) = if n == 1 {
-            (bl, ba)
-        } else {
-            (solve_rbf(phi.clone(), &bl)?, solve_rbf(phi, &ba)?)
-        };
+        let (wl, wa) = rbf_weights(phi, bl, ba)?;
         weights_lambda[e * n..e * n + n].copy_from_slice(&wl);
         weights_alpha[e * n..e * n + n].copy_from_slice(&wa);
     }

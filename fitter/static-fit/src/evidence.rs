@@ -12,9 +12,9 @@ use super::regularisation::{roughness, spatial_pairs};
 use super::synthetic::{synthesise, synthesise_on, Synthetic, SyntheticSpec};
 use super::{fit_static, FitError, FitOptions, FitResult, Gammas, Layout, Method, Sets};
 
-/// Pearson correlation of two equally long sequences.
-pub fn correlation(a: &[f64], b: &[f64]) -> f64 {
-    let n = a.len().min(b.len()) as f64;
+/// Σ(a − ā)(b − b̄), Σ(a − ā)², Σ(b − b̄)² over the pairs of `a` and `b`, the means taken as
+/// sums over `n` (the parts of a correlation).
+pub fn centred_products(a: &[f64], b: &[f64], n: f64) -> (f64, f64, f64) {
     let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
     let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
     for (x, y) in a.iter().zip(b) {
@@ -22,6 +22,12 @@ pub fn correlation(a: &[f64], b: &[f64]) -> f64 {
         saa += (x - ma).powi(2);
         sbb += (y - mb).powi(2);
     }
+    (sab, saa, sbb)
+}
+
+/// Pearson correlation of two equally long sequences.
+pub fn correlation(a: &[f64], b: &[f64]) -> f64 {
+    let (sab, saa, sbb) = centred_products(a, b, a.len().min(b.len()) as f64);
     sab / (saa * sbb).sqrt().max(1e-300)
 }
 

@@ -5,7 +5,7 @@
 use palpate_fem::dataset::{Marker, Measurement, StaticDataset};
 use palpate_fem::forward::{Contact, Load, Material, SolveOptions, StaticProblem};
 use palpate_fem::mesh::boxmesh::box_mesh;
-use palpate_fem::mesh::Mesh;
+use palpate_fem::mesh::{centroid, Mesh};
 use palpate_fem::rng::SplitMix64;
 
 use super::{FitError, FitInput, FitMeasurement};
@@ -103,12 +103,7 @@ pub fn synthesise_on(
                 .tets
                 .iter()
                 .map(|t| {
-                    let mut c = [0.0; 3];
-                    for &n in t {
-                        for d in 0..3 {
-                            c[d] += 0.25 * mesh.nodes[n][d];
-                        }
-                    }
+                    let c = centroid(&mesh.nodes, t);
                     let r2: f64 = (0..3).map(|d| (c[d] - centre[d]).powi(2)).sum();
                     let e = if r2 <= radius * radius {
                         young

@@ -82,32 +82,63 @@ pub struct Calibration {
     pub usable_max_n: f32,
 }
 
+/// Which value [`through_knots`] takes on a segment of no width.
+#[derive(Clone, Copy)]
+enum Step {
+    /// The segment's start.
+    Start,
+    /// The segment's end.
+    End,
+}
+
+/// The piecewise-linear function through (0, 0) and the knots `(xs[i], ys[i])` at `x`; past the
+/// last knot the last segment goes on. On a segment of no width the value is its `step` end.
+/// `xs` and `ys` are equally long and not empty.
+fn through_knots(x: f32, xs: &[f32], ys: &[f32], step: Step) -> f32 {
+    let n = xs.len();
+    let (mut x0, mut y0) = (0.0f32, 0.0f32);
+    for i in 0..n {
+        let (x1, y1) = (xs[i], ys[i]);
+        if x <= x1 || i + 1 == n {
+            let dx = x1 - x0;
+            return if dx > 0.0 {
+                y0 + (y1 - y0) * (x - x0) / dx
+            } else {
+                match step {
+                    Step::Start => y0,
+                    Step::End => y1,
+                }
+            };
+        }
+        (x0, y0) = (x1, y1);
+    }
+    y0
+}
+
 impl ForceCurve {
+    /// The knots in use of a table curve: (conductances, forces); empty for a power law.
+    fn table(&self) -> (&[f32], &[f32]) {
+        match self {
+            ForceCurve::PowerLaw { .. } => (&[], &[]),
+            ForceCurve::Monotone {
+                len,
+                conductance_us,
+                force_n,
+            } => {
+                let n = (*len as usize).clamp(1, MAX_KNOTS);
+                (&conductance_us[..n], &force_n[..n])
+            }
+        }
+    }
+
     /// Force in N for a conductance in µS (negative conductances read as zero).
     pub fn force_n(&self, conductance_us: f32) -> f32 {
         let g = conductance_us.max(0.0);
         match *self {
             ForceCurve::PowerLaw { gain, exponent } => gain * libm::powf(g, exponent),
-            ForceCurve::Monotone {
-                len,
-                conductance_us: ref gs,
-                force_n: ref fs,
-            } => {
-                let n = (len as usize).clamp(1, MAX_KNOTS);
-                let (mut g0, mut f0) = (0.0f32, 0.0f32);
-                for i in 0..n {
-                    let (g1, f1) = (gs[i], fs[i]);
-                    if g <= g1 || i + 1 == n {
-                        let dg = g1 - g0;
-                        return if dg > 0.0 {
-                            f0 + (f1 - f0) * (g - g0) / dg
-                        } else {
-                            f1
-                        };
-                    }
-                    (g0, f0) = (g1, f1);
-                }
-                f0
+            ForceCurve::Monotone { .. } => {
+                let (gs, fs) = self.table();
+                through_knots(g, gs, fs, Step::End)
             }
         }
     }
@@ -118,26 +149,9 @@ impl ForceCurve {
         let f = force_n.max(0.0);
         match *self {
             ForceCurve::PowerLaw { gain, exponent } => libm::powf(f / gain, 1.0 / exponent),
-            ForceCurve::Monotone {
-                len,
-                conductance_us: ref gs,
-                force_n: ref fs,
-            } => {
-                let n = (len as usize).clamp(1, MAX_KNOTS);
-                let (mut g0, mut f0) = (0.0f32, 0.0f32);
-                for i in 0..n {
-                    let (g1, f1) = (gs[i], fs[i]);
-                    if f <= f1 || i + 1 == n {
-                        let df = f1 - f0;
-                        return if df > 0.0 {
-                            g0 + (g1 - g0) * (f - f0) / df
-                        } else {
-                            g0
-                        };
-                    }
-                    (g0, f0) = (g1, f1);
-                }
-                g0
+            ForceCurve::Monotone { .. } => {
+                let (gs, fs) = self.table();
+                through_knots(f, fs, gs, Step::Start)
             }
         }
     }

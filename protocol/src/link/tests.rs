@@ -40,6 +40,24 @@ fn feed(rx: &mut Receiver, bytes: &[u8]) -> Vec<Frame> {
     v
 }
 
+/// The wire bytes of `sent` with `edits` applied in turn: `(position, kind, value)` flips the
+/// bits of `value` (kind 0; at least one bit), removes the byte (kind 1) or inserts `value`
+/// (otherwise) at `position` modulo the length.
+fn damaged(sent: &[Frame], edits: Vec<(usize, u8, u8)>) -> Vec<u8> {
+    let mut bytes: Vec<u8> = sent.iter().flat_map(wire).collect();
+    for (pos, kind, val) in edits {
+        let p = pos % bytes.len();
+        match kind {
+            0 => bytes[p] ^= val.max(1),
+            1 => {
+                bytes.remove(p);
+            }
+            _ => bytes.insert(p, val),
+        }
+    }
+    bytes
+}
+
 #[test]
 fn example_frame_matches_the_spec_bytes_exactly() {
     let bytes = wire(&Frame::Sample(EXAMPLE));
@@ -445,17 +463,8 @@ proptest! {
         edits in proptest::collection::vec((0usize..4000, 0u8..3, any::<u8>()), 0..60)
     ) {
         let sent: Vec<Frame> = (0..150).map(|s| Frame::Sample(sample(s))).collect();
-        let mut bytes: Vec<u8> = sent.iter().flat_map(wire).collect();
-        for (pos, kind, val) in edits {
-            let p = pos % bytes.len();
-            match kind {
-                0 => bytes[p] ^= val.max(1),
-                1 => { bytes.remove(p); }
-                _ => bytes.insert(p, val),
-            }
-        }
         let mut rx: Receiver = Receiver::new();
-        let got = feed(&mut rx, &bytes);
+        let got = feed(&mut rx, &damaged(&sent, edits));
         let mut last = None;
         for f in &got {
             let Frame::Sample(s) = f else { panic!("unexpected frame {f:?}") };
@@ -476,17 +485,8 @@ proptest! {
     ) {
         let start = u32::MAX - 74;
         let sent: Vec<Frame> = (0..150u32).map(|k| Frame::Sample(sample(start.wrapping_add(k)))).collect();
-        let mut bytes: Vec<u8> = sent.iter().flat_map(wire).collect();
-        for (pos, kind, val) in edits {
-            let p = pos % bytes.len();
-            match kind {
-                0 => bytes[p] ^= val.max(1),
-                1 => { bytes.remove(p); }
-                _ => bytes.insert(p, val),
-            }
-        }
         let mut rx: Receiver = Receiver::new();
-        let got = feed(&mut rx, &bytes);
+        let got = feed(&mut rx, &damaged(&sent, edits));
         let mut last = None;
         for f in &got {
             let Frame::Sample(s) = f else { panic!("unexpected frame {f:?}") };

@@ -35,73 +35,47 @@ pub struct F32s<'a>(#[serde(borrow)] pub &'a [u8]);
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct U32s<'a>(#[serde(borrow)] pub &'a [u8]);
 
-impl<'a> F32s<'a> {
-    /// Number of values (bytes / 4, rounded down; validation rejects a remainder).
-    pub fn len(&self) -> usize {
-        self.0.len() / 4
-    }
-    /// True when empty.
-    pub fn is_empty(&self) -> bool {
-        self.0.len() < 4
-    }
-    /// Value `i`, or `None` past the end.
-    #[inline]
-    pub fn get(&self, i: usize) -> Option<f32> {
-        let b = self.0.get(4 * i..4 * i + 4)?;
-        Some(f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-    }
-    /// All values in order.
-    pub fn iter(&self) -> impl Iterator<Item = f32> + 'a {
-        self.0
-            .chunks_exact(4)
-            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-    }
+/// The accessors of a little-endian word array (`F32s`, `U32s`) and its writer.
+macro_rules! le_words {
+    ($array:ident, $word:ty, $write:ident) => {
+        impl<'a> $array<'a> {
+            /// Number of values (bytes / 4, rounded down; validation rejects a remainder).
+            pub fn len(&self) -> usize {
+                self.0.len() / 4
+            }
+            /// True when empty.
+            pub fn is_empty(&self) -> bool {
+                self.0.len() < 4
+            }
+            /// Value `i`, or `None` past the end.
+            #[inline]
+            pub fn get(&self, i: usize) -> Option<$word> {
+                let b = self.0.get(4 * i..4 * i + 4)?;
+                Some(<$word>::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            }
+            /// All values in order.
+            pub fn iter(&self) -> impl Iterator<Item = $word> + 'a {
+                self.0
+                    .chunks_exact(4)
+                    .map(|b| <$word>::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            }
+        }
+
+        /// Writes `src` as little-endian bytes into `dst` (which must hold `4 * src.len()`
+        /// bytes); returns the number of bytes written, or `None` if `dst` is too short.
+        pub fn $write(src: &[$word], dst: &mut [u8]) -> Option<usize> {
+            let n = 4 * src.len();
+            let dst = dst.get_mut(..n)?;
+            for (d, v) in dst.chunks_exact_mut(4).zip(src) {
+                d.copy_from_slice(&v.to_le_bytes());
+            }
+            Some(n)
+        }
+    };
 }
 
-impl<'a> U32s<'a> {
-    /// Number of values (bytes / 4, rounded down; validation rejects a remainder).
-    pub fn len(&self) -> usize {
-        self.0.len() / 4
-    }
-    /// True when empty.
-    pub fn is_empty(&self) -> bool {
-        self.0.len() < 4
-    }
-    /// Value `i`, or `None` past the end.
-    #[inline]
-    pub fn get(&self, i: usize) -> Option<u32> {
-        let b = self.0.get(4 * i..4 * i + 4)?;
-        Some(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-    }
-    /// All values in order.
-    pub fn iter(&self) -> impl Iterator<Item = u32> + 'a {
-        self.0
-            .chunks_exact(4)
-            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-    }
-}
-
-/// Writes `src` as little-endian bytes into `dst` (which must hold `4 * src.len()` bytes);
-/// returns the number of bytes written, or `None` if `dst` is too short.
-pub fn write_f32s(src: &[f32], dst: &mut [u8]) -> Option<usize> {
-    let n = 4 * src.len();
-    let dst = dst.get_mut(..n)?;
-    for (d, v) in dst.chunks_exact_mut(4).zip(src) {
-        d.copy_from_slice(&v.to_le_bytes());
-    }
-    Some(n)
-}
-
-/// Writes `src` as little-endian bytes into `dst` (which must hold `4 * src.len()` bytes);
-/// returns the number of bytes written, or `None` if `dst` is too short.
-pub fn write_u32s(src: &[u32], dst: &mut [u8]) -> Option<usize> {
-    let n = 4 * src.len();
-    let dst = dst.get_mut(..n)?;
-    for (d, v) in dst.chunks_exact_mut(4).zip(src) {
-        d.copy_from_slice(&v.to_le_bytes());
-    }
-    Some(n)
-}
+le_words!(F32s, f32, write_f32s);
+le_words!(U32s, u32, write_u32s);
 
 /// Whether parameter sets hold one (λ, α) pair or one per element (eqs. 3.36–3.38, 3.61).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -12,6 +12,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::read::Group;
+use palpate_static_fit::evidence::centred_products;
 
 /// The variable a signal looks along.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -148,13 +149,7 @@ fn r2(a: &[f64], b: &[f64]) -> f64 {
     if a.len() < 3 {
         return 0.0;
     }
-    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
-    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
-    for (x, y) in a.iter().zip(b) {
-        sab += (x - ma) * (y - mb);
-        saa += (x - ma) * (x - ma);
-        sbb += (y - mb) * (y - mb);
-    }
+    let (sab, saa, sbb) = centred_products(a, b, n);
     if saa <= 0.0 || sbb <= 0.0 {
         0.0
     } else {

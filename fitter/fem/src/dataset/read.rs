@@ -18,6 +18,7 @@ use crate::mesh::gmsh::{read_msh, MeshError};
 use palpate_runtime::contact_rule::{contact_weights, lumped_surface_areas, ContactRuleError};
 use serde::Deserialize;
 use std::collections::HashMap;
+use std::hash::Hash;
 use std::path::{Path, PathBuf};
 use toml::Spanned;
 
@@ -347,6 +348,29 @@ impl StaticDataset {
     }
 }
 
+/// Notes that `key` stands on `line` of `file`; a key seen before is
+/// [`DatasetError::DuplicateId`] of column `field`, shown as `id()`.
+fn first_time<K: Eq + Hash>(
+    first: &mut HashMap<K, usize>,
+    key: K,
+    file: &Path,
+    line: usize,
+    field: &str,
+    id: impl FnOnce() -> String,
+) -> Result<(), DatasetError> {
+    if let Some(&first_line) = first.get(&key) {
+        return Err(DatasetError::DuplicateId {
+            file: file.to_path_buf(),
+            line,
+            field: field.into(),
+            id: id(),
+            first_line,
+        });
+    }
+    first.insert(key, line);
+    Ok(())
+}
+
 /// `markers.csv`: `marker,x,y,z`; each marker embedded in the surface.
 fn read_markers(
     file: &Path,
@@ -361,16 +385,7 @@ fn read_markers(
     let mut markers = Vec::with_capacity(rows.len());
     for r in &rows {
         let id = r.id(0)?;
-        if let Some(&first_line) = first.get(id) {
-            return Err(DatasetError::DuplicateId {
-                file: file.to_path_buf(),
-                line: r.line,
-                field: "marker".into(),
-                id: id.into(),
-                first_line,
-            });
-        }
-        first.insert(id, r.line);
+        first_time(&mut first, id, file, r.line, "marker", || id.into())?;
         let rest = r.vec3(1)?;
         let far = |distance: f64| DatasetError::MarkerFarFromSurface {
             file: file.to_path_buf(),
@@ -422,16 +437,7 @@ fn read_contacts(
     let mut lines = Vec::with_capacity(rows.len());
     for r in &rows {
         let id = r.id(0)?;
-        if let Some(&first_line) = first.get(id) {
-            return Err(DatasetError::DuplicateId {
-                file: file.to_path_buf(),
-                line: r.line,
-                field: "measurement".into(),
-                id: id.into(),
-                first_line,
-            });
-        }
-        first.insert(id, r.line);
+        first_time(&mut first, id, file, r.line, "measurement", || id.into())?;
         let contact = r.vec3(1)?;
         let force = r.vec3(4)?;
         let radius = if r.has(7) {
@@ -517,16 +523,9 @@ fn read_measurements(
                 marker: kid.into(),
             });
         };
-        if let Some(&first_line) = first.get(&(mi, ki)) {
-            return Err(DatasetError::DuplicateId {
-                file: file.to_path_buf(),
-                line: r.line,
-                field: "marker".into(),
-                id: format!("{mid}/{kid}"),
-                first_line,
-            });
-        }
-        first.insert((mi, ki), r.line);
+        first_time(&mut first, (mi, ki), file, r.line, "marker", || {
+            format!("{mid}/{kid}")
+        })?;
         measurements[mi].observed.push((ki, r.vec3(2)?));
     }
     for m in measurements.iter_mut() {

@@ -17,6 +17,17 @@ pub fn signed_volume(p: [[f64; 3]; 4]) -> f64 {
     (b - a).dot(&(c - a).cross(&(d - a))) / 6.0
 }
 
+/// Centroid of tetrahedron `tet` of the points `nodes`: the mean of its four corners.
+pub fn centroid(nodes: &[[f64; 3]], tet: &[usize; 4]) -> [f64; 3] {
+    let mut c = [0.0; 3];
+    for &n in tet {
+        for d in 0..3 {
+            c[d] += 0.25 * nodes[n][d];
+        }
+    }
+    c
+}
+
 /// A linear tetrahedral mesh with named node groups (Gmsh physical groups).
 #[derive(Debug, Clone, Default)]
 pub struct Mesh {

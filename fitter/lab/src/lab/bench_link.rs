@@ -7,14 +7,13 @@
 
 use anyhow::Context;
 use palpate_fem::io::parse_vec3;
+use palpate_fem::runtime_storage::Storage;
 use palpate_link::gate::ForceGate;
 use palpate_link::haptic::{Contact, HapticLoop};
 use palpate_link::model_source::{haptic_config, ModelSource};
 use palpate_link::replay::phase;
 use palpate_link::sender::{Pacing, SenderOptions};
 use palpate_link::stats::Percentiles;
-use palpate_protocol::link::LINK_VERSION;
-use palpate_runtime::{Runtime, StorageRequirement};
 use serde_json::json;
 use std::path::PathBuf;
 
@@ -47,13 +46,7 @@ pub struct Args {
 /// Runs the benchmark.
 pub fn run(args: Args) -> anyhow::Result<()> {
     // Throughput: the sender runs free; the pty's back-pressure paces it to what the receiver takes.
-    let opts = SenderOptions {
-        seconds: args.throughput_seconds,
-        pacing: Pacing::AsFastAsPossible,
-        version: LINK_VERSION,
-        stall: None,
-        adc_fault: None,
-    };
+    let opts = SenderOptions::clean(args.throughput_seconds, Pacing::AsFastAsPossible);
     let mut decoded = 0u64;
     let tp = phase(opts, args.rate, |b| {
         decoded += b.len() as u64;
@@ -70,9 +63,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let src = ModelSource::load(args.model.as_deref(), args.block_tets)?;
     let rec = src.record()?;
     let cfg = haptic_config();
-    let need = StorageRequirement::for_model(&rec, &cfg);
-    let (mut f, mut u) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let rt = Runtime::new(rec, &mut f, &mut u, cfg).context("building the runtime")?;
+    let mut storage = Storage::for_model(&rec, &cfg);
+    let rt = storage.runtime(rec, cfg).context("building the runtime")?;
     let (nodes, tets) = (rt.node_count(), rt.element_count());
     let contact = Contact {
         point: args.contact,
@@ -80,13 +72,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         radius: args.radius,
     };
     let mut hl = HapticLoop::new(rt, ForceGate::new(20, 100.0), contact);
-    let opts = SenderOptions {
-        seconds: args.seconds,
-        pacing: Pacing::RealTime,
-        version: LINK_VERSION,
-        stall: None,
-        adc_fault: None,
-    };
+    let opts = SenderOptions::clean(args.seconds, Pacing::RealTime);
     let lp = phase(opts, args.rate, |b| {
         Ok(hl
             .on_batch(b)

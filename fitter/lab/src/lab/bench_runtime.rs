@@ -17,6 +17,7 @@ use faer::sparse::{Pair, SparseColMat, SymbolicSparseColMat};
 use faer::{Conj, Mat, Side};
 use nalgebra::Vector3;
 use palpate_fem::block_model::BlockModel;
+use palpate_fem::runtime_storage::Storage;
 use palpate_runtime::element::{element_stiffness, tet_geometry};
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::{
@@ -380,9 +381,8 @@ fn run_direct(model: &BlockModel, args: &Args, p: LambdaAlpha) -> anyhow::Result
         ..Default::default()
     };
     let rec = model.record();
-    let need = StorageRequirement::for_model(&rec, &cfg);
-    let (mut f, mut u) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let mut rt = Runtime::new(rec, &mut f, &mut u, cfg)?;
+    let mut storage = Storage::for_model(&rec, &cfg);
+    let mut rt = storage.runtime(rec, cfg)?;
     let mesh = &model.mesh;
     let n = mesh.nodes.len();
     let mut dof = vec![usize::MAX; 3 * n];

@@ -170,21 +170,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     for &e in &injected {
         for &seed in &args.seeds {
-            let effects = e
-                .map(|e| {
-                    vec![EffectSpec {
-                        effect: e,
-                        magnitude: e.default_magnitude(),
-                    }]
-                })
-                .unwrap_or_default();
-            let outcome = generate(&SpecimenOptions {
-                seed,
-                effects,
-                ..Default::default()
-            })
-            .map_err(anyhow::Error::from)
-            .and_then(|s| run_diagnosis(&s.dataset, &args.options()).map_err(anyhow::Error::from));
+            let outcome = generate(&SpecimenOptions::with_effect(e, seed))
+                .map_err(anyhow::Error::from)
+                .and_then(|s| {
+                    run_diagnosis(&s.dataset, &args.options()).map_err(anyhow::Error::from)
+                });
             let r = match outcome {
                 Ok(r) => r,
                 Err(err) => {
@@ -306,15 +296,7 @@ fn write_tables(
             r.injected,
             r.magnitude,
             r.seed,
-            if r.adopted.is_empty() {
-                "none".into()
-            } else {
-                r.adopted
-                    .iter()
-                    .map(|c| c.name())
-                    .collect::<Vec<_>>()
-                    .join(" → ")
-            },
+            Candidate::names(&r.adopted, " → ", "none"),
             r.rms_before_um,
             r.rms_after_um,
             r.heldout_before_um,
@@ -325,15 +307,7 @@ fn write_tables(
             },
             r.floor_um,
             if r.within_1_5_floor { "yes" } else { "no" },
-            if r.ambiguous_with.is_empty() {
-                "·".to_string()
-            } else {
-                r.ambiguous_with
-                    .iter()
-                    .map(|c| c.name())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            },
+            Candidate::names(&r.ambiguous_with, ", ", "·"),
             r.mesh,
             r.seconds
         );

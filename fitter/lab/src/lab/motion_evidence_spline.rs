@@ -325,23 +325,19 @@ pub fn spline() -> anyhow::Result<(&'static str, String, serde_json::Value)> {
     md += "\n|---|---|---|---|\n";
     let spl = |i: usize| fits[i].1.spline.clone().expect("spline fit");
     let (s1, s2) = (spl(1), spl(2));
-    for i in 0..st.f.knots.len() {
-        md += &format!(
-            "| f′(ς = {:.3}) | {:.3} | {:.3} | {:.3} |\n",
-            st.f.knots[i],
-            st.f.values[i] / 1e3,
-            s1.f.values[i] / 1e3,
-            s2.f.values[i] / 1e3
-        );
-    }
-    for i in 0..st.h.knots.len() {
-        md += &format!(
-            "| J h′(J = {:.3}) | {:.3} | {:.3} | {:.3} |\n",
-            st.h.knots[i],
-            st.h.values[i] / 1e3,
-            s1.h.values[i] / 1e3,
-            s2.h.values[i] / 1e3
-        );
+    let curves: [(&str, fn(&SplineMaterial) -> &Spline); 2] =
+        [("f′(ς", |m| &m.f), ("J h′(J", |m| &m.h)];
+    for (name, curve) in curves {
+        let (c0, c1, c2) = (curve(st), curve(&s1), curve(&s2));
+        for i in 0..c0.knots.len() {
+            md += &format!(
+                "| {name} = {:.3}) | {:.3} | {:.3} | {:.3} |\n",
+                c0.knots[i],
+                c0.values[i] / 1e3,
+                c1.values[i] / 1e3,
+                c2.values[i] / 1e3
+            );
+        }
     }
     md += "\nReading: Neo-Hookean has one shape of force–elongation curve and must compromise \
            between the soft start and the stiffened end of the loading; the spline's response \

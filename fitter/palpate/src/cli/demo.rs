@@ -5,7 +5,8 @@ use anyhow::Context;
 use palpate_diagnose::{run_diagnosis_with, DiagnoseOptions};
 use palpate_fem::dataset::StaticDataset;
 use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
-use palpate_runtime::{Runtime, RuntimeConfig, StorageRequirement};
+use palpate_fem::runtime_storage::Storage;
+use palpate_runtime::RuntimeConfig;
 use palpate_static_fit::blend::BlendData;
 use palpate_static_fit::{fit_static, FitInput, FitOptions, Layout, Method, Sets};
 use std::path::PathBuf;
@@ -122,9 +123,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         max_iterations: 100,
         ..Default::default()
     };
-    let need = StorageRequirement::for_model(&record, &cfg);
-    let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let rt = Runtime::new(record, &mut fs, &mut us, cfg)?;
+    let mut storage = Storage::for_model(&record, &cfg);
+    let rt = storage.runtime(record, cfg)?;
     let footprint = rt.footprint_bytes();
     let (lo, hi) = ds.mesh.bounds();
     let contact = [

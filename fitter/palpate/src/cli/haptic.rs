@@ -4,14 +4,15 @@
 
 use anyhow::Context;
 use palpate_fem::io::parse_vec3;
+use palpate_fem::runtime_storage::Storage;
 use palpate_link::gate::ForceGate;
 use palpate_link::haptic::{Contact, HapticLoop};
 use palpate_link::model_source::{haptic_config, ModelSource};
 use palpate_link::port::{open, FrameReader};
 use palpate_link::stats::{thread_cpu_seconds, Percentiles};
 use palpate_link::{GateDecision, LinkHostError};
-use palpate_protocol::link::{Frame, LINK_VERSION};
-use palpate_runtime::{Runtime, SolveStatus, StorageRequirement};
+use palpate_protocol::link::Frame;
+use palpate_runtime::SolveStatus;
 use serde_json::json;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -53,9 +54,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let src = ModelSource::load(args.model.as_deref(), args.block_tets)?;
     let rec = src.record()?;
     let cfg = haptic_config();
-    let need = StorageRequirement::for_model(&rec, &cfg);
-    let (mut f, mut u) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let rt = Runtime::new(rec, &mut f, &mut u, cfg).context("building the runtime")?;
+    let mut storage = Storage::for_model(&rec, &cfg);
+    let rt = storage.runtime(rec, cfg).context("building the runtime")?;
     let contact = Contact {
         point: args.contact,
         direction: args.direction,
@@ -105,13 +105,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             }
         }
         if lat.is_empty() && t0.elapsed() > Duration::from_secs(2) {
-            if let Some(found) = reader.receiver_mut().peer_version() {
-                return Err(LinkHostError::Version {
-                    path: args.port.clone(),
-                    found,
-                    expected: LINK_VERSION,
-                }
-                .into());
+            if let Some(e) = reader.version_mismatch(&args.port) {
+                return Err(e.into());
             }
         }
     }

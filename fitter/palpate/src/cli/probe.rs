@@ -6,7 +6,7 @@ use palpate_link::fsr::read_calibration_json;
 use palpate_link::port::{open, FrameReader, StdWrite};
 use palpate_link::LinkHostError;
 use palpate_probe::tx::FrameWriter;
-use palpate_protocol::link::{Config, Frame, LINK_VERSION};
+use palpate_protocol::link::{Config, Frame};
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -79,13 +79,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             }
         }
         if rows.is_empty() && t0.elapsed() > Duration::from_secs(2) {
-            if let Some(found) = reader.receiver_mut().peer_version() {
-                return Err(LinkHostError::Version {
-                    path: args.port.clone(),
-                    found,
-                    expected: LINK_VERSION,
-                }
-                .into());
+            if let Some(e) = reader.version_mismatch(&args.port) {
+                return Err(e.into());
             }
         }
     }

@@ -8,7 +8,6 @@ use palpate_link::faults::{FaultPlan, FaultyWriter};
 use palpate_link::fsr::read_calibration_json;
 use palpate_link::sender::{run_sender, Pacing, SenderOptions};
 use palpate_probe::sim::{default_config, Profile, SimProbe};
-use palpate_protocol::link::LINK_VERSION;
 use serialport::SerialPort;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
@@ -111,13 +110,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let sim = SimProbe::new(config, profile, args.noise)
         .map_err(|e| anyhow::anyhow!("starting the simulated probe: {e}"))?;
-    let opts = SenderOptions {
-        seconds: args.seconds,
-        pacing: Pacing::RealTime,
-        version: LINK_VERSION,
-        stall: None,
-        adc_fault: None,
-    };
+    let opts = SenderOptions::clean(args.seconds, Pacing::RealTime);
     let plan = FaultPlan {
         corrupt: args.corrupt,
         ..Default::default()

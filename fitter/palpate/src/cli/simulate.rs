@@ -8,11 +8,10 @@ use palpate_fem::forward::{Material, StaticProblem};
 use palpate_fem::io::atomic::write_atomic_with;
 use palpate_fem::mesh::vtk::{write_vtk, Field};
 use palpate_fem::mesh::Mesh;
+use palpate_fem::runtime_storage::Storage;
 use palpate_protocol::model::ModelRecord;
 use palpate_runtime::material::LambdaAlpha;
-use palpate_runtime::{
-    ContactRule, Probe, Runtime, RuntimeConfig, SolveStatus, StorageRequirement,
-};
+use palpate_runtime::{ContactRule, Probe, RuntimeConfig, SolveStatus};
 use palpate_static_fit::blend::BlendData;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -237,9 +236,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
         ..Default::default()
     };
-    let need = StorageRequirement::for_model(&record, &cfg);
-    let (mut fs, mut us) = (vec![0f32; need.f32s], vec![0u32; need.u32s]);
-    let mut rt = Runtime::new(record, &mut fs, &mut us, cfg)?;
+    let mut storage = Storage::for_model(&record, &cfg);
+    let mut rt = storage.runtime(record, cfg)?;
     let mut total_force = 0.0f64;
     let mut loads = 0;
     if let (Some(c), Some(f)) = (args.contact, args.force) {

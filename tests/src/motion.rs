@@ -1,0 +1,65 @@
+//! The synthetic bar of the motion tests (seed 001 scenario) and the gradient check they share.
+
+use palpate_fem::mesh::Mesh;
+use palpate_motion::gradient::{evaluate, Method};
+use palpate_motion::model::{Material, Model, Observations, Param};
+use palpate_motion::scenario::{bar_model, nine_markers, two_sinusoids};
+
+/// The bar: 2 × 8 × 2 cm.
+pub const SIZE: [f64; 3] = [0.02, 0.08, 0.02];
+/// The time step: 180 Hz.
+pub const DT: f64 = 1.0 / 180.0;
+
+/// The bar in `cells` hexahedra, its base moving by [`two_sinusoids`] for `steps` steps of
+/// [`DT`], watched by the [`nine_markers`].
+pub fn bar(cells: [usize; 3], steps: usize) -> (Mesh, Model) {
+    bar_model(SIZE, cells, DT, steps, &two_sinusoids, &nine_markers(SIZE)).unwrap()
+}
+
+/// The ground truth of the motion tests on `model`: λ = 10 kPa, μ = 20 kPa, ν = 12, h = 1,
+/// ρ = 47 kg/m³ in every element.
+pub fn truth(model: &Model) -> Material {
+    Material::uniform(model.tets.len(), 1.0e4, 2.0e4, 12.0, 1.0, 47.0)
+}
+
+/// The adjoint and direct gradients of Φ at `mat` with respect to `params`: the same Φ (to
+/// 1e-14), the same gradient (to 1e-8 of the largest component) and both the central finite
+/// difference with step `step(param, value)` (to 1e-4 of the largest component). Returns the
+/// adjoint gradient and its largest component's size.
+pub fn assert_gradients_agree(
+    model: &Model,
+    mat: &Material,
+    params: &[Param],
+    obs: &Observations,
+    step: impl Fn(&Param, f64) -> f64,
+) -> (Vec<f64>, f64) {
+    let ad = evaluate(model, mat, params, obs, Some(Method::Adjoint)).unwrap();
+    let di = evaluate(model, mat, params, obs, Some(Method::Direct)).unwrap();
+    let (ga, gd) = (ad.grad.unwrap(), di.grad.unwrap());
+    assert!((ad.phi - di.phi).abs() <= 1e-14 * ad.phi.abs());
+    let scale = ga.iter().fold(0.0f64, |m, g| m.max(g.abs()));
+    for (p, par) in params.iter().enumerate() {
+        let q0 = mat.read(&[*par])[0];
+        let h = step(par, q0);
+        let phi = |q: f64| {
+            let mut m = mat.clone();
+            m.set(&[*par], &[q]);
+            evaluate(model, &m, params, obs, None).unwrap().phi
+        };
+        let fd = (phi(q0 + h) - phi(q0 - h)) / (2.0 * h);
+        // Adjoint vs direct: same discrete derivative, different order of operations.
+        assert!(
+            (ga[p] - gd[p]).abs() <= 1e-8 * scale.max(ga[p].abs()),
+            "{par:?}: adjoint {} direct {}",
+            ga[p],
+            gd[p]
+        );
+        // Analytic vs FD: relative 1e-4 of the largest component (FD truncation + Newton noise).
+        assert!(
+            (ga[p] - fd).abs() <= 1e-4 * scale.max(fd.abs()),
+            "{par:?}: adjoint {} vs finite difference {fd} (scale {scale})",
+            ga[p]
+        );
+    }
+    (ga, scale)
+}
