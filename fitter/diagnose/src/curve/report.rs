@@ -32,7 +32,7 @@ fn g4(v: f64) -> String {
 
 /// Writes the report into `dir`; returns the files written.
 pub fn write_report(d: &CurveDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, CurveError> {
-    let werr = |e: anyhow::Error| CurveError::Write(format!("{e:#}"));
+    let werr = |e: palpate_fem::io::atomic::AtomicWriteError| CurveError::Write(e.to_string());
     let mut files = Vec::new();
     let ts = d.format.is_time_series();
     let (xl, yl) = d.format.labels();

@@ -187,11 +187,11 @@ pub fn write_vtk(
     };
     write_atomic_with(path, |w| {
         if xml {
-            vtk.write_xml(w)?;
+            vtk.write_xml(w)
         } else {
-            vtk.write_legacy(w)?;
+            vtk.write_legacy(w)
         }
-        Ok(())
+        .map_err(std::io::Error::other)
     })
     .map_err(|e| VtkError::Write {
         file: file(),
