@@ -33,6 +33,7 @@ pub const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 pub mod approx_error;
 pub mod curve;
+mod error;
 pub mod export;
 pub mod fit;
 pub mod model;
@@ -44,6 +45,8 @@ pub mod select;
 pub mod signature;
 
 use std::time::Instant;
+
+pub use error::Error;
 
 use rayon::prelude::*;
 use serde::Serialize;
@@ -116,7 +119,7 @@ pub struct DiagnoseOptions {
 }
 
 /// Which mesh the diagnosis solves its models on.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum MeshChoice {
     /// The dataset's own mesh.
@@ -130,6 +133,46 @@ pub enum MeshChoice {
     /// [`MeshChoice::Corrected`] when the dataset mesh's own discretisation error is a large part
     /// of the noise floor (see [`DiagnoseOptions::refine_above`]), else the dataset's mesh.
     Auto,
+}
+
+impl MeshChoice {
+    /// Every choice, in the order of the enum.
+    pub const ALL: [MeshChoice; 4] = [
+        MeshChoice::Dataset,
+        MeshChoice::Refined,
+        MeshChoice::Corrected,
+        MeshChoice::Auto,
+    ];
+    /// The names of [`MeshChoice::ALL`], as parsed and displayed (and serialised).
+    pub const NAMES: [&'static str; 4] = ["dataset", "refined", "corrected", "auto"];
+
+    /// The name on the command line and in reports (`dataset`, `refined`, `corrected`, `auto`).
+    pub fn name(self) -> &'static str {
+        match self {
+            MeshChoice::Dataset => "dataset",
+            MeshChoice::Refined => "refined",
+            MeshChoice::Corrected => "corrected",
+            MeshChoice::Auto => "auto",
+        }
+    }
+}
+
+impl std::fmt::Display for MeshChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for MeshChoice {
+    type Err = Error;
+
+    /// Parses one of [`MeshChoice::NAMES`] (surrounding blanks ignored).
+    fn from_str(s: &str) -> Result<Self, Error> {
+        Self::ALL
+            .into_iter()
+            .find(|m| m.name() == s.trim())
+            .ok_or_else(|| Error::UnknownMesh { found: s.into() })
+    }
 }
 
 impl Default for DiagnoseOptions {

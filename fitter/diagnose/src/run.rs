@@ -5,8 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Context as _;
-
+use crate::error::Error;
 use crate::model::{Candidate, ALL_CANDIDATES};
 use crate::report::write_report;
 use crate::{run_diagnosis_with, DiagnoseOptions, MeshChoice};
@@ -37,18 +36,18 @@ pub fn pick_candidates<C: Copy>(
     all: &[C],
     name: impl Fn(C) -> &'static str,
     what: &str,
-) -> anyhow::Result<Vec<C>> {
+) -> Result<Vec<C>, Error> {
     names
         .iter()
         .map(|n| {
             all.iter()
                 .copied()
                 .find(|&c| name(c) == n.trim())
-                .ok_or_else(|| {
-                    anyhow::anyhow!(
-                        "unknown {what} {n:?}; known: {}",
-                        all.iter().map(|&c| name(c)).collect::<Vec<_>>().join(", ")
-                    )
+                .ok_or_else(|| Error::UnknownCandidate {
+                    what: what.to_string(),
+                    name: n.clone(),
+                    input: None,
+                    known: all.iter().map(|&c| name(c).to_string()).collect(),
                 })
         })
         .collect()
@@ -64,10 +63,13 @@ fn diagnosable(path: &Path) -> bool {
 /// Runs the diagnosis. A directory that is not itself a dataset or a set of curves but holds such
 /// subdirectories (e.g. a data folder with one folder per instrument) is diagnosed one
 /// subdirectory at a time, each into `<output>/<name>`.
-pub fn run(args: &Request) -> anyhow::Result<()> {
+pub fn run(args: &Request) -> Result<(), Error> {
     if args.dataset.is_dir() && !diagnosable(&args.dataset) {
         let mut subs: Vec<PathBuf> = std::fs::read_dir(&args.dataset)
-            .with_context(|| format!("listing {}", args.dataset.display()))?
+            .map_err(|source| Error::ListDirectory {
+                path: args.dataset.clone(),
+                source,
+            })?
             .filter_map(|e| e.ok().map(|e| e.path()))
             .filter(|p| p.is_dir() && diagnosable(p))
             .collect();
@@ -82,16 +84,14 @@ pub fn run(args: &Request) -> anyhow::Result<()> {
                 println!("== {}", sub.display());
                 if let Err(e) = diagnose_one(args, sub, &args.output.join(name)) {
                     eprintln!("{}: {e:#}", sub.display());
-                    failed.push(sub.display().to_string());
+                    failed.push(sub.clone());
                 }
             }
             if !failed.is_empty() {
-                anyhow::bail!(
-                    "{} of {} subdirectories could not be diagnosed: {}",
-                    failed.len(),
-                    subs.len(),
-                    failed.join(", ")
-                );
+                return Err(Error::Subdirectories {
+                    failed,
+                    total: subs.len(),
+                });
             }
             return Ok(());
         }
@@ -100,7 +100,7 @@ pub fn run(args: &Request) -> anyhow::Result<()> {
 }
 
 /// Diagnoses one dataset or set of curves at `path` into `output`.
-fn diagnose_one(args: &Request, path: &Path, output: &Path) -> anyhow::Result<()> {
+fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<(), Error> {
     // A CSV file or a directory of CSVs without dataset.toml: measured curves (diagnose::curve).
     if crate::curve::read::is_curve_input(path) {
         return crate::curve::cli::run(
@@ -112,21 +112,19 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> anyhow::Result<()
         );
     }
     if !path.exists() {
-        anyhow::bail!("{}: no such file or directory", path.display());
+        return Err(Error::NotFound { path: path.into() });
     }
     if path.is_dir() && !path.join("dataset.toml").exists() {
-        anyhow::bail!(
-            "{}: not a static dataset (no dataset.toml), not a motion dataset (no dataset.toml \
-             with `dt`, plus trajectories.csv) and not measured curves (no CSV file with a \
-             recognised header), and no subdirectory is any of these; see docs/dataset.md, docs/motion-dataset.md and docs/diagnose.md",
-            path.display()
-        );
+        return Err(Error::NotDiagnosable { path: path.into() });
     }
     // dataset.toml with `dt`/`clamps`: a motion dataset (docs/motion-dataset.md).
     if path.is_dir() && crate::motion::is_motion_dataset(path) {
         return crate::motion::cli::run(path, output, &args.candidates, args.max_effects);
     }
-    let ds = StaticDataset::read(path).with_context(|| format!("reading {}", path.display()))?;
+    let ds = StaticDataset::read(path).map_err(|source| Error::StaticDataset {
+        path: path.into(),
+        source,
+    })?;
     let mut o = DiagnoseOptions {
         max_effects: args.max_effects,
         mesh: args.mesh,
@@ -150,7 +148,10 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> anyhow::Result<()
     )?;
     buffers
         .write(&model_path)
-        .with_context(|| format!("writing {}", model_path.display()))?;
+        .map_err(|source| Error::WriteModel {
+            path: model_path.clone(),
+            source,
+        })?;
     files.push(model_path);
     println!(
         "{}: {}; RMS marker error {:.1} → {:.1} µm fitted, {:.1} → {:.1} µm held out (noise floor {:.1} µm)",

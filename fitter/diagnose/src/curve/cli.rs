@@ -1,9 +1,10 @@
 //! Command-line glue of `palpate diagnose <csv file | directory of csv files>`: runs the curve
-//! diagnosis and prints one summary line per dataset (anyhow only here, at the CLI boundary).
+//! diagnosis and prints one summary line per dataset (errors as [`crate::Error`]).
 
 use super::model::{Candidate, Law, HYPERELASTIC};
 use super::report::write_report;
 use super::{diagnose_path, CurveOptions};
+use crate::error::Error;
 use std::path::Path;
 
 /// Every candidate name the curve library knows.
@@ -32,21 +33,22 @@ pub fn run(
     candidates: &[String],
     max_effects: usize,
     gauge_mm: Option<f64>,
-) -> anyhow::Result<()> {
+) -> Result<(), Error> {
     let known = candidate_names();
     for c in candidates {
         if !known.contains(&c.trim().to_string()) {
-            anyhow::bail!(
-                "unknown candidate {c:?}; known for curves: {}",
-                known.join(", ")
-            );
+            return Err(Error::UnknownCandidate {
+                what: "candidate".into(),
+                name: c.clone(),
+                input: Some("curves"),
+                known,
+            });
         }
     }
     if let Some(l) = gauge_mm {
-        anyhow::ensure!(
-            l > 0.0 && l.is_finite(),
-            "--gauge-length must be > 0 mm, found {l}"
-        );
+        if !(l > 0.0 && l.is_finite()) {
+            return Err(Error::GaugeLength { found: l });
+        }
     }
     let o = CurveOptions {
         gauge_mm,

@@ -2,7 +2,7 @@
 
 use super::report::write_report;
 use super::{diagnose, Candidate, MotionOptions, ALL_CANDIDATES};
-use anyhow::Context as _;
+use crate::error::Error;
 use palpate_fem::export::ProvenanceInfo;
 use std::path::Path;
 
@@ -12,9 +12,11 @@ pub fn run(
     output: &Path,
     candidates: &[String],
     max_effects: usize,
-) -> anyhow::Result<()> {
-    let ds = palpate_motion::dataset::load(dataset)
-        .with_context(|| format!("reading motion dataset {}", dataset.display()))?;
+) -> Result<(), Error> {
+    let ds = palpate_motion::dataset::load(dataset).map_err(|source| Error::MotionDataset {
+        path: dataset.into(),
+        source,
+    })?;
     let mut o = MotionOptions {
         max_effects,
         ..Default::default()
@@ -44,8 +46,10 @@ pub fn run(
         let path = output.join("model.palp");
         match palpate_motion::export::model_buffers(&ds.mesh, &ds.model, mat, &prov) {
             Ok(b) => {
-                b.write(&path)
-                    .with_context(|| format!("writing {}", path.display()))?;
+                b.write(&path).map_err(|source| Error::WriteModel {
+                    path: path.clone(),
+                    source,
+                })?;
                 files.push(path);
             }
             Err(e) => eprintln!("note: model.palp not written: {e}"),

@@ -3,6 +3,8 @@
 
 use std::path::PathBuf;
 
+use clap::builder::TypedValueParser as _;
+
 use palpate_diagnose::MeshChoice;
 
 /// Options.
@@ -21,11 +23,19 @@ pub struct Args {
     pub max_effects: usize,
     /// Mesh of static datasets' models: `auto` refines the dataset mesh once when its own
     /// discretisation error is a large part of the noise floor; `dataset`, `refined` force one.
-    #[arg(long, value_enum, default_value = "auto")]
+    #[arg(long, default_value = "auto", value_parser = mesh_choice())]
     pub mesh: MeshChoice,
     /// Gauge length L0 (mm) of tension-test CSVs (stretch λ = 1 + Δ/L0); fitted if not given.
     #[arg(long)]
     pub gauge_length: Option<f64>,
+}
+
+/// Parses `--mesh`, listing [`MeshChoice`]'s names as the possible values in `--help`.
+fn mesh_choice() -> impl clap::builder::TypedValueParser<Value = MeshChoice> {
+    clap::builder::PossibleValuesParser::new(MeshChoice::NAMES).map(|s| {
+        s.parse::<MeshChoice>()
+            .expect("PossibleValuesParser passes only MeshChoice::NAMES")
+    })
 }
 
 /// Runs the command.
@@ -39,5 +49,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         max_effects: args.max_effects,
         mesh: args.mesh,
         gauge_length: args.gauge_length,
-    })
+    })?;
+    Ok(())
 }
