@@ -14,20 +14,20 @@ use crate::DiagnoseError;
 pub enum Error {
     /// The static diagnosis (fit, adoption, report) failed.
     #[error(transparent)]
-    Static(#[from] DiagnoseError),
+    Static(Box<DiagnoseError>),
     /// The motion diagnosis (fit, adoption, report) failed.
     #[error(transparent)]
-    Motion(#[from] MotionDiagnoseError),
+    Motion(Box<MotionDiagnoseError>),
     /// The curve diagnosis (reading, fit, adoption, report) failed.
     #[error(transparent)]
-    Curve(#[from] CurveError),
+    Curve(Box<CurveError>),
     /// A static dataset could not be read.
     #[error("reading {}: {source}", path.display())]
     StaticDataset {
         /// The dataset directory.
         path: PathBuf,
         /// What was wrong, naming file, line and field.
-        source: palpate_fem::dataset::read::DatasetError,
+        source: Box<palpate_fem::dataset::read::DatasetError>,
     },
     /// A motion dataset could not be read.
     #[error("reading motion dataset {}: {source}", path.display())]
@@ -35,7 +35,7 @@ pub enum Error {
         /// The dataset directory.
         path: PathBuf,
         /// What was wrong, naming file, line and field.
-        source: palpate_motion::dataset::DatasetError,
+        source: Box<palpate_motion::dataset::DatasetError>,
     },
     /// The diagnosed model could not be written.
     #[error("writing {}: {source}", path.display())]
@@ -112,6 +112,26 @@ pub enum Error {
         /// How many subdirectories were diagnosed.
         total: usize,
     },
+}
+
+// The diagnosis errors are boxed so that `Result<_, Error>` stays small on the happy path
+// (clippy::result_large_err); `?` still converts them.
+impl From<DiagnoseError> for Error {
+    fn from(e: DiagnoseError) -> Self {
+        Error::Static(Box::new(e))
+    }
+}
+
+impl From<MotionDiagnoseError> for Error {
+    fn from(e: MotionDiagnoseError) -> Self {
+        Error::Motion(Box::new(e))
+    }
+}
+
+impl From<CurveError> for Error {
+    fn from(e: CurveError) -> Self {
+        Error::Curve(Box::new(e))
+    }
 }
 
 #[cfg(test)]

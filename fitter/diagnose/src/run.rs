@@ -123,7 +123,7 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<(), Error>
     }
     let ds = StaticDataset::read(path).map_err(|source| Error::StaticDataset {
         path: path.into(),
-        source,
+        source: Box::new(source),
     })?;
     let mut o = DiagnoseOptions {
         max_effects: args.max_effects,

@@ -15,7 +15,7 @@ pub fn run(
 ) -> Result<(), Error> {
     let ds = palpate_motion::dataset::load(dataset).map_err(|source| Error::MotionDataset {
         path: dataset.into(),
-        source,
+        source: Box::new(source),
     })?;
     let mut o = MotionOptions {
         max_effects,
