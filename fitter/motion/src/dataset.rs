@@ -7,7 +7,7 @@
 //! are linearly interpolated between given times (held after the last row); missing
 //! trajectory rows are dropped frames.
 
-use super::model::{Clamp, MassKind, Model, Observations, Pose};
+use super::model::{Clamp, DeadLoad, MassKind, Model, Observations, Pose};
 use palpate_fem::io::csv::{self, NumberError};
 use palpate_fem::mesh::Mesh;
 use serde::Deserialize;
@@ -68,6 +68,38 @@ pub struct DatasetToml {
     /// Initial guesses (Pa, Pa, Pa·s^h, -, kg/m³).
     #[serde(default)]
     pub initial: Initial,
+    /// Known dead loads besides gravity (`[[loads]]` tables).
+    #[serde(default)]
+    pub loads: Vec<LoadToml>,
+}
+
+/// One `[[loads]]` table: a known dead load on a physical group of the mesh, e.g. a weight hung
+/// from the top edge of the free end:
+///
+/// ```toml
+/// [[loads]]
+/// name = "52 g weight"
+/// group = "free_end"
+/// edge = [1, 0, 0]   # only the group's nodes furthest along +x (its top edge)
+/// mass = 0.052       # kg: the force is mass × gravity; or force = [fx, fy, fz] in N
+/// from_t = 0.0       # s: acts from this time on (default 0, i.e. already at the start)
+/// ```
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LoadToml {
+    /// Name in reports (default: the group's name).
+    pub name: Option<String>,
+    /// Physical group of the mesh whose nodes carry the load.
+    pub group: String,
+    /// If given, only the group's nodes furthest along this direction carry it (an edge).
+    pub edge: Option<[f64; 3]>,
+    /// Total force (N).
+    pub force: Option<[f64; 3]>,
+    /// Hanging mass (kg): force = mass × gravity.
+    pub mass: Option<f64>,
+    /// Time the load comes on (s).
+    #[serde(default)]
+    pub from_t: f64,
 }
 
 /// Initial parameter guesses.
@@ -433,6 +465,12 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
     let mut model = Model::new(&mesh, clamps, Vec::new(), dt, steps, config.gravity, mass)
         .map_err(|e| bad(&tf, 0, e.to_string()))?;
     model.static_start = config.static_start.unwrap_or(true);
+    model.loads = config
+        .loads
+        .iter()
+        .enumerate()
+        .map(|(i, l)| dead_load(&tf, i, l, &mesh, &model))
+        .collect::<Result<_, _>>()?;
     model.markers = marker_pts
         .iter()
         .map(|(n, p)| model.marker_at(n, *p))
@@ -515,6 +553,70 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
         mesh,
         model,
         obs,
+    })
+}
+
+/// The `i`-th `[[loads]]` table as a [`DeadLoad`] on free nodes, or an error naming the field.
+fn dead_load(
+    tf: &Path,
+    i: usize,
+    l: &LoadToml,
+    mesh: &Mesh,
+    model: &Model,
+) -> Result<DeadLoad, DatasetError> {
+    let at = |what: String| bad(tf, 0, format!("loads[{i}] (group {:?}): {what}", l.group));
+    let force = match (l.force, l.mass) {
+        (Some(f), None) if f.iter().all(|v| v.is_finite()) => f,
+        (None, Some(m)) if m.is_finite() && m > 0.0 => model.gravity.map(|g| m * g),
+        (Some(_), Some(_)) => return Err(at("give force or mass, not both".into())),
+        (None, None) => return Err(at("give force = [fx, fy, fz] (N) or mass (kg)".into())),
+        (Some(f), None) => return Err(at(format!("field force: not finite: {f:?}"))),
+        (None, Some(m)) => {
+            return Err(at(format!("field mass: must be finite and > 0, found {m}")))
+        }
+    };
+    if !(l.from_t.is_finite() && l.from_t >= 0.0) {
+        return Err(at(format!(
+            "field from_t: must be finite and ≥ 0 s, found {}",
+            l.from_t
+        )));
+    }
+    let mut nodes = mesh
+        .group(&l.group)
+        .map_err(|e| at(format!("field group: {e}")))?
+        .to_vec();
+    if let Some(d) = l.edge {
+        let norm = d.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if !(norm.is_finite() && norm > 0.0) {
+            return Err(at(format!("field edge: not a direction: {d:?}")));
+        }
+        let along = |n: usize| (0..3).map(|k| mesh.nodes[n][k] * d[k] / norm).sum::<f64>();
+        let (lo, hi) = nodes
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &n| {
+                (a.min(along(n)), b.max(along(n)))
+            });
+        // The group's extent along the direction sets the tolerance: nodes of a meshed edge sit
+        // on it to round-off, the next row of nodes a mesh size away.
+        let tol = 1e-6 * (hi - lo).max(1e-9);
+        nodes.retain(|&n| along(n) >= hi - tol);
+    }
+    let clamped = nodes
+        .iter()
+        .filter(|&&n| model.node_clamp[n] != usize::MAX)
+        .count();
+    if clamped > 0 {
+        return Err(at(format!(
+            "{clamped} of its {} nodes are clamped: a load on a clamp does nothing",
+            nodes.len()
+        )));
+    }
+    let from_step = (l.from_t / model.dt - 1e-9).ceil().max(0.0) as usize;
+    Ok(DeadLoad {
+        name: l.name.clone().unwrap_or_else(|| l.group.clone()),
+        nodes,
+        force,
+        from_step,
     })
 }
 

@@ -37,6 +37,55 @@ pub struct Evaluation {
     pub stats: SimStats,
     /// Bytes the gradient method kept (adjoint tape, or the direct method's sensitivities).
     pub stored_bytes: usize,
+    /// Observed marker positions the RMS is over.
+    pub marker_count: usize,
+    /// Observed clamp forces the RMS is over.
+    pub force_count: usize,
+}
+
+impl Evaluation {
+    /// The evaluation of several runs sharing one material: Φ and gradients add, the RMS errors
+    /// are over all observations of all runs.
+    pub fn combine(parts: &[Evaluation]) -> Evaluation {
+        let pool = |rms: fn(&Evaluation) -> (f64, usize)| {
+            let (sq, n) = parts
+                .iter()
+                .map(rms)
+                .fold((0.0, 0), |(s, c), (r, n)| (s + r * r * n as f64, c + n));
+            if n == 0 {
+                0.0
+            } else {
+                (sq / n as f64).sqrt()
+            }
+        };
+        let grad =
+            parts
+                .iter()
+                .map(|p| p.grad.clone())
+                .try_fold(Vec::<f64>::new(), |mut acc, g| {
+                    let g = g?;
+                    acc.resize(g.len(), 0.0);
+                    acc.iter_mut().zip(&g).for_each(|(a, b)| *a += b);
+                    Some(acc)
+                });
+        Evaluation {
+            phi: parts.iter().map(|p| p.phi).sum(),
+            grad: grad.filter(|_| !parts.is_empty()),
+            rms_marker: pool(|p| (p.rms_marker, p.marker_count)),
+            rms_force: pool(|p| (p.rms_force, p.force_count)),
+            stats: SimStats {
+                newton_iterations: parts.iter().map(|p| p.stats.newton_iterations).sum(),
+                unconverged_steps: parts.iter().map(|p| p.stats.unconverged_steps).sum(),
+                max_residual: parts
+                    .iter()
+                    .map(|p| p.stats.max_residual)
+                    .fold(0.0, f64::max),
+            },
+            stored_bytes: parts.iter().map(|p| p.stored_bytes).max().unwrap_or(0),
+            marker_count: parts.iter().map(|p| p.marker_count).sum(),
+            force_count: parts.iter().map(|p| p.force_count).sum(),
+        }
+    }
 }
 
 /// Per element, the parameter index of each derivative slot (`usize::MAX` = not a parameter),
@@ -80,6 +129,8 @@ fn finish(terms: &StepTerm, stats: SimStats, grad: Option<Vec<f64>>, stored: usi
         rms_force: rms(terms.force_sq, terms.force_count),
         stats,
         stored_bytes: stored,
+        marker_count: terms.marker_count,
+        force_count: terms.force_count,
     }
 }
 

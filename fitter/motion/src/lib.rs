@@ -18,12 +18,14 @@
 pub mod dataset;
 pub mod elastic;
 pub mod export;
+pub mod fitted;
 pub mod forces;
 pub mod gradient;
 pub mod hyperelastic;
 pub mod model;
 pub mod objective;
 pub mod optimize;
+pub mod predict;
 pub mod scenario;
 pub mod sim;
 pub mod sparse;

@@ -359,6 +359,23 @@ pub struct Model {
     pub markers: Vec<Marker>,
     /// Start from elastostatic equilibrium (§3.4) instead of the rest shape.
     pub static_start: bool,
+    /// Known dead loads besides gravity (hanging weights); none by default.
+    pub loads: Vec<DeadLoad>,
+}
+
+/// A known dead load: a constant total force shared equally by `nodes`, acting from step
+/// `from_step` on (a weight hung from an edge, a tared push). It does not depend on any fitted
+/// parameter, so it adds to the external force of every step and to nothing in the gradients.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DeadLoad {
+    /// Name in reports.
+    pub name: String,
+    /// Free nodes that carry the load.
+    pub nodes: Vec<usize>,
+    /// Total force (N).
+    pub force: [f64; 3],
+    /// First step at which the load acts (0: already in the static start).
+    pub from_step: usize,
 }
 
 impl Model {
@@ -446,6 +463,7 @@ impl Model {
             newton: NewtonSettings::default(),
             markers,
             static_start: true,
+            loads: Vec::new(),
         })
     }
 
@@ -530,6 +548,26 @@ impl Model {
             }
         }
         f
+    }
+
+    /// External load at step `n` (full dofs): gravity plus the dead loads acting at `n`.
+    pub fn external_load(&self, mat: &Material, n: usize) -> Vec<f64> {
+        let mut f = self.gravity_load(mat);
+        self.add_dead_loads(n, &mut f);
+        f
+    }
+
+    /// Adds the dead loads acting at step `n` to `f` (full dofs): each load's force split
+    /// equally over its nodes.
+    pub fn add_dead_loads(&self, n: usize, f: &mut [f64]) {
+        for l in self.loads.iter().filter(|l| n >= l.from_step) {
+            let share = 1.0 / l.nodes.len().max(1) as f64;
+            for &node in &l.nodes {
+                for i in 0..3 {
+                    f[3 * node + i] += share * l.force[i];
+                }
+            }
+        }
     }
 
     /// y = M w over all dofs (element-wise, so consistent mass couples clamped and free nodes).

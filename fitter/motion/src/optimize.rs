@@ -19,7 +19,7 @@
 //! analogue of the static fitter's L_s) is added.
 
 use super::gradient::{evaluate, Evaluation, Method};
-use super::model::{Material, Model, Observations, Param};
+use super::model::{Material, Model, Observations, Param, ParamKind};
 use super::spline::{Response, SplineMaterial};
 use super::MotionError;
 use argmin::core::{CostFunction, Error as ArgminError, Executor, Gradient, State};
@@ -42,6 +42,10 @@ pub struct FitSettings {
     pub tol_cost: f64,
     /// Neighbour-smoothness weight; `None` = automatic (see [`auto_smoothness_weight`]).
     pub smoothness: Option<f64>,
+    /// Poisson's ratio held fixed: λ = 2μν/(1 − 2ν) follows the fitted global μ (λ must then
+    /// not be a parameter itself). For a bending test whose markers see the deflection but not
+    /// the volume change, λ is not identifiable; a nearly incompressible material is declared.
+    pub poisson: Option<f64>,
 }
 
 impl Default for FitSettings {
@@ -53,6 +57,7 @@ impl Default for FitSettings {
             tol_grad: 1e-12,
             tol_cost: 1e-10,
             smoothness: None,
+            poisson: None,
         }
     }
 }
@@ -74,6 +79,8 @@ pub struct FitResult {
     pub failures: Vec<String>,
     /// Φ after each evaluation.
     pub history: Vec<f64>,
+    /// Evaluation of each run at the fitted parameters (one entry for a one-run fit).
+    pub runs: Vec<Evaluation>,
 }
 
 /// Automatic neighbour-smoothness weight: 1e-3 · Φ(q₀) / #pairs, i.e. a log-ratio of e ≈ 2.7
@@ -121,16 +128,60 @@ impl Transform {
     }
 }
 
+/// `base` with `q` applied and, with a fixed Poisson's ratio, λ = ratio · μ.
+fn problem_material(
+    base: &Material,
+    params: &[Param],
+    q: &[f64],
+    tie: Option<(usize, f64)>,
+) -> Material {
+    let mut mat = base.clone();
+    mat.set(params, q);
+    if let Some((mu, ratio)) = tie {
+        mat.set(&[Param::global(ParamKind::Lambda)], &[ratio * q[mu]]);
+    }
+    mat
+}
+
+/// One run of a fit: a model (mesh, clamps, loads, time grid) and what was observed. Several runs
+/// of one object (other loads, repeats) share one material and are fitted together.
+#[derive(Debug, Clone, Copy)]
+pub struct Run<'a> {
+    /// The run's model.
+    pub model: &'a Model,
+    /// The run's observations.
+    pub obs: &'a Observations,
+}
+
+/// Φ and dΦ/dq summed over `runs` (each simulated on its own thread when there are several).
+pub fn evaluate_runs(
+    runs: &[Run<'_>],
+    mat: &Material,
+    params: &[Param],
+    method: Option<Method>,
+) -> Result<(Evaluation, Vec<Evaluation>), MotionError> {
+    let parts: Vec<Evaluation> = if runs.len() == 1 {
+        vec![evaluate(runs[0].model, mat, params, runs[0].obs, method)?]
+    } else {
+        use rayon::prelude::*;
+        runs.par_iter()
+            .map(|r| evaluate(r.model, mat, params, r.obs, method))
+            .collect::<Result<_, _>>()?
+    };
+    Ok((Evaluation::combine(&parts), parts))
+}
+
 struct Problem<'a> {
-    model: &'a Model,
+    runs: &'a [Run<'a>],
     base: &'a Material,
     params: &'a [Param],
-    obs: &'a Observations,
     method: Method,
     pairs: Vec<(usize, usize)>,
     weight: f64,
     transforms: Vec<Transform>,
     slope_weight: f64,
+    /// (index of the global μ parameter, λ/μ) when Poisson's ratio is held fixed.
+    tie: Option<(usize, f64)>,
     cache: &'a Mutex<Cache>,
     progress: &'a (dyn Fn(usize, f64) + Sync),
 }
@@ -147,6 +198,11 @@ struct Cache {
 }
 
 impl Problem<'_> {
+    /// The base material with the parameters `q` applied (and λ tied to μ if asked).
+    fn material(&self, q: &[f64]) -> Material {
+        problem_material(self.base, self.params, q, self.tie)
+    }
+
     fn regulariser(&self, z: &[f64], grad: &mut [f64]) -> f64 {
         let mut r = 0.0;
         for &(a, b) in &self.pairs {
@@ -188,9 +244,23 @@ impl Problem<'_> {
             .zip(&self.transforms)
             .map(|(v, t)| t.q(*v))
             .collect();
-        let mut mat = self.base.clone();
-        mat.set(self.params, &q);
-        let out = evaluate(self.model, &mat, self.params, self.obs, Some(self.method));
+        let mat = self.material(&q);
+        let out = match self.tie {
+            None => evaluate_runs(self.runs, &mat, self.params, Some(self.method)).map(|(a, _)| a),
+            // λ is evaluated as one more global parameter and folded into μ by the chain rule:
+            // dΦ/dμ|tied = ∂Φ/∂μ + (λ/μ) ∂Φ/∂λ.
+            Some((mu, ratio)) => {
+                let mut with_lambda = self.params.to_vec();
+                with_lambda.push(Param::global(ParamKind::Lambda));
+                evaluate_runs(self.runs, &mat, &with_lambda, Some(self.method)).map(|(mut a, _)| {
+                    if let Some(g) = a.grad.as_mut() {
+                        let dl = g.pop().unwrap_or(0.0);
+                        g[mu] += ratio * dl;
+                    }
+                    a
+                })
+            }
+        };
         let mut c = self.cache.lock().expect("cache lock");
         c.evaluations += 1;
         let out_ok = out.is_ok();
@@ -266,7 +336,42 @@ pub fn fit(
     element_pairs: &[(usize, usize)],
     progress: &(dyn Fn(usize, f64) + Sync),
 ) -> Result<FitResult, MotionError> {
+    fit_runs(
+        &[Run { model, obs }],
+        base,
+        params,
+        q0,
+        settings,
+        element_pairs,
+        progress,
+    )
+}
+
+/// [`fit`] over several runs of one object sharing the material (Φ summed over the runs; every
+/// run's model must be on the same mesh as `base`).
+pub fn fit_runs(
+    runs: &[Run<'_>],
+    base: &Material,
+    params: &[Param],
+    q0: &[f64],
+    settings: &FitSettings,
+    element_pairs: &[(usize, usize)],
+    progress: &(dyn Fn(usize, f64) + Sync),
+) -> Result<FitResult, MotionError> {
     base.check_params(params)?;
+    if runs.is_empty() {
+        return Err(MotionError::Invalid("no runs to fit".into()));
+    }
+    if let Some(r) = runs
+        .iter()
+        .find(|r| r.model.tets.len() != runs[0].model.tets.len())
+    {
+        return Err(MotionError::Invalid(format!(
+            "runs on different meshes ({} and {} tets): the runs of one fit share one material",
+            runs[0].model.tets.len(),
+            r.model.tets.len()
+        )));
+    }
     if q0.len() != params.len() {
         return Err(MotionError::Invalid(format!(
             "{} starting values for {} parameters",
@@ -321,17 +426,41 @@ pub fn fit(
                 .collect::<Vec<_>>()
         })
         .collect();
+    let tie = match settings.poisson {
+        None => None,
+        Some(nu) => {
+            if !(nu.is_finite() && nu > -1.0 && nu < 0.5) {
+                return Err(MotionError::Invalid(format!(
+                    "Poisson's ratio must lie in (−1, 0.5), found {nu}"
+                )));
+            }
+            if params.iter().any(|p| p.kind == ParamKind::Lambda) {
+                return Err(MotionError::Invalid(
+                    "λ is a parameter and Poisson's ratio is fixed: give one or the other".into(),
+                ));
+            }
+            let mu = params
+                .iter()
+                .position(|p| p.kind == ParamKind::Mu && p.element.is_none())
+                .ok_or_else(|| {
+                    MotionError::Invalid(
+                        "a fixed Poisson's ratio needs the global μ among the parameters".into(),
+                    )
+                })?;
+            Some((mu, 2.0 * nu / (1.0 - 2.0 * nu)))
+        }
+    };
     let cache_cell = Mutex::new(Cache::default());
     let mut problem = Problem {
-        model,
+        runs,
         base,
         params,
-        obs,
         method: settings.method,
         pairs,
         weight: 0.0,
         transforms: transforms.clone(),
         slope_weight: 0.0,
+        tie,
         cache: &cache_cell,
         progress,
     };
@@ -389,9 +518,8 @@ pub fn fit(
         .zip(&transforms)
         .map(|(v, t)| t.q(*v))
         .collect();
-    let mut mat = base.clone();
-    mat.set(params, &q);
-    let eval = evaluate(model, &mat, params, obs, None)?;
+    let mat = problem_material(base, params, &q, tie);
+    let (eval, per_run) = evaluate_runs(runs, &mat, params, None)?;
     let mut failures = cache.failures;
     if let Err(e) = run {
         failures.push(format!("optimiser stopped: {e}"));
@@ -404,5 +532,6 @@ pub fn fit(
         iterations,
         failures,
         history: cache.history,
+        runs: per_run,
     })
 }

@@ -41,11 +41,63 @@ pub struct SimStats {
 /// Elastostatic equilibrium f(x, 0) + f_ext = 0 with clamps at their step-0 pose (§3.4).
 /// Returns x⁰ and the factor of K₀ at x⁰ (needed by eq. 14 and the direct method's s_x⁰).
 pub fn static_start(model: &Model, mat: &Material) -> Result<(Vec<f64>, Factor), MotionError> {
-    let ndof = 3 * model.nodes.len();
+    equilibrium(model, mat, 0)
+}
+
+/// Elastostatic equilibrium under the clamp poses and external loads of step `n`, by Newton
+/// from the rest shape: where a run that has rung down should come to rest (the prediction a
+/// validation compares with the capture's last frames).
+pub fn equilibrium(
+    model: &Model,
+    mat: &Material,
+    n: usize,
+) -> Result<(Vec<f64>, Factor), MotionError> {
     let mut x: Vec<f64> = model.nodes.iter().flatten().copied().collect();
-    model.apply_clamps(0, &mut x);
+    model.apply_clamps(n, &mut x);
+    equilibrium_from(model, mat, n, x)
+}
+
+/// [`equilibrium`] by Newton from `x` (full dofs, clamped dofs already at their step-`n` pose),
+/// e.g. the last state of a simulation that has nearly come to rest. When Newton fails under the
+/// full load (a large deflection from a far start), the load is applied in increments, each
+/// solve starting from the last.
+pub fn equilibrium_from(
+    model: &Model,
+    mat: &Material,
+    n: usize,
+    x: Vec<f64>,
+) -> Result<(Vec<f64>, Factor), MotionError> {
+    let fext = model.external_load(mat, n);
+    match newton_static(model, mat, n, x.clone(), &fext) {
+        Ok(r) => Ok(r),
+        Err(first) => {
+            const INCREMENTS: usize = 8;
+            let mut x = x;
+            let mut last = Err(first);
+            for k in 1..=INCREMENTS {
+                let s = k as f64 / INCREMENTS as f64;
+                let f: Vec<f64> = fext.iter().map(|v| s * v).collect();
+                last = newton_static(model, mat, n, x.clone(), &f);
+                match &last {
+                    Ok((xs, _)) => x = xs.clone(),
+                    Err(_) => break,
+                }
+            }
+            last
+        }
+    }
+}
+
+/// Newton with backtracking for f(x, 0) + `fext` = 0 from `x`.
+fn newton_static(
+    model: &Model,
+    mat: &Material,
+    n: usize,
+    mut x: Vec<f64>,
+    fext: &[f64],
+) -> Result<(Vec<f64>, Factor), MotionError> {
+    let ndof = 3 * model.nodes.len();
     let v = vec![0.0; ndof];
-    let fext = model.gravity_load(mat);
     let mut f = vec![0.0; ndof];
     let mut k = vec![0.0; model.pattern.nnz()];
     let resid =
@@ -65,7 +117,7 @@ pub fn static_start(model: &Model, mat: &Material) -> Result<(Vec<f64>, Factor),
         let factor = model
             .pattern
             .factor(&k)
-            .ok_or(MotionError::NotPositiveDefinite { step: 0 })?;
+            .ok_or(MotionError::NotPositiveDefinite { step: n })?;
         if nrm < model.newton.tol {
             return Ok((x, factor));
         }
@@ -88,7 +140,7 @@ pub fn static_start(model: &Model, mat: &Material) -> Result<(Vec<f64>, Factor),
                 }
                 _ if alpha < 1e-6 => {
                     return Err(MotionError::NoConvergence {
-                        step: 0,
+                        step: n,
                         residual: nrm,
                     })
                 }
@@ -98,7 +150,7 @@ pub fn static_start(model: &Model, mat: &Material) -> Result<(Vec<f64>, Factor),
     }
     let (_, nrm) = resid(&x, &mut f, None)?;
     Err(MotionError::NoConvergence {
-        step: 0,
+        step: n,
         residual: nrm,
     })
 }
@@ -128,7 +180,9 @@ pub fn simulate(
     drop(k0);
     let c = 1.5 / model.dt;
     let a2 = 2.0 * model.dt / 3.0;
-    let fext = model.gravity_load(mat);
+    // Gravity once; the dead loads switch on at their step.
+    let fgrav = model.gravity_load(mat);
+    let mut fext = fgrav.clone();
     let mvals = model.mass_values(mat);
     let (mut xm2, mut xm1) = (x0.clone(), x0);
     let (mut vm2, mut vm1) = (vec![0.0; ndof], vec![0.0; ndof]);
@@ -139,6 +193,10 @@ pub fn simulate(
     let mut mw = vec![0.0; ndof];
     let mut stats = SimStats::default();
     for n in 1..=model.steps {
+        if !model.loads.is_empty() {
+            fext.copy_from_slice(&fgrav);
+            model.add_dead_loads(n, &mut fext);
+        }
         let xa: Vec<f64> = (0..ndof).map(|d| (4.0 * xm1[d] - xm2[d]) / 3.0).collect();
         let b: Vec<f64> = (0..ndof).map(|d| (4.0 * vm1[d] - vm2[d]) / 3.0).collect();
         let mut x = vec![0.0; ndof];

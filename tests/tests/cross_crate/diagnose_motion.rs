@@ -47,6 +47,7 @@ fn specimen(nu: f64, seed: u64) -> MotionDataset {
                 nu: 6.0,
                 h: 1.3,
             },
+            loads: Vec::new(),
         },
         mesh,
         model,

@@ -20,6 +20,7 @@ mod motion_dataset;
 mod motion_export;
 mod motion_fit;
 mod motion_gradients;
+mod motion_loads;
 mod motion_spline;
 mod motion_statics;
 mod runtime_evidence;

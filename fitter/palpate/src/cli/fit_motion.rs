@@ -4,17 +4,21 @@
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use palpate_fem::export::ProvenanceInfo;
+use palpate_motion::fitted::{FittedModel, FittedRun};
 use palpate_motion::gradient::Method;
 use palpate_motion::model::{Material, Param, ParamKind};
-use palpate_motion::optimize::{fit, FitSettings};
+use palpate_motion::optimize::{fit_runs, FitSettings, Run};
+use palpate_motion::predict;
 use palpate_runtime::material::LambdaAlpha;
 use std::path::PathBuf;
 
 /// Options.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Dataset directory (dataset.toml, mesh.msh, markers.csv, …).
-    pub dataset: PathBuf,
+    /// Dataset directories (dataset.toml, mesh.msh, markers.csv, …): one, or several runs of one
+    /// object on one mesh (other loads, repeats) fitted together with one material.
+    #[arg(required = true, num_args = 1..)]
+    pub datasets: Vec<PathBuf>,
     /// Global parameters to fit, comma-separated from lambda,mu,nu,h,density.
     #[arg(long, default_value = "lambda,mu,nu,h", value_delimiter = ',')]
     pub params: Vec<String>,
@@ -27,6 +31,14 @@ pub struct Args {
     /// Use direct sensitivities instead of the adjoint method.
     #[arg(long)]
     pub direct: bool,
+    /// Hold Poisson's ratio fixed at this value (λ follows μ; give `mu` and not `lambda` in
+    /// --params). For a nearly incompressible material seen through a few markers.
+    #[arg(long)]
+    pub poisson: Option<f64>,
+    /// Starting values overriding the first dataset's `[initial]` table, e.g. `mu=8e4,nu=5`
+    /// (lambda, mu in Pa; nu, the viscosity coefficient, in Pa·s^h; h).
+    #[arg(long, value_delimiter = ',', value_name = "KIND=VALUE")]
+    pub initial: Vec<String>,
     /// LBFGS iteration cap.
     #[arg(long, default_value_t = 150)]
     pub max_iters: u64,
@@ -45,9 +57,40 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for out in [&args.output, &args.export].into_iter().flatten() {
         super::output::check_writable(out)?;
     }
-    let ds = palpate_motion::dataset::load(&args.dataset)?;
+    let all: Vec<palpate_motion::dataset::MotionDataset> = args
+        .datasets
+        .iter()
+        .map(|d| palpate_motion::dataset::load(d))
+        .collect::<Result<_, _>>()?;
+    let ds = &all[0];
+    for (d, other) in args.datasets.iter().zip(&all).skip(1) {
+        anyhow::ensure!(
+            other.mesh.nodes == ds.mesh.nodes && other.mesh.tets == ds.mesh.tets,
+            "{}: its mesh differs from {}'s: the runs of one fit share one mesh and material",
+            d.display(),
+            args.datasets[0].display()
+        );
+    }
     let ne = ds.model.tets.len();
-    let init = &ds.config.initial;
+    let mut init = ds.config.initial.clone();
+    for kv in &args.initial {
+        let (k, v) = kv
+            .split_once('=')
+            .with_context(|| format!("--initial: {kv:?} is not KIND=VALUE"))?;
+        let v: f64 = v
+            .trim()
+            .parse()
+            .ok()
+            .filter(|v: &f64| v.is_finite() && *v > 0.0)
+            .with_context(|| format!("--initial: {kv:?}: the value must be a finite number > 0"))?;
+        match k.trim() {
+            "lambda" => init.lambda = v,
+            "mu" => init.mu = v,
+            "nu" => init.nu = v,
+            "h" => init.h = v,
+            o => anyhow::bail!("--initial: unknown kind {o:?} (lambda, mu, nu, h)"),
+        }
+    }
     let density = ds.config.density.unwrap_or(1000.0);
     let base = Material::uniform(ne, init.lambda, init.mu, init.nu, init.h, density);
     let mut params = Vec::new();
@@ -95,14 +138,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
         max_iters: args.max_iters,
         smoothness: args.smoothness,
+        poisson: args.poisson,
         ..Default::default()
     };
-    let r = fit(
-        &ds.model,
+    let runs: Vec<Run> = all
+        .iter()
+        .map(|d| Run {
+            model: &d.model,
+            obs: &d.obs,
+        })
+        .collect();
+    let r = fit_runs(
+        &runs,
         &base,
         &params,
         &q0,
-        &ds.obs,
         &settings,
         &ds.mesh.face_neighbours(),
         &progress,
@@ -110,11 +160,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     bar.finish_and_clear();
     let mut fitted = base.clone();
     fitted.set(&params, &r.q);
+    if let (Some(nu), Some(mu)) = (
+        args.poisson,
+        params.iter().position(|p| p.kind == ParamKind::Mu),
+    ) {
+        fitted.set(
+            &[Param::global(ParamKind::Lambda)],
+            &[2.0 * nu / (1.0 - 2.0 * nu) * r.q[mu]],
+        );
+    }
+    let names: Vec<String> = args
+        .datasets
+        .iter()
+        .map(|d| d.display().to_string())
+        .collect();
     println!(
         "fit-motion {}: {} tets, {} steps of {} s, {} markers",
-        args.dataset.display(),
+        names.join(" + "),
         ne,
-        ds.model.steps,
+        all.iter()
+            .map(|d| d.model.steps.to_string())
+            .collect::<Vec<_>>()
+            .join(" + "),
         ds.model.dt,
         ds.model.markers.len()
     );
@@ -124,6 +191,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         r.eval.rms_marker * 1e3
     );
     println!("| RMS force error | {:.4e} N |", r.eval.rms_force);
+    if all.len() > 1 {
+        for (name, e) in names.iter().zip(&r.runs) {
+            println!(
+                "| RMS marker error, {name} | {:.4} mm |",
+                e.rms_marker * 1e3
+            );
+        }
+    }
     println!(
         "| simulations / LBFGS iterations | {} / {} |",
         r.evaluations, r.iterations
@@ -138,6 +213,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             });
         let tag = if params.iter().any(|p| p.kind == k) {
             "fitted"
+        } else if k == ParamKind::Lambda && args.poisson.is_some() {
+            "from μ at the fixed Poisson's ratio"
         } else {
             "fixed"
         };
@@ -198,18 +275,61 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     ));
     let findings = findings.into_result()?;
     if let Some(out) = &args.output {
-        let json = serde_json::json!({
-            "dataset": args.dataset.display().to_string(),
-            "lambda": fitted.values[0], "mu": fitted.values[1], "nu": fitted.values[2], "h": fitted.values[3], "density": fitted.values[4],
-            "runtime_lambda_alpha": fitted.values[0].iter().zip(&fitted.values[1]).map(|(l, m)| { let a = LambdaAlpha::from_lame(*l, *m); [a.lambda, a.alpha] }).collect::<Vec<_>>(),
-            "rms_marker_m": r.eval.rms_marker, "rms_force_n": r.eval.rms_force, "evaluations": r.evaluations,
-        });
+        let record = FittedModel {
+            format: palpate_motion::fitted::FORMAT.into(),
+            datasets: names.clone(),
+            nodes: ds.mesh.nodes.len(),
+            tets: ne,
+            lambda: fitted.values[0].clone(),
+            mu: fitted.values[1].clone(),
+            viscosity: fitted.values[2].clone(),
+            h: fitted.values[3].clone(),
+            density: fitted.values[4].clone(),
+            poisson_fixed: args.poisson,
+            fitted: params
+                .iter()
+                .map(|p| p.kind.name().to_string())
+                .collect::<std::collections::BTreeSet<_>>()
+                .into_iter()
+                .collect(),
+            runtime_lambda_alpha: fitted.values[0]
+                .iter()
+                .zip(&fitted.values[1])
+                .map(|(l, m)| {
+                    let a = LambdaAlpha::from_lame(*l, *m);
+                    [a.lambda, a.alpha]
+                })
+                .collect(),
+            rms_marker_m: r.eval.rms_marker,
+            rms_force_n: r.eval.rms_force,
+            evaluations: r.evaluations,
+            runs: all
+                .iter()
+                .zip(&names)
+                .zip(&r.runs)
+                .map(|((d, name), e)| {
+                    let rest = predict::rest_markers(&d.model);
+                    FittedRun {
+                        dataset: name.clone(),
+                        load_n: predict::load_along_gravity(&d.model),
+                        rms_marker_m: e.rms_marker,
+                        markers: d.model.markers.iter().map(|m| m.name.clone()).collect(),
+                        final_displacement_m: predict::final_observed(&d.model, &d.obs)
+                            .iter()
+                            .zip(&rest)
+                            .map(|(f, r0)| f.map(|p| [0, 1, 2].map(|k| p[k] - r0[k])))
+                            .collect(),
+                    }
+                })
+                .collect(),
+        };
         palpate_fem::io::atomic::write_atomic(
             out,
-            serde_json::to_string_pretty(&json)?.as_bytes(),
+            serde_json::to_string_pretty(&record)?.as_bytes(),
         )?;
         println!(
-            "wrote {} (fitted parameters; viscosity is not used by the static runtime)",
+            "wrote {} (fitted parameters; `palpate validate --model {}` predicts other runs)",
+            out.display(),
             out.display()
         );
     }
@@ -220,7 +340,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 env!("CARGO_PKG_VERSION"),
                 std::env::args().collect::<Vec<_>>().join(" ")
             ),
-            source: args.dataset.display().to_string(),
+            source: names.join(" + "),
             notes: format!(
                 "fit-motion: RMS marker {:.4e} m, RMS force {:.4e} N, {} simulations",
                 r.eval.rms_marker, r.eval.rms_force, r.evaluations

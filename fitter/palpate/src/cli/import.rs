@@ -34,6 +34,11 @@ pub struct C3dArgs {
     /// Density (kg/m³), if known.
     #[arg(long)]
     pub density: Option<f64>,
+    /// A weight hung from the top edge of a group of the mesh (its nodes furthest against
+    /// gravity), as `MASS_KG@GROUP`, e.g. `0.052@free_end`; repeat for several. Written as a
+    /// `[[loads]]` table of the dataset (docs/motion-dataset.md).
+    #[arg(long = "hang", value_name = "KG@GROUP", value_parser = parse_hang)]
+    pub hang: Vec<(f64, String)>,
     /// Frame at rest used for the registration.
     #[arg(long, default_value_t = 0)]
     pub rest_frame: usize,
@@ -65,6 +70,23 @@ fn parse_vec3_f64(s: &str) -> Result<[f64; 3], String> {
         [x, y, z] if v.iter().all(|a| a.is_finite()) => Ok([x, y, z]),
         _ => Err(format!("{s:?}: expected three finite numbers x,y,z")),
     }
+}
+
+fn parse_hang(s: &str) -> Result<(f64, String), String> {
+    let (m, g) = s
+        .split_once('@')
+        .ok_or_else(|| format!("{s:?}: expected MASS_KG@GROUP, e.g. 0.052@free_end"))?;
+    let m: f64 = m
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?}: the mass {m:?} is not a number (kg)"))?;
+    if !(m.is_finite() && m > 0.0) {
+        return Err(format!("{s:?}: the mass must be finite and > 0 kg"));
+    }
+    if g.trim().is_empty() {
+        return Err(format!("{s:?}: no group after '@'"));
+    }
+    Ok((m, g.trim().to_string()))
 }
 
 /// Runs the command.
@@ -137,6 +159,15 @@ pub fn run(cmd: ImportCommand) -> anyhow::Result<()> {
     );
     if let Some(d) = a.density {
         toml.push_str(&format!("density = {d}\n"));
+    }
+    // Tables last: every key after a `[[loads]]` header would belong to it.
+    for (m, g) in &a.hang {
+        toml.push_str(&format!(
+            "\n[[loads]]\nname = \"{m} kg hung from {g}\"\ngroup = {g:?}\nedge = [{}, {}, {}]\nmass = {m}\n",
+            -a.gravity[0],
+            -a.gravity[1],
+            -a.gravity[2]
+        ));
     }
     let r = import_motion_dataset(
         &capture,

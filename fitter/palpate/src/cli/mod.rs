@@ -14,6 +14,7 @@ pub mod probe;
 pub mod probe_sim;
 pub mod simulate;
 pub mod specimen;
+pub mod validate;
 
 /// palpate: learn how a soft object deforms when touched, and play it back at haptic rates.
 #[derive(Debug, Parser)]
@@ -46,6 +47,8 @@ pub enum Command {
     Haptic(haptic::Args),
     /// Fit visco-elastic parameters to a motion dataset (Real2Sim).
     FitMotion(fit_motion::Args),
+    /// Predict a motion dataset from a fitted model without refitting; report the marker errors.
+    Validate(validate::Args),
     /// Simulate a stand-in specimen with undeclared effects as a static dataset (+ truth.json).
     Specimen(specimen::Args),
     /// Trace a static dataset's residual to missing effects, adopt those that earn their place, report.
@@ -81,6 +84,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::ProbeSim(a) => probe_sim::run(a),
         Command::Haptic(a) => haptic::run(a),
         Command::FitMotion(a) => fit_motion::run(a),
+        Command::Validate(a) => validate::run(a),
         Command::Specimen(a) => specimen::run(a),
         Command::Diagnose(a) => diagnose::run(a),
     }

@@ -1,0 +1,237 @@
+//! Predicting a run from a fitted material without refitting: the simulated trajectory against
+//! the capture (every observed marker at every step), the elastostatic equilibrium under the
+//! run's loads against where the capture came to rest, and the naive baseline a model must beat
+//! — the final marker displacements extrapolated linearly in the load from the fitted runs.
+//!
+//! "Where the capture came to rest" is the mean of each marker over the last
+//! [`FINAL_WINDOW_S`] of the run: a ring-down never quite stops, and one frame carries the
+//! capture noise.
+
+use super::model::{Material, Model, Observations};
+use super::sim::{equilibrium_from, simulate};
+use super::MotionError;
+
+/// Seconds at the end of a run averaged as its final rest state.
+pub const FINAL_WINDOW_S: f64 = 0.5;
+
+/// The scalar load of a run for the linear baseline: the dead loads acting at the end, projected
+/// on gravity's direction (N; gravity itself is the same in every run of one object and sits in
+/// the intercept). Without gravity, the loads' magnitude.
+pub fn load_along_gravity(model: &Model) -> f64 {
+    let g = model.gravity;
+    let gn = g.iter().map(|v| v * v).sum::<f64>().sqrt();
+    model
+        .loads
+        .iter()
+        .filter(|l| l.from_step <= model.steps)
+        .map(|l| {
+            if gn > 0.0 {
+                (0..3).map(|k| l.force[k] * g[k] / gn).sum::<f64>()
+            } else {
+                l.force.iter().map(|v| v * v).sum::<f64>().sqrt()
+            }
+        })
+        .sum::<f64>()
+        + 0.0 // −0.0 (no loads, negative gravity) prints as 0
+}
+
+/// Each marker's rest position (the registered places, embedded in the mesh).
+pub fn rest_markers(model: &Model) -> Vec<[f64; 3]> {
+    let x: Vec<f64> = model.nodes.iter().flatten().copied().collect();
+    model
+        .markers
+        .iter()
+        .map(|m| model.marker_position(m, &x))
+        .collect()
+}
+
+/// Each marker's mean observed position over the last [`FINAL_WINDOW_S`] of the run (`None` for
+/// a marker never seen in that window).
+pub fn final_observed(model: &Model, obs: &Observations) -> Vec<Option<[f64; 3]>> {
+    let window = ((FINAL_WINDOW_S / model.dt).round() as usize).max(1);
+    let last = obs.markers.len();
+    let from = last.saturating_sub(window);
+    (0..model.markers.len())
+        .map(|i| {
+            let seen: Vec<[f64; 3]> = obs.markers[from..last]
+                .iter()
+                .filter_map(|row| row.get(i).copied().flatten())
+                .collect();
+            (!seen.is_empty()).then(|| {
+                let n = seen.len() as f64;
+                [0, 1, 2].map(|k| seen.iter().map(|p| p[k]).sum::<f64>() / n)
+            })
+        })
+        .collect()
+}
+
+/// One marker's error statistics.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MarkerError {
+    /// The marker.
+    pub name: String,
+    /// RMS over the observed steps of the trajectory (m).
+    pub trajectory_rms_m: f64,
+    /// Distance between the predicted equilibrium and the observed rest state (m); `None` if
+    /// the marker was not seen at the end.
+    pub final_m: Option<f64>,
+}
+
+/// A prediction of one run and its errors against the capture.
+#[derive(Debug, Clone)]
+pub struct Prediction {
+    /// RMS over every observed (step, marker) of ‖simulated − observed‖ (m).
+    pub trajectory_rms_m: f64,
+    /// Largest ‖simulated − observed‖ over the run (m).
+    pub trajectory_max_m: f64,
+    /// RMS over markers of ‖equilibrium − observed rest‖ (m).
+    pub final_rms_m: f64,
+    /// Largest of those (m).
+    pub final_max_m: f64,
+    /// Per marker.
+    pub markers: Vec<MarkerError>,
+    /// Simulated marker positions per step n = 1..=steps (m).
+    pub simulated: Vec<Vec<[f64; 3]>>,
+    /// Predicted equilibrium marker positions (m).
+    pub equilibrium: Vec<[f64; 3]>,
+    /// Observed rest state (m), as [`final_observed`].
+    pub observed_final: Vec<Option<[f64; 3]>>,
+}
+
+fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt()
+}
+
+fn rms(v: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (mut sq, mut n, mut max) = (0.0, 0usize, 0.0f64);
+    for e in v {
+        sq += e * e;
+        n += 1;
+        max = max.max(e);
+    }
+    (if n == 0 { 0.0 } else { (sq / n as f64).sqrt() }, max)
+}
+
+/// Simulates the run with `mat` and solves its final equilibrium; compares both with `obs`.
+pub fn predict(
+    model: &Model,
+    mat: &Material,
+    obs: &Observations,
+) -> Result<Prediction, MotionError> {
+    let mut simulated: Vec<Vec<[f64; 3]>> = Vec::with_capacity(model.steps);
+    let mut last = Vec::new();
+    simulate(
+        model,
+        mat,
+        false,
+        |_, _| {},
+        |s| {
+            simulated.push(
+                model
+                    .markers
+                    .iter()
+                    .map(|m| model.marker_position(m, s.x))
+                    .collect(),
+            );
+            if s.n == model.steps {
+                last = s.x.to_vec();
+            }
+            Ok(())
+        },
+    )?;
+    // From the run's last state, near rest after a ring-down: Newton converges in a few steps
+    // where a start from the undeformed shape would need load increments.
+    let (x_eq, _) = equilibrium_from(model, mat, model.steps, last)?;
+    let eq: Vec<[f64; 3]> = model
+        .markers
+        .iter()
+        .map(|m| model.marker_position(m, &x_eq))
+        .collect();
+    let observed_final = final_observed(model, obs);
+    let nm = model.markers.len();
+    let mut per_marker = vec![(0.0, 0usize); nm];
+    let mut all = Vec::new();
+    for (row_sim, row_obs) in simulated.iter().zip(&obs.markers) {
+        for i in 0..nm {
+            if let Some(o) = row_obs.get(i).copied().flatten() {
+                let e = dist(&row_sim[i], &o);
+                per_marker[i].0 += e * e;
+                per_marker[i].1 += 1;
+                all.push(e);
+            }
+        }
+    }
+    let (trajectory_rms_m, trajectory_max_m) = rms(all.into_iter());
+    let finals: Vec<Option<f64>> = (0..nm)
+        .map(|i| observed_final[i].map(|o| dist(&eq[i], &o)))
+        .collect();
+    let (final_rms_m, final_max_m) = rms(finals.iter().flatten().copied());
+    let markers = model
+        .markers
+        .iter()
+        .enumerate()
+        .map(|(i, m)| MarkerError {
+            name: m.name.clone(),
+            trajectory_rms_m: if per_marker[i].1 == 0 {
+                0.0
+            } else {
+                (per_marker[i].0 / per_marker[i].1 as f64).sqrt()
+            },
+            final_m: finals[i],
+        })
+        .collect();
+    Ok(Prediction {
+        trajectory_rms_m,
+        trajectory_max_m,
+        final_rms_m,
+        final_max_m,
+        markers,
+        simulated,
+        equilibrium: eq,
+        observed_final,
+    })
+}
+
+/// The linear baseline: each marker's final displacement (rest state − rest position) as a
+/// straight line in the load, least squares through the fitted runs `(load, displacements)`,
+/// evaluated at `load`. `None` for a marker with fewer than two distinct loads behind it.
+pub fn linear_baseline(
+    fitted: &[(f64, Vec<Option<[f64; 3]>>)],
+    load: f64,
+) -> Vec<Option<[f64; 3]>> {
+    let nm = fitted.iter().map(|(_, d)| d.len()).max().unwrap_or(0);
+    (0..nm)
+        .map(|i| {
+            let pts: Vec<(f64, [f64; 3])> = fitted
+                .iter()
+                .filter_map(|(l, d)| d.get(i).copied().flatten().map(|u| (*l, u)))
+                .collect();
+            let n = pts.len() as f64;
+            let lm = pts.iter().map(|p| p.0).sum::<f64>() / n.max(1.0);
+            let sll = pts.iter().map(|p| (p.0 - lm).powi(2)).sum::<f64>();
+            if pts.len() < 2 || sll <= 1e-12 * (1.0 + lm * lm) {
+                return None;
+            }
+            Some([0, 1, 2].map(|k| {
+                let um = pts.iter().map(|p| p.1[k]).sum::<f64>() / n;
+                let slope = pts.iter().map(|p| (p.0 - lm) * (p.1[k] - um)).sum::<f64>() / sll;
+                um + slope * (load - lm)
+            }))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn linear_baseline_is_the_line_through_two_loads_and_refuses_one() {
+        let a = (0.0, vec![Some([0.0, 0.0, -1.0]), None]);
+        let b = (2.0, vec![Some([0.0, 1.0, -3.0]), Some([1.0, 1.0, 1.0])]);
+        let p = linear_baseline(&[a.clone(), b], 4.0);
+        assert_eq!(p[0], Some([0.0, 2.0, -5.0]));
+        assert_eq!(p[1], None, "one load behind marker 1");
+        assert_eq!(linear_baseline(&[a.clone(), a], 1.0)[0], None);
+    }
+}
