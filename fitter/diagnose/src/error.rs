@@ -21,6 +21,9 @@ pub enum Error {
     /// The curve diagnosis (reading, fit, adoption, report) failed.
     #[error(transparent)]
     Curve(Box<CurveError>),
+    /// The runs diagnosis (fit, adoption, report) failed.
+    #[error(transparent)]
+    Runs(Box<crate::runs::RunsError>),
     /// A static dataset could not be read.
     #[error("reading {}: {source}", path.display())]
     StaticDataset {
@@ -125,6 +128,12 @@ impl From<DiagnoseError> for Error {
 impl From<MotionDiagnoseError> for Error {
     fn from(e: MotionDiagnoseError) -> Self {
         Error::Motion(Box::new(e))
+    }
+}
+
+impl From<crate::runs::RunsError> for Error {
+    fn from(e: crate::runs::RunsError) -> Self {
+        Error::Runs(Box::new(e))
     }
 }
 

@@ -41,6 +41,7 @@ pub mod motion;
 pub mod noise;
 pub mod report;
 pub mod run;
+pub mod runs;
 pub mod select;
 pub mod signature;
 

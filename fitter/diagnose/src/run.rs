@@ -27,6 +27,13 @@ pub struct Request {
     pub mesh: MeshChoice,
     /// Gauge length L0 (mm) of tension-test CSVs; fitted if `None`.
     pub gauge_length: Option<f64>,
+    /// More motion datasets fitted together with `dataset` (runs of one object).
+    pub more_runs: Vec<PathBuf>,
+    /// Motion datasets held out: predicted, never fitted. Given (or `more_runs` given), the runs
+    /// diagnosis ([`crate::runs`]) is run.
+    pub held_out: Vec<PathBuf>,
+    /// Poisson's ratio the runs diagnosis holds fixed (default 0.49).
+    pub poisson: Option<f64>,
 }
 
 /// The candidates named in `--candidates` (`what` names the library in the error: "candidate",
@@ -64,6 +71,9 @@ fn diagnosable(path: &Path) -> bool {
 /// subdirectories (e.g. a data folder with one folder per instrument) is diagnosed one
 /// subdirectory at a time, each into `<output>/<name>`.
 pub fn run(args: &Request) -> Result<(), Error> {
+    if !args.more_runs.is_empty() || !args.held_out.is_empty() {
+        return run_runs(args);
+    }
     if args.dataset.is_dir() && !diagnosable(&args.dataset) {
         let mut subs: Vec<PathBuf> = std::fs::read_dir(&args.dataset)
             .map_err(|source| Error::ListDirectory {
@@ -162,6 +172,52 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<(), Error>
         1e6 * r.before.heldout_rms,
         1e6 * r.after.heldout_rms,
         1e6 * r.noise_floor
+    );
+    for f in files {
+        println!("wrote {}", f.display());
+    }
+    Ok(())
+}
+
+/// The runs diagnosis: `dataset` and `more_runs` fitted, `held_out` predicted.
+fn run_runs(args: &Request) -> Result<(), Error> {
+    let load = |p: &PathBuf| -> Result<(String, palpate_motion::dataset::MotionDataset), Error> {
+        let ds = palpate_motion::dataset::load(p).map_err(|source| Error::MotionDataset {
+            path: p.clone(),
+            source: Box::new(source),
+        })?;
+        Ok((p.display().to_string(), ds))
+    };
+    let fit: Vec<_> = std::iter::once(&args.dataset)
+        .chain(&args.more_runs)
+        .map(load)
+        .collect::<Result<_, _>>()?;
+    let held: Vec<_> = args.held_out.iter().map(load).collect::<Result<_, _>>()?;
+    let mut o = crate::runs::RunsOptions {
+        max_effects: args.max_effects,
+        ..Default::default()
+    };
+    if let Some(nu) = args.poisson {
+        o.poisson = nu;
+    }
+    if !args.candidates.is_empty() {
+        o.candidates = pick_candidates(
+            &args.candidates,
+            &crate::runs::ALL_EFFECTS,
+            crate::runs::Effect::name,
+            "runs candidate",
+        )?;
+    }
+    let r = crate::runs::diagnose_runs(&fit, &held, &o, &|m| eprintln!("{m}"))?;
+    let files = crate::runs::report::write_report(&r, &args.output, fit[0].1.model.dt)?;
+    println!(
+        "runs diagnosis: adopted [{}]; held-out marker RMS {:.3} → {:.3} mm, held-out rest state {:.3} → {:.3} mm ({:.0} s)",
+        r.adopted.iter().map(|e| e.name()).collect::<Vec<_>>().join(", "),
+        1e3 * r.heldout_rms_m.0,
+        1e3 * r.heldout_rms_m.1,
+        1e3 * r.heldout_final_rms_m.0,
+        1e3 * r.heldout_final_rms_m.1,
+        r.seconds
     );
     for f in files {
         println!("wrote {}", f.display());

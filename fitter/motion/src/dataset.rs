@@ -83,6 +83,7 @@ pub struct DatasetToml {
 /// edge = [1, 0, 0]   # only the group's nodes furthest along +x (its top edge)
 /// mass = 0.052       # kg: the force is mass × gravity; or force = [fx, fy, fz] in N
 /// from_t = 0.0       # s: acts from this time on (default 0, i.e. already at the start)
+/// inertia = false    # whether the mass also moves with its nodes (default: a force only)
 /// ```
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -100,6 +101,9 @@ pub struct LoadToml {
     /// Time the load comes on (s).
     #[serde(default)]
     pub from_t: f64,
+    /// Whether the hanging `mass` also adds inertia (default false: a force only).
+    #[serde(default)]
+    pub inertia: bool,
 }
 
 /// Initial parameter guesses.
@@ -612,11 +616,19 @@ fn dead_load(
         )));
     }
     let from_step = (l.from_t / model.dt - 1e-9).ceil().max(0.0) as usize;
+    if l.inertia && (l.mass.is_none() || from_step > 0) {
+        return Err(at(
+            "field inertia: only a mass present from the start (mass given, from_t = 0) can add inertia"
+                .into(),
+        ));
+    }
     Ok(DeadLoad {
         name: l.name.clone().unwrap_or_else(|| l.group.clone()),
         nodes,
         force,
         from_step,
+        mass: l.mass,
+        inertia: l.inertia,
     })
 }
 

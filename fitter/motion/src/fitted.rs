@@ -5,6 +5,15 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::model::Model;
+
+/// Gives every load of `model` declared as a mass the inertia of that mass (`on`), or none.
+pub fn set_hanging_inertia(model: &mut Model, on: bool) {
+    for l in &mut model.loads {
+        l.inertia = on && l.mass.is_some() && l.from_step == 0;
+    }
+}
+
 /// The format tag of [`FittedModel`].
 pub const FORMAT: &str = "palpate-motion-fit/1";
 
@@ -31,6 +40,10 @@ pub struct FittedModel {
     pub density: Vec<f64>,
     /// Poisson's ratio, when it was held fixed (λ followed μ).
     pub poisson_fixed: Option<f64>,
+    /// Whether hanging masses moved with their nodes (inertia) in the fit; a prediction applies
+    /// the same to the loads of the run it predicts.
+    #[serde(default)]
+    pub hanging_inertia: bool,
     /// The fitted parameter kinds (the others were held at their dataset values).
     pub fitted: Vec<String>,
     /// The thesis' (λ, α) pair of each element, as exported to the runtime.

@@ -376,6 +376,22 @@ pub struct DeadLoad {
     pub force: [f64; 3],
     /// First step at which the load acts (0: already in the static start).
     pub from_step: usize,
+    /// The hanging mass behind the force (kg), when the load was declared as a mass.
+    pub mass: Option<f64>,
+    /// Whether that mass also adds inertia: lumped equally on the load's nodes, as if the weight
+    /// moved with its attachment (a weight on a taut string follows the vertical motion; its
+    /// pendulum swing across is not modelled).
+    pub inertia: bool,
+}
+
+impl DeadLoad {
+    /// The mass each of the load's nodes carries (kg): 0 without inertia.
+    pub fn mass_per_node(&self) -> f64 {
+        match (self.inertia, self.mass) {
+            (true, Some(m)) if !self.nodes.is_empty() => m / self.nodes.len() as f64,
+            _ => 0.0,
+        }
+    }
 }
 
 impl Model {
@@ -570,8 +586,19 @@ impl Model {
         }
     }
 
-    /// y = M w over all dofs (element-wise, so consistent mass couples clamped and free nodes).
+    /// y = M w over all dofs (element-wise, so consistent mass couples clamped and free nodes),
+    /// with the carried masses of the loads with inertia on their nodes' diagonal.
     pub fn mass_mul(&self, mat: &Material, w: &[f64], y: &mut [f64]) {
+        for l in &self.loads {
+            let m = l.mass_per_node();
+            if m > 0.0 {
+                for &n in &l.nodes {
+                    for i in 0..3 {
+                        y[3 * n + i] += m * w[3 * n + i];
+                    }
+                }
+            }
+        }
         for (e, t) in self.tets.iter().enumerate() {
             let m = mat.get(ParamKind::Density, e) * self.rest[e].volume;
             match self.mass {
@@ -602,6 +629,20 @@ impl Model {
         for e in 0..self.tets.len() {
             let me = self.element_mass(mat.get(ParamKind::Density, e) * self.rest[e].volume);
             self.pattern.add_element(e, &me, 1.0, &mut v);
+        }
+        for l in &self.loads {
+            let m = l.mass_per_node();
+            if m > 0.0 {
+                for &n in &l.nodes {
+                    for i in 0..3 {
+                        // Loads sit on free nodes only (the dataset reader refuses clamped ones).
+                        let d = self.free[3 * n + i];
+                        if d != usize::MAX {
+                            self.pattern.add_diagonal(d, m, &mut v);
+                        }
+                    }
+                }
+            }
         }
         v
     }

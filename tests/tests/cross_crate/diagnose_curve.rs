@@ -431,6 +431,9 @@ fn a_folder_of_instrument_folders_is_diagnosed_one_by_one() {
         max_effects: 3,
         mesh: palpate_diagnose::MeshChoice::Auto,
         gauge_length: None,
+        more_runs: Vec::new(),
+        held_out: Vec::new(),
+        poisson: None,
     };
     palpate_diagnose::run::run(&args(root.path(), out.path())).unwrap();
     for name in ["strip-a", "strip-b"] {

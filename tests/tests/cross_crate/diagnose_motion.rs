@@ -218,6 +218,9 @@ fn cli_args(dataset: &std::path::Path, out: &std::path::Path) -> palpate_diagnos
         max_effects: 2,
         mesh: palpate_diagnose::MeshChoice::Auto,
         gauge_length: None,
+        more_runs: Vec::new(),
+        held_out: Vec::new(),
+        poisson: None,
     }
 }
 

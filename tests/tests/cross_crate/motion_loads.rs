@@ -121,6 +121,8 @@ fn a_dead_load_changes_nothing_before_its_step_and_deflects_linearly_at_small_lo
             nodes: back.clone(),
             force,
             from_step,
+            mass: None,
+            inertia: false,
         }];
         m
     };
@@ -139,6 +141,8 @@ fn a_dead_load_changes_nothing_before_its_step_and_deflects_linearly_at_small_lo
             nodes: back.clone(),
             force: [f, 0.0, 0.0],
             from_step: 0,
+            mass: None,
+            inertia: false,
         }];
         let (x, _) = equilibrium(&still, &mat, 0).unwrap();
         let rest: Vec<f64> = still.nodes.iter().flatten().copied().collect();
@@ -172,6 +176,9 @@ fn two_runs(mu: f64, nu: f64) -> (Vec<palpate_motion::model::Model>, Material) {
         nodes: ds.mesh.group("back").unwrap().to_vec(),
         force: [0.0, 0.0, -2e-3],
         from_step: 0,
+        // A weight that moves with its nodes: its inertia enters M, and so the adjoint.
+        mass: Some(2e-3 / 9.81),
+        inertia: true,
     }];
     (vec![ds.model, loaded], mat)
 }

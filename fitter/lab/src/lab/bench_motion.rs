@@ -142,6 +142,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             tol_grad: 1e-14,
             tol_cost: 1e-12,
             smoothness: None,
+            poisson: None,
         };
         let r = fit(
             &model,

@@ -24,6 +24,9 @@ pub struct Args {
     /// Seconds of haptic replay over the pseudo-terminal.
     #[arg(long, default_value_t = 2.0)]
     pub haptic_seconds: f64,
+    /// Skip the measured-beam loop (models/silicone-beam) and run only the synthetic specimen.
+    #[arg(long)]
+    pub no_beam: bool,
 }
 
 fn mm(v: f64) -> String {
@@ -33,6 +36,19 @@ fn mm(v: f64) -> String {
 /// Runs the demo.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let t0 = Instant::now();
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    // First the loop on measured data (a real capture), then the synthetic specimen whose
+    // injected effects are known.
+    let beam = if args.no_beam {
+        None
+    } else {
+        println!("palpate demo, part 1: the measured silicone beam (models/silicone-beam, C3D)");
+        Some(super::demo_beam::run(&args.out)?)
+    };
+    if beam.is_some() {
+        println!("\npalpate demo, part 2: the synthetic specimen (effects known)");
+    }
     let ds = StaticDataset::read(&args.dataset)
         .with_context(|| format!("reading dataset {}", args.dataset.display()))?;
     println!(
@@ -178,6 +194,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "warning: {} latency pairs were out of clock order and are excluded from the figures",
             replay.non_monotonic
         );
+    }
+    if let Some(b) = &beam {
+        super::demo_beam::print_table(b);
     }
     println!("demo finished in {:.1} s", t0.elapsed().as_secs_f64());
     Ok(())

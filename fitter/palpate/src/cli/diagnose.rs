@@ -28,6 +28,16 @@ pub struct Args {
     /// Gauge length L0 (mm) of tension-test CSVs (stretch λ = 1 + Δ/L0); fitted if not given.
     #[arg(long)]
     pub gauge_length: Option<f64>,
+    /// More runs of the same object (motion datasets on one mesh) fitted together with DATASET.
+    #[arg(long, value_delimiter = ',')]
+    pub with: Vec<PathBuf>,
+    /// Runs held out: predicted from the fit, never fitted (the repeats, or another load).
+    /// Given, the runs diagnosis compares its candidates on them.
+    #[arg(long, value_delimiter = ',')]
+    pub held_out: Vec<PathBuf>,
+    /// Poisson's ratio the runs diagnosis holds fixed.
+    #[arg(long, default_value_t = 0.49)]
+    pub poisson: f64,
 }
 
 /// Parses `--mesh`, listing [`MeshChoice`]'s names as the possible values in `--help`.
@@ -49,6 +59,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         max_effects: args.max_effects,
         mesh: args.mesh,
         gauge_length: args.gauge_length,
+        more_runs: args.with,
+        held_out: args.held_out,
+        poisson: Some(args.poisson),
     })?;
     Ok(())
 }

@@ -39,6 +39,9 @@ pub struct Args {
     /// (lambda, mu in Pa; nu, the viscosity coefficient, in Pa·s^h; h).
     #[arg(long, value_delimiter = ',', value_name = "KIND=VALUE")]
     pub initial: Vec<String>,
+    /// Hanging weights (`[[loads]]` with a mass) also add their inertia, lumped on their nodes.
+    #[arg(long)]
+    pub hanging_inertia: bool,
     /// LBFGS iteration cap.
     #[arg(long, default_value_t = 150)]
     pub max_iters: u64,
@@ -57,11 +60,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for out in [&args.output, &args.export].into_iter().flatten() {
         super::output::check_writable(out)?;
     }
-    let all: Vec<palpate_motion::dataset::MotionDataset> = args
+    let mut all: Vec<palpate_motion::dataset::MotionDataset> = args
         .datasets
         .iter()
         .map(|d| palpate_motion::dataset::load(d))
         .collect::<Result<_, _>>()?;
+    if args.hanging_inertia {
+        for d in &mut all {
+            palpate_motion::fitted::set_hanging_inertia(&mut d.model, true);
+        }
+    }
     let ds = &all[0];
     for (d, other) in args.datasets.iter().zip(&all).skip(1) {
         anyhow::ensure!(
@@ -286,6 +294,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             h: fitted.values[3].clone(),
             density: fitted.values[4].clone(),
             poisson_fixed: args.poisson,
+            hanging_inertia: args.hanging_inertia
+                || all.iter().any(|d| d.model.loads.iter().any(|l| l.inertia)),
             fitted: params
                 .iter()
                 .map(|p| p.kind.name().to_string())

@@ -15,7 +15,7 @@ pub enum ImportCommand {
 }
 
 /// Options of `palpate import c3d`.
-#[derive(Debug, clap::Args)]
+#[derive(Debug, Clone, clap::Args)]
 pub struct C3dArgs {
     /// The capture.
     pub capture: PathBuf,
@@ -92,6 +92,11 @@ fn parse_hang(s: &str) -> Result<(f64, String), String> {
 /// Runs the command.
 pub fn run(cmd: ImportCommand) -> anyhow::Result<()> {
     let ImportCommand::C3d(a) = cmd;
+    import_c3d(&a)
+}
+
+/// Imports one capture as `palpate import c3d` does (also the demo's first step).
+pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
     let capture = palpate_capture::read_c3d(&a.capture)?;
     let text = std::fs::read_to_string(&a.places)
         .with_context(|| format!("reading {}", a.places.display()))?;

@@ -4,6 +4,7 @@ use clap::{Parser, Subcommand};
 
 pub mod calibrate_fsr;
 pub mod demo;
+pub mod demo_beam;
 pub mod diagnose;
 pub mod fit;
 pub mod fit_motion;

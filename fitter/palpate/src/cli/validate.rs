@@ -44,7 +44,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(out) = &args.output {
         super::output::check_writable(&out.join("prediction.csv"))?;
     }
-    let ds = palpate_motion::dataset::load(&args.dataset)?;
+    let mut ds = palpate_motion::dataset::load(&args.dataset)?;
+    if fit.hanging_inertia {
+        palpate_motion::fitted::set_hanging_inertia(&mut ds.model, true);
+    }
     anyhow::ensure!(
         ds.mesh.nodes.len() == fit.nodes && ds.mesh.tets.len() == fit.tets,
         "{}: its mesh has {} nodes and {} tets, the model's {} and {}: a model predicts runs on \

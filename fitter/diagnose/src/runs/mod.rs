@@ -1,0 +1,966 @@
+//! Residual diagnosis of several runs of one object — a capture rig's loads and repeats (the
+//! clamped silicone beam released under its own weight and with a hanging weight): fit the
+//! simplest model to some runs, read the residual of every run per marker and per step, hold each
+//! candidate effect against it by refitting, and keep what predicts the *other* runs better.
+//!
+//! **Held-out data = other runs.** The fitted runs and the held-out runs are named by the user
+//! (the repeats of the same loads, or another load). A candidate must predict runs it was not
+//! fitted to, the way the model will be used (`palpate validate`).
+//!
+//! **The simplest model.** Neo-Hookean with Poisson's ratio held at
+//! [`RunsOptions::poisson`] (the markers of a bending test see the deflection, not the volume
+//! change: λ is not identifiable, and silicone is nearly incompressible), μ fitted, no
+//! viscosity (held at 0), density and loads as declared, hanging weights as forces only.
+//!
+//! **Candidates** ([`Effect`]): Newtonian viscosity (ν free, h = 1), power-law viscosity (ν and h
+//! free, eq. 17), and the inertia of hanging weights (no new parameter: the declared mass moves
+//! with its nodes). Each is fitted on top of the current model (all its parameters refitted).
+//!
+//! **Adoption rule** (the motion diagnosis' rule, [`crate::motion`]): with n scalar marker
+//! residuals of the fitted runs, χ² their sum of squares and k the free parameters,
+//! BIC = n ln(χ²/n) + k ln n. A candidate passes if (a) ΔBIC < −[`RunsOptions::bic_threshold`],
+//! (b) on the held-out runs n_h ln(χ²_h,new/χ²_h,old) + Δk ln n_h < 0, and (c) the held-out RMS
+//! marker error drops by at least [`RunsOptions::min_holdout_gain`]. The first passing candidate
+//! in fitted-ΔBIC order is adopted; repeat until none passes ([`crate::select`]).
+//!
+//! **The residual's signature** ([`RunResidual`]): per run, the RMS per marker, in the first and
+//! last quarter of the run, and — on the marker that moves most — the ring-down's period and its
+//! amplitude ratio per cycle, measured and simulated. A period the model gets wrong points at the
+//! mass (the hanging weight's inertia); a decay it gets wrong at the damping.
+
+pub mod report;
+
+use crate::select::{
+    self, select, CandidateModel, Current, Gate, Outcome, Policy, Rank, Score, Screen, Stop,
+};
+use palpate_motion::dataset::MotionDataset;
+use palpate_motion::fitted::{set_hanging_inertia, FittedModel, FittedRun};
+use palpate_motion::model::{Material, Param, ParamKind};
+use palpate_motion::optimize::{fit_runs, FitSettings, Run};
+use palpate_motion::predict::{self, Prediction};
+use palpate_motion::MotionError;
+use serde::Serialize;
+
+/// Errors of the runs diagnosis.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum RunsError {
+    /// The runs cannot be diagnosed together (what and why).
+    #[error("{0}")]
+    Input(String),
+    /// The simulator or optimiser failed.
+    #[error(transparent)]
+    Motion(#[from] MotionError),
+    /// Writing the report failed.
+    #[error("writing the report: {0}")]
+    Write(String),
+}
+
+/// A candidate effect the simplest model of the runs lacks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Effect {
+    /// Newtonian viscosity: ν free, h = 1 (1 parameter).
+    Damping,
+    /// Power-law viscosity of eq. 17: ν and h free (2 parameters).
+    DampingPowerLaw,
+    /// Hanging weights move with their nodes (0 parameters: the declared mass).
+    HangingInertia,
+}
+
+/// Every effect, in the order tried.
+pub const ALL_EFFECTS: [Effect; 3] = [
+    Effect::Damping,
+    Effect::DampingPowerLaw,
+    Effect::HangingInertia,
+];
+
+impl Effect {
+    /// Name on the command line and in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Damping => "damping",
+            Self::DampingPowerLaw => "damping-power-law",
+            Self::HangingInertia => "hanging-inertia",
+        }
+    }
+    /// Parameters it frees.
+    pub fn kinds(self) -> &'static [ParamKind] {
+        match self {
+            Self::Damping => &[ParamKind::Nu],
+            Self::DampingPowerLaw => &[ParamKind::Nu, ParamKind::PowerH],
+            Self::HangingInertia => &[],
+        }
+    }
+    fn conflicts(self, other: Effect) -> bool {
+        matches!(
+            (self, other),
+            (Self::Damping, Self::DampingPowerLaw) | (Self::DampingPowerLaw, Self::Damping)
+        )
+    }
+}
+
+/// Options of [`diagnose_runs`].
+#[derive(Debug, Clone, Serialize)]
+pub struct RunsOptions {
+    /// Candidates to try.
+    pub candidates: Vec<Effect>,
+    /// Most effects adopted.
+    pub max_effects: usize,
+    /// LBFGS iteration cap of each fit.
+    pub max_iters: u64,
+    /// Poisson's ratio held fixed.
+    pub poisson: f64,
+    /// Starting shear modulus of the simplest model (Pa).
+    pub start_mu: f64,
+    /// Starting viscosity when a damping effect frees it (Pa·s^h).
+    pub start_viscosity: f64,
+    /// Fitted ΔBIC must be below −this.
+    pub bic_threshold: f64,
+    /// Held-out RMS must drop by at least this fraction.
+    pub min_holdout_gain: f64,
+}
+
+impl Default for RunsOptions {
+    fn default() -> Self {
+        Self {
+            candidates: ALL_EFFECTS.to_vec(),
+            max_effects: 3,
+            max_iters: 40,
+            poisson: 0.49,
+            start_mu: 5e4,
+            start_viscosity: 10.0,
+            bic_threshold: 10.0,
+            min_holdout_gain: 0.05,
+        }
+    }
+}
+
+/// One run's residual, as the diagnosis reads it.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunResidual {
+    /// The run (its dataset directory).
+    pub run: String,
+    /// RMS over every observed (step, marker) (m).
+    pub rms_m: f64,
+    /// Sum of squared marker distances (m²) and the number of observed marker positions.
+    pub chi2: f64,
+    /// Observed marker positions.
+    pub count: usize,
+    /// RMS per marker over the run (m).
+    pub per_marker_m: Vec<(String, f64)>,
+    /// RMS over the first and the last quarter of the steps (m).
+    pub early_m: f64,
+    /// See `early_m`.
+    pub late_m: f64,
+    /// Predicted equilibrium against the markers' rest state at the end (RMS, m).
+    pub final_rms_m: f64,
+    /// The marker that moves most (the ring-down is read on it).
+    pub ring_marker: String,
+    /// Ring-down period, measured and simulated (s); `None` when fewer than two half-cycles.
+    pub period_s: (Option<f64>, Option<f64>),
+    /// Amplitude ratio per cycle, measured and simulated.
+    pub decay_per_cycle: (Option<f64>, Option<f64>),
+    /// Displacement along gravity of `ring_marker` per step, measured (NaN = unseen) and
+    /// simulated (m) — for the report's plots.
+    #[serde(skip)]
+    pub ring: (Vec<f64>, Vec<f64>),
+}
+
+/// A fitted model of the runs.
+#[derive(Debug, Clone)]
+pub struct RunsFit {
+    /// Effects in the model, in the order adopted.
+    pub effects: Vec<Effect>,
+    /// The fitted material.
+    pub material: Material,
+    /// Fitted parameter kinds (μ first).
+    pub kinds: Vec<ParamKind>,
+    /// Residuals of the fitted runs.
+    pub fitted: Vec<RunResidual>,
+    /// Simulations of the fit.
+    pub evaluations: usize,
+}
+
+impl RunsFit {
+    fn chi2(&self) -> (f64, usize) {
+        self.fitted
+            .iter()
+            .fold((0.0, 0), |(c, n), r| (c + r.chi2, n + 3 * r.count))
+    }
+    /// Young's modulus from μ at the fixed Poisson's ratio (Pa).
+    pub fn young(&self, poisson: f64) -> f64 {
+        2.0 * (1.0 + poisson) * self.material.get(ParamKind::Mu, 0)
+    }
+}
+
+/// Held-out evidence: the held-out runs predicted.
+#[derive(Debug, Clone)]
+pub struct Held {
+    /// Residuals of the held-out runs.
+    pub runs: Vec<RunResidual>,
+}
+
+impl Held {
+    fn chi2(&self) -> (f64, usize) {
+        self.runs
+            .iter()
+            .fold((0.0, 0), |(c, n), r| (c + r.chi2, n + 3 * r.count))
+    }
+    /// RMS over every held-out marker observation (m).
+    pub fn rms(&self) -> f64 {
+        let (c, n) = self.chi2();
+        if n == 0 {
+            0.0
+        } else {
+            (3.0 * c / n as f64).sqrt()
+        }
+    }
+    /// RMS of the predicted equilibria against the held-out runs' rest states (m).
+    pub fn final_rms(&self) -> f64 {
+        let v: Vec<f64> = self.runs.iter().map(|r| r.final_rms_m).collect();
+        (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt()
+    }
+}
+
+/// The gate's figures.
+#[derive(Debug, Clone, Serialize)]
+pub struct GateDetail {
+    /// Held-out ΔBIC.
+    pub heldout_delta_bic: f64,
+    /// Relative change of the held-out RMS.
+    pub heldout_gain: f64,
+    /// The verdict in words.
+    pub reason: String,
+}
+
+/// One candidate tried, as reported.
+#[derive(Debug, Clone, Serialize)]
+pub struct Trial {
+    /// Round.
+    pub round: usize,
+    /// The effect.
+    pub effect: Effect,
+    /// Fitted ΔBIC (NaN when not fitted).
+    pub delta_bic: f64,
+    /// Fitted RMS (m).
+    pub rms_fit_m: Option<f64>,
+    /// Held-out RMS (m).
+    pub rms_held_m: Option<f64>,
+    /// The gate, when run.
+    pub gate: Option<GateDetail>,
+    /// Why it was not fitted.
+    pub not_fitted: Option<String>,
+    /// Adopted.
+    pub adopted: bool,
+}
+
+/// A fitted value with its uncertainty.
+#[derive(Debug, Clone, Serialize)]
+pub struct Value {
+    /// Name.
+    pub name: String,
+    /// Value (SI).
+    pub value: f64,
+    /// 1σ from the curvature of the objective with independent residuals (`None` if not
+    /// computed); a lower bound — the residuals of a ring-down are correlated in time.
+    pub sd: Option<f64>,
+    /// Unit.
+    pub unit: String,
+}
+
+/// The result of [`diagnose_runs`].
+#[derive(Debug, Clone, Serialize)]
+pub struct RunsDiagnosis {
+    /// The fitted runs.
+    pub fitted_runs: Vec<String>,
+    /// The held-out runs.
+    pub held_out_runs: Vec<String>,
+    /// Options.
+    pub options: RunsOptions,
+    /// Effects adopted, in order.
+    pub adopted: Vec<Effect>,
+    /// Every candidate tried.
+    pub trials: Vec<Trial>,
+    /// Why the loop stopped.
+    pub stop: Stop,
+    /// The simplest model's residuals: fitted runs, then held-out runs.
+    pub before: (Vec<RunResidual>, Vec<RunResidual>),
+    /// The final model's residuals.
+    pub after: (Vec<RunResidual>, Vec<RunResidual>),
+    /// Held-out RMS before and after (m).
+    pub heldout_rms_m: (f64, f64),
+    /// Held-out equilibrium RMS before and after (m).
+    pub heldout_final_rms_m: (f64, f64),
+    /// Fitted RMS before and after (m).
+    pub fitted_rms_m: (f64, f64),
+    /// The final model's parameters.
+    pub values: Vec<Value>,
+    /// The final model as the record `palpate validate` reads.
+    #[serde(skip)]
+    pub model: FittedModel,
+    /// Seconds the diagnosis took.
+    pub seconds: f64,
+}
+
+/// The residual of one run under `mat`: simulated, compared, its ring-down read.
+pub fn residual(
+    name: &str,
+    ds: &MotionDataset,
+    mat: &Material,
+) -> Result<RunResidual, MotionError> {
+    let p = predict::predict(&ds.model, mat, &ds.obs)?;
+    Ok(read_residual(name, ds, &p))
+}
+
+fn read_residual(name: &str, ds: &MotionDataset, p: &Prediction) -> RunResidual {
+    let nm = ds.model.markers.len();
+    let steps = p.simulated.len();
+    let mut per = vec![(0.0, 0usize); nm];
+    let (mut early, mut late) = ((0.0, 0usize), (0.0, 0usize));
+    let q = steps / 4;
+    for (n, (sim, obs)) in p.simulated.iter().zip(&ds.obs.markers).enumerate() {
+        for i in 0..nm {
+            if let Some(o) = obs.get(i).copied().flatten() {
+                let e2 = (0..3).map(|k| (sim[i][k] - o[k]).powi(2)).sum::<f64>();
+                per[i].0 += e2;
+                per[i].1 += 1;
+                if n < q {
+                    early.0 += e2;
+                    early.1 += 1;
+                }
+                if n >= steps - q {
+                    late.0 += e2;
+                    late.1 += 1;
+                }
+            }
+        }
+    }
+    let r = |(s, c): (f64, usize)| if c == 0 { 0.0 } else { (s / c as f64).sqrt() };
+    let chi2: f64 = per.iter().map(|p| p.0).sum();
+    let count: usize = per.iter().map(|p| p.1).sum();
+    // The ring-down is read along gravity on the marker whose equilibrium moves most.
+    let g = ds.model.gravity;
+    let gn = g.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-300);
+    let rest = predict::rest_markers(&ds.model);
+    let along =
+        |x: &[f64; 3], i: usize| (0..3).map(|k| (x[k] - rest[i][k]) * g[k] / gn).sum::<f64>();
+    let tip = (0..nm)
+        .max_by(|&a, &b| {
+            along(&p.equilibrium[a], a)
+                .abs()
+                .total_cmp(&along(&p.equilibrium[b], b).abs())
+        })
+        .unwrap_or(0);
+    let measured: Vec<f64> = ds
+        .obs
+        .markers
+        .iter()
+        .take(steps)
+        .map(|row| {
+            row.get(tip)
+                .copied()
+                .flatten()
+                .map_or(f64::NAN, |o| along(&o, tip))
+        })
+        .collect();
+    let simulated: Vec<f64> = p
+        .simulated
+        .iter()
+        .map(|row| along(&row[tip], tip))
+        .collect();
+    let dt = ds.model.dt;
+    let ring_m = ring_down(&measured, dt);
+    let ring_s = ring_down(&simulated, dt);
+    RunResidual {
+        run: name.to_string(),
+        rms_m: r((chi2, count)),
+        chi2,
+        count,
+        per_marker_m: ds
+            .model
+            .markers
+            .iter()
+            .zip(&per)
+            .map(|(m, &p)| (m.name.clone(), r(p)))
+            .collect(),
+        early_m: r(early),
+        late_m: r(late),
+        final_rms_m: p.final_rms_m,
+        ring_marker: ds
+            .model
+            .markers
+            .get(tip)
+            .map(|m| m.name.clone())
+            .unwrap_or_default(),
+        period_s: (ring_m.0, ring_s.0),
+        decay_per_cycle: (ring_m.1, ring_s.1),
+        ring: (measured, simulated),
+    }
+}
+
+/// Period and amplitude ratio per cycle of a ring-down `s` (sampled every `dt`) about its final
+/// value (the mean of its last fifth): from the crossings of that value and the extremes between
+/// them, over the half-cycles whose extreme exceeds 5 % of the first one.
+pub fn ring_down(s: &[f64], dt: f64) -> (Option<f64>, Option<f64>) {
+    let v: Vec<(usize, f64)> = s
+        .iter()
+        .copied()
+        .enumerate()
+        .filter(|(_, x)| x.is_finite())
+        .collect();
+    if v.len() < 10 {
+        return (None, None);
+    }
+    let tail = &v[v.len() - v.len() / 5..];
+    let rest = tail.iter().map(|p| p.1).sum::<f64>() / tail.len() as f64;
+    // Crossing times (linear interpolation) and the extreme of each half-cycle.
+    let mut crossings = Vec::new();
+    let mut extremes = Vec::new();
+    let mut peak = 0.0f64;
+    for w in v.windows(2) {
+        let (a, b) = (w[0].1 - rest, w[1].1 - rest);
+        if a.abs() > peak.abs() {
+            peak = a;
+        }
+        if a != 0.0 && a.signum() != b.signum() {
+            let t = (w[0].0 as f64 + a / (a - b) * (w[1].0 - w[0].0) as f64) * dt;
+            crossings.push(t);
+            extremes.push(peak.abs());
+            peak = 0.0;
+        }
+    }
+    // Half-cycles between crossings; keep those above 5 % of the largest (noise crossings later).
+    let first = extremes.iter().copied().fold(0.0, f64::max);
+    let keep = extremes
+        .iter()
+        .skip(1)
+        .take_while(|e| **e > 0.05 * first)
+        .count();
+    if keep < 2 {
+        return (None, None);
+    }
+    let half: Vec<f64> = crossings
+        .windows(2)
+        .take(keep)
+        .map(|w| w[1] - w[0])
+        .collect();
+    let period = 2.0 * half.iter().sum::<f64>() / half.len() as f64;
+    // Extremes of the same sign one cycle apart.
+    let ex = &extremes[1..=keep];
+    let ratios: Vec<f64> = ex.windows(3).map(|w| w[2] / w[0]).collect();
+    let decay = (!ratios.is_empty())
+        .then(|| (ratios.iter().map(|r| r.ln()).sum::<f64>() / ratios.len() as f64).exp());
+    (Some(period), decay)
+}
+
+struct RunsModel<'a> {
+    fit: &'a [(String, MotionDataset)],
+    held: &'a [(String, MotionDataset)],
+    o: &'a RunsOptions,
+    log: &'a dyn Fn(&str),
+    trials: Vec<Trial>,
+}
+
+impl RunsModel<'_> {
+    /// The runs with the effects' structural changes (hanging inertia) applied.
+    fn models(
+        sets: &[(String, MotionDataset)],
+        effects: &[Effect],
+    ) -> Vec<palpate_motion::model::Model> {
+        sets.iter()
+            .map(|(_, d)| {
+                let mut m = d.model.clone();
+                set_hanging_inertia(&mut m, effects.contains(&Effect::HangingInertia));
+                m
+            })
+            .collect()
+    }
+
+    fn residuals(
+        sets: &[(String, MotionDataset)],
+        effects: &[Effect],
+        mat: &Material,
+    ) -> Result<Vec<RunResidual>, MotionError> {
+        let models = Self::models(sets, effects);
+        use rayon::prelude::*;
+        sets.par_iter()
+            .zip(models.par_iter())
+            .map(|((name, d), m)| {
+                let p = predict::predict(m, mat, &d.obs)?;
+                let mut ds = d.clone();
+                ds.model = m.clone();
+                Ok(read_residual(name, &ds, &p))
+            })
+            .collect()
+    }
+
+    fn fit(&self, effects: &[Effect], start: &Material) -> Result<RunsFit, MotionError> {
+        let mut kinds = vec![ParamKind::Mu];
+        for e in effects {
+            for k in e.kinds() {
+                if !kinds.contains(k) {
+                    kinds.push(*k);
+                }
+            }
+        }
+        let mut base = start.clone();
+        if kinds.contains(&ParamKind::Nu) && base.get(ParamKind::Nu, 0) <= 0.0 {
+            base.set(&[Param::global(ParamKind::Nu)], &[self.o.start_viscosity]);
+        }
+        let params: Vec<Param> = kinds.iter().map(|k| Param::global(*k)).collect();
+        let q0 = base.read(&params);
+        let models = Self::models(self.fit, effects);
+        let runs: Vec<Run> = models
+            .iter()
+            .zip(self.fit)
+            .map(|(model, (_, d))| Run { model, obs: &d.obs })
+            .collect();
+        let settings = FitSettings {
+            max_iters: self.o.max_iters,
+            poisson: Some(self.o.poisson),
+            ..Default::default()
+        };
+        let r = fit_runs(&runs, &base, &params, &q0, &settings, &[], &|_, _| {})?;
+        let mut material = base.clone();
+        material.set(&params, &r.q);
+        let nu = self.o.poisson;
+        material.set(
+            &[Param::global(ParamKind::Lambda)],
+            &[2.0 * nu / (1.0 - 2.0 * nu) * material.get(ParamKind::Mu, 0)],
+        );
+        let fitted = Self::residuals(self.fit, effects, &material)?;
+        Ok(RunsFit {
+            effects: effects.to_vec(),
+            material,
+            kinds,
+            fitted,
+            evaluations: r.evaluations,
+        })
+    }
+
+    fn name(e: &[Effect]) -> String {
+        if e.is_empty() {
+            "the simplest model".into()
+        } else {
+            e.iter().map(|e| e.name()).collect::<Vec<_>>().join(" + ")
+        }
+    }
+}
+
+impl CandidateModel for RunsModel<'_> {
+    type Candidate = Effect;
+    type Fitted = RunsFit;
+    type Held = Held;
+    type Observed = ();
+    type Summary = ();
+    type Detail = GateDetail;
+    type Adoption = ();
+    type Error = RunsError;
+
+    fn observe(&mut self, round: usize, f: &RunsFit, h: &Held) {
+        for r in f.fitted.iter().chain(&h.runs) {
+            (self.log)(&format!(
+                "round {round}: {}: RMS {:.2} mm (first quarter {:.2}, last {:.2}); period {} s measured, {} simulated; decay per cycle {} measured, {} simulated",
+                r.run,
+                1e3 * r.rms_m,
+                1e3 * r.early_m,
+                1e3 * r.late_m,
+                fmt(r.period_s.0, 3),
+                fmt(r.period_s.1, 3),
+                fmt(r.decay_per_cycle.0, 2),
+                fmt(r.decay_per_cycle.1, 2),
+            ));
+        }
+    }
+
+    fn candidates(&mut self, _: &RunsFit, adopted: &[Effect]) -> Vec<Effect> {
+        let has_mass = self.fit.iter().chain(self.held).any(|(_, d)| {
+            d.model
+                .loads
+                .iter()
+                .any(|l| l.mass.is_some() && l.from_step == 0)
+        });
+        self.o
+            .candidates
+            .iter()
+            .copied()
+            .filter(|c| !adopted.contains(c) && !adopted.iter().any(|a| a.conflicts(*c)))
+            .filter(|c| *c != Effect::HangingInertia || has_mass)
+            .collect()
+    }
+
+    fn fit_with(
+        &mut self,
+        round: usize,
+        cur: &RunsFit,
+        c: Effect,
+    ) -> Result<Outcome<RunsFit>, RunsError> {
+        let mut effects = cur.effects.clone();
+        effects.push(c);
+        (self.log)(&format!("round {round}: fitting {}", Self::name(&effects)));
+        match self.fit(&effects, &cur.material) {
+            Ok(f) => Ok(Outcome::Fitted(f)),
+            Err(e) => {
+                self.trials.push(Trial {
+                    round,
+                    effect: c,
+                    delta_bic: f64::NAN,
+                    rms_fit_m: None,
+                    rms_held_m: None,
+                    gate: None,
+                    not_fitted: Some(e.to_string()),
+                    adopted: false,
+                });
+                Ok(Outcome::NotFitted(e.to_string()))
+            }
+        }
+    }
+
+    fn score(&self, f: &RunsFit) -> Score {
+        let (chi2, n) = f.chi2();
+        Score {
+            chi2,
+            n,
+            k: f.kinds.len(),
+        }
+    }
+
+    fn summarise(&self, _: &RunsFit) {}
+
+    fn heldout(&mut self, _: usize, _: Effect, f: &RunsFit) -> Result<Held, RunsError> {
+        Ok(Held {
+            runs: Self::residuals(self.held, &f.effects, &f.material)?,
+        })
+    }
+
+    fn gate(
+        &mut self,
+        cur: &Current<'_, Self>,
+        cand: &select::Candidate<'_, Self>,
+    ) -> Gate<GateDetail> {
+        let o = self.o;
+        let ((c0, _), (c1, n1)) = (cur.held.chi2(), cand.held.chi2());
+        let dk = cand.candidate.kinds().len() as f64;
+        let nh = (n1.max(1)) as f64;
+        let heldout_delta_bic = nh * (c1 / c0).ln() + dk * nh.ln();
+        let heldout_gain = cand.held.rms() / cur.held.rms() - 1.0;
+        let a = cand.delta_bic < -o.bic_threshold;
+        let b = heldout_delta_bic < 0.0;
+        let g = heldout_gain <= -o.min_holdout_gain;
+        let passes = a && b && g;
+        let mut why = Vec::new();
+        if !a {
+            why.push(format!(
+                "ΔBIC {:.1} not < −{}",
+                cand.delta_bic, o.bic_threshold
+            ));
+        }
+        if !b {
+            why.push(format!("held-out ΔBIC {heldout_delta_bic:.1} not < 0"));
+        }
+        if !g {
+            why.push(format!(
+                "held-out RMS {:+.1} % (needs ≤ −{:.0} %)",
+                100.0 * heldout_gain,
+                100.0 * o.min_holdout_gain
+            ));
+        }
+        let reason = if passes {
+            format!(
+                "passes: ΔBIC {:.1}, held-out ΔBIC {heldout_delta_bic:.1}, held-out RMS {:+.1} %",
+                cand.delta_bic,
+                100.0 * heldout_gain
+            )
+        } else {
+            format!("fails: {}", why.join("; "))
+        };
+        let (fc, fnn) = cand.fitted.chi2();
+        (self.log)(&format!(
+            "round {}: {}: fitted RMS {:.3} mm, held-out RMS {:.3} mm: {reason}",
+            cur.round,
+            cand.candidate.name(),
+            1e3 * (3.0 * fc / fnn.max(1) as f64).sqrt(),
+            1e3 * cand.held.rms()
+        ));
+        let detail = GateDetail {
+            heldout_delta_bic,
+            heldout_gain,
+            reason,
+        };
+        self.trials.push(Trial {
+            round: cur.round,
+            effect: cand.candidate,
+            delta_bic: cand.delta_bic,
+            rms_fit_m: Some((3.0 * fc / fnn.max(1) as f64).sqrt()),
+            rms_held_m: Some(cand.held.rms()),
+            gate: Some(detail.clone()),
+            not_fitted: None,
+            adopted: false,
+        });
+        Gate {
+            passes,
+            heldout_delta_bic,
+            heldout_rank: cand.held.rms(),
+            detail,
+        }
+    }
+
+    fn adopt(
+        &mut self,
+        cur: &Current<'_, Self>,
+        c: Effect,
+        f: RunsFit,
+        h: Held,
+    ) -> Result<(RunsFit, Held, ()), RunsError> {
+        if let Some(t) = self
+            .trials
+            .iter_mut()
+            .rev()
+            .find(|t| t.round == cur.round && t.effect == c)
+        {
+            t.adopted = true;
+        }
+        Ok((f, h, ()))
+    }
+}
+
+fn fmt(v: Option<f64>, digits: usize) -> String {
+    v.map_or("–".into(), |v| format!("{v:.digits$}"))
+}
+
+/// 1σ of log μ from the curvature of Φ (central second difference) with independent residuals:
+/// σ² = 2Φ / ((n − k) Φ''). A lower bound: a ring-down's residuals are correlated in time.
+fn mu_sd(
+    runs: &[Run<'_>],
+    mat: &Material,
+    poisson: f64,
+    n: usize,
+    k: usize,
+) -> Result<f64, MotionError> {
+    let ratio = 2.0 * poisson / (1.0 - 2.0 * poisson);
+    let mu = mat.get(ParamKind::Mu, 0);
+    let params = [
+        Param::global(ParamKind::Mu),
+        Param::global(ParamKind::Lambda),
+    ];
+    let phi = |z: f64| -> Result<f64, MotionError> {
+        let mut m = mat.clone();
+        let v = mu * z.exp();
+        m.set(&params, &[v, ratio * v]);
+        Ok(
+            palpate_motion::optimize::evaluate_runs(runs, &m, &params, None)?
+                .0
+                .phi,
+        )
+    };
+    let h = 1e-2;
+    let (p0, pp, pm) = (phi(0.0)?, phi(h)?, phi(-h)?);
+    let curv = (pp - 2.0 * p0 + pm) / (h * h);
+    if curv <= 0.0 || n <= k {
+        return Ok(f64::NAN);
+    }
+    Ok(mu * (2.0 * p0 / ((n - k) as f64 * curv)).sqrt())
+}
+
+/// Diagnoses the runs `fit` (fitted) against `held` (held out); `log` receives progress lines.
+pub fn diagnose_runs(
+    fit: &[(String, MotionDataset)],
+    held: &[(String, MotionDataset)],
+    o: &RunsOptions,
+    log: &dyn Fn(&str),
+) -> Result<RunsDiagnosis, RunsError> {
+    let t0 = std::time::Instant::now();
+    if fit.is_empty() || held.is_empty() {
+        return Err(RunsError::Input(
+            "the runs diagnosis needs runs to fit and other runs to hold out".into(),
+        ));
+    }
+    let first = &fit[0].1;
+    for (name, d) in fit.iter().chain(held) {
+        if d.mesh.nodes != first.mesh.nodes || d.mesh.tets != first.mesh.tets {
+            return Err(RunsError::Input(format!(
+                "{name}: its mesh differs from {}'s: the runs of one object share one mesh",
+                fit[0].0
+            )));
+        }
+    }
+    if !(o.poisson > -1.0 && o.poisson < 0.5) {
+        return Err(RunsError::Input(format!(
+            "Poisson's ratio must lie in (−1, 0.5), found {}",
+            o.poisson
+        )));
+    }
+    let density = first.config.density.unwrap_or(1000.0);
+    let nu = o.poisson;
+    let mut base = Material::uniform(
+        first.model.tets.len(),
+        2.0 * nu / (1.0 - 2.0 * nu) * o.start_mu,
+        o.start_mu,
+        0.0,
+        1.0,
+        density,
+    );
+    base.set(&[Param::global(ParamKind::Nu)], &[0.0]);
+    let mut m = RunsModel {
+        fit,
+        held,
+        o,
+        log,
+        trials: Vec::new(),
+    };
+    log("fitting the simplest model (Neo-Hookean, fixed Poisson's ratio, no damping)");
+    let start = m.fit(&[], &base)?;
+    let start_held = Held {
+        runs: RunsModel::residuals(held, &[], &start.material)?,
+    };
+    let policy = Policy {
+        rounds: o.max_effects + 1,
+        max_adopted: o.max_effects,
+        rank: Rank::FittedBic,
+        screen: Screen::All,
+    };
+    let verdict = select(&mut m, &policy, start.clone(), start_held.clone())?;
+    let (last, last_held) = verdict
+        .path
+        .last()
+        .cloned()
+        .expect("the start is on the path");
+    let adopted = verdict.adopted();
+    // Uncertainty of μ (hence E) on the final model.
+    let models = RunsModel::models(fit, &last.effects);
+    let runs: Vec<Run> = models
+        .iter()
+        .zip(fit)
+        .map(|(model, (_, d))| Run { model, obs: &d.obs })
+        .collect();
+    let (_, n) = last.chi2();
+    let sd_mu = mu_sd(&runs, &last.material, nu, n, last.kinds.len())?;
+    let mu = last.material.get(ParamKind::Mu, 0);
+    let mut values = vec![
+        Value {
+            name: "E (Young's modulus)".into(),
+            value: 2.0 * (1.0 + nu) * mu,
+            sd: Some(2.0 * (1.0 + nu) * sd_mu),
+            unit: "Pa".into(),
+        },
+        Value {
+            name: "μ (shear modulus)".into(),
+            value: mu,
+            sd: Some(sd_mu),
+            unit: "Pa".into(),
+        },
+        Value {
+            name: "Poisson's ratio (held)".into(),
+            value: nu,
+            sd: None,
+            unit: "".into(),
+        },
+    ];
+    if last.kinds.contains(&ParamKind::Nu) {
+        values.push(Value {
+            name: "viscosity coefficient (eq. 17 ν)".into(),
+            value: last.material.get(ParamKind::Nu, 0),
+            sd: None,
+            unit: "Pa·s^h".into(),
+        });
+        values.push(Value {
+            name: "power-law index h".into(),
+            value: last.material.get(ParamKind::PowerH, 0),
+            sd: None,
+            unit: "".into(),
+        });
+    }
+    let rms_of = |v: &[RunResidual]| {
+        let (c, n) = v
+            .iter()
+            .fold((0.0, 0), |(c, n), r| (c + r.chi2, n + r.count));
+        if n == 0 {
+            0.0
+        } else {
+            (c / n as f64).sqrt()
+        }
+    };
+    let mat = &last.material;
+    let model = FittedModel {
+        format: palpate_motion::fitted::FORMAT.into(),
+        datasets: fit.iter().map(|(n, _)| n.clone()).collect(),
+        nodes: first.mesh.nodes.len(),
+        tets: first.mesh.tets.len(),
+        lambda: mat.values[0].clone(),
+        mu: mat.values[1].clone(),
+        viscosity: mat.values[2].clone(),
+        h: mat.values[3].clone(),
+        density: mat.values[4].clone(),
+        poisson_fixed: Some(nu),
+        hanging_inertia: last.effects.contains(&Effect::HangingInertia),
+        fitted: last.kinds.iter().map(|k| k.name().to_string()).collect(),
+        runtime_lambda_alpha: mat.values[0]
+            .iter()
+            .zip(&mat.values[1])
+            .map(|(l, m)| {
+                let a = palpate_runtime::material::LambdaAlpha::from_lame(*l, *m);
+                [a.lambda, a.alpha]
+            })
+            .collect(),
+        rms_marker_m: rms_of(&last.fitted),
+        rms_force_n: 0.0,
+        evaluations: last.evaluations,
+        runs: fit
+            .iter()
+            .zip(&models)
+            .zip(&last.fitted)
+            .map(|(((name, d), model), r)| {
+                let rest = predict::rest_markers(model);
+                FittedRun {
+                    dataset: name.clone(),
+                    load_n: predict::load_along_gravity(model),
+                    rms_marker_m: r.rms_m,
+                    markers: model.markers.iter().map(|m| m.name.clone()).collect(),
+                    final_displacement_m: predict::final_observed(model, &d.obs)
+                        .iter()
+                        .zip(&rest)
+                        .map(|(f, r0)| f.map(|p| [0, 1, 2].map(|k| p[k] - r0[k])))
+                        .collect(),
+                }
+            })
+            .collect(),
+    };
+    Ok(RunsDiagnosis {
+        fitted_runs: fit.iter().map(|(n, _)| n.clone()).collect(),
+        held_out_runs: held.iter().map(|(n, _)| n.clone()).collect(),
+        options: o.clone(),
+        adopted,
+        trials: m.trials,
+        stop: verdict.stop,
+        heldout_rms_m: (start_held.rms(), last_held.rms()),
+        heldout_final_rms_m: (start_held.final_rms(), last_held.final_rms()),
+        fitted_rms_m: (rms_of(&start.fitted), rms_of(&last.fitted)),
+        before: (start.fitted, start_held.runs),
+        after: (last.fitted, last_held.runs),
+        values,
+        model,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::ring_down;
+
+    #[test]
+    fn ring_down_reads_period_and_decay_of_a_damped_sine() {
+        let dt = 0.01;
+        let (period, ratio) = (0.25, 0.7f64);
+        let s: Vec<f64> = (0..500)
+            .map(|n| {
+                let t = n as f64 * dt;
+                5.0 + 3.0 * ratio.powf(t / period) * (2.0 * std::f64::consts::PI * t / period).cos()
+            })
+            .collect();
+        let (p, d) = ring_down(&s, dt);
+        assert!((p.unwrap() / period - 1.0).abs() < 0.01, "{p:?}");
+        assert!((d.unwrap() / ratio - 1.0).abs() < 0.03, "{d:?}");
+        assert_eq!(ring_down(&[1.0; 100], dt), (None, None));
+    }
+}

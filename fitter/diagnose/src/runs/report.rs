@@ -1,0 +1,215 @@
+//! The runs diagnosis' report: `diagnosis.md` (verdict, before/after per run, the residual's
+//! signature, parameters), `diagnosis.json`, `fit.json` (the final model for `palpate validate`)
+//! and the ring-down of each held-out run measured against the simplest and the final model
+//! (`ring-<run>.svg` and `.png`).
+
+use super::{RunResidual, RunsDiagnosis, RunsError};
+use palpate_fem::io::atomic::write_atomic;
+use palpate_plot::{lines, Series, Style};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+fn mm(v: f64) -> String {
+    format!("{:.3}", 1e3 * v)
+}
+
+fn opt(v: Option<f64>, d: usize) -> String {
+    v.map_or("–".into(), |v| format!("{v:.d$}"))
+}
+
+fn rows(md: &mut String, before: &[RunResidual], after: &[RunResidual]) {
+    for (b, a) in before.iter().zip(after) {
+        let _ = writeln!(
+            md,
+            "| {} | {} → {} | {} → {} | {} → {} | {} | {} → {} | {} | {} → {} |",
+            b.run,
+            mm(b.rms_m),
+            mm(a.rms_m),
+            mm(b.early_m),
+            mm(a.early_m),
+            mm(b.final_rms_m),
+            mm(a.final_rms_m),
+            opt(b.period_s.0, 3),
+            opt(b.period_s.1, 3),
+            opt(a.period_s.1, 3),
+            opt(b.decay_per_cycle.0, 2),
+            opt(b.decay_per_cycle.1, 2),
+            opt(a.decay_per_cycle.1, 2),
+        );
+    }
+}
+
+/// The markdown report.
+pub fn markdown(r: &RunsDiagnosis) -> String {
+    let mut md = String::new();
+    let _ = writeln!(
+        md,
+        "# Diagnosis of {} runs\n",
+        r.fitted_runs.len() + r.held_out_runs.len()
+    );
+    let _ = writeln!(
+        md,
+        "Fitted on {}; held out (predicted, never fitted): {}. {:.0} s.\n",
+        r.fitted_runs.join(", "),
+        r.held_out_runs.join(", "),
+        r.seconds
+    );
+    let adopted = if r.adopted.is_empty() {
+        "nothing adopted: no candidate predicts the held-out runs better".to_string()
+    } else {
+        format!(
+            "adopted {}",
+            r.adopted
+                .iter()
+                .map(|e| e.name())
+                .collect::<Vec<_>>()
+                .join(", then ")
+        )
+    };
+    let _ = writeln!(
+        md,
+        "**Verdict: {adopted}.** Held-out marker RMS {} → {} mm, held-out rest-state RMS {} → {} mm \
+         (fitted runs: {} → {} mm). The loop stopped: {:?}.\n",
+        mm(r.heldout_rms_m.0),
+        mm(r.heldout_rms_m.1),
+        mm(r.heldout_final_rms_m.0),
+        mm(r.heldout_final_rms_m.1),
+        mm(r.fitted_rms_m.0),
+        mm(r.fitted_rms_m.1),
+        r.stop
+    );
+    let _ = writeln!(
+        md,
+        "The simplest model: Neo-Hookean, Poisson's ratio held at {} (the markers see bending, not \
+         volume change), μ fitted, no damping, hanging weights as forces only. Adoption rule: ΔBIC \
+         < −{} on the fitted runs, held-out ΔBIC < 0 and the held-out RMS down by ≥ {:.0} %.\n",
+        r.options.poisson,
+        r.options.bic_threshold,
+        100.0 * r.options.min_holdout_gain
+    );
+    let _ = writeln!(md, "## Candidates\n\n| round | effect | ΔBIC | fitted RMS (mm) | held-out RMS (mm) | verdict |\n|---|---|---|---|---|---|");
+    for t in &r.trials {
+        let _ = writeln!(
+            md,
+            "| {} | {}{} | {:.1} | {} | {} | {} |",
+            t.round,
+            t.effect.name(),
+            if t.adopted { " (adopted)" } else { "" },
+            t.delta_bic,
+            t.rms_fit_m.map_or("–".into(), mm),
+            t.rms_held_m.map_or("–".into(), mm),
+            t.gate
+                .as_ref()
+                .map(|g| g.reason.clone())
+                .or_else(|| t.not_fitted.clone())
+                .unwrap_or_default()
+        );
+    }
+    let _ = writeln!(
+        md,
+        "\n## Before → after, per run\n\nMarker RMS over the run, over its first quarter (the swing), \
+         and of the predicted rest state against the last 0.5 s; the ring-down of the marker that \
+         moves most, measured / simulated before → after.\n\n| run | RMS (mm) | first quarter (mm) | \
+         rest state (mm) | period measured (s) | period simulated (s) | decay per cycle measured | \
+         decay simulated |\n|---|---|---|---|---|---|---|---|"
+    );
+    rows(&mut md, &r.before.0, &r.after.0);
+    rows(&mut md, &r.before.1, &r.after.1);
+    let _ = writeln!(
+        md,
+        "\n## Parameters of the final model\n\n| parameter | value | 1σ |\n|---|---|---|"
+    );
+    for v in &r.values {
+        let _ = writeln!(
+            md,
+            "| {} | {:.5e} {} | {} |",
+            v.name,
+            v.value,
+            v.unit,
+            v.sd.map_or("–".into(), |s| format!("{s:.2e}"))
+        );
+    }
+    let _ = writeln!(
+        md,
+        "\nThe 1σ is from the curvature of the objective with independent residuals: a lower bound, \
+         since a ring-down's residuals are correlated in time; the spread of leave-one-run-out fits is \
+         the realistic one.\n"
+    );
+    for h in &r.after.1 {
+        let _ = writeln!(md, "![{}](ring-{}.svg)\n", h.run, slug(&h.run));
+    }
+    md
+}
+
+fn slug(s: &str) -> String {
+    let base = Path::new(s)
+        .file_name()
+        .map(|f| f.to_string_lossy().to_string())
+        .unwrap_or_else(|| s.to_string());
+    base.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '-'
+            }
+        })
+        .collect()
+}
+
+/// Writes the report into `dir`; returns the files written.
+pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBuf>, RunsError> {
+    let w = |e: String| RunsError::Write(e);
+    std::fs::create_dir_all(dir).map_err(|e| w(format!("{}: {e}", dir.display())))?;
+    let mut out = Vec::new();
+    let p = dir.join("diagnosis.md");
+    write_atomic(&p, markdown(r).as_bytes()).map_err(|e| w(e.to_string()))?;
+    out.push(p);
+    let p = dir.join("diagnosis.json");
+    let json = serde_json::to_string_pretty(r).map_err(|e| w(e.to_string()))?;
+    write_atomic(&p, json.as_bytes()).map_err(|e| w(e.to_string()))?;
+    out.push(p);
+    let p = dir.join("fit.json");
+    let json = serde_json::to_string_pretty(&r.model).map_err(|e| w(e.to_string()))?;
+    write_atomic(&p, json.as_bytes()).map_err(|e| w(e.to_string()))?;
+    out.push(p);
+    let after_name = if r.adopted.is_empty() {
+        "final (= simplest)".to_string()
+    } else {
+        format!(
+            "+ {}",
+            r.adopted
+                .iter()
+                .map(|e| e.name())
+                .collect::<Vec<_>>()
+                .join(" + ")
+        )
+    };
+    for (b, a) in r.before.1.iter().zip(&r.after.1) {
+        let pts = |v: &[f64]| -> Vec<(f64, f64)> {
+            v.iter()
+                .enumerate()
+                .filter(|(_, y)| y.is_finite())
+                .map(|(n, y)| ((n + 1) as f64 * dt, 1e3 * y))
+                .collect()
+        };
+        let (m, s0, s1) = (pts(&b.ring.0), pts(&b.ring.1), pts(&a.ring.1));
+        for ext in ["svg", "png"] {
+            let p = dir.join(format!("ring-{}.{ext}", slug(&b.run)));
+            lines(
+                &p,
+                &format!("{} ({}), predicted", slug(&b.run), b.ring_marker),
+                "time after release (s)",
+                "displacement along gravity (mm)",
+                &[
+                    Series::new("measured", &m, Style::Points),
+                    Series::new("simplest model", &s0, Style::Line),
+                    Series::new(&after_name, &s1, Style::Line),
+                ],
+            )
+            .map_err(|e| w(e.to_string()))?;
+            out.push(p);
+        }
+    }
+    Ok(out)
+}
