@@ -235,3 +235,78 @@ mod tests {
         assert_eq!(linear_baseline(&[a.clone(), a], 1.0)[0], None);
     }
 }
+
+/// The shear modulus μ that best places every run's equilibrium (under its loads, Poisson's ratio
+/// held at `poisson`) on the markers' observed rest state — the static fit from the ends of the
+/// runs, no dynamics involved. A golden-section search on ln μ within a factor e² of `mu0`
+/// (one parameter: no gradient needed); returns (μ, RMS of the rest-state residual, 1σ of μ from
+/// the curvature with independent residuals).
+pub fn fit_equilibria(
+    runs: &[(&Model, &Observations)],
+    base: &Material,
+    poisson: f64,
+    mu0: f64,
+) -> Result<(f64, f64, f64), MotionError> {
+    use super::model::{Param, ParamKind};
+    let ratio = 2.0 * poisson / (1.0 - 2.0 * poisson);
+    let targets: Vec<Vec<Option<[f64; 3]>>> =
+        runs.iter().map(|(m, o)| final_observed(m, o)).collect();
+    // Sum of squared rest-state distances and their count at μ = mu0·e^z.
+    let cost = |z: f64| -> Result<(f64, usize), MotionError> {
+        let mu = mu0 * z.exp();
+        let mut mat = base.clone();
+        mat.set(
+            &[
+                Param::global(ParamKind::Mu),
+                Param::global(ParamKind::Lambda),
+            ],
+            &[mu, ratio * mu],
+        );
+        let mut sq = 0.0;
+        let mut n = 0;
+        for ((model, _), target) in runs.iter().zip(&targets) {
+            let (x, _) = super::sim::equilibrium(model, &mat, model.steps)?;
+            for (m, t) in model.markers.iter().zip(target) {
+                if let Some(t) = t {
+                    sq += dist(&model.marker_position(m, &x), t).powi(2);
+                    n += 1;
+                }
+            }
+        }
+        Ok((sq, n))
+    };
+    let phi = 0.5 * (5f64.sqrt() - 1.0);
+    let (mut a, mut b) = (-2.0f64, 2.0f64);
+    let mut c = b - phi * (b - a);
+    let mut d = a + phi * (b - a);
+    let (mut fc, mut fd) = (cost(c)?.0, cost(d)?.0);
+    while b - a > 1e-4 {
+        if fc < fd {
+            b = d;
+            d = c;
+            fd = fc;
+            c = b - phi * (b - a);
+            fc = cost(c)?.0;
+        } else {
+            a = c;
+            c = d;
+            fc = fd;
+            d = a + phi * (b - a);
+            fd = cost(d)?.0;
+        }
+    }
+    let z = 0.5 * (a + b);
+    let (s0, n) = cost(z)?;
+    let h = 2e-2;
+    let (sp, sm) = (cost(z + h)?.0, cost(z - h)?.0);
+    let curv = (sp - 2.0 * s0 + sm) / (h * h);
+    // Each rest state is 3 scalar residuals; σ² of z = 2 s² / S'' with s² = S/(3n − 1).
+    let dof = (3 * n).saturating_sub(1).max(1) as f64;
+    let sd_z = if curv > 0.0 {
+        (2.0 * (s0 / dof) / curv).sqrt()
+    } else {
+        f64::NAN
+    };
+    let mu = mu0 * z.exp();
+    Ok((mu, (s0 / n.max(1) as f64).sqrt(), mu * sd_z))
+}

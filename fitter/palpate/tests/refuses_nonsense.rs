@@ -262,3 +262,67 @@ fn fit_at_its_iteration_cap_exits_2_with_the_warning_in_the_report() {
         "{report}"
     );
 }
+
+/// `palpate validate` predicts a run from a fitted model and ends with one JSON line; a file that
+/// is not a fitted model, or a model of another mesh, is refused with the reason.
+#[test]
+fn validate_predicts_from_a_fit_and_refuses_other_models() {
+    let dir = tempfile::tempdir().unwrap();
+    let example = repo().join("models/motion-example");
+    let fit = dir.path().join("fit.json");
+    let o = palpate()
+        .args(["fit-motion"])
+        .arg(&example)
+        .args(["--params", "mu", "--max-iters", "60", "-o"])
+        .arg(&fit)
+        .output()
+        .unwrap();
+    assert!(fit.exists(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = palpate()
+        .args(["validate", "--model"])
+        .arg(&fit)
+        .arg(&example)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{stdout}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let last: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+    for key in ["final_rms_m", "trajectory_rms_m"] {
+        let v = last[key].as_f64().unwrap();
+        assert!(v.is_finite() && v >= 0.0, "{key} = {v}");
+    }
+    // The fit predicts its own run to within the dataset's noise (σ = 0.1 mm per axis).
+    assert!(last["trajectory_rms_m"].as_f64().unwrap() < 1e-3, "{last}");
+
+    let not_a_model = dir.path().join("other.json");
+    std::fs::write(&not_a_model, "{\"lambda\": [1.0]}").unwrap();
+    let o = palpate()
+        .args(["validate", "--model"])
+        .arg(&not_a_model)
+        .arg(&example)
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_ne!(o.status.code(), Some(0));
+    assert!(e.contains("not a fitted motion model"), "{e}");
+
+    let text = std::fs::read_to_string(&fit).unwrap();
+    let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    v["tets"] = serde_json::json!(25);
+    let other_mesh = dir.path().join("other-mesh.json");
+    std::fs::write(&other_mesh, v.to_string()).unwrap();
+    let o = palpate()
+        .args(["validate", "--model"])
+        .arg(&other_mesh)
+        .arg(&example)
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_ne!(o.status.code(), Some(0));
+    assert!(e.contains("mesh") && e.contains("25"), "{e}");
+}

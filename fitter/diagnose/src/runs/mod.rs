@@ -155,6 +155,8 @@ pub struct RunResidual {
     pub late_m: f64,
     /// Predicted equilibrium against the markers' rest state at the end (RMS, m).
     pub final_rms_m: f64,
+    /// Dead loads along gravity at the end of the run (N).
+    pub load_n: f64,
     /// The marker that moves most (the ring-down is read on it).
     pub ring_marker: String,
     /// Ring-down period, measured and simulated (s); `None` when fewer than two half-cycles.
@@ -387,6 +389,7 @@ fn read_residual(name: &str, ds: &MotionDataset, p: &Prediction) -> RunResidual 
         early_m: r(early),
         late_m: r(late),
         final_rms_m: p.final_rms_m,
+        load_n: predict::load_along_gravity(&ds.model),
         ring_marker: ds
             .model
             .markers

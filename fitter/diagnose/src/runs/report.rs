@@ -135,6 +135,7 @@ pub fn markdown(r: &RunsDiagnosis) -> String {
          since a ring-down's residuals are correlated in time; the spread of leave-one-run-out fits is \
          the realistic one.\n"
     );
+    let _ = writeln!(md, "![period against load](period-vs-load.svg)\n");
     for h in &r.after.1 {
         let _ = writeln!(md, "![{}](ring-{}.svg)\n", h.run, slug(&h.run));
     }
@@ -185,6 +186,41 @@ pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBu
                 .join(" + ")
         )
     };
+    // The variable that revealed the inertia: the ring-down period against the hanging load,
+    // measured and simulated by the simplest and the final model, every run.
+    let period = |v: &[RunResidual], measured: bool| -> Vec<(f64, f64)> {
+        v.iter()
+            .filter_map(|x| {
+                let p = if measured { x.period_s.0 } else { x.period_s.1 };
+                p.map(|p| (x.load_n, 1e3 * p))
+            })
+            .collect()
+    };
+    let all_before: Vec<RunResidual> = r.before.0.iter().chain(&r.before.1).cloned().collect();
+    let all_after: Vec<RunResidual> = r.after.0.iter().chain(&r.after.1).cloned().collect();
+    let (pm, p0, p1) = (
+        period(&all_before, true),
+        period(&all_before, false),
+        period(&all_after, false),
+    );
+    if !pm.is_empty() {
+        for ext in ["svg", "png"] {
+            let p = dir.join(format!("period-vs-load.{ext}"));
+            lines(
+                &p,
+                "Ring-down period against the hanging load (every run)",
+                "hanging load along gravity (N)",
+                "period of the ring-down (ms)",
+                &[
+                    Series::new("measured", &pm, Style::Points),
+                    Series::new("simplest model", &p0, Style::Points),
+                    Series::new(&after_name, &p1, Style::Points),
+                ],
+            )
+            .map_err(|e| w(e.to_string()))?;
+            out.push(p);
+        }
+    }
     for (b, a) in r.before.1.iter().zip(&r.after.1) {
         let pts = |v: &[f64]| -> Vec<(f64, f64)> {
             v.iter()

@@ -42,6 +42,10 @@ pub struct Args {
     /// Hanging weights (`[[loads]]` with a mass) also add their inertia, lumped on their nodes.
     #[arg(long)]
     pub hanging_inertia: bool,
+    /// Fit only μ (Poisson's ratio held by --poisson) to where the runs came to rest — their
+    /// equilibria under their loads, no dynamics — and print E with its 1σ.
+    #[arg(long, requires = "poisson")]
+    pub equilibria: bool,
     /// LBFGS iteration cap.
     #[arg(long, default_value_t = 150)]
     pub max_iters: u64,
@@ -80,6 +84,34 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     let ne = ds.model.tets.len();
+    if args.equilibria {
+        let nu = args.poisson.unwrap_or(0.49);
+        let init = &ds.config.initial;
+        let mut mu0 = init.mu;
+        for kv in &args.initial {
+            if let Some(v) = kv.strip_prefix("mu=") {
+                mu0 = v.trim().parse().context("--initial mu: not a number")?;
+            }
+        }
+        let base = Material::uniform(
+            ne,
+            init.lambda,
+            mu0,
+            0.0,
+            1.0,
+            ds.config.density.unwrap_or(1000.0),
+        );
+        let runs: Vec<_> = all.iter().map(|d| (&d.model, &d.obs)).collect();
+        let (mu, rms, sd) = predict::fit_equilibria(&runs, &base, nu, mu0)?;
+        println!(
+            "equilibria of {} runs: μ = {mu:.5e} Pa ± {sd:.2e} (1σ, independent residuals), E = {:.5e} Pa ± {:.2e} at Poisson's ratio {nu} (held); rest-state RMS {:.3} mm",
+            all.len(),
+            2.0 * (1.0 + nu) * mu,
+            2.0 * (1.0 + nu) * sd,
+            1e3 * rms
+        );
+        return Ok(());
+    }
     let mut init = ds.config.initial.clone();
     for kv in &args.initial {
         let (k, v) = kv
