@@ -221,21 +221,6 @@ pub fn linear_baseline(
         .collect()
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn linear_baseline_is_the_line_through_two_loads_and_refuses_one() {
-        let a = (0.0, vec![Some([0.0, 0.0, -1.0]), None]);
-        let b = (2.0, vec![Some([0.0, 1.0, -3.0]), Some([1.0, 1.0, 1.0])]);
-        let p = linear_baseline(&[a.clone(), b], 4.0);
-        assert_eq!(p[0], Some([0.0, 2.0, -5.0]));
-        assert_eq!(p[1], None, "one load behind marker 1");
-        assert_eq!(linear_baseline(&[a.clone(), a], 1.0)[0], None);
-    }
-}
-
 /// The shear modulus μ that best places every run's equilibrium (under its loads, Poisson's ratio
 /// held at `poisson`) on the markers' observed rest state — the static fit from the ends of the
 /// runs, no dynamics involved. A golden-section search on ln μ within a factor e² of `mu0`
@@ -309,4 +294,19 @@ pub fn fit_equilibria(
     };
     let mu = mu0 * z.exp();
     Ok((mu, (s0 / n.max(1) as f64).sqrt(), mu * sd_z))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn linear_baseline_is_the_line_through_two_loads_and_refuses_one() {
+        let a = (0.0, vec![Some([0.0, 0.0, -1.0]), None]);
+        let b = (2.0, vec![Some([0.0, 1.0, -3.0]), Some([1.0, 1.0, 1.0])]);
+        let p = linear_baseline(&[a.clone(), b], 4.0);
+        assert_eq!(p[0], Some([0.0, 2.0, -5.0]));
+        assert_eq!(p[1], None, "one load behind marker 1");
+        assert_eq!(linear_baseline(&[a.clone(), a], 1.0)[0], None);
+    }
 }

@@ -326,3 +326,55 @@ fn validate_predicts_from_a_fit_and_refuses_other_models() {
     assert_ne!(o.status.code(), Some(0));
     assert!(e.contains("mesh") && e.contains("25"), "{e}");
 }
+
+/// `palpate import c3d --hang` on a real capture writes the weight as a dead load on the top edge
+/// of the free end; a group the mesh lacks is refused and nothing stays written.
+#[test]
+fn import_c3d_declares_a_hanging_weight_and_refuses_an_unknown_group() {
+    let dir = tempfile::tempdir().unwrap();
+    let beam = repo().join("models/silicone-beam");
+    let import = |hang: &str, out: &Path| {
+        palpate()
+            .args(["import", "c3d"])
+            .arg(beam.join("beam_load52_V2_a.c3d"))
+            .arg("--mesh")
+            .arg(beam.join("beam-coarse.msh"))
+            .arg("--places")
+            .arg(beam.join("marker-places.csv"))
+            .args([
+                "--clamps",
+                "clamp",
+                "--gravity=-9.81,0,0",
+                "--density",
+                "1070",
+            ])
+            .args(["--hang", hang, "-o"])
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    let good = dir.path().join("good");
+    let o = import("0.052@free_end", &good);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let ds = palpate_motion::dataset::load(&good).unwrap();
+    let l = &ds.model.loads[0];
+    assert!((l.force[0] + 0.052 * 9.81).abs() < 1e-12 && l.force[1] == 0.0 && l.force[2] == 0.0);
+    assert_eq!(l.mass, Some(0.052));
+    // The top edge of the free end: z = 0 and x = 30 mm (gravity is −x in the mesh frame).
+    assert!(!l.nodes.is_empty());
+    for &n in &l.nodes {
+        let p = ds.mesh.nodes[n];
+        assert!(p[2].abs() < 1e-9 && (p[0] - 0.03).abs() < 1e-9, "{p:?}");
+    }
+    let bad = dir.path().join("bad");
+    let o = import("0.052@nosuch", &bad);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_ne!(o.status.code(), Some(0));
+    assert!(e.contains("nosuch") && e.contains("nothing kept"), "{e}");
+    assert!(!bad.join("dataset.toml").exists() && !bad.join("trajectories.csv").exists());
+}

@@ -280,3 +280,33 @@ fn two_runs_with_a_fixed_poisson_ratio_recover_the_shear_modulus_and_predict() {
     );
     assert_eq!(b[0], Some([0.0, -2.5, 0.0]));
 }
+
+/// The static fit from the ends of runs recovers μ from equilibria it did not make: two "runs" of
+/// the example bar (with and without a dead load) whose markers sit at the truth's equilibrium.
+#[test]
+fn the_equilibria_fit_recovers_the_shear_modulus_of_rest_states() {
+    let nu = 0.3;
+    let (models, truth) = two_runs(1e4, nu);
+    let obs: Vec<palpate_motion::model::Observations> = models
+        .iter()
+        .map(|m| {
+            let (x, _) = equilibrium(m, &truth, m.steps).unwrap();
+            let at_rest: Vec<Option<[f64; 3]>> = m
+                .markers
+                .iter()
+                .map(|k| Some(m.marker_position(k, &x)))
+                .collect();
+            palpate_motion::model::Observations {
+                markers: vec![at_rest; m.steps],
+                marker_weight: 1.0,
+                force_weight: 1.0,
+                ..Default::default()
+            }
+        })
+        .collect();
+    let runs: Vec<_> = models.iter().zip(&obs).collect();
+    let (mu, rms, sd) = palpate_motion::predict::fit_equilibria(&runs, &truth, nu, 2.0e4).unwrap();
+    assert!((mu / 1e4 - 1.0).abs() < 1e-3, "μ = {mu}");
+    assert!(rms < 1e-6, "rest-state RMS {rms}");
+    assert!(sd.is_finite() && sd < 1e-2 * mu, "1σ {sd}");
+}

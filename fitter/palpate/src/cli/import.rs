@@ -185,6 +185,21 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
         },
         &a.output,
     )?;
+    // The dataset must read back as palpate reads it (a `--hang` group the mesh lacks, a load on
+    // the clamp): otherwise nothing stays written.
+    if let Err(e) = palpate_motion::dataset::load(&a.output) {
+        for f in r
+            .files
+            .iter()
+            .chain(std::iter::once(&a.output.join("mesh.msh")))
+        {
+            let _ = std::fs::remove_file(f);
+        }
+        return Err(anyhow::anyhow!(e).context(format!(
+            "the imported dataset {} does not read back; nothing kept",
+            a.output.display()
+        )));
+    }
     println!(
         "{}: {} markers at {} Hz, registered on frame {} (RMS {:.2} mm; per marker: {}); release at frame {release_frame}; {} steps",
         a.capture.display(),
