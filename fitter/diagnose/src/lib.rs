@@ -215,6 +215,63 @@ pub struct Errors {
     pub heldout_force_rms: f64,
 }
 
+/// Whether the final model's residual is what the declared marker noise alone would leave: a
+/// verdict of "clean" must be true. With n scalar residuals of variance σ², χ²/n = (RMS / floor)²
+/// has mean (n − k)/n ≈ 1 and standard deviation √(2/n); the residual is *unexplained* when it
+/// sits more than [`ResidualCheck::Z_LIMIT`] standard deviations above.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct ResidualCheck {
+    /// Final fitted RMS over the noise floor σ√3.
+    pub ratio: f64,
+    /// (ratio² − (n − k)/n) / √(2/n): standard deviations above the floor.
+    pub z: f64,
+    /// Scalar residuals n.
+    pub n: usize,
+    /// Whether σ was declared (otherwise there is no floor to judge against).
+    pub judged: bool,
+    /// Consistent with the noise floor (always true when not judged).
+    pub explained: bool,
+}
+
+impl ResidualCheck {
+    /// Standard deviations above the floor beyond which a residual is unexplained.
+    pub const Z_LIMIT: f64 = 3.0;
+
+    /// The check of a final RMS against `floor` over `n` residuals with `k` fitted parameters.
+    pub fn new(rms: f64, floor: f64, n: usize, k: usize, judged: bool) -> Self {
+        let ratio = rms / floor;
+        let nn = n.max(1) as f64;
+        let z = (ratio * ratio - (nn - k as f64).max(1.0) / nn) / (2.0 / nn).sqrt();
+        ResidualCheck {
+            ratio,
+            z,
+            n,
+            judged,
+            explained: !judged || z <= Self::Z_LIMIT,
+        }
+    }
+
+    /// The verdict's words for a diagnosis that adopted `adopted`.
+    pub fn verdict(&self, adopted: &str) -> String {
+        match (adopted.is_empty(), self.explained) {
+            (true, true) if self.judged => format!(
+                "clean: no effect adopted, and the residual is the noise floor's ({:.2}×, {:+.1}σ)",
+                self.ratio, self.z
+            ),
+            (true, true) => "no effect adopted (no declared marker noise: whether the residual is noise cannot be judged)".into(),
+            (true, false) => format!(
+                "NOT clean: no candidate effect earns its place, but the residual is {:.2}× the noise floor ({:.1}σ above it) — an effect the candidate library does not hold, or a mesh too coarse for the data",
+                self.ratio, self.z
+            ),
+            (false, true) => format!("adopted {adopted}; the residual is then the noise floor's ({:.2}×, {:+.1}σ)", self.ratio, self.z),
+            (false, false) => format!(
+                "adopted {adopted}, but the residual is still {:.2}× the noise floor ({:.1}σ above it): more is missing than the library explains",
+                self.ratio, self.z
+            ),
+        }
+    }
+}
+
 /// One candidate tried in a round.
 #[derive(Debug, Clone, Serialize)]
 pub struct Tried {
@@ -302,6 +359,8 @@ pub struct DiagnosisReport {
     pub solved_on: SolvedOn,
     /// Errors of the final model.
     pub after: Errors,
+    /// Whether the final residual is explained by the noise floor ([`ResidualCheck`]).
+    pub residual_check: ResidualCheck,
     /// Every parameter of the final model.
     pub final_params: Vec<ParamValue>,
     /// Young's modulus (Pa) and Poisson ratio of the final model's base material.
@@ -1000,6 +1059,13 @@ pub fn run_diagnosis_with(
     if noise.as_ref().is_some_and(|n| n.fired) {
         adopted.push(Candidate::Noise);
     }
+    let residual_check = ResidualCheck::new(
+        after.fitted_rms,
+        ctx.sigma * 3f64.sqrt(),
+        ctx.residual_len(&current.subset),
+        current.theta.len(),
+        ctx.sigma_declared && !adopted.contains(&Candidate::Noise),
+    );
     let mut final_params = base_params(&current);
     for &c in &current.model.effects {
         final_params.extend(effect_params(&ctx, &current, c));
@@ -1019,6 +1085,7 @@ pub fn run_diagnosis_with(
         mesh_error,
         solved_on,
         after,
+        residual_check,
         young_poisson: (current.theta[0].exp(), poisson_of(current.theta[1])),
         final_params,
         seconds: started.elapsed().as_secs_f64(),
@@ -1030,6 +1097,28 @@ pub fn run_diagnosis_with(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// "Clean" only when the residual is the floor's: 1.00× and 1.01× of 3,672 residuals are
+    /// (0.0σ, +0.9σ), 1.04× is +3.5σ above it (the independent generator's missed inclusion).
+    #[test]
+    fn residual_check_calls_clean_only_what_the_noise_explains() {
+        let n = 3672;
+        let ok = ResidualCheck::new(1.0, 1.0, n, 2, true);
+        assert!(ok.explained && ok.z.abs() < 0.1, "{ok:?}");
+        assert!(ok.verdict("").starts_with("clean"), "{}", ok.verdict(""));
+        let near = ResidualCheck::new(1.01, 1.0, n, 2, true);
+        assert!(near.explained, "{near:?}");
+        let over = ResidualCheck::new(1.04, 1.0, n, 2, true);
+        assert!(!over.explained && (over.z - 3.5).abs() < 0.2, "{over:?}");
+        assert!(
+            over.verdict("").starts_with("NOT clean"),
+            "{}",
+            over.verdict("")
+        );
+        assert!(over.verdict("gravity").contains("still 1.04×"));
+        let blind = ResidualCheck::new(3.0, 1.0, n, 2, false);
+        assert!(blind.explained && blind.verdict("").contains("cannot be judged"));
+    }
 
     fn estimate(rms: f64, refined_tets: usize) -> MeshErrorSummary {
         MeshErrorSummary {

@@ -32,11 +32,11 @@ fn error_rows(s: &mut String, label: &str, e: &Errors) {
 pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# Diagnosis of `{}`\n", r.dataset);
-    let verdict = if r.adopted.is_empty() {
-        "**clean**: no effect adopted".to_string()
-    } else {
-        format!("adopted: **{}**", Candidate::names(&r.adopted, " → ", ""))
-    };
+    let verdict = format!(
+        "**{}**",
+        r.residual_check
+            .verdict(&Candidate::names(&r.adopted, " → ", ""))
+    );
     let _ = writeln!(s, "Verdict: {verdict}. Selection rule: {}.", r.criterion);
     let _ = writeln!(
         s,

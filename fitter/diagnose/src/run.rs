@@ -166,7 +166,7 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<(), Error>
     println!(
         "{}: {}; RMS marker error {:.1} → {:.1} µm fitted, {:.1} → {:.1} µm held out (noise floor {:.1} µm)",
         r.dataset,
-        if r.adopted.is_empty() { "clean (no effect adopted)".to_string() } else { format!("adopted {}", r.adopted.iter().map(|c| c.name()).collect::<Vec<_>>().join(", ")) },
+        r.residual_check.verdict(&r.adopted.iter().map(|c| c.name()).collect::<Vec<_>>().join(", ")),
         1e6 * r.before.fitted_rms,
         1e6 * r.after.fitted_rms,
         1e6 * r.before.heldout_rms,
