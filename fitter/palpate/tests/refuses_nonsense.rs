@@ -378,3 +378,135 @@ fn import_c3d_declares_a_hanging_weight_and_refuses_an_unknown_group() {
     assert!(e.contains("nosuch") && e.contains("nothing kept"), "{e}");
     assert!(!bad.join("dataset.toml").exists() && !bad.join("trajectories.csv").exists());
 }
+
+/// `palpate simulate`'s `deformed.vtu` read by an XML reader palpate did not write: a VTK XML
+/// UnstructuredGrid of a version other programs accept (meshio refuses the legacy "4.1"), rest
+/// points plus a `displacement` vector (ParaView's Warp By Vector then deforms it once), tetra
+/// cells whose connectivity and offsets agree, and the displacement equal to the CSV's.
+#[test]
+fn simulate_writes_a_vtu_other_readers_accept() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("sim");
+    let (code, err) = simulate(
+        &["--contact", "0.05,0.05,0.05", "--force", "0,0,-0.5"],
+        &out,
+    );
+    assert_eq!(code, 0, "{err}");
+    let text = std::fs::read_to_string(out.join("deformed.vtu")).unwrap();
+    let doc = roxmltree::Document::parse(&text).unwrap();
+    let root = doc.root_element();
+    assert_eq!(root.tag_name().name(), "VTKFile");
+    assert_eq!(root.attribute("type"), Some("UnstructuredGrid"));
+    assert!(
+        ["0.1", "1.0", "2.2"].contains(&root.attribute("version").unwrap()),
+        "version {:?}",
+        root.attribute("version")
+    );
+    let piece = root
+        .descendants()
+        .find(|n| n.has_tag_name("Piece"))
+        .unwrap();
+    let np: usize = piece.attribute("NumberOfPoints").unwrap().parse().unwrap();
+    let nc: usize = piece.attribute("NumberOfCells").unwrap().parse().unwrap();
+    let array = |parent: &str, name: Option<&str>| -> Vec<f64> {
+        let p = piece
+            .descendants()
+            .find(|n| n.has_tag_name(parent))
+            .unwrap();
+        let a = p
+            .descendants()
+            .find(|n| {
+                n.has_tag_name("DataArray") && (name.is_none() || n.attribute("Name") == name)
+            })
+            .unwrap_or_else(|| panic!("no DataArray {name:?} in {parent}"));
+        let text = a.text().unwrap_or("").trim();
+        if a.attribute("format") == Some("ascii") {
+            return text
+                .split_whitespace()
+                .map(|v| v.parse().unwrap())
+                .collect();
+        }
+        // Inline binary as the VTK XML format defines it: base64 of a byte-count header
+        // (`header_type`) followed by the values in `byte_order`.
+        assert_eq!(a.attribute("format"), Some("binary"), "{parent}/{name:?}");
+        let bytes = base64::decode(text).unwrap();
+        let big = root.attribute("byte_order") == Some("BigEndian");
+        let header = match root.attribute("header_type") {
+            Some("UInt64") => 8,
+            None | Some("UInt32") => 4,
+            h => panic!("header_type {h:?}"),
+        };
+        let word = |b: &[u8]| -> u64 {
+            let mut v = 0u64;
+            for k in 0..b.len() {
+                let byte = if big { b[k] } else { b[b.len() - 1 - k] };
+                v = (v << 8) | byte as u64;
+            }
+            v
+        };
+        let count = word(&bytes[..header]) as usize;
+        let data = &bytes[header..header + count];
+        let ty = a.attribute("type").unwrap();
+        let size = match ty {
+            "Float64" | "Int64" | "UInt64" => 8,
+            "Float32" | "Int32" | "UInt32" => 4,
+            "UInt8" | "Int8" => 1,
+            t => panic!("type {t}"),
+        };
+        data.chunks(size)
+            .map(|c| {
+                let w = word(c);
+                match ty {
+                    "Float64" => f64::from_bits(w),
+                    "Float32" => f32::from_bits(w as u32) as f64,
+                    _ => w as f64,
+                }
+            })
+            .collect()
+    };
+    let mesh = palpate_fem::mesh::gmsh::read_msh(repo().join("models/sponge/sponge.msh")).unwrap();
+    assert_eq!((np, nc), (mesh.nodes.len(), mesh.tets.len()));
+    let points = array("Points", None);
+    let rest: Vec<f64> = mesh.nodes.iter().flatten().copied().collect();
+    assert_eq!(points.len(), rest.len());
+    // The runtime keeps f32 positions: equal to the mesh to f32 precision.
+    assert!(points
+        .iter()
+        .zip(&rest)
+        .all(|(a, b)| (a - b).abs() <= 1e-7 * b.abs() + 1e-9));
+    let u = array("PointData", Some("displacement"));
+    assert_eq!(u.len(), 3 * np);
+    assert!(
+        u.iter().any(|v| v.abs() > 1e-6),
+        "the load moves the sponge"
+    );
+    let conn = array("Cells", Some("connectivity"));
+    let offsets = array("Cells", Some("offsets"));
+    let types = array("Cells", Some("types"));
+    assert_eq!((conn.len(), offsets.len(), types.len()), (4 * nc, nc, nc));
+    assert!(types.iter().all(|&t| t == 10.0), "VTK_TETRA");
+    assert!(offsets
+        .iter()
+        .enumerate()
+        .all(|(k, &o)| o == (4 * (k + 1)) as f64));
+    assert!(conn.iter().all(|&i| i >= 0.0 && (i as usize) < np));
+    let e = array("CellData", Some("young_modulus_pa"));
+    assert!(e.iter().all(|&v| (v - 2e4).abs() < 1.0), "E per cell");
+    // The displacement the CSV reports for the first node, by Gmsh tag.
+    let csv = std::fs::read_to_string(out.join("displacements.csv")).unwrap();
+    let row: Vec<f64> = csv
+        .lines()
+        .nth(1)
+        .unwrap()
+        .split(',')
+        .map(|v| v.trim().parse().unwrap())
+        .collect();
+    let first = mesh
+        .node_tags
+        .iter()
+        .position(|&t| t as f64 == row[0])
+        .unwrap();
+    for k in 0..3 {
+        assert!((u[3 * first + k] - row[1 + k]).abs() <= 1e-9 + 1e-6 * row[1 + k].abs());
+    }
+}

@@ -167,7 +167,13 @@ pub fn write_vtk(
         }
     };
     let vtk = Vtk {
-        version: Version::new((4, 1)),
+        // The XML formats have their own version numbers ("0.1", "1.0", "2.2"): "4.1" is the
+        // legacy `.vtk` one, and meshio refuses it in a `.vtu`.
+        version: if xml {
+            Version::new((1, 0))
+        } else {
+            Version::new((4, 1))
+        },
         title: "palpate".to_string(),
         byte_order: ByteOrder::BigEndian,
         file_path: None,

@@ -361,9 +361,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         Ok(())
     })?;
-    let deformed: Vec<[f64; 3]> = (0..mesh.nodes.len())
-        .map(|i| [0, 1, 2].map(|k| mesh.nodes[i][k] + disp[i][k]))
-        .collect();
     let params: Vec<f64> = (0..mesh.tets.len())
         .map(|e| {
             rt.element_parameters(e)
@@ -377,12 +374,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .unwrap_or(0.0)
         })
         .collect();
+    // Rest points plus a `displacement` vector, the ParaView convention: Warp By Vector then
+    // draws the deformed shape once (deformed points would double it).
     write_vtk(
         args.out.join("deformed.vtu"),
         &mesh,
-        &deformed,
+        &mesh.nodes,
         &[Field::vector("displacement", &disp)],
-        &[Field::scalar("young_modulus", &params)],
+        &[Field::scalar("young_modulus_pa", &params)],
     )?;
     let umax = disp
         .iter()

@@ -306,8 +306,8 @@ pub fn write_report(
             &err,
         )],
         &[
-            palpate_fem::mesh::vtk::Field::scalar("young_pa", &ev),
-            palpate_fem::mesh::vtk::Field::scalar("poisson", &nv),
+            palpate_fem::mesh::vtk::Field::scalar("young_modulus_pa", &ev),
+            palpate_fem::mesh::vtk::Field::scalar("poisson_ratio", &nv),
         ],
     )?;
     files.push(p);
