@@ -160,6 +160,57 @@ pub fn absolute_orientation(
     })
 }
 
+/// Horn's absolute orientation with a weight per pair: the rigid transform minimising
+/// Σ w_i ‖R p_i + t − q_i‖² (weighted centroids and cross-covariance; the same quaternion
+/// eigenproblem). For per-measurement re-registration inside a fit, where markers the load moves
+/// are down-weighted; `None` when the weights vanish or a value is not finite (no transform is
+/// better than a made-up one).
+pub fn weighted_orientation(
+    from: &[[f64; 3]],
+    to: &[[f64; 3]],
+    w: &[f64],
+) -> Option<(Matrix3<f64>, Vector3<f64>)> {
+    if from.len() != to.len() || from.len() != w.len() || from.len() < 3 {
+        return None;
+    }
+    let total: f64 = w.iter().sum();
+    if !(total > 0.0 && total.is_finite()) {
+        return None;
+    }
+    let mean = |pts: &[[f64; 3]]| {
+        pts.iter().zip(w).fold(Vector3::zeros(), |c, (p, wi)| {
+            c + Vector3::from(*p) * (*wi / total)
+        })
+    };
+    let (ca, cb) = (mean(from), mean(to));
+    let s = from
+        .iter()
+        .zip(to)
+        .zip(w)
+        .fold(Matrix3::zeros(), |m, ((p, q), wi)| {
+            m + (Vector3::from(*p) - ca) * (Vector3::from(*q) - cb).transpose() * *wi
+        });
+    if !s.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let (sxx, sxy, sxz) = (s[(0, 0)], s[(0, 1)], s[(0, 2)]);
+    let (syx, syy, syz) = (s[(1, 0)], s[(1, 1)], s[(1, 2)]);
+    let (szx, szy, szz) = (s[(2, 0)], s[(2, 1)], s[(2, 2)]);
+    #[rustfmt::skip]
+    let n = Matrix4::new(
+        sxx + syy + szz, syz - szy,        szx - sxz,        sxy - syx,
+        syz - szy,       sxx - syy - szz,  sxy + syx,        szx + sxz,
+        szx - sxz,       sxy + syx,        -sxx + syy - szz, syz + szy,
+        sxy - syx,       szx + sxz,        syz + szy,        -sxx - syy + szz,
+    );
+    let eig = SymmetricEigen::new(n);
+    let at = (0..4).max_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]))?;
+    let v = eig.eigenvectors.column(at);
+    let q = UnitQuaternion::from_quaternion(Quaternion::new(v[0], v[1], v[2], v[3]));
+    let rotation = q.to_rotation_matrix().into_inner();
+    Some((rotation, cb - rotation * ca))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -252,5 +303,32 @@ mod tests {
         assert!(e.to_string().contains("not on one line"), "{e}");
         let e = absolute_orientation(&cloud(), &cloud()[..5]).unwrap_err();
         assert!(matches!(e, RegistrationError::Mismatch { from: 6, to: 5 }));
+    }
+
+    /// With equal weights the weighted solution is Horn's; a weight of zero ignores a pair,
+    /// however far off it is.
+    #[test]
+    fn weighted_orientation_agrees_and_ignores_zero_weights() {
+        let r = Rotation3::from_axis_angle(
+            &nalgebra::Unit::new_normalize(Vector3::new(0.2, 1.0, -0.4)),
+            0.3,
+        );
+        let t = Vector3::new(0.01, -0.02, 0.005);
+        let a = cloud();
+        let mut b: Vec<[f64; 3]> = a
+            .iter()
+            .map(|p| {
+                let q = r * Vector3::from(*p) + t;
+                [q.x, q.y, q.z]
+            })
+            .collect();
+        let (rw, tw) = weighted_orientation(&a, &b, &[1.0; 6]).unwrap();
+        assert!((rw - r.matrix()).norm() < 1e-9 && (tw - t).norm() < 1e-9);
+        b[0][2] += 1.0;
+        let mut w = [1.0; 6];
+        w[0] = 0.0;
+        let (rw, tw) = weighted_orientation(&a, &b, &w).unwrap();
+        assert!((rw - r.matrix()).norm() < 1e-9 && (tw - t).norm() < 1e-9);
+        assert!(weighted_orientation(&a, &b, &[0.0; 6]).is_none());
     }
 }

@@ -725,10 +725,16 @@ impl select::CandidateModel for StaticModel<'_> {
     }
 
     fn score(&self, f: &Fitted) -> Score {
+        let profiled: usize = f
+            .model
+            .effects
+            .iter()
+            .map(|c| c.profiled(f.subset.len()))
+            .sum();
         Score {
             chi2: f.chi2,
             n: f.n,
-            k: f.theta.len(),
+            k: f.theta.len() + profiled,
         }
     }
 
@@ -757,7 +763,8 @@ impl select::CandidateModel for StaticModel<'_> {
         let held = cand.held;
         let h = stats(&held.markers).0;
         let t = paired_t(cur.held, held);
-        let extra = cand.candidate.params(o.grid);
+        // Leave-one-out: every held-out measurement carries its own profiled parameters.
+        let extra = cand.candidate.all_params(o.grid, ctx.meas.len());
         let cv_bic = heldout_delta_bic(cur.held, held, extra);
         let force = stats(&held.forces).0;
         let gain = 1.0 - h / before.heldout_rms;
@@ -827,7 +834,7 @@ impl select::CandidateModel for StaticModel<'_> {
 
 /// The static report's rounds from the engine's verdict (tried best-ΔBIC first; the reason in
 /// words, as the reports have always stated it).
-fn static_steps(v: &Verdict<StaticModel<'_>>, o: &DiagnoseOptions) -> Vec<Step> {
+fn static_steps(v: &Verdict<StaticModel<'_>>, o: &DiagnoseOptions, ctx_meas: usize) -> Vec<Step> {
     v.rounds
         .iter()
         .map(|r| {
@@ -877,7 +884,7 @@ fn static_steps(v: &Verdict<StaticModel<'_>>, o: &DiagnoseOptions) -> Vec<Step> 
                         let g = a.gate.as_ref().map(|g| &g.detail);
                         Tried {
                             candidate: a.candidate,
-                            extra_params: a.candidate.params(o.grid),
+                            extra_params: a.candidate.all_params(o.grid, ctx_meas),
                             rms: a.summary.unwrap_or(f64::NAN),
                             delta_bic: a.delta_bic,
                             heldout_rms: g.map(|g| g.heldout_rms),
@@ -1027,7 +1034,7 @@ pub fn run_diagnosis_with(
         progress: &mut progress,
     };
     let verdict = select::select(&mut engine, &policy, current, current_held)?;
-    let steps = static_steps(&verdict, o);
+    let steps = static_steps(&verdict, o, engine.ctx.meas.len());
     let StaticModel { ctx, .. } = engine;
     let (current, current_held) = verdict
         .path

@@ -31,6 +31,12 @@ pub enum Candidate {
     /// Marker registration offset: one rigid transform (rotation vector in 1e-3 rad, translation
     /// in 1e-4 m) about the mesh centre on every simulated marker. 6 params.
     Registration,
+    /// A different registration offset in every measurement (the markers re-tracked, the object
+    /// re-seated between probes): each measurement's simulated markers are moved by the rigid
+    /// transform that best maps them onto its measured ones (Horn's closed form, weighted to the
+    /// markers the load barely moves: w = 1/(1 + (|u|/3σ)²) with u the simulated displacement).
+    /// Profiled, not in θ: 6 parameters per measurement, counted by BIC and the held-out gate.
+    RegistrationEach,
     /// Gravity preload: body force ρ g (ρ in 1000 kg/m³, g = the declared gravity or 9.81 m/s²
     /// along −z) acting in every measurement. 1 param.
     Gravity,
@@ -56,11 +62,12 @@ pub enum Candidate {
 }
 
 /// Every candidate, in the order they are tried.
-pub const ALL_CANDIDATES: [Candidate; 9] = [
+pub const ALL_CANDIDATES: [Candidate; 10] = [
     Candidate::Calibration,
     Candidate::Tilt,
     Candidate::Boundary,
     Candidate::Registration,
+    Candidate::RegistrationEach,
     Candidate::Gravity,
     Candidate::Inhomogeneity,
     Candidate::Layer,
@@ -88,6 +95,7 @@ impl Candidate {
             Candidate::Tilt => "tilt",
             Candidate::Boundary => "boundary",
             Candidate::Registration => "registration",
+            Candidate::RegistrationEach => "registration-each",
             Candidate::Gravity => "gravity",
             Candidate::Inhomogeneity => "inhomogeneity",
             Candidate::Layer => "layer",
@@ -106,8 +114,22 @@ impl Candidate {
             Candidate::Inhomogeneity => grid[0] * grid[1] * grid[2] - 1,
             Candidate::Layer => LAYER_NODES - 1,
             Candidate::Inclusion => 5,
-            Candidate::Noise => 0,
+            Candidate::Noise | Candidate::RegistrationEach => 0,
         }
+    }
+
+    /// Parameters fitted in closed form for each of `measurements` measurements rather than in θ
+    /// (counted by BIC and the held-out gate all the same).
+    pub fn profiled(self, measurements: usize) -> usize {
+        match self {
+            Candidate::RegistrationEach => 6 * measurements,
+            _ => 0,
+        }
+    }
+
+    /// Every parameter the effect adds over `measurements` measurements: θ's and the profiled.
+    pub fn all_params(self, grid: [usize; 3], measurements: usize) -> usize {
+        self.params(grid) + self.profiled(measurements)
     }
 
     /// Starting values of its block when it is added to a fitted model (zero = the effect is
@@ -123,7 +145,10 @@ impl Candidate {
 
     /// Whether its parameters change the FEM solve (else they act on the solved markers only).
     fn affects_solve(self) -> bool {
-        !matches!(self, Candidate::Boundary | Candidate::Registration)
+        !matches!(
+            self,
+            Candidate::Boundary | Candidate::Registration | Candidate::RegistrationEach
+        )
     }
 
     /// Names and physical units of its parameters (after scaling), for reports.
@@ -159,7 +184,7 @@ impl Candidate {
                 v("centre offset z / h", "", 1.0),
                 v("log radius θ_r (r = h/2 e^θ_r)", "", 1.0),
             ],
-            Candidate::Noise => Vec::new(),
+            Candidate::Noise | Candidate::RegistrationEach => Vec::new(),
         }
     }
 }
@@ -795,7 +820,8 @@ impl Model {
                     (t, w)
                 });
                 let delta = ctx.correction.as_ref().map(|c| &c[i]);
-                m.observed
+                let sim: Vec<[f64; 3]> = m
+                    .observed
                     .iter()
                     .enumerate()
                     .map(|(j, &(k, _))| {
@@ -821,9 +847,44 @@ impl Model {
                         }
                         p
                     })
-                    .collect()
+                    .collect();
+                if self.effects.contains(&Candidate::RegistrationEach) {
+                    self.register_each(ctx, i, sim)
+                } else {
+                    sim
+                }
             })
             .collect()
+    }
+
+    /// [`Candidate::RegistrationEach`] on measurement `i`: `sim` moved by the weighted rigid
+    /// transform that best maps it onto the measured markers (unchanged when that is degenerate).
+    fn register_each(&self, ctx: &Context, i: usize, sim: Vec<[f64; 3]>) -> Vec<[f64; 3]> {
+        let m = &ctx.meas[i];
+        let measured: Vec<[f64; 3]> = m.observed.iter().map(|&(_, q)| q).collect();
+        let scale = 3.0 * ctx.sigma;
+        let w: Vec<f64> = m
+            .observed
+            .iter()
+            .zip(&sim)
+            .map(|(&(k, _), p)| {
+                let u = (0..3)
+                    .map(|d| (p[d] - ctx.marker_rest[k][d]).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
+                1.0 / (1.0 + (u / scale).powi(2))
+            })
+            .collect();
+        match palpate_capture::register::weighted_orientation(&sim, &measured, &w) {
+            Some((r, t)) => sim
+                .iter()
+                .map(|p| {
+                    let q = r * Vector3::from(*p) + t;
+                    [q.x, q.y, q.z]
+                })
+                .collect(),
+            None => sim,
+        }
     }
 
     /// Scaled residuals (simulated − measured)/σ of `subset`, stacked.

@@ -250,7 +250,7 @@ pub fn evidence_points(
                 .map(|p| (p.force, 1e3 * Vector3::from(p.rigid.0).norm()))
                 .collect(),
         ),
-        Candidate::Registration => (
+        Candidate::Registration | Candidate::RegistrationEach => (
             "reported force |f| (N)",
             "rigid part of the residual: |t| + h|ω| (mm)",
             sig.per_measurement
