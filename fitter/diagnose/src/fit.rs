@@ -84,7 +84,14 @@ fn jacobian(
             let markers = if model.affects_solve(c, ctx.grid) {
                 model.simulate(ctx, &t, subset, Some(&base.x))?.markers
             } else {
-                model.markers_from(ctx, &t, subset, &base.x, base.embedding.as_deref())
+                model.markers_from(
+                    ctx,
+                    &t,
+                    subset,
+                    &base.x,
+                    base.embedding.as_deref(),
+                    base.tilt.as_deref(),
+                )
             };
             let r = model.residuals(ctx, subset, &markers);
             Ok(r.iter().zip(r0).map(|(a, b)| (a - b) / FD_STEP).collect())

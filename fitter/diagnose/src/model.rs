@@ -31,6 +31,12 @@ pub enum Candidate {
     /// Marker registration offset: one rigid transform (rotation vector in 1e-3 rad, translation
     /// in 1e-4 m) about the mesh centre on every simulated marker. 6 params.
     Registration,
+    /// An unreported tangential force that differs from measurement to measurement (friction
+    /// at the tip, a probe held at another tilt each time): f = f_reported + |f|(a_i t₁ + b_i t₂).
+    /// Profiled, not in θ: each measurement's marker response to the two tangential directions
+    /// (two more solves, warm-started) and the (a_i, b_i) of least squares in closed form.
+    /// 2 parameters per measurement, counted by BIC and the held-out gate.
+    TiltEach,
     /// A different registration offset in every measurement (the markers re-tracked, the object
     /// re-seated between probes): each measurement's simulated markers are moved by the rigid
     /// transform that best maps them onto its measured ones (Horn's closed form, weighted to the
@@ -62,9 +68,10 @@ pub enum Candidate {
 }
 
 /// Every candidate, in the order they are tried.
-pub const ALL_CANDIDATES: [Candidate; 10] = [
+pub const ALL_CANDIDATES: [Candidate; 11] = [
     Candidate::Calibration,
     Candidate::Tilt,
+    Candidate::TiltEach,
     Candidate::Boundary,
     Candidate::Registration,
     Candidate::RegistrationEach,
@@ -93,6 +100,7 @@ impl Candidate {
         match self {
             Candidate::Calibration => "calibration",
             Candidate::Tilt => "tilt",
+            Candidate::TiltEach => "tilt-each",
             Candidate::Boundary => "boundary",
             Candidate::Registration => "registration",
             Candidate::RegistrationEach => "registration-each",
@@ -114,7 +122,7 @@ impl Candidate {
             Candidate::Inhomogeneity => grid[0] * grid[1] * grid[2] - 1,
             Candidate::Layer => LAYER_NODES - 1,
             Candidate::Inclusion => 5,
-            Candidate::Noise | Candidate::RegistrationEach => 0,
+            Candidate::Noise | Candidate::RegistrationEach | Candidate::TiltEach => 0,
         }
     }
 
@@ -123,6 +131,7 @@ impl Candidate {
     pub fn profiled(self, measurements: usize) -> usize {
         match self {
             Candidate::RegistrationEach => 6 * measurements,
+            Candidate::TiltEach => 2 * measurements,
             _ => 0,
         }
     }
@@ -184,7 +193,7 @@ impl Candidate {
                 v("centre offset z / h", "", 1.0),
                 v("log radius θ_r (r = h/2 e^θ_r)", "", 1.0),
             ],
-            Candidate::Noise | Candidate::RegistrationEach => Vec::new(),
+            Candidate::Noise | Candidate::RegistrationEach | Candidate::TiltEach => Vec::new(),
         }
     }
 }
@@ -485,6 +494,41 @@ pub struct Model {
     pub effects: Vec<Candidate>,
 }
 
+/// The tangential coefficient of [`Candidate::TiltEach`]'s probing solves: a tilt of ≈ 6°, small
+/// enough for the warped response to stay linear in it, large enough to stand above round-off.
+pub const TILT_PROBE: f64 = 0.1;
+
+/// [`Candidate::TiltEach`] on measurement `i`: the coefficients (a, b) of the responses `cols`
+/// that best explain the measured markers' misfit (2 × 2 normal equations), added to `sim`.
+fn tilt_each(
+    ctx: &Context,
+    i: usize,
+    sim: Vec<[f64; 3]>,
+    cols: &[Vec<[f64; 3]>; 2],
+) -> Vec<[f64; 3]> {
+    let m = &ctx.meas[i];
+    let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for (j, (&(_, q), p)) in m.observed.iter().zip(&sim).enumerate() {
+        for d in 0..3 {
+            let (u, v, r) = (cols[0][j][d], cols[1][j][d], q[d] - p[d]);
+            a11 += u * u;
+            a12 += u * v;
+            a22 += v * v;
+            b1 += u * r;
+            b2 += v * r;
+        }
+    }
+    let det = a11 * a22 - a12 * a12;
+    if !(det > 1e-12 * (a11 * a22).max(f64::MIN_POSITIVE)) {
+        return sim;
+    }
+    let (a, b) = ((b1 * a22 - b2 * a12) / det, (a11 * b2 - a12 * b1) / det);
+    sim.iter()
+        .enumerate()
+        .map(|(j, p)| [0, 1, 2].map(|d| p[d] + a * cols[0][j][d] + b * cols[1][j][d]))
+        .collect()
+}
+
 /// ν from θ₁.
 pub fn poisson_of(s: f64) -> f64 {
     -0.25 + 0.75 * s.tanh()
@@ -505,6 +549,9 @@ pub struct Simulated {
     /// Marker embeddings (triangle, barycentric) of the gravity candidate's rest scan, one per
     /// marker (`None`: the dataset's own embedding).
     pub embedding: Option<Vec<([usize; 3], [f64; 3])>>,
+    /// [`Candidate::TiltEach`]: per measurement, the simulated markers' response to a unit
+    /// tangential coefficient along t₁ and t₂ (m per unit of |f|).
+    pub tilt: Option<Vec<[Vec<[f64; 3]>; 2]>>,
 }
 
 impl Model {
@@ -731,11 +778,81 @@ impl Model {
             Some(rho) => Some(self.rest_scan_embedding(ctx, theta, log_e.as_deref(), rho[0])?),
             None => None,
         };
+        let tilt = if self.effects.contains(&Candidate::TiltEach) {
+            Some(self.tilt_columns(
+                ctx,
+                theta,
+                subset,
+                &xs,
+                log_e.as_deref(),
+                embedding.as_deref(),
+            )?)
+        } else {
+            None
+        };
         Ok(Simulated {
-            markers: self.markers_from(ctx, theta, subset, &xs, embedding.as_deref()),
+            markers: self.markers_from(
+                ctx,
+                theta,
+                subset,
+                &xs,
+                embedding.as_deref(),
+                tilt.as_deref(),
+            ),
             x: xs,
             embedding,
+            tilt,
         })
+    }
+
+    /// The marker responses of [`Candidate::TiltEach`]: for each measurement, two more solves with
+    /// the force tilted by [`TILT_PROBE`]·|f| along t₁ and t₂ (warm-started from `xs`), their
+    /// markers minus the untilted ones, per unit coefficient.
+    fn tilt_columns(
+        &self,
+        ctx: &Context,
+        theta: &[f64],
+        subset: &[usize],
+        xs: &[Vec<[f64; 3]>],
+        log_e: Option<&[f64]>,
+        embedding: Option<&[([usize; 3], [f64; 3])]>,
+    ) -> Result<Vec<[Vec<[f64; 3]>; 2]>, DiagnoseError> {
+        let mat = self.material(theta, log_e, None)?;
+        let mut out = Vec::with_capacity(subset.len());
+        for (&i, x) in subset.iter().zip(xs) {
+            let m = &ctx.meas[i];
+            let f = self.model_force(ctx, theta, i);
+            let fm = Vector3::from(m.force).norm();
+            let base = self.physical_markers(ctx, theta, i, x, embedding);
+            let mut cols: [Vec<[f64; 3]>; 2] = [Vec::new(), Vec::new()];
+            for (j, t) in ctx.tangents.iter().enumerate() {
+                if fm == 0.0 {
+                    cols[j] = vec![[0.0; 3]; base.len()];
+                    continue;
+                }
+                let ft = [0, 1, 2].map(|d| f[d] + TILT_PROBE * fm * t[d]);
+                let mut fvec = ctx
+                    .problem
+                    .force_vector(&Load::contact(m.point, ft, m.radius))
+                    .map_err(|e| DiagnoseError::Input(format!("measurement {:?}: {e}", m.id)))?;
+                if let Some(rho) = self.block(Candidate::Gravity, theta, ctx.grid) {
+                    add_gravity(ctx, rho[0], &mut fvec);
+                }
+                let xt = ctx
+                    .problem
+                    .solve_forces(&mat, &fvec, Some(x), &ctx.solve)?
+                    .solution
+                    .x;
+                let tilted = self.physical_markers(ctx, theta, i, &xt, embedding);
+                cols[j] = tilted
+                    .iter()
+                    .zip(&base)
+                    .map(|(a, b)| [0, 1, 2].map(|d| (a[d] - b[d]) / TILT_PROBE))
+                    .collect();
+            }
+            out.push(cols);
+        }
+        Ok(out)
     }
 
     /// Where the markers sit on the unloaded object when the rest scan was taken under gravity
@@ -795,7 +912,10 @@ impl Model {
         self.material(theta, log_e.as_deref(), extra.as_deref())
     }
 
-    /// Marker positions from solved node positions (support motion and registration applied).
+    /// Marker positions from solved node positions: support motion and registration applied,
+    /// then the profiled per-measurement effects (the tangential force of
+    /// [`Candidate::TiltEach`] from its responses `tilt`, the rigid transform of
+    /// [`Candidate::RegistrationEach`]).
     pub fn markers_from(
         &self,
         ctx: &Context,
@@ -803,56 +923,72 @@ impl Model {
         subset: &[usize],
         xs: &[Vec<[f64; 3]>],
         embedding: Option<&[([usize; 3], [f64; 3])]>,
+        tilt: Option<&[[Vec<[f64; 3]>; 2]]>,
     ) -> Vec<Vec<[f64; 3]>> {
-        let boundary = self.block(Candidate::Boundary, theta, ctx.grid);
-        let reg = self.block(Candidate::Registration, theta, ctx.grid);
         subset
             .iter()
             .zip(xs)
-            .map(|(&i, x)| {
-                let m = &ctx.meas[i];
-                let f = self.model_force(ctx, theta, i);
-                let support = boundary.map(|b| {
-                    let t = f.map(|v| v * b[0] * 1e-4);
-                    let arm = [0, 1, 2].map(|d| m.point[d] - ctx.base[d]);
-                    let w = <[f64; 3]>::from(Vector3::from(arm).cross(&Vector3::from(f)))
-                        .map(|v| v * b[1] * 1e-4 / (ctx.half * ctx.half));
-                    (t, w)
-                });
-                let delta = ctx.correction.as_ref().map(|c| &c[i]);
-                let sim: Vec<[f64; 3]> = m
-                    .observed
-                    .iter()
-                    .enumerate()
-                    .map(|(j, &(k, _))| {
-                        let mut p = match embedding {
-                            Some(e) => {
-                                let (t, b) = e[k];
-                                std::array::from_fn(|d| (0..3).map(|j| b[j] * x[t[j]][d]).sum())
-                            }
-                            None => ctx.markers[k].interpolate(|n| x[n]),
-                        };
-                        if let Some(d) = delta {
-                            p = [0, 1, 2].map(|a| p[a] + d[j][a]);
-                        }
-                        if let Some((t, w)) = support {
-                            let r = [0, 1, 2].map(|d| p[d] - ctx.base[d]);
-                            let wr = Vector3::from(w).cross(&Vector3::from(r));
-                            p = [0, 1, 2].map(|d| p[d] + t[d] + wr[d]);
-                        }
-                        if let Some(g) = reg {
-                            let w = [g[0], g[1], g[2]].map(|v| v * 1e-3);
-                            let r = rotate(w, [0, 1, 2].map(|d| p[d] - ctx.centre[d]));
-                            p = [0, 1, 2].map(|d| ctx.centre[d] + r[d] + g[3 + d] * 1e-4);
-                        }
-                        p
-                    })
-                    .collect();
-                if self.effects.contains(&Candidate::RegistrationEach) {
-                    self.register_each(ctx, i, sim)
-                } else {
-                    sim
+            .enumerate()
+            .map(|(k, (&i, x))| {
+                let mut sim = self.physical_markers(ctx, theta, i, x, embedding);
+                if let Some(cols) = tilt.and_then(|t| t.get(k)) {
+                    sim = tilt_each(ctx, i, sim, cols);
                 }
+                if self.effects.contains(&Candidate::RegistrationEach) {
+                    sim = self.register_each(ctx, i, sim);
+                }
+                sim
+            })
+            .collect()
+    }
+
+    /// Measurement `i`'s observed markers on the solved positions `x`, with the support motion,
+    /// the mesh correction and the global registration (the effects with parameters in θ).
+    fn physical_markers(
+        &self,
+        ctx: &Context,
+        theta: &[f64],
+        i: usize,
+        x: &[[f64; 3]],
+        embedding: Option<&[([usize; 3], [f64; 3])]>,
+    ) -> Vec<[f64; 3]> {
+        let boundary = self.block(Candidate::Boundary, theta, ctx.grid);
+        let reg = self.block(Candidate::Registration, theta, ctx.grid);
+        let m = &ctx.meas[i];
+        let f = self.model_force(ctx, theta, i);
+        let support = boundary.map(|b| {
+            let t = f.map(|v| v * b[0] * 1e-4);
+            let arm = [0, 1, 2].map(|d| m.point[d] - ctx.base[d]);
+            let w = <[f64; 3]>::from(Vector3::from(arm).cross(&Vector3::from(f)))
+                .map(|v| v * b[1] * 1e-4 / (ctx.half * ctx.half));
+            (t, w)
+        });
+        let delta = ctx.correction.as_ref().map(|c| &c[i]);
+        m.observed
+            .iter()
+            .enumerate()
+            .map(|(j, &(k, _))| {
+                let mut p = match embedding {
+                    Some(e) => {
+                        let (t, b) = e[k];
+                        std::array::from_fn(|d| (0..3).map(|j| b[j] * x[t[j]][d]).sum())
+                    }
+                    None => ctx.markers[k].interpolate(|n| x[n]),
+                };
+                if let Some(d) = delta {
+                    p = [0, 1, 2].map(|a| p[a] + d[j][a]);
+                }
+                if let Some((t, w)) = support {
+                    let r = [0, 1, 2].map(|d| p[d] - ctx.base[d]);
+                    let wr = Vector3::from(w).cross(&Vector3::from(r));
+                    p = [0, 1, 2].map(|d| p[d] + t[d] + wr[d]);
+                }
+                if let Some(g) = reg {
+                    let w = [g[0], g[1], g[2]].map(|v| v * 1e-3);
+                    let r = rotate(w, [0, 1, 2].map(|d| p[d] - ctx.centre[d]));
+                    p = [0, 1, 2].map(|d| ctx.centre[d] + r[d] + g[3 + d] * 1e-4);
+                }
+                p
             })
             .collect()
     }

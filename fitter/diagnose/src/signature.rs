@@ -229,7 +229,7 @@ pub fn evidence_points(
                 .map(|p| (p.force, p.scale))
                 .collect(),
         ),
-        Candidate::Tilt => (
+        Candidate::Tilt | Candidate::TiltEach => (
             "reported force |f| (N)",
             "horizontal mean residual (mm)",
             sig.per_measurement

@@ -42,7 +42,7 @@ fn rest_scan_under_gravity_relocates_side_markers() {
         .embedding
         .as_deref()
         .expect("gravity re-locates the markers");
-    let plain = model.markers_from(&ctx, &theta, &all, &sim.x, None);
+    let plain = model.markers_from(&ctx, &theta, &all, &sim.x, None, None);
     let (with, without) = (rms(&ctx, &sim.markers), rms(&ctx, &plain));
     eprintln!(
         "re-located {:.1} µm, dataset embedding {:.1} µm",

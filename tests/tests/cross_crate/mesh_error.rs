@@ -86,7 +86,7 @@ fn correction_makes_the_coarse_model_predict_the_refined_one() {
     let delta = corr.delta(&coarse, &model, &theta, &sim.x).expect("delta");
     assert!(delta_rms(&delta) > 50e-6, "δ {:e} m RMS", delta_rms(&delta));
     coarse.correction = Some(delta);
-    let corrected = model.markers_from(&coarse, &theta, &all, &sim.x, None);
+    let corrected = model.markers_from(&coarse, &theta, &all, &sim.x, None, None);
     let fine_ctx = Context::new(&fine, grid).expect("fine context");
     let reference = model.simulate(&fine_ctx, &theta, &all, None).expect("fine");
     for (i, (a, b)) in corrected.iter().zip(&reference.markers).enumerate() {
