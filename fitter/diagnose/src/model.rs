@@ -519,7 +519,10 @@ fn tilt_each(
         }
     }
     let det = a11 * a22 - a12 * a12;
-    if !(det > 1e-12 * (a11 * a22).max(f64::MIN_POSITIVE)) {
+    // A degenerate or non-finite system (a measurement without force, markers that do not
+    // respond) leaves the markers as they are.
+    let well_posed = det > 1e-12 * (a11 * a22).max(f64::MIN_POSITIVE);
+    if !well_posed || !det.is_finite() {
         return sim;
     }
     let (a, b) = ((b1 * a22 - b2 * a12) / det, (a11 * b2 - a12 * b1) / det);
