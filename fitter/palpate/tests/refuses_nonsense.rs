@@ -510,3 +510,39 @@ fn simulate_writes_a_vtu_other_readers_accept() {
         assert!((u[3 * first + k] - row[1 + k]).abs() <= 1e-9 + 1e-6 * row[1 + k].abs());
     }
 }
+
+/// `palpate info` names what a file is (a model, a fitted motion model, a dataset) and ends with
+/// one JSON line; a file that is none of them is an error naming it.
+#[test]
+fn info_reads_models_fits_and_datasets_and_refuses_the_rest() {
+    let last_json = |arg: PathBuf| -> serde_json::Value {
+        let o = palpate().arg("info").arg(&arg).output().unwrap();
+        assert_eq!(
+            o.status.code(),
+            Some(0),
+            "{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let out = String::from_utf8_lossy(&o.stdout).to_string();
+        serde_json::from_str(out.lines().last().unwrap()).unwrap()
+    };
+    let fit = last_json(repo().join("models/silicone-beam/fit.json"));
+    assert_eq!(fit["kind"], "motion-fit");
+    assert_eq!(fit["tets"], 716);
+    assert_eq!(fit["hanging_inertia"], true);
+    let ds = last_json(repo().join("models/motion-example"));
+    assert_eq!(
+        (ds["kind"].as_str(), ds["tets"].as_u64()),
+        (Some("motion-dataset"), Some(24))
+    );
+    let st = last_json(repo().join("models/sponge-specimen"));
+    assert_eq!(st["kind"], "static-dataset");
+    let o = palpate()
+        .arg("info")
+        .arg(repo().join("README.md"))
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(e.contains("README.md") && e.contains("PALP"), "{e}");
+}

@@ -19,7 +19,13 @@ pub struct Args {
     #[arg(long, default_value = "models/sponge-specimen")]
     pub dataset: PathBuf,
     /// Output folder (model, reports).
-    #[arg(long, default_value = "out/demo")]
+    #[arg(
+        short = 'o',
+        long = "output",
+        visible_alias = "out",
+        value_name = "DIR",
+        default_value = "out/demo"
+    )]
     pub out: PathBuf,
     /// Seconds of haptic replay over the pseudo-terminal.
     #[arg(long, default_value_t = 2.0)]

@@ -62,7 +62,12 @@ pub struct Args {
     #[arg(long)]
     pub leave_one_out: bool,
     /// Output model file; the report goes to `<model>.report/`.
-    #[arg(short, long)]
+    #[arg(
+        short = 'o',
+        long = "output",
+        visible_alias = "out",
+        value_name = "MODEL"
+    )]
     pub out: PathBuf,
 }
 

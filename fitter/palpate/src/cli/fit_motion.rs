@@ -47,7 +47,11 @@ pub struct Args {
     #[arg(long, requires = "poisson")]
     pub equilibria: bool,
     /// LBFGS iteration cap.
-    #[arg(long, default_value_t = 150)]
+    #[arg(
+        long = "max-iterations",
+        visible_alias = "max-iters",
+        default_value_t = 150
+    )]
     pub max_iters: u64,
     /// Write the fitted parameters (JSON) here.
     #[arg(short, long)]

@@ -10,6 +10,7 @@ pub mod fit;
 pub mod fit_motion;
 pub mod haptic;
 pub mod import;
+pub mod info;
 pub mod output;
 pub mod probe;
 pub mod probe_sim;
@@ -48,6 +49,8 @@ pub enum Command {
     Haptic(haptic::Args),
     /// Fit visco-elastic parameters to a motion dataset (Real2Sim).
     FitMotion(fit_motion::Args),
+    /// What a model, a fitted motion model or a dataset is and where it came from.
+    Info(info::Args),
     /// Predict a motion dataset from a fitted model without refitting; report the marker errors.
     Validate(validate::Args),
     /// Simulate a stand-in specimen with undeclared effects as a static dataset (+ truth.json).
@@ -86,6 +89,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Haptic(a) => haptic::run(a),
         Command::FitMotion(a) => fit_motion::run(a),
         Command::Validate(a) => validate::run(a),
+        Command::Info(a) => info::run(a),
         Command::Specimen(a) => specimen::run(a),
         Command::Diagnose(a) => diagnose::run(a),
     }
