@@ -1079,7 +1079,13 @@ pub fn run_diagnosis_with(
     }
     Ok(DiagnosisReport {
         dataset: ds.name.clone(),
-        criterion: "rank by BIC = n ln(χ²/n) + k ln n; shortlist the best cv_candidates with ΔBIC < −threshold; a shortlisted candidate passes if on leave-one-measurement-out predictions n ln(χ²_new/χ²_old) + k ln n < 0 AND the held-out error in excess of the noise floor drops by ≥ min_holdout_gain; adopt the first that passes (fitted-BIC order) and report any later one that also passes with a lower held-out ΔBIC as ambiguous; repeat; then `noise` if the one-sided 95 % lower bound of the nugget estimate σ̂ of the final residual exceeds (1 + margin) × the declared σ".into(),
+        criterion: format!(
+            "rank by BIC = n ln(χ²/n) + k ln n; shortlist the best {} with ΔBIC < −{}; a shortlisted candidate passes if on leave-one-measurement-out predictions n ln(χ²_new/χ²_old) + k ln n < 0 AND the held-out error in excess of the noise floor drops by ≥ {:.0} %; adopt the first that passes (fitted-BIC order) and report any later one that also passes with a lower held-out ΔBIC as ambiguous; repeat; then `noise` if the one-sided 95 % lower bound of the nugget estimate σ̂ of the final residual exceeds {:.2} × the declared σ",
+            o.cv_candidates,
+            o.bic_threshold,
+            100.0 * o.min_holdout_gain,
+            1.0 + o.noise.margin
+        ),
         sigma: ctx.sigma,
         sigma_declared: ctx.sigma_declared,
         noise_floor: ctx.sigma * 3f64.sqrt(),

@@ -546,3 +546,32 @@ fn info_reads_models_fits_and_datasets_and_refuses_the_rest() {
     assert_eq!(o.status.code(), Some(1));
     assert!(e.contains("README.md") && e.contains("PALP"), "{e}");
 }
+
+/// Help is written for users: no command's `--help` shows rustdoc link syntax (a backtick inside
+/// square brackets, "[`Type`]") or a bare paper section ("§5.3") without words around it.
+#[test]
+fn help_texts_have_no_rustdoc_links() {
+    let top = palpate().arg("--help").output().unwrap();
+    let text = String::from_utf8_lossy(&top.stdout).to_string();
+    let commands: Vec<String> = text
+        .lines()
+        .skip_while(|l| !l.starts_with("Commands:"))
+        .skip(1)
+        .take_while(|l| l.starts_with("  "))
+        .filter_map(|l| l.split_whitespace().next().map(String::from))
+        .filter(|c| c != "help")
+        .collect();
+    assert!(commands.len() >= 10, "{commands:?}");
+    for c in std::iter::once(String::new()).chain(commands) {
+        let mut cmd = palpate();
+        if !c.is_empty() {
+            cmd.arg(&c);
+        }
+        let help = String::from_utf8_lossy(&cmd.arg("--help").output().unwrap().stdout).to_string();
+        assert!(!help.contains("[`"), "palpate {c} --help shows rustdoc links:\n{help}");
+        if c == "import" {
+            let sub = palpate().args(["import", "c3d", "--help"]).output().unwrap();
+            assert!(!String::from_utf8_lossy(&sub.stdout).contains("[`"));
+        }
+    }
+}
