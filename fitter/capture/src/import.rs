@@ -20,6 +20,9 @@ pub struct ImportOptions {
     pub last_frame: Option<usize>,
     /// `dataset.toml` lines written as given (mesh, clamps, gravity, density, …).
     pub toml: String,
+    /// Also track the capture's markers whose places are not declared, located from the rest
+    /// frame through the registration (those far from the declared ones are left out).
+    pub locate_undeclared: bool,
 }
 
 /// Errors of the import.
@@ -67,6 +70,11 @@ pub struct Imported {
     pub steps: usize,
     /// Files written.
     pub files: Vec<PathBuf>,
+    /// Markers without a declared place, located from the rest frame.
+    pub located: Vec<String>,
+    /// Markers without a declared place left out: missing in the rest frame, or farther from the
+    /// declared markers than half their spread (on the rig, not on the object).
+    pub ignored: Vec<String>,
 }
 
 /// Registers `capture` on `o.rest_frame` and writes a motion dataset into `out`.
@@ -122,10 +130,46 @@ pub fn import_motion_dataset(
         path: out.into(),
         source,
     })?;
+    // Markers without a declared place: located where the registration puts them on the rest
+    // frame, if they sit near the declared ones (a marker on the rig or the table is not a point
+    // of the object).
+    let (mut located, mut ignored) = (Vec::new(), Vec::new());
+    let mut tracked: Vec<(String, [f64; 3])> =
+        labels.iter().cloned().zip(from.iter().copied()).collect();
+    if o.locate_undeclared {
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        for q in &to {
+            for d in 0..3 {
+                lo[d] = lo[d].min(q[d]);
+                hi[d] = hi[d].max(q[d]);
+            }
+        }
+        let reach = 0.5 * (0..3).map(|d| (hi[d] - lo[d]).powi(2)).sum::<f64>().sqrt();
+        for (k, label) in capture.labels.iter().enumerate() {
+            if labels.contains(label) {
+                continue;
+            }
+            let Some(p) = capture.positions[o.rest_frame][k] else {
+                ignored.push(label.clone());
+                continue;
+            };
+            let q = transform.apply(p);
+            let outside = (0..3)
+                .map(|d| (lo[d] - q[d]).max(q[d] - hi[d]).max(0.0).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            if outside <= reach {
+                located.push(label.clone());
+                tracked.push((label.clone(), p));
+            } else {
+                ignored.push(label.clone());
+            }
+        }
+    }
     // The markers' rest places: where the registration puts them on the rest frame (the declared
     // places themselves may be rounded; the registered capture is what the trajectories share).
     let mut markers = String::from("marker,x,y,z\n");
-    for (label, p) in labels.iter().zip(&from) {
+    for (label, p) in tracked.iter().map(|(l, p)| (l, p)) {
         let q = transform.apply(*p);
         let _ = writeln!(markers, "{label},{:.7},{:.7},{:.7}", q[0], q[1], q[2]);
     }
@@ -135,7 +179,7 @@ pub fn import_motion_dataset(
     for f in o.release_frame + 1..=last {
         let n = f - o.release_frame;
         steps = n;
-        for (label, _) in &o.places {
+        for (label, _) in &tracked {
             let k = capture.marker(label)?;
             if let Some(p) = capture.positions[f][k] {
                 let q = transform.apply(p);
@@ -170,5 +214,7 @@ pub fn import_motion_dataset(
         labels,
         steps,
         files,
+        located,
+        ignored,
     })
 }

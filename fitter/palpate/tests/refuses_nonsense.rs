@@ -568,9 +568,15 @@ fn help_texts_have_no_rustdoc_links() {
             cmd.arg(&c);
         }
         let help = String::from_utf8_lossy(&cmd.arg("--help").output().unwrap().stdout).to_string();
-        assert!(!help.contains("[`"), "palpate {c} --help shows rustdoc links:\n{help}");
+        assert!(
+            !help.contains("[`"),
+            "palpate {c} --help shows rustdoc links:\n{help}"
+        );
         if c == "import" {
-            let sub = palpate().args(["import", "c3d", "--help"]).output().unwrap();
+            let sub = palpate()
+                .args(["import", "c3d", "--help"])
+                .output()
+                .unwrap();
             assert!(!String::from_utf8_lossy(&sub.stdout).contains("[`"));
         }
     }

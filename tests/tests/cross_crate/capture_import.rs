@@ -43,6 +43,7 @@ fn beam_capture_imports_as_a_motion_dataset() {
             release_frame: release,
             last_frame: None,
             toml: "mesh = \"mesh.msh\"\nclamps = [\"clamp\"]\ngravity = [-9.81, 0.0, 0.0]\ndensity = 1070.0".into(),
+            locate_undeclared: true,
         },
         dir.path(),
     )
@@ -76,4 +77,73 @@ fn beam_capture_imports_as_a_motion_dataset() {
     let last = ds.obs.markers.last().unwrap()[tip].unwrap();
     let sag = first[0] - last[0];
     assert!(sag > 4e-3 && sag < 8e-3, "tip sag along gravity {sag} m");
+}
+
+/// A marker whose place is not declared is located from the rest frame through the registration
+/// of the others: declaring five of the six beam markers, the sixth ("Tip - 2") is tracked, at
+/// the place the registration puts it — within a few millimetres of the full registration's (the
+/// declared places are rounded; five points move the fit a little).
+#[test]
+fn an_undeclared_marker_is_located_from_the_rest_frame() {
+    let capture = palpate_capture::read_c3d(&beam().join("beam_load52_V2_a.c3d")).unwrap();
+    let text = std::fs::read_to_string(beam().join("marker-places.csv")).unwrap();
+    let all: Vec<(String, [f64; 3])> = text
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.starts_with("marker,"))
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[0].to_string(), [1, 2, 3].map(|k| f[k].parse().unwrap()))
+        })
+        .collect();
+    let import = |places: Vec<(String, [f64; 3])>| {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::copy(beam().join("beam-coarse.msh"), dir.path().join("mesh.msh")).unwrap();
+        let r = import_motion_dataset(
+            &capture,
+            &ImportOptions {
+                places,
+                rest_frame: 0,
+                release_frame: 44,
+                last_frame: None,
+                toml: "mesh = \"mesh.msh\"\nclamps = [\"clamp\"]\ngravity = [-9.81, 0.0, 0.0]"
+                    .into(),
+                locate_undeclared: true,
+            },
+            dir.path(),
+        )
+        .unwrap();
+        let ds = palpate_motion::dataset::load(dir.path()).unwrap();
+        (r, ds)
+    };
+    let five: Vec<_> = all
+        .iter()
+        .filter(|(l, _)| l != "Tip - 2")
+        .cloned()
+        .collect();
+    let (r, ds) = import(five);
+    assert_eq!(r.located, vec!["Tip - 2".to_string()]);
+    assert!(r.ignored.is_empty(), "{:?}", r.ignored);
+    assert_eq!(ds.model.markers.len(), 6);
+    let (_, full) = import(all);
+    let at = |ds: &palpate_motion::dataset::MotionDataset| {
+        let i = ds
+            .model
+            .markers
+            .iter()
+            .position(|m| m.name == "Tip - 2")
+            .unwrap();
+        palpate_motion::predict::rest_markers(&ds.model)[i]
+    };
+    let (a, b) = (at(&ds), at(&full));
+    let d = (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt();
+    assert!(
+        d < 3e-3,
+        "located {a:?} vs registered with its place {b:?}: {d} m"
+    );
+    // Tracked over the run like the declared ones.
+    assert!(ds
+        .obs
+        .markers
+        .iter()
+        .all(|row| row.iter().all(|m| m.is_some())));
 }

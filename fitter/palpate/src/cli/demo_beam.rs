@@ -57,6 +57,7 @@ fn import(run: &str, out: &Path) -> anyhow::Result<(String, MotionDataset)> {
         release_frame: None,
         release_threshold: 0.5e-3,
         last_frame: None,
+        declared_only: false,
         output: dir.clone(),
     })?;
     let ds = palpate_motion::dataset::load(&dir)

@@ -52,6 +52,10 @@ pub struct C3dArgs {
     /// Last frame imported (default: the end of the capture).
     #[arg(long)]
     pub last_frame: Option<usize>,
+    /// Track only the markers with a declared place (by default the capture's other markers
+    /// near the object are located from the rest frame and tracked too).
+    #[arg(long)]
+    pub declared_only: bool,
     /// Output dataset folder.
     #[arg(short, long)]
     pub output: PathBuf,
@@ -182,6 +186,7 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
             release_frame,
             last_frame: a.last_frame,
             toml,
+            locate_undeclared: !a.declared_only,
         },
         &a.output,
     )?;
@@ -215,6 +220,19 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
             .join(", "),
         r.steps
     );
+    if !r.located.is_empty() {
+        println!(
+            "located from frame {} (no declared place): {}",
+            a.rest_frame,
+            r.located.join(", ")
+        );
+    }
+    if !r.ignored.is_empty() {
+        println!(
+            "left out (missing at rest, or far from the object): {}",
+            r.ignored.join(", ")
+        );
+    }
     for f in r.files {
         println!("wrote {}", f.display());
     }
