@@ -105,6 +105,30 @@ fn centred(
     Ok((c, d))
 }
 
+/// Horn's closed form: the rotation maximising Σ q'ᵢ · R p'ᵢ for the cross-covariance
+/// S = Σ p'ᵢ q'ᵢᵀ of centred pairs — the eigenvector of the largest eigenvalue of his symmetric
+/// 4 × 4 matrix N(S), read as a unit quaternion.
+fn horn_rotation(s: &Matrix3<f64>) -> Matrix3<f64> {
+    let (sxx, sxy, sxz) = (s[(0, 0)], s[(0, 1)], s[(0, 2)]);
+    let (syx, syy, syz) = (s[(1, 0)], s[(1, 1)], s[(1, 2)]);
+    let (szx, szy, szz) = (s[(2, 0)], s[(2, 1)], s[(2, 2)]);
+    #[rustfmt::skip]
+    let n = Matrix4::new(
+        sxx + syy + szz, syz - szy,        szx - sxz,        sxy - syx,
+        syz - szy,       sxx - syy - szz,  sxy + syx,        szx + sxz,
+        szx - sxz,       sxy + syx,        -sxx + syy - szz, syz + szy,
+        sxy - syx,       szx + sxz,        syz + szy,        -sxx - syy + szz,
+    );
+    let eig = SymmetricEigen::new(n);
+    let at = (0..4)
+        .max_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]))
+        .unwrap_or(0);
+    let v = eig.eigenvectors.column(at);
+    UnitQuaternion::from_quaternion(Quaternion::new(v[0], v[1], v[2], v[3]))
+        .to_rotation_matrix()
+        .into_inner()
+}
+
 /// The rigid transform taking `from` (capture frame) onto `to` (model frame), pair by pair.
 pub fn absolute_orientation(
     from: &[[f64; 3]],
@@ -126,27 +150,7 @@ pub fn absolute_orientation(
         .iter()
         .zip(&b)
         .fold(Matrix3::zeros(), |m, (p, q)| m + p * q.transpose());
-    let (sxx, sxy, sxz) = (s[(0, 0)], s[(0, 1)], s[(0, 2)]);
-    let (syx, syy, syz) = (s[(1, 0)], s[(1, 1)], s[(1, 2)]);
-    let (szx, szy, szz) = (s[(2, 0)], s[(2, 1)], s[(2, 2)]);
-    #[rustfmt::skip]
-    let n = Matrix4::new(
-        sxx + syy + szz, syz - szy,        szx - sxz,        sxy - syx,
-        syz - szy,       sxx - syy - szz,  sxy + syx,        szx + sxz,
-        szx - sxz,       sxy + syx,        -sxx + syy - szz, syz + szy,
-        sxy - syx,       szx + sxz,        syz + szy,        -sxx - syy + szz,
-    );
-    let eig = SymmetricEigen::new(n);
-    let (mut best, mut at) = (f64::NEG_INFINITY, 0);
-    for (k, &l) in eig.eigenvalues.iter().enumerate() {
-        if l > best {
-            best = l;
-            at = k;
-        }
-    }
-    let v = eig.eigenvectors.column(at);
-    let q = UnitQuaternion::from_quaternion(Quaternion::new(v[0], v[1], v[2], v[3]));
-    let rotation = q.to_rotation_matrix().into_inner();
+    let rotation = horn_rotation(&s);
     let translation = cb - rotation * ca;
     let residuals = from
         .iter()
@@ -193,21 +197,7 @@ pub fn weighted_orientation(
     if !s.iter().all(|v| v.is_finite()) {
         return None;
     }
-    let (sxx, sxy, sxz) = (s[(0, 0)], s[(0, 1)], s[(0, 2)]);
-    let (syx, syy, syz) = (s[(1, 0)], s[(1, 1)], s[(1, 2)]);
-    let (szx, szy, szz) = (s[(2, 0)], s[(2, 1)], s[(2, 2)]);
-    #[rustfmt::skip]
-    let n = Matrix4::new(
-        sxx + syy + szz, syz - szy,        szx - sxz,        sxy - syx,
-        syz - szy,       sxx - syy - szz,  sxy + syx,        szx + sxz,
-        szx - sxz,       sxy + syx,        -sxx + syy - szz, syz + szy,
-        sxy - syx,       szx + sxz,        syz + szy,        -sxx - syy + szz,
-    );
-    let eig = SymmetricEigen::new(n);
-    let at = (0..4).max_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]))?;
-    let v = eig.eigenvectors.column(at);
-    let q = UnitQuaternion::from_quaternion(Quaternion::new(v[0], v[1], v[2], v[3]));
-    let rotation = q.to_rotation_matrix().into_inner();
+    let rotation = horn_rotation(&s);
     Some((rotation, cb - rotation * ca))
 }
 

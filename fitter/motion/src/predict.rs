@@ -221,6 +221,29 @@ pub fn linear_baseline(
         .collect()
 }
 
+/// The linear baseline's error on a run: each marker's rest state predicted by
+/// [`linear_baseline`] through `fitted` (load, final displacement per marker, in `model`'s
+/// marker order) at the run's load, against the observed rest state; the RMS over the markers
+/// both know (`None` when none does).
+pub fn baseline_rest_rms(
+    fitted: &[(f64, Vec<Option<[f64; 3]>>)],
+    model: &Model,
+    obs: &Observations,
+) -> Option<f64> {
+    let rest = rest_markers(model);
+    let predicted = linear_baseline(fitted, load_along_gravity(model));
+    let errors: Vec<f64> = predicted
+        .iter()
+        .zip(final_observed(model, obs))
+        .zip(&rest)
+        .filter_map(|((b, f), r0)| {
+            let (b, f) = (b.as_ref()?, f?);
+            Some(dist(&[0, 1, 2].map(|k| r0[k] + b[k]), &f))
+        })
+        .collect();
+    (!errors.is_empty()).then(|| rms(errors.into_iter()).0)
+}
+
 /// The shear modulus μ that best places every run's equilibrium (under its loads, Poisson's ratio
 /// held at `poisson`) on the markers' observed rest state — the static fit from the ends of the
 /// runs, no dynamics involved. A golden-section search on ln μ within a factor e² of `mu0`

@@ -31,7 +31,8 @@
 pub mod report;
 
 use crate::select::{
-    self, select, CandidateModel, Current, Gate, Outcome, Policy, Rank, Score, Screen, Stop,
+    self, select, CandidateModel, Current, Gate, Outcome, ParamValue, Policy, Rank, Score, Screen,
+    Stop,
 };
 use palpate_motion::dataset::MotionDataset;
 use palpate_motion::fitted::{set_hanging_inertia, FittedModel, FittedRun};
@@ -257,20 +258,6 @@ pub struct Trial {
     pub adopted: bool,
 }
 
-/// A fitted value with its uncertainty.
-#[derive(Debug, Clone, Serialize)]
-pub struct Value {
-    /// Name.
-    pub name: String,
-    /// Value (SI).
-    pub value: f64,
-    /// 1σ from the curvature of the objective with independent residuals (`None` if not
-    /// computed); a lower bound — the residuals of a ring-down are correlated in time.
-    pub sd: Option<f64>,
-    /// Unit.
-    pub unit: String,
-}
-
 /// The result of [`diagnose_runs`].
 #[derive(Debug, Clone, Serialize)]
 pub struct RunsDiagnosis {
@@ -296,8 +283,10 @@ pub struct RunsDiagnosis {
     pub heldout_final_rms_m: (f64, f64),
     /// Fitted RMS before and after (m).
     pub fitted_rms_m: (f64, f64),
-    /// The final model's parameters.
-    pub values: Vec<Value>,
+    /// The final model's parameters (1σ `NaN` where not computed; E's from the curvature of the
+    /// objective with independent residuals — a lower bound, a ring-down's residuals are
+    /// correlated in time).
+    pub values: Vec<ParamValue>,
     /// The final model as the record `palpate validate` reads.
     #[serde(skip)]
     pub model: FittedModel,
@@ -841,36 +830,36 @@ pub fn diagnose_runs(
     let sd_mu = mu_sd(&runs, &last.material, nu, n, last.kinds.len())?;
     let mu = last.material.get(ParamKind::Mu, 0);
     let mut values = vec![
-        Value {
+        ParamValue {
             name: "E (Young's modulus)".into(),
             value: 2.0 * (1.0 + nu) * mu,
-            sd: Some(2.0 * (1.0 + nu) * sd_mu),
+            sd: 2.0 * (1.0 + nu) * sd_mu,
             unit: "Pa".into(),
         },
-        Value {
+        ParamValue {
             name: "μ (shear modulus)".into(),
             value: mu,
-            sd: Some(sd_mu),
+            sd: sd_mu,
             unit: "Pa".into(),
         },
-        Value {
+        ParamValue {
             name: "Poisson's ratio (held)".into(),
             value: nu,
-            sd: None,
+            sd: f64::NAN,
             unit: "".into(),
         },
     ];
     if last.kinds.contains(&ParamKind::Nu) {
-        values.push(Value {
+        values.push(ParamValue {
             name: "viscosity coefficient (eq. 17 ν)".into(),
             value: last.material.get(ParamKind::Nu, 0),
-            sd: None,
+            sd: f64::NAN,
             unit: "Pa·s^h".into(),
         });
-        values.push(Value {
+        values.push(ParamValue {
             name: "power-law index h".into(),
             value: last.material.get(ParamKind::PowerH, 0),
-            sd: None,
+            sd: f64::NAN,
             unit: "".into(),
         });
     }

@@ -126,7 +126,11 @@ pub fn markdown(r: &RunsDiagnosis) -> String {
             v.name,
             v.value,
             v.unit,
-            v.sd.map_or("–".into(), |s| format!("{s:.2e}"))
+            if v.sd.is_finite() {
+                format!("{:.2e}", v.sd)
+            } else {
+                "–".into()
+            }
         );
     }
     let _ = writeln!(

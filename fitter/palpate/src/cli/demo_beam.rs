@@ -108,26 +108,10 @@ pub fn run(out: &Path) -> anyhow::Result<BeamOutcome> {
         .collect();
     let mut baseline = Vec::new();
     for (name, ds) in &held {
-        let rest = predict::rest_markers(&ds.model);
-        let b = predict::linear_baseline(&fitted_runs, predict::load_along_gravity(&ds.model));
-        let finals = predict::final_observed(&ds.model, &ds.obs);
-        let e: Vec<f64> = b
-            .iter()
-            .zip(&finals)
-            .zip(&rest)
-            .filter_map(|((b, f), r0)| {
-                let (b, f) = (b.as_ref()?, f.as_ref()?);
-                Some(
-                    (0..3)
-                        .map(|k| (r0[k] + b[k] - f[k]).powi(2))
-                        .sum::<f64>()
-                        .sqrt(),
-                )
-            })
-            .collect();
-        let rms =
-            (!e.is_empty()).then(|| (e.iter().map(|v| v * v).sum::<f64>() / e.len() as f64).sqrt());
-        baseline.push((name.clone(), rms));
+        baseline.push((
+            name.clone(),
+            predict::baseline_rest_rms(&fitted_runs, &ds.model, &ds.obs),
+        ));
     }
     let fit_json = out.join("diagnosis").join("fit.json");
     println!(
@@ -310,7 +294,7 @@ pub fn print_table(b: &BeamOutcome) {
     println!(
         "Neo-Hookean E = {:.0} Pa (1σ ≥ {:.0} Pa, Poisson's ratio held at {}); the exported warped-linear model deflects {} mm under the weight vs {} mm measured; refitted to it, E = {:.0} Pa",
         e.value,
-        e.sd.unwrap_or(f64::NAN),
+        e.sd,
         d.options.poisson,
         mm(b.runtime_tip_m),
         mm(b.measured_tip_m),

@@ -80,7 +80,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let p = predict::predict(&ds.model, &mat, &ds.obs)
         .with_context(|| format!("simulating {}", args.dataset.display()))?;
     let load = predict::load_along_gravity(&ds.model);
-    let rest = predict::rest_markers(&ds.model);
     // The baseline by marker name: the fitted runs may list the markers in another order.
     let names: Vec<String> = ds.model.markers.iter().map(|m| m.name.clone()).collect();
     let fitted_runs: Vec<(f64, Vec<Option<[f64; 3]>>)> = fit
@@ -99,23 +98,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             (r.load_n, by_name)
         })
         .collect();
-    let baseline = predict::linear_baseline(&fitted_runs, load);
-    let base_err: Vec<f64> = baseline
-        .iter()
-        .zip(&p.observed_final)
-        .zip(&rest)
-        .filter_map(|((b, o), r0)| {
-            let (b, o) = (b.as_ref()?, o.as_ref()?);
-            Some(
-                (0..3)
-                    .map(|k| (r0[k] + b[k] - o[k]).powi(2))
-                    .sum::<f64>()
-                    .sqrt(),
-            )
-        })
-        .collect();
-    let baseline_final_rms_m = (!base_err.is_empty())
-        .then(|| (base_err.iter().map(|e| e * e).sum::<f64>() / base_err.len() as f64).sqrt());
+    let baseline_final_rms_m = predict::baseline_rest_rms(&fitted_runs, &ds.model, &ds.obs);
     println!(
         "validate {} with {} (fitted on {}): {} steps of {} s, {} markers, dead load {:.4} N along gravity",
         args.dataset.display(),
