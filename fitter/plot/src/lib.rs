@@ -1,5 +1,6 @@
 //! Small plotting helpers for every report in palpate: line/scatter plots with several series,
-//! histograms and bar charts, as SVG or PNG (chosen by the file extension), written atomically.
+//! histograms and bar charts, written atomically as PNG (a `.png` path) or as SVG with its PNG
+//! sibling (a `.svg` path writes both).
 //!
 //! plotters needs a font to lay out any text; the project ships DejaVu Sans
 //! (`fitter/assets/DejaVuSans.ttf`) and registers it as `sans-serif` on first use, so plots do not
@@ -268,15 +269,33 @@ pub fn histogram(
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
             (a.min(x), b.max(x))
         });
-    // A constant sample gets a bin of width 1e-9·|value| (or 1) around it.
-    let (lo, hi) = if hi > lo {
-        (lo, hi)
+    // A constant sample (a homogeneous fit) is one bar: drawn over ±10 % of its value (±0.5
+    // about zero) with the value in the title, so the ticks read as numbers, not as eleven copies
+    // of the same one.
+    let constant = hi <= lo;
+    let (lo, hi) = if constant {
+        let half = if lo == 0.0 { 0.5 } else { 0.1 * lo.abs() };
+        (lo - half, hi + half)
     } else {
-        (
-            lo - 0.5 * lo.abs().max(1.0) * 1e-9,
-            hi + 0.5 * hi.abs().max(1.0) * 1e-9,
-        )
+        (lo, hi)
     };
+    let titled;
+    let title = if constant {
+        titled = if v.len() == 1 {
+            format!("{title} (one value: {})", tick(v[0], v[0].abs()))
+        } else {
+            format!(
+                "{title} (all {} values = {})",
+                v.len(),
+                tick(v[0], v[0].abs())
+            )
+        };
+        titled.as_str()
+    } else {
+        title
+    };
+    // An odd number of bins puts the value in the middle one: a narrow bar, not a block.
+    let bins = if constant { 21 } else { bins };
     let counts = bin_counts(&v, lo, hi, bins);
     let w = (hi - lo) / bins as f64;
     let top = *counts.iter().max().unwrap_or(&1) as f64 * 1.08;
@@ -495,6 +514,19 @@ fn render_impl(
     svg: &dyn Fn(DrawingArea<SVGBackend, Shift>) -> DrawResult,
     png: &dyn Fn(DrawingArea<BitMapBackend, Shift>) -> DrawResult,
 ) -> Result<(), PlotError> {
+    // Every figure in both formats: asked for as SVG (documents, reports), its PNG sibling is
+    // written beside it for whatever shows images but not vector graphics.
+    if path.extension().and_then(|e| e.to_str()) == Some("svg") {
+        render_one(&path.with_extension("png"), svg, png)?;
+    }
+    render_one(path, svg, png)
+}
+
+fn render_one(
+    path: &Path,
+    svg: &dyn Fn(DrawingArea<SVGBackend, Shift>) -> DrawResult,
+    png: &dyn Fn(DrawingArea<BitMapBackend, Shift>) -> DrawResult,
+) -> Result<(), PlotError> {
     register_font();
     let file = || path.to_path_buf();
     let draw_err = |e: Box<dyn std::error::Error>| PlotError::Draw {
@@ -626,6 +658,21 @@ mod tests {
         assert!(s.contains("Fitted E") && s.matches("<rect").count() >= 20);
         histogram(dir.path().join("h.png"), "Fitted E", "E (Pa)", &v, 20).unwrap();
         assert!(std::fs::metadata(dir.path().join("h.png")).unwrap().len() > 5000);
+    }
+
+    /// An SVG request writes its PNG sibling too (a real PNG), and a constant sample's histogram
+    /// says the value in its title instead of eleven identical tick labels.
+    #[test]
+    fn svg_comes_with_png_and_constant_histograms_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("h.svg");
+        histogram(&p, "Young's modulus", "E (Pa)", &[19641.3; 7], 10).unwrap();
+        let png = std::fs::read(dir.path().join("h.png")).unwrap();
+        assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+        let svg = std::fs::read_to_string(&p).unwrap();
+        assert!(svg.contains("all 7 values = 19641"), "title");
+        let ticks: Vec<&str> = svg.matches("19641").collect();
+        assert!(ticks.len() < 5, "{} labels repeat the value", ticks.len());
     }
 
     #[test]

@@ -208,8 +208,8 @@ pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBu
         period(&all_after, false),
     );
     if !pm.is_empty() {
-        for ext in ["svg", "png"] {
-            let p = dir.join(format!("period-vs-load.{ext}"));
+        {
+            let p = dir.join("period-vs-load.svg");
             lines(
                 &p,
                 "Ring-down period against the hanging load (every run)",
@@ -222,6 +222,8 @@ pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBu
                 ],
             )
             .map_err(|e| w(e.to_string()))?;
+            // The SVG comes with its PNG sibling (palpate_plot writes both).
+            out.push(p.with_extension("png"));
             out.push(p);
         }
     }
@@ -234,8 +236,8 @@ pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBu
                 .collect()
         };
         let (m, s0, s1) = (pts(&b.ring.0), pts(&b.ring.1), pts(&a.ring.1));
-        for ext in ["svg", "png"] {
-            let p = dir.join(format!("ring-{}.{ext}", slug(&b.run)));
+        {
+            let p = dir.join(format!("ring-{}.svg", slug(&b.run)));
             lines(
                 &p,
                 &format!("{} ({}), predicted", slug(&b.run), b.ring_marker),
@@ -248,6 +250,8 @@ pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBu
                 ],
             )
             .map_err(|e| w(e.to_string()))?;
+            // The SVG comes with its PNG sibling (palpate_plot writes both).
+            out.push(p.with_extension("png"));
             out.push(p);
         }
     }

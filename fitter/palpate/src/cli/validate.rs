@@ -222,8 +222,9 @@ fn write_outputs(
     ];
     let name = &ds.model.markers[tip].name;
     let title = format!("Marker {name}: displacement along gravity");
-    for ext in ["svg", "png"] {
-        let file = out.join(format!("tip.{ext}"));
+    // `tip.svg`, and palpate_plot writes `tip.png` beside it.
+    {
+        let file = out.join("tip.svg");
         palpate_plot::lines(
             &file,
             &title,
@@ -235,7 +236,11 @@ fn write_outputs(
                 palpate_plot::Series::new("predicted rest", &eq, palpate_plot::Style::Line),
             ],
         )?;
-        println!("wrote {}", file.display());
+        println!(
+            "wrote {} and {}",
+            file.display(),
+            file.with_extension("png").display()
+        );
     }
     Ok(())
 }
