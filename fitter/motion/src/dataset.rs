@@ -37,10 +37,24 @@ pub enum DatasetError {
     },
 }
 
-/// `dataset.toml`.
+/// `dataset.toml`. The keys it shares with the static datasets (`name`, `description`, `units`,
+/// `mesh`, `clamps`, `marker_noise`, `gravity`) mean the same in both (docs/dataset.md).
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DatasetToml {
+    /// Short name, as in static datasets.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// Free text.
+    #[serde(default)]
+    pub description: Option<String>,
+    /// Units: only "SI" (m, s, N, kg, Pa), as in static datasets.
+    #[serde(default)]
+    pub units: Option<String>,
+    /// Declared marker noise σ per axis (m), as in static datasets: the floor of the marker
+    /// error is σ√3.
+    #[serde(default)]
+    pub marker_noise: Option<f64>,
     /// Mesh file (default `mesh.msh`).
     #[serde(default = "default_mesh")]
     pub mesh: String,
@@ -50,9 +64,10 @@ pub struct DatasetToml {
     pub steps: Option<usize>,
     /// Density (kg/m³), if known.
     pub density: Option<f64>,
-    /// Gravity (m/s²), default (0, 0, −9.81).
-    #[serde(default = "default_gravity")]
-    pub gravity: [f64; 3],
+    /// Gravity (m/s²). Not declared: (0, 0, −9.81), with a warning — a static dataset without
+    /// `gravity` has none, so declare it.
+    #[serde(default)]
+    pub gravity: Option<[f64; 3]>,
     /// Clamp group names (physical groups in the mesh).
     pub clamps: Vec<String>,
     /// `"lumped"` (default) or `"consistent"`.
@@ -134,9 +149,8 @@ impl Default for Initial {
 fn default_mesh() -> String {
     "mesh.msh".into()
 }
-fn default_gravity() -> [f64; 3] {
-    [0.0, 0.0, -9.81]
-}
+/// Gravity of a motion dataset that does not declare it (m/s²).
+pub const DEFAULT_GRAVITY: [f64; 3] = [0.0, 0.0, -9.81];
 
 /// A loaded dataset.
 #[derive(Debug, Clone)]
@@ -278,6 +292,34 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
             format!("field dt: must be finite and > 0, found {}", config.dt),
         ));
     }
+    if let Some(u) = config.units.as_deref().filter(|u| *u != "SI") {
+        return Err(bad(
+            &tf,
+            0,
+            format!("field units: expected \"SI\" (m, s, N, kg, Pa), found {u:?}"),
+        ));
+    }
+    if let Some(s) = config.marker_noise.filter(|s| !(s.is_finite() && *s > 0.0)) {
+        return Err(bad(
+            &tf,
+            0,
+            format!("field marker_noise: must be finite and > 0 m, found {s}"),
+        ));
+    }
+    let gravity = match config.gravity {
+        Some(g) if g.iter().all(|v| v.is_finite()) => g,
+        Some(g) => {
+            return Err(bad(&tf, 0, format!("field gravity: not finite: {g:?}")));
+        }
+        None => {
+            eprintln!(
+                "warning: {}: no `gravity` declared; using {DEFAULT_GRAVITY:?} m/s² (declare it: a \
+                 static dataset without it has none)",
+                tf.display()
+            );
+            DEFAULT_GRAVITY
+        }
+    };
     let mass = match config.mass.as_deref() {
         None | Some("lumped") => MassKind::Lumped,
         Some("consistent") => MassKind::Consistent,
@@ -466,7 +508,7 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
             poses,
         });
     }
-    let mut model = Model::new(&mesh, clamps, Vec::new(), dt, steps, config.gravity, mass)
+    let mut model = Model::new(&mesh, clamps, Vec::new(), dt, steps, gravity, mass)
         .map_err(|e| bad(&tf, 0, e.to_string()))?;
     model.static_start = config.static_start.unwrap_or(true);
     model.loads = config

@@ -31,11 +31,15 @@ fn specimen(nu: f64, seed: u64) -> MotionDataset {
         .for_each(|r| r.iter_mut().for_each(|f| *f = None));
     MotionDataset {
         config: DatasetToml {
+            name: None,
+            description: None,
+            units: None,
+            marker_noise: Some(SIGMA),
             mesh: "mesh.msh".into(),
             dt: DT,
             steps: Some(STEPS),
             density: Some(47.0),
-            gravity: [0.0, -9.81, 0.0],
+            gravity: Some([0.0, -9.81, 0.0]),
             clamps: vec!["front".into()],
             mass: None,
             static_start: None,

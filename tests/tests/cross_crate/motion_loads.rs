@@ -17,6 +17,13 @@ fn example() -> std::path::PathBuf {
 
 /// A copy of the example with `extra` appended to its dataset.toml, loaded (or its error).
 fn with_toml(extra: &str) -> Result<palpate_motion::dataset::MotionDataset, String> {
+    edited_toml(|t| format!("{t}\n{extra}"))
+}
+
+/// A copy of the example with its dataset.toml rewritten by `edit`, loaded (or its error).
+fn edited_toml(
+    edit: impl Fn(&str) -> String,
+) -> Result<palpate_motion::dataset::MotionDataset, String> {
     let dir = tempfile::tempdir().unwrap();
     for f in [
         "dataset.toml",
@@ -28,7 +35,7 @@ fn with_toml(extra: &str) -> Result<palpate_motion::dataset::MotionDataset, Stri
         std::fs::copy(example().join(f), dir.path().join(f)).unwrap();
     }
     let t = std::fs::read_to_string(dir.path().join("dataset.toml")).unwrap();
-    std::fs::write(dir.path().join("dataset.toml"), format!("{t}\n{extra}")).unwrap();
+    std::fs::write(dir.path().join("dataset.toml"), edit(&t)).unwrap();
     load(dir.path()).map_err(|e| e.to_string())
 }
 
@@ -309,4 +316,50 @@ fn the_equilibria_fit_recovers_the_shear_modulus_of_rest_states() {
     assert!((mu / 1e4 - 1.0).abs() < 1e-3, "μ = {mu}");
     assert!(rms < 1e-6, "rest-state RMS {rms}");
     assert!(sd.is_finite() && sd < 1e-2 * mu, "1σ {sd}");
+}
+
+/// One schema with the static datasets: a motion dataset takes `name`, `description`, `units`
+/// (SI only) and `marker_noise`; a static dataset takes `clamps = ["group"]` for its fixed group.
+#[test]
+fn shared_dataset_keys_mean_the_same_in_both_formats() {
+    let ds = edited_toml(|t| {
+        format!("name = \"bar\"\ndescription = \"the example\"\nunits = \"SI\"\nmarker_noise = 1e-4\n{t}")
+    })
+    .unwrap();
+    assert_eq!(ds.config.name.as_deref(), Some("bar"));
+    assert_eq!(ds.config.marker_noise, Some(1e-4));
+    for (key, want) in [
+        ("units = \"mm\"", "field units"),
+        ("marker_noise = -1.0", "field marker_noise"),
+    ] {
+        let e = edited_toml(|t| format!("{key}\n{t}")).unwrap_err();
+        assert!(e.contains("dataset.toml") && e.contains(want), "{key}: {e}");
+    }
+    // The static reader: `clamps` for `fixed_group`, one group only, not both.
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/sponge/dataset");
+    let read = |edit: &dyn Fn(&str) -> String| {
+        let dir = tempfile::tempdir().unwrap();
+        for e in std::fs::read_dir(&src).unwrap() {
+            let e = e.unwrap();
+            std::fs::copy(e.path(), dir.path().join(e.file_name())).unwrap();
+        }
+        let t = std::fs::read_to_string(dir.path().join("dataset.toml")).unwrap();
+        std::fs::write(dir.path().join("dataset.toml"), edit(&t)).unwrap();
+        palpate_fem::dataset::StaticDataset::read(dir.path()).map_err(|e| e.to_string())
+    };
+    let plain = read(&|t| t.to_string()).unwrap();
+    let aliased =
+        read(&|t| t.replace("fixed_group = \"bottom\"", "clamps = [\"bottom\"]")).unwrap();
+    assert_eq!(plain.fixed_nodes, aliased.fixed_nodes);
+    let two = read(&|t| t.replace("fixed_group = \"bottom\"", "clamps = [\"bottom\", \"top\"]"))
+        .unwrap_err();
+    assert!(two.contains("exactly one"), "{two}");
+    let both = read(&|t| {
+        t.replace(
+            "fixed_group = \"bottom\"",
+            "fixed_group = \"bottom\"\nclamps = [\"bottom\"]",
+        )
+    })
+    .unwrap_err();
+    assert!(both.contains("give one"), "{both}");
 }

@@ -202,7 +202,11 @@ struct DatasetToml {
     description: Option<String>,
     units: Spanned<String>,
     mesh: Spanned<String>,
-    fixed_group: Spanned<String>,
+    /// The fixed group; `clamps = ["group"]` (the motion datasets' key) says the same.
+    #[serde(default)]
+    fixed_group: Option<Spanned<String>>,
+    #[serde(default)]
+    clamps: Option<Spanned<Vec<String>>>,
     probe_radius: Spanned<f64>,
     #[serde(default)]
     marker_noise: Option<Spanned<f64>>,
@@ -285,12 +289,43 @@ impl StaticDataset {
         };
 
         let mesh = read_msh(dir.join(meta.mesh.get_ref()))?;
-        let fixed_group = meta.fixed_group.get_ref().clone();
+        // One schema with the motion datasets: `clamps = ["group"]` or the older `fixed_group`.
+        let (fixed_group, fixed_span) = match (&meta.fixed_group, &meta.clamps) {
+            (Some(g), None) => (g.get_ref().clone(), g.span()),
+            (None, Some(c)) if c.get_ref().len() == 1 => (c.get_ref()[0].clone(), c.span()),
+            (None, Some(c)) => {
+                return Err(DatasetError::FixedGroup {
+                    file: toml_file.clone(),
+                    line: at(c.span()),
+                    problem: format!(
+                        "`clamps` lists {} groups, a static dataset fixes exactly one: {:?}",
+                        c.get_ref().len(),
+                        c.get_ref()
+                    ),
+                })
+            }
+            (Some(g), Some(_)) => {
+                return Err(DatasetError::FixedGroup {
+                    file: toml_file.clone(),
+                    line: at(g.span()),
+                    problem: "both `fixed_group` and `clamps` given: they say the same, give one"
+                        .into(),
+                })
+            }
+            (None, None) => {
+                return Err(DatasetError::FixedGroup {
+                    file: toml_file.clone(),
+                    line: 0,
+                    problem: "missing: give `clamps = [\"group\"]` (or `fixed_group = \"group\"`)"
+                        .into(),
+                })
+            }
+        };
         let fixed_nodes = match mesh.node_groups.get(&fixed_group) {
             None => {
                 return Err(DatasetError::FixedGroup {
                     file: toml_file.clone(),
-                    line: at(meta.fixed_group.span()),
+                    line: at(fixed_span.clone()),
                     problem: format!(
                         "the mesh {} has no physical group {:?} (groups present: {})",
                         meta.mesh.get_ref(),
@@ -306,7 +341,7 @@ impl StaticDataset {
             Some(n) if n.is_empty() => {
                 return Err(DatasetError::FixedGroup {
                     file: toml_file.clone(),
-                    line: at(meta.fixed_group.span()),
+                    line: at(fixed_span.clone()),
                     problem: format!("physical group {fixed_group:?} of the mesh holds no node"),
                 })
             }
