@@ -1,12 +1,18 @@
-//! VTK output for ParaView: an unstructured grid of linear tetrahedra at given (e.g. deformed)
-//! node positions, with per-node and per-element data.
+//! VTK output for ParaView and other readers (meshio, VTK itself): an unstructured grid of linear
+//! tetrahedra with per-node and per-element data.
 //!
-//! The format follows the file extension: `.vtu` writes VTK XML (what ParaView prefers),
-//! `.vtk` writes the legacy binary format (big-endian, as the legacy format requires). Both go
-//! through [`crate::io::atomic`] and both are re-read by `vtkio` in the tests.
+//! The points are always the mesh's **rest** positions; a deformation goes in as a point-data
+//! vector named [`DISPLACEMENT`]. That is what ParaView users expect: *Warp By Vector* adds the
+//! vector to the points, so deformed points plus a displacement would show the deformation twice.
 //!
-//! Every point-data array also comes with the Gmsh node tag (`node_tag`), so a value seen in
-//! ParaView can be traced back to the mesh file and to palpate's CSV files.
+//! The format follows the file extension: `.vtu` writes VTK XML version 1.0 (what ParaView
+//! prefers), `.vtk` writes the legacy binary format 4.1 (big-endian, as the legacy format
+//! requires). Both go through [`crate::io::atomic`]; the tests re-read both with `vtkio` and the
+//! `.vtu` with a plain XML parser as well.
+//!
+//! Every file also carries the Gmsh node tag ([`NODE_TAG`]), so a value seen in ParaView can be
+//! traced back to the mesh file and to palpate's CSV files. Arrays that more than one writer
+//! produces take their names from the constants here, so one quantity has one name in every file.
 
 use super::Mesh;
 use crate::io::atomic::write_atomic_with;
@@ -15,6 +21,15 @@ use vtkio::model::{
     Attribute, Attributes, ByteOrder, CellType, Cells, DataArray, DataSet, UnstructuredGridPiece,
     Version, VertexNumbers, Vtk,
 };
+
+/// Point-data vector: displacement from the rest position, m.
+pub const DISPLACEMENT: &str = "displacement";
+/// Cell-data scalar: Young's modulus E, Pa.
+pub const YOUNG_MODULUS: &str = "young_modulus_pa";
+/// Cell-data scalar: Poisson's ratio ν (dimensionless).
+pub const POISSON_RATIO: &str = "poisson_ratio";
+/// Point-data scalar added to every file: the node's Gmsh tag (1-based index if the mesh has none).
+pub const NODE_TAG: &str = "node_tag";
 
 /// Values of one data array: one per node (point data) or one per tetrahedron (cell data).
 #[derive(Debug, Clone, Copy)]
@@ -75,7 +90,7 @@ pub enum VtkError {
     Length {
         /// The file.
         file: PathBuf,
-        /// Array name ("positions" for the node positions).
+        /// Array name.
         name: String,
         /// "point data" or "cell data".
         kind: &'static str,
@@ -94,12 +109,11 @@ pub enum VtkError {
     },
 }
 
-/// Writes `mesh`'s tetrahedra at node `positions` (one per node, e.g. rest + displacement) with
-/// `point_data` (one value per node) and `cell_data` (one value per tetrahedron).
+/// Writes `mesh`'s tetrahedra at their rest positions with `point_data` (one value per node, e.g.
+/// a [`DISPLACEMENT`] vector) and `cell_data` (one value per tetrahedron).
 pub fn write_vtk(
     path: impl AsRef<Path>,
     mesh: &Mesh,
-    positions: &[[f64; 3]],
     point_data: &[Field],
     cell_data: &[Field],
 ) -> Result<(), VtkError> {
@@ -124,7 +138,6 @@ pub fn write_vtk(
             })
         }
     };
-    check("positions", "point data", n, positions.len())?;
     for f in point_data {
         check(f.name, "point data", n, f.values.len())?;
     }
@@ -147,7 +160,7 @@ pub fn write_vtk(
         (1..=n).map(|t| t as f64).collect()
     };
     point.push(Attribute::DataArray(
-        DataArray::scalars("node_tag", 1).with_data(tags),
+        DataArray::scalars(NODE_TAG, 1).with_data(tags),
     ));
     let cell: Vec<Attribute> = cell_data.iter().map(to_attr).collect();
 
@@ -168,7 +181,9 @@ pub fn write_vtk(
     };
     let vtk = Vtk {
         // The XML formats have their own version numbers ("0.1", "1.0", "2.2"): "4.1" is the
-        // legacy `.vtk` one, and meshio refuses it in a `.vtu`.
+        // legacy `.vtk` one, and meshio refuses it in a `.vtu`. 1.0 rather than 0.1 because
+        // vtkio writes `header_type="UInt64"` (64-bit byte counts before each binary array),
+        // which came with XML version 1.0; 0.1 readers assume 32-bit counts.
         version: if xml {
             Version::new((1, 0))
         } else {
@@ -178,7 +193,8 @@ pub fn write_vtk(
         byte_order: ByteOrder::BigEndian,
         file_path: None,
         data: DataSet::inline(UnstructuredGridPiece {
-            points: positions
+            points: mesh
+                .nodes
                 .iter()
                 .flatten()
                 .copied()
@@ -211,37 +227,60 @@ mod tests {
     use crate::mesh::boxmesh::box_mesh;
     use vtkio::model::IOBuffer;
 
-    /// Writes a deformed box with a displacement vector, a per-node scalar and per-element E, ν,
-    /// re-reads it with vtkio and compares every array exactly (both formats store f64).
-    fn round_trip(ext: &str) {
-        let m = box_mesh([0.1, 0.1, 0.05], [2, 2, 1]);
-        let u: Vec<[f64; 3]> = m
+    /// A box, a displacement of it, a per-node scalar and per-element E, ν.
+    struct Sample {
+        mesh: Mesh,
+        u: Vec<[f64; 3]>,
+        err: Vec<f64>,
+        young: Vec<f64>,
+        nu: Vec<f64>,
+    }
+
+    fn sample() -> Sample {
+        let mesh = box_mesh([0.1, 0.1, 0.05], [2, 2, 1]);
+        let u = mesh
             .nodes
             .iter()
             .map(|p| [0.01 * p[2], 0.0, -0.1 * p[0] * p[1]])
             .collect();
-        let x: Vec<[f64; 3]> = m
-            .nodes
-            .iter()
-            .zip(&u)
-            .map(|(p, d)| [p[0] + d[0], p[1] + d[1], p[2] + d[2]])
+        let err = (0..mesh.nodes.len()).map(|i| i as f64 * 1e-4).collect();
+        let young = (0..mesh.tets.len()).map(|e| 1e4 + e as f64).collect();
+        let nu = (0..mesh.tets.len())
+            .map(|e| 0.3 + 1e-3 * e as f64)
             .collect();
-        let err: Vec<f64> = (0..m.nodes.len()).map(|i| i as f64 * 1e-4).collect();
-        let young: Vec<f64> = (0..m.tets.len()).map(|e| 1e4 + e as f64).collect();
-        let nu: Vec<f64> = (0..m.tets.len()).map(|e| 0.3 + 1e-3 * e as f64).collect();
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join(format!("out.{ext}"));
+        Sample {
+            mesh,
+            u,
+            err,
+            young,
+            nu,
+        }
+    }
+
+    fn write(s: &Sample, path: &Path) {
         write_vtk(
-            &p,
-            &m,
-            &x,
+            path,
+            &s.mesh,
             &[
-                Field::vector("displacement", &u),
-                Field::scalar("error", &err),
+                Field::vector(DISPLACEMENT, &s.u),
+                Field::scalar("error", &s.err),
             ],
-            &[Field::scalar("E", &young), Field::scalar("nu", &nu)],
+            &[
+                Field::scalar(YOUNG_MODULUS, &s.young),
+                Field::scalar(POISSON_RATIO, &s.nu),
+            ],
         )
         .unwrap();
+    }
+
+    /// Writes the sample, re-reads it with vtkio and compares every array exactly (both formats
+    /// store f64): the points are the rest positions, the displacement is its own array.
+    fn round_trip(ext: &str) {
+        let s = sample();
+        let m = &s.mesh;
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join(format!("out.{ext}"));
+        write(&s, &p);
         assert!(std::fs::metadata(&p).unwrap().len() > 1000);
 
         let vtk = Vtk::import(&p).unwrap();
@@ -255,7 +294,7 @@ mod tests {
             .into_loaded_piece_data(None)
             .unwrap();
         let pts: Vec<f64> = piece.points.cast_into().unwrap();
-        assert_eq!(pts, x.iter().flatten().copied().collect::<Vec<_>>());
+        assert_eq!(pts, m.nodes.iter().flatten().copied().collect::<Vec<_>>());
         let (conn, _) = piece.cells.cell_verts.into_xml();
         assert_eq!(
             conn,
@@ -280,16 +319,16 @@ mod tests {
                 .unwrap_or_else(|| panic!("no array {name}"))
         };
         assert_eq!(
-            array(&piece.data.point, "displacement"),
-            u.iter().flatten().copied().collect::<Vec<_>>()
+            array(&piece.data.point, DISPLACEMENT),
+            s.u.iter().flatten().copied().collect::<Vec<_>>()
         );
-        assert_eq!(array(&piece.data.point, "error"), err);
+        assert_eq!(array(&piece.data.point, "error"), s.err);
         assert_eq!(
-            array(&piece.data.point, "node_tag"),
+            array(&piece.data.point, NODE_TAG),
             m.node_tags.iter().map(|&t| t as f64).collect::<Vec<_>>()
         );
-        assert_eq!(array(&piece.data.cell, "E"), young);
-        assert_eq!(array(&piece.data.cell, "nu"), nu);
+        assert_eq!(array(&piece.data.cell, YOUNG_MODULUS), s.young);
+        assert_eq!(array(&piece.data.cell, POISSON_RATIO), s.nu);
     }
 
     #[test]
@@ -302,24 +341,90 @@ mod tests {
         round_trip("vtk");
     }
 
+    /// The `.vtu` as a plain XML parser sees it (what meshio and VTK check before reading any
+    /// value): an XML-format version, not the legacy 4.1; counts matching the mesh; every array
+    /// named, typed and with the number of components readers use to shape it. The values
+    /// themselves are decoded in the CLI's test of `palpate simulate`'s file.
+    #[test]
+    fn vtu_declares_an_xml_version_and_shapes_every_array() {
+        let s = sample();
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("out.vtu");
+        write(&s, &p);
+        let text = std::fs::read_to_string(&p).unwrap();
+        let doc = roxmltree::Document::parse(&text).unwrap();
+        let root = doc.root_element();
+        assert_eq!(root.tag_name().name(), "VTKFile");
+        assert_eq!(root.attribute("type"), Some("UnstructuredGrid"));
+        assert_eq!(root.attribute("version"), Some("1.0"));
+        // A version-1.0 reader takes the byte-count width from here (UInt32 if absent).
+        assert!(matches!(
+            root.attribute("header_type"),
+            Some("UInt32" | "UInt64")
+        ));
+        let piece = root
+            .descendants()
+            .find(|n| n.has_tag_name("Piece"))
+            .unwrap();
+        assert_eq!(
+            piece.attribute("NumberOfPoints"),
+            Some(s.mesh.nodes.len().to_string().as_str())
+        );
+        assert_eq!(
+            piece.attribute("NumberOfCells"),
+            Some(s.mesh.tets.len().to_string().as_str())
+        );
+        let arrays = |section: &str| -> Vec<(String, String)> {
+            piece
+                .children()
+                .find(|n| n.has_tag_name(section))
+                .unwrap_or_else(|| panic!("no {section}"))
+                .children()
+                .filter(|n| n.has_tag_name("DataArray"))
+                .map(|a| {
+                    (
+                        a.attribute("Name").unwrap_or("").to_string(),
+                        a.attribute("NumberOfComponents").unwrap_or("1").to_string(),
+                    )
+                })
+                .collect()
+        };
+        let named = |v: &[(&str, &str)]| -> Vec<(String, String)> {
+            v.iter()
+                .map(|(a, b)| (a.to_string(), b.to_string()))
+                .collect()
+        };
+        assert_eq!(
+            arrays("PointData"),
+            named(&[(DISPLACEMENT, "3"), ("error", "1"), (NODE_TAG, "1")])
+        );
+        assert_eq!(
+            arrays("CellData"),
+            named(&[(YOUNG_MODULUS, "1"), (POISSON_RATIO, "1")])
+        );
+        assert_eq!(arrays("Points").len(), 1);
+        assert_eq!(
+            arrays("Points")[0].1,
+            "3",
+            "points are 3-vectors: {:?}",
+            arrays("Points")
+        );
+        let cells: Vec<String> = arrays("Cells").into_iter().map(|(n, _)| n).collect();
+        assert_eq!(cells, ["connectivity", "offsets", "types"]);
+    }
+
     #[test]
     fn wrong_lengths_and_extensions_are_named() {
         let m = box_mesh([1.0, 1.0, 1.0], [1, 1, 1]);
         let short = vec![0.0; 3];
-        let e = write_vtk(
-            "/tmp/x.vtu",
-            &m,
-            &m.nodes,
-            &[],
-            &[Field::scalar("E", &short)],
-        )
-        .unwrap_err()
-        .to_string();
+        let e = write_vtk("/tmp/x.vtu", &m, &[], &[Field::scalar("E", &short)])
+            .unwrap_err()
+            .to_string();
         assert!(
-            e.contains("\"E\" (cell data) has 3 entries, expected 6"),
+            e.contains("/tmp/x.vtu: array \"E\" (cell data) has 3 entries, expected 6"),
             "{e}"
         );
-        let e = write_vtk("/tmp/x.txt", &m, &m.nodes, &[], &[])
+        let e = write_vtk("/tmp/x.txt", &m, &[], &[])
             .unwrap_err()
             .to_string();
         assert!(e.contains("x.txt: unknown VTK extension"), "{e}");

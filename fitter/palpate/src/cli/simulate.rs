@@ -6,7 +6,7 @@ use anyhow::{bail, Context};
 use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
 use palpate_fem::forward::{Material, StaticProblem};
 use palpate_fem::io::atomic::write_atomic_with;
-use palpate_fem::mesh::vtk::{write_vtk, Field};
+use palpate_fem::mesh::vtk::{self, write_vtk, Field};
 use palpate_fem::mesh::Mesh;
 use palpate_fem::runtime_storage::Storage;
 use palpate_protocol::model::ModelRecord;
@@ -379,14 +379,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .unwrap_or(0.0)
         })
         .collect();
-    // Rest points plus a `displacement` vector, the ParaView convention: Warp By Vector then
-    // draws the deformed shape once (deformed points would double it).
+    // The rest mesh plus the displacement (write_vtk's convention): ParaView's Warp By Vector
+    // then draws the deformed shape once.
     write_vtk(
         args.out.join("deformed.vtu"),
         &mesh,
-        &mesh.nodes,
-        &[Field::vector("displacement", &disp)],
-        &[Field::scalar("young_modulus_pa", &params)],
+        &[Field::vector(vtk::DISPLACEMENT, &disp)],
+        &[Field::scalar(vtk::YOUNG_MODULUS, &params)],
     )?;
     let umax = disp
         .iter()

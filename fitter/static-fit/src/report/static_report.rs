@@ -10,7 +10,7 @@ use palpate_runtime::material::LambdaAlpha;
 
 use crate::loo::HeldOut;
 use crate::{FitInput, FitResult, GammaChoice};
-use palpate_fem::mesh::Mesh;
+use palpate_fem::mesh::{vtk, Mesh};
 
 /// One table row (one measurement).
 #[derive(Debug, Clone, serde::Serialize)]
@@ -297,17 +297,13 @@ pub fn write_report(
         }
     }
     let p = dir.join("fit.vtu");
-    palpate_fem::mesh::vtk::write_vtk(
+    vtk::write_vtk(
         &p,
         mesh,
-        &mesh.nodes,
-        &[palpate_fem::mesh::vtk::Field::scalar(
-            "marker_error_m",
-            &err,
-        )],
+        &[vtk::Field::scalar("marker_error_m", &err)],
         &[
-            palpate_fem::mesh::vtk::Field::scalar("young_modulus_pa", &ev),
-            palpate_fem::mesh::vtk::Field::scalar("poisson_ratio", &nv),
+            vtk::Field::scalar(vtk::YOUNG_MODULUS, &ev),
+            vtk::Field::scalar(vtk::POISSON_RATIO, &nv),
         ],
     )?;
     files.push(p);
