@@ -86,6 +86,10 @@ pub struct DatasetToml {
     /// Known dead loads besides gravity (`[[loads]]` tables).
     #[serde(default)]
     pub loads: Vec<LoadToml>,
+    /// Whether the file has an `[initial]` table (set by [`load`]): without one, the fit may
+    /// estimate its start from the data (`palpate_motion::start`).
+    #[serde(skip)]
+    pub initial_declared: bool,
 }
 
 /// One `[[loads]]` table: a known dead load on a physical group of the mesh, e.g. a weight hung
@@ -283,8 +287,12 @@ fn step_of(file: &Path, line: usize, t: f64, dt: f64) -> Result<usize, DatasetEr
 /// Loads a motion dataset directory.
 pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
     let tf = dir.join("dataset.toml");
-    let config: DatasetToml =
-        toml::from_str(&read(&tf)?).map_err(|e| bad(&tf, 0, e.to_string()))?;
+    let text = read(&tf)?;
+    let mut config: DatasetToml = toml::from_str(&text).map_err(|e| bad(&tf, 0, e.to_string()))?;
+    config.initial_declared = text
+        .parse::<toml::Table>()
+        .map(|t| t.contains_key("initial"))
+        .unwrap_or(true);
     if !(config.dt > 0.0 && config.dt.is_finite()) {
         return Err(bad(
             &tf,

@@ -30,6 +30,7 @@ pub mod scenario;
 pub mod sim;
 pub mod sparse;
 pub mod spline;
+pub mod start;
 pub mod statics;
 pub mod viscosity;
 

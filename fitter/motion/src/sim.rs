@@ -58,9 +58,13 @@ pub fn equilibrium(
 }
 
 /// [`equilibrium`] by Newton from `x` (full dofs, clamped dofs already at their step-`n` pose),
-/// e.g. the last state of a simulation that has nearly come to rest. When Newton fails under the
-/// full load (a large deflection from a far start), the load is applied in increments, each
-/// solve starting from the last.
+/// e.g. the last state of a simulation that has nearly come to rest.
+///
+/// Newton is tried under the full load first (cheap when `x` is near the answer). When it fails
+/// — a slender body under its own weight, where the first Newton step is the linear answer that
+/// stretches the body instead of bending it — the load is followed by continuation: the load
+/// factor s grows from 0 to 1 in increments that double after a converged increment and halve
+/// after a failed one, each solve starting from the last converged state.
 pub fn equilibrium_from(
     model: &Model,
     mat: &Material,
@@ -68,33 +72,57 @@ pub fn equilibrium_from(
     x: Vec<f64>,
 ) -> Result<(Vec<f64>, Factor), MotionError> {
     let fext = model.external_load(mat, n);
-    match newton_static(model, mat, n, x.clone(), &fext) {
-        Ok(r) => Ok(r),
-        Err(first) => {
-            const INCREMENTS: usize = 8;
-            let mut x = x;
-            let mut last = Err(first);
-            for k in 1..=INCREMENTS {
-                let s = k as f64 / INCREMENTS as f64;
-                let f: Vec<f64> = fext.iter().map(|v| s * v).collect();
-                last = newton_static(model, mat, n, x.clone(), &f);
-                match &last {
-                    Ok((xs, _)) => x = xs.clone(),
-                    Err(_) => break,
+    let first = match newton_static(model, mat, n, x.clone(), &fext, 1.0) {
+        Ok(r) => return Ok(r),
+        Err(e) => e,
+    };
+    // Smallest increment tried before giving up: a load path that needs more than ~1000
+    // increments is not a plausible static state (the body collapses under the load).
+    const MIN_INCREMENT: f64 = 1.0 / 1024.0;
+    let (mut x, mut s, mut ds) = (x, 0.0f64, 0.25f64);
+    let mut last_err = first;
+    while s < 1.0 {
+        let target = (s + ds).min(1.0);
+        match newton_static(model, mat, n, x.clone(), &fext, target) {
+            Ok((xs, fac)) => {
+                if target >= 1.0 {
+                    return Ok((xs, fac));
+                }
+                x = xs;
+                s = target;
+                ds = (2.0 * ds).min(1.0);
+            }
+            Err(e) => {
+                last_err = e;
+                ds *= 0.5;
+                if ds < MIN_INCREMENT {
+                    break;
                 }
             }
-            last
         }
     }
+    Err(last_err)
 }
 
-/// Newton with backtracking for f(x, 0) + `fext` = 0 from `x`.
+/// Newton for f(x, 0) + `scale`·`fext` = 0 from `x`, with an exact line search on the total
+/// potential energy.
+///
+/// The static problem minimises E(x) = Σ_e V_e Ψ(F_e) − (scale·f_ext)ᵀx, whose gradient is −r
+/// (r = f + scale·f_ext, the net force). Along the Newton direction dx the energy's slope is
+/// g(α) = −dxᵀ r(x + α dx), negative at α = 0 whenever K is positive definite. A merit function
+/// on ‖r‖ (what backtracking on the residual norm uses) rejects the steps a bending body needs —
+/// the linear step overshoots in stretch, ‖r‖ grows though E falls — and crawls at α ≈ 1e-3;
+/// a root of g is the energy minimum along dx and needs only residuals, so it also holds for
+/// the spline materials, whose energy is not evaluated anywhere. Steps that would invert an
+/// element are halved. When K is not positive definite (a compressed state far from
+/// equilibrium), a growing diagonal shift makes dx a descent direction again.
 fn newton_static(
     model: &Model,
     mat: &Material,
     n: usize,
     mut x: Vec<f64>,
     fext: &[f64],
+    scale: f64,
 ) -> Result<(Vec<f64>, Factor), MotionError> {
     let ndof = 3 * model.nodes.len();
     let v = vec![0.0; ndof];
@@ -106,53 +134,125 @@ fn newton_static(
             let mut r = vec![0.0; model.nfree];
             for (d, &fr) in model.free.iter().enumerate() {
                 if fr != usize::MAX {
-                    r[fr] = f[d] + fext[d];
+                    r[fr] = f[d] + scale * fext[d];
                 }
             }
             let nrm = r.iter().map(|z| z * z).sum::<f64>().sqrt();
             Ok((r, nrm))
         };
-    for _ in 0..60 {
-        let (r, nrm) = resid(&x, &mut f, Some(&mut k))?;
-        let factor = model
-            .pattern
-            .factor(&k)
-            .ok_or(MotionError::NotPositiveDefinite { step: n })?;
-        if nrm < model.newton.tol {
+    let step = |x: &[f64], dx: &[f64], alpha: f64| -> Vec<f64> {
+        let mut xt = x.to_vec();
+        for (d, &fr) in model.free.iter().enumerate() {
+            if fr != usize::MAX {
+                xt[d] += alpha * dx[fr];
+            }
+        }
+        xt
+    };
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(p, q)| p * q).sum::<f64>();
+    // The paper's 1e-6 N, or a relative 1e-12 of the load where the load is so large that
+    // rounding in the internal forces alone exceeds it.
+    let load = scale * fext.iter().map(|z| z * z).sum::<f64>().sqrt();
+    let tol = model.newton.tol.max(1e-12 * load);
+    let (mut r, mut nrm) = resid(&x, &mut f, Some(&mut k))?;
+    for _ in 0..NEWTON_STATIC_ITERATIONS {
+        if nrm < tol {
+            let factor = model
+                .pattern
+                .factor(&k)
+                .ok_or(MotionError::NotPositiveDefinite { step: n })?;
             return Ok((x, factor));
         }
-        let mut dx = r;
+        let factor =
+            shifted_factor(model, &mut k).ok_or(MotionError::NotPositiveDefinite { step: n })?;
+        let mut dx = r.clone();
         factor.solve_in_place(&mut dx);
-        // Backtracking on the residual norm: full steps near equilibrium, halved when a step
-        // would invert an element or increase the residual.
-        let mut alpha = 1.0;
-        loop {
-            let mut xt = x.clone();
-            for (d, &fr) in model.free.iter().enumerate() {
-                if fr != usize::MAX {
-                    xt[d] += alpha * dx[fr];
-                }
+        let g0 = -dot(&dx, &r);
+        // Energy slope at α (None: an element inverts there).
+        let slope = |alpha: f64, f: &mut [f64]| -> Option<(f64, Vec<f64>, f64)> {
+            let xt = step(&x, &dx, alpha);
+            resid(&xt, f, None)
+                .ok()
+                .map(|(rt, nt)| (-dot(&dx, &rt), rt, nt))
+        };
+        let mut hi = 1.0;
+        let mut at_hi = None;
+        for _ in 0..40 {
+            if let Some(s) = slope(hi, &mut f) {
+                at_hi = Some(s);
+                break;
             }
-            match resid(&xt, &mut f, None) {
-                Ok((_, n2)) if n2 < nrm || alpha < 1e-3 => {
-                    x = xt;
+            hi *= 0.5;
+        }
+        let Some((g_hi, _, _)) = at_hi else {
+            break;
+        };
+        // Accept the (possibly shortened) step when the energy still falls there or the slope
+        // has dropped to half its size; otherwise regula falsi (Illinois) on g in [0, hi].
+        let alpha = if g_hi <= 0.0 || g_hi.abs() <= 0.5 * g0.abs() {
+            hi
+        } else {
+            let (mut a, mut ga, mut b, mut gb) = (0.0, g0, hi, g_hi);
+            let mut c = hi;
+            for side in 0..12 {
+                c = (a * gb - b * ga) / (gb - ga);
+                let Some((gc, _, _)) = slope(c, &mut f) else {
+                    b = c;
+                    continue;
+                };
+                if gc.abs() <= 0.5 * g0.abs() {
                     break;
                 }
-                _ if alpha < 1e-6 => {
-                    return Err(MotionError::NoConvergence {
-                        step: n,
-                        residual: nrm,
-                    })
+                if gc < 0.0 {
+                    a = c;
+                    ga = gc;
+                    if side > 0 {
+                        gb *= 0.5;
+                    }
+                } else {
+                    b = c;
+                    gb = gc;
+                    ga *= 0.5;
                 }
-                _ => alpha *= 0.5,
             }
-        }
+            c
+        };
+        x = step(&x, &dx, alpha);
+        (r, nrm) = resid(&x, &mut f, Some(&mut k))?;
     }
-    let (_, nrm) = resid(&x, &mut f, None)?;
     Err(MotionError::NoConvergence {
         step: n,
         residual: nrm,
     })
+}
+
+/// Newton iterations of one static solve (one load level).
+const NEWTON_STATIC_ITERATIONS: usize = 60;
+
+/// Cholesky factor of K, or of K + τ I with τ growing tenfold from 1e-8 of the mean diagonal when
+/// K is not positive definite (the values in `k` are left shifted).
+fn shifted_factor(model: &Model, k: &mut [f64]) -> Option<Factor> {
+    if let Some(f) = model.pattern.factor(k) {
+        return Some(f);
+    }
+    let nf = model.nfree;
+    let mean = (0..nf)
+        .map(|r| model.pattern.diagonal(r, k).abs())
+        .sum::<f64>()
+        / nf.max(1) as f64;
+    let mut tau = 1e-8 * mean;
+    let mut added = 0.0;
+    for _ in 0..12 {
+        for r in 0..nf {
+            model.pattern.add_diagonal(r, tau - added, k);
+        }
+        added = tau;
+        if let Some(f) = model.pattern.factor(k) {
+            return Some(f);
+        }
+        tau *= 10.0;
+    }
+    None
 }
 
 /// Runs the forward simulation from the rest shape or the elastostatic start.

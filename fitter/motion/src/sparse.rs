@@ -150,6 +150,14 @@ impl Pattern {
         values[idx] += v;
     }
 
+    /// The diagonal entry at free dof `r`.
+    pub fn diagonal(&self, r: usize, values: &[f64]) -> f64 {
+        let s = &self.row_idx[self.col_ptr[r]..self.col_ptr[r + 1]];
+        s.binary_search(&r)
+            .map(|i| values[self.col_ptr[r] + i])
+            .unwrap_or(0.0)
+    }
+
     /// y += A x for the matrix with `values` on this pattern.
     pub fn mul_add(&self, values: &[f64], x: &[f64], y: &mut [f64]) {
         for c in 0..self.n {

@@ -52,6 +52,7 @@ fn specimen(nu: f64, seed: u64) -> MotionDataset {
                 h: 1.3,
             },
             loads: Vec::new(),
+            initial_declared: true,
         },
         mesh,
         model,

@@ -17,6 +17,7 @@ mod diagnose_sweep;
 mod hil_link;
 mod hil_runtime;
 mod mesh_error;
+mod motion_cantilever;
 mod motion_dataset;
 mod motion_export;
 mod motion_fit;

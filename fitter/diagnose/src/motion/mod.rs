@@ -521,10 +521,12 @@ pub fn diagnose(
         ((steps as f64 * (1.0 - o.holdout_fraction)).round() as usize).clamp(2, steps - 1);
     let split = Split { fit_steps, steps };
     let ne = ds.model.tets.len();
-    let init = &ds.config.initial;
+    let start = palpate_motion::start::initial_values(ds, None);
+    log(&format!("{label}: {}", start.note));
+    let (lambda0, mu0) = (start.lambda, start.mu);
     let density = ds.config.density.unwrap_or(1000.0);
     let has_forces = ds.obs.forces.iter().flatten().flatten().count() > 0;
-    let base = Material::uniform(ne, init.lambda, init.mu, 0.0, 1.0, density);
+    let base = Material::uniform(ne, lambda0, mu0, 0.0, 1.0, density);
     log(&format!(
         "{label}: {ne} tets, {} markers, {steps} steps of {:.4} s; fitting steps 1..={fit_steps}, \
          forecasting {}..={steps}",
@@ -538,7 +540,7 @@ pub fn diagnose(
         split,
         &base,
         &elastic,
-        &[vec![init.lambda, init.mu]],
+        &[vec![lambda0, mu0]],
         o.max_iters,
         o.screen_iters,
     )?;

@@ -138,6 +138,28 @@ fn signed_volume(nodes: &[[f64; 3]], t: &[usize; 4]) -> f64 {
     super::signed_volume(t.map(|n| nodes[n]))
 }
 
+/// A solid circular cylinder of `radius` along y from 0 to `length`, meshed as a box of
+/// `cells = [across, along]` cells whose square cross-section is mapped onto the disc
+/// (elliptical grid mapping u √(1 − w²/2), w √(1 − u²/2): every node of the square's boundary
+/// lands on the circle, interior cells stay convex). Node groups `front` (y = 0, the clamp of a
+/// cantilever) and `back` (y = length); the box's side groups are dropped (they are no longer
+/// planar faces).
+pub fn cylinder_mesh(radius: f64, length: f64, cells: [usize; 2]) -> Mesh {
+    let [across, along] = cells;
+    let mut mesh = box_mesh(
+        [2.0 * radius, length, 2.0 * radius],
+        [across, along, across],
+    );
+    for p in mesh.nodes.iter_mut() {
+        let (u, w) = (p[0] / radius - 1.0, p[2] / radius - 1.0);
+        p[0] = radius * u * (1.0 - 0.5 * w * w).sqrt();
+        p[2] = radius * w * (1.0 - 0.5 * u * u).sqrt();
+    }
+    mesh.node_groups
+        .retain(|name, _| name == "front" || name == "back");
+    mesh
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -117,6 +117,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Ok(());
     }
     let mut init = ds.config.initial.clone();
+    if args.initial.is_empty() {
+        let start = palpate_motion::start::initial_values(ds, args.poisson);
+        eprintln!("{}", start.note);
+        (init.lambda, init.mu, init.nu, init.h) =
+            (start.lambda, start.mu, start.viscosity, start.h);
+    }
     for kv in &args.initial {
         let (k, v) = kv
             .split_once('=')
