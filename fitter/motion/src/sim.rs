@@ -226,6 +226,83 @@ fn newton_static(
     })
 }
 
+/// Line search of a BDF2 step along the Newton update `dv` (free dofs) from `v0`.
+///
+/// The step's residual r(v) = f(x(v), v) + f_ext − (3/(2Δt)) M (v − b), x(v) = xₐ + (2Δt/3) v, is
+/// −∇Π of the incremental potential Π(v) = (3/(4Δt)) (v − b)ᵀM(v − b) + (3/(2Δt)) W(x(v)) −
+/// f_extᵀv + the viscous dissipation potential (convex for the power law), so — as in the
+/// static solve — the root of Π's slope g(α) = −dvᵀ r(v0 + α dv) along dv is the minimum along
+/// it. Regula falsi (Illinois) on g from g(0) = `g0` < 0, halving first while the step inverts
+/// an element. `x_clamped` holds the step's clamped positions (its free entries are ignored).
+/// Returns α.
+#[allow(clippy::too_many_arguments)]
+fn line_search_dynamic(
+    model: &Model,
+    mat: &Material,
+    xa: &[f64],
+    x_clamped: &[f64],
+    a2: f64,
+    v0: &[f64],
+    dv: &[f64],
+    g0: f64,
+    residual: &mut dyn FnMut(&[f64], &[f64]) -> Vec<f64>,
+) -> f64 {
+    let ndof = v0.len();
+    let mut f = vec![0.0; ndof];
+    let mut slope = |alpha: f64| -> Option<f64> {
+        let mut v = v0.to_vec();
+        let mut x = x_clamped.to_vec();
+        for (d, &fr) in model.free.iter().enumerate() {
+            if fr != usize::MAX {
+                v[d] += alpha * dv[fr];
+                x[d] = xa[d] + a2 * v[d];
+            }
+        }
+        assemble(model, mat, &x, &v, &mut f, None, None).ok()?;
+        let r = residual(&f, &v);
+        Some(-dv.iter().zip(&r).map(|(p, q)| p * q).sum::<f64>())
+    };
+    let mut hi = 1.0;
+    let mut g_hi = None;
+    for _ in 0..40 {
+        if let Some(g) = slope(hi) {
+            g_hi = Some(g);
+            break;
+        }
+        hi *= 0.5;
+    }
+    let Some(g_hi) = g_hi else {
+        return 0.0;
+    };
+    if g_hi <= 0.0 || g_hi.abs() <= 0.5 * g0.abs() {
+        return hi;
+    }
+    let (mut a, mut ga, mut b, mut gb) = (0.0, g0, hi, g_hi);
+    let mut c = hi;
+    for side in 0..12 {
+        c = (a * gb - b * ga) / (gb - ga);
+        let Some(gc) = slope(c) else {
+            b = c;
+            continue;
+        };
+        if gc.abs() <= 0.5 * g0.abs() {
+            break;
+        }
+        if gc < 0.0 {
+            a = c;
+            ga = gc;
+            if side > 0 {
+                gb *= 0.5;
+            }
+        } else {
+            b = c;
+            gb = gc;
+            ga *= 0.5;
+        }
+    }
+    c
+}
+
 /// Newton iterations of one static solve (one load level).
 const NEWTON_STATIC_ITERATIONS: usize = 60;
 
@@ -311,17 +388,54 @@ pub fn simulate(
         }
         let mut iter = 0;
         let last_factor: Option<Factor>;
+        // The last Newton update: the velocities it started from, its direction (free dofs) and
+        // the incremental potential's slope there (see `line_search_dynamic`).
+        let mut last_step: Option<(Vec<f64>, Vec<f64>, f64)> = None;
         loop {
-            assemble(model, mat, &x, &v, &mut f, Some(&mut kv), Some(&mut dv))?;
-            let vb: Vec<f64> = (0..ndof).map(|d| v[d] - b[d]).collect();
-            mw.iter_mut().for_each(|z| *z = 0.0);
-            model.mass_mul(mat, &vb, &mut mw);
-            let mut r = vec![0.0; model.nfree];
-            for (d, &fr) in model.free.iter().enumerate() {
-                if fr != usize::MAX {
-                    r[fr] = f[d] + fext[d] - c * mw[d];
+            let assembled = assemble(model, mat, &x, &v, &mut f, Some(&mut kv), Some(&mut dv));
+            // The full step is kept unless it inverts an element or overshoots the minimum of
+            // the step's incremental potential by more than half its initial slope; then it is
+            // replaced by a line search from where it started (never on the first iteration,
+            // whose state is the predictor, not a step).
+            let residual = |f: &[f64], v: &[f64], mw: &mut Vec<f64>| -> Vec<f64> {
+                let vb: Vec<f64> = (0..ndof).map(|d| v[d] - b[d]).collect();
+                mw.iter_mut().for_each(|z| *z = 0.0);
+                model.mass_mul(mat, &vb, mw);
+                let mut r = vec![0.0; model.nfree];
+                for (d, &fr) in model.free.iter().enumerate() {
+                    if fr != usize::MAX {
+                        r[fr] = f[d] + fext[d] - c * mw[d];
+                    }
                 }
+                r
+            };
+            let overshoot = match (&assembled, &last_step) {
+                (Err(MotionError::Inverted { .. }), Some(_)) => true,
+                (Err(_), _) => false,
+                (Ok(()), Some((_, dvec, g0))) => {
+                    let r = residual(&f, &v, &mut mw);
+                    let g1 = -dvec.iter().zip(&r).map(|(p, q)| p * q).sum::<f64>();
+                    g1 > 0.5 * g0.abs()
+                }
+                (Ok(()), None) => false,
+            };
+            if !overshoot {
+                assembled?;
+            } else if let Some((v0, dvec, g0)) = last_step.take() {
+                let alpha =
+                    line_search_dynamic(model, mat, &xa, &x, a2, &v0, &dvec, g0, &mut |f, v| {
+                        residual(f, v, &mut mw)
+                    });
+                v.copy_from_slice(&v0);
+                for (d, &fr) in model.free.iter().enumerate() {
+                    if fr != usize::MAX {
+                        v[d] += alpha * dvec[fr];
+                        x[d] = xa[d] + a2 * v[d];
+                    }
+                }
+                continue;
             }
+            let mut r = residual(&f, &v, &mut mw);
             let nrm = r.iter().map(|z| z * z).sum::<f64>().sqrt();
             if !nrm.is_finite() {
                 return Err(MotionError::NonFinite(format!("residual at step {n}")));
@@ -338,11 +452,12 @@ pub fn simulate(
             for i in 0..sv.len() {
                 sv[i] = c * mvals[i] + a2 * kv[i] + dv[i];
             }
-            let fac = model
-                .pattern
-                .factor(&sv)
-                .ok_or(MotionError::NotPositiveDefinite { step: n })?;
             if done {
+                // The converged S is what the gradients solve with: no shift here.
+                let fac = model
+                    .pattern
+                    .factor(&sv)
+                    .ok_or(MotionError::NotPositiveDefinite { step: n })?;
                 stats.max_residual = stats.max_residual.max(nrm);
                 if nrm >= model.newton.tol {
                     stats.unconverged_steps += 1;
@@ -350,13 +465,21 @@ pub fn simulate(
                 last_factor = Some(fac);
                 break;
             }
+            // During the iterations S may be indefinite (an element compressed far from the
+            // step's answer); a shift keeps the update a descent direction of the potential.
+            let fac = shifted_factor(model, &mut sv)
+                .ok_or(MotionError::NotPositiveDefinite { step: n })?;
+            let r0 = r.clone();
             fac.solve_in_place(&mut r);
+            let g0 = -r.iter().zip(&r0).map(|(p, q)| p * q).sum::<f64>();
+            let v_before = v.clone();
             for (d, &fr) in model.free.iter().enumerate() {
                 if fr != usize::MAX {
                     v[d] += r[fr];
                     x[d] = xa[d] + a2 * v[d];
                 }
             }
+            last_step = Some((v_before, r, g0));
             iter += 1;
             stats.newton_iterations += 1;
         }
