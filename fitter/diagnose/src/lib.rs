@@ -263,7 +263,8 @@ impl ResidualCheck {
                 "NOT clean: no candidate effect earns its place, but the residual is {:.2}× the noise floor ({:.1}σ above it) — an effect the candidate library does not hold, or a mesh too coarse for the data",
                 self.ratio, self.z
             ),
-            (false, true) => format!("adopted {adopted}; the residual is then the noise floor's ({:.2}×, {:+.1}σ)", self.ratio, self.z),
+            (false, true) if self.judged => format!("adopted {adopted}; the residual is then the noise floor's ({:.2}×, {:+.1}σ)", self.ratio, self.z),
+            (false, true) => format!("adopted {adopted} (no declared marker noise: whether the rest of the residual is noise cannot be judged)"),
             (false, false) => format!(
                 "adopted {adopted}, but the residual is still {:.2}× the noise floor ({:.1}σ above it): more is missing than the library explains",
                 self.ratio, self.z

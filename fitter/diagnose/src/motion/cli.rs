@@ -58,11 +58,7 @@ pub fn run(
     println!(
         "{}: {}; RMS marker error {:.1} → {:.1} µm fitted, {:.1} → {:.1} µm held out (forecast of the last {} steps)",
         r.dataset,
-        if r.adopted.is_empty() {
-            "clean (no effect adopted)".to_string()
-        } else {
-            format!("adopted {}", r.adopted.join(", "))
-        },
+        r.verdict(),
         1e6 * r.before.rms_fit,
         1e6 * r.after.rms_fit,
         1e6 * r.before.rms_held,

@@ -71,6 +71,54 @@ pub struct FittedModel {
     pub evaluations: usize,
     /// Optimiser notes (failed trial points, why it stopped).
     pub failures: Vec<String>,
+    /// Constant offsets of the markers from their declared places (m, per marker: observed =
+    /// simulated + offset), when the marker-offsets effect is in the model.
+    pub offsets: Option<Vec<[f64; 3]>>,
+}
+
+impl FittedModel {
+    /// Free parameters: the material's plus three per marker offset.
+    pub fn parameter_count(&self) -> usize {
+        self.kinds.len() + self.offsets.as_ref().map_or(0, |o| 3 * o.len())
+    }
+}
+
+/// `ds` with its marker observations moved by −`offsets` (the observed point of marker i is
+/// its simulated place plus offsets[i]): the residuals of the adjusted data are those of the
+/// model with offsets.
+pub fn with_offsets(ds: &MotionDataset, offsets: &[[f64; 3]]) -> MotionDataset {
+    let mut d = ds.clone();
+    for row in &mut d.obs.markers {
+        for (p, c) in row.iter_mut().zip(offsets) {
+            if let Some(p) = p {
+                for k in 0..3 {
+                    p[k] -= c[k];
+                }
+            }
+        }
+    }
+    d
+}
+
+/// Each marker's mean residual (simulated − observed) over the fitted steps; zero for a marker
+/// never observed there.
+pub fn mean_residuals(t: &Trajectory, split: Split, markers: usize) -> Vec<[f64; 3]> {
+    let mut sum = vec![[0.0; 3]; markers];
+    let mut count = vec![0usize; markers];
+    for row in t.res.iter().take(split.fit_steps) {
+        for (i, e) in row.iter().enumerate() {
+            if let Some(e) = e {
+                for k in 0..3 {
+                    sum[i][k] += e[k];
+                }
+                count[i] += 1;
+            }
+        }
+    }
+    sum.iter()
+        .zip(&count)
+        .map(|(s, &c)| s.map(|v| if c > 0 { v / c as f64 } else { 0.0 }))
+        .collect()
 }
 
 /// The model and observations restricted to the fitted steps.
@@ -199,7 +247,56 @@ pub fn fit_model(
         traj,
         evaluations,
         failures: notes,
+        offsets: None,
     })
+}
+
+/// Fits `kinds` together with a constant offset per marker, by block-coordinate descent: the
+/// offsets that minimise the fitted steps' residual at fixed material are each marker's mean
+/// residual (a linear least-squares problem solved exactly), then the material is refitted on
+/// the data moved by them; `rounds` times, from `start_offsets`.
+#[allow(clippy::too_many_arguments)]
+pub fn fit_with_offsets(
+    ds: &MotionDataset,
+    split: Split,
+    base: &Material,
+    kinds: &[ParamKind],
+    start: &[f64],
+    start_offsets: &[[f64; 3]],
+    rounds: usize,
+    max_iters: u64,
+) -> Result<FittedModel, MotionDiagnoseError> {
+    let mut offsets = start_offsets.to_vec();
+    let mut q = start.to_vec();
+    let mut material = base.clone();
+    let mut evaluations = 0;
+    let mut last: Option<FittedModel> = None;
+    for _ in 0..rounds.max(1) {
+        // Offsets at the current material.
+        let adj = with_offsets(ds, &offsets);
+        material.set(&Param::globals(kinds), &q);
+        let t = run_trajectory(&adj.model, &material, &adj.obs)?;
+        for (c, m) in offsets
+            .iter_mut()
+            .zip(mean_residuals(&t, split, ds.model.markers.len()))
+        {
+            for k in 0..3 {
+                // e = sim − (obs − c): the mean of e is the part of c still missing, negated.
+                c[k] -= m[k];
+            }
+        }
+        // Material at those offsets.
+        let adj = with_offsets(ds, &offsets);
+        let mut m = fit_model(&adj, split, base, kinds, &[q.clone()], max_iters, 0)?;
+        evaluations += m.evaluations;
+        q.clone_from(&m.values);
+        material = m.material.clone();
+        m.offsets = Some(offsets.clone());
+        last = Some(m);
+    }
+    let mut m = last.expect("at least one round");
+    m.evaluations = evaluations;
+    Ok(m)
 }
 
 /// Observed residual entries on the fitted steps as one vector.

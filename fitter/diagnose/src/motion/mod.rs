@@ -29,7 +29,7 @@ pub mod signature;
 use crate::select::{
     self, select, CandidateModel, Current, Gate, Outcome, Policy, Rank, Score, Screen, Verdict,
 };
-use fit::{fit_model, FittedModel, Scores, Split};
+use fit::{fit_model, fit_with_offsets, FittedModel, Scores, Split};
 use palpate_motion::dataset::{DatasetError, MotionDataset};
 use palpate_motion::model::{Material, ParamKind};
 use palpate_motion::MotionError;
@@ -64,6 +64,9 @@ pub fn is_motion_dataset(dir: &Path) -> bool {
         .is_ok_and(|t| t.contains_key("dt") || t.contains_key("clamps"))
 }
 
+/// Block-coordinate rounds of a fit with marker offsets (offsets, then material).
+const OFFSET_ROUNDS: usize = 2;
+
 /// A candidate effect the simplest motion model lacks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub enum Candidate {
@@ -73,13 +76,20 @@ pub enum Candidate {
     ViscosityNewtonian,
     /// Density free (1 parameter); only identifiable with measured clamp forces.
     Density,
+    /// Each marker sits at a constant offset from its declared place (3 parameters per marker):
+    /// a marker glued a millimetre from where `markers.csv` says, a marker's centre above the
+    /// surface, a capture registered with a small shift. Fitted by block-coordinate descent
+    /// (the offsets are each marker's mean residual at fixed material, then the material is
+    /// refitted); the held-out steps use the offsets fitted on the fitted steps.
+    MarkerOffsets,
 }
 
 /// Every candidate, in the order they are tried.
-pub const ALL_CANDIDATES: [Candidate; 3] = [
+pub const ALL_CANDIDATES: [Candidate; 4] = [
     Candidate::Viscosity,
     Candidate::ViscosityNewtonian,
     Candidate::Density,
+    Candidate::MarkerOffsets,
 ];
 
 impl Candidate {
@@ -89,6 +99,14 @@ impl Candidate {
             Self::Viscosity => "viscosity",
             Self::ViscosityNewtonian => "viscosity-newtonian",
             Self::Density => "density",
+            Self::MarkerOffsets => "marker-offsets",
+        }
+    }
+    /// Parameters it adds to a model of `markers` markers.
+    pub fn extra_params(self, markers: usize) -> usize {
+        match self {
+            Self::MarkerOffsets => 3 * markers,
+            c => c.kinds().len(),
         }
     }
     /// Parameters it frees.
@@ -97,6 +115,7 @@ impl Candidate {
             Self::Viscosity => &[ParamKind::Nu, ParamKind::PowerH],
             Self::ViscosityNewtonian => &[ParamKind::Nu],
             Self::Density => &[ParamKind::Density],
+            Self::MarkerOffsets => &[],
         }
     }
     /// Effects that exclude each other (the two viscosity laws).
@@ -228,9 +247,34 @@ pub struct MotionDiagnosis {
     pub speed_before: Vec<(f64, f64)>,
     /// Same for the final model.
     pub speed_after: Vec<(f64, f64)>,
+    /// The final fitted residual against the declared marker noise floor σ√3
+    /// (`marker_noise` in dataset.toml; not judged when it is not declared).
+    pub residual_check: crate::ResidualCheck,
+    /// The same for the held-out (forecast) steps, no fitted parameters.
+    pub heldout_check: crate::ResidualCheck,
     /// Final material (for export; not serialised).
     #[serde(skip)]
     pub material: Option<Material>,
+}
+
+impl MotionDiagnosis {
+    /// The verdict a user reads: never "clean" while the fitted or the forecast residual stands
+    /// significantly above the declared noise floor.
+    pub fn verdict(&self) -> String {
+        let adopted = self.adopted.join(", ");
+        // The worse of the two checks speaks.
+        let worse = if self.heldout_check.judged && self.heldout_check.z > self.residual_check.z {
+            &self.heldout_check
+        } else {
+            &self.residual_check
+        };
+        let which = if std::ptr::eq(worse, &self.heldout_check) {
+            " (held-out forecast)"
+        } else {
+            ""
+        };
+        format!("{}{which}", worse.verdict(&adopted))
+    }
 }
 
 fn values_of(m: &FittedModel) -> Vec<Value> {
@@ -274,6 +318,7 @@ fn starts(c: Candidate, cur: &FittedModel, ds: &MotionDataset) -> Vec<Vec<f64>> 
             q.push(cur.material.get(ParamKind::Density, 0));
             vec![q]
         }
+        Candidate::MarkerOffsets => vec![base],
     }
 }
 
@@ -331,15 +376,38 @@ impl CandidateModel for MotionModel<'_> {
         }
         let mut kinds = cur.kinds.clone();
         kinds.extend_from_slice(c.kinds());
-        let r = fit_model(
-            self.ds,
-            self.split,
-            &cur.material,
-            &kinds,
-            &starts(c, cur, self.ds),
-            self.o.max_iters,
-            self.o.screen_iters,
-        );
+        let r = match (c, &cur.offsets) {
+            (Candidate::MarkerOffsets, _) => fit_with_offsets(
+                self.ds,
+                self.split,
+                &cur.material,
+                &kinds,
+                &cur.values,
+                &vec![[0.0; 3]; self.ds.model.markers.len()],
+                OFFSET_ROUNDS,
+                self.o.max_iters,
+            ),
+            // Offsets adopted: later candidates refit the material and the offsets together.
+            (_, Some(off)) => fit_with_offsets(
+                self.ds,
+                self.split,
+                &cur.material,
+                &kinds,
+                &starts(c, cur, self.ds)[0],
+                off,
+                OFFSET_ROUNDS,
+                self.o.max_iters,
+            ),
+            (_, None) => fit_model(
+                self.ds,
+                self.split,
+                &cur.material,
+                &kinds,
+                &starts(c, cur, self.ds),
+                self.o.max_iters,
+                self.o.screen_iters,
+            ),
+        };
         // A failed fit is a finding about this candidate, not the end of the diagnosis.
         Ok(match r {
             Ok(m) => Outcome::Fitted(m),
@@ -351,15 +419,26 @@ impl CandidateModel for MotionModel<'_> {
         Score {
             chi2: m.scores.chi2_fit,
             n: m.scores.n_fit,
-            k: m.kinds.len(),
+            k: m.parameter_count(),
         }
     }
 
     fn summarise(&self, m: &FittedModel) -> (Vec<Value>, Scores, usize) {
-        let values = values_of(m)
+        let mut values: Vec<Value> = values_of(m)
             .into_iter()
             .filter(|v| !v.name.ends_with("(fixed)"))
             .collect();
+        if let Some(off) = &m.offsets {
+            let largest = off
+                .iter()
+                .map(|c| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt())
+                .fold(0.0, f64::max);
+            values.push(Value {
+                name: format!("marker offsets ({} markers): largest |c| (m)", off.len()),
+                value: largest,
+                sigma: None,
+            });
+        }
         (values, m.scores, m.evaluations)
     }
 
@@ -380,7 +459,7 @@ impl CandidateModel for MotionModel<'_> {
         let o = self.o;
         let (s0, s1) = (cur.held, cand.held);
         let delta_bic = cand.delta_bic;
-        let dk = cand.candidate.kinds().len();
+        let dk = cand.candidate.extra_params(self.ds.model.markers.len());
         let heldout_delta_bic = s1.n_held as f64 * (s1.chi2_held / s0.chi2_held).ln()
             + dk as f64 * (s1.n_held.max(1) as f64).ln();
         let heldout_gain = s1.rms_held / s0.rms_held - 1.0;
@@ -445,12 +524,12 @@ impl CandidateModel for MotionModel<'_> {
 }
 
 /// The motion report's rounds from the engine's verdict (trials in the order tried).
-fn motion_rounds(v: &Verdict<MotionModel<'_>>) -> Vec<Round> {
+fn motion_rounds(v: &Verdict<MotionModel<'_>>, markers: usize) -> Vec<Round> {
     v.rounds
         .iter()
         .map(|r| {
             // Round r starts from path[r − 1]; a candidate adds its kinds to that model's.
-            let k0 = v.path[r.round - 1].0.kinds.len();
+            let k0 = v.path[r.round - 1].0.parameter_count();
             let trials = r
                 .attempts
                 .iter()
@@ -471,7 +550,7 @@ fn motion_rounds(v: &Verdict<MotionModel<'_>>) -> Vec<Round> {
                     _ => Trial {
                         candidate: a.candidate.name().into(),
                         fitted: false,
-                        k: k0 + a.candidate.kinds().len(),
+                        k: k0 + a.candidate.extra_params(markers),
                         values: Vec::new(),
                         scores: Scores::default(),
                         delta_bic: f64::NAN,
@@ -565,7 +644,7 @@ pub fn diagnose(
         screen: Screen::All,
     };
     let verdict = select(&mut engine, &policy, simplest.clone(), simplest.scores)?;
-    let rounds = motion_rounds(&verdict);
+    let rounds = motion_rounds(&verdict, ds.model.markers.len());
     let adopted = verdict.adopted();
     let cur = verdict
         .path
@@ -574,6 +653,11 @@ pub fn diagnose(
         .expect("the start is on the path");
     let mut sp_b = Vec::new();
     let final_signature = signature(ds, split, &cur);
+    // The declared marker noise σ per axis: the RMS of a 3-D marker error is σ√3 at the floor.
+    let (floor, judged) = match ds.config.marker_noise {
+        Some(s) => (s * 3f64.sqrt(), true),
+        None => (f64::NAN, false),
+    };
     sp_b.extend(signature(ds, split, &simplest).speed_bins);
     Ok(MotionDiagnosis {
         dataset: label.to_string(),
@@ -601,6 +685,20 @@ pub fn diagnose(
         speed_before: sp_b,
         speed_after: final_signature.speed_bins.clone(),
         final_signature,
+        residual_check: crate::ResidualCheck::new(
+            cur.scores.rms_fit,
+            floor,
+            cur.scores.n_fit,
+            cur.kinds.len(),
+            judged,
+        ),
+        heldout_check: crate::ResidualCheck::new(
+            cur.scores.rms_held,
+            floor,
+            cur.scores.n_held,
+            0,
+            judged,
+        ),
         material: Some(cur.material.clone()),
     })
 }

@@ -35,15 +35,7 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
             "not declared: 1000 kg/m³ assumed"
         }
     );
-    let _ = writeln!(
-        md,
-        "**Result**: {}.\n",
-        if r.adopted.is_empty() {
-            "clean — no effect adopted (the elastic model is enough)".to_string()
-        } else {
-            format!("adopted {}", r.adopted.join(", "))
-        }
-    );
+    let _ = writeln!(md, "**Result**: {}.\n", r.verdict());
     md.push_str("| marker error | simplest (elastic) | final | \n|---|---|---|\n");
     let _ = writeln!(
         md,
