@@ -37,6 +37,13 @@ impl Correction {
         })
     }
 
+    /// Places the inclusion candidate's blob where the coarse context has it (the sensitivity
+    /// scan moves it after both contexts are built; the refined side must evaluate the same
+    /// field, or δ compares two different models).
+    pub fn set_inclusion_start(&mut self, p: [f64; 3]) {
+        self.fine.inclusion_start = p;
+    }
+
     /// Tetrahedra of the refined mesh.
     pub fn refined_tets(&self) -> usize {
         self.fine.problem.element_count()

@@ -254,6 +254,11 @@ pub struct Context {
     pub depth: Vec<f64>,
     /// Starting centre of the inclusion candidate.
     pub inclusion_start: [f64; 3],
+    /// Starting θ of the inclusion candidate from the sensitivity scan (`None`: the default
+    /// start, [`Candidate::start`]).
+    pub inclusion_seed: Option<[f64; 5]>,
+    /// The scan's best blob, for the report.
+    pub inclusion_scan: Option<crate::sensitivity::BlobScan>,
     /// Node tags of the mesh solved on (for the export).
     pub node_tags: Vec<u64>,
     /// Approximation-error correction δ added to every predicted marker (per measurement, aligned
@@ -400,6 +405,8 @@ impl Context {
             centroids,
             depth,
             inclusion_start,
+            inclusion_seed: None,
+            inclusion_scan: None,
             node_tags: ds.mesh.node_tags.clone(),
             correction: None,
         })
@@ -631,6 +638,13 @@ impl Model {
 
     /// Per-element log-E offsets of the spatial material effects (inhomogeneity, layer,
     /// inclusion); `None` without any.
+    /// The material of the solve at `theta` without the stiffening fixed point: the field
+    /// candidates' log E on the base E (what [`crate::sensitivity`] differentiates).
+    pub fn field_material(&self, ctx: &Context, theta: &[f64]) -> Result<Material, DiagnoseError> {
+        let log_e = self.log_e_field(ctx, theta);
+        self.material(theta, log_e.as_deref(), None)
+    }
+
     fn log_e_field(&self, ctx: &Context, theta: &[f64]) -> Option<Vec<f64>> {
         let grid = self.block(Candidate::Inhomogeneity, theta, ctx.grid);
         let layer = self.block(Candidate::Layer, theta, ctx.grid);

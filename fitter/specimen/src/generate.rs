@@ -47,6 +47,11 @@ pub struct SpecimenOptions {
     /// them). `diagnose-evidence --sweep` compares a specimen's truth with this world's truth to
     /// get what the effect does to the markers beyond what the reported data explain.
     pub apply_reported_force: bool,
+    /// Centre of the inclusion effect, as fractions of `size` (default (0.5, 0.5, 0.6): under the
+    /// middle of the probed top face).
+    pub inclusion_centre: [f64; 3],
+    /// Radius of the inclusion effect as a fraction of the x size (default 0.22).
+    pub inclusion_radius: f64,
 }
 
 impl Default for SpecimenOptions {
@@ -64,6 +69,8 @@ impl Default for SpecimenOptions {
             seed: 1,
             effects: Vec::new(),
             apply_reported_force: false,
+            inclusion_centre: [0.5, 0.5, 0.6],
+            inclusion_radius: 0.22,
         }
     }
 }
@@ -240,8 +247,8 @@ pub fn generate(o: &SpecimenOptions) -> Result<Specimen, SpecimenError> {
             let c = centroid(&fine.nodes, t);
             let mut e = o.young;
             if let Some(m) = o.magnitude(Effect::Inclusion) {
-                let centre = [0.5 * size[0], 0.5 * size[1], 0.6 * size[2]];
-                let r = 0.22 * size[0];
+                let centre = [0, 1, 2].map(|d| o.inclusion_centre[d] * size[d]);
+                let r = o.inclusion_radius * size[0];
                 if (0..3).map(|d| (c[d] - centre[d]).powi(2)).sum::<f64>() <= r * r {
                     e *= 1.0 + m;
                 }

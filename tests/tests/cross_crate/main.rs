@@ -13,6 +13,7 @@ mod diagnose_gravity;
 mod diagnose_motion;
 mod diagnose_noise;
 mod diagnose_runs;
+mod diagnose_sensitivity;
 mod diagnose_sweep;
 mod hil_link;
 mod hil_runtime;
