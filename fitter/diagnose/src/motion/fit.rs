@@ -84,7 +84,7 @@ impl FittedModel {
 }
 
 /// `ds` with its marker observations moved by −`offsets` (the observed point of marker i is
-/// its simulated place plus offsets[i]): the residuals of the adjusted data are those of the
+/// its simulated place plus `offsets[i]`): the residuals of the adjusted data are those of the
 /// model with offsets.
 pub fn with_offsets(ds: &MotionDataset, offsets: &[[f64; 3]]) -> MotionDataset {
     let mut d = ds.clone();
