@@ -95,3 +95,12 @@ pub fn delta_rms(delta: &[Vec<[f64; 3]>]) -> f64 {
     }
     (s / n.max(1) as f64).sqrt()
 }
+
+/// Largest marker correction |δ| over all observed markers (m).
+pub fn delta_max(delta: &[Vec<[f64; 3]>]) -> f64 {
+    delta
+        .iter()
+        .flatten()
+        .map(|d| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt())
+        .fold(0.0, f64::max)
+}

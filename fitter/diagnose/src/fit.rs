@@ -82,7 +82,7 @@ fn jacobian(
             let mut t = theta.to_vec();
             t[c] += FD_STEP;
             let markers = if model.affects_solve(c, ctx.grid) {
-                model.simulate(ctx, &t, subset, Some(&base.x))?.markers
+                model.simulate_near(ctx, &t, subset, base)?.markers
             } else {
                 model.markers_from(
                     ctx,
@@ -130,7 +130,7 @@ pub fn fit(
         sim,
         |theta, sim: &Simulated, r| jacobian(ctx, model, theta, subset, sim, r),
         |trial, sim| {
-            let s = model.simulate(ctx, trial, subset, Some(&sim.x)).ok()?;
+            let s = model.simulate_near(ctx, trial, subset, sim).ok()?;
             Some((model.residuals(ctx, subset, &s.markers), s))
         },
         &o,

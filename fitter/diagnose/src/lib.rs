@@ -959,21 +959,34 @@ pub fn run_diagnosis_with(
     } else {
         None
     };
+    // The mesh's own discretisation error is the approximation-error correction at the simplest
+    // fit: δ = x_{h/2}(θ*) − x_h(θ*) at the markers. One set of refined solves serves both the
+    // estimate and, when the correction is chosen, its first refresh.
+    let mut first_delta = None;
     let mesh_error = match &refined {
         Some(fine) => {
             progress(
                 "estimating the mesh's discretisation error (simplest model on the mesh refined once)",
             );
-            let p = palpate_runtime::material::LambdaAlpha::from_young_poisson(
-                coarse_fit.theta[0].exp(),
-                poisson_of(coarse_fit.theta[1]),
-            );
-            palpate_fem::dataset::mesh_error::mesh_error_against(ds, fine, p)
+            Correction::new(fine, o.grid)
+                .and_then(|mut corr| {
+                    let delta = corr.delta(
+                        &coarse,
+                        &Model::base(),
+                        &coarse_fit.theta,
+                        &coarse_fit.sim.x,
+                    )?;
+                    Ok((corr, delta))
+                })
                 .ok()
-                .map(|e| MeshErrorSummary {
-                    rms: e.rms,
-                    max: e.max,
-                    refined_tets: e.refined_tets,
+                .map(|(corr, delta)| {
+                    let summary = MeshErrorSummary {
+                        rms: approx_error::delta_rms(&delta),
+                        max: approx_error::delta_max(&delta),
+                        refined_tets: fine.mesh.tets.len(),
+                    };
+                    first_delta = Some((corr, delta));
+                    summary
                 })
         }
         None => None,
@@ -1005,14 +1018,32 @@ pub fn run_diagnosis_with(
                 "refitting the simplest model with the approximation-error correction ({} tetrahedra)",
                 fine.mesh.tets.len()
             ));
-            let mut corr = Correction::new(&fine, o.grid)?;
+            let (mut corr, delta) = match first_delta.take() {
+                Some(d) => d,
+                None => {
+                    let mut corr = Correction::new(&fine, o.grid)?;
+                    let d = corr.delta(
+                        &coarse,
+                        &Model::base(),
+                        &coarse_fit.theta,
+                        &coarse_fit.sim.x,
+                    )?;
+                    (corr, d)
+                }
+            };
             let mut ctx = coarse;
-            // Two refreshes: δ at the dataset-mesh fit, then at the corrected fit (E moves by
-            // the mesh's stiffness error, a few per cent, and δ with it).
-            let mut f = coarse_fit;
-            for _ in 0..2 {
-                f = refresh(&mut ctx, &mut corr, &f, o.max_iterations)?;
-            }
+            // Two refreshes: δ at the dataset-mesh fit (the mesh-error estimate's), then at the
+            // corrected fit (E moves by the mesh's stiffness error, a few per cent, and δ with it).
+            ctx.correction = Some(delta);
+            let mut f = fit(
+                &ctx,
+                &coarse_fit.model,
+                coarse_fit.theta.clone(),
+                &coarse_fit.subset,
+                Some(&coarse_fit.sim.x),
+                o.max_iterations,
+            )?;
+            f = refresh(&mut ctx, &mut corr, &f, o.max_iterations)?;
             correction = Some(corr);
             (ctx, f)
         }

@@ -8,12 +8,14 @@
 
 use nalgebra::Vector3;
 use palpate_runtime::material::LambdaAlpha;
+use rayon::prelude::*;
 use serde::Serialize;
 
 use super::DiagnoseError;
 use palpate_fem::dataset::{Marker, StaticDataset};
-use palpate_fem::forward::{Load, Material, SolveOptions, StaticProblem};
+use palpate_fem::forward::{Factorised, Load, Material, SolveOptions, StaticProblem};
 use palpate_specimen::generate::rotate;
+use std::sync::Arc;
 
 /// A candidate effect of the library (each an augmented model with extra parameters).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
@@ -400,6 +402,7 @@ impl Context {
                 warp: true,
                 tolerance: 1e-9,
                 max_fixed_point: 40,
+                reuse_factor: true,
             },
             marker_rest,
             centroids,
@@ -562,6 +565,8 @@ pub struct Simulated {
     /// [`Candidate::TiltEach`]: per measurement, the simulated markers' response to a unit
     /// tangential coefficient along t₁ and t₂ (m per unit of |f|).
     pub tilt: Option<Vec<[Vec<[f64; 3]>; 2]>>,
+    /// The factorisation of K' each measurement's solve ended with (start of nearby solves).
+    pub factors: Vec<Arc<Factorised>>,
 }
 
 impl Model {
@@ -728,69 +733,113 @@ impl Model {
         subset: &[usize],
         warm: Option<&[Vec<[f64; 3]>]>,
     ) -> Result<Simulated, DiagnoseError> {
+        self.simulate_with(ctx, theta, subset, warm, None)
+    }
+
+    /// [`Model::simulate`] near `base` (a Jacobian column, a Levenberg–Marquardt trial):
+    /// warm-started from its states and starting from its factorisations of K', which serve the
+    /// nearby solves as long as they contract ([`StaticProblem::solve_forces_with`]).
+    pub fn simulate_near(
+        &self,
+        ctx: &Context,
+        theta: &[f64],
+        subset: &[usize],
+        base: &Simulated,
+    ) -> Result<Simulated, DiagnoseError> {
+        let hints = (base.factors.len() == subset.len()).then_some(base.factors.as_slice());
+        self.simulate_with(ctx, theta, subset, Some(&base.x), hints)
+    }
+
+    fn simulate_with(
+        &self,
+        ctx: &Context,
+        theta: &[f64],
+        subset: &[usize],
+        warm: Option<&[Vec<[f64; 3]>]>,
+        hints: Option<&[Arc<Factorised>]>,
+    ) -> Result<Simulated, DiagnoseError> {
         let log_e = self.log_e_field(ctx, theta);
-        let mut xs = Vec::with_capacity(subset.len());
-        for (k, &i) in subset.iter().enumerate() {
-            let m = &ctx.meas[i];
-            let f = self.model_force(ctx, theta, i);
-            let mut fvec = ctx
-                .problem
-                .force_vector(&Load::contact(m.point, f, m.radius))
-                .map_err(|e| DiagnoseError::Input(format!("measurement {:?}: {e}", m.id)))?;
-            if let Some(rho) = self.block(Candidate::Gravity, theta, ctx.grid) {
-                add_gravity(ctx, rho[0], &mut fvec);
-            }
-            let start = warm.map(|w| w[k].as_slice());
-            let stiffening = self.block(Candidate::Stiffening, theta, ctx.grid);
-            // Warm-started (a Jacobian column, an LM trial, a held-out refit): the secant moduli
-            // at the warm state are already close to the fixed point, so start there rather than
-            // from the linear material (measured: a stiffening-only diagnosis of a 648-tet
-            // specimen takes 14.8 s of CPU instead of 28 s, with identical scores).
-            let m0 = match (stiffening, start) {
-                (Some(b), Some(w)) => Some(stiffening_log_e(ctx, w, b[0])),
-                _ => None,
-            };
-            let mat = self.material(theta, log_e.as_deref(), m0.as_deref())?;
-            let mut x = ctx
-                .problem
-                .solve_forces(&mat, &fvec, start, &ctx.solve)?
-                .solution
-                .x;
-            if let Some(beta) = stiffening {
-                // The secant material is a fixed point m = T(ε(x(m))); solve it by Newton on
-                // each element's log-modulus offset, with the local estimate ∂ln‖ε‖/∂m ≈ −1
-                // (strain inversely proportional to the local modulus) — plain substitution
-                // diverges once the stiffening doubles the modulus (its gain reaches 2).
-                let mut m = m0.unwrap_or_else(|| vec![0.0; ctx.problem.element_count()]);
-                // Each pass is one linear solve with the rotations and the material of the
-                // current state (a joint fixed point); the rotations are converged to the
-                // forward model's own tolerance by the final solve.
-                let pass = SolveOptions {
-                    max_fixed_point: 0,
-                    ..ctx.solve
+        // Measurements are independent solves: one per core (the refined mesh of the
+        // approximation-error correction spends most of its time here).
+        let solve_one =
+            |k: usize, i: usize| -> Result<(Vec<[f64; 3]>, Arc<Factorised>), DiagnoseError> {
+                let m = &ctx.meas[i];
+                let f = self.model_force(ctx, theta, i);
+                let mut fvec = ctx
+                    .problem
+                    .force_vector(&Load::contact(m.point, f, m.radius))
+                    .map_err(|e| DiagnoseError::Input(format!("measurement {:?}: {e}", m.id)))?;
+                if let Some(rho) = self.block(Candidate::Gravity, theta, ctx.grid) {
+                    add_gravity(ctx, rho[0], &mut fvec);
+                }
+                let start = warm.map(|w| w[k].as_slice());
+                let stiffening = self.block(Candidate::Stiffening, theta, ctx.grid);
+                // Warm-started (a Jacobian column, an LM trial, a held-out refit): the secant moduli
+                // at the warm state are already close to the fixed point, so start there rather than
+                // from the linear material (measured: a stiffening-only diagnosis of a 648-tet
+                // specimen takes 14.8 s of CPU instead of 28 s, with identical scores).
+                let m0 = match (stiffening, start) {
+                    (Some(b), Some(w)) => Some(stiffening_log_e(ctx, w, b[0])),
+                    _ => None,
                 };
-                for k in 0..=STIFFENING_PASSES {
-                    let (target, gain) = stiffening_target(ctx, &x, beta[0]);
-                    let mut change = 0.0f64;
-                    for e in 0..m.len() {
-                        let step = (target[e] - m[e]) / (1.0 + gain[e]).max(0.25);
-                        m[e] += step;
-                        change = change.max(step.abs());
-                    }
-                    let last = change < STIFFENING_TOLERANCE || k == STIFFENING_PASSES;
-                    let mat = self.material(theta, log_e.as_deref(), Some(&m))?;
-                    x = ctx
-                        .problem
-                        .solve_forces(&mat, &fvec, Some(&x), if last { &ctx.solve } else { &pass })?
-                        .solution
-                        .x;
-                    if last {
-                        break;
+                let mat = self.material(theta, log_e.as_deref(), m0.as_deref())?;
+                let hint = hints.and_then(|h| h.get(k));
+                let solved = ctx
+                    .problem
+                    .solve_forces_with(&mat, &fvec, start, &ctx.solve, hint)?;
+                let (mut x, mut factor) = (solved.solution.x, solved.factor);
+                if let Some(beta) = stiffening {
+                    // The secant material is a fixed point m = T(ε(x(m))); solve it by Newton on
+                    // each element's log-modulus offset, with the local estimate ∂ln‖ε‖/∂m ≈ −1
+                    // (strain inversely proportional to the local modulus) — plain substitution
+                    // diverges once the stiffening doubles the modulus (its gain reaches 2).
+                    let mut m = m0.unwrap_or_else(|| vec![0.0; ctx.problem.element_count()]);
+                    // Each pass is one linear solve with the rotations and the material of the
+                    // current state (a joint fixed point); the rotations are converged to the
+                    // forward model's own tolerance by the final solve.
+                    let pass = SolveOptions {
+                        max_fixed_point: 0,
+                        ..ctx.solve
+                    };
+                    for k in 0..=STIFFENING_PASSES {
+                        let (target, gain) = stiffening_target(ctx, &x, beta[0]);
+                        let mut change = 0.0f64;
+                        for e in 0..m.len() {
+                            let step = (target[e] - m[e]) / (1.0 + gain[e]).max(0.25);
+                            m[e] += step;
+                            change = change.max(step.abs());
+                        }
+                        let last = change < STIFFENING_TOLERANCE || k == STIFFENING_PASSES;
+                        let mat = self.material(theta, log_e.as_deref(), Some(&m))?;
+                        // A pass is one exact linear solve (its own factorisation: a stale one
+                        // would make it a stationary step and move the joint fixed point's path);
+                        // the last, converged solve starts from the previous pass's factor.
+                        let solved = if last {
+                            ctx.problem.solve_forces_with(
+                                &mat,
+                                &fvec,
+                                Some(&x),
+                                &ctx.solve,
+                                Some(&factor),
+                            )?
+                        } else {
+                            ctx.problem.solve_forces(&mat, &fvec, Some(&x), &pass)?
+                        };
+                        (x, factor) = (solved.solution.x, solved.factor);
+                        if last {
+                            break;
+                        }
                     }
                 }
-            }
-            xs.push(x);
-        }
+                Ok((x, factor))
+            };
+        let (xs, factors): (Vec<Vec<[f64; 3]>>, Vec<Arc<Factorised>>) = subset
+            .par_iter()
+            .enumerate()
+            .map(|(k, &i)| solve_one(k, i))
+            .collect::<Result<Vec<_>, _>>()?
+            .into_iter()
+            .unzip();
         let embedding = match self.block(Candidate::Gravity, theta, ctx.grid) {
             Some(rho) => Some(self.rest_scan_embedding(ctx, theta, log_e.as_deref(), rho[0])?),
             None => None,
@@ -817,6 +866,7 @@ impl Model {
                 tilt.as_deref(),
             ),
             x: xs,
+            factors,
             embedding,
             tilt,
         })

@@ -128,7 +128,7 @@ impl Layouting {
 /// Forward state of one measurement at the current parameters.
 pub(crate) struct MeasurementState {
     pub x: Vec<[f64; 3]>,
-    pub factor: Factorised,
+    pub factor: std::sync::Arc<Factorised>,
     pub st: Vec<(SVector<f64, 12>, SVector<f64, 12>)>,
     /// Residual vector (3 per observed marker), already divided by σ.
     pub r: Vec<f64>,

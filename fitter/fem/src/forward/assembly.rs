@@ -83,6 +83,15 @@ pub struct Factorised {
     n: usize,
 }
 
+impl std::fmt::Debug for Factorised {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Factorised")
+            .field("free_dofs", &self.n)
+            .field("nonzeros", &self.values.len())
+            .finish_non_exhaustive()
+    }
+}
+
 impl Factorised {
     /// Solves K' y = b in place (b over the free dofs).
     pub fn solve_in_place(&self, b: &mut [f64]) {

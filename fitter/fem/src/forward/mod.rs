@@ -354,7 +354,7 @@ impl StaticProblem {
             .map(|(t, g)| {
                 let xe = t.map(|i| nalgebra::Vector3::from(x[i]));
                 let f = palpate_runtime::element::deformation_gradient(g, &xe);
-                palpate_runtime::rotation::warp_rotation_svd(&f)
+                palpate_runtime::rotation::warp_rotation_polar(&f)
             })
             .collect()
     }
