@@ -8,6 +8,7 @@
 //! trajectory rows are dropped frames.
 
 use super::model::{Clamp, DeadLoad, MassKind, Model, Observations, Pose};
+use super::timestep::TimeStep;
 use palpate_fem::io::csv::{self, NumberError};
 use palpate_fem::mesh::Mesh;
 use serde::Deserialize;
@@ -60,8 +61,12 @@ pub struct DatasetToml {
     pub mesh: String,
     /// Time step = capture period (s).
     pub dt: f64,
-    /// Steps to simulate (default: up to the last observation).
+    /// Steps to simulate (default: up to the last observation), counted in capture intervals.
     pub steps: Option<usize>,
+    /// Simulation steps per capture interval `dt` (default: chosen from the capture's own
+    /// oscillation, [`crate::timestep`]; 1 integrates at the capture rate).
+    #[serde(default)]
+    pub substeps: Option<usize>,
     /// Density (kg/m³), if known.
     pub density: Option<f64>,
     /// Gravity (m/s²). Not declared: (0, 0, −9.81), with a warning — a static dataset without
@@ -167,6 +172,8 @@ pub struct MotionDataset {
     pub model: Model,
     /// Observations.
     pub obs: Observations,
+    /// How the simulation step was chosen (`model` and `obs` are already on that step).
+    pub timestep: TimeStep,
 }
 
 fn read(file: &Path) -> Result<String, DatasetError> {
@@ -602,13 +609,40 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
             "neither trajectories.csv nor forces.csv present: nothing to fit",
         ));
     }
+    if config.substeps == Some(0) || config.substeps.is_some_and(|k| k > MAX_DECLARED_SUBSTEPS) {
+        return Err(bad(
+            &tf,
+            0,
+            format!(
+                "field substeps: expected 1 to {MAX_DECLARED_SUBSTEPS}, found {}",
+                config.substeps.unwrap_or(0)
+            ),
+        ));
+    }
+    if model.steps.saturating_mul(config.substeps.unwrap_or(1)) > MAX_STEPS {
+        return Err(bad(
+            &tf,
+            0,
+            format!(
+                "field substeps: {} × {} steps is over the {MAX_STEPS} steps supported",
+                config.substeps.unwrap_or(1),
+                model.steps
+            ),
+        ));
+    }
+    let timestep = crate::timestep::choose(&model, &obs, config.substeps);
+    let (model, obs) = model.resampled(&obs, timestep.substeps);
     Ok(MotionDataset {
         config,
         mesh,
         model,
         obs,
+        timestep,
     })
 }
+
+/// Most substeps a dataset may declare (each multiplies the simulation's steps and its tape).
+pub const MAX_DECLARED_SUBSTEPS: usize = 64;
 
 /// The `i`-th `[[loads]]` table as a [`DeadLoad`] on free nodes, or an error naming the field.
 fn dead_load(

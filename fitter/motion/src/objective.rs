@@ -64,7 +64,8 @@ pub fn step_term(
     kinds: &[bool],
     grad: Option<(&mut [f64], &mut [f64], &mut [Vec<f64>])>,
 ) -> Result<StepTerm, MotionError> {
-    let dt = model.dt;
+    // Each observation weighs the capture interval, however finely the motion is integrated.
+    let dt = model.observation_interval();
     let mut term = StepTerm::default();
     let mut grad = grad;
     if let Some(row) = obs.markers.get(n - 1) {

@@ -38,6 +38,9 @@ fn specimen(nu: f64, seed: u64) -> MotionDataset {
             mesh: "mesh.msh".into(),
             dt: DT,
             steps: Some(STEPS),
+            // The specimen is simulated at the capture step (a test of the diagnosis, not of
+            // the time discretisation).
+            substeps: Some(1),
             density: Some(47.0),
             gravity: Some([0.0, -9.81, 0.0]),
             clamps: vec!["front".into()],
@@ -57,6 +60,7 @@ fn specimen(nu: f64, seed: u64) -> MotionDataset {
         mesh,
         model,
         obs,
+        timestep: palpate_motion::timestep::TimeStep::capture_rate(DT),
     }
 }
 

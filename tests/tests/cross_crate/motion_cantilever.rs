@@ -301,3 +301,100 @@ fn a_soft_cantilever_released_straight_simulates_at_coarse_time_steps() {
         assert!(lowest < -LENGTH / 3.0, "lowest tip {lowest}");
     }
 }
+
+/// Stepping at a capture rate that resolves the ring-down by a dozen frames per period makes the
+/// simulated period too long and damps it numerically (palpate_motion::timestep); the same model
+/// resampled with the substeps the rule chooses rings with the period and amplitude of a
+/// simulation 32× finer to within 1.5 % — what a dataset loaded from disk gets automatically.
+#[test]
+fn substeps_chosen_from_the_ring_down_remove_bdf2s_period_error() {
+    use palpate_motion::model::Observations;
+    use palpate_motion::timestep::{capture_period, ring_down, substeps_for};
+    // A stiff cylinder released straight, ringing at ≈ 9 Hz, "captured" at 100 Hz.
+    let capture_dt = 0.01;
+    let frames = 100;
+    let mesh = cylinder_mesh(RADIUS, LENGTH, [2, 16]);
+    let clamp = Clamp {
+        name: "front".into(),
+        nodes: mesh.node_groups["front"].clone(),
+        poses: vec![Pose::translation([0.0; 3]); frames + 1],
+    };
+    let mut model = Model::new(
+        &mesh,
+        vec![clamp],
+        Vec::new(),
+        capture_dt,
+        frames,
+        [0.0, 0.0, -9.81],
+        MassKind::Lumped,
+    )
+    .unwrap();
+    model.static_start = false;
+    model.markers = vec![model.marker_at("tip", [0.0, LENGTH, 0.999 * RADIUS])];
+    let (lambda, mu) = lame(2e7);
+    let mat = Material::uniform(model.tets.len(), lambda, mu, 1e-6, 1.0, DENSITY);
+    let obs = Observations {
+        markers: vec![vec![Some([0.0, LENGTH, 0.0])]; frames],
+        forces: vec![Vec::new(); frames],
+        marker_weight: 1.0,
+        force_weight: 1.0,
+    };
+    // The tip's vertical motion at every capture frame, integrated with k substeps.
+    let ring = |k: usize| {
+        let (m, _) = model.resampled(&obs, k);
+        let mut z = Vec::new();
+        simulate(
+            &m,
+            &mat,
+            false,
+            |_, _| {},
+            |s| {
+                if s.n % k == 0 {
+                    z.push(tip_sag(&m, s.x));
+                }
+                Ok(())
+            },
+        )
+        .unwrap();
+        ring_down(&z, capture_dt)
+    };
+    let (p_ref, a_ref) = ring(32);
+    let (p_ref, a_ref) = (p_ref.unwrap(), a_ref.unwrap());
+    // The rule, from the capture itself (the reference's frames stand in for the capture).
+    let mut captured = obs.clone();
+    {
+        let (m, _) = model.resampled(&obs, 32);
+        let mut n = 0;
+        simulate(
+            &m,
+            &mat,
+            false,
+            |_, _| {},
+            |s| {
+                if s.n % 32 == 0 {
+                    captured.markers[n][0] = Some([0.0, LENGTH, tip_sag(&m, s.x)]);
+                    n += 1;
+                }
+                Ok(())
+            },
+        )
+        .unwrap();
+    }
+    let period = capture_period(&model, &captured).expect("the capture rings");
+    assert!((period - p_ref).abs() < 0.02 * p_ref, "{period} vs {p_ref}");
+    let k = substeps_for(capture_dt, Some(period));
+    assert!(k >= 3, "{k} substeps for a period of {period} s");
+    let (p1, a1) = ring(1);
+    let (pk, ak) = ring(k);
+    let (p1, a1, pk, ak) = (p1.unwrap(), a1.unwrap(), pk.unwrap(), ak.unwrap());
+    eprintln!(
+        "period {p_ref:.4} s (32 substeps): at the capture rate {p1:.4} s, amplitude per cycle \
+         {a1:.3}; with {k} substeps {pk:.4} s, {ak:.3} (reference {a_ref:.3})"
+    );
+    assert!(
+        p1 > 1.03 * p_ref,
+        "the capture rate is visibly wrong: {p1} vs {p_ref}"
+    );
+    assert!((pk - p_ref).abs() < 0.015 * p_ref, "{pk} vs {p_ref}");
+    assert!((ak - a_ref).abs() < 0.015, "{ak} vs {a_ref}");
+}
