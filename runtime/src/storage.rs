@@ -148,7 +148,7 @@ const fn sum<const K: usize>(lens: &[usize; K]) -> usize {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Layout {
     /// [`crate::nodes::NodeState`].
-    pub nodes: RoomLayout<9, 0>,
+    pub nodes: RoomLayout<10, 0>,
     /// [`crate::contact::ContactSet`].
     pub contact: RoomLayout<3, 1>,
     /// [`crate::pcg::PcgWork`].

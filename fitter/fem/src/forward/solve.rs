@@ -3,6 +3,18 @@
 //! assembled and factorised and K' x = f_k + K'' x₀ solved. At full load, fixed-point iterations
 //! (rotations from the current state, solve) continue until the update moves no node by more than
 //! the tolerance. A fixed point satisfies f_int(x) = Σ R_e K_e (R_eᵀx_e − x₀e) = f exactly.
+//!
+//! **Large loads.** The lagged-rotation iteration x ← K'(R(x))⁻¹ (f + K''(R(x)) x₀) has no
+//! geometric stiffness: past a load where the rotations change a lot per solve it cycles instead
+//! of converging (a 10 cm cantilever at twice the load that bends it by a third of its length
+//! cycles with a 18 cm amplitude, at any number of increments). With R(x) the polar rotation,
+//! f_int is the gradient of the corotational energy Π(x) = Σ ½ (R_eᵀx_e − x₀e)ᵀ K_e (R_eᵀx_e − x₀e)
+//! − fᵀx, and each solve's step d = K'⁻¹(f − f_int(x)) is a descent direction of Π (K' is
+//! positive definite). So every step is checked by the slope of Π along it at its end,
+//! s(1) = −(f − f_int(x + d))·d with fresh rotations: when it is positive the step overshot the
+//! minimum along d and is cut to the root of the slope's secant, t = s(0) / (s(0) − s(1)) (an exact
+//! line search for a quadratic energy). Steps that do not overshoot are taken whole, so the
+//! iteration is unchanged where it converged before.
 
 use nalgebra::Matrix3;
 
@@ -65,6 +77,65 @@ fn max_move(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
 }
 
 impl StaticProblem {
+    /// Slope −(f − f_int(x))·d of the corotational energy along `d` at `x` with the rotations
+    /// `rot`, over the free dofs.
+    fn energy_slope(
+        &self,
+        material: &Material,
+        f: &[f64],
+        fraction: f64,
+        x: &[[f64; 3]],
+        rot: &[Matrix3<f64>],
+        d: &[[f64; 3]],
+    ) -> f64 {
+        let fi = self.internal_forces(material, rot, x);
+        let mut s = 0.0;
+        for (n, &free) in self.free_index.iter().enumerate() {
+            if free == usize::MAX {
+                continue;
+            }
+            for k in 0..3 {
+                s -= (fraction * f[3 * n + k] - fi[3 * n + k]) * d[n][k];
+            }
+        }
+        s
+    }
+
+    /// The step from `x` (rotations `rot`) to `xn`, cut where the energy rises at its end (see the
+    /// module docs).
+    #[allow(clippy::too_many_arguments)]
+    fn line_search(
+        &self,
+        material: &Material,
+        f: &[f64],
+        fraction: f64,
+        x: &[[f64; 3]],
+        rot: &[Matrix3<f64>],
+        xn: Vec<[f64; 3]>,
+        warp: bool,
+    ) -> Vec<[f64; 3]> {
+        if !warp {
+            // Linear: the solve is exact, nothing to search.
+            return xn;
+        }
+        let d: Vec<[f64; 3]> = xn
+            .iter()
+            .zip(x)
+            .map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]])
+            .collect();
+        let s0 = self.energy_slope(material, f, fraction, x, rot, &d);
+        let s1 = self.energy_slope(material, f, fraction, &xn, &self.rotations(&xn, true), &d);
+        if !(s0 < 0.0 && s1 > 0.0) {
+            return xn;
+        }
+        // Root of the slope's secant, kept away from a zero step.
+        let t = (s0 / (s0 - s1)).clamp(0.05, 1.0);
+        x.iter()
+            .zip(&d)
+            .map(|(p, q)| [p[0] + t * q[0], p[1] + t * q[1], p[2] + t * q[2]])
+            .collect()
+    }
+
     /// Solves the static problem for `load` with incremental loading and warping (§6.1).
     pub fn solve(
         &self,
@@ -130,7 +201,9 @@ impl StaticProblem {
         let mut last = None;
         for k in 1..=increments {
             iterations += 1;
-            let (xn, rot, fac) = step(&x, k as f64 / increments as f64, iterations)?;
+            let fraction = k as f64 / increments as f64;
+            let (xn, rot, fac) = step(&x, fraction, iterations)?;
+            let xn = self.line_search(material, f_ext, fraction, &x, &rot, xn, options.warp);
             let change = max_move(&xn, &x);
             x = xn;
             last = Some((rot, fac, change));
@@ -143,6 +216,7 @@ impl StaticProblem {
             for _ in 0..options.max_fixed_point {
                 iterations += 1;
                 let (xn, r, fac) = step(&x, 1.0, iterations)?;
+                let xn = self.line_search(material, f_ext, 1.0, &x, &r, xn, options.warp);
                 change = max_move(&xn, &x);
                 x = xn;
                 rot = r;
