@@ -30,9 +30,9 @@
 //! direction of Π (K' is positive definite). The next residual pass — the next increment's or the
 //! next tick's, which recomputes rotations and f_int at x + δ anyway — gives the slope of Π along δ
 //! at its end, s(1) = −(f − f_int(x + δ))·δ at the load δ was solved for (the load applied since is
-//! taken out: f changed by ∆f adds ∆f·δ). When s(1) > 0 the step overshot the minimum along δ and
-//! is cut to the root of the slope's secant, t = s(0)/(s(0) − s(1)), and the pass repeated at
-//! x + tδ. So the check costs nothing while steps do not overshoot (every haptic steady tick), one
+//! taken out: f changed by ∆f adds ∆f·δ). When s(1) > −s(0) the step overshot the minimum along δ
+//! so far that the energy rose ((s(0) + s(1))/2 is the energy change of a quadratic) and is cut to
+//! the root of the slope's secant, t = s(0)/(s(0) − s(1)) < 1/2, and the pass repeated at x + tδ. So the check costs nothing while steps do not overshoot (every haptic steady tick), one
 //! residual pass when they do. The offline solver does the same (`palpate_fem::forward::solve`).
 //!
 //! Constraints are filters on the CG vectors (modified PCG, Baraff & Witkin 1998): fixed nodes
@@ -206,7 +206,9 @@ impl Runtime<'_> {
     fn check_last_step(&mut self, slope0: f32, along: f32) -> f32 {
         let nodes = &mut self.nodes;
         let slope1 = along - dot(nodes.r_full, nodes.delta_prev);
-        if !(slope0 < 0.0 && slope1 > 0.0) {
+        // The energy change along the step is (s(0) + s(1)) / 2 for a quadratic: a step that
+        // overshot but still lowered the energy (s(1) < −s(0), the minimum at t > 1/2) is kept.
+        if !(slope0 < 0.0 && slope1 > -slope0) {
             return 1.0;
         }
         // Root of the slope's secant, kept away from a zero step.
