@@ -7,9 +7,9 @@
 //! 1. the applied load f_k moves toward the commanded load by one increment ∆f, chosen from the
 //!    load change ([`crate::RuntimeConfig::load_increment`]): one increment for the small changes
 //!    of a sliding or pressing probe, several for a step; the increments share the tick's PCG
-//!    budget, and a tick that runs out of budget or increments ([`crate::RuntimeConfig::
-//!    max_load_increments`]) stops with the load partly applied and says so
-//!    ([`TickReport::load_remaining`]);
+//!    budget, and a tick that runs out of budget or increments
+//!    ([`crate::RuntimeConfig::max_load_increments`]) stops with the load partly applied and says
+//!    so ([`TickReport::load_remaining`]);
 //! 2. R_e is recomputed from the current state x_k (eqs. 3.55–3.58, warm-started iteration);
 //! 3. non-linear materials re-blend (λ_e, α_e) (eqs. 6.2–6.11);
 //! 4. the system K' x_{k+1} = f_{k+1} + K'' x₀ (eq. 3.52) is solved in increment form:
@@ -30,9 +30,9 @@
 //! direction of Π (K' is positive definite). The next residual pass — the next increment's or the
 //! next tick's, which recomputes rotations and f_int at x + δ anyway — gives the slope of Π along δ
 //! at its end, s(1) = −(f − f_int(x + δ))·δ at the load δ was solved for (the load applied since is
-//! taken out: f changed by ∆f adds ∆f·δ). When s(1) > −s(0) the step overshot the minimum along δ
-//! so far that the energy rose ((s(0) + s(1))/2 is the energy change of a quadratic) and is cut to
-//! the root of the slope's secant, t = s(0)/(s(0) − s(1)) < 1/2, and the pass repeated at x + tδ. So the check costs nothing while steps do not overshoot (every haptic steady tick), one
+//! taken out: f changed by ∆f adds ∆f·δ). When s(1) > 0 the step overshot the minimum along δ and
+//! is cut to the root of the slope's secant, t = s(0)/(s(0) − s(1)), and the pass repeated at
+//! x + tδ. So the check costs nothing while steps do not overshoot (every haptic steady tick), one
 //! residual pass when they do. The offline solver does the same (`palpate_fem::forward::solve`).
 //!
 //! Constraints are filters on the CG vectors (modified PCG, Baraff & Witkin 1998): fixed nodes
@@ -206,9 +206,9 @@ impl Runtime<'_> {
     fn check_last_step(&mut self, slope0: f32, along: f32) -> f32 {
         let nodes = &mut self.nodes;
         let slope1 = along - dot(nodes.r_full, nodes.delta_prev);
-        // The energy change along the step is (s(0) + s(1)) / 2 for a quadratic: a step that
-        // overshot but still lowered the energy (s(1) < −s(0), the minimum at t > 1/2) is kept.
-        if !(slope0 < 0.0 && slope1 > -slope0) {
+        // Cutting only the steps that raised the energy (s(1) > −s(0)) was measured slower: at
+        // 0.25 N on the cantilever 46 ticks to settle against 34 with every overshoot cut.
+        if !(slope0 < 0.0 && slope1 > 0.0) {
             return 1.0;
         }
         // Root of the slope's secant, kept away from a zero step.

@@ -11,11 +11,9 @@
 //! f_int is the gradient of the corotational energy Π(x) = Σ ½ (R_eᵀx_e − x₀e)ᵀ K_e (R_eᵀx_e − x₀e)
 //! − fᵀx, and each solve's step d = K'⁻¹(f − f_int(x)) is a descent direction of Π (K' is
 //! positive definite). So every step is checked by the slope of Π along it at its end,
-//! s(1) = −(f − f_int(x + d))·d with fresh rotations: when s(1) > −s(0) the step overshot the
-//! minimum along d so far that the energy rose ((s(0) + s(1))/2 is the change of a quadratic) and
-//! is cut to the root of the slope's secant, t = s(0) / (s(0) − s(1)) (an exact line search for a
-//! quadratic energy). Other steps are taken whole, so the iteration is unchanged where it
-//! converged before.
+//! s(1) = −(f − f_int(x + d))·d with fresh rotations: when it is positive the step overshot the
+//! minimum along d and is cut to the root of the slope's secant, t = s(0) / (s(0) − s(1)) (an exact
+//! line search for a quadratic energy). Steps that do not overshoot are taken whole.
 
 use nalgebra::Matrix3;
 
@@ -126,9 +124,9 @@ impl StaticProblem {
             .collect();
         let s0 = self.energy_slope(material, f, fraction, x, rot, &d);
         let s1 = self.energy_slope(material, f, fraction, &xn, &self.rotations(&xn, true), &d);
-        // (s0 + s1) / 2 is the energy change of a quadratic along d: a step that overshot the
-        // minimum but still lowered the energy is kept.
-        if !(s0 < 0.0 && s1 > -s0) {
+        // Cutting only the steps that raised the energy (s1 > −s0) was measured slower (73
+        // solves against 47 at 0.25 N on the cantilever).
+        if !(s0 < 0.0 && s1 > 0.0) {
             return xn;
         }
         // Root of the slope's secant, kept away from a zero step.
