@@ -276,8 +276,14 @@ fn runtime_agrees_with_the_f64_solve_at_large_loads() {
             source: "cantilever".into(),
             notes: String::new(),
         };
-        let buf =
-            ModelBuffers::new(&p, &m.node_tags, &[mat.clone()], &BlendData::None, &prov).unwrap();
+        let buf = ModelBuffers::new(
+            &p,
+            &m.node_tags,
+            std::slice::from_ref(&mat),
+            &BlendData::None,
+            &prov,
+        )
+        .unwrap();
         // (line search, load increment): the defaults, one step without the line search.
         let mut results = Vec::new();
         for (line_search, load_increment) in

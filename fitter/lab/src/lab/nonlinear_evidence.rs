@@ -101,7 +101,7 @@ fn incremental(args: &Args, command: &str) -> anyhow::Result<()> {
     let buf = ModelBuffers::new(
         &p,
         &m.node_tags,
-        &[mat.clone()],
+        std::slice::from_ref(&mat),
         &BlendData::None,
         &prov("cantilever"),
     )?;
