@@ -42,7 +42,7 @@ pub struct RuntimeConfig {
     /// a tick stops incrementing when either runs out and reports how far the applied load got
     /// ([`crate::TickReport::load_remaining`]); the next tick goes on from there.
     pub max_load_increments: u32,
-    /// The energy line search of the warped solve (see [`crate::tick`]): a step whose end shows
+    /// The energy line search of the warped solve (`runtime/src/tick.rs`): a step whose end shows
     /// the corotational energy rising along it is cut back to the slope's root. Without it the
     /// lagged-rotation iteration cycles at large rotations instead of converging.
     pub line_search: bool,
