@@ -86,6 +86,9 @@ pub struct Args {
     /// blocks every tick. The direct baseline is skipped (it solves the linear block).
     #[arg(long, value_enum, default_value_t = BlendKind::None)]
     pub blend: BlendKind,
+    /// Turn the energy line search of the warped solve off (`RuntimeConfig::line_search`).
+    #[arg(long)]
+    pub no_line_search: bool,
 }
 
 /// Which model the bench plays.
@@ -574,6 +577,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         rotation_iterations: args.rotation_iterations,
         precond_refresh_angle: args.precond_refresh_angle,
         contact_rule: args.rule.runtime(),
+        line_search: !args.no_line_search,
         ..Default::default()
     };
     let mut variants = vec![Variant {
