@@ -25,9 +25,27 @@ pub struct RuntimeConfig {
     pub tolerance: f32,
     /// PCG iterations allowed per tick (the tick's budget).
     pub max_iterations: u32,
-    /// Incremental loading: the applied load moves toward the commanded load by at most this
-    /// many newtons per tick (∆f of seed 000 §6.1). `f32::INFINITY` applies it at once.
+    /// A cap on how far the applied load moves toward the commanded load in one tick (N), for
+    /// callers that want a commanded change spread over many ticks (`palpate simulate`'s load
+    /// ramp). `f32::INFINITY` (the default): each tick goes as far as its increments reach.
     pub load_step: f32,
+    /// Incremental loading (seed 000 §6.1), the runtime's way to reach a commanded load: within a
+    /// tick the applied load moves toward the commanded one in n equal increments, with
+    /// n = ⌈‖f_cmd − f_app‖ / (load_increment · max(‖f_cmd‖, ‖f_app‖))⌉, each one a rotation
+    /// update and a PCG solve. The increment is thus chosen from the load change: a probe that
+    /// slides or presses a little harder changes the load by a small fraction and takes one
+    /// increment (the haptic steady state costs nothing more), a step from rest to a load takes
+    /// 1 / load_increment increments (0.25: four, as the fitter's default solve). The linear
+    /// model (`warp` off) takes one increment (its answer does not depend on the path).
+    pub load_increment: f32,
+    /// Increments one tick may take (≥ 1). They share the tick's PCG budget (`max_iterations`):
+    /// a tick stops incrementing when either runs out and reports how far the applied load got
+    /// ([`crate::TickReport::load_remaining`]); the next tick goes on from there.
+    pub max_load_increments: u32,
+    /// The energy line search of the warped solve (`runtime/src/tick.rs`): a step whose end shows
+    /// the corotational energy rising along it is cut back to the slope's root. Without it the
+    /// lagged-rotation iteration cycles at large rotations instead of converging.
+    pub line_search: bool,
     /// Position-driven probe: the probe moves toward its commanded position by at most this many
     /// metres per tick.
     pub probe_step: f32,
@@ -67,6 +85,9 @@ impl Default for RuntimeConfig {
             tolerance: 1e-4,
             max_iterations: 200,
             load_step: f32::INFINITY,
+            load_increment: 0.25,
+            max_load_increments: 8,
+            line_search: true,
             probe_step: f32::INFINITY,
             warp: true,
             rotation_iterations: 2,

@@ -30,6 +30,8 @@ pub(crate) struct NodeState<'a> {
     pub delta: &'a mut [f32],
     /// The previous tick's increment δ, the predictor's direction (see [`crate::pcg::predict`]).
     pub delta_prev: &'a mut [f32],
+    /// r_full at the start of the last solve (the line search's slope at the step's start).
+    pub r_start: &'a mut [f32],
     /// Lumped surface area A_i of the contact rule (1 per node; zero for interior nodes).
     pub area: &'a mut [f32],
     /// ‖f_cmd‖.
@@ -38,22 +40,22 @@ pub(crate) struct NodeState<'a> {
 
 impl<'a> NodeState<'a> {
     /// The room's arrays, in carving order (see [`crate::storage::Layout`]).
-    pub(crate) const fn layout(d: &Dims) -> RoomLayout<9, 0> {
+    pub(crate) const fn layout(d: &Dims) -> RoomLayout<10, 0> {
         let v = 3 * d.nodes;
         RoomLayout {
-            f32s: [v, v, v, v, v, v, v, v, d.nodes],
+            f32s: [v, v, v, v, v, v, v, v, v, d.nodes],
             u32s: [],
         }
     }
 
     /// Cuts the room from the pools (zeroed).
     pub(crate) fn carve(
-        layout: RoomLayout<9, 0>,
+        layout: RoomLayout<10, 0>,
         n: usize,
         f: &mut Carver<'a, f32>,
         u32s: &mut Carver<'a, u32>,
     ) -> Result<Self, RuntimeError> {
-        let ([x0, u, u_good, f_cmd, f_app, r_full, delta, delta_prev, area], []) =
+        let ([x0, u, u_good, f_cmd, f_app, r_full, delta, delta_prev, r_start, area], []) =
             layout.carve(f, u32s)?;
         Ok(Self {
             n,
@@ -65,6 +67,7 @@ impl<'a> NodeState<'a> {
             r_full,
             delta,
             delta_prev,
+            r_start,
             area,
             f_cmd_norm: 0.0,
         })
@@ -125,6 +128,7 @@ impl<'a> NodeState<'a> {
             &mut *self.f_app,
             &mut *self.delta,
             &mut *self.delta_prev,
+            &mut *self.r_start,
         ] {
             v.iter_mut().for_each(|x| *x = 0.0);
         }
@@ -137,23 +141,42 @@ impl<'a> NodeState<'a> {
         self.f_cmd_norm = 0.0;
     }
 
-    /// Incremental loading (seed 000 §6.1, ∆f): moves the applied load toward the commanded one
-    /// by at most `step` newtons (in ‖·‖₂ over all nodes). Returns ‖f_app‖ / ‖f_cmd‖ (1 when
-    /// nothing is commanded).
-    pub(crate) fn advance_load(&mut self, step: f32) -> f32 {
+    /// ‖f_cmd − f_app‖: how much of the commanded load is not applied yet (N).
+    pub(crate) fn load_gap(&self) -> f32 {
         let mut diff2 = 0.0f64;
         for (a, c) in self.f_app.iter().zip(self.f_cmd.iter()) {
             diff2 += ((c - a) as f64) * ((c - a) as f64);
         }
-        let diff = libm::sqrt(diff2) as f32;
-        if diff <= step || !step.is_finite() {
-            self.f_app.copy_from_slice(self.f_cmd);
+        libm::sqrt(diff2) as f32
+    }
+
+    /// One load increment (seed 000 §6.1, ∆f): moves the applied load toward the commanded one
+    /// by `step` newtons (in ‖·‖₂ over all nodes; all of it when the gap is smaller, or `step` is
+    /// not finite). Returns the change's product with `delta_prev`, the last step (the line
+    /// search needs the energy slope along that step at the load it was taken under).
+    pub(crate) fn advance_load(&mut self, step: f32) -> f32 {
+        let diff = self.load_gap();
+        let s = if diff <= step || !step.is_finite() || diff <= 0.0 {
+            1.0
         } else {
-            let s = step / diff;
-            for (a, c) in self.f_app.iter_mut().zip(self.f_cmd.iter()) {
-                *a += s * (c - *a);
-            }
+            step / diff
+        };
+        let mut along = 0.0f32;
+        for ((a, c), d) in self
+            .f_app
+            .iter_mut()
+            .zip(self.f_cmd.iter())
+            .zip(self.delta_prev.iter())
+        {
+            let df = if s == 1.0 { c - *a } else { s * (c - *a) };
+            *a = if s == 1.0 { *c } else { *a + df };
+            along += df * d;
         }
+        along
+    }
+
+    /// ‖f_app‖ / ‖f_cmd‖ (1 when nothing is commanded).
+    pub(crate) fn load_fraction(&self) -> f32 {
         if self.f_cmd_norm > 0.0 {
             norm(self.f_app) / self.f_cmd_norm
         } else {

@@ -31,6 +31,9 @@ pub struct Runtime<'a> {
     pub(crate) forces: ElementForces<'a>,
     pub(crate) precond: TwoLevel<'a>,
     pub(crate) tick_count: u64,
+    /// The energy slope s(0) at the start of the last step, while the line search has yet to
+    /// check that step (see [`crate::tick`]).
+    pub(crate) pending_slope: Option<f32>,
 }
 
 fn shape(what: &'static str, expected: usize, found: usize) -> Result<(), RuntimeError> {
@@ -109,6 +112,7 @@ impl<'a> Runtime<'a> {
             elements: ElementState::carve(elements, &dims, &mut fc, &mut uc)?,
             forces: ElementForces::carve(forces, &mut fc, &mut uc)?,
             tick_count: 0,
+            pending_slope: None,
         };
         rt.load(&dims)?;
         rt.reset();
@@ -159,6 +163,7 @@ impl<'a> Runtime<'a> {
         self.elements.reset_rotations();
         self.contact.reset();
         self.tick_count = 0;
+        self.pending_slope = None;
         self.precond.valid = false;
     }
 
@@ -294,6 +299,7 @@ impl<'a> Runtime<'a> {
         self.contact.copy_state_from(&other.contact);
         self.elements.copy_state_from(&other.elements);
         self.tick_count = other.tick_count;
+        self.pending_slope = other.pending_slope;
         self.precond.valid = false;
         Ok(())
     }
@@ -328,6 +334,7 @@ impl<'a> Runtime<'a> {
     /// Recomputes rotations, strains and blended parameters for the current displacements.
     pub(crate) fn refresh_state(&mut self) {
         self.precond.valid = false;
+        self.pending_slope = None;
         // After a jump the last increment predicts nothing.
         self.nodes.delta_prev.iter_mut().for_each(|v| *v = 0.0);
         // A jump to an arbitrary state needs more than the per-tick warm-started iterations.
@@ -412,7 +419,8 @@ impl<'a> Runtime<'a> {
         self.config.max_iterations = max_iterations;
         self.config.tolerance = tolerance;
     }
-    /// Changes the incremental-loading steps.
+    /// Changes the per-tick caps of the load ramp (N) and the probe's travel (m) (see
+    /// [`RuntimeConfig::load_step`]).
     pub fn set_load_steps(&mut self, load_step: f32, probe_step: f32) {
         self.config.load_step = load_step;
         self.config.probe_step = probe_step;

@@ -14,8 +14,8 @@ use crate::config::{Kernel, RuntimeConfig};
 use crate::error::RuntimeError;
 use palpate_protocol::model::{Blend, ModelRecord};
 
-/// `f32` values per node: x₀, u, u_good, f_cmd, f_app, r_full, δ, previous δ (the node state,
-/// 3 each), lumped area (1); normal (3) and prescribed normal position (1) (the contact set);
+/// `f32` values per node: x₀, u, u_good, f_cmd, f_app, r_full, δ, previous δ, r_start (the node
+/// state, 3 each), lumped area (1); normal (3) and prescribed normal position (1) (the contact set);
 /// r, z, p, q (the PCG work, 3 each); preconditioner block (6). Derived from `Layout`.
 pub const F32_PER_NODE: usize = Layout::per_node().0;
 /// Element arrays are padded to a whole number of [`crate::kernel::LANES`]-element blocks so
@@ -148,7 +148,7 @@ const fn sum<const K: usize>(lens: &[usize; K]) -> usize {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Layout {
     /// [`crate::nodes::NodeState`].
-    pub nodes: RoomLayout<9, 0>,
+    pub nodes: RoomLayout<10, 0>,
     /// [`crate::contact::ContactSet`].
     pub contact: RoomLayout<3, 1>,
     /// [`crate::pcg::PcgWork`].
@@ -310,12 +310,14 @@ mod tests {
     use super::*;
 
     /// The layout sums to what the constants written by hand before the rooms redesign said
-    /// (47 f32 and 3 u32 per node — 48 f32 since the contact weights are cached —, 46 f32 and 8 u32 per padded element, 6 / 156 f32 per element
+    /// (47 f32 and 3 u32 per node — 48 f32 since the contact weights are cached, 51 since the line
+    /// search keeps the residual at a step's start —, 46 f32 and 8 u32 per padded element, 6 / 156 f32 per element
     /// for strain blending / the packed kernel, the coarse space, one more u32).
     #[test]
     fn layout_matches_the_former_formula() {
-        // + 1: the contact weights cached per contact point (issue 12).
-        assert_eq!(F32_PER_NODE, 13 * 3 + 6 + 2 + 1);
+        // + 1: the contact weights cached per contact point (issue 12); + 3: r_start, the line
+        // search's residual at the start of a step (issue 16).
+        assert_eq!(F32_PER_NODE, 13 * 3 + 6 + 2 + 1 + 3);
         assert_eq!(F32_PER_ELEMENT, 9 + 3 + 9 + 4 + 9 + 12);
         assert_eq!(F32_PER_ELEMENT_STRAIN, 6);
         assert_eq!(F32_PER_ELEMENT_PACKED, 2 * 78);
@@ -340,7 +342,7 @@ mod tests {
             let per_element = if s { 6 } else { 0 } + if p { 156 } else { 0 };
             assert_eq!(
                 l.f32s(),
-                n * 48 + tp * 46 + t * per_element + crate::coarse::coarse_f32s(m)
+                n * 51 + tp * 46 + t * per_element + crate::coarse::coarse_f32s(m)
             );
             assert_eq!(l.u32s(), n * 3 + 1 + tp * 8);
         }

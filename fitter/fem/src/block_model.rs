@@ -42,6 +42,16 @@ impl BlockModel {
         })
     }
 
+    /// A block of `mesh` with `fixed` nodes whose model was built elsewhere (a blended model of
+    /// the runtime bench, whose blend the static fitter makes).
+    pub fn from_parts(mesh: Mesh, fixed: Vec<usize>, buffers: ModelBuffers) -> Self {
+        Self {
+            mesh,
+            fixed,
+            buffers,
+        }
+    }
+
     /// The model record borrowing the buffers.
     pub fn record(&self) -> ModelRecord<'_> {
         self.buffers.record()

@@ -202,7 +202,9 @@ pub fn clamp_to_fitted(sets: &[Material], e: usize, lambda: f64, alpha: f64) -> 
         lo = (lo.0.min(l), lo.1.min(a));
         hi = (hi.0.max(l), hi.1.max(a));
     }
-    (lambda.clamp(lo.0, hi.0), alpha.clamp(lo.1, hi.1))
+    let l = lambda.clamp(lo.0, hi.0);
+    // The physical band the runtime keeps too (runtime/src/blend.rs).
+    (l, alpha.clamp(lo.1, hi.1).clamp(-0.999 * l, 0.499 * l))
 }
 
 /// Evaluates the homogeneous blend at deformation `x` (eqs. 6.2–6.3), clamped to the fitted range.
@@ -276,4 +278,109 @@ pub fn eval_strain(blend: &BlendData, sets: &[Material], strains: &[[f64; 6]]) -
         out.alpha[e] = a;
     }
     Some(out)
+}
+
+/// Neighbours per element of the strain-space blend (eqs. 6.9–6.11) that `palpate fit` exports.
+pub const STRAIN_NEIGHBOURS: usize = 8;
+
+/// The blend a fit is exported with: none for one set, the deformation-space RBF for
+/// per-measurement homogeneous sets (eqs. 6.2–6.5), the strain-space RBF with
+/// [`STRAIN_NEIGHBOURS`] for per-measurement inhomogeneous sets (eqs. 6.7–6.11). Centres are the
+/// fit's simulated deformations.
+pub fn for_fit(
+    problem: &StaticProblem,
+    layout: crate::Layout,
+    sets: &[Material],
+    deformed: &[Vec<[f64; 3]>],
+) -> Result<BlendData, FitError> {
+    if sets.len() <= 1 {
+        return Ok(BlendData::None);
+    }
+    match layout {
+        crate::Layout::Homogeneous => deformation_blend(sets, deformed),
+        crate::Layout::Inhomogeneous => strain_blend(problem, sets, deformed, STRAIN_NEIGHBOURS),
+    }
+}
+
+/// The blended material at the deformed state `x` (clamped to the fitted range as the runtime
+/// does); the single set for [`BlendData::None`].
+pub fn blended_material(
+    problem: &StaticProblem,
+    blend: &BlendData,
+    sets: &[Material],
+    x: &[[f64; 3]],
+) -> Material {
+    match blend {
+        BlendData::None => sets[0].clone(),
+        BlendData::Deformation { .. } => {
+            let (l, a) = eval_deformation(blend, sets, x).unwrap_or(sets[0].at(0));
+            Material {
+                lambda: vec![l],
+                alpha: vec![a],
+            }
+        }
+        BlendData::Strain { .. } => {
+            let strains = problem.strains(x, &problem.rotations(x, true));
+            eval_strain(blend, sets, &strains).unwrap_or_else(|| sets[0].clone())
+        }
+    }
+}
+
+/// A blended solve: what the runtime plays, in f64. Incremental loading (`options.increments`
+/// equal increments) with the material re-blended at the state each increment starts from (the
+/// runtime re-blends every tick), then, at full load, re-blend and solve until the blended
+/// parameters change by less than 1e-6 relative (at most `max_blend` rounds; each solve is the
+/// warped fixed point of [`StaticProblem::solve_forces`]). The re-blend is relaxed by half: a
+/// stiffer blend deforms less, which moves the state toward softer centres, and the undamped
+/// iteration can cycle between two states (the runtime's one solve per tick damps it the same
+/// way). Returns the state and whether the blend settled.
+pub fn solve_blended(
+    problem: &StaticProblem,
+    sets: &[Material],
+    blend: &BlendData,
+    f_ext: &[f64],
+    options: &palpate_fem::forward::SolveOptions,
+    max_blend: usize,
+) -> Result<(Vec<[f64; 3]>, bool), FitError> {
+    if matches!(blend, BlendData::None) {
+        let s = problem
+            .solve_forces(&sets[0], f_ext, None, options)?
+            .solution;
+        return Ok((s.x, s.converged));
+    }
+    let n = options.increments.max(1);
+    let mut x = problem.x0.clone();
+    for k in 1..=n {
+        let m = blended_material(problem, blend, sets, &x);
+        let fk: Vec<f64> = f_ext.iter().map(|v| v * k as f64 / n as f64).collect();
+        x = problem.solve_forces(&m, &fk, Some(&x), options)?.solution.x;
+    }
+    let mut m = blended_material(problem, blend, sets, &x);
+    for _ in 0..max_blend {
+        x = problem
+            .solve_forces(&m, f_ext, Some(&x), options)?
+            .solution
+            .x;
+        let mut next = blended_material(problem, blend, sets, &x);
+        for (a, b) in next
+            .lambda
+            .iter_mut()
+            .zip(&m.lambda)
+            .chain(next.alpha.iter_mut().zip(&m.alpha))
+        {
+            *a = 0.5 * (*a + b);
+        }
+        let change = next
+            .lambda
+            .iter()
+            .zip(&m.lambda)
+            .chain(next.alpha.iter().zip(&m.alpha))
+            .map(|(a, b)| (a - b).abs() / a.abs().max(1e-300))
+            .fold(0.0, f64::max);
+        m = next;
+        if change < 1e-7 {
+            return Ok((x, true));
+        }
+    }
+    Ok((x, false))
 }

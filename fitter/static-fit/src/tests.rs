@@ -353,3 +353,129 @@ fn force_inhomogeneous_with_l_curve_fits_markers() {
     eprintln!("force inhomogeneous: rms {} m, γ {:?}", r.rms(), r.gammas);
     assert!(r.rms() < 1e-6, "rms {}", r.rms());
 }
+
+/// Three contacts at one point, 1, 2 and 3 N, on a material that stiffens with the load (each
+/// made with its own Young's modulus, 20, 30 and 40 kPa: what per-measurement sets model), with
+/// 0.02 mm marker noise.
+fn stiffening_by_load() -> FitInput {
+    let mut inputs = Vec::new();
+    for (k, young) in [20_000.0, 30_000.0, 40_000.0].into_iter().enumerate() {
+        let mut spec = SyntheticSpec::block([4, 4, 2]);
+        spec.markers = 40;
+        spec.noise = 2e-5;
+        spec.young = young;
+        spec.contacts.truncate(1);
+        spec.contacts[0].force = [0.0, 0.0, -1.0 - k as f64];
+        let mut syn = synthesise(&spec).unwrap();
+        syn.input.measurements[0].id = format!("f{}", k + 1);
+        inputs.push(syn.input);
+    }
+    let mut input = inputs[0].clone();
+    for other in &inputs[1..] {
+        assert_eq!(other.markers.len(), input.markers.len());
+        input.measurements.push(other.measurements[0].clone());
+    }
+    input
+}
+
+/// Leave-one-out of a non-linear class goes through the blend of the remaining sets: the middle
+/// contact (2 N), held out, is played with the deformation-space blend of the 1 N and 3 N sets and
+/// predicted better than by either of those sets alone (the nearest-contact rule this replaced).
+/// Measured: blend 0.041 mm, 1 N set 0.244 mm, 3 N set 0.125 mm (0.02 mm marker noise).
+#[test]
+fn leave_one_out_plays_the_non_linear_class_through_the_blend() {
+    let input = stiffening_by_load();
+    let mut o = FitOptions::new(
+        Method::Displacement,
+        Layout::Homogeneous,
+        Sets::PerMeasurement,
+    );
+    o.gammas = Some(Gammas::new(0.0, 1e-3));
+    o.initial = LambdaAlpha::from_young_poisson(25_000.0, 0.3);
+    let loo = loo::leave_one_out(&input, &o).unwrap();
+    let held = &loo[1];
+    assert!(held.blended && held.blend_settled, "{held:?}");
+    // The 2 N contact with each remaining set alone.
+    let mut train = input.clone();
+    train.measurements.remove(1);
+    let fit = fit_static(&train, &o, |_, _| {}).unwrap();
+    let solve = SolveOptions {
+        warp: true,
+        ..o.solve
+    };
+    let alone: Vec<f64> = fit
+        .params
+        .iter()
+        .map(|m| {
+            let x = input
+                .problem
+                .solve_forces(m, &input.measurements[1].force, None, &solve)
+                .unwrap()
+                .solution
+                .x;
+            MeasurementResidual::new(String::new(), 0, input.marker_errors(1, &x), None).rms
+        })
+        .collect();
+    let young: Vec<f64> = fit
+        .params
+        .iter()
+        .map(|m| {
+            LambdaAlpha {
+                lambda: m.lambda[0],
+                alpha: m.alpha[0],
+            }
+            .young()
+        })
+        .collect();
+    eprintln!(
+        "held-out 2 N: blend {:.3e} m, sets alone {alone:?} m (E {young:?})",
+        held.residual.rms
+    );
+    assert!(
+        alone.iter().all(|&a| held.residual.rms < 0.5 * a),
+        "blend {} vs sets alone {alone:?}",
+        held.residual.rms
+    );
+}
+
+/// The force-based inverse on sparse noisy markers (40 markers on the free surface of a 4 × 4 × 2
+/// block, σ = 0.1 mm on ~1–3 mm displacements, four contacts) is refused with a message that names
+/// the measurement, the counts and the way out (without the refusal its completion/rescale
+/// alternation diverged here to λ = 100 Pa, α = −134 Pa); the displacement-based inverse it points to
+/// recovers the material from the same data (measured E within 0.16 %; bound 3 %).
+#[test]
+fn force_inverse_refuses_sparse_noisy_markers() {
+    let mut spec = SyntheticSpec::block([4, 4, 2]);
+    spec.markers = 40;
+    spec.noise = 1e-4;
+    spec.seed = 3;
+    let syn = synthesise(&spec).unwrap();
+    let truth = LambdaAlpha {
+        lambda: syn.truth.lambda[0],
+        alpha: syn.truth.alpha[0],
+    };
+    let mut o = FitOptions::new(Method::Force, Layout::Homogeneous, Sets::Single);
+    o.initial = LambdaAlpha::from_young_poisson(10_000.0, 0.2);
+    let err = fit_static(&syn.input, &o, |_, _| {}).unwrap_err();
+    let msg = err.to_string();
+    assert!(matches!(err, FitError::Refused(_)), "{msg}");
+    assert!(
+        msg.contains("\"c0\"")
+            && msg.contains("observes 40 markers")
+            && msg.contains("--method displacement"),
+        "{msg}"
+    );
+    o.method = Method::Displacement;
+    let r = fit_static(&syn.input, &o, |_, _| {}).unwrap();
+    let p = LambdaAlpha {
+        lambda: r.params[0].lambda[0],
+        alpha: r.params[0].alpha[0],
+    };
+    let e = rel(p.young(), truth.young());
+    eprintln!(
+        "displacement on the same data: E {:.1} Pa (truth {:.1}), rel {e:.4}",
+        p.young(),
+        truth.young()
+    );
+    assert!(e < 0.03, "E rel {e}");
+}

@@ -116,3 +116,184 @@ mod exported_model_decodes {
         assert!(rec.provenance.created.ends_with('Z') && rec.provenance.created.len() == 20);
     }
 }
+
+/// Across the crate boundary, the non-linear homogeneous class on non-linear data: palpate's
+/// specimen with isochoric stiffening (magnitude 60, six contacts 0.75–3 N), one set per contact
+/// fitted by the displacement-based inverse, exported with the fitter's own deformation-space RBF
+/// weights (`blend::for_fit`, not weights made here) and decoded:
+/// 1. at each fitted deformation the runtime's blend gives that contact's set (1e-3: f32 centres);
+/// 2. played from rest with each fitted contact, the runtime settles on the fitted deformation
+///    (the blend's fixed point), to 1e-3 of the largest marker displacement;
+/// 3. a contact at three times the largest fitted force lies outside the fitted range: the RBF
+///    evaluated with the exported weights at the runtime's state leaves the fitted [min, max] of λ,
+///    and the runtime's λ is that value clamped to the range (`runtime/src/blend.rs`).
+#[test]
+fn exported_blend_weights_reproduce_fitted_deformations_and_clamp_outside() {
+    use palpate_specimen::{generate, Effect, EffectSpec, SpecimenOptions};
+    use palpate_static_fit::blend::for_fit;
+    use palpate_static_fit::FitInput;
+    use palpate_static_fit::Gammas;
+
+    let mut so = SpecimenOptions::with_effect(None, 5);
+    so.measurements = 6;
+    so.max_force = 3.0;
+    so.effects = vec![EffectSpec {
+        effect: Effect::Stiffening,
+        magnitude: 60.0,
+    }];
+    let spec = generate(&so).unwrap();
+    let input = FitInput::from_dataset(&spec.dataset).unwrap();
+    let mut o = FitOptions::new(
+        Method::Displacement,
+        Layout::Homogeneous,
+        Sets::PerMeasurement,
+    );
+    o.gammas = Some(Gammas::new(0.0, 0.01));
+    let fit = fit_static(&input, &o, |_, _| {}).unwrap();
+    let blend = for_fit(
+        &input.problem,
+        Layout::Homogeneous,
+        &fit.params,
+        &fit.deformed,
+    )
+    .unwrap();
+    let BlendData::Deformation {
+        centres,
+        weights_lambda,
+        ..
+    } = &blend
+    else {
+        panic!("a homogeneous per-measurement fit exports a deformation blend")
+    };
+    let buffers = ModelBuffers::new(
+        &input.problem,
+        &spec.dataset.mesh.node_tags,
+        &fit.params,
+        &blend,
+        &ProvenanceInfo {
+            tool: "test".into(),
+            source: "specimen".into(),
+            notes: String::new(),
+        },
+    )
+    .unwrap();
+    let bytes = buffers.encode().unwrap();
+    let record = palpate_protocol::model::decode(&bytes).unwrap();
+    let cfg = tight_config();
+    let mut storage = Storage::for_model(&record, &cfg);
+    let mut rt = storage.runtime(record, cfg).unwrap();
+    let x0 = &input.problem.x0;
+    let lambdas: Vec<f64> = fit.params.iter().map(|m| m.lambda[0]).collect();
+    let (lo, hi) = lambdas
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |a, &v| {
+            (a.0.min(v), a.1.max(v))
+        });
+    eprintln!("fitted λ per contact {lambdas:?}");
+    assert!(
+        hi > 1.2 * lo,
+        "the stiffening should show in the sets: {lambdas:?}"
+    );
+    // 1. The blend at each fitted deformation.
+    for (i, x) in fit.deformed.iter().enumerate() {
+        let u: Vec<f32> = x
+            .iter()
+            .zip(x0)
+            .flat_map(|(p, q)| [0, 1, 2].map(|d| (p[d] - q[d]) as f32))
+            .collect();
+        rt.set_displacements(&u).unwrap();
+        let (l, _) = rt.element_parameters(0).unwrap();
+        assert!(
+            (l as f64 - lambdas[i]).abs() < 1e-3 * lambdas[i],
+            "contact {i}: blended λ {l} vs set {}",
+            lambdas[i]
+        );
+    }
+    // 2. Each fitted contact played from rest.
+    let mut worst = 0.0f64;
+    let mut largest = 0.0f64;
+    for (i, m) in input.measurements.iter().enumerate() {
+        rt.reset();
+        let c = m.contact;
+        rt.set_contact_force(
+            c.point.map(|v| v as f32),
+            c.force.map(|v| v as f32),
+            c.radius as f32,
+        )
+        .unwrap();
+        assert!(
+            palpate_tests::settle::settle(&mut rt, 400, 1e-6),
+            "contact {i} did not settle"
+        );
+        let u = rt.displacements();
+        for &(k, _) in &m.observed {
+            let mk = &input.markers[k];
+            let rt_pos = mk.interpolate(|n| [0, 1, 2].map(|d| x0[n][d] + u[3 * n + d] as f64));
+            let fitted = mk.interpolate(|n| fit.deformed[i][n]);
+            largest = largest.max(
+                (0..3)
+                    .map(|d| (fitted[d] - mk.rest[d]).powi(2))
+                    .sum::<f64>()
+                    .sqrt(),
+            );
+            worst = worst.max(
+                (0..3)
+                    .map(|d| (rt_pos[d] - fitted[d]).powi(2))
+                    .sum::<f64>()
+                    .sqrt(),
+            );
+        }
+    }
+    eprintln!("blended replay: worst marker difference {worst:e} m, largest marker displacement {largest:e} m");
+    assert!(
+        worst < 1e-3 * largest,
+        "worst {worst:e} vs largest {largest:e}"
+    );
+    // 3. Beyond the fitted range.
+    let strongest = input
+        .measurements
+        .iter()
+        .max_by(|a, b| {
+            a.contact.force[2]
+                .abs()
+                .total_cmp(&b.contact.force[2].abs())
+        })
+        .unwrap();
+    let c = strongest.contact;
+    rt.reset();
+    rt.set_contact_force(
+        c.point.map(|v| v as f32),
+        c.force.map(|v| 3.0 * v as f32),
+        c.radius as f32,
+    )
+    .unwrap();
+    assert!(
+        palpate_tests::settle::settle(&mut rt, 600, 1e-6),
+        "3x contact did not settle"
+    );
+    let u = rt.displacements();
+    let n3 = 3 * x0.len();
+    let raw: f64 = weights_lambda
+        .iter()
+        .enumerate()
+        .map(|(s, w)| {
+            let r = (0..n3)
+                .map(|k| (x0[k / 3][k % 3] + u[k] as f64 - centres[s * n3 + k]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            w * r
+        })
+        .sum();
+    let (l, a) = rt.element_parameters(0).unwrap();
+    eprintln!("3x contact: RBF λ {raw:.1} with the exported weights, fitted range [{lo:.1}, {hi:.1}], runtime λ {l}, α {a}");
+    assert!(
+        raw < lo || raw > hi,
+        "the 3x contact should leave the fitted range: {raw}"
+    );
+    let clamped = raw.clamp(lo, hi);
+    assert!(
+        (l as f64 - clamped).abs() < 1e-4 * clamped,
+        "runtime λ {l} vs clamped {clamped}"
+    );
+    assert!(rt.displacements().iter().all(|v| v.is_finite()));
+}

@@ -3,6 +3,17 @@
 //! assembled and factorised and K' x = f_k + K'' x₀ solved. At full load, fixed-point iterations
 //! (rotations from the current state, solve) continue until the update moves no node by more than
 //! the tolerance. A fixed point satisfies f_int(x) = Σ R_e K_e (R_eᵀx_e − x₀e) = f exactly.
+//!
+//! **Large loads.** The lagged-rotation iteration x ← K'(R(x))⁻¹ (f + K''(R(x)) x₀) has no
+//! geometric stiffness: past a load where the rotations change a lot per solve it cycles instead
+//! of converging (a 10 cm cantilever at twice the load that bends it by a third of its length
+//! cycles with a 18 cm amplitude, at any number of increments). With R(x) the polar rotation,
+//! f_int is the gradient of the corotational energy Π(x) = Σ ½ (R_eᵀx_e − x₀e)ᵀ K_e (R_eᵀx_e − x₀e)
+//! − fᵀx, and each solve's step d = K'⁻¹(f − f_int(x)) is a descent direction of Π (K' is
+//! positive definite). So every step is checked by the slope of Π along it at its end,
+//! s(1) = −(f − f_int(x + d))·d with fresh rotations: when it is positive the step overshot the
+//! minimum along d and is cut to the root of the slope's secant, t = s(0) / (s(0) − s(1)) (an exact
+//! line search for a quadratic energy). Steps that do not overshoot are taken whole.
 
 use std::sync::Arc;
 
@@ -76,6 +87,21 @@ fn max_move(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
 }
 
 impl StaticProblem {
+    /// Slope −(f − f_int)·d of the corotational energy along `d`, over the free dofs, from the
+    /// load `fk` and the internal forces `fint` at the point where it is taken.
+    fn energy_slope(&self, fk: &[f64], fint: &[f64], d: &[[f64; 3]]) -> f64 {
+        let mut s = 0.0;
+        for (n, &free) in self.free_index.iter().enumerate() {
+            if free == usize::MAX {
+                continue;
+            }
+            for k in 0..3 {
+                s -= (fk[3 * n + k] - fint[3 * n + k]) * d[n][k];
+            }
+        }
+        s
+    }
+
     /// Solves the static problem for `load` with incremental loading and warping (§6.1).
     pub fn solve(
         &self,
@@ -151,15 +177,22 @@ impl StaticProblem {
             _ => None,
         };
         let mut iterations = 0;
+        // Rotations and internal forces at the current x when already known: the line search
+        // takes them at the end of each step, where the next step starts.
+        let mut at_x: Option<(Vec<Matrix3<f64>>, Vec<f64>)> = None;
         // One iteration at load `fraction`: returns the new state, the rotations used and the
         // largest node move. `fresh` forces a new factorisation.
         let step = |x: &[[f64; 3]],
                     fraction: f64,
                     fresh: bool,
                     kept: &mut Option<(Arc<Factorised>, Option<Vec<Matrix3<f64>>>)>,
+                    at_x: &mut Option<(Vec<Matrix3<f64>>, Vec<f64>)>,
                     iterations: usize|
          -> Result<(Vec<[f64; 3]>, Vec<Matrix3<f64>>, f64), ForwardError> {
-            let rot = self.rotations(x, options.warp);
+            let (rot, fint_x) = match at_x.take() {
+                Some((r, f)) => (r, Some(f)),
+                None => (self.rotations(x, options.warp), None),
+            };
             let fk: Vec<f64> = f_ext.iter().map(|v| v * fraction).collect();
             let usable = reuse
                 && !fresh
@@ -168,11 +201,11 @@ impl StaticProblem {
                     Some((_, None)) => true,
                     None => false,
                 };
-            let (b, xn) = if usable {
+            let (b, xn, fint_x) = if usable {
                 // b(R) − K'(R) x = f − f_int(x) over the free dofs (eqs. 3.50, 3.53): the
                 // residual without assembling K'.
                 let (factor, _) = kept.as_ref().expect("usable implies kept");
-                let fint = self.internal_forces(material, &rot, x);
+                let fint = fint_x.unwrap_or_else(|| self.internal_forces(material, &rot, x));
                 let r: Vec<f64> = fk.iter().zip(&fint).map(|(a, b)| a - b).collect();
                 let mut d = self.gather_free(&r);
                 factor.solve_in_place(&mut d);
@@ -187,20 +220,48 @@ impl StaticProblem {
                         }
                     })
                     .collect();
-                (d, xn)
+                (d, xn, Some(fint))
             } else {
                 let mut b = self.rhs(material, &rot, &fk);
                 let factor = self.factorise(material, &rot)?;
                 factor.solve_in_place(&mut b);
                 *kept = Some((Arc::new(factor), Some(rot.clone())));
                 let xn = self.positions_from_free(&b);
-                (b, xn)
+                (b, xn, fint_x)
             };
             if !b.iter().all(|v| v.is_finite()) {
                 return Err(ForwardError::NonFinite {
                     increment: iterations,
                 });
             }
+            // The energy line search of the module docs (warped only: a linear solve is exact).
+            let xn = if options.warp {
+                let d: Vec<[f64; 3]> = xn
+                    .iter()
+                    .zip(x)
+                    .map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]])
+                    .collect();
+                let fint_x = fint_x.unwrap_or_else(|| self.internal_forces(material, &rot, x));
+                let s0 = self.energy_slope(&fk, &fint_x, &d);
+                let rot_n = self.rotations(&xn, true);
+                let fint_n = self.internal_forces(material, &rot_n, &xn);
+                let s1 = self.energy_slope(&fk, &fint_n, &d);
+                // Cutting only the steps that raised the energy (s1 > −s0) was measured slower
+                // (73 solves against 47 at 0.25 N on the cantilever).
+                if s0 < 0.0 && s1 > 0.0 {
+                    // Root of the slope's secant, kept away from a zero step.
+                    let t = (s0 / (s0 - s1)).clamp(0.05, 1.0);
+                    x.iter()
+                        .zip(&d)
+                        .map(|(p, q)| [p[0] + t * q[0], p[1] + t * q[1], p[2] + t * q[2]])
+                        .collect()
+                } else {
+                    *at_x = Some((rot_n, fint_n));
+                    xn
+                }
+            } else {
+                xn
+            };
             let change = max_move(&xn, x);
             Ok((xn, rot, change))
         };
@@ -212,6 +273,7 @@ impl StaticProblem {
                 k as f64 / increments as f64,
                 false,
                 &mut kept,
+                &mut at_x,
                 iterations,
             )?;
             x = xn;
@@ -231,7 +293,7 @@ impl StaticProblem {
             while fixed < options.max_fixed_point {
                 iterations += 1;
                 let made_before = kept.as_ref().map(|(f, _)| Arc::as_ptr(f));
-                let (xn, r, c) = step(&x, 1.0, fresh, &mut kept, iterations)?;
+                let (xn, r, c) = step(&x, 1.0, fresh, &mut kept, &mut at_x, iterations)?;
                 let refactored = kept.as_ref().map(|(f, _)| Arc::as_ptr(f)) != made_before;
                 if refactored {
                     fixed += 1;

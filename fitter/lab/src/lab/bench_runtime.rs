@@ -79,6 +79,71 @@ pub struct Args {
     /// Per-tick iteration budgets compared by `--compare`.
     #[arg(long, value_delimiter = ',', default_values_t = vec![6u32, 8, 10])]
     pub budgets: Vec<u32>,
+    /// A non-linear (blended) model instead of the linear block: three sets (E = 10, 12, 15 kPa)
+    /// with their centres the f64 deformations under 0.25, 0.5 and 1 N at the top face's centre,
+    /// blended by the fitter's deformation-space RBF or its strain-space RBF (per-element sets, 8
+    /// neighbours). Blended models re-blend every tick and so rebuild the preconditioner's node
+    /// blocks every tick. The direct baseline is skipped (it solves the linear block).
+    #[arg(long, value_enum, default_value_t = BlendKind::None)]
+    pub blend: BlendKind,
+    /// Turn the energy line search of the warped solve off (`RuntimeConfig::line_search`).
+    #[arg(long)]
+    pub no_line_search: bool,
+}
+
+/// Which model the bench plays.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum BlendKind {
+    /// The linear block (one set).
+    None,
+    /// Three homogeneous sets, deformation-space RBF (eqs. 6.2–6.5).
+    Deformation,
+    /// Three per-element sets, strain-space RBF (eqs. 6.7–6.11).
+    Strain,
+}
+
+/// The blended block of `--blend` (see [`Args::blend`]).
+fn blended_block(tets: usize, p: LambdaAlpha, kind: BlendKind) -> anyhow::Result<BlockModel> {
+    use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
+    use palpate_fem::forward::{Load, Material, SolveOptions, StaticProblem};
+    use palpate_static_fit::blend::for_fit;
+    use palpate_static_fit::Layout;
+    let base = BlockModel::block(tets, p)?;
+    let (mesh, fixed) = (base.mesh.clone(), base.fixed.clone());
+    let problem = StaticProblem::new(&mesh, &fixed, &mesh.boundary_triangles())?;
+    let t = mesh.tets.len();
+    let layout = match kind {
+        BlendKind::Strain => Layout::Inhomogeneous,
+        _ => Layout::Homogeneous,
+    };
+    let mut sets = Vec::new();
+    let mut deformed = Vec::new();
+    for (force, young) in [(0.25, 10e3), (0.5, 12e3), (1.0, 15e3)] {
+        let q = LambdaAlpha::from_young_poisson(young, p.poisson());
+        let set = match layout {
+            Layout::Homogeneous => Material::homogeneous(q),
+            Layout::Inhomogeneous => Material::per_element(&vec![q; t]),
+        };
+        let f = problem.force_vector(&Load::contact(
+            [0.05, 0.05, 0.05],
+            [0.0, 0.0, -force],
+            RADIUS as f64,
+        ))?;
+        let x = problem
+            .solve_forces(&set, &f, None, &SolveOptions::default())?
+            .solution
+            .x;
+        sets.push(set);
+        deformed.push(x);
+    }
+    let blend = for_fit(&problem, layout, &sets, &deformed)?;
+    let prov = ProvenanceInfo {
+        tool: "palpate-lab bench runtime".into(),
+        source: format!("generated block, {t} tets, {kind:?} blend of 3 sets"),
+        notes: String::new(),
+    };
+    let buffers = ModelBuffers::new(&problem, &mesh.node_tags, &sets, &blend, &prov)?;
+    Ok(BlockModel::from_parts(mesh, fixed, buffers))
 }
 
 /// Contact rule of the scripted probe.
@@ -493,12 +558,15 @@ fn run_direct(model: &BlockModel, args: &Args, p: LambdaAlpha) -> anyhow::Result
 /// Runs the benchmark.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let p = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
-    let model = BlockModel::block(args.tets, p)?;
+    let model = match args.blend {
+        BlendKind::None => BlockModel::block(args.tets, p)?,
+        kind => blended_block(args.tets, p, kind)?,
+    };
     let tets = model.mesh.tets.len();
     let dofs = 3 * (model.mesh.nodes.len() - model.fixed.len());
     println!(
-        "palpate-lab bench runtime: {tets} tets, {dofs} free dofs, {} ticks, tolerance {:e}, {:?} contact rule",
-        args.ticks, args.tolerance, args.rule
+        "palpate-lab bench runtime: {tets} tets, {dofs} free dofs, {} ticks, tolerance {:e}, {:?} contact rule, {:?} blend",
+        args.ticks, args.tolerance, args.rule, args.blend
     );
     let base = RuntimeConfig {
         tolerance: args.tolerance,
@@ -509,6 +577,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         rotation_iterations: args.rotation_iterations,
         precond_refresh_angle: args.precond_refresh_angle,
         contact_rule: args.rule.runtime(),
+        line_search: !args.no_line_search,
         ..Default::default()
     };
     let mut variants = vec![Variant {
@@ -574,7 +643,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     // The direct baseline solves the force-driven tick (the sphere's contact constraints are not
     // in it): skipped for the sphere.
-    let mut direct = if args.touch == Touch::Force {
+    let mut direct = if args.touch == Touch::Force && args.blend == BlendKind::None {
         run_direct(&model, &args, p)?
     } else {
         Vec::new()
@@ -671,6 +740,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "{}",
         json!({
             "bench": "runtime",
+            "blend": format!("{:?}", args.blend).to_lowercase(),
             "rule": format!("{:?}", args.rule).to_lowercase(),
             "touch": format!("{:?}", args.touch).to_lowercase(),
             "tets": tets,

@@ -10,6 +10,7 @@ pub mod bench_runtime;
 pub mod diagnose_evidence;
 pub mod motion_evidence;
 pub mod motion_evidence_spline;
+pub mod nonlinear_evidence;
 
 /// palpate-lab: benchmarks and evidence runs of the palpate project.
 #[derive(Debug, Parser)]
@@ -30,6 +31,9 @@ pub enum Command {
     MotionEvidence(motion_evidence::Args),
     /// Every specimen effect × seeds through diagnose: the confusion table (docs/results/diagnose).
     DiagnoseEvidence(diagnose_evidence::Args),
+    /// The non-linear chain end to end (incremental loading, blends on non-linear data, the γ_m
+    /// sweep) into docs/results/nonlinear.
+    NonlinearEvidence(nonlinear_evidence::Args),
 }
 
 /// Runs a parsed command line.
@@ -38,5 +42,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(b) => bench::run(b),
         Command::MotionEvidence(a) => motion_evidence::run(a),
         Command::DiagnoseEvidence(a) => diagnose_evidence::run(a),
+        Command::NonlinearEvidence(a) => nonlinear_evidence::run(a),
     }
 }

@@ -9,7 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use palpate_fem::dataset::StaticDataset;
 use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
-use palpate_static_fit::blend::{deformation_blend, strain_blend, BlendData};
+
 use palpate_static_fit::loo::leave_one_out;
 use palpate_static_fit::{fit_static, FitInput, FitOptions, Gammas, Layout, Method, Sets};
 
@@ -130,15 +130,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .join("\n")
         );
     }
-    let blend = match (layout, sets) {
-        (_, Sets::Single) => BlendData::None,
-        (Layout::Homogeneous, Sets::PerMeasurement) => {
-            deformation_blend(&fit.params, &fit.deformed)?
-        }
-        (Layout::Inhomogeneous, Sets::PerMeasurement) => {
-            strain_blend(&input.problem, &fit.params, &fit.deformed, 8)?
-        }
-    };
+    let blend =
+        palpate_static_fit::blend::for_fit(&input.problem, layout, &fit.params, &fit.deformed)?;
     let prov = ProvenanceInfo {
         tool: format!("palpate {} {}", env!("CARGO_PKG_VERSION"), command),
         source: format!("{} ({})", ds.name, args.dataset.display()),

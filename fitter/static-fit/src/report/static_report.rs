@@ -151,14 +151,18 @@ pub fn markdown(name: &str, command: &str, fit: &FitResult, loo: Option<&[HeldOu
         );
     }
     if let Some(loo) = loo {
-        let _ = writeln!(s, "\n## Leave-one-out\n\nEach measurement held out in turn, the model fitted on the rest, the held-out contact synthesised with the forward model.\n");
+        let _ = writeln!(s, "\n## Leave-one-out\n\nEach measurement held out in turn, the model fitted on the rest, the held-out contact synthesised with the forward model (the non-linear classes through the blend of the remaining sets).\n");
         let _ = writeln!(s, "| held out | set used | rms (mm) | max (mm) | training rms (mm) |\n|---|---|---|---|---|");
         for h in loo {
             let _ = writeln!(
                 s,
                 "| {} | {} | {:.4} | {:.4} | {:.4} |",
                 h.residual.id,
-                h.residual.set,
+                if h.blended {
+                    "blend".to_string()
+                } else {
+                    h.residual.set.to_string()
+                },
                 h.residual.rms * 1e3,
                 h.residual.max * 1e3,
                 h.training_rms * 1e3
