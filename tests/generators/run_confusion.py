@@ -195,7 +195,7 @@ def summarise(rows, args):
 
 def write_reports(rows, args, outdir):
     s = summarise(rows, args)
-    meta = {"command": args.command_line, "palpate": args.palpate, "palpate_version": args.palpate_version,
+    meta = {"command": args.command_line, "palpate": args.palpate, "palpate_version": args.palpate_version, "palpate_sha256": args.palpate_sha256,
             "seed": args.seed, "draws": args.draws, "quick": args.quick, "timeout_s": args.timeout,
             "snr_threshold": args.snr_threshold,
             "env": {k: os.environ.get(k) for k in ("RAYON_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}, "shapes": args.shapes, "effects": args.effects,
@@ -208,7 +208,7 @@ def write_reports(rows, args, outdir):
     L.append("# palpate diagnose on the independent generator\n")
     L.append(f"Command: `{args.command_line}`  ")
     L.append("Environment: " + ", ".join(f"{k}={os.environ.get(k)}" for k in ("RAYON_NUM_THREADS", "OMP_NUM_THREADS") if os.environ.get(k)) + "  ")
-    L.append(f"palpate: `{args.palpate}` ({args.palpate_version}); per-run timeout {args.timeout} s; generator `tests/generators/independent_static.py`{' (quick mode)' if args.quick else ''}.\n")
+    L.append(f"palpate: `{args.palpate}` ({args.palpate_version}, sha256 {args.palpate_sha256[:12]}); per-run timeout {args.timeout} s; generator `tests/generators/independent_static.py`{' (quick mode)' if args.quick else ''}.\n")
     L.append(f"Draws done: {s['draws_done']} of {args.draws}. With an effect: {s['with_effect']}; named exactly: {s['named_exact']}. "
              f"**False clean** (verdict clean while the truth has an effect with SNR > {args.snr_threshold:g}): **{s['false_clean_above_threshold']}** "
              f"(at any SNR: {s['false_clean_any_snr']}). 'none' draws judged clean: {s['none_draws']['clean']} of {s['none_draws']['total']}. "
@@ -287,6 +287,9 @@ def main():
     if not os.path.exists(args.palpate):
         ap.error(f"palpate binary not found: {args.palpate} (build it: cargo build --release -p palpate)")
     args.palpate = os.path.abspath(args.palpate)
+    import hashlib
+    with open(args.palpate, "rb") as fh:
+        args.palpate_sha256 = hashlib.sha256(fh.read()).hexdigest()
     try:
         args.palpate_version = subprocess.run([args.palpate, "--version"], capture_output=True, text=True, timeout=30).stdout.strip()
     except Exception:
