@@ -70,7 +70,29 @@ def verdict_of(d):
         if not rc["judged"]:
             return "no-effect (unjudged)"
         return "clean" if rc["explained"] else "NOT clean"
-    return "adopted" if rc["explained"] or not rc["judged"] else "adopted, still above floor"
+    if not rc["judged"]:
+        return "adopted (not judged)"
+    return "adopted" if rc["explained"] else "adopted, still above floor"
+
+
+def fill_from_diagnosis(row, d):
+    """The row's palpate fields from a diagnosis.json."""
+    rc = d["residual_check"]
+    row.update(
+        adopted=[a for a in d["adopted"]], verdict=verdict_of(d), ratio=rc["ratio"], z=rc["z"], judged=rc["judged"],
+        floor_m=d["noise_floor"],
+        before_fitted_rms_m=d["before"]["fitted_rms"], after_fitted_rms_m=d["after"]["fitted_rms"],
+        before_heldout_rms_m=d["before"]["heldout_rms"], after_heldout_rms_m=d["after"]["heldout_rms"],
+        ambiguous_with=sorted({a for st in d["steps"] for a in st.get("ambiguous_with", [])}),
+        E_fit=d["young_poisson"][0], nu_fit=d["young_poisson"][1], palpate_seconds=d["seconds"],
+        mesh_error_rms_m=(d.get("mesh_error") or {}).get("rms"),
+    )
+    n = d.get("noise") or {}
+    row["sigma_hat_m"] = n.get("estimate")
+    # palpate does not judge the final residual once `noise` is adopted (ResidualCheck judged = false);
+    # the harness states the ratio to palpate's own recomputed floor sigma_hat sqrt(3)
+    row["ratio_vs_recomputed_floor"] = (d["after"]["fitted_rms"] / n["floor"]) if n.get("fired") and n.get("floor") else None
+    return row
 
 
 def score(row):
@@ -132,17 +154,7 @@ def run_one(i, args, work, outdir):
         return row
     for f in ("diagnosis.json", "diagnosis.md"):
         shutil.copy(os.path.join(rep, f), d_out)
-    d = json.load(open(js))
-    rc = d["residual_check"]
-    row.update(
-        adopted=[a for a in d["adopted"]], verdict=verdict_of(d), ratio=rc["ratio"], z=rc["z"],
-        floor_m=d["noise_floor"],
-        before_fitted_rms_m=d["before"]["fitted_rms"], after_fitted_rms_m=d["after"]["fitted_rms"],
-        before_heldout_rms_m=d["before"]["heldout_rms"], after_heldout_rms_m=d["after"]["heldout_rms"],
-        ambiguous_with=sorted({a for st in d["steps"] for a in st.get("ambiguous_with", [])}),
-        E_fit=d["young_poisson"][0], nu_fit=d["young_poisson"][1], palpate_seconds=d["seconds"],
-        mesh_error_rms_m=(d.get("mesh_error") or {}).get("rms"),
-    )
+    fill_from_diagnosis(row, json.load(open(js)))
     return row
 
 
@@ -215,10 +227,11 @@ def write_reports(rows, args, outdir):
              f"palpate wall time per diagnosis: median {s['palpate_seconds']['median'] or float('nan'):.0f} s (min {s['palpate_seconds']['min'] or float('nan'):.0f}, max {s['palpate_seconds']['max'] or float('nan'):.0f}).\n")
     L.append("SNR = ‖observed marker displacements with the effect − the same draw without it‖₂ / declared σ over all observed entries "
              "(noise-free truth; displacements against each world's own rest scan; for `noise`, the extra noise itself). "
-             "Ratios are RMS / noise floor σ√3 (fitted data; held-out in brackets).\n")
+             "Ratios are RMS / noise floor σ√3 (fitted data; held-out in brackets); 'mesh error' is palpate's own estimate of its dataset mesh's discretisation error at the markers (u_h − u_h/2, which its approximation-error correction then removes). "
+             "'adopted (not judged)': palpate adopted `noise`, after which it does not test the residual (ResidualCheck judged = false); the harness adds the ratio to palpate's recomputed floor σ̂√3.\n")
     L.append("## Per draw\n")
-    L.append("| draw | shape | effect | magnitude | SNR | palpate adopted | verdict | ambiguous with | RMS before/floor | RMS after/floor | E fit/true | ν fit/true | s |")
-    L.append("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    L.append("| draw | shape | effect | magnitude | SNR | palpate adopted | verdict | ambiguous with | RMS before/floor | RMS after/floor | mesh error/floor | E fit/true | ν fit/true | s |")
+    L.append("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         if "ratio" in r:
             fl = r["floor_m"]
@@ -226,14 +239,17 @@ def write_reports(rows, args, outdir):
             after = f"{r['after_fitted_rms_m'] / fl:.2f} ({r['after_heldout_rms_m'] / fl:.2f})"
             efit = f"{r['E_fit'] / r['E_true']:.2f}"
             nufit = f"{r['nu_fit']:.2f}/{r['nu_true']:.2f}"
+            merr = f"{r['mesh_error_rms_m'] / fl:.2f}" if r.get("mesh_error_rms_m") else "–"
         else:
-            before = after = efit = nufit = "–"
+            before = after = efit = nufit = merr = "–"
         ad = ", ".join(r.get("adopted") or []) or "–"
         mark = " ✔" if r.get("named_exact") else (" ~" if r.get("named_related") else "")
         v = r.get("verdict", "?")
+        if r.get("ratio_vs_recomputed_floor"):
+            v += f"; {r['ratio_vs_recomputed_floor']:.2f}× σ̂√3"
         if v in ("error", "timeout", "generator-error"):
             v = f"**{v}**: {r.get('error', '')}"
-        L.append(f"| {r['id']} | {r['shape']} | {r['effect']} | {r.get('magnitude', float('nan')):.3g} | {r.get('snr', float('nan')):.1f} | {ad}{mark} | {v} | {', '.join(r.get('ambiguous_with') or []) or '–'} | {before} | {after} | {efit} | {nufit} | {r.get('seconds', float('nan')):.0f} |")
+        L.append(f"| {r['id']} | {r['shape']} | {r['effect']} | {r.get('magnitude', float('nan')):.3g} | {r.get('snr', float('nan')):.1f} | {ad}{mark} | {v} | {', '.join(r.get('ambiguous_with') or []) or '–'} | {before} | {after} | {merr} | {efit} | {nufit} | {r.get('seconds', float('nan')):.0f} |")
     L.append("\n✔ = an adopted candidate is palpate's model of the injected effect (EXACT table); ~ = a related, coarser model (RELATED table).\n")
     L.append("## Confusion table (truth effect × what palpate named; a draw with two adopted effects counts in both columns)\n")
     cols = [c for c in s["columns"] if any(s["table"][e][c] for e in s["table"])]
@@ -273,6 +289,7 @@ def main():
     ap.add_argument("-o", "--out", default=None)
     ap.add_argument("--work", default="/tmp/palpate-indep")
     ap.add_argument("--quick", action="store_true", help="coarse truth mesh, <= 4 contacts: a smoke test")
+    ap.add_argument("--rescore", action="store_true", help="only re-read the saved draws/*/diagnosis.json of -o and rewrite the reports")
     ap.add_argument("--resume", action="store_true", help="keep the finished rows of an earlier confusion.json in -o")
     args = ap.parse_args()
     args.command_line = "python tests/generators/run_confusion.py " + " ".join(sys.argv[1:])
@@ -306,6 +323,18 @@ def main():
     if args.resume and os.path.exists(os.path.join(outdir, "confusion.json")):
         old = json.load(open(os.path.join(outdir, "confusion.json")))["rows"]
         rows = [r for r in old if r.get("verdict")]
+    if args.rescore:
+        old = json.load(open(os.path.join(outdir, "confusion.json")))
+        args.command_line = old["meta"]["command"]
+        rows = old["rows"]
+        for r in rows:
+            js = os.path.join(outdir, "draws", r["id"], "diagnosis.json")
+            if os.path.exists(js):
+                fill_from_diagnosis(r, json.load(open(js)))
+            score(r)
+        s = write_reports(rows, args, outdir)
+        print(json.dumps({k: s[k] for k in ("draws_done", "named_exact", "with_effect", "false_clean_above_threshold")}))
+        return
     done_ids = {r["id"] for r in rows}
     for i in range(args.draws):
         did = f"{i:03d}-{args.shape_order[i]}-{args.effect_order[i]}"
