@@ -105,7 +105,7 @@ def check_viscous_tangent(rng):
 class Dynamic:
     def __init__(self, X, T, E, nu, rho, eta, clamp, g):
         self.body = tf.Body(X, T, tf.Material.from_E_nu(E, nu, len(T)))
-        self.eta = np.full(len(self.body.T), eta)
+        self.eta = np.full(len(self.body.T), float(eta))
         n = len(X)
         w = np.zeros(n)
         np.add.at(w, self.body.T.ravel(), np.repeat(self.body.V / 4, 4))
@@ -195,6 +195,7 @@ def main():
     ap.add_argument("--duration", type=float, default=1.2)
     ap.add_argument("--fps", type=float, default=100.0)
     ap.add_argument("--check", action="store_true")
+    ap.add_argument("--damping-ratio", type=float, default=None, help="override the drawn damping ratio (0 = no Kelvin-Voigt damping)")
     a = ap.parse_args()
     t_start = time.time()
     rng = np.random.default_rng([a.seed, 44])
@@ -211,6 +212,8 @@ def main():
     # Kelvin-Voigt viscosity: damping ratio 1-5 % of the first bending mode (beam estimate)
     w1 = 1.875**2 * math.sqrt(E * R**2 / (4 * rho * L_CYL**4))
     zeta = rng.uniform(0.01, 0.05)
+    if a.damping_ratio is not None:
+        zeta = a.damping_ratio
     eta = 2 * zeta * E / w1 / 3  # KV on the axial strain rate: zeta = eta_ax w / (2E), eta_ax ~ 3 eta for nu ~ 0.5
     amp = np.array([0.0, rng.uniform(-0.02, 0.02), rng.uniform(0.01, 0.03)])
     t_ramp = rng.uniform(0.2, 0.4)

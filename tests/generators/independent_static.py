@@ -488,8 +488,8 @@ def generate(out, seed, shape_kind=None, effect=None, quick=False, verbose=True)
         "generator": "tests/generators/independent_static.py",
         "seed": seed, "quick": quick, "shape": shape_kind, "shape_params": shape.params(),
         "effect": effect, "effect_params": ep, "magnitude": ep["magnitude"],
-        "snr": snr, "snr_definition": "||(observed marker displacements with the effect) - (same draw without it)||_2 / declared sigma, over all observed entries; displacements relative to each world's own rest scan",
-        "snr_positions": snr_pos,
+        "snr": snr_pos, "snr_definition": "||(observed marker positions with the effect) - (same draw without it)||_2 / declared sigma, over all observed (measurement, marker) entries, noise-free",
+        "snr_displacement": snr, "snr_displacement_definition": "the same on displacements, each world's measured positions minus its own rest scan (a shift common to the rest scan and the measurements, e.g. a gravity sag, does not count)",
         "E_Pa": E, "nu": nu, "probe_radius_m": a, "marker_noise_declared_m": sigma,
         "marker_noise_actual_m": sigma_actual, "rest_noise_m": sigma * R["rest_noise_factor"],
         "occlusion_prob": p_occ, "observed_entries": n_obs, "markers": n_markers, "measurements": M,
@@ -504,7 +504,7 @@ def generate(out, seed, shape_kind=None, effect=None, quick=False, verbose=True)
     }
     with open(os.path.join(out, "truth.json"), "w") as fh:
         json.dump(truth_json, fh, indent=1)
-    log(f"  SNR {snr:.1f} (positions {snr_pos:.1f}), RMS displacement {rms_disp * 1e3:.2f} mm, {n_obs} observed entries, {time.time() - t_start:.1f} s -> {out}")
+    log(f"  SNR {snr_pos:.1f} (displacements {snr:.1f}), RMS displacement {rms_disp * 1e3:.2f} mm, {n_obs} observed entries, {time.time() - t_start:.1f} s -> {out}")
     return truth_json
 
 

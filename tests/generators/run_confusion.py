@@ -75,6 +75,14 @@ def verdict_of(d):
     return "adopted" if rc["explained"] else "adopted, still above floor"
 
 
+def snr_fields(tr):
+    """SNR on positions (the primary one) and on displacements, from a truth.json (older files had the
+    displacement one under "snr" and the positions one under "snr_positions")."""
+    if "snr_displacement" in tr:
+        return {"snr": tr["snr"], "snr_displacement": tr["snr_displacement"]}
+    return {"snr": tr["snr_positions"], "snr_displacement": tr["snr"]}
+
+
 def fill_from_diagnosis(row, d):
     """The row's palpate fields from a diagnosis.json."""
     rc = d["residual_check"]
@@ -119,7 +127,7 @@ def run_one(i, args, work, outdir):
     except Exception as e:  # a generator failure is the generator's: recorded and shown
         row.update(verdict="generator-error", error=f"{type(e).__name__}: {e}", gen_traceback=traceback.format_exc())
         return row
-    row.update(magnitude=tr["magnitude"], snr=tr["snr"], snr_positions=tr["snr_positions"],
+    row.update(magnitude=tr["magnitude"], **snr_fields(tr),
                E_true=tr["E_Pa"], nu_true=tr["nu"], sigma=tr["marker_noise_declared_m"],
                markers=tr["markers"], measurements=tr["measurements"], observed=tr["observed_entries"],
                rms_disp_m=tr["rms_marker_displacement_m"], max_disp_m=tr["max_marker_displacement_m"],
@@ -225,13 +233,13 @@ def write_reports(rows, args, outdir):
              f"**False clean** (verdict clean while the truth has an effect with SNR > {args.snr_threshold:g}): **{s['false_clean_above_threshold']}** "
              f"(at any SNR: {s['false_clean_any_snr']}). 'none' draws judged clean: {s['none_draws']['clean']} of {s['none_draws']['total']}. "
              f"palpate wall time per diagnosis: median {s['palpate_seconds']['median'] or float('nan'):.0f} s (min {s['palpate_seconds']['min'] or float('nan'):.0f}, max {s['palpate_seconds']['max'] or float('nan'):.0f}).\n")
-    L.append("SNR = ‖observed marker displacements with the effect − the same draw without it‖₂ / declared σ over all observed entries "
-             "(noise-free truth; displacements against each world's own rest scan; for `noise`, the extra noise itself). "
+    L.append("SNR = ‖observed marker positions with the effect − the same draw without it‖₂ / declared σ over all observed entries "
+             "(noise-free truth; for `noise`, the extra noise itself); 'SNR disp' = the same on displacements against each world's own rest scan, which leaves out a shift common to the rest scan and the measurements (the gravity sag, the stand-off posts). "
              "Ratios are RMS / noise floor σ√3 (fitted data; held-out in brackets); 'mesh error' is palpate's own estimate of its dataset mesh's discretisation error at the markers (u_h − u_h/2, which its approximation-error correction then removes). "
              "'adopted (not judged)': palpate adopted `noise`, after which it does not test the residual (ResidualCheck judged = false); the harness adds the ratio to palpate's recomputed floor σ̂√3.\n")
     L.append("## Per draw\n")
-    L.append("| draw | shape | effect | magnitude | SNR | palpate adopted | verdict | ambiguous with | RMS before/floor | RMS after/floor | mesh error/floor | E fit/true | ν fit/true | s |")
-    L.append("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    L.append("| draw | shape | effect | magnitude | SNR | SNR disp | palpate adopted | verdict | ambiguous with | RMS before/floor | RMS after/floor | mesh error/floor | E fit/true | ν fit/true | s |")
+    L.append("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         if "ratio" in r:
             fl = r["floor_m"]
@@ -249,7 +257,7 @@ def write_reports(rows, args, outdir):
             v += f"; {r['ratio_vs_recomputed_floor']:.2f}× σ̂√3"
         if v in ("error", "timeout", "generator-error"):
             v = f"**{v}**: {r.get('error', '')}"
-        L.append(f"| {r['id']} | {r['shape']} | {r['effect']} | {r.get('magnitude', float('nan')):.3g} | {r.get('snr', float('nan')):.1f} | {ad}{mark} | {v} | {', '.join(r.get('ambiguous_with') or []) or '–'} | {before} | {after} | {merr} | {efit} | {nufit} | {r.get('seconds', float('nan')):.0f} |")
+        L.append(f"| {r['id']} | {r['shape']} | {r['effect']} | {r.get('magnitude', float('nan')):.3g} | {r.get('snr', float('nan')):.1f} | {r.get('snr_displacement', float('nan')):.1f} | {ad}{mark} | {v} | {', '.join(r.get('ambiguous_with') or []) or '–'} | {before} | {after} | {merr} | {efit} | {nufit} | {r.get('seconds', float('nan')):.0f} |")
     L.append("\n✔ = an adopted candidate is palpate's model of the injected effect (EXACT table); ~ = a related, coarser model (RELATED table).\n")
     L.append("## Confusion table (truth effect × what palpate named; a draw with two adopted effects counts in both columns)\n")
     cols = [c for c in s["columns"] if any(s["table"][e][c] for e in s["table"])]
@@ -313,11 +321,16 @@ def main():
         args.palpate_version = "?"
     outdir = args.out or ("/tmp/palpate-indep-smoke" if args.quick else "docs/results/diagnose/independent")
     os.makedirs(outdir, exist_ok=True)
+    # blocks of len(effects) draws: a shuffled effect list, then shuffled shape lists covering the block
+    # (prefix-stable: the first draws of a longer run are those of a shorter one with the same seed)
     rng = np.random.default_rng([args.seed, 99])
-    reps = math.ceil(args.draws / len(effects_l))
-    args.effect_order = [e for _ in range(reps) for e in rng.permutation(effects_l)][: args.draws]
-    reps = math.ceil(args.draws / len(shapes_l))
-    args.shape_order = [s_ for _ in range(reps) for s_ in rng.permutation(shapes_l)][: args.draws]
+    args.effect_order, args.shape_order = [], []
+    while len(args.effect_order) < args.draws:
+        args.effect_order += list(rng.permutation(effects_l))
+        block = [s_ for _ in range(math.ceil(len(effects_l) / len(shapes_l))) for s_ in rng.permutation(shapes_l)]
+        args.shape_order += block[: len(effects_l)]
+    args.effect_order = [str(e) for e in args.effect_order[: args.draws]]
+    args.shape_order = [str(s_) for s_ in args.shape_order[: args.draws]]
     args.shapes, args.effects = shapes_l, effects_l
     rows = []
     if args.resume and os.path.exists(os.path.join(outdir, "confusion.json")):
@@ -328,6 +341,10 @@ def main():
         args.command_line = old["meta"]["command"]
         rows = old["rows"]
         for r in rows:
+            tj = os.path.join(outdir, "draws", r["id"], "truth.json")
+            if os.path.exists(tj):
+                r.pop("snr_positions", None)
+                r.update(snr_fields(json.load(open(tj))))
             js = os.path.join(outdir, "draws", r["id"], "diagnosis.json")
             if os.path.exists(js):
                 fill_from_diagnosis(r, json.load(open(js)))
