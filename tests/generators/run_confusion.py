@@ -75,6 +75,57 @@ def verdict_of(d):
     return "adopted" if rc["explained"] else "adopted, still above floor"
 
 
+def point_triangle_distance(P, A, B, C):
+    """Distance from points P (m,3) to triangles (A, B, C each (t,3)): (m,t)."""
+    P = P[:, None, :]
+    AB, AC = B - A, C - A
+    N = np.cross(AB, AC)
+    N = N / np.linalg.norm(N, axis=1)[:, None]
+    AP = P - A
+    dplane = np.einsum("mti,ti->mt", AP, N)
+    Q = P - dplane[..., None] * N  # projection on the plane
+    # barycentric coordinates of Q
+    d00, d01, d11 = (AB * AB).sum(1), (AB * AC).sum(1), (AC * AC).sum(1)
+    AQ = Q - A
+    d20, d21 = np.einsum("mti,ti->mt", AQ, AB), np.einsum("mti,ti->mt", AQ, AC)
+    den = d00 * d11 - d01 * d01
+    v = (d11 * d20 - d01 * d21) / den
+    w = (d00 * d21 - d01 * d20) / den
+    inside = (v >= 0) & (w >= 0) & (v + w <= 1)
+
+    def seg(P, U, V):
+        UV = V - U
+        t = np.clip(np.einsum("mti,ti->mt", P - U, UV) / (UV * UV).sum(1), 0, 1)
+        return np.linalg.norm(P - (U + t[..., None] * UV), axis=2)
+
+    edge = np.minimum(np.minimum(seg(P, A, B), seg(P, B, C)), seg(P, C, A))
+    return np.where(inside, np.abs(dplane), edge)
+
+
+def marker_surface_offsets(ds):
+    """RMS and max distance of the declared rest markers (markers.csv) from the dataset mesh's boundary
+    surface: palpate embeds each marker at the closest surface point and compares that point's
+    simulated position with the measured one, so this offset stays in every measurement's residual."""
+    import gmsh
+    import truthfem as tf
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.open(os.path.join(ds, "mesh.msh"))
+        tags, coords, _ = gmsh.model.mesh.getNodes()
+        X = coords.reshape(-1, 3)
+        index = {int(t): i for i, t in enumerate(tags)}
+        _, en = gmsh.model.mesh.getElementsByType(4)
+        T = np.vectorize(index.__getitem__)(en.reshape(-1, 4).astype(np.int64))
+    finally:
+        gmsh.finalize()
+    F = tf.boundary_faces(T)
+    M = np.loadtxt(os.path.join(ds, "markers.csv"), delimiter=",", skiprows=1, usecols=(1, 2, 3), ndmin=2)
+    d = np.concatenate([point_triangle_distance(M[i:i + 50], X[F[:, 0]], X[F[:, 1]], X[F[:, 2]]).min(axis=1)
+                        for i in range(0, len(M), 50)])
+    return float(np.sqrt(np.mean(d**2))), float(d.max())
+
+
 def snr_fields(tr):
     """SNR on positions (the primary one) and on displacements, from a truth.json (older files had the
     displacement one under "snr" and the positions one under "snr_positions")."""
@@ -133,6 +184,7 @@ def run_one(i, args, work, outdir):
                rms_disp_m=tr["rms_marker_displacement_m"], max_disp_m=tr["max_marker_displacement_m"],
                dataset_tets=tr["dataset_mesh"]["tets"], truth_tets=tr["truth_mesh"]["tets"],
                generate_s=time.time() - t0)
+    row["marker_offset_rms_m"], row["marker_offset_max_m"] = marker_surface_offsets(ds)
     rep = os.path.join(ds, "diagnosis")
     cmd = [args.palpate, "diagnose", ds, "-o", rep]
     row["command"] = " ".join(cmd)
@@ -236,10 +288,11 @@ def write_reports(rows, args, outdir):
     L.append("SNR = ‖observed marker positions with the effect − the same draw without it‖₂ / declared σ over all observed entries "
              "(noise-free truth; for `noise`, the extra noise itself); 'SNR disp' = the same on displacements against each world's own rest scan, which leaves out a shift common to the rest scan and the measurements (the gravity sag, the stand-off posts). "
              "Ratios are RMS / noise floor σ√3 (fitted data; held-out in brackets); 'mesh error' is palpate's own estimate of its dataset mesh's discretisation error at the markers (u_h − u_h/2, which its approximation-error correction then removes). "
+             "'marker offset' = RMS distance of the declared rest markers from the dataset mesh's surface (facets inside a curved surface, stand-off posts, rest-scan noise): palpate compares the simulated position of the closest surface point with the measured marker, so this offset stays in every measurement's residual. "
              "'adopted (not judged)': palpate adopted `noise`, after which it does not test the residual (ResidualCheck judged = false); the harness adds the ratio to palpate's recomputed floor σ̂√3.\n")
     L.append("## Per draw\n")
-    L.append("| draw | shape | effect | magnitude | SNR | SNR disp | palpate adopted | verdict | ambiguous with | RMS before/floor | RMS after/floor | mesh error/floor | E fit/true | ν fit/true | s |")
-    L.append("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    L.append("| draw | shape | effect | magnitude | SNR | SNR disp | palpate adopted | verdict | ambiguous with | RMS before/floor | RMS after/floor | mesh error/floor | marker offset/floor | E fit/true | ν fit/true | s |")
+    L.append("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         if "ratio" in r:
             fl = r["floor_m"]
@@ -248,8 +301,9 @@ def write_reports(rows, args, outdir):
             efit = f"{r['E_fit'] / r['E_true']:.2f}"
             nufit = f"{r['nu_fit']:.2f}/{r['nu_true']:.2f}"
             merr = f"{r['mesh_error_rms_m'] / fl:.2f}" if r.get("mesh_error_rms_m") else "–"
+            moff = f"{r['marker_offset_rms_m'] / fl:.2f}" if r.get("marker_offset_rms_m") is not None else "–"
         else:
-            before = after = efit = nufit = merr = "–"
+            before = after = efit = nufit = merr = moff = "–"
         ad = ", ".join(r.get("adopted") or []) or "–"
         mark = " ✔" if r.get("named_exact") else (" ~" if r.get("named_related") else "")
         v = r.get("verdict", "?")
@@ -257,7 +311,7 @@ def write_reports(rows, args, outdir):
             v += f"; {r['ratio_vs_recomputed_floor']:.2f}× σ̂√3"
         if v in ("error", "timeout", "generator-error"):
             v = f"**{v}**: {r.get('error', '')}"
-        L.append(f"| {r['id']} | {r['shape']} | {r['effect']} | {r.get('magnitude', float('nan')):.3g} | {r.get('snr', float('nan')):.1f} | {r.get('snr_displacement', float('nan')):.1f} | {ad}{mark} | {v} | {', '.join(r.get('ambiguous_with') or []) or '–'} | {before} | {after} | {merr} | {efit} | {nufit} | {r.get('seconds', float('nan')):.0f} |")
+        L.append(f"| {r['id']} | {r['shape']} | {r['effect']} | {r.get('magnitude', float('nan')):.3g} | {r.get('snr', float('nan')):.1f} | {r.get('snr_displacement', float('nan')):.1f} | {ad}{mark} | {v} | {', '.join(r.get('ambiguous_with') or []) or '–'} | {before} | {after} | {merr} | {moff} | {efit} | {nufit} | {r.get('seconds', float('nan')):.0f} |")
     L.append("\n✔ = an adopted candidate is palpate's model of the injected effect (EXACT table); ~ = a related, coarser model (RELATED table).\n")
     L.append("## Confusion table (truth effect × what palpate named; a draw with two adopted effects counts in both columns)\n")
     cols = [c for c in s["columns"] if any(s["table"][e][c] for e in s["table"])]
@@ -345,6 +399,9 @@ def main():
             if os.path.exists(tj):
                 r.pop("snr_positions", None)
                 r.update(snr_fields(json.load(open(tj))))
+            ds = os.path.join(args.work, r["id"])
+            if "marker_offset_rms_m" not in r and os.path.exists(os.path.join(ds, "mesh.msh")):
+                r["marker_offset_rms_m"], r["marker_offset_max_m"] = marker_surface_offsets(ds)
             js = os.path.join(outdir, "draws", r["id"], "diagnosis.json")
             if os.path.exists(js):
                 fill_from_diagnosis(r, json.load(open(js)))
