@@ -209,7 +209,7 @@ def run_one(i, args, work, outdir):
     js = os.path.join(rep, "diagnosis.json")
     if row["exit_code"] != 0 or not os.path.exists(js):
         row["verdict"] = "error"
-        tail = [ln for ln in log.strip().splitlines() if ln.strip()]
+        tail = [ln for ln in log.strip().splitlines() if ln.strip() and ln.strip() != "--- stderr ---"]
         row["error"] = " | ".join(tail[-3:])[-600:]
         return row
     for f in ("diagnosis.json", "diagnosis.md"):
@@ -310,7 +310,7 @@ def write_reports(rows, args, outdir):
         if r.get("ratio_vs_recomputed_floor"):
             v += f"; {r['ratio_vs_recomputed_floor']:.2f}× σ̂√3"
         if v in ("error", "timeout", "generator-error"):
-            v = f"**{v}**: {r.get('error', '')}"
+            v = f"**{v}**: " + r.get("error", "").replace("--- stderr --- | ", "").replace("|", "\\|")
         L.append(f"| {r['id']} | {r['shape']} | {r['effect']} | {r.get('magnitude', float('nan')):.3g} | {r.get('snr', float('nan')):.1f} | {r.get('snr_displacement', float('nan')):.1f} | {ad}{mark} | {v} | {', '.join(r.get('ambiguous_with') or []) or '–'} | {before} | {after} | {merr} | {moff} | {efit} | {nufit} | {r.get('seconds', float('nan')):.0f} |")
     L.append("\n✔ = an adopted candidate is palpate's model of the injected effect (EXACT table); ~ = a related, coarser model (RELATED table).\n")
     L.append("## Confusion table (truth effect × what palpate named; a draw with two adopted effects counts in both columns)\n")
@@ -327,7 +327,7 @@ def write_reports(rows, args, outdir):
     if s["errors"]:
         L.append("\n## Failures\n")
         for e in s["errors"]:
-            L.append(f"- {e['id']}: {e['verdict']}: `{e['error']}`")
+            L.append(f"- {e['id']}: {e['verdict']}: `{(e['error'] or '').replace('--- stderr --- | ', '')}`")
     L.append("\n## Name mapping (palpate candidate → generator effect)\n")
     L.append("| palpate candidate | exact | related |")
     L.append("|---|---|---|")
