@@ -237,6 +237,11 @@ pub struct ResidualCheck {
     pub judged: bool,
     /// Consistent with the noise floor (always true when not judged).
     pub explained: bool,
+    /// RMS of what the mesh may still get wrong after the approximation-error correction (m),
+    /// added to the floor in quadrature ([`ResidualCheck::with_discretisation`]); 0 without one.
+    pub discretisation_m: f64,
+    /// Final fitted RMS over the noise floor alone (= `ratio` when `discretisation_m` is 0).
+    pub ratio_noise: f64,
 }
 
 impl ResidualCheck {
@@ -254,25 +259,66 @@ impl ResidualCheck {
             n,
             judged,
             explained: !judged || z <= Self::Z_LIMIT,
+            discretisation_m: 0.0,
+            ratio_noise: ratio,
+        }
+    }
+
+    /// The check of `rms` against the noise floor widened by the mesh's remaining discretisation
+    /// error: the approximation-error correction δ = x_{h/2} − x_h removes the part of the
+    /// dataset mesh's error that one refinement sees; for linear tetrahedra converging as h² the
+    /// error left, x_0 − x_{h/2}, is about δ/3 (Richardson), an error of the model the data
+    /// cannot be asked to explain. Its RMS `remaining` joins the floor in quadrature, so a residual
+    /// the mesh alone could leave is not called an unexplained effect — while the verdict still
+    /// reports the ratio to the noise floor alone.
+    pub fn with_discretisation(
+        rms: f64,
+        floor: f64,
+        remaining: f64,
+        n: usize,
+        k: usize,
+        judged: bool,
+    ) -> Self {
+        let widened = (floor * floor + remaining * remaining).sqrt();
+        ResidualCheck {
+            discretisation_m: remaining,
+            ratio_noise: rms / floor,
+            ..Self::new(rms, widened, n, k, judged)
         }
     }
 
     /// The verdict's words for a diagnosis that adopted `adopted`.
     pub fn verdict(&self, adopted: &str) -> String {
+        // With `noise` adopted the floor is σ̂√3, the one the nugget estimate re-measured; with
+        // an approximation-error correction it is widened by the mesh's remaining error.
+        let noise_name = if adopted.split(", ").any(|a| a == "noise") {
+            "the re-estimated noise floor"
+        } else {
+            "the noise floor"
+        };
+        let floor = if self.discretisation_m > 0.0 {
+            format!(
+                "{noise_name} widened by the mesh's remaining discretisation error ({:.1} µm RMS: the residual is {:.2}× the noise floor alone, and effects smaller than that error cannot be told from the mesh's)",
+                1e6 * self.discretisation_m,
+                self.ratio_noise
+            )
+        } else {
+            noise_name.to_string()
+        };
         match (adopted.is_empty(), self.explained) {
             (true, true) if self.judged => format!(
-                "clean: no effect adopted, and the residual is the noise floor's ({:.2}×, {:+.1}σ)",
+                "clean: no effect adopted, and the residual is {:.2}× {floor} ({:+.1}σ)",
                 self.ratio, self.z
             ),
             (true, true) => "no effect adopted (no declared marker noise: whether the residual is noise cannot be judged)".into(),
             (true, false) => format!(
-                "NOT clean: no candidate effect earns its place, but the residual is {:.2}× the noise floor ({:.1}σ above it) — an effect the candidate library does not hold, or a mesh too coarse for the data",
+                "NOT clean: no candidate effect earns its place, but the residual is {:.2}× {floor} ({:.1}σ above it) — an effect the candidate library does not hold, or a mesh too coarse for the data",
                 self.ratio, self.z
             ),
-            (false, true) if self.judged => format!("adopted {adopted}; the residual is then the noise floor's ({:.2}×, {:+.1}σ)", self.ratio, self.z),
+            (false, true) if self.judged => format!("adopted {adopted}; the residual is then {:.2}× {floor} ({:+.1}σ)", self.ratio, self.z),
             (false, true) => format!("adopted {adopted} (no declared marker noise: whether the rest of the residual is noise cannot be judged)"),
             (false, false) => format!(
-                "adopted {adopted}, but the residual is still {:.2}× the noise floor ({:.1}σ above it): more is missing than the library explains",
+                "adopted {adopted}, but the residual is still {:.2}× {floor} ({:.1}σ above it): more is missing than the library explains",
                 self.ratio, self.z
             ),
         }
@@ -784,18 +830,31 @@ impl select::CandidateModel for StaticModel<'_> {
             "{}: ΔBIC = {:.1}; held-out RMS {:.1} µm → {:.1} µm ({:+.1}%), implied force {:.4} N → {:.4} N, held-out ΔBIC {:.1} (< 0 required; paired t of the per-measurement held-out χ² reductions {:.2})",
             cand.candidate.name(), cand.delta_bic, 1e6 * before.heldout_rms, 1e6 * h, -100.0 * gain, before.heldout_force_rms, force, cv_bic, t
         );
+        // The floor the excess is measured over: the noise, widened by what the mesh may still
+        // get wrong after the approximation-error correction (δ/3, see
+        // ResidualCheck::with_discretisation) — error no effect should be adopted to explain.
+        let remaining = ctx
+            .correction
+            .as_deref()
+            .map_or(0.0, approx_error::delta_rms)
+            / 3.0;
+        let floor2 = 3.0 * ctx.sigma * ctx.sigma + remaining * remaining;
         let excess = |r: f64| {
             if ctx.sigma_declared {
-                (r * r - 3.0 * ctx.sigma * ctx.sigma).max(0.0).sqrt()
+                (r * r - floor2).max(0.0).sqrt()
             } else {
                 r
             }
         };
-        let excess_gain = 1.0 - excess(h) / excess(before.heldout_rms).max(1e-300);
+        // Nothing above the floor before: there is nothing for a candidate to explain.
+        let excess_gain = match excess(before.heldout_rms) {
+            e if e > 0.0 => 1.0 - excess(h) / e,
+            _ => 0.0,
+        };
         let words = format!(
             "{words}; {} {:.0}% lower (≥ {:.0}% required)",
             if ctx.sigma_declared {
-                "held-out error in excess of the noise floor"
+                "held-out error in excess of the noise floor (widened by the mesh's remaining discretisation error)"
             } else {
                 "held-out RMS"
             },
@@ -1142,12 +1201,22 @@ pub fn run_diagnosis_with(
     if noise.as_ref().is_some_and(|n| n.fired) {
         adopted.push(Candidate::Noise);
     }
-    let residual_check = ResidualCheck::new(
+    // With `noise` adopted the floor is the re-estimated σ̂√3: the final residual is judged
+    // against it — a residual whose smooth part the nugget estimate leaves out stays visible.
+    let (check_sigma, judged) = match noise.as_ref().filter(|n| n.fired) {
+        Some(n) => (n.estimate, true),
+        None => (ctx.sigma, ctx.sigma_declared),
+    };
+    let residual_check = ResidualCheck::with_discretisation(
         after.fitted_rms,
-        ctx.sigma * 3f64.sqrt(),
+        check_sigma * 3f64.sqrt(),
+        ctx.correction
+            .as_deref()
+            .map_or(0.0, approx_error::delta_rms)
+            / 3.0,
         ctx.residual_len(&current.subset),
         current.theta.len(),
-        ctx.sigma_declared && !adopted.contains(&Candidate::Noise),
+        judged,
     );
     let mut final_params = base_params(&current);
     for &c in &current.model.effects {

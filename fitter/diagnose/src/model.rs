@@ -45,6 +45,14 @@ pub enum Candidate {
     /// markers the load barely moves: w = 1/(1 + (|u|/3σ)²) with u the simulated displacement).
     /// Profiled, not in θ: 6 parameters per measurement, counted by BIC and the held-out gate.
     RegistrationEach,
+    /// A force sensor whose gain differs from measurement to measurement (a drifting amplifier,
+    /// a probe re-seated on its load cell): measurement i's force is s_i times the reported one.
+    /// Profiled, not in θ: in the warped linear model the displacement scales with the force, so
+    /// s_i is the least-squares scale of the simulated marker displacements onto the measured
+    /// ones, and the s_i of the fitted measurements are divided by their geometric mean (a common
+    /// gain is Young's modulus's to fit). 1 parameter per measurement (one fewer when fitted
+    /// together), counted by BIC and the held-out gate.
+    ForceScaleEach,
     /// Gravity preload: body force ρ g (ρ in 1000 kg/m³, g = the declared gravity or 9.81 m/s²
     /// along −z) acting in every measurement. 1 param.
     Gravity,
@@ -70,13 +78,14 @@ pub enum Candidate {
 }
 
 /// Every candidate, in the order they are tried.
-pub const ALL_CANDIDATES: [Candidate; 11] = [
+pub const ALL_CANDIDATES: [Candidate; 12] = [
     Candidate::Calibration,
     Candidate::Tilt,
     Candidate::TiltEach,
     Candidate::Boundary,
     Candidate::Registration,
     Candidate::RegistrationEach,
+    Candidate::ForceScaleEach,
     Candidate::Gravity,
     Candidate::Inhomogeneity,
     Candidate::Layer,
@@ -106,6 +115,7 @@ impl Candidate {
             Candidate::Boundary => "boundary",
             Candidate::Registration => "registration",
             Candidate::RegistrationEach => "registration-each",
+            Candidate::ForceScaleEach => "force-scale-each",
             Candidate::Gravity => "gravity",
             Candidate::Inhomogeneity => "inhomogeneity",
             Candidate::Layer => "layer",
@@ -124,7 +134,10 @@ impl Candidate {
             Candidate::Inhomogeneity => grid[0] * grid[1] * grid[2] - 1,
             Candidate::Layer => LAYER_NODES - 1,
             Candidate::Inclusion => 5,
-            Candidate::Noise | Candidate::RegistrationEach | Candidate::TiltEach => 0,
+            Candidate::Noise
+            | Candidate::RegistrationEach
+            | Candidate::TiltEach
+            | Candidate::ForceScaleEach => 0,
         }
     }
 
@@ -134,6 +147,7 @@ impl Candidate {
         match self {
             Candidate::RegistrationEach => 6 * measurements,
             Candidate::TiltEach => 2 * measurements,
+            Candidate::ForceScaleEach => measurements,
             _ => 0,
         }
     }
@@ -158,7 +172,10 @@ impl Candidate {
     fn affects_solve(self) -> bool {
         !matches!(
             self,
-            Candidate::Boundary | Candidate::Registration | Candidate::RegistrationEach
+            Candidate::Boundary
+                | Candidate::Registration
+                | Candidate::RegistrationEach
+                | Candidate::ForceScaleEach
         )
     }
 
@@ -195,7 +212,10 @@ impl Candidate {
                 v("centre offset z / h", "", 1.0),
                 v("log radius θ_r (r = h/2 e^θ_r)", "", 1.0),
             ],
-            Candidate::Noise | Candidate::RegistrationEach | Candidate::TiltEach => Vec::new(),
+            Candidate::Noise
+            | Candidate::RegistrationEach
+            | Candidate::TiltEach
+            | Candidate::ForceScaleEach => Vec::new(),
         }
     }
 }
@@ -540,6 +560,47 @@ fn tilt_each(
         .enumerate()
         .map(|(j, p)| [0, 1, 2].map(|d| p[d] + a * cols[0][j][d] + b * cols[1][j][d]))
         .collect()
+}
+
+/// [`Candidate::ForceScaleEach`] on the measurements `subset` (their simulated markers `sims`):
+/// each measurement's simulated displacements (from the markers' rest places) scaled by the s_i
+/// that fits its measured ones best, the s_i of several measurements divided by their geometric
+/// mean. A measurement whose markers do not move, or whose best scale is not positive, keeps
+/// s_i = 1.
+fn force_scale_each(ctx: &Context, subset: &[usize], sims: &mut [Vec<[f64; 3]>]) {
+    let scales: Vec<f64> = subset
+        .iter()
+        .zip(sims.iter())
+        .map(|(&i, sim)| {
+            let (mut num, mut den) = (0.0, 0.0);
+            for (&(k, q), p) in ctx.meas[i].observed.iter().zip(sim) {
+                let rest = ctx.marker_rest[k];
+                for d in 0..3 {
+                    let u = p[d] - rest[d];
+                    num += u * (q[d] - rest[d]);
+                    den += u * u;
+                }
+            }
+            match num / den {
+                s if s.is_finite() && s > 0.0 => s,
+                _ => 1.0,
+            }
+        })
+        .collect();
+    let mean_log = if scales.len() > 1 {
+        scales.iter().map(|s| s.ln()).sum::<f64>() / scales.len() as f64
+    } else {
+        0.0
+    };
+    for ((&i, sim), s) in subset.iter().zip(sims.iter_mut()).zip(&scales) {
+        let s = s / mean_log.exp();
+        for (&(k, _), p) in ctx.meas[i].observed.iter().zip(sim.iter_mut()) {
+            let rest = ctx.marker_rest[k];
+            for d in 0..3 {
+                p[d] = rest[d] + s * (p[d] - rest[d]);
+            }
+        }
+    }
 }
 
 /// ν from θ₁.
@@ -992,12 +1053,18 @@ impl Model {
         embedding: Option<&[([usize; 3], [f64; 3])]>,
         tilt: Option<&[[Vec<[f64; 3]>; 2]]>,
     ) -> Vec<Vec<[f64; 3]>> {
-        subset
+        let mut sims: Vec<Vec<[f64; 3]>> = subset
             .iter()
             .zip(xs)
+            .map(|(&i, x)| self.physical_markers(ctx, theta, i, x, embedding))
+            .collect();
+        if self.effects.contains(&Candidate::ForceScaleEach) {
+            force_scale_each(ctx, subset, &mut sims);
+        }
+        sims.into_iter()
+            .zip(subset)
             .enumerate()
-            .map(|(k, (&i, x))| {
-                let mut sim = self.physical_markers(ctx, theta, i, x, embedding);
+            .map(|(k, (mut sim, &i))| {
                 if let Some(cols) = tilt.and_then(|t| t.get(k)) {
                     sim = tilt_each(ctx, i, sim, cols);
                 }
@@ -1038,7 +1105,7 @@ impl Model {
                 let mut p = match embedding {
                     Some(e) => {
                         let (t, b) = e[k];
-                        std::array::from_fn(|d| (0..3).map(|j| b[j] * x[t[j]][d]).sum())
+                        ctx.markers[k].interpolate_on(t, b, |n| x[n])
                     }
                     None => ctx.markers[k].interpolate(|n| x[n]),
                 };

@@ -229,6 +229,15 @@ pub fn evidence_points(
                 .map(|p| (p.force, p.scale))
                 .collect(),
         ),
+        Candidate::ForceScaleEach => (
+            "measurement (in file order)",
+            "displacement scale factor (measured / simulated)",
+            sig.per_measurement
+                .iter()
+                .enumerate()
+                .map(|(i, p)| ((i + 1) as f64, p.scale))
+                .collect(),
+        ),
         Candidate::Tilt | Candidate::TiltEach => (
             "reported force |f| (N)",
             "horizontal mean residual (mm)",

@@ -15,7 +15,22 @@ fn main() {
             eprintln!("warning: {w}");
             std::process::exit(2);
         }
-        eprintln!("error: {e:#}");
+        eprintln!("error: {}", chain_message(&e));
         std::process::exit(1);
     }
+}
+
+/// The error and its causes joined by ": ", leaving out a cause whose text the message already
+/// holds (library errors that name their cause in their own message, as the dataset readers'
+/// do, would otherwise print it twice).
+fn chain_message(e: &anyhow::Error) -> String {
+    let mut msg = e.to_string();
+    for cause in e.chain().skip(1) {
+        let c = cause.to_string();
+        if !msg.contains(&c) {
+            msg.push_str(": ");
+            msg.push_str(&c);
+        }
+    }
+    msg
 }

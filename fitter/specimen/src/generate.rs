@@ -318,13 +318,7 @@ pub fn generate(o: &SpecimenOptions) -> Result<Specimen, SpecimenError> {
             point: p,
             mesh: "dataset",
         })?;
-        markers.push(Marker {
-            id: format!("m{k}"),
-            rest: p,
-            triangle: e.triangle,
-            barycentric: e.barycentric,
-            distance: e.distance,
-        });
+        markers.push(Marker::embedded(format!("m{k}"), p, &e, &coarse.nodes));
     }
 
     // Effect directions (drawn even when unused so the contact stream is the same for every
@@ -454,6 +448,7 @@ pub fn generate(o: &SpecimenOptions) -> Result<Specimen, SpecimenError> {
         .map(|e| e.effect.name().to_string())
         .collect();
     let dataset = StaticDataset {
+        marker_standoff: None,
         name: format!("specimen-seed{}", o.seed),
         description: format!(
             "palpate specimen: {}x{}x{} m block, fitted mesh {:?}; simulated by `palpate specimen` (the injected effects are in truth.json only{})",

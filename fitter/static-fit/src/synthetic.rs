@@ -139,6 +139,7 @@ pub fn synthesise_on(
                         triangle: *t,
                         barycentric: b,
                         distance: 0.0,
+                        offset_local: [0.0; 3],
                     });
                 }
             }
@@ -164,6 +165,7 @@ pub fn synthesise_on(
                 triangle: t,
                 barycentric: bc,
                 distance: 0.0,
+                offset_local: [0.0; 3],
             });
         }
     }
@@ -213,6 +215,7 @@ impl Synthetic {
     /// The synthetic data as a [`StaticDataset`] (for writing example datasets).
     pub fn to_dataset(&self, name: &str, description: &str, probe_radius: f64) -> StaticDataset {
         StaticDataset {
+            marker_standoff: None,
             name: name.into(),
             description: description.into(),
             mesh: self.mesh.clone(),

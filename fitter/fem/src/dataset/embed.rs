@@ -9,10 +9,11 @@ use crate::mesh::Mesh;
 use nalgebra::Vector3;
 
 /// A marker farther from the surface than `EMBED_TOLERANCE_FRACTION` × the median boundary edge
-/// length is rejected: a quarter of an edge is far more than the faceting error of a reasonable
-/// mesh or the placement error of a glued marker, yet small enough to catch markers given in the
-/// wrong units or frame.
-pub const EMBED_TOLERANCE_FRACTION: f64 = 0.25;
+/// length (plus a declared `marker_standoff`) is rejected. A marker off the surface is a material
+/// point carried rigidly by its surface patch ([`super::Marker`]): the faceting of a curved scan
+/// (a fraction of a millimetre), a glued bead, a short post are all modelled; one edge is still far
+/// less than what markers given in the wrong units or frame are off by (centimetres to metres).
+pub const EMBED_TOLERANCE_FRACTION: f64 = 1.0;
 
 /// Where a point lands on the surface.
 #[derive(Debug, Clone, Copy, PartialEq)]

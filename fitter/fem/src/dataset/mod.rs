@@ -31,13 +31,19 @@ pub struct StaticDataset {
     pub marker_noise: Option<f64>,
     /// Gravity vector (m/s²), if the dataset declares that the measurements were taken under it.
     pub gravity: Option<[f64; 3]>,
+    /// Declared height of the markers' stand-offs (m): markers may sit up to this far off the
+    /// surface (posts, rigid mounts), carried rigidly by their surface patch.
+    pub marker_standoff: Option<f64>,
     /// Markers, embedded in the surface.
     pub markers: Vec<Marker>,
     /// Measurements in file order.
     pub measurements: Vec<Measurement>,
 }
 
-/// A surface marker: rest position and its embedding in a boundary triangle.
+/// A marker: a material point of the surface, or of a rigid stand-off on it. It is embedded at the
+/// closest point of a boundary triangle (barycentric coordinates); the offset from that point to
+/// its rest position — a facet lying a fraction of a millimetre inside a curved object's scanned
+/// surface, or a post a few millimetres high — moves rigidly with the triangle.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Marker {
     /// Marker id as written in `markers.csv`.
@@ -50,11 +56,29 @@ pub struct Marker {
     pub barycentric: [f64; 3],
     /// Distance from the rest position to the surface (m).
     pub distance: f64,
+    /// The offset rest − (closest surface point), in the triangle's rest frame
+    /// ([`triangle_frame`]: first edge, in-plane normal to it, normal).
+    pub offset_local: [f64; 3],
 }
 
 impl Marker {
-    /// Position of the marker for node positions `x` (interpolated on its triangle).
-    pub fn interpolate(&self, x: impl Fn(usize) -> [f64; 3]) -> [f64; 3] {
+    /// The marker at `rest` embedded by `e` on the triangle of `nodes` it names.
+    pub fn embedded(id: String, rest: [f64; 3], e: &embed::Embedding, nodes: &[[f64; 3]]) -> Self {
+        let frame = triangle_frame(e.triangle.map(|n| nodes[n]));
+        let o = [0, 1, 2].map(|d| rest[d] - e.point[d]);
+        Self {
+            id,
+            rest,
+            triangle: e.triangle,
+            barycentric: e.barycentric,
+            distance: e.distance,
+            offset_local: frame.map(|axis| (0..3).map(|d| axis[d] * o[d]).sum()),
+        }
+    }
+
+    /// The marker's surface point for node positions `x` (interpolated on its triangle, without
+    /// the offset).
+    pub fn surface_point(&self, x: impl Fn(usize) -> [f64; 3]) -> [f64; 3] {
         let mut p = [0.0; 3];
         for (k, &n) in self.triangle.iter().enumerate() {
             let xn = x(n);
@@ -64,6 +88,56 @@ impl Marker {
         }
         p
     }
+
+    /// Position of the marker for node positions `x`: the surface point interpolated on its
+    /// triangle, plus its offset turned with the triangle ([`triangle_frame`] of the deformed
+    /// triangle).
+    pub fn interpolate(&self, x: impl Fn(usize) -> [f64; 3]) -> [f64; 3] {
+        self.interpolate_on(self.triangle, self.barycentric, x)
+    }
+
+    /// [`Marker::interpolate`] with the marker's surface point moved to `barycentric` on
+    /// `triangle` (a re-located embedding), the offset carried by that triangle.
+    pub fn interpolate_on(
+        &self,
+        triangle: [usize; 3],
+        barycentric: [f64; 3],
+        x: impl Fn(usize) -> [f64; 3],
+    ) -> [f64; 3] {
+        let corners = triangle.map(&x);
+        let mut p = [0.0; 3];
+        for (k, xn) in corners.iter().enumerate() {
+            for d in 0..3 {
+                p[d] += barycentric[k] * xn[d];
+            }
+        }
+        if self.offset_local != [0.0; 3] {
+            let frame = triangle_frame(corners);
+            for (axis, o) in frame.iter().zip(self.offset_local) {
+                for d in 0..3 {
+                    p[d] += o * axis[d];
+                }
+            }
+        }
+        p
+    }
+}
+
+/// An orthonormal frame of a triangle (a, b, c): t₁ along b − a, t₂ in the plane normal to it,
+/// n = t₁ × t₂ (the normal, on the side the winding gives). A degenerate triangle gives the
+/// identity frame.
+pub fn triangle_frame([a, b, c]: [[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    use nalgebra::Vector3;
+    let (a, b, c) = (Vector3::from(a), Vector3::from(b), Vector3::from(c));
+    let n = (b - a).cross(&(c - a));
+    let (e, nn) = ((b - a).norm(), n.norm());
+    if !(e > 0.0 && nn > 0.0) {
+        return [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    }
+    let t1 = (b - a) / e;
+    let n = n / nn;
+    let t2 = n.cross(&t1);
+    [t1.into(), t2.into(), n.into()]
 }
 
 /// One measured contact interaction (x̄_i, f̄_i).

@@ -116,7 +116,7 @@ pub enum DatasetError {
     },
     /// A marker's rest position is too far from the mesh surface to embed it.
     #[error(
-        "{file}:{line}: fields `x,y,z`: marker {marker:?} is {distance:.3e} m from the mesh surface; the tolerance is {tolerance:.3e} m ({fraction} × median surface edge {median_edge:.3e} m)",
+        "{file}:{line}: fields `x,y,z`: marker {marker:?} is {distance:.3e} m from the mesh surface; the tolerance is {tolerance:.3e} m ({fraction} × median surface edge {median_edge:.3e} m, plus the declared `marker_standoff`): markers on posts or stand-offs need `marker_standoff = <height in m>` in dataset.toml; otherwise check the units and frame",
         fraction = EMBED_TOLERANCE_FRACTION
     )]
     MarkerFarFromSurface {
@@ -212,6 +212,8 @@ struct DatasetToml {
     marker_noise: Option<Spanned<f64>>,
     #[serde(default)]
     gravity: Option<Spanned<[f64; 3]>>,
+    #[serde(default)]
+    marker_standoff: Option<Spanned<f64>>,
 }
 
 fn line_of(text: &str, offset: usize) -> usize {
@@ -269,6 +271,18 @@ impl StaticDataset {
                     "marker_noise",
                     s.span(),
                     "a non-negative length in m",
+                    s.get_ref().to_string(),
+                ))
+            }
+            Some(s) => Some(*s.get_ref()),
+            None => None,
+        };
+        let marker_standoff = match &meta.marker_standoff {
+            Some(s) if !(s.get_ref().is_finite() && *s.get_ref() >= 0.0) => {
+                return Err(field(
+                    "marker_standoff",
+                    s.span(),
+                    "a non-negative height in m",
                     s.get_ref().to_string(),
                 ))
             }
@@ -349,7 +363,7 @@ impl StaticDataset {
         };
         let surface = mesh.boundary_triangles();
 
-        let markers = read_markers(&dir.join(MARKERS_CSV), &mesh, &surface)?;
+        let markers = read_markers(&dir.join(MARKERS_CSV), &mesh, &surface, marker_standoff)?;
         let (mut measurements, contact_lines) = read_contacts(
             &dir.join(CONTACTS_CSV),
             &mesh,
@@ -368,6 +382,7 @@ impl StaticDataset {
             }
         }
         Ok(StaticDataset {
+            marker_standoff,
             name: meta.name.into_inner(),
             description: meta.description.unwrap_or_default(),
             mesh,
@@ -406,16 +421,18 @@ fn first_time<K: Eq + Hash>(
     Ok(())
 }
 
-/// `markers.csv`: `marker,x,y,z`; each marker embedded in the surface.
+/// `markers.csv`: `marker,x,y,z`; each marker embedded in the surface. A declared stand-off
+/// height widens the distance accepted from the surface by that height.
 fn read_markers(
     file: &Path,
     mesh: &crate::mesh::Mesh,
     surface: &[[usize; 3]],
+    standoff: Option<f64>,
 ) -> Result<Vec<Marker>, DatasetError> {
     let table = Table::read(file.to_path_buf())?;
     let rows = table.rows(&["marker", "x", "y", "z"], 0)?;
     let median_edge = median_surface_edge(mesh, surface);
-    let tolerance = embedding_tolerance(mesh, surface);
+    let tolerance = embedding_tolerance(mesh, surface) + standoff.unwrap_or(0.0);
     let mut first: HashMap<&str, usize> = HashMap::new();
     let mut markers = Vec::with_capacity(rows.len());
     for r in &rows {
@@ -436,13 +453,7 @@ fn read_markers(
         if e.distance > tolerance {
             return Err(far(e.distance));
         }
-        markers.push(Marker {
-            id: id.into(),
-            rest,
-            triangle: e.triangle,
-            barycentric: e.barycentric,
-            distance: e.distance,
-        });
+        markers.push(Marker::embedded(id.into(), rest, &e, &mesh.nodes));
     }
     Ok(markers)
 }

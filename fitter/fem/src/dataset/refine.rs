@@ -55,14 +55,13 @@ pub fn refine_dataset(ds: &StaticDataset) -> Result<StaticDataset, RefineError> 
         .markers
         .iter()
         .map(|m| {
-            let point = m.interpolate(|n| ds.mesh.nodes[n]);
+            let point = m.surface_point(|n| ds.mesh.nodes[n]);
             match embed_point(&mesh, &surface, point) {
+                // The same surface point and the same offset to the rest position, on a
+                // refined triangle (coplanar with the coarse one).
                 Some(e) if e.distance <= tol => Ok(Marker {
-                    id: m.id.clone(),
-                    rest: m.rest,
-                    triangle: e.triangle,
-                    barycentric: e.barycentric,
                     distance: m.distance,
+                    ..Marker::embedded(m.id.clone(), m.rest, &e, &mesh.nodes)
                 }),
                 other => Err(RefineError::Marker {
                     marker: m.id.clone(),
@@ -73,6 +72,7 @@ pub fn refine_dataset(ds: &StaticDataset) -> Result<StaticDataset, RefineError> 
         })
         .collect::<Result<Vec<_>, _>>()?;
     Ok(StaticDataset {
+        marker_standoff: ds.marker_standoff,
         name: ds.name.clone(),
         description: ds.description.clone(),
         mesh,

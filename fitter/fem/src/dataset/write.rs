@@ -25,6 +25,8 @@ struct DatasetTomlOut<'a> {
     marker_noise: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     gravity: Option<[f64; 3]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    marker_standoff: Option<f64>,
 }
 
 impl StaticDataset {
@@ -103,6 +105,7 @@ impl StaticDataset {
             probe_radius: self.probe_radius,
             marker_noise: self.marker_noise,
             gravity: self.gravity,
+            marker_standoff: self.marker_standoff,
         };
         let text = toml::to_string(&meta).map_err(|e| DatasetError::Write {
             file: dir.join(DATASET_TOML),

@@ -133,8 +133,8 @@ impl StaticProblem {
     /// x ← x + F⁻¹ (b(R) − K'(R) x) with R the rotations of the current x: where F = K'(R) it is
     /// exactly the fixed-point step x ← K'(R)⁻¹ b(R), and near it the same fixed point is reached
     /// (the residual is exact). F is renewed when the rotations have moved away from R_F by more
-    /// than [`REFACTOR_ROTATION`] in some element, or when an iteration at full load contracts
-    /// the update by less than [`REFACTOR_CONTRACTION`] (a hint made for another material shows
+    /// than `REFACTOR_ROTATION` (0.05 rad) in some element, or when an iteration at full load contracts
+    /// the update by less than `REFACTOR_CONTRACTION` (0.6; a hint made for another material shows
     /// itself this way).
     pub fn solve_forces_with(
         &self,

@@ -17,7 +17,7 @@ const MEASUREMENTS: &str =
 p2,m1,0.03,0.04,0.0498\np2,m3,0.1,0.05,0.0199\n";
 const CONTACTS: &str = "measurement,x,y,z,fx,fy,fz,radius\np1,0.05,0.05,0.05,0,0,-1.5,0.02\np2,0.05,0.05,0.05,0,0,-0.5\n";
 
-/// 10 × 10 × 5 cm box, 25 mm cells (median surface edge 25 mm, embedding tolerance 6.25 mm),
+/// 10 × 10 × 5 cm box, 25 mm cells (median surface edge 25 mm, embedding tolerance 25 mm),
 /// plus an empty group "nothing".
 fn mesh() -> Mesh {
     let mut m = box_mesh([0.1, 0.1, 0.05], [4, 4, 2]);
@@ -249,18 +249,62 @@ fn contact_without_measurement_rows_is_rejected() {
 
 #[test]
 fn marker_far_from_surface_says_how_far() {
-    // 10 mm above the top face; tolerance 0.25 × 25 mm = 6.25 mm.
-    let markers = MARKERS.replace("m2,0.07,0.06,0.05", "m2,0.07,0.06,0.06");
+    // 30 mm above the top face; tolerance 1 × 25 mm.
+    let markers = MARKERS.replace("m2,0.07,0.06,0.05", "m2,0.07,0.06,0.08");
     let e = error_with(&[("markers.csv", &markers)]);
     assert_has(
         &e,
         &[
             "markers.csv:3:",
             "fields `x,y,z`",
-            "\"m2\" is 1.000e-2 m",
-            "tolerance is 6.250e-3 m",
+            "\"m2\" is 3.000e-2 m",
+            "tolerance is 2.500e-2 m",
+            "marker_standoff",
         ],
     );
+    // Declared stand-offs widen the tolerance by their height.
+    let dir = tempfile::tempdir().unwrap();
+    let toml = format!("{TOML}marker_standoff = 0.02\n");
+    write_dataset(
+        dir.path(),
+        &[("markers.csv", &markers), ("dataset.toml", &toml)],
+        &mesh(),
+    );
+    let d = StaticDataset::read(dir.path()).expect("a declared stand-off is accepted");
+    assert_eq!(d.marker_standoff, Some(0.02));
+}
+
+/// A marker off the surface (here on a 10 mm post above the top face) is a material point carried
+/// rigidly by its triangle: at rest it sits where it was declared, and when the whole mesh is
+/// rotated rigidly it turns with it — the post's tip moves, not just its foot.
+#[test]
+fn a_marker_on_a_post_moves_rigidly_with_its_surface_patch() {
+    let markers = MARKERS.replace("m2,0.07,0.06,0.05", "m2,0.07,0.06,0.06");
+    let dir = tempfile::tempdir().unwrap();
+    write_dataset(dir.path(), &[("markers.csv", &markers)], &mesh());
+    let d = StaticDataset::read(dir.path()).expect("within one surface edge");
+    let m = d.markers.iter().find(|m| m.id == "m2").unwrap();
+    assert!((m.distance - 0.01).abs() < 1e-12, "{}", m.distance);
+    let at_rest = m.interpolate(|n| d.mesh.nodes[n]);
+    assert!(
+        (0..3).all(|k| (at_rest[k] - m.rest[k]).abs() < 1e-12),
+        "{at_rest:?}"
+    );
+    // A rigid rotation of 30° about z through the origin, then a shift.
+    let (c, s) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
+    let move_rigidly = |p: [f64; 3]| [c * p[0] - s * p[1] + 0.01, s * p[0] + c * p[1], p[2] - 0.02];
+    let moved = m.interpolate(|n| move_rigidly(d.mesh.nodes[n]));
+    let expected = move_rigidly(m.rest);
+    assert!(
+        (0..3).all(|k| (moved[k] - expected[k]).abs() < 1e-12),
+        "{moved:?} vs {expected:?}"
+    );
+    // A tilt about x turns the post: its tip moves sideways by the post's height × sin(tilt).
+    let (c, s) = (10f64.to_radians().cos(), 10f64.to_radians().sin());
+    let tilt = |p: [f64; 3]| [p[0], c * p[1] - s * p[2], s * p[1] + c * p[2]];
+    let tilted = m.interpolate(|n| tilt(d.mesh.nodes[n]));
+    let expected = tilt(m.rest);
+    assert!((0..3).all(|k| (tilted[k] - expected[k]).abs() < 1e-12));
 }
 
 #[test]
