@@ -53,7 +53,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
         println!(
             "{}",
-            serde_json::json!({"bench": "fit-evidence", "tradeoff": rows})
+            serde_json::json!({"schema_version": 1, "bench": "fit-evidence", "tradeoff": rows})
         );
         return Ok(());
     }
@@ -121,6 +121,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!(
         "{}",
         serde_json::json!({
+            "schema_version": 1,
             "bench": "fit",
             "tets": tets,
             "params": params,

@@ -670,6 +670,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!(
         "{}",
         json!({
+            "schema_version": 1,
             "bench": "runtime",
             "rule": format!("{:?}", args.rule).to_lowercase(),
             "touch": format!("{:?}", args.touch).to_lowercase(),
