@@ -332,6 +332,8 @@ fn every_json_document_has_a_schema_version_and_units_in_its_names() {
         "{figures:?}"
     );
     assert!(!figures.iter().any(|f| f.ends_with(".svg")), "{figures:?}");
+    // One material: no histogram of one value (E and ν are in the table).
+    assert!(!figures.iter().any(|f| f.contains("_hist")), "{figures:?}");
     let o = palpate().arg("info").arg(&model).output().unwrap();
     let v = last_json(&o);
     assert_eq!(v["schema_version"], 1);

@@ -534,13 +534,9 @@ pub fn histogram(
     let titled;
     let title = if constant {
         titled = if v.len() == 1 {
-            format!("{title} (one value: {})", tick(v[0], v[0].abs()))
+            format!("{title} (one value: {})", significant(v[0]))
         } else {
-            format!(
-                "{title} (all {} values = {})",
-                v.len(),
-                tick(v[0], v[0].abs())
-            )
+            format!("{title} (all {} values = {})", v.len(), significant(v[0]))
         };
         titled.as_str()
     } else {
@@ -773,6 +769,21 @@ fn axis_tick(v: f64, log: bool, range: (f64, f64)) -> String {
     }
 }
 
+/// `v` to five significant digits, plain for moderate magnitudes ("19963", "0.4919").
+fn significant(v: f64) -> String {
+    let a = v.abs();
+    if a == 0.0 || !(1e-3..1e5).contains(&a) {
+        return tick(v, a);
+    }
+    let decimals = (4 - a.log10().floor() as i32).max(0) as usize;
+    let s = format!("{v:.decimals$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    }
+}
+
 /// Tick label: plain for moderate magnitudes, scientific otherwise; values within 1e-9 of the
 /// axis span from zero are zero (round-off of the tick positions).
 fn tick(v: f64, span: f64) -> String {
@@ -981,7 +992,19 @@ mod tests {
         let png = std::fs::read(dir.path().join("h.png")).unwrap();
         assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
         let svg = std::fs::read_to_string(&p).unwrap();
-        assert!(svg.contains("all 7 values = 19641"), "title");
+        assert!(svg.contains("all 7 values = 19641)"), "title");
+        assert_eq!(significant(19962.6772), "19963");
+        // Values over four decades (a few elements at a bound) are binned in log10: the axis
+        // says so and its labels are the values, not their logarithms.
+        let spread: Vec<f64> = (0..200)
+            .map(|i| 10f64.powf(1.0 + 0.02 * f64::from(i)))
+            .collect();
+        let q = dir.path().join("spread.svg");
+        histogram(&q, "E", "E (Pa)", &spread, 20).unwrap();
+        let spread_svg = std::fs::read_to_string(&q).unwrap();
+        assert!(spread_svg.contains("E (Pa), logarithmic bins"), "x label");
+        assert!(spread_svg.contains("\n1e3\n"), "a tick at 10³");
+        assert_eq!(significant(0.49190), "0.4919");
         let ticks: Vec<&str> = svg.matches("19641").collect();
         assert!(ticks.len() < 5, "{} labels repeat the value", ticks.len());
     }

@@ -42,12 +42,12 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(dir) = &args.sponge_dataset {
         palpate_static_fit::evidence::write_sponge_dataset(&args.sponge_mesh, dir)?;
-        println!("wrote {}", dir.display());
+        log::info!("wrote {}", dir.display());
         return Ok(());
     }
     if let Some(dir) = &args.evidence {
         let rows = palpate_static_fit::evidence::tradeoff(dir, [5, 5, 3])?;
-        println!(
+        log::info!(
             "wrote {}/tradeoff_error.svg, tradeoff_roughness.svg, tradeoff.json",
             dir.display()
         );

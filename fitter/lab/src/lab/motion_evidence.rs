@@ -510,6 +510,6 @@ fn example(dir: &Path) -> anyhow::Result<()> {
         &dir.join("truth.toml"),
         b"# Ground truth used to simulate this dataset (not read by the fitter).\nlambda = 10000.0\nmu = 20000.0\nviscosity = 12.0\nh = 1.0\ndensity = 47.0\nmarker_noise_m = 0.0002\n",
     )?;
-    println!("wrote {}", dir.display());
+    log::info!("wrote {}", dir.display());
     Ok(())
 }

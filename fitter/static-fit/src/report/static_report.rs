@@ -199,6 +199,71 @@ pub fn markdown(name: &str, command: &str, fit: &FitResult, loo: Option<&[HeldOu
     s
 }
 
+/// The figures of the fitted E and ν: none for one material (its value is in the table: a
+/// histogram of one value says nothing), one bar per measurement for a homogeneous material per
+/// measurement, histograms over the elements otherwise.
+fn material_figures(
+    dir: &Path,
+    fit: &FitResult,
+    e: &[f64],
+    nu: &[f64],
+) -> Result<Vec<PathBuf>, crate::FitError> {
+    let mut files = Vec::new();
+    let distinct = |v: &[f64]| {
+        v.iter()
+            .any(|x| (x - v[0]).abs() > 1e-9 * v[0].abs().max(1e-300))
+    };
+    if e.is_empty() || !(distinct(e) || distinct(nu)) {
+        return Ok(files);
+    }
+    if fit.layout == crate::Layout::Homogeneous {
+        // One value per set, set i fitted to measurement i.
+        let label = |i: usize| {
+            fit.per_measurement
+                .iter()
+                .find(|m| m.set == i)
+                .map_or_else(|| format!("set {i}"), |m| m.id.clone())
+        };
+        let labels: Vec<String> = (0..e.len()).map(label).collect();
+        let bars = |v: &[f64]| -> Vec<(&str, f64)> {
+            labels
+                .iter()
+                .map(String::as_str)
+                .zip(v.iter().copied())
+                .collect()
+        };
+        files.extend(palpate_plot::bars(
+            dir.join("young_hist.svg"),
+            "Fitted Young's modulus per measurement",
+            "Young's modulus E (Pa)",
+            &bars(e),
+        )?);
+        files.extend(palpate_plot::bars(
+            dir.join("poisson_hist.svg"),
+            "Fitted Poisson's ratio per measurement",
+            "Poisson's ratio ν",
+            &bars(nu),
+        )?);
+        return Ok(files);
+    }
+    let bins = (e.len() as f64).sqrt().clamp(5.0, 40.0) as usize;
+    files.extend(palpate_plot::histogram(
+        dir.join("young_hist.svg"),
+        "Fitted Young's modulus (all sets, all elements)",
+        "Young's modulus E (Pa)",
+        e,
+        bins,
+    )?);
+    files.extend(palpate_plot::histogram(
+        dir.join("poisson_hist.svg"),
+        "Fitted Poisson's ratio (all sets, all elements)",
+        "Poisson's ratio ν",
+        nu,
+        bins,
+    )?);
+    Ok(files)
+}
+
 /// Writes `report.md`, `report.json`, the plots and `fit.vtu` into `dir`; returns the files.
 pub fn write_report(
     dir: &Path,
@@ -251,21 +316,7 @@ pub fn write_report(
         .collect();
     let e: Vec<f64> = all.iter().map(|p| p.young()).collect();
     let nu: Vec<f64> = all.iter().map(|p| p.poisson()).collect();
-    let bins = (e.len() as f64).sqrt().clamp(1.0, 40.0) as usize;
-    files.extend(palpate_plot::histogram(
-        dir.join("young_hist.svg"),
-        "Fitted Young's modulus (all sets, all elements)",
-        "Young's modulus E (Pa)",
-        &e,
-        bins,
-    )?);
-    files.extend(palpate_plot::histogram(
-        dir.join("poisson_hist.svg"),
-        "Fitted Poisson's ratio (all sets, all elements)",
-        "Poisson's ratio ν",
-        &nu,
-        bins,
-    )?);
+    files.extend(material_figures(dir, fit, &e, &nu)?);
     if let GammaChoice::LCurve { grid, chosen } = &fit.gamma_choice {
         let pts: Vec<(f64, f64)> = grid.iter().map(|&(_, r, e)| (r, e)).collect();
         let pick = vec![pts[*chosen]];
