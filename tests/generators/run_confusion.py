@@ -134,23 +134,43 @@ def snr_fields(tr):
     return {"snr": tr["snr_positions"], "snr_displacement": tr["snr"]}
 
 
+def field(obj, *names):
+    """The first of `names` present in `obj`: diagnosis.json schema 1 names fields with their units
+    (`fitted_rms_m`); documents written before it used the bare names (`fitted_rms`)."""
+    for name in names:
+        if obj is not None and name in obj:
+            return obj[name]
+    return None
+
+
+def elastic_of(d):
+    """(E, nu) from diagnosis.json: the `elastic` object (schema 1) or the older `young_poisson` pair."""
+    if "elastic" in d:
+        e = d["elastic"]
+        return field(e, "young_modulus_pa", "young_pa", "E_pa"), field(e, "poisson_ratio", "nu")
+    return d["young_poisson"][0], d["young_poisson"][1]
+
+
 def fill_from_diagnosis(row, d):
-    """The row's palpate fields from a diagnosis.json."""
+    """The row's palpate fields from a diagnosis.json (either schema)."""
     rc = d["residual_check"]
+    b, a = d["before"], d["after"]
+    E_fit, nu_fit = elastic_of(d)
     row.update(
-        adopted=[a for a in d["adopted"]], verdict=verdict_of(d), ratio=rc["ratio"], z=rc["z"], judged=rc["judged"],
-        floor_m=d["noise_floor"],
-        before_fitted_rms_m=d["before"]["fitted_rms"], after_fitted_rms_m=d["after"]["fitted_rms"],
-        before_heldout_rms_m=d["before"]["heldout_rms"], after_heldout_rms_m=d["after"]["heldout_rms"],
-        ambiguous_with=sorted({a for st in d["steps"] for a in st.get("ambiguous_with", [])}),
-        E_fit=d["young_poisson"][0], nu_fit=d["young_poisson"][1], palpate_seconds=d["seconds"],
-        mesh_error_rms_m=(d.get("mesh_error") or {}).get("rms"),
+        adopted=[x for x in d["adopted"]], verdict=verdict_of(d), ratio=rc["ratio"], z=rc["z"], judged=rc["judged"],
+        ratio_noise=rc.get("ratio_noise", rc["ratio"]), discretisation_m=rc.get("discretisation_m"),
+        floor_m=field(d, "noise_floor_m", "noise_floor"),
+        before_fitted_rms_m=field(b, "fitted_rms_m", "fitted_rms"), after_fitted_rms_m=field(a, "fitted_rms_m", "fitted_rms"),
+        before_heldout_rms_m=field(b, "heldout_rms_m", "heldout_rms"), after_heldout_rms_m=field(a, "heldout_rms_m", "heldout_rms"),
+        ambiguous_with=sorted({x for st in d["steps"] for x in st.get("ambiguous_with", [])}),
+        E_fit=E_fit, nu_fit=nu_fit, palpate_seconds=field(d, "run_time_s", "seconds"),
+        mesh_error_rms_m=field(d.get("mesh_error"), "rms_m", "rms"),
     )
     n = d.get("noise") or {}
-    row["sigma_hat_m"] = n.get("estimate")
-    # palpate does not judge the final residual once `noise` is adopted (ResidualCheck judged = false);
-    # the harness states the ratio to palpate's own recomputed floor sigma_hat sqrt(3)
-    row["ratio_vs_recomputed_floor"] = (d["after"]["fitted_rms"] / n["floor"]) if n.get("fired") and n.get("floor") else None
+    row["sigma_hat_m"] = field(n, "estimate_m", "estimate")
+    floor = field(n, "floor_m", "floor")
+    # with `noise` adopted the harness also states the ratio to palpate's recomputed floor sigma_hat sqrt(3)
+    row["ratio_vs_recomputed_floor"] = (row["after_fitted_rms_m"] / floor) if n.get("fired") and floor else None
     return row
 
 

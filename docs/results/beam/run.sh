@@ -9,7 +9,7 @@ P=${PALPATE:-target/release/palpate}
 B=models/silicone-beam
 OUT=${OUT:-out/beam-evidence}
 RUNS="gravity_V2_a gravity_V2_b load52_V2_a load52_V2_b"
-FIT="--params mu,nu --poisson 0.49 --hanging-inertia --initial mu=4.6e4,nu=240 --max-iters 60"
+FIT="--params mu,viscosity --poisson 0.49 --hanging-inertia --initial mu=4.6e4,viscosity=240 --max-iters 60"
 mkdir -p "$OUT"
 for r in $RUNS; do
   hang=""; case $r in load52*) hang="--hang 0.052@free_end";; esac

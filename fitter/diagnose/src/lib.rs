@@ -36,6 +36,7 @@ pub mod curve;
 mod error;
 pub mod export;
 pub mod fit;
+mod json;
 pub mod model;
 pub mod motion;
 pub mod noise;

@@ -5,10 +5,13 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use super::json;
 use super::model::Candidate;
 use super::{DiagnoseError, DiagnosisReport, Errors};
 use palpate_fem::io::atomic::write_atomic;
+use palpate_fem::names::Elastic;
 use palpate_plot::{lines, Series, Style};
+use palpate_runtime::material::LambdaAlpha;
 
 fn um(v: f64) -> String {
     format!("{:.1}", v * 1e6)
@@ -84,7 +87,7 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
             n.measurements
         );
         if !r.noise_evidence.is_empty() {
-            let _ = writeln!(s, "\n![marker noise](noise.svg)");
+            let _ = writeln!(s, "\n![marker noise]({})", palpate_plot::shown("noise.svg"));
         }
     }
     let _ = writeln!(s, "\n## Final parameters (±1σ, Gauss–Newton covariance)\n");
@@ -96,6 +99,13 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
             p.name, p.value, p.sd, p.unit
         );
     }
+    let (young, poisson) = r.young_poisson;
+    let lame = Elastic::of(&LambdaAlpha::from_young_poisson(young, poisson));
+    let _ = writeln!(
+        s,
+        "\nBase material: Young's modulus E = {:.5e} Pa, Poisson's ratio ν = {:.4}; Lamé λ = {:.5e} Pa, shear modulus μ = {:.5e} Pa.",
+        lame.young_modulus_pa, lame.poisson_ratio, lame.lame_lambda_pa, lame.shear_modulus_pa
+    );
     for st in &r.steps {
         let model = Candidate::names(&st.model, " + ", "simplest");
         let _ = writeln!(s, "\n## Round {} (model: {model})\n", st.round);
@@ -190,6 +200,96 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
     s
 }
 
+/// The text of `diagnosis.json`: the report with `schema_version`, units in the field names and
+/// the base material as Lamé's λ, μ and E, ν (`docs/json-outputs.md`).
+pub fn json_text(r: &DiagnosisReport) -> Result<String, serde_json::Error> {
+    const ERRORS: [(&str, &str); 7] = [
+        ("fitted_rms", "fitted_rms_m"),
+        ("fitted_max", "fitted_max_m"),
+        ("heldout_rms", "heldout_rms_m"),
+        ("heldout_max", "heldout_max_m"),
+        ("force_rms", "force_rms_n"),
+        ("force_max", "force_max_n"),
+        ("heldout_force_rms", "heldout_force_rms_n"),
+    ];
+    let mut v = serde_json::to_value(r)?;
+    for path in ["before", "after", "steps[].before", "steps[].after"] {
+        json::rename(&mut v, path, &ERRORS);
+    }
+    json::rename(
+        &mut v,
+        "",
+        &[
+            ("sigma", "sigma_m"),
+            ("noise_floor", "noise_floor_m"),
+            ("noise_evidence", "noise_evidence_m_m"),
+            ("seconds", "run_time_s"),
+        ],
+    );
+    json::rename(
+        &mut v,
+        "steps[].tried[]",
+        &[
+            ("rms", "rms_m"),
+            ("heldout_rms", "heldout_rms_m"),
+            ("heldout_force_rms", "heldout_force_rms_n"),
+        ],
+    );
+    json::rename(
+        &mut v,
+        "steps[].signature",
+        &[
+            ("vs_distance", "vs_distance_m_m"),
+            ("worst_markers", "worst_markers_m"),
+        ],
+    );
+    json::rename(
+        &mut v,
+        "steps[].signature.per_measurement[]",
+        &[
+            ("force", "force_n"),
+            ("rms", "rms_m"),
+            ("max", "max_m"),
+            ("rigid", "rigid_m"),
+            ("mean", "mean_m"),
+        ],
+    );
+    json::rename(&mut v, "mesh_error", &[("rms", "rms_m"), ("max", "max_m")]);
+    json::rename(
+        &mut v,
+        "solved_on",
+        &[
+            ("correction_rms", "correction_rms_m"),
+            ("dataset_mesh_rms", "dataset_mesh_rms_m"),
+        ],
+    );
+    json::rename(
+        &mut v,
+        "noise",
+        &[
+            ("estimate", "estimate_m"),
+            ("sd", "sd_m"),
+            ("interval", "interval_m"),
+            ("lower_bound", "lower_bound_m"),
+            ("declared", "declared_m"),
+            ("floor", "floor_m"),
+            ("points", "points_m"),
+        ],
+    );
+    if let Some(o) = v.as_object_mut() {
+        // (E, ν) as a pair becomes the four constants, named.
+        o.shift_remove("young_poisson");
+        let (young, poisson) = r.young_poisson;
+        o.insert(
+            "elastic".into(),
+            json::elastic(&Elastic::of(&LambdaAlpha::from_young_poisson(
+                young, poisson,
+            ))),
+        );
+    }
+    json::finish("static-diagnosis", v)
+}
+
 /// Writes `diagnosis.md`, `diagnosis.json` and the evidence plots into `dir`; returns the paths.
 pub fn write_report(r: &DiagnosisReport, dir: &Path) -> Result<Vec<PathBuf>, DiagnoseError> {
     std::fs::create_dir_all(dir)
@@ -216,19 +316,20 @@ pub fn write_report(r: &DiagnosisReport, dir: &Path) -> Result<Vec<PathBuf>, Dia
                 b.sort_by(|p, q| p.0.total_cmp(&q.0));
                 a.sort_by(|p, q| p.0.total_cmp(&q.0));
             }
-            lines(
-                &path,
-                &title,
-                xl,
-                yl,
-                &[
-                    Series::new("before", &b, style),
-                    Series::new("after", &a, style),
-                ],
-            )
-            .map_err(|e| DiagnoseError::Write(e.to_string()))?;
-            plots.push((st.round, file));
-            written.push(path);
+            written.extend(
+                lines(
+                    &path,
+                    &title,
+                    xl,
+                    yl,
+                    &[
+                        Series::new("before", &b, style),
+                        Series::new("after", &a, style),
+                    ],
+                )
+                .map_err(|e| DiagnoseError::Write(e.to_string()))?,
+            );
+            plots.push((st.round, palpate_plot::shown(&file)));
         }
     }
     if let Some(n) = &r.noise {
@@ -247,24 +348,25 @@ pub fn write_report(r: &DiagnosisReport, dir: &Path) -> Result<Vec<PathBuf>, Dia
                 .unwrap_or_default();
             let mut series = vec![
                 Series::new("nugget error per marker", &pts, Style::Points),
-                Series::new("estimated σ̂", &est, Style::Line),
+                Series::new("estimated σ (nugget)", &est, Style::Line),
             ];
             if !declared.is_empty() {
                 series.push(Series::new("declared σ", &declared, Style::Line));
             }
-            lines(
-                &path,
-                "marker noise: local prediction error |d|/√(3(1+v)) vs distance from the contact",
-                "distance from the contact (mm)",
-                "normalised nugget error (µm)",
-                &series,
-            )
-            .map_err(|e| DiagnoseError::Write(e.to_string()))?;
-            written.push(path);
+            written.extend(
+                lines(
+                    &path,
+                    "marker noise: local prediction error |d|/√(3(1+v)) vs distance from the contact",
+                    "distance from the contact (mm)",
+                    "normalised nugget error (µm)",
+                    &series,
+                )
+                .map_err(|e| DiagnoseError::Write(e.to_string()))?,
+            );
         }
     }
     let md = markdown(r, &plots);
-    let json = serde_json::to_string_pretty(r).map_err(|e| DiagnoseError::Write(e.to_string()))?;
+    let json = json_text(r).map_err(|e| DiagnoseError::Write(e.to_string()))?;
     for (name, text) in [("diagnosis.md", md), ("diagnosis.json", json)] {
         let p = dir.join(name);
         write_atomic(&p, text.as_bytes())

@@ -91,9 +91,9 @@ pub fn run(args: &Request) -> Result<(), Error> {
                     .file_name()
                     .map(|n| n.to_os_string())
                     .unwrap_or_default();
-                println!("== {}", sub.display());
+                log::info!("== {}", sub.display());
                 if let Err(e) = diagnose_one(args, sub, &args.output.join(name)) {
-                    eprintln!("{}: {e:#}", sub.display());
+                    log::error!("{}: {e:#}", sub.display());
                     failed.push(sub.clone());
                 }
             }
@@ -148,7 +148,7 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<(), Error>
             "candidate",
         )?;
     }
-    let r = run_diagnosis_with(&ds, &o, |msg| eprintln!("{msg}"))?;
+    let r = run_diagnosis_with(&ds, &o, |msg| log::info!("{msg}"))?;
     let mut files = write_report(&r, output)?;
     let model_path = output.join("model.palp");
     let buffers = crate::export::diagnosed_model(
@@ -174,7 +174,7 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<(), Error>
         1e6 * r.noise_floor
     );
     for f in files {
-        println!("wrote {}", f.display());
+        log::info!("wrote {}", f.display());
     }
     Ok(())
 }
@@ -208,7 +208,7 @@ fn run_runs(args: &Request) -> Result<(), Error> {
             "runs candidate",
         )?;
     }
-    let r = crate::runs::diagnose_runs(&fit, &held, &o, &|m| eprintln!("{m}"))?;
+    let r = crate::runs::diagnose_runs(&fit, &held, &o, &|m| log::info!("{m}"))?;
     let files = crate::runs::report::write_report(&r, &args.output, fit[0].1.model.dt)?;
     println!(
         "runs diagnosis: adopted [{}]; held-out marker RMS {:.3} → {:.3} mm, held-out rest state {:.3} → {:.3} mm ({:.0} s)",
@@ -220,7 +220,7 @@ fn run_runs(args: &Request) -> Result<(), Error> {
         r.seconds
     );
     for f in files {
-        println!("wrote {}", f.display());
+        log::info!("wrote {}", f.display());
     }
     Ok(())
 }

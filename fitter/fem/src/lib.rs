@@ -13,6 +13,7 @@ pub mod forward;
 pub mod io;
 pub mod lm;
 pub mod mesh;
+pub mod names;
 pub mod rng;
 pub mod runtime_storage;
 pub mod sanity;

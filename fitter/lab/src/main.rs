@@ -6,6 +6,16 @@ use clap::Parser;
 mod lab;
 
 fn main() {
+    // The libraries' progress and notes (the `log` facade) on stderr, `info` unless RUST_LOG says
+    // otherwise; tables and the last JSON line stay on stdout.
+    env_logger::Builder::new()
+        .filter_level(log::LevelFilter::Info)
+        .parse_default_env()
+        .format(|buf, r| {
+            use std::io::Write as _;
+            writeln!(buf, "{}", r.args())
+        })
+        .init();
     let cli = lab::Cli::parse();
     if let Err(e) = lab::run(cli) {
         eprintln!("error: {e:#}");

@@ -138,7 +138,9 @@ pub struct Initial {
     pub lambda: f64,
     /// μ.
     pub mu: f64,
-    /// ν.
+    /// The viscosity coefficient ν of eq. 17 (Pa·s^h), key `viscosity` (`nu` is still read, with
+    /// a warning: ν is Poisson's ratio everywhere else).
+    #[serde(rename = "viscosity", alias = "nu")]
     pub nu: f64,
     /// h.
     pub h: f64,
@@ -296,10 +298,21 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
     let tf = dir.join("dataset.toml");
     let text = read(&tf)?;
     let mut config: DatasetToml = toml::from_str(&text).map_err(|e| bad(&tf, 0, e.to_string()))?;
-    config.initial_declared = text
-        .parse::<toml::Table>()
-        .map(|t| t.contains_key("initial"))
-        .unwrap_or(true);
+    let table = text.parse::<toml::Table>().ok();
+    config.initial_declared = table.as_ref().is_none_or(|t| t.contains_key("initial"));
+    if let Some(initial) = table
+        .as_ref()
+        .and_then(|t| t.get("initial"))
+        .and_then(|i| i.as_table())
+    {
+        if initial.contains_key("nu") {
+            log::warn!(
+                "{}: [initial] nu is now called viscosity (ν is Poisson's ratio everywhere else); \
+                 read as viscosity",
+                tf.display()
+            );
+        }
+    }
     if !(config.dt > 0.0 && config.dt.is_finite()) {
         return Err(bad(
             &tf,
@@ -327,8 +340,8 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
             return Err(bad(&tf, 0, format!("field gravity: not finite: {g:?}")));
         }
         None => {
-            eprintln!(
-                "warning: {}: no `gravity` declared; using {DEFAULT_GRAVITY:?} m/s² (declare it: a \
+            log::warn!(
+                "{}: no `gravity` declared; using {DEFAULT_GRAVITY:?} m/s² (declare it: a \
                  static dataset without it has none)",
                 tf.display()
             );

@@ -61,7 +61,7 @@ pub fn lost_in_export(mat: &Material) -> String {
             .to_string(),
     };
     format!(
-        "motion fit exported to the static runtime; lost: viscosity nu = {:.4e} Pa s^h and \
+        "motion fit exported to the static runtime; lost: viscosity = {:.4e} Pa s^h and \
          power-law index h = {:.4} (eq. 17; the runtime is quasi-static), density {:.4e} kg/m^3 \
          (no inertia), {elastic}; clamp motion (clamp groups are held fixed at rest)",
         mean(ParamKind::Nu),

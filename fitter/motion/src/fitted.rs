@@ -15,9 +15,17 @@ pub fn set_hanging_inertia(model: &mut Model, on: bool) {
 }
 
 /// The format tag of [`FittedModel`].
-pub const FORMAT: &str = "palpate-motion-fit/1";
+pub const FORMAT: &str = "palpate-motion-fit/2";
 
-/// A motion fit, as written to JSON.
+/// The `schema_version` written with a [`FittedModel`] ([`FittedModel::to_json`]).
+pub const SCHEMA_VERSION: u32 = 2;
+
+/// The format tags a reader accepts: version 1 had the same numbers under names without units
+/// (`lambda`, `mu`, `viscosity`, `h`, `density`, `runtime_lambda_alpha`), still read.
+pub const READABLE_FORMATS: [&str; 2] = ["palpate-motion-fit/1", FORMAT];
+
+/// A motion fit, as written to JSON (`fit.json`). Field names carry their units; the Rust names
+/// follow the papers.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FittedModel {
     /// [`FORMAT`].
@@ -29,16 +37,22 @@ pub struct FittedModel {
     /// Tetrahedra of that mesh (one value per element in each array below, or one for all).
     pub tets: usize,
     /// Lamé's λ per element (Pa).
+    #[serde(rename = "lame_lambda_pa", alias = "lambda")]
     pub lambda: Vec<f64>,
     /// Shear modulus μ per element (Pa).
+    #[serde(rename = "shear_modulus_pa", alias = "mu")]
     pub mu: Vec<f64>,
     /// Viscosity coefficient of the power law (Pa·s^h) per element (the paper's ν; not Poisson's ratio).
+    #[serde(rename = "viscosity_pa_s_h", alias = "viscosity")]
     pub viscosity: Vec<f64>,
     /// Power-law index h per element.
+    #[serde(rename = "power_law_index", alias = "h")]
     pub h: Vec<f64>,
     /// Density per element (kg/m³).
+    #[serde(rename = "density_kg_m3", alias = "density")]
     pub density: Vec<f64>,
     /// Poisson's ratio, when it was held fixed (λ followed μ).
+    #[serde(rename = "poisson_ratio_fixed", alias = "poisson_fixed")]
     pub poisson_fixed: Option<f64>,
     /// Whether hanging masses moved with their nodes (inertia) in the fit; a prediction applies
     /// the same to the loads of the run it predicts.
@@ -46,7 +60,9 @@ pub struct FittedModel {
     pub hanging_inertia: bool,
     /// The fitted parameter kinds (the others were held at their dataset values).
     pub fitted: Vec<String>,
-    /// The thesis' (λ, α) pair of each element, as exported to the runtime.
+    /// The thesis coefficients (λ_F, α_G) of each element as exported to the runtime (Pa; not
+    /// Lamé's λ: `palpate_fem::names::THESIS_PAIR_NOTE`).
+    #[serde(rename = "thesis_lambda_f_alpha_g_pa", alias = "runtime_lambda_alpha")]
     pub runtime_lambda_alpha: Vec<[f64; 2]>,
     /// RMS marker error over all runs at the fitted parameters (m).
     pub rms_marker_m: f64,
@@ -56,6 +72,13 @@ pub struct FittedModel {
     pub evaluations: usize,
     /// Per fitted run.
     pub runs: Vec<FittedRun>,
+}
+
+impl FittedModel {
+    /// The JSON text of `fit.json`: `schema_version` first, then the record.
+    pub fn to_json(&self) -> Result<String, serde_json::Error> {
+        serde_json::to_string_pretty(&palpate_fem::io::json::Versioned::new(SCHEMA_VERSION, self))
+    }
 }
 
 /// One fitted run's summary.
@@ -71,4 +94,37 @@ pub struct FittedRun {
     pub markers: Vec<String>,
     /// Each marker's observed rest state minus its rest position (m), `None` if unseen.
     pub final_displacement_m: Vec<Option<[f64; 3]>>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A `fit.json` of format 1 (names without units) still reads, into the same record that
+    /// format 2 writes with units in its names and `schema_version` first.
+    #[test]
+    fn format_1_still_reads_and_format_2_names_its_units() {
+        let old = r#"{"format": "palpate-motion-fit/1", "datasets": ["a"], "nodes": 4, "tets": 1,
+            "lambda": [1e4], "mu": [2e4], "viscosity": [3.0], "h": [1.0], "density": [47.0],
+            "poisson_fixed": null, "hanging_inertia": false, "fitted": ["mu", "nu"],
+            "runtime_lambda_alpha": [[6e4, 1e4]], "rms_marker_m": 1e-4, "rms_force_n": 0.0,
+            "evaluations": 3, "runs": []}"#;
+        let f: FittedModel = serde_json::from_str(old).unwrap();
+        assert!(READABLE_FORMATS.contains(&f.format.as_str()));
+        assert_eq!((f.lambda[0], f.mu[0], f.viscosity[0]), (1e4, 2e4, 3.0));
+        let text = f.to_json().unwrap();
+        assert!(text.starts_with("{\n  \"schema_version\": 2,"), "{text}");
+        for name in [
+            "\"lame_lambda_pa\"",
+            "\"shear_modulus_pa\"",
+            "\"viscosity_pa_s_h\"",
+            "\"power_law_index\"",
+            "\"density_kg_m3\"",
+            "\"thesis_lambda_f_alpha_g_pa\"",
+        ] {
+            assert!(text.contains(name), "{name} in {text}");
+        }
+        let back: FittedModel = serde_json::from_str(&text).unwrap();
+        assert_eq!(back, f);
+    }
 }

@@ -47,16 +47,29 @@ impl ParamKind {
         Self::PowerH,
         Self::Density,
     ];
-    /// Short name as used on the command line.
+    /// Short name as used on the command line and in reports. The viscosity coefficient is
+    /// `viscosity` (the paper's ν; ν is Poisson's ratio everywhere else in palpate).
     pub fn name(self) -> &'static str {
         match self {
             Self::Lambda => "lambda",
             Self::Mu => "mu",
-            Self::Nu => "nu",
+            Self::Nu => "viscosity",
             Self::PowerH => "h",
             Self::Density => "density",
             Self::SplineF => "spline_f",
             Self::SplineH => "spline_h",
+        }
+    }
+    /// What a report calls it, with its unit.
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Lambda => "Lamé λ (Pa)",
+            Self::Mu => "shear modulus μ (Pa)",
+            Self::Nu => "viscosity (Pa·s^h)",
+            Self::PowerH => "power-law index h",
+            Self::Density => "density (kg/m³)",
+            Self::SplineF => "spline f′ control value (Pa)",
+            Self::SplineH => "spline J·h′ control value (Pa)",
         }
     }
     /// True for the spline control-value kinds (optimised linearly, not in log space).
@@ -74,6 +87,14 @@ impl ParamKind {
     /// Parses a command-line name.
     pub fn parse(s: &str) -> Option<Self> {
         Self::ALL.into_iter().find(|k| k.name() == s)
+    }
+    /// The name a kind had before, if `s` is one (`nu`, the viscosity's until the names followed
+    /// the rest of palpate): callers accept it and warn with [`ParamKind::name`].
+    pub fn old_name(s: &str) -> Option<Self> {
+        match s {
+            "nu" => Some(Self::Nu),
+            _ => None,
+        }
     }
 }
 

@@ -297,7 +297,7 @@ pub fn initial_values(ds: &crate::dataset::MotionDataset, poisson: Option<f64>) 
             viscosity: e.viscosity,
             h: 1.0,
             note: format!(
-                "no [initial] in dataset.toml: starting from the static sag ({:.2} mm RMS): E = {:.4e} Pa at Poisson's ratio {nu} (μ = {:.4e} Pa, λ = {:.4e} \
+                "no [initial] in dataset.toml: starting from the static sag ({:.2} mm RMS): E = {:.4e} Pa at Poisson's ratio {nu} (μ = {:.4e} Pa, Lamé λ = {:.4e} \
                  Pa; {} static solves, {:.3} mm left); viscosity {:.3e} Pa·s (h = 1), a {:.0} % \
                  damping ratio at the first mode's {:.2} Hz",
                 1e3 * e.observed_rms_m,

@@ -97,7 +97,7 @@ pub fn tradeoff(dir: &Path, cells: [usize; 3]) -> Result<Vec<(f64, f64, f64, f64
         let pairs = spatial_pairs(&syn.input.problem.tets);
         let rough = roughness(&pairs, &log_young(&fit.params[0], t));
         let f = inclusion_figures(&syn, &fit);
-        println!(
+        log::info!(
             "γ_s = {g:9.3e}: rms {:.4} mm, roughness {rough:.3}, correlation {:.3}",
             f.rms_m * 1e3,
             f.correlation

@@ -139,13 +139,17 @@ pub enum Method {
 /// λ-type and α-type parameters.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Gammas {
-    /// γ_s^λ.
+    /// γ_s^λ: spatial smoothness of the thesis coefficient λ_F.
+    #[serde(rename = "spatial_lambda_f")]
     pub s_lambda: f64,
-    /// γ_s^α.
+    /// γ_s^α: spatial smoothness of α_G.
+    #[serde(rename = "spatial_alpha_g")]
     pub s_alpha: f64,
-    /// γ_m^λ.
+    /// γ_m^λ: smoothness of λ_F across measurements.
+    #[serde(rename = "across_measurements_lambda_f")]
     pub m_lambda: f64,
-    /// γ_m^α.
+    /// γ_m^α: smoothness of α_G across measurements.
+    #[serde(rename = "across_measurements_alpha_g")]
     pub m_alpha: f64,
 }
 
@@ -203,17 +207,23 @@ pub struct MeasurementResidual {
     /// Which fitted parameter set it uses.
     pub set: usize,
     /// (marker index, simulated − measured position) per observed marker (m).
+    #[serde(rename = "marker_errors_m")]
     pub marker_errors: Vec<(usize, [f64; 3])>,
     /// Root-mean-square marker error (m).
+    #[serde(rename = "rms_m")]
     pub rms: f64,
     /// Smallest marker error norm (m).
+    #[serde(rename = "min_m")]
     pub min: f64,
     /// Mean marker error norm (m).
+    #[serde(rename = "mean_m")]
     pub mean: f64,
     /// Largest marker error norm (m).
+    #[serde(rename = "max_m")]
     pub max: f64,
     /// ‖A(x̄)p − f̄‖ over the free dofs (N) at the fitted/completed deformation, for the
     /// force-based method; `None` for the displacement-based one.
+    #[serde(rename = "force_residual_n")]
     pub force_residual: Option<f64>,
 }
 
@@ -263,6 +273,7 @@ pub struct IterationRecord {
     /// CG iterations spent on the step (0 for dense steps).
     pub cg_iterations: usize,
     /// Per-measurement RMS marker error at this iterate (m).
+    #[serde(rename = "per_measurement_rms_m")]
     pub per_measurement_rms: Vec<f64>,
 }
 
@@ -292,9 +303,12 @@ pub struct FitResult {
     /// centres, eqs. 6.2 and 6.8).
     #[serde(skip)]
     pub deformed: Vec<Vec<[f64; 3]>>,
-    /// Roughness ‖L_s l‖ and ‖L_s a‖ summed over sets (Pa), for the trade-off plot.
+    /// Roughness ‖L_s l‖ and ‖L_s a‖ of the thesis coefficients summed over sets (Pa), for the
+    /// trade-off plot.
+    #[serde(rename = "roughness_pa")]
     pub roughness: [f64; 2],
     /// Wall-clock seconds.
+    #[serde(rename = "run_time_s")]
     pub seconds: f64,
     /// Whether the inverse met its tolerance (false: stopped at the iteration cap).
     pub converged: bool,

@@ -89,6 +89,13 @@ fn neo_hookean_tension_adopts_hyperelastic_nonlinearity() {
     assert_eq!(d.adopted, ["hyperelastic-neo-hookean"]);
     let p = d.final_params.iter().find(|p| p.name == "mu").unwrap();
     assert!((p.value - mu).abs() < 0.03 * mu, "mu {p:?}");
+    // diagnosis.json carries its schema version.
+    let json: serde_json::Value =
+        serde_json::from_str(&palpate_diagnose::curve::report::json_text(&d).unwrap()).unwrap();
+    assert_eq!(
+        (json["schema_version"].as_u64(), json["kind"].as_str()),
+        (Some(1), Some("curve-diagnosis"))
+    );
 }
 
 /// Linear elastic spring k plus one Maxwell branch (β, τ) in Fung form, integrated with forward

@@ -43,6 +43,26 @@ fn diagnose(effect: Option<Effect>, seed: u64) -> palpate_diagnose::DiagnosisRep
 fn diagnose_clean_specimen_adopts_nothing() {
     let r = diagnose(None, 1);
     assert!(r.adopted.is_empty(), "adopted {:?}", r.adopted);
+    // diagnosis.json: a schema version, units in the field names, the base material as Lamé's
+    // λ, μ and E, ν.
+    let json: serde_json::Value =
+        serde_json::from_str(&palpate_diagnose::report::json_text(&r).unwrap()).unwrap();
+    assert_eq!(json["schema_version"], 1);
+    assert_eq!(json["kind"], "static-diagnosis");
+    assert!(
+        json["after"]["fitted_rms_m"].as_f64().unwrap() > 0.0,
+        "{json}"
+    );
+    assert!(json["after"].get("fitted_rms").is_none());
+    assert!(json["noise_floor_m"].as_f64().unwrap() > 0.0);
+    for k in [
+        "lame_lambda_pa",
+        "shear_modulus_pa",
+        "young_modulus_pa",
+        "poisson_ratio",
+    ] {
+        assert!(json["elastic"][k].as_f64().unwrap() > 0.0, "{k}: {json}");
+    }
     assert!(
         r.after.fitted_rms <= 1.5 * r.noise_floor,
         "clean residual {:e} vs floor {:e}",

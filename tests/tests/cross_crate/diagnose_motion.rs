@@ -128,7 +128,11 @@ fn viscous_specimen_is_diagnosed_viscous_and_forecast_to_the_noise_floor() {
         // −10 as for the adoption rule), and none is left after viscosity (+5.6 / +6.6).
         assert!(r.rounds[0].signature.speed_dbic < -10.0, "seed {seed}");
         assert!(r.final_signature.speed_dbic > -10.0, "seed {seed}");
-        let nu = r.after_values.iter().find(|v| v.name == "nu").unwrap();
+        let nu = r
+            .after_values
+            .iter()
+            .find(|v| v.name == "viscosity")
+            .unwrap();
         assert!(
             (nu.value / 400.0 - 1.0).abs() < 0.2,
             "seed {seed}: nu = {}",
@@ -262,6 +266,11 @@ fn cli_recognises_a_motion_dataset_on_disk() {
     let md = std::fs::read_to_string(out.join("diagnosis.md")).unwrap();
     assert!(md.contains("**Result**: adopted viscosity"), "{md}");
     let json = std::fs::read_to_string(out.join("diagnosis.json")).unwrap();
+    let doc: serde_json::Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(doc["schema_version"], 1);
+    assert!(doc["after"]["rms_fit_m"].as_f64().is_some(), "{doc}");
+    assert!(doc["elastic"]["young_modulus_pa"].as_f64().unwrap() > 0.0);
+    assert!(doc["after_values"][0]["unit"].is_string());
     let top = json
         .rfind("\"adopted\": [")
         .expect("top-level adopted list");

@@ -86,6 +86,18 @@ fn names_damping_and_the_hanging_weights_inertia_on_held_out_runs() {
     // The record `palpate validate` reads carries the adopted inertia.
     assert!(d.model.hanging_inertia);
     assert_eq!(d.model.runs.len(), 2);
+    // fit.json and diagnosis.json: schema versions, units in the names, Lamé λ, μ and E, ν.
+    let fit: serde_json::Value = serde_json::from_str(&d.model.to_json().unwrap()).unwrap();
+    assert_eq!(fit["schema_version"], 2);
+    assert!(fit["shear_modulus_pa"][0].as_f64().unwrap() > 0.0, "{fit}");
+    assert!(fit.get("mu").is_none() && fit.get("runtime_lambda_alpha").is_none());
+    let back: palpate_motion::fitted::FittedModel = serde_json::from_value(fit).unwrap();
+    assert_eq!(back, d.model);
+    let json: serde_json::Value =
+        serde_json::from_str(&palpate_diagnose::runs::report::json_text(&d).unwrap()).unwrap();
+    assert_eq!(json["schema_version"], 1);
+    assert!((json["elastic"]["shear_modulus_pa"].as_f64().unwrap() / mu - 1.0).abs() < 1e-9);
+    assert!(json["before"][1][0]["chi2_m2"].as_f64().is_some(), "{json}");
 }
 
 #[test]

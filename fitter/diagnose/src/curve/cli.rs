@@ -57,7 +57,7 @@ pub fn run(
             .then(|| candidates.iter().map(|c| c.trim().to_string()).collect()),
         ..Default::default()
     };
-    let ds = diagnose_path(path, &o, &mut |m| eprintln!("{m}"))?;
+    let ds = diagnose_path(path, &o, &mut |m| log::info!("{m}"))?;
     for d in &ds {
         let dir = if ds.len() == 1 {
             output.to_path_buf()
@@ -80,7 +80,7 @@ pub fn run(
             d.unit
         );
         for f in files {
-            println!("wrote {}", f.display());
+            log::info!("wrote {}", f.display());
         }
     }
     Ok(())

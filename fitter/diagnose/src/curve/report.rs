@@ -30,6 +30,19 @@ fn g4(v: f64) -> String {
     }
 }
 
+/// The axis label of the mean loading rate for a load variable labelled `x_label` ("displacement
+/// (mm)" → "mean loading rate of the displacement (mm/s)"; a quantity without a unit, like a
+/// strain, gives 1/s).
+fn rate_label(x_label: &str) -> String {
+    match x_label.rsplit_once(" (") {
+        Some((quantity, unit)) => {
+            let unit = unit.trim_end_matches(')');
+            format!("mean loading rate of the {quantity} ({unit}/s)")
+        }
+        None => format!("mean loading rate of the {x_label} (1/s)"),
+    }
+}
+
 /// Writes the report into `dir`; returns the files written.
 pub fn write_report(d: &CurveDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, CurveError> {
     let werr = |e: palpate_fem::io::atomic::AtomicWriteError| CurveError::Write(e.to_string());
@@ -68,18 +81,19 @@ pub fn write_report(d: &CurveDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, Curv
         .map(|(n, p, s)| Series::new(n, p, *s))
         .collect();
     let curves = dir.join("curves.svg");
-    lines(
-        &curves,
-        &format!(
-            "{}: measured vs {} / {}",
-            d.name, d.before_model, d.after_model
-        ),
-        xl,
-        yl,
-        &series,
-    )
-    .map_err(|e| CurveError::Write(e.to_string()))?;
-    files.push(curves);
+    files.extend(
+        lines(
+            &curves,
+            &format!(
+                "{}: measured vs {} / {}",
+                d.name, d.before_model, d.after_model
+            ),
+            xl,
+            yl,
+            &series,
+        )
+        .map_err(|e| CurveError::Write(e.to_string()))?,
+    );
 
     // Residual vs the variable that gave each adopted effect away (or vs magnitude when clean).
     let mut plots: Vec<(usize, Variable)> = d
@@ -115,7 +129,7 @@ pub fn write_report(d: &CurveDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, Curv
         }
         let xv = match var {
             Variable::Magnitude | Variable::Top | Variable::Direction => xl.to_string(),
-            Variable::Rate => "mean loading rate (x units / s)".into(),
+            Variable::Rate => rate_label(xl),
             Variable::HoldTime => "time since the hold began (s)".into(),
             Variable::Group => "run / file index".into(),
         };
@@ -140,27 +154,37 @@ pub fn write_report(d: &CurveDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, Curv
             )
         };
         let p = dir.join(&name);
-        lines(
-            &p,
-            &title,
-            &xv,
-            &format!("residual, measured − model ({yl})"),
-            &series,
-        )
-        .map_err(|e| CurveError::Write(e.to_string()))?;
-        plot_names.push(name);
-        files.push(p);
+        files.extend(
+            lines(
+                &p,
+                &title,
+                &xv,
+                &format!("residual, measured − model: {yl}"),
+                &series,
+            )
+            .map_err(|e| CurveError::Write(e.to_string()))?,
+        );
+        plot_names.push(palpate_plot::shown(&name));
     }
 
     let md = markdown(d, &plot_names);
     let mdp = dir.join("diagnosis.md");
     write_atomic(&mdp, md.as_bytes()).map_err(werr)?;
     files.push(mdp);
-    let json = serde_json::to_string_pretty(d).map_err(|e| CurveError::Write(e.to_string()))?;
+    let json = json_text(d).map_err(|e| CurveError::Write(e.to_string()))?;
     let jp = dir.join("diagnosis.json");
     write_atomic(&jp, json.as_bytes()).map_err(werr)?;
     files.push(jp);
     Ok(files)
+}
+
+/// The text of `diagnosis.json`: the diagnosis with `schema_version`. The errors are in the
+/// response's unit, which depends on the data (`unit`: N, MPa, ADC counts), so their names carry
+/// no unit; times do (`run_time_s`).
+pub fn json_text(d: &CurveDiagnosis) -> Result<String, serde_json::Error> {
+    let mut v = serde_json::to_value(d)?;
+    crate::json::rename(&mut v, "", &[("seconds", "run_time_s")]);
+    crate::json::finish("curve-diagnosis", v)
 }
 
 fn markdown(d: &CurveDiagnosis, plots: &[String]) -> String {
@@ -295,7 +319,8 @@ fn markdown(d: &CurveDiagnosis, plots: &[String]) -> String {
     }
     let _ = writeln!(
         s,
-        "\n## Plots\n\n- `curves.svg`: measured vs the simplest and the final model"
+        "\n## Plots\n\n- `{}`: measured vs the simplest and the final model",
+        palpate_plot::shown("curves.svg")
     );
     for p in plots {
         let _ = writeln!(s, "- `{p}`");

@@ -30,7 +30,7 @@ pub fn run(
         )?;
     }
     let label = dataset.display().to_string();
-    let r = diagnose(&ds, &label, &o, &|m| eprintln!("{m}"))?;
+    let r = diagnose(&ds, &label, &o, &|m| log::info!("{m}"))?;
     let mut files = write_report(&r, output)?;
     if let Some(mat) = &r.material {
         let prov = ProvenanceInfo {
@@ -52,7 +52,7 @@ pub fn run(
                 })?;
                 files.push(path);
             }
-            Err(e) => eprintln!("note: model.palp not written: {e}"),
+            Err(e) => log::warn!("model.palp not written: {e}"),
         }
     }
     println!(
@@ -66,7 +66,7 @@ pub fn run(
         r.split.steps - r.split.fit_steps
     );
     for f in files {
-        println!("wrote {}", f.display());
+        log::info!("wrote {}", f.display());
     }
     Ok(())
 }

@@ -1,7 +1,10 @@
 //! Report of a motion diagnosis: `diagnosis.md`, `diagnosis.json`, `residual-vs-speed.svg`.
 
 use super::{MotionDiagnoseError, MotionDiagnosis, Value};
+use crate::json;
 use palpate_fem::io::atomic::write_atomic;
+use palpate_fem::names::Elastic;
+use palpate_motion::model::ParamKind;
 use palpate_plot::{lines, Series, Style};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -10,11 +13,37 @@ fn um(v: f64) -> String {
     format!("{:.1}", 1e6 * v)
 }
 
+/// A parameter's name as the report prints it: its label with the unit (`Lamé λ (Pa)`,
+/// `viscosity (Pa·s^h)`), "(fixed)" kept.
+fn label(name: &str) -> String {
+    let (base, fixed) = match name.strip_suffix(" (fixed)") {
+        Some(b) => (b, " (fixed)"),
+        None => (name, ""),
+    };
+    match ParamKind::parse(base) {
+        Some(k) => format!("{}{fixed}", k.label()),
+        None => name.to_string(),
+    }
+}
+
 fn value_table(md: &mut String, vals: &[Value]) {
     md.push_str("| parameter | value | 1σ |\n|---|---|---|\n");
     for v in vals {
         let s = v.sigma.map_or("—".to_string(), |s| format!("{s:.3e}"));
-        let _ = writeln!(md, "| {} | {:.4e} | {s} |", v.name, v.value);
+        let _ = writeln!(md, "| {} | {:.4e} | {s} |", label(&v.name), v.value);
+    }
+    let value = |kind: ParamKind| {
+        vals.iter()
+            .find(|v| v.name.strip_suffix(" (fixed)").unwrap_or(&v.name) == kind.name())
+            .map(|v| v.value)
+    };
+    if let (Some(l), Some(m)) = (value(ParamKind::Lambda), value(ParamKind::Mu)) {
+        let e = Elastic::from_lame(l, m);
+        let _ = writeln!(
+            md,
+            "\nYoung's modulus E = {:.4e} Pa, Poisson's ratio ν = {:.4} (from Lamé's λ and μ).",
+            e.young_modulus_pa, e.poisson_ratio
+        );
     }
 }
 
@@ -50,7 +79,7 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
         um(r.after.max_held)
     );
     let _ = writeln!(md, "**Rule**: {}\n", r.rule);
-    md.push_str("## Simplest model: Neo-Hookean, ν = 0 held fixed\n\n");
+    md.push_str("## Simplest model: Neo-Hookean, viscosity = 0 held fixed\n\n");
     value_table(&mut md, &r.before_values);
     for rd in &r.rounds {
         let _ = writeln!(
@@ -129,8 +158,8 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
                 t.values
                     .iter()
                     .map(|v| match v.sigma {
-                        Some(s) => format!("{} = {:.4e} ± {s:.2e}", v.name, v.value),
-                        None => format!("{} = {:.4e}", v.name, v.value),
+                        Some(s) => format!("{} = {:.4e} ± {s:.2e}", label(&v.name), v.value),
+                        None => format!("{} = {:.4e}", label(&v.name), v.value),
                     })
                     .collect::<Vec<_>>()
                     .join(", ")
@@ -152,10 +181,84 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
     );
     let _ = writeln!(
         md,
-        "\nFinal residual: {}.\n\n![residual vs speed](residual-vs-speed.svg)\n",
-        r.final_signature.reading
+        "\nFinal residual: {}.\n\n![residual vs speed]({})\n",
+        r.final_signature.reading,
+        palpate_plot::shown("residual-vs-speed.svg")
     );
     md
+}
+
+/// The unit of a [`Value`] by its name.
+fn unit(name: &str) -> &'static str {
+    match ParamKind::parse(name.strip_suffix(" (fixed)").unwrap_or(name)) {
+        Some(ParamKind::Lambda | ParamKind::Mu) => "Pa",
+        Some(ParamKind::Nu) => "Pa·s^h",
+        Some(ParamKind::Density) => "kg/m³",
+        Some(_) => "",
+        None if name.starts_with("marker offsets") => "m",
+        None => "",
+    }
+}
+
+/// The text of `diagnosis.json`: the diagnosis with `schema_version`, units in the field names
+/// (`rms_fit_m`, `chi2_fit_m2`; pairs as `<name>_<x unit>_<y unit>`), a `unit` beside every
+/// parameter value, and the final material as Lamé's λ, μ and E, ν (`docs/json-outputs.md`).
+pub fn json_text(r: &MotionDiagnosis) -> Result<String, serde_json::Error> {
+    const SCORES: [(&str, &str); 6] = [
+        ("chi2_fit", "chi2_fit_m2"),
+        ("rms_fit", "rms_fit_m"),
+        ("max_fit", "max_fit_m"),
+        ("chi2_held", "chi2_held_m2"),
+        ("rms_held", "rms_held_m"),
+        ("max_held", "max_held_m"),
+    ];
+    const SIGNATURE: [(&str, &str); 3] = [
+        ("time_bins", "time_bins_s_m"),
+        ("per_marker", "per_marker_m"),
+        ("speed_bins", "speed_bins_m_per_s_m"),
+    ];
+    let mut v = serde_json::to_value(r)?;
+    for path in ["before", "after", "rounds[].trials[].scores"] {
+        json::rename(&mut v, path, &SCORES);
+    }
+    for path in ["rounds[].signature", "final_signature"] {
+        json::rename(&mut v, path, &SIGNATURE);
+    }
+    json::rename(
+        &mut v,
+        "",
+        &[
+            ("speed_before", "speed_before_m_per_s_m"),
+            ("speed_after", "speed_after_m_per_s_m"),
+        ],
+    );
+    for path in [
+        "before_values[]",
+        "after_values[]",
+        "rounds[].trials[].values[]",
+    ] {
+        json::each_object(&mut v, path, &mut |o| {
+            let u = unit(o.get("name").and_then(|n| n.as_str()).unwrap_or(""));
+            o.insert("unit".into(), u.into());
+        });
+    }
+    if let Some(o) = v.as_object_mut() {
+        let (tets, markers, steps, dt) = r.size;
+        o.insert(
+            "size".into(),
+            serde_json::json!({"tets": tets, "markers": markers, "steps": steps, "dt_s": dt}),
+        );
+        let value = |kind: ParamKind| {
+            r.after_values
+                .iter()
+                .find(|v| v.name.strip_suffix(" (fixed)").unwrap_or(&v.name) == kind.name())
+                .map(|v| v.value)
+        };
+        if let (Some(l), Some(m)) = (value(ParamKind::Lambda), value(ParamKind::Mu)) {
+            o.insert("elastic".into(), json::elastic(&Elastic::from_lame(l, m)));
+        }
+    }
+    json::finish("motion-diagnosis", v)
 }
 
 /// Writes the report files into `dir`; returns their paths.
@@ -167,7 +270,7 @@ pub fn write_report(r: &MotionDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, Mot
     write_atomic(&p, markdown(r).as_bytes()).map_err(|e| w(e.to_string()))?;
     out.push(p);
     let p = dir.join("diagnosis.json");
-    let json = serde_json::to_string_pretty(r).map_err(|e| w(e.to_string()))?;
+    let json = json_text(r).map_err(|e| w(e.to_string()))?;
     write_atomic(&p, json.as_bytes()).map_err(|e| w(e.to_string()))?;
     out.push(p);
     let p = dir.join("residual-vs-speed.svg");
@@ -180,17 +283,18 @@ pub fn write_report(r: &MotionDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, Mot
     } else {
         format!("elastic + {}", r.adopted.join(" + "))
     };
-    lines(
-        &p,
-        "RMS marker residual vs marker speed relative to the clamp (octile bins)",
-        "|u_rel| (mm/s)",
-        "RMS residual (µm)",
-        &[
-            Series::new("elastic (simplest)", &b, Style::LinePoints),
-            Series::new(&after_label, &a, Style::LinePoints),
-        ],
-    )
-    .map_err(|e| w(e.to_string()))?;
-    out.push(p);
+    out.extend(
+        lines(
+            &p,
+            "RMS marker residual vs marker speed relative to the clamp (octile bins)",
+            "marker speed relative to the clamp |u_rel| (mm/s)",
+            "RMS marker residual (µm)",
+            &[
+                Series::new("elastic (simplest)", &b, Style::LinePoints),
+                Series::new(&after_label, &a, Style::LinePoints),
+            ],
+        )
+        .map_err(|e| w(e.to_string()))?,
+    );
     Ok(out)
 }

@@ -851,7 +851,7 @@ pub fn diagnose_runs(
     ];
     if last.kinds.contains(&ParamKind::Nu) {
         values.push(ParamValue {
-            name: "viscosity coefficient (eq. 17 ν)".into(),
+            name: "viscosity (power law)".into(),
             value: last.material.get(ParamKind::Nu, 0),
             sd: f64::NAN,
             unit: "Pa·s^h".into(),

@@ -4,7 +4,9 @@
 //! (`ring-<run>.svg` and `.png`).
 
 use super::{RunResidual, RunsDiagnosis, RunsError};
+use crate::json;
 use palpate_fem::io::atomic::write_atomic;
+use palpate_fem::names::Elastic;
 use palpate_plot::{lines, Series, Style};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -133,15 +135,27 @@ pub fn markdown(r: &RunsDiagnosis) -> String {
             }
         );
     }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let e = Elastic::from_lame(mean(&r.model.lambda), mean(&r.model.mu));
+    let _ = writeln!(
+        md,
+        "\nElastic constants: Young's modulus E = {:.5e} Pa, Poisson's ratio ν = {:.4}, Lamé λ = {:.5e} Pa, shear modulus μ = {:.5e} Pa.",
+        e.young_modulus_pa, e.poisson_ratio, e.lame_lambda_pa, e.shear_modulus_pa
+    );
     let _ = writeln!(
         md,
         "\nThe 1σ is from the curvature of the objective with independent residuals: a lower bound, \
          since a ring-down's residuals are correlated in time; the spread of leave-one-run-out fits is \
          the realistic one.\n"
     );
-    let _ = writeln!(md, "![period against load](period-vs-load.svg)\n");
+    let _ = writeln!(
+        md,
+        "![period against load]({})\n",
+        palpate_plot::shown("period-vs-load.svg")
+    );
     for h in &r.after.1 {
-        let _ = writeln!(md, "![{}](ring-{}.svg)\n", h.run, slug(&h.run));
+        let file = palpate_plot::shown(&format!("ring-{}.svg", slug(&h.run)));
+        let _ = writeln!(md, "![{}]({file})\n", h.run);
     }
     md
 }
@@ -162,6 +176,31 @@ fn slug(s: &str) -> String {
         .collect()
 }
 
+/// The text of `diagnosis.json`: the diagnosis with `schema_version`, units in the field names and
+/// the final material as Lamé's λ, μ and E, ν (`docs/json-outputs.md`); `model` is `fit.json`'s
+/// record.
+pub fn json_text(r: &RunsDiagnosis) -> Result<String, serde_json::Error> {
+    let mut v = serde_json::to_value(r)?;
+    json::rename(&mut v, "", &[("seconds", "run_time_s")]);
+    json::rename(
+        &mut v,
+        "options",
+        &[
+            ("start_mu", "start_mu_pa"),
+            ("start_viscosity", "start_viscosity_pa_s_h"),
+        ],
+    );
+    for path in ["before[].[]", "after[].[]"] {
+        json::rename(&mut v, path, &[("chi2", "chi2_m2"), ("ring", "ring_m")]);
+    }
+    if let Some(o) = v.as_object_mut() {
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+        let e = Elastic::from_lame(mean(&r.model.lambda), mean(&r.model.mu));
+        o.insert("elastic".into(), json::elastic(&e));
+    }
+    json::finish("runs-diagnosis", v)
+}
+
 /// Writes the report into `dir`; returns the files written.
 pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBuf>, RunsError> {
     let w = |e: String| RunsError::Write(e);
@@ -171,11 +210,11 @@ pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBu
     write_atomic(&p, markdown(r).as_bytes()).map_err(|e| w(e.to_string()))?;
     out.push(p);
     let p = dir.join("diagnosis.json");
-    let json = serde_json::to_string_pretty(r).map_err(|e| w(e.to_string()))?;
+    let json = json_text(r).map_err(|e| w(e.to_string()))?;
     write_atomic(&p, json.as_bytes()).map_err(|e| w(e.to_string()))?;
     out.push(p);
     let p = dir.join("fit.json");
-    let json = serde_json::to_string_pretty(&r.model).map_err(|e| w(e.to_string()))?;
+    let json = r.model.to_json().map_err(|e| w(e.to_string()))?;
     write_atomic(&p, json.as_bytes()).map_err(|e| w(e.to_string()))?;
     out.push(p);
     let after_name = if r.adopted.is_empty() {
@@ -210,21 +249,20 @@ pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBu
     if !pm.is_empty() {
         {
             let p = dir.join("period-vs-load.svg");
-            lines(
-                &p,
-                "Ring-down period against the hanging load (every run)",
-                "hanging load along gravity (N)",
-                "period of the ring-down (ms)",
-                &[
-                    Series::new("measured", &pm, Style::Points),
-                    Series::new("simplest model", &p0, Style::Points),
-                    Series::new(&after_name, &p1, Style::Points),
-                ],
-            )
-            .map_err(|e| w(e.to_string()))?;
-            // The SVG comes with its PNG sibling (palpate_plot writes both).
-            out.push(p.with_extension("png"));
-            out.push(p);
+            out.extend(
+                lines(
+                    &p,
+                    "Ring-down period against the hanging load (every run)",
+                    "hanging load along gravity (N)",
+                    "period of the ring-down (ms)",
+                    &[
+                        Series::new("measured", &pm, Style::Points),
+                        Series::new("simplest model", &p0, Style::Points),
+                        Series::new(&after_name, &p1, Style::Points),
+                    ],
+                )
+                .map_err(|e| w(e.to_string()))?,
+            );
         }
     }
     for (b, a) in r.before.1.iter().zip(&r.after.1) {
@@ -238,21 +276,24 @@ pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBu
         let (m, s0, s1) = (pts(&b.ring.0), pts(&b.ring.1), pts(&a.ring.1));
         {
             let p = dir.join(format!("ring-{}.svg", slug(&b.run)));
-            lines(
-                &p,
-                &format!("{} ({}), predicted", slug(&b.run), b.ring_marker),
-                "time after release (s)",
-                "displacement along gravity (mm)",
-                &[
-                    Series::new("measured", &m, Style::Points),
-                    Series::new("simplest model", &s0, Style::Line),
-                    Series::new(&after_name, &s1, Style::Line),
-                ],
-            )
-            .map_err(|e| w(e.to_string()))?;
-            // The SVG comes with its PNG sibling (palpate_plot writes both).
-            out.push(p.with_extension("png"));
-            out.push(p);
+            out.extend(
+                lines(
+                    &p,
+                    &format!(
+                        "Held-out run {}: marker {} predicted",
+                        slug(&b.run),
+                        b.ring_marker
+                    ),
+                    "time after release (s)",
+                    "displacement along gravity (mm)",
+                    &[
+                        Series::new("measured", &m, Style::Points),
+                        Series::new("simplest model", &s0, Style::Line),
+                        Series::new(&after_name, &s1, Style::Line),
+                    ],
+                )
+                .map_err(|e| w(e.to_string()))?,
+            );
         }
     }
     Ok(out)

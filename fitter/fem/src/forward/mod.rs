@@ -84,7 +84,7 @@ pub enum ForwardError {
     },
     /// The material has the wrong number of values.
     #[error(
-        "material has {found} (λ, α) values (λ: {lambda}, α: {alpha}); expected 1 or {elements}"
+        "material has {found} pairs of thesis coefficients (λ_F: {lambda}, α_G: {alpha}); expected 1 or {elements}"
     )]
     MaterialLength {
         /// Number of λ values.
@@ -97,7 +97,7 @@ pub enum ForwardError {
         elements: usize,
     },
     /// Non-physical parameters.
-    #[error("element {element}: λ = {lambda}, α = {alpha} is not physical (need E > 0 and −1 < ν < 0.5)")]
+    #[error("element {element}: thesis coefficients λ_F = {lambda}, α_G = {alpha} are not physical (need E > 0 and −1 < ν < 0.5)")]
     NonPhysical {
         /// Element index (0 for a homogeneous material).
         element: usize,

@@ -2,5 +2,6 @@
 
 pub mod atomic;
 pub mod csv;
+pub mod json;
 pub mod text;
 pub use text::parse_vec3;

@@ -42,18 +42,18 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(dir) = &args.sponge_dataset {
         palpate_static_fit::evidence::write_sponge_dataset(&args.sponge_mesh, dir)?;
-        println!("wrote {}", dir.display());
+        log::info!("wrote {}", dir.display());
         return Ok(());
     }
     if let Some(dir) = &args.evidence {
         let rows = palpate_static_fit::evidence::tradeoff(dir, [5, 5, 3])?;
-        println!(
+        log::info!(
             "wrote {}/tradeoff_error.svg, tradeoff_roughness.svg, tradeoff.json",
             dir.display()
         );
         println!(
             "{}",
-            serde_json::json!({"bench": "fit-evidence", "tradeoff": rows})
+            serde_json::json!({"schema_version": 1, "bench": "fit-evidence", "tradeoff": rows})
         );
         return Ok(());
     }
@@ -121,6 +121,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!(
         "{}",
         serde_json::json!({
+            "schema_version": 1,
             "bench": "fit",
             "tets": tets,
             "params": params,

@@ -169,7 +169,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     println!(
         "{}",
-        json!({"bench": "link", "rate_hz": args.rate, "nodes": nodes, "tets": tets,
+        json!({"schema_version": 1, "bench": "link", "rate_hz": args.rate, "nodes": nodes, "tets": tets,
                "throughput_fps": fps, "bytes_per_frame": bytes_per_frame,
                "written_to_solved_us": e2e, "written_to_arrival_us": link, "arrival_to_solved_us": solve,
                "iterations": it, "superseded": lp.superseded, "non_monotonic_pairs": non_monotonic, "host_cpu_fraction": cpu, "process_cpu_fraction": pcpu,

@@ -171,6 +171,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "MyFEM anchor (same problem, one thread): forward 3.0–3.3 s, +adjoint 4.15 s, +direct 6.2 s, optimisation 137 s / 34 evaluations"
     );
     let json = serde_json::json!({
+        "schema_version": 1,
         "bench": "motion",
         "tets": ne,
         "nodes": model.nodes.len(),

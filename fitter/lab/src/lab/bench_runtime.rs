@@ -739,6 +739,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!(
         "{}",
         json!({
+            "schema_version": 1,
             "bench": "runtime",
             "blend": format!("{:?}", args.blend).to_lowercase(),
             "rule": format!("{:?}", args.rule).to_lowercase(),

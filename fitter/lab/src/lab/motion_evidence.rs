@@ -503,13 +503,13 @@ fn example(dir: &Path) -> anyhow::Result<()> {
     }
     write_atomic(&dir.join("clamps.csv"), c.as_bytes())?;
     let toml = format!(
-        "# Example motion dataset (docs/motion-dataset.md), simulated by `palpate-lab motion-evidence example`.\nmesh = \"mesh.msh\"\ndt = {dt}\ndensity = 47.0\ngravity = [0.0, -9.81, 0.0]\nclamps = [\"front\"]\n\n[initial]\nlambda = 20000.0\nmu = 10000.0\nnu = 6.0\nh = 1.3\n"
+        "# Example motion dataset (docs/motion-dataset.md), simulated by `palpate-lab motion-evidence example`.\nmesh = \"mesh.msh\"\ndt = {dt}\ndensity = 47.0\ngravity = [0.0, -9.81, 0.0]\nclamps = [\"front\"]\n\n[initial]\nlambda = 20000.0\nmu = 10000.0\nviscosity = 6.0\nh = 1.3\n"
     );
     write_atomic(&dir.join("dataset.toml"), toml.as_bytes())?;
     write_atomic(
         &dir.join("truth.toml"),
-        b"# Ground truth used to simulate this dataset (not read by the fitter).\nlambda = 10000.0\nmu = 20000.0\nnu = 12.0\nh = 1.0\ndensity = 47.0\nmarker_noise_m = 0.0002\n",
+        b"# Ground truth used to simulate this dataset (not read by the fitter).\nlambda = 10000.0\nmu = 20000.0\nviscosity = 12.0\nh = 1.0\ndensity = 47.0\nmarker_noise_m = 0.0002\n",
     )?;
-    println!("wrote {}", dir.display());
+    log::info!("wrote {}", dir.display());
     Ok(())
 }

@@ -137,12 +137,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(out) = &args.output {
         let json = serde_json::to_string_pretty(&fit).context("serialising the fit")?;
         write_atomic(out, json.as_bytes())?;
-        println!("  wrote {}", out.display());
+        log::info!("wrote {}", out.display());
     }
     println!(
         "{}",
         serde_json::json!({
-            "source": name, "power_law": {"gain": a, "exponent": b}, "power_rms_n": pr.rms_n,
+            "schema_version": 1, "kind": "fsr-calibration", "source": name, "power_law": {"gain": a, "exponent": b}, "power_rms_n": pr.rms_n,
             "power_rms_relative": pr.rms_relative, "monotone_rms_n": mr.rms_n,
             "usable_range_n": [fit.usable_range_n.0, fit.usable_range_n.1],
             "fitted": fit.fitted.len(), "rejected": fit.rejected.len(),

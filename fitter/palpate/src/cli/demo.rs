@@ -33,6 +33,9 @@ pub struct Args {
     /// Skip the measured-beam loop (models/silicone-beam) and run only the synthetic specimen.
     #[arg(long)]
     pub no_beam: bool,
+    /// Figure format.
+    #[command(flatten)]
+    pub plots: super::output::PlotArgs,
 }
 
 fn mm(v: f64) -> String {
@@ -41,6 +44,7 @@ fn mm(v: f64) -> String {
 
 /// Runs the demo.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    args.plots.apply();
     let t0 = Instant::now();
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
@@ -49,15 +53,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let beam = if args.no_beam {
         None
     } else {
-        println!("palpate demo, part 1: the measured silicone beam (models/silicone-beam, C3D)");
+        log::info!("palpate demo, part 1: the measured silicone beam (models/silicone-beam, C3D)");
         Some(super::demo_beam::run(&args.out)?)
     };
     if beam.is_some() {
-        println!("\npalpate demo, part 2: the synthetic specimen (effects known)");
+        log::info!("palpate demo, part 2: the synthetic specimen (effects known)");
     }
     let ds = StaticDataset::read(&args.dataset)
         .with_context(|| format!("reading dataset {}", args.dataset.display()))?;
-    println!(
+    log::info!(
         "palpate demo on {:?}: {} nodes, {} tets, {} markers, {} measurements",
         ds.name,
         ds.mesh.nodes.len(),
@@ -69,8 +73,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .with_context(|| format!("creating {}", args.out.display()))?;
 
     // 1. Fit the simplest model the thesis offers: linear homogeneous, displacement-based.
-    println!(
-        "\n[1/4] fit: linear homogeneous material, displacement-based inverse (seed 000 §5.3)"
+    log::info!(
+        "[1/4] fit: linear homogeneous material, displacement-based inverse (seed 000 §5.3)"
     );
     let input = FitInput::from_dataset(&ds)?;
     let o = FitOptions::new(Method::Displacement, Layout::Homogeneous, Sets::Single);
@@ -79,7 +83,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         lambda: fit.params[0].lambda[0],
         alpha: fit.params[0].alpha[0],
     };
-    println!(
+    log::info!(
         "      E = {:.0} Pa, ν = {:.3}, RMS marker error {} mm ({:.1} s)",
         p.young(),
         p.poisson(),
@@ -88,20 +92,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
 
     // 2. Diagnose: residual signatures, candidate effects scored on held-out data.
-    println!("\n[2/4] diagnose: residual signatures, candidate effects, held-out scoring");
+    log::info!("[2/4] diagnose: residual signatures, candidate effects, held-out scoring");
     let report = run_diagnosis_with(&ds, &DiagnoseOptions::default(), |msg| {
-        println!("      {msg}")
+        log::info!("  {msg}")
     })?;
     let diag_dir = args.out.join("diagnosis");
     let files = palpate_diagnose::report::write_report(&report, &diag_dir)?;
-    println!(
+    log::info!(
         "      report: {} files in {}",
         files.len(),
         diag_dir.display()
     );
 
     // 3. Export the fitted model for the runtime.
-    println!("\n[3/4] export");
+    log::info!("[3/4] export");
     let prov = ProvenanceInfo {
         tool: format!("palpate {} demo", env!("CARGO_PKG_VERSION")),
         source: format!("{} ({})", ds.name, args.dataset.display()),
@@ -119,7 +123,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &prov,
     )?;
     let bytes = buffers.write(&simplest_path)?;
-    println!(
+    log::info!(
         "      {} ({} bytes): the simplest model",
         simplest_path.display(),
         bytes
@@ -127,7 +131,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let model_path = args.out.join("model.palp");
     let diagnosed = palpate_diagnose::export::diagnosed_model(&report, &prov.tool, &prov.source)?;
     let bytes = diagnosed.write(&model_path)?;
-    println!(
+    log::info!(
         "      {} ({} bytes): the diagnosed model (replayed below)",
         model_path.display(),
         bytes
@@ -135,8 +139,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
     // 4. Haptic replay: the simulated probe streams forces over a pseudo-terminal; the runtime
     //    solves one warped tick per sample.
-    println!(
-        "\n[4/4] haptic replay over a pseudo-terminal ({} s at 1 kHz)",
+    log::info!(
+        "[4/4] haptic replay over a pseudo-terminal ({} s at 1 kHz)",
         args.haptic_seconds
     );
     let file = std::fs::read(&model_path)?;
@@ -161,7 +165,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // The table.
     let b = &report.before;
     let a = &report.after;
-    let adopted: Vec<String> = report.adopted.iter().map(|c| format!("{c:?}")).collect();
+    let adopted: Vec<String> = report
+        .adopted
+        .iter()
+        .map(|c| c.name().to_string())
+        .collect();
     println!(
         "\n== before / after (marker errors in mm; noise floor {} mm)",
         mm(report.noise_floor)
@@ -196,14 +204,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         replay.solved, lost, replay.p50_us, replay.p99_us, replay.mean_iterations, footprint
     );
     if replay.non_monotonic > 0 {
-        println!(
-            "warning: {} latency pairs were out of clock order and are excluded from the figures",
+        log::warn!(
+            "{} latency pairs were out of clock order and are excluded from the figures",
             replay.non_monotonic
         );
     }
     if let Some(b) = &beam {
         super::demo_beam::print_table(b);
     }
-    println!("demo finished in {:.1} s", t0.elapsed().as_secs_f64());
+    log::info!("demo finished in {:.1} s", t0.elapsed().as_secs_f64());
     Ok(())
 }

@@ -72,7 +72,7 @@ fn mm(v: f64) -> String {
 /// Runs the beam part of the demo into `out/beam`.
 pub fn run(out: &Path) -> anyhow::Result<BeamOutcome> {
     let out = out.join("beam");
-    println!("\n[beam 1/4] import the four captures (C3D → registered motion datasets)");
+    log::info!("[beam 1/4] import the four captures (C3D → registered motion datasets)");
     let fit: Vec<_> = FITTED
         .iter()
         .map(|r| import(r, &out))
@@ -82,23 +82,23 @@ pub fn run(out: &Path) -> anyhow::Result<BeamOutcome> {
         .map(|r| import(r, &out))
         .collect::<anyhow::Result<_>>()?;
 
-    println!(
-        "\n[beam 2/4] diagnose: fit {} , hold out {} (their repeats)",
+    log::info!(
+        "[beam 2/4] diagnose: fit {} , hold out {} (their repeats)",
         FITTED.join(" + "),
         HELD_OUT.join(" + ")
     );
     let d = diagnose_runs(&fit, &held, &RunsOptions::default(), &|m| {
-        println!("      {m}")
+        log::info!("  {m}")
     })?;
     let files = write_report(&d, &out.join("diagnosis"), fit[0].1.model.dt)?;
-    println!(
+    log::info!(
         "      report: {} files in {}",
         files.len(),
         out.join("diagnosis").display()
     );
 
-    println!(
-        "\n[beam 3/4] validate: the final model predicts the held-out runs; the linear baseline"
+    log::info!(
+        "[beam 3/4] validate: the final model predicts the held-out runs; the linear baseline"
     );
     let fitted_runs: Vec<(f64, Vec<Option<[f64; 3]>>)> = d
         .model
@@ -114,14 +114,14 @@ pub fn run(out: &Path) -> anyhow::Result<BeamOutcome> {
         ));
     }
     let fit_json = out.join("diagnosis").join("fit.json");
-    println!(
+    log::info!(
         "      the model: {} (palpate validate --model {} <dataset> predicts any run imported on {})",
         fit_json.display(),
         fit_json.display(),
         MESH
     );
 
-    println!("\n[beam 4/4] export the fitted beam and play the weight at its tip in the runtime");
+    log::info!("[beam 4/4] export the fitted beam and play the weight at its tip in the runtime");
     let (_, ds) = &fit[0];
     let prov = ProvenanceInfo {
         tool: format!("palpate {} demo", env!("CARGO_PKG_VERSION")),
@@ -164,7 +164,7 @@ pub fn run(out: &Path) -> anyhow::Result<BeamOutcome> {
         + mean(finals("load52_V2_b"))
         - mean(finals("gravity_V2_b")))
         / 2.0;
-    println!(
+    log::info!(
         "      {} ({bytes} bytes); runtime tip deflection under {:.3} N: {} mm (measured, weight minus no weight: {} mm)",
         palp.display(),
         weight,
@@ -186,7 +186,7 @@ pub fn run(out: &Path) -> anyhow::Result<BeamOutcome> {
         &out.join("beam-warped-linear.palp"),
     )?;
     let e_fit = d.values[0].value;
-    println!(
+    log::info!(
         "      warped-linear static fit to the measured deflection: E = {:.0} Pa (runtime tip {} mm, measured {} mm)",
         e_fit * scale,
         mm(check_m),

@@ -38,6 +38,9 @@ pub struct Args {
     /// Poisson's ratio the runs diagnosis holds fixed.
     #[arg(long, default_value_t = 0.49)]
     pub poisson: f64,
+    /// Figure format.
+    #[command(flatten)]
+    pub plots: super::output::PlotArgs,
 }
 
 /// Parses `--mesh`, listing [`MeshChoice`]'s names as the possible values in `--help`.
@@ -50,6 +53,7 @@ fn mesh_choice() -> impl clap::builder::TypedValueParser<Value = MeshChoice> {
 
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    args.plots.apply();
     // The output is checked before the diagnosis runs (minutes), not after.
     super::output::check_writable(&args.output.join("diagnosis.md"))?;
     palpate_diagnose::run::run(&palpate_diagnose::run::Request {

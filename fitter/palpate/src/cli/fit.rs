@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::ValueEnum;
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressStyle;
 
 use palpate_fem::dataset::StaticDataset;
 use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
@@ -13,25 +13,25 @@ use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
 use palpate_static_fit::loo::leave_one_out;
 use palpate_static_fit::{fit_static, FitInput, FitOptions, Gammas, Layout, Method, Sets};
 
-/// Material class (seed 000 §5.2.2 / §6.2).
+/// Material class (the thesis' linear and non-linear materials, seed 000 §5.2.2 and §6.2).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum MaterialClass {
-    /// One (λ, α) for everything.
+    /// One material (E, ν) for the whole object.
     LinearHomogeneous,
-    /// One (λ_e, α_e) per element.
+    /// One material (E, ν) per element.
     LinearInhomogeneous,
-    /// One (λ, α) per measurement, blended by RBFs over deformations.
+    /// One material per measurement, blended by radial basis functions over deformations.
     NonlinearHomogeneous,
-    /// One (λ_e, α_e) per element and measurement, blended in strain space.
+    /// One material per element and measurement, blended in strain space.
     NonlinearInhomogeneous,
 }
 
 /// Inverse method.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum MethodArg {
-    /// Force-based linear least squares (§5.2).
+    /// Force-based linear least squares (the thesis' §5.2).
     Force,
-    /// Displacement-based non-linear least squares (§5.3).
+    /// Displacement-based non-linear least squares (the thesis' §5.3).
     Displacement,
 }
 
@@ -69,10 +69,14 @@ pub struct Args {
         value_name = "MODEL"
     )]
     pub out: PathBuf,
+    /// Figure format.
+    #[command(flatten)]
+    pub plots: super::output::PlotArgs,
 }
 
 /// Runs `palpate fit`.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    args.plots.apply();
     let command = std::env::args().collect::<Vec<_>>().join(" ");
     super::output::check_writable(&args.out)?;
     let ds = StaticDataset::read(&args.dataset)
@@ -97,7 +101,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.gamma_s.is_none() && args.gamma_m.is_some() {
         anyhow::bail!("--gamma-m needs --gamma-s (or omit both to choose γ on the L-curve)");
     }
-    let bar = ProgressBar::new_spinner();
+    let bar = super::logging::bar(None);
     bar.set_style(
         ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}")
             .expect("static template"),
@@ -116,9 +120,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         fit.seconds,
         fit.rms() * 1e3
     ));
-    for w in fit.findings.warnings() {
-        eprintln!("{w}");
-    }
     if fit.findings.has_errors() {
         anyhow::bail!(
             "the fit is not a result, nothing was written:\n{}",
@@ -136,12 +137,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         tool: format!("palpate {} {}", env!("CARGO_PKG_VERSION"), command),
         source: format!("{} ({})", ds.name, args.dataset.display()),
         notes: format!(
-            "{:?} {:?} {:?}; RMS marker error {:.6e} m; γ {:?}",
+            "{:?} {:?} {:?}; RMS marker error {:.6e} m; regularisation γ_s {:.3e}, γ_m {:.3e}",
             method,
             layout,
             sets,
             fit.rms(),
-            fit.gammas
+            fit.gammas.s_lambda,
+            fit.gammas.m_lambda
         ),
     };
     let buffers = ModelBuffers::new(
@@ -180,14 +182,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             loo.as_deref()
         )
     );
-    println!("model: {} ({bytes} bytes)", args.out.display());
+    log::info!("wrote {} ({bytes} bytes): the model", args.out.display());
     for f in files {
-        println!("wrote {}", f.display());
+        log::info!("wrote {}", f.display());
     }
     let warnings = fit.findings.warnings().count();
     if warnings > 0 {
         for w in fit.findings.warnings() {
-            eprintln!("{w}");
+            log::warn!("{w}");
         }
         return Err(super::WrittenWithWarnings(warnings).into());
     }

@@ -2,7 +2,7 @@
 //! (docs/motion-dataset.md) with log-parameter LBFGS and adjoint (or direct) gradients.
 
 use anyhow::Context;
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressStyle;
 use palpate_fem::export::ProvenanceInfo;
 use palpate_motion::fitted::{FittedModel, FittedRun};
 use palpate_motion::gradient::Method;
@@ -19,8 +19,10 @@ pub struct Args {
     /// object on one mesh (other loads, repeats) fitted together with one material.
     #[arg(required = true, num_args = 1..)]
     pub datasets: Vec<PathBuf>,
-    /// Global parameters to fit, comma-separated from lambda,mu,nu,h,density.
-    #[arg(long, default_value = "lambda,mu,nu,h", value_delimiter = ',')]
+    /// Global parameters to fit, comma-separated from lambda, mu (Lamé's λ and the shear
+    /// modulus μ, Pa), viscosity (the power-law viscosity coefficient, Pa·s^h; formerly `nu`),
+    /// h (its power-law index) and density (kg/m³).
+    #[arg(long, default_value = "lambda,mu,viscosity,h", value_delimiter = ',')]
     pub params: Vec<String>,
     /// Per-element parameters to fit (lambda,mu,density), with neighbour smoothness.
     #[arg(long, value_delimiter = ',')]
@@ -35,8 +37,8 @@ pub struct Args {
     /// --params). For a nearly incompressible material seen through a few markers.
     #[arg(long)]
     pub poisson: Option<f64>,
-    /// Starting values overriding the first dataset's `[initial]` table, e.g. `mu=8e4,nu=5`
-    /// (lambda, mu in Pa; nu, the viscosity coefficient, in Pa·s^h; h).
+    /// Starting values overriding the first dataset's `[initial]` table, e.g.
+    /// `mu=8e4,viscosity=5` (lambda, mu in Pa; viscosity in Pa·s^h; h).
     #[arg(long, value_delimiter = ',', value_name = "KIND=VALUE")]
     pub initial: Vec<String>,
     /// Hanging weights (`[[loads]]` with a mass) also add their inertia, lumped on their nodes.
@@ -56,11 +58,26 @@ pub struct Args {
     /// Write the fitted parameters (JSON) here.
     #[arg(short, long)]
     pub output: Option<PathBuf>,
-    /// Export the fit as a runtime model (.palp): Lamé → thesis (λ, α) per element, clamp groups
-    /// fixed; viscosity, density and the large-strain response are not kept (stated in the
+    /// Export the fit as a runtime model (.palp): Lamé's (λ, μ) → the thesis coefficients
+    /// (λ_F, α_G) the runtime stores, per element, clamp groups fixed; viscosity, density and the large-strain response are not kept (stated in the
     /// model's provenance).
     #[arg(long)]
     pub export: Option<PathBuf>,
+}
+
+/// A parameter kind by its name; the viscosity's old name `nu` still works, with a warning on
+/// stderr that names the new one.
+fn param_kind(name: &str, flag: &str) -> Option<ParamKind> {
+    let name = name.trim();
+    ParamKind::parse(name).or_else(|| {
+        let kind = ParamKind::old_name(name)?;
+        log::warn!(
+            "{flag}: `{name}` is now called `{}` (ν is Poisson's ratio everywhere else); read as {}",
+            kind.name(),
+            kind.name()
+        );
+        Some(kind)
+    })
 }
 
 /// Runs the fit and prints the report.
@@ -119,7 +136,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut init = ds.config.initial.clone();
     if args.initial.is_empty() {
         let start = palpate_motion::start::initial_values(ds, args.poisson);
-        eprintln!("{}", start.note);
+        log::info!("{}", start.note);
         (init.lambda, init.mu, init.nu, init.h) =
             (start.lambda, start.mu, start.viscosity, start.h);
     }
@@ -133,25 +150,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .ok()
             .filter(|v: &f64| v.is_finite() && *v > 0.0)
             .with_context(|| format!("--initial: {kv:?}: the value must be a finite number > 0"))?;
-        match k.trim() {
-            "lambda" => init.lambda = v,
-            "mu" => init.mu = v,
-            "nu" => init.nu = v,
-            "h" => init.h = v,
-            o => anyhow::bail!("--initial: unknown kind {o:?} (lambda, mu, nu, h)"),
+        match param_kind(k, "--initial") {
+            Some(ParamKind::Lambda) => init.lambda = v,
+            Some(ParamKind::Mu) => init.mu = v,
+            Some(ParamKind::Nu) => init.nu = v,
+            Some(ParamKind::PowerH) => init.h = v,
+            _ => anyhow::bail!(
+                "--initial: unknown kind {:?} (lambda, mu, viscosity, h)",
+                k.trim()
+            ),
         }
     }
     let density = ds.config.density.unwrap_or(1000.0);
     let base = Material::uniform(ne, init.lambda, init.mu, init.nu, init.h, density);
     let mut params = Vec::new();
     for name in &args.params {
-        let kind = ParamKind::parse(name).with_context(|| {
-            format!("--params: unknown parameter {name:?} (lambda, mu, nu, h, density)")
+        let kind = param_kind(name, "--params").with_context(|| {
+            format!("--params: unknown parameter {name:?} (lambda, mu, viscosity, h, density)")
         })?;
         params.push(Param::global(kind));
     }
     for name in &args.per_element {
-        let kind = ParamKind::parse(name)
+        let kind = param_kind(name, "--per-element")
             .filter(|k| matches!(k, ParamKind::Lambda | ParamKind::Mu | ParamKind::Density));
         let kind = kind.with_context(|| {
             format!("--per-element: {name:?} is not one of lambda, mu, density")
@@ -167,10 +187,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     anyhow::ensure!(!params.is_empty(), "no parameters to fit");
     if ds.config.density.is_none() && !params.iter().any(|p| p.kind == ParamKind::Density) {
-        eprintln!("note: density not given in dataset.toml; using 1000 kg/m³");
+        log::info!("note: density not given in dataset.toml; using 1000 kg/m³");
     }
     let q0 = base.read(&params);
-    let bar = ProgressBar::new(args.max_iters * 2);
+    let bar = super::logging::bar(Some(args.max_iters * 2));
     bar.set_style(
         ProgressStyle::with_template("{spinner} {pos} simulations, {msg} [{elapsed}]")
             .unwrap_or(ProgressStyle::default_spinner()),
@@ -270,7 +290,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         };
         println!(
             "| {} ({tag}) | mean {mean:.6e} (min {lo:.4e}, max {hi:.4e}) |",
-            k.name()
+            k.label()
         );
     }
     let la = LambdaAlpha::from_lame(
@@ -278,15 +298,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         fitted.get(ParamKind::Mu, 0),
     );
     println!(
-        "| runtime (thesis) λ, α of element 0 | {:.4e}, {:.4e} (E = {:.4e} Pa, Poisson {:.3}) |",
-        la.lambda,
-        la.alpha,
+        "| Young's modulus E, Poisson's ratio ν (element 0) | {:.4e} Pa, {:.4} |",
         la.young(),
         la.poisson()
     );
-    for f in &r.failures {
-        println!("note: {f}");
-    }
+    println!(
+        "| {} of element 0, as exported | {:.4e} Pa, {:.4e} Pa |",
+        palpate_fem::names::THESIS_PAIR,
+        la.lambda,
+        la.alpha
+    );
+    println!("\n{}", palpate_fem::names::THESIS_PAIR_NOTE);
     // The result's gates: elastic parameters at the bounds of what a soft object can be refuse
     // the export; Newton steps that never met their tolerance and an LBFGS run stopped by its cap
     // are said loudly (stderr, exit status 2).
@@ -375,11 +397,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 })
                 .collect(),
         };
-        palpate_fem::io::atomic::write_atomic(
-            out,
-            serde_json::to_string_pretty(&record)?.as_bytes(),
-        )?;
-        println!(
+        palpate_fem::io::atomic::write_atomic(out, record.to_json()?.as_bytes())?;
+        log::info!(
             "wrote {} (fitted parameters; `palpate validate --model {}` predicts other runs)",
             out.display(),
             out.display()
@@ -401,7 +420,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let buffers = palpate_motion::export::model_buffers(&ds.mesh, &ds.model, &fitted, &prov)
             .with_context(|| format!("exporting {}", path.display()))?;
         let n = buffers.write(path)?;
-        println!(
+        log::info!(
             "wrote {} ({n} bytes): runtime model; {}",
             path.display(),
             palpate_motion::export::lost_in_export(&fitted)
@@ -410,7 +429,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let warnings = findings.warnings().count();
     if warnings > 0 {
         for w in findings.warnings() {
-            eprintln!("{w}");
+            log::warn!("{w}");
         }
         return Err(super::WrittenWithWarnings(warnings).into());
     }

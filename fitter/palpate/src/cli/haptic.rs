@@ -152,7 +152,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     println!(
         "{}",
-        json!({"samples": p.n, "fed": fed, "held": held, "released": released, "missing": st.missing_samples,
+        json!({"schema_version": 1, "kind": "haptic", "samples": p.n, "fed": fed, "held": held, "released": released, "missing": st.missing_samples,
                "rejected": st.rejected(), "superseded": hl.superseded, "latency_us": p, "iterations": it, "worst_rel_residual": worst_res,
                "unconverged": unconverged, "cpu_fraction": cpu})
     );

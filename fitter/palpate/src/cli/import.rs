@@ -205,7 +205,9 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
             a.output.display()
         )));
     }
-    println!(
+    // What import did is a note beside the dataset it wrote (stderr; `palpate info` reads the
+    // dataset back).
+    log::info!(
         "{}: {} markers at {} Hz, registered on frame {} (RMS {:.2} mm; per marker: {}); release at frame {release_frame}; {} steps",
         a.capture.display(),
         capture.labels.len(),
@@ -221,20 +223,20 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
         r.steps
     );
     if !r.located.is_empty() {
-        println!(
+        log::info!(
             "located from frame {} (no declared place): {}",
             a.rest_frame,
             r.located.join(", ")
         );
     }
     if !r.ignored.is_empty() {
-        println!(
+        log::warn!(
             "left out (missing at rest, or far from the object): {}",
             r.ignored.join(", ")
         );
     }
     for f in r.files {
-        println!("wrote {}", f.display());
+        log::info!("wrote {}", f.display());
     }
     Ok(())
 }

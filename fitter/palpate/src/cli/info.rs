@@ -6,8 +6,12 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
+use palpate_fem::names::Elastic;
 use palpate_protocol::model::{Blend, ModelRecord};
 use palpate_runtime::material::LambdaAlpha;
+
+/// The `schema_version` of the JSON line (`docs/json-outputs.md`).
+const SCHEMA_VERSION: u32 = 1;
 
 /// Options.
 #[derive(Debug, clap::Args)]
@@ -31,28 +35,35 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     model(path, &bytes, &record)
 }
 
+/// The smallest and largest of `v`.
+fn range(v: impl Iterator<Item = f64>) -> (f64, f64) {
+    v.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+        (a.min(x), b.max(x))
+    })
+}
+
 fn model(path: &std::path::Path, bytes: &[u8], r: &ModelRecord<'_>) -> anyhow::Result<()> {
     let p = &r.parameters;
-    let young: Vec<f64> = (0..p.lambda.len())
+    let elastic: Vec<Elastic> = (0..p.lambda.len())
         .filter_map(|i| {
-            Some(
-                LambdaAlpha {
-                    lambda: p.lambda.get(i)? as f64,
-                    alpha: p.alpha.get(i)? as f64,
-                }
-                .young(),
-            )
+            Some(Elastic::of(&LambdaAlpha {
+                lambda: p.lambda.get(i)? as f64,
+                alpha: p.alpha.get(i)? as f64,
+            }))
         })
         .collect();
-    let (lo, hi) = young
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
-            (a.min(*v), b.max(*v))
-        });
+    let (lo, hi) = range(elastic.iter().map(|e| e.young_modulus_pa));
+    let (nu_lo, nu_hi) = range(elastic.iter().map(|e| e.poisson_ratio));
+    let (l_lo, l_hi) = range(elastic.iter().map(|e| e.lame_lambda_pa));
+    let (m_lo, m_hi) = range(elastic.iter().map(|e| e.shear_modulus_pa));
     let blend = match r.blend {
         Blend::None => "none (linear material)",
-        Blend::Deformation { .. } => "deformation-space RBF (§6.2.3)",
-        Blend::Strain { .. } => "strain-space RBF (§6.2.4)",
+        Blend::Deformation { .. } => {
+            "deformation-space radial basis functions (the thesis' non-linear homogeneous material)"
+        }
+        Blend::Strain { .. } => {
+            "strain-space radial basis functions (the thesis' non-linear inhomogeneous material)"
+        }
     };
     let cfg = palpate_runtime::RuntimeConfig::default();
     let need = palpate_runtime::StorageRequirement::for_model(r, &cfg);
@@ -65,8 +76,8 @@ fn model(path: &std::path::Path, bytes: &[u8], r: &ModelRecord<'_>) -> anyhow::R
         r.surface_triangles.len() / 3
     );
     println!(
-        "  material: {:?}, {} parameter set(s); Young's modulus {:.4e}–{:.4e} Pa; blend: {blend}",
-        p.layout, p.count, lo, hi
+        "  material: {:?}, {} parameter set(s); Young's modulus E {:.4e}–{:.4e} Pa, Poisson's ratio ν {:.4}–{:.4}; Lamé λ {:.4e}–{:.4e} Pa, shear modulus μ {:.4e}–{:.4e} Pa; blend: {blend}",
+        p.layout, p.count, lo, hi, nu_lo, nu_hi, l_lo, l_hi, m_lo, m_hi
     );
     println!(
         "  provenance: {} | created {} | source {} | {}",
@@ -77,14 +88,21 @@ fn model(path: &std::path::Path, bytes: &[u8], r: &ModelRecord<'_>) -> anyhow::R
         need.bytes()
     );
     let json = serde_json::json!({
+        "schema_version": SCHEMA_VERSION,
         "kind": "palp",
         "bytes": bytes.len(),
         "nodes": r.node_count,
         "tets": r.element_count,
         "fixed_nodes": r.fixed_nodes.len(),
         "parameter_sets": p.count,
-        "young_min_pa": lo,
-        "young_max_pa": hi,
+        "young_modulus_min_pa": lo,
+        "young_modulus_max_pa": hi,
+        "poisson_ratio_min": nu_lo,
+        "poisson_ratio_max": nu_hi,
+        "lame_lambda_min_pa": l_lo,
+        "lame_lambda_max_pa": l_hi,
+        "shear_modulus_min_pa": m_lo,
+        "shear_modulus_max_pa": m_hi,
         "blend": blend,
         "tool": r.provenance.tool,
         "created": r.provenance.created,
@@ -104,18 +122,18 @@ fn fitted(path: &std::path::Path, bytes: &[u8]) -> anyhow::Result<()> {
             path.display()
         )
         })?;
-    let mu = f.mu.iter().sum::<f64>() / f.mu.len().max(1) as f64;
-    let la = f.lambda.iter().sum::<f64>() / f.lambda.len().max(1) as f64;
-    let e = mu * (3.0 * la + 2.0 * mu) / (la + mu);
-    let nu = la / (2.0 * (la + mu));
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let e = Elastic::from_lame(mean(&f.lambda), mean(&f.mu));
     println!("{}: fitted motion model ({})", path.display(), f.format);
     println!("  mesh: {} nodes, {} tetrahedra", f.nodes, f.tets);
     println!(
-        "  fitted: {}; E {:.4e} Pa, Poisson's ratio {:.3}{}; viscosity {:.4e} Pa·s^h, h {:.3}; density {:.1} kg/m³; hanging inertia {}",
+        "  fitted: {}; E {:.4e} Pa, Poisson's ratio ν {:.3}{}; Lamé λ {:.4e} Pa, shear modulus μ {:.4e} Pa; viscosity {:.4e} Pa·s^h, power-law index h {:.3}; density {:.1} kg/m³; hanging inertia {}",
         f.fitted.join(", "),
-        e,
-        nu,
+        e.young_modulus_pa,
+        e.poisson_ratio,
         if f.poisson_fixed.is_some() { " (held)" } else { "" },
+        e.lame_lambda_pa,
+        e.shear_modulus_pa,
         f.viscosity.first().copied().unwrap_or(f64::NAN),
         f.h.first().copied().unwrap_or(f64::NAN),
         f.density.first().copied().unwrap_or(f64::NAN),
@@ -128,13 +146,17 @@ fn fitted(path: &std::path::Path, bytes: &[u8]) -> anyhow::Result<()> {
         1e3 * f.rms_marker_m
     );
     let json = serde_json::json!({
+        "schema_version": SCHEMA_VERSION,
         "kind": "motion-fit",
         "nodes": f.nodes,
         "tets": f.tets,
-        "young_pa": e,
-        "poisson": nu,
-        "viscosity": f.viscosity.first(),
-        "h": f.h.first(),
+        "young_modulus_pa": e.young_modulus_pa,
+        "poisson_ratio": e.poisson_ratio,
+        "lame_lambda_pa": e.lame_lambda_pa,
+        "shear_modulus_pa": e.shear_modulus_pa,
+        "viscosity_pa_s_h": f.viscosity.first(),
+        "power_law_index": f.h.first(),
+        "density_kg_m3": f.density.first(),
         "hanging_inertia": f.hanging_inertia,
         "runs": f.datasets,
         "rms_marker_m": f.rms_marker_m,
@@ -166,7 +188,7 @@ fn dataset(dir: &std::path::Path) -> anyhow::Result<()> {
         );
         println!(
             "{}",
-            serde_json::json!({"kind": "motion-dataset", "nodes": ds.mesh.nodes.len(), "tets": ds.mesh.tets.len(), "steps": ds.model.steps, "dt": ds.model.dt, "markers": ds.model.markers.len(), "loads": ds.model.loads.len()})
+            serde_json::json!({"schema_version": SCHEMA_VERSION, "kind": "motion-dataset", "nodes": ds.mesh.nodes.len(), "tets": ds.mesh.tets.len(), "steps": ds.model.steps, "dt_s": ds.model.dt, "markers": ds.model.markers.len(), "loads": ds.model.loads.len()})
         );
         return Ok(());
     }
@@ -186,7 +208,7 @@ fn dataset(dir: &std::path::Path) -> anyhow::Result<()> {
     );
     println!(
         "{}",
-        serde_json::json!({"kind": "static-dataset", "name": ds.name, "nodes": ds.mesh.nodes.len(), "tets": ds.mesh.tets.len(), "markers": ds.markers.len(), "measurements": ds.measurements.len(), "marker_noise_m": ds.marker_noise})
+        serde_json::json!({"schema_version": SCHEMA_VERSION, "kind": "static-dataset", "name": ds.name, "nodes": ds.mesh.nodes.len(), "tets": ds.mesh.tets.len(), "markers": ds.markers.len(), "measurements": ds.measurements.len(), "marker_noise_m": ds.marker_noise})
     );
     Ok(())
 }

@@ -11,6 +11,7 @@ pub mod fit_motion;
 pub mod haptic;
 pub mod import;
 pub mod info;
+pub mod logging;
 pub mod output;
 pub mod probe;
 pub mod probe_sim;
@@ -20,8 +21,23 @@ pub mod validate;
 
 /// palpate: learn how a soft object deforms when touched, and play it back at haptic rates.
 #[derive(Debug, Parser)]
-#[command(name = "palpate", version, about, long_about = None)]
+#[command(
+    name = "palpate",
+    version,
+    about,
+    long_about = None,
+    after_help = "Results (tables, summaries, a last JSON line) go to stdout; progress, notes, the \
+                  files written and warnings go to stderr (-q: only warnings and errors)."
+)]
 pub struct Cli {
+    /// Quiet: only warnings and errors on stderr (no progress, no notes, no list of files
+    /// written); results still go to stdout.
+    #[arg(short, long, global = true, conflicts_with = "verbose")]
+    pub quiet: bool,
+    /// More detail on stderr: -v debug, -vv trace. Without -q/-v, RUST_LOG is honoured
+    /// (e.g. RUST_LOG=warn, or RUST_LOG=palpate_diagnose=debug).
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    pub verbose: u8,
     /// What to do.
     #[command(subcommand)]
     pub command: Command,
@@ -78,6 +94,7 @@ impl std::error::Error for WrittenWithWarnings {}
 
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
+    logging::init(cli.quiet, cli.verbose);
     match cli.command {
         Command::Demo(a) => demo::run(a),
         Command::Import(c) => import::run(c),

@@ -97,3 +97,26 @@ pub fn non_negative(s: &str) -> Result<f64, String> {
         Err(_) => Err(format!("{s:?} is not a number")),
     }
 }
+
+/// `--plot-format` of the commands that write figures.
+#[derive(Debug, Clone, clap::Args)]
+pub struct PlotArgs {
+    /// Figures as png, svg or both (the Markdown reports link to the SVG when there is one).
+    #[arg(long, default_value = "both", value_parser = plot_format())]
+    pub plot_format: palpate_plot::PlotFormat,
+}
+
+impl PlotArgs {
+    /// Makes every figure this run writes use the chosen format.
+    pub fn apply(&self) {
+        palpate_plot::set_format(self.plot_format);
+    }
+}
+
+fn plot_format() -> impl clap::builder::TypedValueParser<Value = palpate_plot::PlotFormat> {
+    use clap::builder::TypedValueParser as _;
+    clap::builder::PossibleValuesParser::new(palpate_plot::PlotFormat::NAMES).map(|s| {
+        s.parse::<palpate_plot::PlotFormat>()
+            .expect("PossibleValuesParser passes only PlotFormat::NAMES")
+    })
+}

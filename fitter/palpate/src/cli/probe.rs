@@ -52,19 +52,27 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let t0 = Instant::now();
     let mut last_print = t0;
     let mut stderr = std::io::stderr();
+    // The live line is progress: -q hides it.
+    let live = super::logging::progress_shown();
+    let mut drawn = false;
     while t0.elapsed().as_secs_f64() < args.seconds {
         reader
             .poll(|f, at| match f {
                 Frame::Sample(s) => rows.push((s, at.duration_since(t0).as_micros() as u64)),
-                Frame::Hello(h) => eprintln!(
-                    "\nprobe: device {:#010x}, firmware {:#06x}, protocol {}, {} Hz",
-                    h.device_id, h.firmware_version, h.protocol_version, h.rate_hz
+                Frame::Hello(h) => log::info!(
+                    "probe: device {:#010x}, firmware {:#06x}, protocol {}, {} Hz",
+                    h.device_id,
+                    h.firmware_version,
+                    h.protocol_version,
+                    h.rate_hz
                 ),
-                Frame::Config(c) => eprintln!(
-                    "\nprobe config: {} Hz, cut-off {} Hz, {:?}",
-                    c.rate_hz, c.filter_cutoff_hz, c.calibration.curve
+                Frame::Config(c) => log::info!(
+                    "probe config: {} Hz, cut-off {} Hz, {:?}",
+                    c.rate_hz,
+                    c.filter_cutoff_hz,
+                    c.calibration.curve
                 ),
-                Frame::Error(e) => eprintln!("\nprobe error: {:?} ({})", e.code, e.detail),
+                Frame::Error(e) => log::warn!("probe error: {:?} ({})", e.code, e.detail),
             })
             .map_err(|source| LinkHostError::Io {
                 what: "reading",
@@ -73,7 +81,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             })?;
         if last_print.elapsed() > Duration::from_millis(100) {
             last_print = Instant::now();
-            if let Some((s, _)) = rows.last() {
+            if let Some((s, _)) = rows.last().filter(|_| live) {
+                drawn = true;
                 let st = reader.stats();
                 let _ = write!(stderr, "\rseq {:>8}  force {:>8.3} N  raw {:>6}  status {:#04x}  missing {}  rejected {}   ", s.seq, s.force_n, s.raw_counts, s.status, st.missing_samples, st.rejected());
             }
@@ -84,7 +93,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             }
         }
     }
-    eprintln!();
+    if drawn {
+        eprintln!();
+    }
     let st = *reader.stats();
     if rows.is_empty() {
         anyhow::bail!(
@@ -118,7 +129,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             }
             Ok(())
         })?;
-        println!("wrote {} rows to {}", rows.len(), path.display());
+        log::info!("wrote {} rows to {}", rows.len(), path.display());
     }
     Ok(())
 }

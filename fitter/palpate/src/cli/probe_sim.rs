@@ -132,9 +132,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )
     };
     port.set_timeout(Duration::from_millis(500))?;
-    println!(
+    log::info!(
         "probe-sim: {profile:?} at {} Hz for {} s",
-        args.rate, args.seconds
+        args.rate,
+        args.seconds
     );
     let t0 = Instant::now();
     let (rep, sink) = run_sender(

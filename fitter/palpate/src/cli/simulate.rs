@@ -348,7 +348,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let findings = findings.into_result()?;
     for w in findings.warnings() {
-        eprintln!("{w}");
+        log::warn!("{w}");
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
@@ -392,6 +392,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map(|d| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt())
         .fold(0.0, f64::max);
     let summary = serde_json::json!({
+        "schema_version": 1,
+        "kind": "simulation",
         "ticks": ticks,
         "status": format!("{:?}", rep.status),
         "rel_residual": rep.rel_residual,
@@ -413,7 +415,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         umax * 1e3,
         rep.reaction
     );
-    println!(
+    log::info!(
         "wrote {}/displacements.csv, deformed.vtu, summary.json",
         args.out.display()
     );

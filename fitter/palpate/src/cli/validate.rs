@@ -22,10 +22,14 @@ pub struct Args {
     /// markers per step) and `tip.svg`/`tip.png` (the markers' displacement along gravity).
     #[arg(short, long)]
     pub output: Option<PathBuf>,
+    /// Figure format.
+    #[command(flatten)]
+    pub plots: super::output::PlotArgs,
 }
 
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    args.plots.apply();
     let text = std::fs::read_to_string(&args.model)
         .with_context(|| format!("reading {}", args.model.display()))?;
     let fit: FittedModel = serde_json::from_str(&text).with_context(|| {
@@ -35,11 +39,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )
     })?;
     anyhow::ensure!(
-        fit.format == palpate_motion::fitted::FORMAT,
-        "{}: format {:?}, expected {:?}",
+        palpate_motion::fitted::READABLE_FORMATS.contains(&fit.format.as_str()),
+        "{}: format {:?}, expected one of {:?}",
         args.model.display(),
         fit.format,
-        palpate_motion::fitted::FORMAT
+        palpate_motion::fitted::READABLE_FORMATS
     );
     if let Some(out) = &args.output {
         super::output::check_writable(&out.join("prediction.csv"))?;
@@ -71,11 +75,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let mut mat = Material::uniform(ne, 1.0, 1.0, 1.0, 1.0, 1.0);
     mat.values = [
-        per_element("lambda", &fit.lambda)?,
-        per_element("mu", &fit.mu)?,
-        per_element("viscosity", &fit.viscosity)?,
-        per_element("h", &fit.h)?,
-        per_element("density", &fit.density)?,
+        per_element("lame_lambda_pa", &fit.lambda)?,
+        per_element("shear_modulus_pa", &fit.mu)?,
+        per_element("viscosity_pa_s_h", &fit.viscosity)?,
+        per_element("power_law_index", &fit.h)?,
+        per_element("density_kg_m3", &fit.density)?,
     ];
     let p = predict::predict(&ds.model, &mat, &ds.obs)
         .with_context(|| format!("simulating {}", args.dataset.display()))?;
@@ -140,7 +144,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(out) = &args.output {
         write_outputs(out, &ds, &p)?;
     }
+    // Read by scripts (and an external checker): `final_rms_m` and `trajectory_rms_m` keep
+    // their names.
     let json = serde_json::json!({
+        "schema_version": 1,
+        "kind": "validation",
         "dataset": args.dataset.display().to_string(),
         "model": args.model.display().to_string(),
         "final_rms_m": p.final_rms_m,
@@ -150,6 +158,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "baseline_final_rms_m": baseline_final_rms_m,
         "load_n": load,
         "steps": ds.model.steps,
+        "dt_s": ds.model.dt,
     });
     println!("{json}");
     Ok(())
@@ -182,7 +191,7 @@ fn write_outputs(
     }
     let file = out.join("prediction.csv");
     palpate_fem::io::atomic::write_atomic(&file, csv.as_bytes())?;
-    println!("wrote {}", file.display());
+    log::info!("wrote {}", file.display());
     // Displacement along gravity of the marker that moves most (the tip), measured and simulated.
     let g = ds.model.gravity;
     let gn = g.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-300);
@@ -222,11 +231,10 @@ fn write_outputs(
     ];
     let name = &ds.model.markers[tip].name;
     let title = format!("Marker {name}: displacement along gravity");
-    // `tip.svg`, and palpate_plot writes `tip.png` beside it.
+    // `tip.svg` and `tip.png`, as --plot-format says.
     {
-        let file = out.join("tip.svg");
-        palpate_plot::lines(
-            &file,
+        let written = palpate_plot::lines(
+            out.join("tip.svg"),
             &title,
             "time after release (s)",
             "displacement along gravity (mm)",
@@ -236,11 +244,9 @@ fn write_outputs(
                 palpate_plot::Series::new("predicted rest", &eq, palpate_plot::Style::Line),
             ],
         )?;
-        println!(
-            "wrote {} and {}",
-            file.display(),
-            file.with_extension("png").display()
-        );
+        for f in written {
+            log::info!("wrote {}", f.display());
+        }
     }
     Ok(())
 }

@@ -1,0 +1,384 @@
+//! The `palpate` program as a person reads it: one vocabulary (the viscosity is `viscosity`, the
+//! thesis' pair is never "λ" next to E and ν), results on stdout and everything else on stderr
+//! with `-q`/`-v`/RUST_LOG, JSON documents with a schema version and units in their field names,
+//! and figures in the format asked for.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn palpate() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_palpate"))
+}
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).to_string()
+}
+
+fn last_json(o: &Output) -> serde_json::Value {
+    let out = text(&o.stdout);
+    let line = out.lines().last().unwrap_or_default();
+    serde_json::from_str(line).unwrap_or_else(|e| panic!("{e}: {out}{}", text(&o.stderr)))
+}
+
+/// `fit-motion --params mu,nu` (the old name of the viscosity) still fits, says on stderr that
+/// the name is now `viscosity`, and writes `viscosity` in fit.json's list of fitted parameters;
+/// the table names Lamé's λ, μ, E and ν and the thesis pair under its own name, with the
+/// sentence that says what it is.
+#[test]
+fn fit_motion_reads_the_old_nu_with_a_warning_and_names_things_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let fit = dir.path().join("fit.json");
+    let o = palpate()
+        .arg("fit-motion")
+        .arg(repo().join("models/motion-example"))
+        .args(["--params", "mu,nu", "--initial", "nu=8"])
+        .args(["--max-iterations", "3", "-o"])
+        .arg(&fit)
+        .output()
+        .unwrap();
+    let (out, err) = (text(&o.stdout), text(&o.stderr));
+    // 3 iterations stop at the cap: written, with that warning (exit 2).
+    assert!(matches!(o.status.code(), Some(0 | 2)), "{out}{err}");
+    for flag in ["--params", "--initial"] {
+        assert!(
+            err.contains(&format!("{flag}: `nu` is now called `viscosity`")),
+            "{flag}: {err}"
+        );
+    }
+    let record: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&fit).unwrap()).unwrap();
+    assert_eq!(record["schema_version"], 2);
+    assert_eq!(record["format"], "palpate-motion-fit/2");
+    assert_eq!(record["fitted"], serde_json::json!(["mu", "viscosity"]));
+    for k in [
+        "lame_lambda_pa",
+        "shear_modulus_pa",
+        "viscosity_pa_s_h",
+        "power_law_index",
+        "density_kg_m3",
+        "thesis_lambda_f_alpha_g_pa",
+    ] {
+        assert!(record[k].is_array(), "{k} missing: {record}");
+    }
+    assert!(record.get("lambda").is_none() && record.get("nu").is_none());
+    for words in [
+        "Lamé λ (Pa)",
+        "shear modulus μ (Pa)",
+        "viscosity (Pa·s^h)",
+        "Young's modulus E, Poisson's ratio ν",
+        "thesis coefficients (λ_F, α_G)",
+        "not Lamé's (λ, μ)",
+    ] {
+        assert!(out.contains(words), "{words:?} not in:\n{out}");
+    }
+    assert!(!out.contains("| λ (Pa)") && !out.contains("runtime (thesis) λ"));
+    // The new name needs no warning.
+    let o = palpate()
+        .arg("fit-motion")
+        .arg(repo().join("models/motion-example"))
+        .args(["--params", "mu,viscosity", "--max-iterations", "1", "-q"])
+        .output()
+        .unwrap();
+    assert!(
+        !text(&o.stderr).contains("is now called"),
+        "{}",
+        text(&o.stderr)
+    );
+    // An unknown name is an error that lists the names.
+    let o = palpate()
+        .arg("fit-motion")
+        .arg(repo().join("models/motion-example"))
+        .args(["--params", "mu,damping"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        text(&o.stderr).contains("\"damping\" (lambda, mu, viscosity, h, density)"),
+        "{}",
+        text(&o.stderr)
+    );
+}
+
+/// A motion dataset whose `[initial]` table still says `nu` is read (as the viscosity) with a
+/// warning naming the new key.
+#[test]
+fn a_dataset_with_initial_nu_is_read_with_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let ds = dir.path().join("example");
+    std::fs::create_dir_all(&ds).unwrap();
+    for e in std::fs::read_dir(repo().join("models/motion-example")).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), ds.join(e.file_name())).unwrap();
+    }
+    let toml = std::fs::read_to_string(ds.join("dataset.toml")).unwrap();
+    assert!(toml.contains("\nviscosity = 6.0"));
+    std::fs::write(
+        ds.join("dataset.toml"),
+        toml.replace("\nviscosity = 6.0", "\nnu = 6.0"),
+    )
+    .unwrap();
+    let o = palpate().arg("info").arg(&ds).output().unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+    assert!(
+        text(&o.stderr).contains("[initial] nu is now called viscosity"),
+        "{}",
+        text(&o.stderr)
+    );
+    let d = palpate_motion::dataset::load(&ds).unwrap();
+    assert_eq!(d.config.initial.nu, 6.0);
+}
+
+/// Results on stdout, progress and the files written on stderr; `-q` leaves only the result,
+/// `RUST_LOG=warn` does the same without the flag, and `-v` adds debug lines.
+#[test]
+fn progress_goes_to_stderr_and_quiet_silences_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |extra: &[&str], env: Option<(&str, &str)>| -> Output {
+        let mut c = palpate();
+        c.args(extra)
+            .arg("diagnose")
+            .arg(repo().join("models/motion-example"))
+            .arg("-o")
+            .arg(dir.path().join("d"))
+            .env_remove("RUST_LOG");
+        if let Some((k, v)) = env {
+            c.env(k, v);
+        }
+        c.output().unwrap()
+    };
+    let plain = run(&[], None);
+    assert_eq!(plain.status.code(), Some(0), "{}", text(&plain.stderr));
+    let (out, err) = (text(&plain.stdout), text(&plain.stderr));
+    // The verdict is the result: stdout, one line.
+    assert_eq!(out.lines().count(), 1, "{out}");
+    assert!(out.contains("RMS marker error"), "{out}");
+    assert!(err.contains("round 1") && err.contains("wrote "), "{err}");
+    assert!(!out.contains("wrote "));
+    let quiet = run(&["-q"], None);
+    assert_eq!(quiet.status.code(), Some(0));
+    assert_eq!(text(&quiet.stdout), out, "-q changes only stderr");
+    assert_eq!(
+        text(&quiet.stderr),
+        "",
+        "-q leaves warnings and errors only"
+    );
+    let env_quiet = run(&[], Some(("RUST_LOG", "warn")));
+    assert_eq!(text(&env_quiet.stderr), "");
+    // A flag beats RUST_LOG.
+    let flag_wins = run(&["-q"], Some(("RUST_LOG", "debug")));
+    assert_eq!(text(&flag_wins.stderr), "");
+    // -q and -v together is a usage error, not a guess.
+    let both = run(&["-q", "-v"], None);
+    assert_eq!(both.status.code(), Some(2));
+    assert!(text(&both.stderr).contains("cannot be used with"));
+    // Errors are shown under -q too.
+    let o = palpate()
+        .args(["-q", "info"])
+        .arg(repo().join("README.md"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        text(&o.stderr).starts_with("error: "),
+        "{}",
+        text(&o.stderr)
+    );
+}
+
+/// Every JSON document of the user's commands carries `schema_version`: fit.json (above), the
+/// diagnosis (here: a motion dataset's), validate's and info's last lines, the static fit's
+/// report.json, simulate's summary.json; validate's line keeps `final_rms_m` and
+/// `trajectory_rms_m` (an external checker reads them).
+#[test]
+fn every_json_document_has_a_schema_version_and_units_in_its_names() {
+    let dir = tempfile::tempdir().unwrap();
+    let example = repo().join("models/motion-example");
+    // The motion diagnosis (0.5 s).
+    let d = dir.path().join("diagnosis");
+    let o = palpate()
+        .args(["-q", "diagnose"])
+        .arg(&example)
+        .arg("-o")
+        .arg(&d)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("diagnosis.json")).unwrap()).unwrap();
+    assert_eq!(doc["schema_version"], 1);
+    assert_eq!(doc["kind"], "motion-diagnosis");
+    assert!(doc["before"]["rms_fit_m"].as_f64().is_some(), "{doc}");
+    assert!(doc["size"]["dt_s"].as_f64().is_some());
+    assert!(doc["elastic"]["poisson_ratio"].as_f64().is_some());
+    let names: Vec<&str> = doc["after_values"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|v| v["name"].as_str())
+        .collect();
+    assert!(
+        names.iter().any(|n| n.starts_with("viscosity")),
+        "{names:?}"
+    );
+    assert!(!names.iter().any(|n| n.starts_with("nu")), "{names:?}");
+    let md = std::fs::read_to_string(d.join("diagnosis.md")).unwrap();
+    assert!(md.contains("viscosity = 0 held fixed") && md.contains("Young's modulus E ="));
+
+    // fit-motion → validate's last line.
+    let fit = dir.path().join("fit.json");
+    let o = palpate()
+        .args(["-q", "fit-motion"])
+        .arg(&example)
+        .args(["--params", "mu", "--max-iterations", "2", "-o"])
+        .arg(&fit)
+        .output()
+        .unwrap();
+    assert!(fit.exists(), "{}", text(&o.stderr));
+    let o = palpate()
+        .args(["-q", "validate", "--model"])
+        .arg(&fit)
+        .arg(&example)
+        .output()
+        .unwrap();
+    let v = last_json(&o);
+    assert_eq!(v["schema_version"], 1);
+    for k in ["final_rms_m", "trajectory_rms_m", "load_n", "dt_s"] {
+        assert!(v[k].as_f64().is_some(), "{k}: {v}");
+    }
+    // info on the fit, the dataset and a model.
+    for arg in [fit.clone(), example.clone()] {
+        let o = palpate().arg("info").arg(&arg).output().unwrap();
+        let v = last_json(&o);
+        assert_eq!(v["schema_version"], 1, "{v}");
+    }
+    let o = palpate()
+        .arg("info")
+        .arg(repo().join("models/silicone-beam/fit.json"))
+        .output()
+        .unwrap();
+    let v = last_json(&o);
+    for k in [
+        "young_modulus_pa",
+        "poisson_ratio",
+        "lame_lambda_pa",
+        "shear_modulus_pa",
+        "viscosity_pa_s_h",
+    ] {
+        assert!(v[k].as_f64().is_some(), "{k}: {v}");
+    }
+    // simulate's summary.json, then info on a .palp made by fit (the static report.json).
+    let sim = dir.path().join("sim");
+    let o = palpate()
+        .args(["-q", "simulate", "--mesh"])
+        .arg(repo().join("models/sponge/sponge.msh"))
+        .args(["--young", "2e4", "--poisson", "0.3", "--fixed", "bottom"])
+        .args(["--contact", "0.05,0.05,0.05", "--force", "0,0,-0.5", "-o"])
+        .arg(&sim)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(sim.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(s["schema_version"], 1);
+    let model = dir.path().join("m.palp");
+    let o = palpate()
+        .args(["-q", "fit"])
+        .arg(repo().join("models/sponge/dataset"))
+        .args(["--plot-format", "png", "-o"])
+        .arg(&model)
+        .output()
+        .unwrap();
+    assert!(
+        matches!(o.status.code(), Some(0 | 2)),
+        "{}",
+        text(&o.stderr)
+    );
+    let report = dir.path().join("m.report");
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(report.join("report.json")).unwrap())
+            .unwrap();
+    assert_eq!(r["schema_version"], 1);
+    let row = &r["rows"][0];
+    for k in [
+        "young_modulus_pa",
+        "poisson_ratio",
+        "lame_lambda_pa",
+        "shear_modulus_pa",
+        "thesis_lambda_f_pa",
+        "thesis_alpha_g_pa",
+        "rms_m",
+    ] {
+        assert!(row[k].as_f64().is_some(), "{k}: {row}");
+    }
+    assert!(row.get("lambda").is_none() && row.get("alpha").is_none());
+    assert!(r["fit"]["per_measurement"][0]["rms_m"].as_f64().is_some());
+    let md = std::fs::read_to_string(report.join("report.md")).unwrap();
+    assert!(md.contains("| E (Pa) | ν | Lamé λ (Pa) | μ (Pa) |"), "{md}");
+    assert!(
+        md.contains("Thesis coefficients (λ_F, α_G)") && md.contains("| λ_F (Pa) | α_G (Pa) |")
+    );
+    assert!(!md.contains("| λ (Pa) |") && !md.contains("| α (Pa) |"));
+    // --plot-format png: every figure as PNG, no SVG.
+    let figures: Vec<String> = std::fs::read_dir(&report)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .collect();
+    assert!(
+        figures.iter().any(|f| f == "marker_error.png"),
+        "{figures:?}"
+    );
+    assert!(!figures.iter().any(|f| f.ends_with(".svg")), "{figures:?}");
+    // One material: no histogram of one value (E and ν are in the table).
+    assert!(!figures.iter().any(|f| f.contains("_hist")), "{figures:?}");
+    let o = palpate().arg("info").arg(&model).output().unwrap();
+    let v = last_json(&o);
+    assert_eq!(v["schema_version"], 1);
+    assert!(v["lame_lambda_min_pa"].as_f64().is_some(), "{v}");
+    assert!(text(&o.stdout).contains("Lamé λ"));
+}
+
+/// `--plot-format svg` writes the SVG only, and the default writes both.
+#[test]
+fn plot_format_chooses_the_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let example = repo().join("models/motion-example");
+    let fit = dir.path().join("fit.json");
+    palpate()
+        .args(["-q", "fit-motion"])
+        .arg(&example)
+        .args(["--params", "mu", "--max-iterations", "2", "-o"])
+        .arg(&fit)
+        .output()
+        .unwrap();
+    for (format, svg, png) in [("svg", true, false), ("both", true, true)] {
+        let out = dir.path().join(format);
+        let o = palpate()
+            .args(["-q", "validate", "--model"])
+            .arg(&fit)
+            .arg(&example)
+            .args(["--plot-format", format, "-o"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+        assert_eq!(out.join("tip.svg").exists(), svg, "{format}");
+        assert_eq!(out.join("tip.png").exists(), png, "{format}");
+    }
+    let o = palpate()
+        .args(["validate", "--model"])
+        .arg(&fit)
+        .arg(&example)
+        .args(["--plot-format", "pdf"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        text(&o.stderr).contains("png, svg, both"),
+        "{}",
+        text(&o.stderr)
+    );
+}
