@@ -40,6 +40,7 @@ mod json;
 pub mod model;
 pub mod motion;
 pub mod noise;
+pub mod power;
 pub mod report;
 pub mod run;
 pub mod runs;
@@ -415,6 +416,10 @@ pub struct DiagnosisReport {
     pub after: Errors,
     /// Whether the final residual is explained by the noise floor ([`ResidualCheck`]).
     pub residual_check: ResidualCheck,
+    /// For a residual the noise explains: the smallest magnitude of every candidate the final
+    /// model does not hold that this dataset would have detected ([`power::detectable`]); empty
+    /// when the residual is not explained (then something is missing, and the verdict says so).
+    pub detectable: Vec<power::Detectable>,
     /// Every parameter of the final model.
     pub final_params: Vec<ParamValue>,
     /// Young's modulus (Pa) and Poisson ratio of the final model's base material.
@@ -1219,6 +1224,13 @@ pub fn run_diagnosis_with(
         current.theta.len(),
         judged,
     );
+    // "Clean" says little without what the data could have seen: the power statement.
+    let detectable = if residual_check.judged && residual_check.explained {
+        progress("stating the smallest effects this dataset could have detected");
+        power::detectable(&ctx, &current, o.bic_threshold)?
+    } else {
+        Vec::new()
+    };
     let mut final_params = base_params(&current);
     for &c in &current.model.effects {
         final_params.extend(effect_params(&ctx, &current, c));
@@ -1245,6 +1257,7 @@ pub fn run_diagnosis_with(
         solved_on,
         after,
         residual_check,
+        detectable,
         young_poisson: (current.theta[0].exp(), poisson_of(current.theta[1])),
         final_params,
         seconds: started.elapsed().as_secs_f64(),

@@ -69,6 +69,18 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
             .unwrap_or_default(),
         um(r.solved_on.dataset_mesh_rms)
     );
+    if !r.detectable.is_empty() {
+        let _ = writeln!(s, "## What this dataset could have detected\n");
+        let _ = writeln!(
+            s,
+            "The residual is the noise's, so no further effect was adopted — but only effects at least this large would have been shortlisted (ΔBIC < −{}; linearised at the final fit, each parameter with the rest of its block free; the held-out gate asks more). Smaller effects of these kinds may be present:\n",
+            r.options.bic_threshold
+        );
+        for d in &r.detectable {
+            let _ = writeln!(s, "- {}", d.describe());
+        }
+        let _ = writeln!(s);
+    }
     let _ = writeln!(s, "## Error before and after\n");
     let _ = writeln!(s, "Markers in µm; implied-force error in N (|s − 1|·|f|, s the best scale of simulated onto measured displacement). Held-out = leave-one-measurement-out.\n");
     let _ = writeln!(s, "| model | fitted RMS | fitted max | held-out RMS | held-out max | force RMS | force max | held-out force RMS |");

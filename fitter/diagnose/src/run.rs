@@ -173,6 +173,12 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<(), Error>
         1e6 * r.after.heldout_rms,
         1e6 * r.noise_floor
     );
+    if !r.detectable.is_empty() {
+        println!("  would have detected (smallest magnitudes; smaller effects of these kinds may be present):");
+        for d in &r.detectable {
+            println!("    {}", d.describe());
+        }
+    }
     for f in files {
         log::info!("wrote {}", f.display());
     }

@@ -12,6 +12,7 @@ mod diagnose_export;
 mod diagnose_gravity;
 mod diagnose_motion;
 mod diagnose_noise;
+mod diagnose_power;
 mod diagnose_runs;
 mod diagnose_sensitivity;
 mod diagnose_sweep;
