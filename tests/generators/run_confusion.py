@@ -40,6 +40,7 @@ EXACT = {
     "tilt-each": {"friction", "tilt-each"},
     "boundary": {"compliant-support"},
     "registration-each": {"registration-each"},
+    "force-scale-each": {"force-scale"},
     "gravity": {"gravity"},
     "inclusion": {"inclusion"},
     "layer": {"layer"},
@@ -55,7 +56,7 @@ RELATED = {
     "inclusion": {"layer"},
 }
 PALPATE_CANDIDATES = ["calibration", "tilt", "tilt-each", "boundary", "registration", "registration-each",
-                      "gravity", "inhomogeneity", "layer", "inclusion", "stiffening", "noise"]
+                      "force-scale-each", "gravity", "inhomogeneity", "layer", "inclusion", "stiffening", "noise"]
 # effects of the generator that no palpate candidate models exactly
 UNMODELLED = sorted(set(gen.EFFECTS) - {"none"} - set().union(*EXACT.values()))
 

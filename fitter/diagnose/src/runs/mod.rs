@@ -391,60 +391,9 @@ fn read_residual(name: &str, ds: &MotionDataset, p: &Prediction) -> RunResidual 
     }
 }
 
-/// Period and amplitude ratio per cycle of a ring-down `s` (sampled every `dt`) about its final
-/// value (the mean of its last fifth): from the crossings of that value and the extremes between
-/// them, over the half-cycles whose extreme exceeds 5 % of the first one.
-pub fn ring_down(s: &[f64], dt: f64) -> (Option<f64>, Option<f64>) {
-    let v: Vec<(usize, f64)> = s
-        .iter()
-        .copied()
-        .enumerate()
-        .filter(|(_, x)| x.is_finite())
-        .collect();
-    if v.len() < 10 {
-        return (None, None);
-    }
-    let tail = &v[v.len() - v.len() / 5..];
-    let rest = tail.iter().map(|p| p.1).sum::<f64>() / tail.len() as f64;
-    // Crossing times (linear interpolation) and the extreme of each half-cycle.
-    let mut crossings = Vec::new();
-    let mut extremes = Vec::new();
-    let mut peak = 0.0f64;
-    for w in v.windows(2) {
-        let (a, b) = (w[0].1 - rest, w[1].1 - rest);
-        if a.abs() > peak.abs() {
-            peak = a;
-        }
-        if a != 0.0 && a.signum() != b.signum() {
-            let t = (w[0].0 as f64 + a / (a - b) * (w[1].0 - w[0].0) as f64) * dt;
-            crossings.push(t);
-            extremes.push(peak.abs());
-            peak = 0.0;
-        }
-    }
-    // Half-cycles between crossings; keep those above 5 % of the largest (noise crossings later).
-    let first = extremes.iter().copied().fold(0.0, f64::max);
-    let keep = extremes
-        .iter()
-        .skip(1)
-        .take_while(|e| **e > 0.05 * first)
-        .count();
-    if keep < 2 {
-        return (None, None);
-    }
-    let half: Vec<f64> = crossings
-        .windows(2)
-        .take(keep)
-        .map(|w| w[1] - w[0])
-        .collect();
-    let period = 2.0 * half.iter().sum::<f64>() / half.len() as f64;
-    // Extremes of the same sign one cycle apart.
-    let ex = &extremes[1..=keep];
-    let ratios: Vec<f64> = ex.windows(3).map(|w| w[2] / w[0]).collect();
-    let decay = (!ratios.is_empty())
-        .then(|| (ratios.iter().map(|r| r.ln()).sum::<f64>() / ratios.len() as f64).exp());
-    (Some(period), decay)
-}
+/// The ring-down's period and decay per cycle: the motion crate's estimate, the one that also
+/// chooses the simulation's time step from the capture ([`palpate_motion::timestep`]).
+pub use palpate_motion::timestep::ring_down;
 
 struct RunsModel<'a> {
     fit: &'a [(String, MotionDataset)],
