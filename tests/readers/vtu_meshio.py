@@ -67,7 +67,8 @@ if tets != len(e):
 if not (0 < nu.min() and nu.max() < 0.5):
     fail(f"fit.vtu: poisson_ratio {nu.min()}–{nu.max()}")
 # The homogeneous fit's E, as report.json states it.
-young = [float(v) for v in re.findall(r'"young": *([0-9.eE+-]+)', (report / "report.json").read_text())]
+# (schema 1 names it young_modulus_pa; files written before it, young)
+young = [float(v) for v in re.findall(r'"young(?:_modulus_pa)?": *([0-9.eE+-]+)', (report / "report.json").read_text())]
 if not young or abs(e[0] - young[0]) > 1e-6 * young[0]:
     fail(f"fit.vtu: young_modulus_pa {e[0]}, report.json says {young[:1]}")
 if "marker_error_m" not in m.point_data:
