@@ -911,6 +911,7 @@ impl Model {
                 theta,
                 subset,
                 &xs,
+                &factors,
                 log_e.as_deref(),
                 embedding.as_deref(),
             )?)
@@ -934,53 +935,62 @@ impl Model {
     }
 
     /// The marker responses of [`Candidate::TiltEach`]: for each measurement, two more solves with
-    /// the force tilted by [`TILT_PROBE`]·|f| along t₁ and t₂ (warm-started from `xs`), their
-    /// markers minus the untilted ones, per unit coefficient.
+    /// the force tilted by [`TILT_PROBE`]·|f| along t₁ and t₂ (warm-started from `xs` and from the
+    /// factorisation of K' that measurement's own solve ended with: the tilted load changes the
+    /// rotations by a tenth of the load's, so the kept factor serves and no new factorisation is
+    /// made), their markers minus the untilted ones, per unit coefficient. Measurements in parallel.
+    #[allow(clippy::too_many_arguments)]
     fn tilt_columns(
         &self,
         ctx: &Context,
         theta: &[f64],
         subset: &[usize],
         xs: &[Vec<[f64; 3]>],
+        factors: &[Arc<Factorised>],
         log_e: Option<&[f64]>,
         embedding: Option<&[([usize; 3], [f64; 3])]>,
     ) -> Result<Vec<[Vec<[f64; 3]>; 2]>, DiagnoseError> {
         let mat = self.material(theta, log_e, None)?;
-        let mut out = Vec::with_capacity(subset.len());
-        for (&i, x) in subset.iter().zip(xs) {
-            let m = &ctx.meas[i];
-            let f = self.model_force(ctx, theta, i);
-            let fm = Vector3::from(m.force).norm();
-            let base = self.physical_markers(ctx, theta, i, x, embedding);
-            let mut cols: [Vec<[f64; 3]>; 2] = [Vec::new(), Vec::new()];
-            for (j, t) in ctx.tangents.iter().enumerate() {
-                if fm == 0.0 {
-                    cols[j] = vec![[0.0; 3]; base.len()];
-                    continue;
+        subset
+            .par_iter()
+            .zip(xs)
+            .enumerate()
+            .map(|(k, (&i, x))| {
+                let m = &ctx.meas[i];
+                let f = self.model_force(ctx, theta, i);
+                let fm = Vector3::from(m.force).norm();
+                let base = self.physical_markers(ctx, theta, i, x, embedding);
+                let mut cols: [Vec<[f64; 3]>; 2] = [Vec::new(), Vec::new()];
+                for (j, t) in ctx.tangents.iter().enumerate() {
+                    if fm == 0.0 {
+                        cols[j] = vec![[0.0; 3]; base.len()];
+                        continue;
+                    }
+                    let ft = [0, 1, 2].map(|d| f[d] + TILT_PROBE * fm * t[d]);
+                    let mut fvec = ctx
+                        .problem
+                        .force_vector(&Load::contact(m.point, ft, m.radius))
+                        .map_err(|e| {
+                            DiagnoseError::Input(format!("measurement {:?}: {e}", m.id))
+                        })?;
+                    if let Some(rho) = self.block(Candidate::Gravity, theta, ctx.grid) {
+                        add_gravity(ctx, rho[0], &mut fvec);
+                    }
+                    let xt = ctx
+                        .problem
+                        .solve_forces_with(&mat, &fvec, Some(x), &ctx.solve, factors.get(k))?
+                        .solution
+                        .x;
+                    let tilted = self.physical_markers(ctx, theta, i, &xt, embedding);
+                    cols[j] = tilted
+                        .iter()
+                        .zip(&base)
+                        .map(|(a, b)| [0, 1, 2].map(|d| (a[d] - b[d]) / TILT_PROBE))
+                        .collect();
                 }
-                let ft = [0, 1, 2].map(|d| f[d] + TILT_PROBE * fm * t[d]);
-                let mut fvec = ctx
-                    .problem
-                    .force_vector(&Load::contact(m.point, ft, m.radius))
-                    .map_err(|e| DiagnoseError::Input(format!("measurement {:?}: {e}", m.id)))?;
-                if let Some(rho) = self.block(Candidate::Gravity, theta, ctx.grid) {
-                    add_gravity(ctx, rho[0], &mut fvec);
-                }
-                let xt = ctx
-                    .problem
-                    .solve_forces(&mat, &fvec, Some(x), &ctx.solve)?
-                    .solution
-                    .x;
-                let tilted = self.physical_markers(ctx, theta, i, &xt, embedding);
-                cols[j] = tilted
-                    .iter()
-                    .zip(&base)
-                    .map(|(a, b)| [0, 1, 2].map(|d| (a[d] - b[d]) / TILT_PROBE))
-                    .collect();
-            }
-            out.push(cols);
-        }
-        Ok(out)
+                Ok(cols)
+            })
+            .collect()
     }
 
     /// Where the markers sit on the unloaded object when the rest scan was taken under gravity
