@@ -89,7 +89,18 @@ pub fn diagnosed_model(
             "the diagnosis kept no final fit to export".into(),
         ));
     };
-    let (rctx, rf) = runtime_fit(r)?;
+    // The refit without the correction can leave the physical range where the corrected fit did
+    // not (a stiffening model at a corner): the model then carries the corrected fit's own
+    // parameters, and its provenance says so.
+    let (rctx, rf, diverged) = match runtime_fit(r) {
+        Ok((c, g)) => (c, g, None),
+        Err(DiagnoseError::Diverged(why)) => {
+            let mut plain = ctx.clone();
+            plain.correction = None;
+            (plain, f.clone(), Some(why))
+        }
+        Err(e) => return Err(e),
+    };
     let (sets, blend) = runtime_material(&rctx, &rf.model, &rf.theta, &rf.sim.x)?;
     let mut notes = vec![format!(
         "palpate diagnose: base E = {:.6e} Pa, nu = {:.4}; adopted: {}",
@@ -97,7 +108,14 @@ pub fn diagnosed_model(
         r.young_poisson.1,
         Candidate::names(&r.adopted, ", ", "none")
     )];
-    if let Some(d) = r.solved_on.correction_rms {
+    if let (Some(d), Some(why)) = (r.solved_on.correction_rms, &diverged) {
+        notes.push(format!(
+            "diagnosed with the approximation-error correction from the mesh refined once (delta {:.1} um RMS); the refit on the dataset mesh without it diverged ({why}), so this model carries the corrected fit's parameters: E = {:.6e} Pa, nu = {:.4}",
+            1e6 * d,
+            rf.theta[0].exp(),
+            super::model::poisson_of(rf.theta[1]),
+        ));
+    } else if let Some(d) = r.solved_on.correction_rms {
         let rms = (rf.chi2 / rf.n.max(1) as f64 * 3.0).sqrt() * rctx.sigma;
         notes.push(format!(
             "diagnosed with the approximation-error correction from the mesh refined once (delta {:.1} um RMS); the values above are the object's. This model runs on the dataset mesh, so it was refitted there without the correction: E = {:.6e} Pa, nu = {:.4}, marker RMS {:.1} um",

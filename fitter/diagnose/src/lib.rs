@@ -903,9 +903,27 @@ impl select::CandidateModel for StaticModel<'_> {
             "round {}: refreshing the approximation-error correction",
             cur.round
         ));
-        let f = refresh(&mut self.ctx, corr, &f, self.o.max_iterations)?;
-        let held = holdout(&self.ctx, &f, self.o.holdout_iterations)?;
-        Ok((f, held, adoption))
+        // A refit with the refreshed δ can leave the physical range where the adopted fit did
+        // not (a stiffening fixed point pushed to a corner by the new correction): the adoption
+        // stands on the fit the gate judged, with the previous round's correction, and the
+        // report's progress says so — a diagnosis is not lost to one refit.
+        let kept = self.ctx.correction.clone();
+        let refreshed = refresh(&mut self.ctx, corr, &f, self.o.max_iterations).and_then(|g| {
+            let h = holdout(&self.ctx, &g, self.o.holdout_iterations)?;
+            Ok((g, h))
+        });
+        match refreshed {
+            Ok((g, h)) => Ok((g, h, adoption)),
+            Err(DiagnoseError::Diverged(why)) => {
+                self.ctx.correction = kept;
+                (self.progress)(&format!(
+                    "round {}: the refit with the refreshed correction diverged ({why}); the previous round's correction is kept",
+                    cur.round
+                ));
+                Ok((f, held, adoption))
+            }
+            Err(e) => Err(e),
+        }
     }
 }
 
@@ -1227,7 +1245,16 @@ pub fn run_diagnosis_with(
     // "Clean" says little without what the data could have seen: the power statement.
     let detectable = if residual_check.judged && residual_check.explained {
         progress("stating the smallest effects this dataset could have detected");
-        power::detectable(&ctx, &current, o.bic_threshold)?
+        match power::detectable(&ctx, &current, o.bic_threshold) {
+            Ok(d) => d,
+            // A secant step that leaves the physical range (a stiffening final model) leaves
+            // the statement out; the verdict stands without it.
+            Err(DiagnoseError::Diverged(why)) => {
+                progress(&format!("no power statement: {why}"));
+                Vec::new()
+            }
+            Err(e) => return Err(e),
+        }
     } else {
         Vec::new()
     };
