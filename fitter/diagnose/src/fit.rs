@@ -73,14 +73,30 @@ fn jacobian(
     base: &Simulated,
     r0: &[f64],
 ) -> Result<DMatrix<f64>, DiagnoseError> {
-    let k = theta.len();
+    let all: Vec<usize> = (0..theta.len()).collect();
+    jacobian_columns(ctx, model, theta, subset, base, r0, &all, FD_STEP)
+}
+
+/// Forward-difference columns ∂r/∂θ_j for the parameters `cols` (in that order), with step
+/// `step` on the dimensionless θ, from the simulation `base` at θ with residual `r0`.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn jacobian_columns(
+    ctx: &Context,
+    model: &Model,
+    theta: &[f64],
+    subset: &[usize],
+    base: &Simulated,
+    r0: &[f64],
+    cols: &[usize],
+    step: f64,
+) -> Result<DMatrix<f64>, DiagnoseError> {
     // The columns are independent solves: one per core (the diagnosis spends most of its time
     // here).
-    let columns: Vec<Vec<f64>> = (0..k)
-        .into_par_iter()
-        .map(|c| {
+    let columns: Vec<Vec<f64>> = cols
+        .par_iter()
+        .map(|&c| {
             let mut t = theta.to_vec();
-            t[c] += FD_STEP;
+            t[c] += step;
             let markers = if model.affects_solve(c, ctx.grid) {
                 model.simulate_near(ctx, &t, subset, base)?.markers
             } else {
@@ -94,10 +110,10 @@ fn jacobian(
                 )
             };
             let r = model.residuals(ctx, subset, &markers);
-            Ok(r.iter().zip(r0).map(|(a, b)| (a - b) / FD_STEP).collect())
+            Ok(r.iter().zip(r0).map(|(a, b)| (a - b) / step).collect())
         })
         .collect::<Result<_, DiagnoseError>>()?;
-    let mut j = DMatrix::zeros(r0.len(), k);
+    let mut j = DMatrix::zeros(r0.len(), cols.len());
     for (c, col) in columns.iter().enumerate() {
         j.column_mut(c).copy_from_slice(col);
     }

@@ -19,10 +19,9 @@
 //! per measurement (`*-each`) are not in θ and are not stated here.
 
 use nalgebra::DMatrix;
-use rayon::prelude::*;
 use serde::Serialize;
 
-use super::fit::Fitted;
+use super::fit::{jacobian_columns, Fitted};
 use super::model::{Candidate, Context, ALL_CANDIDATES};
 use super::DiagnoseError;
 
@@ -181,31 +180,7 @@ pub fn detectable(
             .collect();
         where_.push((c, mine));
     }
-    let columns: Vec<Vec<f64>> = cols
-        .par_iter()
-        .map(|&j| {
-            let mut t = theta.clone();
-            t[j] += FD_STEP;
-            let markers = if model.affects_solve(j, grid) {
-                model.simulate_near(ctx, &t, subset, &sim)?.markers
-            } else {
-                model.markers_from(
-                    ctx,
-                    &t,
-                    subset,
-                    &sim.x,
-                    sim.embedding.as_deref(),
-                    sim.tilt.as_deref(),
-                )
-            };
-            let r = model.residuals(ctx, subset, &markers);
-            Ok(r.iter().zip(&r0).map(|(a, b)| (a - b) / FD_STEP).collect())
-        })
-        .collect::<Result<_, DiagnoseError>>()?;
-    let mut j = DMatrix::zeros(n, cols.len());
-    for (k, col) in columns.iter().enumerate() {
-        j.column_mut(k).copy_from_slice(col);
-    }
+    let j = jacobian_columns(ctx, &model, &theta, subset, &sim, &r0, &cols, FD_STEP)?;
     let jb = j.columns(0, kb).into_owned();
     let hbb = jb.transpose() * &jb;
     let hbb_inv = hbb.clone().pseudo_inverse(1e-12 * hbb.norm()).ok();
