@@ -27,17 +27,27 @@ pub fn element_internal(
 ) -> Result<[f64; 12], MotionError> {
     let t = &model.rest[e];
     let s = ElasticState::new(mat, e, he::deformation_gradient(t, &model.gather(e, x)))?;
-    let mut fe = [0.0; 12];
-    he::add_stress_forces(t, &s.pk1(), 1.0, &mut fe);
-    if let Some(r) = visc::Rate::new(&visc::velocity_gradient(t, &model.gather(e, v))) {
-        let sig = visc::stress(&r, mat.get(ParamKind::Nu, e), mat.get(ParamKind::PowerH, e));
-        he::add_stress_forces(t, &sig, 1.0, &mut fe);
+    // Both stresses act through the same rest gradients: summed first, mapped to forces once.
+    let mut p = s.pk1();
+    let h = mat.get(ParamKind::PowerH, e);
+    if let Some(r) = visc::Rate::new(&visc::velocity_gradient(t, &model.gather(e, v)), h) {
+        p += visc::stress(&r, mat.get(ParamKind::Nu, e));
     }
+    let mut fe = [0.0; 12];
+    he::add_stress_forces(t, &p, 1.0, &mut fe);
     Ok(fe)
 }
 
+/// Meshes with at least this many elements are assembled in two halves, the second into its own
+/// buffers and added afterwards — on two threads when the caller is not already one of rayon's
+/// workers (a single run on an idle machine; several runs of one fit are already simulated side
+/// by side). The split depends on the mesh only, so a result is the same to the last bit whether
+/// the halves ran in parallel or one after the other. Below it the extra buffers cost more than
+/// a second thread saves (an element's forces and tangent take about a microsecond).
+const SPLIT_ASSEMBLY_ELEMENTS: usize = 1000;
+
 /// Assembles f (full dofs, overwritten) and optionally K, D values on the free pattern
-/// (overwritten). Fails on an inverted element or non-finite force.
+/// (overwritten). Fails on an inverted element (the lowest index) or non-finite force.
 pub fn assemble(
     model: &Model,
     mat: &Material,
@@ -54,31 +64,116 @@ pub fn assemble(
     if let Some(d) = dvals.as_deref_mut() {
         d.iter_mut().for_each(|z| *z = 0.0);
     }
-    for (e, tet) in model.tets.iter().enumerate() {
+    let ne = model.tets.len();
+    if ne < SPLIT_ASSEMBLY_ELEMENTS {
+        assemble_into(model, mat, x, v, 0..ne, f, kvals, dvals)?;
+    } else {
+        let half = ne / 2;
+        let (want_k, want_d, ndof) = (kvals.is_some(), dvals.is_some(), f.len());
+        let second = || -> Result<(Vec<f64>, Vec<f64>, Vec<f64>), MotionError> {
+            let nnz = model.pattern.nnz();
+            let mut f2 = vec![0.0; ndof];
+            let mut k2 = vec![0.0; if want_k { nnz } else { 0 }];
+            let mut d2 = vec![0.0; if want_d { nnz } else { 0 }];
+            assemble_into(
+                model,
+                mat,
+                x,
+                v,
+                half..ne,
+                &mut f2,
+                want_k.then_some(k2.as_mut_slice()),
+                want_d.then_some(d2.as_mut_slice()),
+            )?;
+            Ok((f2, k2, d2))
+        };
+        let (first, second) = if rayon::current_thread_index().is_none() {
+            rayon::join(
+                || {
+                    assemble_into(
+                        model,
+                        mat,
+                        x,
+                        v,
+                        0..half,
+                        f,
+                        kvals.as_deref_mut(),
+                        dvals.as_deref_mut(),
+                    )
+                },
+                second,
+            )
+        } else {
+            (
+                assemble_into(
+                    model,
+                    mat,
+                    x,
+                    v,
+                    0..half,
+                    f,
+                    kvals.as_deref_mut(),
+                    dvals.as_deref_mut(),
+                ),
+                second(),
+            )
+        };
+        first?;
+        let (f2, k2, d2) = second?;
+        let add = |to: &mut [f64], from: &[f64]| to.iter_mut().zip(from).for_each(|(a, b)| *a += b);
+        add(f, &f2);
+        if let Some(k) = kvals {
+            add(k, &k2);
+        }
+        if let Some(d) = dvals {
+            add(d, &d2);
+        }
+    }
+    if f.iter().any(|z| !z.is_finite()) {
+        return Err(MotionError::NonFinite("internal force".into()));
+    }
+    Ok(())
+}
+
+/// Adds the forces of the elements in `range` into `f` and their K, D blocks into `kvals`,
+/// `dvals`.
+#[allow(clippy::too_many_arguments)]
+fn assemble_into(
+    model: &Model,
+    mat: &Material,
+    x: &[f64],
+    v: &[f64],
+    range: std::ops::Range<usize>,
+    f: &mut [f64],
+    mut kvals: Option<&mut [f64]>,
+    mut dvals: Option<&mut [f64]>,
+) -> Result<(), MotionError> {
+    for e in range {
+        let tet = &model.tets[e];
         let t = &model.rest[e];
         let s = ElasticState::new(mat, e, he::deformation_gradient(t, &model.gather(e, x)))?;
-        let mut fe = [0.0; 12];
-        he::add_stress_forces(t, &s.pk1(), 1.0, &mut fe);
+        let mut p = s.pk1();
         if let Some(k) = kvals.as_deref_mut() {
             model.pattern.add_element(e, &s.tangent(t), 1.0, k);
         }
-        if let Some(r) = visc::Rate::new(&visc::velocity_gradient(t, &model.gather(e, v))) {
-            let (nu, h) = (mat.get(ParamKind::Nu, e), mat.get(ParamKind::PowerH, e));
-            he::add_stress_forces(t, &visc::stress(&r, nu, h), 1.0, &mut fe);
+        let (nu, h) = (mat.get(ParamKind::Nu, e), mat.get(ParamKind::PowerH, e));
+        if let Some(r) = visc::Rate::new(&visc::velocity_gradient(t, &model.gather(e, v)), h) {
+            p += visc::stress(&r, nu);
             if let Some(d) = dvals.as_deref_mut() {
                 model
                     .pattern
-                    .add_element(e, &visc::element_damping(t, &r, nu, h), 1.0, d);
+                    .add_element(e, &visc::element_damping(t, &r, nu), 1.0, d);
             }
         }
+        // Elastic and viscous stresses act through the same rest gradients: summed first, mapped
+        // to nodal forces once.
+        let mut fe = [0.0; 12];
+        he::add_stress_forces(t, &p, 1.0, &mut fe);
         for a in 0..4 {
             for i in 0..3 {
                 f[3 * tet[a] + i] += fe[3 * a + i];
             }
         }
-    }
-    if f.iter().any(|z| !z.is_finite()) {
-        return Err(MotionError::NonFinite("internal force".into()));
     }
     Ok(())
 }
@@ -144,19 +239,19 @@ pub fn param_derivatives(
             }
         }
         if kinds[ParamKind::Nu as usize] || kinds[ParamKind::PowerH as usize] {
-            let r = visc::Rate::new(&visc::velocity_gradient(t, &model.gather(e, v)));
             let (nu, h) = (mat.get(ParamKind::Nu, e), mat.get(ParamKind::PowerH, e));
+            let r = visc::Rate::new(&visc::velocity_gradient(t, &model.gather(e, v)), h);
             if kinds[ParamKind::Nu as usize] {
                 let mut g = [0.0; 12];
                 if let Some(r) = &r {
-                    he::add_stress_forces(t, &visc::stress_dnu(r, h), 1.0, &mut g);
+                    he::add_stress_forces(t, &visc::stress_dnu(r), 1.0, &mut g);
                 }
                 sink(e, ParamKind::Nu as usize, &g);
             }
             if kinds[ParamKind::PowerH as usize] {
                 let mut g = [0.0; 12];
                 if let Some(r) = &r {
-                    he::add_stress_forces(t, &visc::stress_dh(r, nu, h), 1.0, &mut g);
+                    he::add_stress_forces(t, &visc::stress_dh(r, nu), 1.0, &mut g);
                 }
                 sink(e, ParamKind::PowerH as usize, &g);
             }

@@ -109,15 +109,11 @@ pub fn step_term(
                 let s =
                     ElasticState::new(mat, el, he::deformation_gradient(rt, &model.gather(el, x)))?;
                 let ke = s.tangent(rt);
-                let de =
-                    visc::Rate::new(&visc::velocity_gradient(rt, &model.gather(el, v))).map(|r| {
-                        visc::element_damping(
-                            rt,
-                            &r,
-                            mat.get(ParamKind::Nu, el),
-                            mat.get(ParamKind::PowerH, el),
-                        )
-                    });
+                let de = visc::Rate::new(
+                    &visc::velocity_gradient(rt, &model.gather(el, v)),
+                    mat.get(ParamKind::PowerH, el),
+                )
+                .map(|r| visc::element_damping(rt, &r, mat.get(ParamKind::Nu, el)));
                 for a in 0..4 {
                     if model.node_clamp[tet[a]] != c {
                         continue;

@@ -8,46 +8,94 @@
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky,
+    SymmetricOrdering,
 };
 use faer::sparse::linalg::SupernodalThreshold;
-use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMat, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Side};
 use std::sync::Arc;
 
 /// Sparsity pattern of the free-dof system with element scatter maps.
+///
+/// The matrices are symmetric and stored as their lower triangle in the fill-reducing (AMD)
+/// order: numbering the unknowns that way once lets faer's numeric Cholesky read the values as
+/// they are (with its own ordering it copied and permuted the whole matrix at every
+/// factorisation, 5 % of a motion fit), and half the triangle is half the scatter work. The
+/// methods take and return vectors in the caller's free-dof numbering.
 #[derive(Debug, Clone)]
 pub struct Pattern {
     /// Number of free dofs (matrix order).
     pub n: usize,
-    col_ptr: Vec<usize>,
-    row_idx: Vec<usize>,
+    /// The lower triangle, sorted rows, in the internal (fill-reducing) numbering.
+    lower: SymbolicSparseColMat<usize>,
+    /// Per stored entry, its row and column in the caller's numbering (for products).
+    row_free: Vec<usize>,
+    col_free: Vec<usize>,
+    /// Value index of the diagonal entry of each free dof (caller's numbering).
+    diag: Vec<usize>,
     /// Per element: value index of local entry (r, c) at `r * 12 + c`, or `usize::MAX` if either
-    /// dof is fixed.
+    /// dof is fixed or the entry lies in the upper triangle (its mirror holds the value).
     elem_map: Vec<[usize; 144]>,
+    /// Internal position i holds the caller's free dof `order[i]`.
+    order: Arc<Vec<usize>>,
     symbolic: Arc<SymbolicCholesky<usize>>,
     factor_len: usize,
 }
 
-/// A numeric Cholesky factor S = L Lᵀ of a matrix on [`Pattern`].
+/// A numeric Cholesky factor S = L Lᵀ of a matrix on [`Pattern`]. Cloning shares the values
+/// (the adjoint tape keeps the factor of every step that the simulation already made).
 #[derive(Debug, Clone)]
 pub struct Factor {
     symbolic: Arc<SymbolicCholesky<usize>>,
-    values: Vec<f64>,
+    order: Arc<Vec<usize>>,
+    values: Arc<Vec<f64>>,
 }
 
 impl Factor {
-    /// Solves S x = b in place.
+    /// Solves S x = b in place (`b` in the caller's free-dof numbering).
     pub fn solve_in_place(&self, b: &mut [f64]) {
         let n = b.len();
+        let mut y: Vec<f64> = self.order.iter().map(|&d| b[d]).collect();
         let par = faer::get_global_parallelism();
         let mut buf = MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(1, par));
         LltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
             Conj::No,
-            MatMut::from_column_major_slice_mut(b, n, 1),
+            MatMut::from_column_major_slice_mut(&mut y, n, 1),
             par,
             MemStack::new(&mut buf),
         );
+        for (&d, v) in self.order.iter().zip(y) {
+            b[d] = v;
+        }
     }
+}
+
+/// The free-dof pairs (row, column) of a tetrahedron's 12 × 12 block, with the local index
+/// `r * 12 + c` of each; pairs with a fixed dof are left out.
+fn free_pairs<'a>(
+    t: &'a [usize; 4],
+    free: &'a [usize],
+) -> impl Iterator<Item = (usize, usize, usize)> + 'a {
+    (0..144).filter_map(move |local| {
+        let (lr, lc) = (local / 12, local % 12);
+        let r = free[3 * t[lr / 3] + lr % 3];
+        let c = free[3 * t[lc / 3] + lc % 3];
+        (r != usize::MAX && c != usize::MAX).then_some((local, r, c))
+    })
+}
+
+/// Column-compressed arrays (sorted, deduplicated rows) from per-column row lists.
+fn compress(mut cols: Vec<Vec<usize>>) -> (Vec<usize>, Vec<usize>) {
+    let mut col_ptr = Vec::with_capacity(cols.len() + 1);
+    let mut row_idx = Vec::new();
+    col_ptr.push(0);
+    for c in cols.iter_mut() {
+        c.sort_unstable();
+        c.dedup();
+        row_idx.extend_from_slice(c);
+        col_ptr.push(row_idx.len());
+    }
+    (col_ptr, row_idx)
 }
 
 impl Pattern {
@@ -57,80 +105,104 @@ impl Pattern {
         free: &[usize],
         n: usize,
     ) -> Result<Self, faer::sparse::FaerError> {
+        // The fill-reducing order, from the full pattern in the caller's numbering.
         let mut cols: Vec<Vec<usize>> = vec![Vec::new(); n];
         for t in tets {
-            for &a in t {
-                for &b in t {
-                    for i in 0..3 {
-                        for j in 0..3 {
-                            let (r, c) = (free[3 * a + i], free[3 * b + j]);
-                            if r != usize::MAX && c != usize::MAX {
-                                cols[c].push(r);
-                            }
-                        }
-                    }
-                }
+            for (_, r, c) in free_pairs(t, free) {
+                cols[c].push(r);
             }
         }
-        let mut col_ptr = Vec::with_capacity(n + 1);
-        let mut row_idx = Vec::new();
-        col_ptr.push(0);
-        for c in cols.iter_mut() {
-            c.sort_unstable();
-            c.dedup();
-            row_idx.extend_from_slice(c);
-            col_ptr.push(row_idx.len());
-        }
-        let find = |r: usize, c: usize| -> usize {
-            let s = &row_idx[col_ptr[c]..col_ptr[c + 1]];
-            col_ptr[c] + s.binary_search(&r).expect("entry in pattern")
+        let (col_ptr, row_idx) = compress(cols);
+        let full = SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
+        let amd = factorize_symbolic_cholesky(
+            full,
+            Side::Lower,
+            SymmetricOrdering::Amd,
+            Default::default(),
+        )?;
+        let order: Vec<usize> = match amd.perm() {
+            Some(p) => p.arrays().0.to_vec(),
+            None => (0..n).collect(),
         };
-        let mut elem_map = Vec::with_capacity(tets.len());
-        for t in tets {
-            let mut m = [usize::MAX; 144];
-            for a in 0..4 {
-                for i in 0..3 {
-                    for b in 0..4 {
-                        for j in 0..3 {
-                            let (r, c) = (free[3 * t[a] + i], free[3 * t[b] + j]);
-                            if r != usize::MAX && c != usize::MAX {
-                                m[(3 * a + i) * 12 + 3 * b + j] = find(r, c);
-                            }
-                        }
-                    }
+        let mut internal = vec![0; n];
+        for (i, &d) in order.iter().enumerate() {
+            internal[d] = i;
+        }
+        // The same pattern renumbered: full (for the symbolic analysis, which reads the
+        // pattern as given when no ordering is asked for) and its lower triangle (the values).
+        let mut full_cols: Vec<Vec<usize>> = vec![Vec::new(); n];
+        let mut lower_cols: Vec<Vec<usize>> = vec![Vec::new(); n];
+        for c in 0..n {
+            for &r in &row_idx[col_ptr[c]..col_ptr[c + 1]] {
+                let (ri, ci) = (internal[r], internal[c]);
+                full_cols[ci].push(ri);
+                if ri >= ci {
+                    lower_cols[ci].push(ri);
                 }
             }
-            elem_map.push(m);
         }
-        let sym = SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
+        let (fcp, fri) = compress(full_cols);
+        let (lcp, lri) = compress(lower_cols);
         // Supernodal: measured faster than faer's automatic choice (simplicial) on these 3D
         // tetrahedral systems (bench motion, see docs/results/motion/bench.md).
         let symbolic = factorize_symbolic_cholesky(
-            sym,
+            SymbolicSparseColMatRef::new_checked(n, n, &fcp, None, &fri),
             Side::Lower,
-            Default::default(),
+            SymmetricOrdering::Identity,
             CholeskySymbolicParams {
                 supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SUPERNODAL,
                 ..Default::default()
             },
         )?;
         let factor_len = symbolic.len_val();
+        let mut row_free = Vec::with_capacity(lri.len());
+        let mut col_free = Vec::with_capacity(lri.len());
+        let mut diag = vec![usize::MAX; n];
+        for ci in 0..n {
+            for (k, &ri) in lri.iter().enumerate().take(lcp[ci + 1]).skip(lcp[ci]) {
+                row_free.push(order[ri]);
+                col_free.push(order[ci]);
+                if ri == ci {
+                    diag[order[ci]] = k;
+                }
+            }
+        }
+        let find = |ri: usize, ci: usize| -> usize {
+            let s = &lri[lcp[ci]..lcp[ci + 1]];
+            lcp[ci] + s.binary_search(&ri).expect("entry in pattern")
+        };
+        let mut elem_map = Vec::with_capacity(tets.len());
+        for t in tets {
+            let mut m = [usize::MAX; 144];
+            for (local, r, c) in free_pairs(t, free) {
+                let (ri, ci) = (internal[r], internal[c]);
+                if ri >= ci {
+                    m[local] = find(ri, ci);
+                }
+            }
+            elem_map.push(m);
+        }
+        let lower = SymbolicSparseColMat::new_checked(n, n, lcp, None, lri);
         Ok(Self {
             n,
-            col_ptr,
-            row_idx,
+            lower,
+            row_free,
+            col_free,
+            diag,
             elem_map,
+            order: Arc::new(order),
             symbolic: Arc::new(symbolic),
             factor_len,
         })
     }
 
-    /// Number of stored entries (full symmetric pattern).
+    /// Number of stored entries (the lower triangle): the length of a value array.
     pub fn nnz(&self) -> usize {
-        self.row_idx.len()
+        self.row_free.len()
     }
 
-    /// Adds `scale · k` (an element block, row-major) into `values`.
+    /// Adds `scale · k` (a symmetric element block, row-major; its lower triangle in the
+    /// pattern's order is read) into `values`.
     pub fn add_element(&self, e: usize, k: &[[f64; 12]; 12], scale: f64, values: &mut [f64]) {
         let m = &self.elem_map[e];
         for r in 0..12 {
@@ -145,28 +217,20 @@ impl Pattern {
 
     /// Adds a diagonal entry (lumped mass) at free dof `r`.
     pub fn add_diagonal(&self, r: usize, v: f64, values: &mut [f64]) {
-        let s = &self.row_idx[self.col_ptr[r]..self.col_ptr[r + 1]];
-        let idx = self.col_ptr[r] + s.binary_search(&r).expect("diagonal in pattern");
-        values[idx] += v;
+        values[self.diag[r]] += v;
     }
 
     /// The diagonal entry at free dof `r`.
     pub fn diagonal(&self, r: usize, values: &[f64]) -> f64 {
-        let s = &self.row_idx[self.col_ptr[r]..self.col_ptr[r + 1]];
-        s.binary_search(&r)
-            .map(|i| values[self.col_ptr[r] + i])
-            .unwrap_or(0.0)
+        values[self.diag[r]]
     }
 
-    /// y += A x for the matrix with `values` on this pattern.
+    /// y += A x for the symmetric matrix with `values` on this pattern.
     pub fn mul_add(&self, values: &[f64], x: &[f64], y: &mut [f64]) {
-        for c in 0..self.n {
-            let xc = x[c];
-            if xc == 0.0 {
-                continue;
-            }
-            for k in self.col_ptr[c]..self.col_ptr[c + 1] {
-                y[self.row_idx[k]] += values[k] * xc;
+        for ((&v, &r), &c) in values.iter().zip(&self.row_free).zip(&self.col_free) {
+            y[r] += v * x[c];
+            if r != c {
+                y[c] += v * x[r];
             }
         }
     }
@@ -177,14 +241,7 @@ impl Pattern {
         if values.iter().any(|v| !v.is_finite()) {
             return None;
         }
-        let sym = SymbolicSparseColMatRef::new_checked(
-            self.n,
-            self.n,
-            &self.col_ptr,
-            None,
-            &self.row_idx,
-        );
-        let mat = SparseColMatRef::new(sym, values);
+        let mat = SparseColMatRef::new(self.lower.as_ref(), values);
         let par = faer::get_global_parallelism();
         let mut out = vec![0.0; self.factor_len];
         let mut buf = MemBuffer::new(
@@ -204,7 +261,8 @@ impl Pattern {
             .ok()?;
         Some(Factor {
             symbolic: self.symbolic.clone(),
-            values: out,
+            order: self.order.clone(),
+            values: Arc::new(out),
         })
     }
 

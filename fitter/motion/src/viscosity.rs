@@ -18,18 +18,24 @@ pub fn velocity_gradient(t: &RestTet, v: &[Vector3<f64>; 4]) -> Matrix3<f64> {
     l
 }
 
-/// Viscous stress state of one element; `None` when the element is skipped (‖Ḟ‖ ≤ MIN_POSITIVE).
+/// Viscous stress state of one element under the power law of index h; `None` when the element
+/// is skipped (‖Ḟ‖ ≤ MIN_POSITIVE).
 #[derive(Debug, Clone, Copy)]
 pub struct Rate {
     /// E = Ḟ + Ḟᵀ.
     pub e: Matrix3<f64>,
     /// γ̇ = √½ ‖E‖_F.
     pub gamma: f64,
+    /// The power-law index h.
+    pub h: f64,
+    /// γ̇^(h−1), evaluated once here: the stress, the damping tangent and the parameter
+    /// derivatives of one element all need it, and pow was a tenth of a simulation's time.
+    pub power: f64,
 }
 
 impl Rate {
-    /// From the velocity gradient.
-    pub fn new(l: &Matrix3<f64>) -> Option<Self> {
+    /// From the velocity gradient and the power-law index h.
+    pub fn new(l: &Matrix3<f64>, h: f64) -> Option<Self> {
         if l.norm() <= f64::MIN_POSITIVE {
             return None;
         }
@@ -38,7 +44,12 @@ impl Rate {
         if gamma <= f64::MIN_POSITIVE {
             return None; // purely skew Ḟ (rigid rotation rate): no viscous stress
         }
-        Some(Self { e, gamma })
+        Some(Self {
+            e,
+            gamma,
+            h,
+            power: rate_power(gamma, h),
+        })
     }
 }
 
@@ -53,18 +64,18 @@ fn rate_power(gamma: f64, h: f64) -> f64 {
 }
 
 /// σ = ν γ̇^(h−1) E.
-pub fn stress(r: &Rate, nu: f64, h: f64) -> Matrix3<f64> {
-    r.e * (nu * rate_power(r.gamma, h))
+pub fn stress(r: &Rate, nu: f64) -> Matrix3<f64> {
+    r.e * (nu * r.power)
 }
 
 /// ∂σ/∂ν = γ̇^(h−1) E.
-pub fn stress_dnu(r: &Rate, h: f64) -> Matrix3<f64> {
-    r.e * rate_power(r.gamma, h)
+pub fn stress_dnu(r: &Rate) -> Matrix3<f64> {
+    r.e * r.power
 }
 
 /// ∂σ/∂h = ν ln γ̇ γ̇^(h−1) E.
-pub fn stress_dh(r: &Rate, nu: f64, h: f64) -> Matrix3<f64> {
-    r.e * (nu * r.gamma.ln() * rate_power(r.gamma, h))
+pub fn stress_dh(r: &Rate, nu: f64) -> Matrix3<f64> {
+    r.e * (nu * r.gamma.ln() * r.power)
 }
 
 /// Damping tangent D_e = −∂f_e/∂v_e (12 × 12, row-major).
@@ -72,9 +83,9 @@ pub fn stress_dh(r: &Rate, nu: f64, h: f64) -> Matrix3<f64> {
 /// dσ = ν [ (h−1) γ̇^(h−2) dγ̇ E + γ̇^(h−1) dE ], dE = dḞ + dḞᵀ, dγ̇ = E : dE / (2γ̇). With
 /// dḞ = e_j ∇φ_bᵀ, w_b = E ∇φ_b and g_ab = ∇φ_a·∇φ_b this is, in closed form,
 /// D\[3a+i\]\[3b+j\] = V ν [ (h−1) γ̇^(h−3) w_a,i w_b,j + γ̇^(h−1) (δ_ij g_ab + ∇φ_b,i ∇φ_a,j) ].
-pub fn element_damping(t: &RestTet, r: &Rate, nu: f64, h: f64) -> [[f64; 12]; 12] {
+pub fn element_damping(t: &RestTet, r: &Rate, nu: f64) -> [[f64; 12]; 12] {
     let mut d = [[0.0; 12]; 12];
-    let gh1 = rate_power(r.gamma, h);
+    let (gh1, h) = (r.power, r.h);
     let c1 = t.volume * nu * (h - 1.0) * gh1 / (r.gamma * r.gamma);
     let c2 = t.volume * nu * gh1;
     let w: [Vector3<f64>; 4] = std::array::from_fn(|a| r.e * t.grad[a]);
@@ -115,13 +126,13 @@ mod tests {
         for (nu, h) in [(8.0, 0.8), (12.0, 1.0), (5.0, 1.4)] {
             let force = |v: &[Vector3<f64>; 4]| {
                 let mut f = [0.0; 12];
-                if let Some(r) = Rate::new(&velocity_gradient(&t, v)) {
-                    add_stress_forces(&t, &stress(&r, nu, h), 1.0, &mut f);
+                if let Some(r) = Rate::new(&velocity_gradient(&t, v), h) {
+                    add_stress_forces(&t, &stress(&r, nu), 1.0, &mut f);
                 }
                 f
             };
-            let r = Rate::new(&velocity_gradient(&t, &v0)).unwrap();
-            let d = element_damping(&t, &r, nu, h);
+            let r = Rate::new(&velocity_gradient(&t, &v0), h).unwrap();
+            let d = element_damping(&t, &r, nu);
             let eps = 1e-9;
             for c in 0..12 {
                 let mut vp = v0;

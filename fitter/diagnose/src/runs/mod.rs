@@ -618,11 +618,12 @@ impl CandidateModel for RunsModel<'_> {
         };
         let (fc, fnn) = cand.fitted.chi2();
         (self.log)(&format!(
-            "round {}: {}: fitted RMS {:.3} mm, held-out RMS {:.3} mm: {reason}",
+            "round {}: {}: fitted RMS {:.3} mm, held-out RMS {:.3} mm ({} simulations): {reason}",
             cur.round,
             cand.candidate.name(),
             1e3 * (3.0 * fc / fnn.max(1) as f64).sqrt(),
-            1e3 * cand.held.rms()
+            1e3 * cand.held.rms(),
+            cand.fitted.evaluations
         ));
         let detail = GateDetail {
             heldout_delta_bic,
