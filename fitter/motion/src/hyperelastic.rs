@@ -226,11 +226,13 @@ pub fn element_tangent(t: &RestTet, s: &FParts, p: &HyperParams) -> [[f64; 12]; 
     let diag = p.mu + 2.0 * kb;
     let v = t.volume;
     let mut k = [[0.0; 12]; 12];
+    // K_e is symmetric: the upper triangle is evaluated and mirrored (half the arithmetic of
+    // the hottest loop of a motion fit, and exactly symmetric).
     for a in 0..4 {
-        for b in 0..4 {
+        for b in a..4 {
             let gab = t.grad[a].dot(&t.grad[b]);
             for i in 0..3 {
-                for jj in 0..3 {
+                for jj in if a == b { i..3 } else { 0..3 } {
                     let mut val = lj2 * h[a][i] * h[b][jj] - c * h[b][i] * h[a][jj]
                         + ks * gs[a][i] * gs[b][jj]
                         + kb * (-4.0 / 3.0 * (fg[a][i] * h[b][jj] + h[a][i] * fg[b][jj])
@@ -240,6 +242,7 @@ pub fn element_tangent(t: &RestTet, s: &FParts, p: &HyperParams) -> [[f64; 12]; 
                         val += diag * gab;
                     }
                     k[3 * a + i][3 * b + jj] = v * val;
+                    k[3 * b + jj][3 * a + i] = v * val;
                 }
             }
         }

@@ -33,9 +33,11 @@ pub struct Pattern {
     col_free: Vec<usize>,
     /// Value index of the diagonal entry of each free dof (caller's numbering).
     diag: Vec<usize>,
-    /// Per element: value index of local entry (r, c) at `r * 12 + c`, or `usize::MAX` if either
-    /// dof is fixed or the entry lies in the upper triangle (its mirror holds the value).
-    elem_map: Vec<[usize; 144]>,
+    /// Element scatter lists: element e's entries are `elem_entries[elem_ptr[e]..elem_ptr[e + 1]]`,
+    /// each (local index `r * 12 + c` with r ≤ c, value index) — one per unordered pair of free
+    /// dofs, since the element blocks are symmetric and one stored entry holds both mirrors.
+    elem_ptr: Vec<usize>,
+    elem_entries: Vec<(u16, usize)>,
     /// Internal position i holds the caller's free dof `order[i]`.
     order: Arc<Vec<usize>>,
     symbolic: Arc<SymbolicCholesky<usize>>,
@@ -171,16 +173,18 @@ impl Pattern {
             let s = &lri[lcp[ci]..lcp[ci + 1]];
             lcp[ci] + s.binary_search(&ri).expect("entry in pattern")
         };
-        let mut elem_map = Vec::with_capacity(tets.len());
+        let mut elem_ptr = Vec::with_capacity(tets.len() + 1);
+        let mut elem_entries = Vec::with_capacity(78 * tets.len());
+        elem_ptr.push(0);
         for t in tets {
-            let mut m = [usize::MAX; 144];
             for (local, r, c) in free_pairs(t, free) {
-                let (ri, ci) = (internal[r], internal[c]);
-                if ri >= ci {
-                    m[local] = find(ri, ci);
+                if local / 12 <= local % 12 {
+                    let (ri, ci) = (internal[r], internal[c]);
+                    let idx = find(ri.max(ci), ri.min(ci));
+                    elem_entries.push((local as u16, idx));
                 }
             }
-            elem_map.push(m);
+            elem_ptr.push(elem_entries.len());
         }
         let lower = SymbolicSparseColMat::new_checked(n, n, lcp, None, lri);
         Ok(Self {
@@ -189,7 +193,8 @@ impl Pattern {
             row_free,
             col_free,
             diag,
-            elem_map,
+            elem_ptr,
+            elem_entries,
             order: Arc::new(order),
             symbolic: Arc::new(symbolic),
             factor_len,
@@ -201,17 +206,12 @@ impl Pattern {
         self.row_free.len()
     }
 
-    /// Adds `scale · k` (a symmetric element block, row-major; its lower triangle in the
-    /// pattern's order is read) into `values`.
+    /// Adds `scale · k` (a symmetric element block, row-major; only its upper triangle r ≤ c is
+    /// read) into `values`.
     pub fn add_element(&self, e: usize, k: &[[f64; 12]; 12], scale: f64, values: &mut [f64]) {
-        let m = &self.elem_map[e];
-        for r in 0..12 {
-            for c in 0..12 {
-                let idx = m[r * 12 + c];
-                if idx != usize::MAX {
-                    values[idx] += scale * k[r][c];
-                }
-            }
+        for &(local, idx) in &self.elem_entries[self.elem_ptr[e]..self.elem_ptr[e + 1]] {
+            let l = local as usize;
+            values[idx] += scale * k[l / 12][l % 12];
         }
     }
 

@@ -89,16 +89,18 @@ pub fn element_damping(t: &RestTet, r: &Rate, nu: f64) -> [[f64; 12]; 12] {
     let c1 = t.volume * nu * (h - 1.0) * gh1 / (r.gamma * r.gamma);
     let c2 = t.volume * nu * gh1;
     let w: [Vector3<f64>; 4] = std::array::from_fn(|a| r.e * t.grad[a]);
+    // Symmetric: the upper triangle is evaluated and mirrored.
     for a in 0..4 {
-        for b in 0..4 {
+        for b in a..4 {
             let gab = t.grad[a].dot(&t.grad[b]);
             for i in 0..3 {
-                for j in 0..3 {
+                for j in if a == b { i..3 } else { 0..3 } {
                     let mut val = c1 * w[a][i] * w[b][j] + c2 * t.grad[b][i] * t.grad[a][j];
                     if i == j {
                         val += c2 * gab;
                     }
                     d[3 * a + i][3 * b + j] = val;
+                    d[3 * b + j][3 * a + i] = val;
                 }
             }
         }
