@@ -39,12 +39,12 @@ pub fn element_internal(
 }
 
 /// Meshes with at least this many elements are assembled in two halves, the second into its own
-/// buffers and added afterwards — on two threads when the caller is not already one of rayon's
-/// workers (a single run on an idle machine; several runs of one fit are already simulated side
-/// by side). The split depends on the mesh only, so a result is the same to the last bit whether
-/// the halves ran in parallel or one after the other. Below it the extra buffers cost more than
-/// a second thread saves (an element's forces and tangent take about a microsecond).
-const SPLIT_ASSEMBLY_ELEMENTS: usize = 1000;
+/// buffers and added afterwards, through `rayon::join`: the second half runs on an idle core when
+/// there is one (a single run; or the shorter of a fit's runs, which are simulated side by side,
+/// has finished) and on the same thread otherwise. The split depends on the mesh only, so a
+/// result is the same to the last bit wherever the halves ran. Below it the extra buffers cost
+/// more than a second core saves (an element's forces and tangent take about a microsecond).
+const SPLIT_ASSEMBLY_ELEMENTS: usize = 500;
 
 /// Assembles f (full dofs, overwritten) and optionally K, D values on the free pattern
 /// (overwritten). Fails on an inverted element (the lowest index) or non-finite force.
@@ -87,24 +87,8 @@ pub fn assemble(
             )?;
             Ok((f2, k2, d2))
         };
-        let (first, second) = if rayon::current_thread_index().is_none() {
-            rayon::join(
-                || {
-                    assemble_into(
-                        model,
-                        mat,
-                        x,
-                        v,
-                        0..half,
-                        f,
-                        kvals.as_deref_mut(),
-                        dvals.as_deref_mut(),
-                    )
-                },
-                second,
-            )
-        } else {
-            (
+        let (first, second) = rayon::join(
+            || {
                 assemble_into(
                     model,
                     mat,
@@ -114,10 +98,10 @@ pub fn assemble(
                     f,
                     kvals.as_deref_mut(),
                     dvals.as_deref_mut(),
-                ),
-                second(),
-            )
-        };
+                )
+            },
+            second,
+        );
         first?;
         let (f2, k2, d2) = second?;
         let add = |to: &mut [f64], from: &[f64]| to.iter_mut().zip(from).for_each(|(a, b)| *a += b);
