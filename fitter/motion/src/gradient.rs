@@ -80,6 +80,7 @@ impl Evaluation {
                     .iter()
                     .map(|p| p.stats.max_residual)
                     .fold(0.0, f64::max),
+                factorisations: parts.iter().map(|p| p.stats.factorisations).sum(),
             },
             stored_bytes: parts.iter().map(|p| p.stored_bytes).max().unwrap_or(0),
             marker_count: parts.iter().map(|p| p.marker_count).sum(),

@@ -37,6 +37,9 @@ pub struct SimStats {
     pub unconverged_steps: usize,
     /// Largest final residual norm over steps (N).
     pub max_residual: f64,
+    /// Numeric factorisations of S (fresh tangents; the rest of the iterations reused a kept
+    /// factor).
+    pub factorisations: usize,
 }
 
 /// Elastostatic equilibrium f(x, 0) + f_ext = 0 with clamps at their step-0 pose (§3.4).
@@ -485,6 +488,7 @@ pub fn simulate(
                     .pattern
                     .factor(&sv)
                     .ok_or(MotionError::NotPositiveDefinite { step: n })?;
+                stats.factorisations += 1;
                 stats.max_residual = stats.max_residual.max(nrm);
                 if nrm >= model.newton.tol {
                     stats.unconverged_steps += 1;
@@ -499,6 +503,7 @@ pub fn simulate(
                     shifted_factor(model, &mut sv)
                         .ok_or(MotionError::NotPositiveDefinite { step: n })?,
                 );
+                stats.factorisations += 1;
             }
             let Some(fac) = carried.as_ref() else {
                 // Unreachable: a fresh iteration has just stored its factor.

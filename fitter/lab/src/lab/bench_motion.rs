@@ -104,29 +104,32 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         model.markers.len(),
         rayon::current_num_threads()
     );
-    println!("| run | median s | max s | Newton iterations | notes |");
-    println!("|---|---|---|---|---|");
+    println!("| run | median s | max s | Newton iterations | factorisations | notes |");
+    println!("|---|---|---|---|---|---|");
     let mx = |v: &[f64]| v.iter().cloned().fold(0.0, f64::max);
     println!(
-        "| forward simulation | {:.3} | {:.3} | {} | {:.2} per step, max residual {:.1e} N |",
+        "| forward simulation | {:.3} | {:.3} | {} | {} | {:.2} per step, max residual {:.1e} N |",
         median(t_fwd.clone()),
         mx(&t_fwd),
         ev_fwd.stats.newton_iterations,
+        ev_fwd.stats.factorisations,
         ev_fwd.stats.newton_iterations as f64 / args.steps as f64,
         ev_fwd.stats.max_residual
     );
     println!(
-        "| forward + direct gradient | {:.3} | {:.3} | {} | sensitivities {} bytes |",
+        "| forward + direct gradient | {:.3} | {:.3} | {} | {} | sensitivities {} bytes |",
         median(t_dir.clone()),
         mx(&t_dir),
         ev_dir.stats.newton_iterations,
+        ev_dir.stats.factorisations,
         ev_dir.stored_bytes
     );
     println!(
-        "| forward + adjoint gradient | {:.3} | {:.3} | {} | tape {} bytes ({} per step) |",
+        "| forward + adjoint gradient | {:.3} | {:.3} | {} | {} | tape {} bytes ({} per step) |",
         median(t_adj.clone()),
         mx(&t_adj),
         ev_adj.stats.newton_iterations,
+        ev_adj.stats.factorisations,
         ev_adj.stored_bytes,
         ev_adj.stored_bytes / args.steps.max(1)
     );
@@ -160,7 +163,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         rms = r.eval.rms_marker;
         fitted = r.q.clone();
         println!(
-            "| LBFGS optimisation (m = 5, Moré–Thuente strong Wolfe, adjoint) | {:.2} | — | — | {} iterations, {} evaluations; fitted λ {:.1}, μ {:.1}, ν {:.4}, h {:.4}; RMS {:.2e} m |",
+            "| LBFGS optimisation (m = 5, Moré–Thuente strong Wolfe, adjoint) | {:.2} | — | — | — | {} iterations, {} evaluations; fitted λ {:.1}, μ {:.1}, ν {:.4}, h {:.4}; RMS {:.2e} m |",
             opt_s, iters, evals, r.q[0], r.q[1], r.q[2], r.q[3], rms
         );
         for f in &r.failures {
@@ -170,6 +173,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!(
         "MyFEM anchor (same problem, one thread): forward 3.0–3.3 s, +adjoint 4.15 s, +direct 6.2 s, optimisation 137 s / 34 evaluations"
     );
+    // The anchor was measured on another machine of this kind (ANCHORS.md): these ratios are a
+    // cross-machine comparison, which can be off by the 3.5× spread ANCHORS.md reports.
+    let (anchor_fwd, anchor_adj, anchor_opt) = (3.15, 4.15, 137.0);
+    let ratio_opt = (opt_s > 0.0).then(|| anchor_opt / opt_s);
+    println!(
+        "anchor / palpate (cross-machine, not same-run): forward {:.1}×, +adjoint {:.1}×{}",
+        anchor_fwd / median(t_fwd.clone()),
+        anchor_adj / median(t_adj.clone()),
+        ratio_opt.map_or(String::new(), |r| format!(", optimisation {r:.1}×"))
+    );
     let json = serde_json::json!({
         "schema_version": 1,
         "bench": "motion",
@@ -177,10 +190,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "nodes": model.nodes.len(),
         "steps": args.steps,
         "markers": model.markers.len(),
-        "sim_seconds": median(t_fwd),
+        "sim_seconds": median(t_fwd.clone()),
         "sim_grad_seconds_direct": median(t_dir),
-        "sim_grad_seconds_adjoint": median(t_adj),
+        "sim_grad_seconds_adjoint": median(t_adj.clone()),
         "direct_adjoint_max_rel_diff": agree,
+        "newton_iterations_adjoint": ev_adj.stats.newton_iterations,
+        "factorisations_adjoint": ev_adj.stats.factorisations,
+        "factorisations_forward": ev_fwd.stats.factorisations,
+        "anchor_ratio_forward": anchor_fwd / median(t_fwd.clone()),
+        "anchor_ratio_adjoint": anchor_adj / median(t_adj.clone()),
+        "anchor_ratio_optimize": ratio_opt,
         "adjoint_tape_bytes": ev_adj.stored_bytes,
         "optimize_seconds": opt_s,
         "iterations": iters,
