@@ -18,6 +18,19 @@ fn text(b: &[u8]) -> String {
     String::from_utf8_lossy(b).to_string()
 }
 
+/// Asserts that the program exited with `code` and said `part` on stderr (shown if not).
+#[track_caller]
+fn assert_exit_and_stderr(o: &Output, code: i32, part: &str) {
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(code), "{err}");
+    assert!(err.contains(part), "{err}");
+}
+
+/// The JSON document in the file at `path`.
+fn json_file(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
 fn last_json(o: &Output) -> serde_json::Value {
     let out = text(&o.stdout);
     let line = out.lines().last().unwrap_or_default();
@@ -49,8 +62,7 @@ fn fit_motion_reads_the_old_nu_with_a_warning_and_names_things_once() {
             "{flag}: {err}"
         );
     }
-    let record: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&fit).unwrap()).unwrap();
+    let record = json_file(&fit);
     assert_eq!(record["schema_version"], 2);
     assert_eq!(record["format"], "palpate-motion-fit/2");
     assert_eq!(record["fitted"], serde_json::json!(["mu", "viscosity"]));
@@ -95,12 +107,7 @@ fn fit_motion_reads_the_old_nu_with_a_warning_and_names_things_once() {
         .args(["--params", "mu,damping"])
         .output()
         .unwrap();
-    assert_eq!(o.status.code(), Some(1));
-    assert!(
-        text(&o.stderr).contains("\"damping\" (lambda, mu, viscosity, h, density)"),
-        "{}",
-        text(&o.stderr)
-    );
+    assert_exit_and_stderr(&o, 1, "\"damping\" (lambda, mu, viscosity, h, density)");
 }
 
 /// A motion dataset whose `[initial]` table still says `nu` is read (as the viscosity) with a
@@ -122,12 +129,7 @@ fn a_dataset_with_initial_nu_is_read_with_a_warning() {
     )
     .unwrap();
     let o = palpate().arg("info").arg(&ds).output().unwrap();
-    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
-    assert!(
-        text(&o.stderr).contains("[initial] nu is now called viscosity"),
-        "{}",
-        text(&o.stderr)
-    );
+    assert_exit_and_stderr(&o, 0, "[initial] nu is now called viscosity");
     let d = palpate_motion::dataset::load(&ds).unwrap();
     assert_eq!(d.config.initial.nu, 6.0);
 }
@@ -173,8 +175,7 @@ fn progress_goes_to_stderr_and_quiet_silences_it() {
     assert_eq!(text(&flag_wins.stderr), "");
     // -q and -v together is a usage error, not a guess.
     let both = run(&["-q", "-v"], None);
-    assert_eq!(both.status.code(), Some(2));
-    assert!(text(&both.stderr).contains("cannot be used with"));
+    assert_exit_and_stderr(&both, 2, "cannot be used with");
     // Errors are shown under -q too.
     let o = palpate()
         .args(["-q", "info"])
@@ -207,8 +208,7 @@ fn every_json_document_has_a_schema_version_and_units_in_its_names() {
         .output()
         .unwrap();
     assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
-    let doc: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("diagnosis.json")).unwrap()).unwrap();
+    let doc = json_file(&d.join("diagnosis.json"));
     assert_eq!(doc["schema_version"], 1);
     assert_eq!(doc["kind"], "motion-diagnosis");
     assert!(doc["before"]["rms_fit_m"].as_f64().is_some(), "{doc}");
@@ -281,8 +281,7 @@ fn every_json_document_has_a_schema_version_and_units_in_its_names() {
         .output()
         .unwrap();
     assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
-    let s: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(sim.join("summary.json")).unwrap()).unwrap();
+    let s = json_file(&sim.join("summary.json"));
     assert_eq!(s["schema_version"], 1);
     let model = dir.path().join("m.palp");
     let o = palpate()
@@ -298,9 +297,7 @@ fn every_json_document_has_a_schema_version_and_units_in_its_names() {
         text(&o.stderr)
     );
     let report = dir.path().join("m.report");
-    let r: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(report.join("report.json")).unwrap())
-            .unwrap();
+    let r = json_file(&report.join("report.json"));
     assert_eq!(r["schema_version"], 1);
     let row = &r["rows"][0];
     for k in [
@@ -375,10 +372,5 @@ fn plot_format_chooses_the_files() {
         .args(["--plot-format", "pdf"])
         .output()
         .unwrap();
-    assert_eq!(o.status.code(), Some(2));
-    assert!(
-        text(&o.stderr).contains("png, svg, both"),
-        "{}",
-        text(&o.stderr)
-    );
+    assert_exit_and_stderr(&o, 2, "png, svg, both");
 }

@@ -10,7 +10,9 @@
 use palpate_diagnose::export::runtime_fit;
 use palpate_diagnose::model::Candidate;
 use palpate_diagnose::{run_diagnosis, DiagnoseOptions, MeshChoice};
+use palpate_fem::dataset::StaticDataset;
 use palpate_specimen::{generate, Effect, SpecimenOptions};
+use palpate_tests::diagnose::summary;
 
 fn diagnose(effect: Option<Effect>, seed: u64) -> palpate_diagnose::DiagnosisReport {
     // One adoption round is what these tests assert on (the first effect named and the error
@@ -19,24 +21,24 @@ fn diagnose(effect: Option<Effect>, seed: u64) -> palpate_diagnose::DiagnosisRep
     // On the dataset's own mesh: these check the selection loop, whose decisions the refined
     // mesh only sharpens (`diagnose_refined_mesh_reaches_the_noise_floor` checks the refinement),
     // at an eighth of the cost.
+    let s = generate(&SpecimenOptions::with_effect(effect, seed)).expect("specimen");
+    let r = one_round(&s.dataset);
+    eprintln!(
+        "{effect:?} seed {seed}: {}; {:.1} s",
+        summary(&r),
+        r.seconds
+    );
+    r
+}
+
+/// One adoption round on the dataset's own mesh (why: [`diagnose`]).
+fn one_round(dataset: &StaticDataset) -> palpate_diagnose::DiagnosisReport {
     let o = DiagnoseOptions {
         max_effects: 1,
         mesh: MeshChoice::Dataset,
         ..Default::default()
     };
-    let s = generate(&SpecimenOptions::with_effect(effect, seed)).expect("specimen");
-    let r = run_diagnosis(&s.dataset, &o).expect("diagnosis");
-    eprintln!(
-        "{effect:?} seed {seed}: adopted {:?}; RMS {:.1} → {:.1} µm (held out {:.1} → {:.1}); floor {:.1} µm; {:.1} s",
-        r.adopted,
-        1e6 * r.before.fitted_rms,
-        1e6 * r.after.fitted_rms,
-        1e6 * r.before.heldout_rms,
-        1e6 * r.after.heldout_rms,
-        1e6 * r.noise_floor,
-        r.seconds
-    );
-    r
+    run_diagnosis(dataset, &o).expect("diagnosis")
 }
 
 #[test]
@@ -192,20 +194,10 @@ fn diagnose_names_a_registration_that_differs_per_measurement() {
             *p = [q.x, q.y, q.z];
         }
     }
-    let o = DiagnoseOptions {
-        max_effects: 1,
-        mesh: MeshChoice::Dataset,
-        ..Default::default()
-    };
-    let r = run_diagnosis(&s.dataset, &o).expect("diagnosis");
+    let r = one_round(&s.dataset);
     eprintln!(
-        "per-measurement registration: adopted {:?}; RMS {:.1} → {:.1} µm (held out {:.1} → {:.1}); floor {:.1} µm; {}",
-        r.adopted,
-        1e6 * r.before.fitted_rms,
-        1e6 * r.after.fitted_rms,
-        1e6 * r.before.heldout_rms,
-        1e6 * r.after.heldout_rms,
-        1e6 * r.noise_floor,
+        "per-measurement registration: {}; {}",
+        summary(&r),
         r.residual_check.verdict("…")
     );
     assert_eq!(
@@ -245,20 +237,10 @@ fn diagnose_names_a_tangential_force_that_differs_per_measurement() {
         let reported = f - t * (0.3 * f.norm());
         m.force = [reported.x, reported.y, reported.z];
     }
-    let o = DiagnoseOptions {
-        max_effects: 1,
-        mesh: MeshChoice::Dataset,
-        ..Default::default()
-    };
-    let r = run_diagnosis(&s.dataset, &o).expect("diagnosis");
+    let r = one_round(&s.dataset);
     eprintln!(
-        "per-measurement tangential force: adopted {:?}; RMS {:.1} → {:.1} µm (held out {:.1} → {:.1}); floor {:.1} µm; {}",
-        r.adopted,
-        1e6 * r.before.fitted_rms,
-        1e6 * r.after.fitted_rms,
-        1e6 * r.before.heldout_rms,
-        1e6 * r.after.heldout_rms,
-        1e6 * r.noise_floor,
+        "per-measurement tangential force: {}; {}",
+        summary(&r),
         r.residual_check.verdict("…")
     );
     assert_eq!(

@@ -1,11 +1,8 @@
 //! The motion dataset reader on the bundled example and on broken copies of it.
 
 use palpate_motion::dataset::load;
+use palpate_tests::motion::{copy_example, example};
 use std::path::Path;
-
-fn example() -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/motion-example")
-}
 
 #[test]
 fn example_dataset_loads_with_all_observations() {
@@ -27,15 +24,7 @@ fn example_dataset_loads_with_all_observations() {
 
 fn broken(edit: impl Fn(&Path)) -> String {
     let dir = tempfile::tempdir().unwrap();
-    for f in [
-        "dataset.toml",
-        "mesh.msh",
-        "markers.csv",
-        "trajectories.csv",
-        "clamps.csv",
-    ] {
-        std::fs::copy(example().join(f), dir.path().join(f)).unwrap();
-    }
+    copy_example(dir.path());
     edit(dir.path());
     load(dir.path()).unwrap_err().to_string()
 }
