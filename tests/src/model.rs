@@ -32,6 +32,17 @@ pub fn homogeneous(mesh: &Mesh, fixed: &[usize], lambda: f64, alpha: f64) -> Mod
     )
 }
 
+/// Linear (unwarped) solver settings: PCG to `tolerance`, at most `max_iterations` iterations,
+/// the rest the defaults — the runtime checked against linear references.
+pub fn linear_config(tolerance: f32, max_iterations: u32) -> RuntimeConfig {
+    RuntimeConfig {
+        warp: false,
+        tolerance,
+        max_iterations,
+        ..Default::default()
+    }
+}
+
 /// The solver settings under which an exported model is compared with the fitter's f64 solve:
 /// tolerance 1e-7, up to 5000 PCG iterations, 8 rotation iterations.
 pub fn tight_config() -> RuntimeConfig {
