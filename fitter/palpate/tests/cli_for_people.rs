@@ -18,6 +18,13 @@ fn text(b: &[u8]) -> String {
     String::from_utf8_lossy(b).to_string()
 }
 
+/// Runs `c` and asserts that it succeeded (its stderr shown if not).
+#[track_caller]
+fn succeeds(c: &mut Command) {
+    let o = c.output().unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+}
+
 /// Asserts that the program exited with `code` and said `part` on stderr (shown if not).
 #[track_caller]
 fn assert_exit_and_stderr(o: &Output, code: i32, part: &str) {
@@ -200,14 +207,13 @@ fn every_json_document_has_a_schema_version_and_units_in_its_names() {
     let example = repo().join("models/motion-example");
     // The motion diagnosis (0.5 s).
     let d = dir.path().join("diagnosis");
-    let o = palpate()
-        .args(["-q", "diagnose"])
-        .arg(&example)
-        .arg("-o")
-        .arg(&d)
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+    succeeds(
+        palpate()
+            .args(["-q", "diagnose"])
+            .arg(&example)
+            .arg("-o")
+            .arg(&d),
+    );
     let doc = json_file(&d.join("diagnosis.json"));
     assert_eq!(doc["schema_version"], 1);
     assert_eq!(doc["kind"], "motion-diagnosis");
@@ -272,15 +278,14 @@ fn every_json_document_has_a_schema_version_and_units_in_its_names() {
     }
     // simulate's summary.json, then info on a .palp made by fit (the static report.json).
     let sim = dir.path().join("sim");
-    let o = palpate()
-        .args(["-q", "simulate", "--mesh"])
-        .arg(repo().join("models/sponge/sponge.msh"))
-        .args(["--young", "2e4", "--poisson", "0.3", "--fixed", "bottom"])
-        .args(["--contact", "0.05,0.05,0.05", "--force", "0,0,-0.5", "-o"])
-        .arg(&sim)
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+    succeeds(
+        palpate()
+            .args(["-q", "simulate", "--mesh"])
+            .arg(repo().join("models/sponge/sponge.msh"))
+            .args(["--young", "2e4", "--poisson", "0.3", "--fixed", "bottom"])
+            .args(["--contact", "0.05,0.05,0.05", "--force", "0,0,-0.5", "-o"])
+            .arg(&sim),
+    );
     let s = json_file(&sim.join("summary.json"));
     assert_eq!(s["schema_version"], 1);
     let model = dir.path().join("m.palp");
@@ -353,15 +358,14 @@ fn plot_format_chooses_the_files() {
         .unwrap();
     for (format, svg, png) in [("svg", true, false), ("both", true, true)] {
         let out = dir.path().join(format);
-        let o = palpate()
-            .args(["-q", "validate", "--model"])
-            .arg(&fit)
-            .arg(&example)
-            .args(["--plot-format", format, "-o"])
-            .arg(&out)
-            .output()
-            .unwrap();
-        assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+        succeeds(
+            palpate()
+                .args(["-q", "validate", "--model"])
+                .arg(&fit)
+                .arg(&example)
+                .args(["--plot-format", format, "-o"])
+                .arg(&out),
+        );
         assert_eq!(out.join("tip.svg").exists(), svg, "{format}");
         assert_eq!(out.join("tip.png").exists(), png, "{format}");
     }

@@ -194,24 +194,12 @@ fn diagnose_names_a_registration_that_differs_per_measurement() {
             *p = [q.x, q.y, q.z];
         }
     }
-    let r = one_round(&s.dataset);
-    eprintln!(
-        "per-measurement registration: {}; {}",
-        summary(&r),
-        r.residual_check.verdict("…")
-    );
-    assert_eq!(
-        r.adopted.first(),
-        Some(&Candidate::RegistrationEach),
-        "{:?}",
-        r.adopted
+    let r = names_per_measurement(
+        "per-measurement registration",
+        &s.dataset,
+        Candidate::RegistrationEach,
     );
     assert!(r.before.fitted_rms > 2.0 * r.noise_floor);
-    assert!(
-        r.after.heldout_rms <= 1.5 * r.noise_floor,
-        "{}",
-        r.after.heldout_rms
-    );
 }
 
 /// An unreported tangential force of 0.3·|f| in a direction that changes from measurement to
@@ -237,21 +225,31 @@ fn diagnose_names_a_tangential_force_that_differs_per_measurement() {
         let reported = f - t * (0.3 * f.norm());
         m.force = [reported.x, reported.y, reported.z];
     }
-    let r = one_round(&s.dataset);
+    names_per_measurement(
+        "per-measurement tangential force",
+        &s.dataset,
+        Candidate::TiltEach,
+    );
+}
+
+/// One adoption round on a specimen with a per-measurement effect (`label`): `candidate` must be
+/// the first adopted, and the held-out error after it within 1.5× the noise floor.
+fn names_per_measurement(
+    label: &str,
+    dataset: &StaticDataset,
+    candidate: Candidate,
+) -> palpate_diagnose::DiagnosisReport {
+    let r = one_round(dataset);
     eprintln!(
-        "per-measurement tangential force: {}; {}",
+        "{label}: {}; {}",
         summary(&r),
         r.residual_check.verdict("…")
     );
-    assert_eq!(
-        r.adopted.first(),
-        Some(&Candidate::TiltEach),
-        "{:?}",
-        r.adopted
-    );
+    assert_eq!(r.adopted.first(), Some(&candidate), "{:?}", r.adopted);
     assert!(
         r.after.heldout_rms <= 1.5 * r.noise_floor,
         "{}",
         r.after.heldout_rms
     );
+    r
 }

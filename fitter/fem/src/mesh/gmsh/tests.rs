@@ -267,20 +267,26 @@ fn absurd_counts_fail_cleanly() {
     assert!(e.contains("t.msh:"), "{e}");
 }
 
+/// Replaces byte `at` (modulo the length) of `bytes` by `byte`, cuts them after `cut` bytes and
+/// reads them as the file `name`: an error or a mesh is fine, a panic is not.
+fn read_corrupted(mut bytes: Vec<u8>, (at, byte): (usize, u8), cut: usize, name: &str) {
+    let n = bytes.len();
+    bytes[at % n] = byte;
+    bytes.truncate(cut.min(n));
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join(name);
+    std::fs::write(&p, &bytes).unwrap();
+    let _ = read_msh(&p);
+}
+
 proptest::proptest! {
     #![proptest_config(proptest::prelude::ProptestConfig::with_cases(256))]
     /// Any corruption of a valid file (a byte replaced, the file cut) is an error or a mesh,
     /// never a panic.
     #[test]
     fn corrupted_ascii_never_panics(at in 0usize..600, byte in proptest::prelude::any::<u8>(), cut in 0usize..700) {
-        let mut bytes = tiny("0 0 -1", "2 1 3 2 5").into_bytes();
-        let n = bytes.len();
-        bytes[at % n] = byte;
-        bytes.truncate(cut.max(1).min(n));
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("t.msh");
-        std::fs::write(&p, &bytes).unwrap();
-        let _ = read_msh(&p);
+        let bytes = tiny("0 0 -1", "2 1 3 2 5").into_bytes();
+        read_corrupted(bytes, (at, byte), cut.max(1), "t.msh");
     }
 }
 
@@ -289,14 +295,8 @@ proptest::proptest! {
     /// The same for binary files (parsed by mshio).
     #[test]
     fn corrupted_binary_never_panics(at in 0usize..9000, byte in proptest::prelude::any::<u8>(), cut in 0usize..9000) {
-        let mut bytes = std::fs::read(fixture("cube-binary.msh")).unwrap();
-        let n = bytes.len();
-        bytes[at % n] = byte;
-        bytes.truncate(cut.max(40).min(n));
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("b.msh");
-        std::fs::write(&p, &bytes).unwrap();
-        let _ = read_msh(&p);
+        let bytes = std::fs::read(fixture("cube-binary.msh")).unwrap();
+        read_corrupted(bytes, (at, byte), cut.max(40), "b.msh");
     }
 }
 
