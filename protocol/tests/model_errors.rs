@@ -3,7 +3,7 @@
 mod common;
 
 use common::{
-    grid_mesh, model_on, reseal, set_f32, set_u32, tiny_model, u32_bytes, wrap, BlendKind,
+    grid_mesh, model_on, reseal, set_f32, set_u32, tiny_model, u32_bytes, wrap, BlendKind, Encoded,
     OwnedBlend, OwnedModel,
 };
 use palpate_protocol::model::{

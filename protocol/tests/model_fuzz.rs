@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{grid_mesh, model_on, reseal, tiny_model, wrap, BlendKind};
+use common::{grid_mesh, model_on, reseal, tiny_model, wrap, BlendKind, Encoded};
 use palpate_protocol::model::{decode, encode, validate, ModelError, ModelRecord, ParameterLayout};
 use proptest::prelude::*;
 

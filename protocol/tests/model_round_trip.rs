@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{grid_mesh, model_on, tiny_model, BlendKind};
+use common::{grid_mesh, model_on, tiny_model, BlendKind, Encoded};
 use palpate_protocol::model::{decode, encode, encoded_len, Capacity, ModelError, ParameterLayout};
 
 /// Every blend variant with every parameter layout round-trips exactly (PartialEq on the whole

@@ -32,6 +32,18 @@ pub(crate) fn blend_parameters(
         arr.get(if per_element { s * t + e } else { s })
             .unwrap_or(0.0)
     };
+    // Element e's blended (λ, α), clamped to the range of its fitted sets, into `elements`.
+    let store = |elements: &mut ElementState<'_>, e: usize, lam: f32, alp: f32| {
+        let (l, a) = clamp_to_sets(
+            lam,
+            alp,
+            sets,
+            |s| set_value(&ps.lambda, s, e),
+            |s| set_value(&ps.alpha, s, e),
+        );
+        elements.lam[e] = l;
+        elements.alp[e] = a;
+    };
     match rec.blend {
         Blend::None => {}
         Blend::Deformation {
@@ -55,15 +67,7 @@ pub(crate) fn blend_parameters(
                 alp += weights_alpha.get(s).unwrap_or(0.0) * ph;
             }
             for e in 0..t {
-                let (l, a) = clamp_to_sets(
-                    lam,
-                    alp,
-                    sets,
-                    |s| set_value(&ps.lambda, s, e),
-                    |s| set_value(&ps.alpha, s, e),
-                );
-                elements.lam[e] = l;
-                elements.alp[e] = a;
+                store(elements, e, lam, alp);
             }
         }
         Blend::Strain {
@@ -100,15 +104,7 @@ pub(crate) fn blend_parameters(
                     lam += weights_lambda.get(e * sets + l).unwrap_or(0.0) * ph;
                     alp += weights_alpha.get(e * sets + l).unwrap_or(0.0) * ph;
                 }
-                let (l, a) = clamp_to_sets(
-                    lam,
-                    alp,
-                    sets,
-                    |s| set_value(&ps.lambda, s, e),
-                    |s| set_value(&ps.alpha, s, e),
-                );
-                elements.lam[e] = l;
-                elements.alp[e] = a;
+                store(elements, e, lam, alp);
             }
         }
     }

@@ -283,37 +283,8 @@ pub fn rotated_apply_lanes(
     alpha: &[f32; LANES],
 ) -> [[[f32; LANES]; 3]; 4] {
     let m = gradient_of_lanes(v, gh);
-    let mut p = [[0.0f32; LANES]; 9];
-    for l in 0..LANES {
-        let two_mu = lambda[l] - 2.0 * alpha[l];
-        let tr = m[0][l] + m[4][l] + m[8][l];
-        let vol = volume[l];
-        let s01 = vol * 0.5 * two_mu * (m[1][l] + m[3][l]);
-        let s02 = vol * 0.5 * two_mu * (m[2][l] + m[6][l]);
-        let s12 = vol * 0.5 * two_mu * (m[5][l] + m[7][l]);
-        p[0][l] = vol * (alpha[l] * tr + two_mu * m[0][l]);
-        p[4][l] = vol * (alpha[l] * tr + two_mu * m[4][l]);
-        p[8][l] = vol * (alpha[l] * tr + two_mu * m[8][l]);
-        p[1][l] = s01;
-        p[3][l] = s01;
-        p[2][l] = s02;
-        p[6][l] = s02;
-        p[5][l] = s12;
-        p[7][l] = s12;
-    }
-    let mut f = [[[0.0f32; LANES]; 3]; 4];
-    for a in 0..3 {
-        for i in 0..3 {
-            for l in 0..LANES {
-                let val = p[3 * i][l] * gh[3 * a][l]
-                    + p[3 * i + 1][l] * gh[3 * a + 1][l]
-                    + p[3 * i + 2][l] * gh[3 * a + 2][l];
-                f[a + 1][i][l] = val;
-                f[0][i][l] -= val;
-            }
-        }
-    }
-    f
+    let p = scaled_stress_lanes(&m, volume, lambda, alpha);
+    nodal_forces_lanes(&p, gh)
 }
 
 /// ĝ_a = R ∇φ_a (a = 1..3) lane by lane, the input of [`rotated_apply_lanes`].
@@ -476,24 +447,8 @@ fn warped_from_h(
             }
         }
     }
-    // σ = α tr(ε) I + (λ − 2α) ε
-    let mut s = [[0.0f32; LANES]; 9];
-    for l in 0..LANES {
-        let two_mu = lambda[l] - 2.0 * alpha[l];
-        let tr = hh[0][l] + hh[4][l] + hh[8][l];
-        let s01 = 0.5 * two_mu * (hh[1][l] + hh[3][l]);
-        let s02 = 0.5 * two_mu * (hh[2][l] + hh[6][l]);
-        let s12 = 0.5 * two_mu * (hh[5][l] + hh[7][l]);
-        s[0][l] = alpha[l] * tr + two_mu * hh[0][l];
-        s[4][l] = alpha[l] * tr + two_mu * hh[4][l];
-        s[8][l] = alpha[l] * tr + two_mu * hh[8][l];
-        s[1][l] = s01;
-        s[3][l] = s01;
-        s[2][l] = s02;
-        s[6][l] = s02;
-        s[5][l] = s12;
-        s[7][l] = s12;
-    }
+    // σ = α tr(ε) I + (λ − 2α) ε (unscaled: the volume comes in with R below)
+    let s = scaled_stress_lanes(&hh, &[1.0; LANES], lambda, alpha);
     // P = V R σ
     let mut p = [[0.0f32; LANES]; 9];
     for i in 0..3 {
@@ -506,7 +461,45 @@ fn warped_from_h(
             }
         }
     }
-    // f_a = P ∇φ_a, f_0 = −Σ f_a
+    nodal_forces_lanes(&p, g)
+}
+
+/// [`stress`] lane by lane, each lane times `scale`: `scale · σ(m)`. The rotated kernel passes
+/// the volumes (P = V σ), the warped one ones — `1.0 · x` is exact, so both keep the products
+/// they had when each wrote this loop itself.
+#[inline(always)]
+#[allow(clippy::needless_range_loop)]
+fn scaled_stress_lanes(
+    m: &[[f32; LANES]; 9],
+    scale: &[f32; LANES],
+    lambda: &[f32; LANES],
+    alpha: &[f32; LANES],
+) -> [[f32; LANES]; 9] {
+    let mut p = [[0.0f32; LANES]; 9];
+    for l in 0..LANES {
+        let two_mu = lambda[l] - 2.0 * alpha[l];
+        let tr = m[0][l] + m[4][l] + m[8][l];
+        let k = scale[l];
+        let s01 = k * 0.5 * two_mu * (m[1][l] + m[3][l]);
+        let s02 = k * 0.5 * two_mu * (m[2][l] + m[6][l]);
+        let s12 = k * 0.5 * two_mu * (m[5][l] + m[7][l]);
+        p[0][l] = k * (alpha[l] * tr + two_mu * m[0][l]);
+        p[4][l] = k * (alpha[l] * tr + two_mu * m[4][l]);
+        p[8][l] = k * (alpha[l] * tr + two_mu * m[8][l]);
+        p[1][l] = s01;
+        p[3][l] = s01;
+        p[2][l] = s02;
+        p[6][l] = s02;
+        p[5][l] = s12;
+        p[7][l] = s12;
+    }
+    p
+}
+
+/// [`nodal_forces`] lane by lane: f_a = P ĝ_a (a = 1..3), f_0 = −Σ f_a.
+#[inline(always)]
+#[allow(clippy::needless_range_loop)]
+fn nodal_forces_lanes(p: &[[f32; LANES]; 9], g: &[[f32; LANES]; 9]) -> [[[f32; LANES]; 3]; 4] {
     let mut f = [[[0.0f32; LANES]; 3]; 4];
     for a in 0..3 {
         for i in 0..3 {

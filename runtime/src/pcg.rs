@@ -363,6 +363,34 @@ mod tests {
         }
     }
 
+    /// The four work vectors of one solve, zeroed; `work` lends them to [`pcg`] / [`predict`].
+    struct Buffers {
+        r: std::vec::Vec<f32>,
+        z: std::vec::Vec<f32>,
+        p: std::vec::Vec<f32>,
+        q: std::vec::Vec<f32>,
+    }
+
+    impl Buffers {
+        fn new(n: usize) -> Self {
+            Self {
+                r: std::vec![0.0f32; n],
+                z: std::vec![0.0f32; n],
+                p: std::vec![0.0f32; n],
+                q: std::vec![0.0f32; n],
+            }
+        }
+
+        fn work(&mut self) -> PcgWork<'_> {
+            PcgWork {
+                r: &mut self.r,
+                z: &mut self.z,
+                p: &mut self.p,
+                q: &mut self.q,
+            }
+        }
+    }
+
     /// A 1-D Laplacian plus identity (SPD, well conditioned).
     fn laplacian(n: usize) -> std::vec::Vec<f32> {
         let mut a = std::vec![0.0f32; n * n];
@@ -391,18 +419,8 @@ mod tests {
         let n = b.len();
         let mut x = std::vec![0.0f32; n];
         let mut r_full = b.to_vec();
-        let (mut r, mut z, mut p, mut q) = (
-            std::vec![0.0f32; n],
-            std::vec![0.0f32; n],
-            std::vec![0.0f32; n],
-            std::vec![0.0f32; n],
-        );
-        let mut work = PcgWork {
-            r: &mut r,
-            z: &mut z,
-            p: &mut p,
-            q: &mut q,
-        };
+        let mut buffers = Buffers::new(n);
+        let mut work = buffers.work();
         let params = CgParams {
             tolerance: 1e-5,
             max_iterations,
@@ -494,18 +512,8 @@ mod tests {
         let lap = laplacian(n);
         let mut x = std::vec![0.0f32; n];
         let mut r_full = b.clone();
-        let (mut r, mut z, mut p, mut q) = (
-            std::vec![0.0f32; n],
-            std::vec![0.0f32; n],
-            std::vec![0.0f32; n],
-            std::vec![0.0f32; n],
-        );
-        let mut work = PcgWork {
-            r: &mut r,
-            z: &mut z,
-            p: &mut p,
-            q: &mut q,
-        };
+        let mut buffers = Buffers::new(n);
+        let mut work = buffers.work();
         let res = pcg(
             &mut Dense { n, a: &a },
             &mut Diag {
@@ -536,18 +544,9 @@ mod tests {
             .collect();
         let mut x = std::vec![0.0f32; n];
         let mut r_full = b.clone();
-        let mut r = b.clone();
-        let (mut z, mut p, mut q) = (
-            std::vec![0.0f32; n],
-            std::vec![0.0f32; n],
-            std::vec![0.0f32; n],
-        );
-        let mut work = PcgWork {
-            r: &mut r,
-            z: &mut z,
-            p: &mut p,
-            q: &mut q,
-        };
+        let mut buffers = Buffers::new(n);
+        buffers.r.copy_from_slice(&b);
+        let mut work = buffers.work();
         let dir: std::vec::Vec<f32> = xs.iter().map(|v| 2.0 * v).collect();
         assert!(predict(
             &mut Dense { n, a: &a },

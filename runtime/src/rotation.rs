@@ -154,30 +154,12 @@ pub fn warp_rotation_fast(f: &[f32; 9], q: &mut [f32; 4], iterations: usize, r: 
         return;
     }
     for _ in 0..iterations {
-        // ω = Σ_c r_c × f_c / |Σ_c r_c · f_c|  (columns c)
-        let mut om = [0.0f32; 3];
-        let mut dot = 0.0f32;
-        for c in 0..3 {
-            let rc = [r[c], r[3 + c], r[6 + c]];
-            let fc = [f[c], f[3 + c], f[6 + c]];
-            om[0] += rc[1] * fc[2] - rc[2] * fc[1];
-            om[1] += rc[2] * fc[0] - rc[0] * fc[2];
-            om[2] += rc[0] * fc[1] - rc[1] * fc[0];
-            dot += rc[0] * fc[0] + rc[1] * fc[1] + rc[2] * fc[2];
-        }
-        let inv = 1.0 / (dot.abs() + 1e-9);
-        let h = [0.5 * om[0] * inv, 0.5 * om[1] * inv, 0.5 * om[2] * inv];
+        let h = rotation_step(|k| r[k], |k| f[k]);
         if h[0] * h[0] + h[1] * h[1] + h[2] * h[2] < 1e-14 {
             break;
         }
         // q ← normalise((1, h) ⊗ q)
-        let (w, x, y, z) = (q[0], q[1], q[2], q[3]);
-        let nq = [
-            w - h[0] * x - h[1] * y - h[2] * z,
-            x + h[0] * w + h[1] * z - h[2] * y,
-            y - h[0] * z + h[1] * w + h[2] * x,
-            z + h[0] * y - h[1] * x + h[2] * w,
-        ];
+        let nq = quat_step(*q, h);
         let n = libm::sqrtf(nq[0] * nq[0] + nq[1] * nq[1] + nq[2] * nq[2] + nq[3] * nq[3]);
         if n.is_nan() || n <= 0.0 || !n.is_finite() {
             break;
@@ -187,6 +169,37 @@ pub fn warp_rotation_fast(f: &[f32; 9], q: &mut [f32; 4], iterations: usize, r: 
         }
         quat_to_matrix(q, r);
     }
+}
+
+/// One step of the rotation update, shared by [`warp_rotation_fast`] and its lane version:
+/// h = ω / 2 with ω = Σ_c r_c × f_c / |Σ_c r_c · f_c| (columns c of R and F, entry k of each
+/// row-major matrix read through `r(k)`, `f(k)`).
+#[inline(always)]
+fn rotation_step(r: impl Fn(usize) -> f32, f: impl Fn(usize) -> f32) -> [f32; 3] {
+    let mut om = [0.0f32; 3];
+    let mut dot = 0.0f32;
+    for c in 0..3 {
+        let rc = [r(c), r(3 + c), r(6 + c)];
+        let fc = [f(c), f(3 + c), f(6 + c)];
+        om[0] += rc[1] * fc[2] - rc[2] * fc[1];
+        om[1] += rc[2] * fc[0] - rc[0] * fc[2];
+        om[2] += rc[0] * fc[1] - rc[1] * fc[0];
+        dot += rc[0] * fc[0] + rc[1] * fc[1] + rc[2] * fc[2];
+    }
+    let inv = 1.0 / (dot.abs() + 1e-9);
+    [0.5 * om[0] * inv, 0.5 * om[1] * inv, 0.5 * om[2] * inv]
+}
+
+/// (1, h) ⊗ q, not normalised (the callers normalise, each with its own guards).
+#[inline(always)]
+fn quat_step(q: [f32; 4], h: [f32; 3]) -> [f32; 4] {
+    let [w, x, y, z] = q;
+    [
+        w - h[0] * x - h[1] * y - h[2] * z,
+        x + h[0] * w + h[1] * z - h[2] * y,
+        y - h[0] * z + h[1] * w + h[2] * x,
+        z + h[0] * y - h[1] * x + h[2] * w,
+    ]
 }
 
 /// [`warp_rotation_fast`] for [`LANES`] elements at once (structure of arrays: `f[k][l]` is entry
@@ -216,23 +229,11 @@ pub fn warp_rotation_fast_lanes(
         let mut n2 = [0.0f32; LANES];
         let mut take = [false; LANES];
         for l in 0..LANES {
-            let mut om = [0.0f32; 3];
-            let mut dot = 0.0f32;
-            for c in 0..3 {
-                let rc = [r[c][l], r[3 + c][l], r[6 + c][l]];
-                let fc = [f[c][l], f[3 + c][l], f[6 + c][l]];
-                om[0] += rc[1] * fc[2] - rc[2] * fc[1];
-                om[1] += rc[2] * fc[0] - rc[0] * fc[2];
-                om[2] += rc[0] * fc[1] - rc[1] * fc[0];
-                dot += rc[0] * fc[0] + rc[1] * fc[1] + rc[2] * fc[2];
+            let h = rotation_step(|k| r[k][l], |k| f[k][l]);
+            let ql = quat_step([q[0][l], q[1][l], q[2][l], q[3][l]], h);
+            for k in 0..4 {
+                nq[k][l] = ql[k];
             }
-            let inv = 1.0 / (dot.abs() + 1e-9);
-            let h = [0.5 * om[0] * inv, 0.5 * om[1] * inv, 0.5 * om[2] * inv];
-            let (w, x, y, z) = (q[0][l], q[1][l], q[2][l], q[3][l]);
-            nq[0][l] = w - h[0] * x - h[1] * y - h[2] * z;
-            nq[1][l] = x + h[0] * w + h[1] * z - h[2] * y;
-            nq[2][l] = y - h[0] * z + h[1] * w + h[2] * x;
-            nq[3][l] = z + h[0] * y - h[1] * x + h[2] * w;
             n2[l] = nq[0][l] * nq[0][l]
                 + nq[1][l] * nq[1][l]
                 + nq[2][l] * nq[2][l]
@@ -356,23 +357,33 @@ mod tests {
         assert!((ri - rot).norm() < 1e-6, "iterative {ri} vs {rot}");
     }
 
-    #[test]
-    fn fast_path_agrees_with_svd_and_stays_proper() {
-        let mut seed = 99u64;
-        let mut rnd = || {
+    /// A reproducible stream uniform in [-1, 1) (a 64-bit LCG from `seed`).
+    fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
+        move || {
             seed = seed
                 .wrapping_mul(6364136223846793005)
                 .wrapping_add(1442695040888963407);
             ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        };
+        }
+    }
+
+    /// The deformation F = R (I + E) of a random rotation R (Euler angles up to `angle`) and E
+    /// with entries up to `stretch`; draws 3 then 9 numbers from `rnd`.
+    fn random_deformation(rnd: &mut impl FnMut() -> f64, angle: f64, stretch: f64) -> Matrix3<f64> {
+        let rot =
+            Rotation3::from_euler_angles(angle * rnd(), angle * rnd(), angle * rnd()).into_inner();
+        let mut s = Matrix3::identity();
+        for v in s.iter_mut() {
+            *v += stretch * rnd();
+        }
+        rot * s
+    }
+
+    #[test]
+    fn fast_path_agrees_with_svd_and_stays_proper() {
+        let mut rnd = uniform(99u64);
         for case in 0..200 {
-            let rot =
-                Rotation3::from_euler_angles(1.5 * rnd(), 1.5 * rnd(), 1.5 * rnd()).into_inner();
-            let mut s = Matrix3::identity();
-            for v in s.iter_mut() {
-                *v += 0.2 * rnd();
-            }
-            let f = rot * s;
+            let f = random_deformation(&mut rnd, 1.5, 0.2);
             let f32m: [f32; 9] = core::array::from_fn(|k| f[(k / 3, k % 3)] as f32);
             let mut q = [1.0f32, 0.0, 0.0, 0.0];
             let mut r = [0.0f32; 9];
@@ -404,21 +415,9 @@ mod tests {
 
     #[test]
     fn iterative_agrees_with_svd_for_random_deformations() {
-        let mut seed = 12345u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        };
+        let mut rnd = uniform(12345u64);
         for _ in 0..200 {
-            let rot =
-                Rotation3::from_euler_angles(3.0 * rnd(), 3.0 * rnd(), 3.0 * rnd()).into_inner();
-            let mut s = Matrix3::identity();
-            for v in s.iter_mut() {
-                *v += 0.3 * rnd();
-            }
-            let f = rot * s;
+            let f = random_deformation(&mut rnd, 3.0, 0.3);
             if f.determinant() <= 0.05 {
                 continue;
             }

@@ -143,8 +143,8 @@ const fn sum<const K: usize>(lens: &[usize; K]) -> usize {
 }
 
 /// The runtime's whole storage: every room's arrays. `Runtime::new` carves the rooms in the
-/// order of the fields; [`Layout::f32s`] and [`Layout::u32s`] sum them. Both destructure the
-/// struct exhaustively, so a room added here must be both sized and carved.
+/// order of the fields; [`Layout::f32s`] and [`Layout::u32s`] sum them (`Layout::totals`). Both
+/// destructure the struct exhaustively, so a room added here must be both sized and carved.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Layout {
     /// [`crate::nodes::NodeState`].
@@ -176,24 +176,16 @@ impl Layout {
 
     /// Total `f32` values.
     pub(crate) const fn f32s(&self) -> usize {
-        let Layout {
-            nodes,
-            contact,
-            work,
-            elements,
-            forces,
-            precond,
-        } = self;
-        nodes.f32_total()
-            + contact.f32_total()
-            + work.f32_total()
-            + elements.f32_total()
-            + forces.f32_total()
-            + precond.f32_total()
+        self.totals().0
     }
 
     /// Total `u32` values.
     pub(crate) const fn u32s(&self) -> usize {
+        self.totals().1
+    }
+
+    /// Every room's (`f32`, `u32`) values, summed; the one exhaustive destructuring that sizes.
+    const fn totals(&self) -> (usize, usize) {
         let Layout {
             nodes,
             contact,
@@ -202,12 +194,20 @@ impl Layout {
             forces,
             precond,
         } = self;
-        nodes.u32_total()
-            + contact.u32_total()
-            + work.u32_total()
-            + elements.u32_total()
-            + forces.u32_total()
-            + precond.u32_total()
+        (
+            nodes.f32_total()
+                + contact.f32_total()
+                + work.f32_total()
+                + elements.f32_total()
+                + forces.f32_total()
+                + precond.f32_total(),
+            nodes.u32_total()
+                + contact.u32_total()
+                + work.u32_total()
+                + elements.u32_total()
+                + forces.u32_total()
+                + precond.u32_total(),
+        )
     }
 
     const fn dims(nodes: usize, elements: usize, padded: usize, s: bool, p: bool) -> Dims {

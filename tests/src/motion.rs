@@ -1,9 +1,30 @@
 //! The synthetic bar of the motion tests (seed 001 scenario) and the gradient check they share.
 
+use std::path::{Path, PathBuf};
+
 use palpate_fem::mesh::Mesh;
 use palpate_motion::gradient::{evaluate, Method};
 use palpate_motion::model::{Material, Model, Observations, Param};
 use palpate_motion::scenario::{bar_model, nine_markers, two_sinusoids};
+
+/// The bundled motion dataset (`models/motion-example`: a 24-tet bar, front face clamped and
+/// shaken, gravity along −y).
+pub fn example() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/motion-example")
+}
+
+/// Copies the files of [`example`] into `dir`, for a test that edits one of them.
+pub fn copy_example(dir: &Path) {
+    for f in [
+        "dataset.toml",
+        "mesh.msh",
+        "markers.csv",
+        "trajectories.csv",
+        "clamps.csv",
+    ] {
+        std::fs::copy(example().join(f), dir.join(f)).unwrap();
+    }
+}
 
 /// The bar: 2 × 8 × 2 cm.
 pub const SIZE: [f64; 3] = [0.02, 0.08, 0.02];

@@ -7,8 +7,7 @@
 use std::path::Path;
 
 use palpate_protocol::model::{
-    encode, encoded_len, Blend, F32s, ModelError, ModelRecord, ParameterLayout, ParameterSets,
-    Provenance, U32s, Units,
+    encode, encoded_len, ModelError, ModelRecord, OwnedBlend, OwnedModel, ParameterLayout,
 };
 use palpate_runtime::element::{element_cd, pack_symmetric, tet_geometry, TetGeometry, PACKED_LEN};
 
@@ -82,46 +81,11 @@ pub struct ProvenanceInfo {
     pub notes: String,
 }
 
-/// Owned little-endian buffers backing a [`ModelRecord`].
+/// Owned little-endian buffers backing a [`ModelRecord`]: the protocol's [`OwnedModel`],
+/// built only by this module's validating constructors.
 #[derive(Debug, Clone)]
 pub struct ModelBuffers {
-    node_count: u32,
-    element_count: u32,
-    rest: Vec<u8>,
-    tags: Vec<u8>,
-    tets: Vec<u8>,
-    fixed: Vec<u8>,
-    surface: Vec<u8>,
-    c: Vec<u8>,
-    d: Vec<u8>,
-    layout: ParameterLayout,
-    count: u32,
-    lambda: Vec<u8>,
-    alpha: Vec<u8>,
-    blend: OwnedBlend,
-    tool: String,
-    created: String,
-    source: String,
-    notes: String,
-}
-
-#[derive(Debug, Clone)]
-enum OwnedBlend {
-    None,
-    Deformation {
-        centres: Vec<u8>,
-        wl: Vec<u8>,
-        wa: Vec<u8>,
-    },
-    Strain {
-        decay: f32,
-        k: u32,
-        idx: Vec<u8>,
-        w: Vec<u8>,
-        centres: Vec<u8>,
-        wl: Vec<u8>,
-        wa: Vec<u8>,
-    },
+    model: OwnedModel,
 }
 
 fn f32s(v: impl IntoIterator<Item = f64>) -> Vec<u8> {
@@ -204,17 +168,37 @@ impl ModelBuffers {
         params: &Material,
         prov: &ProvenanceInfo,
     ) -> Result<Self, ExportError> {
+        if fixed.is_empty() {
+            return Err(ExportError::Sets(
+                "no fixed nodes: the runtime needs at least one clamped node".into(),
+            ));
+        }
+        Self::from_mesh_sets(
+            mesh,
+            fixed,
+            std::slice::from_ref(params),
+            &BlendData::None,
+            prov,
+        )
+    }
+
+    /// Builds the buffers from a mesh, its fixed nodes (indices, possibly none: the runtime's
+    /// own refusal is then what a caller sees), parameter sets and blend. The rest geometry is
+    /// computed here, the surface is the mesh boundary. [`Self::from_mesh`] and the runtime
+    /// tests' models come through here.
+    pub fn from_mesh_sets(
+        mesh: &Mesh,
+        fixed: &[usize],
+        sets: &[Material],
+        blend: &BlendData,
+        prov: &ProvenanceInfo,
+    ) -> Result<Self, ExportError> {
         let n = mesh.nodes.len();
         let mut is_fixed = vec![false; n];
         for &i in fixed {
             *is_fixed.get_mut(i).ok_or_else(|| {
                 ExportError::Sets(format!("fixed node {i} out of range ({n} nodes)"))
             })? = true;
-        }
-        if fixed.is_empty() {
-            return Err(ExportError::Sets(
-                "no fixed nodes: the runtime needs at least one clamped node".into(),
-            ));
         }
         let mut geometry = Vec::with_capacity(mesh.tets.len());
         for (e, t) in mesh.tets.iter().enumerate() {
@@ -236,13 +220,7 @@ impl ModelBuffers {
             fixed: &is_fixed,
             surface: &surface,
         };
-        Self::build(
-            &geom,
-            &mesh.node_tags,
-            std::slice::from_ref(params),
-            &BlendData::None,
-            prov,
-        )
+        Self::build(&geom, &mesh.node_tags, sets, blend, prov)
     }
 
     /// The one record-building path: element C_e/D_e from the shared `element_cd`, f64 → f32.
@@ -302,8 +280,8 @@ impl ModelBuffers {
                 weights_alpha,
             } => OwnedBlend::Deformation {
                 centres: f32s(centres.iter().copied()),
-                wl: f32s(weights_lambda.iter().copied()),
-                wa: f32s(weights_alpha.iter().copied()),
+                weights_lambda: f32s(weights_lambda.iter().copied()),
+                weights_alpha: f32s(weights_alpha.iter().copied()),
             },
             BlendData::Strain {
                 decay,
@@ -315,28 +293,28 @@ impl ModelBuffers {
                 weights_alpha,
             } => OwnedBlend::Strain {
                 decay: *decay as f32,
-                k: *neighbours as u32,
-                idx: u32s(neighbour_index.iter().copied()),
-                w: f32s(neighbour_weight.iter().copied()),
+                neighbours: *neighbours as u32,
+                neighbour_index: u32s(neighbour_index.iter().copied()),
+                neighbour_weight: f32s(neighbour_weight.iter().copied()),
                 centres: f32s(centres.iter().copied()),
-                wl: f32s(weights_lambda.iter().copied()),
-                wa: f32s(weights_alpha.iter().copied()),
+                weights_lambda: f32s(weights_lambda.iter().copied()),
+                weights_alpha: f32s(weights_alpha.iter().copied()),
             },
         };
-        Ok(Self {
+        let model = OwnedModel {
             node_count: node_count as u32,
             element_count: t as u32,
-            rest: f32s(geom.x0.iter().flat_map(|p| p.iter().copied())),
-            tags: u32s(tags),
+            rest_positions: f32s(geom.x0.iter().flat_map(|p| p.iter().copied())),
+            node_tags: u32s(tags),
             tets: u32s(geom.tets.iter().flat_map(|t| t.iter().map(|&n| n as u32))),
-            fixed: u32s((0..node_count).filter(|&i| geom.fixed[i]).map(|i| i as u32)),
-            surface: u32s(
+            fixed_nodes: u32s((0..node_count).filter(|&i| geom.fixed[i]).map(|i| i as u32)),
+            surface_triangles: u32s(
                 geom.surface
                     .iter()
                     .flat_map(|t| t.iter().map(|&n| n as u32)),
             ),
-            c,
-            d,
+            c_packed: c,
+            d_packed: d,
             layout: if per_element {
                 ParameterLayout::PerElement
             } else {
@@ -350,61 +328,13 @@ impl ModelBuffers {
             created: utc_now(),
             source: prov.source.clone(),
             notes: prov.notes.clone(),
-        })
+        };
+        Ok(Self { model })
     }
 
     /// The record borrowing these buffers.
     pub fn record(&self) -> ModelRecord<'_> {
-        let blend = match &self.blend {
-            OwnedBlend::None => Blend::None,
-            OwnedBlend::Deformation { centres, wl, wa } => Blend::Deformation {
-                centres: F32s(centres),
-                weights_lambda: F32s(wl),
-                weights_alpha: F32s(wa),
-            },
-            OwnedBlend::Strain {
-                decay,
-                k,
-                idx,
-                w,
-                centres,
-                wl,
-                wa,
-            } => Blend::Strain {
-                decay: *decay,
-                neighbours: *k,
-                neighbour_index: U32s(idx),
-                neighbour_weight: F32s(w),
-                centres: F32s(centres),
-                weights_lambda: F32s(wl),
-                weights_alpha: F32s(wa),
-            },
-        };
-        ModelRecord {
-            units: Units::Si,
-            provenance: Provenance {
-                tool: &self.tool,
-                created: &self.created,
-                source: &self.source,
-                notes: &self.notes,
-            },
-            node_count: self.node_count,
-            element_count: self.element_count,
-            rest_positions: F32s(&self.rest),
-            node_tags: U32s(&self.tags),
-            tets: U32s(&self.tets),
-            fixed_nodes: U32s(&self.fixed),
-            surface_triangles: U32s(&self.surface),
-            c_packed: F32s(&self.c),
-            d_packed: F32s(&self.d),
-            parameters: ParameterSets {
-                layout: self.layout,
-                count: self.count,
-                lambda: F32s(&self.lambda),
-                alpha: F32s(&self.alpha),
-            },
-            blend,
-        }
+        self.model.record()
     }
 
     /// Encodes (validating) into a byte vector.

@@ -18,6 +18,26 @@ fn text(b: &[u8]) -> String {
     String::from_utf8_lossy(b).to_string()
 }
 
+/// Runs `c` and asserts that it succeeded (its stderr shown if not).
+#[track_caller]
+fn succeeds(c: &mut Command) {
+    let o = c.output().unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+}
+
+/// Asserts that the program exited with `code` and said `part` on stderr (shown if not).
+#[track_caller]
+fn assert_exit_and_stderr(o: &Output, code: i32, part: &str) {
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(code), "{err}");
+    assert!(err.contains(part), "{err}");
+}
+
+/// The JSON document in the file at `path`.
+fn json_file(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
 fn last_json(o: &Output) -> serde_json::Value {
     let out = text(&o.stdout);
     let line = out.lines().last().unwrap_or_default();
@@ -49,8 +69,7 @@ fn fit_motion_reads_the_old_nu_with_a_warning_and_names_things_once() {
             "{flag}: {err}"
         );
     }
-    let record: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&fit).unwrap()).unwrap();
+    let record = json_file(&fit);
     assert_eq!(record["schema_version"], 2);
     assert_eq!(record["format"], "palpate-motion-fit/2");
     assert_eq!(record["fitted"], serde_json::json!(["mu", "viscosity"]));
@@ -95,12 +114,7 @@ fn fit_motion_reads_the_old_nu_with_a_warning_and_names_things_once() {
         .args(["--params", "mu,damping"])
         .output()
         .unwrap();
-    assert_eq!(o.status.code(), Some(1));
-    assert!(
-        text(&o.stderr).contains("\"damping\" (lambda, mu, viscosity, h, density)"),
-        "{}",
-        text(&o.stderr)
-    );
+    assert_exit_and_stderr(&o, 1, "\"damping\" (lambda, mu, viscosity, h, density)");
 }
 
 /// A motion dataset whose `[initial]` table still says `nu` is read (as the viscosity) with a
@@ -122,12 +136,7 @@ fn a_dataset_with_initial_nu_is_read_with_a_warning() {
     )
     .unwrap();
     let o = palpate().arg("info").arg(&ds).output().unwrap();
-    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
-    assert!(
-        text(&o.stderr).contains("[initial] nu is now called viscosity"),
-        "{}",
-        text(&o.stderr)
-    );
+    assert_exit_and_stderr(&o, 0, "[initial] nu is now called viscosity");
     let d = palpate_motion::dataset::load(&ds).unwrap();
     assert_eq!(d.config.initial.nu, 6.0);
 }
@@ -173,8 +182,7 @@ fn progress_goes_to_stderr_and_quiet_silences_it() {
     assert_eq!(text(&flag_wins.stderr), "");
     // -q and -v together is a usage error, not a guess.
     let both = run(&["-q", "-v"], None);
-    assert_eq!(both.status.code(), Some(2));
-    assert!(text(&both.stderr).contains("cannot be used with"));
+    assert_exit_and_stderr(&both, 2, "cannot be used with");
     // Errors are shown under -q too.
     let o = palpate()
         .args(["-q", "info"])
@@ -199,16 +207,14 @@ fn every_json_document_has_a_schema_version_and_units_in_its_names() {
     let example = repo().join("models/motion-example");
     // The motion diagnosis (0.5 s).
     let d = dir.path().join("diagnosis");
-    let o = palpate()
-        .args(["-q", "diagnose"])
-        .arg(&example)
-        .arg("-o")
-        .arg(&d)
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
-    let doc: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("diagnosis.json")).unwrap()).unwrap();
+    succeeds(
+        palpate()
+            .args(["-q", "diagnose"])
+            .arg(&example)
+            .arg("-o")
+            .arg(&d),
+    );
+    let doc = json_file(&d.join("diagnosis.json"));
     assert_eq!(doc["schema_version"], 1);
     assert_eq!(doc["kind"], "motion-diagnosis");
     assert!(doc["before"]["rms_fit_m"].as_f64().is_some(), "{doc}");
@@ -272,17 +278,15 @@ fn every_json_document_has_a_schema_version_and_units_in_its_names() {
     }
     // simulate's summary.json, then info on a .palp made by fit (the static report.json).
     let sim = dir.path().join("sim");
-    let o = palpate()
-        .args(["-q", "simulate", "--mesh"])
-        .arg(repo().join("models/sponge/sponge.msh"))
-        .args(["--young", "2e4", "--poisson", "0.3", "--fixed", "bottom"])
-        .args(["--contact", "0.05,0.05,0.05", "--force", "0,0,-0.5", "-o"])
-        .arg(&sim)
-        .output()
-        .unwrap();
-    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
-    let s: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(sim.join("summary.json")).unwrap()).unwrap();
+    succeeds(
+        palpate()
+            .args(["-q", "simulate", "--mesh"])
+            .arg(repo().join("models/sponge/sponge.msh"))
+            .args(["--young", "2e4", "--poisson", "0.3", "--fixed", "bottom"])
+            .args(["--contact", "0.05,0.05,0.05", "--force", "0,0,-0.5", "-o"])
+            .arg(&sim),
+    );
+    let s = json_file(&sim.join("summary.json"));
     assert_eq!(s["schema_version"], 1);
     let model = dir.path().join("m.palp");
     let o = palpate()
@@ -298,9 +302,7 @@ fn every_json_document_has_a_schema_version_and_units_in_its_names() {
         text(&o.stderr)
     );
     let report = dir.path().join("m.report");
-    let r: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(report.join("report.json")).unwrap())
-            .unwrap();
+    let r = json_file(&report.join("report.json"));
     assert_eq!(r["schema_version"], 1);
     let row = &r["rows"][0];
     for k in [
@@ -356,15 +358,14 @@ fn plot_format_chooses_the_files() {
         .unwrap();
     for (format, svg, png) in [("svg", true, false), ("both", true, true)] {
         let out = dir.path().join(format);
-        let o = palpate()
-            .args(["-q", "validate", "--model"])
-            .arg(&fit)
-            .arg(&example)
-            .args(["--plot-format", format, "-o"])
-            .arg(&out)
-            .output()
-            .unwrap();
-        assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+        succeeds(
+            palpate()
+                .args(["-q", "validate", "--model"])
+                .arg(&fit)
+                .arg(&example)
+                .args(["--plot-format", format, "-o"])
+                .arg(&out),
+        );
         assert_eq!(out.join("tip.svg").exists(), svg, "{format}");
         assert_eq!(out.join("tip.png").exists(), png, "{format}");
     }
@@ -375,10 +376,5 @@ fn plot_format_chooses_the_files() {
         .args(["--plot-format", "pdf"])
         .output()
         .unwrap();
-    assert_eq!(o.status.code(), Some(2));
-    assert!(
-        text(&o.stderr).contains("png, svg, both"),
-        "{}",
-        text(&o.stderr)
-    );
+    assert_exit_and_stderr(&o, 2, "png, svg, both");
 }

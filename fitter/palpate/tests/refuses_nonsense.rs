@@ -62,26 +62,37 @@ fn fit_refused(dataset: &Path, extra: &[&str]) -> (i32, String) {
     (o.status.code().unwrap_or(-1), err)
 }
 
-#[test]
-fn fit_refuses_zero_forces() {
+/// `palpate fit` on the sponge with `edit` applied to `file` (as [`sponge_with`]) exits 1, writes
+/// nothing and names every one of `parts` on stderr.
+#[track_caller]
+fn fit_on_edited_sponge_refuses(
+    file: &str,
+    edit: impl Fn(usize, Vec<String>) -> Vec<String>,
+    parts: &[&str],
+) {
     let tmp = tempfile::tempdir().unwrap();
-    let ds = sponge_with(tmp.path(), "contacts.csv", |_, mut f| {
-        f[4] = "0".into();
-        f[5] = "0".into();
-        f[6] = "0".into();
-        f
-    });
+    let ds = sponge_with(tmp.path(), file, edit);
     let (code, err) = fit_refused(&ds, &[]);
     assert_eq!(code, 1, "{err}");
-    assert!(
-        err.contains("zero-forces") && err.contains("zero probe force"),
-        "{err}"
+    assert!(parts.iter().all(|p| err.contains(p)), "{err}");
+}
+
+#[test]
+fn fit_refuses_zero_forces() {
+    fit_on_edited_sponge_refuses(
+        "contacts.csv",
+        |_, mut f| {
+            f[4] = "0".into();
+            f[5] = "0".into();
+            f[6] = "0".into();
+            f
+        },
+        &["zero-forces", "zero probe force"],
     );
 }
 
 #[test]
 fn fit_refuses_markers_that_never_move() {
-    let tmp = tempfile::tempdir().unwrap();
     let markers =
         std::fs::read_to_string(repo().join("models/sponge/dataset/markers.csv")).unwrap();
     let rest: std::collections::HashMap<String, Vec<String>> = markers
@@ -93,31 +104,29 @@ fn fit_refuses_markers_that_never_move() {
             (f[0].clone(), f[1..4].to_vec())
         })
         .collect();
-    let ds = sponge_with(tmp.path(), "measurements.csv", |_, f| {
-        let mut g = f[..2].to_vec();
-        g.extend(rest[&f[1]].iter().cloned());
-        g
-    });
-    let (code, err) = fit_refused(&ds, &[]);
-    assert_eq!(code, 1, "{err}");
-    assert!(err.contains("markers-still"), "{err}");
+    fit_on_edited_sponge_refuses(
+        "measurements.csv",
+        |_, f| {
+            let mut g = f[..2].to_vec();
+            g.extend(rest[&f[1]].iter().cloned());
+            g
+        },
+        &["markers-still"],
+    );
 }
 
 #[test]
 fn fit_refuses_a_parameter_at_its_bound() {
     // A meganewton on one contact of a sponge: the (λ, α) fit runs into ν = −1.
-    let tmp = tempfile::tempdir().unwrap();
-    let ds = sponge_with(tmp.path(), "contacts.csv", |i, mut f| {
-        if i == 1 {
-            f[6] = "-1e6".into();
-        }
-        f
-    });
-    let (code, err) = fit_refused(&ds, &[]);
-    assert_eq!(code, 1, "{err}");
-    assert!(
-        err.contains("parameter-at-bound") && err.contains("ν"),
-        "{err}"
+    fit_on_edited_sponge_refuses(
+        "contacts.csv",
+        |i, mut f| {
+            if i == 1 {
+                f[6] = "-1e6".into();
+            }
+            f
+        },
+        &["parameter-at-bound", "ν"],
     );
 }
 

@@ -87,15 +87,21 @@ pub fn deformation_blend(
     let bl: Vec<f64> = sets.iter().map(|m| m.lambda[0]).collect();
     let ba: Vec<f64> = sets.iter().map(|m| m.alpha[0]).collect();
     let (weights_lambda, weights_alpha) = rbf_weights(phi, bl, ba)?;
-    let centres = deformed
-        .iter()
-        .flat_map(|x| x.iter().flat_map(|p| p.iter().copied()))
-        .collect();
+    let centres = flat_centres(deformed);
     Ok(BlendData::Deformation {
         centres,
         weights_lambda,
         weights_alpha,
     })
+}
+
+/// The RBF centres as the model format stores them: every fitted state's values in order, state
+/// after state (deformations: nodes × 3; strains: elements × 6).
+fn flat_centres<const N: usize>(states: &[Vec<[f64; N]>]) -> Vec<f64> {
+    states
+        .iter()
+        .flat_map(|x| x.iter().flat_map(|v| v.iter().copied()))
+        .collect()
 }
 
 /// Element centroids of the rest mesh.
@@ -175,10 +181,7 @@ pub fn strain_blend(
         weights_lambda[e * n..e * n + n].copy_from_slice(&wl);
         weights_alpha[e * n..e * n + n].copy_from_slice(&wa);
     }
-    let centres = strains
-        .iter()
-        .flat_map(|s| s.iter().flat_map(|v| v.iter().copied()))
-        .collect();
+    let centres = flat_centres(&strains);
     Ok(BlendData::Strain {
         decay,
         neighbours: k,

@@ -65,12 +65,16 @@
 mod codec;
 mod container;
 mod error;
+#[cfg(feature = "alloc")]
+mod owned;
 mod record;
 mod validate;
 
 pub use codec::{decode, encode, encoded_len};
 pub use container::{CRC_LEN, HEADER_LEN, KIND_MODEL, MAGIC};
 pub use error::{Capacity, Field, Invalid, MalformedKind, ModelError};
+#[cfg(feature = "alloc")]
+pub use owned::{OwnedBlend, OwnedModel};
 pub use record::*;
 pub use validate::{
     node_coverage_scratch_len, validate, validate_node_coverage, MIN_RELATIVE_AREA,

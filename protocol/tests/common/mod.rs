@@ -2,9 +2,7 @@
 //! independent container writer (from the spec in `MODEL-FORMAT.md`, not from the crate).
 #![allow(dead_code)]
 
-use palpate_protocol::model::{
-    Blend, F32s, ModelRecord, ParameterLayout, ParameterSets, Provenance, U32s, Units,
-};
+use palpate_protocol::model::{ModelRecord, ParameterLayout};
 
 pub fn f32_bytes(v: &[f32]) -> Vec<u8> {
     v.iter().flat_map(|x| x.to_le_bytes()).collect()
@@ -22,109 +20,22 @@ pub fn set_u32(bytes: &mut [u8], i: usize, v: u32) {
     bytes[4 * i..4 * i + 4].copy_from_slice(&v.to_le_bytes());
 }
 
-/// Blend data owned by the test.
-#[derive(Clone, Debug)]
-pub enum OwnedBlend {
-    None,
-    Deformation {
-        centres: Vec<u8>,
-        weights_lambda: Vec<u8>,
-        weights_alpha: Vec<u8>,
-    },
-    Strain {
-        decay: f32,
-        neighbours: u32,
-        neighbour_index: Vec<u8>,
-        neighbour_weight: Vec<u8>,
-        centres: Vec<u8>,
-        weights_lambda: Vec<u8>,
-        weights_alpha: Vec<u8>,
-    },
-}
+/// The models the tests build and corrupt are kept in the crate's owned storage; its `record`
+/// only borrows the arrays, so nothing of what is checked (encoder, decoder, validation) is
+/// shared with the test data beyond that mapping.
+pub use palpate_protocol::model::{OwnedBlend, OwnedModel};
 
-/// A model record's storage; [`OwnedModel::record`] borrows a [`ModelRecord`] from it.
-#[derive(Clone, Debug)]
-pub struct OwnedModel {
-    pub tool: String,
-    pub created: String,
-    pub source: String,
-    pub notes: String,
-    pub node_count: u32,
-    pub element_count: u32,
-    pub rest_positions: Vec<u8>,
-    pub node_tags: Vec<u8>,
-    pub tets: Vec<u8>,
-    pub fixed_nodes: Vec<u8>,
-    pub surface_triangles: Vec<u8>,
-    pub c_packed: Vec<u8>,
-    pub d_packed: Vec<u8>,
-    pub layout: ParameterLayout,
-    pub count: u32,
-    pub lambda: Vec<u8>,
-    pub alpha: Vec<u8>,
-    pub blend: OwnedBlend,
-}
-
-impl OwnedModel {
-    pub fn record(&self) -> ModelRecord<'_> {
-        let blend = match &self.blend {
-            OwnedBlend::None => Blend::None,
-            OwnedBlend::Deformation {
-                centres,
-                weights_lambda,
-                weights_alpha,
-            } => Blend::Deformation {
-                centres: F32s(centres),
-                weights_lambda: F32s(weights_lambda),
-                weights_alpha: F32s(weights_alpha),
-            },
-            OwnedBlend::Strain {
-                decay,
-                neighbours,
-                neighbour_index,
-                neighbour_weight,
-                centres,
-                weights_lambda,
-                weights_alpha,
-            } => Blend::Strain {
-                decay: *decay,
-                neighbours: *neighbours,
-                neighbour_index: U32s(neighbour_index),
-                neighbour_weight: F32s(neighbour_weight),
-                centres: F32s(centres),
-                weights_lambda: F32s(weights_lambda),
-                weights_alpha: F32s(weights_alpha),
-            },
-        };
-        ModelRecord {
-            units: Units::Si,
-            provenance: Provenance {
-                tool: &self.tool,
-                created: &self.created,
-                source: &self.source,
-                notes: &self.notes,
-            },
-            node_count: self.node_count,
-            element_count: self.element_count,
-            rest_positions: F32s(&self.rest_positions),
-            node_tags: U32s(&self.node_tags),
-            tets: U32s(&self.tets),
-            fixed_nodes: U32s(&self.fixed_nodes),
-            surface_triangles: U32s(&self.surface_triangles),
-            c_packed: F32s(&self.c_packed),
-            d_packed: F32s(&self.d_packed),
-            parameters: ParameterSets {
-                layout: self.layout,
-                count: self.count,
-                lambda: F32s(&self.lambda),
-                alpha: F32s(&self.alpha),
-            },
-            blend,
-        }
-    }
-
+/// The tests' two ways of encoding an [`OwnedModel`].
+pub trait Encoded {
     /// Encodes with the crate's encoder into a fresh buffer of exactly `encoded_len` bytes.
-    pub fn encode(&self) -> Vec<u8> {
+    fn encode(&self) -> Vec<u8>;
+    /// Encodes WITHOUT validation (postcard payload + independent container), for
+    /// corrupt-content tests: the bytes are a well-formed container with a correct CRC.
+    fn encode_unchecked(&self) -> Vec<u8>;
+}
+
+impl Encoded for OwnedModel {
+    fn encode(&self) -> Vec<u8> {
         let r = self.record();
         let mut out = vec![0u8; palpate_protocol::model::encoded_len(&r).unwrap()];
         let n = palpate_protocol::model::encode(&r, &mut out).unwrap();
@@ -132,9 +43,7 @@ impl OwnedModel {
         out
     }
 
-    /// Encodes WITHOUT validation (postcard payload + independent container), for corrupt-content
-    /// tests: the bytes are a well-formed container with a correct CRC.
-    pub fn encode_unchecked(&self) -> Vec<u8> {
+    fn encode_unchecked(&self) -> Vec<u8> {
         wrap(&payload_of(&self.record()))
     }
 }

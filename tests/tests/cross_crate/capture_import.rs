@@ -9,25 +9,22 @@ fn beam() -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/silicone-beam")
 }
 
-#[test]
-fn beam_capture_imports_as_a_motion_dataset() {
-    let capture = palpate_capture::read_c3d(&beam().join("beam_gravity_V2_a.c3d")).unwrap();
+/// The beam's declared marker places (`marker-places.csv`: name, x, y, z; `#` comments).
+fn marker_places() -> Vec<(String, [f64; 3])> {
     let text = std::fs::read_to_string(beam().join("marker-places.csv")).unwrap();
-    let places: Vec<(String, [f64; 3])> = text
-        .lines()
+    text.lines()
         .filter(|l| !l.starts_with('#') && !l.starts_with("marker,"))
         .map(|l| {
             let f: Vec<&str> = l.split(',').collect();
-            (
-                f[0].to_string(),
-                [
-                    f[1].parse().unwrap(),
-                    f[2].parse().unwrap(),
-                    f[3].parse().unwrap(),
-                ],
-            )
+            (f[0].to_string(), [1, 2, 3].map(|k| f[k].parse().unwrap()))
         })
-        .collect();
+        .collect()
+}
+
+#[test]
+fn beam_capture_imports_as_a_motion_dataset() {
+    let capture = palpate_capture::read_c3d(&beam().join("beam_gravity_V2_a.c3d")).unwrap();
+    let places = marker_places();
     let ids: Vec<usize> = places
         .iter()
         .map(|(l, _)| capture.marker(l).unwrap())
@@ -94,15 +91,7 @@ fn beam_capture_imports_as_a_motion_dataset() {
 #[test]
 fn an_undeclared_marker_is_located_from_the_rest_frame() {
     let capture = palpate_capture::read_c3d(&beam().join("beam_load52_V2_a.c3d")).unwrap();
-    let text = std::fs::read_to_string(beam().join("marker-places.csv")).unwrap();
-    let all: Vec<(String, [f64; 3])> = text
-        .lines()
-        .filter(|l| !l.starts_with('#') && !l.starts_with("marker,"))
-        .map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            (f[0].to_string(), [1, 2, 3].map(|k| f[k].parse().unwrap()))
-        })
-        .collect();
+    let all = marker_places();
     let import = |places: Vec<(String, [f64; 3])>| {
         let dir = tempfile::tempdir().unwrap();
         std::fs::copy(beam().join("beam-coarse.msh"), dir.path().join("mesh.msh")).unwrap();

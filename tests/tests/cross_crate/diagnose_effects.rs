@@ -10,7 +10,9 @@
 use palpate_diagnose::export::runtime_fit;
 use palpate_diagnose::model::Candidate;
 use palpate_diagnose::{run_diagnosis, DiagnoseOptions, MeshChoice};
+use palpate_fem::dataset::StaticDataset;
 use palpate_specimen::{generate, Effect, SpecimenOptions};
+use palpate_tests::diagnose::summary;
 
 fn diagnose(effect: Option<Effect>, seed: u64) -> palpate_diagnose::DiagnosisReport {
     // One adoption round is what these tests assert on (the first effect named and the error
@@ -19,24 +21,24 @@ fn diagnose(effect: Option<Effect>, seed: u64) -> palpate_diagnose::DiagnosisRep
     // On the dataset's own mesh: these check the selection loop, whose decisions the refined
     // mesh only sharpens (`diagnose_refined_mesh_reaches_the_noise_floor` checks the refinement),
     // at an eighth of the cost.
+    let s = generate(&SpecimenOptions::with_effect(effect, seed)).expect("specimen");
+    let r = one_round(&s.dataset);
+    eprintln!(
+        "{effect:?} seed {seed}: {}; {:.1} s",
+        summary(&r),
+        r.seconds
+    );
+    r
+}
+
+/// One adoption round on the dataset's own mesh (why: [`diagnose`]).
+fn one_round(dataset: &StaticDataset) -> palpate_diagnose::DiagnosisReport {
     let o = DiagnoseOptions {
         max_effects: 1,
         mesh: MeshChoice::Dataset,
         ..Default::default()
     };
-    let s = generate(&SpecimenOptions::with_effect(effect, seed)).expect("specimen");
-    let r = run_diagnosis(&s.dataset, &o).expect("diagnosis");
-    eprintln!(
-        "{effect:?} seed {seed}: adopted {:?}; RMS {:.1} → {:.1} µm (held out {:.1} → {:.1}); floor {:.1} µm; {:.1} s",
-        r.adopted,
-        1e6 * r.before.fitted_rms,
-        1e6 * r.after.fitted_rms,
-        1e6 * r.before.heldout_rms,
-        1e6 * r.after.heldout_rms,
-        1e6 * r.noise_floor,
-        r.seconds
-    );
-    r
+    run_diagnosis(dataset, &o).expect("diagnosis")
 }
 
 #[test]
@@ -192,34 +194,12 @@ fn diagnose_names_a_registration_that_differs_per_measurement() {
             *p = [q.x, q.y, q.z];
         }
     }
-    let o = DiagnoseOptions {
-        max_effects: 1,
-        mesh: MeshChoice::Dataset,
-        ..Default::default()
-    };
-    let r = run_diagnosis(&s.dataset, &o).expect("diagnosis");
-    eprintln!(
-        "per-measurement registration: adopted {:?}; RMS {:.1} → {:.1} µm (held out {:.1} → {:.1}); floor {:.1} µm; {}",
-        r.adopted,
-        1e6 * r.before.fitted_rms,
-        1e6 * r.after.fitted_rms,
-        1e6 * r.before.heldout_rms,
-        1e6 * r.after.heldout_rms,
-        1e6 * r.noise_floor,
-        r.residual_check.verdict("…")
-    );
-    assert_eq!(
-        r.adopted.first(),
-        Some(&Candidate::RegistrationEach),
-        "{:?}",
-        r.adopted
+    let r = names_per_measurement(
+        "per-measurement registration",
+        &s.dataset,
+        Candidate::RegistrationEach,
     );
     assert!(r.before.fitted_rms > 2.0 * r.noise_floor);
-    assert!(
-        r.after.heldout_rms <= 1.5 * r.noise_floor,
-        "{}",
-        r.after.heldout_rms
-    );
 }
 
 /// An unreported tangential force of 0.3·|f| in a direction that changes from measurement to
@@ -245,31 +225,31 @@ fn diagnose_names_a_tangential_force_that_differs_per_measurement() {
         let reported = f - t * (0.3 * f.norm());
         m.force = [reported.x, reported.y, reported.z];
     }
-    let o = DiagnoseOptions {
-        max_effects: 1,
-        mesh: MeshChoice::Dataset,
-        ..Default::default()
-    };
-    let r = run_diagnosis(&s.dataset, &o).expect("diagnosis");
+    names_per_measurement(
+        "per-measurement tangential force",
+        &s.dataset,
+        Candidate::TiltEach,
+    );
+}
+
+/// One adoption round on a specimen with a per-measurement effect (`label`): `candidate` must be
+/// the first adopted, and the held-out error after it within 1.5× the noise floor.
+fn names_per_measurement(
+    label: &str,
+    dataset: &StaticDataset,
+    candidate: Candidate,
+) -> palpate_diagnose::DiagnosisReport {
+    let r = one_round(dataset);
     eprintln!(
-        "per-measurement tangential force: adopted {:?}; RMS {:.1} → {:.1} µm (held out {:.1} → {:.1}); floor {:.1} µm; {}",
-        r.adopted,
-        1e6 * r.before.fitted_rms,
-        1e6 * r.after.fitted_rms,
-        1e6 * r.before.heldout_rms,
-        1e6 * r.after.heldout_rms,
-        1e6 * r.noise_floor,
+        "{label}: {}; {}",
+        summary(&r),
         r.residual_check.verdict("…")
     );
-    assert_eq!(
-        r.adopted.first(),
-        Some(&Candidate::TiltEach),
-        "{:?}",
-        r.adopted
-    );
+    assert_eq!(r.adopted.first(), Some(&candidate), "{:?}", r.adopted);
     assert!(
         r.after.heldout_rms <= 1.5 * r.noise_floor,
         "{}",
         r.after.heldout_rms
     );
+    r
 }

@@ -5,7 +5,8 @@
 //! embedding, which on the side faces sits at a sag-shifted material point.
 
 use palpate_diagnose::model::{s_of, Candidate, Context, Model};
-use palpate_specimen::{generate, Effect, EffectSpec, SpecimenOptions};
+use palpate_specimen::Effect;
+use palpate_tests::diagnose::specimen_with;
 
 fn rms(ctx: &Context, markers: &[Vec<[f64; 3]>]) -> f64 {
     let (mut s, mut n) = (0.0, 0usize);
@@ -25,14 +26,7 @@ fn rms(ctx: &Context, markers: &[Vec<[f64; 3]>]) -> f64 {
 /// (the block's bulge; asserted below the side markers' largest move).
 #[test]
 fn rest_scan_under_gravity_relocates_side_markers() {
-    let s = generate(&SpecimenOptions {
-        effects: vec![EffectSpec {
-            effect: Effect::Gravity,
-            magnitude: 1.0,
-        }],
-        ..Default::default()
-    })
-    .expect("specimen");
+    let s = specimen_with(Effect::Gravity, 1.0);
     let ctx = Context::new(&s.dataset, [2, 2, 2]).expect("context");
     let model = Model::base().with(Candidate::Gravity);
     let theta = vec![20e3f64.ln(), s_of(0.35), 1.0];

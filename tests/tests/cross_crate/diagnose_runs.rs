@@ -9,10 +9,9 @@ use palpate_diagnose::runs::{diagnose_runs, Effect, RunsOptions};
 use palpate_motion::dataset::{load, MotionDataset};
 use palpate_motion::model::{DeadLoad, Material};
 use palpate_motion::scenario::record;
-use std::path::Path;
 
 fn example() -> MotionDataset {
-    load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/motion-example")).unwrap()
+    load(&palpate_tests::motion::example()).unwrap()
 }
 
 /// The truth: the example's Lamé pair (Poisson's ratio 1/3), Newtonian damping.

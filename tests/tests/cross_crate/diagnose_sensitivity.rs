@@ -166,13 +166,8 @@ fn an_off_centre_inclusion_is_named() {
         unlocated.adopted
     );
     eprintln!(
-        "adopted {:?}; RMS {:.1} → {:.1} µm (held out {:.1} → {:.1}); floor {:.1} µm; {:.1} s; {}",
-        r.adopted,
-        1e6 * r.before.fitted_rms,
-        1e6 * r.after.fitted_rms,
-        1e6 * r.before.heldout_rms,
-        1e6 * r.after.heldout_rms,
-        1e6 * r.noise_floor,
+        "{}; {:.1} s; {}",
+        palpate_tests::diagnose::summary(&r),
         r.seconds,
         r.residual_check.verdict("inclusion"),
     );

@@ -5,7 +5,9 @@
 
 use palpate_fem::mesh::boxmesh::cylinder_mesh;
 use palpate_motion::hyperelastic::HyperParams;
-use palpate_motion::model::{Clamp, MassKind, Material, Model, Param, ParamKind, Pose};
+use palpate_motion::model::{
+    Clamp, MassKind, Material, Model, Observations, Param, ParamKind, Pose,
+};
 use palpate_motion::optimize::{fit, FitSettings};
 use palpate_motion::scenario::record;
 use palpate_motion::sim::{simulate, static_start};
@@ -28,31 +30,17 @@ fn lame(e: f64) -> (f64, f64) {
 /// The cylinder along y, clamped at y = 0 and shaken vertically by `amplitude` at 3 Hz,
 /// gravity −z, markers along the top and the side.
 fn cantilever(cells: [usize; 2], steps: usize, amplitude: f64) -> Model {
-    let mesh = cylinder_mesh(RADIUS, LENGTH, cells);
-    let clamp = Clamp {
-        name: "front".into(),
-        nodes: mesh.node_groups["front"].clone(),
-        poses: (0..=steps)
-            .map(|n| {
-                let t = n as f64 * DT;
-                Pose::translation([
-                    0.0,
-                    0.0,
-                    amplitude * (2.0 * std::f64::consts::PI * 3.0 * t).sin(),
-                ])
-            })
-            .collect(),
-    };
-    let mut model = Model::new(
-        &mesh,
-        vec![clamp],
-        Vec::new(),
-        DT,
-        steps,
-        [0.0, 0.0, -9.81],
-        MassKind::Lumped,
-    )
-    .unwrap();
+    let poses = (0..=steps)
+        .map(|n| {
+            let t = n as f64 * DT;
+            Pose::translation([
+                0.0,
+                0.0,
+                amplitude * (2.0 * std::f64::consts::PI * 3.0 * t).sin(),
+            ])
+        })
+        .collect();
+    let mut model = clamped_cylinder(cells, DT, poses);
     model.markers = (1..=5)
         .flat_map(|i| {
             let y = LENGTH * i as f64 / 5.0;
@@ -62,6 +50,38 @@ fn cantilever(cells: [usize; 2], steps: usize, amplitude: f64) -> Model {
         .map(|(i, p)| model.marker_at(&format!("m{i}"), p))
         .collect();
     model
+}
+
+/// The cylinder along y in `cells`, its front face (y = 0) clamped and moved through `poses`
+/// (the start, then one per step of `dt`), gravity −z, lumped mass, no markers.
+fn clamped_cylinder(cells: [usize; 2], dt: f64, poses: Vec<Pose>) -> Model {
+    let mesh = cylinder_mesh(RADIUS, LENGTH, cells);
+    let steps = poses.len() - 1;
+    let clamp = Clamp {
+        name: "front".into(),
+        nodes: mesh.node_groups["front"].clone(),
+        poses,
+    };
+    Model::new(
+        &mesh,
+        vec![clamp],
+        Vec::new(),
+        dt,
+        steps,
+        [0.0, 0.0, -9.81],
+        MassKind::Lumped,
+    )
+    .unwrap()
+}
+
+/// The cantilever of [`cantilever`] ([2, 15] cells, 5 mm at 3 Hz for `steps` steps) with its
+/// truth (E = 3.3 MPa, viscosity 3000 Pa·s) and the truth's noise-free record.
+fn shaken(steps: usize) -> (Model, Material, Observations) {
+    let model = cantilever([2, 15], steps, 0.005);
+    let (lambda, mu) = lame(3.3e6);
+    let truth = Material::uniform(model.tets.len(), lambda, mu, 3000.0, 1.0, DENSITY);
+    let obs = record(&model, &truth, 0.0, 1).unwrap();
+    (model, truth, obs)
 }
 
 fn tip_sag(model: &Model, x: &[f64]) -> f64 {
@@ -134,10 +154,8 @@ fn horizontal_cantilever_static_start_converges_for_any_plausible_stiffness() {
 #[test]
 fn horizontal_cantilever_fits_from_a_start_estimated_from_its_sag() {
     let steps = 45;
-    let model = cantilever([2, 15], steps, 0.005);
-    let (lambda, mu) = lame(3.3e6);
-    let truth = Material::uniform(model.tets.len(), lambda, mu, 3000.0, 1.0, DENSITY);
-    let obs = record(&model, &truth, 0.0, 1).unwrap();
+    let (model, truth, obs) = shaken(steps);
+    let mu = truth.values[ParamKind::Mu as usize][0];
     simulate(&model, &truth, false, |_, _| {}, |_| Ok(())).unwrap();
     // A generic guess two decades too soft: the cylinder would hang down.
     let guess = Material::uniform(model.tets.len(), 1e4, 1e4, 1.0, 1.0, DENSITY);
@@ -191,10 +209,8 @@ fn a_motion_dataset_without_initial_starts_from_its_sag() {
     use palpate_motion::start::initial_values;
     use std::fmt::Write as _;
     let steps = 20;
-    let model = cantilever([2, 15], steps, 0.005);
-    let (lambda, mu) = lame(3.3e6);
-    let truth = Material::uniform(model.tets.len(), lambda, mu, 3000.0, 1.0, DENSITY);
-    let obs = record(&model, &truth, 0.0, 1).unwrap();
+    let (model, truth, obs) = shaken(steps);
+    let mu = truth.values[ParamKind::Mu as usize][0];
     let dir = tempfile::tempdir().unwrap();
     write_msh(
         &cylinder_mesh(RADIUS, LENGTH, [2, 15]),
@@ -260,22 +276,11 @@ fn a_motion_dataset_without_initial_starts_from_its_sag() {
 #[test]
 fn a_soft_cantilever_released_straight_simulates_at_coarse_time_steps() {
     for (e, hz, steps) in [(3e4, 60.0, 60), (1e5, 30.0, 30)] {
-        let mesh = cylinder_mesh(RADIUS, LENGTH, [3, 25]);
-        let clamp = Clamp {
-            name: "front".into(),
-            nodes: mesh.node_groups["front"].clone(),
-            poses: vec![Pose::translation([0.0; 3]); steps + 1],
-        };
-        let mut model = Model::new(
-            &mesh,
-            vec![clamp],
-            Vec::new(),
+        let mut model = clamped_cylinder(
+            [3, 25],
             1.0 / hz,
-            steps,
-            [0.0, 0.0, -9.81],
-            MassKind::Lumped,
-        )
-        .unwrap();
+            vec![Pose::translation([0.0; 3]); steps + 1],
+        );
         model.static_start = false;
         let (lambda, mu) = lame(e);
         let mat = Material::uniform(model.tets.len(), lambda, mu, 1.0, 1.0, DENSITY);
@@ -308,27 +313,15 @@ fn a_soft_cantilever_released_straight_simulates_at_coarse_time_steps() {
 /// simulation 32× finer to within 1.5 % — what a dataset loaded from disk gets automatically.
 #[test]
 fn substeps_chosen_from_the_ring_down_remove_bdf2s_period_error() {
-    use palpate_motion::model::Observations;
     use palpate_motion::timestep::{capture_period, ring_down, substeps_for};
     // A stiff cylinder released straight, ringing at ≈ 9 Hz, "captured" at 100 Hz.
     let capture_dt = 0.01;
     let frames = 100;
-    let mesh = cylinder_mesh(RADIUS, LENGTH, [2, 16]);
-    let clamp = Clamp {
-        name: "front".into(),
-        nodes: mesh.node_groups["front"].clone(),
-        poses: vec![Pose::translation([0.0; 3]); frames + 1],
-    };
-    let mut model = Model::new(
-        &mesh,
-        vec![clamp],
-        Vec::new(),
+    let mut model = clamped_cylinder(
+        [2, 16],
         capture_dt,
-        frames,
-        [0.0, 0.0, -9.81],
-        MassKind::Lumped,
-    )
-    .unwrap();
+        vec![Pose::translation([0.0; 3]); frames + 1],
+    );
     model.static_start = false;
     model.markers = vec![model.marker_at("tip", [0.0, LENGTH, 0.999 * RADIUS])];
     let (lambda, mu) = lame(2e7);

@@ -1,11 +1,8 @@
 //! The motion dataset reader on the bundled example and on broken copies of it.
 
 use palpate_motion::dataset::load;
+use palpate_tests::motion::{copy_example, example};
 use std::path::Path;
-
-fn example() -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/motion-example")
-}
 
 #[test]
 fn example_dataset_loads_with_all_observations() {
@@ -25,77 +22,64 @@ fn example_dataset_loads_with_all_observations() {
     assert!((p[0] - want).abs() < 1e-9);
 }
 
-fn broken(edit: impl Fn(&Path)) -> String {
+fn broken(change: impl Fn(&Path)) -> String {
     let dir = tempfile::tempdir().unwrap();
-    for f in [
-        "dataset.toml",
-        "mesh.msh",
-        "markers.csv",
-        "trajectories.csv",
-        "clamps.csv",
-    ] {
-        std::fs::copy(example().join(f), dir.path().join(f)).unwrap();
-    }
-    edit(dir.path());
+    copy_example(dir.path());
+    change(dir.path());
     load(dir.path()).unwrap_err().to_string()
+}
+
+/// Rewrites `file` in the folder `d` by `f`.
+fn edit(d: &Path, file: &str, f: impl FnOnce(String) -> String) {
+    let t = std::fs::read_to_string(d.join(file)).unwrap();
+    std::fs::write(d.join(file), f(t)).unwrap();
 }
 
 #[test]
 fn errors_name_file_line_and_field() {
     let e = broken(|d| {
-        let t = std::fs::read_to_string(d.join("trajectories.csv")).unwrap();
-        let mut lines: Vec<String> = t.lines().map(String::from).collect();
-        lines[3] = lines[3].replacen(",m", ",nosuch", 1);
-        std::fs::write(d.join("trajectories.csv"), lines.join("\n")).unwrap();
+        edit(d, "trajectories.csv", |t| {
+            let mut lines: Vec<String> = t.lines().map(String::from).collect();
+            lines[3] = lines[3].replacen(",m", ",nosuch", 1);
+            lines.join("\n")
+        })
     });
     assert!(
         e.contains("trajectories.csv:4") && e.contains("marker") && e.contains("nosuch"),
         "{e}"
     );
     let e = broken(|d| {
-        let t = std::fs::read_to_string(d.join("clamps.csv")).unwrap();
-        std::fs::write(
-            d.join("clamps.csv"),
-            t.replacen("0.005556,front,", "0.005556,front,abc", 1),
-        )
-        .unwrap();
+        edit(d, "clamps.csv", |t| {
+            t.replacen("0.005556,front,", "0.005556,front,abc", 1)
+        })
     });
     assert!(e.contains("clamps.csv:3") && e.contains("field ux"), "{e}");
     let e = broken(|d| {
-        let t = std::fs::read_to_string(d.join("trajectories.csv")).unwrap();
-        std::fs::write(
-            d.join("trajectories.csv"),
-            t.replacen("0.005556,", "0.0071,", 1),
-        )
-        .unwrap();
+        edit(d, "trajectories.csv", |t| {
+            t.replacen("0.005556,", "0.0071,", 1)
+        })
     });
     assert!(e.contains("not on the step grid"), "{e}");
     let e = broken(|d| {
-        let t = std::fs::read_to_string(d.join("dataset.toml")).unwrap();
-        std::fs::write(
-            d.join("dataset.toml"),
-            t.replace("clamps = [\"front\"]", "clamps = [\"base\"]"),
-        )
-        .unwrap();
+        edit(d, "dataset.toml", |t| {
+            t.replace("clamps = [\"front\"]", "clamps = [\"base\"]")
+        })
     });
     assert!(e.contains("dataset.toml") && e.contains("base"), "{e}");
 }
 
 /// Appends `row` to `file` in a copy of the example and returns the loader's error.
 fn with_row(file: &'static str, row: &'static str) -> String {
-    broken(move |d| {
-        let mut t = std::fs::read_to_string(d.join(file)).unwrap();
-        t.push_str(row);
-        std::fs::write(d.join(file), t).unwrap();
-    })
+    broken(move |d| edit(d, file, |t| t + row))
 }
 
 /// Replaces `from` by `to` in the example's dataset.toml and returns the loader's error.
 fn with_toml(from: &'static str, to: &'static str) -> String {
     broken(move |d| {
-        let t = std::fs::read_to_string(d.join("dataset.toml")).unwrap();
-        assert!(t.contains(from));
-        std::fs::write(d.join("dataset.toml"), t.replacen(from, to, 1)).unwrap();
+        edit(d, "dataset.toml", |t| {
+            assert!(t.contains(from));
+            t.replacen(from, to, 1)
+        })
     })
 }
 

@@ -4,16 +4,12 @@
 
 use palpate_motion::dataset::load;
 use palpate_motion::gradient::Method;
-use palpate_motion::model::{DeadLoad, Material, Param, ParamKind};
+use palpate_motion::model::{DeadLoad, Material, Model, Observations, Param, ParamKind};
 use palpate_motion::optimize::{evaluate_runs, fit_runs, FitSettings, Run};
 use palpate_motion::predict::{linear_baseline, predict};
 use palpate_motion::scenario::record;
 use palpate_motion::sim::{equilibrium, simulate};
-use std::path::Path;
-
-fn example() -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/motion-example")
-}
+use palpate_tests::motion::{copy_example, example};
 
 /// A copy of the example with `extra` appended to its dataset.toml, loaded (or its error).
 fn with_toml(extra: &str) -> Result<palpate_motion::dataset::MotionDataset, String> {
@@ -25,15 +21,7 @@ fn edited_toml(
     edit: impl Fn(&str) -> String,
 ) -> Result<palpate_motion::dataset::MotionDataset, String> {
     let dir = tempfile::tempdir().unwrap();
-    for f in [
-        "dataset.toml",
-        "mesh.msh",
-        "markers.csv",
-        "trajectories.csv",
-        "clamps.csv",
-    ] {
-        std::fs::copy(example().join(f), dir.path().join(f)).unwrap();
-    }
+    copy_example(dir.path());
     let t = std::fs::read_to_string(dir.path().join("dataset.toml")).unwrap();
     std::fs::write(dir.path().join("dataset.toml"), edit(&t)).unwrap();
     load(dir.path()).map_err(|e| e.to_string())
@@ -100,7 +88,7 @@ fn example_material(ds: &palpate_motion::dataset::MotionDataset) -> Material {
     )
 }
 
-fn trajectory(model: &palpate_motion::model::Model, mat: &Material) -> Vec<Vec<f64>> {
+fn trajectory(model: &Model, mat: &Material) -> Vec<Vec<f64>> {
     let mut out = Vec::new();
     simulate(
         model,
@@ -167,7 +155,7 @@ fn a_dead_load_changes_nothing_before_its_step_and_deflects_linearly_at_small_lo
 
 /// Two runs of the example bar, one with a dead load on its back face, and their records from a
 /// material with Poisson's ratio `nu`.
-fn two_runs(mu: f64, nu: f64) -> (Vec<palpate_motion::model::Model>, Material) {
+fn two_runs(mu: f64, nu: f64) -> (Vec<Model>, Material) {
     let ds = load(&example()).unwrap();
     let mut mat = example_material(&ds);
     mat.set(
@@ -190,6 +178,23 @@ fn two_runs(mu: f64, nu: f64) -> (Vec<palpate_motion::model::Model>, Material) {
     (vec![ds.model, loaded], mat)
 }
 
+/// Each model's record from `truth` with marker noise `noise` (seed `seed`).
+fn record_each(models: &[Model], truth: &Material, noise: f64, seed: u64) -> Vec<Observations> {
+    models
+        .iter()
+        .map(|m| record(m, truth, noise, seed).unwrap())
+        .collect()
+}
+
+/// The runs of `models` with their observations `obs`, in order.
+fn paired<'a>(models: &'a [Model], obs: &'a [Observations]) -> Vec<Run<'a>> {
+    models
+        .iter()
+        .zip(obs)
+        .map(|(model, obs)| Run { model, obs })
+        .collect()
+}
+
 #[test]
 fn the_tied_gradient_of_two_runs_matches_finite_differences() {
     let nu = 0.3;
@@ -202,15 +207,8 @@ fn the_tied_gradient_of_two_runs_matches_finite_differences() {
     for m in &mut models {
         m.newton.tol = 1e-10;
     }
-    let obs: Vec<_> = models
-        .iter()
-        .map(|m| record(m, &truth, 1e-4, 3).unwrap())
-        .collect();
-    let runs: Vec<Run> = models
-        .iter()
-        .zip(&obs)
-        .map(|(model, obs)| Run { model, obs })
-        .collect();
+    let obs = record_each(&models, &truth, 1e-4, 3);
+    let runs = paired(&models, &obs);
     let params = [
         Param::global(ParamKind::Mu),
         Param::global(ParamKind::Lambda),
@@ -239,15 +237,8 @@ fn the_tied_gradient_of_two_runs_matches_finite_differences() {
 fn two_runs_with_a_fixed_poisson_ratio_recover_the_shear_modulus_and_predict() {
     let nu = 0.3;
     let (models, truth) = two_runs(1e4, nu);
-    let obs: Vec<_> = models
-        .iter()
-        .map(|m| record(m, &truth, 0.0, 1).unwrap())
-        .collect();
-    let runs: Vec<Run> = models
-        .iter()
-        .zip(&obs)
-        .map(|(model, obs)| Run { model, obs })
-        .collect();
+    let obs = record_each(&models, &truth, 0.0, 1);
+    let runs = paired(&models, &obs);
     let settings = FitSettings {
         poisson: Some(nu),
         max_iters: 40,
@@ -343,7 +334,7 @@ fn shared_dataset_keys_mean_the_same_in_both_formats() {
         assert!(e.contains("dataset.toml") && e.contains(want), "{key}: {e}");
     }
     // The static reader: `clamps` for `fixed_group`, one group only, not both.
-    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/sponge/dataset");
+    let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/sponge/dataset");
     let read = |edit: &dyn Fn(&str) -> String| {
         let dir = tempfile::tempdir().unwrap();
         for e in std::fs::read_dir(&src).unwrap() {

@@ -36,12 +36,7 @@ fn cantilever_tip(cells: [usize; 3]) -> f64 {
     let tip = m.group("right").unwrap().to_vec();
     let p = LambdaAlpha::from_young_poisson(1e6, 0.0);
     let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
-    let cfg = RuntimeConfig {
-        warp: false,
-        tolerance: 1e-8,
-        max_iterations: 20_000,
-        ..Default::default()
-    };
+    let cfg = model::linear_config(1e-8, 20_000);
     let (mut fs, mut us) = (Vec::new(), Vec::new());
     let mut rt = runtime(&buf, cfg, &mut fs, &mut us);
     for &i in &tip {
@@ -93,12 +88,7 @@ fn punch_stiffness(fine: f64) -> f64 {
     let fixed = m.group("bottom").unwrap().to_vec();
     let p = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
     let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
-    let cfg = RuntimeConfig {
-        warp: false,
-        tolerance: 1e-7,
-        max_iterations: 20_000,
-        ..Default::default()
-    };
+    let cfg = model::linear_config(1e-7, 20_000);
     let (mut fs, mut us) = (Vec::new(), Vec::new());
     let mut rt = runtime(&buf, cfg, &mut fs, &mut us);
     let depth = 1e-4;

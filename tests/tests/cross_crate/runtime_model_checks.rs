@@ -87,12 +87,7 @@ fn strain_blending_without_warping_follows_the_linear_strain() {
             weights_alpha: (0..t).flat_map(|_| w(p0.alpha, p1.alpha)).collect(),
         },
     );
-    let cfg = RuntimeConfig {
-        warp: false,
-        tolerance: 1e-7,
-        max_iterations: 2000,
-        ..Default::default()
-    };
+    let cfg = model::linear_config(1e-7, 2000);
     let mut storage = Storage::for_model(&buf.record(), &cfg);
     let mut rt = storage.runtime(buf.record(), cfg).unwrap();
 

@@ -97,12 +97,7 @@ fn pcg_matches_dense_direct_solve_without_warping() {
     let (m, fixed) = sponge([4, 4, 2]);
     let p = LambdaAlpha::from_young_poisson(E, NU);
     let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
-    let cfg = RuntimeConfig {
-        warp: false,
-        tolerance: 1e-7,
-        max_iterations: 5000,
-        ..Default::default()
-    };
+    let cfg = model::linear_config(1e-7, 5000);
     let mut storage = Storage::for_model(&buf.record(), &cfg);
     let mut rt = storage.runtime(buf.record(), cfg).unwrap();
     let (c, force, radius) = ([0.05, 0.05, 0.05], [0.1, -0.05, -0.5], 0.03);

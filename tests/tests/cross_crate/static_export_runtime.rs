@@ -3,36 +3,43 @@
 //! positions (what is fitted is what is simulated).
 
 use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
+use palpate_fem::forward::{Material, StaticProblem};
+use palpate_runtime::Runtime;
 use palpate_static_fit::blend::BlendData;
 use palpate_static_fit::synthetic::{synthesise, SyntheticSpec};
-use palpate_static_fit::{fit_static, FitOptions, Layout, Method, Sets};
+use palpate_static_fit::{fit_static, FitInput, FitOptions, Layout, Method, Sets};
 use palpate_tests::model::{tight_config, Storage};
 
-#[test]
-fn exported_fit_reproduces_fitted_markers_in_the_runtime() {
-    let mut spec = SyntheticSpec::block([5, 5, 3]);
-    spec.noise = 1e-4;
-    let syn = synthesise(&spec).unwrap();
-    let input = &syn.input;
-    let o = FitOptions::new(Method::Displacement, Layout::Homogeneous, Sets::Single);
-    let fit = fit_static(input, &o, |_, _| {}).unwrap();
-    let buffers = ModelBuffers::new(
-        &input.problem,
-        &syn.mesh.node_tags,
-        &fit.params,
-        &BlendData::None,
-        &ProvenanceInfo {
-            tool: "test".into(),
-            source: "synthetic".into(),
-            notes: String::new(),
-        },
-    )
-    .unwrap();
-    let bytes = buffers.encode().unwrap();
-    let record = palpate_protocol::model::decode(&bytes).unwrap();
-    let cfg = tight_config();
-    let mut storage = Storage::for_model(&record, &cfg);
-    let mut rt = storage.runtime(record, cfg).unwrap();
+/// The model file's bytes of `params` and `blend` on `problem`, through the fitter's export.
+fn export(
+    problem: &StaticProblem,
+    node_tags: &[u64],
+    params: &[Material],
+    blend: &BlendData,
+    source: &str,
+) -> Vec<u8> {
+    let prov = ProvenanceInfo {
+        tool: "test".into(),
+        source: source.into(),
+        notes: String::new(),
+    };
+    let buffers = ModelBuffers::new(problem, node_tags, params, blend, &prov).unwrap();
+    buffers.encode().unwrap()
+}
+
+/// Plays each measurement's contact from rest in `rt` (rest positions `x0`) and compares the
+/// runtime's marker positions with the fitter's `deformed` states: returns the worst difference
+/// and the largest fitted marker displacement (m). A contact that does not settle within
+/// `settle` = (ticks, relative step) fails the test, named "`what` i".
+fn replay(
+    rt: &mut Runtime<'_>,
+    input: &FitInput,
+    x0: &[[f64; 3]],
+    deformed: &[Vec<[f64; 3]>],
+    settle: (usize, f32),
+    what: &str,
+) -> (f64, f64) {
+    let dist = |a: [f64; 3], b: [f64; 3]| (0..3).map(|d| (a[d] - b[d]).powi(2)).sum::<f64>().sqrt();
     let mut worst = 0.0f64;
     let mut largest = 0.0f64;
     for (i, m) in input.measurements.iter().enumerate() {
@@ -44,27 +51,49 @@ fn exported_fit_reproduces_fitted_markers_in_the_runtime() {
             c.radius as f32,
         )
         .unwrap();
-        let settled = palpate_tests::settle::settle(&mut rt, 200, 1e-5);
-        assert!(settled, "measurement {i} did not settle");
+        assert!(
+            palpate_tests::settle::settle(rt, settle.0, settle.1),
+            "{what} {i} did not settle"
+        );
         let u = rt.displacements();
-        let x0 = &syn.mesh.nodes;
         for &(k, _) in &m.observed {
-            let runtime_pos =
-                input.markers[k].interpolate(|n| [0, 1, 2].map(|d| x0[n][d] + u[3 * n + d] as f64));
-            let fitted_pos = input.markers[k].interpolate(|n| fit.deformed[i][n]);
-            let rest = input.markers[k].rest;
-            let disp = (0..3)
-                .map(|d| (fitted_pos[d] - rest[d]).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            largest = largest.max(disp);
-            let err = (0..3)
-                .map(|d| (runtime_pos[d] - fitted_pos[d]).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            worst = worst.max(err);
+            let mk = &input.markers[k];
+            let rt_pos = mk.interpolate(|n| [0, 1, 2].map(|d| x0[n][d] + u[3 * n + d] as f64));
+            let fitted = mk.interpolate(|n| deformed[i][n]);
+            largest = largest.max(dist(fitted, mk.rest));
+            worst = worst.max(dist(rt_pos, fitted));
         }
     }
+    (worst, largest)
+}
+
+#[test]
+fn exported_fit_reproduces_fitted_markers_in_the_runtime() {
+    let mut spec = SyntheticSpec::block([5, 5, 3]);
+    spec.noise = 1e-4;
+    let syn = synthesise(&spec).unwrap();
+    let input = &syn.input;
+    let o = FitOptions::new(Method::Displacement, Layout::Homogeneous, Sets::Single);
+    let fit = fit_static(input, &o, |_, _| {}).unwrap();
+    let bytes = export(
+        &input.problem,
+        &syn.mesh.node_tags,
+        &fit.params,
+        &BlendData::None,
+        "synthetic",
+    );
+    let record = palpate_protocol::model::decode(&bytes).unwrap();
+    let cfg = tight_config();
+    let mut storage = Storage::for_model(&record, &cfg);
+    let mut rt = storage.runtime(record, cfg).unwrap();
+    let (worst, largest) = replay(
+        &mut rt,
+        input,
+        &syn.mesh.nodes,
+        &fit.deformed,
+        (200, 1e-5),
+        "measurement",
+    );
     eprintln!(
         "largest marker displacement {largest:e} m, worst runtime-vs-fitter difference {worst:e} m"
     );
@@ -131,7 +160,6 @@ mod exported_model_decodes {
 fn exported_blend_weights_reproduce_fitted_deformations_and_clamp_outside() {
     use palpate_specimen::{generate, Effect, EffectSpec, SpecimenOptions};
     use palpate_static_fit::blend::for_fit;
-    use palpate_static_fit::FitInput;
     use palpate_static_fit::Gammas;
 
     let mut so = SpecimenOptions::with_effect(None, 5);
@@ -165,19 +193,13 @@ fn exported_blend_weights_reproduce_fitted_deformations_and_clamp_outside() {
     else {
         panic!("a homogeneous per-measurement fit exports a deformation blend")
     };
-    let buffers = ModelBuffers::new(
+    let bytes = export(
         &input.problem,
         &spec.dataset.mesh.node_tags,
         &fit.params,
         &blend,
-        &ProvenanceInfo {
-            tool: "test".into(),
-            source: "specimen".into(),
-            notes: String::new(),
-        },
-    )
-    .unwrap();
-    let bytes = buffers.encode().unwrap();
+        "specimen",
+    );
     let record = palpate_protocol::model::decode(&bytes).unwrap();
     let cfg = tight_config();
     let mut storage = Storage::for_model(&record, &cfg);
@@ -210,40 +232,7 @@ fn exported_blend_weights_reproduce_fitted_deformations_and_clamp_outside() {
         );
     }
     // 2. Each fitted contact played from rest.
-    let mut worst = 0.0f64;
-    let mut largest = 0.0f64;
-    for (i, m) in input.measurements.iter().enumerate() {
-        rt.reset();
-        let c = m.contact;
-        rt.set_contact_force(
-            c.point.map(|v| v as f32),
-            c.force.map(|v| v as f32),
-            c.radius as f32,
-        )
-        .unwrap();
-        assert!(
-            palpate_tests::settle::settle(&mut rt, 400, 1e-6),
-            "contact {i} did not settle"
-        );
-        let u = rt.displacements();
-        for &(k, _) in &m.observed {
-            let mk = &input.markers[k];
-            let rt_pos = mk.interpolate(|n| [0, 1, 2].map(|d| x0[n][d] + u[3 * n + d] as f64));
-            let fitted = mk.interpolate(|n| fit.deformed[i][n]);
-            largest = largest.max(
-                (0..3)
-                    .map(|d| (fitted[d] - mk.rest[d]).powi(2))
-                    .sum::<f64>()
-                    .sqrt(),
-            );
-            worst = worst.max(
-                (0..3)
-                    .map(|d| (rt_pos[d] - fitted[d]).powi(2))
-                    .sum::<f64>()
-                    .sqrt(),
-            );
-        }
-    }
+    let (worst, largest) = replay(&mut rt, &input, x0, &fit.deformed, (400, 1e-6), "contact");
     eprintln!("blended replay: worst marker difference {worst:e} m, largest marker displacement {largest:e} m");
     assert!(
         worst < 1e-3 * largest,

@@ -2,7 +2,6 @@
 
 use super::{MotionDiagnoseError, MotionDiagnosis, Value};
 use crate::json;
-use palpate_fem::io::atomic::write_atomic;
 use palpate_fem::names::Elastic;
 use palpate_motion::model::ParamKind;
 use palpate_plot::{lines, Series, Style};
@@ -264,15 +263,8 @@ pub fn json_text(r: &MotionDiagnosis) -> Result<String, serde_json::Error> {
 /// Writes the report files into `dir`; returns their paths.
 pub fn write_report(r: &MotionDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, MotionDiagnoseError> {
     let w = |e: String| MotionDiagnoseError::Write(e);
-    std::fs::create_dir_all(dir).map_err(|e| w(format!("{}: {e}", dir.display())))?;
-    let mut out = Vec::new();
-    let p = dir.join("diagnosis.md");
-    write_atomic(&p, markdown(r).as_bytes()).map_err(|e| w(e.to_string()))?;
-    out.push(p);
-    let p = dir.join("diagnosis.json");
-    let json = json_text(r).map_err(|e| w(e.to_string()))?;
-    write_atomic(&p, json.as_bytes()).map_err(|e| w(e.to_string()))?;
-    out.push(p);
+    let mut out =
+        crate::report::write_md_and_json(dir, &markdown(r), || json_text(r)).map_err(w)?;
     let p = dir.join("residual-vs-speed.svg");
     let scale = |v: &[(f64, f64)]| -> Vec<(f64, f64)> {
         v.iter().map(|&(x, y)| (1e3 * x, 1e6 * y)).collect()

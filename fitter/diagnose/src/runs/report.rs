@@ -204,15 +204,8 @@ pub fn json_text(r: &RunsDiagnosis) -> Result<String, serde_json::Error> {
 /// Writes the report into `dir`; returns the files written.
 pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBuf>, RunsError> {
     let w = |e: String| RunsError::Write(e);
-    std::fs::create_dir_all(dir).map_err(|e| w(format!("{}: {e}", dir.display())))?;
-    let mut out = Vec::new();
-    let p = dir.join("diagnosis.md");
-    write_atomic(&p, markdown(r).as_bytes()).map_err(|e| w(e.to_string()))?;
-    out.push(p);
-    let p = dir.join("diagnosis.json");
-    let json = json_text(r).map_err(|e| w(e.to_string()))?;
-    write_atomic(&p, json.as_bytes()).map_err(|e| w(e.to_string()))?;
-    out.push(p);
+    let mut out =
+        crate::report::write_md_and_json(dir, &markdown(r), || json_text(r)).map_err(w)?;
     let p = dir.join("fit.json");
     let json = r.model.to_json().map_err(|e| w(e.to_string()))?;
     write_atomic(&p, json.as_bytes()).map_err(|e| w(e.to_string()))?;

@@ -106,17 +106,39 @@ fn is_correct(e: Option<Effect>, first: Option<Candidate>) -> bool {
     }
 }
 
+/// What a diagnosis made of an injected effect: what it adopted, whether the first adoption is a
+/// correct answer, and the RMS marker errors before → after (µm). Both run records flatten it,
+/// so their JSON fields are as they were.
 #[derive(Debug, Serialize)]
-struct Run {
-    injected: String,
-    magnitude: f64,
-    seed: u64,
+struct Outcome {
     adopted: Vec<Candidate>,
     correct: bool,
     rms_before_um: f64,
     rms_after_um: f64,
     heldout_before_um: f64,
     heldout_after_um: f64,
+}
+
+impl Outcome {
+    fn of(injected: Option<Effect>, r: &palpate_diagnose::DiagnosisReport) -> Self {
+        Self {
+            correct: is_correct(injected, r.adopted.first().copied()),
+            adopted: r.adopted.clone(),
+            rms_before_um: 1e6 * r.before.fitted_rms,
+            rms_after_um: 1e6 * r.after.fitted_rms,
+            heldout_before_um: 1e6 * r.before.heldout_rms,
+            heldout_after_um: 1e6 * r.after.heldout_rms,
+        }
+    }
+}
+
+#[derive(Debug, Serialize)]
+struct Run {
+    injected: String,
+    magnitude: f64,
+    seed: u64,
+    #[serde(flatten)]
+    outcome: Outcome,
     floor_um: f64,
     within_1_5_floor: bool,
     /// Nugget estimate σ̂ of the final residual (µm) and its one-sided 95 % lower bound.
@@ -193,12 +215,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 injected: e.map_or("none", |e| e.name()).into(),
                 magnitude: e.map_or(0.0, |e| e.default_magnitude()),
                 seed,
-                correct: is_correct(e, r.adopted.first().copied()),
-                adopted: r.adopted.clone(),
-                rms_before_um: 1e6 * r.before.fitted_rms,
-                rms_after_um: 1e6 * r.after.fitted_rms,
-                heldout_before_um: 1e6 * r.before.heldout_rms,
-                heldout_after_um: 1e6 * r.after.heldout_rms,
+                outcome: Outcome::of(e, &r),
                 floor_um: 1e6 * judged_floor(&r),
                 within_1_5_floor: r.after.fitted_rms <= 1.5 * judged_floor(&r),
                 sigma_hat_um: r.noise.as_ref().map(|n| 1e6 * n.estimate),
@@ -219,11 +236,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             println!(
                 "{:<13} seed {seed}: adopted {:<40} RMS {:7.1} → {:7.1} µm, held out {:7.1} → {:7.1} µm, floor {:.1} µm ({:.1} s)",
                 run.injected,
-                format!("{:?}", run.adopted.iter().map(|c| c.name()).collect::<Vec<_>>()),
-                run.rms_before_um,
-                run.rms_after_um,
-                run.heldout_before_um,
-                run.heldout_after_um,
+                format!("{:?}", run.outcome.adopted.iter().map(|c| c.name()).collect::<Vec<_>>()),
+                run.outcome.rms_before_um,
+                run.outcome.rms_after_um,
+                run.outcome.heldout_before_um,
+                run.outcome.heldout_after_um,
                 run.floor_um,
                 run.seconds
             );
@@ -232,7 +249,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     }
     write_tables(&args, &injected, &runs, &failures)?;
-    let correct = runs.iter().filter(|r| r.correct).count();
+    print_tally(&args, &runs);
+    Ok(())
+}
+
+/// Prints how many runs named a correct first effect, and where the table is.
+fn print_tally(args: &Args, runs: &[Run]) {
+    let correct = runs.iter().filter(|r| r.outcome.correct).count();
     println!(
         "{correct}/{} correct; wrote {}",
         runs.len(),
@@ -240,7 +263,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .join(format!("{}.md", args.table_name()))
             .display()
     );
-    Ok(())
 }
 
 fn write_tables(
@@ -273,7 +295,7 @@ fn write_tables(
             .map(|&c| {
                 let n = runs
                     .iter()
-                    .filter(|r| r.injected == name && r.adopted.first().copied() == c)
+                    .filter(|r| r.injected == name && r.outcome.adopted.first().copied() == c)
                     .count();
                 if n == 0 {
                     "·".into()
@@ -286,7 +308,7 @@ fn write_tables(
             .collect();
         let _ = writeln!(md, "| {name} | {} |", cells.join(" | "));
     }
-    let correct = runs.iter().filter(|r| r.correct).count();
+    let correct = runs.iter().filter(|r| r.outcome.correct).count();
     let _ = writeln!(md, "\nCorrect first choice: {correct}/{} runs (bold = a correct column: the specific candidate, or for inclusion and soft layer also the general inhomogeneity field — the issue's \"inhomogeneity (a stiff inclusion, a soft layer)\"; undeclared marker noise must be named `noise` by the nugget test after the structural loop, occlusion must stay clean). σ̂ = nugget estimate of the marker noise on the final residual (with its one-sided 95 % lower bound; `noise` is adopted when the bound exceeds 1.25 × the declared 100 µm). The floor the error after is judged against is σ√3 with the declared σ, or σ̂√3 when `noise` was adopted. \"Ambiguous with\": a shortlisted candidate that also passed round 1 and predicted the held-out measurements better than the adopted one (the report flags it; see docs/diagnose.md, selection). Mesh: the tetrahedra the models were solved on; \"+ δ from N\" = with the approximation-error correction from the mesh refined once (N tets; docs/diagnose.md, step 1).\n", runs.len());
     let _ = writeln!(md, "| injected | magnitude | seed | adopted | RMS before µm | RMS after µm | held-out before µm | held-out after µm | σ̂ µm (lower bound) | floor µm | after ≤ 1.5 floor | round 1 ambiguous with | mesh (tets) | s |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for r in runs {
@@ -296,11 +318,11 @@ fn write_tables(
             r.injected,
             r.magnitude,
             r.seed,
-            Candidate::names(&r.adopted, " → ", "none"),
-            r.rms_before_um,
-            r.rms_after_um,
-            r.heldout_before_um,
-            r.heldout_after_um,
+            Candidate::names(&r.outcome.adopted, " → ", "none"),
+            r.outcome.rms_before_um,
+            r.outcome.rms_after_um,
+            r.outcome.heldout_before_um,
+            r.outcome.heldout_after_um,
             match (r.sigma_hat_um, r.sigma_lower_um) {
                 (Some(s), Some(l)) => format!("{s:.1} ({l:.1})"),
                 _ => "–".into(),
@@ -322,13 +344,7 @@ fn write_tables(
         &args.output.join(format!("{name}.json")),
         serde_json::to_string_pretty(&runs)?.as_bytes(),
     )?;
-    println!(
-        "{correct}/{} correct; wrote {}",
-        runs.len(),
-        args.output
-            .join(format!("{}.md", args.table_name()))
-            .display()
-    );
+    print_tally(args, runs);
     Ok(())
 }
 
@@ -348,12 +364,8 @@ struct SweepRun {
     effect: String,
     magnitude: f64,
     seed: u64,
-    adopted: Vec<Candidate>,
-    correct: bool,
-    rms_before_um: f64,
-    rms_after_um: f64,
-    heldout_before_um: f64,
-    heldout_after_um: f64,
+    #[serde(flatten)]
+    outcome: Outcome,
     signal_um: f64,
     /// signal / (declared σ √3).
     snr: f64,
@@ -440,12 +452,7 @@ fn run_sweep(args: &Args) -> anyhow::Result<()> {
                     effect: e.name().into(),
                     magnitude: m,
                     seed,
-                    correct: is_correct(Some(*e), r.adopted.first().copied()),
-                    adopted: r.adopted.clone(),
-                    rms_before_um: 1e6 * r.before.fitted_rms,
-                    rms_after_um: 1e6 * r.after.fitted_rms,
-                    heldout_before_um: 1e6 * r.before.heldout_rms,
-                    heldout_after_um: 1e6 * r.after.heldout_rms,
+                    outcome: Outcome::of(Some(*e), &r),
                     signal_um: 1e6 * signal,
                     snr: signal / (sigma * 3f64.sqrt()),
                     round1,
@@ -456,9 +463,9 @@ fn run_sweep(args: &Args) -> anyhow::Result<()> {
                     "{} {} seed {seed}: adopted {:?}; RMS {:.1} → {:.1} µm; signal {:.1} µm (SNR {:.2}); {:.1} s",
                     run.effect,
                     m,
-                    run.adopted.iter().map(|c| c.name()).collect::<Vec<_>>(),
-                    run.rms_before_um,
-                    run.rms_after_um,
+                    run.outcome.adopted.iter().map(|c| c.name()).collect::<Vec<_>>(),
+                    run.outcome.rms_before_um,
+                    run.outcome.rms_after_um,
                     run.signal_um,
                     run.snr,
                     run.seconds
@@ -493,16 +500,16 @@ fn write_sweep(
             r.effect,
             r.magnitude,
             r.seed,
-            if r.adopted.is_empty() {
+            if r.outcome.adopted.is_empty() {
                 "none".to_string()
             } else {
-                r.adopted.iter().map(|c| c.name()).collect::<Vec<_>>().join(" → ")
+                r.outcome.adopted.iter().map(|c| c.name()).collect::<Vec<_>>().join(" → ")
             },
-            if r.correct { "yes" } else { "no" },
-            r.rms_before_um,
-            r.rms_after_um,
-            r.heldout_before_um,
-            r.heldout_after_um,
+            if r.outcome.correct { "yes" } else { "no" },
+            r.outcome.rms_before_um,
+            r.outcome.rms_after_um,
+            r.outcome.heldout_before_um,
+            r.outcome.heldout_after_um,
             r.signal_um,
             r.snr,
             r.seconds
@@ -531,7 +538,7 @@ fn write_sweep(
         let named = done.iter().copied().find(|&m| {
             runs.iter()
                 .filter(|r| r.effect == e.name() && r.magnitude == m)
-                .all(|r| r.correct)
+                .all(|r| r.outcome.correct)
         });
         let _ = writeln!(
             md,

@@ -89,6 +89,21 @@ fn write(dir: &Path, name: &str, text: &str) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Writes a part's table `<name>.md` and its figures `<name>.json` (pretty) into `dir`.
+fn write_md_and_json(
+    dir: &Path,
+    name: &str,
+    md: &str,
+    json: &impl serde::Serialize,
+) -> anyhow::Result<()> {
+    write(dir, &format!("{name}.md"), md)?;
+    write(
+        dir,
+        &format!("{name}.json"),
+        &serde_json::to_string_pretty(json)?,
+    )
+}
+
 // ---------------------------------------------------------------------------------------------
 // incremental
 
@@ -194,12 +209,7 @@ Reference: the f64 solve (`palpate_fem::forward`, 20 increments, fixed point to 
         }
     }
     writeln!(md, "\nBefore issue 16 the f64 solve cycled at 0.5 N and 1 N too (largest node move per iteration 0.179 m and 0.728 m, at 10 and 100 increments alike); it converges at every load here. The same comparison is a test (`palpate-fem`: `forward::tests::runtime_agrees_with_the_f64_solve_at_large_loads`).")?;
-    write(&args.out, "incremental.md", &md)?;
-    write(
-        &args.out,
-        "incremental.json",
-        &serde_json::to_string_pretty(&rows)?,
-    )?;
+    write_md_and_json(&args.out, "incremental", &md, &rows)?;
     Ok(())
 }
 
@@ -516,12 +526,7 @@ RMS over markers and contacts, mm. `signal`: RMS marker displacement of the trut
         }
     }
     writeln!(md, "\nThe real silicone beam's loads are not in this table: the beam is a motion capture (`models/silicone-beam/`), which the static fitter does not take.")?;
-    write(&args.out, "blend.md", &md)?;
-    write(
-        &args.out,
-        "blend.json",
-        &serde_json::to_string_pretty(&all)?,
-    )?;
+    write_md_and_json(&args.out, "blend", &md, &all)?;
     Ok(())
 }
 
@@ -600,11 +605,6 @@ Held-out error: the exported blend played by the runtime on the held-out contact
         )?;
         println!("wrote {}", p.display());
     }
-    write(&args.out, "gamma-m.md", &md)?;
-    write(
-        &args.out,
-        "gamma-m.json",
-        &serde_json::to_string_pretty(&rows)?,
-    )?;
+    write_md_and_json(&args.out, "gamma-m", &md, &rows)?;
     Ok(())
 }

@@ -54,6 +54,14 @@ fn error_with_mesh(files: &[(&str, &str)], mesh: &Mesh) -> String {
     StaticDataset::read(dir.path()).unwrap_err().to_string()
 }
 
+/// Reads the default dataset with `file` replaced by `text` and asserts that the error message
+/// names every one of `parts`.
+#[track_caller]
+fn rejects(file: &str, text: &str, parts: &[&str]) {
+    assert_has(&error_with(&[(file, text)]), parts);
+}
+
+#[track_caller]
 fn assert_has(msg: &str, parts: &[&str]) {
     for p in parts {
         assert!(msg.contains(p), "message {msg:?} lacks {p:?}");
@@ -108,9 +116,9 @@ fn good_dataset_reads_embeds_and_round_trips() {
 #[test]
 fn units_other_than_si_are_rejected() {
     let toml = TOML.replace("units = \"SI\"", "units = \"mm\"");
-    let e = error_with(&[("dataset.toml", &toml)]);
-    assert_has(
-        &e,
+    rejects(
+        "dataset.toml",
+        &toml,
         &[
             "dataset.toml:3:",
             "field `units`",
@@ -123,19 +131,17 @@ fn units_other_than_si_are_rejected() {
 #[test]
 fn unknown_or_missing_toml_keys_are_named() {
     let toml = TOML.replace("probe_radius", "probe_radios");
-    let e = error_with(&[("dataset.toml", &toml)]);
-    assert_has(&e, &["dataset.toml:6:", "probe_radios"]);
+    rejects("dataset.toml", &toml, &["dataset.toml:6:", "probe_radios"]);
     let toml = TOML.replace("fixed_group = \"bottom\"\n", "");
-    let e = error_with(&[("dataset.toml", &toml)]);
-    assert_has(&e, &["dataset.toml:", "fixed_group"]);
+    rejects("dataset.toml", &toml, &["dataset.toml:", "fixed_group"]);
 }
 
 #[test]
 fn malformed_number_names_file_line_field() {
     let markers = MARKERS.replace("m2,0.07,0.06", "m2,0.07,0.06x");
-    let e = error_with(&[("markers.csv", &markers)]);
-    assert_has(
-        &e,
+    rejects(
+        "markers.csv",
+        &markers,
         &[
             "markers.csv:3:",
             "field `y`",
@@ -148,9 +154,9 @@ fn malformed_number_names_file_line_field() {
 #[test]
 fn nan_and_infinity_are_rejected() {
     let meas = MEASUREMENTS.replace("p2,m3,0.1,0.05,0.0199", "p2,m3,0.1,NaN,0.0199");
-    let e = error_with(&[("measurements.csv", &meas)]);
-    assert_has(
-        &e,
+    rejects(
+        "measurements.csv",
+        &meas,
         &[
             "measurements.csv:5:",
             "field `y`",
@@ -159,9 +165,9 @@ fn nan_and_infinity_are_rejected() {
         ],
     );
     let contacts = CONTACTS.replace("0,0,-1.5", "0,0,-inf");
-    let e = error_with(&[("contacts.csv", &contacts)]);
-    assert_has(
-        &e,
+    rejects(
+        "contacts.csv",
+        &contacts,
         &[
             "contacts.csv:2:",
             "field `fz`",
@@ -174,9 +180,9 @@ fn nan_and_infinity_are_rejected() {
 #[test]
 fn unknown_marker_is_rejected() {
     let meas = MEASUREMENTS.replace("p2,m3", "p2,m9");
-    let e = error_with(&[("measurements.csv", &meas)]);
-    assert_has(
-        &e,
+    rejects(
+        "measurements.csv",
+        &meas,
         &[
             "measurements.csv:5:",
             "field `marker`",
@@ -188,9 +194,9 @@ fn unknown_marker_is_rejected() {
 #[test]
 fn duplicate_ids_are_rejected() {
     let markers = MARKERS.replace("m3,", "m1,");
-    let e = error_with(&[("markers.csv", &markers)]);
-    assert_has(
-        &e,
+    rejects(
+        "markers.csv",
+        &markers,
         &[
             "markers.csv:5:",
             "field `marker`",
@@ -198,9 +204,9 @@ fn duplicate_ids_are_rejected() {
         ],
     );
     let contacts = CONTACTS.replace("p2,", "p1,");
-    let e = error_with(&[("contacts.csv", &contacts)]);
-    assert_has(
-        &e,
+    rejects(
+        "contacts.csv",
+        &contacts,
         &[
             "contacts.csv:3:",
             "field `measurement`",
@@ -208,9 +214,9 @@ fn duplicate_ids_are_rejected() {
         ],
     );
     let meas = format!("{MEASUREMENTS}p1,m1,0.03,0.04,0.049\n");
-    let e = error_with(&[("measurements.csv", &meas)]);
-    assert_has(
-        &e,
+    rejects(
+        "measurements.csv",
+        &meas,
         &[
             "measurements.csv:6:",
             "field `marker`",
@@ -222,9 +228,9 @@ fn duplicate_ids_are_rejected() {
 #[test]
 fn measurement_without_contact_is_rejected() {
     let meas = format!("{MEASUREMENTS}p3,m1,0.03,0.04,0.049\n");
-    let e = error_with(&[("measurements.csv", &meas)]);
-    assert_has(
-        &e,
+    rejects(
+        "measurements.csv",
+        &meas,
         &[
             "measurements.csv:6:",
             "field `measurement`",
@@ -236,9 +242,9 @@ fn measurement_without_contact_is_rejected() {
 #[test]
 fn contact_without_measurement_rows_is_rejected() {
     let contacts = format!("{CONTACTS}p3,0.05,0.05,0.05,0,0,-1\n");
-    let e = error_with(&[("contacts.csv", &contacts)]);
-    assert_has(
-        &e,
+    rejects(
+        "contacts.csv",
+        &contacts,
         &[
             "contacts.csv:4:",
             "field `measurement`",
@@ -251,9 +257,9 @@ fn contact_without_measurement_rows_is_rejected() {
 fn marker_far_from_surface_says_how_far() {
     // 30 mm above the top face; tolerance 1 × 25 mm.
     let markers = MARKERS.replace("m2,0.07,0.06,0.05", "m2,0.07,0.06,0.08");
-    let e = error_with(&[("markers.csv", &markers)]);
-    assert_has(
-        &e,
+    rejects(
+        "markers.csv",
+        &markers,
         &[
             "markers.csv:3:",
             "fields `x,y,z`",
@@ -310,9 +316,9 @@ fn a_marker_on_a_post_moves_rigidly_with_its_surface_patch() {
 #[test]
 fn missing_or_empty_fixed_group_is_rejected() {
     let toml = TOML.replace("\"bottom\"", "\"floor\"");
-    let e = error_with(&[("dataset.toml", &toml)]);
-    assert_has(
-        &e,
+    rejects(
+        "dataset.toml",
+        &toml,
         &[
             "dataset.toml:5:",
             "field `fixed_group`",
@@ -321,9 +327,9 @@ fn missing_or_empty_fixed_group_is_rejected() {
         ],
     );
     let toml = TOML.replace("\"bottom\"", "\"nothing\"");
-    let e = error_with(&[("dataset.toml", &toml)]);
-    assert_has(
-        &e,
+    rejects(
+        "dataset.toml",
+        &toml,
         &[
             "dataset.toml:5:",
             "field `fixed_group`",
@@ -339,9 +345,9 @@ fn contact_radius_covering_no_node_is_rejected() {
         "p1,0.05,0.05,0.05,0,0,-1.5,0.02",
         "p1,0.0125,0.0125,0.05,0,0,-1.5,0.005",
     );
-    let e = error_with(&[("contacts.csv", &contacts)]);
-    assert_has(
-        &e,
+    rejects(
+        "contacts.csv",
+        &contacts,
         &[
             "contacts.csv:2:",
             "field `radius`",
@@ -351,9 +357,9 @@ fn contact_radius_covering_no_node_is_rejected() {
         ],
     );
     let contacts = CONTACTS.replace(",0.02\n", ",-0.02\n");
-    let e = error_with(&[("contacts.csv", &contacts)]);
-    assert_has(
-        &e,
+    rejects(
+        "contacts.csv",
+        &contacts,
         &[
             "contacts.csv:2:",
             "field `radius`",
@@ -369,8 +375,11 @@ fn contact_on_fixed_nodes_only_is_rejected() {
         "p1,0.05,0.05,0.05,0,0,-1.5,0.02",
         "p1,0.05,0.05,0.0,0,0,1,0.005",
     );
-    let e = error_with(&[("contacts.csv", &contacts)]);
-    assert_has(&e, &["contacts.csv:2:", "field `radius`", "loads no node"]);
+    rejects(
+        "contacts.csv",
+        &contacts,
+        &["contacts.csv:2:", "field `radius`", "loads no node"],
+    );
 }
 
 #[test]
@@ -390,9 +399,9 @@ fn inverted_and_zero_volume_elements_are_rejected() {
 #[test]
 fn bad_header_and_short_rows_are_rejected() {
     let markers = MARKERS.replace("marker,x,y,z", "id,x,y,z");
-    let e = error_with(&[("markers.csv", &markers)]);
-    assert_has(
-        &e,
+    rejects(
+        "markers.csv",
+        &markers,
         &[
             "markers.csv:1:",
             "field `header`",
@@ -401,9 +410,9 @@ fn bad_header_and_short_rows_are_rejected() {
         ],
     );
     let meas = MEASUREMENTS.replace("p1,m2,0.07,0.06,0.0495", "p1,m2,0.07,0.06");
-    let e = error_with(&[("measurements.csv", &meas)]);
-    assert_has(
-        &e,
+    rejects(
+        "measurements.csv",
+        &meas,
         &[
             "measurements.csv:3:",
             "field `row`",

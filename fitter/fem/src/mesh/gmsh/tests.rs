@@ -198,19 +198,32 @@ fn corrupt_binary_is_wrapped_with_file_and_offset() {
     assert!(e.contains("bad.msh: binary MSH parse error at byte"), "{e}");
 }
 
+/// The mesh `models/<rel>`, read; asserts its (nodes, tets) and that no element needed turning.
+#[track_caller]
+fn bundled(rel: &str, counts: (usize, usize)) -> Mesh {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../models")
+        .join(rel);
+    let (m, r) = read_msh_with_report(path).unwrap();
+    assert_eq!((m.nodes.len(), m.tets.len()), counts);
+    assert_eq!(r.reoriented, 0);
+    m
+}
+
+/// Whether every node of group `g` satisfies `f`.
+fn all_on(m: &Mesh, g: &str, f: &dyn Fn([f64; 3]) -> bool) -> bool {
+    m.node_groups[g].iter().all(|&i| f(m.nodes[i]))
+}
+
 #[test]
 fn bundled_sponge_mesh_reads() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/sponge/sponge.msh");
-    let (m, r) = read_msh_with_report(path).unwrap();
     // Counts printed by Gmsh when make_mesh.py wrote the file.
-    assert_eq!((m.nodes.len(), m.tets.len()), (1089, 4379));
-    assert_eq!(r.reoriented, 0);
+    let m = bundled("sponge/sponge.msh", (1089, 4379));
     for g in ["bottom", "top", "sides", "sponge"] {
         assert!(!m.node_groups[g].is_empty(), "{g}");
     }
     assert_eq!(m.node_groups["sponge"].len(), 1089);
-    let on =
-        |g: &str, f: &dyn Fn([f64; 3]) -> bool| m.node_groups[g].iter().all(|&i| f(m.nodes[i]));
+    let on = |g: &str, f: &dyn Fn([f64; 3]) -> bool| all_on(&m, g, f);
     assert!(on("bottom", &|p| p[2].abs() < 1e-12));
     assert!(on("top", &|p| (p[2] - 0.05).abs() < 1e-12));
     assert!(on("sides", &|p| {
@@ -254,20 +267,26 @@ fn absurd_counts_fail_cleanly() {
     assert!(e.contains("t.msh:"), "{e}");
 }
 
+/// Replaces byte `at` (modulo the length) of `bytes` by `byte`, cuts them after `cut` bytes and
+/// reads them as the file `name`: an error or a mesh is fine, a panic is not.
+fn read_corrupted(mut bytes: Vec<u8>, (at, byte): (usize, u8), cut: usize, name: &str) {
+    let n = bytes.len();
+    bytes[at % n] = byte;
+    bytes.truncate(cut.min(n));
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join(name);
+    std::fs::write(&p, &bytes).unwrap();
+    let _ = read_msh(&p);
+}
+
 proptest::proptest! {
     #![proptest_config(proptest::prelude::ProptestConfig::with_cases(256))]
     /// Any corruption of a valid file (a byte replaced, the file cut) is an error or a mesh,
     /// never a panic.
     #[test]
     fn corrupted_ascii_never_panics(at in 0usize..600, byte in proptest::prelude::any::<u8>(), cut in 0usize..700) {
-        let mut bytes = tiny("0 0 -1", "2 1 3 2 5").into_bytes();
-        let n = bytes.len();
-        bytes[at % n] = byte;
-        bytes.truncate(cut.max(1).min(n));
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("t.msh");
-        std::fs::write(&p, &bytes).unwrap();
-        let _ = read_msh(&p);
+        let bytes = tiny("0 0 -1", "2 1 3 2 5").into_bytes();
+        read_corrupted(bytes, (at, byte), cut.max(1), "t.msh");
     }
 }
 
@@ -276,14 +295,8 @@ proptest::proptest! {
     /// The same for binary files (parsed by mshio).
     #[test]
     fn corrupted_binary_never_panics(at in 0usize..9000, byte in proptest::prelude::any::<u8>(), cut in 0usize..9000) {
-        let mut bytes = std::fs::read(fixture("cube-binary.msh")).unwrap();
-        let n = bytes.len();
-        bytes[at % n] = byte;
-        bytes.truncate(cut.max(40).min(n));
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("b.msh");
-        std::fs::write(&p, &bytes).unwrap();
-        let _ = read_msh(&p);
+        let bytes = std::fs::read(fixture("cube-binary.msh")).unwrap();
+        read_corrupted(bytes, (at, byte), cut.max(40), "b.msh");
     }
 }
 
@@ -292,12 +305,8 @@ proptest::proptest! {
 /// to the beam's 30 × 30 × 100 mm.
 #[test]
 fn bundled_beam_mesh_reads() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/silicone-beam/beam.msh");
-    let (m, r) = read_msh_with_report(path).unwrap();
-    assert_eq!((m.nodes.len(), m.tets.len()), (733, 2600));
-    assert_eq!(r.reoriented, 0);
-    let on =
-        |g: &str, f: &dyn Fn([f64; 3]) -> bool| m.node_groups[g].iter().all(|&i| f(m.nodes[i]));
+    let m = bundled("silicone-beam/beam.msh", (733, 2600));
+    let on = |g: &str, f: &dyn Fn([f64; 3]) -> bool| all_on(&m, g, f);
     assert!(on("clamp", &|p| (p[2] - 0.1).abs() < 1e-9));
     assert!(on("free_end", &|p| p[2].abs() < 1e-9));
     assert!(m.node_groups["clamp"].len() > 10);
