@@ -9,7 +9,7 @@
 use super::forces::param_derivatives;
 use super::model::{Material, Model, Observations, Param};
 use super::objective::{step_term, StepTerm};
-use super::sim::{simulate, SimStats, StepView};
+use super::sim::{simulate, simulate_states, SimStats, StepView};
 use super::sparse::Factor;
 use super::MotionError;
 
@@ -191,19 +191,13 @@ pub fn evaluate(
     match method {
         None => {
             let mut total = StepTerm::default();
-            let stats = simulate(
-                model,
-                mat,
-                false,
-                |_, _| {},
-                |s| {
-                    add(
-                        &mut total,
-                        step_term(model, mat, obs, s.n, s.x, s.v, &[], None)?,
-                    );
-                    Ok(())
-                },
-            )?;
+            let stats = simulate_states(model, mat, |s| {
+                add(
+                    &mut total,
+                    step_term(model, mat, obs, s.n, s.x, s.v, &[], None)?,
+                );
+                Ok(())
+            })?;
             Ok(finish(&total, stats, None, 0))
         }
         Some(Method::Direct) => direct(model, mat, params, obs),
@@ -247,19 +241,62 @@ fn g_columns(
     Ok(g)
 }
 
+/// What both gradient methods start from: the parameter table, the sizes, BDF2's constants
+/// c = 3/(2Δt) and a₂ = 2Δt/3, and M on the free pattern.
+struct Setup {
+    table: Vec<Vec<usize>>,
+    kinds: Vec<bool>,
+    np: usize,
+    nf: usize,
+    ndof: usize,
+    c: f64,
+    a2: f64,
+    mvals: Vec<f64>,
+}
+
+impl Setup {
+    fn new(model: &Model, mat: &Material, params: &[Param]) -> Result<Self, MotionError> {
+        let (table, kinds) = param_table(model, mat, params)?;
+        Ok(Self {
+            table,
+            kinds,
+            np: params.len(),
+            nf: model.nfree,
+            ndof: 3 * model.nodes.len(),
+            c: 1.5 / model.dt,
+            a2: 2.0 * model.dt / 3.0,
+            mvals: model.mass_values(mat),
+        })
+    }
+}
+
+/// λ_eᵀ g: a full-dof vector restricted to element `e`'s nodes, dotted with a 12-vector.
+fn element_dot(model: &Model, e: usize, full: &[f64], g: &[f64; 12]) -> f64 {
+    let mut s = 0.0;
+    for (a, &node) in model.tets[e].iter().enumerate() {
+        for k in 0..3 {
+            s += full[3 * node + k] * g[3 * a + k];
+        }
+    }
+    s
+}
+
 fn direct(
     model: &Model,
     mat: &Material,
     params: &[Param],
     obs: &Observations,
 ) -> Result<Evaluation, MotionError> {
-    let (table, kinds) = param_table(model, mat, params)?;
-    let np = params.len();
-    let nf = model.nfree;
-    let ndof = 3 * model.nodes.len();
-    let c = 1.5 / model.dt;
-    let a2 = 2.0 * model.dt / 3.0;
-    let mvals = model.mass_values(mat);
+    let Setup {
+        table,
+        kinds,
+        np,
+        nf,
+        ndof,
+        c,
+        a2,
+        mvals,
+    } = Setup::new(model, mat, params)?;
     // s_x⁰ from the elastostatic start (§3.4): K₀ s_x⁰ = ∂f₀/∂q; zero for a rest-shape start.
     let init: std::cell::RefCell<Option<Result<Vec<Vec<f64>>, MotionError>>> =
         std::cell::RefCell::new(None);
@@ -350,13 +387,16 @@ fn adjoint(
     params: &[Param],
     obs: &Observations,
 ) -> Result<Evaluation, MotionError> {
-    let (table, kinds) = param_table(model, mat, params)?;
-    let np = params.len();
-    let nf = model.nfree;
-    let ndof = 3 * model.nodes.len();
-    let c = 1.5 / model.dt;
-    let a2 = 2.0 * model.dt / 3.0;
-    let mvals = model.mass_values(mat);
+    let Setup {
+        table,
+        kinds,
+        np,
+        nf,
+        ndof,
+        c,
+        a2,
+        mvals,
+    } = Setup::new(model, mat, params)?;
     let mut acc = zeros_acc(&kinds, model.tets.len());
     let mut total = StepTerm::default();
     let mut start: Option<(Vec<f64>, Option<Factor>)> = None;
@@ -409,15 +449,7 @@ fn adjoint(
             &t.v,
             Some((c, &t.vb)),
             None,
-            |e, kind, g| {
-                let mut s = 0.0;
-                for (a, &node) in model.tets[e].iter().enumerate() {
-                    for k in 0..3 {
-                        s += rfull[3 * node + k] * g[3 * a + k];
-                    }
-                }
-                acc[kind][e] += s;
-            },
+            |e, kind, g| acc[kind][e] += element_dot(model, e, &rfull, g),
         )?;
         let mut kr = vec![0.0; nf];
         model.pattern.mul_add(&t.k, &rbar, &mut kr);
@@ -445,15 +477,7 @@ fn adjoint(
             &vec![0.0; ndof],
             None,
             None,
-            |e, kind, g| {
-                let mut s = 0.0;
-                for (a, &node) in model.tets[e].iter().enumerate() {
-                    for k in 0..3 {
-                        s += lfull[3 * node + k] * g[3 * a + k];
-                    }
-                }
-                acc[kind][e] += s;
-            },
+            |e, kind, g| acc[kind][e] += element_dot(model, e, &lfull, g),
         )?;
     }
     let mut grad = vec![0.0; np];

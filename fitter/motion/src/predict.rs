@@ -8,7 +8,7 @@
 //! capture noise.
 
 use super::model::{Material, Model, Observations};
-use super::sim::{equilibrium_from, simulate};
+use super::sim::{equilibrium_from, simulate_states};
 use super::MotionError;
 
 /// Seconds at the end of a run averaged as its final rest state.
@@ -120,25 +120,19 @@ pub fn predict(
 ) -> Result<Prediction, MotionError> {
     let mut simulated: Vec<Vec<[f64; 3]>> = Vec::with_capacity(model.steps);
     let mut last = Vec::new();
-    simulate(
-        model,
-        mat,
-        false,
-        |_, _| {},
-        |s| {
-            simulated.push(
-                model
-                    .markers
-                    .iter()
-                    .map(|m| model.marker_position(m, s.x))
-                    .collect(),
-            );
-            if s.n == model.steps {
-                last = s.x.to_vec();
-            }
-            Ok(())
-        },
-    )?;
+    simulate_states(model, mat, |s| {
+        simulated.push(
+            model
+                .markers
+                .iter()
+                .map(|m| model.marker_position(m, s.x))
+                .collect(),
+        );
+        if s.n == model.steps {
+            last = s.x.to_vec();
+        }
+        Ok(())
+    })?;
     // From the run's last state, near rest after a ring-down: Newton converges in a few steps
     // where a start from the undeformed shape would need load increments.
     let (x_eq, _) = equilibrium_from(model, mat, model.steps, last)?;

@@ -2,7 +2,7 @@
 //! whose base is clamped and moved, virtual markers, and recorded (optionally noisy) observations.
 
 use super::model::{Clamp, MassKind, Material, Model, Observations, Pose};
-use super::sim::simulate;
+use super::sim::simulate_states;
 use super::MotionError;
 use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_fem::mesh::Mesh;
@@ -122,35 +122,29 @@ pub fn record(
         force_weight: 1.0,
         ..Default::default()
     };
-    simulate(
-        model,
-        mat,
-        false,
-        |_, _| {},
-        |s| {
-            obs.markers.push(
-                model
-                    .markers
-                    .iter()
-                    .map(|m| {
-                        let p = model.marker_position(m, s.x);
-                        Some([
-                            p[0] + noise * rng.next(),
-                            p[1] + noise * rng.next(),
-                            p[2] + noise * rng.next(),
-                        ])
-                    })
-                    .collect(),
-            );
-            let mut f = Vec::new();
-            for c in 0..model.clamps.len() {
-                f.push(Some(super::objective::clamp_force(
-                    model, mat, c, s.x, s.v,
-                )?));
-            }
-            obs.forces.push(f);
-            Ok(())
-        },
-    )?;
+    simulate_states(model, mat, |s| {
+        obs.markers.push(
+            model
+                .markers
+                .iter()
+                .map(|m| {
+                    let p = model.marker_position(m, s.x);
+                    Some([
+                        p[0] + noise * rng.next(),
+                        p[1] + noise * rng.next(),
+                        p[2] + noise * rng.next(),
+                    ])
+                })
+                .collect(),
+        );
+        let mut f = Vec::new();
+        for c in 0..model.clamps.len() {
+            f.push(Some(super::objective::clamp_force(
+                model, mat, c, s.x, s.v,
+            )?));
+        }
+        obs.forces.push(f);
+        Ok(())
+    })?;
     Ok(obs)
 }

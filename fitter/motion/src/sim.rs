@@ -173,53 +173,12 @@ fn newton_static(
         factor.solve_in_place(&mut dx);
         let g0 = -dot(&dx, &r);
         // Energy slope at α (None: an element inverts there).
-        let slope = |alpha: f64, f: &mut [f64]| -> Option<(f64, Vec<f64>, f64)> {
+        let slope = |alpha: f64| -> Option<f64> {
             let xt = step(&x, &dx, alpha);
-            resid(&xt, f, None)
-                .ok()
-                .map(|(rt, nt)| (-dot(&dx, &rt), rt, nt))
+            resid(&xt, &mut f, None).ok().map(|(rt, _)| -dot(&dx, &rt))
         };
-        let mut hi = 1.0;
-        let mut at_hi = None;
-        for _ in 0..40 {
-            if let Some(s) = slope(hi, &mut f) {
-                at_hi = Some(s);
-                break;
-            }
-            hi *= 0.5;
-        }
-        let Some((g_hi, _, _)) = at_hi else {
+        let Some(alpha) = slope_root(g0, slope) else {
             break;
-        };
-        // Accept the (possibly shortened) step when the energy still falls there or the slope
-        // has dropped to half its size; otherwise regula falsi (Illinois) on g in [0, hi].
-        let alpha = if g_hi <= 0.0 || g_hi.abs() <= 0.5 * g0.abs() {
-            hi
-        } else {
-            let (mut a, mut ga, mut b, mut gb) = (0.0, g0, hi, g_hi);
-            let mut c = hi;
-            for side in 0..12 {
-                c = (a * gb - b * ga) / (gb - ga);
-                let Some((gc, _, _)) = slope(c, &mut f) else {
-                    b = c;
-                    continue;
-                };
-                if gc.abs() <= 0.5 * g0.abs() {
-                    break;
-                }
-                if gc < 0.0 {
-                    a = c;
-                    ga = gc;
-                    if side > 0 {
-                        gb *= 0.5;
-                    }
-                } else {
-                    b = c;
-                    gb = gc;
-                    ga *= 0.5;
-                }
-            }
-            c
         };
         x = step(&x, &dx, alpha);
         (r, nrm) = resid(&x, &mut f, Some(&mut k))?;
@@ -266,6 +225,17 @@ fn line_search_dynamic(
         let r = residual(&f, &v);
         Some(-dv.iter().zip(&r).map(|(p, q)| p * q).sum::<f64>())
     };
+    slope_root(g0, &mut slope).unwrap_or(0.0)
+}
+
+/// Step length along a descent direction from the slope g(α) of the potential it descends
+/// (g(0) = `g0` < 0; `slope` is `None` where the step inverts an element).
+///
+/// The full step is halved until it is admissible; it is kept when the potential still falls
+/// there or the slope has dropped to half its size, otherwise the root of g in [0, α] is found
+/// by regula falsi (Illinois), to half the initial slope. `None` when no admissible step was
+/// found in 40 halvings.
+fn slope_root(g0: f64, mut slope: impl FnMut(f64) -> Option<f64>) -> Option<f64> {
     let mut hi = 1.0;
     let mut g_hi = None;
     for _ in 0..40 {
@@ -275,11 +245,9 @@ fn line_search_dynamic(
         }
         hi *= 0.5;
     }
-    let Some(g_hi) = g_hi else {
-        return 0.0;
-    };
+    let g_hi = g_hi?;
     if g_hi <= 0.0 || g_hi.abs() <= 0.5 * g0.abs() {
-        return hi;
+        return Some(hi);
     }
     let (mut a, mut ga, mut b, mut gb) = (0.0, g0, hi, g_hi);
     let mut c = hi;
@@ -304,7 +272,7 @@ fn line_search_dynamic(
             ga *= 0.5;
         }
     }
-    c
+    Some(c)
 }
 
 /// Newton iterations of one static solve (one load level).
@@ -334,6 +302,16 @@ fn shifted_factor(model: &Model, k: &mut [f64]) -> Option<Factor> {
         tau *= 10.0;
     }
     None
+}
+
+/// [`simulate`] without factors and without looking at the start: `on_step` sees each converged
+/// step (predictions, recordings, the objective without gradient).
+pub fn simulate_states(
+    model: &Model,
+    mat: &Material,
+    on_step: impl FnMut(&StepView<'_>) -> Result<(), MotionError>,
+) -> Result<SimStats, MotionError> {
+    simulate(model, mat, false, |_, _| {}, on_step)
 }
 
 /// Runs the forward simulation from the rest shape or the elastostatic start.

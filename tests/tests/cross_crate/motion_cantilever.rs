@@ -10,7 +10,7 @@ use palpate_motion::model::{
 };
 use palpate_motion::optimize::{fit, FitSettings};
 use palpate_motion::scenario::record;
-use palpate_motion::sim::{simulate, static_start};
+use palpate_motion::sim::{simulate_states, static_start};
 use palpate_motion::start::from_rest_sag;
 use palpate_motion::statics::{solve_static, StaticProblem};
 
@@ -156,7 +156,7 @@ fn horizontal_cantilever_fits_from_a_start_estimated_from_its_sag() {
     let steps = 45;
     let (model, truth, obs) = shaken(steps);
     let mu = truth.values[ParamKind::Mu as usize][0];
-    simulate(&model, &truth, false, |_, _| {}, |_| Ok(())).unwrap();
+    simulate_states(&model, &truth, |_| Ok(())).unwrap();
     // A generic guess two decades too soft: the cylinder would hang down.
     let guess = Material::uniform(model.tets.len(), 1e4, 1e4, 1.0, 1.0, DENSITY);
     let est = from_rest_sag(&model, &obs, &guess, POISSON, 1e-4).unwrap();
@@ -285,16 +285,10 @@ fn a_soft_cantilever_released_straight_simulates_at_coarse_time_steps() {
         let (lambda, mu) = lame(e);
         let mat = Material::uniform(model.tets.len(), lambda, mu, 1.0, 1.0, DENSITY);
         let mut lowest = 0.0f64;
-        let stats = simulate(
-            &model,
-            &mat,
-            false,
-            |_, _| {},
-            |s| {
-                lowest = lowest.min(tip_sag(&model, s.x));
-                Ok(())
-            },
-        )
+        let stats = simulate_states(&model, &mat, |s| {
+            lowest = lowest.min(tip_sag(&model, s.x));
+            Ok(())
+        })
         .unwrap_or_else(|err| panic!("E = {e}, {hz} Hz: {err}"));
         eprintln!(
             "E = {e:.0e} Pa at {hz} Hz: {stats:?}, lowest tip {:.1} mm",
@@ -336,18 +330,12 @@ fn substeps_chosen_from_the_ring_down_remove_bdf2s_period_error() {
     let ring = |k: usize| {
         let (m, _) = model.resampled(&obs, k);
         let mut z = Vec::new();
-        simulate(
-            &m,
-            &mat,
-            false,
-            |_, _| {},
-            |s| {
-                if s.n % k == 0 {
-                    z.push(tip_sag(&m, s.x));
-                }
-                Ok(())
-            },
-        )
+        simulate_states(&m, &mat, |s| {
+            if s.n % k == 0 {
+                z.push(tip_sag(&m, s.x));
+            }
+            Ok(())
+        })
         .unwrap();
         ring_down(&z, capture_dt)
     };
@@ -358,19 +346,13 @@ fn substeps_chosen_from_the_ring_down_remove_bdf2s_period_error() {
     {
         let (m, _) = model.resampled(&obs, 32);
         let mut n = 0;
-        simulate(
-            &m,
-            &mat,
-            false,
-            |_, _| {},
-            |s| {
-                if s.n % 32 == 0 {
-                    captured.markers[n][0] = Some([0.0, LENGTH, tip_sag(&m, s.x)]);
-                    n += 1;
-                }
-                Ok(())
-            },
-        )
+        simulate_states(&m, &mat, |s| {
+            if s.n % 32 == 0 {
+                captured.markers[n][0] = Some([0.0, LENGTH, tip_sag(&m, s.x)]);
+                n += 1;
+            }
+            Ok(())
+        })
         .unwrap();
     }
     let period = capture_period(&model, &captured).expect("the capture rings");

@@ -8,7 +8,7 @@ use palpate_motion::model::{DeadLoad, Material, Model, Observations, Param, Para
 use palpate_motion::optimize::{evaluate_runs, fit_runs, FitSettings, Run};
 use palpate_motion::predict::{linear_baseline, predict};
 use palpate_motion::scenario::record;
-use palpate_motion::sim::{equilibrium, simulate};
+use palpate_motion::sim::{equilibrium, simulate_states};
 use palpate_tests::motion::{copy_example, example};
 
 /// A copy of the example with `extra` appended to its dataset.toml, loaded (or its error).
@@ -90,16 +90,10 @@ fn example_material(ds: &palpate_motion::dataset::MotionDataset) -> Material {
 
 fn trajectory(model: &Model, mat: &Material) -> Vec<Vec<f64>> {
     let mut out = Vec::new();
-    simulate(
-        model,
-        mat,
-        false,
-        |_, _| {},
-        |s| {
-            out.push(s.x.to_vec());
-            Ok(())
-        },
-    )
+    simulate_states(model, mat, |s| {
+        out.push(s.x.to_vec());
+        Ok(())
+    })
     .unwrap();
     out
 }

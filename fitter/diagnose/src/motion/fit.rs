@@ -7,7 +7,7 @@ use nalgebra::DMatrix;
 use palpate_motion::dataset::MotionDataset;
 use palpate_motion::model::{Material, Model, Observations, Param, ParamKind};
 use palpate_motion::optimize::{fit, FitSettings};
-use palpate_motion::sim::simulate;
+use palpate_motion::sim::simulate_states;
 use palpate_motion::MotionError;
 use serde::Serialize;
 
@@ -138,29 +138,23 @@ pub fn run_trajectory(
     obs: &Observations,
 ) -> Result<Trajectory, MotionError> {
     let mut t = Trajectory::default();
-    simulate(
-        model,
-        mat,
-        false,
-        |_, _| {},
-        |s| {
-            let mut pos = Vec::with_capacity(model.markers.len());
-            let mut vel = Vec::with_capacity(model.markers.len());
-            let mut res = Vec::with_capacity(model.markers.len());
-            for (i, m) in model.markers.iter().enumerate() {
-                let p = model.marker_position(m, s.x);
-                let v = model.marker_position(m, s.v);
-                let target = obs.markers.get(s.n - 1).and_then(|r| r[i]);
-                res.push(target.map(|q| [p[0] - q[0], p[1] - q[1], p[2] - q[2]]));
-                pos.push(p);
-                vel.push(v);
-            }
-            t.pos.push(pos);
-            t.vel.push(vel);
-            t.res.push(res);
-            Ok(())
-        },
-    )?;
+    simulate_states(model, mat, |s| {
+        let mut pos = Vec::with_capacity(model.markers.len());
+        let mut vel = Vec::with_capacity(model.markers.len());
+        let mut res = Vec::with_capacity(model.markers.len());
+        for (i, m) in model.markers.iter().enumerate() {
+            let p = model.marker_position(m, s.x);
+            let v = model.marker_position(m, s.v);
+            let target = obs.markers.get(s.n - 1).and_then(|r| r[i]);
+            res.push(target.map(|q| [p[0] - q[0], p[1] - q[1], p[2] - q[2]]));
+            pos.push(p);
+            vel.push(v);
+        }
+        t.pos.push(pos);
+        t.vel.push(vel);
+        t.res.push(res);
+        Ok(())
+    })?;
     Ok(t)
 }
 
