@@ -505,7 +505,7 @@ impl Model {
             }
         }
         let pattern = Pattern::new(&mesh.tets, &free, nfree)
-            .map_err(|e| MotionError::Invalid(format!("sparse analysis failed: {e:?}")))?;
+            .map_err(|e| MotionError::Invalid(e.to_string()))?;
         Ok(Self {
             nodes: mesh.nodes.clone(),
             tets: mesh.tets.clone(),

@@ -163,8 +163,8 @@ pub fn solve_static(p: &StaticProblem<'_>) -> Result<StaticSolution, MotionError
             }
         }
     }
-    let pattern = Pattern::new(&mesh.tets, &free, nfree)
-        .map_err(|e| MotionError::Invalid(format!("sparse analysis: {e:?}")))?;
+    let pattern =
+        Pattern::new(&mesh.tets, &free, nfree).map_err(|e| MotionError::Invalid(e.to_string()))?;
     let ctx = Ctx {
         p,
         rest,
