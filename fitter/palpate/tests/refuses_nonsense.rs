@@ -2,16 +2,10 @@
 //! degenerate static data, absurd loads, a probe nowhere near the object, out-of-range options.
 //! Each must exit non-zero, name what is wrong, and write nothing.
 
+mod common;
+
+use common::{palpate, repo};
 use std::path::{Path, PathBuf};
-use std::process::Command;
-
-fn palpate() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_palpate"))
-}
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
 
 /// A copy of the bundled sponge dataset with `edit` applied to each CSV row of `file` (the header
 /// is kept).
