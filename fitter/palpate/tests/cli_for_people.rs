@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{assert_fit_written, palpate, repo, text};
+use common::{assert_fit_written, fit_sponge, palpate, repo, text};
 use std::path::Path;
 use std::process::{Command, Output};
 
@@ -286,13 +286,7 @@ fn every_json_document_has_a_schema_version_and_units_in_its_names() {
     let s = json_file(&sim.join("summary.json"));
     assert_eq!(s["schema_version"], 1);
     let model = dir.path().join("m.palp");
-    let o = palpate()
-        .args(["-q", "fit"])
-        .arg(repo().join("models/sponge/dataset"))
-        .args(["--plot-format", "png", "-o"])
-        .arg(&model)
-        .output()
-        .unwrap();
+    let o = fit_sponge(&["-q"], &["--plot-format", "png"], &model);
     assert_fit_written(&o);
     let report = dir.path().join("m.report");
     let r = json_file(&report.join("report.json"));

@@ -9,7 +9,7 @@
 
 mod common;
 
-use common::{assert_fit_written, palpate, repo};
+use common::{assert_fit_written, fit_sponge, palpate, repo};
 use std::collections::HashMap;
 use std::path::Path;
 
@@ -272,13 +272,7 @@ fn fit_writes_a_vtu_other_readers_accept() {
     let dir = tempfile::tempdir().unwrap();
     let model = dir.path().join("model.palp");
     let ds = repo().join("models/sponge/dataset");
-    let o = palpate()
-        .arg("fit")
-        .arg(&ds)
-        .args(["--max-iterations", "1", "-o"])
-        .arg(&model)
-        .output()
-        .unwrap();
+    let o = fit_sponge(&[], &["--max-iterations", "1"], &model);
     assert_fit_written(&o);
     let path = dir.path().join("model.report/fit.vtu");
     let v = read_vtu(&path);

@@ -17,6 +17,19 @@ pub fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
+/// Runs `palpate <before…> fit <the bundled sponge dataset> <options…> -o <model>`.
+pub fn fit_sponge(before: &[&str], options: &[&str], model: &Path) -> Output {
+    palpate()
+        .args(before)
+        .arg("fit")
+        .arg(repo().join("models/sponge/dataset"))
+        .args(options)
+        .arg("-o")
+        .arg(model)
+        .output()
+        .unwrap()
+}
+
 /// Bytes a program wrote, as text.
 pub fn text(b: &[u8]) -> String {
     String::from_utf8_lossy(b).to_string()
