@@ -19,6 +19,17 @@ import gmsh
 import numpy as np
 
 
+def classify_flat(dim, tag, height):
+    """Names a face of a flat-bottomed, flat-topped solid of this height by its centre of mass:
+    "bottom" at z = 0, "top" at z = height, "sides" otherwise (Block and Cylinder share it)."""
+    z = gmsh.model.occ.getCenterOfMass(dim, tag)[2]
+    if z < 1e-7:
+        return "bottom"
+    if z > height - 1e-7:
+        return "top"
+    return "sides"
+
+
 class Shape:
     kind: str
 
@@ -64,12 +75,7 @@ class Block(Shape):
         return gmsh.model.occ.addBox(0, 0, 0, self.L, self.W, self.H)
 
     def classify(self, dim, tag):
-        z = gmsh.model.occ.getCenterOfMass(dim, tag)[2]
-        if z < 1e-7:
-            return "bottom"
-        if z > self.H - 1e-7:
-            return "top"
-        return "sides"
+        return classify_flat(dim, tag, self.H)
 
     def volume(self):
         return self.L * self.W * self.H
@@ -164,12 +170,7 @@ class Cylinder(Shape):
         return gmsh.model.occ.addCylinder(self.cx, self.cy, 0, 0, 0, self.H, self.R)
 
     def classify(self, dim, tag):
-        z = gmsh.model.occ.getCenterOfMass(dim, tag)[2]
-        if z < 1e-7:
-            return "bottom"
-        if z > self.H - 1e-7:
-            return "top"
-        return "sides"
+        return classify_flat(dim, tag, self.H)
 
     def probed_groups(self):
         return ["top", "sides"]

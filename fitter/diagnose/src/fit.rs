@@ -65,18 +65,6 @@ pub fn initial_theta(
     Ok((vec![(e0 / a).ln(), s_of(0.3)], sim))
 }
 
-fn jacobian(
-    ctx: &Context,
-    model: &Model,
-    theta: &[f64],
-    subset: &[usize],
-    base: &Simulated,
-    r0: &[f64],
-) -> Result<DMatrix<f64>, DiagnoseError> {
-    let all: Vec<usize> = (0..theta.len()).collect();
-    jacobian_columns(ctx, model, theta, subset, base, r0, &all, FD_STEP)
-}
-
 /// Forward-difference columns ∂r/∂θ_j for the parameters `cols` (in that order), with step
 /// `step` on the dimensionless θ, from the simulation `base` at θ with residual `r0`.
 #[allow(clippy::too_many_arguments)]
@@ -144,7 +132,11 @@ pub fn fit(
         theta0,
         r,
         sim,
-        |theta, sim: &Simulated, r| jacobian(ctx, model, theta, subset, sim, r),
+        // Every column, at the default step.
+        |theta, sim: &Simulated, r| {
+            let all: Vec<usize> = (0..theta.len()).collect();
+            jacobian_columns(ctx, model, theta, subset, sim, r, &all, FD_STEP)
+        },
         |trial, sim| {
             let s = model.simulate_near(ctx, trial, subset, sim).ok()?;
             Some((model.residuals(ctx, subset, &s.markers), s))

@@ -375,18 +375,14 @@ impl Context {
             .collect();
         // Depth along the mean pushing direction nz, from the probed face (smallest x·nz).
         let along = |x: &[f64; 3]| x[0] * nz[0] + x[1] * nz[1] + x[2] * nz[2];
-        let top = ds
+        let (top, bottom) = ds
             .mesh
             .nodes
             .iter()
             .map(along)
-            .fold(f64::INFINITY, f64::min);
-        let bottom = ds
-            .mesh
-            .nodes
-            .iter()
-            .map(along)
-            .fold(f64::NEG_INFINITY, f64::max);
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), d| {
+                (lo.min(d), hi.max(d))
+            });
         let span = (bottom - top).max(1e-12);
         let depth = centroids.iter().map(|c| (along(c) - top) / span).collect();
         let mut contact_mean = [0.0; 3];

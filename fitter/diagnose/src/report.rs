@@ -17,6 +17,11 @@ fn um(v: f64) -> String {
     format!("{:.1}", v * 1e6)
 }
 
+/// The items, comma separated (the signature's lists).
+fn comma(items: impl Iterator<Item = String>) -> String {
+    items.collect::<Vec<_>>().join(", ")
+}
+
 fn error_rows(s: &mut String, label: &str, e: &Errors) {
     let _ = writeln!(
         s,
@@ -124,7 +129,7 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
         let sig = &st.signature;
         let _ = writeln!(s, "Residual signature:\n");
         let _ = writeln!(s, "- scale factor (measured/simulated displacement) vs force: correlation {:.2}; per measurement (|f| N → s): {}", sig.scale_vs_force,
-            sig.per_measurement.iter().map(|p| format!("{:.2}→{:.3}", p.force, p.scale)).collect::<Vec<_>>().join(", "));
+            comma(sig.per_measurement.iter().map(|p| format!("{:.2}→{:.3}", p.force, p.scale))));
         let _ = writeln!(
             s,
             "- rigid-body part (one transform for all measurements): {:.0}% of the residual energy",
@@ -138,29 +143,29 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
         let _ = writeln!(
             s,
             "- RMS vs distance from the contact (upper bin edge mm: µm): {}",
-            sig.vs_distance
-                .iter()
-                .map(|(d, r, _)| format!("{:.0}: {}", d * 1e3, um(*r)))
-                .collect::<Vec<_>>()
-                .join(", ")
+            comma(
+                sig.vs_distance
+                    .iter()
+                    .map(|(d, r, _)| format!("{:.0}: {}", d * 1e3, um(*r)))
+            )
         );
         let _ = writeln!(
             s,
             "- per measurement RMS (µm): {}",
-            sig.per_measurement
-                .iter()
-                .map(|p| format!("{} {}", p.id, um(p.rms)))
-                .collect::<Vec<_>>()
-                .join(", ")
+            comma(
+                sig.per_measurement
+                    .iter()
+                    .map(|p| format!("{} {}", p.id, um(p.rms)))
+            )
         );
         let _ = writeln!(
             s,
             "- worst markers (RMS µm): {}\n",
-            sig.worst_markers
-                .iter()
-                .map(|(id, v)| format!("{id} {}", um(*v)))
-                .collect::<Vec<_>>()
-                .join(", ")
+            comma(
+                sig.worst_markers
+                    .iter()
+                    .map(|(id, v)| format!("{id} {}", um(*v)))
+            )
         );
         if !st.tried.is_empty() {
             let _ = writeln!(s, "| candidate | extra params | refit RMS µm | ΔBIC | held-out RMS µm | held-out ΔBIC | held-out paired t |\n|---|---|---|---|---|---|---|");

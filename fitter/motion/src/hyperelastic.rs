@@ -60,6 +60,26 @@ impl RestTet {
             })
             .collect()
     }
+
+    /// A 1 cm tetrahedron of no special shape, and its rest corners: the fixture of the
+    /// element tests here, in `viscosity` and in the cross-crate spline tests (public so that
+    /// they share one element rather than copies of its corners).
+    pub fn sample() -> (Self, [Vector3<f64>; 4]) {
+        let x = [
+            Vector3::new(0.0, 0.0, 0.0),
+            Vector3::new(0.01, 0.0, 0.0),
+            Vector3::new(0.002, 0.012, 0.0),
+            Vector3::new(0.001, 0.003, 0.011),
+        ];
+        let g = palpate_runtime::element::tet_geometry(&x).expect("the sample tet is regular");
+        (
+            Self {
+                grad: g.grad,
+                volume: g.volume,
+            },
+            x,
+        )
+    }
 }
 
 /// F = Σ_a x_a ∇φ_aᵀ.
@@ -254,22 +274,9 @@ pub fn element_tangent(t: &RestTet, s: &FParts, p: &HyperParams) -> [[f64; 12]; 
 pub(crate) mod tests {
     use super::*;
 
-    /// A 1 cm tetrahedron of no special shape, and its corners.
+    /// A 1 cm tetrahedron of no special shape, and its corners ([`RestTet::sample`]).
     pub(crate) fn tet() -> (RestTet, [Vector3<f64>; 4]) {
-        let x = [
-            Vector3::new(0.0, 0.0, 0.0),
-            Vector3::new(0.01, 0.0, 0.0),
-            Vector3::new(0.002, 0.012, 0.0),
-            Vector3::new(0.001, 0.003, 0.011),
-        ];
-        let g = palpate_runtime::element::tet_geometry(&x).unwrap();
-        (
-            RestTet {
-                grad: g.grad,
-                volume: g.volume,
-            },
-            x,
-        )
+        RestTet::sample()
     }
 
     /// Forces are minus the energy gradient and the tangent is minus the force Jacobian; central

@@ -3,20 +3,11 @@
 //! with `-q`/`-v`/RUST_LOG, JSON documents with a schema version and units in their field names,
 //! and figures in the format asked for.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::{assert_fit_written, fit_sponge, palpate, repo, text};
+use std::path::Path;
 use std::process::{Command, Output};
-
-fn palpate() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_palpate"))
-}
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).to_string()
-}
 
 /// Runs `c` and asserts that it succeeded (its stderr shown if not).
 #[track_caller]
@@ -36,6 +27,18 @@ fn assert_exit_and_stderr(o: &Output, code: i32, part: &str) {
 /// The JSON document in the file at `path`.
 fn json_file(path: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+/// `palpate -q fit-motion <example> --params mu --max-iterations 2 -o <fit>`: a short motion fit
+/// (μ alone, two iterations) whose files the tests then read; the caller checks the outcome.
+fn quick_fit_motion(example: &Path, fit: &Path) -> Output {
+    palpate()
+        .args(["-q", "fit-motion"])
+        .arg(example)
+        .args(["--params", "mu", "--max-iterations", "2", "-o"])
+        .arg(fit)
+        .output()
+        .unwrap()
 }
 
 fn last_json(o: &Output) -> serde_json::Value {
@@ -236,13 +239,7 @@ fn every_json_document_has_a_schema_version_and_units_in_its_names() {
 
     // fit-motion → validate's last line.
     let fit = dir.path().join("fit.json");
-    let o = palpate()
-        .args(["-q", "fit-motion"])
-        .arg(&example)
-        .args(["--params", "mu", "--max-iterations", "2", "-o"])
-        .arg(&fit)
-        .output()
-        .unwrap();
+    let o = quick_fit_motion(&example, &fit);
     assert!(fit.exists(), "{}", text(&o.stderr));
     let o = palpate()
         .args(["-q", "validate", "--model"])
@@ -289,18 +286,8 @@ fn every_json_document_has_a_schema_version_and_units_in_its_names() {
     let s = json_file(&sim.join("summary.json"));
     assert_eq!(s["schema_version"], 1);
     let model = dir.path().join("m.palp");
-    let o = palpate()
-        .args(["-q", "fit"])
-        .arg(repo().join("models/sponge/dataset"))
-        .args(["--plot-format", "png", "-o"])
-        .arg(&model)
-        .output()
-        .unwrap();
-    assert!(
-        matches!(o.status.code(), Some(0 | 2)),
-        "{}",
-        text(&o.stderr)
-    );
+    let o = fit_sponge(&["-q"], &["--plot-format", "png"], &model);
+    assert_fit_written(&o);
     let report = dir.path().join("m.report");
     let r = json_file(&report.join("report.json"));
     assert_eq!(r["schema_version"], 1);
@@ -349,13 +336,7 @@ fn plot_format_chooses_the_files() {
     let dir = tempfile::tempdir().unwrap();
     let example = repo().join("models/motion-example");
     let fit = dir.path().join("fit.json");
-    palpate()
-        .args(["-q", "fit-motion"])
-        .arg(&example)
-        .args(["--params", "mu", "--max-iterations", "2", "-o"])
-        .arg(&fit)
-        .output()
-        .unwrap();
+    quick_fit_motion(&example, &fit);
     for (format, svg, png) in [("svg", true, false), ("both", true, true)] {
         let out = dir.path().join(format);
         succeeds(

@@ -2,16 +2,10 @@
 //! degenerate static data, absurd loads, a probe nowhere near the object, out-of-range options.
 //! Each must exit non-zero, name what is wrong, and write nothing.
 
+mod common;
+
+use common::{fit_sponge, palpate, repo};
 use std::path::{Path, PathBuf};
-use std::process::Command;
-
-fn palpate() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_palpate"))
-}
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
 
 /// A copy of the bundled sponge dataset with `edit` applied to each CSV row of `file` (the header
 /// is kept).
@@ -152,12 +146,11 @@ fn fit_refuses_nonsense_regularisation() {
 #[test]
 fn fit_checks_its_output_before_fitting() {
     let t0 = std::time::Instant::now();
-    let o = palpate()
-        .args(["fit"])
-        .arg(repo().join("models/sponge/dataset"))
-        .args(["-o", "/proc/palpate-cannot-write-here/model.palp"])
-        .output()
-        .unwrap();
+    let o = fit_sponge(
+        &[],
+        &[],
+        Path::new("/proc/palpate-cannot-write-here/model.palp"),
+    );
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(
@@ -254,13 +247,7 @@ fn probe_with_no_data_is_an_error() {
 fn fit_at_its_iteration_cap_exits_2_with_the_warning_in_the_report() {
     let tmp = tempfile::tempdir().unwrap();
     let model = tmp.path().join("model.palp");
-    let o = palpate()
-        .args(["fit"])
-        .arg(repo().join("models/sponge/dataset"))
-        .args(["--max-iterations", "1", "-o"])
-        .arg(&model)
-        .output()
-        .unwrap();
+    let o = fit_sponge(&[], &["--max-iterations", "1"], &model);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("iteration-cap"), "{err}");

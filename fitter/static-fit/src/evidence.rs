@@ -110,30 +110,36 @@ pub fn tradeoff(dir: &Path, cells: [usize; 3]) -> Result<Vec<(f64, f64, f64, f64
         x_log: true,
         y_log: true,
     };
-    palpate_plot::lines_with(
-        dir.join("tradeoff_error.svg"),
-        "§5.1 trade-off: marker RMS error vs γ_s (stiff inclusion, σ = 0.1 mm)",
-        "γ_s",
-        "RMS marker error (mm)",
-        &[palpate_plot::Series::new(
+    // The two trade-off figures: (file, title, y label, series name, points).
+    for (file, title, y_label, name, points) in [
+        (
+            "tradeoff_error.svg",
+            "§5.1 trade-off: marker RMS error vs γ_s (stiff inclusion, σ = 0.1 mm)",
+            "RMS marker error (mm)",
             "rms error",
             &err,
-            palpate_plot::Style::LinePoints,
-        )],
-        axes,
-    )?;
-    palpate_plot::lines_with(
-        dir.join("tradeoff_roughness.svg"),
-        "§5.1 trade-off: roughness ‖L_s log E‖ vs γ_s",
-        "γ_s",
-        "roughness",
-        &[palpate_plot::Series::new(
+        ),
+        (
+            "tradeoff_roughness.svg",
+            "§5.1 trade-off: roughness ‖L_s log E‖ vs γ_s",
+            "roughness",
             "roughness",
             &rough,
-            palpate_plot::Style::LinePoints,
-        )],
-        axes,
-    )?;
+        ),
+    ] {
+        palpate_plot::lines_with(
+            dir.join(file),
+            title,
+            "γ_s",
+            y_label,
+            &[palpate_plot::Series::new(
+                name,
+                points,
+                palpate_plot::Style::LinePoints,
+            )],
+            axes,
+        )?;
+    }
     let json = serde_json::json!(rows.iter().map(|r| serde_json::json!({"gamma_s": r.0, "rms_m": r.1, "roughness": r.2, "correlation": r.3})).collect::<Vec<_>>());
     let file = dir.join("tradeoff.json");
     crate::write_file(&file, crate::to_json(&file, &json)?.as_bytes())?;

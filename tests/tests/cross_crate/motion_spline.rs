@@ -98,20 +98,7 @@ fn spline_stress_and_tangent_match_finite_differences() {
 }
 
 fn tet() -> (RestTet, [Vector3<f64>; 4]) {
-    let x = [
-        Vector3::new(0.0, 0.0, 0.0),
-        Vector3::new(0.01, 0.0, 0.0),
-        Vector3::new(0.002, 0.012, 0.0),
-        Vector3::new(0.001, 0.003, 0.011),
-    ];
-    let g = palpate_runtime::element::tet_geometry(&x).unwrap();
-    (
-        RestTet {
-            grad: g.grad,
-            volume: g.volume,
-        },
-        x,
-    )
+    RestTet::sample()
 }
 
 /// Initialised by eq. 19 the spline material is Neo-Hookean (eq. 16): element forces and

@@ -5,11 +5,9 @@ use anyhow::Context;
 use palpate_fem::io::atomic::write_atomic;
 use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_motion::gradient::evaluate;
-use palpate_motion::model::{
-    Clamp, MassKind, Material, Model, Observations, Param, ParamKind, Pose,
-};
+use palpate_motion::model::{Material, Model, Observations, Param, ParamKind};
 use palpate_motion::optimize::{fit, FitSettings};
-use palpate_motion::scenario::{bar_model, nine_markers, record, two_sinusoids};
+use palpate_motion::scenario::{bar_model, nine_markers, record, tension_bar, two_sinusoids};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -343,30 +341,11 @@ fn read_vhb(path: &Path, dt: f64) -> anyhow::Result<Vec<(f64, f64, f64)>> {
 /// wide — an assumption; the fitted moduli scale as 10 mm² / true area), `front` fixed,
 /// `back` pulled along y by the recorded grip displacement; no gravity (tared load cell).
 fn strip(data: &[(f64, f64, f64)], dt: f64) -> anyhow::Result<(Model, Observations)> {
-    let mesh = box_mesh([0.01, 0.08, 0.001], [2, 8, 1]);
-    let steps = data.len() - 1;
-    let fixed = Clamp {
-        name: "front".into(),
-        nodes: mesh.group("front")?.to_vec(),
-        poses: vec![Pose::identity(); steps + 1],
-    };
-    let pulled = Clamp {
-        name: "back".into(),
-        nodes: mesh.group("back")?.to_vec(),
-        poses: data
-            .iter()
-            .map(|r| Pose::translation([0.0, r.1, 0.0]))
-            .collect(),
-    };
-    let model = Model::new(
-        &mesh,
-        vec![fixed, pulled],
-        Vec::new(),
-        dt,
-        steps,
-        [0.0; 3],
-        MassKind::Lumped,
-    )?;
+    // The scenario's tension bar, its `back` pose at step n the recorded grip displacement of
+    // row n (t = n dt, so t / dt rounds back to n).
+    let (_, model) = tension_bar([0.01, 0.08, 0.001], [2, 8, 1], dt, data.len() - 1, &|t| {
+        data[(t / dt).round() as usize].1
+    })?;
     let obs = Observations {
         markers: Vec::new(),
         forces: data[1..]

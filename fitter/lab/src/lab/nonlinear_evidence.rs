@@ -82,6 +82,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A part's document, begun the same way in every part: its title, then the command that wrote it.
+fn begin_md(title: &str, command: &str, part: &str) -> String {
+    format!("# {title}\n\nCommand: `{command}` (part `{part}`)\n\n")
+}
+
 fn write(dir: &Path, name: &str, text: &str) -> anyhow::Result<()> {
     let p = dir.join(name);
     std::fs::write(&p, text).with_context(|| format!("writing {}", p.display()))?;
@@ -120,12 +125,11 @@ fn incremental(args: &Args, command: &str) -> anyhow::Result<()> {
         &BlendData::None,
         &prov("cantilever"),
     )?;
-    let mut md = String::new();
-    writeln!(
-        md,
-        "# Incremental loading and the energy line search at growing loads\n"
-    )?;
-    writeln!(md, "Command: `{command}` (part `incremental`)\n")?;
+    let mut md = begin_md(
+        "Incremental loading and the energy line search at growing loads",
+        command,
+        "incremental",
+    );
     writeln!(md, "The 10 cm cantilever of the runtime evidence (20 × 2 × 2 cells, 480 tets, E = 1 MPa, ν = 0.3, clamped at x = 0) under a downward tip load. \
 Reference: the f64 solve (`palpate_fem::forward`, 20 increments, fixed point to 1e-10 m, with the energy line search). Runtime: f32, PCG to 1e-6, 4 rotation iterations, the load commanded once at tick 0. \
 `first tick`: the tip's distance from the reference after one tick; `ticks`: until the load is applied and a tick moves no node by more than 1e-5 of the deflection (cap 400); `error`: tip distance from the reference then.\n")?;
@@ -445,12 +449,11 @@ fn fit_class(
 }
 
 fn blend(args: &Args, command: &str) -> anyhow::Result<()> {
-    let mut md = String::new();
-    writeln!(
-        md,
-        "# Linear vs blended non-linear models, fitted and held-out contacts\n"
-    )?;
-    writeln!(md, "Command: `{command}` (part `blend`)\n")?;
+    let mut md = begin_md(
+        "Linear vs blended non-linear models, fitted and held-out contacts",
+        command,
+        "blend",
+    );
     writeln!(md, "Data: palpate's specimen (`palpate_specimen::generate`, seed {}, {} contacts from {:.2} to {} N on the top face of an 8 × 8 × 4 cm block, E = 20 kPa, ν = 0.35, 0.1 mm marker noise). \
 The truth is a Neo-Hookean solve on a mesh twice as fine as the fitted one (12 × 12 × 6 cells vs the fitted 6 × 6 × 3), with isochoric stiffening c (Ī₁ − 3)², c = magnitude × μ; magnitude 0 is the independent reference: plain Neo-Hookean, a different material law and mesh from the warped linear model. \
 Every third contact is held out; the others are fitted by the displacement-based inverse: linear (one homogeneous set), non-linear homogeneous (one set per contact, γ_m = 0.01, blended by the deformation-space RBF, eqs. 6.2–6.5) and non-linear inhomogeneous (one per-element set per contact, γ_s = 3, γ_m = 0.01, 8 LM iterations, strain-space RBF with 8 neighbours, eqs. 6.7–6.11). \
@@ -547,12 +550,11 @@ fn gamma(args: &Args, command: &str) -> anyhow::Result<()> {
                 .sqrt()
         })
         .collect();
-    let mut md = String::new();
-    writeln!(
-        md,
-        "# What γ_m does: the cross-measurement smoothness sweep\n"
-    )?;
-    writeln!(md, "Command: `{command}` (part `gamma`)\n")?;
+    let mut md = begin_md(
+        "What γ_m does: the cross-measurement smoothness sweep",
+        command,
+        "gamma",
+    );
     writeln!(md, "The {} specimen of `blend.md` (same contacts and split), non-linear homogeneous class (one (λ, α) per fitted contact, displacement-based inverse, blended by the deformation-space RBF), γ_m^λ = γ_m^α = γ_m swept. \
 Figure `gamma-m-sweep.svg`/`.png`: the fitted E of each contact's set against its contact force, one line per γ_m. Small γ_m leaves the per-contact fits independent, large γ_m ties them into one set (thesis Table 7.3: 0.01 vs 1000). \
 Held-out error: the exported blend played by the runtime on the held-out contacts, RMS against the clean truth (mm).\n", split.name)?;

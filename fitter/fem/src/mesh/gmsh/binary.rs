@@ -38,22 +38,27 @@ pub(super) fn parse(file: &Path, bytes: &[u8]) -> Result<RawMsh, MeshError> {
         message: format!("value out of range in {what}"),
     };
     if let Some(ent) = &msh.data.entities {
-        for p in &ent.points {
-            raw.entity_physicals
-                .push(((0, p.tag), p.physical_tags.clone()));
-        }
-        for c in &ent.curves {
-            raw.entity_physicals
-                .push(((1, c.tag), c.physical_tags.clone()));
-        }
-        for s in &ent.surfaces {
-            raw.entity_physicals
-                .push(((2, s.tag), s.physical_tags.clone()));
-        }
-        for v in &ent.volumes {
-            raw.entity_physicals
-                .push(((3, v.tag), v.physical_tags.clone()));
-        }
+        // ((dimension, tag), physical tags) of every entity, points to volumes (four types).
+        raw.entity_physicals.extend(
+            ent.points
+                .iter()
+                .map(|p| ((0, p.tag), p.physical_tags.clone()))
+                .chain(
+                    ent.curves
+                        .iter()
+                        .map(|c| ((1, c.tag), c.physical_tags.clone())),
+                )
+                .chain(
+                    ent.surfaces
+                        .iter()
+                        .map(|s| ((2, s.tag), s.physical_tags.clone())),
+                )
+                .chain(
+                    ent.volumes
+                        .iter()
+                        .map(|v| ((3, v.tag), v.physical_tags.clone())),
+                ),
+        );
     }
     if let Some(nodes) = &msh.data.nodes {
         // Dense tags are not kept by mshio: rebuild them as min_tag + running position.

@@ -7,11 +7,16 @@ fn fixture(name: &str) -> PathBuf {
         .join(name)
 }
 
-fn total_volume(m: &Mesh) -> f64 {
+/// Every tet's signed volume, in mesh order.
+fn volumes(m: &Mesh) -> Vec<f64> {
     m.tets
         .iter()
         .map(|t| assemble::signed_volume(&t.map(|i| m.nodes[i])))
-        .sum()
+        .collect()
+}
+
+fn total_volume(m: &Mesh) -> f64 {
+    volumes(m).iter().sum()
 }
 
 /// Two tetrahedra sharing face (1, 2, 3); `node5` is the apex of the second, `tet2` its node list.
@@ -232,11 +237,7 @@ fn bundled_sponge_mesh_reads() {
             || p[1].abs() < 1e-12
             || (p[1] - 0.1).abs() < 1e-12
     }));
-    let vols: Vec<f64> = m
-        .tets
-        .iter()
-        .map(|t| assemble::signed_volume(&t.map(|i| m.nodes[i])))
-        .collect();
+    let vols = volumes(&m);
     assert!(vols.iter().all(|&v| v > 0.0));
     // 10 × 10 × 5 cm = 5e-4 m³; Gmsh prints 16 digits, so the sum is exact to ~1e-15 relative.
     assert!((vols.iter().sum::<f64>() - 5e-4).abs() < 1e-9);
@@ -310,11 +311,7 @@ fn bundled_beam_mesh_reads() {
     assert!(on("clamp", &|p| (p[2] - 0.1).abs() < 1e-9));
     assert!(on("free_end", &|p| p[2].abs() < 1e-9));
     assert!(m.node_groups["clamp"].len() > 10);
-    let vols: Vec<f64> = m
-        .tets
-        .iter()
-        .map(|t| assemble::signed_volume(&t.map(|i| m.nodes[i])))
-        .collect();
+    let vols = volumes(&m);
     assert!(vols.iter().all(|&v| v > 0.0));
     assert!(
         (vols.iter().sum::<f64>() - 9e-5).abs() < 1e-10,
