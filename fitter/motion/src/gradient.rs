@@ -200,9 +200,25 @@ pub fn evaluate(
             })?;
             Ok(finish(&total, stats, None, 0))
         }
-        Some(Method::Direct) => direct(model, mat, params, obs),
+        Some(Method::Direct) => direct(model, mat, params, obs, false).map(|(e, _)| e),
         Some(Method::Adjoint) => adjoint(model, mat, params, obs),
     }
+}
+
+/// Φ, dΦ/dq and the Gauss–Newton matrix H = Σ_n Δt w_m Σ_i J_inᵀ J_in of the marker term
+/// (row-major, `params.len()`²), J_in = ∂x̄_i(x^n)/∂q the marker's sensitivity — from the
+/// direct sensitivities (eqs. 5–6), which carry every state derivative the step needs anyway.
+/// H is the exact Hessian of Φ without its second-order residual terms, so Levenberg–Marquardt
+/// on it takes Newton-like steps on a least-squares fit ([`super::optimize`]). The clamp-force
+/// term is not in H: a caller with observed forces uses the gradient alone (LBFGS).
+pub fn evaluate_gauss_newton(
+    model: &Model,
+    mat: &Material,
+    params: &[Param],
+    obs: &Observations,
+) -> Result<(Evaluation, Vec<f64>), MotionError> {
+    let (ev, h) = direct(model, mat, params, obs, true)?;
+    Ok((ev, h.unwrap_or_default()))
 }
 
 fn zeros_acc(kinds: &[bool], ne: usize) -> Vec<Vec<f64>> {
@@ -281,12 +297,111 @@ fn element_dot(model: &Model, e: usize, full: &[f64], g: &[f64; 12]) -> f64 {
     s
 }
 
+/// h += w Σ_k j_p[k] j_q[k] for the residual rows `j` (one 3-vector per parameter).
+fn add_outer(h: &mut [f64], j: &[[f64; 3]], w: f64) {
+    let np = j.len();
+    for p in 0..np {
+        for q in 0..=p {
+            let d = w * (0..3).map(|k| j[p][k] * j[q][k]).sum::<f64>();
+            h[p * np + q] += d;
+            if q != p {
+                h[q * np + p] += d;
+            }
+        }
+    }
+}
+
+/// dF_c/dq of clamp `c`'s reaction force (see [`super::objective::clamp_force`]) along the
+/// state sensitivities s_x, s_v (free dofs, one per parameter): ∂F/∂x s_x + ∂F/∂v s_v + ∂F/∂q,
+/// with ∂F_c/∂x = K_e and ∂F_c/∂v = D_e on the clamp's rows, as the objective's own gradient.
+#[allow(clippy::too_many_arguments)]
+fn clamp_force_jacobian(
+    model: &Model,
+    mat: &Material,
+    table: &[Vec<usize>],
+    kinds: &[bool],
+    np: usize,
+    c: usize,
+    s: &StepView<'_>,
+    sx: &[Vec<f64>],
+    sv: &[Vec<f64>],
+) -> Result<Vec<[f64; 3]>, MotionError> {
+    use super::elastic::ElasticState;
+    use super::hyperelastic as he;
+    use super::model::ParamKind;
+    use super::viscosity as visc;
+    let mut j = vec![[0.0; 3]; np];
+    for &el in &model.clamp_elems[c] {
+        let tet = model.tets[el];
+        let rt = &model.rest[el];
+        let st = ElasticState::new(
+            mat,
+            el,
+            he::deformation_gradient(rt, &model.gather(el, s.x)),
+        )?;
+        let ke = st.tangent(rt);
+        let de = visc::Rate::new(
+            &visc::velocity_gradient(rt, &model.gather(el, s.v)),
+            mat.get(ParamKind::PowerH, el),
+        )
+        .map(|r| visc::element_damping(rt, &r, mat.get(ParamKind::Nu, el)));
+        for a in 0..4 {
+            if model.node_clamp[tet[a]] != c {
+                continue;
+            }
+            for col in 0..12 {
+                let fr = model.free[3 * tet[col / 3] + col % 3];
+                if fr == usize::MAX {
+                    continue;
+                }
+                for (p, jp) in j.iter_mut().enumerate() {
+                    for (i, ji) in jp.iter_mut().enumerate() {
+                        *ji += ke[3 * a + i][col] * sx[p][fr];
+                        if let Some(d) = &de {
+                            *ji += d[3 * a + i][col] * sv[p][fr];
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let mut k2 = kinds.to_vec();
+    k2[ParamKind::Density as usize] = false; // F_c holds internal forces only
+    param_derivatives(
+        model,
+        mat,
+        &k2,
+        s.x,
+        s.v,
+        None,
+        Some(&model.clamp_elems[c]),
+        |el, kind, g| {
+            let p = table[el][kind];
+            if p == usize::MAX {
+                return;
+            }
+            let tet = model.tets[el];
+            for a in 0..4 {
+                if model.node_clamp[tet[a]] == c {
+                    for i in 0..3 {
+                        j[p][i] -= g[3 * a + i];
+                    }
+                }
+            }
+        },
+    )?;
+    Ok(j)
+}
+
+/// The direct method; with `gauss_newton` it also sums the marker term's Gauss–Newton matrix
+/// (see [`evaluate_gauss_newton`]).
 fn direct(
     model: &Model,
     mat: &Material,
     params: &[Param],
     obs: &Observations,
-) -> Result<Evaluation, MotionError> {
+    gauss_newton: bool,
+) -> Result<(Evaluation, Option<Vec<f64>>), MotionError> {
     let Setup {
         table,
         kinds,
@@ -304,6 +419,9 @@ fn direct(
     let mut total = StepTerm::default();
     let mut grad = vec![0.0; np];
     let mut acc = zeros_acc(&kinds, model.tets.len());
+    let mut h = gauss_newton.then(|| vec![0.0; np * np]);
+    let wdt = obs.marker_weight * model.observation_interval();
+    let wf = obs.force_weight * model.observation_interval();
     let stats = simulate(
         model,
         mat,
@@ -364,11 +482,50 @@ fn direct(
                 sxm2[p] = std::mem::replace(&mut sxm1[p], sxn);
                 svm2[p] = std::mem::replace(&mut svm1[p], rhs);
             }
+            if let (Some(h), Some(row)) = (h.as_mut(), obs.markers.get(s.n - 1)) {
+                // J_in = Σ_a w_a s_x(node a) for each observed marker (clamped dofs: zero).
+                let mut js = vec![[0.0; 3]; np];
+                for (i, target) in row.iter().enumerate() {
+                    if target.is_none() {
+                        continue;
+                    }
+                    for (p, j) in js.iter_mut().enumerate() {
+                        *j = [0.0; 3];
+                        for &(node, w) in &model.markers[i].weights {
+                            for (k, jk) in j.iter_mut().enumerate() {
+                                let fr = model.free[3 * node + k];
+                                if fr != usize::MAX {
+                                    *jk += w * sxm1[p][fr];
+                                }
+                            }
+                        }
+                    }
+                    add_outer(h, &js, wdt);
+                }
+            }
+            if let (Some(h), Some(row)) = (h.as_mut(), obs.forces.get(s.n - 1)) {
+                for (c, target) in row.iter().enumerate() {
+                    if target.is_some() {
+                        let jf = clamp_force_jacobian(
+                            model,
+                            mat,
+                            &table,
+                            &kinds,
+                            np,
+                            c,
+                            s,
+                            &sxm1[..],
+                            &svm1[..],
+                        )?;
+                        add_outer(h, &jf, wf);
+                    }
+                }
+            }
             Ok(())
         },
     )?;
     reduce(&acc, &table, &mut grad);
-    Ok(finish(&total, stats, Some(grad), 4 * np * nf * 8))
+    Ok((finish(&total, stats, Some(grad), 4 * np * nf * 8), h))
 }
 
 struct TapeStep {

@@ -23,6 +23,7 @@ mod motion_cantilever;
 mod motion_dataset;
 mod motion_export;
 mod motion_fit;
+mod motion_gauss_newton;
 mod motion_gradients;
 mod motion_loads;
 mod motion_spline;

@@ -8,7 +8,7 @@ use palpate_motion::hyperelastic::HyperParams;
 use palpate_motion::model::{
     Clamp, MassKind, Material, Model, Observations, Param, ParamKind, Pose,
 };
-use palpate_motion::optimize::{fit, FitSettings};
+use palpate_motion::optimize::{fit, FitSettings, Optimizer};
 use palpate_motion::scenario::record;
 use palpate_motion::sim::{simulate_states, static_start};
 use palpate_motion::start::from_rest_sag;
@@ -175,6 +175,7 @@ fn horizontal_cantilever_fits_from_a_start_estimated_from_its_sag() {
     assert!((est.mu / mu - 1.0).abs() < 0.02, "μ {} vs {mu}", est.mu);
     let params = Param::globals(&[ParamKind::Mu, ParamKind::Nu]);
     let settings = FitSettings {
+        optimizer: Optimizer::Lbfgs,
         poisson: Some(POISSON),
         ..FitSettings::default()
     };

@@ -2,7 +2,7 @@
 //! synthetic markers, and a failed simulation is reported, not fatal.
 
 use palpate_motion::model::{Param, ParamKind};
-use palpate_motion::optimize::{fit, FitResult, FitSettings};
+use palpate_motion::optimize::{fit, FitResult, FitSettings, Optimizer};
 use palpate_motion::scenario::record;
 use palpate_motion::MotionError;
 use palpate_tests::motion::{bar, truth};
@@ -38,6 +38,7 @@ fn fit_bar(
 #[test]
 fn lbfgs_recovers_mu_and_viscosity() {
     let settings = FitSettings {
+        optimizer: Optimizer::Lbfgs,
         tol_cost: 1e-14,
         ..FitSettings::default()
     };
