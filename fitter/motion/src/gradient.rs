@@ -8,7 +8,7 @@
 
 use super::forces::param_derivatives;
 use super::model::{Material, Model, Observations, Param};
-use super::objective::{step_term, StepTerm};
+use super::objective::{clamp_force_derivatives, step_term, StepTerm};
 use super::sim::{simulate, simulate_states, SimStats, StepView};
 use super::sparse::Factor;
 use super::MotionError;
@@ -326,70 +326,32 @@ fn clamp_force_jacobian(
     sx: &[Vec<f64>],
     sv: &[Vec<f64>],
 ) -> Result<Vec<[f64; 3]>, MotionError> {
-    use super::elastic::ElasticState;
-    use super::hyperelastic as he;
-    use super::model::ParamKind;
-    use super::viscosity as visc;
     let mut j = vec![[0.0; 3]; np];
-    for &el in &model.clamp_elems[c] {
-        let tet = model.tets[el];
-        let rt = &model.rest[el];
-        let st = ElasticState::new(
-            mat,
-            el,
-            he::deformation_gradient(rt, &model.gather(el, s.x)),
-        )?;
-        let ke = st.tangent(rt);
-        let de = visc::Rate::new(
-            &visc::velocity_gradient(rt, &model.gather(el, s.v)),
-            mat.get(ParamKind::PowerH, el),
-        )
-        .map(|r| visc::element_damping(rt, &r, mat.get(ParamKind::Nu, el)));
-        for a in 0..4 {
-            if model.node_clamp[tet[a]] != c {
-                continue;
-            }
-            for col in 0..12 {
-                let fr = model.free[3 * tet[col / 3] + col % 3];
-                if fr == usize::MAX {
-                    continue;
-                }
-                for (p, jp) in j.iter_mut().enumerate() {
-                    for (i, ji) in jp.iter_mut().enumerate() {
-                        *ji += ke[3 * a + i][col] * sx[p][fr];
-                        if let Some(d) = &de {
-                            *ji += d[3 * a + i][col] * sv[p][fr];
-                        }
-                    }
-                }
-            }
-        }
-    }
-    let mut k2 = kinds.to_vec();
-    k2[ParamKind::Density as usize] = false; // F_c holds internal forces only
-    param_derivatives(
+    let mut explicit = vec![[0.0; 3]; np];
+    clamp_force_derivatives(
         model,
         mat,
-        &k2,
+        kinds,
+        c,
         s.x,
         s.v,
-        None,
-        Some(&model.clamp_elems[c]),
-        |el, kind, g| {
-            let p = table[el][kind];
-            if p == usize::MAX {
-                return;
+        |i, fr, k, d| {
+            for (p, jp) in j.iter_mut().enumerate() {
+                jp[i] += k * sx[p][fr] + d * sv[p][fr];
             }
-            let tet = model.tets[el];
-            for a in 0..4 {
-                if model.node_clamp[tet[a]] == c {
-                    for i in 0..3 {
-                        j[p][i] -= g[3 * a + i];
-                    }
-                }
+        },
+        |el, kind, i, g| {
+            let p = table[el][kind];
+            if p != usize::MAX {
+                explicit[p][i] += g;
             }
         },
     )?;
+    for (jp, ep) in j.iter_mut().zip(&explicit) {
+        for i in 0..3 {
+            jp[i] += ep[i];
+        }
+    }
     Ok(j)
 }
 

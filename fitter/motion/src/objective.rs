@@ -50,6 +50,75 @@ pub fn clamp_force(
     Ok(out)
 }
 
+/// The derivatives of clamp `c`'s reaction force F_c at (x, v), for the objective's gradient and
+/// the Gauss–Newton matrix alike: `dx(i, fr, k, d)` for every component i of F_c and free dof fr,
+/// with k = ∂F_c,i/∂x_fr and d = ∂F_c,i/∂v_fr (the element tangents K_e and D_e on the clamp's
+/// rows); `dq(el, slot, i, g)` with g = ∂F_c,i/∂q of element `el`'s derivative slot, for the
+/// slots set in `kinds` (density excluded: F_c holds internal forces only).
+#[allow(clippy::too_many_arguments)]
+pub fn clamp_force_derivatives(
+    model: &Model,
+    mat: &Material,
+    kinds: &[bool],
+    c: usize,
+    x: &[f64],
+    v: &[f64],
+    mut dx: impl FnMut(usize, usize, f64, f64),
+    mut dq: impl FnMut(usize, usize, usize, f64),
+) -> Result<(), MotionError> {
+    for &el in &model.clamp_elems[c] {
+        let tet = model.tets[el];
+        let rt = &model.rest[el];
+        let s = ElasticState::new(mat, el, he::deformation_gradient(rt, &model.gather(el, x)))?;
+        let ke = s.tangent(rt);
+        let de = visc::Rate::new(
+            &visc::velocity_gradient(rt, &model.gather(el, v)),
+            mat.get(ParamKind::PowerH, el),
+        )
+        .map(|r| visc::element_damping(rt, &r, mat.get(ParamKind::Nu, el)));
+        for a in 0..4 {
+            if model.node_clamp[tet[a]] != c {
+                continue;
+            }
+            for col in 0..12 {
+                let fr = model.free[3 * tet[col / 3] + col % 3];
+                if fr == usize::MAX {
+                    continue;
+                }
+                for i in 0..3 {
+                    dx(
+                        i,
+                        fr,
+                        ke[3 * a + i][col],
+                        de.as_ref().map_or(0.0, |d| d[3 * a + i][col]),
+                    );
+                }
+            }
+        }
+    }
+    let mut k2 = kinds.to_vec();
+    k2[ParamKind::Density as usize] = false; // F_c holds internal forces only
+    param_derivatives(
+        model,
+        mat,
+        &k2,
+        x,
+        v,
+        None,
+        Some(&model.clamp_elems[c]),
+        |el, kind, g| {
+            let tet = model.tets[el];
+            for a in 0..4 {
+                if model.node_clamp[tet[a]] == c {
+                    for i in 0..3 {
+                        dq(el, kind, i, -g[3 * a + i]);
+                    }
+                }
+            }
+        },
+    )
+}
+
 /// Evaluates step `n` (1-based). With `grad = Some((gx, gv, acc))` it adds ∂(φΔt)/∂x and ∂/∂v
 /// (free dofs) and ∂/∂(per-element slot) into `acc[slot][e]` for slots set in `kinds` (see
 /// [`super::model::Param::slot`]).
@@ -103,61 +172,18 @@ pub fn step_term(
                 continue;
             };
             let w = obs.force_weight * dt;
-            for &el in &model.clamp_elems[c] {
-                let tet = model.tets[el];
-                let rt = &model.rest[el];
-                let s =
-                    ElasticState::new(mat, el, he::deformation_gradient(rt, &model.gather(el, x)))?;
-                let ke = s.tangent(rt);
-                let de = visc::Rate::new(
-                    &visc::velocity_gradient(rt, &model.gather(el, v)),
-                    mat.get(ParamKind::PowerH, el),
-                )
-                .map(|r| visc::element_damping(rt, &r, mat.get(ParamKind::Nu, el)));
-                for a in 0..4 {
-                    if model.node_clamp[tet[a]] != c {
-                        continue;
-                    }
-                    for col in 0..12 {
-                        let fr = model.free[3 * tet[col / 3] + col % 3];
-                        if fr == usize::MAX {
-                            continue;
-                        }
-                        let mut sk = 0.0;
-                        let mut sd = 0.0;
-                        for i in 0..3 {
-                            sk += e[i] * ke[3 * a + i][col];
-                            if let Some(d) = &de {
-                                sd += e[i] * d[3 * a + i][col];
-                            }
-                        }
-                        gx[fr] += w * sk;
-                        gv[fr] += w * sd;
-                    }
-                }
-            }
-            let mut k2 = kinds.to_vec();
-            k2[ParamKind::Density as usize] = false; // F_c holds internal forces only
-            param_derivatives(
+            clamp_force_derivatives(
                 model,
                 mat,
-                &k2,
+                kinds,
+                c,
                 x,
                 v,
-                None,
-                Some(&model.clamp_elems[c]),
-                |el, kind, g| {
-                    let tet = model.tets[el];
-                    let mut s = 0.0;
-                    for a in 0..4 {
-                        if model.node_clamp[tet[a]] == c {
-                            for i in 0..3 {
-                                s -= e[i] * g[3 * a + i];
-                            }
-                        }
-                    }
-                    acc[kind][el] += w * s;
+                |i, fr, k, d| {
+                    gx[fr] += w * e[i] * k;
+                    gv[fr] += w * e[i] * d;
                 },
+                |el, kind, i, g| acc[kind][el] += w * e[i] * g,
             )?;
         }
     }

@@ -53,7 +53,7 @@ fn options() -> RunsOptions {
     RunsOptions {
         poisson: 1.0 / 3.0,
         start_mu: 2.0e4,
-        start_viscosity: 1.0,
+        start_viscosity: None,
         ..Default::default()
     }
 }

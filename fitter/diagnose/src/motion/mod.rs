@@ -137,7 +137,7 @@ pub struct MotionOptions {
     pub holdout_fraction: f64,
     /// Most effects adopted.
     pub max_effects: usize,
-    /// LBFGS iteration cap of each fit.
+    /// Optimiser iteration cap of each fit.
     pub max_iters: u64,
     /// LBFGS iterations of each screened start of a new non-linear parameter.
     pub screen_iters: u64,

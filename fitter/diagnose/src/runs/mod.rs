@@ -108,14 +108,15 @@ pub struct RunsOptions {
     pub candidates: Vec<Effect>,
     /// Most effects adopted.
     pub max_effects: usize,
-    /// LBFGS iteration cap of each fit.
+    /// Optimiser iteration cap of each fit.
     pub max_iters: u64,
     /// Poisson's ratio held fixed.
     pub poisson: f64,
     /// Starting shear modulus of the simplest model (Pa).
     pub start_mu: f64,
-    /// Starting viscosity when a damping effect frees it (Pa·s^h).
-    pub start_viscosity: f64,
+    /// Starting viscosity when a damping effect frees it (Pa·s^h); `None`: from the fitted runs'
+    /// measured ring-downs ([`viscosity_from_ring_down`]), 10 Pa·s where none rings.
+    pub start_viscosity: Option<f64>,
     /// Fitted ΔBIC must be below −this.
     pub bic_threshold: f64,
     /// Held-out RMS must drop by at least this fraction.
@@ -130,7 +131,7 @@ impl Default for RunsOptions {
             max_iters: 40,
             poisson: 0.49,
             start_mu: 5e4,
-            start_viscosity: 10.0,
+            start_viscosity: None,
             bic_threshold: 10.0,
             min_holdout_gain: 0.05,
         }
@@ -391,6 +392,27 @@ fn read_residual(name: &str, ds: &MotionDataset, p: &Prediction) -> RunResidual 
     }
 }
 
+/// A Newtonian viscosity on the scale the measured ring-downs show: for each run with a measured
+/// period T and amplitude ratio a per cycle, the damping ratio ζ = −ln a / 2π of its first mode
+/// and the Kelvin–Voigt viscosity that damps a mode of ω = 2π/T at ζ in a material of shear
+/// modulus μ, ν = 2ζμ/ω (the viscous stress 2ν ε̇ beside the elastic 2μ ε; the motion fitter's
+/// own start from a rest sag uses the same relation, `palpate_motion::start`); the geometric
+/// mean over the runs. `None` when no run rings.
+pub fn viscosity_from_ring_down(runs: &[RunResidual], mu: f64) -> Option<f64> {
+    let logs: Vec<f64> = runs
+        .iter()
+        .filter_map(|r| {
+            let (t, a) = (r.period_s.0?, r.decay_per_cycle.0?);
+            (t > 0.0 && a > 0.0 && a < 1.0).then(|| {
+                let zeta = -a.ln() / (2.0 * std::f64::consts::PI);
+                (2.0 * zeta * mu * t / (2.0 * std::f64::consts::PI)).ln()
+            })
+        })
+        .filter(|v| v.is_finite())
+        .collect();
+    (!logs.is_empty() && mu > 0.0).then(|| (logs.iter().sum::<f64>() / logs.len() as f64).exp())
+}
+
 /// The ring-down's period and decay per cycle: the motion crate's estimate, the one that also
 /// chooses the simulation's time step from the capture ([`palpate_motion::timestep`]).
 pub use palpate_motion::timestep::ring_down;
@@ -436,6 +458,19 @@ impl RunsModel<'_> {
             .collect()
     }
 
+    /// The viscosity a damping candidate starts from: the option, else the ring-down estimate of
+    /// the current model's runs.
+    fn start_viscosity(&self, cur: &RunsFit) -> (f64, &'static str) {
+        match self.o.start_viscosity {
+            Some(v) => (v, "given"),
+            None => match viscosity_from_ring_down(&cur.fitted, cur.material.get(ParamKind::Mu, 0))
+            {
+                Some(v) => (v, "from the measured ring-downs"),
+                None => (10.0, "no run rings down: the default"),
+            },
+        }
+    }
+
     fn fit(&self, effects: &[Effect], start: &Material) -> Result<RunsFit, MotionError> {
         let mut kinds = vec![ParamKind::Mu];
         for e in effects {
@@ -445,10 +480,7 @@ impl RunsModel<'_> {
                 }
             }
         }
-        let mut base = start.clone();
-        if kinds.contains(&ParamKind::Nu) && base.get(ParamKind::Nu, 0) <= 0.0 {
-            base.set(&[Param::global(ParamKind::Nu)], &[self.o.start_viscosity]);
-        }
+        let base = start.clone();
         let params: Vec<Param> = kinds.iter().map(|k| Param::global(*k)).collect();
         let q0 = base.read(&params);
         let models = Self::models(self.fit, effects);
@@ -540,7 +572,16 @@ impl CandidateModel for RunsModel<'_> {
         let mut effects = cur.effects.clone();
         effects.push(c);
         (self.log)(&format!("round {round}: fitting {}", Self::name(&effects)));
-        match self.fit(&effects, &cur.material) {
+        let mut start = cur.material.clone();
+        if c.kinds().contains(&ParamKind::Nu) && start.get(ParamKind::Nu, 0) <= 0.0 {
+            let (nu, source) = self.start_viscosity(cur);
+            (self.log)(&format!(
+                "round {round}: {} starts at viscosity {nu:.3e} Pa·s ({source})",
+                c.name()
+            ));
+            start.set(&[Param::global(ParamKind::Nu)], &[nu]);
+        }
+        match self.fit(&effects, &start) {
             Ok(f) => Ok(Outcome::Fitted(f)),
             Err(e) => {
                 self.trials.push(Trial {
@@ -888,7 +929,7 @@ pub fn diagnose_runs(
 
 #[cfg(test)]
 mod tests {
-    use super::ring_down;
+    use super::{ring_down, viscosity_from_ring_down, RunResidual};
 
     #[test]
     fn ring_down_reads_period_and_decay_of_a_damped_sine() {
@@ -904,5 +945,52 @@ mod tests {
         assert!((p.unwrap() / period - 1.0).abs() < 0.01, "{p:?}");
         assert!((d.unwrap() / ratio - 1.0).abs() < 0.03, "{d:?}");
         assert_eq!(ring_down(&[1.0; 100], dt), (None, None));
+    }
+
+    /// The viscosity start: ν = 2ζμ/ω with ζ = −ln a/2π, the geometric mean over the runs that
+    /// ring, `None` when none does. A single-degree-of-freedom check: a mode of ω = 2π/T whose
+    /// amplitude falls by a per cycle has ζ/√(1−ζ²) = −ln a/2π; at a = 0.72 (the beam) ζ differs
+    /// from −ln a/2π by 0.14 %, well inside what a start needs.
+    #[test]
+    fn viscosity_start_follows_the_ring_down() {
+        let run = |t: Option<f64>, a: Option<f64>| RunResidual {
+            run: String::new(),
+            rms_m: 0.0,
+            chi2: 0.0,
+            count: 0,
+            per_marker_m: Vec::new(),
+            early_m: 0.0,
+            late_m: 0.0,
+            final_rms_m: 0.0,
+            load_n: 0.0,
+            ring_marker: String::new(),
+            period_s: (t, None),
+            decay_per_cycle: (a, None),
+            ring: (Vec::new(), Vec::new()),
+        };
+        let mu = 4.6e4;
+        let one = viscosity_from_ring_down(&[run(Some(0.13), Some(0.72))], mu).unwrap();
+        let zeta = -(0.72f64).ln() / (2.0 * std::f64::consts::PI);
+        let omega = 2.0 * std::f64::consts::PI / 0.13;
+        assert!((one - 2.0 * zeta * mu / omega).abs() < 1e-9 * one, "{one}");
+        // A run twice as damped at the same period: twice the viscosity; the mean is geometric.
+        let two = viscosity_from_ring_down(&[run(Some(0.13), Some(0.72 * 0.72))], mu).unwrap();
+        assert!((two / one - 2.0).abs() < 1e-12);
+        let both = viscosity_from_ring_down(
+            &[
+                run(Some(0.13), Some(0.72)),
+                run(Some(0.13), Some(0.72 * 0.72)),
+            ],
+            mu,
+        )
+        .unwrap();
+        assert!((both / (one * two).sqrt() - 1.0).abs() < 1e-12);
+        // No ring-down, a growing one, or none measured: no estimate.
+        assert_eq!(viscosity_from_ring_down(&[run(None, None)], mu), None);
+        assert_eq!(
+            viscosity_from_ring_down(&[run(Some(0.13), Some(1.1))], mu),
+            None
+        );
+        assert_eq!(viscosity_from_ring_down(&[], mu), None);
     }
 }
