@@ -106,10 +106,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         fit.rms() * 1e3
     );
     println!("| FD column (s, timed over {k}) | {per_column:.4e} |\n| FD fit (s, extrapolated: params × iterations × column) | {fd_seconds:.1} |");
-    println!(
-        "| speed-up (extrapolated) | {:.0}× |",
-        fd_seconds / seconds
-    );
+    println!("| speed-up (extrapolated) | {:.0}× |", fd_seconds / seconds);
     if let Some(m) = &small {
         println!(
             "| small block, measured whole: tets, parameters | {}, {} |\n| small block: analytic fit (s), iterations | {:.3}, {} |\n| small block: one FD Jacobian, all columns (s, measured) | {:.3} |\n| small block: FD / analytic per iteration (measured, same run) | {:.0}× |",
