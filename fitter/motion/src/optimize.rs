@@ -584,7 +584,7 @@ fn gauss_newton_runs(
     params: &[Param],
     z: &[f64],
     tie: Option<(usize, f64)>,
-) -> Result<(f64, Vec<f64>, Vec<f64>), MotionError> {
+) -> Result<(f64, Vec<f64>, Vec<f64>, Vec<Evaluation>), MotionError> {
     let np = params.len();
     let q: Vec<f64> = z.iter().map(|v| v.exp()).collect();
     let mat = problem_material(base, params, &q, tie);
@@ -634,7 +634,12 @@ fn gauss_newton_runs(
             hz[a * np + b] = s * q[a] * q[b];
         }
     }
-    Ok((phi, gz, hz))
+    // Each run's evaluation without its gradient: what the fit reports at the accepted point.
+    let per_run = parts
+        .into_iter()
+        .map(|(ev, _)| Evaluation { grad: None, ..ev })
+        .collect();
+    Ok((phi, gz, hz, per_run))
 }
 
 /// Levenberg–Marquardt in z = ln q: palpate's trust-region form of it
@@ -653,12 +658,16 @@ fn levenberg_marquardt(
     let mut evaluations = 0usize;
     let mut history = Vec::new();
     let mut failures: Vec<String> = Vec::new();
+    // Every simulated point with its runs' evaluations: the fit's result is one of them, so it
+    // needs no simulation of its own.
+    let mut evaluated: Vec<(Vec<f64>, Vec<Evaluation>)> = Vec::new();
     let mut eval = |z: &[f64], history: &mut Vec<f64>, failures: &mut Vec<String>| {
         evaluations += 1;
         match gauss_newton_runs(runs, base, params, z, tie) {
-            Ok((phi, grad, gn)) if phi.is_finite() => {
+            Ok((phi, grad, gn, per_run)) if phi.is_finite() => {
                 history.push(phi);
                 progress(evaluations, phi);
+                evaluated.push((z.to_vec(), per_run));
                 Some(Normal { phi, grad, gn })
             }
             Ok(_) => {
@@ -699,8 +708,13 @@ fn levenberg_marquardt(
     );
     let (z, phi, iterations) = (out.theta, out.normal.phi, out.iterations as u64);
     let q: Vec<f64> = z.iter().map(|v| v.exp()).collect();
-    let mat = problem_material(base, params, &q, tie);
-    let (ev, per_run) = evaluate_runs(runs, &mat, params, None)?;
+    let (ev, per_run) = match evaluated.into_iter().rev().find(|(at, _)| *at == z) {
+        Some((_, parts)) => (Evaluation::combine(&parts), parts),
+        None => {
+            let mat = problem_material(base, params, &q, tie);
+            evaluate_runs(runs, &mat, params, None)?
+        }
+    };
     if !out.converged {
         failures.push(format!(
             "optimiser stopped: the iteration cap ({}) was reached",
