@@ -102,10 +102,7 @@ pub fn warped_apply(
     alpha: f32,
 ) -> [[f32; 3]; 4] {
     let h = rt_mul(r, &gradient_of(v, g));
-    let s = stress(&h, lambda, alpha);
-    let mut p = r_mul(r, &s);
-    p.iter_mut().for_each(|x| *x *= volume);
-    nodal_forces(&p, g)
+    rest_frame_forces(&h, g, r, volume, lambda, alpha)
 }
 
 /// Warped internal force R K_e (Rᵀ x_e − x_0e) from the deformation gradient F = I + H(u):
@@ -128,10 +125,24 @@ pub fn warped_internal_force(
     h[0] -= 1.0;
     h[4] -= 1.0;
     h[8] -= 1.0;
-    let s = stress(&h, lambda, alpha);
+    (rest_frame_forces(&h, g, r, volume, lambda, alpha), h)
+}
+
+/// Nodal forces of a rest-frame displacement gradient Ĥ: f_a = V R σ(Ĥ) ∇φ_a, the stress
+/// rotated back to the world (eq. 3.53).
+#[inline(always)]
+fn rest_frame_forces(
+    h: &M3,
+    g: &[f32; 9],
+    r: &M3,
+    volume: f32,
+    lambda: f32,
+    alpha: f32,
+) -> [[f32; 3]; 4] {
+    let s = stress(h, lambda, alpha);
     let mut p = r_mul(r, &s);
     p.iter_mut().for_each(|x| *x *= volume);
-    (nodal_forces(&p, g), h)
+    nodal_forces(&p, g)
 }
 
 /// Diagonal 3 × 3 block of R K_e Rᵀ for node `a` (0..4), packed (xx, yy, zz, xy, yz, zx):
@@ -253,25 +264,10 @@ pub fn norm2_lanes(v: &[f32]) -> f64 {
 /// compiles to 8-wide SIMD (AVX2) or 2 × 4-wide (SSE2 / NEON) without target-specific code.
 pub const LANES: usize = 8;
 
-/// Batched R K_e Rᵀ v_e for `LANES` elements: the same operator as [`warped_apply`], lane by lane.
-/// `v[a][k][l]` is component k of node a of lane l; the result has the same layout.
-#[inline(always)]
-#[allow(clippy::needless_range_loop)]
-pub fn warped_apply_lanes(
-    v: &[[[f32; LANES]; 3]; 4],
-    g: &[[f32; LANES]; 9],
-    r: &[[f32; LANES]; 9],
-    volume: &[f32; LANES],
-    lambda: &[f32; LANES],
-    alpha: &[f32; LANES],
-) -> [[[f32; LANES]; 3]; 4] {
-    warped_lanes(v, g, r, volume, lambda, alpha, false)
-}
-
 /// Batched R K_e Rᵀ v_e from the *rotated* gradients ĝ_a = R ∇φ_a (a = 1..3): with
 /// M = Σ_a (v_a − v_0) ĝ_aᵀ = H Rᵀ, the warped force is f_a = V σ(M) ĝ_a, because for the
 /// isotropic σ(ε) = α tr(ε) I + 2μ ε one has R σ(sym(RᵀH)) Rᵀ = σ(sym(H Rᵀ)). The same operator
-/// as [`warped_apply_lanes`] without the two 3 × 3 rotation products (a third of the work of a
+/// as [`warped_apply`], lane by lane, without the two 3 × 3 rotation products (a third of the work of a
 /// PCG iteration's element pass).
 #[inline(always)]
 #[allow(clippy::needless_range_loop)]
@@ -302,34 +298,6 @@ pub fn rotate_gradients_lanes(g: &[[f32; LANES]; 9], r: &[[f32; LANES]; 9]) -> [
         }
     }
     o
-}
-
-/// Batched warped internal force R K_e (R_eᵀ x_e − x₀_e) for displacements `v`: the same as
-/// [`warped_internal_force`], lane by lane (the rest-frame gradient is Rᵀ(I + H) − I).
-#[inline(always)]
-pub fn warped_internal_force_lanes(
-    v: &[[[f32; LANES]; 3]; 4],
-    g: &[[f32; LANES]; 9],
-    r: &[[f32; LANES]; 9],
-    volume: &[f32; LANES],
-    lambda: &[f32; LANES],
-    alpha: &[f32; LANES],
-) -> [[[f32; LANES]; 3]; 4] {
-    warped_lanes(v, g, r, volume, lambda, alpha, true)
-}
-
-/// [`warped_internal_force_lanes`] from the displacement gradient H = Σ_a (u_a − u_0) ⊗ ∇φ_a
-/// already formed (the fused rotation-and-residual pass needs H for the rotation first).
-#[inline(always)]
-pub fn warped_internal_force_from_h_lanes(
-    h: &[[f32; LANES]; 9],
-    g: &[[f32; LANES]; 9],
-    r: &[[f32; LANES]; 9],
-    volume: &[f32; LANES],
-    lambda: &[f32; LANES],
-    alpha: &[f32; LANES],
-) -> [[[f32; LANES]; 3]; 4] {
-    warped_from_h(h, g, r, volume, lambda, alpha, true)
 }
 
 /// [`gradient_of`] lane by lane: H = Σ_a (v_a − v_0) ⊗ ∇φ_a.
@@ -363,68 +331,34 @@ pub fn diagonal_blocks_lanes(
     let mut out = [[[0.0f32; LANES]; 6]; 4];
     for a in 0..4 {
         for l in 0..LANES {
-            let ga = if a == 0 {
-                [
-                    -(g[0][l] + g[3][l] + g[6][l]),
-                    -(g[1][l] + g[4][l] + g[7][l]),
-                    -(g[2][l] + g[5][l] + g[8][l]),
-                ]
-            } else {
-                let b = 3 * (a - 1);
-                [g[b][l], g[b + 1][l], g[b + 2][l]]
-            };
-            let rg = [
-                r[0][l] * ga[0] + r[1][l] * ga[1] + r[2][l] * ga[2],
-                r[3][l] * ga[0] + r[4][l] * ga[1] + r[5][l] * ga[2],
-                r[6][l] * ga[0] + r[7][l] * ga[1] + r[8][l] * ga[2],
-            ];
-            let half = 0.5 * lambda[l] * volume[l];
-            let iso = (0.5 * lambda[l] - alpha[l])
-                * volume[l]
-                * (ga[0] * ga[0] + ga[1] * ga[1] + ga[2] * ga[2]);
-            out[a][0][l] = half * rg[0] * rg[0] + iso;
-            out[a][1][l] = half * rg[1] * rg[1] + iso;
-            out[a][2][l] = half * rg[2] * rg[2] + iso;
-            out[a][3][l] = half * rg[0] * rg[1];
-            out[a][4][l] = half * rg[1] * rg[2];
-            out[a][5][l] = half * rg[2] * rg[0];
+            let d = diagonal_block(
+                a,
+                &core::array::from_fn(|k| g[k][l]),
+                &core::array::from_fn(|k| r[k][l]),
+                volume[l],
+                lambda[l],
+                alpha[l],
+            );
+            for j in 0..6 {
+                out[a][j][l] = d[j];
+            }
         }
     }
     out
 }
 
+/// [`warped_internal_force`] lane by lane, from the displacement gradient
+/// H = Σ_a (u_a − u_0) ⊗ ∇φ_a already formed (the fused rotation-and-residual pass needs H for
+/// the rotation first): the rest-frame gradient is Rᵀ(I + H) − I.
 #[inline(always)]
 #[allow(clippy::needless_range_loop)]
-fn warped_lanes(
-    v: &[[[f32; LANES]; 3]; 4],
-    g: &[[f32; LANES]; 9],
-    r: &[[f32; LANES]; 9],
-    volume: &[f32; LANES],
-    lambda: &[f32; LANES],
-    alpha: &[f32; LANES],
-    affine: bool,
-) -> [[[f32; LANES]; 3]; 4] {
-    warped_from_h(
-        &gradient_of_lanes(v, g),
-        g,
-        r,
-        volume,
-        lambda,
-        alpha,
-        affine,
-    )
-}
-
-#[inline(always)]
-#[allow(clippy::needless_range_loop)]
-fn warped_from_h(
+pub fn warped_internal_force_from_h_lanes(
     h: &[[f32; LANES]; 9],
     g: &[[f32; LANES]; 9],
     r: &[[f32; LANES]; 9],
     volume: &[f32; LANES],
     lambda: &[f32; LANES],
     alpha: &[f32; LANES],
-    affine: bool,
 ) -> [[[f32; LANES]; 3]; 4] {
     // Ĥ = Rᵀ H
     let mut hh = [[0.0f32; LANES]; 9];
@@ -436,14 +370,12 @@ fn warped_from_h(
             }
         }
     }
-    if affine {
-        // Rᵀ(I + H) − I = RᵀH + Rᵀ − I
-        for i in 0..3 {
-            for j in 0..3 {
-                let delta = if i == j { 1.0 } else { 0.0 };
-                for l in 0..LANES {
-                    hh[3 * i + j][l] += r[3 * j + i][l] - delta;
-                }
+    // Rᵀ(I + H) − I = RᵀH + Rᵀ − I
+    for i in 0..3 {
+        for j in 0..3 {
+            let delta = if i == j { 1.0 } else { 0.0 };
+            for l in 0..LANES {
+                hh[3 * i + j][l] += r[3 * j + i][l] - delta;
             }
         }
     }
