@@ -5,23 +5,17 @@
 
 mod common;
 
-use common::{assert_fit_written, fit_sponge, palpate, repo, text};
+use common::{
+    assert_exit_and_stderr, assert_fit_written, assert_succeeded, fit_sponge, last_json, palpate,
+    repo, text,
+};
 use std::path::Path;
 use std::process::{Command, Output};
 
 /// Runs `c` and asserts that it succeeded (its stderr shown if not).
 #[track_caller]
 fn succeeds(c: &mut Command) {
-    let o = c.output().unwrap();
-    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
-}
-
-/// Asserts that the program exited with `code` and said `part` on stderr (shown if not).
-#[track_caller]
-fn assert_exit_and_stderr(o: &Output, code: i32, part: &str) {
-    let err = text(&o.stderr);
-    assert_eq!(o.status.code(), Some(code), "{err}");
-    assert!(err.contains(part), "{err}");
+    assert_succeeded(&c.output().unwrap());
 }
 
 /// The JSON document in the file at `path`.
@@ -39,12 +33,6 @@ fn quick_fit_motion(example: &Path, fit: &Path) -> Output {
         .arg(fit)
         .output()
         .unwrap()
-}
-
-fn last_json(o: &Output) -> serde_json::Value {
-    let out = text(&o.stdout);
-    let line = out.lines().last().unwrap_or_default();
-    serde_json::from_str(line).unwrap_or_else(|e| panic!("{e}: {out}{}", text(&o.stderr)))
 }
 
 /// `fit-motion --params mu,nu` (the old name of the viscosity) still fits, says on stderr that
@@ -163,7 +151,7 @@ fn progress_goes_to_stderr_and_quiet_silences_it() {
         c.output().unwrap()
     };
     let plain = run(&[], None);
-    assert_eq!(plain.status.code(), Some(0), "{}", text(&plain.stderr));
+    assert_succeeded(&plain);
     let (out, err) = (text(&plain.stdout), text(&plain.stderr));
     // The verdict is the result: stdout, one line.
     assert_eq!(out.lines().count(), 1, "{out}");
@@ -171,7 +159,7 @@ fn progress_goes_to_stderr_and_quiet_silences_it() {
     assert!(err.contains("round 1") && err.contains("wrote "), "{err}");
     assert!(!out.contains("wrote "));
     let quiet = run(&["-q"], None);
-    assert_eq!(quiet.status.code(), Some(0));
+    assert_succeeded(&quiet);
     assert_eq!(text(&quiet.stdout), out, "-q changes only stderr");
     assert_eq!(
         text(&quiet.stderr),

@@ -4,7 +4,9 @@
 
 mod common;
 
-use common::{fit_sponge, palpate, repo};
+use common::{
+    assert_exit_and_stderr, assert_succeeded, fit_sponge, last_json, palpate, refused, repo,
+};
 use std::path::{Path, PathBuf};
 
 /// A copy of the bundled sponge dataset with `edit` applied to each CSV row of `file` (the header
@@ -248,9 +250,7 @@ fn fit_at_its_iteration_cap_exits_2_with_the_warning_in_the_report() {
     let tmp = tempfile::tempdir().unwrap();
     let model = tmp.path().join("model.palp");
     let o = fit_sponge(&[], &["--max-iterations", "1"], &model);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
-    assert!(err.contains("iteration-cap"), "{err}");
+    assert_exit_and_stderr(&o, 2, "iteration-cap");
     assert!(model.exists());
     let report = std::fs::read_to_string(tmp.path().join("model.report/report.md")).unwrap();
     assert!(
@@ -274,20 +274,17 @@ fn validate_predicts_from_a_fit_and_refuses_other_models() {
         .output()
         .unwrap();
     assert!(fit.exists(), "{}", String::from_utf8_lossy(&o.stderr));
-    let o = palpate()
-        .args(["validate", "--model"])
-        .arg(&fit)
-        .arg(&example)
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&o.stdout);
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{stdout}{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    let last: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+    let validate = |model: &Path| {
+        palpate()
+            .args(["validate", "--model"])
+            .arg(model)
+            .arg(&example)
+            .output()
+            .unwrap()
+    };
+    let o = validate(&fit);
+    assert_succeeded(&o);
+    let last = last_json(&o);
     for key in ["final_rms_m", "trajectory_rms_m"] {
         let v = last[key].as_f64().unwrap();
         assert!(v.is_finite() && v >= 0.0, "{key} = {v}");
@@ -297,14 +294,7 @@ fn validate_predicts_from_a_fit_and_refuses_other_models() {
 
     let not_a_model = dir.path().join("other.json");
     std::fs::write(&not_a_model, "{\"lambda\": [1.0]}").unwrap();
-    let o = palpate()
-        .args(["validate", "--model"])
-        .arg(&not_a_model)
-        .arg(&example)
-        .output()
-        .unwrap();
-    let e = String::from_utf8_lossy(&o.stderr);
-    assert_ne!(o.status.code(), Some(0));
+    let e = refused(&validate(&not_a_model));
     assert!(e.contains("not a fitted motion model"), "{e}");
 
     let text = std::fs::read_to_string(&fit).unwrap();
@@ -312,14 +302,7 @@ fn validate_predicts_from_a_fit_and_refuses_other_models() {
     v["tets"] = serde_json::json!(25);
     let other_mesh = dir.path().join("other-mesh.json");
     std::fs::write(&other_mesh, v.to_string()).unwrap();
-    let o = palpate()
-        .args(["validate", "--model"])
-        .arg(&other_mesh)
-        .arg(&example)
-        .output()
-        .unwrap();
-    let e = String::from_utf8_lossy(&o.stderr);
-    assert_ne!(o.status.code(), Some(0));
+    let e = refused(&validate(&other_mesh));
     assert!(e.contains("mesh") && e.contains("25"), "{e}");
 }
 
@@ -350,13 +333,7 @@ fn import_c3d_declares_a_hanging_weight_and_refuses_an_unknown_group() {
             .unwrap()
     };
     let good = dir.path().join("good");
-    let o = import("0.052@free_end", &good);
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    assert_succeeded(&import("0.052@free_end", &good));
     let ds = palpate_motion::dataset::load(&good).unwrap();
     let l = &ds.model.loads[0];
     assert!((l.force[0] + 0.052 * 9.81).abs() < 1e-12 && l.force[1] == 0.0 && l.force[2] == 0.0);
@@ -368,9 +345,7 @@ fn import_c3d_declares_a_hanging_weight_and_refuses_an_unknown_group() {
         assert!(p[2].abs() < 1e-9 && (p[0] - 0.03).abs() < 1e-9, "{p:?}");
     }
     let bad = dir.path().join("bad");
-    let o = import("0.052@nosuch", &bad);
-    let e = String::from_utf8_lossy(&o.stderr);
-    assert_ne!(o.status.code(), Some(0));
+    let e = refused(&import("0.052@nosuch", &bad));
     assert!(e.contains("nosuch") && e.contains("nothing kept"), "{e}");
     assert!(!bad.join("dataset.toml").exists() && !bad.join("trajectories.csv").exists());
 }
@@ -379,27 +354,21 @@ fn import_c3d_declares_a_hanging_weight_and_refuses_an_unknown_group() {
 /// one JSON line; a file that is none of them is an error naming it.
 #[test]
 fn info_reads_models_fits_and_datasets_and_refuses_the_rest() {
-    let last_json = |arg: PathBuf| -> serde_json::Value {
-        let o = palpate().arg("info").arg(&arg).output().unwrap();
-        assert_eq!(
-            o.status.code(),
-            Some(0),
-            "{}",
-            String::from_utf8_lossy(&o.stderr)
-        );
-        let out = String::from_utf8_lossy(&o.stdout).to_string();
-        serde_json::from_str(out.lines().last().unwrap()).unwrap()
+    let info = |arg: &Path| -> serde_json::Value {
+        let o = palpate().arg("info").arg(arg).output().unwrap();
+        assert_succeeded(&o);
+        last_json(&o)
     };
-    let fit = last_json(repo().join("models/silicone-beam/fit.json"));
+    let fit = info(&repo().join("models/silicone-beam/fit.json"));
     assert_eq!(fit["kind"], "motion-fit");
     assert_eq!(fit["tets"], 716);
     assert_eq!(fit["hanging_inertia"], true);
-    let ds = last_json(repo().join("models/motion-example"));
+    let ds = info(&repo().join("models/motion-example"));
     assert_eq!(
         (ds["kind"].as_str(), ds["tets"].as_u64()),
         (Some("motion-dataset"), Some(24))
     );
-    let st = last_json(repo().join("models/sponge-specimen"));
+    let st = info(&repo().join("models/sponge-specimen"));
     assert_eq!(st["kind"], "static-dataset");
     let o = palpate()
         .arg("info")

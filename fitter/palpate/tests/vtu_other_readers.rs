@@ -9,7 +9,7 @@
 
 mod common;
 
-use common::{assert_fit_written, fit_sponge, palpate, repo};
+use common::{assert_fit_written, assert_succeeded, fit_sponge, palpate, repo};
 use std::collections::HashMap;
 use std::path::Path;
 
@@ -149,10 +149,13 @@ fn read_vtu(path: &Path) -> Vtu {
     }
 }
 
-/// What every `.vtu` palpate writes must satisfy, for `mesh` (the mesh it was written from):
-/// an XML version, the counts, the points at the rest positions (to `rel`), the cells as the
-/// mesh's tetrahedra (VTK type 10) with offsets 4, 8, …, and the Gmsh node tags.
-fn check_grid(path: &Path, v: &Vtu, mesh: &Mesh, rel: f64) {
+/// Reads the `.vtu` at `path` and the mesh it was written from (`msh`) and checks what every
+/// `.vtu` palpate writes must satisfy: an XML version, the counts, the points at the rest
+/// positions (to `rel`), the cells as the mesh's tetrahedra (VTK type 10) with offsets 4, 8, …,
+/// and the Gmsh node tags.
+fn read_checked_grid(path: &Path, msh: &Path, rel: f64) -> (Vtu, Mesh) {
+    let v = read_vtu(path);
+    let mesh = read_msh(msh).unwrap();
     let file = path.display();
     assert!(
         ["0.1", "1.0", "2.2"].contains(&v.version.as_str()),
@@ -196,6 +199,7 @@ fn check_grid(path: &Path, v: &Vtu, mesh: &Mesh, rel: f64) {
         mesh.node_tags.iter().map(|&t| t as f64).collect::<Vec<_>>(),
         "{file}: node tags"
     );
+    (v, mesh)
 }
 
 /// `palpate simulate`'s `deformed.vtu`: the rest mesh, a 3-component `displacement` equal to
@@ -214,17 +218,10 @@ fn simulate_writes_a_vtu_other_readers_accept() {
         .arg(&out)
         .output()
         .unwrap();
-    assert_eq!(
-        o.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    assert_succeeded(&o);
     let path = out.join("deformed.vtu");
-    let v = read_vtu(&path);
-    let mesh = read_msh(&msh).unwrap();
     // The runtime keeps f32 positions: the points equal the mesh to f32 precision.
-    check_grid(&path, &v, &mesh, 1e-7);
+    let (v, mesh) = read_checked_grid(&path, &msh, 1e-7);
 
     let u = v.array("PointData", vtk::DISPLACEMENT);
     assert_eq!((u.components, u.values.len()), (3, 3 * mesh.nodes.len()));
@@ -275,9 +272,7 @@ fn fit_writes_a_vtu_other_readers_accept() {
     let o = fit_sponge(&[], &["--max-iterations", "1"], &model);
     assert_fit_written(&o);
     let path = dir.path().join("model.report/fit.vtu");
-    let v = read_vtu(&path);
-    let mesh = read_msh(ds.join("mesh.msh")).unwrap();
-    check_grid(&path, &v, &mesh, 0.0);
+    let (v, mesh) = read_checked_grid(&path, &ds.join("mesh.msh"), 0.0);
 
     assert!(
         !v.arrays

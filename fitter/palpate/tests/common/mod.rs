@@ -45,3 +45,34 @@ pub fn assert_fit_written(o: &Output) {
         text(&o.stderr)
     );
 }
+
+/// Asserts that the program exited 0, its stderr shown if not.
+#[track_caller]
+pub fn assert_succeeded(o: &Output) {
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+}
+
+/// Asserts that the program exited with `code` and said `part` on stderr (shown if not).
+#[track_caller]
+pub fn assert_exit_and_stderr(o: &Output, code: i32, part: &str) {
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(code), "{err}");
+    assert!(err.contains(part), "{err}");
+}
+
+/// Asserts that the program failed (any status but 0) and returns its stderr, for the caller to
+/// check that it names what was wrong.
+#[track_caller]
+pub fn refused(o: &Output) -> String {
+    let err = text(&o.stderr);
+    assert_ne!(o.status.code(), Some(0), "{err}");
+    err
+}
+
+/// The last line the program wrote to stdout, as JSON (its stdout and stderr shown if that is
+/// not JSON).
+pub fn last_json(o: &Output) -> serde_json::Value {
+    let out = text(&o.stdout);
+    let line = out.lines().last().unwrap_or_default();
+    serde_json::from_str(line).unwrap_or_else(|e| panic!("{e}: {out}{}", text(&o.stderr)))
+}
