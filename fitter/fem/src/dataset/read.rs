@@ -265,30 +265,24 @@ impl StaticDataset {
                 probe_radius.to_string(),
             ));
         }
-        let marker_noise = match &meta.marker_noise {
+        // An optional length, when given, must be finite and ≥ 0.
+        let non_negative = |key: &str, value: &Option<Spanned<f64>>, expected: &str| match value {
             Some(s) if !(s.get_ref().is_finite() && *s.get_ref() >= 0.0) => {
-                return Err(field(
-                    "marker_noise",
-                    s.span(),
-                    "a non-negative length in m",
-                    s.get_ref().to_string(),
-                ))
+                Err(field(key, s.span(), expected, s.get_ref().to_string()))
             }
-            Some(s) => Some(*s.get_ref()),
-            None => None,
+            Some(s) => Ok(Some(*s.get_ref())),
+            None => Ok(None),
         };
-        let marker_standoff = match &meta.marker_standoff {
-            Some(s) if !(s.get_ref().is_finite() && *s.get_ref() >= 0.0) => {
-                return Err(field(
-                    "marker_standoff",
-                    s.span(),
-                    "a non-negative height in m",
-                    s.get_ref().to_string(),
-                ))
-            }
-            Some(s) => Some(*s.get_ref()),
-            None => None,
-        };
+        let marker_noise = non_negative(
+            "marker_noise",
+            &meta.marker_noise,
+            "a non-negative length in m",
+        )?;
+        let marker_standoff = non_negative(
+            "marker_standoff",
+            &meta.marker_standoff,
+            "a non-negative height in m",
+        )?;
         let gravity = match &meta.gravity {
             Some(g) if !g.get_ref().iter().all(|v| v.is_finite()) => {
                 return Err(field(

@@ -246,11 +246,19 @@ fn entities(t: &mut Tokens, raw: &mut RawMsh) -> Result<(), MeshError> {
     t.expect("$EndEntities")
 }
 
+/// The line that opens `$Nodes` and `$Elements`: the number of entity blocks, then the total
+/// number of `kind`s and their minimum and maximum tags (read for their syntax, unused: the blocks
+/// say it again). Returns the number of blocks.
+fn block_count(t: &mut Tokens, kind: &str) -> Result<usize, MeshError> {
+    let blocks = t.count(&format!("number of {kind} entity blocks"))?;
+    t.uint(&format!("number of {kind}s"))?;
+    t.uint(&format!("minimum {kind} tag"))?;
+    t.uint(&format!("maximum {kind} tag"))?;
+    Ok(blocks)
+}
+
 fn nodes(t: &mut Tokens, raw: &mut RawMsh) -> Result<(), MeshError> {
-    let blocks = t.count("number of node entity blocks")?;
-    let _num = t.uint("number of nodes")?;
-    let _min = t.uint("minimum node tag")?;
-    let _max = t.uint("maximum node tag")?;
+    let blocks = block_count(t, "node")?;
     for _ in 0..blocks {
         let dim = t.int("entity dimension")?;
         let entity = t.int("entity tag")?;
@@ -282,10 +290,7 @@ fn nodes(t: &mut Tokens, raw: &mut RawMsh) -> Result<(), MeshError> {
 }
 
 fn elements(t: &mut Tokens, raw: &mut RawMsh) -> Result<(), MeshError> {
-    let blocks = t.count("number of element entity blocks")?;
-    let _num = t.uint("number of elements")?;
-    let _min = t.uint("minimum element tag")?;
-    let _max = t.uint("maximum element tag")?;
+    let blocks = block_count(t, "element")?;
     for _ in 0..blocks {
         let dim = t.int("entity dimension")?;
         let entity = t.int("entity tag")?;
