@@ -588,54 +588,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
         cfg: base,
     }];
+    // Every other variant is the base with one setting changed.
+    let mut vary = |name: String, change: &dyn Fn(&mut RuntimeConfig)| {
+        let mut cfg = base;
+        change(&mut cfg);
+        variants.push(Variant { name, cfg });
+    };
     if args.compare {
         for &b in &args.budgets {
-            variants.push(Variant {
-                name: format!("budget {b}"),
-                cfg: RuntimeConfig {
-                    max_iterations: b,
-                    ..base
-                },
-            });
+            vary(format!("budget {b}"), &|c| c.max_iterations = b);
         }
-        variants.push(Variant {
-            name: "no predictor".into(),
-            cfg: RuntimeConfig {
-                predictor: false,
-                ..base
-            },
-        });
-        variants.push(Variant {
-            name: "precond every tick".into(),
-            cfg: RuntimeConfig {
-                precond_refresh_angle: 0.0,
-                ..base
-            },
+        vary("no predictor".into(), &|c| c.predictor = false);
+        vary("precond every tick".into(), &|c| {
+            c.precond_refresh_angle = 0.0
         });
         for &m in &args.compare_aggregates {
-            variants.push(Variant {
-                name: format!("{m} aggregates"),
-                cfg: RuntimeConfig {
-                    coarse_aggregates: m,
-                    ..base
-                },
-            });
+            vary(format!("{m} aggregates"), &|c| c.coarse_aggregates = m);
         }
-        variants.push(Variant {
-            name: "1 rotation iteration".into(),
-            cfg: RuntimeConfig {
-                rotation_iterations: 1,
-                ..base
-            },
+        vary("1 rotation iteration".into(), &|c| {
+            c.rotation_iterations = 1
         });
     } else if !args.gradient_only {
-        variants.push(Variant {
-            name: "packed".into(),
-            cfg: RuntimeConfig {
-                kernel: Kernel::Packed,
-                ..base
-            },
-        });
+        vary("packed".into(), &|c| c.kernel = Kernel::Packed);
     }
     let mut recs = timed_pass(&model, args.touch, &variants, args.ticks, args.compare)?;
     for (v, r) in variants.iter().zip(recs.iter_mut()) {
