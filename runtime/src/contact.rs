@@ -107,14 +107,7 @@ impl<'a> ContactSet<'a> {
         n: usize,
     ) -> Result<(), RuntimeError> {
         for (i, idx) in rec.fixed_nodes.iter().enumerate() {
-            if idx as usize >= n {
-                return Err(RuntimeError::IndexOutOfRange {
-                    what: "fixed_nodes",
-                    position: i,
-                    index: idx,
-                    bound: n,
-                });
-            }
+            RuntimeError::check_index("fixed_nodes", i, idx, n)?;
             self.flag[idx as usize] = FIXED;
         }
         Ok(())

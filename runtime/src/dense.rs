@@ -83,14 +83,21 @@ pub fn cholesky_solve(l: &[f32], dim: usize, g: &mut [f32]) {
 mod tests {
     use super::*;
 
+    /// x with A x = b for a 3 × 3 A (row-major), through the factorisation in place.
+    fn solve3(mut a: [f32; 9], mut b: [f32; 3]) -> [f32; 3] {
+        cholesky_in_place(&mut a, 3);
+        cholesky_solve(&a, 3, &mut b);
+        b
+    }
+
     /// Against a hand-checked 3 × 3 SPD system: A = [[4,2,0],[2,5,1],[0,1,3]], b = (2, 1, 4);
     /// the solution x = (0.625, −0.25, 1.4166…) satisfies A x = b; f32 storage, so 1e-5.
     #[test]
     fn solves_a_small_spd_system() {
-        let mut l = [4.0, 2.0, 0.0, 2.0, 5.0, 1.0, 0.0, 1.0, 3.0];
-        cholesky_in_place(&mut l, 3);
-        let mut g = [2.0f32, 1.0, 4.0];
-        cholesky_solve(&l, 3, &mut g);
+        let g = solve3(
+            [4.0, 2.0, 0.0, 2.0, 5.0, 1.0, 0.0, 1.0, 3.0],
+            [2.0, 1.0, 4.0],
+        );
         let a = [[4.0f32, 2.0, 0.0], [2.0, 5.0, 1.0], [0.0, 1.0, 3.0]];
         for (row, b) in a.iter().zip([2.0f32, 1.0, 4.0]) {
             let ax: f32 = row.iter().zip(g).map(|(x, y)| x * y).sum();
@@ -102,10 +109,10 @@ mod tests {
     /// rest is solved exactly.
     #[test]
     fn drops_a_vanishing_pivot() {
-        let mut l = [2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 8.0];
-        cholesky_in_place(&mut l, 3);
-        let mut g = [4.0f32, 7.0, 16.0];
-        cholesky_solve(&l, 3, &mut g);
+        let g = solve3(
+            [2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 8.0],
+            [4.0, 7.0, 16.0],
+        );
         assert_eq!(g, [2.0, 0.0, 2.0]);
     }
 }

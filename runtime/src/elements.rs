@@ -126,14 +126,7 @@ impl<'a> ElementState<'a> {
         n: usize,
     ) -> Result<(), RuntimeError> {
         for (i, idx) in rec.tets.iter().enumerate() {
-            if idx as usize >= n {
-                return Err(RuntimeError::IndexOutOfRange {
-                    what: "tets",
-                    position: i,
-                    index: idx,
-                    bound: n,
-                });
-            }
+            RuntimeError::check_index("tets", i, idx, n)?;
             self.tets[i] = idx;
         }
         Ok(())

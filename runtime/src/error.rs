@@ -80,6 +80,27 @@ pub enum RuntimeError {
     },
 }
 
+impl RuntimeError {
+    /// Checks entry `position` of the model's index array `what` against its exclusive `bound`:
+    /// the one check every index array gets when a model is loaded.
+    pub(crate) fn check_index(
+        what: &'static str,
+        position: usize,
+        index: u32,
+        bound: usize,
+    ) -> Result<(), Self> {
+        if index as usize >= bound {
+            return Err(Self::IndexOutOfRange {
+                what,
+                position,
+                index,
+                bound,
+            });
+        }
+        Ok(())
+    }
+}
+
 impl fmt::Display for RuntimeError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {

@@ -91,14 +91,7 @@ impl<'a> NodeState<'a> {
     pub(crate) fn load_areas(&mut self, rec: &ModelRecord<'_>) -> Result<(), RuntimeError> {
         let tri_count = rec.surface_triangles.len() / 3;
         for (i, idx) in rec.surface_triangles.iter().enumerate() {
-            if idx as usize >= self.n {
-                return Err(RuntimeError::IndexOutOfRange {
-                    what: "surface_triangles",
-                    position: i,
-                    index: idx,
-                    bound: self.n,
-                });
-            }
+            RuntimeError::check_index("surface_triangles", i, idx, self.n)?;
         }
         let x0 = &*self.x0;
         let area = &mut *self.area;
