@@ -16,7 +16,7 @@ use nalgebra::{Matrix3, SVector};
 
 use palpate_fem::forward::{Material, StaticProblem};
 
-use super::regularisation::{roughness, spatial_pairs};
+use super::regularisation::{sets_roughness, spatial_pairs};
 use super::{FitError, Gammas, Layout, Sets};
 
 /// Options of the force-based fit.
@@ -218,17 +218,7 @@ pub fn fit_force(
         }
         force_residuals.push(r.iter().map(|v| v * v).sum::<f64>().sqrt());
     }
-    let pairs = if slots > 1 {
-        spatial_pairs(&problem.tets)
-    } else {
-        Vec::new()
-    };
-    let rough = params.iter().fold([0.0, 0.0], |acc, m| {
-        [
-            acc[0] + roughness(&pairs, &m.lambda),
-            acc[1] + roughness(&pairs, &m.alpha),
-        ]
-    });
+    let rough = sets_roughness(&problem.tets, slots > 1, &params);
     Ok(ForceFit {
         params,
         force_residuals,

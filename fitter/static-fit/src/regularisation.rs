@@ -7,6 +7,7 @@
 //! - The L-curve (§5.1, Fig. 5.1): the data residual against the roughness over a log grid of γ;
 //!   the chosen γ is the corner, the point of largest curvature of (log ρ, log η).
 
+use palpate_fem::forward::Material;
 use palpate_fem::mesh::Mesh;
 
 /// Pairs of face-neighbouring elements: the rows of L_s.
@@ -28,6 +29,22 @@ pub fn roughness(pairs: &[(usize, usize)], v: &[f64]) -> f64 {
         .map(|&(a, b)| (v[a] - v[b]).powi(2))
         .sum::<f64>()
         .sqrt()
+}
+
+/// The roughness a fit reports: Σ over the parameter sets of ‖L_s λ‖ and of ‖L_s α‖, as
+/// [λ, α]. Homogeneous sets (`per_element` false) have none, and no pairs are formed for them.
+pub fn sets_roughness(tets: &[[usize; 4]], per_element: bool, sets: &[Material]) -> [f64; 2] {
+    let pairs = if per_element {
+        spatial_pairs(tets)
+    } else {
+        Vec::new()
+    };
+    sets.iter().fold([0.0, 0.0], |acc, m| {
+        [
+            acc[0] + roughness(&pairs, &m.lambda),
+            acc[1] + roughness(&pairs, &m.alpha),
+        ]
+    })
 }
 
 /// Index of the L-curve corner: the interior point with the largest signed curvature (Menger

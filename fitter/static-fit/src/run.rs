@@ -10,7 +10,7 @@ use palpate_fem::forward::{Material, SolveOptions};
 use super::completion::complete;
 use super::displacement::{fit_displacement, DisplacementOptions};
 use super::force::{element_vectors, fit_force, ForceOptions};
-use super::regularisation::{l_curve_corner, roughness, spatial_pairs};
+use super::regularisation::{l_curve_corner, roughness, sets_roughness, spatial_pairs};
 use super::{
     FitError, FitInput, FitResult, GammaChoice, Gammas, IterationRecord, Layout, Method, Sets,
 };
@@ -183,17 +183,11 @@ fn fit_with(
         o.max_iterations,
         converged,
     ));
-    let pairs = if o.layout == Layout::Inhomogeneous {
-        spatial_pairs(&input.problem.tets)
-    } else {
-        Vec::new()
-    };
-    let rough = params.iter().fold([0.0, 0.0], |a, m| {
-        [
-            a[0] + roughness(&pairs, &m.lambda),
-            a[1] + roughness(&pairs, &m.alpha),
-        ]
-    });
+    let rough = sets_roughness(
+        &input.problem.tets,
+        o.layout == Layout::Inhomogeneous,
+        &params,
+    );
     Ok(FitResult {
         method: o.method,
         layout: o.layout,

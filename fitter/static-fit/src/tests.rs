@@ -12,6 +12,17 @@ fn rel(a: f64, b: f64) -> f64 {
     ((a - b) / b).abs()
 }
 
+/// The default block of `cells` seen through `markers` markers with Gaussian marker noise
+/// σ = `noise` (m) drawn from `seed`.
+fn noisy_block(cells: [usize; 3], markers: usize, noise: f64, seed: u64) -> SyntheticSpec {
+    SyntheticSpec {
+        markers,
+        noise,
+        seed,
+        ..SyntheticSpec::block(cells)
+    }
+}
+
 /// Noise-free synthetic data with every node known: the homogeneous force-based fit is exact
 /// (the true (λ, α) solve A(x̄)p = f̄ exactly); the tolerance is the fixed-point tolerance of the
 /// data generation (1e-10 m on ~1 mm displacements).
@@ -161,11 +172,7 @@ fn jacobian_products_match_finite_differences() {
 /// 1440 noisy coordinates, the statistical error of E is ~0.1–0.3%: 1% is the bar.
 #[test]
 fn homogeneous_recovered_within_one_percent_at_tenth_mm_noise() {
-    let mut spec = SyntheticSpec::block([5, 5, 3]);
-    spec.markers = 120;
-    spec.noise = 1e-4;
-    spec.seed = 7;
-    let syn = synthesise(&spec).unwrap();
+    let syn = synthesise(&noisy_block([5, 5, 3], 120, 1e-4, 7)).unwrap();
     let mut o = FitOptions::new(Method::Displacement, Layout::Homogeneous, Sets::Single);
     o.initial = LambdaAlpha::from_young_poisson(8_000.0, 0.1);
     let r = fit_static(&syn.input, &o, |_, _| {}).unwrap();
@@ -314,9 +321,7 @@ fn blends_reproduce_each_set_at_its_centre() {
 /// (the model class is right, so generalisation error ≈ marker noise σ√3 = 0.173 mm; bound 1.2×).
 #[test]
 fn leave_one_out_predicts_held_out_contact_at_noise_floor() {
-    let mut spec = SyntheticSpec::block([4, 4, 2]);
-    spec.markers = 60;
-    spec.noise = 1e-4;
+    let mut spec = noisy_block([4, 4, 2], 60, 1e-4, 1);
     spec.contacts.truncate(3);
     let syn = synthesise(&spec).unwrap();
     let mut o = FitOptions::new(Method::Displacement, Layout::Homogeneous, Sets::Single);
@@ -360,9 +365,7 @@ fn force_inhomogeneous_with_l_curve_fits_markers() {
 fn stiffening_by_load() -> FitInput {
     let mut inputs = Vec::new();
     for (k, young) in [20_000.0, 30_000.0, 40_000.0].into_iter().enumerate() {
-        let mut spec = SyntheticSpec::block([4, 4, 2]);
-        spec.markers = 40;
-        spec.noise = 2e-5;
+        let mut spec = noisy_block([4, 4, 2], 40, 2e-5, 1);
         spec.young = young;
         spec.contacts.truncate(1);
         spec.contacts[0].force = [0.0, 0.0, -1.0 - k as f64];
@@ -445,11 +448,7 @@ fn leave_one_out_plays_the_non_linear_class_through_the_blend() {
 /// recovers the material from the same data (measured E within 0.16 %; bound 3 %).
 #[test]
 fn force_inverse_refuses_sparse_noisy_markers() {
-    let mut spec = SyntheticSpec::block([4, 4, 2]);
-    spec.markers = 40;
-    spec.noise = 1e-4;
-    spec.seed = 3;
-    let syn = synthesise(&spec).unwrap();
+    let syn = synthesise(&noisy_block([4, 4, 2], 40, 1e-4, 3)).unwrap();
     let truth = LambdaAlpha {
         lambda: syn.truth.lambda[0],
         alpha: syn.truth.alpha[0],
