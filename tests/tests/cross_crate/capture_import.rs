@@ -2,7 +2,9 @@
 //! the motion fitter's reader: registered to the mesh frame on the held frame, trajectories from
 //! the detected release, the tip sagging along the declared gravity.
 
-use palpate_capture::import::{import_motion_dataset, ImportOptions};
+use palpate_capture::import::{import_motion_dataset, ImportOptions, Imported};
+use palpate_capture::Capture;
+use palpate_motion::dataset::MotionDataset;
 use std::path::Path;
 
 fn beam() -> std::path::PathBuf {
@@ -21,6 +23,34 @@ fn marker_places() -> Vec<(String, [f64; 3])> {
         .collect()
 }
 
+/// Imports `capture` from `release_frame` on, with the declared `places` (the others located),
+/// onto the beam mesh `mesh` under the dataset header `toml`, into a fresh folder; returns the
+/// import's report and the dataset as the motion fitter reads it back.
+fn import_onto(
+    capture: &Capture,
+    mesh: &str,
+    places: Vec<(String, [f64; 3])>,
+    release_frame: usize,
+    toml: &str,
+) -> (Imported, MotionDataset) {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::copy(beam().join(mesh), dir.path().join("mesh.msh")).unwrap();
+    let r = import_motion_dataset(
+        capture,
+        &ImportOptions {
+            places,
+            rest_frame: 0,
+            release_frame,
+            last_frame: None,
+            toml: toml.into(),
+            locate_undeclared: true,
+        },
+        dir.path(),
+    )
+    .unwrap();
+    (r, palpate_motion::dataset::load(dir.path()).unwrap())
+}
+
 #[test]
 fn beam_capture_imports_as_a_motion_dataset() {
     let capture = palpate_capture::read_c3d(&beam().join("beam_gravity_V2_a.c3d")).unwrap();
@@ -30,28 +60,19 @@ fn beam_capture_imports_as_a_motion_dataset() {
         .map(|(l, _)| capture.marker(l).unwrap())
         .collect();
     let release = capture.release_frame(&ids, 0.5e-3).unwrap() - 1;
-    let dir = tempfile::tempdir().unwrap();
-    std::fs::copy(beam().join("beam.msh"), dir.path().join("mesh.msh")).unwrap();
-    let r = import_motion_dataset(
+    let (r, ds) = import_onto(
         &capture,
-        &ImportOptions {
-            places,
-            rest_frame: 0,
-            release_frame: release,
-            last_frame: None,
-            toml: "mesh = \"mesh.msh\"\nclamps = [\"clamp\"]\ngravity = [-9.81, 0.0, 0.0]\ndensity = 1070.0".into(),
-            locate_undeclared: true,
-        },
-        dir.path(),
-    )
-    .unwrap();
+        "beam.msh",
+        places,
+        release,
+        "mesh = \"mesh.msh\"\nclamps = [\"clamp\"]\ngravity = [-9.81, 0.0, 0.0]\ndensity = 1070.0",
+    );
     // The declared places are the authors' (rounded, on stand-offs): millimetre residuals.
     assert!(
         r.transform.rms() < 1.5e-3,
         "registration RMS {} m",
         r.transform.rms()
     );
-    let ds = palpate_motion::dataset::load(dir.path()).unwrap();
     // The ring-down (period ≈ 0.13 s, README) is 13 frames per period at 100 Hz: the simulation
     // steps three times per frame (≥ 32 BDF2 steps per period, palpate_motion::timestep).
     let k = ds.timestep.substeps;
@@ -92,25 +113,14 @@ fn beam_capture_imports_as_a_motion_dataset() {
 fn an_undeclared_marker_is_located_from_the_rest_frame() {
     let capture = palpate_capture::read_c3d(&beam().join("beam_load52_V2_a.c3d")).unwrap();
     let all = marker_places();
-    let import = |places: Vec<(String, [f64; 3])>| {
-        let dir = tempfile::tempdir().unwrap();
-        std::fs::copy(beam().join("beam-coarse.msh"), dir.path().join("mesh.msh")).unwrap();
-        let r = import_motion_dataset(
+    let import = |places| {
+        import_onto(
             &capture,
-            &ImportOptions {
-                places,
-                rest_frame: 0,
-                release_frame: 44,
-                last_frame: None,
-                toml: "mesh = \"mesh.msh\"\nclamps = [\"clamp\"]\ngravity = [-9.81, 0.0, 0.0]"
-                    .into(),
-                locate_undeclared: true,
-            },
-            dir.path(),
+            "beam-coarse.msh",
+            places,
+            44,
+            "mesh = \"mesh.msh\"\nclamps = [\"clamp\"]\ngravity = [-9.81, 0.0, 0.0]",
         )
-        .unwrap();
-        let ds = palpate_motion::dataset::load(dir.path()).unwrap();
-        (r, ds)
     };
     let five: Vec<_> = all
         .iter()
@@ -122,7 +132,7 @@ fn an_undeclared_marker_is_located_from_the_rest_frame() {
     assert!(r.ignored.is_empty(), "{:?}", r.ignored);
     assert_eq!(ds.model.markers.len(), 6);
     let (_, full) = import(all);
-    let at = |ds: &palpate_motion::dataset::MotionDataset| {
+    let at = |ds: &MotionDataset| {
         let i = ds
             .model
             .markers
