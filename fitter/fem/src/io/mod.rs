@@ -4,4 +4,4 @@ pub mod atomic;
 pub mod csv;
 pub mod json;
 pub mod text;
-pub use text::parse_vec3;
+pub use text::{parse_vec3, parse_vec3_f64};

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use palpate_capture::import::{import_motion_dataset, ImportOptions};
+use palpate_fem::io::parse_vec3_f64;
 
 /// What to import.
 #[derive(Debug, clap::Subcommand)]
@@ -59,21 +60,6 @@ pub struct C3dArgs {
     /// Output dataset folder.
     #[arg(short, long)]
     pub output: PathBuf,
-}
-
-fn parse_vec3_f64(s: &str) -> Result<[f64; 3], String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|x| {
-            x.trim()
-                .parse::<f64>()
-                .map_err(|_| format!("{x:?} is not a number"))
-        })
-        .collect::<Result<_, _>>()?;
-    match v[..] {
-        [x, y, z] if v.iter().all(|a| a.is_finite()) => Ok([x, y, z]),
-        _ => Err(format!("{s:?}: expected three finite numbers x,y,z")),
-    }
 }
 
 fn parse_hang(s: &str) -> Result<(f64, String), String> {
