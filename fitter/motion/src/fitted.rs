@@ -58,6 +58,11 @@ pub struct FittedModel {
     /// the same to the loads of the run it predicts.
     #[serde(default)]
     pub hanging_inertia: bool,
+    /// Whether each run's markers were offset in time against the simulation
+    /// ([`super::time_offset`]); a prediction then scans the offset of the run it predicts (a
+    /// new capture has its own release instant) and reports it.
+    #[serde(default)]
+    pub time_offset: bool,
     /// The fitted parameter kinds (the others were held at their dataset values).
     pub fitted: Vec<String>,
     /// The thesis coefficients (λ_F, α_G) of each element as exported to the runtime (Pa; not
@@ -90,6 +95,9 @@ pub struct FittedRun {
     pub load_n: f64,
     /// RMS marker error of this run at the fitted parameters (m).
     pub rms_marker_m: f64,
+    /// The run's time offset: its markers compared with the simulation this much later (s).
+    #[serde(default)]
+    pub time_offset_s: f64,
     /// The markers, in the order of `final_displacement_m`.
     pub markers: Vec<String>,
     /// Each marker's observed rest state minus its rest position (m), `None` if unseen.

@@ -32,6 +32,7 @@ pub mod sparse;
 pub mod spline;
 pub mod start;
 pub mod statics;
+pub mod time_offset;
 pub mod timestep;
 pub mod viscosity;
 

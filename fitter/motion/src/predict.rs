@@ -8,7 +8,8 @@
 //! capture noise.
 
 use super::model::{Material, Model, Observations};
-use super::sim::{equilibrium_from, simulate_states};
+use super::sim::equilibrium_from;
+use super::time_offset::{shifted_model, Trajectory};
 use super::MotionError;
 
 /// Seconds at the end of a run averaged as its final rest state.
@@ -118,24 +119,31 @@ pub fn predict(
     mat: &Material,
     obs: &Observations,
 ) -> Result<Prediction, MotionError> {
-    let mut simulated: Vec<Vec<[f64; 3]>> = Vec::with_capacity(model.steps);
-    let mut last = Vec::new();
-    simulate_states(model, mat, |s| {
-        simulated.push(
-            model
-                .markers
-                .iter()
-                .map(|m| model.marker_position(m, s.x))
-                .collect(),
-        );
-        if s.n == model.steps {
-            last = s.x.to_vec();
-        }
-        Ok(())
+    predict_offset(model, mat, obs, 0)
+}
+
+/// [`predict`] of a run whose observations are `offset` steps late against the simulation's
+/// clock ([`crate::time_offset`]): the simulated markers are those of the steps the observations
+/// saw, row for row with `obs` (the initial state for the rows seen before the start).
+pub fn predict_offset(
+    model: &Model,
+    mat: &Material,
+    obs: &Observations,
+    offset: i64,
+) -> Result<Prediction, MotionError> {
+    let traj = if offset == 0 {
+        Trajectory::simulate(model, mat)?
+    } else {
+        Trajectory::simulate(&shifted_model(model, offset)?, mat)?
+    };
+    let simulated = traj.recorded(model.steps, offset).ok_or_else(|| {
+        MotionError::Invalid(format!(
+            "a time offset of {offset} steps reaches past the simulated horizon"
+        ))
     })?;
     // From the run's last state, near rest after a ring-down: Newton converges in a few steps
     // where a start from the undeformed shape would need load increments.
-    let (x_eq, _) = equilibrium_from(model, mat, model.steps, last)?;
+    let (x_eq, _) = equilibrium_from(model, mat, model.steps, traj.last)?;
     let eq: Vec<[f64; 3]> = model
         .markers
         .iter()

@@ -3,7 +3,10 @@
 //! of its back face whose mass moves with it — recorded from a damped truth with noise. Fitted on
 //! one run of each kind, held out the other two: the diagnosis must name the damping and the
 //! hanging weight's inertia, and predict the held-out runs far better than the simplest model.
-//! Without any hanging weight the inertia candidate is not offered at all.
+//! Without any hanging weight the inertia candidate is not offered at all. Runs whose markers
+//! were recorded a few steps out of step with the simulation's clock (a release instant misread,
+//! a marker stream out of sync with the rig) must be found out by the time-offset candidate, each
+//! run's offset recovered; runs in step must not be given one.
 
 use palpate_diagnose::runs::{diagnose_runs, Effect, RunsOptions};
 use palpate_motion::dataset::{load, MotionDataset};
@@ -21,6 +24,14 @@ fn truth(ds: &MotionDataset) -> Material {
 
 /// A run of the example: with a weight of `mass` kg (moving with its nodes) if given.
 fn run(name: &str, mass: Option<f64>, seed: u64) -> (String, MotionDataset) {
+    run_late(name, mass, seed, 0)
+}
+
+/// [`run`] with its markers recorded `late` steps behind the simulation's clock (negative:
+/// ahead): the truth is simulated over a horizon 4 steps longer (the clamp held at its last
+/// pose), the capture row of step n sees the truth's step n − late, and a row before the truth
+/// starts sees its initial state.
+fn run_late(name: &str, mass: Option<f64>, seed: u64, late: i64) -> (String, MotionDataset) {
     let mut ds = example();
     if let Some(m) = mass {
         let back = ds.mesh.group("back").unwrap();
@@ -41,7 +52,43 @@ fn run(name: &str, mass: Option<f64>, seed: u64) -> (String, MotionDataset) {
             inertia: true,
         }];
     }
-    ds.obs = record(&ds.model, &truth(&ds), 2e-5, seed).unwrap();
+    let noise = 2e-5;
+    let mut long = ds.model.clone();
+    long.steps += 4;
+    for c in &mut long.clamps {
+        let last = *c.poses.last().unwrap();
+        c.poses.resize(long.steps + 1, last);
+    }
+    let recorded = record(&long, &truth(&ds), noise, seed).unwrap();
+    let mut x0 = Vec::new();
+    palpate_motion::sim::simulate(
+        &long,
+        &truth(&ds),
+        false,
+        |x, _| x0 = x.to_vec(),
+        |_| Ok(()),
+    )
+    .unwrap();
+    let mut rng = palpate_motion::scenario::Gauss::new(seed + 1000);
+    let initial: Vec<Option<[f64; 3]>> = long
+        .markers
+        .iter()
+        .map(|m| Some(long.marker_position(m, &x0).map(|v| v + noise * rng.next())))
+        .collect();
+    ds.obs = recorded.clone();
+    ds.obs.markers = (0..ds.model.steps as i64)
+        .map(|n| match usize::try_from(n - late) {
+            Ok(i) => recorded.markers[i].clone(),
+            Err(_) => initial.clone(),
+        })
+        .collect();
+    // The clamp's force sensor is on the same clock as the markers (unseen before the start).
+    ds.obs.forces = (0..ds.model.steps as i64)
+        .map(|n| match usize::try_from(n - late) {
+            Ok(i) => recorded.forces[i].clone(),
+            Err(_) => vec![None; long.clamps.len()],
+        })
+        .collect();
     // The diagnosis' simplest model treats the weight as a force only: it must find the inertia.
     for l in &mut ds.model.loads {
         l.inertia = false;
@@ -74,6 +121,9 @@ fn names_damping_and_the_hanging_weights_inertia_on_held_out_runs() {
         d.adopted
     );
     assert!(d.adopted.contains(&Effect::Damping), "{:?}", d.adopted);
+    // In step with the simulation: no run is given a time offset.
+    assert!(!d.adopted.contains(&Effect::TimeOffset), "{:?}", d.adopted);
+    assert!(!d.model.time_offset);
     assert!(
         d.heldout_rms_m.1 < d.heldout_rms_m.0 / 3.0,
         "{:?}",
@@ -111,4 +161,46 @@ fn without_a_hanging_weight_the_inertia_candidate_is_not_offered() {
     other.1.mesh.nodes[0][0] += 1e-3;
     let e = diagnose_runs(&fit, &[other], &options(), &|_| {}).unwrap_err();
     assert!(e.to_string().contains("mesh differs"), "{e}");
+}
+
+#[test]
+fn finds_each_runs_time_offset_and_predicts_the_held_out_runs_at_theirs() {
+    let late = [
+        ("plain-a", 2i64),
+        ("weight-a", -2),
+        ("plain-b", 1),
+        ("weight-b", -3),
+    ];
+    let mass = |name: &str| name.starts_with("weight").then_some(0.002);
+    let make = |i: usize| run_late(late[i].0, mass(late[i].0), i as u64 + 1, late[i].1);
+    let fit = vec![make(0), make(1)];
+    let held = vec![make(2), make(3)];
+    let d = diagnose_runs(&fit, &held, &options(), &|m| eprintln!("{m}")).unwrap();
+    eprintln!(
+        "adopted {:?}; held-out RMS {:.2e} -> {:.2e} m",
+        d.adopted, d.heldout_rms_m.0, d.heldout_rms_m.1
+    );
+    assert!(d.adopted.contains(&Effect::TimeOffset), "{:?}", d.adopted);
+    assert!(d.model.time_offset);
+    // Every run's offset recovered to the step: the fitted runs' in the fit, the held-out runs'
+    // by their own scan with the fitted material.
+    let dt = fit[0].1.model.dt;
+    for (r, (name, truth)) in d.after.0.iter().chain(&d.after.1).zip(late) {
+        assert_eq!(r.run, name);
+        assert_eq!(
+            (r.time_offset_s / dt).round() as i64,
+            truth,
+            "{name}: {r:?}"
+        );
+    }
+    for (f, (_, truth)) in d.model.runs.iter().zip(late) {
+        assert_eq!((f.time_offset_s / dt).round() as i64, truth);
+    }
+    assert!(
+        d.heldout_rms_m.1 < d.heldout_rms_m.0 / 3.0,
+        "{:?}",
+        d.heldout_rms_m
+    );
+    let mu = d.values[1].value;
+    assert!((mu / 1.0e4 - 1.0).abs() < 0.02, "μ = {mu}");
 }

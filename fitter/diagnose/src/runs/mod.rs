@@ -13,8 +13,19 @@
 //! viscosity (held at 0), density and loads as declared, hanging weights as forces only.
 //!
 //! **Candidates** ([`Effect`]): Newtonian viscosity (ν free, h = 1), power-law viscosity (ν and h
-//! free, eq. 17), and the inertia of hanging weights (no new parameter: the declared mass moves
-//! with its nodes). Each is fitted on top of the current model (all its parameters refitted).
+//! free, eq. 17), the inertia of hanging weights (no new parameter: the declared mass moves
+//! with its nodes), and a time offset of each run's markers against the simulation's clock (one
+//! integer number of steps per run, [`palpate_motion::time_offset`]: the release instant an import
+//! reads off the capture is uncertain by a frame or two). Each is fitted on top of the current
+//! model (all its material parameters refitted).
+//!
+//! **The time offset** is found by a scan, not a descent (the misfit of a ring-down has a minimum
+//! every period): each fitted run's offset is scanned with the current material, the material
+//! refitted with the offsets held, the offsets scanned again with the refitted material and, if
+//! one moved, the material refitted once more. A held-out run is a new capture with its own
+//! release: it gets its own offset, scanned with the candidate's material (the material is never
+//! fitted to it), and the held-out gate counts those offsets as parameters. Once adopted, the
+//! offsets start every later candidate's fit and are scanned again after it.
 //!
 //! **Adoption rule** (the motion diagnosis' rule, [`crate::motion`]): with n scalar marker
 //! residuals of the fitted runs, χ² their sum of squares and k the free parameters,
@@ -36,9 +47,10 @@ use crate::select::{
 };
 use palpate_motion::dataset::MotionDataset;
 use palpate_motion::fitted::{set_hanging_inertia, FittedModel, FittedRun};
-use palpate_motion::model::{Material, Param, ParamKind};
+use palpate_motion::model::{Material, Observations, Param, ParamKind};
 use palpate_motion::optimize::{fit_runs, FitSettings, Run};
 use palpate_motion::predict::{self, Prediction};
+use palpate_motion::time_offset;
 use palpate_motion::MotionError;
 use serde::Serialize;
 
@@ -67,13 +79,17 @@ pub enum Effect {
     DampingPowerLaw,
     /// Hanging weights move with their nodes (0 parameters: the declared mass).
     HangingInertia,
+    /// Each run's markers are offset in time against the simulation (1 integer parameter per
+    /// run: its offset in steps, scanned).
+    TimeOffset,
 }
 
 /// Every effect, in the order tried.
-pub const ALL_EFFECTS: [Effect; 3] = [
+pub const ALL_EFFECTS: [Effect; 4] = [
     Effect::Damping,
     Effect::DampingPowerLaw,
     Effect::HangingInertia,
+    Effect::TimeOffset,
 ];
 
 impl Effect {
@@ -83,14 +99,22 @@ impl Effect {
             Self::Damping => "damping",
             Self::DampingPowerLaw => "damping-power-law",
             Self::HangingInertia => "hanging-inertia",
+            Self::TimeOffset => "time-offset",
         }
     }
-    /// Parameters it frees.
+    /// Material parameters it frees.
     pub fn kinds(self) -> &'static [ParamKind] {
         match self {
             Self::Damping => &[ParamKind::Nu],
             Self::DampingPowerLaw => &[ParamKind::Nu, ParamKind::PowerH],
-            Self::HangingInertia => &[],
+            Self::HangingInertia | Self::TimeOffset => &[],
+        }
+    }
+    /// Parameters it adds to a model of `runs` runs: its material kinds, or one offset per run.
+    fn parameters(self, runs: usize) -> usize {
+        match self {
+            Self::TimeOffset => runs,
+            _ => self.kinds().len(),
         }
     }
     fn conflicts(self, other: Effect) -> bool {
@@ -165,6 +189,9 @@ pub struct RunResidual {
     pub period_s: (Option<f64>, Option<f64>),
     /// Amplitude ratio per cycle, measured and simulated.
     pub decay_per_cycle: (Option<f64>, Option<f64>),
+    /// The run's time offset: its markers compared with the simulation this much later (s; 0
+    /// without the time-offset effect).
+    pub time_offset_s: f64,
     /// Displacement along gravity of `ring_marker` per step, measured (NaN = unseen) and
     /// simulated (m) — for the report's plots.
     #[serde(skip)]
@@ -180,6 +207,8 @@ pub struct RunsFit {
     pub material: Material,
     /// Fitted parameter kinds (μ first).
     pub kinds: Vec<ParamKind>,
+    /// Time offset of each fitted run (steps; all 0 without [`Effect::TimeOffset`]).
+    pub offsets: Vec<i64>,
     /// Residuals of the fitted runs.
     pub fitted: Vec<RunResidual>,
     /// Simulations of the fit.
@@ -192,6 +221,15 @@ impl RunsFit {
             .iter()
             .fold((0.0, 0), |(c, n), r| (c + r.chi2, n + 3 * r.count))
     }
+    /// Free parameters: the material kinds and, with the time offset, one per run.
+    fn parameters(&self) -> usize {
+        self.kinds.len()
+            + if self.effects.contains(&Effect::TimeOffset) {
+                self.offsets.len()
+            } else {
+                0
+            }
+    }
     /// Young's modulus from μ at the fixed Poisson's ratio (Pa).
     pub fn young(&self, poisson: f64) -> f64 {
         2.0 * (1.0 + poisson) * self.material.get(ParamKind::Mu, 0)
@@ -203,6 +241,8 @@ impl RunsFit {
 pub struct Held {
     /// Residuals of the held-out runs.
     pub runs: Vec<RunResidual>,
+    /// Each held-out run's own time offset (steps; all 0 without [`Effect::TimeOffset`]).
+    pub offsets: Vec<i64>,
 }
 
 impl Held {
@@ -302,10 +342,10 @@ pub fn residual(
     mat: &Material,
 ) -> Result<RunResidual, MotionError> {
     let p = predict::predict(&ds.model, mat, &ds.obs)?;
-    Ok(read_residual(name, ds, &p))
+    Ok(read_residual(name, ds, &p, 0))
 }
 
-fn read_residual(name: &str, ds: &MotionDataset, p: &Prediction) -> RunResidual {
+fn read_residual(name: &str, ds: &MotionDataset, p: &Prediction, offset: i64) -> RunResidual {
     let nm = ds.model.markers.len();
     let steps = p.simulated.len();
     let mut per = vec![(0.0, 0usize); nm];
@@ -388,6 +428,7 @@ fn read_residual(name: &str, ds: &MotionDataset, p: &Prediction) -> RunResidual 
             .unwrap_or_default(),
         period_s: (ring_m.0, ring_s.0),
         decay_per_cycle: (ring_m.1, ring_s.1),
+        time_offset_s: offset as f64 * ds.model.dt,
         ring: (measured, simulated),
     }
 }
@@ -440,22 +481,56 @@ impl RunsModel<'_> {
             .collect()
     }
 
+    /// The residual of every run of `sets` under `mat`, run i's markers `offsets[i]` steps late
+    /// (none when `offsets` is empty).
     fn residuals(
         sets: &[(String, MotionDataset)],
         effects: &[Effect],
         mat: &Material,
+        offsets: &[i64],
     ) -> Result<Vec<RunResidual>, MotionError> {
         let models = Self::models(sets, effects);
         use rayon::prelude::*;
         sets.par_iter()
             .zip(models.par_iter())
-            .map(|((name, d), m)| {
-                let p = predict::predict(m, mat, &d.obs)?;
+            .enumerate()
+            .map(|(i, ((name, d), m))| {
+                let r = offsets.get(i).copied().unwrap_or(0);
+                let p = predict::predict_offset(m, mat, &d.obs, r)?;
                 let mut ds = d.clone();
                 ds.model = m.clone();
-                Ok(read_residual(name, &ds, &p))
+                Ok(read_residual(name, &ds, &p, r))
             })
             .collect()
+    }
+
+    /// Each run's time offset under `mat`, scanned ([`time_offset::scan`]).
+    fn scan_offsets(
+        sets: &[(String, MotionDataset)],
+        effects: &[Effect],
+        mat: &Material,
+    ) -> Result<Vec<i64>, MotionError> {
+        let models = Self::models(sets, effects);
+        use rayon::prelude::*;
+        sets.par_iter()
+            .zip(models.par_iter())
+            .map(|((_, d), m)| Ok(time_offset::scan(m, mat, &d.obs)?.0))
+            .collect()
+    }
+
+    fn describe_offsets(sets: &[(String, MotionDataset)], offsets: &[i64]) -> String {
+        sets.iter()
+            .zip(offsets)
+            .map(|((name, d), r)| {
+                let edge = r.abs() >= time_offset::SCAN_FRAMES * d.model.substeps.max(1) as i64;
+                format!(
+                    "{name} {:+.1} ms{}",
+                    1e3 * *r as f64 * d.model.dt,
+                    if edge { " (the edge of the scan)" } else { "" }
+                )
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
     }
 
     /// The viscosity a damping candidate starts from: the option, else the ring-down estimate of
@@ -471,7 +546,13 @@ impl RunsModel<'_> {
         }
     }
 
-    fn fit(&self, effects: &[Effect], start: &Material) -> Result<RunsFit, MotionError> {
+    /// Fits the material of `effects` to the fitted runs, run i's markers `offsets[i]` steps late.
+    fn fit(
+        &self,
+        effects: &[Effect],
+        start: &Material,
+        offsets: &[i64],
+    ) -> Result<RunsFit, MotionError> {
         let mut kinds = vec![ParamKind::Mu];
         for e in effects {
             for k in e.kinds() {
@@ -483,11 +564,21 @@ impl RunsModel<'_> {
         let base = start.clone();
         let params: Vec<Param> = kinds.iter().map(|k| Param::global(*k)).collect();
         let q0 = base.read(&params);
-        let models = Self::models(self.fit, effects);
-        let runs: Vec<Run> = models
+        let retimed: Vec<(palpate_motion::model::Model, Observations)> =
+            Self::models(self.fit, effects)
+                .into_iter()
+                .zip(self.fit)
+                .enumerate()
+                .map(
+                    |(i, (model, (_, d)))| match offsets.get(i).copied().unwrap_or(0) {
+                        0 => Ok((model, d.obs.clone())),
+                        r => time_offset::shifted(&model, &d.obs, r),
+                    },
+                )
+                .collect::<Result<_, _>>()?;
+        let runs: Vec<Run> = retimed
             .iter()
-            .zip(self.fit)
-            .map(|(model, (_, d))| Run { model, obs: &d.obs })
+            .map(|(model, obs)| Run { model, obs })
             .collect();
         let settings = FitSettings {
             max_iters: self.o.max_iters,
@@ -502,14 +593,53 @@ impl RunsModel<'_> {
             &[Param::global(ParamKind::Lambda)],
             &[2.0 * nu / (1.0 - 2.0 * nu) * material.get(ParamKind::Mu, 0)],
         );
-        let fitted = Self::residuals(self.fit, effects, &material)?;
+        let fitted = Self::residuals(self.fit, effects, &material, offsets)?;
         Ok(RunsFit {
             effects: effects.to_vec(),
             material,
             kinds,
+            offsets: offsets.to_vec(),
             fitted,
             evaluations: r.evaluations,
         })
+    }
+
+    /// A fit with the time offset among `effects`: the offsets `adopted` (a later candidate) or
+    /// scanned with the current material (the candidate itself), the material refitted with them
+    /// held; scanned again with the refitted material, refitted once more if one moved (module
+    /// note).
+    fn fit_time_offset(
+        &self,
+        round: usize,
+        effects: &[Effect],
+        start: &Material,
+        adopted: Option<Vec<i64>>,
+    ) -> Result<RunsFit, MotionError> {
+        let mut offsets = match adopted {
+            Some(o) => o,
+            None => {
+                let o = Self::scan_offsets(self.fit, effects, start)?;
+                (self.log)(&format!(
+                    "round {round}: time offsets scanned (±{} frames): {}",
+                    time_offset::SCAN_FRAMES,
+                    Self::describe_offsets(self.fit, &o)
+                ));
+                o
+            }
+        };
+        let mut f = self.fit(effects, start, &offsets)?;
+        let again = Self::scan_offsets(self.fit, effects, &f.material)?;
+        if again != offsets {
+            offsets = again;
+            (self.log)(&format!(
+                "round {round}: time offsets after the refit: {}",
+                Self::describe_offsets(self.fit, &offsets)
+            ));
+            let evaluations = f.evaluations;
+            f = self.fit(effects, &f.material, &offsets)?;
+            f.evaluations += evaluations;
+        }
+        Ok(f)
     }
 
     fn name(e: &[Effect]) -> String {
@@ -581,7 +711,13 @@ impl CandidateModel for RunsModel<'_> {
             ));
             start.set(&[Param::global(ParamKind::Nu)], &[nu]);
         }
-        match self.fit(&effects, &start) {
+        let fitted = if effects.contains(&Effect::TimeOffset) {
+            let held = (c != Effect::TimeOffset).then(|| cur.offsets.clone());
+            self.fit_time_offset(round, &effects, &start, held)
+        } else {
+            self.fit(&effects, &start, &cur.offsets)
+        };
+        match fitted {
             Ok(f) => Ok(Outcome::Fitted(f)),
             Err(e) => {
                 self.trials.push(Trial {
@@ -604,15 +740,26 @@ impl CandidateModel for RunsModel<'_> {
         Score {
             chi2,
             n,
-            k: f.kinds.len(),
+            k: f.parameters(),
         }
     }
 
     fn summarise(&self, _: &RunsFit) {}
 
-    fn heldout(&mut self, _: usize, _: Effect, f: &RunsFit) -> Result<Held, RunsError> {
+    fn heldout(&mut self, round: usize, _: Effect, f: &RunsFit) -> Result<Held, RunsError> {
+        let offsets = if f.effects.contains(&Effect::TimeOffset) {
+            let o = Self::scan_offsets(self.held, &f.effects, &f.material)?;
+            (self.log)(&format!(
+                "round {round}: held-out time offsets (each run its own): {}",
+                Self::describe_offsets(self.held, &o)
+            ));
+            o
+        } else {
+            Vec::new()
+        };
         Ok(Held {
-            runs: Self::residuals(self.held, &f.effects, &f.material)?,
+            runs: Self::residuals(self.held, &f.effects, &f.material, &offsets)?,
+            offsets,
         })
     }
 
@@ -623,7 +770,7 @@ impl CandidateModel for RunsModel<'_> {
     ) -> Gate<GateDetail> {
         let o = self.o;
         let ((c0, _), (c1, n1)) = (cur.held.chi2(), cand.held.chi2());
-        let dk = cand.candidate.kinds().len() as f64;
+        let dk = cand.candidate.parameters(self.held.len()) as f64;
         let nh = (n1.max(1)) as f64;
         let heldout_delta_bic = nh * (c1 / c0).ln() + dk * nh.ln();
         let heldout_gain = cand.held.rms() / cur.held.rms() - 1.0;
@@ -793,9 +940,10 @@ pub fn diagnose_runs(
         trials: Vec::new(),
     };
     log("fitting the simplest model (Neo-Hookean, fixed Poisson's ratio, no damping)");
-    let start = m.fit(&[], &base)?;
+    let start = m.fit(&[], &base, &[])?;
     let start_held = Held {
-        runs: RunsModel::residuals(held, &[], &start.material)?,
+        runs: RunsModel::residuals(held, &[], &start.material, &[])?,
+        offsets: Vec::new(),
     };
     let policy = Policy {
         rounds: o.max_effects + 1,
@@ -810,15 +958,22 @@ pub fn diagnose_runs(
         .cloned()
         .expect("the start is on the path");
     let adopted = verdict.adopted();
-    // Uncertainty of μ (hence E) on the final model.
+    // Uncertainty of μ (hence E) on the final model (the runs at their offsets).
     let models = RunsModel::models(fit, &last.effects);
-    let runs: Vec<Run> = models
+    let retimed: Vec<(palpate_motion::model::Model, Observations)> = models
         .iter()
         .zip(fit)
-        .map(|(model, (_, d))| Run { model, obs: &d.obs })
+        .enumerate()
+        .map(|(i, (model, (_, d)))| {
+            time_offset::shifted(model, &d.obs, last.offsets.get(i).copied().unwrap_or(0))
+        })
+        .collect::<Result<_, _>>()?;
+    let runs: Vec<Run> = retimed
+        .iter()
+        .map(|(model, obs)| Run { model, obs })
         .collect();
     let (_, n) = last.chi2();
-    let sd_mu = mu_sd(&runs, &last.material, nu, n, last.kinds.len())?;
+    let sd_mu = mu_sd(&runs, &last.material, nu, n, last.parameters())?;
     let mu = last.material.get(ParamKind::Mu, 0);
     let mut values = vec![
         ParamValue {
@@ -877,6 +1032,7 @@ pub fn diagnose_runs(
         density: mat.values[4].clone(),
         poisson_fixed: Some(nu),
         hanging_inertia: last.effects.contains(&Effect::HangingInertia),
+        time_offset: last.effects.contains(&Effect::TimeOffset),
         fitted: last.kinds.iter().map(|k| k.name().to_string()).collect(),
         runtime_lambda_alpha: mat.values[0]
             .iter()
@@ -899,6 +1055,7 @@ pub fn diagnose_runs(
                     dataset: name.clone(),
                     load_n: predict::load_along_gravity(model),
                     rms_marker_m: r.rms_m,
+                    time_offset_s: r.time_offset_s,
                     markers: model.markers.iter().map(|m| m.name.clone()).collect(),
                     final_displacement_m: predict::final_observed(model, &d.obs)
                         .iter()
@@ -966,6 +1123,7 @@ mod tests {
             ring_marker: String::new(),
             period_s: (t, None),
             decay_per_cycle: (a, None),
+            time_offset_s: 0.0,
             ring: (Vec::new(), Vec::new()),
         };
         let mu = 4.6e4;

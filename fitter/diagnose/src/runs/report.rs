@@ -117,6 +117,20 @@ pub fn markdown(r: &RunsDiagnosis) -> String {
     );
     rows(&mut md, &r.before.0, &r.after.0);
     rows(&mut md, &r.before.1, &r.after.1);
+    if r.adopted.contains(&super::Effect::TimeOffset) {
+        let _ = writeln!(
+            md,
+            "\nTime offsets (each run's markers compared with the simulation this much later; \
+             a held-out run's own, scanned with the final material): {}.",
+            r.after
+                .0
+                .iter()
+                .chain(&r.after.1)
+                .map(|a| format!("{} {:+.1} ms", a.run, 1e3 * a.time_offset_s))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
     let _ = writeln!(
         md,
         "\n## Parameters of the final model\n\n| parameter | value | 1σ |\n|---|---|---|"

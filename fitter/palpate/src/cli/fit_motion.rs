@@ -373,6 +373,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             poisson_fixed: args.poisson,
             hanging_inertia: args.hanging_inertia
                 || all.iter().any(|d| d.model.loads.iter().any(|l| l.inertia)),
+            time_offset: false,
             fitted: params
                 .iter()
                 .map(|p| p.kind.name().to_string())
@@ -400,6 +401,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                         dataset: name.clone(),
                         load_n: predict::load_along_gravity(&d.model),
                         rms_marker_m: e.rms_marker,
+                        time_offset_s: 0.0,
                         markers: d.model.markers.iter().map(|m| m.name.clone()).collect(),
                         final_displacement_m: predict::final_observed(&d.model, &d.obs)
                             .iter()

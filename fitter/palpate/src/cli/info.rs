@@ -127,7 +127,7 @@ fn fitted(path: &std::path::Path, bytes: &[u8]) -> anyhow::Result<()> {
     println!("{}: fitted motion model ({})", path.display(), f.format);
     println!("  mesh: {} nodes, {} tetrahedra", f.nodes, f.tets);
     println!(
-        "  fitted: {}; E {:.4e} Pa, Poisson's ratio ν {:.3}{}; Lamé λ {:.4e} Pa, shear modulus μ {:.4e} Pa; viscosity {:.4e} Pa·s^h, power-law index h {:.3}; density {:.1} kg/m³; hanging inertia {}",
+        "  fitted: {}; E {:.4e} Pa, Poisson's ratio ν {:.3}{}; Lamé λ {:.4e} Pa, shear modulus μ {:.4e} Pa; viscosity {:.4e} Pa·s^h, power-law index h {:.3}; density {:.1} kg/m³; hanging inertia {}; time offset per run {}",
         f.fitted.join(", "),
         e.young_modulus_pa,
         e.poisson_ratio,
@@ -137,7 +137,8 @@ fn fitted(path: &std::path::Path, bytes: &[u8]) -> anyhow::Result<()> {
         f.viscosity.first().copied().unwrap_or(f64::NAN),
         f.h.first().copied().unwrap_or(f64::NAN),
         f.density.first().copied().unwrap_or(f64::NAN),
-        f.hanging_inertia
+        f.hanging_inertia,
+        f.time_offset
     );
     println!(
         "  fitted on {} run(s): {}; marker RMS {:.3} mm",
@@ -158,6 +159,7 @@ fn fitted(path: &std::path::Path, bytes: &[u8]) -> anyhow::Result<()> {
         "power_law_index": f.h.first(),
         "density_kg_m3": f.density.first(),
         "hanging_inertia": f.hanging_inertia,
+        "time_offset": f.time_offset,
         "runs": f.datasets,
         "rms_marker_m": f.rms_marker_m,
     });

@@ -81,8 +81,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         per_element("power_law_index", &fit.h)?,
         per_element("density_kg_m3", &fit.density)?,
     ];
-    let p = predict::predict(&ds.model, &mat, &ds.obs)
+    // A model fitted with per-run time offsets predicts a new capture at its own offset (its
+    // release instant is its own), scanned with the fitted material — never refitted.
+    let offset = if fit.time_offset {
+        palpate_motion::time_offset::scan(&ds.model, &mat, &ds.obs)
+            .with_context(|| format!("scanning the time offset of {}", args.dataset.display()))?
+            .0
+    } else {
+        0
+    };
+    let p = predict::predict_offset(&ds.model, &mat, &ds.obs, offset)
         .with_context(|| format!("simulating {}", args.dataset.display()))?;
+    if fit.time_offset {
+        println!(
+            "time offset of this run (the model was fitted with one per run): {:+.1} ms, scanned over ±{} capture frames",
+            1e3 * offset as f64 * ds.model.dt,
+            palpate_motion::time_offset::SCAN_FRAMES
+        );
+    }
     let load = predict::load_along_gravity(&ds.model);
     // The baseline by marker name: the fitted runs may list the markers in another order.
     let names: Vec<String> = ds.model.markers.iter().map(|m| m.name.clone()).collect();
@@ -159,6 +175,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "load_n": load,
         "steps": ds.model.steps,
         "dt_s": ds.model.dt,
+        "time_offset_s": offset as f64 * ds.model.dt,
     });
     println!("{json}");
     Ok(())
