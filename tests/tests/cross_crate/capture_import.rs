@@ -51,6 +51,15 @@ fn import_onto(
     (r, palpate_motion::dataset::load(dir.path()).unwrap())
 }
 
+/// The index of the marker called `name` in the dataset.
+fn marker(ds: &MotionDataset, name: &str) -> usize {
+    ds.model
+        .markers
+        .iter()
+        .position(|m| m.name == name)
+        .unwrap()
+}
+
 #[test]
 fn beam_capture_imports_as_a_motion_dataset() {
     let capture = palpate_capture::read_c3d(&beam().join("beam_gravity_V2_a.c3d")).unwrap();
@@ -93,12 +102,7 @@ fn beam_capture_imports_as_a_motion_dataset() {
         "the held beam is released from its rest shape"
     );
     // The tip ends lower along −x (gravity) by about the README's 6.4 mm sag.
-    let tip = ds
-        .model
-        .markers
-        .iter()
-        .position(|m| m.name == "Tip - 1")
-        .unwrap();
+    let tip = marker(&ds, "Tip - 1");
     let first = ds.obs.markers[k - 1][tip].unwrap();
     let last = ds.obs.markers.last().unwrap()[tip].unwrap();
     let sag = first[0] - last[0];
@@ -133,13 +137,7 @@ fn an_undeclared_marker_is_located_from_the_rest_frame() {
     assert_eq!(ds.model.markers.len(), 6);
     let (_, full) = import(all);
     let at = |ds: &MotionDataset| {
-        let i = ds
-            .model
-            .markers
-            .iter()
-            .position(|m| m.name == "Tip - 2")
-            .unwrap();
-        palpate_motion::predict::rest_markers(&ds.model)[i]
+        palpate_motion::predict::rest_markers(&ds.model)[marker(ds, "Tip - 2")]
     };
     let (a, b) = (at(&ds), at(&full));
     let d = (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt();

@@ -22,6 +22,14 @@ fn runtime<'a>(
     Runtime::new(buf.record(), fs, us, cfg).unwrap()
 }
 
+/// The homogeneous model (Young's modulus E, Poisson's ratio ν) of `m` with the nodes of the
+/// group `fixed` held.
+fn homogeneous(m: &Mesh, fixed: &str, young: f64, poisson: f64) -> ModelBuffers {
+    let fixed = m.group(fixed).unwrap().to_vec();
+    let p = LambdaAlpha::from_young_poisson(young, poisson);
+    model::homogeneous(m, &fixed, p.lambda, p.alpha)
+}
+
 fn settle(rt: &mut Runtime<'_>, ticks: usize) {
     for _ in 0..ticks {
         assert_ne!(rt.tick().status, SolveStatus::Rejected);
@@ -32,10 +40,8 @@ fn settle(rt: &mut Runtime<'_>, ticks: usize) {
 /// load shared equally by the tip-face nodes, linear model.
 fn cantilever_tip(cells: [usize; 3]) -> f64 {
     let m = box_mesh([0.1, 0.01, 0.01], cells);
-    let fixed = m.group("left").unwrap().to_vec();
     let tip = m.group("right").unwrap().to_vec();
-    let p = LambdaAlpha::from_young_poisson(1e6, 0.0);
-    let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
+    let buf = homogeneous(&m, "left", 1e6, 0.0);
     let cfg = model::linear_config(1e-8, 20_000);
     let (mut fs, mut us) = (Vec::new(), Vec::new());
     let mut rt = runtime(&buf, cfg, &mut fs, &mut us);
@@ -85,9 +91,7 @@ fn punch_stiffness(fine: f64) -> f64 {
     let mut z = graded_axis(0.0, 0.1, 0.1 - 1.5 * a, 0.1, fine, 1.35, 0.03);
     z.dedup_by(|x, y| (*x - *y).abs() < 1e-12);
     let m = box_mesh_graded([&xy, &xy, &z]);
-    let fixed = m.group("bottom").unwrap().to_vec();
-    let p = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
-    let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
+    let buf = homogeneous(&m, "bottom", 10_000.0, 0.3);
     let cfg = model::linear_config(1e-7, 20_000);
     let (mut fs, mut us) = (Vec::new(), Vec::new());
     let mut rt = runtime(&buf, cfg, &mut fs, &mut us);
@@ -127,10 +131,8 @@ fn flat_punch_approaches_boussinesq() {
 #[test]
 fn warping_removes_ghost_forces_of_large_rotations() {
     let m = box_mesh([0.1, 0.01, 0.01], [20, 2, 2]);
-    let fixed = m.group("left").unwrap().to_vec();
     let tip = m.group("right").unwrap().to_vec();
-    let p = LambdaAlpha::from_young_poisson(1e6, 0.3);
-    let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
+    let buf = homogeneous(&m, "left", 1e6, 0.3);
     // A tip load whose linear deflection on this (locking) mesh is about half the length. (At
     // twice this load the lagged-rotation fixed point, which has no geometric stiffness, cycled
     // until the energy line search of `runtime/src/tick.rs`; twice and four times this load are
