@@ -43,9 +43,12 @@ fn link(opts: SenderOptions, plan: FaultPlan, seed: u64, unplug: Option<Unplug>)
     )
 }
 
-/// `seconds` as fast as possible with the faults of `plan` inside its [`window`].
+/// `seconds` as fast as possible with the faults of `plan` inside its [`window`]; whatever the
+/// faults, the run keeps the link's invariants (asserted here).
 fn faulty(plan: FaultPlan, seconds: f64, seed: u64) -> HilRun {
-    link(fast(seconds), window(plan, seconds), seed, None)
+    let run = link(fast(seconds), window(plan, seconds), seed, None);
+    assert_link_invariants(&run);
+    run
 }
 
 #[test]
@@ -129,7 +132,6 @@ fn one_percent_byte_corruption_never_delivers_a_bad_frame_and_counts_every_loss(
         10.0,
         3,
     );
-    assert_link_invariants(&run);
     // ~26 bytes per frame at 1 %: about a fifth of the frames are hit.
     assert!(run.faults.writes_damaged > 1000, "{:?}", run.faults);
     // A damaged frame is lost; a damaged delimiter also takes the next frame with it.
@@ -153,7 +155,6 @@ fn dropped_bytes_are_counted_as_losses_and_never_misdelivered() {
         5.0,
         4,
     );
-    assert_link_invariants(&run);
     assert!(run.faults.dropped > 300, "{:?}", run.faults);
     assert!(run.stats.missing_samples <= 2 * run.faults.writes_damaged);
     assert!(run.stats.missing_samples >= run.faults.writes_damaged / 2);
@@ -172,7 +173,6 @@ fn garbage_bursts_cost_at_most_the_frame_they_hit() {
         5.0,
         5,
     );
-    assert_link_invariants(&run);
     assert!(run.faults.bursts >= 190, "{:?}", run.faults);
     assert!(
         run.stats.missing_samples <= run.faults.bursts,
