@@ -331,17 +331,31 @@ pub fn diagonal_blocks_lanes(
     let mut out = [[[0.0f32; LANES]; 6]; 4];
     for a in 0..4 {
         for l in 0..LANES {
-            let d = diagonal_block(
-                a,
-                &core::array::from_fn(|k| g[k][l]),
-                &core::array::from_fn(|k| r[k][l]),
-                volume[l],
-                lambda[l],
-                alpha[l],
-            );
-            for j in 0..6 {
-                out[a][j][l] = d[j];
-            }
+            let ga = if a == 0 {
+                [
+                    -(g[0][l] + g[3][l] + g[6][l]),
+                    -(g[1][l] + g[4][l] + g[7][l]),
+                    -(g[2][l] + g[5][l] + g[8][l]),
+                ]
+            } else {
+                let b = 3 * (a - 1);
+                [g[b][l], g[b + 1][l], g[b + 2][l]]
+            };
+            let rg = [
+                r[0][l] * ga[0] + r[1][l] * ga[1] + r[2][l] * ga[2],
+                r[3][l] * ga[0] + r[4][l] * ga[1] + r[5][l] * ga[2],
+                r[6][l] * ga[0] + r[7][l] * ga[1] + r[8][l] * ga[2],
+            ];
+            let half = 0.5 * lambda[l] * volume[l];
+            let iso = (0.5 * lambda[l] - alpha[l])
+                * volume[l]
+                * (ga[0] * ga[0] + ga[1] * ga[1] + ga[2] * ga[2]);
+            out[a][0][l] = half * rg[0] * rg[0] + iso;
+            out[a][1][l] = half * rg[1] * rg[1] + iso;
+            out[a][2][l] = half * rg[2] * rg[2] + iso;
+            out[a][3][l] = half * rg[0] * rg[1];
+            out[a][4][l] = half * rg[1] * rg[2];
+            out[a][5][l] = half * rg[2] * rg[0];
         }
     }
     out
