@@ -1,6 +1,7 @@
 //! `palpate diagnose` on motion datasets (issue 6 on top of the motion fitter): a viscous
 //! specimen must be diagnosed as viscous and forecast to the noise floor; an elastic one must come
-//! back clean; `palpate diagnose <dir>` must recognise a motion dataset on disk.
+//! back clean; one whose markers were recorded out of step with its base's record must be given
+//! its time offset; `palpate diagnose <dir>` must recognise a motion dataset on disk.
 //!
 //! Specimens: the example dataset's set-up (a 2 × 8 × 2 cm bar of 24 tets standing on a base
 //! moved by two sinusoids, 45 steps at 180 Hz, nine markers, density declared) simulated by the
@@ -62,6 +63,35 @@ fn specimen(nu: f64, seed: u64) -> MotionDataset {
         obs,
         timestep: palpate_motion::timestep::TimeStep::capture_rate(DT),
     }
+}
+
+/// [`specimen`] whose markers were recorded `late` steps behind the base's record (negative:
+/// ahead): the capture row of step n sees the truth's step n − late — the truth run 2 steps
+/// further (its base held at its last place), a row before the start its initial state.
+fn late_specimen(nu: f64, seed: u64, late: i64) -> MotionDataset {
+    let mut ds = specimen(nu, seed);
+    let mut long = ds.model.clone();
+    long.steps += 2;
+    for c in &mut long.clamps {
+        let last = *c.poses.last().unwrap();
+        c.poses.resize(long.steps + 1, last);
+    }
+    let mat = truth(&long, nu);
+    let recorded = record(&long, &mat, SIGMA, seed).unwrap();
+    let mut x0 = Vec::new();
+    palpate_motion::sim::simulate(&long, &mat, false, |x, _| x0 = x.to_vec(), |_| Ok(())).unwrap();
+    let mut rng = palpate_motion::scenario::Gauss::new(seed + 100);
+    ds.obs.markers = (0..STEPS as i64)
+        .map(|n| match usize::try_from(n - late) {
+            Ok(i) => recorded.markers[i].clone(),
+            Err(_) => long
+                .markers
+                .iter()
+                .map(|m| Some(long.marker_position(m, &x0).map(|v| v + SIGMA * rng.next())))
+                .collect(),
+        })
+        .collect();
+    ds
 }
 
 fn run(ds: &MotionDataset, label: &str) -> MotionDiagnosis {
@@ -157,6 +187,33 @@ fn elastic_specimen_comes_back_clean() {
         // The elastic fit itself is at the noise floor (within 10 %: 34 × 9 markers give the
         // RMS a relative sampling error of ≈ 2.3 %, plus the bias of fitting 2 parameters).
         assert!((r.before.rms_fit / (SIGMA * 3f64.sqrt()) - 1.0).abs() < 0.1);
+    }
+}
+
+/// The elastic specimen with its markers 2 steps (11 ms) late, and 2 steps early: the time
+/// offset is named (nothing else), recovered to the step, and the forecast comes down to the
+/// noise floor.
+#[test]
+fn markers_out_of_step_with_the_base_are_given_their_time_offset() {
+    let floor = SIGMA * 3f64.sqrt();
+    for late in [2i64, -2] {
+        let r = run(&late_specimen(0.0, 1, late), &format!("late {late}"));
+        assert_eq!(r.adopted, vec!["time-offset".to_string()], "late {late}");
+        let offset = r
+            .after_values
+            .iter()
+            .find(|v| v.name.starts_with("time offset"))
+            .unwrap();
+        assert_eq!((offset.value / DT).round() as i64, late, "{offset:?}");
+        assert!(
+            r.after.rms_held <= 1.5 * floor,
+            "late {late}: held-out RMS {:.1} µm",
+            1e6 * r.after.rms_held
+        );
+        assert!(
+            r.before.rms_held > 2.0 * floor,
+            "late {late}: the offset shows"
+        );
     }
 }
 

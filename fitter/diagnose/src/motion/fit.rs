@@ -8,6 +8,7 @@ use palpate_motion::dataset::MotionDataset;
 use palpate_motion::model::{Material, Model, Observations, Param, ParamKind};
 use palpate_motion::optimize::{fit, FitSettings};
 use palpate_motion::sim::simulate_states;
+use palpate_motion::time_offset;
 use palpate_motion::MotionError;
 use serde::Serialize;
 
@@ -74,13 +75,91 @@ pub struct FittedModel {
     /// Constant offsets of the markers from their declared places (m, per marker: observed =
     /// simulated + offset), when the marker-offsets effect is in the model.
     pub offsets: Option<Vec<[f64; 3]>>,
+    /// The markers' time offset against the simulation (steps: the observation of step n is the
+    /// simulated step n − r, [`palpate_motion::time_offset`]), when the time-offset effect is in
+    /// the model.
+    pub time_offset: Option<i64>,
 }
 
 impl FittedModel {
-    /// Free parameters: the material's plus three per marker offset.
+    /// Free parameters: the material's, three per marker offset and one time offset.
     pub fn parameter_count(&self) -> usize {
-        self.kinds.len() + self.offsets.as_ref().map_or(0, |o| 3 * o.len())
+        self.kinds.len()
+            + self.offsets.as_ref().map_or(0, |o| 3 * o.len())
+            + usize::from(self.time_offset.is_some())
     }
+}
+
+/// `ds` on the simulation's clock of a run observed `offset` steps late
+/// ([`palpate_motion::time_offset::shifted`]; the rows seen before the start are dropped) and the
+/// split moved with it: the fitted rows stay the fitted rows.
+pub fn retimed(
+    ds: &MotionDataset,
+    split: Split,
+    offset: i64,
+) -> Result<(MotionDataset, Split), MotionError> {
+    let (model, obs) = time_offset::shifted(&ds.model, &ds.obs, offset)?;
+    let moved = |n: usize| (n as i64 - offset).clamp(0, model.steps as i64) as usize;
+    let split = Split {
+        fit_steps: moved(split.fit_steps),
+        steps: model.steps,
+    };
+    let mut d = ds.clone();
+    d.model = model;
+    d.obs = obs;
+    Ok((d, split))
+}
+
+/// [`run_trajectory`] of a run observed `offset` steps late: the simulation on its own clock,
+/// read back row for row with `obs` (a row seen before the start sees the initial state, at rest),
+/// so its residuals and scores compare with any other model's of the same data.
+pub fn run_trajectory_at(
+    model: &Model,
+    mat: &Material,
+    obs: &Observations,
+    offset: i64,
+) -> Result<Trajectory, MotionError> {
+    if offset == 0 {
+        return run_trajectory(model, mat, obs);
+    }
+    let m = time_offset::shifted_model(model, offset)?;
+    let markers = |x: &[f64]| -> Vec<[f64; 3]> {
+        m.markers.iter().map(|k| m.marker_position(k, x)).collect()
+    };
+    let (mut initial, mut pos, mut vel) = (Vec::new(), Vec::new(), Vec::new());
+    palpate_motion::sim::simulate(
+        &m,
+        mat,
+        false,
+        |x0, _| initial = markers(x0),
+        |s| {
+            pos.push(markers(s.x));
+            vel.push(markers(s.v));
+            Ok(())
+        },
+    )?;
+    let still = vec![[0.0; 3]; model.markers.len()];
+    let mut t = Trajectory::default();
+    for n in 0..model.steps {
+        let s = n as i64 + 1 - offset;
+        let (p, v) = match usize::try_from(s - 1) {
+            Ok(i) => (pos[i].clone(), vel[i].clone()),
+            Err(_) => (initial.clone(), still.clone()),
+        };
+        let row = obs.markers.get(n);
+        t.res.push(
+            p.iter()
+                .enumerate()
+                .map(|(i, q)| {
+                    row.and_then(|r| r[i])
+                        .map(|o| [q[0] - o[0], q[1] - o[1], q[2] - o[2]])
+                })
+                .collect(),
+        );
+        t.pos.push(p);
+        t.vel.push(v);
+    }
+    Ok(t)
 }
 
 /// `ds` with its marker observations moved by −`offsets` (the observed point of marker i is
@@ -242,6 +321,7 @@ pub fn fit_model(
         evaluations,
         failures: notes,
         offsets: None,
+        time_offset: None,
     })
 }
 

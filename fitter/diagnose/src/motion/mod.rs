@@ -29,9 +29,10 @@ pub mod signature;
 use crate::select::{
     self, select, CandidateModel, Current, Gate, Outcome, Policy, Rank, Score, Screen, Verdict,
 };
-use fit::{fit_model, fit_with_offsets, FittedModel, Scores, Split};
+use fit::{fit_model, fit_with_offsets, with_offsets, FittedModel, Scores, Split};
 use palpate_motion::dataset::{DatasetError, MotionDataset};
 use palpate_motion::model::{Material, ParamKind};
+use palpate_motion::time_offset;
 use palpate_motion::MotionError;
 use serde::Serialize;
 use signature::{signature, Signature};
@@ -82,14 +83,21 @@ pub enum Candidate {
     /// (the offsets are each marker's mean residual at fixed material, then the material is
     /// refitted); the held-out steps use the offsets fitted on the fitted steps.
     MarkerOffsets,
+    /// The markers are recorded out of step with the clamps' record (1 parameter: an integer
+    /// number of simulation steps, [`palpate_motion::time_offset`]): two capture streams on two
+    /// clocks, or a start instant misread. Scanned on the fitted steps within ±3 capture frames
+    /// with the current material, the material refitted, scanned again (refitted once more if it
+    /// moved); the held-out steps are forecast at the same offset.
+    TimeOffset,
 }
 
 /// Every candidate, in the order they are tried.
-pub const ALL_CANDIDATES: [Candidate; 4] = [
+pub const ALL_CANDIDATES: [Candidate; 5] = [
     Candidate::Viscosity,
     Candidate::ViscosityNewtonian,
     Candidate::Density,
     Candidate::MarkerOffsets,
+    Candidate::TimeOffset,
 ];
 
 impl Candidate {
@@ -100,12 +108,14 @@ impl Candidate {
             Self::ViscosityNewtonian => "viscosity-newtonian",
             Self::Density => "density",
             Self::MarkerOffsets => "marker-offsets",
+            Self::TimeOffset => "time-offset",
         }
     }
     /// Parameters it adds to a model of `markers` markers.
     pub fn extra_params(self, markers: usize) -> usize {
         match self {
             Self::MarkerOffsets => 3 * markers,
+            Self::TimeOffset => 1,
             c => c.kinds().len(),
         }
     }
@@ -115,7 +125,7 @@ impl Candidate {
             Self::Viscosity => &[ParamKind::Nu, ParamKind::PowerH],
             Self::ViscosityNewtonian => &[ParamKind::Nu],
             Self::Density => &[ParamKind::Density],
-            Self::MarkerOffsets => &[],
+            Self::MarkerOffsets | Self::TimeOffset => &[],
         }
     }
     /// Effects that exclude each other (the two viscosity laws).
@@ -277,7 +287,13 @@ impl MotionDiagnosis {
     }
 }
 
-fn values_of(m: &FittedModel) -> Vec<Value> {
+/// The material's values, and the time offset (s, from steps of `dt`) when the model has one.
+fn values_of(m: &FittedModel, dt: f64) -> Vec<Value> {
+    let offset = m.time_offset.map(|r| Value {
+        name: "time offset of the markers (s)".into(),
+        value: r as f64 * dt,
+        sigma: None,
+    });
     ParamKind::ALL
         .iter()
         .map(|&k| {
@@ -292,6 +308,7 @@ fn values_of(m: &FittedModel) -> Vec<Value> {
                 sigma: i.and_then(|i| m.sigma.as_ref().map(|s| s[i])),
             }
         })
+        .chain(offset)
         .collect()
 }
 
@@ -318,7 +335,7 @@ fn starts(c: Candidate, cur: &FittedModel, ds: &MotionDataset) -> Vec<Vec<f64>> 
             q.push(cur.material.get(ParamKind::Density, 0));
             vec![q]
         }
-        Candidate::MarkerOffsets => vec![base],
+        Candidate::MarkerOffsets | Candidate::TimeOffset => vec![base],
     }
 }
 
@@ -330,6 +347,107 @@ struct MotionModel<'a> {
     /// Measured clamp forces: the density is identifiable only with them.
     has_forces: bool,
     log: &'a dyn Fn(&str),
+}
+
+impl MotionModel<'_> {
+    /// The fit of `c` on top of `cur` on the data `ds` split at `split`.
+    fn fit_on(
+        &self,
+        ds: &MotionDataset,
+        split: Split,
+        cur: &FittedModel,
+        c: Candidate,
+        kinds: &[ParamKind],
+    ) -> Result<FittedModel, MotionDiagnoseError> {
+        match (c, &cur.offsets) {
+            (Candidate::MarkerOffsets, _) => fit_with_offsets(
+                ds,
+                split,
+                &cur.material,
+                kinds,
+                &cur.values,
+                &vec![[0.0; 3]; ds.model.markers.len()],
+                OFFSET_ROUNDS,
+                self.o.max_iters,
+            ),
+            // Offsets adopted: later candidates refit the material and the offsets together.
+            (_, Some(off)) => fit_with_offsets(
+                ds,
+                split,
+                &cur.material,
+                kinds,
+                &starts(c, cur, ds)[0],
+                off,
+                OFFSET_ROUNDS,
+                self.o.max_iters,
+            ),
+            (_, None) => fit_model(
+                ds,
+                split,
+                &cur.material,
+                kinds,
+                &starts(c, cur, ds),
+                self.o.max_iters,
+                self.o.screen_iters,
+            ),
+        }
+    }
+
+    /// The time offset of the fitted steps under `mat` with the marker offsets `offsets`, scanned
+    /// ([`time_offset::scan`]; the held-out steps are a forecast and take no part).
+    fn scan_offset(
+        &self,
+        mat: &Material,
+        offsets: Option<&[[f64; 3]]>,
+    ) -> Result<i64, MotionDiagnoseError> {
+        let ds = offsets.map_or_else(|| self.ds.clone(), |o| with_offsets(self.ds, o));
+        let (model, obs) = fit::fitted_part(&ds, self.split);
+        Ok(time_offset::scan(&model, mat, &obs)?.0)
+    }
+
+    /// A fit with a time offset: the candidate's own offset scanned with the current material
+    /// (or the adopted one held), the fit on the re-timed data, its trajectory and scores read
+    /// back on the data's rows; for the time-offset candidate the offset is scanned again with
+    /// the refitted material and, if it moved, the material refitted once more.
+    fn fit_timed(
+        &self,
+        cur: &FittedModel,
+        c: Candidate,
+        kinds: &[ParamKind],
+    ) -> Result<FittedModel, MotionDiagnoseError> {
+        let mut r = match cur.time_offset {
+            Some(r) if c != Candidate::TimeOffset => r,
+            _ => self.scan_offset(&cur.material, cur.offsets.as_deref())?,
+        };
+        let mut evaluations = 0;
+        let mut rescanned = false;
+        loop {
+            let (d, split) = fit::retimed(self.ds, self.split, r)?;
+            let mut m = self.fit_on(&d, split, cur, c, kinds)?;
+            evaluations += m.evaluations;
+            let data = m
+                .offsets
+                .as_deref()
+                .map_or_else(|| self.ds.clone(), |o| with_offsets(self.ds, o));
+            m.traj = fit::run_trajectory_at(&data.model, &m.material, &data.obs, r)?;
+            m.scores = fit::scores(&m.traj, self.split);
+            m.time_offset = Some(r);
+            m.evaluations = evaluations;
+            (self.log)(&format!(
+                "  {} fitted at a time offset of {:+.1} ms",
+                c.name(),
+                1e3 * r as f64 * self.ds.model.dt
+            ));
+            if c != Candidate::TimeOffset || rescanned {
+                return Ok(m);
+            }
+            let again = self.scan_offset(&m.material, m.offsets.as_deref())?;
+            if again == r {
+                return Ok(m);
+            }
+            (r, rescanned) = (again, true);
+        }
+    }
 }
 
 /// The motion gate's figures of one candidate.
@@ -376,37 +494,12 @@ impl CandidateModel for MotionModel<'_> {
         }
         let mut kinds = cur.kinds.clone();
         kinds.extend_from_slice(c.kinds());
-        let r = match (c, &cur.offsets) {
-            (Candidate::MarkerOffsets, _) => fit_with_offsets(
-                self.ds,
-                self.split,
-                &cur.material,
-                &kinds,
-                &cur.values,
-                &vec![[0.0; 3]; self.ds.model.markers.len()],
-                OFFSET_ROUNDS,
-                self.o.max_iters,
-            ),
-            // Offsets adopted: later candidates refit the material and the offsets together.
-            (_, Some(off)) => fit_with_offsets(
-                self.ds,
-                self.split,
-                &cur.material,
-                &kinds,
-                &starts(c, cur, self.ds)[0],
-                off,
-                OFFSET_ROUNDS,
-                self.o.max_iters,
-            ),
-            (_, None) => fit_model(
-                self.ds,
-                self.split,
-                &cur.material,
-                &kinds,
-                &starts(c, cur, self.ds),
-                self.o.max_iters,
-                self.o.screen_iters,
-            ),
+        // With a time offset (this candidate, or adopted before) every fit runs on the data
+        // re-timed to the simulation's clock and is read back on the data's own rows.
+        let r = if c == Candidate::TimeOffset || cur.time_offset.is_some() {
+            self.fit_timed(cur, c, &kinds)
+        } else {
+            self.fit_on(self.ds, self.split, cur, c, &kinds)
         };
         // A failed fit is a finding about this candidate, not the end of the diagnosis.
         Ok(match r {
@@ -424,7 +517,7 @@ impl CandidateModel for MotionModel<'_> {
     }
 
     fn summarise(&self, m: &FittedModel) -> (Vec<Value>, Scores, usize) {
-        let mut values: Vec<Value> = values_of(m)
+        let mut values: Vec<Value> = values_of(m, self.ds.model.dt)
             .into_iter()
             .filter(|v| !v.name.ends_with("(fixed)"))
             .collect();
@@ -678,9 +771,9 @@ pub fn diagnose(
         ),
         rounds,
         adopted: adopted.iter().map(|c| c.name().to_string()).collect(),
-        before_values: values_of(&simplest),
+        before_values: values_of(&simplest, ds.model.dt),
         before: simplest.scores,
-        after_values: values_of(&cur),
+        after_values: values_of(&cur, ds.model.dt),
         after: cur.scores,
         speed_before: sp_b,
         speed_after: final_signature.speed_bins.clone(),

@@ -195,6 +195,7 @@ fn unit(name: &str) -> &'static str {
         Some(ParamKind::Density) => "kg/m³",
         Some(_) => "",
         None if name.starts_with("marker offsets") => "m",
+        None if name.starts_with("time offset") => "s",
         None => "",
     }
 }
