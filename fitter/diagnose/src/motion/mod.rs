@@ -405,20 +405,17 @@ impl MotionModel<'_> {
         Ok(time_offset::scan(&model, mat, &obs)?.0)
     }
 
-    /// A fit with a time offset: the candidate's own offset scanned with the current material
-    /// (or the adopted one held), the fit on the re-timed data, its trajectory and scores read
-    /// back on the data's rows; for the time-offset candidate the offset is scanned again with
-    /// the refitted material and, if it moved, the material refitted once more.
+    /// A fit at the time offset `r` (the candidate's own, scanned with the current material, or
+    /// the adopted one): the fit on the re-timed data, its trajectory and scores read back on the
+    /// data's rows; for the time-offset candidate the offset is scanned again with the refitted
+    /// material and, if it moved, the material refitted once more.
     fn fit_timed(
         &self,
         cur: &FittedModel,
         c: Candidate,
         kinds: &[ParamKind],
+        mut r: i64,
     ) -> Result<FittedModel, MotionDiagnoseError> {
-        let mut r = match cur.time_offset {
-            Some(r) if c != Candidate::TimeOffset => r,
-            _ => self.scan_offset(&cur.material, cur.offsets.as_deref())?,
-        };
         let mut evaluations = 0;
         let mut rescanned = false;
         loop {
@@ -496,8 +493,19 @@ impl CandidateModel for MotionModel<'_> {
         kinds.extend_from_slice(c.kinds());
         // With a time offset (this candidate, or adopted before) every fit runs on the data
         // re-timed to the simulation's clock and is read back on the data's own rows.
-        let r = if c == Candidate::TimeOffset || cur.time_offset.is_some() {
-            self.fit_timed(cur, c, &kinds)
+        let r = if c == Candidate::TimeOffset {
+            let r = match self.scan_offset(&cur.material, cur.offsets.as_deref()) {
+                Ok(r) => r,
+                Err(e) => return Ok(Outcome::NotFitted(format!("scan failed: {e}"))),
+            };
+            if r == 0 {
+                return Ok(Outcome::NotFitted(
+                    "the scan puts the markers in step with the simulation (offset 0)".into(),
+                ));
+            }
+            self.fit_timed(cur, c, &kinds, r)
+        } else if let Some(r) = cur.time_offset {
+            self.fit_timed(cur, c, &kinds, r)
         } else {
             self.fit_on(self.ds, self.split, cur, c, &kinds)
         };

@@ -604,29 +604,17 @@ impl RunsModel<'_> {
         })
     }
 
-    /// A fit with the time offset among `effects`: the offsets `adopted` (a later candidate) or
-    /// scanned with the current material (the candidate itself), the material refitted with them
-    /// held; scanned again with the refitted material, refitted once more if one moved (module
-    /// note).
+    /// A fit with the time offset among `effects`, starting from `offsets` (scanned with the
+    /// current material for the candidate itself, adopted for a later one): the material refitted
+    /// with them held; scanned again with the refitted material, refitted once more if one moved
+    /// (module note).
     fn fit_time_offset(
         &self,
         round: usize,
         effects: &[Effect],
         start: &Material,
-        adopted: Option<Vec<i64>>,
+        mut offsets: Vec<i64>,
     ) -> Result<RunsFit, MotionError> {
-        let mut offsets = match adopted {
-            Some(o) => o,
-            None => {
-                let o = Self::scan_offsets(self.fit, effects, start)?;
-                (self.log)(&format!(
-                    "round {round}: time offsets scanned (±{} frames): {}",
-                    time_offset::SCAN_FRAMES,
-                    Self::describe_offsets(self.fit, &o)
-                ));
-                o
-            }
-        };
         let mut f = self.fit(effects, start, &offsets)?;
         let again = Self::scan_offsets(self.fit, effects, &f.material)?;
         if again != offsets {
@@ -711,9 +699,30 @@ impl CandidateModel for RunsModel<'_> {
             ));
             start.set(&[Param::global(ParamKind::Nu)], &[nu]);
         }
-        let fitted = if effects.contains(&Effect::TimeOffset) {
-            let held = (c != Effect::TimeOffset).then(|| cur.offsets.clone());
-            self.fit_time_offset(round, &effects, &start, held)
+        let fitted = if c == Effect::TimeOffset {
+            let scanned = Self::scan_offsets(self.fit, &effects, &start)?;
+            (self.log)(&format!(
+                "round {round}: time offsets scanned (±{} frames): {}",
+                time_offset::SCAN_FRAMES,
+                Self::describe_offsets(self.fit, &scanned)
+            ));
+            if scanned.iter().all(|&r| r == 0) {
+                let why = "the scan puts every run in step with the simulation (offsets 0)";
+                self.trials.push(Trial {
+                    round,
+                    effect: c,
+                    delta_bic: f64::NAN,
+                    rms_fit_m: None,
+                    rms_held_m: None,
+                    gate: None,
+                    not_fitted: Some(why.into()),
+                    adopted: false,
+                });
+                return Ok(Outcome::NotFitted(why.into()));
+            }
+            self.fit_time_offset(round, &effects, &start, scanned)
+        } else if effects.contains(&Effect::TimeOffset) {
+            self.fit_time_offset(round, &effects, &start, cur.offsets.clone())
         } else {
             self.fit(&effects, &start, &cur.offsets)
         };
