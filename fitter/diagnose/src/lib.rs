@@ -521,16 +521,14 @@ fn paired_t(old: &Held, new: &Held) -> f64 {
     mean / (var / m).sqrt()
 }
 
-/// The information criterion on held-out predictions: n ln(χ²_new/χ²_old) + k ln n over the
-/// leave-one-out residuals (n entries, k extra parameters). Negative when the held-out gain pays
-/// for the extra parameters at the same price BIC charges on the fitted data.
+/// [`select::heldout_delta_bic`] over the leave-one-out residuals (k extra parameters); infinite
+/// when either χ² is zero, since an exact held-out prediction says nothing about the effect.
 fn heldout_delta_bic(old: &Held, new: &Held, k: usize) -> f64 {
-    let n = old.markers.len() as f64 * 3.0;
     let (a, b) = (old.chi2.iter().sum::<f64>(), new.chi2.iter().sum::<f64>());
     if !(a > 0.0 && b > 0.0) {
         return f64::INFINITY;
     }
-    n * (b / a).ln() + k as f64 * n.ln()
+    select::heldout_delta_bic(a, b, 3 * old.markers.len(), k)
 }
 
 /// Leave-one-measurement-out: refit without each measurement (warm-started from the full fit),

@@ -59,6 +59,128 @@ impl Score {
     }
 }
 
+/// ΔBIC on held-out predictions: n ln(χ²_new/χ²_old) + k ln n over n held-out residual entries
+/// (floored at 1) and k extra parameters — [`bic`]'s difference at equal n, so that the held-out
+/// gain must pay for the extra parameters at the price BIC charges on the fitted data.
+pub fn heldout_delta_bic(chi2_old: f64, chi2_new: f64, n: usize, extra: usize) -> f64 {
+    let n = n.max(1) as f64;
+    n * (chi2_new / chi2_old).ln() + extra as f64 * n.ln()
+}
+
+/// The held-out adoption gate of the runs and motion diagnoses (the curve diagnosis runs it
+/// without the held-out ΔBIC): an effect is adopted only if it pays for its parameters on the
+/// fitted data (ΔBIC < −`bic_threshold`), pays for them on the held-out data too (held-out
+/// ΔBIC < 0), and lowers the held-out RMS by at least `min_holdout_gain` — a fit that improves
+/// only where it was fitted has learned the noise.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HeldoutGate {
+    /// Fitted ΔBIC must be below −this.
+    pub bic_threshold: f64,
+    /// The held-out RMS must fall by at least this fraction.
+    pub min_holdout_gain: f64,
+}
+
+/// The figures and words of a [`HeldoutGate`] verdict, as the runs and motion reports keep them.
+#[derive(Debug, Clone, Serialize)]
+pub struct GateDetail {
+    /// Held-out ΔBIC.
+    pub heldout_delta_bic: f64,
+    /// Relative change of the held-out RMS.
+    pub heldout_gain: f64,
+    /// The verdict in words.
+    pub reason: String,
+}
+
+/// How a pass is put into words: the runs report gives the figures, the motion report the
+/// thresholds beside them (both wordings predate the shared gate, and committed results quote
+/// them). A failure is worded the same in both.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PassWords {
+    /// `passes: ΔBIC …, held-out ΔBIC …, held-out RMS … %`.
+    Figures,
+    /// `passes: ΔBIC … < −…, held-out ΔBIC … < 0, held-out RMS … % (≤ −… %)`.
+    WithThresholds,
+}
+
+impl HeldoutGate {
+    /// The tests that fail, in words (none: the candidate passes). `heldout_delta_bic` is not
+    /// tested when `None`; `heldout_gain` is the relative change of the held-out RMS (negative
+    /// is better).
+    pub fn failures(
+        &self,
+        delta_bic: f64,
+        heldout_delta_bic: Option<f64>,
+        heldout_gain: f64,
+    ) -> Vec<String> {
+        let fitted = delta_bic < -self.bic_threshold;
+        let gain = heldout_gain <= -self.min_holdout_gain;
+        let mut why = Vec::new();
+        if !fitted {
+            why.push(format!("ΔBIC {delta_bic:.1} not < −{}", self.bic_threshold));
+        }
+        if let Some(d) = heldout_delta_bic {
+            let held = d < 0.0;
+            if !held {
+                why.push(format!("held-out ΔBIC {d:.1} not < 0"));
+            }
+        }
+        if !gain {
+            why.push(format!(
+                "held-out RMS {:+.1} % (needs ≤ −{:.0} %)",
+                100.0 * heldout_gain,
+                100.0 * self.min_holdout_gain
+            ));
+        }
+        why
+    }
+
+    /// Whether the candidate passes every test.
+    pub fn passes(
+        &self,
+        delta_bic: f64,
+        heldout_delta_bic: Option<f64>,
+        heldout_gain: f64,
+    ) -> bool {
+        self.failures(delta_bic, heldout_delta_bic, heldout_gain)
+            .is_empty()
+    }
+
+    /// The full gate: whether the candidate passes, and the figures and reason to report.
+    pub fn judge(
+        &self,
+        delta_bic: f64,
+        heldout_delta_bic: f64,
+        heldout_gain: f64,
+        words: PassWords,
+    ) -> (bool, GateDetail) {
+        let why = self.failures(delta_bic, Some(heldout_delta_bic), heldout_gain);
+        let passes = why.is_empty();
+        let reason = match words {
+            _ if !passes => format!("fails: {}", why.join("; ")),
+            PassWords::Figures => format!(
+                "passes: ΔBIC {delta_bic:.1}, held-out ΔBIC {heldout_delta_bic:.1}, held-out RMS \
+                 {:+.1} %",
+                100.0 * heldout_gain
+            ),
+            PassWords::WithThresholds => format!(
+                "passes: ΔBIC {delta_bic:.1} < −{}, held-out ΔBIC {heldout_delta_bic:.1} < 0, \
+                 held-out RMS {:+.1} % (≤ −{:.0} %)",
+                self.bic_threshold,
+                100.0 * heldout_gain,
+                100.0 * self.min_holdout_gain
+            ),
+        };
+        (
+            passes,
+            GateDetail {
+                heldout_delta_bic,
+                heldout_gain,
+                reason,
+            },
+        )
+    }
+}
+
 /// What became of fitting one candidate.
 #[derive(Debug)]
 pub enum Outcome<F> {
@@ -507,4 +629,44 @@ pub fn select<M: CandidateModel>(
         }
     }
     Ok(Verdict { rounds, path, stop })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The gate's words are those the reports printed before it was shared (committed results
+    /// quote them), and the curve diagnosis' form without the held-out ΔBIC tests the rest.
+    #[test]
+    fn heldout_gate_words_and_tests() {
+        let gate = HeldoutGate {
+            bic_threshold: 10.0,
+            min_holdout_gain: 0.05,
+        };
+        let (passes, d) = gate.judge(-4128.2, -2929.7, -0.588, PassWords::WithThresholds);
+        assert!(passes);
+        assert_eq!(
+            d.reason,
+            "passes: ΔBIC -4128.2 < −10, held-out ΔBIC -2929.7 < 0, held-out RMS -58.8 % (≤ −5 %)"
+        );
+        let (passes, d) = gate.judge(-44534.8, -42199.5, -0.7, PassWords::Figures);
+        assert!(passes);
+        assert_eq!(
+            d.reason,
+            "passes: ΔBIC -44534.8, held-out ΔBIC -42199.5, held-out RMS -70.0 %"
+        );
+        for words in [PassWords::Figures, PassWords::WithThresholds] {
+            let (passes, d) = gate.judge(8583.7, 8421.2, 0.271, words);
+            assert!(!passes);
+            assert_eq!(
+                d.reason,
+                "fails: ΔBIC 8583.7 not < −10; held-out ΔBIC 8421.2 not < 0; held-out RMS +27.1 % \
+                 (needs ≤ −5 %)"
+            );
+        }
+        assert!(gate.passes(-10.5, None, -0.05));
+        assert!(!gate.passes(-10.0, None, -0.5));
+        assert!(!gate.passes(-20.0, None, -0.04));
+        assert!(!gate.passes(-20.0, None, f64::NAN));
+    }
 }

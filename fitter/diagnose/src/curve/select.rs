@@ -13,7 +13,8 @@ use super::read::Group;
 use super::signature::{directions, holds, rates, signature, Signature, Variable};
 use super::CurveOptions;
 use crate::select::{
-    self as engine, CandidateModel, Current, Gate, Outcome, Policy, Rank, Score, Screen, Verdict,
+    self as engine, CandidateModel, Current, Gate, HeldoutGate, Outcome, Policy, Rank, Score,
+    Screen, Verdict,
 };
 
 /// Error figures in the response's unit.
@@ -345,7 +346,12 @@ impl CandidateModel for CurveModel<'_> {
             .map_or(f64::INFINITY, |h| h.1.heldout_rms);
         let db = cand.delta_bic;
         let gain = 1.0 - hr / cur_rms;
-        let passes = db < -o.bic_threshold && gain >= o.min_holdout_gain;
+        // No held-out ΔBIC: the curve diagnosis ranks by the held-out RMS instead.
+        let gate = HeldoutGate {
+            bic_threshold: o.bic_threshold,
+            min_holdout_gain: o.min_holdout_gain,
+        };
+        let passes = gate.passes(db, None, -gain);
         (self.log)(&format!(
             "  {:<28} ΔBIC {:>10.1}  held-out RMS {:.4e} (gain {:+.1} %){}",
             cand.candidate.name(),

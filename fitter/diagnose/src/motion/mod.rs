@@ -27,7 +27,8 @@ pub mod report;
 pub mod signature;
 
 use crate::select::{
-    self, select, CandidateModel, Current, Gate, Outcome, Policy, Rank, Score, Screen, Verdict,
+    self, select, CandidateModel, Current, Gate, GateDetail, HeldoutGate, Outcome, PassWords,
+    Policy, Rank, Score, Screen, Verdict,
 };
 use fit::{fit_model, fit_with_offsets, with_offsets, FittedModel, Scores, Split};
 use palpate_motion::dataset::{DatasetError, MotionDataset};
@@ -447,13 +448,6 @@ impl MotionModel<'_> {
     }
 }
 
-/// The motion gate's figures of one candidate.
-struct MotionGate {
-    heldout_delta_bic: f64,
-    heldout_gain: f64,
-    reason: String,
-}
-
 impl CandidateModel for MotionModel<'_> {
     type Candidate = Candidate;
     type Fitted = FittedModel;
@@ -462,7 +456,7 @@ impl CandidateModel for MotionModel<'_> {
     type Observed = Signature;
     /// Free values (fixed ones left out), scores, simulations run.
     type Summary = (Vec<Value>, Scores, usize);
-    type Detail = MotionGate;
+    type Detail = GateDetail;
     type Adoption = ();
     type Error = MotionDiagnoseError;
 
@@ -556,43 +550,25 @@ impl CandidateModel for MotionModel<'_> {
         &mut self,
         cur: &Current<'_, Self>,
         cand: &select::Candidate<'_, Self>,
-    ) -> Gate<MotionGate> {
+    ) -> Gate<GateDetail> {
         let o = self.o;
         let (s0, s1) = (cur.held, cand.held);
         let delta_bic = cand.delta_bic;
         let dk = cand.candidate.extra_params(self.ds.model.markers.len());
-        let heldout_delta_bic = s1.n_held as f64 * (s1.chi2_held / s0.chi2_held).ln()
-            + dk as f64 * (s1.n_held.max(1) as f64).ln();
+        let heldout_delta_bic =
+            select::heldout_delta_bic(s0.chi2_held, s1.chi2_held, s1.n_held, dk);
         let heldout_gain = s1.rms_held / s0.rms_held - 1.0;
-        let a = delta_bic < -o.bic_threshold;
-        let b = heldout_delta_bic < 0.0;
-        let g = heldout_gain <= -o.min_holdout_gain;
-        let passes = a && b && g;
-        let reason = if passes {
-            format!(
-                "passes: ΔBIC {delta_bic:.1} < −{}, held-out ΔBIC {heldout_delta_bic:.1} < 0, \
-                 held-out RMS {:+.1} % (≤ −{:.0} %)",
-                o.bic_threshold,
-                100.0 * heldout_gain,
-                100.0 * o.min_holdout_gain
-            )
-        } else {
-            let mut why = Vec::new();
-            if !a {
-                why.push(format!("ΔBIC {delta_bic:.1} not < −{}", o.bic_threshold));
-            }
-            if !b {
-                why.push(format!("held-out ΔBIC {heldout_delta_bic:.1} not < 0"));
-            }
-            if !g {
-                why.push(format!(
-                    "held-out RMS {:+.1} % (needs ≤ −{:.0} %)",
-                    100.0 * heldout_gain,
-                    100.0 * o.min_holdout_gain
-                ));
-            }
-            format!("fails: {}", why.join("; "))
+        let gate = HeldoutGate {
+            bic_threshold: o.bic_threshold,
+            min_holdout_gain: o.min_holdout_gain,
         };
+        let (passes, detail) = gate.judge(
+            delta_bic,
+            heldout_delta_bic,
+            heldout_gain,
+            PassWords::WithThresholds,
+        );
+        let reason = &detail.reason;
         (self.log)(&format!(
             "round {}: {}: RMS {:.1}/{:.1} µm, ΔBIC {delta_bic:.1}, held-out ΔBIC \
              {heldout_delta_bic:.1}, {reason}",
@@ -605,11 +581,7 @@ impl CandidateModel for MotionModel<'_> {
             passes,
             heldout_delta_bic,
             heldout_rank: s1.rms_held,
-            detail: MotionGate {
-                heldout_delta_bic,
-                heldout_gain,
-                reason,
-            },
+            detail,
         }
     }
 

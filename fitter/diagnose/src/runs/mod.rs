@@ -42,8 +42,8 @@
 pub mod report;
 
 use crate::select::{
-    self, select, CandidateModel, Current, Gate, Outcome, ParamValue, Policy, Rank, Score, Screen,
-    Stop,
+    self, select, CandidateModel, Current, Gate, HeldoutGate, Outcome, ParamValue, PassWords,
+    Policy, Rank, Score, Screen, Stop,
 };
 use palpate_motion::dataset::MotionDataset;
 use palpate_motion::fitted::{set_hanging_inertia, FittedModel, FittedRun};
@@ -267,16 +267,7 @@ impl Held {
     }
 }
 
-/// The gate's figures.
-#[derive(Debug, Clone, Serialize)]
-pub struct GateDetail {
-    /// Held-out ΔBIC.
-    pub heldout_delta_bic: f64,
-    /// Relative change of the held-out RMS.
-    pub heldout_gain: f64,
-    /// The verdict in words.
-    pub reason: String,
-}
+pub use crate::select::GateDetail;
 
 /// One candidate tried, as reported.
 #[derive(Debug, Clone, Serialize)]
@@ -467,6 +458,20 @@ struct RunsModel<'a> {
 }
 
 impl RunsModel<'_> {
+    /// Records a candidate that could not be fitted, and tells the engine why.
+    fn not_fitted(&mut self, round: usize, effect: Effect, why: String) -> Outcome<RunsFit> {
+        self.trials.push(Trial {
+            round,
+            effect,
+            delta_bic: f64::NAN,
+            rms_fit_m: None,
+            rms_held_m: None,
+            gate: None,
+            not_fitted: Some(why.clone()),
+            adopted: false,
+        });
+        Outcome::NotFitted(why)
+    }
     /// The runs with the effects' structural changes (hanging inertia) applied.
     fn models(
         sets: &[(String, MotionDataset)],
@@ -708,17 +713,7 @@ impl CandidateModel for RunsModel<'_> {
             ));
             if scanned.iter().all(|&r| r == 0) {
                 let why = "the scan puts every run in step with the simulation (offsets 0)";
-                self.trials.push(Trial {
-                    round,
-                    effect: c,
-                    delta_bic: f64::NAN,
-                    rms_fit_m: None,
-                    rms_held_m: None,
-                    gate: None,
-                    not_fitted: Some(why.into()),
-                    adopted: false,
-                });
-                return Ok(Outcome::NotFitted(why.into()));
+                return Ok(self.not_fitted(round, c, why.into()));
             }
             self.fit_time_offset(round, &effects, &start, scanned)
         } else if effects.contains(&Effect::TimeOffset) {
@@ -728,19 +723,7 @@ impl CandidateModel for RunsModel<'_> {
         };
         match fitted {
             Ok(f) => Ok(Outcome::Fitted(f)),
-            Err(e) => {
-                self.trials.push(Trial {
-                    round,
-                    effect: c,
-                    delta_bic: f64::NAN,
-                    rms_fit_m: None,
-                    rms_held_m: None,
-                    gate: None,
-                    not_fitted: Some(e.to_string()),
-                    adopted: false,
-                });
-                Ok(Outcome::NotFitted(e.to_string()))
-            }
+            Err(e) => Ok(self.not_fitted(round, c, e.to_string())),
         }
     }
 
@@ -779,40 +762,20 @@ impl CandidateModel for RunsModel<'_> {
     ) -> Gate<GateDetail> {
         let o = self.o;
         let ((c0, _), (c1, n1)) = (cur.held.chi2(), cand.held.chi2());
-        let dk = cand.candidate.parameters(self.held.len()) as f64;
-        let nh = (n1.max(1)) as f64;
-        let heldout_delta_bic = nh * (c1 / c0).ln() + dk * nh.ln();
+        let dk = cand.candidate.parameters(self.held.len());
+        let heldout_delta_bic = select::heldout_delta_bic(c0, c1, n1, dk);
         let heldout_gain = cand.held.rms() / cur.held.rms() - 1.0;
-        let a = cand.delta_bic < -o.bic_threshold;
-        let b = heldout_delta_bic < 0.0;
-        let g = heldout_gain <= -o.min_holdout_gain;
-        let passes = a && b && g;
-        let mut why = Vec::new();
-        if !a {
-            why.push(format!(
-                "ΔBIC {:.1} not < −{}",
-                cand.delta_bic, o.bic_threshold
-            ));
-        }
-        if !b {
-            why.push(format!("held-out ΔBIC {heldout_delta_bic:.1} not < 0"));
-        }
-        if !g {
-            why.push(format!(
-                "held-out RMS {:+.1} % (needs ≤ −{:.0} %)",
-                100.0 * heldout_gain,
-                100.0 * o.min_holdout_gain
-            ));
-        }
-        let reason = if passes {
-            format!(
-                "passes: ΔBIC {:.1}, held-out ΔBIC {heldout_delta_bic:.1}, held-out RMS {:+.1} %",
-                cand.delta_bic,
-                100.0 * heldout_gain
-            )
-        } else {
-            format!("fails: {}", why.join("; "))
+        let gate = HeldoutGate {
+            bic_threshold: o.bic_threshold,
+            min_holdout_gain: o.min_holdout_gain,
         };
+        let (passes, detail) = gate.judge(
+            cand.delta_bic,
+            heldout_delta_bic,
+            heldout_gain,
+            PassWords::Figures,
+        );
+        let reason = &detail.reason;
         let (fc, fnn) = cand.fitted.chi2();
         (self.log)(&format!(
             "round {}: {}: fitted RMS {:.3} mm, held-out RMS {:.3} mm ({} simulations): {reason}",
@@ -822,11 +785,6 @@ impl CandidateModel for RunsModel<'_> {
             1e3 * cand.held.rms(),
             cand.fitted.evaluations
         ));
-        let detail = GateDetail {
-            heldout_delta_bic,
-            heldout_gain,
-            reason,
-        };
         self.trials.push(Trial {
             round: cur.round,
             effect: cand.candidate,
