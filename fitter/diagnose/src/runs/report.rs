@@ -41,6 +41,15 @@ fn rows(md: &mut String, before: &[RunResidual], after: &[RunResidual]) {
     }
 }
 
+/// The adopted effects' names, in the order adopted.
+fn adopted_names(r: &RunsDiagnosis, separator: &str) -> String {
+    r.adopted
+        .iter()
+        .map(|e| e.name())
+        .collect::<Vec<_>>()
+        .join(separator)
+}
+
 /// The markdown report.
 pub fn markdown(r: &RunsDiagnosis) -> String {
     let mut md = String::new();
@@ -59,14 +68,7 @@ pub fn markdown(r: &RunsDiagnosis) -> String {
     let adopted = if r.adopted.is_empty() {
         "nothing adopted: no candidate predicts the held-out runs better".to_string()
     } else {
-        format!(
-            "adopted {}",
-            r.adopted
-                .iter()
-                .map(|e| e.name())
-                .collect::<Vec<_>>()
-                .join(", then ")
-        )
+        format!("adopted {}", adopted_names(r, ", then "))
     };
     let _ = writeln!(
         md,
@@ -227,14 +229,11 @@ pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBu
     let after_name = if r.adopted.is_empty() {
         "final (= simplest)".to_string()
     } else {
-        format!(
-            "+ {}",
-            r.adopted
-                .iter()
-                .map(|e| e.name())
-                .collect::<Vec<_>>()
-                .join(" + ")
-        )
+        format!("+ {}", adopted_names(r, " + "))
+    };
+    // Every plot sets the measurement beside the simplest and the final model.
+    let plot = |file: String, title: &str, axes: [&str; 2], series: &[Series]| {
+        lines(dir.join(file), title, axes[0], axes[1], series).map_err(|e| w(e.to_string()))
     };
     // The variable that revealed the inertia: the ring-down period against the hanging load,
     // measured and simulated by the simplest and the final model, every run.
@@ -254,23 +253,19 @@ pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBu
         period(&all_after, false),
     );
     if !pm.is_empty() {
-        {
-            let p = dir.join("period-vs-load.svg");
-            out.extend(
-                lines(
-                    &p,
-                    "Ring-down period against the hanging load (every run)",
-                    "hanging load along gravity (N)",
-                    "period of the ring-down (ms)",
-                    &[
-                        Series::new("measured", &pm, Style::Points),
-                        Series::new("simplest model", &p0, Style::Points),
-                        Series::new(&after_name, &p1, Style::Points),
-                    ],
-                )
-                .map_err(|e| w(e.to_string()))?,
-            );
-        }
+        out.extend(plot(
+            "period-vs-load.svg".into(),
+            "Ring-down period against the hanging load (every run)",
+            [
+                "hanging load along gravity (N)",
+                "period of the ring-down (ms)",
+            ],
+            &[
+                Series::new("measured", &pm, Style::Points),
+                Series::new("simplest model", &p0, Style::Points),
+                Series::new(&after_name, &p1, Style::Points),
+            ],
+        )?);
     }
     for (b, a) in r.before.1.iter().zip(&r.after.1) {
         let pts = |v: &[f64]| -> Vec<(f64, f64)> {
@@ -281,27 +276,20 @@ pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBu
                 .collect()
         };
         let (m, s0, s1) = (pts(&b.ring.0), pts(&b.ring.1), pts(&a.ring.1));
-        {
-            let p = dir.join(format!("ring-{}.svg", slug(&b.run)));
-            out.extend(
-                lines(
-                    &p,
-                    &format!(
-                        "Held-out run {}: marker {} predicted",
-                        slug(&b.run),
-                        b.ring_marker
-                    ),
-                    "time after release (s)",
-                    "displacement along gravity (mm)",
-                    &[
-                        Series::new("measured", &m, Style::Points),
-                        Series::new("simplest model", &s0, Style::Line),
-                        Series::new(&after_name, &s1, Style::Line),
-                    ],
-                )
-                .map_err(|e| w(e.to_string()))?,
-            );
-        }
+        out.extend(plot(
+            format!("ring-{}.svg", slug(&b.run)),
+            &format!(
+                "Held-out run {}: marker {} predicted",
+                slug(&b.run),
+                b.ring_marker
+            ),
+            ["time after release (s)", "displacement along gravity (mm)"],
+            &[
+                Series::new("measured", &m, Style::Points),
+                Series::new("simplest model", &s0, Style::Line),
+                Series::new(&after_name, &s1, Style::Line),
+            ],
+        )?);
     }
     Ok(out)
 }
