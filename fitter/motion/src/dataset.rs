@@ -270,6 +270,76 @@ pub const MAX_STEPS_PAST_DATA: usize = 2;
 /// enough for markers on stand-offs, not for a marker in the wrong units or the wrong frame.
 pub const MARKER_OUTSIDE_FRACTION: f64 = 0.25;
 
+/// One kind of observed 3-vector series: rows `t, <name>, a, b, c` of a CSV file.
+struct Series {
+    /// What column 1 names (a marker, a clamp).
+    name: &'static str,
+    /// Where those names are declared.
+    declared_in: &'static str,
+    /// The vector's three fields.
+    fields: [&'static str; 3],
+}
+
+/// trajectories.csv: marker positions.
+const MARKER_POSITIONS: Series = Series {
+    name: "marker",
+    declared_in: "markers.csv",
+    fields: ["x", "y", "z"],
+};
+
+/// forces.csv: clamp reaction forces.
+const CLAMP_FORCES: Series = Series {
+    name: "clamp",
+    declared_in: "dataset.toml clamps",
+    fields: ["fx", "fy", "fz"],
+};
+
+/// Reads the rows of a [`Series`] file into `out` (a row per step, a column per name as `index`
+/// numbers them): a name given twice at the same step is an error, since the two rows would
+/// silently overwrite each other; rows at step 0 or after the last step are not fitted.
+fn read_series(
+    file: &Path,
+    rows: &[(usize, Vec<String>)],
+    dt: f64,
+    series: &Series,
+    out: &mut [Vec<Option<[f64; 3]>>],
+    index: impl Fn(&str) -> Option<usize>,
+) -> Result<(), DatasetError> {
+    let mut seen: HashMap<(usize, usize), usize> = HashMap::new();
+    for (line, f) in rows {
+        let n = step_of(file, *line, num(file, *line, "t", &f[0])?, dt)?;
+        let i = index(&f[1]).ok_or_else(|| {
+            bad(
+                file,
+                *line,
+                format!(
+                    "field {}: {:?} not in {}",
+                    series.name, f[1], series.declared_in
+                ),
+            )
+        })?;
+        if let Some(first) = seen.insert((n, i), *line) {
+            return Err(bad(
+                file,
+                *line,
+                format!(
+                    "{} {:?} at t = {} s is given twice (first at line {first})",
+                    series.name, f[1], f[0]
+                ),
+            ));
+        }
+        if n >= 1 && n <= out.len() {
+            let [a, b, c] = series.fields;
+            out[n - 1][i] = Some([
+                num(file, *line, a, &f[2])?,
+                num(file, *line, b, &f[3])?,
+                num(file, *line, c, &f[4])?,
+            ]);
+        }
+    }
+    Ok(())
+}
+
 fn step_of(file: &Path, line: usize, t: f64, dt: f64) -> Result<usize, DatasetError> {
     let n = (t / dt).round();
     if n < 0.0 || (t - n * dt).abs() > 1e-3 * dt {
@@ -556,64 +626,14 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
         force_weight: config.force_weight.unwrap_or(1.0),
     };
     if let Some((_, rows)) = &traj {
-        let mut seen_markers: HashMap<(usize, usize), usize> = HashMap::new();
-        for (line, f) in rows {
-            let n = step_of(&jf, *line, num(&jf, *line, "t", &f[0])?, dt)?;
-            let i = *marker_index.get(&f[1]).ok_or_else(|| {
-                bad(
-                    &jf,
-                    *line,
-                    format!("field marker: {:?} not in markers.csv", f[1]),
-                )
-            })?;
-            if let Some(first) = seen_markers.insert((n, i), *line) {
-                return Err(bad(
-                    &jf,
-                    *line,
-                    format!(
-                        "marker {:?} at t = {} s is given twice (first at line {first})",
-                        f[1], f[0]
-                    ),
-                ));
-            }
-            if n >= 1 && n <= steps {
-                obs.markers[n - 1][i] = Some([
-                    num(&jf, *line, "x", &f[2])?,
-                    num(&jf, *line, "y", &f[3])?,
-                    num(&jf, *line, "z", &f[4])?,
-                ]);
-            }
-        }
+        read_series(&jf, rows, dt, &MARKER_POSITIONS, &mut obs.markers, |name| {
+            marker_index.get(name).copied()
+        })?;
     }
     if let Some((_, rows)) = &forces {
-        let mut seen_forces: HashMap<(usize, usize), usize> = HashMap::new();
-        for (line, f) in rows {
-            let n = step_of(&ff, *line, num(&ff, *line, "t", &f[0])?, dt)?;
-            let c = *clamp_index.get(f[1].as_str()).ok_or_else(|| {
-                bad(
-                    &ff,
-                    *line,
-                    format!("field clamp: {:?} not in dataset.toml clamps", f[1]),
-                )
-            })?;
-            if let Some(first) = seen_forces.insert((n, c), *line) {
-                return Err(bad(
-                    &ff,
-                    *line,
-                    format!(
-                        "clamp {:?} at t = {} s is given twice (first at line {first})",
-                        f[1], f[0]
-                    ),
-                ));
-            }
-            if n >= 1 && n <= steps {
-                obs.forces[n - 1][c] = Some([
-                    num(&ff, *line, "fx", &f[2])?,
-                    num(&ff, *line, "fy", &f[3])?,
-                    num(&ff, *line, "fz", &f[4])?,
-                ]);
-            }
-        }
+        read_series(&ff, rows, dt, &CLAMP_FORCES, &mut obs.forces, |name| {
+            clamp_index.get(name).copied()
+        })?;
     }
     if traj.is_none() && forces.is_none() {
         return Err(bad(
