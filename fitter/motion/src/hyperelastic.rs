@@ -279,16 +279,34 @@ pub(crate) mod tests {
         RestTet::sample()
     }
 
+    /// The corners moved by ±`h` along coordinate `c` (node c / 3, axis c % 3): the two points
+    /// of a central difference.
+    pub(crate) fn central_pair(
+        x: &[Vector3<f64>; 4],
+        c: usize,
+        h: f64,
+    ) -> ([Vector3<f64>; 4], [Vector3<f64>; 4]) {
+        let (mut xp, mut xm) = (*x, *x);
+        xp[c / 3][c % 3] += h;
+        xm[c / 3][c % 3] -= h;
+        (xp, xm)
+    }
+
+    /// The test material (λ = 3e4 Pa, μ = 1e4 Pa, soft-tissue order) with stiffening `c`.
+    fn material(stiffening: f64) -> HyperParams {
+        HyperParams {
+            lambda: 3e4,
+            mu: 1e4,
+            stiffening,
+        }
+    }
+
     /// Forces are minus the energy gradient and the tangent is minus the force Jacobian; central
     /// differences with h = 1e-8 m on a 1 cm element are accurate to ~1e-6 relative.
     #[test]
     fn forces_and_tangent_match_finite_differences() {
         let (t, x0) = tet();
-        let p = HyperParams {
-            lambda: 3e4,
-            mu: 1e4,
-            stiffening: 5e3,
-        };
+        let p = material(5e3);
         let mut x = x0;
         x[1] += Vector3::new(0.002, -0.001, 0.0005);
         x[3] += Vector3::new(-0.001, 0.0015, 0.002);
@@ -300,10 +318,7 @@ pub(crate) mod tests {
         let k = element_tangent(&t, &s, &p);
         let h = 1e-8;
         for c in 0..12 {
-            let mut xp = x;
-            let mut xm = x;
-            xp[c / 3][c % 3] += h;
-            xm[c / 3][c % 3] -= h;
+            let (xp, xm) = central_pair(&x, c, h);
             let fd_e = (energy(&xp) - energy(&xm)) / (2.0 * h);
             assert!(
                 (f[c] + fd_e).abs() < 1e-6 * f.iter().map(|v| v.abs()).fold(0.0, f64::max),
@@ -330,11 +345,7 @@ pub(crate) mod tests {
     #[test]
     fn rest_state_is_stress_free_and_inverted_is_rejected() {
         let (t, x) = tet();
-        let p = HyperParams {
-            lambda: 3e4,
-            mu: 1e4,
-            stiffening: 5e3,
-        };
+        let p = material(5e3);
         let f = element_forces(&t, &x, &p).unwrap();
         assert!(f.iter().all(|v| v.abs() < 1e-12));
         let mut xi = x;
@@ -346,11 +357,7 @@ pub(crate) mod tests {
     /// to ~1e-7 relative, asserted 1e-6) for a general dF, with the stiffening term on.
     #[test]
     fn dpk1_matches_finite_differences() {
-        let p = HyperParams {
-            lambda: 3e4,
-            mu: 1e4,
-            stiffening: 5e4,
-        };
+        let p = material(5e4);
         let f = Matrix3::new(1.1, 0.2, -0.05, 0.03, 0.92, 0.1, -0.08, 0.05, 1.15);
         let df = Matrix3::new(0.3, -0.1, 0.2, 0.05, 0.4, -0.25, 0.1, 0.15, -0.2);
         let s = FParts::new(f).unwrap();
@@ -371,15 +378,7 @@ pub(crate) mod tests {
     #[test]
     fn stiffening_changes_large_strains_only() {
         let (t, x) = tet();
-        let plain = HyperParams {
-            lambda: 3e4,
-            mu: 1e4,
-            stiffening: 0.0,
-        };
-        let stiff = HyperParams {
-            stiffening: 5e4,
-            ..plain
-        };
+        let (plain, stiff) = (material(0.0), material(5e4));
         let s = FParts::new(deformation_gradient(&t, &x)).unwrap();
         let (k0, k1) = (
             element_tangent(&t, &s, &plain),

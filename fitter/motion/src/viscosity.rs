@@ -111,7 +111,7 @@ pub fn element_damping(t: &RestTet, r: &Rate, nu: f64) -> [[f64; 12]; 12] {
 #[cfg(test)]
 mod tests {
     use super::super::hyperelastic::add_stress_forces;
-    use super::super::hyperelastic::tests::tet;
+    use super::super::hyperelastic::tests::{central_pair, tet};
     use super::*;
 
     /// The damping tangent is minus the Jacobian of the viscous forces (central differences,
@@ -137,10 +137,7 @@ mod tests {
             let d = element_damping(&t, &r, nu);
             let eps = 1e-9;
             for c in 0..12 {
-                let mut vp = v0;
-                let mut vm = v0;
-                vp[c / 3][c % 3] += eps;
-                vm[c / 3][c % 3] -= eps;
+                let (vp, vm) = central_pair(&v0, c, eps);
                 let (fp, fm) = (force(&vp), force(&vm));
                 for row in 0..12 {
                     let fd = -(fp[row] - fm[row]) / (2.0 * eps);
