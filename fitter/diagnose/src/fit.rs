@@ -46,17 +46,11 @@ pub fn initial_theta(
     let e0: f64 = 1e4;
     let theta = vec![e0.ln(), s_of(0.3)];
     let sim = model.simulate(ctx, &theta, subset, None)?;
-    let (mut num, mut den) = (0.0, 0.0);
+    let mut sums = (0.0, 0.0);
     for (&i, ms) in subset.iter().zip(&sim.markers) {
-        for (&(k, meas), p) in ctx.meas[i].observed.iter().zip(ms) {
-            let rest = ctx.marker_rest[k];
-            for d in 0..3 {
-                let us = p[d] - rest[d];
-                num += us * (meas[d] - rest[d]);
-                den += us * us;
-            }
-        }
+        ctx.add_scale_terms(i, ms, &mut sums);
     }
+    let (num, den) = sums;
     let a = if num > 0.0 && den > 0.0 {
         num / den
     } else {

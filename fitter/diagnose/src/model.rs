@@ -289,6 +289,22 @@ pub struct Context {
 }
 
 impl Context {
+    /// Adds measurement `i`'s terms of the least-squares scale of simulated onto measured
+    /// displacements (both from the markers' rest places) to `sums`: Σ u_sim·u_meas to the
+    /// first, Σ u_sim·u_sim to the second. The best scale is their ratio; the callers decide what
+    /// a degenerate one becomes.
+    pub(crate) fn add_scale_terms(&self, i: usize, sim: &[[f64; 3]], sums: &mut (f64, f64)) {
+        let (num, den) = sums;
+        for (&(k, meas), p) in self.meas[i].observed.iter().zip(sim) {
+            let rest = self.marker_rest[k];
+            for d in 0..3 {
+                let us = p[d] - rest[d];
+                *num += us * (meas[d] - rest[d]);
+                *den += us * us;
+            }
+        }
+    }
+
     /// Prepares a dataset.
     pub fn new(ds: &StaticDataset, grid: [usize; 3]) -> Result<Self, DiagnoseError> {
         if ds.measurements.len() < 2 {
@@ -568,16 +584,9 @@ fn force_scale_each(ctx: &Context, subset: &[usize], sims: &mut [Vec<[f64; 3]>])
         .iter()
         .zip(sims.iter())
         .map(|(&i, sim)| {
-            let (mut num, mut den) = (0.0, 0.0);
-            for (&(k, q), p) in ctx.meas[i].observed.iter().zip(sim) {
-                let rest = ctx.marker_rest[k];
-                for d in 0..3 {
-                    let u = p[d] - rest[d];
-                    num += u * (q[d] - rest[d]);
-                    den += u * u;
-                }
-            }
-            match num / den {
+            let mut sums = (0.0, 0.0);
+            ctx.add_scale_terms(i, sim, &mut sums);
+            match sums.0 / sums.1 {
                 s if s.is_finite() && s > 0.0 => s,
                 _ => 1.0,
             }

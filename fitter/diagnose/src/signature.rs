@@ -112,15 +112,9 @@ fn pearson(a: &[f64], b: &[f64]) -> f64 {
 
 /// Best scale of simulated displacements onto measured ones for measurement `i`.
 fn scale(ctx: &Context, i: usize, sim: &[[f64; 3]]) -> f64 {
-    let (mut num, mut den) = (0.0, 0.0);
-    for (&(k, m), p) in ctx.meas[i].observed.iter().zip(sim) {
-        let rest = ctx.marker_rest[k];
-        for d in 0..3 {
-            let us = p[d] - rest[d];
-            num += us * (m[d] - rest[d]);
-            den += us * us;
-        }
-    }
+    let mut sums = (0.0, 0.0);
+    ctx.add_scale_terms(i, sim, &mut sums);
+    let (num, den) = sums;
     if den > 0.0 {
         num / den
     } else {
