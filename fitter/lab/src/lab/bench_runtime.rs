@@ -89,6 +89,11 @@ pub struct Args {
     /// Turn the energy line search of the warped solve off (`RuntimeConfig::line_search`).
     #[arg(long)]
     pub no_line_search: bool,
+    /// Write the problem for a peer code into this folder and stop (the block as a VegaFEM
+    /// `.veg`, its fixed nodes, the lumped rule's nodal forces of every tick:
+    /// `fitter/lab/peers/vegafem/run.sh`).
+    #[arg(long)]
+    pub export_peer: Option<std::path::PathBuf>,
 }
 
 /// Which model the bench plays.
@@ -257,6 +262,9 @@ struct Record {
     /// ‖u − u_A‖/‖u_A‖ against the first variant's state after the same tick (compare mode).
     drift: Vec<f64>,
     bytes: usize,
+    /// The lowest z displacement after the last tick (m): what a peer solving the same ticks
+    /// (`--export-peer`) must reproduce.
+    final_min_uz: f64,
 }
 
 fn settle(rt: &mut Runtime<'_>, ticks: usize, touch: Touch) -> anyhow::Result<()> {
@@ -376,6 +384,12 @@ fn accuracy_pass(
                 .push((k, rel_diff(rt.displacements(), reference.displacements())));
         }
     }
+    rec.final_min_uz = rt
+        .displacements()
+        .iter()
+        .skip(2)
+        .step_by(3)
+        .fold(0.0f64, |m, &u| m.min(u as f64));
     Ok(())
 }
 
@@ -563,6 +577,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         kind => blended_block(args.tets, p, kind)?,
     };
     let tets = model.mesh.tets.len();
+    if let Some(dir) = &args.export_peer {
+        anyhow::ensure!(
+            args.touch == Touch::Force && args.blend == BlendKind::None,
+            "--export-peer writes the force-driven linear block (no --touch sphere, no --blend)"
+        );
+        super::peer_export::export(
+            &model,
+            (10_000.0, 0.3),
+            args.ticks,
+            |k| contact_point(k, args.ticks),
+            FORCE,
+            RADIUS,
+            dir,
+        )?;
+        println!(
+            "wrote {tets} tets, {} fixed nodes and {} ticks of lumped loads into {}",
+            model.fixed.len(),
+            args.ticks,
+            dir.display()
+        );
+        return Ok(());
+    }
     let dofs = 3 * (model.mesh.nodes.len() - model.fixed.len());
     println!(
         "palpate-lab bench runtime: {tets} tets, {dofs} free dofs, {} ticks, tolerance {:e}, {:?} contact rule, {:?} blend",
@@ -735,6 +771,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "capped_ticks": g.capped,
             "bytes": recs[0].bytes,
             "bytes_per_element": recs[0].bytes as f64 / tets as f64,
+            "final_min_uz_m": recs[0].final_min_uz,
             "aggregates": args.aggregates,
             "max_iterations": args.max_iterations,
             "direct_p50_us": percentile(&direct, 0.5),

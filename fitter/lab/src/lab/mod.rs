@@ -11,6 +11,7 @@ pub mod diagnose_evidence;
 pub mod motion_evidence;
 pub mod motion_evidence_spline;
 pub mod nonlinear_evidence;
+pub mod peer_export;
 
 /// palpate-lab: benchmarks and evidence runs of the palpate project.
 #[derive(Debug, Parser)]
