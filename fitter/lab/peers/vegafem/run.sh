@@ -4,7 +4,7 @@
 # under target/peers/), exports palpate's bench problem (`palpate-lab bench runtime --export-peer`), runs
 # VegaFEM's solve of it and then palpate's bench of the same problem, and prints both JSON lines.
 #
-# usage: fitter/lab/peers/vegafem/run.sh [TETS=5000] [TICKS=1000] [VEGA_SRC]
+# usage: fitter/lab/peers/vegafem/run.sh [TETS=5000] [TICKS=1000] [RULE=lumped|consistent] [VEGA_SRC]
 #   VEGA_SRC: a checkout of VegaFEM 4.0 with its `libraries/` (default: cloned from
 #   https://github.com/dyollb/VegaFEM into target/peers/VegaFEM). Needs g++ and git.
 # Run it alone on the machine (check `uptime`): the two codes share nothing but the clock.
@@ -13,7 +13,8 @@ here=$(cd "$(dirname "$0")" && pwd)
 root=$(cd "$here/../../../.." && pwd)
 tets=${1:-5000}
 ticks=${2:-1000}
-src=${3:-$root/target/peers/VegaFEM}
+rule=${3:-lumped}
+src=${4:-$root/target/peers/VegaFEM}
 out=$root/target/peers/vegafem
 mkdir -p "$out"
 if [ ! -d "$src/libraries" ]; then
@@ -31,19 +32,25 @@ cpp=(
   "$L/polarDecomposition/polarDecomposition.cpp"
   "$L/minivector/mat3d.cpp" "$L/minivector/vec3d.cpp" "$L/minivector/eig3.cpp" "$L/minivector/vec3i.cpp"
   "$L/minivector/vec4i.cpp" "$L/minivector/vec2d.cpp"
-  "$L/mesh/geometryQuery.cpp" "$L/constrainedDOFs/constrainedDOFs.cpp"
+  "$L/mesh/geometryQuery.cpp" "$L/mesh/boundingBox.cpp" "$L/constrainedDOFs/constrainedDOFs.cpp"
 )
-inc=()
+# VegaFEM's CMake writes vega-config.h; without TBB, MKL, PARDISO or GLUT it says nothing. Sections are
+# collected so the bounding box's OpenGL drawing (never called) needs no GL library. C++14: the
+# library's own `clamp` is ambiguous with C++17's std::clamp.
+mkdir -p "$out/config"
+printf '#pragma once\n' > "$out/config/vega-config.h"
+inc=("-I$out/config")
 for d in "$L"/*/; do inc+=("-I$d"); done
 if [ ! -x "$out/driver" ] || [ "$here/driver.cpp" -nt "$out/driver" ]; then
   echo "building VegaFEM's corotational FEM + CG and the driver (g++ -O3 -march=x86-64-v3 -DNDEBUG)" >&2
-  g++ -std=c++17 -O3 -march=x86-64-v3 -DNDEBUG -w "${inc[@]}" "${cpp[@]}" "$here/driver.cpp" -o "$out/driver"
+  g++ -std=c++14 -O3 -march=x86-64-v3 -DNDEBUG -w -ffunction-sections -Wl,--gc-sections \
+    "${inc[@]}" "${cpp[@]}" "$here/driver.cpp" -o "$out/driver"
 fi
 cd "$root"
 cargo build --release -q -p palpate-lab
 lab=$root/target/release/palpate-lab
 echo "load before: $(uptime)" >&2
-"$lab" bench runtime --tets "$tets" --ticks "$ticks" --rule lumped --export-peer "$out/problem-$tets" >&2
-"$out/driver" "$out/problem-$tets" 1 1e-4
-"$lab" bench runtime --tets "$tets" --ticks "$ticks" --rule lumped --gradient-only --direct-ticks 5 | tail -1
+"$lab" bench runtime --tets "$tets" --ticks "$ticks" --rule "$rule" --export-peer "$out/problem-$tets-$rule" >&2
+"$out/driver" "$out/problem-$tets-$rule" 1 1e-4
+"$lab" bench runtime --tets "$tets" --ticks "$ticks" --rule "$rule" --gradient-only --direct-ticks 5 | tail -1
 echo "load after: $(uptime)" >&2

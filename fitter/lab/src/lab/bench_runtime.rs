@@ -585,6 +585,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         super::peer_export::export(
             &model,
             (10_000.0, 0.3),
+            args.rule.runtime(),
             args.ticks,
             |k| contact_point(k, args.ticks),
             FORCE,
@@ -592,9 +593,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             dir,
         )?;
         println!(
-            "wrote {tets} tets, {} fixed nodes and {} ticks of lumped loads into {}",
+            "wrote {tets} tets, {} fixed nodes and {} ticks of {:?}-rule loads into {}",
             model.fixed.len(),
             args.ticks,
+            args.rule,
             dir.display()
         );
         return Ok(());

@@ -1,6 +1,7 @@
 //! The runtime bench's problem written for a peer code (`palpate-lab bench runtime --export-peer
 //! DIR`): the same generated block, the same fixed nodes, the same material and, tick by tick,
-//! the nodal forces of the anchor's lumped contact rule as the runtime computes them — so a peer
+//! the nodal forces of the contact rule (the anchor's lumped one, or the consistent one) as the
+//! runtime computes them — so a peer
 //! solves exactly the problem palpate's tick solves, on the same machine, back to back
 //! (`fitter/lab/peers/vegafem/run.sh`).
 //!
@@ -9,15 +10,19 @@
 //! tick: the tick, the number of loaded nodes, then `node fx fy fz` for each; N).
 
 use palpate_fem::block_model::BlockModel;
-use palpate_runtime::contact_rule::{contact_weights, lumped_surface_areas};
+use palpate_runtime::contact_rule::{
+    contact_weights, contact_weights_consistent, lumped_surface_areas, ContactRule,
+};
 use std::fmt::Write as _;
 use std::path::Path;
 
-/// Writes the block (its material `(E, ν)`), its fixed nodes and the lumped loads of `ticks` ticks
-/// of the probe path (`contact(k)`, force `force` within `radius`) into `dir`.
+/// Writes the block (its material `(E, ν)`), its fixed nodes and the loads of `ticks` ticks of the
+/// probe path (`contact(k)`, force `force` within `radius`, spread by `rule`) into `dir`.
+#[allow(clippy::too_many_arguments)]
 pub fn export(
     model: &BlockModel,
     (young, poisson): (f64, f64),
+    rule: ContactRule,
     ticks: usize,
     contact: impl Fn(usize) -> [f32; 3],
     force: [f32; 3],
@@ -56,11 +61,14 @@ pub fn export(
     std::fs::write(dir.join("block.veg"), veg)?;
     let fixed: String = model.fixed.iter().map(|i| format!("{i}\n")).collect();
     std::fs::write(dir.join("fixed.txt"), fixed)?;
-    // The runtime's lumped rule on its rest positions (runtime.rs, compute_contact_weights).
+    // The runtime's rules on its rest positions (runtime.rs, compute_contact_weights): the
+    // lumped weights as they are; the consistent integrals summed per node, then scaled by 1/Σ in
+    // f32 as the runtime scales them.
     let n = mesh.nodes.len();
     let mut areas = vec![0.0; n];
     let pos = |i: usize| mesh.nodes[i];
-    lumped_surface_areas(pos, mesh.boundary_triangles(), &mut areas);
+    let tris = mesh.boundary_triangles();
+    lumped_surface_areas(pos, tris.iter().copied(), &mut areas);
     let mut is_fixed = vec![false; n];
     for &i in &model.fixed {
         is_fixed[i] = true;
@@ -68,16 +76,35 @@ pub fn export(
     let mut loads = String::new();
     for k in 0..ticks {
         let c = contact(k);
-        let mut row = Vec::new();
-        contact_weights(
-            [c[0] as f64, c[1] as f64, c[2] as f64],
-            radius as f64,
-            pos,
-            &areas,
-            |i| is_fixed[i],
-            |i, w| row.push((i, w)),
-        )
-        .map_err(|e| anyhow::anyhow!("tick {k}: the contact covers no node: {e:?}"))?;
+        let c = [c[0] as f64, c[1] as f64, c[2] as f64];
+        let mut weight = vec![0.0f64; n];
+        let covered = match rule {
+            ContactRule::Lumped => contact_weights(
+                c,
+                radius as f64,
+                pos,
+                &areas,
+                |i| is_fixed[i],
+                |i, w| weight[i] = w,
+            ),
+            ContactRule::Consistent => contact_weights_consistent(
+                c,
+                radius as f64,
+                n,
+                pos,
+                tris.len(),
+                |t| tris[t],
+                |i| is_fixed[i],
+                |i, w| weight[i] += w,
+            ),
+        };
+        covered.map_err(|e| anyhow::anyhow!("tick {k}: the contact covers no node: {e:?}"))?;
+        let row: Vec<(usize, f64)> = weight
+            .iter()
+            .enumerate()
+            .filter(|(_, w)| **w != 0.0)
+            .map(|(i, w)| (i, *w))
+            .collect();
         let _ = write!(loads, "{k} {}", row.len());
         for (i, w) in row {
             // The runtime's f32 nodal force: (w · f) rounded as it rounds it.
