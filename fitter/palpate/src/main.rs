@@ -7,6 +7,7 @@ use clap::Parser;
 mod cli;
 
 fn main() {
+    restore_sigpipe();
     let cli = cli::Cli::parse();
     // Exit status: 0 a clean result, 1 an error (nothing written), 2 a result written with
     // warnings the user must read.
@@ -34,3 +35,20 @@ fn chain_message(e: &anyhow::Error) -> String {
     }
     msg
 }
+
+/// A reader that stops early (`palpate info x | head`) closes the pipe; a Unix filter then ends
+/// quietly on SIGPIPE. Rust starts programs with SIGPIPE ignored, so every later `println!` would
+/// panic on the broken pipe instead: the default disposition is restored before anything is
+/// printed. The binary's one `unsafe`: `signal` with a constant handler has no precondition to
+/// break.
+#[cfg(unix)]
+#[allow(unsafe_code)]
+fn restore_sigpipe() {
+    // SAFETY: SIG_DFL is a valid disposition for SIGPIPE; no handler code runs.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
+#[cfg(not(unix))]
+fn restore_sigpipe() {}

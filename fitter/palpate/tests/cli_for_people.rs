@@ -347,3 +347,61 @@ fn plot_format_chooses_the_files() {
         .unwrap();
     assert_exit_and_stderr(&o, 2, "png, svg, both");
 }
+
+/// `palpate info` on a motion capture says what `palpate import c3d` will read: markers, rate,
+/// frames and each marker's gaps and travel — the bundled beam capture (6 markers at 100 Hz; the
+/// tip moves centimetres, the base markers near the clamp under a few millimetres).
+#[test]
+fn info_reads_a_c3d_capture() {
+    let c3d = repo().join("models/silicone-beam/beam_gravity_V2_a.c3d");
+    let o = palpate().arg("info").arg(&c3d).output().unwrap();
+    assert_succeeded(&o);
+    let out = text(&o.stdout);
+    assert!(
+        out.contains("C3D motion capture; 6 markers at 100 Hz"),
+        "{out}"
+    );
+    let j = last_json(&o);
+    assert_eq!(j["kind"], "capture");
+    assert_eq!(j["markers"], 6);
+    let per: Vec<(String, f64)> = j["per_marker"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| {
+            (
+                m["label"].as_str().unwrap().to_string(),
+                m["max_travel_m"].as_f64().unwrap(),
+            )
+        })
+        .collect();
+    let travel = |prefix: &str| {
+        per.iter()
+            .filter(|(l, _)| l.starts_with(prefix))
+            .map(|(_, t)| *t)
+            .fold(0.0, f64::max)
+    };
+    assert!(travel("Tip") > 0.01, "{per:?}");
+    assert!(travel("Base") < 0.005, "{per:?}");
+}
+
+/// A reader that closes the pipe early (`palpate info x | head -1`) ends palpate quietly, as it
+/// ends any Unix filter, never with a panic on the broken pipe. The read end is closed before
+/// palpate has read its capture, so its first line meets a closed pipe.
+#[cfg(unix)]
+#[test]
+fn a_closed_stdout_ends_quietly() {
+    use std::process::Stdio;
+    let c3d = repo().join("models/silicone-beam/beam_gravity_V2_a.c3d");
+    let mut child = palpate()
+        .arg("info")
+        .arg(&c3d)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    let err = text(&o.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+}

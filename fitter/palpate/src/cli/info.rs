@@ -1,6 +1,7 @@
 //! `palpate info <file>`: what a palpate file is and where it came from — a runtime model
 //! (`.palp`: format, sizes, material layout and range, blend, provenance, the runtime memory it
-//! needs), a fitted motion model (`fit.json` of `fit-motion`/`diagnose`), or a dataset directory.
+//! needs), a fitted motion model (`fit.json` of `fit-motion`/`diagnose`), a dataset directory, or
+//! a motion capture (C3D: its markers, rate, frames and gaps — what `palpate import c3d` will read).
 //! The last line is one JSON object with the same facts, for scripts.
 
 use std::path::PathBuf;
@@ -16,7 +17,8 @@ const SCHEMA_VERSION: u32 = 1;
 /// Options.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// A `.palp` model, a `fit.json` of `fit-motion`/`diagnose`, or a dataset directory.
+    /// A `.palp` model, a `fit.json` of `fit-motion`/`diagnose`, a dataset directory, or a C3D
+    /// capture.
     pub file: PathBuf,
 }
 
@@ -30,9 +32,61 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if bytes.starts_with(b"{") {
         return fitted(path, &bytes);
     }
+    // A C3D file's header block starts with the parameter section's block number and the key
+    // byte 0x50; a palpate model starts with "PALP".
+    if bytes.get(1) == Some(&0x50) && !bytes.starts_with(b"PALP") {
+        return capture(path);
+    }
     let record = palpate_protocol::model::decode(&bytes)
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     model(path, &bytes, &record)
+}
+
+/// A motion capture: markers, rate, frames, and each marker's gaps.
+fn capture(path: &std::path::Path) -> anyhow::Result<()> {
+    let c = palpate_capture::read_c3d(path)?;
+    let frames = c.positions.len();
+    println!(
+        "{}: C3D motion capture; {} markers at {} Hz, {frames} frames ({:.2} s, first frame number {})",
+        path.display(),
+        c.labels.len(),
+        c.rate_hz,
+        frames as f64 / c.rate_hz.max(f64::MIN_POSITIVE),
+        c.first_frame
+    );
+    println!("| marker | seen in frames | first seen | travel from its first place (mm) |\n|---|---|---|---|");
+    let mut markers = Vec::new();
+    for (k, label) in c.labels.iter().enumerate() {
+        let seen: Vec<(usize, [f64; 3])> = c
+            .positions
+            .iter()
+            .enumerate()
+            .filter_map(|(f, row)| row.get(k).copied().flatten().map(|p| (f, p)))
+            .collect();
+        let travel = seen.first().map_or(0.0, |(_, p0)| {
+            seen.iter()
+                .map(|(_, p)| (0..3).map(|i| (p[i] - p0[i]).powi(2)).sum::<f64>().sqrt())
+                .fold(0.0, f64::max)
+        });
+        println!(
+            "| {label} | {} of {frames} | {} | {:.1} |",
+            seen.len(),
+            seen.first().map_or("never".into(), |(f, _)| f.to_string()),
+            1e3 * travel
+        );
+        markers.push(
+            serde_json::json!({"label": label, "frames_seen": seen.len(), "max_travel_m": travel}),
+        );
+    }
+    println!(
+        "import it onto a mesh: palpate import c3d {} --mesh M.msh --places P.csv --clamps G --gravity gx,gy,gz -o DIR",
+        path.display()
+    );
+    println!(
+        "{}",
+        serde_json::json!({"schema_version": SCHEMA_VERSION, "kind": "capture", "format": "c3d", "markers": c.labels.len(), "rate_hz": c.rate_hz, "frames": frames, "first_frame": c.first_frame, "per_marker": markers})
+    );
+    Ok(())
 }
 
 /// The smallest and largest of `v`.
