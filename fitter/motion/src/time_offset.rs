@@ -23,9 +23,14 @@ use super::model::{Material, Model, Observations};
 use super::sim::simulate;
 use super::MotionError;
 
-/// Capture frames a scan moves a run either way ([`scan`]): the release detection of an import
-/// is off by a frame or two, more is not a timing error but a different experiment.
+/// Capture frames a scan first moves a run either way ([`scan`]): the release detection of an
+/// import is off by a frame or two.
 pub const SCAN_FRAMES: i64 = 3;
+
+/// The widest scan ([`scan`]): a best offset at the edge of the first scan widens it, doubling, up
+/// to this many frames either way — two capture streams can be out of step by more than an
+/// import's misread release; further than this it is not a timing error but another experiment.
+pub const MAX_SCAN_FRAMES: i64 = 12;
 
 /// The model with its horizon `steps − offset` (at least one step): truncated, or extended with
 /// the clamps held at their last pose.
@@ -161,27 +166,32 @@ impl Trajectory {
 }
 
 /// The offset of one run: every step within ±[`SCAN_FRAMES`] capture frames, each scored by the
-/// marker χ² of one simulation of `mat` run [`SCAN_FRAMES`] frames longer; the best offset and
-/// the χ² of every offset tried. The objective is a sum over a ring-down and has a minimum every
-/// period apart, hence a scan of the grid rather than a descent.
+/// marker χ² of one simulation of `mat` run that much longer; while the best offset lies at the
+/// edge of the scan, the scan is doubled (one more, longer simulation) up to ±[`MAX_SCAN_FRAMES`].
+/// Returns the best offset and the χ² of every offset tried. The objective is a sum over a
+/// ring-down and has a minimum every period apart, hence a scan of the grid rather than a descent.
 pub fn scan(
     model: &Model,
     mat: &Material,
     obs: &Observations,
 ) -> Result<(i64, Vec<(i64, f64)>), MotionError> {
-    let reach = SCAN_FRAMES * model.substeps.max(1) as i64;
-    let traj = Trajectory::simulate(&shifted_model(model, -reach)?, mat)?;
-    let mut tried = Vec::new();
-    for r in -reach..=reach {
-        if let Some((c, _)) = traj.chi2(obs, r) {
-            tried.push((r, c));
+    let per_frame = model.substeps.max(1) as i64;
+    let mut frames = SCAN_FRAMES;
+    loop {
+        let reach = frames * per_frame;
+        let traj = Trajectory::simulate(&shifted_model(model, -reach)?, mat)?;
+        let tried: Vec<(i64, f64)> = (-reach..=reach)
+            .filter_map(|r| traj.chi2(obs, r).map(|(c, _)| (r, c)))
+            .collect();
+        let best = tried
+            .iter()
+            .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.abs().cmp(&b.0.abs())))
+            .map_or(0, |t| t.0);
+        if best.abs() < reach || frames >= MAX_SCAN_FRAMES {
+            return Ok((best, tried));
         }
+        frames = (2 * frames).min(MAX_SCAN_FRAMES);
     }
-    let best = tried
-        .iter()
-        .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.abs().cmp(&b.0.abs())))
-        .map_or(0, |t| t.0);
-    Ok((best, tried))
 }
 
 #[cfg(test)]
@@ -207,10 +217,11 @@ mod tests {
         .unwrap();
         model.static_start = false;
         let mat = Material::uniform(model.tets.len(), 2.0e4, 1.0e4, 3.0, 1.0, 47.0);
-        // The truth runs 6 steps longer; the "capture" sees it from various instants.
-        let long = shifted_model(&model, -6).unwrap();
+        // The truth runs 12 steps longer; the "capture" sees it from various instants (7 and −9
+        // lie beyond the first scan's ±3 frames: found by the widened scan).
+        let long = shifted_model(&model, -12).unwrap();
         let truth = Trajectory::simulate(&long, &mat).unwrap();
-        for r in [-3i64, -1, 0, 2, 3] {
+        for r in [-3i64, -1, 0, 2, 3, 7, -9] {
             let rows = truth.recorded(model.steps, r).unwrap();
             let obs = Observations {
                 markers: rows

@@ -86,7 +86,7 @@ pub enum Candidate {
     MarkerOffsets,
     /// The markers are recorded out of step with the clamps' record (1 parameter: an integer
     /// number of simulation steps, [`palpate_motion::time_offset`]): two capture streams on two
-    /// clocks, or a start instant misread. Scanned on the fitted steps within ±3 capture frames
+    /// clocks, or a start instant misread. Scanned on the fitted steps within ±3 capture frames (widened to ±12 while the best lies at the edge)
     /// with the current material, the material refitted, scanned again (refitted once more if it
     /// moved); the held-out steps are forecast at the same offset.
     TimeOffset,

@@ -527,7 +527,7 @@ impl RunsModel<'_> {
         sets.iter()
             .zip(offsets)
             .map(|((name, d), r)| {
-                let edge = r.abs() >= time_offset::SCAN_FRAMES * d.model.substeps.max(1) as i64;
+                let edge = r.abs() >= time_offset::MAX_SCAN_FRAMES * d.model.substeps.max(1) as i64;
                 format!(
                     "{name} {:+.1} ms{}",
                     1e3 * *r as f64 * d.model.dt,
@@ -707,8 +707,9 @@ impl CandidateModel for RunsModel<'_> {
         let fitted = if c == Effect::TimeOffset {
             let scanned = Self::scan_offsets(self.fit, &effects, &start)?;
             (self.log)(&format!(
-                "round {round}: time offsets scanned (±{} frames): {}",
+                "round {round}: time offsets scanned (±{} frames, widened to ±{} at an edge): {}",
                 time_offset::SCAN_FRAMES,
+                time_offset::MAX_SCAN_FRAMES,
                 Self::describe_offsets(self.fit, &scanned)
             ));
             if scanned.iter().all(|&r| r == 0) {

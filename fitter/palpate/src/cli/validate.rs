@@ -94,9 +94,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .with_context(|| format!("simulating {}", args.dataset.display()))?;
     if fit.time_offset {
         println!(
-            "time offset of this run (the model was fitted with one per run): {:+.1} ms, scanned over ±{} capture frames",
+            "time offset of this run (the model was fitted with one per run): {:+.1} ms, scanned over ±{} capture frames (±{} at most)",
             1e3 * offset as f64 * ds.model.dt,
-            palpate_motion::time_offset::SCAN_FRAMES
+            palpate_motion::time_offset::SCAN_FRAMES,
+            palpate_motion::time_offset::MAX_SCAN_FRAMES
         );
     }
     let load = predict::load_along_gravity(&ds.model);
