@@ -291,6 +291,25 @@ fn validate_predicts_from_a_fit_and_refuses_other_models() {
     }
     // The fit predicts its own run to within the dataset's noise (σ = 0.1 mm per axis).
     assert!(last["trajectory_rms_m"].as_f64().unwrap() < 1e-3, "{last}");
+    assert_eq!(last["time_offset_s"], 0.0);
+
+    // A model fitted with per-run time offsets scans the run's own: this run is in step with its
+    // simulation, so the scan finds 0 and the prediction is the same.
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&fit).unwrap()).unwrap();
+    v["time_offset"] = serde_json::json!(true);
+    let timed = dir.path().join("timed.json");
+    std::fs::write(&timed, v.to_string()).unwrap();
+    let o = validate(&timed);
+    assert_succeeded(&o);
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains("time offset of this run"),
+        "{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+    let timed_last = last_json(&o);
+    assert_eq!(timed_last["time_offset_s"], 0.0, "{timed_last}");
+    assert_eq!(timed_last["trajectory_rms_m"], last["trajectory_rms_m"]);
 
     let not_a_model = dir.path().join("other.json");
     std::fs::write(&not_a_model, "{\"lambda\": [1.0]}").unwrap();
