@@ -405,3 +405,30 @@ fn a_closed_stdout_ends_quietly() {
     let err = text(&o.stderr);
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// `palpate info` on a Gmsh mesh: its size, extent, volume and physical groups — the bundled beam
+/// mesh is the 30 × 30 × 100 mm beam (volume 9 × 10⁻⁵ m³) with its `clamp` and `free_end` faces.
+#[test]
+fn info_reads_a_gmsh_mesh() {
+    let msh = repo().join("models/silicone-beam/beam-coarse.msh");
+    let o = palpate().arg("info").arg(&msh).output().unwrap();
+    assert_succeeded(&o);
+    let j = last_json(&o);
+    assert_eq!(j["kind"], "mesh");
+    assert_eq!(j["tets"], 716);
+    assert!(
+        (j["volume_m3"].as_f64().unwrap() - 9e-5).abs() < 1e-12,
+        "{j}"
+    );
+    let extent: Vec<f64> = j["extent_m"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    for (e, want) in extent.iter().zip([0.03, 0.03, 0.1]) {
+        assert!((e - want).abs() < 1e-9, "{extent:?}");
+    }
+    assert!(j["groups"]["clamp"].as_u64().unwrap() > 0, "{j}");
+    assert!(j["groups"]["free_end"].as_u64().unwrap() > 0, "{j}");
+}

@@ -1,7 +1,8 @@
 //! `palpate info <file>`: what a palpate file is and where it came from — a runtime model
 //! (`.palp`: format, sizes, material layout and range, blend, provenance, the runtime memory it
 //! needs), a fitted motion model (`fit.json` of `fit-motion`/`diagnose`), a dataset directory, or
-//! a motion capture (C3D: its markers, rate, frames and gaps — what `palpate import c3d` will read).
+//! a motion capture (C3D: its markers, rate, frames and gaps — what `palpate import c3d` will read),
+//! or a Gmsh mesh (its size, extent, volume and the physical groups clamps and loads can name).
 //! The last line is one JSON object with the same facts, for scripts.
 
 use std::path::PathBuf;
@@ -17,8 +18,8 @@ const SCHEMA_VERSION: u32 = 1;
 /// Options.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// A `.palp` model, a `fit.json` of `fit-motion`/`diagnose`, a dataset directory, or a C3D
-    /// capture.
+    /// A `.palp` model, a `fit.json` of `fit-motion`/`diagnose`, a dataset directory, a C3D
+    /// capture, or a Gmsh mesh (`.msh`).
     pub file: PathBuf,
 }
 
@@ -32,6 +33,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if bytes.starts_with(b"{") {
         return fitted(path, &bytes);
     }
+    if bytes.starts_with(b"$MeshFormat") {
+        return mesh(path);
+    }
     // A C3D file's header block starts with the parameter section's block number and the key
     // byte 0x50; a palpate model starts with "PALP".
     if bytes.get(1) == Some(&0x50) && !bytes.starts_with(b"PALP") {
@@ -40,6 +44,52 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let record = palpate_protocol::model::decode(&bytes)
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     model(path, &bytes, &record)
+}
+
+/// A Gmsh mesh as palpate reads it: nodes, tetrahedra, extent, volume, what the reader repaired,
+/// and the physical groups (the names `clamps`, `--clamps`, `--hang` and `group` refer to).
+fn mesh(path: &std::path::Path) -> anyhow::Result<()> {
+    let (m, report) = palpate_fem::mesh::gmsh::read_msh_with_report(path)?;
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for p in &m.nodes {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let extent = [0, 1, 2].map(|k| hi[k] - lo[k]);
+    let volume: f64 = m
+        .tets
+        .iter()
+        .map(|t| palpate_fem::mesh::signed_volume(t.map(|n| m.nodes[n])))
+        .sum();
+    println!(
+        "{}: Gmsh mesh ({}); {} nodes, {} tetrahedra; extent {:.1} × {:.1} × {:.1} mm; volume {:.3e} m³; {} tetrahedra re-oriented, {} unused nodes dropped",
+        path.display(),
+        if report.binary { "binary" } else { "ASCII" },
+        m.nodes.len(),
+        m.tets.len(),
+        1e3 * extent[0],
+        1e3 * extent[1],
+        1e3 * extent[2],
+        volume,
+        report.reoriented,
+        report.dropped_nodes
+    );
+    println!("| physical group | nodes |\n|---|---|");
+    for (name, nodes) in &m.node_groups {
+        println!("| {name} | {} |", nodes.len());
+    }
+    let groups: serde_json::Map<String, serde_json::Value> = m
+        .node_groups
+        .iter()
+        .map(|(n, v)| (n.clone(), serde_json::json!(v.len())))
+        .collect();
+    println!(
+        "{}",
+        serde_json::json!({"schema_version": SCHEMA_VERSION, "kind": "mesh", "format": "msh", "nodes": m.nodes.len(), "tets": m.tets.len(), "extent_m": extent, "volume_m3": volume, "reoriented": report.reoriented, "dropped_nodes": report.dropped_nodes, "groups": groups})
+    );
+    Ok(())
 }
 
 /// A motion capture: markers, rate, frames, and each marker's gaps.
