@@ -82,20 +82,22 @@ pub fn shifted(
     Ok((m, o))
 }
 
-/// Simulated marker positions on the simulation's clock: the initial state (step 0) and every
-/// step after it.
+/// Simulated marker positions (and velocities) on the simulation's clock: the initial state
+/// (step 0, at rest) and every step after it.
 #[derive(Debug, Clone)]
 pub struct Trajectory {
     /// Markers at step 0 (the rest shape, or the elastostatic start).
     pub initial: Vec<[f64; 3]>,
     /// Markers at steps 1..=steps.
     pub rows: Vec<Vec<[f64; 3]>>,
+    /// Marker velocities at steps 1..=steps (m/s).
+    pub velocities: Vec<Vec<[f64; 3]>>,
     /// Full-dof positions at the last step (a start for the equilibrium after the run).
     pub last: Vec<f64>,
 }
 
 impl Trajectory {
-    /// Simulates `model` with `mat`, keeping the markers of every step.
+    /// Simulates `model` with `mat`, keeping the markers (and their velocities) of every step.
     pub fn simulate(model: &Model, mat: &Material) -> Result<Self, MotionError> {
         let markers = |x: &[f64]| -> Vec<[f64; 3]> {
             model
@@ -106,6 +108,7 @@ impl Trajectory {
         };
         let mut initial = Vec::new();
         let mut rows = Vec::with_capacity(model.steps);
+        let mut velocities = Vec::with_capacity(model.steps);
         let mut last = Vec::new();
         simulate(
             model,
@@ -114,6 +117,7 @@ impl Trajectory {
             |x0, _| initial = markers(x0),
             |s| {
                 rows.push(markers(s.x));
+                velocities.push(markers(s.v));
                 if s.n == model.steps {
                     last = s.x.to_vec();
                 }
@@ -123,6 +127,7 @@ impl Trajectory {
         Ok(Self {
             initial,
             rows,
+            velocities,
             last,
         })
     }
@@ -134,6 +139,15 @@ impl Trajectory {
             Some(&self.initial)
         } else {
             self.rows.get(s as usize - 1).map(|r| r.as_slice())
+        }
+    }
+
+    /// Marker velocities at step `s` (zero before the start, `None` past the horizon).
+    pub fn velocity_at(&self, s: i64) -> Option<Vec<[f64; 3]>> {
+        if s <= 0 {
+            Some(vec![[0.0; 3]; self.initial.len()])
+        } else {
+            self.velocities.get(s as usize - 1).cloned()
         }
     }
 

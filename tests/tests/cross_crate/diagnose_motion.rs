@@ -12,7 +12,7 @@ use palpate_diagnose::motion::{diagnose, MotionDiagnosis, MotionOptions};
 use palpate_motion::dataset::{DatasetToml, Initial, MotionDataset};
 use palpate_motion::model::{Material, Model};
 use palpate_motion::scenario::{nine_markers, record, two_sinusoids};
-use palpate_tests::motion::{bar, DT, SIZE};
+use palpate_tests::motion::{bar, record_late, DT, SIZE};
 use std::fmt::Write as _;
 
 const SIGMA: f64 = 1e-4;
@@ -66,31 +66,15 @@ fn specimen(nu: f64, seed: u64) -> MotionDataset {
 }
 
 /// [`specimen`] whose markers were recorded `late` steps behind the base's record (negative:
-/// ahead): the capture row of step n sees the truth's step n − late — the truth run 2 steps
-/// further (its base held at its last place), a row before the start its initial state.
+/// ahead), [`palpate_tests::motion::record_late`].
 fn late_specimen(nu: f64, seed: u64, late: i64) -> MotionDataset {
     let mut ds = specimen(nu, seed);
-    let mut long = ds.model.clone();
-    long.steps += 2;
-    for c in &mut long.clamps {
-        let last = *c.poses.last().unwrap();
-        c.poses.resize(long.steps + 1, last);
-    }
-    let mat = truth(&long, nu);
-    let recorded = record(&long, &mat, SIGMA, seed).unwrap();
-    let mut x0 = Vec::new();
-    palpate_motion::sim::simulate(&long, &mat, false, |x, _| x0 = x.to_vec(), |_| Ok(())).unwrap();
-    let mut rng = palpate_motion::scenario::Gauss::new(seed + 100);
-    ds.obs.markers = (0..STEPS as i64)
-        .map(|n| match usize::try_from(n - late) {
-            Ok(i) => recorded.markers[i].clone(),
-            Err(_) => long
-                .markers
-                .iter()
-                .map(|m| Some(long.marker_position(m, &x0).map(|v| v + SIGMA * rng.next())))
-                .collect(),
-        })
-        .collect();
+    ds.obs = record_late(&ds.model, &truth(&ds.model, nu), SIGMA, seed, late, 2);
+    // Markers only, as `specimen`.
+    ds.obs
+        .forces
+        .iter_mut()
+        .for_each(|r| r.iter_mut().for_each(|f| *f = None));
     ds
 }
 

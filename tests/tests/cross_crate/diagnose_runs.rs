@@ -11,7 +11,7 @@
 use palpate_diagnose::runs::{diagnose_runs, Effect, RunsDiagnosis, RunsOptions};
 use palpate_motion::dataset::{load, MotionDataset};
 use palpate_motion::model::{DeadLoad, Material};
-use palpate_motion::scenario::record;
+use palpate_tests::motion::record_late;
 
 fn example() -> MotionDataset {
     load(&palpate_tests::motion::example()).unwrap()
@@ -27,10 +27,8 @@ fn run(name: &str, mass: Option<f64>, seed: u64) -> (String, MotionDataset) {
     run_late(name, mass, seed, 0)
 }
 
-/// [`run`] with its markers recorded `late` steps behind the simulation's clock (negative:
-/// ahead): the truth is simulated over a horizon 4 steps longer (the clamp held at its last
-/// pose), the capture row of step n sees the truth's step n − late, and a row before the truth
-/// starts sees its initial state.
+/// [`run`] with its markers (and clamp forces) recorded `late` steps behind the simulation's
+/// clock (negative: ahead), [`palpate_tests::motion::record_late`].
 fn run_late(name: &str, mass: Option<f64>, seed: u64, late: i64) -> (String, MotionDataset) {
     let mut ds = example();
     if let Some(m) = mass {
@@ -52,43 +50,7 @@ fn run_late(name: &str, mass: Option<f64>, seed: u64, late: i64) -> (String, Mot
             inertia: true,
         }];
     }
-    let noise = 2e-5;
-    let mut long = ds.model.clone();
-    long.steps += 4;
-    for c in &mut long.clamps {
-        let last = *c.poses.last().unwrap();
-        c.poses.resize(long.steps + 1, last);
-    }
-    let recorded = record(&long, &truth(&ds), noise, seed).unwrap();
-    let mut x0 = Vec::new();
-    palpate_motion::sim::simulate(
-        &long,
-        &truth(&ds),
-        false,
-        |x, _| x0 = x.to_vec(),
-        |_| Ok(()),
-    )
-    .unwrap();
-    let mut rng = palpate_motion::scenario::Gauss::new(seed + 1000);
-    let initial: Vec<Option<[f64; 3]>> = long
-        .markers
-        .iter()
-        .map(|m| Some(long.marker_position(m, &x0).map(|v| v + noise * rng.next())))
-        .collect();
-    ds.obs = recorded.clone();
-    ds.obs.markers = (0..ds.model.steps as i64)
-        .map(|n| match usize::try_from(n - late) {
-            Ok(i) => recorded.markers[i].clone(),
-            Err(_) => initial.clone(),
-        })
-        .collect();
-    // The clamp's force sensor is on the same clock as the markers (unseen before the start).
-    ds.obs.forces = (0..ds.model.steps as i64)
-        .map(|n| match usize::try_from(n - late) {
-            Ok(i) => recorded.forces[i].clone(),
-            Err(_) => vec![None; long.clamps.len()],
-        })
-        .collect();
+    ds.obs = record_late(&ds.model, &truth(&ds), 2e-5, seed, late, 4);
     // The diagnosis' simplest model treats the weight as a force only: it must find the inertia.
     for l in &mut ds.model.loads {
         l.inertia = false;

@@ -122,30 +122,14 @@ pub fn run_trajectory_at(
     if offset == 0 {
         return run_trajectory(model, mat, obs);
     }
-    let m = time_offset::shifted_model(model, offset)?;
-    let markers = |x: &[f64]| -> Vec<[f64; 3]> {
-        m.markers.iter().map(|k| m.marker_position(k, x)).collect()
-    };
-    let (mut initial, mut pos, mut vel) = (Vec::new(), Vec::new(), Vec::new());
-    palpate_motion::sim::simulate(
-        &m,
-        mat,
-        false,
-        |x0, _| initial = markers(x0),
-        |s| {
-            pos.push(markers(s.x));
-            vel.push(markers(s.v));
-            Ok(())
-        },
-    )?;
-    let still = vec![[0.0; 3]; model.markers.len()];
+    let sim = time_offset::Trajectory::simulate(&time_offset::shifted_model(model, offset)?, mat)?;
+    let beyond =
+        || MotionError::Invalid(format!("time offset {offset}: past the simulated horizon"));
     let mut t = Trajectory::default();
     for n in 0..model.steps {
         let s = n as i64 + 1 - offset;
-        let (p, v) = match usize::try_from(s - 1) {
-            Ok(i) => (pos[i].clone(), vel[i].clone()),
-            Err(_) => (initial.clone(), still.clone()),
-        };
+        let p = sim.at(s).ok_or_else(beyond)?.to_vec();
+        let v = sim.velocity_at(s).ok_or_else(beyond)?;
         let row = obs.markers.get(n);
         t.res.push(
             p.iter()
