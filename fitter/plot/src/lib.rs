@@ -284,11 +284,7 @@ where
     let fmt = |log: bool, range: (f64, f64)| move |v: &f64| axis_tick(*v, log, range);
     let area = titled(&root, title)?;
     let build = |yr: (f64, f64)| {
-        ChartBuilder::on(&area)
-            .margin(12)
-            .x_label_area_size(45)
-            .y_label_area_size(80)
-            .build_cartesian_2d(xr.0..xr.1, yr.0..yr.1)
+        framed(&area, VALUE_LABEL_WIDTH).build_cartesian_2d(xr.0..xr.1, yr.0..yr.1)
     };
     // Where the legend goes: measured against the plot area before anything is drawn.
     let (position, yr) = if legend {
@@ -433,6 +429,25 @@ fn legend_place(
             }
         }
     }
+}
+
+/// Width (px) of the y-axis label area for values with units (lines and bars).
+const VALUE_LABEL_WIDTH: u32 = 80;
+/// Width (px) of the y-axis label area for a histogram's counts, which are short integers.
+const COUNT_LABEL_WIDTH: u32 = 60;
+
+/// The chart frame every figure draws in under its title: a 12 px margin, 45 px for the x-axis
+/// labels and `y_label_width` px for the y-axis labels. One place, so the figures line up.
+fn framed<'a, 'b, DB: DrawingBackend>(
+    area: &'a DrawingArea<DB, Shift>,
+    y_label_width: u32,
+) -> ChartBuilder<'a, 'b, DB> {
+    let mut builder = ChartBuilder::on(area);
+    builder
+        .margin(12)
+        .x_label_area_size(45)
+        .y_label_area_size(y_label_width);
+    builder
 }
 
 /// Draws `title` centred at the top of `root` — at 24 px if it fits the canvas, else smaller or
@@ -609,11 +624,8 @@ where
     } = *c;
     {
         let area = titled(&root, title)?;
-        let mut chart = ChartBuilder::on(&area)
-            .margin(12)
-            .x_label_area_size(45)
-            .y_label_area_size(60)
-            .build_cartesian_2d(lo..hi, 0.0..top.max(1.0))?;
+        let mut chart =
+            framed(&area, COUNT_LABEL_WIDTH).build_cartesian_2d(lo..hi, 0.0..top.max(1.0))?;
         chart
             .configure_mesh()
             .x_desc(x_label)
@@ -690,14 +702,10 @@ where
     let n = b.len();
     {
         let area = titled(&root, title)?;
-        let mut chart = ChartBuilder::on(&area)
-            .margin(12)
-            .x_label_area_size(45)
-            .y_label_area_size(80)
-            .build_cartesian_2d(
-                -0.5..(n as f64 - 0.5),
-                (lo - if lo < 0.0 { pad } else { 0.0 })..(hi + pad),
-            )?;
+        let mut chart = framed(&area, VALUE_LABEL_WIDTH).build_cartesian_2d(
+            -0.5..(n as f64 - 0.5),
+            (lo - if lo < 0.0 { pad } else { 0.0 })..(hi + pad),
+        )?;
         chart
             .configure_mesh()
             .disable_x_mesh()
