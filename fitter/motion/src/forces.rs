@@ -54,22 +54,50 @@ pub fn assemble(
     x: &[f64],
     v: &[f64],
     f: &mut [f64],
+    kvals: Option<&mut [f64]>,
+    dvals: Option<&mut [f64]>,
+) -> Result<(), MotionError> {
+    assemble_parts(model, mat, x, v, Some(f), kvals, dvals)
+}
+
+/// Assembles K and D values on the free pattern (overwritten) without the forces: a Newton
+/// step that converged with a kept factor already has its forces, and the gradients need the
+/// tangents at that state (one force pass of the three a step makes saved).
+pub fn assemble_tangents(
+    model: &Model,
+    mat: &Material,
+    x: &[f64],
+    v: &[f64],
+    kvals: &mut [f64],
+    dvals: &mut [f64],
+) -> Result<(), MotionError> {
+    assemble_parts(model, mat, x, v, None, Some(kvals), Some(dvals))
+}
+
+fn assemble_parts(
+    model: &Model,
+    mat: &Material,
+    x: &[f64],
+    v: &[f64],
+    mut f: Option<&mut [f64]>,
     mut kvals: Option<&mut [f64]>,
     mut dvals: Option<&mut [f64]>,
 ) -> Result<(), MotionError> {
-    f.iter_mut().for_each(|z| *z = 0.0);
-    if let Some(k) = kvals.as_deref_mut() {
-        k.iter_mut().for_each(|z| *z = 0.0);
-    }
-    if let Some(d) = dvals.as_deref_mut() {
-        d.iter_mut().for_each(|z| *z = 0.0);
-    }
+    let zero = |z: Option<&mut [f64]>| {
+        if let Some(z) = z {
+            z.iter_mut().for_each(|z| *z = 0.0);
+        }
+    };
+    zero(f.as_deref_mut());
+    zero(kvals.as_deref_mut());
+    zero(dvals.as_deref_mut());
     let ne = model.tets.len();
     if ne < SPLIT_ASSEMBLY_ELEMENTS {
-        assemble_into(model, mat, x, v, 0..ne, f, kvals, dvals)?;
+        assemble_into(model, mat, x, v, 0..ne, f.as_deref_mut(), kvals, dvals)?;
     } else {
         let half = ne / 2;
-        let (want_k, want_d, ndof) = (kvals.is_some(), dvals.is_some(), f.len());
+        let (want_k, want_d) = (kvals.is_some(), dvals.is_some());
+        let ndof = f.as_deref().map_or(0, <[f64]>::len);
         let second = || -> Result<(Vec<f64>, Vec<f64>, Vec<f64>), MotionError> {
             let nnz = model.pattern.nnz();
             let mut f2 = vec![0.0; ndof];
@@ -81,7 +109,7 @@ pub fn assemble(
                 x,
                 v,
                 half..ne,
-                &mut f2,
+                (ndof > 0).then_some(f2.as_mut_slice()),
                 want_k.then_some(k2.as_mut_slice()),
                 want_d.then_some(d2.as_mut_slice()),
             )?;
@@ -95,7 +123,7 @@ pub fn assemble(
                     x,
                     v,
                     0..half,
-                    f,
+                    f.as_deref_mut(),
                     kvals.as_deref_mut(),
                     dvals.as_deref_mut(),
                 )
@@ -105,7 +133,9 @@ pub fn assemble(
         first?;
         let (f2, k2, d2) = second?;
         let add = |to: &mut [f64], from: &[f64]| to.iter_mut().zip(from).for_each(|(a, b)| *a += b);
-        add(f, &f2);
+        if let Some(f) = f.as_deref_mut() {
+            add(f, &f2);
+        }
         if let Some(k) = kvals {
             add(k, &k2);
         }
@@ -113,14 +143,14 @@ pub fn assemble(
             add(d, &d2);
         }
     }
-    if f.iter().any(|z| !z.is_finite()) {
+    if f.is_some_and(|f| f.iter().any(|z| !z.is_finite())) {
         return Err(MotionError::NonFinite("internal force".into()));
     }
     Ok(())
 }
 
-/// Adds the forces of the elements in `range` into `f` and their K, D blocks into `kvals`,
-/// `dvals`.
+/// Adds the forces of the elements in `range` into `f` (when asked) and their K, D blocks into
+/// `kvals`, `dvals`.
 #[allow(clippy::too_many_arguments)]
 fn assemble_into(
     model: &Model,
@@ -128,7 +158,7 @@ fn assemble_into(
     x: &[f64],
     v: &[f64],
     range: std::ops::Range<usize>,
-    f: &mut [f64],
+    mut f: Option<&mut [f64]>,
     mut kvals: Option<&mut [f64]>,
     mut dvals: Option<&mut [f64]>,
 ) -> Result<(), MotionError> {
@@ -136,21 +166,34 @@ fn assemble_into(
         let tet = &model.tets[e];
         let t = &model.rest[e];
         let s = ElasticState::new(mat, e, he::deformation_gradient(t, &model.gather(e, x)))?;
-        let mut p = s.pk1();
-        if let Some(k) = kvals.as_deref_mut() {
-            model.pattern.add_element(e, &s.tangent(t), 1.0, k);
-        }
         let (nu, h) = (mat.get(ParamKind::Nu, e), mat.get(ParamKind::PowerH, e));
-        if let Some(r) = visc::Rate::new(&visc::velocity_gradient(t, &model.gather(e, v)), h) {
-            p += visc::stress(&r, nu);
-            if let Some(d) = dvals.as_deref_mut() {
-                model
-                    .pattern
-                    .add_element(e, &visc::element_damping(t, &r, nu), 1.0, d);
+        let rate = visc::Rate::new(&visc::velocity_gradient(t, &model.gather(e, v)), h);
+        match (kvals.as_deref_mut(), dvals.as_deref_mut(), &rate) {
+            (Some(k), Some(d), Some(r)) => model.pattern.add_element_pair(
+                e,
+                (&s.tangent(t), k),
+                (&visc::element_damping(t, r, nu), d),
+            ),
+            (k, d, r) => {
+                if let Some(k) = k {
+                    model.pattern.add_element(e, &s.tangent(t), 1.0, k);
+                }
+                if let (Some(d), Some(r)) = (d, r) {
+                    model
+                        .pattern
+                        .add_element(e, &visc::element_damping(t, r, nu), 1.0, d);
+                }
             }
         }
+        let Some(f) = f.as_deref_mut() else {
+            continue;
+        };
         // Elastic and viscous stresses act through the same rest gradients: summed first, mapped
         // to nodal forces once.
+        let mut p = s.pk1();
+        if let Some(r) = &rate {
+            p += visc::stress(r, nu);
+        }
         let mut fe = [0.0; 12];
         he::add_stress_forces(t, &p, 1.0, &mut fe);
         for a in 0..4 {

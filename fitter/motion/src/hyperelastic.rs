@@ -123,11 +123,19 @@ pub struct FParts {
 impl FParts {
     /// Splits F; `None` when J ≤ 0 or F is singular.
     pub fn new(f: Matrix3<f64>) -> Option<Self> {
-        let j = f.determinant();
+        // F⁻ᵀ = cof(F)/J, the cofactor matrix's columns being the cross products of F's
+        // other two columns: one pass for J and F⁻ᵀ (a general inverse and a transpose were 5 %
+        // of a motion fit).
+        let (c0, c1, c2) = (f.column(0), f.column(1), f.column(2));
+        let cof = Matrix3::from_columns(&[c1.cross(&c2), c2.cross(&c0), c0.cross(&c1)]);
+        let j = c0.dot(&cof.column(0));
         if j.is_nan() || j <= 0.0 {
             return None;
         }
-        let f_inv_t = f.try_inverse()?.transpose();
+        let f_inv_t = cof / j;
+        if !f_inv_t.iter().all(|z| z.is_finite()) {
+            return None;
+        }
         Some(Self {
             f,
             f_inv_t,

@@ -5,7 +5,7 @@
 //! come from the clamp pose and their velocities from the same BDF2 relation, so the scheme is
 //! consistent on every node. Before t = 0 the body rests (v(t ≤ 0) = 0, x^{−1} = x^{0}).
 
-use super::forces::assemble;
+use super::forces::{assemble, assemble_tangents};
 use super::model::{Material, Model};
 use super::sparse::Factor;
 use super::MotionError;
@@ -450,9 +450,12 @@ pub fn simulate(
                 last_factor = None;
                 break;
             }
-            if !fresh && (done || nrm > REFACTOR_CONTRACTION * prev_nrm) {
-                // The gradients need K, D and S at the converged state; or the kept factor
-                // no longer contracts: assemble the tangent here and factorise.
+            if !fresh && done {
+                // Converged with a kept factor; the gradients need K, D and S at this state.
+                // Its forces are already assembled: the tangents alone.
+                assemble_tangents(model, mat, &x, &v, &mut kv, &mut dv)?;
+            } else if !fresh && nrm > REFACTOR_CONTRACTION * prev_nrm {
+                // The kept factor no longer contracts: assemble the tangent here and factorise.
                 fresh = true;
                 last_step = None;
                 continue;
