@@ -21,8 +21,9 @@ pub struct Request {
     pub output: PathBuf,
     /// Candidates to try by name (empty: all).
     pub candidates: Vec<String>,
-    /// Most effects to adopt.
-    pub max_effects: usize,
+    /// Most effects to adopt; `None`: [`DEFAULT_MAX_EFFECTS`], or for runs of one object
+    /// [`crate::runs::RunsOptions`]'s default (its library holds four effects that combine).
+    pub max_effects: Option<usize>,
     /// Mesh of static datasets' models.
     pub mesh: MeshChoice,
     /// Gauge length L0 (mm) of tension-test CSVs; fitted if `None`.
@@ -109,6 +110,9 @@ pub fn run(args: &Request) -> Result<(), Error> {
     diagnose_one(args, &args.dataset, &args.output)
 }
 
+/// Most effects adopted by the static, motion and curve diagnoses unless asked otherwise.
+pub const DEFAULT_MAX_EFFECTS: usize = 3;
+
 /// Diagnoses one dataset or set of curves at `path` into `output`.
 fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<(), Error> {
     // A CSV file or a directory of CSVs without dataset.toml: measured curves (diagnose::curve).
@@ -117,7 +121,7 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<(), Error>
             path,
             output,
             &args.candidates,
-            args.max_effects,
+            args.max_effects.unwrap_or(DEFAULT_MAX_EFFECTS),
             args.gauge_length,
         );
     }
@@ -129,14 +133,19 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<(), Error>
     }
     // dataset.toml with `dt`/`clamps`: a motion dataset (docs/motion-dataset.md).
     if path.is_dir() && crate::motion::is_motion_dataset(path) {
-        return crate::motion::cli::run(path, output, &args.candidates, args.max_effects);
+        return crate::motion::cli::run(
+            path,
+            output,
+            &args.candidates,
+            args.max_effects.unwrap_or(DEFAULT_MAX_EFFECTS),
+        );
     }
     let ds = StaticDataset::read(path).map_err(|source| Error::StaticDataset {
         path: path.into(),
         source: Box::new(source),
     })?;
     let mut o = DiagnoseOptions {
-        max_effects: args.max_effects,
+        max_effects: args.max_effects.unwrap_or(DEFAULT_MAX_EFFECTS),
         mesh: args.mesh,
         ..Default::default()
     };
@@ -199,10 +208,10 @@ fn run_runs(args: &Request) -> Result<(), Error> {
         .map(load)
         .collect::<Result<_, _>>()?;
     let held: Vec<_> = args.held_out.iter().map(load).collect::<Result<_, _>>()?;
-    let mut o = crate::runs::RunsOptions {
-        max_effects: args.max_effects,
-        ..Default::default()
-    };
+    let mut o = crate::runs::RunsOptions::default();
+    if let Some(n) = args.max_effects {
+        o.max_effects = n;
+    }
     if let Some(nu) = args.poisson {
         o.poisson = nu;
     }

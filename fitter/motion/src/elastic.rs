@@ -35,7 +35,7 @@ impl<'a> ElasticState<'a> {
                     HyperParams {
                         lambda: mat.get(ParamKind::Lambda, e),
                         mu: mat.get(ParamKind::Mu, e),
-                        stiffening: mat.stiffening,
+                        stiffening: mat.get(ParamKind::Stiffening, e),
                     },
                 ))
             }

@@ -5,7 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::model::Model;
+use super::model::{Material, Model, ParamKind};
 
 /// Gives every load of `model` declared as a mass the inertia of that mass (`on`), or none.
 pub fn set_hanging_inertia(model: &mut Model, on: bool) {
@@ -51,6 +51,15 @@ pub struct FittedModel {
     /// Density per element (kg/m³).
     #[serde(rename = "density_kg_m3", alias = "density")]
     pub density: Vec<f64>,
+    /// Strain-stiffening coefficient c per element (Pa; the c (Ī₁ − 3)² term,
+    /// [`super::model::ParamKind::Stiffening`]); absent in older records and when not fitted,
+    /// which reads as 0 (the paper's eq. 16).
+    #[serde(
+        rename = "stiffening_pa",
+        default,
+        skip_serializing_if = "Vec::is_empty"
+    )]
+    pub stiffening: Vec<f64>,
     /// Poisson's ratio, when it was held fixed (λ followed μ).
     #[serde(rename = "poisson_ratio_fixed", alias = "poisson_fixed")]
     pub poisson_fixed: Option<f64>,
@@ -80,6 +89,40 @@ pub struct FittedModel {
 }
 
 impl FittedModel {
+    /// The fitted material on its `tets` elements: each field holds one value (the same in
+    /// every element) or one per element; the stiffening may be absent (0). The error names
+    /// the field, what it holds and what was expected.
+    pub fn material(&self) -> Result<Material, String> {
+        let ne = self.tets;
+        let per_element = |name: &str, v: &[f64], absent: Option<f64>| match v.len() {
+            0 if absent.is_some() => Ok(vec![absent.unwrap_or_default(); ne]),
+            1 => Ok(vec![v[0]; ne]),
+            n if n == ne => Ok(v.to_vec()),
+            n => Err(format!("field {name}: {n} values, expected 1 or {ne}")),
+        };
+        let mut mat = Material::uniform(ne, 1.0, 1.0, 1.0, 1.0, 1.0);
+        mat.values = [
+            per_element("lame_lambda_pa", &self.lambda, None)?,
+            per_element("shear_modulus_pa", &self.mu, None)?,
+            per_element("viscosity_pa_s_h", &self.viscosity, None)?,
+            per_element("power_law_index", &self.h, None)?,
+            per_element("density_kg_m3", &self.density, None)?,
+            per_element("stiffening_pa", &self.stiffening, Some(0.0))?,
+        ];
+        Ok(mat)
+    }
+
+    /// The stiffening field to record for `mat`: empty where it is 0 everywhere (eq. 16), so
+    /// records of Neo-Hookean fits stay as they were.
+    pub fn stiffening_of(mat: &Material) -> Vec<f64> {
+        let c = &mat.values[ParamKind::Stiffening as usize];
+        if c.iter().all(|&v| v == 0.0) {
+            Vec::new()
+        } else {
+            c.clone()
+        }
+    }
+
     /// The JSON text of `fit.json`: `schema_version` first, then the record.
     pub fn to_json(&self) -> Result<String, serde_json::Error> {
         serde_json::to_string_pretty(&palpate_fem::io::json::Versioned::new(SCHEMA_VERSION, self))

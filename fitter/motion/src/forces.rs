@@ -3,7 +3,7 @@
 
 use super::elastic::ElasticState;
 use super::hyperelastic::{self as he, FParts};
-use super::model::{Material, Model, ParamKind};
+use super::model::{Material, Model, ParamKind, MATERIAL_KINDS};
 use super::spline::{Response, SplineMaterial};
 use super::viscosity as visc;
 use super::MotionError;
@@ -206,7 +206,7 @@ fn assemble_into(
 }
 
 /// Calls `sink(e, slot, ∂F_e/∂q_slot)` for every element and every derivative slot with
-/// `slots[slot]` set (slots: the five material kinds, then the spline control values, see
+/// `slots[slot]` set (slots: the material kinds, then the spline control values, see
 /// [`super::model::Param::slot`]), where
 /// F = f(x, v) + f_ext − c M (v − b) is the force part of the BDF2 residual (eq. 2) and
 /// `inertia = Some((c, v − b))` (full dofs) includes the density's mass term; `None` drops it
@@ -222,7 +222,7 @@ pub fn param_derivatives(
     mut sink: impl FnMut(usize, usize, &[f64; 12]),
 ) -> Result<(), MotionError> {
     let nf = mat.spline.as_ref().map_or(0, |s| s.len(Response::F));
-    let any_spline = kinds.iter().skip(5).any(|&b| b);
+    let any_spline = kinds.iter().skip(MATERIAL_KINDS).any(|&b| b);
     let all: Vec<usize>;
     let list = match elems {
         Some(l) => l,
@@ -234,8 +234,14 @@ pub fn param_derivatives(
     for &e in list {
         let t = &model.rest[e];
         let fgrad = he::deformation_gradient(t, &model.gather(e, x));
-        if kinds[ParamKind::Lambda as usize] || kinds[ParamKind::Mu as usize] {
+        let neo_hookean = [ParamKind::Lambda, ParamKind::Mu, ParamKind::Stiffening];
+        if neo_hookean.iter().any(|&k| kinds[k as usize]) {
             let s = FParts::new(fgrad).ok_or(MotionError::Inverted { element: e })?;
+            if kinds[ParamKind::Stiffening as usize] {
+                let mut g = [0.0; 12];
+                he::add_stress_forces(t, &he::pk1_dstiffening(&s), 1.0, &mut g);
+                sink(e, ParamKind::Stiffening as usize, &g);
+            }
             if kinds[ParamKind::Lambda as usize] {
                 let mut g = [0.0; 12];
                 he::add_stress_forces(t, &he::pk1_dlambda(&s), 1.0, &mut g);
@@ -254,8 +260,8 @@ pub fn param_derivatives(
                     .ok_or(MotionError::Inverted { element: e })?;
                 SplineMaterial::pk1_dcontrols(&st, |r, i, dp| {
                     let slot = match r {
-                        Response::F => 5 + i,
-                        Response::H => 5 + nf + i,
+                        Response::F => MATERIAL_KINDS + i,
+                        Response::H => MATERIAL_KINDS + nf + i,
                     };
                     if kinds.get(slot).copied().unwrap_or(false) {
                         let mut g = [0.0; 12];

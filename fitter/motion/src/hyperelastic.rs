@@ -182,6 +182,11 @@ pub fn pk1_dmu(s: &FParts) -> Matrix3<f64> {
     s.f - s.f_inv_t
 }
 
+/// ∂P/∂c = 2 (Ī₁ − 3) ∂Ī₁/∂F (the stiffening coefficient's).
+pub fn pk1_dstiffening(s: &FParts) -> Matrix3<f64> {
+    s.dbar() * (2.0 * s.bar())
+}
+
 /// Directional derivative dP\[dF\].
 ///
 /// d(F⁻ᵀ) = −F⁻ᵀ dFᵀ F⁻ᵀ, dJ = J tr(F⁻¹ dF), dI₁ = 2 F : dF, and for the stiffening term

@@ -30,22 +30,31 @@ pub enum ParamKind {
     PowerH = 3,
     /// Density ρ (kg/m³).
     Density = 4,
+    /// Strain-stiffening coefficient c of the c (Ī₁ − 3)² term added to Neo-Hookean (Pa; a
+    /// Yeoh-type second-order term, Ī₁ = J^(−2/3) I₁, see [`super::hyperelastic`]); 0 is the
+    /// paper's eq. 16.
+    Stiffening = 5,
     /// A control value of the spline f′ of §4.2 (Pa); `Param::element` holds the control index.
-    SplineF = 5,
+    SplineF = 6,
     /// A control value J·h′(J) of the spline h′ of §4.2 (Pa); `Param::element` holds the
     /// control index.
-    SplineH = 6,
+    SplineH = 7,
 }
+
+/// Number of per-element material kinds ([`ParamKind::ALL`]): the derivative slots before the
+/// spline control values.
+pub const MATERIAL_KINDS: usize = 6;
 
 impl ParamKind {
     /// All per-element material kinds in index order (the spline kinds are separate: their
     /// parameters are control points, see [`Param`]).
-    pub const ALL: [ParamKind; 5] = [
+    pub const ALL: [ParamKind; MATERIAL_KINDS] = [
         Self::Lambda,
         Self::Mu,
         Self::Nu,
         Self::PowerH,
         Self::Density,
+        Self::Stiffening,
     ];
     /// Short name as used on the command line and in reports. The viscosity coefficient is
     /// `viscosity` (the paper's ν; ν is Poisson's ratio everywhere else in palpate).
@@ -56,6 +65,7 @@ impl ParamKind {
             Self::Nu => "viscosity",
             Self::PowerH => "h",
             Self::Density => "density",
+            Self::Stiffening => "stiffening",
             Self::SplineF => "spline_f",
             Self::SplineH => "spline_h",
         }
@@ -68,6 +78,7 @@ impl ParamKind {
             Self::Nu => "viscosity (Pa·s^h)",
             Self::PowerH => "power-law index h",
             Self::Density => "density (kg/m³)",
+            Self::Stiffening => "strain-stiffening c (Pa)",
             Self::SplineF => "spline f′ control value (Pa)",
             Self::SplineH => "spline J·h′ control value (Pa)",
         }
@@ -125,14 +136,14 @@ impl Param {
         kinds.iter().map(|&k| Self::global(k)).collect()
     }
 
-    /// The derivative slot of this parameter: the kind index for material kinds, 5 + i for f′
-    /// control i, 5 + (f′ count) + i for h′ control i. Gradient passes accumulate per element
-    /// and slot.
+    /// The derivative slot of this parameter: the kind index for material kinds,
+    /// [`MATERIAL_KINDS`] + i for f′ control i, [`MATERIAL_KINDS`] + (f′ count) + i for h′
+    /// control i. Gradient passes accumulate per element and slot.
     pub fn slot(&self, mat: &Material) -> usize {
         let nf = mat.spline.as_ref().map_or(0, |s| s.len(Response::F));
         match (self.kind, self.element) {
-            (ParamKind::SplineF, Some(i)) => 5 + i,
-            (ParamKind::SplineH, Some(i)) => 5 + nf + i,
+            (ParamKind::SplineF, Some(i)) => MATERIAL_KINDS + i,
+            (ParamKind::SplineH, Some(i)) => MATERIAL_KINDS + nf + i,
             (k, _) => k as usize,
         }
     }
@@ -141,14 +152,12 @@ impl Param {
 /// Per-element material values.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Material {
-    /// Values indexed `[kind as usize][element]`.
-    pub values: [Vec<f64>; 5],
-    /// The principal-stretch material of §4.2; when present it replaces Neo-Hookean (λ, μ unused).
+    /// Values indexed `[kind as usize][element]` ([`ParamKind::ALL`]; the stiffening is 0
+    /// unless set: the paper's eq. 16).
+    pub values: [Vec<f64>; MATERIAL_KINDS],
+    /// The principal-stretch material of §4.2; when present it replaces Neo-Hookean (λ, μ and
+    /// the stiffening unused).
     pub spline: Option<SplineMaterial>,
-    /// Strain-stiffening coefficient c of the c (Ī₁ − 3)² term (Ī₁ = J^(−2/3) I₁) of [`super::hyperelastic`]
-    /// (Pa; a Yeoh-type second-order term) added to Neo-Hookean. Not a fit parameter: it makes
-    /// non-Neo-Hookean ground truths for the spline evidence. 0 = the paper's eq. 16.
-    pub stiffening: f64,
 }
 
 impl Material {
@@ -161,17 +170,22 @@ impl Material {
                 vec![nu; n],
                 vec![h; n],
                 vec![density; n],
+                vec![0.0; n],
             ],
             spline: None,
-            stiffening: 0.0,
         }
+    }
+    /// Sets `kind` to `value` in every element.
+    pub fn set_uniform(&mut self, kind: ParamKind, value: f64) {
+        self.values[kind as usize].fill(value);
     }
     /// Derivative slots (see [`Param::slot`]): 5 material kinds plus the spline controls.
     pub fn slots(&self) -> usize {
-        5 + self
-            .spline
-            .as_ref()
-            .map_or(0, |s| s.len(Response::F) + s.len(Response::H))
+        MATERIAL_KINDS
+            + self
+                .spline
+                .as_ref()
+                .map_or(0, |s| s.len(Response::F) + s.len(Response::H))
     }
     /// Checks that every parameter refers to something this material has.
     pub fn check_params(&self, params: &[Param]) -> Result<(), MotionError> {
@@ -194,7 +208,12 @@ impl Material {
                         p.kind.name()
                     )))
                 }
-                (None, Some(_)) if matches!(p.kind, ParamKind::Lambda | ParamKind::Mu) => {
+                (None, Some(_))
+                    if matches!(
+                        p.kind,
+                        ParamKind::Lambda | ParamKind::Mu | ParamKind::Stiffening
+                    ) =>
+                {
                     return Err(MotionError::Invalid(format!(
                         "parameter {i}: {} has no effect with the spline material (fit its \
                          control values instead)",

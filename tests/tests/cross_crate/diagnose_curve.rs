@@ -435,7 +435,7 @@ fn a_folder_of_instrument_folders_is_diagnosed_one_by_one() {
         dataset: dataset.to_path_buf(),
         output: output.to_path_buf(),
         candidates: Vec::new(),
-        max_effects: 3,
+        max_effects: Some(3),
         mesh: palpate_diagnose::MeshChoice::Auto,
         gauge_length: None,
         more_runs: Vec::new(),

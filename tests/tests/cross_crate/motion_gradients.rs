@@ -24,6 +24,8 @@ fn setup(
     // Evaluate away from the truth, with a non-Newtonian index so ∂/∂h is non-trivial, and
     // per-element variation so per-element derivatives differ between elements.
     let mut mat = Material::uniform(ne, 1.6e4, 1.3e4, 7.0, 0.85, 60.0);
+    // A stiffening term on, so that ∂/∂c is checked where it acts (and the step 1e-5 c is not 0).
+    mat.set_uniform(ParamKind::Stiffening, 4.0e3);
     for e in 0..ne {
         mat.values[ParamKind::Mu as usize][e] *= 1.0 + 0.05 * (e % 3) as f64;
     }
@@ -55,10 +57,15 @@ fn global_parameters_markers_and_forces_consistent_mass() {
 }
 
 #[test]
-fn per_element_lambda_mu_density() {
+fn per_element_lambda_mu_density_stiffening() {
     let mut params = Vec::new();
     for e in [0usize, 7, 13, 22] {
-        for kind in [ParamKind::Lambda, ParamKind::Mu, ParamKind::Density] {
+        for kind in [
+            ParamKind::Lambda,
+            ParamKind::Mu,
+            ParamKind::Density,
+            ParamKind::Stiffening,
+        ] {
             params.push(Param {
                 kind,
                 element: Some(e),
@@ -66,4 +73,21 @@ fn per_element_lambda_mu_density() {
         }
     }
     check(&params, MassKind::Lumped, true);
+}
+
+/// The stiffening coefficient alone, so the check is relative to its own derivative (beside λ
+/// and μ it is the smallest component and a check against the largest would hardly bind).
+#[test]
+fn stiffening_alone_matches_finite_differences() {
+    for (mass, forces) in [(MassKind::Lumped, false), (MassKind::Consistent, true)] {
+        let (model, mat, mut obs) = setup(mass);
+        if forces {
+            obs.force_weight = 1e3;
+        } else {
+            obs.forces.clear();
+        }
+        let params = [Param::global(ParamKind::Stiffening)];
+        let (g, scale) = assert_gradients_agree(&model, &mat, &params, &obs, |_, q0| 1e-4 * q0);
+        assert!(g[0] != 0.0 && scale == g[0].abs(), "∂Φ/∂c = {}", g[0]);
+    }
 }

@@ -117,7 +117,7 @@ pub fn spline() -> anyhow::Result<(&'static str, String, serde_json::Value)> {
         .map(|l| {
             let (_, model) = tension_bar(SIZE, CELLS, DT, STEPS, &|_| 0.0)?;
             let mut truth = Material::uniform(model.tets.len(), l0, m0, nu0, 1.0, rho0);
-            truth.stiffening = c0;
+            truth.set_uniform(ParamKind::Stiffening, c0);
             case(*l, &truth)
         })
         .collect::<anyhow::Result<_>>()?;

@@ -132,15 +132,10 @@ pub fn run(out: &Path) -> anyhow::Result<BeamOutcome> {
             d.adopted.iter().map(|e| e.name()).collect::<Vec<_>>()
         ),
     };
-    let mut mat =
-        palpate_motion::model::Material::uniform(ds.model.tets.len(), 1.0, 1.0, 0.0, 1.0, 1.0);
-    mat.values = [
-        d.model.lambda.clone(),
-        d.model.mu.clone(),
-        d.model.viscosity.clone(),
-        d.model.h.clone(),
-        d.model.density.clone(),
-    ];
+    let mat = d
+        .model
+        .material()
+        .map_err(|e| anyhow::anyhow!("the beam's fit: {e}"))?;
     let palp = out.join("beam.palp");
     let weight = WEIGHT_KG * 9.81;
     let (runtime_tip_m, bytes) = runtime_tip(ds, &mat, &prov, weight, &palp)?;

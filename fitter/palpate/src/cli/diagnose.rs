@@ -18,9 +18,10 @@ pub struct Args {
     /// Candidates to try (default: all).
     #[arg(long, value_delimiter = ',')]
     pub candidates: Vec<String>,
-    /// Most effects to adopt.
-    #[arg(long, default_value_t = 3)]
-    pub max_effects: usize,
+    /// Most effects to adopt (default 3; 4 for runs of one object, whose library holds four
+    /// effects that combine).
+    #[arg(long)]
+    pub max_effects: Option<usize>,
     /// Mesh of static datasets' models: `auto` refines the dataset mesh once when its own
     /// discretisation error is a large part of the noise floor; `dataset`, `refined` force one.
     #[arg(long, default_value = "auto", value_parser = mesh_choice())]

@@ -370,6 +370,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             viscosity: fitted.values[2].clone(),
             h: fitted.values[3].clone(),
             density: fitted.values[4].clone(),
+            stiffening: palpate_motion::fitted::FittedModel::stiffening_of(&fitted),
             poisson_fixed: args.poisson,
             hanging_inertia: args.hanging_inertia
                 || all.iter().any(|d| d.model.loads.iter().any(|l| l.inertia)),

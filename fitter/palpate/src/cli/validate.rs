@@ -7,7 +7,6 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use palpate_motion::fitted::FittedModel;
-use palpate_motion::model::Material;
 use palpate_motion::predict;
 
 /// Options.
@@ -62,25 +61,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         fit.nodes,
         fit.tets
     );
-    let ne = fit.tets;
-    let per_element = |name: &str, v: &[f64]| -> anyhow::Result<Vec<f64>> {
-        match v.len() {
-            1 => Ok(vec![v[0]; ne]),
-            n if n == ne => Ok(v.to_vec()),
-            n => anyhow::bail!(
-                "{}: field {name}: {n} values, expected 1 or {ne}",
-                args.model.display()
-            ),
-        }
-    };
-    let mut mat = Material::uniform(ne, 1.0, 1.0, 1.0, 1.0, 1.0);
-    mat.values = [
-        per_element("lame_lambda_pa", &fit.lambda)?,
-        per_element("shear_modulus_pa", &fit.mu)?,
-        per_element("viscosity_pa_s_h", &fit.viscosity)?,
-        per_element("power_law_index", &fit.h)?,
-        per_element("density_kg_m3", &fit.density)?,
-    ];
+    let mat = fit
+        .material()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
     // A model fitted with per-run time offsets predicts a new capture at its own offset (its
     // release instant is its own), scanned with the fitted material — never refitted.
     let offset = if fit.time_offset {
