@@ -303,17 +303,21 @@ fn values_of(m: &FittedModel, dt: f64) -> Vec<Value> {
     });
     ParamKind::ALL
         .iter()
-        .map(|&k| {
+        .filter_map(|&k| {
             let i = m.kinds.iter().position(|&x| x == k);
             let value = match i {
                 Some(i) => m.values[i],
                 None => m.material.get(k, 0),
             };
-            Value {
+            // The stiffening term is listed where it is in the model, not as a fixed 0.
+            if k == ParamKind::Stiffening && i.is_none() && value == 0.0 {
+                return None;
+            }
+            Some(Value {
                 name: format!("{}{}", k.name(), if i.is_some() { "" } else { " (fixed)" }),
                 value,
                 sigma: i.and_then(|i| m.sigma.as_ref().map(|s| s[i])),
-            }
+            })
         })
         .chain(offset)
         .collect()

@@ -23,7 +23,8 @@ pub struct Args {
     pub datasets: Vec<PathBuf>,
     /// Global parameters to fit, comma-separated from lambda, mu (Lamé's λ and the shear
     /// modulus μ, Pa), viscosity (the power-law viscosity coefficient, Pa·s^h; formerly `nu`),
-    /// h (its power-law index) and density (kg/m³).
+    /// h (its power-law index), density (kg/m³) and stiffening (the c of a c (Ī₁ − 3)² term
+    /// beside Neo-Hookean, Pa; starts at μ unless `--initial stiffening=…`).
     #[arg(long, default_value = "lambda,mu,viscosity,h", value_delimiter = ',')]
     pub params: Vec<String>,
     /// Per-element parameters to fit (lambda,mu,density), with neighbour smoothness.
@@ -44,7 +45,7 @@ pub struct Args {
     #[arg(long)]
     pub poisson: Option<f64>,
     /// Starting values overriding the first dataset's `[initial]` table, e.g.
-    /// `mu=8e4,viscosity=5` (lambda, mu in Pa; viscosity in Pa·s^h; h).
+    /// `mu=8e4,viscosity=5` (lambda, mu in Pa; viscosity in Pa·s^h; h; stiffening in Pa).
     #[arg(long, value_delimiter = ',', value_name = "KIND=VALUE")]
     pub initial: Vec<String>,
     /// Hanging weights (`[[loads]]` with a mass) also add their inertia, lumped on their nodes.
@@ -146,6 +147,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         (init.lambda, init.mu, init.nu, init.h) =
             (start.lambda, start.mu, start.viscosity, start.h);
     }
+    let mut stiffening: Option<f64> = None;
     for kv in &args.initial {
         let (k, v) = kv
             .split_once('=')
@@ -161,18 +163,30 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Some(ParamKind::Mu) => init.mu = v,
             Some(ParamKind::Nu) => init.nu = v,
             Some(ParamKind::PowerH) => init.h = v,
+            Some(ParamKind::Stiffening) => stiffening = Some(v),
             _ => anyhow::bail!(
-                "--initial: unknown kind {:?} (lambda, mu, viscosity, h)",
+                "--initial: unknown kind {:?} (lambda, mu, viscosity, h, stiffening)",
                 k.trim()
             ),
         }
     }
     let density = ds.config.density.unwrap_or(1000.0);
-    let base = Material::uniform(ne, init.lambda, init.mu, init.nu, init.h, density);
+    let mut base = Material::uniform(ne, init.lambda, init.mu, init.nu, init.h, density);
+    // The stiffening is 0 (eq. 16) unless given or fitted; fitted in ln c, it needs a start
+    // above 0: c = μ unless given (at 10 % strain that adds about 6 % to the Neo-Hookean energy).
+    let fits_stiffening = args
+        .params
+        .iter()
+        .any(|n| n.trim() == ParamKind::Stiffening.name());
+    if let Some(c) = stiffening.or(fits_stiffening.then_some(init.mu)) {
+        base.set_uniform(ParamKind::Stiffening, c);
+    }
     let mut params = Vec::new();
     for name in &args.params {
         let kind = param_kind(name, "--params").with_context(|| {
-            format!("--params: unknown parameter {name:?} (lambda, mu, viscosity, h, density)")
+            format!(
+                "--params: unknown parameter {name:?} (lambda, mu, viscosity, h, density, stiffening)"
+            )
         })?;
         params.push(Param::global(kind));
     }
