@@ -108,6 +108,10 @@ fn names_damping_and_the_hanging_weights_inertia_on_held_out_runs() {
         d.adopted
     );
     assert!(d.adopted.contains(&Effect::Damping), "{:?}", d.adopted);
+    // Held out at the fitted loads only, and the report says what that does not test.
+    assert!(d.held_out_loads_beyond_fitted().is_empty());
+    let md = palpate_diagnose::runs::report::markdown(&d);
+    assert!(md.contains("not extrapolation to other loads"), "{md}");
     // A Neo-Hookean truth: no stiffening, and none recorded.
     assert!(!d.adopted.contains(&Effect::Stiffening), "{:?}", d.adopted);
     assert!(d.model.stiffening.is_empty());
@@ -201,7 +205,12 @@ pub(crate) fn stiffening_run(name: &str, mass: f64, seed: u64) -> (String, Motio
 fn names_a_stiffening_material_from_runs_under_different_weights() {
     let make = stiffening_run;
     let fit = vec![make("light-a", 0.002, 1), make("heavy-a", 0.03, 2)];
-    let held = vec![make("light-b", 0.002, 3), make("heavy-b", 0.03, 4)];
+    // The held-out repeats, and one run at a load no fitted run carries (15 g): extrapolation.
+    let held = vec![
+        make("light-b", 0.002, 3),
+        make("heavy-b", 0.03, 4),
+        make("middle-b", 0.015, 5),
+    ];
     let d = diagnose_runs(&fit, &held, &options(), &|m| eprintln!("{m}")).unwrap();
     eprintln!(
         "adopted {:?}; held-out RMS {:.2e} -> {:.2e} m; c = {:?}",
@@ -223,6 +232,12 @@ fn names_a_stiffening_material_from_runs_under_different_weights() {
     let mu = d.values[1].value;
     assert!((mu / 1.0e4 - 1.0).abs() < 0.02, "μ = {mu}");
     assert!(d.heldout_rms_m.1 < 45e-6, "{:?}", d.heldout_rms_m);
+    // The report says which held-out load tests extrapolation: the 15 g run's alone.
+    let beyond = d.held_out_loads_beyond_fitted();
+    assert_eq!(beyond.len(), 1, "{beyond:?}");
+    assert!((beyond[0] / (0.015 * 9.81) - 1.0).abs() < 1e-9, "{beyond:?}");
+    let md = palpate_diagnose::runs::report::markdown(&d);
+    assert!(md.contains("extrapolation in load"), "{md}");
     // fit.json carries c, and `palpate validate` reads it back into the material.
     let back = d.model.material().unwrap();
     assert_eq!(back.get(palpate_motion::model::ParamKind::Stiffening, 0), c);

@@ -345,6 +345,23 @@ pub struct RunsDiagnosis {
     pub seconds: f64,
 }
 
+impl RunsDiagnosis {
+    /// The held-out runs' loads (N along gravity) that no fitted run carries (within 2 % of the
+    /// largest fitted load, or 1 mN): empty when every held-out run repeats a fitted load, and
+    /// then the held-out gate tests repeatability, not extrapolation to other loads — a law that
+    /// depends on the strain (the stiffening) is checked only at the loads it was fitted on.
+    pub fn held_out_loads_beyond_fitted(&self) -> Vec<f64> {
+        let fitted: Vec<f64> = self.after.0.iter().map(|r| r.load_n).collect();
+        let tol = (0.02 * fitted.iter().fold(0.0f64, |m, l| m.max(l.abs()))).max(1e-3);
+        self.after
+            .1
+            .iter()
+            .map(|r| r.load_n)
+            .filter(|l| fitted.iter().all(|f| (f - l).abs() > tol))
+            .collect()
+    }
+}
+
 /// The residual of one run under `mat`: simulated, compared, its ring-down read.
 pub fn residual(
     name: &str,

@@ -82,6 +82,29 @@ pub fn markdown(r: &RunsDiagnosis) -> String {
         mm(r.fitted_rms_m.1),
         r.stop
     );
+    let beyond = r.held_out_loads_beyond_fitted();
+    let _ = if beyond.is_empty() && !r.held_out_runs.is_empty() {
+        writeln!(
+            md,
+            "Every held-out run repeats a load of the fitted runs: the held-out figures test \
+             repeatability, not extrapolation to other loads — a law that depends on the strain (the \
+             stiffening) is checked only at the loads it was fitted on. Hold out a run at another load \
+             (or predict one with `palpate validate`) to test that.\n"
+        )
+    } else if !beyond.is_empty() {
+        writeln!(
+            md,
+            "Held-out loads that no fitted run carries: {} N — the held-out figures include \
+             extrapolation in load.\n",
+            beyond
+                .iter()
+                .map(|l| format!("{l:.3}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    } else {
+        Ok(())
+    };
     let _ = writeln!(
         md,
         "The simplest model: Neo-Hookean, Poisson's ratio held at {} (the markers see bending, not \
