@@ -235,7 +235,10 @@ fn names_a_stiffening_material_from_runs_under_different_weights() {
     // The report says which held-out load tests extrapolation: the 15 g run's alone.
     let beyond = d.held_out_loads_beyond_fitted();
     assert_eq!(beyond.len(), 1, "{beyond:?}");
-    assert!((beyond[0] / (0.015 * 9.81) - 1.0).abs() < 1e-9, "{beyond:?}");
+    assert!(
+        (beyond[0] / (0.015 * 9.81) - 1.0).abs() < 1e-9,
+        "{beyond:?}"
+    );
     let md = palpate_diagnose::runs::report::markdown(&d);
     assert!(md.contains("extrapolation in load"), "{md}");
     // fit.json carries c, and `palpate validate` reads it back into the material.
