@@ -105,7 +105,11 @@ fn fit_motion_reads_the_old_nu_with_a_warning_and_names_things_once() {
         .args(["--params", "mu,damping"])
         .output()
         .unwrap();
-    assert_exit_and_stderr(&o, 1, "\"damping\" (lambda, mu, viscosity, h, density)");
+    assert_exit_and_stderr(
+        &o,
+        1,
+        "\"damping\" (lambda, mu, viscosity, h, density, stiffening)",
+    );
 }
 
 /// A motion dataset whose `[initial]` table still says `nu` is read (as the viscosity) with a
