@@ -94,11 +94,11 @@ impl FittedModel {
     /// the field, what it holds and what was expected.
     pub fn material(&self) -> Result<Material, String> {
         let ne = self.tets;
-        let per_element = |name: &str, v: &[f64], absent: Option<f64>| match v.len() {
-            0 if absent.is_some() => Ok(vec![absent.unwrap_or_default(); ne]),
-            1 => Ok(vec![v[0]; ne]),
-            n if n == ne => Ok(v.to_vec()),
-            n => Err(format!("field {name}: {n} values, expected 1 or {ne}")),
+        let per_element = |name: &str, v: &[f64], absent: Option<f64>| match (v.len(), absent) {
+            (0, Some(a)) => Ok(vec![a; ne]),
+            (1, _) => Ok(vec![v[0]; ne]),
+            (n, _) if n == ne => Ok(v.to_vec()),
+            (n, _) => Err(format!("field {name}: {n} values, expected 1 or {ne}")),
         };
         let mut mat = Material::uniform(ne, 1.0, 1.0, 1.0, 1.0, 1.0);
         mat.values = [

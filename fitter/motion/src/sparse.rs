@@ -58,20 +58,9 @@ pub struct Factor {
 impl Factor {
     /// Solves S x = b in place (`b` in the caller's free-dof numbering).
     pub fn solve_in_place(&self, b: &mut [f64]) {
-        let n = b.len();
-        let mut y: Vec<f64> = self.order.iter().map(|&d| b[d]).collect();
-        let par = faer::get_global_parallelism();
-        let mut buf = MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(1, par));
-        LltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
-            Conj::No,
-            MatMut::from_column_major_slice_mut(&mut y, n, 1),
-            par,
-            MemStack::new(&mut buf),
-        );
-        for (&d, v) in self.order.iter().zip(y) {
-            b[d] = v;
-        }
+        self.solve_columns_in_place(b, 1);
     }
+
     /// Solves S X = B in place for `m` right-hand sides stored column after column (each of
     /// length n, the caller's free-dof numbering): one pass of the supernodal triangular solves
     /// for all of them (the direct sensitivities of a step: one column per parameter).
