@@ -491,6 +491,19 @@ pub const LAYER_NODES: usize = 4;
 const STIFFENING_PASSES: usize = 30;
 /// The stiffening fixed point stops when no element's log-modulus moves by more than this.
 const STIFFENING_TOLERANCE: f64 = 1e-6;
+/// A fixed point still moving by more than this at [`STIFFENING_PASSES`], or stalled above it, is
+/// not a solution: the slowest converging ones measured (a contraction of ≈ 0.9 per pass) end
+/// near 1e-6, and some stall near 5e-6, the precision of the passes' own solves.
+const STIFFENING_UNCONVERGED: f64 = 1e-4;
+/// Passes in a row without a new smallest change after which a fixed point still above
+/// [`STIFFENING_UNCONVERGED`] is declared to have no solution. Converging passes shrink the change, at worst with one pass of overshoot between
+/// two new minima (measured on the independent layer draw: 3,500 converging solves); a softening
+/// law loaded past its limit point (the secant stress E ε/(1 + |β| s²) peaks at |β| s² = 1) grows
+/// it from the first pass.
+const STIFFENING_STALLED_PASSES: usize = 3;
+/// The least relaxation of an element's update in the stiffening fixed point (halved at each
+/// reversal of its step).
+const STIFFENING_MIN_RELAX: f64 = 1.0 / 16.0;
 
 /// The stiffening law's per-element log-modulus offsets at state `x` and their gains
 /// ∂T/∂ln‖ε‖. With s = ‖ε_e‖/0.1 the secant modulus is E (1 + β s²) for β ≥ 0 — the leading
@@ -867,13 +880,50 @@ impl Model {
                         max_fixed_point: 0,
                         ..ctx.solve
                     };
+                    // The smallest change so far and the passes since it was set: a fixed point
+                    // that stops shrinking has no solution, and its last iterate is not one (it
+                    // used to be returned after 30 passes — a quarter of a layer draw's solves,
+                    // three quarters of its time — for an optimiser trial to score).
+                    let (mut least, mut stalled) = (f64::INFINITY, 0);
+                    // Per element, a step that reverses the previous one halves that element's
+                    // relaxation: the local estimate ∂ln‖ε‖/∂m ≈ −1 overshoots where neighbours
+                    // hold the strain (then the true derivative is nearer 0), and with a softening
+                    // gain near its limit the Newton divisor 1 − g magnifies that overshoot.
+                    let n_el = m.len();
+                    let (mut relax, mut last_step) = (vec![1.0f64; n_el], vec![0.0f64; n_el]);
                     for k in 0..=STIFFENING_PASSES {
                         let (target, gain) = stiffening_target(ctx, &x, beta[0]);
                         let mut change = 0.0f64;
-                        for e in 0..m.len() {
+                        for e in 0..n_el {
                             let step = (target[e] - m[e]) / (1.0 + gain[e]).max(0.25);
-                            m[e] += step;
                             change = change.max(step.abs());
+                            if step * last_step[e] < 0.0 {
+                                relax[e] = (0.5 * relax[e]).max(STIFFENING_MIN_RELAX);
+                            }
+                            last_step[e] = step;
+                            m[e] += relax[e] * step;
+                        }
+                        if change < least {
+                            (least, stalled) = (change, 0);
+                        } else {
+                            stalled += 1;
+                        }
+                        // (A fixed point that stalls below STIFFENING_UNCONVERGED has converged as
+                        // far as its passes' own solves allow: it continues to the pass limit.)
+                        let unconverged = change >= STIFFENING_UNCONVERGED;
+                        if (unconverged
+                            && (stalled >= STIFFENING_STALLED_PASSES || k == STIFFENING_PASSES))
+                            || !change.is_finite()
+                        {
+                            return Err(DiagnoseError::Diverged(format!(
+                                "the stiffening law (β = {:.3e}) found no equilibrium under \
+                                 measurement {:?}: its secant fixed point still moved a \
+                                 log-modulus by {change:.2e} after {} passes (least {least:.2e}; \
+                                 a softening law at or past its limit load)",
+                                beta[0],
+                                ctx.meas[i].id,
+                                k + 1
+                            )));
                         }
                         let last = change < STIFFENING_TOLERANCE || k == STIFFENING_PASSES;
                         let mat = self.material(theta, log_e.as_deref(), Some(&m))?;

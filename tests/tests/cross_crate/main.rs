@@ -8,6 +8,7 @@ mod capture_import;
 mod contact_rule;
 mod diagnose_curve;
 mod diagnose_effects;
+mod diagnose_equilibrium;
 mod diagnose_export;
 mod diagnose_gravity;
 mod diagnose_motion;

@@ -1,0 +1,59 @@
+//! The static stiffening law's secant fixed point (`palpate_diagnose::model`): a softening law
+//! loaded near or past its limit point (the secant stress E ε/(1 + |β| s²) peaks at |β| s² = 1)
+//! has no equilibrium the fixed point finds, and the simulation must say so — an error naming the
+//! measurement, which an optimiser trial then counts as rejected — instead of returning the
+//! iterate it stopped at.
+//! (Before, the 30th pass's state was returned: a quarter of an independent layer draw's solves
+//! ended there, still moving the log-modulus by ≈ 1.5 per pass, and took three quarters of its
+//! time.) Mild softening and stiffening still solve to their fixed points.
+
+use palpate_diagnose::model::{s_of, Candidate, Context, Model};
+use palpate_diagnose::DiagnoseError;
+use palpate_specimen::{generate, SpecimenOptions};
+
+#[test]
+fn a_softening_law_past_its_limit_load_has_no_equilibrium() {
+    let s = generate(&SpecimenOptions {
+        seed: 3,
+        ..Default::default()
+    })
+    .expect("specimen");
+    let ctx = Context::new(&s.dataset, [2, 2, 2]).expect("context");
+    let all: Vec<usize> = (0..ctx.meas.len()).collect();
+    let model = Model::base().with(Candidate::Stiffening);
+    let theta = |beta: f64| vec![2e4f64.ln(), s_of(0.35), beta];
+    let linear = Model::base()
+        .simulate(&ctx, &theta(0.0)[..2], &all, None)
+        .expect("linear");
+    let largest_move = |x: &[Vec<[f64; 3]>]| {
+        x.iter()
+            .zip(&linear.x)
+            .flat_map(|(a, b)| a.iter().zip(b))
+            .map(|(p, q)| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>().sqrt())
+            .fold(0.0f64, f64::max)
+    };
+    // Both sides of the law solve, and visibly move the nodes (or the check would be empty).
+    for beta in [0.5, -0.05] {
+        let sim = model
+            .simulate(&ctx, &theta(beta), &all, None)
+            .unwrap_or_else(|e| panic!("β = {beta} must solve: {e}"));
+        let moved = largest_move(&sim.x);
+        eprintln!("β = {beta}: largest node move against linear {moved:.3e} m");
+        assert!(
+            moved > 1e-5,
+            "β = {beta} moved the nodes by only {moved:e} m"
+        );
+    }
+    // Near and past the limit load: no equilibrium found, said as such. (Before, β = −0.1
+    // returned the 30th pass's state; β = −0.2 and beyond ended with E out of range.)
+    for beta in [-0.1, -0.2, -1.0] {
+        match model.simulate(&ctx, &theta(beta), &all, None) {
+            Err(DiagnoseError::Diverged(why)) => {
+                eprintln!("β = {beta}: {why}");
+                assert!(why.contains("no equilibrium"), "β = {beta}: {why}");
+            }
+            Err(e) => panic!("β = {beta} failed otherwise than as no equilibrium: {e}"),
+            Ok(_) => panic!("β = {beta} returned a state: no equilibrium was found there"),
+        }
+    }
+}
