@@ -857,23 +857,43 @@ impl select::CandidateModel for StaticModel<'_> {
                 r
             }
         };
-        // Nothing above the floor before: there is nothing for a candidate to explain.
+        // Nothing above the floor before: no excess for a candidate to explain (see `below`).
         let excess_gain = match excess(before.heldout_rms) {
             e if e > 0.0 => 1.0 - excess(h) / e,
             _ => 0.0,
         };
-        let words = format!(
-            "{words}; {} {:.0}% lower (≥ {:.0}% required)",
-            if ctx.sigma_declared {
-                "held-out error in excess of the noise floor (widened by the mesh's remaining discretisation error)"
-            } else {
-                "held-out RMS"
-            },
-            100.0 * excess_gain,
-            100.0 * o.min_holdout_gain
-        );
+        // With nothing above the (widened) floor before, the relative excess gain is 0/0 and used
+        // to veto every candidate, however strong the held-out evidence: the specimens' default
+        // stiffening (seed 1: ΔBIC −35.2, held-out ΔBIC −24.9) and calibration (seed 1) were called
+        // clean. There the held-out ΔBIC must clear the fitted side's own threshold instead
+        // (measured: own specimens 18 → 20 of 22 first choices, null specimens seeds 1–6 still
+        // 12/12 clean, the independent draws' adoptions unchanged but one second effect).
+        let below = ctx.sigma_declared && excess(before.heldout_rms) <= 0.0;
+        let words = if below {
+            format!(
+                "{words}; nothing above the noise floor (widened by the mesh's remaining \
+                 discretisation error) before: held-out ΔBIC < −{} required instead of a gain",
+                o.bic_threshold
+            )
+        } else {
+            format!(
+                "{words}; {} {:.0}% lower (≥ {:.0}% required)",
+                if ctx.sigma_declared {
+                    "held-out error in excess of the noise floor (widened by the mesh's remaining discretisation error)"
+                } else {
+                    "held-out RMS"
+                },
+                100.0 * excess_gain,
+                100.0 * o.min_holdout_gain
+            )
+        };
+        let passes = if below {
+            cv_bic < -o.bic_threshold
+        } else {
+            cv_bic < 0.0 && excess_gain >= o.min_holdout_gain
+        };
         Gate {
-            passes: cv_bic < 0.0 && excess_gain >= o.min_holdout_gain,
+            passes,
             heldout_delta_bic: cv_bic,
             heldout_rank: h,
             detail: StaticGate {
@@ -1289,10 +1309,11 @@ pub fn run_diagnosis_with(
     Ok(DiagnosisReport {
         dataset: ds.name.clone(),
         criterion: format!(
-            "rank by BIC = n ln(χ²/n) + k ln n; shortlist the best {} with ΔBIC < −{}; a shortlisted candidate passes if on leave-one-measurement-out predictions n ln(χ²_new/χ²_old) + k ln n < 0 AND the held-out error in excess of the noise floor drops by ≥ {:.0} %; adopt the first that passes (fitted-BIC order) and report any later one that also passes with a lower held-out ΔBIC as ambiguous; repeat; then `noise` if the one-sided 95 % lower bound of the nugget estimate σ̂ of the final residual exceeds {:.2} × the declared σ",
+            "rank by BIC = n ln(χ²/n) + k ln n; shortlist the best {} with ΔBIC < −{}; a shortlisted candidate passes if on leave-one-measurement-out predictions n ln(χ²_new/χ²_old) + k ln n < 0 AND the held-out error in excess of the noise floor drops by ≥ {:.0} % (when nothing is above the floor before: held-out ΔBIC < −{} instead); adopt the first that passes (fitted-BIC order) and report any later one that also passes with a lower held-out ΔBIC as ambiguous; repeat; then `noise` if the one-sided 95 % lower bound of the nugget estimate σ̂ of the final residual exceeds {:.2} × the declared σ",
             o.cv_candidates,
             o.bic_threshold,
             100.0 * o.min_holdout_gain,
+            o.bic_threshold,
             1.0 + o.noise.margin
         ),
         sigma: ctx.sigma,
