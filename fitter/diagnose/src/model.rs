@@ -638,9 +638,9 @@ pub struct Simulated {
     pub x: Vec<Vec<[f64; 3]>>,
     /// Simulated marker positions (per measurement, aligned with `observed`).
     pub markers: Vec<Vec<[f64; 3]>>,
-    /// Marker embeddings (triangle, barycentric) of the gravity candidate's rest scan, one per
+    /// The markers re-embedded at the gravity candidate's rest-scan material points, one per
     /// marker (`None`: the dataset's own embedding).
-    pub embedding: Option<Vec<([usize; 3], [f64; 3])>>,
+    pub embedding: Option<Vec<Marker>>,
     /// [`Candidate::TiltEach`]: per measurement, the simulated markers' response to a unit
     /// tangential coefficient along t₁ and t₂ (m per unit of |f|).
     pub tilt: Option<Vec<[Vec<[f64; 3]>; 2]>>,
@@ -1003,7 +1003,7 @@ impl Model {
         xs: &[Vec<[f64; 3]>],
         factors: &[Arc<Factorised>],
         log_e: Option<&[f64]>,
-        embedding: Option<&[([usize; 3], [f64; 3])]>,
+        embedding: Option<&[Marker]>,
     ) -> Result<Vec<[Vec<[f64; 3]>; 2]>, DiagnoseError> {
         let mat = self.material(theta, log_e, None)?;
         subset
@@ -1055,14 +1055,18 @@ impl Model {
     /// sag, and the model would apply the sag twice. The material point X of marker k solves
     /// X + u_g(X) = rest_k with u_g the gravity-only displacement at θ: one fixed-point step
     /// from the dataset's embedding (u_g varies slowly over the surface; the sag is a fraction of
-    /// an element), re-located on the surface.
+    /// an element), re-embedded there with X's own offset from the surface. (The sag is taken at
+    /// the surface point, without the marker's offset: the dataset's offset of a scan under
+    /// gravity *is* the sag's normal part, and carrying it beside u_g(X) applied that part twice —
+    /// a signal no such data hold, which made the candidate's power statement claim ρ ≥ 76 kg/m³
+    /// on a specimen whose ρ = 1,000 kg/m³ was not there to be seen.)
     fn rest_scan_embedding(
         &self,
         ctx: &Context,
         theta: &[f64],
         log_e: Option<&[f64]>,
         rho: f64,
-    ) -> Result<Vec<([usize; 3], [f64; 3])>, DiagnoseError> {
+    ) -> Result<Vec<Marker>, DiagnoseError> {
         let mut fvec = vec![0.0; 3 * ctx.node_volume.len()];
         add_gravity(ctx, rho, &mut fvec);
         let mat = self.material(theta, log_e, None)?;
@@ -1074,17 +1078,19 @@ impl Model {
         Ok(ctx
             .markers
             .iter()
-            .zip(&ctx.marker_rest)
-            .map(|(m, surface_point)| {
-                let sagged = m.interpolate(|n| xg[n]);
-                let q = [0, 1, 2].map(|d| m.rest[d] - (sagged[d] - surface_point[d]));
+            .map(|m| {
+                let (sagged, unloaded) = (
+                    m.surface_point(|n| xg[n]),
+                    m.surface_point(|n| ctx.problem.x0[n]),
+                );
+                let q = [0, 1, 2].map(|d| m.rest[d] - (sagged[d] - unloaded[d]));
                 match palpate_fem::dataset::embed::embed_point_in(
                     &ctx.problem.x0,
                     &ctx.problem.surface,
                     q,
                 ) {
-                    Some(e) => (e.triangle, e.barycentric),
-                    None => (m.triangle, m.barycentric),
+                    Some(e) => Marker::embedded(m.id.clone(), q, &e, &ctx.problem.x0),
+                    None => m.clone(),
                 }
             })
             .collect())
@@ -1115,7 +1121,7 @@ impl Model {
         theta: &[f64],
         subset: &[usize],
         xs: &[Vec<[f64; 3]>],
-        embedding: Option<&[([usize; 3], [f64; 3])]>,
+        embedding: Option<&[Marker]>,
         tilt: Option<&[[Vec<[f64; 3]>; 2]]>,
     ) -> Vec<Vec<[f64; 3]>> {
         let mut sims: Vec<Vec<[f64; 3]>> = subset
@@ -1149,7 +1155,7 @@ impl Model {
         theta: &[f64],
         i: usize,
         x: &[[f64; 3]],
-        embedding: Option<&[([usize; 3], [f64; 3])]>,
+        embedding: Option<&[Marker]>,
     ) -> Vec<[f64; 3]> {
         let boundary = self.block(Candidate::Boundary, theta, ctx.grid);
         let reg = self.block(Candidate::Registration, theta, ctx.grid);
@@ -1167,13 +1173,8 @@ impl Model {
             .iter()
             .enumerate()
             .map(|(j, &(k, _))| {
-                let mut p = match embedding {
-                    Some(e) => {
-                        let (t, b) = e[k];
-                        ctx.markers[k].interpolate_on(t, b, |n| x[n])
-                    }
-                    None => ctx.markers[k].interpolate(|n| x[n]),
-                };
+                let marker = embedding.map_or(&ctx.markers[k], |e| &e[k]);
+                let mut p = marker.interpolate(|n| x[n]);
                 if let Some(d) = delta {
                     p = [0, 1, 2].map(|a| p[a] + d[j][a]);
                 }
