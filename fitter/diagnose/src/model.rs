@@ -496,10 +496,10 @@ const STIFFENING_TOLERANCE: f64 = 1e-6;
 /// near 1e-6, and some stall near 5e-6, the precision of the passes' own solves.
 const STIFFENING_UNCONVERGED: f64 = 1e-4;
 /// Passes in a row without a new smallest change after which a fixed point still above
-/// [`STIFFENING_UNCONVERGED`] is declared to have no solution. Converging passes shrink the change, at worst with one pass of overshoot between
-/// two new minima (measured on the independent layer draw: 3,500 converging solves); a softening
-/// law loaded past its limit point (the secant stress E ε/(1 + |β| s²) peaks at |β| s² = 1) grows
-/// it from the first pass.
+/// [`STIFFENING_UNCONVERGED`] is declared to have no solution. Converging passes shrink the
+/// change, at worst with one pass of overshoot between two new minima (measured on the
+/// independent layer draw: 3,500 converging solves); a softening law loaded past its limit point
+/// (the secant stress E ε/(1 + |β| s²) peaks at |β| s² = 1) grows it from the first pass.
 const STIFFENING_STALLED_PASSES: usize = 3;
 /// The least relaxation of an element's update in the stiffening fixed point (halved at each
 /// reversal of its step).
@@ -1058,7 +1058,7 @@ impl Model {
     /// an element), re-embedded there with X's own offset from the surface. (The sag is taken at
     /// the surface point, without the marker's offset: the dataset's offset of a scan under
     /// gravity *is* the sag's normal part, and carrying it beside u_g(X) applied that part twice —
-    /// a signal no such data hold, which made the candidate's power statement claim ρ ≥ 76 kg/m³
+    /// a signal no such data hold, which made the candidate's power statement claim ρ ≥ 65 kg/m³
     /// on a specimen whose ρ = 1,000 kg/m³ was not there to be seen.)
     fn rest_scan_embedding(
         &self,
