@@ -346,6 +346,10 @@ pub struct Tried {
     pub heldout_delta_bic: Option<f64>,
     /// Held-out RMS implied-force error (N; cross-validated candidates only).
     pub heldout_force_rms: Option<f64>,
+    /// Why it has no figures, when it could not be fitted (e.g. its law found no equilibrium
+    /// under one of the loads): `rms` and `delta_bic` are then NaN.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub not_fitted: Option<String>,
 }
 
 /// Evidence plot data of an adopted effect: x label, y label, points before and after adoption.
@@ -500,8 +504,12 @@ struct Held {
     markers: Vec<f64>,
     /// Held-out implied-force errors (N), one per measurement.
     forces: Vec<f64>,
-    /// Held-out χ² (Σ|r|²/σ²) of each measurement.
+    /// Held-out χ² (Σ|r|²/σ²) of each measurement (∞ for one in `unpredicted`).
     chi2: Vec<f64>,
+    /// Measurements the refit without them could not predict — its law has no equilibrium under
+    /// their load, or under another's in the refit itself — with the reason. Their markers are not in `markers`; a candidate with any
+    /// fails the gate: a model that cannot reach a measured state does not explain it.
+    unpredicted: Vec<String>,
 }
 
 /// The paired one-sided t statistic of the held-out χ² reductions d_i = χ²_i(old) − χ²_i(new)
@@ -536,44 +544,69 @@ fn heldout_delta_bic(old: &Held, new: &Held, k: usize) -> f64 {
 fn holdout(ctx: &Context, full: &Fitted, iterations: usize) -> Result<Held, DiagnoseError> {
     let all: Vec<usize> = (0..ctx.meas.len()).collect();
     // Each held-out refit is independent: one per core.
-    let per: Vec<(Vec<f64>, Vec<f64>)> = all
+    let per: Vec<Result<(Vec<f64>, Vec<f64>), String>> = all
         .par_iter()
         .map(|&i| {
             let sub: Vec<usize> = all.iter().copied().filter(|&j| j != i).collect();
             let warm: Vec<Vec<[f64; 3]>> = sub.iter().map(|&j| full.sim.x[j].clone()).collect();
-            let f = fit(
+            let f = match fit(
                 ctx,
                 &full.model,
                 full.theta.clone(),
                 &sub,
                 Some(&warm),
                 iterations,
-            )?;
-            let sim = full.model.simulate(
+            ) {
+                Ok(f) => f,
+                Err(DiagnoseError::Diverged(why)) => {
+                    return Ok(Err(format!(
+                        "{:?} (the refit without it): {why}",
+                        ctx.meas[i].id
+                    )))
+                }
+                Err(e) => return Err(e),
+            };
+            let sim = match full.model.simulate(
                 ctx,
                 &f.theta,
                 &[i],
                 Some(std::slice::from_ref(&full.sim.x[i])),
-            )?;
+            ) {
+                Ok(sim) => sim,
+                Err(DiagnoseError::Diverged(why)) => {
+                    return Ok(Err(format!("{:?}: {why}", ctx.meas[i].id)))
+                }
+                Err(e) => return Err(e),
+            };
             let held = Fitted {
                 subset: vec![i],
                 sim,
                 theta: f.theta.clone(),
                 ..f
             };
-            Ok((marker_norms(ctx, &held), force_errors(ctx, &held)))
+            Ok(Ok((marker_norms(ctx, &held), force_errors(ctx, &held))))
         })
         .collect::<Result<_, DiagnoseError>>()?;
-    let (mut errs, mut ferrs, mut sse) = (Vec::new(), Vec::new(), Vec::new());
-    for (norms, forces) in per {
-        sse.push(norms.iter().map(|e| e * e).sum::<f64>() / (ctx.sigma * ctx.sigma));
-        errs.extend(norms);
-        ferrs.extend(forces);
+    let (mut errs, mut ferrs, mut sse, mut unpredicted) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for p in per {
+        match p {
+            Ok((norms, forces)) => {
+                sse.push(norms.iter().map(|e| e * e).sum::<f64>() / (ctx.sigma * ctx.sigma));
+                errs.extend(norms);
+                ferrs.extend(forces);
+            }
+            Err(why) => {
+                sse.push(f64::INFINITY);
+                unpredicted.push(why);
+            }
+        }
     }
     Ok(Held {
         markers: errs,
         forces: ferrs,
         chi2: sse,
+        unpredicted,
     })
 }
 
@@ -781,13 +814,14 @@ impl select::CandidateModel for StaticModel<'_> {
         ) {
             Ok(f) => Ok(Outcome::Fitted(f)),
             // A candidate that leaves the physical range (or whose law has no equilibrium under
-            // the loads) is not a finding: left out of the round's table, said in progress.
+            // the loads) is not a finding, but the reader of the round's table must see that it
+            // was tried and why it has no figures.
             Err(DiagnoseError::Diverged(why)) => {
                 (self.progress)(&format!(
                     "round {round}: {} left out: the fit diverged: {why}",
                     c.name()
                 ));
-                Ok(Outcome::Dropped)
+                Ok(Outcome::NotFitted(format!("the fit diverged: {why}")))
             }
             Err(e) => Err(e),
         }
@@ -887,10 +921,20 @@ impl select::CandidateModel for StaticModel<'_> {
                 100.0 * o.min_holdout_gain
             )
         };
-        let passes = if below {
-            cv_bic < -o.bic_threshold
+        let passes = held.unpredicted.is_empty()
+            && if below {
+                cv_bic < -o.bic_threshold
+            } else {
+                cv_bic < 0.0 && excess_gain >= o.min_holdout_gain
+            };
+        let words = if held.unpredicted.is_empty() {
+            words
         } else {
-            cv_bic < 0.0 && excess_gain >= o.min_holdout_gain
+            format!(
+                "{words}; its refits without them cannot predict {} held-out measurement(s): {}",
+                held.unpredicted.len(),
+                held.unpredicted.join("; ")
+            )
         };
         Gate {
             passes,
@@ -1003,13 +1047,15 @@ fn static_steps(v: &Verdict<StaticModel<'_>>, o: &DiagnoseOptions, ctx_meas: usi
                     r.model.len()
                 ));
             } else if lead.is_none() {
-                let b = r.ranked().next().expect("attempts are not empty");
-                reasons.push(format!(
-                    "nothing significant left (best ΔBIC {:.1} for {}; threshold −{})",
-                    b.delta_bic,
-                    b.candidate.name(),
-                    o.bic_threshold
-                ));
+                reasons.push(match r.ranked().find(|a| a.not_fitted.is_none()) {
+                    Some(b) => format!(
+                        "nothing significant left (best ΔBIC {:.1} for {}; threshold −{})",
+                        b.delta_bic,
+                        b.candidate.name(),
+                        o.bic_threshold
+                    ),
+                    None => "no candidate could be fitted: stop".to_string(),
+                });
             }
             let (signature, before) = r.observed.clone();
             let adoption = r.adoption.as_ref();
@@ -1030,6 +1076,7 @@ fn static_steps(v: &Verdict<StaticModel<'_>>, o: &DiagnoseOptions, ctx_meas: usi
                             heldout_t: g.map(|g| g.heldout_t),
                             heldout_delta_bic: a.gate.as_ref().map(|g| g.heldout_delta_bic),
                             heldout_force_rms: g.map(|g| g.heldout_force_rms),
+                            not_fitted: a.not_fitted.clone(),
                         }
                     })
                     .collect(),

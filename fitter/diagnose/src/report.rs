@@ -170,6 +170,15 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
         if !st.tried.is_empty() {
             let _ = writeln!(s, "| candidate | extra params | refit RMS µm | ΔBIC | held-out RMS µm | held-out ΔBIC | held-out paired t |\n|---|---|---|---|---|---|---|");
             for t in &st.tried {
+                if t.not_fitted.is_some() {
+                    let _ = writeln!(
+                        s,
+                        "| {} | {} | not fitted | – | – | – | – |",
+                        t.candidate.name(),
+                        t.extra_params
+                    );
+                    continue;
+                }
                 let _ = writeln!(
                     s,
                     "| {} | {} | {} | {:.1} | {} | {} | {} |",
@@ -186,6 +195,14 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
                         .unwrap_or_else(|| "–".into())
                 );
             }
+        }
+        for t in st.tried.iter().filter(|t| t.not_fitted.is_some()) {
+            let _ = writeln!(
+                s,
+                "\nNot fitted: {} — {}",
+                t.candidate.name(),
+                t.not_fitted.as_deref().unwrap_or_default()
+            );
         }
         let _ = writeln!(s, "\nDecision: {}", st.reason);
         if !st.ambiguous_with.is_empty() {

@@ -57,3 +57,46 @@ fn a_softening_law_past_its_limit_load_has_no_equilibrium() {
         }
     }
 }
+
+/// A candidate whose fit diverged (e.g. its law found no equilibrium under one of the loads) is
+/// not a finding, but it was tried: the round's table must show it as not fitted and say why,
+/// in the Markdown and in the JSON (before, it was absent from both and only the progress line
+/// said so). The report of a real one-candidate diagnosis, with its one attempt marked as the
+/// engine marks a diverged fit.
+#[test]
+fn a_candidate_whose_fit_diverged_is_in_the_round_table() {
+    use palpate_diagnose::{run_diagnosis, DiagnoseOptions, MeshChoice};
+    let s = generate(&SpecimenOptions {
+        seed: 3,
+        ..Default::default()
+    })
+    .expect("specimen");
+    let o = DiagnoseOptions {
+        candidates: vec![Candidate::Gravity],
+        max_effects: 1,
+        mesh: MeshChoice::Dataset,
+        ..Default::default()
+    };
+    let mut r = run_diagnosis(&s.dataset, &o).expect("diagnosis");
+    let why = "the fit diverged: the stiffening law (β = -1.000e-1) found no equilibrium";
+    let t = &mut r.steps[0].tried[0];
+    t.not_fitted = Some(why.into());
+    (t.rms, t.delta_bic) = (f64::NAN, f64::NAN);
+    let name = t.candidate.name();
+    let md = palpate_diagnose::report::markdown(&r, &[]);
+    assert!(
+        md.contains(&format!("| {name} | 1 | not fitted | – |")),
+        "the table row:\n{md}"
+    );
+    assert!(
+        md.contains(&format!("Not fitted: {name} — {why}")),
+        "the reason:\n{md}"
+    );
+    let json = serde_json::to_value(&r).expect("json");
+    assert_eq!(
+        json["steps"][0]["tried"][0]["not_fitted"].as_str(),
+        Some(why),
+        "{}",
+        json["steps"][0]["tried"][0]
+    );
+}
