@@ -13,6 +13,9 @@ pub enum BenchCommand {
     Motion(super::bench_motion::Args),
     /// The probe link over a pty: frames/s, written → solved latency at 1 kHz, host CPU.
     Link(super::bench_link::Args),
+    /// This core's f32 FMA peak and read bandwidth by working set, against the flops and bytes of
+    /// one PCG iteration of the tick on `bench runtime`'s block.
+    Roofline(super::roofline::Args),
 }
 
 /// Runs a benchmark.
@@ -22,5 +25,6 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Runtime(a) => super::bench_runtime::run(a),
         BenchCommand::Motion(a) => super::bench_motion::run(a),
         BenchCommand::Link(a) => super::bench_link::run(a),
+        BenchCommand::Roofline(a) => super::roofline::run(a),
     }
 }

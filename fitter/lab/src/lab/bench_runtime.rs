@@ -407,6 +407,23 @@ struct Summary {
     err_capped: f64,
     drift_max: f64,
     drift_p99: f64,
+    /// Tick CPU time against PCG iterations, least squares over the ticks: (µs per iteration,
+    /// µs at zero iterations — the residual pass, rotations, predictor —, R²).
+    per_iteration: (f64, f64, f64),
+}
+
+/// Least-squares line y = a + b x: (b, a, R²).
+fn line_fit(x: &[f64], y: &[f64]) -> (f64, f64, f64) {
+    let n = x.len().min(y.len()) as f64;
+    let (mx, my) = (x.iter().sum::<f64>() / n, y.iter().sum::<f64>() / n);
+    let (mut sxy, mut sxx, mut syy) = (0.0, 0.0, 0.0);
+    for (a, b) in x.iter().zip(y) {
+        sxy += (a - mx) * (b - my);
+        sxx += (a - mx) * (a - mx);
+        syy += (b - my) * (b - my);
+    }
+    let slope = sxy / sxx;
+    (slope, my - slope * mx, sxy * sxy / (sxx * syy))
 }
 
 fn summarise(r: &Record) -> Summary {
@@ -447,6 +464,10 @@ fn summarise(r: &Record) -> Summary {
         err_capped: errs(true),
         drift_max: *d.last().unwrap_or(&f64::NAN),
         drift_p99: percentile(&d, 0.99),
+        per_iteration: line_fit(
+            &r.iters.iter().map(|&v| v as f64).collect::<Vec<_>>(),
+            &r.cpu_us,
+        ),
     }
 }
 
@@ -768,6 +789,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "cpu_mean_us": g.cpu_mean,
             "mean_pcg_iters": g.iters_mean,
             "max_pcg_iters": g.iters[2],
+            "cpu_us_per_pcg_iteration": g.per_iteration.0,
+            "cpu_us_outside_pcg": g.per_iteration.1,
+            "per_iteration_fit_r2": g.per_iteration.2,
             "rel_residual": g.max_res_converged,
             "max_rel_error_vs_converged": g.err_converged,
             "capped_ticks": g.capped,

@@ -12,6 +12,7 @@ pub mod motion_evidence;
 pub mod motion_evidence_spline;
 pub mod nonlinear_evidence;
 pub mod peer_export;
+pub mod roofline;
 
 /// palpate-lab: benchmarks and evidence runs of the palpate project.
 #[derive(Debug, Parser)]
