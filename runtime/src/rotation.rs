@@ -463,7 +463,10 @@ mod tests {
         let y = inv_sqrt_lanes(&xs);
         for (x, y) in xs.iter().zip(y) {
             let exact = 1.0 / (*x as f64).sqrt();
-            assert!(((y as f64) - exact).abs() < 2e-7 * exact, "1/√{x}: {y} vs {exact}");
+            assert!(
+                ((y as f64) - exact).abs() < 2e-7 * exact,
+                "1/√{x}: {y} vs {exact}"
+            );
         }
     }
 

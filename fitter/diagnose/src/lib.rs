@@ -507,8 +507,9 @@ struct Held {
     /// Held-out χ² (Σ|r|²/σ²) of each measurement (∞ for one in `unpredicted`).
     chi2: Vec<f64>,
     /// Measurements the refit without them could not predict — its law has no equilibrium under
-    /// their load, or under another's in the refit itself — with the reason. Their markers are not in `markers`; a candidate with any
-    /// fails the gate: a model that cannot reach a measured state does not explain it.
+    /// their load, or under another's in the refit itself — with the reason. Their markers are
+    /// not in `markers`; a candidate with any fails the gate: a model that cannot reach a
+    /// measured state does not explain it.
     unpredicted: Vec<String>,
 }
 
@@ -818,7 +819,7 @@ impl select::CandidateModel for StaticModel<'_> {
             // was tried and why it has no figures.
             Err(DiagnoseError::Diverged(why)) => {
                 (self.progress)(&format!(
-                    "round {round}: {} left out: the fit diverged: {why}",
+                    "round {round}: {} not fitted: the fit diverged: {why}",
                     c.name()
                 ));
                 Ok(Outcome::NotFitted(format!("the fit diverged: {why}")))
