@@ -12,6 +12,15 @@ pub fn specimen_with(effect: Effect, magnitude: f64) -> Specimen {
     .expect("specimen")
 }
 
+/// The default specimen (no effect) drawn with `seed`.
+pub fn specimen_seeded(seed: u64) -> Specimen {
+    generate(&SpecimenOptions {
+        seed,
+        ..Default::default()
+    })
+    .expect("specimen")
+}
+
 /// The line the diagnosis tests print for a report: what was adopted, the fitted and held-out
 /// RMS marker error before → after (µm) and the noise floor (µm). Each test adds its own label
 /// before it and figures after it.

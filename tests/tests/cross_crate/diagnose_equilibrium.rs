@@ -9,15 +9,11 @@
 
 use palpate_diagnose::model::{s_of, Candidate, Context, Model};
 use palpate_diagnose::DiagnoseError;
-use palpate_specimen::{generate, SpecimenOptions};
+use palpate_tests::diagnose::specimen_seeded;
 
 #[test]
 fn a_softening_law_past_its_limit_load_has_no_equilibrium() {
-    let s = generate(&SpecimenOptions {
-        seed: 3,
-        ..Default::default()
-    })
-    .expect("specimen");
+    let s = specimen_seeded(3);
     let ctx = Context::new(&s.dataset, [2, 2, 2]).expect("context");
     let all: Vec<usize> = (0..ctx.meas.len()).collect();
     let model = Model::base().with(Candidate::Stiffening);
@@ -66,11 +62,7 @@ fn a_softening_law_past_its_limit_load_has_no_equilibrium() {
 #[test]
 fn a_candidate_whose_fit_diverged_is_in_the_round_table() {
     use palpate_diagnose::{run_diagnosis, DiagnoseOptions, MeshChoice};
-    let s = generate(&SpecimenOptions {
-        seed: 3,
-        ..Default::default()
-    })
-    .expect("specimen");
+    let s = specimen_seeded(3);
     let o = DiagnoseOptions {
         candidates: vec![Candidate::Gravity],
         max_effects: 1,

@@ -14,6 +14,7 @@
 //! cycles "not supported"), so they are counted, not sampled.
 
 use palpate_fem::block_model::BlockModel;
+use palpate_runtime::kernel::LANES;
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::RuntimeConfig;
 use serde_json::json;
@@ -64,7 +65,7 @@ fn fma_peak(seconds: f64) -> f64 {
         std::hint::black_box(0.999_999f32),
         std::hint::black_box(1e-7f32),
     );
-    let mut acc = [[1.0f32; 8]; CHAINS];
+    let mut acc = [[1.0f32; LANES]; CHAINS];
     let mut best = 0.0f64;
     for _ in 0..3 {
         let t0 = Instant::now();
@@ -78,7 +79,7 @@ fn fma_peak(seconds: f64) -> f64 {
                 }
             }
             acc = std::hint::black_box(acc);
-            flops += (ROUNDS * CHAINS * 8 * 2) as f64;
+            flops += (ROUNDS * CHAINS * LANES * 2) as f64;
         }
         best = best.max(flops / t0.elapsed().as_secs_f64());
     }
@@ -117,7 +118,7 @@ fn read_bandwidth(bytes: usize, seconds: f64) -> f64 {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let block = BlockModel::block(args.tets, LambdaAlpha::from_young_poisson(1e4, 0.3))?;
     let (t, n) = (block.mesh.tets.len(), block.mesh.nodes.len());
-    let padded = t.div_ceil(8) * 8;
+    let padded = t.div_ceil(LANES) * LANES;
     let dim = 6.0 * args.aggregates as f64;
     // The coarse solve: forward and back substitution with the dense dim × dim factor.
     let coarse_flops = 2.0 * dim * dim;
