@@ -100,12 +100,26 @@ fn param_table(
     let ns = mat.slots();
     let mut t = vec![vec![usize::MAX; ns]; model.tets.len()];
     let mut kinds = vec![false; ns];
-    for (p, par) in params.iter().enumerate() {
-        let slot = par.slot(mat);
-        kinds[slot] = true;
-        match par.element {
-            Some(e) if !par.kind.is_spline() => t[e][slot] = p,
-            _ => t.iter_mut().for_each(|r| r[slot] = p),
+    // As `Material::set` writes them: a global material parameter in the elements outside the
+    // regions, then the elements' own values over them.
+    let inside = mat.in_region();
+    for global in [true, false] {
+        for (p, par) in params.iter().enumerate() {
+            if par.is_global() != global {
+                continue;
+            }
+            let slot = par.slot(mat);
+            kinds[slot] = true;
+            match (par.element, par.region) {
+                (Some(e), _) if !par.kind.is_spline() => t[e][slot] = p,
+                (None, Some(r)) => mat.regions[r].iter().for_each(|&e| t[e][slot] = p),
+                _ if par.kind.is_spline() => t.iter_mut().for_each(|r| r[slot] = p),
+                _ => t
+                    .iter_mut()
+                    .zip(&inside)
+                    .filter(|(_, &i)| !i)
+                    .for_each(|(r, _)| r[slot] = p),
+            }
         }
     }
     Ok((t, kinds))

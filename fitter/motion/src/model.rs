@@ -120,6 +120,10 @@ pub struct Param {
     /// `None` = the same value in every element; `Some(e)` = element e only (control point e for
     /// the spline kinds).
     pub element: Option<usize>,
+    /// `Some(r)` = the elements of the material's region r ([`Material::regions`]; `element` is
+    /// then `None`): one value there — the second material of a two-material body. A global
+    /// parameter reaches the elements outside every region.
+    pub region: Option<usize>,
 }
 
 impl Param {
@@ -128,7 +132,32 @@ impl Param {
         Self {
             kind,
             element: None,
+            region: None,
         }
+    }
+
+    /// One element's own value of `kind`.
+    pub fn of_element(kind: ParamKind, e: usize) -> Self {
+        Self {
+            kind,
+            element: Some(e),
+            region: None,
+        }
+    }
+
+    /// One value of `kind` in the elements of region `r` ([`Material::regions`]).
+    pub fn in_region(kind: ParamKind, r: usize) -> Self {
+        Self {
+            kind,
+            element: None,
+            region: Some(r),
+        }
+    }
+
+    /// True for a parameter that covers every element not overridden by another (a global
+    /// material quantity or a spline control value).
+    pub fn is_global(&self) -> bool {
+        self.region.is_none() && (self.element.is_none() || self.kind.is_spline())
     }
 
     /// Global parameters of `kinds`, in order.
@@ -158,6 +187,9 @@ pub struct Material {
     /// The principal-stretch material of §4.2; when present it replaces Neo-Hookean (λ, μ and
     /// the stiffening unused).
     pub spline: Option<SplineMaterial>,
+    /// Element sets that a region parameter ([`Param::in_region`]) gives one value of its own:
+    /// the second material of a two-material body. Empty for one material.
+    pub regions: Vec<Vec<usize>>,
 }
 
 impl Material {
@@ -173,6 +205,7 @@ impl Material {
                 vec![0.0; n],
             ],
             spline: None,
+            regions: Vec::new(),
         }
     }
     /// Sets `kind` to `value` in every element.
@@ -190,6 +223,29 @@ impl Material {
     /// Checks that every parameter refers to something this material has.
     pub fn check_params(&self, params: &[Param]) -> Result<(), MotionError> {
         for (i, p) in params.iter().enumerate() {
+            if let Some(r) = p.region {
+                let Some(elements) = self.regions.get(r) else {
+                    return Err(MotionError::Invalid(format!(
+                        "parameter {i}: {} in region {r}, but the material has {} region(s)",
+                        p.kind.name(),
+                        self.regions.len()
+                    )));
+                };
+                if p.kind.is_spline() || p.element.is_some() {
+                    return Err(MotionError::Invalid(format!(
+                        "parameter {i}: a region parameter is a material quantity of no single \
+                         element, found {} with element {:?}",
+                        p.kind.name(),
+                        p.element
+                    )));
+                }
+                if let Some(&e) = elements.iter().find(|&&e| e >= self.values[0].len()) {
+                    return Err(MotionError::Invalid(format!(
+                        "region {r}: element {e} out of range ({} elements)",
+                        self.values[0].len()
+                    )));
+                }
+            }
             match (p.kind.response(), &self.spline) {
                 (Some(r), Some(s)) => match p.element {
                     Some(c) if c < s.len(r) => {}
@@ -238,35 +294,75 @@ impl Material {
     pub fn get(&self, kind: ParamKind, e: usize) -> f64 {
         self.values[kind as usize][e]
     }
-    /// Writes the parameter values `q` (linear, not log) into the material.
+    /// Which elements lie in a region ([`Self::regions`]): a global parameter does not reach them.
+    pub fn in_region(&self) -> Vec<bool> {
+        let mut inside = vec![false; self.values[0].len()];
+        self.regions
+            .iter()
+            .flatten()
+            .for_each(|&e| inside[e] = true);
+        inside
+    }
+
+    /// Writes the parameter values `q` (linear, not log) into the material: a global parameter
+    /// into every element outside the regions, then the elements' own values over them.
     pub fn set(&mut self, params: &[Param], q: &[f64]) {
-        for (p, &v) in params.iter().zip(q) {
-            if let Some(r) = p.kind.response() {
-                if let (Some(s), Some(i)) = (self.spline.as_mut(), p.element) {
-                    s.set_value(r, i, v);
+        let inside = self.in_region();
+        for global in [true, false] {
+            for (p, &v) in params.iter().zip(q) {
+                if p.is_global() != global {
+                    continue;
                 }
-                continue;
-            }
-            match p.element {
-                None => self.values[p.kind as usize].iter_mut().for_each(|x| *x = v),
-                Some(e) => self.values[p.kind as usize][e] = v,
+                if let Some(r) = p.kind.response() {
+                    if let (Some(s), Some(i)) = (self.spline.as_mut(), p.element) {
+                        s.set_value(r, i, v);
+                    }
+                    continue;
+                }
+                let values = &mut self.values[p.kind as usize];
+                match (p.element, p.region) {
+                    (Some(e), _) => values[e] = v,
+                    (None, Some(r)) => self.regions[r].iter().for_each(|&e| values[e] = v),
+                    (None, None) => values
+                        .iter_mut()
+                        .zip(&inside)
+                        .filter(|(_, &i)| !i)
+                        .for_each(|(x, _)| *x = v),
+                }
             }
         }
     }
-    /// Reads the parameter values (for a global parameter, the mean over elements).
+    /// Reads the parameter values: for a global parameter the mean over the elements outside
+    /// every region (over all when there is none), for a region's the mean over its elements.
     pub fn read(&self, params: &[Param]) -> Vec<f64> {
+        let mean = |v: &[f64], elements: &mut dyn Iterator<Item = usize>| {
+            let (sum, n) = elements.fold((0.0, 0usize), |(s, n), e| (s + v[e], n + 1));
+            if n == 0 {
+                f64::NAN
+            } else {
+                sum / n as f64
+            }
+        };
         params
             .iter()
-            .map(|p| match p.element {
+            .map(|p| match (p.element, p.region) {
                 _ if p.kind.is_spline() => match (p.kind.response(), &self.spline, p.element) {
                     (Some(r), Some(s), Some(i)) => s.value(r, i),
                     _ => f64::NAN,
                 },
-                None => {
+                (Some(e), _) => self.values[p.kind as usize][e],
+                (None, Some(r)) => mean(
+                    &self.values[p.kind as usize],
+                    &mut self.regions[r].iter().copied(),
+                ),
+                (None, None) => {
                     let v = &self.values[p.kind as usize];
-                    v.iter().sum::<f64>() / v.len() as f64
+                    let inside = self.in_region();
+                    match mean(v, &mut (0..v.len()).filter(|&e| !inside[e])) {
+                        m if m.is_nan() => mean(v, &mut (0..v.len())),
+                        m => m,
+                    }
                 }
-                Some(e) => self.values[p.kind as usize][e],
             })
             .collect()
     }

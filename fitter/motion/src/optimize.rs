@@ -463,7 +463,7 @@ pub fn fit_runs(
             }
             let mu = params
                 .iter()
-                .position(|p| p.kind == ParamKind::Mu && p.element.is_none())
+                .position(|p| p.kind == ParamKind::Mu && p.is_global())
                 .ok_or_else(|| {
                     MotionError::Invalid(
                         "a fixed Poisson's ratio needs the global μ among the parameters".into(),

@@ -428,3 +428,69 @@ fn a_stiffening_bar_is_given_its_stiffening() {
     );
     assert!(r.before.rms_held > 10.0 * floor);
 }
+
+/// A bar of two materials: the half next to its moving base three times as stiff as the rest
+/// (μ 30 kPa against 10 kPa, λ one value), Newtonian damping as the other runs of its kind,
+/// hung with a 30 g weight as the stiffening bar (σ = 20 µm). The simplest model's one μ cannot
+/// follow it (λ 58 kPa, μ 13.2 kPa: RMS 1,295 µm fitted, 2,284 µm held out). The misfit's
+/// per-element μ sensitivity must place the second material where it is — the split must agree
+/// with the truth's halves in at least 5 of 6 elements (measured: 23 of 24, the near half and
+/// one element more) —, the candidate must be adopted, the near half found the stiffer, and the
+/// forecast error cut at least threefold (measured 2,284 → 514 µm).
+///
+/// What it does not yet do, measured: recover the contrast. The two-material refit stops at
+/// 371 µm RMS (the truth's own material gives 34 µm on these data, 80 µm without its damping)
+/// with μ 19.7 / 12.3 kPa for 30 / 10 kPa — a local minimum reached from the one-material
+/// fit's λ, which had absorbed part of the stiffness contrast.
+#[test]
+fn a_bar_of_two_materials_is_given_its_second_material() {
+    use palpate_motion::model::ParamKind;
+    let centre_y =
+        |m: &Model, e: usize| m.tets[e].iter().map(|&n| m.nodes[n][1]).sum::<f64>() / 4.0;
+    let near = |m: &Model| -> Vec<bool> {
+        (0..m.tets.len())
+            .map(|e| centre_y(m, e) < 0.5 * SIZE[1])
+            .collect()
+    };
+    let two = |ds: &MotionDataset| {
+        let mut t = Material::uniform(ds.model.tets.len(), 2.0e4, 1.0e4, 6.0, 1.0, 47.0);
+        for (e, n) in near(&ds.model).into_iter().enumerate() {
+            if n {
+                t.values[ParamKind::Mu as usize][e] = 3.0e4;
+            }
+        }
+        t
+    };
+    let (_, mut ds) = crate::diagnose_runs::run_of("two-material", Some(0.03), 6, 0, &two);
+    for l in &mut ds.model.loads {
+        l.inertia = true;
+    }
+    let near = near(&ds.model);
+    let r = run(&ds, "two-material");
+    assert!(
+        r.adopted.iter().any(|a| a == "two-material"),
+        "{:?}",
+        r.adopted
+    );
+    let mat = r.material.as_ref().unwrap();
+    let region = &mat.regions[0];
+    // The region is one of the two halves: its elements the stiff ones or the soft ones.
+    let agree = (0..near.len())
+        .filter(|&e| region.contains(&e) == near[e])
+        .count();
+    let agree = agree.max(near.len() - agree);
+    assert!(6 * agree >= 5 * near.len(), "{agree} of {}", near.len());
+    let mean_mu = |which: bool| {
+        let es: Vec<usize> = (0..near.len()).filter(|&e| near[e] == which).collect();
+        es.iter().map(|&e| mat.get(ParamKind::Mu, e)).sum::<f64>() / es.len() as f64
+    };
+    let (stiff, soft) = (mean_mu(true), mean_mu(false));
+    eprintln!("μ near the base {stiff:.0} Pa, far {soft:.0} Pa");
+    assert!(stiff > 1.3 * soft, "near {stiff} far {soft}");
+    assert!(
+        r.after.rms_held < r.before.rms_held / 3.0,
+        "{:?} -> {:?}",
+        r.before,
+        r.after
+    );
+}

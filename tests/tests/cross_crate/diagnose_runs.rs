@@ -35,7 +35,7 @@ fn run_late(name: &str, mass: Option<f64>, seed: u64, late: i64) -> (String, Mot
 }
 
 /// [`run_late`] recorded from the material `truth` gives.
-fn run_of(
+pub(crate) fn run_of(
     name: &str,
     mass: Option<f64>,
     seed: u64,

@@ -174,10 +174,7 @@ fn auto_picks_the_optimiser_by_the_parameters() {
     .unwrap();
     assert_eq!(r.optimizer, Optimizer::LevenbergMarquardt);
     let per: Vec<Param> = (0..model.tets.len())
-        .map(|e| Param {
-            kind: ParamKind::Mu,
-            element: Some(e),
-        })
+        .map(|e| Param::of_element(ParamKind::Mu, e))
         .collect();
     let q0 = vec![1.5e4; per.len()];
     let pairs = [(0, 1)];

@@ -66,10 +66,7 @@ fn per_element_lambda_mu_density_stiffening() {
             ParamKind::Density,
             ParamKind::Stiffening,
         ] {
-            params.push(Param {
-                kind,
-                element: Some(e),
-            });
+            params.push(Param::of_element(kind, e));
         }
     }
     check(&params, MassKind::Lumped, true);
@@ -90,4 +87,49 @@ fn stiffening_alone_matches_finite_differences() {
         let (g, scale) = assert_gradients_agree(&model, &mat, &params, &obs, |_, q0| 1e-4 * q0);
         assert!(g[0] != 0.0 && scale == g[0].abs(), "∂Φ/∂c = {}", g[0]);
     }
+}
+
+/// A two-material body: μ and λ of a region of its own beside the global ones (the global ones
+/// reach the elements outside it), with a region stiffening too — every derivative matches.
+#[test]
+fn region_parameters_match_finite_differences() {
+    let (model, mut mat, obs) = setup(MassKind::Lumped);
+    mat.regions = vec![(8..16).collect()];
+    let params = [
+        Param::global(ParamKind::Mu),
+        Param::in_region(ParamKind::Mu, 0),
+        Param::global(ParamKind::Lambda),
+        Param::in_region(ParamKind::Lambda, 0),
+        Param::in_region(ParamKind::Stiffening, 0),
+    ];
+    // The region holds its own values: setting the global μ leaves them as they are.
+    let before = mat.values[ParamKind::Mu as usize].clone();
+    mat.set(&params[..1], &[1.7e4]);
+    for (e, (&b, &a)) in before
+        .iter()
+        .zip(&mat.values[ParamKind::Mu as usize])
+        .enumerate()
+    {
+        assert_eq!(
+            a,
+            if (8..16).contains(&e) { b } else { 1.7e4 },
+            "element {e}"
+        );
+    }
+    // The point of the check is one the parameters describe (one value per material).
+    let q = mat.read(&params);
+    mat.set(&params, &q);
+    let (g, _) = assert_gradients_agree(&model, &mat, &params, &obs, |_, q0| 1e-5 * q0);
+    assert!(g.iter().all(|&x| x != 0.0), "{g:?}");
+    // An unknown region is refused, not ignored.
+    let bad = [Param::in_region(ParamKind::Mu, 1)];
+    assert!(mat.check_params(&bad).is_err());
+    assert!(palpate_motion::gradient::evaluate(
+        &model,
+        &mat,
+        &bad,
+        &obs,
+        Some(palpate_motion::gradient::Method::Adjoint)
+    )
+    .is_err());
 }

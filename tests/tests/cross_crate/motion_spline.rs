@@ -201,19 +201,10 @@ fn control_value_gradients_direct_adjoint_and_fd_agree() {
     }
     mat.spline = Some(sp.clone());
     let mut params: Vec<Param> = (0..sp.len(Response::F))
-        .map(|i| Param {
-            kind: ParamKind::SplineF,
-            element: Some(i),
-        })
+        .map(|i| Param::of_element(ParamKind::SplineF, i))
         .collect();
-    params.extend((0..sp.len(Response::H)).map(|i| Param {
-        kind: ParamKind::SplineH,
-        element: Some(i),
-    }));
-    params.push(Param {
-        kind: ParamKind::Nu,
-        element: None,
-    });
+    params.extend((0..sp.len(Response::H)).map(|i| Param::of_element(ParamKind::SplineH, i)));
+    params.push(Param::global(ParamKind::Nu));
     let step = |par: &Param, q0: f64| {
         if par.kind.is_spline() {
             1e-5 * MU

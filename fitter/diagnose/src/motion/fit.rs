@@ -58,7 +58,8 @@ pub struct Scores {
 pub struct FittedModel {
     /// Free (global) parameters.
     pub kinds: Vec<ParamKind>,
-    /// Fitted values (linear), in the order of `kinds`.
+    /// Fitted values (linear), in the order of `kinds`, then each region's shear modulus
+    /// ([`params_for`]).
     pub values: Vec<f64>,
     /// 1σ of the values (Gauss–Newton, `None` if JᵀJ is singular).
     pub sigma: Option<Vec<f64>>,
@@ -82,9 +83,10 @@ pub struct FittedModel {
 }
 
 impl FittedModel {
-    /// Free parameters: the material's, three per marker offset and one time offset.
+    /// Free parameters: the material's (a region's μ included), three per marker offset and one
+    /// time offset.
     pub fn parameter_count(&self) -> usize {
-        self.kinds.len()
+        self.values.len()
             + self.offsets.as_ref().map_or(0, |o| 3 * o.len())
             + usize::from(self.time_offset.is_some())
     }
@@ -246,6 +248,14 @@ pub fn scores(t: &Trajectory, split: Split) -> Scores {
     s
 }
 
+/// The optimiser's parameters of a model with free `kinds` on `mat`: the global ones in the order
+/// of `kinds`, then the shear modulus of each of the material's regions (a two-material body).
+pub fn params_for(kinds: &[ParamKind], mat: &Material) -> Vec<Param> {
+    let mut p = Param::globals(kinds);
+    p.extend((0..mat.regions.len()).map(|r| Param::in_region(ParamKind::Mu, r)));
+    p
+}
+
 /// Fits `kinds` (global) on the fitted steps from each start in `starts` (values for `kinds`;
 /// the others stay as in `base`); with several starts each is screened for `screen_iters`
 /// LBFGS iterations and the best is continued to `max_iters`.
@@ -259,7 +269,7 @@ pub fn fit_model(
     screen_iters: u64,
 ) -> Result<FittedModel, MotionDiagnoseError> {
     let (model, obs) = fitted_part(ds, split);
-    let params = Param::globals(kinds);
+    let params = params_for(kinds, base);
     let quiet = |_: usize, _: f64| {};
     let run = |q0: &[f64], iters: u64| {
         let settings = FitSettings {
@@ -332,7 +342,7 @@ pub fn fit_with_offsets(
     for _ in 0..rounds.max(1) {
         // Offsets at the current material.
         let adj = with_offsets(ds, &offsets);
-        material.set(&Param::globals(kinds), &q);
+        material.set(&params_for(kinds, &material), &q);
         let t = run_trajectory(&adj.model, &material, &adj.obs)?;
         for (c, m) in offsets
             .iter_mut()
@@ -382,11 +392,11 @@ fn uncertainty(
     chi2: f64,
     n: usize,
 ) -> Option<Vec<f64>> {
-    let k = kinds.len();
+    let params = params_for(kinds, base);
+    let k = params.len();
     if n <= k {
         return None;
     }
-    let params = Param::globals(kinds);
     let h: f64 = 1e-3;
     let mut cols = Vec::with_capacity(k);
     for j in 0..k {

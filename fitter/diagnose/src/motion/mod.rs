@@ -23,6 +23,7 @@
 
 pub mod cli;
 pub mod fit;
+pub mod region;
 pub mod report;
 pub mod signature;
 
@@ -32,7 +33,7 @@ use crate::select::{
 };
 use fit::{fit_model, fit_with_offsets, with_offsets, FittedModel, Scores, Split};
 use palpate_motion::dataset::{DatasetError, MotionDataset};
-use palpate_motion::model::{Material, ParamKind};
+use palpate_motion::model::{Material, Param, ParamKind};
 use palpate_motion::time_offset;
 use palpate_motion::MotionError;
 use serde::Serialize;
@@ -66,6 +67,9 @@ pub fn is_motion_dataset(dir: &Path) -> bool {
         .is_ok_and(|t| t.contains_key("dt") || t.contains_key("clamps"))
 }
 
+/// Refits that move the two-material candidate's boundary ([`MotionModel::fit_two_material`]).
+const REGION_REFITS: usize = 8;
+
 /// Block-coordinate rounds of a fit with marker offsets (offsets, then material).
 const OFFSET_ROUNDS: usize = 2;
 
@@ -93,16 +97,22 @@ pub enum Candidate {
     /// The material stiffens at larger strains beyond Neo-Hookean: a Yeoh-type c (Ī₁ − 3)² term
     /// beside eq. 16 (1 parameter, fitted in ln c from c = μ).
     Stiffening,
+    /// A body of two materials (1 parameter: the second material's shear modulus). Where it sits
+    /// is found first, from the misfit's sensitivity to each element's own μ at the current fit
+    /// ([`region`]): the smaller part of its sign split is the region whose μ is then fitted;
+    /// the rest keeps the global μ (λ stays one value: Poisson's ratio differs between the two).
+    TwoMaterial,
 }
 
 /// Every candidate, in the order they are tried.
-pub const ALL_CANDIDATES: [Candidate; 6] = [
+pub const ALL_CANDIDATES: [Candidate; 7] = [
     Candidate::Viscosity,
     Candidate::ViscosityNewtonian,
     Candidate::Density,
     Candidate::MarkerOffsets,
     Candidate::TimeOffset,
     Candidate::Stiffening,
+    Candidate::TwoMaterial,
 ];
 
 impl Candidate {
@@ -115,13 +125,14 @@ impl Candidate {
             Self::MarkerOffsets => "marker-offsets",
             Self::TimeOffset => "time-offset",
             Self::Stiffening => "stiffening",
+            Self::TwoMaterial => "two-material",
         }
     }
     /// Parameters it adds to a model of `markers` markers.
     pub fn extra_params(self, markers: usize) -> usize {
         match self {
             Self::MarkerOffsets => 3 * markers,
-            Self::TimeOffset => 1,
+            Self::TimeOffset | Self::TwoMaterial => 1,
             c => c.kinds().len(),
         }
     }
@@ -132,7 +143,7 @@ impl Candidate {
             Self::ViscosityNewtonian => &[ParamKind::Nu],
             Self::Density => &[ParamKind::Density],
             Self::Stiffening => &[ParamKind::Stiffening],
-            Self::MarkerOffsets | Self::TimeOffset => &[],
+            Self::MarkerOffsets | Self::TimeOffset | Self::TwoMaterial => &[],
         }
     }
     /// Effects that exclude each other (the two viscosity laws).
@@ -319,14 +330,45 @@ fn values_of(m: &FittedModel, dt: f64) -> Vec<Value> {
                 sigma: i.and_then(|i| m.sigma.as_ref().map(|s| s[i])),
             })
         })
+        .chain(region_values(m))
         .chain(offset)
         .collect()
 }
 
-/// Starting values of a candidate's parameters, given the current fit.
+/// The shear modulus of each region of `m`'s material (the second material of a two-material
+/// body), named with where it is.
+fn region_values(m: &FittedModel) -> Vec<Value> {
+    let first = m.values.len() - m.material.regions.len();
+    m.material
+        .regions
+        .iter()
+        .enumerate()
+        .map(|(r, elements)| Value {
+            name: format!("mu of the second material ({} elements)", elements.len()),
+            value: m.values[first + r],
+            sigma: m.sigma.as_ref().map(|s| s[first + r]),
+        })
+        .collect()
+}
+
+/// Starting values of a candidate's parameters, given the current fit: the global values, the
+/// candidate's new ones, then each region's μ ([`fit::params_for`]).
 fn starts(c: Candidate, cur: &FittedModel, ds: &MotionDataset) -> Vec<Vec<f64>> {
-    let base: Vec<f64> = cur.values.clone();
-    let mu = cur.material.get(ParamKind::Mu, 0);
+    let globals = cur.kinds.len();
+    let regions = &cur.values[globals..];
+    starts_of_new(c, cur, ds)
+        .into_iter()
+        .map(|mut q| {
+            q.extend_from_slice(regions);
+            q
+        })
+        .collect()
+}
+
+/// [`starts`] without the regions' values.
+fn starts_of_new(c: Candidate, cur: &FittedModel, ds: &MotionDataset) -> Vec<Vec<f64>> {
+    let base: Vec<f64> = cur.values[..cur.kinds.len()].to_vec();
+    let mu = cur.material.read(&[Param::global(ParamKind::Mu)])[0];
     let dt = ds.model.dt;
     match c {
         // Viscous time τ = ν/μ over three decades around the step: 0.03, 0.3 and 3 Δt.
@@ -352,7 +394,7 @@ fn starts(c: Candidate, cur: &FittedModel, ds: &MotionDataset) -> Vec<Vec<f64>> 
             q.push(mu);
             vec![q]
         }
-        Candidate::MarkerOffsets | Candidate::TimeOffset => vec![base],
+        Candidate::MarkerOffsets | Candidate::TimeOffset | Candidate::TwoMaterial => vec![base],
     }
 }
 
@@ -464,6 +506,102 @@ impl MotionModel<'_> {
     }
 }
 
+impl MotionModel<'_> {
+    /// The fit of `c` from `cur`, at `cur`'s time offset if it has one (no new scan).
+    fn fit_from(
+        &self,
+        cur: &FittedModel,
+        c: Candidate,
+    ) -> Result<FittedModel, MotionDiagnoseError> {
+        let mut kinds = cur.kinds.clone();
+        kinds.extend_from_slice(c.kinds());
+        match cur.time_offset {
+            Some(r) => self.fit_timed(cur, c, &kinds, r),
+            None => self.fit_on(self.ds, self.split, cur, c, &kinds),
+        }
+    }
+
+    /// The two-material candidate: where first ([`region::locate`]), then its μ fitted beside
+    /// the global one; then the region's boundary moved while that lowers the fitted misfit: the
+    /// elements whose switch of material lowers Φ to first order ([`region::switches`]) — all of
+    /// them, else the better half, quarter, … (a first-order estimate overshoots when many move
+    /// at once) —, refitted and kept only if χ² on the fitted steps fell; at most
+    /// [`REGION_REFITS`] refits.
+    fn fit_two_material(
+        &self,
+        cur: &FittedModel,
+    ) -> Result<Outcome<FittedModel>, MotionDiagnoseError> {
+        let c = Candidate::TwoMaterial;
+        let region = match region::locate(self.ds, self.split, cur) {
+            Ok(Some(r)) => r,
+            Ok(None) => {
+                return Ok(Outcome::NotFitted(
+                    "the misfit's sensitivity to each element's μ has one sign everywhere: no \
+                     second material to place"
+                        .into(),
+                ))
+            }
+            Err(e) => return Ok(Outcome::NotFitted(format!("locating it failed: {e}"))),
+        };
+        (self.log)(&format!("  two-material: region of {}", region.describe()));
+        // The region starts at the one-material fit's μ moved the way the misfit pulls. (A grid
+        // of 5 × 5 starting contrasts, the rest's λ moving with its μ, was tried: on the
+        // two-material test bar the one-material point stayed the best start — not kept.)
+        let mu = cur.material.read(&[Param::global(ParamKind::Mu)])[0];
+        let mut start = cur.clone();
+        start.material.regions.push(region.elements);
+        start
+            .values
+            .push(if region.stiffer { 1.5 * mu } else { mu / 1.5 });
+        let mut best = match self.fit_from(&start, c) {
+            Ok(m) => m,
+            Err(e) => return Ok(Outcome::NotFitted(format!("fit failed: {e}"))),
+        };
+        let ne = self.ds.model.tets.len();
+        let mut refits = 0;
+        'passes: while refits < REGION_REFITS {
+            let grad = match region::sensitivity(self.ds, self.split, &best) {
+                Ok(g) => g,
+                Err(e) => {
+                    (self.log)(&format!("  two-material: boundary: {e}; region kept"));
+                    break;
+                }
+            };
+            let mu_in = best.values[best.values.len() - 1];
+            let mu_out = best.material.read(&[Param::global(ParamKind::Mu)])[0];
+            let region = best.material.regions[0].clone();
+            let moves = region::switches(&region, &grad, mu_in, mu_out);
+            let mut k = moves.len();
+            while k > 0 && refits < REGION_REFITS {
+                let Some(next) = region::switched(&region, &moves[..k], ne) else {
+                    k /= 2;
+                    continue;
+                };
+                refits += 1;
+                let mut start = best.clone();
+                start.material.regions[0] = next;
+                if let Ok(mut m) = self.fit_from(&start, c) {
+                    if m.scores.chi2_fit < best.scores.chi2_fit {
+                        (self.log)(&format!(
+                            "  two-material: boundary: {k} element(s) switched, region of {} \
+                             elements, fitted RMS {:.1} → {:.1} µm",
+                            m.material.regions[0].len(),
+                            1e6 * best.scores.rms_fit,
+                            1e6 * m.scores.rms_fit
+                        ));
+                        m.evaluations += best.evaluations;
+                        best = m;
+                        continue 'passes;
+                    }
+                }
+                k /= 2;
+            }
+            break;
+        }
+        Ok(Outcome::Fitted(best))
+    }
+}
+
 impl CandidateModel for MotionModel<'_> {
     type Candidate = Candidate;
     type Fitted = FittedModel;
@@ -498,6 +636,9 @@ impl CandidateModel for MotionModel<'_> {
                  clamp forces (forces.csv)"
                     .into(),
             ));
+        }
+        if c == Candidate::TwoMaterial {
+            return self.fit_two_material(cur);
         }
         let mut kinds = cur.kinds.clone();
         kinds.extend_from_slice(c.kinds());
@@ -778,7 +919,7 @@ pub fn diagnose(
             cur.scores.rms_fit,
             floor,
             cur.scores.n_fit,
-            cur.kinds.len(),
+            cur.values.len(),
             judged,
         ),
         heldout_check: crate::ResidualCheck::new(

@@ -224,10 +224,7 @@ fn bimaterial() -> anyhow::Result<(&'static str, String, serde_json::Value)> {
     }
     let obs = record(&m, &truth, 0.0, 3)?;
     let params: Vec<Param> = (0..ne)
-        .map(|e| Param {
-            kind: ParamKind::Mu,
-            element: Some(e),
-        })
+        .map(|e| Param::of_element(ParamKind::Mu, e))
         .collect();
     let q0 = vec![2.0e4; ne];
     let pairs = mesh.face_neighbours();

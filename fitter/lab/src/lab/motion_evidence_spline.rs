@@ -94,15 +94,9 @@ fn peak_force(obs: &Observations) -> f64 {
 
 fn spline_params(sp: &SplineMaterial) -> Vec<Param> {
     let mut p: Vec<Param> = (0..sp.len(Response::F))
-        .map(|i| Param {
-            kind: ParamKind::SplineF,
-            element: Some(i),
-        })
+        .map(|i| Param::of_element(ParamKind::SplineF, i))
         .collect();
-    p.extend((0..sp.len(Response::H)).map(|i| Param {
-        kind: ParamKind::SplineH,
-        element: Some(i),
-    }));
+    p.extend((0..sp.len(Response::H)).map(|i| Param::of_element(ParamKind::SplineH, i)));
     p
 }
 

@@ -200,10 +200,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             !params.iter().any(|p| p.kind == kind),
             "{name} is both global and per-element"
         );
-        params.extend((0..ne).map(|e| Param {
-            kind,
-            element: Some(e),
-        }));
+        params.extend((0..ne).map(|e| Param::of_element(kind, e)));
     }
     anyhow::ensure!(!params.is_empty(), "no parameters to fit");
     if ds.config.density.is_none() && !params.iter().any(|p| p.kind == ParamKind::Density) {
