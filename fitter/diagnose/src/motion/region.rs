@@ -24,30 +24,42 @@ const SMOOTHING_PASSES: usize = 2;
 pub struct Region {
     /// Elements of the region.
     pub elements: Vec<usize>,
-    /// True when a stiffer material there lowers the misfit (the map is negative there).
+    /// True when a stiffer material there lowers the misfit (the map is negative there: the
+    /// fitted μ was too soft).
     pub stiffer: bool,
-    /// Its share of the body's volume.
-    pub volume_fraction: f64,
-    /// Its volume-weighted centroid (m).
-    pub centre: [f64; 3],
     /// The smoothed map ∂Φ/∂ln μ_e / V_e per element (the split's input).
     pub map: Vec<f64>,
 }
 
-impl Region {
-    /// One line for the report: how large, where, and which way the misfit pulls.
-    pub fn describe(&self) -> String {
-        format!(
-            "{} elements, {:.0} % of the volume, centred at ({:.1}, {:.1}, {:.1}) mm, where the \
-             fitted μ was too {}",
-            self.elements.len(),
-            100.0 * self.volume_fraction,
-            1e3 * self.centre[0],
-            1e3 * self.centre[1],
-            1e3 * self.centre[2],
-            if self.stiffer { "soft" } else { "stiff" }
-        )
+/// One line for a report: how large a region is, where, and which way its material differs
+/// from the rest's (`stiffer`).
+pub fn describe(model: &Model, elements: &[usize], stiffer: bool) -> String {
+    let (fraction, centre) = extent(model, elements);
+    format!(
+        "{} elements, {:.0} % of the volume, centred at ({:.1}, {:.1}, {:.1}) mm, {} than the rest",
+        elements.len(),
+        100.0 * fraction,
+        1e3 * centre[0],
+        1e3 * centre[1],
+        1e3 * centre[2],
+        if stiffer { "stiffer" } else { "softer" }
+    )
+}
+
+/// A region's share of the body's volume and its volume-weighted centroid (m).
+fn extent(model: &Model, elements: &[usize]) -> (f64, [f64; 3]) {
+    let total: f64 = model.rest.iter().map(|r| r.volume).sum();
+    let v: f64 = elements.iter().map(|&e| model.rest[e].volume).sum();
+    let mut centre = [0.0; 3];
+    for &e in elements {
+        let w = model.rest[e].volume / v;
+        for &n in &model.tets[e] {
+            for k in 0..3 {
+                centre[k] += 0.25 * w * model.nodes[n][k];
+            }
+        }
     }
+    (v / total, centre)
 }
 
 /// The sign split of the per-element μ sensitivity at the current fit `cur`, on the data it was
@@ -97,7 +109,6 @@ fn smooth(model: &Model, values: &[f64], passes: usize) -> Vec<f64> {
 
 /// The smaller part by volume of the sign split of `map`, or `None` if one part is empty.
 fn split_by_sign(model: &Model, map: Vec<f64>) -> Option<Region> {
-    let total: f64 = model.rest.iter().map(|r| r.volume).sum();
     let negative: Vec<usize> = (0..map.len()).filter(|&e| map[e] < 0.0).collect();
     let positive: Vec<usize> = (0..map.len()).filter(|&e| map[e] >= 0.0).collect();
     if negative.is_empty() || positive.is_empty() {
@@ -109,21 +120,9 @@ fn split_by_sign(model: &Model, map: Vec<f64>) -> Option<Region> {
     } else {
         (positive, false)
     };
-    let v = volume(&elements);
-    let mut centre = [0.0; 3];
-    for &e in &elements {
-        let w = model.rest[e].volume / v;
-        for &n in &model.tets[e] {
-            for k in 0..3 {
-                centre[k] += 0.25 * w * model.nodes[n][k];
-            }
-        }
-    }
     Some(Region {
         elements,
         stiffer,
-        volume_fraction: v / total,
-        centre,
         map,
     })
 }
