@@ -79,8 +79,24 @@ pub(crate) fn blend_parameters(
             weights_alpha,
             ..
         } => {
-            // λ_e = Σ_l w_{e,l}^λ φ(‖e − ē_l‖_e) (eqs. 6.9–6.11) with the locally weighted metric.
+            // λ_e = Σ_l w_{e,l}^λ φ(‖e − ē_l‖_e) (eqs. 6.9–6.11) with the locally weighted metric
+            // ‖e − ē_l‖²_e = Σ_j w_{e,j} ‖ε_j − ē_{l,j}‖² over e's neighbours j. A neighbour's
+            // distance depends on (l, j) only, so it is computed once per element and set
+            // (`strain_distance`) rather than once per element that lists it (k times).
             let k = neighbours as usize;
+            for l in 0..sets {
+                for j in 0..t {
+                    let mut s2 = 0.0f32;
+                    for c in 0..6 {
+                        let cur = elements.strain.get(6 * j + c).copied().unwrap_or(0.0);
+                        let cen = centres.get((l * t + j) * 6 + c).unwrap_or(cur);
+                        s2 += (cur - cen) * (cur - cen);
+                    }
+                    if let Some(d) = elements.strain_distance.get_mut(l * t + j) {
+                        *d = s2;
+                    }
+                }
+            }
             for e in 0..t {
                 let mut lam = 0.0f32;
                 let mut alp = 0.0f32;
@@ -92,12 +108,11 @@ pub(crate) fn blend_parameters(
                         if nb >= t {
                             continue;
                         }
-                        let mut s2 = 0.0f32;
-                        for c in 0..6 {
-                            let cur = elements.strain.get(6 * nb + c).copied().unwrap_or(0.0);
-                            let cen = centres.get((l * t + nb) * 6 + c).unwrap_or(cur);
-                            s2 += (cur - cen) * (cur - cen);
-                        }
+                        let s2 = elements
+                            .strain_distance
+                            .get(l * t + nb)
+                            .copied()
+                            .unwrap_or(0.0);
                         d2 += w * s2;
                     }
                     let ph = phi(libm::sqrtf(d2.max(0.0)));

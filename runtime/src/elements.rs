@@ -67,13 +67,16 @@ pub(crate) struct ElementState<'a> {
     pub ghat: &'a mut [f32],
     /// Current rest-frame strain, 6 per element (unpadded; strain blending only).
     pub strain: &'a mut [f32],
+    /// ‖ε_e − ē_{l,e}‖² of every fitted set l and element e at `(l, e)` → `l · t + e` (strain
+    /// blending only): the blend's per-neighbour distances, computed once per blend.
+    pub strain_distance: &'a mut [f32],
     /// The model's C_e and D_e, 2 × 78 per element (unpadded; packed kernel only).
     pub cd: &'a mut [f32],
 }
 
 impl<'a> ElementState<'a> {
     /// The room's arrays, in carving order (see [`crate::storage::Layout`]).
-    pub(crate) const fn layout(d: &Dims) -> RoomLayout<9, 1> {
+    pub(crate) const fn layout(d: &Dims) -> RoomLayout<10, 1> {
         let tp = d.padded;
         RoomLayout {
             f32s: [
@@ -85,6 +88,11 @@ impl<'a> ElementState<'a> {
                 4 * tp,
                 9 * tp,
                 if d.strain { 6 * d.elements } else { 0 },
+                if d.strain {
+                    d.blend_sets * d.elements
+                } else {
+                    0
+                },
                 if d.packed {
                     2 * PACKED_LEN * d.elements
                 } else {
@@ -97,12 +105,13 @@ impl<'a> ElementState<'a> {
 
     /// Cuts the room from the pools (zeroed).
     pub(crate) fn carve(
-        layout: RoomLayout<9, 1>,
+        layout: RoomLayout<10, 1>,
         d: &Dims,
         f: &mut Carver<'a, f32>,
         u: &mut Carver<'a, u32>,
     ) -> Result<Self, RuntimeError> {
-        let ([grad, vol, lam, alp, rot, quat, ghat, strain, cd], [tets]) = layout.carve(f, u)?;
+        let ([grad, vol, lam, alp, rot, quat, ghat, strain, strain_distance, cd], [tets]) =
+            layout.carve(f, u)?;
         Ok(Self {
             t: d.elements,
             tp: d.padded,
@@ -115,6 +124,7 @@ impl<'a> ElementState<'a> {
             quat,
             ghat,
             strain,
+            strain_distance,
             cd,
         })
     }

@@ -29,8 +29,8 @@ pub const fn padded_elements(t: usize) -> usize {
 /// quaternion (4), rotated gradients R∇φ₁..₃ (9), element forces of the PCG product (12).
 /// Derived from `Layout`.
 pub const F32_PER_ELEMENT: usize = Layout::per_padded_element().0;
-/// Extra `f32` per element for strain-space blending: the current strain (6). Derived from
-/// `Layout`.
+/// Extra `f32` per element for strain-space blending: the current strain (6), plus one per
+/// fitted set for the neighbour-distance scratch (`Dims::blend_sets`). Derived from `Layout`.
 pub const F32_PER_ELEMENT_STRAIN: usize = Layout::per_element(true, false);
 /// Extra `f32` per element for the packed-matrix kernel: C_e and D_e (2 × 78). Derived from
 /// `Layout`.
@@ -78,6 +78,10 @@ pub(crate) struct Dims {
     pub padded: usize,
     /// The model blends in strain space (each element keeps its strain).
     pub strain: bool,
+    /// Fitted sets of a strain-space blend (0 otherwise): each element keeps its strain's
+    /// distance to every set's centre, computed once per blend and read by every element that
+    /// lists it as a neighbour.
+    pub blend_sets: usize,
     /// The packed-matrix kernel runs (each element keeps C_e, D_e).
     pub packed: bool,
     /// Aggregates of the coarse space ([`crate::coarse::aggregate_capacity`]).
@@ -94,6 +98,10 @@ impl Dims {
             elements: t,
             padded: padded_elements(t),
             strain: matches!(record.blend, Blend::Strain { .. }),
+            blend_sets: match record.blend {
+                Blend::Strain { .. } => record.parameters.count as usize,
+                _ => 0,
+            },
             packed: config.kernel == Kernel::Packed,
             aggregates: crate::coarse::aggregate_capacity(config.coarse_aggregates, n),
         }
@@ -156,7 +164,7 @@ pub(crate) struct Layout {
     /// [`crate::precond::TwoLevel`].
     pub precond: RoomLayout<2, 1>,
     /// [`crate::elements::ElementState`].
-    pub elements: RoomLayout<9, 1>,
+    pub elements: RoomLayout<10, 1>,
     /// [`crate::stiffness::ElementForces`].
     pub forces: RoomLayout<1, 2>,
 }
@@ -216,6 +224,7 @@ impl Layout {
             elements,
             padded,
             strain: s,
+            blend_sets: 0,
             packed: p,
             aggregates: 0,
         }
@@ -335,11 +344,13 @@ mod tests {
                 elements: t,
                 padded: tp,
                 strain: s,
+                blend_sets: if s { 3 } else { 0 },
                 packed: p,
                 aggregates: m,
             };
             let l = Layout::of(&d);
-            let per_element = if s { 6 } else { 0 } + if p { 156 } else { 0 };
+            // Strain blending: the strain (6) and its distance to each of the 3 sets' centres.
+            let per_element = if s { 6 + 3 } else { 0 } + if p { 156 } else { 0 };
             assert_eq!(
                 l.f32s(),
                 n * 51 + tp * 46 + t * per_element + crate::coarse::coarse_f32s(m)
