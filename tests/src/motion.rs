@@ -99,32 +99,5 @@ pub fn record_late(
     late: i64,
     reach: usize,
 ) -> Observations {
-    let mut long = model.clone();
-    long.steps += reach;
-    for c in &mut long.clamps {
-        let last = *c.poses.last().unwrap();
-        c.poses.resize(long.steps + 1, last);
-    }
-    let recorded = palpate_motion::scenario::record(&long, mat, noise, seed).unwrap();
-    let mut x0 = Vec::new();
-    palpate_motion::sim::simulate(&long, mat, false, |x, _| x0 = x.to_vec(), |_| Ok(())).unwrap();
-    let mut rng = palpate_motion::scenario::Gauss::new(seed + 1000);
-    let mut obs = recorded.clone();
-    obs.markers = (0..model.steps as i64)
-        .map(|n| match usize::try_from(n - late) {
-            Ok(i) => recorded.markers[i].clone(),
-            Err(_) => long
-                .markers
-                .iter()
-                .map(|m| Some(long.marker_position(m, &x0).map(|v| v + noise * rng.next())))
-                .collect(),
-        })
-        .collect();
-    obs.forces = (0..model.steps as i64)
-        .map(|n| match usize::try_from(n - late) {
-            Ok(i) => recorded.forces[i].clone(),
-            Err(_) => vec![None; long.clamps.len()],
-        })
-        .collect();
-    obs
+    palpate_specimen::motion::record_late(model, mat, noise, seed, late, reach).unwrap()
 }

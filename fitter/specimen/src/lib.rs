@@ -8,10 +8,12 @@
 //! evidence runs can score what diagnose names against what was injected.
 //!
 //! - [`effect`]: the effect library ([`Effect`]) with magnitude knobs and their defaults;
-//! - [`generate`](mod@generate): the simulation ([`generate::generate`]).
+//! - [`generate`](mod@generate): the simulation ([`generate::generate`]);
+//! - [`motion`]: motion specimens (the example bar with one effect each, drawn at random).
 
 pub mod effect;
 pub mod generate;
+pub mod motion;
 pub mod signal;
 pub mod viscous;
 

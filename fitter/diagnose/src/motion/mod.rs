@@ -70,8 +70,11 @@ pub fn is_motion_dataset(dir: &Path) -> bool {
 /// Refits that move the two-material candidate's boundary ([`MotionModel::fit_two_material`]).
 const REGION_REFITS: usize = 4;
 
-/// Block-coordinate rounds of a fit with marker offsets (offsets, then material).
-const OFFSET_ROUNDS: usize = 2;
+/// Most block-coordinate rounds of a fit with marker offsets (offsets, then material); fewer
+/// once a round stops lowering χ² ([`fit::OFFSET_TOLERANCE`]). Two rounds, as before, left
+/// enough of the offsets unfitted on randomly drawn specimens that a second effect was adopted to
+/// soak it up (4 of 5 draws; `palpate-lab motion-confusion`).
+const OFFSET_ROUNDS: usize = 8;
 
 /// A candidate effect the simplest motion model lacks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -97,7 +100,8 @@ pub enum Candidate {
     /// The material stiffens at larger strains beyond Neo-Hookean: a Yeoh-type c (Ī₁ − 3)² term
     /// beside eq. 16 (1 parameter, fitted in ln c from c = μ).
     Stiffening,
-    /// A body of two materials (1 parameter: the second material's shear modulus). Where it sits
+    /// A body of two materials (the second material's shear modulus, and its region's shape
+    /// charged as [`fit::REGION_SHAPE_PARAMS`] more parameters). Where it sits
     /// is found first, from the misfit's sensitivity to each element's own μ at the current fit
     /// ([`region`]): the smaller part of its sign split is the region whose μ is then fitted;
     /// the rest keeps the global μ (λ stays one value: Poisson's ratio differs between the two).
@@ -132,7 +136,8 @@ impl Candidate {
     pub fn extra_params(self, markers: usize) -> usize {
         match self {
             Self::MarkerOffsets => 3 * markers,
-            Self::TimeOffset | Self::TwoMaterial => 1,
+            Self::TimeOffset => 1,
+            Self::TwoMaterial => 1 + fit::REGION_SHAPE_PARAMS,
             c => c.kinds().len(),
         }
     }

@@ -8,6 +8,7 @@ pub mod bench_link;
 pub mod bench_motion;
 pub mod bench_runtime;
 pub mod diagnose_evidence;
+pub mod motion_confusion;
 pub mod motion_evidence;
 pub mod motion_evidence_spline;
 pub mod nonlinear_evidence;
@@ -33,6 +34,9 @@ pub enum Command {
     MotionEvidence(motion_evidence::Args),
     /// Every specimen effect × seeds through diagnose: the confusion table (docs/results/diagnose).
     DiagnoseEvidence(diagnose_evidence::Args),
+    /// Motion specimens with one effect each, drawn at random, through the motion diagnosis: the
+    /// motion confusion table (docs/results/diagnose).
+    MotionConfusion(motion_confusion::Args),
     /// The non-linear chain end to end (incremental loading, blends on non-linear data, the γ_m
     /// sweep) into docs/results/nonlinear.
     NonlinearEvidence(nonlinear_evidence::Args),
@@ -44,6 +48,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(b) => bench::run(b),
         Command::MotionEvidence(a) => motion_evidence::run(a),
         Command::DiagnoseEvidence(a) => diagnose_evidence::run(a),
+        Command::MotionConfusion(a) => motion_confusion::run(a),
         Command::NonlinearEvidence(a) => nonlinear_evidence::run(a),
     }
 }
