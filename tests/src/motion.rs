@@ -85,19 +85,5 @@ pub fn assert_gradients_agree(
     (ga, scale)
 }
 
-/// A recording of `model` with `mat` whose markers and clamp forces run `late` steps behind the
-/// simulation's clock (negative: ahead), Gaussian marker noise `noise` (m) from `seed`: the truth
-/// is simulated over a horizon `reach` ≥ |late| steps longer, its clamps held at their last pose;
-/// the capture's row n sees the truth's step n + 1 − late, and a row before the truth starts sees
-/// its initial markers (fresh noise each row) and no force. Built with the simulator alone, not
-/// with `palpate_motion::time_offset`, which the tests check against it.
-pub fn record_late(
-    model: &Model,
-    mat: &Material,
-    noise: f64,
-    seed: u64,
-    late: i64,
-    reach: usize,
-) -> Observations {
-    palpate_specimen::motion::record_late(model, mat, noise, seed, late, reach).unwrap()
-}
+/// The recording of a run observed out of step with its base, shared with the motion specimens.
+pub use palpate_specimen::motion::record_late;

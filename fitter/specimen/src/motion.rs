@@ -192,7 +192,7 @@ pub fn motion_specimen(
 }
 
 /// A weight of `mass` hung on the top edge of the dataset's `back` group, moving with its nodes.
-fn hung_weight(ds: &MotionDataset, mass: f64) -> Result<DeadLoad, MotionError> {
+pub fn hung_weight(ds: &MotionDataset, mass: f64) -> Result<DeadLoad, MotionError> {
     let back = ds
         .mesh
         .group("back")
@@ -232,10 +232,12 @@ fn long_axis(model: &Model) -> (usize, f64, f64) {
     best
 }
 
-/// Observations of `model` under `mat` with noise σ = `noise`, the markers recorded `late` steps
-/// behind the simulation's clock (negative: ahead): the observation of step n is the simulated
-/// step n − late; rows before the start see the initial state (at rest), rows past the end are
-/// simulated on with the clamps held at their last pose (`reach` ≥ |late| steps more).
+/// A recording of `model` with `mat` whose markers and clamp forces run `late` steps behind the
+/// simulation's clock (negative: ahead), Gaussian marker noise `noise` (m) from `seed`: the truth
+/// is simulated over a horizon `reach` ≥ |late| steps longer, its clamps held at their last pose;
+/// the capture's row n sees the truth's step n + 1 − late, and a row before the truth starts sees
+/// its initial markers (fresh noise each row) and no force. Built with the simulator alone, not
+/// with `palpate_motion::time_offset`, which the tests check against it.
 pub fn record_late(
     model: &Model,
     mat: &Material,

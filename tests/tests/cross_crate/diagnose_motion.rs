@@ -69,7 +69,7 @@ fn specimen(nu: f64, seed: u64) -> MotionDataset {
 /// ahead), [`palpate_tests::motion::record_late`].
 fn late_specimen(nu: f64, seed: u64, late: i64) -> MotionDataset {
     let mut ds = specimen(nu, seed);
-    ds.obs = record_late(&ds.model, &truth(&ds.model, nu), SIGMA, seed, late, 2);
+    ds.obs = record_late(&ds.model, &truth(&ds.model, nu), SIGMA, seed, late, 2).unwrap();
     // Markers only, as `specimen`.
     ds.obs
         .forces

@@ -11,7 +11,7 @@
 
 use palpate_diagnose::runs::{diagnose_runs, Effect, RunsDiagnosis, RunsOptions};
 use palpate_motion::dataset::{load, MotionDataset};
-use palpate_motion::model::{DeadLoad, Material};
+use palpate_motion::model::Material;
 use palpate_tests::motion::record_late;
 
 fn example() -> MotionDataset {
@@ -44,25 +44,9 @@ pub(crate) fn run_of(
 ) -> (String, MotionDataset) {
     let mut ds = example();
     if let Some(m) = mass {
-        let back = ds.mesh.group("back").unwrap();
-        let ztop = back
-            .iter()
-            .map(|&n| ds.mesh.nodes[n][2])
-            .fold(f64::NEG_INFINITY, f64::max);
-        ds.model.loads = vec![DeadLoad {
-            name: "weight".into(),
-            nodes: back
-                .iter()
-                .copied()
-                .filter(|&n| ds.mesh.nodes[n][2] == ztop)
-                .collect(),
-            force: ds.model.gravity.map(|g| m * g),
-            from_step: 0,
-            mass: Some(m),
-            inertia: true,
-        }];
+        ds.model.loads = vec![palpate_specimen::motion::hung_weight(&ds, m).unwrap()];
     }
-    ds.obs = record_late(&ds.model, &truth(&ds), 2e-5, seed, late, 4);
+    ds.obs = record_late(&ds.model, &truth(&ds), 2e-5, seed, late, 4).unwrap();
     // The diagnosis' simplest model treats the weight as a force only: it must find the inertia.
     for l in &mut ds.model.loads {
         l.inertia = false;
