@@ -70,6 +70,10 @@ pub fn is_motion_dataset(dir: &Path) -> bool {
 /// Refits that move the two-material candidate's boundary ([`MotionModel::fit_two_material`]).
 const REGION_REFITS: usize = 4;
 
+/// Steps the time-offset candidate moves from its scanned offset, each way, while a refit there
+/// lowers χ² ([`MotionModel::fit_timed`]).
+const OFFSET_NEIGHBOURS: usize = 3;
+
 /// Most block-coordinate rounds of a fit with marker offsets (offsets, then material); fewer
 /// once a round stops lowering χ² ([`fit::OFFSET_TOLERANCE`]). Two rounds, as before, left
 /// enough of the offsets unfitted on randomly drawn specimens that a second effect was adopted to
@@ -95,7 +99,8 @@ pub enum Candidate {
     /// number of simulation steps, [`palpate_motion::time_offset`]): two capture streams on two
     /// clocks, or a start instant misread. Scanned on the fitted steps within ±3 capture frames (widened to ±12 while the best lies at the edge)
     /// with the current material, the material refitted, scanned again (refitted once more if it
-    /// moved); the held-out steps are forecast at the same offset.
+    /// moved), then the neighbouring offsets refitted while χ² falls; the held-out steps are
+    /// forecast at the same offset.
     TimeOffset,
     /// The material stiffens at larger strains beyond Neo-Hookean: a Yeoh-type c (Ī₁ − 3)² term
     /// beside eq. 16 (1 parameter, fitted in ln c from c = μ).
@@ -477,7 +482,11 @@ impl MotionModel<'_> {
     /// A fit at the time offset `r` (the candidate's own, scanned with the current material, or
     /// the adopted one): the fit on the re-timed data, its trajectory and scores read back on the
     /// data's rows; for the time-offset candidate the offset is scanned again with the refitted
-    /// material and, if it moved, the material refitted once more.
+    /// material and, if it moved, the material refitted once more; then the neighbouring offsets
+    /// are refitted while that lowers χ² on the fitted steps (at most [`OFFSET_NEIGHBOURS`] steps
+    /// each way): the scan runs at a material fitted without the offset, and on a strongly loaded
+    /// run it can settle a step off (−2 for −3 on drawn specimens, the fit then far above the
+    /// floor).
     fn fit_timed(
         &self,
         cur: &FittedModel,
@@ -487,32 +496,58 @@ impl MotionModel<'_> {
     ) -> Result<FittedModel, MotionDiagnoseError> {
         let mut evaluations = 0;
         let mut rescanned = false;
-        loop {
-            let (d, split) = fit::retimed(self.ds, self.split, r)?;
-            let mut m = self.fit_on(&d, split, cur, c, kinds)?;
-            evaluations += m.evaluations;
-            let data = m
-                .offsets
-                .as_deref()
-                .map_or_else(|| self.ds.clone(), |o| with_offsets(self.ds, o));
-            m.traj = fit::run_trajectory_at(&data.model, &m.material, &data.obs, r)?;
-            m.scores = fit::scores(&m.traj, self.split);
-            m.time_offset = Some(r);
-            m.evaluations = evaluations;
-            (self.log)(&format!(
-                "  {} fitted at a time offset of {:+.1} ms",
-                c.name(),
-                1e3 * r as f64 * self.ds.model.dt
-            ));
+        let mut m = loop {
+            let m = self.fit_at(cur, c, kinds, r, &mut evaluations)?;
             if c != Candidate::TimeOffset || rescanned {
-                return Ok(m);
+                break m;
             }
             let again = self.scan_offset(&m.material, m.offsets.as_deref())?;
             if again == r {
-                return Ok(m);
+                break m;
             }
             (r, rescanned) = (again, true);
+        };
+        if c == Candidate::TimeOffset {
+            for dir in [-1, 1] {
+                for _ in 0..OFFSET_NEIGHBOURS {
+                    let next = m.time_offset.unwrap_or(r) + dir;
+                    match self.fit_at(cur, c, kinds, next, &mut evaluations) {
+                        Ok(n) if n.scores.chi2_fit < m.scores.chi2_fit => m = n,
+                        _ => break,
+                    }
+                }
+            }
+            m.evaluations = evaluations;
         }
+        Ok(m)
+    }
+
+    /// One fit of `c` at the time offset `r`, its simulations added to `evaluations`.
+    fn fit_at(
+        &self,
+        cur: &FittedModel,
+        c: Candidate,
+        kinds: &[ParamKind],
+        r: i64,
+        evaluations: &mut usize,
+    ) -> Result<FittedModel, MotionDiagnoseError> {
+        let (d, split) = fit::retimed(self.ds, self.split, r)?;
+        let mut m = self.fit_on(&d, split, cur, c, kinds)?;
+        *evaluations += m.evaluations;
+        let data = m
+            .offsets
+            .as_deref()
+            .map_or_else(|| self.ds.clone(), |o| with_offsets(self.ds, o));
+        m.traj = fit::run_trajectory_at(&data.model, &m.material, &data.obs, r)?;
+        m.scores = fit::scores(&m.traj, self.split);
+        m.time_offset = Some(r);
+        m.evaluations = *evaluations;
+        (self.log)(&format!(
+            "  {} fitted at a time offset of {:+.1} ms",
+            c.name(),
+            1e3 * r as f64 * self.ds.model.dt
+        ));
+        Ok(m)
     }
 }
 
