@@ -710,10 +710,9 @@ impl CandidateModel for MotionModel<'_> {
         if c == Candidate::TwoMaterial {
             return self.fit_two_material(cur);
         }
-        let mut kinds = cur.kinds.clone();
-        kinds.extend_from_slice(c.kinds());
         // With a time offset (this candidate, or adopted before) every fit runs on the data
-        // re-timed to the simulation's clock and is read back on the data's own rows.
+        // re-timed to the simulation's clock and is read back on the data's own rows
+        // (`fit_from` for an adopted one).
         let r = if c == Candidate::TimeOffset {
             let r = match self.scan_offset(&cur.material, cur.offsets.as_deref()) {
                 Ok(r) => r,
@@ -724,11 +723,9 @@ impl CandidateModel for MotionModel<'_> {
                     "the scan puts the markers in step with the simulation (offset 0)".into(),
                 ));
             }
-            self.fit_timed(cur, c, &kinds, r)
-        } else if let Some(r) = cur.time_offset {
-            self.fit_timed(cur, c, &kinds, r)
+            self.fit_timed(cur, c, &cur.kinds, r)
         } else {
-            self.fit_on(self.ds, self.split, cur, c, &kinds)
+            self.fit_from(cur, c)
         };
         // A failed fit is a finding about this candidate, not the end of the diagnosis.
         Ok(match r {

@@ -19,7 +19,7 @@ use palpate_motion::MotionError;
 /// Smoothing passes over node-sharing neighbours.
 const SMOOTHING_PASSES: usize = 2;
 
-/// The located region and the map it came from.
+/// The located region.
 #[derive(Debug, Clone)]
 pub struct Region {
     /// Elements of the region.
@@ -27,8 +27,6 @@ pub struct Region {
     /// True when a stiffer material there lowers the misfit (the map is negative there: the
     /// fitted μ was too soft).
     pub stiffer: bool,
-    /// The smoothed map ∂Φ/∂ln μ_e / V_e per element (the split's input).
-    pub map: Vec<f64>,
 }
 
 /// One line for a report: how large a region is, where, and which way its material differs
@@ -77,7 +75,7 @@ pub fn locate(
         .map(|e| grad[e] * cur.material.get(ParamKind::Mu, e) / model.rest[e].volume)
         .collect();
     let map = smooth(model, &raw, SMOOTHING_PASSES);
-    Ok(split_by_sign(model, map))
+    Ok(split_by_sign(model, &map))
 }
 
 /// Volume-weighted means over each element and the elements sharing a node with it, `passes`
@@ -87,15 +85,22 @@ fn smooth(model: &Model, values: &[f64], passes: usize) -> Vec<f64> {
     for (e, t) in model.tets.iter().enumerate() {
         t.iter().for_each(|&n| around[n].push(e));
     }
+    // Each element's neighbourhood (itself and every element sharing a node), once.
+    let neighbourhoods: Vec<Vec<usize>> = model
+        .tets
+        .iter()
+        .map(|t| {
+            let mut seen: Vec<usize> = t.iter().flat_map(|&n| around[n].iter().copied()).collect();
+            seen.sort_unstable();
+            seen.dedup();
+            seen
+        })
+        .collect();
     let mut v = values.to_vec();
     for _ in 0..passes {
-        v = model
-            .tets
+        v = neighbourhoods
             .iter()
-            .map(|t| {
-                let mut seen: Vec<usize> = t.iter().flat_map(|&n| around[n].clone()).collect();
-                seen.sort_unstable();
-                seen.dedup();
+            .map(|seen| {
                 let (s, w) = seen.iter().fold((0.0, 0.0), |(s, w), &f| {
                     let vol = model.rest[f].volume;
                     (s + vol * v[f], w + vol)
@@ -108,7 +113,7 @@ fn smooth(model: &Model, values: &[f64], passes: usize) -> Vec<f64> {
 }
 
 /// The smaller part by volume of the sign split of `map`, or `None` if one part is empty.
-fn split_by_sign(model: &Model, map: Vec<f64>) -> Option<Region> {
+fn split_by_sign(model: &Model, map: &[f64]) -> Option<Region> {
     let negative: Vec<usize> = (0..map.len()).filter(|&e| map[e] < 0.0).collect();
     let positive: Vec<usize> = (0..map.len()).filter(|&e| map[e] >= 0.0).collect();
     if negative.is_empty() || positive.is_empty() {
@@ -120,11 +125,7 @@ fn split_by_sign(model: &Model, map: Vec<f64>) -> Option<Region> {
     } else {
         (positive, false)
     };
-    Some(Region {
-        elements,
-        stiffer,
-        map,
-    })
+    Some(Region { elements, stiffer })
 }
 
 /// Calls `f` with the model and observations of `cur`'s fitted steps, its marker offsets and
