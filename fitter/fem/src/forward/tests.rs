@@ -437,3 +437,77 @@ fn runtime_agrees_with_the_f64_solve_at_large_loads() {
         }
     }
 }
+
+/// K_e w through the strain (`stiffness_times`) against the formed 12 × 12 product λ_e C_e w +
+/// α_e D_e w, on every element of a block with per-element coefficients and arbitrary nodal
+/// vectors: the same matrix, so agreement to round-off.
+#[test]
+fn stiffness_times_matches_the_formed_element_matrix() {
+    let (mesh, fixed, surface) = block();
+    let p = StaticProblem::new(&mesh, &fixed, &surface).unwrap();
+    let ne = mesh.tets.len();
+    let mat = Material {
+        lambda: (0..ne)
+            .map(|e| 1.0e4 * (1.0 + (0.37 * e as f64) % 3.0))
+            .collect(),
+        alpha: (0..ne)
+            .map(|e| -2.0e3 * (1.0 + (0.11 * e as f64) % 2.0))
+            .collect(),
+    };
+    for e in 0..ne {
+        let w: [nalgebra::Vector3<f64>; 4] = std::array::from_fn(|k| {
+            let s = (e * 4 + k) as f64;
+            nalgebra::Vector3::new((0.7 * s).sin(), (1.3 * s).cos(), (0.3 * s + 1.0).sin()) * 1e-3
+        });
+        let got = p.stiffness_times(e, &mat, &w);
+        let wv = nalgebra::SVector::<f64, 12>::from_fn(|i, _| w[i / 3][i % 3]);
+        let want = p.element_stiffness(e, &mat) * wv;
+        let scale = want.amax();
+        for i in 0..12 {
+            assert!(
+                (got[i / 3][i % 3] - want[i]).abs() <= 1e-12 * scale,
+                "element {e}, entry {i}: {} vs {}",
+                got[i / 3][i % 3],
+                want[i]
+            );
+        }
+    }
+}
+
+/// The one-pass rotations and forces (the line search's) against the two passes they replace,
+/// at a deformed state with rotations of a few degrees: the same to round-off.
+#[test]
+fn rotations_and_forces_match_the_separate_passes() {
+    let (mesh, fixed, surface) = block();
+    let p = StaticProblem::new(&mesh, &fixed, &surface).unwrap();
+    let mat = Material::from_young_poisson(20_000.0, 0.3);
+    let x: Vec<[f64; 3]> = mesh
+        .nodes
+        .iter()
+        .map(|q| {
+            // A bend about y (≈ 3° at the top) and a little stretch.
+            let a = 0.6 * q[2];
+            [
+                q[0] * a.cos() + q[2] * a.sin() + 1e-3 * q[1],
+                1.002 * q[1],
+                -q[0] * a.sin() + q[2] * a.cos(),
+            ]
+        })
+        .collect();
+    for warp in [true, false] {
+        let rot = p.rotations(&x, warp);
+        let f = p.internal_forces(&mat, &rot, &x);
+        let (rot1, f1) = p.rotations_and_forces(&mat, &x, warp);
+        let scale = f.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        assert!(scale > 1.0, "the state should load the block, got {scale}");
+        for (a, b) in rot.iter().zip(&rot1) {
+            assert!((a - b).amax() <= 1e-15, "warp {warp}: {a} vs {b}");
+        }
+        for (i, (a, b)) in f.iter().zip(&f1).enumerate() {
+            assert!(
+                (a - b).abs() <= 1e-10 * scale,
+                "warp {warp}, dof {i}: {a} vs {b}"
+            );
+        }
+    }
+}
