@@ -114,6 +114,16 @@ impl Factorised {
     }
 }
 
+/// Adds the element forces `pe`, rotated by R_e, into the full force vector at the nodes `t`.
+fn add_rotated(f: &mut [f64], t: &[usize; 4], r: &Matrix3<f64>, pe: &[Vector3<f64>; 4]) {
+    for (k, &n) in t.iter().enumerate() {
+        let q = r * pe[k];
+        for dd in 0..3 {
+            f[3 * n + dd] += q[dd];
+        }
+    }
+}
+
 /// 12 × 12 block-diagonal rotation of one element applied as R M Rᵀ.
 pub fn rotate_sandwich(m: &ElementMatrix<f64>, r: &Matrix3<f64>) -> ElementMatrix<f64> {
     let mut out = ElementMatrix::<f64>::zeros();
@@ -227,13 +237,7 @@ impl StaticProblem {
             let r = &rotations[e];
             // R_eᵀ x_e − x₀e, node by node (eq. 3.49's argument).
             let u = t.map(|n| r.tr_mul(&Vector3::from(x[n])) - Vector3::from(self.x0[n]));
-            let fe = self.stiffness_times(e, material, &u);
-            for (k, &n) in t.iter().enumerate() {
-                let g = r * fe[k];
-                for dd in 0..3 {
-                    f[3 * n + dd] += g[dd];
-                }
-            }
+            add_rotated(&mut f, t, r, &self.stiffness_times(e, material, &u));
         }
         f
     }
@@ -261,12 +265,7 @@ impl StaticProblem {
             };
             let s = warped_strain(&r, &fe);
             let pe = self.strain_forces(e, material, &[s[0], s[1], s[2], s[3], s[4], s[5]]);
-            for (k, &n) in t.iter().enumerate() {
-                let q = r * pe[k];
-                for dd in 0..3 {
-                    f[3 * n + dd] += q[dd];
-                }
-            }
+            add_rotated(&mut f, t, &r, &pe);
             rotations.push(r);
         }
         (rotations, f)
@@ -280,12 +279,9 @@ impl StaticProblem {
         material: &Material,
         w: &[Vector3<f64>; 4],
     ) -> [Vector3<f64>; 4] {
-        let g = &self.geometry[e];
-        // ∇w = Σ_k w_k ∇φ_kᵀ; ε in B's Voigt order with engineering shears.
-        let mut h = Matrix3::zeros();
-        for k in 0..4 {
-            h += w[k] * g.grad[k].transpose();
-        }
+        // ∇w = Σ_k w_k ∇φ_kᵀ (the deformation gradient's sum, applied to w); ε in B's Voigt order
+        // with engineering shears.
+        let h = deformation_gradient(&self.geometry[e], w);
         let eps = [
             h[(0, 0)],
             h[(1, 1)],
