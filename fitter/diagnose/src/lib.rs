@@ -26,7 +26,11 @@
 //! smooth model-form error ([`noise`]: a local nugget estimator with a bootstrap interval over
 //! measurements). Marker noise significantly above the declared σ is reported as the effect
 //! `noise` ([`model::Candidate::Noise`]): no parameter of the model changes, the finding is that
-//! the declared noise level is wrong, and the noise floor is recomputed with σ̂.
+//! the declared noise level is wrong, and the noise floor is recomputed with σ̂. Otherwise the
+//! declared rest positions are tested for noise of their own ([`rest_noise`]: the same nugget on
+//! each marker's mean residual over its measurements); a significant τ̂ is reported as
+//! `rest-noise` ([`model::Candidate::RestNoise`]) and the final residual is judged under the
+//! covariance both noises give ([`ResidualCheck::with_rest_noise`]).
 
 /// The version the reports and exported models name as their tool.
 pub const VERSION: &str = env!("CARGO_PKG_VERSION");
@@ -42,6 +46,7 @@ pub mod motion;
 pub mod noise;
 pub mod power;
 pub mod report;
+pub mod rest_noise;
 pub mod run;
 pub mod runs;
 pub mod select;
@@ -60,6 +65,7 @@ use fit::{fit, initial_theta, Fitted};
 use model::{poisson_of, Candidate, Context, Model, ALL_CANDIDATES};
 use noise::{estimate_noise, NoiseFinding, NoiseOptions};
 use palpate_fem::dataset::StaticDataset;
+use rest_noise::{estimate_rest_noise, RestNoiseFinding, RestNoiseOptions};
 use select::{Current, Gate, Outcome, Policy, Rank, Score, Screen, Verdict};
 use signature::{evidence_points, signature, Signature};
 
@@ -107,6 +113,8 @@ pub struct DiagnoseOptions {
     pub cv_candidates: usize,
     /// The marker-noise test run after the structural loop.
     pub noise: NoiseOptions,
+    /// The rest-scan noise test run after the marker-noise test.
+    pub rest_noise: RestNoiseOptions,
     /// Which mesh the models are solved on.
     pub mesh: MeshChoice,
     /// [`MeshChoice::Auto`] corrects when the dataset mesh's discretisation error (RMS at the
@@ -195,6 +203,7 @@ impl Default for DiagnoseOptions {
             min_holdout_gain: 0.10,
             cv_candidates: 2,
             noise: NoiseOptions::default(),
+            rest_noise: RestNoiseOptions::default(),
             mesh: MeshChoice::Auto,
             refine_above: 0.0,
             refine_max_tets: 50_000,
@@ -244,6 +253,9 @@ pub struct ResidualCheck {
     pub discretisation_m: f64,
     /// Final fitted RMS over the noise floor alone (= `ratio` when `discretisation_m` is 0).
     pub ratio_noise: f64,
+    /// The rest scan's noise τ̂ per axis (m) the residual was judged with
+    /// ([`ResidualCheck::with_rest_noise`]); 0 without.
+    pub rest_noise_m: f64,
 }
 
 impl ResidualCheck {
@@ -263,6 +275,7 @@ impl ResidualCheck {
             explained: !judged || z <= Self::Z_LIMIT,
             discretisation_m: 0.0,
             ratio_noise: ratio,
+            rest_noise_m: 0.0,
         }
     }
 
@@ -289,6 +302,65 @@ impl ResidualCheck {
         }
     }
 
+    /// The check of `residuals` (per measurement: (marker, residual vector) in m) when every
+    /// declared rest position carries white noise of `tau` per axis ([`rest_noise`]): marker k's
+    /// residuals over its m_k measurements then have the covariance s² I + τ² 11ᵀ per axis, with
+    /// s² = σ² + remaining²/3 (the mesh's remaining error as in
+    /// [`ResidualCheck::with_discretisation`]), and the whitened
+    /// χ² = Σ_k Σ_axes [Σ_i (r_ik − r̄_k)² / s² + m_k r̄_k² / (s² + m_k τ²)] has the mean n − k of
+    /// the test [`ResidualCheck::new`] makes; `ratio` is √(χ²/n), the RMS over the floor that
+    /// holds both noises.
+    pub fn with_rest_noise(
+        residuals: &[Vec<(usize, [f64; 3])>],
+        sigma: f64,
+        remaining: f64,
+        tau: f64,
+        k: usize,
+        judged: bool,
+    ) -> Self {
+        let markers = residuals
+            .iter()
+            .flat_map(|r| r.iter().map(|&(m, _)| m + 1))
+            .max()
+            .unwrap_or(0);
+        let mut seen = vec![0usize; markers];
+        let mut sum = vec![[0.0f64; 3]; markers];
+        let (mut total, mut n) = (0.0, 0usize);
+        for r in residuals {
+            for &(m, e) in r {
+                seen[m] += 1;
+                for d in 0..3 {
+                    sum[m][d] += e[d];
+                    total += e[d] * e[d];
+                }
+                n += 3;
+            }
+        }
+        let s2 = sigma * sigma + remaining * remaining / 3.0;
+        // Σ_i (r_i − r̄)² = Σ_i r_i² − m r̄², so χ² = (total − Σ m r̄²) / s² + Σ m r̄² / (s² + m τ²).
+        let persistent: Vec<(f64, f64)> = (0..markers)
+            .filter(|&m| seen[m] > 0)
+            .map(|m| {
+                let c = seen[m] as f64;
+                (c, sum[m].iter().map(|v| v * v).sum::<f64>() / c)
+            })
+            .collect();
+        let between: f64 = persistent.iter().map(|&(_, p)| p).sum();
+        let chi2 = (total - between) / s2
+            + persistent
+                .iter()
+                .map(|&(c, p)| p / (s2 + c * tau * tau))
+                .sum::<f64>();
+        let ratio = (chi2 / n.max(1) as f64).sqrt();
+        let rms = (total / (n.max(1) / 3) as f64).sqrt();
+        ResidualCheck {
+            discretisation_m: remaining,
+            ratio_noise: rms / (sigma * 3f64.sqrt()),
+            rest_noise_m: tau,
+            ..Self::new(ratio, 1.0, n, k, judged)
+        }
+    }
+
     /// The verdict's words for a diagnosis that adopted `adopted`.
     pub fn verdict(&self, adopted: &str) -> String {
         // With `noise` adopted the floor is σ̂√3, the one the nugget estimate re-measured; with
@@ -298,10 +370,23 @@ impl ResidualCheck {
         } else {
             "the noise floor"
         };
+        let rest = if self.rest_noise_m > 0.0 {
+            format!(
+                " with the rest scan's noise ({:.1} µm per axis in every marker's rest position)",
+                1e6 * self.rest_noise_m
+            )
+        } else {
+            String::new()
+        };
         let floor = if self.discretisation_m > 0.0 {
             format!(
-                "{noise_name} widened by the mesh's remaining discretisation error ({:.1} µm RMS: the residual is {:.2}× the noise floor alone, and effects smaller than that error cannot be told from the mesh's)",
+                "{noise_name}{rest} widened by the mesh's remaining discretisation error ({:.1} µm RMS: the residual is {:.2}× the noise floor alone, and effects smaller than that error cannot be told from the mesh's)",
                 1e6 * self.discretisation_m,
+                self.ratio_noise
+            )
+        } else if self.rest_noise_m > 0.0 {
+            format!(
+                "{noise_name}{rest} (the residual is {:.2}× the noise floor alone)",
                 self.ratio_noise
             )
         } else {
@@ -406,6 +491,9 @@ pub struct DiagnosisReport {
     /// The marker-noise finding on the final model's residual (`None` if no marker has enough
     /// neighbours to estimate it).
     pub noise: Option<NoiseFinding>,
+    /// The rest-scan finding on the final model's residual (`None` when `noise` was adopted, σ
+    /// is not declared, or too few markers were seen twice).
+    pub rest_noise: Option<RestNoiseFinding>,
     /// Evidence plot of the noise finding: (distance from the contact m, normalised nugget error
     /// m) per marker neighbourhood.
     pub noise_evidence: Vec<(f64, f64)>,
@@ -1295,7 +1383,8 @@ pub fn run_diagnosis_with(
     let after = errors(&ctx, &current, &current_held);
     solved_on.correction_rms = ctx.correction.as_deref().map(approx_error::delta_rms);
     progress("estimating the marker noise level (local nugget)");
-    let fields: Vec<noise::Field> = signature::residual_vectors(&ctx, &current)
+    let residuals = signature::residual_vectors(&ctx, &current);
+    let fields: Vec<noise::Field> = residuals
         .iter()
         .map(|r| r.iter().map(|&(k, e)| (ctx.marker_rest[k], e)).collect())
         .collect();
@@ -1323,17 +1412,48 @@ pub fn run_diagnosis_with(
         Some(n) => (n.estimate, true),
         None => (ctx.sigma, ctx.sigma_declared),
     };
-    let residual_check = ResidualCheck::with_discretisation(
-        after.fitted_rms,
-        check_sigma * 3f64.sqrt(),
-        ctx.correction
-            .as_deref()
-            .map_or(0.0, approx_error::delta_rms)
-            / 3.0,
-        ctx.residual_len(&current.subset),
-        current.theta.len(),
-        judged,
-    );
+    // The rest scan is a measurement too: tested on the final residual when the measurements'
+    // own noise is declared and not re-estimated (a re-estimated σ̂ already holds its white part).
+    let rest_noise = match noise.as_ref() {
+        Some(n) if n.fired => None,
+        _ if !ctx.sigma_declared => None,
+        _ => {
+            progress("testing the rest scan for noise of its own (persistent per-marker nugget)");
+            estimate_rest_noise(
+                &ctx.marker_rest,
+                &residuals,
+                ctx.sigma,
+                &o.noise,
+                &o.rest_noise,
+            )
+        }
+    };
+    let remaining = ctx
+        .correction
+        .as_deref()
+        .map_or(0.0, approx_error::delta_rms)
+        / 3.0;
+    let residual_check = match rest_noise.as_ref().filter(|r| r.fired) {
+        Some(r) => {
+            adopted.push(Candidate::RestNoise);
+            ResidualCheck::with_rest_noise(
+                &residuals,
+                check_sigma,
+                remaining,
+                r.estimate,
+                current.theta.len(),
+                judged,
+            )
+        }
+        None => ResidualCheck::with_discretisation(
+            after.fitted_rms,
+            check_sigma * 3f64.sqrt(),
+            remaining,
+            ctx.residual_len(&current.subset),
+            current.theta.len(),
+            judged,
+        ),
+    };
     // "Clean" says little without what the data could have seen: the power statement.
     let detectable = if residual_check.judged && residual_check.explained {
         progress("stating the smallest effects this dataset could have detected");
@@ -1357,12 +1477,14 @@ pub fn run_diagnosis_with(
     Ok(DiagnosisReport {
         dataset: ds.name.clone(),
         criterion: format!(
-            "rank by BIC = n ln(χ²/n) + k ln n; shortlist the best {} with ΔBIC < −{}; a shortlisted candidate passes if on leave-one-measurement-out predictions n ln(χ²_new/χ²_old) + k ln n < 0 AND the held-out error in excess of the noise floor drops by ≥ {:.0} % (when nothing is above the floor before: held-out ΔBIC < −{} instead); adopt the first that passes (fitted-BIC order) and report any later one that also passes with a lower held-out ΔBIC as ambiguous; repeat; then `noise` if the one-sided 95 % lower bound of the nugget estimate σ̂ of the final residual exceeds {:.2} × the declared σ",
+            "rank by BIC = n ln(χ²/n) + k ln n; shortlist the best {} with ΔBIC < −{}; a shortlisted candidate passes if on leave-one-measurement-out predictions n ln(χ²_new/χ²_old) + k ln n < 0 AND the held-out error in excess of the noise floor drops by ≥ {:.0} % (when nothing is above the floor before: held-out ΔBIC < −{} instead); adopt the first that passes (fitted-BIC order) and report any later one that also passes with a lower held-out ΔBIC as ambiguous; repeat; then `noise` if the one-sided 95 % lower bound of the nugget estimate σ̂ of the final residual exceeds {:.2} × the declared σ; else `rest-noise` if the per-marker persistent residual's nugget sits ≥ {:.1} null standard deviations above what the measurements' noise leaves and τ̂ ≥ {:.2} σ",
             o.cv_candidates,
             o.bic_threshold,
             100.0 * o.min_holdout_gain,
             o.bic_threshold,
-            1.0 + o.noise.margin
+            1.0 + o.noise.margin,
+            o.rest_noise.z_limit,
+            o.rest_noise.margin
         ),
         sigma: ctx.sigma,
         sigma_declared: ctx.sigma_declared,
@@ -1370,6 +1492,7 @@ pub fn run_diagnosis_with(
         options: o.clone(),
         adopted,
         noise,
+        rest_noise,
         noise_evidence,
         steps,
         before: first,

@@ -75,6 +75,11 @@ pub enum Candidate {
     /// never part of a [`Model`]): it changes no prediction, only how large the residual floor
     /// is. Adopted after the structural loop by the nugget test of [`super::noise`]. 0 params.
     Noise,
+    /// Noise in the declared rest positions (the rest scan is a measurement too). Like `noise`
+    /// not a model candidate: it changes no prediction, only the covariance the final residual is
+    /// judged with. Adopted after the structural loop by the persistent-nugget test of
+    /// [`super::rest_noise`]. 0 params.
+    RestNoise,
 }
 
 /// Every candidate, in the order they are tried.
@@ -122,6 +127,7 @@ impl Candidate {
             Candidate::Inclusion => "inclusion",
             Candidate::Stiffening => "stiffening",
             Candidate::Noise => "noise",
+            Candidate::RestNoise => "rest-noise",
         }
     }
 
@@ -135,6 +141,7 @@ impl Candidate {
             Candidate::Layer => LAYER_NODES - 1,
             Candidate::Inclusion => 5,
             Candidate::Noise
+            | Candidate::RestNoise
             | Candidate::RegistrationEach
             | Candidate::TiltEach
             | Candidate::ForceScaleEach => 0,
@@ -213,6 +220,7 @@ impl Candidate {
                 v("log radius θ_r (r = h/2 e^θ_r)", "", 1.0),
             ],
             Candidate::Noise
+            | Candidate::RestNoise
             | Candidate::RegistrationEach
             | Candidate::TiltEach
             | Candidate::ForceScaleEach => Vec::new(),

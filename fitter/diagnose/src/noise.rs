@@ -26,7 +26,7 @@ use palpate_specimen::rng;
 
 /// Median of a χ² variable with 3 degrees of freedom, divided by 3 (the median of |d|²/(3σ²)
 /// for Gaussian d).
-const CHI2_3_MEDIAN_OVER_3: f64 = 2.365_973_884_375_91 / 3.0;
+pub(crate) const CHI2_3_MEDIAN_OVER_3: f64 = 2.365_973_884_375_91 / 3.0;
 
 /// Options of [`estimate_noise`].
 #[derive(Debug, Clone, Serialize)]
@@ -90,67 +90,109 @@ type Term = (f64, f64, [f64; 3]);
 /// One measurement's residual field: (marker rest position, residual vector) in metres.
 pub type Field = Vec<([f64; 3], [f64; 3])>;
 
-fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
+pub(crate) fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
     (0..3).map(|d| (a[d] - b[d]).powi(2)).sum()
+}
+
+/// The weights c_j of the affine extrapolation to marker `k` from its nearest neighbours among
+/// `points` (an affine field a + B q fitted by least squares to the neighbours, read off at
+/// q = 0: â = Σ_j c_j r_j), or `None` when too few neighbours lie within `max_lag` spacings.
+/// Σ_j c_j² is the variance factor v_k = [(XᵀX)⁻¹]₀₀ of the extrapolation.
+pub(crate) fn extrapolation_weights(
+    points: &[[f64; 3]],
+    k: usize,
+    spacing: f64,
+    o: &NoiseOptions,
+) -> Option<Vec<(usize, f64)>> {
+    let pk = points[k];
+    let lag2 = (o.max_lag * spacing).powi(2);
+    let mut near: Vec<(f64, usize)> = points
+        .iter()
+        .enumerate()
+        .filter(|&(j, _)| j != k)
+        .map(|(j, &p)| (dist2(p, pk), j))
+        .filter(|&(d, _)| d <= lag2)
+        .collect();
+    near.sort_by(|a, b| a.0.total_cmp(&b.0));
+    near.truncate(o.neighbours);
+    if near.len() < 4 {
+        return None;
+    }
+    let offset = |j: usize| nalgebra::Vector3::from_iterator((0..3).map(|d| points[j][d] - pk[d]));
+    // Principal axes of the neighbour offsets: a face gives two, an edge or corner three.
+    let mut scatter = Matrix3::zeros();
+    for &(_, j) in &near {
+        let q = offset(j);
+        scatter += q * q.transpose();
+    }
+    let eig = SymmetricEigen::new(scatter);
+    let top = eig.eigenvalues.iter().copied().fold(0.0, f64::max);
+    let axes: Vec<nalgebra::Vector3<f64>> = (0..3)
+        .filter(|&a| eig.eigenvalues[a] > 1e-2 * top)
+        .map(|a| eig.eigenvectors.column(a).into_owned())
+        .collect();
+    let cols = 1 + axes.len();
+    if near.len() < cols + 2 {
+        return None;
+    }
+    let mut x = DMatrix::zeros(near.len(), cols);
+    for (row, &(_, j)) in near.iter().enumerate() {
+        let q = offset(j);
+        x[(row, 0)] = 1.0;
+        for (a, ax) in axes.iter().enumerate() {
+            x[(row, 1 + a)] = ax.dot(&q) / spacing;
+        }
+    }
+    let inv = (x.transpose() * &x).try_inverse()?;
+    let c = (inv * x.transpose()).row(0).into_owned();
+    let weights: Vec<(usize, f64)> = near
+        .iter()
+        .zip(c.iter())
+        .map(|(&(_, j), &w)| (j, w))
+        .collect();
+    let v: f64 = weights.iter().map(|(_, w)| w * w).sum();
+    (v.is_finite() && v >= 0.0).then_some(weights)
 }
 
 /// The nugget terms of one measurement: (|d_k|², 3 (1 + v_k), p_k) per usable marker.
 fn nugget_terms(field: &Field, spacing: f64, o: &NoiseOptions) -> Vec<Term> {
-    let mut out = Vec::new();
-    let lag2 = (o.max_lag * spacing).powi(2);
-    for (k, &(pk, rk)) in field.iter().enumerate() {
-        let mut near: Vec<(f64, usize)> = field
-            .iter()
-            .enumerate()
-            .filter(|&(j, _)| j != k)
-            .map(|(j, &(p, _))| (dist2(p, pk), j))
-            .filter(|&(d, _)| d <= lag2)
-            .collect();
-        near.sort_by(|a, b| a.0.total_cmp(&b.0));
-        near.truncate(o.neighbours);
-        if near.len() < 4 {
-            continue;
-        }
-        // Principal axes of the neighbour offsets: a face gives two, an edge or corner three.
-        let mut scatter = Matrix3::zeros();
-        for &(_, j) in &near {
-            let q = nalgebra::Vector3::from_iterator((0..3).map(|d| field[j].0[d] - pk[d]));
-            scatter += q * q.transpose();
-        }
-        let eig = SymmetricEigen::new(scatter);
-        let top = eig.eigenvalues.iter().copied().fold(0.0, f64::max);
-        let axes: Vec<nalgebra::Vector3<f64>> = (0..3)
-            .filter(|&a| eig.eigenvalues[a] > 1e-2 * top)
-            .map(|a| eig.eigenvectors.column(a).into_owned())
-            .collect();
-        let cols = 1 + axes.len();
-        if near.len() < cols + 2 {
-            continue;
-        }
-        let mut x = DMatrix::zeros(near.len(), cols);
-        let mut y = DMatrix::zeros(near.len(), 3);
-        for (row, &(_, j)) in near.iter().enumerate() {
-            let q = nalgebra::Vector3::from_iterator((0..3).map(|d| field[j].0[d] - pk[d]));
-            x[(row, 0)] = 1.0;
-            for (a, ax) in axes.iter().enumerate() {
-                x[(row, 1 + a)] = ax.dot(&q) / spacing;
-            }
-            for d in 0..3 {
-                y[(row, d)] = field[j].1[d];
+    let points: Vec<[f64; 3]> = field.iter().map(|&(p, _)| p).collect();
+    (0..field.len())
+        .filter_map(|k| {
+            let c = extrapolation_weights(&points, k, spacing, o)?;
+            let v: f64 = c.iter().map(|(_, w)| w * w).sum();
+            let d2: f64 = (0..3)
+                .map(|d| {
+                    (field[k].1[d] - c.iter().map(|&(j, w)| w * field[j].1[d]).sum::<f64>()).powi(2)
+                })
+                .sum();
+            Some((d2, 3.0 * (1.0 + v), points[k]))
+        })
+        .collect()
+}
+
+/// The median nearest-neighbour distance between the markers of each of `point_sets`, over all
+/// of them: the marker spacing the neighbourhoods are scaled by. `None` without a pair.
+pub(crate) fn marker_spacing<'a>(point_sets: impl Iterator<Item = &'a [[f64; 3]]>) -> Option<f64> {
+    let mut nn: Vec<f64> = Vec::new();
+    for f in point_sets {
+        for (k, &p) in f.iter().enumerate() {
+            let d = f
+                .iter()
+                .enumerate()
+                .filter(|&(j, _)| j != k)
+                .map(|(_, &q)| dist2(p, q))
+                .fold(f64::INFINITY, f64::min);
+            if d.is_finite() && d > 0.0 {
+                nn.push(d.sqrt());
             }
         }
-        let Some(inv) = (x.transpose() * &x).try_inverse() else {
-            continue;
-        };
-        let coef = &inv * x.transpose() * y;
-        let v = inv[(0, 0)];
-        if !(v.is_finite() && v >= 0.0) {
-            continue;
-        }
-        let d2: f64 = (0..3).map(|d| (rk[d] - coef[(0, d)]).powi(2)).sum();
-        out.push((d2, 3.0 * (1.0 + v), pk));
     }
-    out
+    if nn.is_empty() {
+        return None;
+    }
+    nn.sort_by(f64::total_cmp);
+    Some(nn[nn.len() / 2])
 }
 
 /// Robust σ̂² from nugget terms: median of |d|²/(3(1 + v)) over its Gaussian expectation.
@@ -169,7 +211,7 @@ fn sigma2_of(terms: &[&Term]) -> f64 {
     med / CHI2_3_MEDIAN_OVER_3
 }
 
-fn percentile(sorted: &[f64], p: f64) -> f64 {
+pub(crate) fn percentile(sorted: &[f64], p: f64) -> f64 {
     let t = p * (sorted.len() - 1) as f64;
     let i = t.floor() as usize;
     let j = (i + 1).min(sorted.len() - 1);
@@ -184,25 +226,11 @@ pub fn estimate_noise(
     o: &NoiseOptions,
 ) -> Option<NoiseFinding> {
     // Marker spacing: the median nearest-neighbour distance over all measurements.
-    let mut nn: Vec<f64> = Vec::new();
-    for f in fields {
-        for (k, &(p, _)) in f.iter().enumerate() {
-            let d = f
-                .iter()
-                .enumerate()
-                .filter(|&(j, _)| j != k)
-                .map(|(_, &(q, _))| dist2(p, q))
-                .fold(f64::INFINITY, f64::min);
-            if d.is_finite() && d > 0.0 {
-                nn.push(d.sqrt());
-            }
-        }
-    }
-    if nn.is_empty() {
-        return None;
-    }
-    nn.sort_by(f64::total_cmp);
-    let spacing = nn[nn.len() / 2];
+    let points: Vec<Vec<[f64; 3]>> = fields
+        .iter()
+        .map(|f| f.iter().map(|&(p, _)| p).collect())
+        .collect();
+    let spacing = marker_spacing(points.iter().map(|p| p.as_slice()))?;
     let per: Vec<(usize, Vec<Term>)> = fields
         .iter()
         .enumerate()

@@ -107,6 +107,20 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
             let _ = writeln!(s, "\n![marker noise]({})", palpate_plot::shown("noise.svg"));
         }
     }
+    if let Some(n) = &r.rest_noise {
+        let _ = writeln!(s, "\n## Rest scan\n");
+        let _ = writeln!(
+            s,
+            "{}{}. Estimator: the same local nugget on each marker's mean residual over its measurements ({} markers, seen in {:.1} measurements on average), whose white part is the rest positions' error plus σ²/m of the measurements'; null distribution and interval by simulation through the same neighbourhoods.",
+            if n.fired { "**Adopted `rest-noise`**: " } else { "" },
+            n.statement,
+            n.markers,
+            n.mean_seen
+        );
+        if !n.points.is_empty() {
+            let _ = writeln!(s, "\n![rest scan]({})", palpate_plot::shown("rest.svg"));
+        }
+    }
     let _ = writeln!(s, "\n## Final parameters (±1σ, Gauss–Newton covariance)\n");
     let _ = writeln!(s, "| parameter | value | ±1σ | unit |\n|---|---|---|---|");
     for p in &r.final_params {
@@ -258,6 +272,16 @@ pub fn json_text(r: &DiagnosisReport) -> Result<String, serde_json::Error> {
             ("noise_floor", "noise_floor_m"),
             ("noise_evidence", "noise_evidence_m_m"),
             ("seconds", "run_time_s"),
+        ],
+    );
+    json::rename(
+        &mut v,
+        "rest_noise",
+        &[
+            ("estimate", "estimate_m"),
+            ("interval", "interval_m"),
+            ("sigma_null", "sigma_null_m"),
+            ("sigma_within", "sigma_within_m"),
         ],
     );
     json::rename(
@@ -418,6 +442,44 @@ pub fn write_report(r: &DiagnosisReport, dir: &Path) -> Result<Vec<PathBuf>, Dia
                 .map_err(|e| DiagnoseError::Write(e.to_string()))?,
             );
         }
+    }
+    if let Some(n) = r.rest_noise.as_ref().filter(|n| !n.points.is_empty()) {
+        // What each marker's mean residual would be (RMS) with the measurements' noise alone,
+        // σ√(3/m), and with the rest scan's too, √(3(σ²/m + τ̂²)).
+        let pts: Vec<(f64, f64)> = n.points.iter().map(|&(m, e)| (m, 1e6 * e)).collect();
+        let top = pts.iter().map(|p| p.0).fold(1.0, f64::max);
+        let curve = |tau: f64| -> Vec<(f64, f64)> {
+            (0..=40)
+                .map(|i| {
+                    let m = 1.0 + (top - 1.0) * i as f64 / 40.0;
+                    let s2 = n.sigma_null * n.sigma_null;
+                    (m, 1e6 * (3.0 * (s2 / m + tau * tau)).sqrt())
+                })
+                .collect()
+        };
+        let (alone, both) = (curve(0.0), curve(n.estimate));
+        written.extend(
+            lines(
+                dir.join("rest.svg"),
+                "rest scan: each marker's mean residual over its measurements",
+                "measurements the marker was seen in",
+                "|mean residual| (µm)",
+                &[
+                    Series::new("marker", &pts, Style::Points),
+                    Series::new(
+                        "RMS expected: measurements' noise alone",
+                        &alone,
+                        Style::Line,
+                    ),
+                    Series::new(
+                        "RMS expected: with the rest scan's estimated τ",
+                        &both,
+                        Style::Line,
+                    ),
+                ],
+            )
+            .map_err(|e| DiagnoseError::Write(e.to_string()))?,
+        );
     }
     let md = markdown(r, &plots);
     let json = json_text(r).map_err(|e| DiagnoseError::Write(e.to_string()))?;

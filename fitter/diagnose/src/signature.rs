@@ -286,8 +286,13 @@ pub fn evidence_points(
             )
         }
         // Noise: the marker error against distance from the contact shows it spread evenly
-        // (the noise report plots the nugget itself, see `super::noise`).
-        Candidate::Inhomogeneity | Candidate::Layer | Candidate::Inclusion | Candidate::Noise => {
+        // (the noise report plots the nugget itself, see `super::noise`; the rest scan's report
+        // its per-marker means, `rest.svg`).
+        Candidate::Inhomogeneity
+        | Candidate::Layer
+        | Candidate::Inclusion
+        | Candidate::Noise
+        | Candidate::RestNoise => {
             let mut pts = Vec::new();
             for (&i, r) in f.subset.iter().zip(&res) {
                 let c = ctx.meas[i].point;

@@ -32,10 +32,14 @@ pub enum Effect {
     Noise,
     /// Occlusions: each marker row is dropped with probability magnitude.
     Occlusion,
+    /// A noisy rest scan: every declared rest position is off its true place by white noise of
+    /// magnitude × declared σ per axis (a rest scan averaged over n frames has 1/√n), the same
+    /// error in every measurement.
+    RestNoise,
 }
 
 /// Every effect, in the order the CLI lists them.
-pub const ALL_EFFECTS: [Effect; 10] = [
+pub const ALL_EFFECTS: [Effect; 11] = [
     Effect::Stiffening,
     Effect::Inclusion,
     Effect::SoftLayer,
@@ -46,6 +50,7 @@ pub const ALL_EFFECTS: [Effect; 10] = [
     Effect::Tilt,
     Effect::Noise,
     Effect::Occlusion,
+    Effect::RestNoise,
 ];
 
 impl Effect {
@@ -62,6 +67,7 @@ impl Effect {
             Effect::Tilt => "tilt",
             Effect::Noise => "noise",
             Effect::Occlusion => "occlusion",
+            Effect::RestNoise => "rest-noise",
         }
     }
 
@@ -78,6 +84,7 @@ impl Effect {
             Effect::Tilt => 0.3,
             Effect::Noise => 1.0,
             Effect::Occlusion => 0.2,
+            Effect::RestNoise => 0.5,
         }
     }
 
@@ -119,6 +126,7 @@ impl Effect {
             | Effect::Stiffening
             | Effect::Gravity
             | Effect::Noise
+            | Effect::RestNoise
                 if m < 0.0 =>
             {
                 bad("must be ≥ 0")

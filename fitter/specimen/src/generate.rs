@@ -311,6 +311,18 @@ pub fn generate(o: &SpecimenOptions) -> Result<Specimen, SpecimenError> {
     } else {
         points.clone()
     };
+    // A noisy rest scan declares every marker off its true place (its own random stream, so the
+    // contacts and the measurements' noise are the same with and without it).
+    let rest_positions: Vec<[f64; 3]> = match o.magnitude(Effect::RestNoise) {
+        Some(m) => {
+            let mut rest_rng = crate::rng(o.seed ^ 0x7e57_5ca0);
+            rest_positions
+                .iter()
+                .map(|p| p.map(|v| v + m * o.noise * rest_rng.normal()))
+                .collect()
+        }
+        None => rest_positions,
+    };
     let mut markers = Vec::with_capacity(points.len());
     for (k, &p) in rest_positions.iter().enumerate() {
         let e = embed_point(&coarse, &surf_c, p).ok_or(SpecimenError::Embed {

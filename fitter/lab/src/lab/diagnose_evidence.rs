@@ -92,6 +92,8 @@ pub fn expected(e: Option<Effect>) -> Vec<Candidate> {
             // Undeclared marker noise is named by the noise test after the structural loop;
             // occlusions change no mean behaviour and no noise level.
             Effect::Noise => vec![Candidate::Noise],
+            // A noisy rest scan, by the rest-scan test after the noise test.
+            Effect::RestNoise => vec![Candidate::RestNoise],
             Effect::Occlusion => Vec::new(),
         },
     }
@@ -277,7 +279,7 @@ fn write_tables(
         args.command());
     let cols: Vec<Option<Candidate>> = std::iter::once(None)
         .chain(ALL_CANDIDATES.iter().copied().map(Some))
-        .chain(std::iter::once(Some(Candidate::Noise)))
+        .chain([Some(Candidate::Noise), Some(Candidate::RestNoise)])
         .collect();
     let _ = writeln!(
         md,
