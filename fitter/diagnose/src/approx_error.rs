@@ -44,6 +44,12 @@ impl Correction {
         self.fine.inclusion_start = p;
     }
 
+    /// Measures the layer candidate's depth along `axis` on the refined side too (the scan
+    /// picks the axis after both contexts are built).
+    pub fn set_layer_axis(&mut self, axis: crate::model::LayerAxis) {
+        self.fine.set_layer_axis(axis);
+    }
+
     /// Tetrahedra of the refined mesh.
     pub fn refined_tets(&self) -> usize {
         self.fine.problem.element_count()

@@ -132,6 +132,10 @@ pub struct DiagnoseOptions {
     /// finds the best blob ([`sensitivity`]); false: under the mean contact point at a quarter
     /// of the depth (the start before the scan existed).
     pub locate_inclusion: bool,
+    /// Measure the layer candidate's depth along the axis (the pushing direction, gravity, or
+    /// the distance to the free surface) whose best layer the adjoint sensitivity scan predicts
+    /// to lower χ² most ([`sensitivity::scan_layers`]); false: along the pushing direction.
+    pub locate_layer: bool,
 }
 
 /// Which mesh the diagnosis solves its models on.
@@ -208,6 +212,7 @@ impl Default for DiagnoseOptions {
             refine_above: 0.0,
             refine_max_tets: 50_000,
             locate_inclusion: true,
+            locate_layer: true,
         }
     }
 }
@@ -1314,35 +1319,78 @@ pub fn run_diagnosis_with(
     };
     // Find where before what: the sensitivity scan of the simplest fit places the inclusion
     // candidate where the residual asks for a stiffer or softer blob (its default start, under
-    // the mean contact point, sees nothing of an inclusion elsewhere).
+    // the mean contact point, sees nothing of an inclusion elsewhere), and chooses the surface
+    // the layer candidate's depth is measured from.
     let mut ctx = ctx;
-    if o.locate_inclusion && o.candidates.contains(&Candidate::Inclusion) {
+    let blob = o.locate_inclusion && o.candidates.contains(&Candidate::Inclusion);
+    let layer = o.locate_layer && o.candidates.contains(&Candidate::Layer);
+    let gradient = if blob || layer {
         progress(
             "locating where the residual asks for another stiffness (adjoint sensitivity scan)",
         );
-        if let Some(scan) = sensitivity::log_modulus_gradient(&ctx, &current)
-            .ok()
-            .and_then(|s| sensitivity::scan_blobs(&ctx, &s, &[0.3, 0.6]))
-        {
-            progress(&format!(
-                "sensitivity scan: a {} blob of radius {:.1} mm at ({:.1}, {:.1}, {:.1}) mm would lower χ² by {:.0}",
-                if scan.contrast > 0.0 { "stiffer" } else { "softer" },
-                1e3 * scan.radius,
-                1e3 * scan.centre[0],
-                1e3 * scan.centre[1],
-                1e3 * scan.centre[2],
-                scan.reduction
-            ));
-            ctx.inclusion_start = scan.centre;
+        sensitivity::log_modulus_gradient(&ctx, &current).ok()
+    } else {
+        None
+    };
+    if let Some(scan) = gradient
+        .as_ref()
+        .filter(|_| blob)
+        .and_then(|s| sensitivity::scan_blobs(&ctx, s, &[0.3, 0.6]))
+    {
+        progress(&format!(
+            "sensitivity scan: a {} blob of radius {:.1} mm at ({:.1}, {:.1}, {:.1}) mm would lower χ² by {:.0}",
+            if scan.contrast > 0.0 { "stiffer" } else { "softer" },
+            1e3 * scan.radius,
+            1e3 * scan.centre[0],
+            1e3 * scan.centre[1],
+            1e3 * scan.centre[2],
+            scan.reduction
+        ));
+        ctx.inclusion_start = scan.centre;
+        if let Some(c) = correction.as_mut() {
+            c.set_inclusion_start(scan.centre);
+        }
+        // log contrast at least 0.3 in size (the position is invisible at zero contrast),
+        // at most ln 10; radius r = ½ h e^θ_r.
+        let a = scan.contrast.signum() * scan.contrast.abs().clamp(0.3, 10f64.ln());
+        let theta_r = (2.0 * scan.radius / ctx.half).ln();
+        ctx.inclusion_seed = Some([a, 0.0, 0.0, 0.0, theta_r]);
+        ctx.inclusion_scan = Some(scan);
+    }
+    if let Some(s) = gradient.as_ref().filter(|_| layer) {
+        // Per axis, the best step in log E over thicknesses of 5–70 % of its depth range (the
+        // logistic width a quarter of an element: 10–90 % over about one); the layer
+        // candidate's depth is the winning axis's.
+        let t: Vec<f64> = (0..14).map(|k| 0.05 + 0.05 * k as f64).collect();
+        let best = ctx
+            .depth_maps
+            .iter()
+            .filter_map(|(axis, depth, range)| {
+                let width = 0.25 * ctx.element_size / range;
+                sensitivity::scan_layers(&ctx, s, depth, &t, width).map(|l| (*axis, l))
+            })
+            .inspect(|(axis, l)| {
+                progress(&format!(
+                    "sensitivity scan: a {} layer {} {:.0} % of the depth thick would lower χ² by {:.0}",
+                    if l.contrast > 0.0 { "stiffer" } else { "softer" },
+                    axis.name(),
+                    100.0 * l.thickness,
+                    l.reduction
+                ))
+            })
+            .fold(None, |best: Option<(model::LayerAxis, sensitivity::LayerScan)>, next| {
+                // Ties keep the earlier axis (the pushing direction first: a block pushed from
+                // above has the same vertical map).
+                match best {
+                    Some(b) if b.1.reduction >= next.1.reduction => Some(b),
+                    _ => Some(next),
+                }
+            });
+        if let Some((axis, _)) = best {
+            ctx.set_layer_axis(axis);
             if let Some(c) = correction.as_mut() {
-                c.set_inclusion_start(scan.centre);
+                c.set_layer_axis(axis);
             }
-            // log contrast at least 0.3 in size (the position is invisible at zero contrast),
-            // at most ln 10; radius r = ½ h e^θ_r.
-            let a = scan.contrast.signum() * scan.contrast.abs().clamp(0.3, 10f64.ln());
-            let theta_r = (2.0 * scan.radius / ctx.half).ln();
-            ctx.inclusion_seed = Some([a, 0.0, 0.0, 0.0, theta_r]);
-            ctx.inclusion_scan = Some(scan);
         }
     }
     let mut solved_on = SolvedOn {

@@ -280,8 +280,17 @@ pub struct Context {
     pub marker_rest: Vec<[f64; 3]>,
     /// Element centroids (m).
     pub centroids: Vec<[f64; 3]>,
-    /// Depth of each element centroid below the probed face, as a fraction of the total depth.
+    /// Depth of each element centroid in the layer candidate's stack, as a fraction (0 at the
+    /// surface the layers start from): one of [`Context::depth_maps`], by default
+    /// [`LayerAxis::Push`]'s.
     pub depth: Vec<f64>,
+    /// The axis [`Context::depth`] is measured along.
+    pub layer_axis: LayerAxis,
+    /// Every layer axis's depth map and the length (m) its unit fraction stands for (the
+    /// sensitivity scan picks one, [`Context::set_layer_axis`]).
+    pub depth_maps: Vec<(LayerAxis, Vec<f64>, f64)>,
+    /// Edge of a regular tetrahedron of the mean element volume (m): the layer scan's step width.
+    pub element_size: f64,
     /// Starting centre of the inclusion candidate.
     pub inclusion_start: [f64; 3],
     /// Starting θ of the inclusion candidate from the sensitivity scan (`None`: the default
@@ -297,6 +306,14 @@ pub struct Context {
 }
 
 impl Context {
+    /// Measures the layer candidate's depth along `axis` from now on.
+    pub fn set_layer_axis(&mut self, axis: LayerAxis) {
+        if let Some((_, d, _)) = self.depth_maps.iter().find(|(a, _, _)| *a == axis) {
+            self.depth = d.clone();
+            self.layer_axis = axis;
+        }
+    }
+
     /// Adds measurement `i`'s terms of the least-squares scale of simulated onto measured
     /// displacements (both from the markers' rest places) to `sums`: Σ u_sim·u_meas to the
     /// first, Σ u_sim·u_sim to the second. The best scale is their ratio; the callers decide what
@@ -408,7 +425,17 @@ impl Context {
                 (lo.min(d), hi.max(d))
             });
         let span = (bottom - top).max(1e-12);
-        let depth = centroids.iter().map(|c| (along(c) - top) / span).collect();
+        let depth: Vec<f64> = centroids.iter().map(|c| (along(c) - top) / span).collect();
+        let (vertical, vertical_span) = vertical_depth(&ds.mesh, &centroids, gravity);
+        let (skin, skin_span) = skin_depth(&ds.mesh, &ds.fixed_nodes, &centroids);
+        let depth_maps = vec![
+            (LayerAxis::Push, depth.clone(), span),
+            (LayerAxis::Vertical, vertical, vertical_span),
+            (LayerAxis::Skin, skin, skin_span),
+        ];
+        let mean_volume = problem.geometry.iter().map(|g| g.volume).sum::<f64>()
+            / problem.geometry.len().max(1) as f64;
+        let element_size = (6.0 * 2f64.sqrt() * mean_volume).cbrt();
         let mut contact_mean = [0.0; 3];
         for m in &meas {
             for d in 0..3 {
@@ -447,6 +474,9 @@ impl Context {
             marker_rest,
             centroids,
             depth,
+            layer_axis: LayerAxis::Push,
+            depth_maps,
+            element_size,
             inclusion_start,
             inclusion_seed: None,
             inclusion_scan: None,
@@ -494,6 +524,222 @@ fn trilinear(c: [f64; 3], lo: [f64; 3], hi: [f64; 3], g: [usize; 3]) -> Vec<(usi
 
 /// Depth nodes of the layer candidate.
 pub const LAYER_NODES: usize = 4;
+
+/// The direction a layered body's layers are stacked along: which surface the layer candidate's
+/// depth is measured from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LayerAxis {
+    /// Along the mean pushing direction, from the plane through the first surface point it meets:
+    /// layers parallel to a flat probed face.
+    Push,
+    /// Along gravity (declared, else −z), from the surface above each point: a top layer that
+    /// follows a curved top, whatever side the probes push on.
+    Vertical,
+    /// The distance to the nearest free boundary face: a skin all round the body.
+    Skin,
+}
+
+impl LayerAxis {
+    /// Name (as in reports).
+    pub fn name(self) -> &'static str {
+        match self {
+            LayerAxis::Push => "along the mean pushing direction",
+            LayerAxis::Vertical => "below the top surface (along gravity)",
+            LayerAxis::Skin => "below the nearest free surface (a skin)",
+        }
+    }
+}
+
+/// Depth of `points` below the surface above them along `gravity`, as a fraction of the body's
+/// vertical extent ([`surface_depth`]), and that extent (m).
+fn vertical_depth(
+    mesh: &palpate_fem::mesh::Mesh,
+    points: &[[f64; 3]],
+    gravity: [f64; 3],
+) -> (Vec<f64>, f64) {
+    let g = Vector3::from(gravity);
+    let down = if g.norm() > 0.0 {
+        g / g.norm()
+    } else {
+        Vector3::new(0.0, 0.0, -1.0)
+    };
+    let helper = if down[0].abs() < 0.9 {
+        Vector3::new(1.0, 0.0, 0.0)
+    } else {
+        Vector3::new(0.0, 1.0, 0.0)
+    };
+    let t1 = down.cross(&helper).normalize();
+    let t2 = down.cross(&t1);
+    let along = |x: &[f64; 3]| Vector3::from(*x).dot(&down);
+    let (top, bottom) = mesh
+        .nodes
+        .iter()
+        .map(along)
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), d| {
+            (lo.min(d), hi.max(d))
+        });
+    let span = (bottom - top).max(1e-12);
+    (
+        surface_depth(mesh, points, [down.into(), t1.into(), t2.into()], top, span),
+        span,
+    )
+}
+
+/// Distance of `points` to the nearest boundary triangle with a node off `fixed` (the free
+/// surface), as a fraction of the largest such distance, and that distance (m).
+fn skin_depth(
+    mesh: &palpate_fem::mesh::Mesh,
+    fixed: &[usize],
+    points: &[[f64; 3]],
+) -> (Vec<f64>, f64) {
+    let is_fixed = {
+        let mut v = vec![false; mesh.nodes.len()];
+        for &n in fixed {
+            v[n] = true;
+        }
+        v
+    };
+    let tris: Vec<[Vector3<f64>; 3]> = mesh
+        .boundary_triangles()
+        .into_iter()
+        .filter(|t| t.iter().any(|&n| !is_fixed[n]))
+        .map(|t| t.map(|n| Vector3::from(mesh.nodes[n])))
+        .collect();
+    let d: Vec<f64> = points
+        .par_iter()
+        .map(|p| {
+            let p = Vector3::from(*p);
+            tris.iter()
+                .map(|t| point_triangle_distance(&p, t))
+                .fold(f64::INFINITY, f64::min)
+        })
+        .collect();
+    let max = d.iter().copied().fold(0.0, f64::max).max(1e-12);
+    (
+        d.into_iter()
+            .map(|v| if v.is_finite() { v / max } else { 1.0 })
+            .collect(),
+        max,
+    )
+}
+
+/// Euclidean distance from `p` to the triangle `t` (Ericson, Real-Time Collision Detection,
+/// 5.1.5: the closest point by Voronoi regions of the vertices, edges and face).
+fn point_triangle_distance(p: &Vector3<f64>, t: &[Vector3<f64>; 3]) -> f64 {
+    let (a, b, c) = (t[0], t[1], t[2]);
+    let (ab, ac, ap) = (b - a, c - a, p - a);
+    let (d1, d2) = (ab.dot(&ap), ac.dot(&ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return ap.norm();
+    }
+    let bp = p - b;
+    let (d3, d4) = (ab.dot(&bp), ac.dot(&bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return bp.norm();
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        let v = d1 / (d1 - d3);
+        return (p - (a + ab * v)).norm();
+    }
+    let cp = p - c;
+    let (d5, d6) = (ab.dot(&cp), ac.dot(&cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return cp.norm();
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        let w = d2 / (d2 - d6);
+        return (p - (a + ac * w)).norm();
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return (p - (b + (c - b) * w)).norm();
+    }
+    let denom = 1.0 / (va + vb + vc);
+    let (v, w) = (vb * denom, vc * denom);
+    (p - (a + ab * v + ac * w)).norm()
+}
+
+/// Depth of each of `points` below the probed surface along `frame[0]` (the mean pushing
+/// direction nz; `frame[1..]` span the plane across it), as a fraction of `span`: the distance
+/// along nz up to the nearest boundary triangle above the point that faces the probe (outward
+/// normal against nz), so a layer under a curved top follows it; where no such triangle is above
+/// a point, its depth below the plane through the top-most node (`top` = the smallest x·nz).
+fn surface_depth(
+    mesh: &palpate_fem::mesh::Mesh,
+    points: &[[f64; 3]],
+    frame: [[f64; 3]; 3],
+    top: f64,
+    span: f64,
+) -> Vec<f64> {
+    let dot = |a: &[f64; 3], b: &[f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let [nz, t1, t2] = frame;
+    // Facing triangles in (u, v, along) coordinates with their (u, v) bounding boxes.
+    let facing: Vec<([[f64; 3]; 3], [f64; 4])> = mesh
+        .boundary_triangles()
+        .into_iter()
+        .filter_map(|t| {
+            let p = t.map(|n| mesh.nodes[n]);
+            let e1 = Vector3::from(p[1]) - Vector3::from(p[0]);
+            let e2 = Vector3::from(p[2]) - Vector3::from(p[0]);
+            let normal = e1.cross(&e2);
+            let area2 = normal.norm();
+            if area2 <= 0.0 || normal.dot(&Vector3::from(nz)) > -0.1 * area2 {
+                return None;
+            }
+            let q = p.map(|x| [dot(&x, &t1), dot(&x, &t2), dot(&x, &nz)]);
+            let bbox = [
+                q.iter().map(|x| x[0]).fold(f64::INFINITY, f64::min),
+                q.iter().map(|x| x[0]).fold(f64::NEG_INFINITY, f64::max),
+                q.iter().map(|x| x[1]).fold(f64::INFINITY, f64::min),
+                q.iter().map(|x| x[1]).fold(f64::NEG_INFINITY, f64::max),
+            ];
+            Some((q, bbox))
+        })
+        .collect();
+    points
+        .par_iter()
+        .map(|c| {
+            let (u, v, a) = (dot(c, &t1), dot(c, &t2), dot(c, &nz));
+            let mut best = f64::INFINITY;
+            for (q, b) in &facing {
+                if u < b[0] || u > b[1] || v < b[2] || v > b[3] {
+                    continue;
+                }
+                // Barycentric coordinates of (u, v) in the projected triangle.
+                let det = (q[1][0] - q[0][0]) * (q[2][1] - q[0][1])
+                    - (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]);
+                if det.abs() < 1e-300 {
+                    continue;
+                }
+                let l1 = ((u - q[0][0]) * (q[2][1] - q[0][1])
+                    - (q[2][0] - q[0][0]) * (v - q[0][1]))
+                    / det;
+                let l2 = ((q[1][0] - q[0][0]) * (v - q[0][1])
+                    - (u - q[0][0]) * (q[1][1] - q[0][1]))
+                    / det;
+                let l0 = 1.0 - l1 - l2;
+                let eps = -1e-9;
+                if l0 < eps || l1 < eps || l2 < eps {
+                    continue;
+                }
+                let hit = l0 * q[0][2] + l1 * q[1][2] + l2 * q[2][2];
+                let below = a - hit;
+                if below >= -1e-9 * span && below < best {
+                    best = below;
+                }
+            }
+            if best.is_finite() {
+                best.max(0.0) / span
+            } else {
+                (a - top) / span
+            }
+        })
+        .collect()
+}
 
 /// Most secant passes of the stiffening fixed point.
 const STIFFENING_PASSES: usize = 30;
@@ -1295,5 +1541,90 @@ impl Model {
             }
         }
         r
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use palpate_fem::mesh::boxmesh::box_mesh;
+
+    fn centroids(m: &palpate_fem::mesh::Mesh) -> Vec<[f64; 3]> {
+        m.tets
+            .iter()
+            .map(|t| [0, 1, 2].map(|d| t.iter().map(|&n| m.nodes[n][d]).sum::<f64>() / 4.0))
+            .collect()
+    }
+
+    /// The closed form against the nearest of 20,301 points spread over the triangle.
+    #[test]
+    fn point_triangle_distance_matches_a_dense_sampling() {
+        let t = [
+            Vector3::new(0.0, 0.0, 0.0),
+            Vector3::new(1.0, 0.2, 0.1),
+            Vector3::new(0.3, 0.9, -0.2),
+        ];
+        let mut rng = palpate_specimen::rng(3);
+        for _ in 0..200 {
+            let p = Vector3::new(
+                3.0 * rng.uniform() - 1.0,
+                3.0 * rng.uniform() - 1.0,
+                2.0 * rng.uniform() - 1.0,
+            );
+            let n = 200;
+            let mut brute = f64::INFINITY;
+            for i in 0..=n {
+                for j in 0..=n - i {
+                    let (u, v) = (i as f64 / n as f64, j as f64 / n as f64);
+                    let q = t[0] + (t[1] - t[0]) * u + (t[2] - t[0]) * v;
+                    brute = brute.min((p - q).norm());
+                }
+            }
+            let d = point_triangle_distance(&p, &t);
+            // The sampling's spacing is ≈ 0.005: it can only overestimate, by at most that.
+            assert!(
+                d <= brute + 1e-12 && brute - d < 6e-3,
+                "{d} vs {brute} at {p:?}"
+            );
+        }
+    }
+
+    /// A slab sheared so its top and bottom slope (z' = z + 0.3 x): the depth below the top
+    /// surface along gravity is H − z exactly, while the plane through the highest node would
+    /// give (z'_max − z') — wrong by 0.3 (L − x) everywhere but the high edge.
+    #[test]
+    fn vertical_depth_follows_a_sloping_top() {
+        let (l, h) = (0.08, 0.03);
+        let mut m = box_mesh([l, 0.06, h], [8, 6, 3]);
+        let before = centroids(&m);
+        for p in &mut m.nodes {
+            p[2] += 0.3 * p[0];
+        }
+        let c = centroids(&m);
+        let (d, span) = vertical_depth(&m, &c, [0.0, 0.0, -9.81]);
+        assert!((span - (h + 0.3 * l)).abs() < 1e-12, "{span}");
+        for (e, (&got, b)) in d.iter().zip(&before).enumerate() {
+            let want = (h - b[2]) / span;
+            assert!((got - want).abs() < 1e-9, "element {e}: {got} vs {want}");
+        }
+    }
+
+    /// A block fixed at its bottom: the skin depth is the distance to the top or the nearest side.
+    #[test]
+    fn skin_depth_is_the_distance_to_the_free_surface() {
+        let (a, b, h) = (0.08, 0.06, 0.04);
+        let m = box_mesh([a, b, h], [8, 6, 4]);
+        let fixed = m.node_groups["bottom"].clone();
+        let c = centroids(&m);
+        let (d, max) = skin_depth(&m, &fixed, &c);
+        let want: Vec<f64> = c
+            .iter()
+            .map(|p| (h - p[2]).min(p[0]).min(a - p[0]).min(p[1]).min(b - p[1]))
+            .collect();
+        let wmax = want.iter().copied().fold(0.0, f64::max);
+        assert!((max - wmax).abs() < 1e-12, "{max} vs {wmax}");
+        for (got, w) in d.iter().zip(&want) {
+            assert!((got - w / wmax).abs() < 1e-9, "{got} vs {}", w / wmax);
+        }
     }
 }

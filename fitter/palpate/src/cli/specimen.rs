@@ -11,7 +11,7 @@ use palpate_specimen::{generate, Effect, EffectSpec, SpecimenOptions};
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Effects to inject, comma-separated (stiffening, inclusion, soft-layer, calibration,
-    /// boundary, registration, gravity, tilt, noise, occlusion), or `none`; or `viscosity` alone
+    /// boundary, registration, gravity, tilt, noise, occlusion, rest-noise), or `none`; or `viscosity` alone
     /// (magnitude: viscous time τ = ν/μ in s, default 2), which writes tension-test curves at two
     /// stretch rates in the VHB records' format instead of a static dataset.
     #[arg(long, value_delimiter = ',', default_value = "none")]
