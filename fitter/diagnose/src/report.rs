@@ -282,6 +282,7 @@ pub fn json_text(r: &DiagnosisReport) -> Result<String, serde_json::Error> {
             ("interval", "interval_m"),
             ("sigma_null", "sigma_null_m"),
             ("sigma_within", "sigma_within_m"),
+            ("detectable", "detectable_m"),
         ],
     );
     json::rename(

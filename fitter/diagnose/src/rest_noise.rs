@@ -85,6 +85,11 @@ pub struct RestNoiseFinding {
     pub markers: usize,
     /// Mean number of measurements a marker was seen in.
     pub mean_seen: f64,
+    /// The smallest τ (m) this test would have fired on: where the statistic's expected rise,
+    /// ≈ τ² median(b_k/a_k)/σ², reaches the null's mean plus [`RestNoiseOptions::z_limit`] of its
+    /// standard deviations (and at least the margin) — the power statement of a test that did not
+    /// fire.
+    pub detectable: f64,
     /// The finding (or why not) in words.
     pub statement: String,
     /// Per marker seen: (measurements it was seen in, |mean residual| in m) — the evidence
@@ -284,6 +289,12 @@ pub fn estimate_rest_noise(
         (estimate, estimate)
     };
     let fired = z >= o.z_limit && estimate >= o.margin * sigma;
+    let mut gain: Vec<f64> = terms.iter().map(|t| t.b / t.a).collect();
+    gain.sort_by(f64::total_cmp);
+    let rise = (null_mean - 1.0).max(0.0) + o.z_limit * null_sd;
+    let detectable = (s2 * rise / gain[gain.len() / 2])
+        .sqrt()
+        .max(o.margin * sigma);
     let mean_seen = used.iter().map(|&k| seen[k] as f64).sum::<f64>() / used.len() as f64;
     let um = |v: f64| 1e6 * v;
     let within_words = match sigma_within {
@@ -297,8 +308,8 @@ pub fn estimate_rest_noise(
         )
     } else {
         format!(
-            "rest positions consistent with a noise-free rest scan: τ̂ = {:.1} µm per axis (95 % interval {:.1}–{:.1} µm), the persistent per-marker residual {z:+.1} standard deviations from what the measurements' own noise σ = {:.1} µm leaves (fired at ≥ {:.1} and τ̂ ≥ {:.2} σ; σ: declared {:.1} µm, {within_words})",
-            um(estimate), um(interval.0), um(interval.1), um(sigma_null), o.z_limit, o.margin, um(sigma)
+            "rest positions consistent with a noise-free rest scan: τ̂ = {:.1} µm per axis (95 % interval {:.1}–{:.1} µm), the persistent per-marker residual {z:+.1} standard deviations from what the measurements' own noise σ = {:.1} µm leaves (fired at ≥ {:.1} and τ̂ ≥ {:.2} σ; σ: declared {:.1} µm, {within_words}); a rest scan noisier than about {:.1} µm per axis would have been found",
+            um(estimate), um(interval.0), um(interval.1), um(sigma_null), o.z_limit, o.margin, um(sigma), um(detectable)
         )
     };
     Some(RestNoiseFinding {
@@ -310,6 +321,7 @@ pub fn estimate_rest_noise(
         fired,
         markers: terms.len(),
         mean_seen,
+        detectable,
         statement,
         points: used
             .iter()
@@ -433,6 +445,21 @@ mod tests {
         ] {
             let f = find(sigma, 0.0, smooth, seed);
             assert!(!f.fired, "σ {sigma}, smooth {smooth}: {}", f.statement);
+        }
+    }
+
+    /// The power statement is where the test starts firing: on the same layout and noise, a rest
+    /// scan at 1.5× the stated detectable τ is found, one at half of it is not (stated 24.2 and
+    /// 24.7 µm on these seeds, σ = 100 µm, 104 markers seen ≈ 6.4 times).
+    #[test]
+    fn detectable_tau_is_where_the_test_starts_firing() {
+        for seed in [12, 13] {
+            let d = find(1e-4, 0.0, 0.0, seed).detectable;
+            assert!(d > 1e-5 && d < 5e-5, "detectable {d}");
+            let above = find(1e-4, 1.5 * d, 0.0, seed);
+            assert!(above.fired, "τ = {}: {}", 1.5 * d, above.statement);
+            let below = find(1e-4, 0.5 * d, 0.0, seed);
+            assert!(!below.fired, "τ = {}: {}", 0.5 * d, below.statement);
         }
     }
 

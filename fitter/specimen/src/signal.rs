@@ -6,8 +6,9 @@
 /// reported one and nothing else is injected
 /// ([`crate::SpecimenOptions::apply_reported_force`]). So a calibration error counts as the
 /// displacement its force error causes, a tilt as the displacement of its tangential force, a
-/// stiffening as the displacement it withholds. (Registration, noise and occlusion act on the
-/// measured positions, not the truth: their signal here is zero.)
+/// stiffening as the displacement it withholds. (Registration, noise, a noisy rest scan and
+/// occlusion act on the measured or declared positions, not the truth: their signal here is
+/// zero.)
 pub fn signal_rms(truth: &crate::Truth, reference: &crate::Truth) -> f64 {
     let (mut sum, mut n) = (0.0, 0usize);
     for (a, b) in truth.measurements.iter().zip(&reference.measurements) {
