@@ -26,7 +26,7 @@ use palpate_specimen::rng;
 
 /// Median of a χ² variable with 3 degrees of freedom, divided by 3 (the median of |d|²/(3σ²)
 /// for Gaussian d).
-pub(crate) const CHI2_3_MEDIAN_OVER_3: f64 = 2.365_973_884_375_91 / 3.0;
+const CHI2_3_MEDIAN_OVER_3: f64 = 2.365_973_884_375_91 / 3.0;
 
 /// Options of [`estimate_noise`].
 #[derive(Debug, Clone, Serialize)]
@@ -195,9 +195,10 @@ pub(crate) fn marker_spacing<'a>(point_sets: impl Iterator<Item = &'a [[f64; 3]]
     Some(nn[nn.len() / 2])
 }
 
-/// Robust σ̂² from nugget terms: median of |d|²/(3(1 + v)) over its Gaussian expectation.
-fn sigma2_of(terms: &[&Term]) -> f64 {
-    let mut z: Vec<f64> = terms.iter().map(|(d2, w, _)| d2 / w).collect();
+/// The median of normalised nugget errors z = |d|²/(3 var) over its Gaussian value (the median of
+/// χ²₃/3): 1 when the variances are right, robust against the few neighbourhoods where the
+/// smooth field bends sharply. NaN for no terms.
+pub(crate) fn median_over_gaussian(mut z: Vec<f64>) -> f64 {
     if z.is_empty() {
         return f64::NAN;
     }
@@ -209,6 +210,11 @@ fn sigma2_of(terms: &[&Term]) -> f64 {
         0.5 * (z[m / 2 - 1] + z[m / 2])
     };
     med / CHI2_3_MEDIAN_OVER_3
+}
+
+/// Robust σ̂² from nugget terms: median of |d|²/(3(1 + v)) over its Gaussian expectation.
+fn sigma2_of(terms: &[&Term]) -> f64 {
+    median_over_gaussian(terms.iter().map(|(d2, w, _)| d2 / w).collect())
 }
 
 pub(crate) fn percentile(sorted: &[f64], p: f64) -> f64 {
@@ -302,12 +308,12 @@ pub fn estimate_noise(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     /// The specimen's marker layout: an 8 × 8 grid on the top of an 8 × 8 × 4 cm block and two
-    /// rows of five on each side face.
-    fn layout() -> Vec<[f64; 3]> {
+    /// rows of five on each side face (104 markers).
+    pub(crate) fn layout() -> Vec<[f64; 3]> {
         let (a, h) = (0.08, 0.04);
         let mut pts = Vec::new();
         for j in 0..8 {

@@ -33,7 +33,7 @@
 use serde::Serialize;
 
 use crate::noise::{
-    extrapolation_weights, marker_spacing, percentile, NoiseOptions, CHI2_3_MEDIAN_OVER_3,
+    extrapolation_weights, marker_spacing, median_over_gaussian, percentile, NoiseOptions,
 };
 use palpate_specimen::rng;
 
@@ -108,18 +108,12 @@ struct Term {
 
 /// median(|d|² / (3 (σ² a + τ² b))) over the Gaussian median, for σ² and τ².
 fn statistic(terms: &[Term], sigma2: f64, tau2: f64) -> f64 {
-    let mut z: Vec<f64> = terms
-        .iter()
-        .map(|t| t.d2 / (3.0 * (sigma2 * t.a + tau2 * t.b)))
-        .collect();
-    z.sort_by(f64::total_cmp);
-    let m = z.len();
-    let med = if m % 2 == 1 {
-        z[m / 2]
-    } else {
-        0.5 * (z[m / 2 - 1] + z[m / 2])
-    };
-    med / CHI2_3_MEDIAN_OVER_3
+    median_over_gaussian(
+        terms
+            .iter()
+            .map(|t| t.d2 / (3.0 * (sigma2 * t.a + tau2 * t.b)))
+            .collect(),
+    )
 }
 
 /// τ̂² with statistic(σ², τ̂²) = 1, or 0 when the statistic is ≤ 1 without rest noise.
@@ -334,34 +328,7 @@ pub fn estimate_rest_noise(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// 104 markers: an 8 × 8 grid on the top of an 8 × 8 × 4 cm block and two rows of five on
-    /// each side face (the specimen's layout).
-    fn layout() -> Vec<[f64; 3]> {
-        let (a, h) = (0.08, 0.04);
-        let mut pts = Vec::new();
-        for j in 0..8 {
-            for i in 0..8 {
-                pts.push([
-                    a * (0.06 + 0.88 * i as f64 / 7.0),
-                    a * (0.06 + 0.88 * j as f64 / 7.0),
-                    h,
-                ]);
-            }
-        }
-        for zf in [0.45, 0.85] {
-            for k in 0..5 {
-                let s = a * (0.1 + 0.8 * k as f64 / 4.0);
-                pts.extend([
-                    [s, 0.0, h * zf],
-                    [s, a, h * zf],
-                    [0.0, s, h * zf],
-                    [a, s, h * zf],
-                ]);
-            }
-        }
-        pts
-    }
+    use crate::noise::tests::layout;
 
     /// Eight measurements of residuals: a bump of `bump` m under a moving contact (the model error
     /// a probe leaves, different in every measurement), a persistent smooth field of `smooth` m (a

@@ -5,24 +5,29 @@
 //! σ̂ = 194.8 µm; over all 22 specimen runs (default magnitudes, seeds 1–2) the non-noise
 //! effects give 97–111 µm on this base fit, never a lower bound above 125 µm.
 
-use palpate_diagnose::fit::{fit, initial_theta};
+use palpate_diagnose::fit::{fit, initial_theta, Fitted};
 use palpate_diagnose::model::{Context, Model};
 use palpate_diagnose::noise::{estimate_noise, Field, NoiseOptions};
 use palpate_diagnose::signature::residual_vectors;
 use palpate_specimen::{generate, Effect, SpecimenOptions};
 
-fn nugget(effect: Option<Effect>, seed: u64) -> palpate_diagnose::noise::NoiseFinding {
+/// The specimen of `effect` and `seed`, its context and the simplest model's fit.
+fn base_fit(effect: Option<Effect>, seed: u64) -> (Option<f64>, Context, Fitted) {
     let s = generate(&SpecimenOptions::with_effect(effect, seed)).expect("specimen");
     let ctx = Context::new(&s.dataset, [2, 2, 2]).expect("context");
     let all: Vec<usize> = (0..ctx.meas.len()).collect();
     let (t0, s0) = initial_theta(&ctx, &all).expect("start");
     let f = fit(&ctx, &Model::base(), t0, &all, Some(&s0.x), 8).expect("fit");
+    (s.dataset.marker_noise, ctx, f)
+}
+
+fn nugget(effect: Option<Effect>, seed: u64) -> palpate_diagnose::noise::NoiseFinding {
+    let (declared, ctx, f) = base_fit(effect, seed);
     let fields: Vec<Field> = residual_vectors(&ctx, &f)
         .iter()
         .map(|r| r.iter().map(|&(k, e)| (ctx.marker_rest[k], e)).collect())
         .collect();
-    let n = estimate_noise(&fields, s.dataset.marker_noise, &NoiseOptions::default())
-        .expect("estimate");
+    let n = estimate_noise(&fields, declared, &NoiseOptions::default()).expect("estimate");
     eprintln!("{effect:?} seed {seed}: {}", n.statement);
     n
 }
@@ -52,11 +57,7 @@ fn nugget_finds_undeclared_marker_noise() {
 /// z 17.4 / 15.6.
 fn rest(effect: Option<Effect>, seed: u64) -> palpate_diagnose::rest_noise::RestNoiseFinding {
     use palpate_diagnose::rest_noise::{estimate_rest_noise, RestNoiseOptions};
-    let s = generate(&SpecimenOptions::with_effect(effect, seed)).expect("specimen");
-    let ctx = Context::new(&s.dataset, [2, 2, 2]).expect("context");
-    let all: Vec<usize> = (0..ctx.meas.len()).collect();
-    let (t0, s0) = initial_theta(&ctx, &all).expect("start");
-    let f = fit(&ctx, &Model::base(), t0, &all, Some(&s0.x), 8).expect("fit");
+    let (_, ctx, f) = base_fit(effect, seed);
     let r = estimate_rest_noise(
         &ctx.marker_rest,
         &residual_vectors(&ctx, &f),
