@@ -397,7 +397,7 @@ impl ResidualCheck {
         } else {
             noise_name.to_string()
         };
-        match (adopted.is_empty(), self.explained) {
+        let words = match (adopted.is_empty(), self.explained) {
             (true, true) if self.judged => format!(
                 "clean: no effect adopted, and the residual is {:.2}× {floor} ({:+.1}σ)",
                 self.ratio, self.z
@@ -413,6 +413,21 @@ impl ResidualCheck {
                 "adopted {adopted}, but the residual is still {:.2}× {floor} ({:.1}σ above it): more is missing than the library explains",
                 self.ratio, self.z
             ),
+        };
+        // A residual far *below* its floor is as telling as one above it: noise cannot leave
+        // less than itself, so the floor is overstated or the fit has taken part of the noise.
+        if self.judged && self.z < -Self::Z_LIMIT {
+            format!(
+                "{words}; that is {:.1}σ below the floor, more than noise allows: the floor is overstated (σ declared too high{}) or the adopted effects fit part of the noise",
+                -self.z,
+                if self.discretisation_m > 0.0 {
+                    ", or the mesh's remaining discretisation error over-estimated"
+                } else {
+                    ""
+                }
+            )
+        } else {
+            words
         }
     }
 }
@@ -1581,6 +1596,17 @@ mod tests {
         assert!(over.verdict("gravity").contains("still 1.04×"));
         let blind = ResidualCheck::new(3.0, 1.0, n, 2, false);
         assert!(blind.explained && blind.verdict("").contains("cannot be judged"));
+        // 0.96× of 3,672 residuals is 3.3σ below: said, not called clean without a word.
+        let under = ResidualCheck::new(0.96, 1.0, n, 2, true);
+        assert!(under.explained && under.z < -3.0, "{under:?}");
+        assert!(
+            under.verdict("").starts_with("clean") && under.verdict("").contains("below the floor"),
+            "{}",
+            under.verdict("")
+        );
+        assert!(!ok.verdict("").contains("below the floor"));
+        let blind_under = ResidualCheck::new(0.5, 1.0, n, 2, false);
+        assert!(!blind_under.verdict("").contains("below the floor"));
     }
 
     fn estimate(rms: f64, refined_tets: usize) -> MeshErrorSummary {
