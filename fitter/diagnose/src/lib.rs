@@ -26,11 +26,13 @@
 //! smooth model-form error ([`noise`]: a local nugget estimator with a bootstrap interval over
 //! measurements). Marker noise significantly above the declared σ is reported as the effect
 //! `noise` ([`model::Candidate::Noise`]): no parameter of the model changes, the finding is that
-//! the declared noise level is wrong, and the noise floor is recomputed with σ̂. Otherwise the
-//! declared rest positions are tested for noise of their own ([`rest_noise`]: the same nugget on
-//! each marker's mean residual over its measurements); a significant τ̂ is reported as
-//! `rest-noise` ([`model::Candidate::RestNoise`]) and the final residual is judged under the
-//! covariance both noises give ([`ResidualCheck::with_rest_noise`]).
+//! the declared noise level is wrong, and the noise floor is recomputed with σ̂. The declared rest
+//! positions are tested for noise of their own ([`rest_noise`]: the same nugget on each marker's
+//! mean residual over its measurements); a significant τ̂ is reported as `rest-noise`
+//! ([`model::Candidate::RestNoise`]) and the final residual is judged under the covariance both
+//! noises give ([`ResidualCheck::with_rest_noise`]). A noisy rest scan makes the noise test fire
+//! too; when the measurements' own (within-marker) noise is as declared, `rest-noise` replaces
+//! `noise`.
 
 /// The version the reports and exported models name as their tool.
 pub const VERSION: &str = env!("CARGO_PKG_VERSION");
@@ -511,8 +513,8 @@ pub struct DiagnosisReport {
     /// The marker-noise finding on the final model's residual (`None` if no marker has enough
     /// neighbours to estimate it).
     pub noise: Option<NoiseFinding>,
-    /// The rest-scan finding on the final model's residual (`None` when `noise` was adopted, σ
-    /// is not declared, or too few markers were seen twice).
+    /// The rest-scan finding on the final model's residual (`None` when σ is not declared or too
+    /// few markers were seen twice).
     pub rest_noise: Option<RestNoiseFinding>,
     /// Evidence plot of the noise finding: (distance from the contact m, normalised nugget error
     /// m) per marker neighbourhood.
@@ -1465,38 +1467,58 @@ pub fn run_diagnosis_with(
                 .collect()
         })
         .unwrap_or_default();
+    // The rest scan is a measurement too: tested on the final residual whenever the
+    // measurements' noise is declared.
+    let rest_noise = if ctx.sigma_declared {
+        progress("testing the rest scan for noise of its own (persistent per-marker nugget)");
+        estimate_rest_noise(
+            &ctx.marker_rest,
+            &residuals,
+            ctx.sigma,
+            &o.noise,
+            &o.rest_noise,
+        )
+    } else {
+        None
+    };
+    // A noisy rest scan is white in every measurement too, so the noise test fires on it (a
+    // one-frame rest scan with the measurements' σ gives σ̂ = √2 σ). When the measurements' own
+    // noise, the within-marker estimate from which the rest error cancels, is within the noise
+    // test's margin of the declared σ and the rest test fires, the excess is the rest scan's.
+    let mut noise = noise;
+    if let (Some(n), Some(r)) = (noise.as_mut(), rest_noise.as_ref()) {
+        let own = r.sigma_within;
+        if n.fired && r.fired && own.is_some_and(|w| w <= (1.0 + o.noise.margin) * ctx.sigma) {
+            n.fired = false;
+            n.statement = format!(
+                "{}; but the measurements' own noise, estimated from each marker's deviations from its mean (where a rest-scan error cancels), is {:.1} µm, within {:.2} × the declared σ: the excess white noise is the rest scan's (below), not the measurements'",
+                n.statement,
+                1e6 * own.unwrap_or(f64::NAN),
+                1.0 + o.noise.margin
+            );
+        }
+    }
+    let noise_adopted = noise.as_ref().filter(|n| n.fired);
+    let rest_adopted = rest_noise
+        .as_ref()
+        .filter(|r| r.fired && noise_adopted.is_none());
     let mut adopted = current.model.effects.clone();
-    if noise.as_ref().is_some_and(|n| n.fired) {
+    if noise_adopted.is_some() {
         adopted.push(Candidate::Noise);
     }
     // With `noise` adopted the floor is the re-estimated σ̂√3: the final residual is judged
-    // against it — a residual whose smooth part the nugget estimate leaves out stays visible.
-    let (check_sigma, judged) = match noise.as_ref().filter(|n| n.fired) {
+    // against it — a residual whose smooth part the nugget estimate leaves out stays visible
+    // (that σ̂ holds a rest scan's white part too, so `rest-noise` is then not adopted beside it).
+    let (check_sigma, judged) = match noise_adopted {
         Some(n) => (n.estimate, true),
         None => (ctx.sigma, ctx.sigma_declared),
-    };
-    // The rest scan is a measurement too: tested on the final residual when the measurements'
-    // own noise is declared and not re-estimated (a re-estimated σ̂ already holds its white part).
-    let rest_noise = match noise.as_ref() {
-        Some(n) if n.fired => None,
-        _ if !ctx.sigma_declared => None,
-        _ => {
-            progress("testing the rest scan for noise of its own (persistent per-marker nugget)");
-            estimate_rest_noise(
-                &ctx.marker_rest,
-                &residuals,
-                ctx.sigma,
-                &o.noise,
-                &o.rest_noise,
-            )
-        }
     };
     let remaining = ctx
         .correction
         .as_deref()
         .map_or(0.0, approx_error::delta_rms)
         / 3.0;
-    let residual_check = match rest_noise.as_ref().filter(|r| r.fired) {
+    let residual_check = match rest_adopted {
         Some(r) => {
             adopted.push(Candidate::RestNoise);
             ResidualCheck::with_rest_noise(
@@ -1540,7 +1562,7 @@ pub fn run_diagnosis_with(
     Ok(DiagnosisReport {
         dataset: ds.name.clone(),
         criterion: format!(
-            "rank by BIC = n ln(χ²/n) + k ln n; shortlist the best {} with ΔBIC < −{}; a shortlisted candidate passes if on leave-one-measurement-out predictions n ln(χ²_new/χ²_old) + k ln n < 0 AND the held-out error in excess of the noise floor drops by ≥ {:.0} % (when nothing is above the floor before: held-out ΔBIC < −{} instead); adopt the first that passes (fitted-BIC order) and report any later one that also passes with a lower held-out ΔBIC as ambiguous; repeat; then `noise` if the one-sided 95 % lower bound of the nugget estimate σ̂ of the final residual exceeds {:.2} × the declared σ; else `rest-noise` if the per-marker persistent residual's nugget sits ≥ {:.1} null standard deviations above what the measurements' noise leaves and τ̂ ≥ {:.2} σ",
+            "rank by BIC = n ln(χ²/n) + k ln n; shortlist the best {} with ΔBIC < −{}; a shortlisted candidate passes if on leave-one-measurement-out predictions n ln(χ²_new/χ²_old) + k ln n < 0 AND the held-out error in excess of the noise floor drops by ≥ {:.0} % (when nothing is above the floor before: held-out ΔBIC < −{} instead); adopt the first that passes (fitted-BIC order) and report any later one that also passes with a lower held-out ΔBIC as ambiguous; repeat; then `noise` if the one-sided 95 % lower bound of the nugget estimate σ̂ of the final residual exceeds {:.2} × the declared σ; `rest-noise` if the per-marker persistent residual's nugget sits ≥ {:.1} null standard deviations above what the measurements' noise leaves and τ̂ ≥ {:.2} σ — in place of `noise` when the within-marker estimate of the measurements' own noise is within that margin of the declared σ",
             o.cv_candidates,
             o.bic_threshold,
             100.0 * o.min_holdout_gain,
