@@ -387,21 +387,7 @@ impl Context {
                 mean[d] += m.force[d] / n;
             }
         }
-        let mean = Vector3::from(mean);
-        let nz = if mean.norm() > 1e-9 {
-            mean / mean.norm()
-        } else {
-            Vector3::new(0.0, 0.0, -1.0)
-        };
-        let helper = if nz[0].abs() < 0.9 {
-            [1.0, 0.0, 0.0]
-        } else {
-            [0.0, 1.0, 0.0]
-        };
-        let t1 = nz.cross(&Vector3::from(helper));
-        let t1 = t1 / t1.norm();
-        let t2 = nz.cross(&t1);
-        let (nz, t1, t2): ([f64; 3], [f64; 3], [f64; 3]) = (nz.into(), t1.into(), t2.into());
+        let [nz, t1, t2] = frame_along(Vector3::from(mean), 1e-9);
         let gravity = ds.gravity.unwrap_or([0.0, 0.0, -9.81]);
         let mut node_volume = vec![0.0; ds.mesh.nodes.len()];
         for (t, g) in ds.mesh.tets.iter().zip(&problem.geometry) {
@@ -416,14 +402,7 @@ impl Context {
             .collect();
         // Depth along the mean pushing direction nz, from the probed face (smallest x·nz).
         let along = |x: &[f64; 3]| x[0] * nz[0] + x[1] * nz[1] + x[2] * nz[2];
-        let (top, bottom) = ds
-            .mesh
-            .nodes
-            .iter()
-            .map(along)
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), d| {
-                (lo.min(d), hi.max(d))
-            });
+        let (top, bottom) = extent_along(&ds.mesh, nz);
         let span = (bottom - top).max(1e-12);
         let depth: Vec<f64> = centroids.iter().map(|c| (along(c) - top) / span).collect();
         let (vertical, vertical_span) = vertical_depth(&ds.mesh, &centroids, gravity);
@@ -551,6 +530,35 @@ impl LayerAxis {
     }
 }
 
+/// The unit vector along `v` (−z when |v| ≤ `tiny`) and two unit vectors across it: the frame
+/// depths are measured in.
+fn frame_along(v: Vector3<f64>, tiny: f64) -> [[f64; 3]; 3] {
+    let n = if v.norm() > tiny {
+        v / v.norm()
+    } else {
+        Vector3::new(0.0, 0.0, -1.0)
+    };
+    let helper = if n[0].abs() < 0.9 {
+        Vector3::new(1.0, 0.0, 0.0)
+    } else {
+        Vector3::new(0.0, 1.0, 0.0)
+    };
+    let t1 = n.cross(&helper);
+    let t1 = t1 / t1.norm();
+    let t2 = n.cross(&t1);
+    [n.into(), t1.into(), t2.into()]
+}
+
+/// The smallest and largest x · `dir` over the mesh's nodes.
+fn extent_along(mesh: &palpate_fem::mesh::Mesh, dir: [f64; 3]) -> (f64, f64) {
+    mesh.nodes
+        .iter()
+        .map(|x| x[0] * dir[0] + x[1] * dir[1] + x[2] * dir[2])
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), d| {
+            (lo.min(d), hi.max(d))
+        })
+}
+
 /// Depth of `points` below the surface above them along `gravity`, as a fraction of the body's
 /// vertical extent ([`surface_depth`]), and that extent (m).
 fn vertical_depth(
@@ -558,32 +566,10 @@ fn vertical_depth(
     points: &[[f64; 3]],
     gravity: [f64; 3],
 ) -> (Vec<f64>, f64) {
-    let g = Vector3::from(gravity);
-    let down = if g.norm() > 0.0 {
-        g / g.norm()
-    } else {
-        Vector3::new(0.0, 0.0, -1.0)
-    };
-    let helper = if down[0].abs() < 0.9 {
-        Vector3::new(1.0, 0.0, 0.0)
-    } else {
-        Vector3::new(0.0, 1.0, 0.0)
-    };
-    let t1 = down.cross(&helper).normalize();
-    let t2 = down.cross(&t1);
-    let along = |x: &[f64; 3]| Vector3::from(*x).dot(&down);
-    let (top, bottom) = mesh
-        .nodes
-        .iter()
-        .map(along)
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), d| {
-            (lo.min(d), hi.max(d))
-        });
+    let frame = frame_along(Vector3::from(gravity), 0.0);
+    let (top, bottom) = extent_along(mesh, frame[0]);
     let span = (bottom - top).max(1e-12);
-    (
-        surface_depth(mesh, points, [down.into(), t1.into(), t2.into()], top, span),
-        span,
-    )
+    (surface_depth(mesh, points, frame, top, span), span)
 }
 
 /// Distance of `points` to the nearest boundary triangle with a node off `fixed` (the free
