@@ -32,7 +32,7 @@
 //! ([`model::Candidate::RestNoise`]) and the final residual is judged under the covariance both
 //! noises give ([`ResidualCheck::with_rest_noise`]). A noisy rest scan makes the noise test fire
 //! too; when the measurements' own (within-marker) noise is as declared, `rest-noise` replaces
-//! `noise`.
+//! `noise`, and when it is above, both are adopted (judged under σ̂_w²I + τ̂²11ᵀ).
 
 /// The version the reports and exported models name as their tool.
 pub const VERSION: &str = env!("CARGO_PKG_VERSION");
@@ -1498,20 +1498,35 @@ pub fn run_diagnosis_with(
             );
         }
     }
+    // Both can be true at once: measurements noisier than declared *and* a noisy rest scan. The
+    // rest test's null is then the measurements' own noise σ̂_w (the within-marker estimate, from
+    // which a rest error cancels), so when it fires beside `noise` both are adopted and the
+    // residual is judged under σ̂_w² I + τ̂² 11ᵀ per marker; the pooled σ̂ of the noise test holds
+    // both noises and would count the rest scan's twice.
+    if let (Some(n), Some(r)) = (noise.as_mut(), rest_noise.as_ref()) {
+        if let (true, true, Some(own)) = (n.fired, r.fired, r.sigma_within) {
+            n.statement = format!(
+                "{}; the measurements' own noise, estimated from each marker's deviations from its mean (where a rest-scan error cancels), is {:.1} µm and the rest scan's is stated below: both are adopted",
+                n.statement,
+                1e6 * own
+            );
+        }
+    }
     let noise_adopted = noise.as_ref().filter(|n| n.fired);
     let rest_adopted = rest_noise
         .as_ref()
-        .filter(|r| r.fired && noise_adopted.is_none());
+        .filter(|r| r.fired && (noise_adopted.is_none() || r.sigma_within.is_some()));
     let mut adopted = current.model.effects.clone();
     if noise_adopted.is_some() {
         adopted.push(Candidate::Noise);
     }
-    // With `noise` adopted the floor is the re-estimated σ̂√3: the final residual is judged
-    // against it — a residual whose smooth part the nugget estimate leaves out stays visible
-    // (that σ̂ holds a rest scan's white part too, so `rest-noise` is then not adopted beside it).
-    let (check_sigma, judged) = match noise_adopted {
-        Some(n) => (n.estimate, true),
-        None => (ctx.sigma, ctx.sigma_declared),
+    // With `noise` adopted the floor is the re-estimated σ̂√3 (σ̂_w with the rest scan's noise
+    // beside it): the final residual is judged against it — a residual whose smooth part the
+    // nugget estimate leaves out stays visible.
+    let (check_sigma, judged) = match (noise_adopted, rest_adopted) {
+        (Some(_), Some(r)) => (r.sigma_within.unwrap_or(ctx.sigma), true),
+        (Some(n), None) => (n.estimate, true),
+        (None, _) => (ctx.sigma, ctx.sigma_declared),
     };
     let remaining = ctx
         .correction

@@ -86,12 +86,20 @@ fn rest_scan_noise_is_found_and_a_clean_rest_scan_is_not_accused() {
     }
 }
 
-/// The whole diagnosis (dataset mesh, one round) on a specimen with `effects` at `magnitude`.
+/// The whole diagnosis (dataset mesh, one round) on a specimen with `effect` at `magnitude`.
 fn diagnosis(effect: Effect, magnitude: f64, seed: u64) -> palpate_diagnose::DiagnosisReport {
+    diagnosis_of(&[(effect, magnitude)], seed)
+}
+
+/// The whole diagnosis (dataset mesh, one round) on a specimen with `effects` (effect, magnitude).
+fn diagnosis_of(effects: &[(Effect, f64)], seed: u64) -> palpate_diagnose::DiagnosisReport {
     use palpate_diagnose::{run_diagnosis, DiagnoseOptions, MeshChoice};
     use palpate_specimen::EffectSpec;
     let o = SpecimenOptions {
-        effects: vec![EffectSpec { effect, magnitude }],
+        effects: effects
+            .iter()
+            .map(|&(effect, magnitude)| EffectSpec { effect, magnitude })
+            .collect(),
         ..SpecimenOptions::with_effect(None, seed)
     };
     let s = generate(&o).expect("specimen");
@@ -102,7 +110,7 @@ fn diagnosis(effect: Effect, magnitude: f64, seed: u64) -> palpate_diagnose::Dia
     };
     let r = run_diagnosis(&s.dataset, &d).expect("diagnosis");
     eprintln!(
-        "{effect:?} {magnitude} seed {seed}: adopted {:?}; {}",
+        "{effects:?} seed {seed}: adopted {:?}; {}",
         r.adopted,
         r.residual_check.verdict("…")
     );
@@ -128,5 +136,31 @@ fn a_one_frame_rest_scan_is_named_rest_noise_and_marker_noise_stays_noise() {
         assert!(c.ratio < c.ratio_noise - 0.2, "{c:?}");
         let noise = diagnosis(Effect::Noise, 1.0, seed);
         assert_eq!(noise.adopted, vec![Candidate::Noise]);
+    }
+}
+
+/// Measurements noisier than declared (actual 3σ) *and* a one-frame rest scan (τ = σ): both noise
+/// tests fire, and since the measurements' own noise (the within-marker estimate, σ̂_w ≈ 3σ) is
+/// far above the declared σ, the rest scan does not explain the excess alone — both are
+/// adopted, and the residual is judged under σ̂_w² I + τ̂² 11ᵀ. Measured with `--mesh auto`
+/// (`palpate specimen --effect noise,rest-noise --magnitude 2,1`, seeds 1, 2): τ̂ 105.3 / 116.7 µm,
+/// σ̂_w 279.3 / 298.9 µm; before, only `noise` was named. Without the rest scan's noise (the
+/// noise specimens above) the rest test does not fire.
+#[test]
+fn marker_noise_and_a_noisy_rest_scan_are_both_named() {
+    use palpate_diagnose::model::Candidate;
+    for seed in [1, 2] {
+        let r = diagnosis_of(&[(Effect::Noise, 2.0), (Effect::RestNoise, 1.0)], seed);
+        assert_eq!(r.adopted, vec![Candidate::Noise, Candidate::RestNoise]);
+        let rest = r.rest_noise.as_ref().expect("rest test");
+        assert!(
+            (rest.estimate / 1e-4 - 1.0).abs() < 0.3,
+            "τ̂ {}",
+            rest.estimate
+        );
+        let own = rest.sigma_within.expect("within-marker estimate");
+        assert!((own / 3e-4 - 1.0).abs() < 0.15, "σ̂_w {own}");
+        let c = &r.residual_check;
+        assert!((c.rest_noise_m - rest.estimate).abs() < 1e-12, "{c:?}");
     }
 }
