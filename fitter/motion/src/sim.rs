@@ -522,6 +522,14 @@ pub fn simulate(
         xm2 = std::mem::replace(&mut xm1, x);
         vm3 = std::mem::replace(&mut vm2, std::mem::replace(&mut vm1, v));
     }
+    log::debug!(
+        "forward run: {} steps, {} Newton iterations, {} factorisations, {} steps unconverged (largest residual {:.1e} N)",
+        model.steps,
+        stats.newton_iterations,
+        stats.factorisations,
+        stats.unconverged_steps,
+        stats.max_residual
+    );
     Ok(stats)
 }
 
