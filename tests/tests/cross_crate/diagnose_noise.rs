@@ -164,3 +164,41 @@ fn marker_noise_and_a_noisy_rest_scan_are_both_named() {
         assert!((c.rest_noise_m - rest.estimate).abs() < 1e-12, "{c:?}");
     }
 }
+
+/// A noisy rest scan is in every measurement's residual at a marker and no candidate can remove
+/// it, so the gate measures a candidate's held-out gain over a floor that holds it: a weak force
+/// calibration error (p = 0.2) beside a one-frame rest scan (τ = σ) is adopted. Before, the
+/// rest scan's share inflated the excess the gain was measured against and only `rest-noise`
+/// was named (`palpate specimen --effect calibration,rest-noise --magnitude 0.2,1 --seed 1`).
+#[test]
+fn the_gate_counts_the_rest_scan_in_the_floor() {
+    use palpate_diagnose::model::Candidate;
+    use palpate_diagnose::{run_diagnosis, DiagnoseOptions};
+    use palpate_specimen::EffectSpec;
+    let o = SpecimenOptions {
+        effects: vec![
+            EffectSpec {
+                effect: Effect::Calibration,
+                magnitude: 0.2,
+            },
+            EffectSpec {
+                effect: Effect::RestNoise,
+                magnitude: 1.0,
+            },
+        ],
+        ..SpecimenOptions::with_effect(None, 1)
+    };
+    let s = generate(&o).expect("specimen");
+    // As `palpate diagnose` runs it: the dataset mesh's own error corrected (`--mesh auto`), or
+    // that error, not the rest scan, fills the excess.
+    let d = DiagnoseOptions {
+        max_effects: 2,
+        ..Default::default()
+    };
+    let r = run_diagnosis(&s.dataset, &d).expect("diagnosis");
+    eprintln!("adopted {:?}; {}", r.adopted, r.residual_check.verdict("…"));
+    assert_eq!(
+        r.adopted,
+        vec![Candidate::Calibration, Candidate::RestNoise]
+    );
+}

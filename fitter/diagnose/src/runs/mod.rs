@@ -118,6 +118,12 @@ impl Effect {
             Self::HangingInertia | Self::TimeOffset => &[],
         }
     }
+    /// Whether `self` is `other` with some of `other`'s material parameters held at their neutral
+    /// values (Newtonian damping is the power law at h = 1). Switches (no parameters) nest nothing.
+    pub fn nested_in(self, other: Effect) -> bool {
+        let (a, b) = (self.kinds(), other.kinds());
+        !a.is_empty() && a.len() < b.len() && a.iter().all(|k| b.contains(k))
+    }
     /// Parameters it adds to a model of `runs` runs: its material kinds, or one offset per run.
     fn parameters(self, runs: usize) -> usize {
         match self {
@@ -491,6 +497,9 @@ struct RunsModel<'a> {
     o: &'a RunsOptions,
     log: &'a dyn Fn(&str),
     trials: Vec<Trial>,
+    /// Each fitted candidate's material, by round: the start of a later candidate of the same
+    /// round that nests it.
+    fitted: Vec<(usize, Effect, Material)>,
 }
 
 impl RunsModel<'_> {
@@ -734,7 +743,25 @@ impl CandidateModel for RunsModel<'_> {
         let mut effects = cur.effects.clone();
         effects.push(c);
         (self.log)(&format!("round {round}: fitting {}", Self::name(&effects)));
+        // A candidate that nests one already fitted this round (the power law holds Newtonian
+        // damping at h = 1) starts from that fit, its own extra parameters at their neutral
+        // values: it starts where the nested model ended, so its fit can only end as low, and
+        // it spends no simulations finding the shared parameters again.
+        let nested = self
+            .fitted
+            .iter()
+            .rev()
+            .find(|(r, d, _)| *r == round && d.nested_in(c))
+            .map(|(_, d, m)| (*d, m.clone()));
         let mut start = cur.material.clone();
+        if let Some((d, m)) = nested {
+            (self.log)(&format!(
+                "round {round}: {} starts from the fit of {} (nested in it)",
+                c.name(),
+                d.name()
+            ));
+            start = m;
+        }
         if c.kinds().contains(&ParamKind::Nu) && start.get(ParamKind::Nu, 0) <= 0.0 {
             let (nu, source) = self.start_viscosity(cur);
             (self.log)(&format!(
@@ -770,7 +797,10 @@ impl CandidateModel for RunsModel<'_> {
             self.fit(&effects, &start, &cur.offsets, budget)
         };
         match fitted {
-            Ok(f) => Ok(Outcome::Fitted(f)),
+            Ok(f) => {
+                self.fitted.push((round, c, f.material.clone()));
+                Ok(Outcome::Fitted(f))
+            }
             Err(e) => Ok(self.not_fitted(round, c, e.to_string())),
         }
     }
@@ -968,6 +998,7 @@ pub fn diagnose_runs(
         o,
         log,
         trials: Vec::new(),
+        fitted: Vec::new(),
     };
     log("fitting the simplest model (Neo-Hookean, fixed Poisson's ratio, no damping)");
     let start = m.fit(&[], &base, &[], o.max_iters)?;
@@ -1125,7 +1156,19 @@ pub fn diagnose_runs(
 
 #[cfg(test)]
 mod tests {
-    use super::{ring_down, viscosity_from_ring_down, RunResidual};
+    use super::{ring_down, viscosity_from_ring_down, Effect, RunResidual, ALL_EFFECTS};
+
+    /// Only Newtonian damping nests in another candidate (the power law at h = 1); switches and
+    /// the time offset nest nothing, and nothing nests in itself.
+    #[test]
+    fn only_newtonian_damping_nests_in_the_power_law() {
+        for a in ALL_EFFECTS {
+            for b in ALL_EFFECTS {
+                let expected = a == Effect::Damping && b == Effect::DampingPowerLaw;
+                assert_eq!(a.nested_in(b), expected, "{a:?} in {b:?}");
+            }
+        }
+    }
 
     #[test]
     fn ring_down_reads_period_and_decay_of_a_damped_sine() {
