@@ -852,10 +852,6 @@ struct StaticModel<'a> {
     all: Vec<usize>,
     o: &'a DiagnoseOptions,
     progress: &'a mut dyn FnMut(&str),
-    /// The rest scan's noise τ̂ (m per axis) the rest test finds in the current model's residual
-    /// at the start of the round (0 when it does not fire): part of the floor the gate measures a
-    /// candidate's gain over, since no candidate can explain it.
-    rest_tau: f64,
 }
 
 /// The static gate's figures of one cross-validated candidate.
@@ -886,30 +882,7 @@ impl select::CandidateModel for StaticModel<'_> {
     type Adoption = StaticAdoption;
     type Error = DiagnoseError;
 
-    fn observe(&mut self, round: usize, f: &Fitted, held: &Held) -> (Signature, Errors) {
-        // A noisy rest scan sits in every measurement's residual at a marker and no candidate
-        // can remove it, so the gate counts it in the floor: with it left out, an effect that
-        // explained the rest of the excess was judged against an excess the rest scan inflated
-        // (an independent dome draw's sensor power law: held-out ΔBIC −25.1, implied force error
-        // 0.356 → 0.110 N, rejected at 4 % of an excess that was mostly the rest scan's 46 µm).
-        self.rest_tau = 0.0;
-        if self.ctx.sigma_declared {
-            (self.progress)(&format!(
-                "round {round}: testing the rest scan for noise of its own (the gate's floor)"
-            ));
-            let residuals = signature::residual_vectors(&self.ctx, f);
-            if let Some(r) = estimate_rest_noise(
-                &self.ctx.marker_rest,
-                &residuals,
-                self.ctx.sigma,
-                &self.o.noise,
-                &self.o.rest_noise,
-            ) {
-                if r.fired {
-                    self.rest_tau = r.estimate;
-                }
-            }
-        }
+    fn observe(&mut self, _round: usize, f: &Fitted, held: &Held) -> (Signature, Errors) {
         (signature(&self.ctx, f), errors(&self.ctx, f, held))
     }
 
@@ -1021,17 +994,7 @@ impl select::CandidateModel for StaticModel<'_> {
             .as_deref()
             .map_or(0.0, approx_error::delta_rms)
             / 3.0;
-        let floor2 = 3.0 * ctx.sigma * ctx.sigma
-            + 3.0 * self.rest_tau * self.rest_tau
-            + remaining * remaining;
-        let widened = if self.rest_tau > 0.0 {
-            format!(
-                "widened by the mesh's remaining discretisation error and the rest scan's noise, {:.1} µm",
-                1e6 * self.rest_tau
-            )
-        } else {
-            "widened by the mesh's remaining discretisation error".to_string()
-        };
+        let floor2 = 3.0 * ctx.sigma * ctx.sigma + remaining * remaining;
         let excess = |r: f64| {
             if ctx.sigma_declared {
                 (r * r - floor2).max(0.0).sqrt()
@@ -1053,17 +1016,17 @@ impl select::CandidateModel for StaticModel<'_> {
         let below = ctx.sigma_declared && excess(before.heldout_rms) <= 0.0;
         let words = if below {
             format!(
-                "{words}; nothing above the noise floor ({widened}) before: held-out ΔBIC < −{} \
-                 required instead of a gain",
+                "{words}; nothing above the noise floor (widened by the mesh's remaining \
+                 discretisation error) before: held-out ΔBIC < −{} required instead of a gain",
                 o.bic_threshold
             )
         } else {
             format!(
                 "{words}; {} {:.0}% lower (≥ {:.0}% required)",
                 if ctx.sigma_declared {
-                    format!("held-out error in excess of the noise floor ({widened})")
+                    "held-out error in excess of the noise floor (widened by the mesh's remaining discretisation error)"
                 } else {
-                    "held-out RMS".to_string()
+                    "held-out RMS"
                 },
                 100.0 * excess_gain,
                 100.0 * o.min_holdout_gain
@@ -1473,7 +1436,6 @@ pub fn run_diagnosis_with(
         all,
         o,
         progress: &mut progress,
-        rest_tau: 0.0,
     };
     let verdict = select::select(&mut engine, &policy, current, current_held)?;
     let steps = static_steps(&verdict, o, engine.ctx.meas.len());
@@ -1615,7 +1577,7 @@ pub fn run_diagnosis_with(
     Ok(DiagnosisReport {
         dataset: ds.name.clone(),
         criterion: format!(
-            "rank by BIC = n ln(χ²/n) + k ln n; shortlist the best {} with ΔBIC < −{}; a shortlisted candidate passes if on leave-one-measurement-out predictions n ln(χ²_new/χ²_old) + k ln n < 0 AND the held-out error in excess of the noise floor (widened by the mesh's remaining error and by the rest scan's noise where the rest test fires on the round's residual) drops by ≥ {:.0} % (when nothing is above the floor before: held-out ΔBIC < −{} instead); adopt the first that passes (fitted-BIC order) and report any later one that also passes with a lower held-out ΔBIC as ambiguous; repeat; then `noise` if the one-sided 95 % lower bound of the nugget estimate σ̂ of the final residual exceeds {:.2} × the declared σ; `rest-noise` if the per-marker persistent residual's nugget sits ≥ {:.1} null standard deviations above what the measurements' noise leaves and τ̂ ≥ {:.2} σ — in place of `noise` when the within-marker estimate of the measurements' own noise is within that margin of the declared σ",
+            "rank by BIC = n ln(χ²/n) + k ln n; shortlist the best {} with ΔBIC < −{}; a shortlisted candidate passes if on leave-one-measurement-out predictions n ln(χ²_new/χ²_old) + k ln n < 0 AND the held-out error in excess of the noise floor drops by ≥ {:.0} % (when nothing is above the floor before: held-out ΔBIC < −{} instead); adopt the first that passes (fitted-BIC order) and report any later one that also passes with a lower held-out ΔBIC as ambiguous; repeat; then `noise` if the one-sided 95 % lower bound of the nugget estimate σ̂ of the final residual exceeds {:.2} × the declared σ; `rest-noise` if the per-marker persistent residual's nugget sits ≥ {:.1} null standard deviations above what the measurements' noise leaves and τ̂ ≥ {:.2} σ — in place of `noise` when the within-marker estimate of the measurements' own noise is within that margin of the declared σ",
             o.cv_candidates,
             o.bic_threshold,
             100.0 * o.min_holdout_gain,
