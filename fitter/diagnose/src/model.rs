@@ -12,6 +12,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::DiagnoseError;
+use palpate_fem::dataset::embed::closest_point_on_triangle;
 use palpate_fem::dataset::{Marker, StaticDataset};
 use palpate_fem::forward::{Factorised, Load, Material, SolveOptions, StaticProblem};
 use palpate_specimen::generate::rotate;
@@ -586,18 +587,17 @@ fn skin_depth(
         }
         v
     };
-    let tris: Vec<[Vector3<f64>; 3]> = mesh
+    let tris: Vec<[[f64; 3]; 3]> = mesh
         .boundary_triangles()
         .into_iter()
         .filter(|t| t.iter().any(|&n| !is_fixed[n]))
-        .map(|t| t.map(|n| Vector3::from(mesh.nodes[n])))
+        .map(|t| t.map(|n| mesh.nodes[n]))
         .collect();
     let d: Vec<f64> = points
         .par_iter()
         .map(|p| {
-            let p = Vector3::from(*p);
             tris.iter()
-                .map(|t| point_triangle_distance(&p, t))
+                .map(|t| point_triangle_distance(*p, t))
                 .fold(f64::INFINITY, f64::min)
         })
         .collect();
@@ -610,43 +610,10 @@ fn skin_depth(
     )
 }
 
-/// Euclidean distance from `p` to the triangle `t` (Ericson, Real-Time Collision Detection,
-/// 5.1.5: the closest point by Voronoi regions of the vertices, edges and face).
-fn point_triangle_distance(p: &Vector3<f64>, t: &[Vector3<f64>; 3]) -> f64 {
-    let (a, b, c) = (t[0], t[1], t[2]);
-    let (ab, ac, ap) = (b - a, c - a, p - a);
-    let (d1, d2) = (ab.dot(&ap), ac.dot(&ap));
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return ap.norm();
-    }
-    let bp = p - b;
-    let (d3, d4) = (ab.dot(&bp), ac.dot(&bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return bp.norm();
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        let v = d1 / (d1 - d3);
-        return (p - (a + ab * v)).norm();
-    }
-    let cp = p - c;
-    let (d5, d6) = (ab.dot(&cp), ac.dot(&cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return cp.norm();
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        let w = d2 / (d2 - d6);
-        return (p - (a + ac * w)).norm();
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        return (p - (b + (c - b) * w)).norm();
-    }
-    let denom = 1.0 / (va + vb + vc);
-    let (v, w) = (vb * denom, vc * denom);
-    (p - (a + ab * v + ac * w)).norm()
+/// Euclidean distance from `p` to the triangle `t`, by the marker embedding's closest point.
+fn point_triangle_distance(p: [f64; 3], t: &[[f64; 3]; 3]) -> f64 {
+    let (_, q) = closest_point_on_triangle(p, t[0], t[1], t[2]);
+    (Vector3::from(p) - Vector3::from(q)).norm()
 }
 
 /// Depth of each of `points` below the probed surface along `frame[0]` (the mean pushing
@@ -1545,11 +1512,8 @@ mod tests {
     /// The closed form against the nearest of 20,301 points spread over the triangle.
     #[test]
     fn point_triangle_distance_matches_a_dense_sampling() {
-        let t = [
-            Vector3::new(0.0, 0.0, 0.0),
-            Vector3::new(1.0, 0.2, 0.1),
-            Vector3::new(0.3, 0.9, -0.2),
-        ];
+        let t = [[0.0, 0.0, 0.0], [1.0, 0.2, 0.1], [0.3, 0.9, -0.2]];
+        let tv = t.map(Vector3::from);
         let mut rng = palpate_specimen::rng(3);
         for _ in 0..200 {
             let p = Vector3::new(
@@ -1562,11 +1526,11 @@ mod tests {
             for i in 0..=n {
                 for j in 0..=n - i {
                     let (u, v) = (i as f64 / n as f64, j as f64 / n as f64);
-                    let q = t[0] + (t[1] - t[0]) * u + (t[2] - t[0]) * v;
+                    let q = tv[0] + (tv[1] - tv[0]) * u + (tv[2] - tv[0]) * v;
                     brute = brute.min((p - q).norm());
                 }
             }
-            let d = point_triangle_distance(&p, &t);
+            let d = point_triangle_distance(p.into(), &t);
             // The sampling's spacing is ≈ 0.005: it can only overestimate, by at most that.
             assert!(
                 d <= brute + 1e-12 && brute - d < 6e-3,
