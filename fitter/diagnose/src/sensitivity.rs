@@ -15,6 +15,14 @@
 //! a = −gᵀφ / (2 ‖Jφ‖²), where Jφ (the markers' response to the blob, in units of σ) costs one
 //! back-substitution per measurement with the factor already made for the adjoint. The scan
 //! evaluates it on a grid of centres and two radii and returns the best.
+//!
+//! The fit that follows refits the homogeneous (λ, α) beside the blob, so the scan scores each
+//! blob as that joint fit would — profiled (the Schur complement of the Gauss–Newton model):
+//! Jφ and gᵀφ with their parts along the uniform log λ and log α directions taken out. Without
+//! it a broad blob, much of whose response a global modulus change already gives, is scored as
+//! if that part had to be paid for again, and the scan prefers a small blob at the surface to
+//! a large soft core (the independent generator's cylinder 6005: a ×0.13 core of radius 10 mm
+//! was scored below a stiffer 8 mm blob 26 mm away).
 
 use nalgebra::{Matrix3, SVector};
 use palpate_fem::forward::{rotate_vec, Factorised};
@@ -37,6 +45,24 @@ pub struct Sensitivity {
     /// dχ²/d log E_e per element (χ² in units of σ²).
     pub gradient: Vec<f64>,
     per_measurement: Vec<(usize, Linearised)>,
+    /// The uniform log λ and log α directions, orthonormalised: each an observed-marker
+    /// response (units of σ, stacked in the scan's order) with its gradient component carried
+    /// through the same Gram–Schmidt steps.
+    uniform: Vec<(Vec<f64>, f64)>,
+}
+
+/// One measurement's marker responses and gradient components along the uniform log λ and log α
+/// directions, before they are stacked and orthonormalised.
+type UniformParts = [(Vec<f64>, f64); 2];
+
+/// Removes from (j, g) its parts along the orthonormal directions `basis` (Gram–Schmidt with
+/// the gradient component carried along: for u = Σ c_k b_k, gᵤ = Σ c_k g_k).
+fn profile(basis: &[(Vec<f64>, f64)], j: &mut [f64], g: &mut f64) {
+    for (u, gu) in basis {
+        let c: f64 = j.iter().zip(u).map(|(a, b)| a * b).sum();
+        j.iter_mut().zip(u).for_each(|(a, b)| *a -= c * b);
+        *g -= c * gu;
+    }
 }
 
 /// Full-node vector from a free-dof vector (zero on fixed nodes).
@@ -56,39 +82,73 @@ pub fn log_modulus_gradient(ctx: &Context, f: &Fitted) -> Result<Sensitivity, Di
     let ne = ctx.problem.element_count();
     let nn = ctx.problem.node_count();
     let s2 = ctx.sigma * ctx.sigma;
-    let per: Vec<(usize, Linearised)> = f
+    let per: Vec<(usize, Linearised, UniformParts)> = f
         .subset
         .par_iter()
         .enumerate()
-        .map(|(k, &i)| -> Result<(usize, Linearised), DiagnoseError> {
-            let x = &f.sim.x[k];
-            let rot: Vec<Matrix3<f64>> = ctx.problem.rotations(x, ctx.solve.warp);
-            let factor = ctx
-                .problem
-                .factorise(&material, &rot)
-                .map_err(|e| DiagnoseError::Diverged(format!("sensitivity: {e}")))?;
-            let q = (0..ne)
-                .map(|e| {
-                    let u = ctx.problem.unrotated_displacement(e, &rot[e], x);
-                    rotate_vec(&rot[e], &(ctx.problem.element_stiffness(e, &material) * u))
-                })
-                .collect();
-            // ∂χ²/∂x: 2 (sim − measured)/σ² spread on each marker's triangle.
-            let mut dx = vec![0.0; 3 * nn];
-            for (&(m, meas), p) in ctx.meas[i].observed.iter().zip(&f.sim.markers[k]) {
-                let mk = &ctx.markers[m];
-                for (t, &n) in mk.triangle.iter().enumerate() {
-                    for d in 0..3 {
-                        dx[3 * n + d] += 2.0 * mk.barycentric[t] * (p[d] - meas[d]) / s2;
+        .map(
+            |(k, &i)| -> Result<(usize, Linearised, UniformParts), DiagnoseError> {
+                let x = &f.sim.x[k];
+                let rot: Vec<Matrix3<f64>> = ctx.problem.rotations(x, ctx.solve.warp);
+                let factor = ctx
+                    .problem
+                    .factorise(&material, &rot)
+                    .map_err(|e| DiagnoseError::Diverged(format!("sensitivity: {e}")))?;
+                // q_e and its λ part R_e λ_e C_e ũ_e (the α part is the difference): the uniform
+                // log λ and log α directions' forces.
+                let (q, q_lambda): (Vec<SVector<f64, 12>>, Vec<SVector<f64, 12>>) = (0..ne)
+                    .map(|e| {
+                        let u = ctx.problem.unrotated_displacement(e, &rot[e], x);
+                        let (l, _) = material.at(e);
+                        (
+                            rotate_vec(&rot[e], &(ctx.problem.element_stiffness(e, &material) * u)),
+                            rotate_vec(&rot[e], &(ctx.problem.c[e] * l * u)),
+                        )
+                    })
+                    .unzip();
+                // ∂χ²/∂x: 2 (sim − measured)/σ² spread on each marker's triangle.
+                let mut dx = vec![0.0; 3 * nn];
+                for (&(m, meas), p) in ctx.meas[i].observed.iter().zip(&f.sim.markers[k]) {
+                    let mk = &ctx.markers[m];
+                    for (t, &n) in mk.triangle.iter().enumerate() {
+                        for d in 0..3 {
+                            dx[3 * n + d] += 2.0 * mk.barycentric[t] * (p[d] - meas[d]) / s2;
+                        }
                     }
                 }
-            }
-            let mut rhs = ctx.problem.gather_free(&dx);
-            factor.solve_in_place(&mut rhs);
-            let lambda = nodal(ctx, &rhs);
-            Ok((i, Linearised { factor, q, lambda }))
-        })
+                let mut rhs = ctx.problem.gather_free(&dx);
+                factor.solve_in_place(&mut rhs);
+                let lambda = nodal(ctx, &rhs);
+                let q_alpha: Vec<SVector<f64, 12>> =
+                    q.iter().zip(&q_lambda).map(|(a, b)| a - b).collect();
+                let uniform = [&q_lambda, &q_alpha].map(|qs| {
+                    let phi = vec![1.0; ne];
+                    let j = marker_response(ctx, &factor, qs, &phi, i);
+                    let g: f64 = -(0..ne)
+                        .map(|e| {
+                            (0..12)
+                                .map(|a| lambda[ctx.problem.tets[e][a / 3]][a % 3] * qs[e][a])
+                                .sum::<f64>()
+                        })
+                        .sum::<f64>();
+                    (j, g)
+                });
+                Ok((i, Linearised { factor, q, lambda }, uniform))
+            },
+        )
         .collect::<Result<_, _>>()?;
+    // The two uniform directions stacked over the measurements, then orthonormalised.
+    let mut uniform: Vec<(Vec<f64>, f64)> = Vec::new();
+    for k in 0..2 {
+        let mut j: Vec<f64> = per.iter().flat_map(|(_, _, u)| u[k].0.clone()).collect();
+        let mut g: f64 = per.iter().map(|(_, _, u)| u[k].1).sum();
+        profile(&uniform, &mut j, &mut g);
+        let norm = j.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if norm > 0.0 {
+            uniform.push((j.iter().map(|v| v / norm).collect(), g / norm));
+        }
+    }
+    let per: Vec<(usize, Linearised)> = per.into_iter().map(|(i, l, _)| (i, l)).collect();
     let tets = &ctx.problem.tets;
     let mut gradient = vec![0.0; ne];
     for (_, l) in &per {
@@ -102,6 +162,7 @@ pub fn log_modulus_gradient(ctx: &Context, f: &Fitted) -> Result<Sensitivity, Di
     Ok(Sensitivity {
         gradient,
         per_measurement: per,
+        uniform,
     })
 }
 
@@ -155,34 +216,51 @@ fn scan_centres(ctx: &Context, n: usize, m: usize) -> Vec<[f64; 3]> {
     out.into_iter().map(|e| c[e]).collect()
 }
 
-/// The Gauss–Newton model of χ² along a log-E field `phi` (per element) added with contrast a:
-/// (gᵀφ, ‖Jφ‖²), with Jφ the observed markers' response in units of σ — one back-substitution
-/// per measurement with the factor already made for the adjoint. `None` when no marker responds.
-fn gauss_newton_along(ctx: &Context, s: &Sensitivity, phi: &[f64]) -> Option<(f64, f64)> {
+/// The observed markers' response (units of σ) of measurement `i` to the log-E field `phi`
+/// acting through the element forces `q`: dx = −K'⁻¹ Σ_e φ_e q_e, one back-substitution.
+fn marker_response(
+    ctx: &Context,
+    factor: &Factorised,
+    q: &[SVector<f64, 12>],
+    phi: &[f64],
+    i: usize,
+) -> Vec<f64> {
     let tets = &ctx.problem.tets;
-    let nn = ctx.problem.node_count();
-    let g: f64 = s.gradient.iter().zip(phi).map(|(a, b)| a * b).sum();
-    let mut jj = 0.0;
-    for (i, l) in &s.per_measurement {
-        // dx = −K'⁻¹ Σ_e φ_e q_e.
-        let mut rhs = vec![0.0; 3 * nn];
-        for (e, w) in phi.iter().enumerate() {
-            if w.abs() < 1e-6 {
-                continue;
-            }
-            for a in 0..12 {
-                rhs[3 * tets[e][a / 3] + a % 3] -= w * l.q[e][a];
-            }
+    let mut rhs = vec![0.0; 3 * ctx.problem.node_count()];
+    for (e, w) in phi.iter().enumerate() {
+        if w.abs() < 1e-6 {
+            continue;
         }
-        let mut free = ctx.problem.gather_free(&rhs);
-        l.factor.solve_in_place(&mut free);
-        let dx = nodal(ctx, &free);
-        for &(m, _) in &ctx.meas[*i].observed {
-            let p = ctx.markers[m].interpolate(|n| dx[n]);
-            jj += (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]) / (ctx.sigma * ctx.sigma);
+        for a in 0..12 {
+            rhs[3 * tets[e][a / 3] + a % 3] -= w * q[e][a];
         }
     }
-    (jj > 0.0).then_some((g, jj))
+    let mut free = ctx.problem.gather_free(&rhs);
+    factor.solve_in_place(&mut free);
+    let dx = nodal(ctx, &free);
+    ctx.meas[i]
+        .observed
+        .iter()
+        .flat_map(|&(m, _)| ctx.markers[m].interpolate(|n| dx[n]).map(|v| v / ctx.sigma))
+        .collect()
+}
+
+/// The Gauss–Newton model of χ² along a log-E field `phi` (per element) added with contrast a,
+/// profiled over the homogeneous (λ, α) the fit refits beside it: (gᵀφ, ‖Jφ‖²) with both
+/// parts along the uniform directions removed, Jφ the observed markers' response in units of
+/// σ. `None` when no marker responds outside those directions.
+fn gauss_newton_along(ctx: &Context, s: &Sensitivity, phi: &[f64]) -> Option<(f64, f64)> {
+    let mut g: f64 = s.gradient.iter().zip(phi).map(|(a, b)| a * b).sum();
+    let mut j: Vec<f64> = s
+        .per_measurement
+        .iter()
+        .flat_map(|(i, l)| marker_response(ctx, &l.factor, &l.q, phi, *i))
+        .collect();
+    let jj0: f64 = j.iter().map(|v| v * v).sum();
+    profile(&s.uniform, &mut j, &mut g);
+    let jj: f64 = j.iter().map(|v| v * v).sum();
+    // A field the uniform directions already give (φ ≡ 1) leaves round-off only.
+    (jj > 1e-9 * jj0 && jj > 0.0).then_some((g, jj))
 }
 
 /// Matched-filter scan of Gaussian blobs of log E over the body (radii as fractions of the half

@@ -11,7 +11,8 @@ use super::SpecimenError;
 pub enum Effect {
     /// Strain stiffening beyond Neo-Hookean: c (Ī₁ − 3)² (Yeoh's second-order term on the isochoric invariant Ī₁ = J^(−2/3) I₁) with c = magnitude × μ.
     Stiffening,
-    /// A stiff spherical inclusion under the top face: E_inclusion = (1 + magnitude) E.
+    /// A spherical inclusion under the top face: E_inclusion = (1 + magnitude) E, stiff for a
+    /// positive magnitude, soft for one in (−1, 0).
     Inclusion,
     /// A soft top layer (a quarter of the height): E_layer = E / (1 + magnitude).
     SoftLayer,
@@ -121,8 +122,10 @@ impl Effect {
             Effect::Calibration if !(-0.9..=2.0).contains(&m) => {
                 bad("a power-law exponent in [-0.9, 2]")
             }
-            Effect::Inclusion
-            | Effect::SoftLayer
+            Effect::Inclusion if m <= -1.0 => {
+                bad("> −1 (E_inclusion = (1 + magnitude) E: −1 < m < 0 a soft inclusion)")
+            }
+            Effect::SoftLayer
             | Effect::Stiffening
             | Effect::Gravity
             | Effect::Noise
