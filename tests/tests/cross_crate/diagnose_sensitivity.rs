@@ -80,6 +80,30 @@ fn gradient_error(ctx: &Context, f: &palpate_diagnose::fit::Fitted) -> f64 {
     worst
 }
 
+/// The sensitivity scan of the fit `f` and its centre's distance (m) from the truth's `centre`.
+fn scan_against(
+    ctx: &Context,
+    f: &palpate_diagnose::fit::Fitted,
+    centre: [f64; 3],
+) -> (palpate_diagnose::sensitivity::BlobScan, f64) {
+    let sens = log_modulus_gradient(ctx, f).unwrap();
+    let scan = scan_blobs(ctx, &sens, &[0.3, 0.6]).expect("a blob");
+    let dist = (0..3)
+        .map(|d| (scan.centre[d] - centre[d]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    eprintln!(
+        "scan: centre {:?} mm (truth {:?}), radius {:.1} mm, contrast {:.2}, predicted Δχ² {:.0}; {:.1} mm off",
+        scan.centre.map(|v| 1e3 * v),
+        centre.map(|v| 1e3 * v),
+        1e3 * scan.radius,
+        scan.contrast,
+        scan.reduction,
+        1e3 * dist
+    );
+    (scan, dist)
+}
+
 fn fitted(ctx: &Context) -> palpate_diagnose::fit::Fitted {
     let all: Vec<usize> = (0..ctx.meas.len()).collect();
     let (theta0, sim0) = initial_theta(ctx, &all).unwrap();
@@ -102,22 +126,7 @@ fn log_modulus_gradient_matches_finite_differences_and_the_scan_finds_an_off_cen
     let err = gradient_error(&ctx, &f);
     eprintln!("warped: worst {err:.2e} of the largest entry");
     assert!(err < 0.15, "warped adjoint vs FD: {err}");
-    let sens = log_modulus_gradient(&ctx, &f).unwrap();
-    let scan = scan_blobs(&ctx, &sens, &[0.3, 0.6]).expect("a blob");
-    let truth = [0.25 * 0.08, 0.7 * 0.08, 0.5 * 0.04];
-    let dist = (0..3)
-        .map(|d| (scan.centre[d] - truth[d]).powi(2))
-        .sum::<f64>()
-        .sqrt();
-    eprintln!(
-        "scan: centre {:?} mm (truth {:?}), radius {:.1} mm, contrast {:.2}, predicted Δχ² {:.0}; {:.1} mm off",
-        scan.centre.map(|v| 1e3 * v),
-        truth.map(|v| 1e3 * v),
-        1e3 * scan.radius,
-        scan.contrast,
-        scan.reduction,
-        1e3 * dist
-    );
+    let (scan, dist) = scan_against(&ctx, &f, [0.25 * 0.08, 0.7 * 0.08, 0.5 * 0.04]);
     // One element of the 6 × 6 × 3 dataset mesh is 13.3 mm across.
     assert!(dist < 0.0134, "scan centre {dist} m from the inclusion");
     assert!(
@@ -219,22 +228,7 @@ fn the_profiled_scan_finds_a_large_soft_core() {
     .expect("specimen");
     let ctx = Context::new(&s.dataset, [3, 3, 2]).unwrap();
     let f = fitted(&ctx);
-    let sens = log_modulus_gradient(&ctx, &f).unwrap();
-    let scan = scan_blobs(&ctx, &sens, &[0.3, 0.6]).expect("a blob");
-    let truth = [0.5 * 0.08, 0.45 * 0.08, 0.45 * 0.04];
-    let dist = (0..3)
-        .map(|d| (scan.centre[d] - truth[d]).powi(2))
-        .sum::<f64>()
-        .sqrt();
-    eprintln!(
-        "scan: centre {:?} mm (truth {:?}), radius {:.1} mm, contrast {:.2}, predicted Δχ² {:.0}; {:.1} mm off",
-        scan.centre.map(|v| 1e3 * v),
-        truth.map(|v| 1e3 * v),
-        1e3 * scan.radius,
-        scan.contrast,
-        scan.reduction,
-        1e3 * dist
-    );
+    let (scan, dist) = scan_against(&ctx, &f, [0.5 * 0.08, 0.45 * 0.08, 0.45 * 0.04]);
     assert!(scan.contrast < 0.0, "a soft core asks for a softer blob");
     assert!(dist < 0.0134, "scan centre {dist} m from the core");
     assert!(
