@@ -15,8 +15,16 @@
 //!   |a_j| ≥ √( s² (k ln n + T) (S⁻¹)_jj ).
 //!
 //! This is the shortlist's threshold only: the held-out gate asks more, so an effect must be at
-//! least this large to be adopted (a lower bound of what would be adopted). Candidates profiled
-//! per measurement (`*-each`) are not in θ and are not stated here.
+//! least this large to be adopted (a lower bound of what would be adopted).
+//!
+//! Candidates profiled per measurement (`force-scale-each`, `registration-each`) have a
+//! parameter per measurement and no single magnitude: their statement is for an effect that
+//! varies at random from measurement to measurement with RMS ε per parameter (independent
+//! between measurements and axes). Its expected gain is ε² tr S over the kind's columns (each
+//! kind on its own: a registration's translations, its rotations), so ε is detectable on
+//! average from ε ≥ √(s² (k ln n + T) / tr S),
+//! k the candidate's profiled count. `tilt-each` needs a solve per measurement for its columns
+//! and is not stated.
 
 use nalgebra::DMatrix;
 use serde::Serialize;
@@ -227,7 +235,121 @@ pub fn detectable(
             ),
         });
     }
+    // tr S of a set of columns against the fitted parameters: Σ ‖c‖² − (J_bᵀc)ᵀ H_bb⁻¹ (J_bᵀc).
+    let trace = |cols: &[Vec<f64>]| -> f64 {
+        cols.iter()
+            .map(|c| {
+                let c = nalgebra::DVector::from_column_slice(c);
+                let bc = jb.transpose() * &c;
+                c.norm_squared() - hbb_inv.as_ref().map_or(0.0, |inv| bc.dot(&(inv * &bc)))
+            })
+            .sum()
+    };
+    let m = subset.len();
+    for c in [Candidate::ForceScaleEach, Candidate::RegistrationEach] {
+        if f.model.effects.contains(&c) {
+            continue;
+        }
+        let need = s2 * (c.profiled(m) as f64 * (n as f64).ln() + bic_threshold);
+        let kinds = per_measurement_columns(ctx, subset, &sim.markers, c);
+        let params = kinds
+            .into_iter()
+            .map(|(name, unit, cols)| {
+                let t = trace(&cols);
+                DetectableParam {
+                    name: name.into(),
+                    unit,
+                    min: (t > 0.0 && t.is_finite()).then(|| (need / t).sqrt()),
+                }
+            })
+            .collect();
+        out.push(Detectable {
+            candidate: c,
+            params,
+            note: Some("RMS over the measurements of an effect that differs in each"),
+        });
+    }
     Ok(out)
+}
+
+/// The residual columns (units of σ, in [`Model::residuals`]'s order) of a per-measurement
+/// candidate's parameters at the simulated markers `sims`, grouped by kind: for
+/// `force-scale-each` one column per measurement (its markers' displacement: a scale 1 + s
+/// moves them by s times it); for `registration-each` a translation column per measurement and
+/// axis, and a rotation column per measurement and axis (about its markers' centroid).
+///
+/// [`Model::residuals`]: super::model::Model::residuals
+fn per_measurement_columns(
+    ctx: &Context,
+    subset: &[usize],
+    sims: &[Vec<[f64; 3]>],
+    c: Candidate,
+) -> Vec<(&'static str, &'static str, Vec<Vec<f64>>)> {
+    let n: usize = subset.iter().map(|&i| 3 * ctx.meas[i].observed.len()).sum();
+    // Row offset of each measurement's block.
+    let mut offset = Vec::with_capacity(subset.len());
+    let mut o = 0;
+    for &i in subset {
+        offset.push(o);
+        o += 3 * ctx.meas[i].observed.len();
+    }
+    // One column per measurement from `entry(k, marker position, centroid) -> 3 rows`.
+    let columns = |entry: &dyn Fn(usize, [f64; 3], [f64; 3]) -> [f64; 3]| -> Vec<Vec<f64>> {
+        subset
+            .iter()
+            .enumerate()
+            .map(|(a, &i)| {
+                let pts = &sims[a];
+                let mut centre = [0.0; 3];
+                for p in pts {
+                    (0..3).for_each(|d| centre[d] += p[d] / pts.len().max(1) as f64);
+                }
+                let mut col = vec![0.0; n];
+                for (j, (&(k, _), p)) in ctx.meas[i].observed.iter().zip(pts).enumerate() {
+                    let e = entry(k, *p, centre);
+                    for d in 0..3 {
+                        col[offset[a] + 3 * j + d] = e[d] / ctx.sigma;
+                    }
+                }
+                col
+            })
+            .collect()
+    };
+    match c {
+        Candidate::ForceScaleEach => vec![(
+            "force scale s",
+            "",
+            columns(&|k, p, _| {
+                let rest = ctx.marker_rest[k];
+                [0, 1, 2].map(|d| p[d] - rest[d])
+            }),
+        )],
+        Candidate::RegistrationEach => {
+            let mut t = Vec::new();
+            let mut r = Vec::new();
+            for axis in 0..3 {
+                t.extend(columns(&|_, _, _| {
+                    let mut e = [0.0; 3];
+                    e[axis] = 1.0;
+                    e
+                }));
+                r.extend(columns(&|_, p, centre| {
+                    let v = [0, 1, 2].map(|d| p[d] - centre[d]);
+                    // e_axis × v
+                    match axis {
+                        0 => [0.0, -v[2], v[1]],
+                        1 => [v[2], 0.0, -v[0]],
+                        _ => [-v[1], v[0], 0.0],
+                    }
+                }));
+            }
+            vec![
+                ("translation per axis", "m", t),
+                ("rotation per axis", "rad", r),
+            ]
+        }
+        _ => Vec::new(),
+    }
 }
 
 #[cfg(test)]

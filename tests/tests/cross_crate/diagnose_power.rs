@@ -17,6 +17,31 @@ fn fitted(ctx: &Context, model: &Model, theta0: Vec<f64>, warm: &[Vec<[f64; 3]>]
     fit(ctx, model, theta0, &all, Some(warm), 40).unwrap()
 }
 
+/// palpate's clean specimen (seed 5) and its simplest fit.
+fn clean_fit() -> (Context, Fitted) {
+    let s = generate(&SpecimenOptions {
+        seed: 5,
+        ..SpecimenOptions::default()
+    })
+    .unwrap();
+    let ctx = Context::new(&s.dataset, [3, 3, 2]).unwrap();
+    let all: Vec<usize> = (0..ctx.meas.len()).collect();
+    let (theta0, sim0) = initial_theta(&ctx, &all).unwrap();
+    let f = fitted(&ctx, &Model::base(), theta0, &sim0.x);
+    (ctx, f)
+}
+
+/// The power statement of candidate `c` at the fit `f`.
+fn stated(ctx: &Context, f: &Fitted, c: Candidate) -> palpate_diagnose::power::Detectable {
+    let d = detectable(ctx, f, T)
+        .unwrap()
+        .into_iter()
+        .find(|d| d.candidate == c)
+        .expect("the candidate is stated");
+    eprintln!("{}", d.describe());
+    d
+}
+
 /// Measured markers replaced by `base` (per measurement, aligned with `observed`) moved by what a
 /// gravity preload of ρ (kg/m³) changes in the fitted simulation.
 fn with_gravity(ctx: &Context, f: &Fitted, rho: f64, base: &[Vec<[f64; 3]>]) -> Context {
@@ -45,21 +70,14 @@ fn gravity_gain(ctx: &Context, f: &Fitted) -> (f64, Fitted) {
 
 #[test]
 fn the_smallest_detectable_gravity_is_where_the_selection_rule_starts_to_shortlist_it() {
-    let s = generate(&SpecimenOptions {
-        seed: 5,
-        ..SpecimenOptions::default()
-    })
-    .unwrap();
-    let ctx = Context::new(&s.dataset, [3, 3, 2]).unwrap();
-    let all: Vec<usize> = (0..ctx.meas.len()).collect();
-    let (theta0, sim0) = initial_theta(&ctx, &all).unwrap();
-    let f = fitted(&ctx, &Model::base(), theta0, &sim0.x);
+    let (ctx, f) = clean_fit();
     let statement = detectable(&ctx, &f, T).unwrap();
     for d in &statement {
         eprintln!("{}", d.describe());
     }
-    // Every θ-candidate is stated; none of the simplest model's.
-    assert_eq!(statement.len(), 9, "{statement:?}");
+    // Every θ-candidate is stated, and the two per-measurement ones with columns in closed form;
+    // none of the simplest model's.
+    assert_eq!(statement.len(), 11, "{statement:?}");
     let g = statement
         .iter()
         .find(|d| d.candidate == Candidate::Gravity)
@@ -111,4 +129,92 @@ fn the_smallest_detectable_gravity_is_where_the_selection_rule_starts_to_shortli
     let dbic = n * ((f0.chi2 - dchi2) / f0.chi2).ln() + n.ln();
     eprintln!("noisy, ρ = 2 × {rho_min:.1} kg/m³: Δχ² {dchi2:.2}, ΔBIC {dbic:.1}");
     assert!(dbic < -T, "ΔBIC {dbic} at twice the stated magnitude");
+}
+
+/// The per-measurement force scale's statement: the RMS ε of a scale that differs in every
+/// measurement that the rule would shortlist on average. Checked with a pattern of ±ε (zero
+/// mean in log, RMS ε) put into noise-free data: the refitted Δχ² against the statement's
+/// expectation ε² tr S, and the shortlist's verdict below and above the stated ε.
+#[test]
+fn the_smallest_detectable_per_measurement_force_scale_is_where_the_rule_shortlists_it() {
+    let (ctx, f) = clean_fit();
+    let d = stated(&ctx, &f, Candidate::ForceScaleEach);
+    let eps = d.params[0].min.expect("separable");
+    assert!(eps > 0.0 && eps < 1.0, "{eps}");
+    let m = ctx.meas.len();
+    let n = f.n as f64;
+    let s2 = f.chi2 / n;
+    let threshold_chi2 = s2 * (m as f64 * n.ln() + T);
+    let model = Model::base().with(Candidate::ForceScaleEach);
+    for factor in [0.5, 1.0, 2.0] {
+        // Noise-free data: the fitted simulation with measurement i's displacement scaled by
+        // e^(±factor·ε), alternating (the geometric mean stays 1, which E would absorb).
+        let mut data = ctx.clone();
+        for (i, meas) in data.meas.iter_mut().enumerate() {
+            let scale = (if i % 2 == 0 { 1.0 } else { -1.0 } * factor * eps).exp();
+            for (j, (k, p)) in meas.observed.iter_mut().enumerate() {
+                let rest = ctx.marker_rest[*k];
+                let sim = f.sim.markers[i][j];
+                *p = [0, 1, 2].map(|d| rest[d] + scale * (sim[d] - rest[d]));
+            }
+        }
+        let f0 = fitted(&data, &Model::base(), f.theta.clone(), &f.sim.x);
+        let f1 = fitted(&data, &model, f0.theta.clone(), &f0.sim.x);
+        let dchi2 = f0.chi2 - f1.chi2;
+        let ratio = dchi2 / (factor * factor * threshold_chi2);
+        let dbic = -dchi2 / s2 + m as f64 * n.ln();
+        eprintln!(
+            "noise-free, ±{factor} × ε = {:.4}: Δχ² {dchi2:.2} = {ratio:.3} × the statement's expectation, expected ΔBIC {dbic:.1}",
+            factor * eps
+        );
+        // One pattern of signs is not the average the statement is for; measured 1.14–1.16 of
+        // it on this specimen.
+        assert!((0.7..1.4).contains(&ratio), "Δχ² ratio {ratio}");
+        if factor != 1.0 {
+            assert_eq!(
+                dbic < -T,
+                factor > 1.0,
+                "ΔBIC {dbic} at {factor} × the stated ε"
+            );
+        }
+    }
+}
+
+/// The per-measurement registration's translation statement, checked the same way: every
+/// measurement's markers moved by ±ε on each axis (signs alternating by measurement and axis).
+#[test]
+fn the_smallest_detectable_per_measurement_translation_is_where_the_rule_shortlists_it() {
+    let (ctx, f) = clean_fit();
+    let d = stated(&ctx, &f, Candidate::RegistrationEach);
+    let eps = d.params[0].min.expect("separable");
+    let m = ctx.meas.len();
+    let n = f.n as f64;
+    let s2 = f.chi2 / n;
+    let model = Model::base().with(Candidate::RegistrationEach);
+    for factor in [0.5, 2.0] {
+        let mut data = ctx.clone();
+        for (i, meas) in data.meas.iter_mut().enumerate() {
+            let t = [0, 1, 2].map(|d| if (i + d) % 2 == 0 { 1.0 } else { -1.0 } * factor * eps);
+            for (j, (_, p)) in meas.observed.iter_mut().enumerate() {
+                let sim = f.sim.markers[i][j];
+                *p = [0, 1, 2].map(|d| sim[d] + t[d]);
+            }
+        }
+        let f0 = fitted(&data, &Model::base(), f.theta.clone(), &f.sim.x);
+        let f1 = fitted(&data, &model, f0.theta.clone(), &f0.sim.x);
+        let dchi2 = f0.chi2 - f1.chi2;
+        let dbic = -dchi2 / s2 + 6.0 * m as f64 * n.ln();
+        let ratio = dchi2 / (factor * factor * s2 * (6.0 * m as f64 * n.ln() + T));
+        eprintln!(
+            "noise-free, ±{factor} × ε = {:.2e} m: Δχ² {dchi2:.2} = {ratio:.3} × the statement's expectation, expected ΔBIC {dbic:.1}",
+            factor * eps
+        );
+        // Measured 1.01 at both factors.
+        assert!((0.7..1.4).contains(&ratio), "Δχ² ratio {ratio}");
+        assert_eq!(
+            dbic < -T,
+            factor > 1.0,
+            "ΔBIC {dbic} at {factor} × the stated ε"
+        );
+    }
 }
