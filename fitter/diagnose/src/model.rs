@@ -1244,6 +1244,27 @@ impl Model {
         })
     }
 
+    /// [`Candidate::TiltEach`]'s marker responses at a simulation `sim` of this model (whether or
+    /// not the model holds the candidate): what the power statement of a clean verdict needs.
+    pub fn tilt_responses(
+        &self,
+        ctx: &Context,
+        theta: &[f64],
+        subset: &[usize],
+        sim: &Simulated,
+    ) -> Result<Vec<[Vec<[f64; 3]>; 2]>, DiagnoseError> {
+        let log_e = self.log_e_field(ctx, theta);
+        self.tilt_columns(
+            ctx,
+            theta,
+            subset,
+            &sim.x,
+            &sim.factors,
+            log_e.as_deref(),
+            sim.embedding.as_deref(),
+        )
+    }
+
     /// The marker responses of [`Candidate::TiltEach`]: for each measurement, two more solves with
     /// the force tilted by [`TILT_PROBE`]·|f| along t₁ and t₂ (warm-started from `xs` and from the
     /// factorisation of K' that measurement's own solve ended with: the tilted load changes the

@@ -23,8 +23,8 @@
 //! between measurements and axes). Its expected gain is ε² tr S over the kind's columns (each
 //! kind on its own: a registration's translations, its rotations), so ε is detectable on
 //! average from ε ≥ √(s² (k ln n + T) / tr S),
-//! k the candidate's profiled count. `tilt-each` needs a solve per measurement for its columns
-//! and is not stated.
+//! k the candidate's profiled count. `tilt-each`'s columns are its probing solves' responses
+//! (two more solves per measurement, made only for the statement).
 
 use nalgebra::DMatrix;
 use serde::Serialize;
@@ -246,12 +246,25 @@ pub fn detectable(
             .sum()
     };
     let m = subset.len();
-    for c in [Candidate::ForceScaleEach, Candidate::RegistrationEach] {
+    for c in [
+        Candidate::ForceScaleEach,
+        Candidate::RegistrationEach,
+        Candidate::TiltEach,
+    ] {
         if f.model.effects.contains(&c) {
             continue;
         }
         let need = s2 * (c.profiled(m) as f64 * (n as f64).ln() + bic_threshold);
-        let kinds = per_measurement_columns(ctx, subset, &sim.markers, c);
+        let kinds = if c == Candidate::TiltEach {
+            let tilt = model.tilt_responses(ctx, &theta, subset, &sim)?;
+            vec![(
+                "tangential coefficient per direction",
+                "",
+                tilt_columns(ctx, subset, &tilt),
+            )]
+        } else {
+            per_measurement_columns(ctx, subset, &sim.markers, c)
+        };
         let params = kinds
             .into_iter()
             .map(|(name, unit, cols)| {
@@ -270,6 +283,29 @@ pub fn detectable(
         });
     }
     Ok(out)
+}
+
+/// `tilt-each`'s residual columns (units of σ, in [`Model::residuals`]'s order): per measurement
+/// and tangent direction, its markers' response to a unit tangential coefficient (× |f|).
+///
+/// [`Model::residuals`]: super::model::Model::residuals
+fn tilt_columns(ctx: &Context, subset: &[usize], tilt: &[[Vec<[f64; 3]>; 2]]) -> Vec<Vec<f64>> {
+    let n: usize = subset.iter().map(|&i| 3 * ctx.meas[i].observed.len()).sum();
+    let mut out = Vec::with_capacity(2 * subset.len());
+    let mut offset = 0;
+    for (a, &i) in subset.iter().enumerate() {
+        for resp in &tilt[a] {
+            let mut col = vec![0.0; n];
+            for (j, p) in resp.iter().enumerate() {
+                for d in 0..3 {
+                    col[offset + 3 * j + d] = p[d] / ctx.sigma;
+                }
+            }
+            out.push(col);
+        }
+        offset += 3 * ctx.meas[i].observed.len();
+    }
+    out
 }
 
 /// The residual columns (units of σ, in [`Model::residuals`]'s order) of a per-measurement
