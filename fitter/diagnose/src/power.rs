@@ -290,22 +290,34 @@ pub fn detectable(
 ///
 /// [`Model::residuals`]: super::model::Model::residuals
 fn tilt_columns(ctx: &Context, subset: &[usize], tilt: &[[Vec<[f64; 3]>; 2]]) -> Vec<Vec<f64>> {
-    let n: usize = subset.iter().map(|&i| 3 * ctx.meas[i].observed.len()).sum();
+    let (offset, n) = row_offsets(ctx, subset);
     let mut out = Vec::with_capacity(2 * subset.len());
-    let mut offset = 0;
-    for (a, &i) in subset.iter().enumerate() {
-        for resp in &tilt[a] {
+    for (a, responses) in tilt.iter().enumerate() {
+        for resp in responses {
             let mut col = vec![0.0; n];
             for (j, p) in resp.iter().enumerate() {
                 for d in 0..3 {
-                    col[offset + 3 * j + d] = p[d] / ctx.sigma;
+                    col[offset[a] + 3 * j + d] = p[d] / ctx.sigma;
                 }
             }
             out.push(col);
         }
-        offset += 3 * ctx.meas[i].observed.len();
     }
     out
+}
+
+/// The first residual row of each measurement of `subset` in [`Model::residuals`]'s order, and
+/// the number of rows.
+///
+/// [`Model::residuals`]: super::model::Model::residuals
+fn row_offsets(ctx: &Context, subset: &[usize]) -> (Vec<usize>, usize) {
+    let mut offset = Vec::with_capacity(subset.len());
+    let mut n = 0;
+    for &i in subset {
+        offset.push(n);
+        n += 3 * ctx.meas[i].observed.len();
+    }
+    (offset, n)
 }
 
 /// The residual columns (units of σ, in [`Model::residuals`]'s order) of a per-measurement
@@ -321,14 +333,7 @@ fn per_measurement_columns(
     sims: &[Vec<[f64; 3]>],
     c: Candidate,
 ) -> Vec<(&'static str, &'static str, Vec<Vec<f64>>)> {
-    let n: usize = subset.iter().map(|&i| 3 * ctx.meas[i].observed.len()).sum();
-    // Row offset of each measurement's block.
-    let mut offset = Vec::with_capacity(subset.len());
-    let mut o = 0;
-    for &i in subset {
-        offset.push(o);
-        o += 3 * ctx.meas[i].observed.len();
-    }
+    let (offset, n) = row_offsets(ctx, subset);
     // One column per measurement from `entry(k, marker position, centroid) -> 3 rows`.
     let columns = |entry: &dyn Fn(usize, [f64; 3], [f64; 3]) -> [f64; 3]| -> Vec<Vec<f64>> {
         subset
