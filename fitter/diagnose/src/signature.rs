@@ -285,12 +285,15 @@ pub fn evidence_points(
                     .collect(),
             )
         }
+        // A contact patch of another size: the marker error against distance from the contact
+        // shows it concentrated within a probe radius or two.
         // Noise: the marker error against distance from the contact shows it spread evenly
         // (the noise report plots the nugget itself, see `super::noise`; the rest scan's report
         // its per-marker means, `rest.svg`).
         Candidate::Inhomogeneity
         | Candidate::Layer
         | Candidate::Inclusion
+        | Candidate::ContactRadius
         | Candidate::Noise
         | Candidate::RestNoise => {
             let mut pts = Vec::new();

@@ -29,6 +29,10 @@ pub enum Effect {
     /// Tilted probe / tangential friction: true force = reported + magnitude · |f| · t with one
     /// fixed random horizontal unit vector t.
     Tilt,
+    /// The probe's contact patch is wider (or narrower) than the declared probe: the true load
+    /// is spread over the nodes within (1 + magnitude) × the declared radius (a soft object
+    /// wrapping around a rounded probe).
+    ContactRadius,
     /// Marker noise beyond the declared σ: actual σ = (1 + magnitude) × declared σ.
     Noise,
     /// Occlusions: each marker row is dropped with probability magnitude.
@@ -40,7 +44,7 @@ pub enum Effect {
 }
 
 /// Every effect, in the order the CLI lists them.
-pub const ALL_EFFECTS: [Effect; 11] = [
+pub const ALL_EFFECTS: [Effect; 12] = [
     Effect::Stiffening,
     Effect::Inclusion,
     Effect::SoftLayer,
@@ -49,6 +53,7 @@ pub const ALL_EFFECTS: [Effect; 11] = [
     Effect::Registration,
     Effect::Gravity,
     Effect::Tilt,
+    Effect::ContactRadius,
     Effect::Noise,
     Effect::Occlusion,
     Effect::RestNoise,
@@ -66,6 +71,7 @@ impl Effect {
             Effect::Registration => "registration",
             Effect::Gravity => "gravity",
             Effect::Tilt => "tilt",
+            Effect::ContactRadius => "contact-radius",
             Effect::Noise => "noise",
             Effect::Occlusion => "occlusion",
             Effect::RestNoise => "rest-noise",
@@ -83,6 +89,7 @@ impl Effect {
             Effect::Registration => 4e-4,
             Effect::Gravity => 1.0,
             Effect::Tilt => 0.3,
+            Effect::ContactRadius => 0.6,
             Effect::Noise => 1.0,
             Effect::Occlusion => 0.2,
             Effect::RestNoise => 0.5,
@@ -121,6 +128,9 @@ impl Effect {
             Effect::Occlusion if !(0.0..0.9).contains(&m) => bad("a drop probability in [0, 0.9)"),
             Effect::Calibration if !(-0.9..=2.0).contains(&m) => {
                 bad("a power-law exponent in [-0.9, 2]")
+            }
+            Effect::ContactRadius if m <= -0.5 => {
+                bad("> −0.5 (patch radius = (1 + magnitude) × the declared probe radius)")
             }
             Effect::Inclusion if m <= -1.0 => {
                 bad("> −1 (E_inclusion = (1 + magnitude) E: −1 < m < 0 a soft inclusion)")

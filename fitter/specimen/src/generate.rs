@@ -393,7 +393,10 @@ pub fn generate(o: &SpecimenOptions) -> Result<Specimen, SpecimenError> {
             Some(m) => [0, 1, 2].map(|d| applied[d] + m * fm * tilt_dir[d]),
             None => applied,
         };
-        let fvec = lin_fine.force_vector(&Load::contact(point, true_force, o.probe_radius))?;
+        // The patch the truth is loaded over: the declared probe's unless the contact-radius
+        // effect widens it (the dataset still declares `o.probe_radius`).
+        let patch = o.probe_radius * (1.0 + o.magnitude(Effect::ContactRadius).unwrap_or(0.0));
+        let fvec = lin_fine.force_vector(&Load::contact(point, true_force, patch))?;
         let forces: Vec<(usize, [f64; 3])> = (0..fine.nodes.len())
             .map(|k| (k, [fvec[3 * k], fvec[3 * k + 1], fvec[3 * k + 2]]))
             .filter(|(_, f)| f.iter().any(|v| *v != 0.0))

@@ -6,6 +6,7 @@
 
 mod capture_import;
 mod contact_rule;
+mod diagnose_contact;
 mod diagnose_curve;
 mod diagnose_effects;
 mod diagnose_equilibrium;

@@ -89,6 +89,7 @@ pub fn expected(e: Option<Effect>) -> Vec<Candidate> {
             Effect::Registration => vec![Candidate::Registration],
             Effect::Gravity => vec![Candidate::Gravity],
             Effect::Tilt => vec![Candidate::Tilt],
+            Effect::ContactRadius => vec![Candidate::ContactRadius],
             // Undeclared marker noise is named by the noise test after the structural loop;
             // occlusions change no mean behaviour and no noise level.
             Effect::Noise => vec![Candidate::Noise],
