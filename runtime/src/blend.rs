@@ -18,12 +18,14 @@ pub fn phi(r: f32) -> f32 {
 
 /// Recomputes (λ_e, α_e) of `elements` from the current state — the node positions for
 /// deformation-space blending, the element strains for strain-space blending — (no-op for
-/// linear materials).
+/// linear materials). Returns the largest change of an element's parameters relative to its λ_e
+/// before, max_e max(|Δλ_e|, |Δα_e|) / λ_e: how far K_e moved (relatively), which the
+/// preconditioner's refresh rule adds to the rotations' drift.
 pub(crate) fn blend_parameters(
     rec: &ModelRecord<'_>,
     nodes: &NodeState<'_>,
     elements: &mut ElementState<'_>,
-) {
+) -> f32 {
     let ps = rec.parameters;
     let sets = ps.count as usize;
     let per_element = ps.layout == ParameterLayout::PerElement;
@@ -33,7 +35,8 @@ pub(crate) fn blend_parameters(
             .unwrap_or(0.0)
     };
     // Element e's blended (λ, α), clamped to the range of its fitted sets, into `elements`.
-    let store = |elements: &mut ElementState<'_>, e: usize, lam: f32, alp: f32| {
+    let mut change = 0.0f32;
+    let mut store = |elements: &mut ElementState<'_>, e: usize, lam: f32, alp: f32| {
         let (l, a) = clamp_to_sets(
             lam,
             alp,
@@ -41,6 +44,14 @@ pub(crate) fn blend_parameters(
             |s| set_value(&ps.lambda, s, e),
             |s| set_value(&ps.alpha, s, e),
         );
+        let (l0, a0) = (elements.lam[e], elements.alp[e]);
+        let moved = (l - l0).abs().max((a - a0).abs()) / l0;
+        // A first blend (λ₀ = 0) or a non-finite ratio counts as a full change.
+        change = change.max(if moved.is_finite() {
+            moved
+        } else {
+            f32::INFINITY
+        });
         elements.lam[e] = l;
         elements.alp[e] = a;
     };
@@ -82,7 +93,11 @@ pub(crate) fn blend_parameters(
             // λ_e = Σ_l w_{e,l}^λ φ(‖e − ē_l‖_e) (eqs. 6.9–6.11) with the locally weighted metric
             // ‖e − ē_l‖²_e = Σ_j w_{e,j} ‖ε_j − ē_{l,j}‖² over e's neighbours j. A neighbour's
             // distance depends on (l, j) only, so it is computed once per element and set
-            // (`strain_distance`) rather than once per element that lists it (k times).
+            // (`strain_distance`) rather than once per element that lists it (k times), and
+            // stored element-major (`j · sets + l`) so that a neighbour's distances to every set
+            // are read together: each neighbour's index and weight are then decoded once per
+            // element instead of once per set (the strain-space tick's blend was mostly these
+            // decodes).
             let k = neighbours as usize;
             for l in 0..sets {
                 for j in 0..t {
@@ -92,37 +107,46 @@ pub(crate) fn blend_parameters(
                         let cen = centres.get((l * t + j) * 6 + c).unwrap_or(cur);
                         s2 += (cur - cen) * (cur - cen);
                     }
-                    if let Some(d) = elements.strain_distance.get_mut(l * t + j) {
+                    if let Some(d) = elements.strain_distance.get_mut(j * sets + l) {
                         *d = s2;
                     }
                 }
             }
+            // Sets are accumulated a chunk at a time in registers; each set's sum runs over the
+            // neighbours in the same order as one set at a time would.
+            const CHUNK: usize = 8;
             for e in 0..t {
                 let mut lam = 0.0f32;
                 let mut alp = 0.0f32;
-                for l in 0..sets {
-                    let mut d2 = 0.0f32;
+                for first in (0..sets).step_by(CHUNK) {
+                    let width = CHUNK.min(sets - first);
+                    let mut d2 = [0.0f32; CHUNK];
                     for j in 0..k {
                         let nb = neighbour_index.get(e * k + j).unwrap_or(e as u32) as usize;
                         let w = neighbour_weight.get(e * k + j).unwrap_or(0.0);
                         if nb >= t {
                             continue;
                         }
-                        let s2 = elements
+                        let row = elements
                             .strain_distance
-                            .get(l * t + nb)
-                            .copied()
-                            .unwrap_or(0.0);
-                        d2 += w * s2;
+                            .get(nb * sets + first..nb * sets + first + width)
+                            .unwrap_or(&[]);
+                        for (d, &s2) in d2.iter_mut().zip(row) {
+                            *d += w * s2;
+                        }
                     }
-                    let ph = phi(libm::sqrtf(d2.max(0.0)));
-                    lam += weights_lambda.get(e * sets + l).unwrap_or(0.0) * ph;
-                    alp += weights_alpha.get(e * sets + l).unwrap_or(0.0) * ph;
+                    for (c, &d) in d2[..width].iter().enumerate() {
+                        let l = first + c;
+                        let ph = phi(libm::sqrtf(d.max(0.0)));
+                        lam += weights_lambda.get(e * sets + l).unwrap_or(0.0) * ph;
+                        alp += weights_alpha.get(e * sets + l).unwrap_or(0.0) * ph;
+                    }
                 }
                 store(elements, e, lam, alp);
             }
         }
     }
+    change
 }
 
 /// Clamps blended (λ, α) to the range of the fitted sets and to the physical band.
@@ -140,10 +164,11 @@ fn clamp_to_sets(
         f32::NEG_INFINITY,
     );
     for s in 0..sets {
-        lo_l = lo_l.min(set_lambda(s));
-        hi_l = hi_l.max(set_lambda(s));
-        lo_a = lo_a.min(set_alpha(s));
-        hi_a = hi_a.max(set_alpha(s));
+        let (l, a) = (set_lambda(s), set_alpha(s));
+        lo_l = lo_l.min(l);
+        hi_l = hi_l.max(l);
+        lo_a = lo_a.min(a);
+        hi_a = hi_a.max(a);
     }
     let l = if lam.is_finite() {
         lam.clamp(lo_l, hi_l)

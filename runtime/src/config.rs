@@ -65,10 +65,10 @@ pub struct RuntimeConfig {
     /// 0 = block/point Jacobi only). Capped at nodes / 8.
     pub coarse_aggregates: u32,
     /// The block-Jacobi preconditioner (the 3 × 3 node blocks of K' = Σ R_e K_e R_eᵀ) is rebuilt
-    /// only when the rotations have moved by more than this angle (rad, an upper bound summed
-    /// over ticks) since it was last built, and on every tick for non-linear materials (their
-    /// λ_e, α_e change). A preconditioner only needs to be close: this changes iteration counts,
-    /// never the solution. 0 rebuilds it every tick.
+    /// only when K' has moved by more than this since it was last built (an upper bound summed
+    /// over ticks): the rotations by this angle (rad), or a non-linear material's blended λ_e,
+    /// α_e by this fraction of λ_e. A preconditioner only needs to be close: this changes
+    /// iteration counts, never the solution. 0 rebuilds it every tick.
     pub precond_refresh_angle: f32,
     /// Start each solve from the energy-optimal multiple of the previous tick's increment
     /// (a one-dimensional Galerkin predictor, one extra K' product; see `tick.rs`).

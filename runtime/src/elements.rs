@@ -67,8 +67,9 @@ pub(crate) struct ElementState<'a> {
     pub ghat: &'a mut [f32],
     /// Current rest-frame strain, 6 per element (unpadded; strain blending only).
     pub strain: &'a mut [f32],
-    /// ‖ε_e − ē_{l,e}‖² of every fitted set l and element e at `(l, e)` → `l · t + e` (strain
-    /// blending only): the blend's per-neighbour distances, computed once per blend.
+    /// ‖ε_e − ē_{l,e}‖² of every fitted set l and element e at `(e, l)` → `e · sets + l`
+    /// (strain blending only): the blend's per-neighbour distances, computed once per blend,
+    /// element-major so that one neighbour's distances to every set are adjacent.
     pub strain_distance: &'a mut [f32],
     /// The model's C_e and D_e, 2 × 78 per element (unpadded; packed kernel only).
     pub cd: &'a mut [f32],

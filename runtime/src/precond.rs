@@ -17,7 +17,9 @@ pub(crate) struct TwoLevel<'a> {
     pub blocks: &'a mut [f32],
     /// Whether `blocks` holds the (inverted) blocks of some recent K'.
     pub valid: bool,
-    /// Upper bound of how far (rad) any rotation moved since `blocks` was built.
+    /// Upper bound of how far K' moved since `blocks` was built, relative: the rotations' angle
+    /// (rad) plus, for blended materials, the parameters' relative change
+    /// ([`crate::blend::blend_parameters`]).
     pub drift: f32,
     /// The coarse space (sized for [`Dims::aggregates`]).
     pub coarse: Coarse<'a>,
@@ -48,11 +50,13 @@ impl<'a> TwoLevel<'a> {
         })
     }
 
-    /// Whether the node blocks must be rebuilt this tick: never built, the rotations moved by
-    /// more than `refresh_angle` since (see [`crate::RuntimeConfig::precond_refresh_angle`]), or
-    /// a non-linear material (`linear` false) whose λ_e, α_e change every tick.
-    pub(crate) fn due(&self, refresh_angle: f32, linear: bool) -> bool {
-        !self.valid || self.drift > refresh_angle || !linear
+    /// Whether the node blocks must be rebuilt this tick: never built, or K' moved by more than
+    /// `refresh_angle` since (see [`crate::RuntimeConfig::precond_refresh_angle`]): rotations
+    /// by that angle, or a blended material's λ_e, α_e by that fraction of λ_e. A stale block
+    /// only costs PCG iterations — the solve's residual is K' of the tick's own state — so a
+    /// slowly sliding probe on a blended model no longer rebuilds it every tick.
+    pub(crate) fn due(&self, refresh_angle: f32) -> bool {
+        !self.valid || self.drift > refresh_angle
     }
 
     /// Zeroes the node blocks before an assembly pass adds the element blocks into them.

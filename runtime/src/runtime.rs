@@ -341,7 +341,7 @@ impl<'a> Runtime<'a> {
         self.precond.drift += self
             .elements
             .update_rotations(self.nodes.u, self.config.warp, 50);
-        blend_parameters(&self.record, &self.nodes, &mut self.elements);
+        self.precond.drift += blend_parameters(&self.record, &self.nodes, &mut self.elements);
     }
 
     /// Internal elastic forces f_int(x) = Σ R_e K_e (R_eᵀ x_e − x₀_e) of the current state with the

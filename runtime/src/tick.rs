@@ -87,8 +87,7 @@ impl Runtime<'_> {
     /// r_full = f_app − f_int(u), with R_e first when `rotate` (fused), and the preconditioner's
     /// node blocks when they are due.
     fn assemble(&mut self, rotate: Option<usize>) {
-        let linear = matches!(self.record.blend, Blend::None);
-        let diag = self.precond.due(self.config.precond_refresh_angle, linear);
+        let diag = self.precond.due(self.config.precond_refresh_angle);
         if diag {
             self.precond.begin_assembly();
         }
@@ -182,21 +181,33 @@ impl Runtime<'_> {
     /// the residual r_full = f_app − f_int(u) and the preconditioner when due.
     fn refresh(&mut self) {
         let iters = self.config.rotation_iterations as usize;
-        if self.config.warp && matches!(self.record.blend, Blend::None) {
+        // `%` rather than `is_multiple_of`: the workspace's MSRV is 1.85.
+        #[allow(clippy::manual_is_multiple_of)]
+        let due = self.tick_count % self.config.blend_every.max(1) as u64 == 0;
+        match (self.config.warp, &self.record.blend) {
             // Linear material: rotations and internal forces in one pass.
-            self.assemble(Some(iters));
-        } else {
-            // Blending needs every element's strain before any force.
-            self.precond.drift +=
-                self.elements
-                    .update_rotations(self.nodes.u, self.config.warp, iters);
-            // `%` rather than `is_multiple_of`: the workspace's MSRV is 1.85.
-            #[allow(clippy::manual_is_multiple_of)]
-            let due = self.tick_count % self.config.blend_every.max(1) as u64 == 0;
-            if due {
-                blend_parameters(&self.record, &self.nodes, &mut self.elements);
+            (true, Blend::None) => self.assemble(Some(iters)),
+            // Deformation-space blending reads the node positions only, so it goes first and
+            // the rotations stay fused with the forces (one pass over the elements fewer than
+            // rotations, blend, forces; the same rotations and parameters).
+            (true, Blend::Deformation { .. }) => {
+                if due {
+                    self.precond.drift +=
+                        blend_parameters(&self.record, &self.nodes, &mut self.elements);
+                }
+                self.assemble(Some(iters));
             }
-            self.assemble(None);
+            _ => {
+                // Strain-space blending needs every element's strain before any force.
+                self.precond.drift +=
+                    self.elements
+                        .update_rotations(self.nodes.u, self.config.warp, iters);
+                if due {
+                    self.precond.drift +=
+                        blend_parameters(&self.record, &self.nodes, &mut self.elements);
+                }
+                self.assemble(None);
+            }
         }
     }
 
