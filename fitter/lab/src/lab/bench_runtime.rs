@@ -82,8 +82,9 @@ pub struct Args {
     /// A non-linear (blended) model instead of the linear block: three sets (E = 10, 12, 15 kPa)
     /// with their centres the f64 deformations under 0.25, 0.5 and 1 N at the top face's centre,
     /// blended by the fitter's deformation-space RBF or its strain-space RBF (per-element sets, 8
-    /// neighbours). Blended models re-blend every tick and so rebuild the preconditioner's node
-    /// blocks every tick. The direct baseline is skipped (it solves the linear block).
+    /// neighbours). Blended models re-blend every tick; their preconditioner's node blocks are
+    /// rebuilt when the parameters and rotations have drifted. The direct baseline is skipped (it
+    /// solves the linear block).
     #[arg(long, value_enum, default_value_t = BlendKind::None)]
     pub blend: BlendKind,
     /// Turn the energy line search of the warped solve off (`RuntimeConfig::line_search`).
