@@ -55,7 +55,7 @@ RELATED = {
     "layer": {"inclusion"},
     "inclusion": {"layer"},
 }
-PALPATE_CANDIDATES = ["calibration", "tilt", "tilt-each", "boundary", "registration", "registration-each",
+PALPATE_CANDIDATES = ["calibration", "tilt", "tilt-each", "contact-radius", "boundary", "registration", "registration-each",
                       "force-scale-each", "gravity", "inhomogeneity", "layer", "inclusion", "stiffening", "noise",
                       "rest-noise"]
 # Present in every draw whatever its effect: the generator's rest scan is the mean of ten noisy frames
@@ -199,6 +199,18 @@ def score(row):
     return row
 
 
+def reused(ds, seed, shape, effect, args):
+    """The truth of a dataset generated before for this very draw (seed, shape, effect, quick), or
+    None: `--reuse-datasets` diagnoses the same data again with another palpate."""
+    tj = os.path.join(ds, "truth.json")
+    if not os.path.exists(tj):
+        return None
+    with open(tj) as fh:
+        tr = json.load(fh)
+    same = (tr.get("seed"), tr.get("shape"), tr.get("effect"), tr.get("quick")) == (seed, shape, effect, args.quick)
+    return tr if same else None
+
+
 def run_one(i, args, work, outdir):
     seed = 1000 * args.seed + i
     shape = args.shape_order[i]
@@ -206,14 +218,20 @@ def run_one(i, args, work, outdir):
     did = f"{i:03d}-{shape}-{effect}"
     ds = os.path.join(work, did)
     row = {"draw": i, "id": did, "seed": seed, "shape": shape, "effect": effect}
-    if os.path.exists(ds):
-        shutil.rmtree(ds)
     t0 = time.time()
-    try:
-        tr = gen.generate(ds, seed, shape, effect, quick=args.quick, verbose=True)
-    except Exception as e:  # a generator failure is the generator's: recorded and shown
-        row.update(verdict="generator-error", error=f"{type(e).__name__}: {e}", gen_traceback=traceback.format_exc())
-        return row
+    tr = reused(ds, seed, shape, effect, args) if args.reuse_datasets else None
+    if tr is None:
+        if os.path.exists(ds):
+            shutil.rmtree(ds)
+        try:
+            tr = gen.generate(ds, seed, shape, effect, quick=args.quick, verbose=True)
+        except Exception as e:  # a generator failure is the generator's: recorded and shown
+            row.update(verdict="generator-error", error=f"{type(e).__name__}: {e}", gen_traceback=traceback.format_exc())
+            return row
+    else:
+        print(f"  reusing the dataset in {ds} (generated before: {tr['seconds']:.1f} s)", flush=True)
+        shutil.rmtree(os.path.join(ds, "diagnosis"), ignore_errors=True)
+        t0 -= tr["seconds"]
     row.update(magnitude=tr["magnitude"], **snr_fields(tr),
                E_true=tr["E_Pa"], nu_true=tr["nu"], sigma=tr["marker_noise_declared_m"],
                markers=tr["markers"], measurements=tr["measurements"], observed=tr["observed_entries"],
@@ -394,6 +412,8 @@ def main():
     ap.add_argument("--quick", action="store_true", help="coarse truth mesh, <= 4 contacts: a smoke test")
     ap.add_argument("--rescore", action="store_true", help="only re-read the saved draws/*/diagnosis.json of -o and rewrite the reports")
     ap.add_argument("--resume", action="store_true", help="keep the finished rows of an earlier confusion.json in -o")
+    ap.add_argument("--reuse-datasets", action="store_true",
+                    help="diagnose a draw's dataset already in --work (same seed, shape and effect) again instead of generating it anew: another palpate on the same data")
     args = ap.parse_args()
     args.command_line = "python tests/generators/run_confusion.py " + " ".join(sys.argv[1:])
     shapes_l = [s for s in args.shapes.split(",") if s]
