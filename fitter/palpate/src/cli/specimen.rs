@@ -11,9 +11,10 @@ use palpate_specimen::{generate, Effect, EffectSpec, SpecimenOptions};
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Effects to inject, comma-separated (stiffening, inclusion, soft-layer, calibration,
-    /// boundary, registration, gravity, tilt, noise, occlusion, rest-noise), or `none`; or `viscosity` alone
-    /// (magnitude: viscous time τ = ν/μ in s, default 2), which writes tension-test curves at two
-    /// stretch rates in the VHB records' format instead of a static dataset.
+    /// boundary, registration, gravity, tilt, contact-radius, noise, occlusion, rest-noise), or
+    /// `none`; or `viscosity` alone (magnitude: viscous time τ = ν/μ in s, default 2), which writes
+    /// tension-test curves at two stretch rates in the VHB records' format instead of a static
+    /// dataset.
     #[arg(long, value_delimiter = ',', default_value = "none")]
     pub effect: Vec<String>,
     /// Magnitudes, one per effect in the same order (default: each effect's realistic default).
