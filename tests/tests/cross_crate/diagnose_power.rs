@@ -77,7 +77,7 @@ fn the_smallest_detectable_gravity_is_where_the_selection_rule_starts_to_shortli
     }
     // Every θ-candidate is stated, and the three per-measurement ones; none of the simplest
     // model's.
-    assert_eq!(statement.len(), 12, "{statement:?}");
+    assert_eq!(statement.len(), 13, "{statement:?}");
     let g = statement
         .iter()
         .find(|d| d.candidate == Candidate::Gravity)
