@@ -42,6 +42,18 @@ fn stated(ctx: &Context, f: &Fitted, c: Candidate) -> palpate_diagnose::power::D
     d
 }
 
+/// `ctx` with every observed marker of measurement i, marker k (the k-th it observes) replaced by
+/// `at(i, k, marker index)`: the noise-free data the statements are checked on.
+fn observed_as(ctx: &Context, at: impl Fn(usize, usize, usize) -> [f64; 3]) -> Context {
+    let mut out = ctx.clone();
+    for (i, m) in out.meas.iter_mut().enumerate() {
+        for (k, (marker, p)) in m.observed.iter_mut().enumerate() {
+            *p = at(i, k, *marker);
+        }
+    }
+    out
+}
+
 /// Measured markers replaced by `base` (per measurement, aligned with `observed`) moved by what a
 /// gravity preload of ρ (kg/m³) changes in the fitted simulation.
 fn with_gravity(ctx: &Context, f: &Fitted, rho: f64, base: &[Vec<[f64; 3]>]) -> Context {
@@ -50,13 +62,9 @@ fn with_gravity(ctx: &Context, f: &Fitted, rho: f64, base: &[Vec<[f64; 3]>]) -> 
     let mut theta = f.theta.clone();
     theta.push(rho / 1000.0);
     let sim = model.simulate(ctx, &theta, &all, Some(&f.sim.x)).unwrap();
-    let mut out = ctx.clone();
-    for (i, m) in out.meas.iter_mut().enumerate() {
-        for (k, (_, p)) in m.observed.iter_mut().enumerate() {
-            *p = [0, 1, 2].map(|d| base[i][k][d] + sim.markers[i][k][d] - f.sim.markers[i][k][d]);
-        }
-    }
-    out
+    observed_as(ctx, |i, k, _| {
+        [0, 1, 2].map(|d| base[i][k][d] + sim.markers[i][k][d] - f.sim.markers[i][k][d])
+    })
 }
 
 /// Δχ² that adding gravity to the simplest model gains on `ctx`, and the fit without it.
@@ -173,15 +181,11 @@ fn the_smallest_detectable_per_measurement_force_scale_is_where_the_rule_shortli
         // Noise-free data: the fitted simulation with measurement i's displacement scaled by
         // e^(±factor·ε), alternating (the geometric mean stays 1, which E would absorb). One
         // pattern of signs is not the average the statement is for: measured 1.14–1.16× it.
-        let mut data = ctx.clone();
-        for (i, meas) in data.meas.iter_mut().enumerate() {
+        let data = observed_as(&ctx, |i, j, k| {
             let scale = (if i % 2 == 0 { 1.0 } else { -1.0 } * factor * eps).exp();
-            for (j, (k, p)) in meas.observed.iter_mut().enumerate() {
-                let rest = ctx.marker_rest[*k];
-                let sim = f.sim.markers[i][j];
-                *p = [0, 1, 2].map(|d| rest[d] + scale * (sim[d] - rest[d]));
-            }
-        }
+            let (rest, sim) = (ctx.marker_rest[k], f.sim.markers[i][j]);
+            [0, 1, 2].map(|d| rest[d] + scale * (sim[d] - rest[d]))
+        });
         check_gain(&ctx, &f, &data, Candidate::ForceScaleEach, factor, eps);
     }
 }
@@ -195,14 +199,10 @@ fn the_smallest_detectable_per_measurement_translation_is_where_the_rule_shortli
     let eps = d.params[0].min.expect("separable");
     for factor in [0.5, 2.0] {
         // Measured 1.01× the statement's expectation at both factors.
-        let mut data = ctx.clone();
-        for (i, meas) in data.meas.iter_mut().enumerate() {
+        let data = observed_as(&ctx, |i, j, _| {
             let t = [0, 1, 2].map(|d| if (i + d) % 2 == 0 { 1.0 } else { -1.0 } * factor * eps);
-            for (j, (_, p)) in meas.observed.iter_mut().enumerate() {
-                let sim = f.sim.markers[i][j];
-                *p = [0, 1, 2].map(|d| sim[d] + t[d]);
-            }
-        }
+            [0, 1, 2].map(|d| f.sim.markers[i][j][d] + t[d])
+        });
         check_gain(&ctx, &f, &data, Candidate::RegistrationEach, factor, eps);
     }
 }
@@ -230,12 +230,7 @@ fn the_smallest_detectable_per_measurement_tilt_is_where_the_rule_shortlists_it(
         let sim = Model::base()
             .simulate(&tilted, &f.theta, &all, Some(&f.sim.x))
             .unwrap();
-        let mut data = ctx.clone();
-        for (i, meas) in data.meas.iter_mut().enumerate() {
-            for (j, (_, p)) in meas.observed.iter_mut().enumerate() {
-                *p = sim.markers[i][j];
-            }
-        }
+        let data = observed_as(&ctx, |i, j, _| sim.markers[i][j]);
         check_gain(&ctx, &f, &data, Candidate::TiltEach, factor, eps);
     }
 }
