@@ -8,6 +8,7 @@ pub mod bench_link;
 pub mod bench_motion;
 pub mod bench_runtime;
 pub mod diagnose_evidence;
+pub mod model_form;
 pub mod motion_confusion;
 pub mod motion_evidence;
 pub mod motion_evidence_spline;
@@ -40,6 +41,9 @@ pub enum Command {
     /// The non-linear chain end to end (incremental loading, blends on non-linear data, the γ_m
     /// sweep) into docs/results/nonlinear.
     NonlinearEvidence(nonlinear_evidence::Args),
+    /// Whether a static dataset's residual is the warped linear model's form: its (E, ν) fit
+    /// against the Neo-Hookean quasi-static solver's best fit on the same mesh and loads.
+    ModelForm(model_form::Args),
 }
 
 /// Runs a parsed command line.
@@ -50,5 +54,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::DiagnoseEvidence(a) => diagnose_evidence::run(a),
         Command::MotionConfusion(a) => motion_confusion::run(a),
         Command::NonlinearEvidence(a) => nonlinear_evidence::run(a),
+        Command::ModelForm(a) => model_form::run(a),
     }
 }
