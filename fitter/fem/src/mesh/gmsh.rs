@@ -1,15 +1,22 @@
-//! Gmsh MSH 4.1 input and output.
+//! Gmsh MSH input (4.1 ASCII and binary, 2.2 ASCII) and MSH 4.1 output.
 //!
-//! [`read_msh`] reads linear tetrahedral meshes (element type 4) written by Gmsh, ASCII or binary,
-//! into a [`Mesh`]:
+//! [`read_msh`] reads linear tetrahedral meshes (element type 4) written by Gmsh or by other tools
+//! (meshio, older pipelines) into a [`Mesh`]. The version and file type on the `$MeshFormat` line
+//! choose the parser:
 //!
-//! - **ASCII** files are parsed here, line by line, so that every error names the file, the line,
-//!   what was expected and what was found. (mshio drops the node tags of densely numbered files,
-//!   and palpate's CSV files name nodes by their Gmsh tags, so tags must survive exactly.)
-//! - **Binary** files are parsed by `mshio`; its errors are wrapped with the file name and the byte
-//!   offset (and the line, counted in the ASCII header part). mshio keeps node tags only when they
-//!   are sparse; for densely numbered files the tags are rebuilt as `min_tag + position`, block by
-//!   block in file order, which is how Gmsh numbers the nodes it writes.
+//! - **MSH 4.1 ASCII** files are parsed here, line by line, so that every error names the file,
+//!   the line, what was expected and what was found. (mshio drops the node tags of densely
+//!   numbered files, and palpate's CSV files name nodes by their Gmsh tags, so tags must survive
+//!   exactly.)
+//! - **MSH 4.1 binary** files are parsed by `mshio`; its errors are wrapped with the file name and
+//!   the byte offset (and the line, counted in the ASCII header part). mshio keeps node tags only
+//!   when they are sparse; for densely numbered files the tags are rebuilt as
+//!   `min_tag + position`, block by block in file order, which is how Gmsh numbers the nodes it
+//!   writes.
+//! - **MSH 2.2 ASCII** (and 2.1, 2.0, whose ASCII grammar is the same for what is read here:
+//!   `gmsh -format msh22`, meshio's `gmsh22`) is parsed here too, with the same line-precise
+//!   errors. MSH 2 binary is not read: the error says how to re-save the file. Other versions are
+//!   rejected naming the version found.
 //!
 //! What is read:
 //! - Node tags are kept in [`Mesh::node_tags`]. Nodes used by no tetrahedron are dropped (they would
@@ -24,11 +31,16 @@
 //! - Physical groups of dimension 0–3 become [`Mesh::node_groups`]: all nodes of all elements (and
 //!   all nodes classified) on every entity of the group, by name (`$PhysicalNames`); a group without
 //!   a name is called `group-<tag>`. Groups of the same name in different dimensions are merged.
+//! - In MSH 2.2 the physical tag is written on each element (its first tag; 0 = none) and nodes are
+//!   not classified on entities, so a group is all nodes of the elements that carry its tag, with
+//!   the same naming and merging. Gmsh writes an element of several groups once per group; those
+//!   repeats are read as one element in all of its groups.
 //!
 //! [`write_msh`] writes MSH 4.1 ASCII that [`read_msh`] and Gmsh read back; its layout is described
 //! there.
 
 mod ascii;
+mod ascii22;
 mod assemble;
 mod binary;
 mod write;
@@ -55,7 +67,8 @@ pub enum MeshError {
         /// The operating-system error.
         source: std::io::Error,
     },
-    /// The ASCII text does not follow the MSH 4.1 grammar.
+    /// The ASCII text does not follow the MSH grammar (4.1 or 2.2), or its version or file type
+    /// is not read.
     #[error("{file}:{line}: expected {expected}, found {found}")]
     Syntax {
         /// The file.
@@ -209,7 +222,9 @@ pub struct MshReport {
     pub binary: bool,
 }
 
-/// Reads a Gmsh MSH 4.1 file (ASCII or binary) of linear tetrahedra. See the module docs.
+/// Reads a Gmsh mesh of linear tetrahedra: MSH 4.1 (ASCII or binary) or MSH 2.2 ASCII (also 2.1
+/// and 2.0), told apart by the `$MeshFormat` line. MSH 2 binary and other versions are errors that
+/// name the version found. See the module docs for what is read and how groups are formed.
 pub fn read_msh(path: impl AsRef<Path>) -> Result<Mesh, MeshError> {
     read_msh_with_report(path).map(|(m, _)| m)
 }
@@ -221,18 +236,19 @@ pub fn read_msh_with_report(path: impl AsRef<Path>) -> Result<(Mesh, MshReport),
         file: file.clone(),
         source,
     })?;
-    let binary = ascii::is_binary(&file, &bytes)?;
-    let raw = if binary {
-        binary::parse(&file, &bytes)?
-    } else {
-        ascii::parse(&file, &bytes)?
+    let format = ascii::mesh_format(&file, &bytes)?;
+    let raw = match format {
+        ascii::MshFormat::V41Ascii => ascii::parse(&file, &bytes)?,
+        ascii::MshFormat::V41Binary => binary::parse(&file, &bytes)?,
+        ascii::MshFormat::V2Ascii => ascii22::parse(&file, &bytes)?,
     };
     let (mesh, mut report) = assemble::assemble(&file, raw)?;
-    report.binary = binary;
+    report.binary = format == ascii::MshFormat::V41Binary;
     Ok((mesh, report))
 }
 
-/// The file's content before it becomes a [`Mesh`]: shared by the ASCII and the binary parser.
+/// The file's content before it becomes a [`Mesh`]: shared by the ASCII (4.1 and 2.2) and the
+/// binary parser.
 #[derive(Debug, Default)]
 struct RawMsh {
     /// (dimension, physical tag, name).
@@ -286,3 +302,5 @@ fn element_type_name(type_id: i32) -> &'static str {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_msh22;

@@ -3,9 +3,20 @@
 use super::{MeshError, RawElements, RawMsh};
 use std::path::Path;
 
-/// Reads the `$MeshFormat` header and says whether the file is binary. Rejects versions other
-/// than 4.1 and non-MSH files.
-pub(super) fn is_binary(file: &Path, bytes: &[u8]) -> Result<bool, MeshError> {
+/// Which parser reads a file: decided by the version and the file type on its `$MeshFormat` line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum MshFormat {
+    /// MSH 4.1 ASCII, read by [`parse`].
+    V41Ascii,
+    /// MSH 4.1 binary, read through mshio.
+    V41Binary,
+    /// MSH 2.0, 2.1 or 2.2 ASCII, read by `ascii22::parse`.
+    V2Ascii,
+}
+
+/// Reads the `$MeshFormat` header and says which parser reads the file. Rejects non-MSH files,
+/// versions other than 4.1 and 2.0–2.2, and MSH 2 binary.
+pub(super) fn mesh_format(file: &Path, bytes: &[u8]) -> Result<MshFormat, MeshError> {
     // The header is ASCII in both flavours; look only at its first lines.
     let head = String::from_utf8_lossy(&bytes[..bytes.len().min(256)]);
     let mut lines = head.lines().map(str::trim);
@@ -22,17 +33,33 @@ pub(super) fn is_binary(file: &Path, bytes: &[u8]) -> Result<bool, MeshError> {
     let fmt = lines.next().unwrap_or("");
     let mut parts = fmt.split_whitespace();
     let version = parts.next().unwrap_or("");
-    if version != "4.1" {
-        return Err(syntax(
+    let msh2 = match version {
+        "4.1" => false,
+        // 2.0 and 2.1 differ from 2.2 only in sections and tags palpate does not read.
+        "2.2" | "2.1" | "2.0" => true,
+        _ => {
+            return Err(syntax(
+                2,
+                "MSH format version 4.1 (ASCII or binary) or 2.2, 2.1, 2.0 (ASCII) \
+                 (save with Mesh.MshFileVersion = 4.1)",
+                version,
+            ))
+        }
+    };
+    match (parts.next(), msh2) {
+        (Some("0"), false) => Ok(MshFormat::V41Ascii),
+        (Some("1"), false) => Ok(MshFormat::V41Binary),
+        (Some("0"), true) => Ok(MshFormat::V2Ascii),
+        (Some("1"), true) => Err(syntax(
             2,
-            "MSH format version 4.1 (save with Mesh.MshFileVersion = 4.1)",
-            version,
-        ));
-    }
-    match parts.next() {
-        Some("0") => Ok(false),
-        Some("1") => Ok(true),
-        other => Err(syntax(
+            &format!(
+                "file type 0 (ASCII): MSH {version} binary is not read; re-save the file as \
+                 MSH 4.1 (`gmsh in.msh -save -format msh41 -o out.msh`) or as MSH 2.2 ASCII \
+                 (`-format msh22`)"
+            ),
+            "1",
+        )),
+        (other, _) => Err(syntax(
             2,
             "file type 0 (ASCII) or 1 (binary)",
             other.unwrap_or(""),
@@ -42,7 +69,7 @@ pub(super) fn is_binary(file: &Path, bytes: &[u8]) -> Result<bool, MeshError> {
 
 /// Counts come from the file: never pre-allocate more than a file of this kind could hold, so a
 /// corrupt count fails with "end of file" instead of exhausting memory.
-fn prealloc(count: usize) -> usize {
+pub(super) fn prealloc(count: usize) -> usize {
     count.min(1 << 16)
 }
 
@@ -55,16 +82,16 @@ fn quote(s: &str) -> String {
 }
 
 /// A cursor over whitespace-separated tokens that remembers lines.
-struct Tokens<'a> {
+pub(super) struct Tokens<'a> {
     file: &'a Path,
     lines: Vec<&'a str>,
     /// Current line index (0-based) and byte column in it.
-    line: usize,
+    pub(super) line: usize,
     col: usize,
 }
 
 impl<'a> Tokens<'a> {
-    fn new(file: &'a Path, text: &'a str) -> Self {
+    pub(super) fn new(file: &'a Path, text: &'a str) -> Self {
         Tokens {
             file,
             lines: text.lines().collect(),
@@ -73,7 +100,7 @@ impl<'a> Tokens<'a> {
         }
     }
 
-    fn err(&self, line: usize, expected: impl Into<String>, found: &str) -> MeshError {
+    pub(super) fn err(&self, line: usize, expected: impl Into<String>, found: &str) -> MeshError {
         MeshError::Syntax {
             file: self.file.to_path_buf(),
             line: line + 1,
@@ -83,7 +110,7 @@ impl<'a> Tokens<'a> {
     }
 
     /// Next token on the current line, if any.
-    fn on_line(&mut self) -> Option<(usize, &'a str)> {
+    pub(super) fn on_line(&mut self) -> Option<(usize, &'a str)> {
         let l = *self.lines.get(self.line)?;
         let rest = &l[self.col..];
         let start = rest.len() - rest.trim_start().len();
@@ -97,7 +124,7 @@ impl<'a> Tokens<'a> {
     }
 
     /// Next token, moving across line ends. `what` names it in the end-of-file error.
-    fn next(&mut self, what: &str) -> Result<(usize, &'a str), MeshError> {
+    pub(super) fn next(&mut self, what: &str) -> Result<(usize, &'a str), MeshError> {
         loop {
             if let Some(t) = self.on_line() {
                 return Ok(t);
@@ -132,7 +159,7 @@ impl<'a> Tokens<'a> {
     fn int(&mut self, what: &str) -> Result<i32, MeshError> {
         self.parse(what, "an integer")
     }
-    fn count(&mut self, what: &str) -> Result<usize, MeshError> {
+    pub(super) fn count(&mut self, what: &str) -> Result<usize, MeshError> {
         self.parse(what, "a count")
     }
     fn float(&mut self, what: &str) -> Result<f64, MeshError> {
@@ -149,9 +176,9 @@ impl<'a> Tokens<'a> {
     }
 }
 
-/// Parses an ASCII MSH 4.1 file.
-pub(super) fn parse(file: &Path, bytes: &[u8]) -> Result<RawMsh, MeshError> {
-    let text = std::str::from_utf8(bytes).map_err(|e| {
+/// The file as text; invalid UTF-8 is an error naming the line it is on.
+pub(super) fn utf8_text<'a>(file: &Path, bytes: &'a [u8]) -> Result<&'a str, MeshError> {
+    std::str::from_utf8(bytes).map_err(|e| {
         let line = bytes[..e.valid_up_to()]
             .iter()
             .filter(|&&b| b == b'\n')
@@ -163,14 +190,19 @@ pub(super) fn parse(file: &Path, bytes: &[u8]) -> Result<RawMsh, MeshError> {
             expected: "UTF-8 text (an ASCII .msh file)".into(),
             found: "invalid UTF-8 bytes".into(),
         }
-    })?;
+    })
+}
+
+/// Parses an ASCII MSH 4.1 file.
+pub(super) fn parse(file: &Path, bytes: &[u8]) -> Result<RawMsh, MeshError> {
+    let text = utf8_text(file, bytes)?;
     let mut t = Tokens::new(file, text);
     let mut raw = RawMsh::default();
     // `next` fails only at the end of the file, which is where reading stops between sections.
     while let Ok((line, section)) = t.next("a section") {
         match section {
             "$MeshFormat" => {
-                // Checked by `is_binary`; skip its content.
+                // Checked by `mesh_format`; skip its content.
                 skip_to(&mut t, "$EndMeshFormat")?;
             }
             "$PhysicalNames" => physical_names(&mut t, &mut raw)?,
@@ -188,7 +220,7 @@ pub(super) fn parse(file: &Path, bytes: &[u8]) -> Result<RawMsh, MeshError> {
     Ok(raw)
 }
 
-fn skip_to(t: &mut Tokens, end: &str) -> Result<(), MeshError> {
+pub(super) fn skip_to(t: &mut Tokens, end: &str) -> Result<(), MeshError> {
     loop {
         let (_, tok) = t.next(&format!("{end:?}"))?;
         if tok == end {
@@ -197,7 +229,7 @@ fn skip_to(t: &mut Tokens, end: &str) -> Result<(), MeshError> {
     }
 }
 
-fn physical_names(t: &mut Tokens, raw: &mut RawMsh) -> Result<(), MeshError> {
+pub(super) fn physical_names(t: &mut Tokens, raw: &mut RawMsh) -> Result<(), MeshError> {
     let n = t.count("number of physical names")?;
     for _ in 0..n {
         let dim = t.int("physical group dimension")?;
