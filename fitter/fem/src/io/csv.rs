@@ -12,9 +12,13 @@
 use std::path::{Path, PathBuf};
 
 /// The non-blank records of `text` as (1-based line, trimmed line); with `comments`, lines whose
-/// first non-blank character is `#` are skipped too.
+/// first non-blank character is `#` are skipped too. A leading UTF-8 byte-order mark is not part
+/// of the first record: spreadsheet programs (Excel's "CSV UTF-8") write one, and the header
+/// check would otherwise read `\u{feff}marker` where `marker` is.
 pub fn records(text: &str, comments: bool) -> impl Iterator<Item = (usize, &str)> {
-    text.lines()
+    text.strip_prefix('\u{feff}')
+        .unwrap_or(text)
+        .lines()
         .enumerate()
         .map(|(i, l)| (i + 1, l.trim()))
         .filter(move |(_, l)| !(l.is_empty() || (comments && l.starts_with('#'))))

@@ -435,3 +435,39 @@ fn example_dataset_in_models_reads() {
     // The markers lie on the flat top face of the sponge: distance 0 up to round-off.
     assert!(d.markers.iter().all(|m| m.distance < 1e-15));
 }
+
+/// What a spreadsheet program writes ("CSV UTF-8": a byte-order mark, CRLF line ends) reads as
+/// the same dataset, and a line-numbered error still names the right line.
+#[test]
+fn spreadsheet_csv_with_byte_order_mark_and_crlf_reads_the_same() {
+    let plain = tempfile::tempdir().unwrap();
+    write_dataset(plain.path(), &[], &mesh());
+    let windows = |t: &str| format!("\u{feff}{}", t.replace('\n', "\r\n"));
+    let (markers, measurements, contacts, toml) = (
+        windows(MARKERS),
+        windows(MEASUREMENTS),
+        windows(CONTACTS),
+        windows(TOML),
+    );
+    let excel = tempfile::tempdir().unwrap();
+    write_dataset(
+        excel.path(),
+        &[
+            ("markers.csv", &markers),
+            ("measurements.csv", &measurements),
+            ("contacts.csv", &contacts),
+            ("dataset.toml", &toml),
+        ],
+        &mesh(),
+    );
+    let a = StaticDataset::read(plain.path()).unwrap();
+    let b = StaticDataset::read(excel.path()).unwrap();
+    assert_eq!(a.markers, b.markers);
+    assert_eq!(a.measurements, b.measurements);
+    // The mark does not shift the line numbers: a bad number on line 3 is still line 3.
+    let bad = windows(&MARKERS.replace("m2,0.07", "m2,0.0x7"));
+    assert_has(
+        &error_with(&[("markers.csv", &bad)]),
+        &["markers.csv:3", "`x`", "0.0x7"],
+    );
+}
