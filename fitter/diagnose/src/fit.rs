@@ -37,7 +37,18 @@ pub struct Fitted {
     pub subset: Vec<usize>,
 }
 
+/// How far (in noise standard deviations) the measured displacements may point against the
+/// simulated ones — their projection on the unit simulated pattern — before the data are called
+/// reversed: pure noise projects as N(0, σ²).
+const REVERSED_Z: f64 = 3.0;
+
 /// Starting θ for the base model: E from the best displacement scale of a 10 kPa solve.
+///
+/// The same projection tells a reversed force convention from a stiffness: every linear model
+/// moves the markers along its loads, so measured displacements that project significantly
+/// *against* a solve of the reported forces are not a stiff object but forces that point the
+/// other way (a pull where palpate reads a push). That is refused, naming the measurements; one
+/// measurement that does so while the others agree is a warning naming it (its force row).
 pub fn initial_theta(
     ctx: &Context,
     subset: &[usize],
@@ -46,11 +57,53 @@ pub fn initial_theta(
     let e0: f64 = 1e4;
     let theta = vec![e0.ln(), s_of(0.3)];
     let sim = model.simulate(ctx, &theta, subset, None)?;
-    let mut sums = (0.0, 0.0);
-    for (&i, ms) in subset.iter().zip(&sim.markers) {
-        ctx.add_scale_terms(i, ms, &mut sums);
+    let per: Vec<(f64, f64)> = subset
+        .iter()
+        .zip(&sim.markers)
+        .map(|(&i, ms)| {
+            let mut sums = (0.0, 0.0);
+            ctx.add_scale_terms(i, ms, &mut sums);
+            sums
+        })
+        .collect();
+    // z of measured-on-simulated: the projection ⟨u_meas, u_sim⟩/‖u_sim‖ over σ.
+    let z = |(num, den): (f64, f64)| {
+        if den > 0.0 {
+            num / (den.sqrt() * ctx.sigma)
+        } else {
+            0.0
+        }
+    };
+    let against: Vec<&str> = subset
+        .iter()
+        .zip(&per)
+        .filter(|(_, &s)| z(s) < -REVERSED_Z)
+        .map(|(&i, _)| ctx.meas[i].id.as_str())
+        .collect();
+    let (num, den) = per
+        .iter()
+        .fold((0.0, 0.0), |(a, b), &(n, d)| (a + n, b + d));
+    if z((num, den)) < -REVERSED_Z {
+        return Err(DiagnoseError::Input(format!(
+            "the measured marker displacements point against the reported forces: projected on \
+             a linear solve of those forces they move the other way, {:.1} noise standard \
+             deviations over all measurements (in {} of {}: {}). palpate reads fx,fy,fz in \
+             contacts.csv as the force the probe applies to the object (into it at a push); \
+             check their sign convention",
+            -z((num, den)),
+            against.len(),
+            subset.len(),
+            against.join(", ")
+        )));
     }
-    let (num, den) = sums;
+    for id in &against {
+        log::warn!(
+            "measurement {id:?}: its markers move against its reported force (projected on a \
+             linear solve of that force, more than {REVERSED_Z} noise standard deviations the \
+             other way) while the other measurements move with theirs — check its row in \
+             contacts.csv (the force's sign or its measurement id)"
+        );
+    }
     let a = if num > 0.0 && den > 0.0 {
         num / den
     } else {

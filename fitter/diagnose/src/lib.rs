@@ -1224,9 +1224,12 @@ pub fn run_diagnosis_with(
     let started = Instant::now();
     // The same data gate as `palpate fit` (palpate_fem::sanity): data that cannot determine a
     // stiffness are refused before any model is fitted to them.
-    palpate_fem::sanity::check_static_data(ds, 2)
+    let findings = palpate_fem::sanity::check_static_data(ds, 2)
         .into_result()
         .map_err(|r| DiagnoseError::Input(r.to_string()))?;
+    for w in findings.warnings() {
+        log::warn!("[{}] {}", w.code, w.message);
+    }
     let coarse = Context::new(ds, o.grid)?;
     let all: Vec<usize> = (0..coarse.meas.len()).collect();
     let (theta0, sim0) = initial_theta(&coarse, &all)?;

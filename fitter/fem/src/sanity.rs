@@ -141,6 +141,29 @@ pub fn check_static_data(ds: &StaticDataset, parameters: usize) -> Findings {
             ),
         );
     }
+    // A measurement that reports no force while its markers move is a row gone wrong (a force
+    // not recorded, a tare taken under load): the linear model predicts no motion for it, and
+    // the fit can only take its motion for noise or a per-measurement effect.
+    for m in &ds.measurements {
+        if norm(m.force) > 0.0 || max_force <= 0.0 {
+            continue;
+        }
+        let moved = m
+            .observed
+            .iter()
+            .filter_map(|(k, p)| ds.markers.get(*k).map(|r| norm(sub(*p, r.rest))))
+            .fold(0.0, f64::max);
+        if moved > 3.0 * noise {
+            f.warn(
+                "zero-force-moves",
+                format!(
+                    "measurement {:?} reports a zero probe force but its markers move up to \
+                     {moved:.3e} m (marker noise {noise:.3e} m): check its row in contacts.csv",
+                    m.id
+                ),
+            );
+        }
+    }
     if observed < parameters {
         f.error(
             "too-few-observations",
@@ -177,7 +200,7 @@ pub fn check_material(sets: &[Material]) -> Findings {
                             "set {s}{}: E = {young:.4e} Pa, ν = {nu:.4} — at the edge of what a \
                              soft object can be (ν > {POISSON_LOWER_LIMIT}, E in [{:.0e}, {:.0e}] \
                              Pa); the data do not determine these parameters (check the force \
-                             units, the marker motion and the fixed boundary)",
+                             units and sign, the marker motion and the fixed boundary)",
                             if m.lambda.len() > 1 {
                                 format!(" element {e}")
                             } else {

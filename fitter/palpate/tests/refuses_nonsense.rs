@@ -433,3 +433,68 @@ fn help_texts_have_no_rustdoc_links() {
         }
     }
 }
+
+/// Forces given with the opposite sign convention (the object pulling the probe, or a load cell
+/// read the other way round) are not a stiff object: `palpate diagnose` refuses them, says why
+/// and names the measurements, and writes no report.
+#[test]
+fn diagnose_refuses_forces_of_the_wrong_sign() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = sponge_with(tmp.path(), "contacts.csv", |_, mut f| {
+        for v in &mut f[4..7] {
+            let x: f64 = v.parse().unwrap();
+            *v = format!("{}", -x);
+        }
+        f
+    });
+    let out = tmp.path().join("report");
+    let o = palpate()
+        .args(["diagnose"])
+        .arg(&ds)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    for part in [
+        "point against the reported forces",
+        "sign convention",
+        "c0",
+        "c1",
+    ] {
+        assert!(err.contains(part), "{part:?} not in: {err}");
+    }
+    assert!(
+        !out.join("diagnosis.md").exists(),
+        "a report was written: {err}"
+    );
+}
+
+/// One contact row that reports no force while its markers move is named (the fit goes on: the
+/// other measurements determine the material).
+#[test]
+fn fit_names_a_zero_force_measurement_whose_markers_move() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = sponge_with(tmp.path(), "contacts.csv", |i, mut f| {
+        if i == 2 {
+            for v in &mut f[4..7] {
+                *v = "0".into();
+            }
+        }
+        f
+    });
+    let model = tmp.path().join("model.palp");
+    let o = palpate()
+        .args(["fit"])
+        .arg(&ds)
+        .arg("-o")
+        .arg(&model)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("zero-force-moves") && err.contains("\"c1\""),
+        "{err}"
+    );
+}

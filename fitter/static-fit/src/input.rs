@@ -37,7 +37,10 @@ impl FitInput {
     pub fn from_dataset(ds: &StaticDataset) -> Result<Self, FitError> {
         // Data that cannot determine even one homogeneous (λ, α) pair are refused here, before
         // any solver returns its starting guess as if it were a fit.
-        palpate_fem::sanity::check_static_data(ds, 2).into_result()?;
+        let findings = palpate_fem::sanity::check_static_data(ds, 2).into_result()?;
+        for w in findings.warnings() {
+            log::warn!("[{}] {}", w.code, w.message);
+        }
         let problem = StaticProblem::new(&ds.mesh, &ds.fixed_nodes, &ds.surface)?;
         let mut measurements = Vec::with_capacity(ds.measurements.len());
         for m in &ds.measurements {
