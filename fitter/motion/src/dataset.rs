@@ -270,6 +270,11 @@ pub const MAX_STEPS_PAST_DATA: usize = 2;
 /// enough for markers on stand-offs, not for a marker in the wrong units or the wrong frame.
 pub const MARKER_OUTSIDE_FRACTION: f64 = 0.25;
 
+/// How far a tracked marker may be from its rest place, in box diagonals: a soft body swings its
+/// markers by up to about its own length, never by twice its diagonal — a trajectory that does is
+/// in other units (millimetres read as metres) or another frame than `markers.csv`.
+pub const MARKER_MOVE_DIAGONALS: f64 = 2.0;
+
 /// One kind of observed 3-vector series: rows `t, <name>, a, b, c` of a CSV file.
 struct Series {
     /// What column 1 names (a marker, a clamp).
@@ -629,6 +634,7 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
         read_series(&jf, rows, dt, &MARKER_POSITIONS, &mut obs.markers, |name| {
             marker_index.get(name).copied()
         })?;
+        check_trajectories_near_rest(&jf, rows, &marker_pts, &marker_index, &mesh)?;
     }
     if let Some((_, rows)) = &forces {
         read_series(&ff, rows, dt, &CLAMP_FORCES, &mut obs.forces, |name| {
@@ -749,14 +755,8 @@ fn dead_load(
     })
 }
 
-/// Refuses markers far outside the body: a marker in other units or another frame would be
-/// embedded by extrapolating a boundary element's shape functions and fitted as if it were real.
-fn check_markers_near_mesh(
-    file: &Path,
-    rows: &[(usize, Vec<String>)],
-    markers: &[(String, [f64; 3])],
-    mesh: &Mesh,
-) -> Result<(), DatasetError> {
+/// The mesh's bounding box (low and high corners, m) and its diagonal (m).
+fn bounding_box(mesh: &Mesh) -> ([f64; 3], [f64; 3], f64) {
     let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
     for p in &mesh.nodes {
         for k in 0..3 {
@@ -765,6 +765,59 @@ fn check_markers_near_mesh(
         }
     }
     let diagonal = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
+    (lo, hi, diagonal)
+}
+
+/// Refuses trajectory rows whose marker is farther from its rest place than
+/// [`MARKER_MOVE_DIAGONALS`] box diagonals: the rest places passed [`check_markers_near_mesh`],
+/// so such a row is in other units or another frame, and a fit would take it as motion (a
+/// trajectory in millimetres was "explained" by marker offsets 10⁷ µm long).
+fn check_trajectories_near_rest(
+    file: &Path,
+    rows: &[(usize, Vec<String>)],
+    markers: &[(String, [f64; 3])],
+    index: &HashMap<String, usize>,
+    mesh: &Mesh,
+) -> Result<(), DatasetError> {
+    let (_, _, diagonal) = bounding_box(mesh);
+    let allowed = MARKER_MOVE_DIAGONALS * diagonal;
+    for (line, f) in rows {
+        let Some(&i) = index.get(&f[1]) else {
+            continue;
+        };
+        let p = [
+            num(file, *line, "x", &f[2])?,
+            num(file, *line, "y", &f[3])?,
+            num(file, *line, "z", &f[4])?,
+        ];
+        let rest = markers[i].1;
+        let moved = (0..3).map(|k| (p[k] - rest[k]).powi(2)).sum::<f64>().sqrt();
+        if moved > allowed {
+            return Err(bad(
+                file,
+                *line,
+                format!(
+                    "marker {:?} at t = {} s is {moved:.4e} m from its rest place in markers.csv \
+                     ({:.4}, {:.4}, {:.4}) m; a marker may move at most {allowed:.4} m \
+                     ({MARKER_MOVE_DIAGONALS} × the mesh's box diagonal {diagonal:.4} m) — check \
+                     the units (metres) and the frame of trajectories.csv against markers.csv",
+                    f[1], f[0], rest[0], rest[1], rest[2]
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Refuses markers far outside the body: a marker in other units or another frame would be
+/// embedded by extrapolating a boundary element's shape functions and fitted as if it were real.
+fn check_markers_near_mesh(
+    file: &Path,
+    rows: &[(usize, Vec<String>)],
+    markers: &[(String, [f64; 3])],
+    mesh: &Mesh,
+) -> Result<(), DatasetError> {
+    let (lo, hi, diagonal) = bounding_box(mesh);
     let allowed = MARKER_OUTSIDE_FRACTION * diagonal;
     for ((line, _), (name, p)) in rows.iter().zip(markers) {
         let outside = (0..3)

@@ -149,3 +149,36 @@ fn markers_far_outside_the_body_are_refused() {
         "{e}"
     );
 }
+
+/// A trajectory in millimetres beside rest places in metres (the marker 28 m from where it
+/// rests on a 8 cm bar) is refused naming the row, the marker and the units, instead of being
+/// fitted as motion.
+#[test]
+fn trajectories_in_other_units_are_refused() {
+    let e = broken(|d| {
+        edit(d, "trajectories.csv", |t| {
+            let mut out = String::new();
+            for (i, line) in t.lines().enumerate() {
+                let f: Vec<&str> = line.split(',').collect();
+                if i == 0 {
+                    out.push_str(line);
+                } else {
+                    let mm: Vec<String> = f[2..]
+                        .iter()
+                        .map(|v| format!("{}", v.parse::<f64>().unwrap() * 1000.0))
+                        .collect();
+                    out.push_str(&format!("{},{},{}", f[0], f[1], mm.join(",")));
+                }
+                out.push('\n');
+            }
+            out
+        })
+    });
+    assert!(
+        e.contains("trajectories.csv:2:")
+            && e.contains("\"m0\"")
+            && e.contains("from its rest place")
+            && e.contains("units"),
+        "{e}"
+    );
+}
