@@ -372,7 +372,15 @@ fn step_of(file: &Path, line: usize, t: f64, dt: f64) -> Result<usize, DatasetEr
 pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
     let tf = dir.join("dataset.toml");
     let text = read(&tf)?;
-    let mut config: DatasetToml = toml::from_str(&text).map_err(|e| bad(&tf, 0, e.to_string()))?;
+    // The parser's own message (`missing field `dt``, `unknown field …`) on the line its span
+    // starts (a missing field spans the whole document: line 1), without the rendered excerpt.
+    let mut config: DatasetToml = toml::from_str(&text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1)
+            .unwrap_or(1);
+        bad(&tf, line, e.message().trim())
+    })?;
     let table = text.parse::<toml::Table>().ok();
     config.initial_declared = table.as_ref().is_none_or(|t| t.contains_key("initial"));
     if let Some(initial) = table

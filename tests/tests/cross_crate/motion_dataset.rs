@@ -182,3 +182,16 @@ fn trajectories_in_other_units_are_refused() {
         "{e}"
     );
 }
+
+/// A missing or misspelt key of dataset.toml is named on its line, in one sentence (was
+/// `dataset.toml:0:` and the parser's rendered excerpt).
+#[test]
+fn toml_keys_missing_or_unknown_are_named_on_their_line() {
+    let e = with_toml("dt = 0.005555555555555556\n", "");
+    assert!(e.contains("dataset.toml:1: missing field `dt`"), "{e}");
+    let e = with_toml("density = 47.0", "densty = 47.0");
+    assert!(
+        e.contains("dataset.toml:4: unknown field `densty`") && !e.contains(":0:"),
+        "{e}"
+    );
+}
