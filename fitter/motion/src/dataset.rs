@@ -26,8 +26,8 @@ pub enum DatasetError {
         /// Cause.
         source: std::io::Error,
     },
-    /// Bad content at a line (1-based; 0 = whole file).
-    #[error("{file}:{line}: {what}")]
+    /// Bad content at a line (1-based; 0 = the file as a whole, printed without a line).
+    #[error("{}{}: {what}", file.display(), line_suffix(*line))]
     Bad {
         /// File.
         file: PathBuf,
@@ -36,6 +36,15 @@ pub enum DatasetError {
         /// What is wrong (field, expected vs found).
         what: String,
     },
+}
+
+/// `:line` for a 1-based line, nothing for 0 (a finding about the whole file).
+fn line_suffix(line: usize) -> String {
+    if line == 0 {
+        String::new()
+    } else {
+        format!(":{line}")
+    }
 }
 
 /// `dataset.toml`. The keys it shares with the static datasets (`name`, `description`, `units`,

@@ -91,13 +91,13 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
     let text = std::fs::read_to_string(&a.places)
         .with_context(|| format!("reading {}", a.places.display()))?;
     let mut places = Vec::new();
-    for (i, line) in text.lines().enumerate() {
-        let l = line.trim();
-        if l.is_empty() || l.starts_with('#') || l.starts_with("marker,") {
+    // The one CSV tokenizer (1-based lines, `#` comments, a spreadsheet's byte-order mark).
+    for (line, l) in palpate_fem::io::csv::records(&text, true) {
+        if l.starts_with("marker,") {
             continue;
         }
-        let f: Vec<&str> = l.split(',').map(str::trim).collect();
-        let at = |what: &str| format!("{}:{}: {what}", a.places.display(), i + 1);
+        let f = palpate_fem::io::csv::fields(l);
+        let at = |what: &str| format!("{}:{line}: {what}", a.places.display());
         if f.len() != 4 {
             anyhow::bail!(
                 "{}",
@@ -106,13 +106,11 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
         }
         let mut p = [0.0; 3];
         for k in 0..3 {
-            p[k] = f[k + 1]
-                .parse::<f64>()
+            p[k] = palpate_fem::io::csv::finite(f[k + 1])
                 .ok()
-                .filter(|v| v.is_finite())
                 .with_context(|| {
                     at(&format!(
-                        "field {}: {:?} is not a number",
+                        "field {}: {:?} is not a finite number",
                         ["x", "y", "z"][k],
                         f[k + 1]
                     ))
