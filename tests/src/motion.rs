@@ -62,9 +62,20 @@ pub fn assert_gradients_agree(
     for (p, par) in params.iter().enumerate() {
         let q0 = mat.read(&[*par])[0];
         let h = step(par, q0);
+        // The parameter moved alone, beside the regions' own values of its kind in the list:
+        // a global parameter reaches the elements of the regions that have no value of its kind
+        // of their own (`Material::set`).
+        let own: Vec<Param> = params
+            .iter()
+            .copied()
+            .filter(|o| par.is_global() && o.region.is_some() && o.kind == par.kind)
+            .collect();
+        let own_q = mat.read(&own);
         let phi = |q: f64| {
             let mut m = mat.clone();
-            m.set(&[*par], &[q]);
+            let list: Vec<Param> = std::iter::once(*par).chain(own.iter().copied()).collect();
+            let qs: Vec<f64> = std::iter::once(q).chain(own_q.iter().copied()).collect();
+            m.set(&list, &qs);
             evaluate(model, &m, params, obs, None).unwrap().phi
         };
         let fd = (phi(q0 + h) - phi(q0 - h)) / (2.0 * h);

@@ -101,8 +101,7 @@ fn param_table(
     let mut t = vec![vec![usize::MAX; ns]; model.tets.len()];
     let mut kinds = vec![false; ns];
     // As `Material::set` writes them: a global material parameter in the elements outside the
-    // regions, then the elements' own values over them.
-    let inside = mat.in_region();
+    // regions that have that kind of their own, then the regions' and elements' own values.
     for global in [true, false] {
         for (p, par) in params.iter().enumerate() {
             if par.is_global() != global {
@@ -116,7 +115,7 @@ fn param_table(
                 _ if par.kind.is_spline() => t.iter_mut().for_each(|r| r[slot] = p),
                 _ => t
                     .iter_mut()
-                    .zip(&inside)
+                    .zip(&mat.overridden(params, par.kind))
                     .filter(|(_, &i)| !i)
                     .for_each(|(r, _)| r[slot] = p),
             }

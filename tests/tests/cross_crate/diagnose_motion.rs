@@ -433,15 +433,15 @@ fn a_stiffening_bar_is_given_its_stiffening() {
 /// (μ 30 kPa against 10 kPa, λ one value), Newtonian damping as the other runs of its kind,
 /// hung with a 30 g weight as the stiffening bar (σ = 20 µm). The simplest model's one μ cannot
 /// follow it (λ 58 kPa, μ 13.2 kPa: RMS 1,295 µm fitted, 2,284 µm held out). The misfit's
-/// per-element μ sensitivity must place the second material where it is — the split must agree
-/// with the truth's halves in at least 5 of 6 elements (measured: 23 of 24, the near half and
-/// one element more) —, the candidate must be adopted, the near half found the stiffer, and the
-/// forecast error cut at least threefold (measured 2,284 → 514 µm).
+/// per-element μ sensitivity must place the second material where it is — the region must be
+/// one of the truth's halves in at least 23 of 24 elements (measured: all 24, the best of 12
+/// level sets of the map) —, the candidate must be adopted, both moduli recovered within 5 %
+/// (measured 29,999 / 10,000 Pa) and the forecast brought to the noise floor (measured
+/// 2,284 → 34.4 µm, floor σ√3 = 34.6 µm, with the damping adopted second).
 ///
-/// What it does not yet do, measured: recover the contrast. The two-material refit stops at
-/// 371 µm RMS (the truth's own material gives 34 µm on these data, 80 µm without its damping)
-/// with μ 19.7 / 12.3 kPa for 30 / 10 kPa — a local minimum reached from the one-material
-/// fit's λ, which had absorbed part of the stiffness contrast.
+/// Until session 21 the refit stopped at 371 µm with μ 19.7 / 12.3 kPa: the region's elements
+/// kept the λ of the one-material fit (a global λ did not reach a region), and the sign split
+/// of the map took one element too many.
 #[test]
 fn a_bar_of_two_materials_is_given_its_second_material() {
     use palpate_motion::model::ParamKind;
@@ -479,16 +479,20 @@ fn a_bar_of_two_materials_is_given_its_second_material() {
         .filter(|&e| region.contains(&e) == near[e])
         .count();
     let agree = agree.max(near.len() - agree);
-    assert!(6 * agree >= 5 * near.len(), "{agree} of {}", near.len());
+    assert!(agree + 1 >= near.len(), "{agree} of {}", near.len());
     let mean_mu = |which: bool| {
         let es: Vec<usize> = (0..near.len()).filter(|&e| near[e] == which).collect();
         es.iter().map(|&e| mat.get(ParamKind::Mu, e)).sum::<f64>() / es.len() as f64
     };
     let (stiff, soft) = (mean_mu(true), mean_mu(false));
     eprintln!("μ near the base {stiff:.0} Pa, far {soft:.0} Pa");
-    assert!(stiff > 1.3 * soft, "near {stiff} far {soft}");
     assert!(
-        r.after.rms_held < r.before.rms_held / 3.0,
+        (stiff / 3.0e4 - 1.0).abs() < 0.05 && (soft / 1.0e4 - 1.0).abs() < 0.05,
+        "near {stiff} far {soft}"
+    );
+    let floor = SIGMA * 3f64.sqrt();
+    assert!(
+        r.after.rms_held < 1.2 * floor,
         "{:?} -> {:?}",
         r.before,
         r.after

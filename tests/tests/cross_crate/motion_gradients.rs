@@ -102,24 +102,34 @@ fn region_parameters_match_finite_differences() {
         Param::in_region(ParamKind::Lambda, 0),
         Param::in_region(ParamKind::Stiffening, 0),
     ];
-    // The region holds its own values: setting the global μ leaves them as they are.
-    let before = mat.values[ParamKind::Mu as usize].clone();
-    mat.set(&params[..1], &[1.7e4]);
-    for (e, (&b, &a)) in before
-        .iter()
-        .zip(&mat.values[ParamKind::Mu as usize])
-        .enumerate()
-    {
+    // The region holds its own μ: the global μ set beside it leaves the region's elements to
+    // it; a global λ set without a region λ is the one λ of both materials and reaches them.
+    let mu_only = [params[0], params[1], Param::global(ParamKind::Lambda)];
+    mat.set(&mu_only, &[1.7e4, 2.9e4, 3.1e4]);
+    for (e, &a) in mat.values[ParamKind::Mu as usize].iter().enumerate() {
         assert_eq!(
             a,
-            if (8..16).contains(&e) { b } else { 1.7e4 },
+            if (8..16).contains(&e) { 2.9e4 } else { 1.7e4 },
             "element {e}"
         );
     }
+    assert!(mat.values[ParamKind::Lambda as usize]
+        .iter()
+        .all(|&l| l == 3.1e4));
     // The point of the check is one the parameters describe (one value per material).
     let q = mat.read(&params);
     mat.set(&params, &q);
     let (g, _) = assert_gradients_agree(&model, &mat, &params, &obs, |_, q0| 1e-5 * q0);
+    assert!(g.iter().all(|&x| x != 0.0), "{g:?}");
+    // The two-material candidate's parameters: the region's own μ, one λ for both.
+    let shared = [
+        Param::global(ParamKind::Lambda),
+        Param::global(ParamKind::Mu),
+        Param::in_region(ParamKind::Mu, 0),
+    ];
+    let q = mat.read(&shared);
+    mat.set(&shared, &q);
+    let (g, _) = assert_gradients_agree(&model, &mat, &shared, &obs, |_, q0| 1e-5 * q0);
     assert!(g.iter().all(|&x| x != 0.0), "{g:?}");
     // An unknown region is refused, not ignored.
     let bad = [Param::in_region(ParamKind::Mu, 1)];
