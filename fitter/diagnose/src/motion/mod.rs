@@ -423,6 +423,9 @@ struct MotionModel<'a> {
     /// Measured clamp forces: the density is identifiable only with them.
     has_forces: bool,
     log: &'a (dyn Fn(&str) + Sync),
+    /// Block-coordinate rounds of a fit beside adopted marker offsets ([`OFFSET_ROUNDS`]; one in
+    /// a screening fit, which ranks rather than answers).
+    offset_rounds: usize,
 }
 
 impl MotionModel<'_> {
@@ -454,7 +457,7 @@ impl MotionModel<'_> {
                 kinds,
                 &starts(c, cur, ds)[0],
                 off,
-                OFFSET_ROUNDS,
+                self.offset_rounds,
                 self.o.max_iters,
             ),
             (_, None) => fit_model(
@@ -566,6 +569,7 @@ impl MotionModel<'_> {
         };
         let screener = MotionModel {
             o: &screen,
+            offset_rounds: 1,
             ..*self
         };
         // The two neighbours are independent fits: one per core.
@@ -660,6 +664,7 @@ impl MotionModel<'_> {
         };
         let screener = MotionModel {
             o: &screen,
+            offset_rounds: 1,
             ..*self
         };
         let mut best: Option<(FittedModel, usize)> = None;
@@ -1045,6 +1050,7 @@ pub fn diagnose(
         o,
         has_forces,
         log,
+        offset_rounds: OFFSET_ROUNDS,
     };
     let rounds_max = o.max_effects.max(1);
     let policy = Policy {
