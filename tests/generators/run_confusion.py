@@ -39,6 +39,7 @@ EXACT = {
     "calibration": {"sensor-nonlinearity"},
     "tilt-each": {"friction", "tilt-each"},
     "boundary": {"compliant-support"},
+    "support": {"compliant-support"},
     "registration-each": {"registration-each"},
     "force-scale-each": {"force-scale"},
     "gravity": {"gravity"},
@@ -55,7 +56,7 @@ RELATED = {
     "layer": {"inclusion"},
     "inclusion": {"layer"},
 }
-PALPATE_CANDIDATES = ["calibration", "tilt", "tilt-each", "contact-radius", "boundary", "registration", "registration-each",
+PALPATE_CANDIDATES = ["calibration", "tilt", "tilt-each", "contact-radius", "boundary", "support", "registration", "registration-each",
                       "force-scale-each", "gravity", "inhomogeneity", "layer", "inclusion", "stiffening", "noise",
                       "rest-noise"]
 # Present in every draw whatever its effect: the generator's rest scan is the mean of ten noisy frames

@@ -897,6 +897,8 @@ impl select::CandidateModel for StaticModel<'_> {
             .iter()
             .copied()
             .filter(|c| !effects.contains(c))
+            // An elastic foundation needs a supported face (boundary triangles on fixed nodes).
+            .filter(|&c| c != Candidate::Support || self.ctx.foundation.is_some())
             .collect()
     }
 

@@ -14,7 +14,7 @@ use serde::Serialize;
 use super::DiagnoseError;
 use palpate_fem::dataset::embed::closest_point_on_triangle;
 use palpate_fem::dataset::{Marker, StaticDataset};
-use palpate_fem::forward::{Factorised, Load, Material, SolveOptions, StaticProblem};
+use palpate_fem::forward::{Factorised, Foundation, Load, Material, SolveOptions, StaticProblem};
 use palpate_specimen::generate::rotate;
 use std::sync::Arc;
 
@@ -28,9 +28,17 @@ pub enum Candidate {
     /// Tilted probe / tangential friction: f_model = f_reported + |f_reported| (a t₁ + b t₂) with
     /// t₁, t₂ perpendicular to the mean reported direction. 2 params (a, b).
     Tilt,
-    /// Compliant support: the fixed face moves rigidly by c_t F (translation, c_t in 1e-4 m/N)
+    /// Compliant support, rigid: the fixed face moves rigidly by c_t F (translation, c_t in 1e-4 m/N)
     /// and rotates by c_r (r × F) / h² (c_r in 1e-4 rad m/N·m, h the half width). 2 params.
     Boundary,
+    /// Elastic foundation (Winkler support): the supported face — the boundary triangles on the
+    /// declared fixed nodes — rests on springs instead of being held, k_n = E / ℓ_n along the
+    /// face's normal and k_t = k_n e^{θ₁} in its plane, with ℓ_n = h e^{θ₀} an equivalent
+    /// thickness (h the half width, E the fitted modulus, so the support scales with the body).
+    /// Unlike [`Candidate::Boundary`]'s rigid motion of the base, the base deforms with the load
+    /// under it (an object on a soft mat, a base glued to a compliant plate). 2 params (θ₀, θ₁);
+    /// the fixed support is its stiff limit θ₀ → −∞.
+    Support,
     /// Marker registration offset: one rigid transform (rotation vector in 1e-3 rad, translation
     /// in 1e-4 m) about the mesh centre on every simulated marker. 6 params.
     Registration,
@@ -93,12 +101,13 @@ pub enum Candidate {
 }
 
 /// Every candidate, in the order they are tried.
-pub const ALL_CANDIDATES: [Candidate; 13] = [
+pub const ALL_CANDIDATES: [Candidate; 14] = [
     Candidate::Calibration,
     Candidate::Tilt,
     Candidate::TiltEach,
     Candidate::ContactRadius,
     Candidate::Boundary,
+    Candidate::Support,
     Candidate::Registration,
     Candidate::RegistrationEach,
     Candidate::ForceScaleEach,
@@ -130,6 +139,7 @@ impl Candidate {
             Candidate::TiltEach => "tilt-each",
             Candidate::ContactRadius => "contact-radius",
             Candidate::Boundary => "boundary",
+            Candidate::Support => "support",
             Candidate::Registration => "registration",
             Candidate::RegistrationEach => "registration-each",
             Candidate::ForceScaleEach => "force-scale-each",
@@ -150,7 +160,7 @@ impl Candidate {
             | Candidate::Gravity
             | Candidate::Stiffening
             | Candidate::ContactRadius => 1,
-            Candidate::Tilt | Candidate::Boundary => 2,
+            Candidate::Tilt | Candidate::Boundary | Candidate::Support => 2,
             Candidate::Registration => 6,
             Candidate::Inhomogeneity => grid[0] * grid[1] * grid[2] - 1,
             Candidate::Layer => LAYER_NODES - 1,
@@ -187,6 +197,12 @@ impl Candidate {
         if self == Candidate::Inclusion {
             v[0] = 0.5;
         }
+        if self == Candidate::Support {
+            // The fixed support is the limit ℓ_n → 0, where the effect's gradient vanishes too:
+            // start where a support would add a tenth of the body's compliance, ℓ_n = 0.1 h,
+            // k_t = k_n.
+            v[0] = SUPPORT_START.ln();
+        }
         v
     }
 
@@ -211,6 +227,14 @@ impl Candidate {
             Candidate::Boundary => vec![
                 v("support compliance c_t", "m/N", 1e-4),
                 v("support rotation c_r", "m/N", 1e-4),
+            ],
+            Candidate::Support => vec![
+                v(
+                    "foundation ln(ℓ_n/h) (k_n = E/ℓ_n, h the half width)",
+                    "",
+                    1.0,
+                ),
+                v("foundation ln(k_t/k_n)", "", 1.0),
             ],
             Candidate::Registration => vec![
                 v("rotation ωx", "rad", 1e-3),
@@ -264,6 +288,9 @@ pub struct MeasData {
 pub struct Context {
     /// The forward problem on the mesh solved on (the dataset's, or it refined once).
     pub problem: StaticProblem,
+    /// The same problem with its supported face on an elastic foundation
+    /// ([`Candidate::Support`]); `None` when no boundary triangle lies on the fixed nodes.
+    pub foundation: Option<StaticProblem>,
     /// Markers.
     pub markers: Vec<Marker>,
     /// Measurements.
@@ -361,6 +388,12 @@ impl Context {
             ));
         }
         let problem = StaticProblem::new(&ds.mesh, &ds.fixed_nodes, &ds.surface)?;
+        let foundation = match StaticProblem::on_foundation(&ds.mesh, &ds.fixed_nodes, &ds.surface)
+        {
+            Ok(p) => Some(p),
+            Err(palpate_fem::forward::ForwardError::NoFoundationFace) => None,
+            Err(e) => return Err(e.into()),
+        };
         let meas: Vec<MeasData> = ds
             .measurements
             .iter()
@@ -446,6 +479,7 @@ impl Context {
             .collect();
         Ok(Self {
             problem,
+            foundation,
             markers: ds.markers.clone(),
             meas,
             sigma: ds.marker_noise.unwrap_or(1e-4),
@@ -769,6 +803,9 @@ fn add_gravity(ctx: &Context, rho: f64, fvec: &mut [f64]) {
     }
 }
 
+/// [`Candidate::Support`]'s starting equivalent thickness ℓ_n / h.
+const SUPPORT_START: f64 = 0.1;
+
 /// A model: the base material plus an ordered set of effects.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 pub struct Model {
@@ -970,8 +1007,8 @@ impl Model {
     ) -> Result<Vec<f64>, DiagnoseError> {
         let m = &ctx.meas[i];
         let bad = |e: String| DiagnoseError::Input(format!("measurement {:?}: {e}", m.id));
-        let mut f = ctx
-            .problem
+        let mut f = self
+            .problem(ctx)
             .force_vector(&Load::contact(m.point, force, m.radius))
             .map_err(|e| bad(e.to_string()))?;
         let Some(b) = self.block(Candidate::ContactRadius, theta, ctx.grid) else {
@@ -980,7 +1017,7 @@ impl Model {
         if b[0] == 0.0 {
             return Ok(f);
         }
-        let p = &ctx.problem;
+        let p = self.problem(ctx);
         for (radius, sign) in [(m.radius * b[0].exp(), 1.0), (m.radius, -1.0)] {
             palpate_runtime::contact_rule::contact_weights_consistent(
                 m.point,
@@ -1009,7 +1046,7 @@ impl Model {
     /// candidates' log E on the base E (what [`crate::sensitivity`] differentiates).
     pub fn field_material(&self, ctx: &Context, theta: &[f64]) -> Result<Material, DiagnoseError> {
         let log_e = self.log_e_field(ctx, theta);
-        self.material(theta, log_e.as_deref(), None)
+        self.material(ctx, theta, log_e.as_deref(), None)
     }
 
     /// Per-element log-E offsets of the spatial material effects (inhomogeneity, layer,
@@ -1146,15 +1183,15 @@ impl Model {
                 )));
             }
             let last = change < STIFFENING_TOLERANCE || end;
-            let mat = self.material(theta, log_e, Some(&m))?;
+            let mat = self.material(ctx, theta, log_e, Some(&m))?;
+            let problem = self.problem(ctx);
             // A pass is one exact linear solve (its own factorisation: a stale one would make it
             // a stationary step and move the joint fixed point's path); the last, converged
             // solve starts from the previous pass's factor.
             let solved = if last {
-                ctx.problem
-                    .solve_forces_with(&mat, fvec, Some(&x), &ctx.solve, Some(&factor))?
+                problem.solve_forces_with(&mat, fvec, Some(&x), &ctx.solve, Some(&factor))?
             } else {
-                ctx.problem.solve_forces(&mat, fvec, Some(&x), &pass)?
+                problem.solve_forces(&mat, fvec, Some(&x), &pass)?
             };
             (x, factor) = (solved.solution.x, solved.factor);
             if last {
@@ -1165,6 +1202,35 @@ impl Model {
     }
 
     fn material(
+        &self,
+        ctx: &Context,
+        theta: &[f64],
+        log_e: Option<&[f64]>,
+        extra: Option<&[f64]>,
+    ) -> Result<Material, DiagnoseError> {
+        let mut m = self.bulk_material(theta, log_e, extra)?;
+        if let Some(b) = self.block(Candidate::Support, theta, ctx.grid) {
+            // k_n = E / ℓ_n with ℓ_n = h e^{θ₀}; the exponents clamped so that a wandering
+            // optimiser trial stays finite (e^{±30}: far beyond any support a dataset can show).
+            let normal = theta[0].exp() / (ctx.half * b[0].clamp(-30.0, 30.0).exp());
+            m.foundation = Some(Foundation {
+                normal,
+                tangential: normal * b[1].clamp(-30.0, 30.0).exp(),
+            });
+        }
+        Ok(m)
+    }
+
+    /// The problem the model solves: the foundation's when it holds [`Candidate::Support`].
+    pub fn problem<'a>(&self, ctx: &'a Context) -> &'a StaticProblem {
+        match (&ctx.foundation, self.effects.contains(&Candidate::Support)) {
+            (Some(p), true) => p,
+            _ => &ctx.problem,
+        }
+    }
+
+    /// (λ, α) per element (or one pair) at `theta`.
+    fn bulk_material(
         &self,
         theta: &[f64],
         log_e: Option<&[f64]>,
@@ -1255,10 +1321,10 @@ impl Model {
                     (Some(b), Some(w)) => Some(stiffening_log_e(ctx, w, b[0])),
                     _ => None,
                 };
-                let mat = self.material(theta, log_e.as_deref(), m0.as_deref())?;
+                let mat = self.material(ctx, theta, log_e.as_deref(), m0.as_deref())?;
                 let hint = hints.and_then(|h| h.get(k));
-                let solved = ctx
-                    .problem
+                let solved = self
+                    .problem(ctx)
                     .solve_forces_with(&mat, &fvec, start, &ctx.solve, hint)?;
                 let (mut x, mut factor) = (solved.solution.x, solved.factor);
                 if let Some(beta) = stiffening {
@@ -1351,7 +1417,7 @@ impl Model {
         log_e: Option<&[f64]>,
         embedding: Option<&[Marker]>,
     ) -> Result<Vec<[Vec<[f64; 3]>; 2]>, DiagnoseError> {
-        let mat = self.material(theta, log_e, None)?;
+        let mat = self.material(ctx, theta, log_e, None)?;
         subset
             .par_iter()
             .zip(xs)
@@ -1372,8 +1438,8 @@ impl Model {
                     if let Some(rho) = self.block(Candidate::Gravity, theta, ctx.grid) {
                         add_gravity(ctx, rho[0], &mut fvec);
                     }
-                    let xt = ctx
-                        .problem
+                    let xt = self
+                        .problem(ctx)
                         .solve_forces_with(&mat, &fvec, Some(x), &ctx.solve, factors.get(k))?
                         .solution
                         .x;
@@ -1410,9 +1476,9 @@ impl Model {
     ) -> Result<Vec<Marker>, DiagnoseError> {
         let mut fvec = vec![0.0; 3 * ctx.node_volume.len()];
         add_gravity(ctx, rho, &mut fvec);
-        let mat = self.material(theta, log_e, None)?;
-        let xg = ctx
-            .problem
+        let mat = self.material(ctx, theta, log_e, None)?;
+        let xg = self
+            .problem(ctx)
             .solve_forces(&mat, &fvec, None, &ctx.solve)?
             .solution
             .x;
@@ -1449,7 +1515,7 @@ impl Model {
         let extra = self
             .block(Candidate::Stiffening, theta, ctx.grid)
             .map(|b| stiffening_log_e(ctx, x, b[0]));
-        self.material(theta, log_e.as_deref(), extra.as_deref())
+        self.material(ctx, theta, log_e.as_deref(), extra.as_deref())
     }
 
     /// Marker positions from solved node positions: support motion and registration applied,

@@ -149,6 +149,9 @@ pub fn detectable(
         .iter()
         .copied()
         .filter(|&c| c.params(grid) > 0 && !f.model.effects.contains(&c))
+        // The fixed support is the foundation's limit ℓ_n → 0, not a point of its θ, and its
+        // response vanishes there: no finite column states its power.
+        .filter(|&c| c != Candidate::Support)
         .collect();
     if candidates.is_empty() {
         return Ok(Vec::new());

@@ -25,11 +25,11 @@
 //! was scored below a stiffer 8 mm blob 26 mm away).
 
 use nalgebra::{Matrix3, SVector};
-use palpate_fem::forward::{rotate_vec, Factorised};
+use palpate_fem::forward::{rotate_vec, Factorised, StaticProblem};
 use rayon::prelude::*;
 
 use super::fit::Fitted;
-use super::model::Context;
+use super::model::{Context, Model};
 use super::DiagnoseError;
 
 /// Per measurement: the factor of K', and each element's internal force q_e = R_e K_e ũ_e.
@@ -49,6 +49,8 @@ pub struct Sensitivity {
     /// response (units of σ, stacked in the scan's order) with its gradient component carried
     /// through the same Gram–Schmidt steps.
     uniform: Vec<(Vec<f64>, f64)>,
+    /// The model linearised (its problem: fixed supports or the foundation's).
+    model: Model,
 }
 
 /// One measurement's marker responses and gradient components along the uniform log λ and log α
@@ -66,9 +68,9 @@ fn profile(basis: &[(Vec<f64>, f64)], j: &mut [f64], g: &mut f64) {
 }
 
 /// Full-node vector from a free-dof vector (zero on fixed nodes).
-fn nodal(ctx: &Context, free: &[f64]) -> Vec<[f64; 3]> {
-    let x0 = ctx.problem.positions_from_free(&vec![0.0; free.len()]);
-    ctx.problem
+fn nodal(problem: &StaticProblem, free: &[f64]) -> Vec<[f64; 3]> {
+    let x0 = problem.positions_from_free(&vec![0.0; free.len()]);
+    problem
         .positions_from_free(free)
         .iter()
         .zip(&x0)
@@ -79,8 +81,9 @@ fn nodal(ctx: &Context, free: &[f64]) -> Vec<[f64; 3]> {
 /// The gradient of the fitted model's χ² with respect to each element's log E.
 pub fn log_modulus_gradient(ctx: &Context, f: &Fitted) -> Result<Sensitivity, DiagnoseError> {
     let material = f.model.field_material(ctx, &f.theta)?;
-    let ne = ctx.problem.element_count();
-    let nn = ctx.problem.node_count();
+    let problem = f.model.problem(ctx);
+    let ne = problem.element_count();
+    let nn = problem.node_count();
     let s2 = ctx.sigma * ctx.sigma;
     let per: Vec<(usize, Linearised, UniformParts)> = f
         .subset
@@ -89,20 +92,19 @@ pub fn log_modulus_gradient(ctx: &Context, f: &Fitted) -> Result<Sensitivity, Di
         .map(
             |(k, &i)| -> Result<(usize, Linearised, UniformParts), DiagnoseError> {
                 let x = &f.sim.x[k];
-                let rot: Vec<Matrix3<f64>> = ctx.problem.rotations(x, ctx.solve.warp);
-                let factor = ctx
-                    .problem
+                let rot: Vec<Matrix3<f64>> = problem.rotations(x, ctx.solve.warp);
+                let factor = problem
                     .factorise(&material, &rot)
                     .map_err(|e| DiagnoseError::Diverged(format!("sensitivity: {e}")))?;
                 // q_e and its λ part R_e λ_e C_e ũ_e (the α part is the difference): the uniform
                 // log λ and log α directions' forces.
                 let (q, q_lambda): (Vec<SVector<f64, 12>>, Vec<SVector<f64, 12>>) = (0..ne)
                     .map(|e| {
-                        let u = ctx.problem.unrotated_displacement(e, &rot[e], x);
+                        let u = problem.unrotated_displacement(e, &rot[e], x);
                         let (l, _) = material.at(e);
                         (
-                            rotate_vec(&rot[e], &(ctx.problem.element_stiffness(e, &material) * u)),
-                            rotate_vec(&rot[e], &(ctx.problem.c[e] * l * u)),
+                            rotate_vec(&rot[e], &(problem.element_stiffness(e, &material) * u)),
+                            rotate_vec(&rot[e], &(problem.c[e] * l * u)),
                         )
                     })
                     .unzip();
@@ -116,18 +118,18 @@ pub fn log_modulus_gradient(ctx: &Context, f: &Fitted) -> Result<Sensitivity, Di
                         }
                     }
                 }
-                let mut rhs = ctx.problem.gather_free(&dx);
+                let mut rhs = problem.gather_free(&dx);
                 factor.solve_in_place(&mut rhs);
-                let lambda = nodal(ctx, &rhs);
+                let lambda = nodal(problem, &rhs);
                 let q_alpha: Vec<SVector<f64, 12>> =
                     q.iter().zip(&q_lambda).map(|(a, b)| a - b).collect();
                 let uniform = [&q_lambda, &q_alpha].map(|qs| {
                     let phi = vec![1.0; ne];
-                    let j = marker_response(ctx, &factor, qs, &phi, i);
+                    let j = marker_response(ctx, problem, &factor, qs, &phi, i);
                     let g: f64 = -(0..ne)
                         .map(|e| {
                             (0..12)
-                                .map(|a| lambda[ctx.problem.tets[e][a / 3]][a % 3] * qs[e][a])
+                                .map(|a| lambda[problem.tets[e][a / 3]][a % 3] * qs[e][a])
                                 .sum::<f64>()
                         })
                         .sum::<f64>();
@@ -149,7 +151,7 @@ pub fn log_modulus_gradient(ctx: &Context, f: &Fitted) -> Result<Sensitivity, Di
         }
     }
     let per: Vec<(usize, Linearised)> = per.into_iter().map(|(i, l, _)| (i, l)).collect();
-    let tets = &ctx.problem.tets;
+    let tets = &problem.tets;
     let mut gradient = vec![0.0; ne];
     for (_, l) in &per {
         for (e, g) in gradient.iter_mut().enumerate() {
@@ -163,6 +165,7 @@ pub fn log_modulus_gradient(ctx: &Context, f: &Fitted) -> Result<Sensitivity, Di
         gradient,
         per_measurement: per,
         uniform,
+        model: f.model.clone(),
     })
 }
 
@@ -220,13 +223,14 @@ fn scan_centres(ctx: &Context, n: usize, m: usize) -> Vec<[f64; 3]> {
 /// acting through the element forces `q`: dx = −K'⁻¹ Σ_e φ_e q_e, one back-substitution.
 fn marker_response(
     ctx: &Context,
+    problem: &StaticProblem,
     factor: &Factorised,
     q: &[SVector<f64, 12>],
     phi: &[f64],
     i: usize,
 ) -> Vec<f64> {
-    let tets = &ctx.problem.tets;
-    let mut rhs = vec![0.0; 3 * ctx.problem.node_count()];
+    let tets = &problem.tets;
+    let mut rhs = vec![0.0; 3 * problem.node_count()];
     for (e, w) in phi.iter().enumerate() {
         if w.abs() < 1e-6 {
             continue;
@@ -235,9 +239,9 @@ fn marker_response(
             rhs[3 * tets[e][a / 3] + a % 3] -= w * q[e][a];
         }
     }
-    let mut free = ctx.problem.gather_free(&rhs);
+    let mut free = problem.gather_free(&rhs);
     factor.solve_in_place(&mut free);
-    let dx = nodal(ctx, &free);
+    let dx = nodal(problem, &free);
     ctx.meas[i]
         .observed
         .iter()
@@ -254,7 +258,7 @@ fn gauss_newton_along(ctx: &Context, s: &Sensitivity, phi: &[f64]) -> Option<(f6
     let mut j: Vec<f64> = s
         .per_measurement
         .iter()
-        .flat_map(|(i, l)| marker_response(ctx, &l.factor, &l.q, phi, *i))
+        .flat_map(|(i, l)| marker_response(ctx, s.model.problem(ctx), &l.factor, &l.q, phi, *i))
         .collect();
     let jj0: f64 = j.iter().map(|v| v * v).sum();
     profile(&s.uniform, &mut j, &mut g);

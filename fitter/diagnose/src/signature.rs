@@ -245,7 +245,8 @@ pub fn evidence_points(
                 })
                 .collect(),
         ),
-        Candidate::Boundary => (
+        // A support that gives way moves the whole body nearly rigidly, in proportion to the force.
+        Candidate::Boundary | Candidate::Support => (
             "reported force |f| (N)",
             "rigid translation of the residual (mm)",
             sig.per_measurement

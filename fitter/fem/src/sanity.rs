@@ -332,6 +332,7 @@ mod tests {
         let f = check_material(&[Material {
             lambda: vec![1.56e11],
             alpha: vec![-1.56e11],
+            foundation: None,
         }]);
         assert!(f.has_errors(), "{f:?}");
         let soft = check_material(&[Material::from_young_poisson(20e3, 0.3)]);

@@ -261,6 +261,7 @@ pub fn eval_strain(blend: &BlendData, sets: &[Material], strains: &[[f64; 6]]) -
     let mut out = Material {
         lambda: vec![0.0; t],
         alpha: vec![0.0; t],
+        foundation: None,
     };
     for e in 0..t {
         let (mut l, mut a) = (0.0, 0.0);
@@ -320,6 +321,7 @@ pub fn blended_material(
             Material {
                 lambda: vec![l],
                 alpha: vec![a],
+                foundation: None,
             }
         }
         BlendData::Strain { .. } => {

@@ -173,6 +173,7 @@ impl<'a> Objective<'a> {
             let mut m = Material {
                 lambda: Vec::with_capacity(self.lay.slots),
                 alpha: Vec::with_capacity(self.lay.slots),
+                foundation: None,
             };
             let mut j = Vec::with_capacity(self.lay.slots);
             for slot in 0..self.lay.slots {

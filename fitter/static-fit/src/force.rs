@@ -198,6 +198,7 @@ pub fn fit_force(
         .map(|set| Material {
             lambda: (0..slots).map(|s| p[col(0, set, s)]).collect(),
             alpha: (0..slots).map(|s| p[col(1, set, s)]).collect(),
+            foundation: None,
         })
         .collect();
     // Force residuals ‖A_i p_i − f̄_i‖ over free dofs.

@@ -268,6 +268,7 @@ fn blends_reproduce_each_set_at_its_centre() {
         .map(|m| palpate_fem::forward::Material {
             lambda: vec![m.lambda[0]],
             alpha: vec![m.alpha[0]],
+            foundation: None,
         })
         .collect();
     let bd = blend::deformation_blend(&homog, &syn.exact).unwrap();

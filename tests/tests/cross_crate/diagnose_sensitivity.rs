@@ -3,7 +3,7 @@
 //! and the matched-filter scan built on it finds a stiff inclusion placed away from the probes.
 
 use palpate_diagnose::fit::{fit, initial_theta};
-use palpate_diagnose::model::{Context, Model};
+use palpate_diagnose::model::{Candidate, Context, Model};
 use palpate_diagnose::sensitivity::{log_modulus_gradient, scan_blobs};
 use palpate_fem::forward::{Load, Material};
 use palpate_specimen::{generate, Effect, EffectSpec, SpecimenOptions};
@@ -24,9 +24,11 @@ fn off_centre_inclusion(seed: u64) -> palpate_specimen::Specimen {
     .expect("specimen")
 }
 
-/// χ² of the homogeneous fit with element `e`'s modulus scaled by exp(`dlog`).
+/// χ² of the fit `f` with element `e`'s modulus scaled by exp(`dlog`) (solved on the fit's own
+/// problem: fixed supports, or the elastic foundation's with its stiffness).
 fn chi2_with(ctx: &Context, f: &palpate_diagnose::fit::Fitted, e: usize, dlog: f64) -> f64 {
     let base = f.model.field_material(ctx, &f.theta).unwrap();
+    let problem = f.model.problem(ctx);
     let mut params: Vec<_> = (0..ctx.problem.element_count())
         .map(|k| {
             let (l, a) = base.at(k);
@@ -38,16 +40,15 @@ fn chi2_with(ctx: &Context, f: &palpate_diagnose::fit::Fitted, e: usize, dlog: f
         .collect();
     params[e].lambda *= dlog.exp();
     params[e].alpha *= dlog.exp();
-    let mat = Material::per_element(&params);
+    let mut mat = Material::per_element(&params);
+    mat.foundation = base.foundation;
     let mut chi2 = 0.0;
     for (k, &i) in f.subset.iter().enumerate() {
         let m = &ctx.meas[i];
-        let fvec = ctx
-            .problem
+        let fvec = problem
             .force_vector(&Load::contact(m.point, m.force, m.radius))
             .unwrap();
-        let x = ctx
-            .problem
+        let x = problem
             .solve_forces(&mat, &fvec, Some(&f.sim.x[k]), &ctx.solve)
             .unwrap()
             .solution
@@ -133,6 +134,25 @@ fn log_modulus_gradient_matches_finite_differences_and_the_scan_finds_an_off_cen
         scan.contrast > 0.0,
         "a stiff inclusion asks for a stiffer blob"
     );
+}
+
+/// The same adjoint on a model whose supported face rests on an elastic foundation (`support`,
+/// ℓ_n = 0.3 h, k_t = k_n / 2): its solves are the foundation problem's, whose factor and free
+/// numbering the adjoint must use (the fixed problem's would not even have the same size).
+#[test]
+fn log_modulus_gradient_on_an_elastic_foundation_matches_finite_differences() {
+    let s = off_centre_inclusion(1);
+    let mut linear = Context::new(&s.dataset, [3, 3, 2]).unwrap();
+    linear.solve.warp = false;
+    let base = fitted(&linear);
+    let model = Model::base().with(Candidate::Support);
+    let mut theta = base.theta.clone();
+    theta.extend([0.3f64.ln(), 0.5f64.ln()]);
+    let f = fit(&linear, &model, theta, &base.subset, Some(&base.sim.x), 0).unwrap();
+    assert!(f.chi2 != base.chi2, "the foundation changes the solve");
+    let err = gradient_error(&linear, &f);
+    eprintln!("linear, on a foundation: worst {err:.2e} of the largest entry");
+    assert!(err < 1e-4, "linear adjoint vs FD on a foundation: {err}");
 }
 
 /// The whole diagnosis on the off-centre inclusion: the scan seeds the inclusion candidate

@@ -73,6 +73,16 @@ impl Pattern {
             symbolic,
         })
     }
+
+    /// Index of entry (row `i`, column `j`) in the value array, if it is in the pattern.
+    pub(super) fn slot(&self, i: usize, j: usize) -> Option<usize> {
+        let (cp, ri) = (
+            self.matrix.symbolic().col_ptr(),
+            self.matrix.symbolic().row_idx(),
+        );
+        let col = ri.get(*cp.get(j)?..*cp.get(j + 1)?)?;
+        col.binary_search(&i).ok().map(|k| cp[j] + k)
+    }
 }
 
 /// A numerically factorised K' (sparse Cholesky LLᵀ over the free dofs) together with the
@@ -191,7 +201,30 @@ impl StaticProblem {
                 }
             }
         }
+        if let Some(k) = &material.foundation {
+            for s in &self.foundation {
+                let ks = s.stiffness(k);
+                for (m, &slot) in s.slots.iter().enumerate() {
+                    values[slot] += ks[(m / 3, m % 3)];
+                }
+            }
+        }
         values
+    }
+
+    /// Adds the foundation's spring forces K_i (x_i − x₀ᵢ) to the internal forces `f` (full 3n).
+    fn add_foundation_forces(&self, material: &Material, x: &[[f64; 3]], f: &mut [f64]) {
+        let Some(k) = &material.foundation else {
+            return;
+        };
+        for s in &self.foundation {
+            let i = s.node;
+            let u = Vector3::from(x[i]) - Vector3::from(self.x0[i]);
+            let q = s.stiffness(k) * u;
+            for d in 0..3 {
+                f[3 * i + d] += q[d];
+            }
+        }
     }
 
     /// Assembles and factorises K' (numeric Cholesky reusing the symbolic factorisation).
@@ -239,6 +272,7 @@ impl StaticProblem {
             let u = t.map(|n| r.tr_mul(&Vector3::from(x[n])) - Vector3::from(self.x0[n]));
             add_rotated(&mut f, t, r, &self.stiffness_times(e, material, &u));
         }
+        self.add_foundation_forces(material, x, &mut f);
         f
     }
 
@@ -268,6 +302,7 @@ impl StaticProblem {
             add_rotated(&mut f, t, &r, &pe);
             rotations.push(r);
         }
+        self.add_foundation_forces(material, x, &mut f);
         (rotations, f)
     }
 
@@ -352,6 +387,16 @@ impl StaticProblem {
                     for dd in 0..3 {
                         b[3 * fi + dd] += g[dd];
                     }
+                }
+            }
+        }
+        // The springs are anchored at the rest shape: K_s x = K_s x₀ + f_s moves K_s x₀ right.
+        if let Some(k) = &material.foundation {
+            for s in &self.foundation {
+                let fi = self.free_index[s.node];
+                let q = s.stiffness(k) * Vector3::from(self.x0[s.node]);
+                for dd in 0..3 {
+                    b[3 * fi + dd] += q[dd];
                 }
             }
         }

@@ -72,6 +72,14 @@ pub enum ForwardError {
     /// Every node is fixed: nothing to solve.
     #[error("every node is fixed: there is nothing to solve")]
     NoFreeNodes,
+    /// An elastic foundation was asked for, but no boundary triangle has all three nodes among
+    /// the fixed nodes: there is no supported face to spread it over.
+    #[error("no boundary triangle lies on the fixed nodes: an elastic foundation needs a supported face")]
+    NoFoundationFace,
+    /// The problem rests on an elastic foundation and the material gives it no (positive,
+    /// finite) stiffness, or the problem has none and the material gives one.
+    #[error("foundation stiffness: {0}")]
+    FoundationStiffness(String),
     /// A surface triangle names a node that does not exist.
     #[error("surface triangle {triangle} names node {node}, but the mesh has {count} nodes")]
     SurfaceOutOfRange {
@@ -155,13 +163,51 @@ pub enum ForwardError {
 }
 
 /// Material parameters: one (λ, α) pair for the whole object or one per element
-/// (thesis parameters of E = λF + αG, eqs. 3.36–3.38 and 3.61).
+/// (thesis parameters of E = λF + αG, eqs. 3.36–3.38 and 3.61), and the stiffness of the
+/// elastic foundation of a problem built on one ([`StaticProblem::on_foundation`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Material {
     /// λ values (Pa): 1 or one per element.
     pub lambda: Vec<f64>,
     /// α values (Pa): same length as `lambda`.
     pub alpha: Vec<f64>,
+    /// The foundation's stiffness per unit area; `None` for a problem with fixed supports only.
+    pub foundation: Option<Foundation>,
+}
+
+/// Stiffness per unit area (Pa/m) of an elastic (Winkler) foundation: the supported face rests
+/// on independent springs, `normal` along the face's normal and `tangential` in its plane. A
+/// soft mat under the object, a suction cup, a base glued to a compliant plate: the support
+/// gives way in proportion to the local traction instead of holding its nodes fixed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Foundation {
+    /// k_n (Pa/m).
+    pub normal: f64,
+    /// k_t (Pa/m).
+    pub tangential: f64,
+}
+
+/// A node that rests on the foundation: its lumped area on the supported face, the face's unit
+/// outward normal there, and where its 3 × 3 diagonal block sits in K'.
+#[derive(Debug, Clone)]
+pub struct FoundationNode {
+    /// Node index.
+    pub node: usize,
+    /// Lumped area A_i (a third of each supported triangle at the node), m².
+    pub area: f64,
+    /// Area-weighted unit normal n_i of the supported triangles at the node.
+    pub normal: [f64; 3],
+    /// Indices of the node's diagonal block (row-major 3 × 3) in the K' values.
+    slots: [usize; 9],
+}
+
+impl FoundationNode {
+    /// The node's spring matrix K_i = A_i (k_t I + (k_n − k_t) n_i n_iᵀ).
+    pub fn stiffness(&self, k: &Foundation) -> Matrix3<f64> {
+        let n = nalgebra::Vector3::from(self.normal);
+        (Matrix3::identity() * k.tangential + n * n.transpose() * (k.normal - k.tangential))
+            * self.area
+    }
 }
 
 impl Material {
@@ -170,6 +216,7 @@ impl Material {
         Self {
             lambda: vec![p.lambda],
             alpha: vec![p.alpha],
+            foundation: None,
         }
     }
     /// A homogeneous material from Young's modulus (Pa) and Poisson ratio.
@@ -181,6 +228,7 @@ impl Material {
         Self {
             lambda: params.iter().map(|p| p.lambda).collect(),
             alpha: params.iter().map(|p| p.alpha).collect(),
+            foundation: None,
         }
     }
     /// True when one pair serves every element.
@@ -244,6 +292,9 @@ pub struct StaticProblem {
     pub d: Vec<ElementMatrix<f64>>,
     /// Lumped surface area of each node (contact rule).
     pub areas: Vec<f64>,
+    /// Nodes on an elastic foundation instead of fixed (empty unless built by
+    /// [`StaticProblem::on_foundation`]).
+    pub foundation: Vec<FoundationNode>,
     pattern: assembly::Pattern,
 }
 
@@ -251,6 +302,29 @@ impl StaticProblem {
     /// Builds the problem: element matrices from the shared kernels, the free-dof numbering and the
     /// sparsity pattern of K' with its symbolic factorisation.
     pub fn new(mesh: &Mesh, fixed: &[usize], surface: &[[usize; 3]]) -> Result<Self, ForwardError> {
+        Self::build(mesh, fixed, surface, false)
+    }
+
+    /// The problem with its supported face on an elastic (Winkler) foundation instead of fixed:
+    /// the fixed nodes of the boundary triangles whose three nodes are all fixed rest on springs
+    /// (area-lumped, along the face's normal and in its plane, stiffness from
+    /// [`Material::foundation`]); fixed nodes on no such triangle stay fixed. The springs add
+    /// K_s = Σ_i A_i (k_t I + (k_n − k_t) n_i n_iᵀ) to K' and K_s x₀ to the right-hand side: a
+    /// linear support anchored at the rest shape, which the fixed problem is the stiff limit of.
+    pub fn on_foundation(
+        mesh: &Mesh,
+        fixed: &[usize],
+        surface: &[[usize; 3]],
+    ) -> Result<Self, ForwardError> {
+        Self::build(mesh, fixed, surface, true)
+    }
+
+    fn build(
+        mesh: &Mesh,
+        fixed: &[usize],
+        surface: &[[usize; 3]],
+        on_foundation: bool,
+    ) -> Result<Self, ForwardError> {
         let n = mesh.nodes.len();
         let mut geometry = Vec::with_capacity(mesh.tets.len());
         let mut c = Vec::with_capacity(mesh.tets.len());
@@ -287,6 +361,38 @@ impl StaticProblem {
         if fixed.is_empty() {
             return Err(ForwardError::NoFixedNodes);
         }
+        for (k, t) in surface.iter().enumerate() {
+            if let Some(&node) = t.iter().find(|&&i| i >= n) {
+                return Err(ForwardError::SurfaceOutOfRange {
+                    triangle: k,
+                    node,
+                    count: n,
+                });
+            }
+        }
+        // The supported face: boundary triangles on fixed nodes only. Their nodes leave the
+        // fixed set and rest on the foundation.
+        let mut support_area = vec![0.0; n];
+        let mut support_normal = vec![nalgebra::Vector3::<f64>::zeros(); n];
+        if on_foundation {
+            for t in surface.iter().filter(|t| t.iter().all(|&i| is_fixed[i])) {
+                let [a, b, c] = t.map(|i| nalgebra::Vector3::from(mesh.nodes[i]));
+                // (b − a) × (c − a) = 2 A n for an outward-wound triangle.
+                let twice = (b - a).cross(&(c - a));
+                for &i in t {
+                    support_area[i] += twice.norm() / 6.0;
+                    support_normal[i] += twice;
+                }
+            }
+            if support_area.iter().all(|&a| a == 0.0) {
+                return Err(ForwardError::NoFoundationFace);
+            }
+            for i in 0..n {
+                if support_area[i] > 0.0 {
+                    is_fixed[i] = false;
+                }
+            }
+        }
         let mut free_index = vec![usize::MAX; n];
         let mut free_count = 0;
         for i in 0..n {
@@ -298,15 +404,6 @@ impl StaticProblem {
         if free_count == 0 {
             return Err(ForwardError::NoFreeNodes);
         }
-        for (k, t) in surface.iter().enumerate() {
-            if let Some(&node) = t.iter().find(|&&i| i >= n) {
-                return Err(ForwardError::SurfaceOutOfRange {
-                    triangle: k,
-                    node,
-                    count: n,
-                });
-            }
-        }
         let mut areas = vec![0.0; n];
         palpate_runtime::contact_rule::lumped_surface_areas(
             |i| mesh.nodes[i],
@@ -314,6 +411,28 @@ impl StaticProblem {
             &mut areas,
         );
         let pattern = assembly::Pattern::new(&mesh.tets, &free_index, free_count)?;
+        let foundation = (0..n)
+            .filter(|&i| support_area[i] > 0.0)
+            .map(|i| {
+                let fi = free_index[i];
+                let mut slots = [0usize; 9];
+                for (k, slot) in slots.iter_mut().enumerate() {
+                    *slot = pattern
+                        .slot(3 * fi + k / 3, 3 * fi + k % 3)
+                        .ok_or_else(|| {
+                            ForwardError::Sparse(format!(
+                                "node {i} rests on the foundation but belongs to no element"
+                            ))
+                        })?;
+                }
+                Ok(FoundationNode {
+                    node: i,
+                    area: support_area[i],
+                    normal: support_normal[i].normalize().into(),
+                    slots,
+                })
+            })
+            .collect::<Result<Vec<_>, ForwardError>>()?;
         Ok(Self {
             x0: mesh.nodes.clone(),
             tets: mesh.tets.clone(),
@@ -325,6 +444,7 @@ impl StaticProblem {
             c,
             d,
             areas,
+            foundation,
             pattern,
         })
     }

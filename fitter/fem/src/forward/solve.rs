@@ -87,6 +87,32 @@ fn max_move(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
 }
 
 impl StaticProblem {
+    /// The material gives the foundation a positive, finite stiffness exactly when the problem
+    /// rests on one.
+    pub fn check_foundation(&self, material: &Material) -> Result<(), ForwardError> {
+        match (&material.foundation, self.foundation.is_empty()) {
+            (None, true) => Ok(()),
+            (Some(_), true) => Err(ForwardError::FoundationStiffness(
+                "the material gives a foundation stiffness, but this problem's supports are fixed"
+                    .into(),
+            )),
+            (None, false) => Err(ForwardError::FoundationStiffness(format!(
+                "the problem rests {} nodes on an elastic foundation, and the material gives it no stiffness",
+                self.foundation.len()
+            ))),
+            (Some(k), false) => {
+                if k.normal.is_finite() && k.tangential.is_finite() && k.normal > 0.0 && k.tangential > 0.0 {
+                    Ok(())
+                } else {
+                    Err(ForwardError::FoundationStiffness(format!(
+                        "k_n = {:e}, k_t = {:e} Pa/m: both must be positive and finite",
+                        k.normal, k.tangential
+                    )))
+                }
+            }
+        }
+    }
+
     /// Slope −(f − f_int)·d of the corotational energy along `d`, over the free dofs, from the
     /// load `fk` and the internal forces `fint` at the point where it is taken.
     fn energy_slope(&self, fk: &[f64], fint: &[f64], d: &[[f64; 3]]) -> f64 {
@@ -145,6 +171,7 @@ impl StaticProblem {
         hint: Option<&Arc<Factorised>>,
     ) -> Result<SolvedWithFactor, ForwardError> {
         material.check(self.tets.len())?;
+        self.check_foundation(material)?;
         if f_ext.len() != 3 * self.x0.len() {
             return Err(ForwardError::Length {
                 what: "force vector",

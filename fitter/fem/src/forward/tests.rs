@@ -453,6 +453,7 @@ fn stiffness_times_matches_the_formed_element_matrix() {
         alpha: (0..ne)
             .map(|e| -2.0e3 * (1.0 + (0.11 * e as f64) % 2.0))
             .collect(),
+        foundation: None,
     };
     for e in 0..ne {
         let w: [nalgebra::Vector3<f64>; 4] = std::array::from_fn(|k| {
@@ -510,4 +511,119 @@ fn rotations_and_forces_match_the_separate_passes() {
             );
         }
     }
+}
+
+/// A column on an elastic foundation under a uniform pressure p on its top face, ν = 0: the
+/// stress is uniaxial and uniform (linear tetrahedra hold it exactly, and lumped areas are the
+/// consistent loads of a uniform traction), so the top sinks by p/k_n (the springs) plus p H / E
+/// (the column), nothing moves sideways — with or without warping (no element rotates).
+#[test]
+fn a_column_on_a_foundation_sinks_by_the_springs_and_the_column() {
+    let (h, e, p, kn) = (0.05, 20_000.0, 400.0, 2.0e6);
+    let mesh = box_mesh([0.1, 0.1, h], [3, 3, 2]);
+    let fixed = mesh.node_groups["bottom"].clone();
+    let surface = mesh.boundary_triangles();
+    let prob = StaticProblem::on_foundation(&mesh, &fixed, &surface).unwrap();
+    assert_eq!(
+        prob.foundation.len(),
+        fixed.len(),
+        "every bottom node rests on springs"
+    );
+    assert!(prob.fixed.iter().all(|&f| !f), "no node stays fixed");
+    let area: f64 = prob.foundation.iter().map(|s| s.area).sum();
+    assert!(
+        (area - 0.01).abs() < 1e-12,
+        "supported area {area} m², expected 0.01"
+    );
+    for s in &prob.foundation {
+        assert!(
+            (s.normal[2] + 1.0).abs() < 1e-12,
+            "bottom normal {:?}",
+            s.normal
+        );
+    }
+    // The top face's uniform pressure as nodal forces: p × each node's third of its triangles.
+    let top: std::collections::HashSet<usize> = mesh.node_groups["top"].iter().copied().collect();
+    let mut nodal = std::collections::HashMap::<usize, f64>::new();
+    for t in surface.iter().filter(|t| t.iter().all(|i| top.contains(i))) {
+        let [a, b, c] = t.map(|i| nalgebra::Vector3::from(mesh.nodes[i]));
+        for &i in t {
+            *nodal.entry(i).or_default() += (b - a).cross(&(c - a)).norm() / 6.0;
+        }
+    }
+    let load = Load {
+        contacts: Vec::new(),
+        nodal: nodal
+            .iter()
+            .map(|(&i, &a)| (i, [0.0, 0.0, -p * a]))
+            .collect(),
+    };
+    let mut mat = Material::from_young_poisson(e, 0.0);
+    mat.foundation = Some(Foundation {
+        normal: kn,
+        tangential: 0.3 * kn,
+    });
+    for warp in [false, true] {
+        let opts = SolveOptions {
+            warp,
+            ..Default::default()
+        };
+        let sol = prob.solve(&mat, &load, &opts).unwrap();
+        for (i, (x, x0)) in sol.x.iter().zip(&mesh.nodes).enumerate() {
+            let expected = -p / kn - p * x0[2] / e;
+            assert!(
+                (x[2] - x0[2] - expected).abs() < 1e-9 * (p / kn + p * h / e),
+                "warp {warp}, node {i} at z {}: u_z {:e}, expected {expected:e}",
+                x0[2],
+                x[2] - x0[2]
+            );
+            assert!((x[0] - x0[0]).abs() < 1e-12 && (x[1] - x0[1]).abs() < 1e-12);
+        }
+    }
+    // The material and the problem must agree on whether there is a foundation.
+    let fixed_problem = StaticProblem::new(&mesh, &fixed, &surface).unwrap();
+    assert!(matches!(
+        fixed_problem.solve(&mat, &load, &SolveOptions::default()),
+        Err(ForwardError::FoundationStiffness(_))
+    ));
+    mat.foundation = None;
+    assert!(matches!(
+        prob.solve(&mat, &load, &SolveOptions::default()),
+        Err(ForwardError::FoundationStiffness(_))
+    ));
+}
+
+/// A very stiff foundation is the fixed support: a probe's warped solve agrees with the fixed
+/// problem's to the springs' own compliance.
+#[test]
+fn a_stiff_foundation_is_the_fixed_support() {
+    let (mesh, fixed, surface) = block();
+    let fixed_problem = StaticProblem::new(&mesh, &fixed, &surface).unwrap();
+    let on_springs = StaticProblem::on_foundation(&mesh, &fixed, &surface).unwrap();
+    let load = Load::contact([0.05, 0.05, 0.05], [0.3, -0.2, -2.0], 0.03);
+    let mut mat = Material::from_young_poisson(20_000.0, 0.3);
+    let a = fixed_problem
+        .solve(&mat, &load, &SolveOptions::default())
+        .unwrap();
+    mat.foundation = Some(Foundation {
+        normal: 1e13,
+        tangential: 1e13,
+    });
+    let b = on_springs
+        .solve(&mat, &load, &SolveOptions::default())
+        .unwrap();
+    let umax =
+        a.x.iter()
+            .zip(&mesh.nodes)
+            .map(|(x, x0)| (0..3).map(|d| (x[d] - x0[d]).abs()).fold(0.0, f64::max))
+            .fold(0.0, f64::max);
+    let diff =
+        a.x.iter()
+            .zip(&b.x)
+            .map(|(p, q)| (0..3).map(|d| (p[d] - q[d]).abs()).fold(0.0, f64::max))
+            .fold(0.0, f64::max);
+    assert!(
+        umax > 1e-4 && diff < 1e-6 * umax,
+        "moved {umax:e}, differ by {diff:e}"
+    );
 }
