@@ -185,6 +185,106 @@ fn observe_step(
     Ok((gx, gv))
 }
 
+/// Per-marker sums for the closed-form marker offsets of [`Observations::free_marker_offsets`]
+/// (variable projection, Golub & Pereyra 1973): over each marker's observed steps the count N_i,
+/// the residual sum s_i = Σ_n e_in and, where the sensitivities are carried, S_i = Σ_n J_in (a
+/// 3-vector per parameter). With the offsets at their optimum ē_i = s_i / N_i,
+/// Φ = Φ_raw − ½ w Σ_i ‖s_i‖²/N_i, ∇Φ = ∇Φ_raw − w Σ_i S_iᵀ ē_i and the Gauss–Newton matrix
+/// H = H_raw − w Σ_i S_iᵀ S_i / N_i (w the marker term's weight times the observation
+/// interval): the exact reduced problem, so a fit of the parameters alone reaches the joint
+/// minimum over parameters and offsets.
+struct MarkerMeans {
+    count: Vec<usize>,
+    e: Vec<[f64; 3]>,
+    j: Vec<Vec<[f64; 3]>>,
+}
+
+impl MarkerMeans {
+    fn new(markers: usize, np: usize) -> Self {
+        Self {
+            count: vec![0; markers],
+            e: vec![[0.0; 3]; markers],
+            j: vec![vec![[0.0; 3]; np]; markers],
+        }
+    }
+
+    /// Adds the residuals e = x̄ − x* of step `n`'s observed markers at positions `x`.
+    fn add_residuals(&mut self, model: &Model, obs: &Observations, n: usize, x: &[f64]) {
+        let Some(row) = obs.markers.get(n - 1) else {
+            return;
+        };
+        for (i, target) in row.iter().enumerate() {
+            let Some(t) = target else { continue };
+            let p = model.marker_position(&model.markers[i], x);
+            self.count[i] += 1;
+            for k in 0..3 {
+                self.e[i][k] += p[k] - t[k];
+            }
+        }
+    }
+
+    /// Marker i's mean residual ē_i (`None` when it was never observed).
+    fn mean(&self, i: usize) -> Option<[f64; 3]> {
+        let n = self.count[i];
+        (n > 0).then(|| self.e[i].map(|v| v / n as f64))
+    }
+
+    /// Φ and the marker sums of `total` with the offsets' part removed (weight `w`).
+    fn project_terms(&self, total: &mut StepTerm, w: f64) {
+        for (i, &n) in self.count.iter().enumerate() {
+            if n > 0 {
+                let sq = self.e[i].iter().map(|v| v * v).sum::<f64>() / n as f64;
+                total.marker_sq -= sq;
+                total.phi -= 0.5 * w * sq;
+            }
+        }
+        // Round-off must not leave a negative sum of squares.
+        total.marker_sq = total.marker_sq.max(0.0);
+        total.phi = total.phi.max(0.0);
+    }
+
+    /// ∇Φ −= w Σ_i S_iᵀ ē_i.
+    fn project_gradient(&self, grad: &mut [f64], w: f64) {
+        for i in 0..self.count.len() {
+            let Some(m) = self.mean(i) else { continue };
+            for (g, j) in grad.iter_mut().zip(&self.j[i]) {
+                *g -= w * (0..3).map(|k| j[k] * m[k]).sum::<f64>();
+            }
+        }
+    }
+
+    /// H −= w Σ_i S_iᵀ S_i / N_i (row-major, np × np).
+    fn project_gauss_newton(&self, h: &mut [f64], w: f64) {
+        for (i, &n) in self.count.iter().enumerate() {
+            if n > 0 {
+                add_outer(h, &self.j[i], -w / n as f64);
+            }
+        }
+    }
+
+    /// The adjoint's source term ∂Φ/∂x^n loses each observed marker's mean part:
+    /// −w ē_i spread on the marker's nodes (free dofs).
+    fn project_source(&self, model: &Model, obs: &Observations, n: usize, w: f64, gx: &mut [f64]) {
+        let Some(row) = obs.markers.get(n - 1) else {
+            return;
+        };
+        for (i, target) in row.iter().enumerate() {
+            if target.is_none() {
+                continue;
+            }
+            let Some(m) = self.mean(i) else { continue };
+            for &(node, wa) in &model.markers[i].weights {
+                for k in 0..3 {
+                    let fr = model.free[3 * node + k];
+                    if fr != usize::MAX {
+                        gx[fr] -= w * m[k] * wa;
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// v^n − (4 v^{n−1} − v^{n−2})/3 (full dofs): the BDF2 velocity term of the step's residual.
 fn bdf2_velocity_residual(s: &StepView<'_>) -> Vec<f64> {
     (0..s.v.len())
@@ -204,13 +304,22 @@ pub fn evaluate(
     match method {
         None => {
             let mut total = StepTerm::default();
+            let mut means = obs
+                .free_marker_offsets
+                .then(|| MarkerMeans::new(model.markers.len(), 0));
             let stats = simulate_states(model, mat, |s| {
                 add(
                     &mut total,
                     step_term(model, mat, obs, s.n, s.x, s.v, &[], None)?,
                 );
+                if let Some(m) = means.as_mut() {
+                    m.add_residuals(model, obs, s.n, s.x);
+                }
                 Ok(())
             })?;
+            if let Some(m) = &means {
+                m.project_terms(&mut total, obs.marker_weight * model.observation_interval());
+            }
             Ok(finish(&total, stats, None, 0))
         }
         Some(Method::Direct) => direct(model, mat, params, obs, false).map(|(e, _)| e),
@@ -395,6 +504,9 @@ fn direct(
     let mut grad = vec![0.0; np];
     let mut acc = zeros_acc(&kinds, model.tets.len());
     let mut h = gauss_newton.then(|| vec![0.0; np * np]);
+    let mut means = obs
+        .free_marker_offsets
+        .then(|| MarkerMeans::new(model.markers.len(), np));
     let wdt = obs.marker_weight * model.observation_interval();
     let wf = obs.force_weight * model.observation_interval();
     let stats = simulate(
@@ -463,7 +575,11 @@ fn direct(
                 svn.copy_from_slice(sv);
                 svm2[p] = std::mem::replace(&mut svm1[p], svn);
             }
-            if let (Some(h), Some(row)) = (h.as_mut(), obs.markers.get(s.n - 1)) {
+            if let Some(m) = means.as_mut() {
+                m.add_residuals(model, obs, s.n, s.x);
+            }
+            let wants_j = h.is_some() || means.is_some();
+            if let (true, Some(row)) = (wants_j, obs.markers.get(s.n - 1)) {
                 // J_in = Σ_a w_a s_x(node a) for each observed marker (clamped dofs: zero).
                 let mut js = vec![[0.0; 3]; np];
                 for (i, target) in row.iter().enumerate() {
@@ -481,7 +597,16 @@ fn direct(
                             }
                         }
                     }
-                    add_outer(h, &js, wdt);
+                    if let Some(h) = h.as_mut() {
+                        add_outer(h, &js, wdt);
+                    }
+                    if let Some(m) = means.as_mut() {
+                        for (acc, j) in m.j[i].iter_mut().zip(&js) {
+                            for k in 0..3 {
+                                acc[k] += j[k];
+                            }
+                        }
+                    }
                 }
             }
             if let (Some(h), Some(row)) = (h.as_mut(), obs.forces.get(s.n - 1)) {
@@ -506,6 +631,13 @@ fn direct(
         },
     )?;
     reduce(&acc, &table, &mut grad);
+    if let Some(m) = &means {
+        m.project_terms(&mut total, wdt);
+        m.project_gradient(&mut grad, wdt);
+        if let Some(h) = h.as_mut() {
+            m.project_gauss_newton(h, wdt);
+        }
+    }
     Ok((finish(&total, stats, Some(grad), 4 * np * nf * 8), h))
 }
 
@@ -539,6 +671,9 @@ fn adjoint(
     let mut total = StepTerm::default();
     let mut start: Option<(Vec<f64>, Option<Factor>)> = None;
     let mut tape: Vec<TapeStep> = Vec::with_capacity(model.steps);
+    let mut means = obs
+        .free_marker_offsets
+        .then(|| MarkerMeans::new(model.markers.len(), 0));
     let stats = simulate(
         model,
         mat,
@@ -546,6 +681,9 @@ fn adjoint(
         |x0, k0| start = Some((x0.to_vec(), k0.cloned())),
         |s| {
             let (gx, gv) = observe_step(model, mat, obs, s, &kinds, &mut total, &mut acc)?;
+            if let Some(m) = means.as_mut() {
+                m.add_residuals(model, obs, s.n, s.x);
+            }
             let vb = bdf2_velocity_residual(s);
             tape.push(TapeStep {
                 factor: s.factor.expect("factors requested").clone(),
@@ -566,9 +704,16 @@ fn adjoint(
     let nsteps = tape.len();
     let mut xs = vec![vec![0.0; nf]; nsteps + 2];
     let mut vs = vec![vec![0.0; nf]; nsteps + 2];
+    let wdt = obs.marker_weight * model.observation_interval();
     for (i, t) in tape.iter().enumerate() {
         xs[i + 2].copy_from_slice(&t.gx);
         vs[i + 2].copy_from_slice(&t.gv);
+        if let Some(m) = &means {
+            m.project_source(model, obs, i + 1, wdt, &mut xs[i + 2]);
+        }
+    }
+    if let Some(m) = &means {
+        m.project_terms(&mut total, wdt);
     }
     for n in (1..=nsteps).rev() {
         let t = &tape[n - 1];

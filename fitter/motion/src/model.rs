@@ -483,6 +483,12 @@ pub struct Observations {
     pub marker_weight: f64,
     /// Weight of the force term (½ Σ dt ‖F − F*‖²), default 1.
     pub force_weight: f64,
+    /// Each marker carries an unknown constant offset from its simulated place (a marker glued a
+    /// millimetre from where it is declared, a marker's centre above the surface): the offsets
+    /// are eliminated in closed form — at any parameters the best offset of marker i is its mean
+    /// residual over its observed steps — so Φ, its gradient and the Gauss–Newton matrix are
+    /// those of the residuals with each marker's mean removed ([`super::gradient`]).
+    pub free_marker_offsets: bool,
 }
 
 /// Newton settings (paper §4.3: residual < 1e-6 N or 20 iterations).

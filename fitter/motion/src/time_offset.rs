@@ -245,6 +245,7 @@ mod tests {
                 forces: vec![vec![None; model.clamps.len()]; model.steps],
                 marker_weight: 1.0,
                 force_weight: 1.0,
+                free_marker_offsets: false,
             };
             let (best, tried) = scan(&model, &mat, &obs).unwrap();
             assert_eq!(best, r, "{tried:?}");

@@ -326,6 +326,7 @@ fn substeps_chosen_from_the_ring_down_remove_bdf2s_period_error() {
         forces: vec![Vec::new(); frames],
         marker_weight: 1.0,
         force_weight: 1.0,
+        free_marker_offsets: false,
     };
     // The tip's vertical motion at every capture frame, integrated with k substeps.
     let ring = |k: usize| {

@@ -259,7 +259,9 @@ pub fn params_for(kinds: &[ParamKind], mat: &Material) -> Vec<Param> {
 
 /// Fits `kinds` (global) on the fitted steps from each start in `starts` (values for `kinds`;
 /// the others stay as in `base`); with several starts each is screened for `screen_iters`
-/// LBFGS iterations and the best is continued to `max_iters`.
+/// LBFGS iterations and the best is continued to `max_iters`. With free marker offsets
+/// (`ds.obs.free_marker_offsets`, [`fit_with_offsets`]) the fit is of the reduced problem and the
+/// offsets are read off at the fitted material.
 pub fn fit_model(
     ds: &MotionDataset,
     split: Split,
@@ -303,9 +305,50 @@ pub fn fit_model(
     notes.extend(r.failures.iter().cloned());
     let mut material = base.clone();
     material.set(&params, &r.q);
-    let traj = run_trajectory(&ds.model, &material, &ds.obs)?;
+    let mut traj = run_trajectory(&ds.model, &material, &ds.obs)?;
+    // Free marker offsets: read off at the fitted material (each marker's mean residual on the
+    // fitted steps, negated: observed = simulated + offset), and the residuals made those of
+    // the data moved by them (each grows by its marker's offset); they take 3 degrees of
+    // freedom per marker from the uncertainty's s².
+    let offsets = ds.obs.free_marker_offsets.then(|| {
+        let offsets: Vec<[f64; 3]> = mean_residuals(&traj, split, ds.model.markers.len())
+            .iter()
+            .map(|e| e.map(|v| -v))
+            .collect();
+        for row in &mut traj.res {
+            for (e, c) in row.iter_mut().zip(&offsets) {
+                if let Some(e) = e {
+                    for k in 0..3 {
+                        e[k] += c[k];
+                    }
+                }
+            }
+        }
+        offsets
+    });
     let sc = scores(&traj, split);
-    let sigma = uncertainty(&model, &obs, base, kinds, &r.q, sc.chi2_fit, sc.n_fit);
+    let offset_dof = if offsets.is_some() {
+        let seen = (0..ds.model.markers.len())
+            .filter(|&i| {
+                traj.res
+                    .iter()
+                    .take(split.fit_steps)
+                    .any(|row| row.get(i).is_some_and(Option::is_some))
+            })
+            .count();
+        3 * seen
+    } else {
+        0
+    };
+    let sigma = uncertainty(
+        &model,
+        &obs,
+        base,
+        kinds,
+        &r.q,
+        sc.chi2_fit,
+        sc.n_fit.saturating_sub(offset_dof),
+    );
     Ok(FittedModel {
         kinds: kinds.to_vec(),
         values: r.q,
@@ -315,7 +358,7 @@ pub fn fit_model(
         traj,
         evaluations,
         failures: notes,
-        offsets: None,
+        offsets,
         time_offset: None,
     })
 }
@@ -327,65 +370,27 @@ pub fn fit_model(
 /// `palpate-lab motion-confusion`).
 pub const REGION_SHAPE_PARAMS: usize = 4;
 
-/// Relative fall of χ² on the fitted steps below which another round of offsets-then-material
-/// ([`fit_with_offsets`]) is not run.
-pub const OFFSET_TOLERANCE: f64 = 1e-3;
-
-/// Fits `kinds` together with a constant offset per marker, by block-coordinate descent: the
-/// offsets that minimise the fitted steps' residual at fixed material are each marker's mean
-/// residual (a linear least-squares problem solved exactly), then the material is refitted on
-/// the data moved by them; at most `rounds` times, from `start_offsets`, stopping once a round
-/// lowers χ² by less than [`OFFSET_TOLERANCE`] of it.
-#[allow(clippy::too_many_arguments)]
+/// Fits `kinds` together with a constant offset per marker (observed = simulated + offset).
+/// The offsets are eliminated in closed form ([`palpate_motion::model::Observations::free_marker_offsets`]:
+/// at any parameters each marker's best offset is its mean residual on the fitted steps), so one
+/// fit of the parameters reaches the joint minimum over parameters and offsets ([`fit_model`]
+/// reads the offsets off at the fitted material).
+///
+/// Before, the offsets and the material were alternated (offsets at fixed material, then the
+/// material refitted, up to eight rounds): the two are correlated, the alternation crawled, and
+/// what it left unfitted was adopted as a second effect on random specimens
+/// (`palpate-lab motion-confusion`).
 pub fn fit_with_offsets(
     ds: &MotionDataset,
     split: Split,
     base: &Material,
     kinds: &[ParamKind],
     start: &[f64],
-    start_offsets: &[[f64; 3]],
-    rounds: usize,
     max_iters: u64,
 ) -> Result<FittedModel, MotionDiagnoseError> {
-    let mut offsets = start_offsets.to_vec();
-    let mut q = start.to_vec();
-    let mut material = base.clone();
-    let mut evaluations = 0;
-    let mut last: Option<FittedModel> = None;
-    for _ in 0..rounds.max(1) {
-        // Offsets at the current material.
-        let adj = with_offsets(ds, &offsets);
-        material.set(&params_for(kinds, &material), &q);
-        let t = run_trajectory(&adj.model, &material, &adj.obs)?;
-        for (c, m) in offsets
-            .iter_mut()
-            .zip(mean_residuals(&t, split, ds.model.markers.len()))
-        {
-            for k in 0..3 {
-                // e = sim − (obs − c): the mean of e is the part of c still missing, negated.
-                c[k] -= m[k];
-            }
-        }
-        // Material at those offsets.
-        let adj = with_offsets(ds, &offsets);
-        let mut m = fit_model(&adj, split, base, kinds, &[q.clone()], max_iters, 0)?;
-        evaluations += m.evaluations;
-        q.clone_from(&m.values);
-        material = m.material.clone();
-        m.offsets = Some(offsets.clone());
-        // Offsets and material are correlated, so the alternation converges slowly: go on while
-        // a round still lowers χ² on the fitted steps by more than OFFSET_TOLERANCE.
-        let settled = last.as_ref().is_some_and(|l: &FittedModel| {
-            l.scores.chi2_fit - m.scores.chi2_fit <= OFFSET_TOLERANCE * l.scores.chi2_fit
-        });
-        last = Some(m);
-        if settled {
-            break;
-        }
-    }
-    let mut m = last.expect("at least one round");
-    m.evaluations = evaluations;
-    Ok(m)
+    let mut free = ds.clone();
+    free.obs.free_marker_offsets = true;
+    fit_model(&free, split, base, kinds, &[start.to_vec()], max_iters, 0)
 }
 
 /// Observed residual entries on the fitted steps as one vector.
@@ -394,7 +399,27 @@ fn residual_vector(
     obs: &Observations,
     mat: &Material,
 ) -> Result<Vec<f64>, MotionError> {
-    let t = run_trajectory(model, mat, obs)?;
+    let mut t = run_trajectory(model, mat, obs)?;
+    if obs.free_marker_offsets {
+        // The residuals of the reduced problem: each marker's mean removed (its free offset).
+        let offsets = mean_residuals(
+            &t,
+            Split {
+                fit_steps: t.res.len(),
+                steps: t.res.len(),
+            },
+            model.markers.len(),
+        );
+        for row in &mut t.res {
+            for (e, c) in row.iter_mut().zip(&offsets) {
+                if let Some(e) = e {
+                    for k in 0..3 {
+                        e[k] -= c[k];
+                    }
+                }
+            }
+        }
+    }
     Ok(t.res
         .iter()
         .flat_map(|r| r.iter().flatten().flat_map(|e| e.iter().copied()))

@@ -75,12 +75,6 @@ const REGION_REFITS: usize = 4;
 /// lowers χ² ([`MotionModel::fit_timed`]).
 const OFFSET_NEIGHBOURS: usize = 3;
 
-/// Most block-coordinate rounds of a fit with marker offsets (offsets, then material); fewer
-/// once a round stops lowering χ² ([`fit::OFFSET_TOLERANCE`]). Two rounds, as before, left
-/// enough of the offsets unfitted on randomly drawn specimens that a second effect was adopted to
-/// soak it up (4 of 5 draws; `palpate-lab motion-confusion`).
-const OFFSET_ROUNDS: usize = 8;
-
 /// A candidate effect the simplest motion model lacks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub enum Candidate {
@@ -92,9 +86,9 @@ pub enum Candidate {
     Density,
     /// Each marker sits at a constant offset from its declared place (3 parameters per marker):
     /// a marker glued a millimetre from where `markers.csv` says, a marker's centre above the
-    /// surface, a capture registered with a small shift. Fitted by block-coordinate descent
-    /// (the offsets are each marker's mean residual at fixed material, then the material is
-    /// refitted); the held-out steps use the offsets fitted on the fitted steps.
+    /// surface, a capture registered with a small shift. Eliminated in closed form (each
+    /// marker's mean residual on the fitted steps, [`fit::fit_with_offsets`]); the held-out
+    /// steps use the offsets fitted on the fitted steps.
     MarkerOffsets,
     /// The markers are recorded out of step with the clamps' record (1 parameter: an integer
     /// number of simulation steps, [`palpate_motion::time_offset`]): two capture streams on two
@@ -423,9 +417,6 @@ struct MotionModel<'a> {
     /// Measured clamp forces: the density is identifiable only with them.
     has_forces: bool,
     log: &'a (dyn Fn(&str) + Sync),
-    /// Block-coordinate rounds of a fit beside adopted marker offsets ([`OFFSET_ROUNDS`]; one in
-    /// a screening fit, which ranks rather than answers).
-    offset_rounds: usize,
 }
 
 impl MotionModel<'_> {
@@ -445,19 +436,15 @@ impl MotionModel<'_> {
                 &cur.material,
                 kinds,
                 &cur.values,
-                &vec![[0.0; 3]; ds.model.markers.len()],
-                OFFSET_ROUNDS,
                 self.o.max_iters,
             ),
             // Offsets adopted: later candidates refit the material and the offsets together.
-            (_, Some(off)) => fit_with_offsets(
+            (_, Some(_)) => fit_with_offsets(
                 ds,
                 split,
                 &cur.material,
                 kinds,
                 &starts(c, cur, ds)[0],
-                off,
-                self.offset_rounds,
                 self.o.max_iters,
             ),
             (_, None) => fit_model(
@@ -569,7 +556,6 @@ impl MotionModel<'_> {
         };
         let screener = MotionModel {
             o: &screen,
-            offset_rounds: 1,
             ..*self
         };
         // The two neighbours are independent fits: one per core.
@@ -664,7 +650,6 @@ impl MotionModel<'_> {
         };
         let screener = MotionModel {
             o: &screen,
-            offset_rounds: 1,
             ..*self
         };
         let mut best: Option<(FittedModel, usize)> = None;
@@ -1050,7 +1035,6 @@ pub fn diagnose(
         o,
         has_forces,
         log,
-        offset_rounds: OFFSET_ROUNDS,
     };
     let rounds_max = o.max_effects.max(1);
     let policy = Policy {

@@ -351,6 +351,7 @@ fn strip(data: &[(f64, f64, f64)], dt: f64) -> anyhow::Result<(Model, Observatio
             .collect(),
         marker_weight: 1.0,
         force_weight: 1.0,
+        free_marker_offsets: false,
     };
     Ok((model, obs))
 }
