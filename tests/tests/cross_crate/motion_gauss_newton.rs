@@ -38,6 +38,48 @@ fn residuals(model: &Model, mat: &Material, obs: &Observations) -> Vec<f64> {
     r
 }
 
+/// The Jacobian of `residuals` by central differences, relative step 1e-5 of each parameter.
+fn fd_columns(
+    params: &[Param],
+    at: &Material,
+    residuals: impl Fn(&Material) -> Vec<f64>,
+) -> Vec<Vec<f64>> {
+    let q0 = at.read(params);
+    (0..params.len())
+        .map(|p| {
+            let step = 1e-5 * q0[p];
+            let shifted = |d: f64| {
+                let mut q = q0.clone();
+                q[p] += d;
+                let mut m = at.clone();
+                m.set(params, &q);
+                residuals(&m)
+            };
+            let (a, b) = (shifted(step), shifted(-step));
+            a.iter()
+                .zip(&b)
+                .map(|(x, y)| (x - y) / (2.0 * step))
+                .collect()
+        })
+        .collect()
+}
+
+/// Every entry of H (row-major) within 1e-5 of its largest of JᵀJ with J's columns `cols`.
+fn assert_gauss_newton_is_jtj(h: &[f64], cols: &[Vec<f64>]) {
+    let np = cols.len();
+    let scale = h.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    for p in 0..np {
+        for q in 0..np {
+            let fd: f64 = cols[p].iter().zip(&cols[q]).map(|(a, b)| a * b).sum();
+            assert!(
+                (h[p * np + q] - fd).abs() <= 1e-5 * scale,
+                "H[{p}][{q}] = {} against JᵀJ {fd}",
+                h[p * np + q]
+            );
+        }
+    }
+}
+
 /// H from the direct sensitivities against JᵀJ with J by central differences (relative step
 /// 1e-5 of each parameter), on markers *and* clamp forces, at a state away from the data (so the
 /// viscous and elastic columns both matter): every entry within 1e-5 of the largest.
@@ -55,37 +97,12 @@ fn gauss_newton_matrix_matches_finite_difference_jacobian() {
     at.set(&params, &[1.3e4, 1.7e4, 9.0]);
     let (ev, h) = evaluate_gauss_newton(&model, &at, &params, &obs).unwrap();
     let np = params.len();
-    let q0 = at.read(&params);
-    let cols: Vec<Vec<f64>> = (0..np)
-        .map(|p| {
-            let step = 1e-5 * q0[p];
-            let shifted = |d: f64| {
-                let mut q = q0.clone();
-                q[p] += d;
-                let mut m = at.clone();
-                m.set(&params, &q);
-                residuals(&model, &m, &obs)
-            };
-            let (a, b) = (shifted(step), shifted(-step));
-            a.iter()
-                .zip(&b)
-                .map(|(x, y)| (x - y) / (2.0 * step))
-                .collect()
-        })
-        .collect();
+    let cols = fd_columns(&params, &at, |m| residuals(&model, m, &obs));
     let r0 = residuals(&model, &at, &obs);
     let phi: f64 = 0.5 * r0.iter().map(|v| v * v).sum::<f64>();
     assert!((phi - ev.phi).abs() <= 1e-8 * phi, "Φ {phi} vs {}", ev.phi);
-    let scale = h.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    assert_gauss_newton_is_jtj(&h, &cols);
     for p in 0..np {
-        for q in 0..np {
-            let fd: f64 = cols[p].iter().zip(&cols[q]).map(|(a, b)| a * b).sum();
-            assert!(
-                (h[p * np + q] - fd).abs() <= 1e-5 * scale,
-                "H[{p}][{q}] = {} against JᵀJ {fd}",
-                h[p * np + q]
-            );
-        }
         // And the gradient is Jᵀ r.
         let jr: f64 = cols[p].iter().zip(&r0).map(|(a, b)| a * b).sum();
         let g = ev.grad.as_ref().unwrap()[p];
@@ -265,36 +282,8 @@ fn free_marker_offsets_are_eliminated_exactly() {
     let r0 = centred_residuals(&model, &at, &obs);
     let phi: f64 = 0.5 * r0.iter().map(|v| v * v).sum::<f64>();
     assert!((phi - ev.phi).abs() <= 1e-8 * phi, "Φ {phi} vs {}", ev.phi);
-    let np = params.len();
-    let q0 = at.read(&params);
-    let cols: Vec<Vec<f64>> = (0..np)
-        .map(|p| {
-            let step = 1e-5 * q0[p];
-            let shifted = |d: f64| {
-                let mut q = q0.clone();
-                q[p] += d;
-                let mut m = at.clone();
-                m.set(&params, &q);
-                centred_residuals(&model, &m, &obs)
-            };
-            let (a, b) = (shifted(step), shifted(-step));
-            a.iter()
-                .zip(&b)
-                .map(|(x, y)| (x - y) / (2.0 * step))
-                .collect()
-        })
-        .collect();
-    let scale = h.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    for p in 0..np {
-        for q in 0..np {
-            let fd: f64 = cols[p].iter().zip(&cols[q]).map(|(a, b)| a * b).sum();
-            assert!(
-                (h[p * np + q] - fd).abs() <= 1e-5 * scale,
-                "H[{p}][{q}] = {} against JᵀJ {fd}",
-                h[p * np + q]
-            );
-        }
-    }
+    let cols = fd_columns(&params, &at, |m| centred_residuals(&model, m, &obs));
+    assert_gauss_newton_is_jtj(&h, &cols);
     assert_gradients_agree(&model, &at, &params, &obs, |_, q0| 1e-5 * q0);
 
     let settings = FitSettings {
@@ -313,7 +302,7 @@ fn free_marker_offsets_are_eliminated_exactly() {
     )
     .unwrap();
     let truth_q = t.read(&params);
-    for p in 0..np {
+    for p in 0..params.len() {
         assert!(
             (r.q[p] / truth_q[p] - 1.0).abs() < 1e-3,
             "{:?}: fitted {} truth {}",

@@ -166,9 +166,27 @@ pub fn with_offsets(ds: &MotionDataset, offsets: &[[f64; 3]]) -> MotionDataset {
     d
 }
 
+/// Removes each marker's mean residual over the fitted steps from its residuals at every step —
+/// the residuals of the data moved by the marker's best constant offset — and returns those
+/// offsets (observed = simulated + offset, so the offset is the mean residual negated; zero for a
+/// marker never observed on the fitted steps).
+pub fn remove_marker_means(t: &mut Trajectory, split: Split, markers: usize) -> Vec<[f64; 3]> {
+    let means = mean_residuals(t, split, markers);
+    for row in &mut t.res {
+        for (e, m) in row.iter_mut().zip(&means) {
+            if let Some(e) = e {
+                for k in 0..3 {
+                    e[k] -= m[k];
+                }
+            }
+        }
+    }
+    means.iter().map(|m| m.map(|v| -v)).collect()
+}
+
 /// Each marker's mean residual (simulated − observed) over the fitted steps; zero for a marker
 /// never observed there.
-pub fn mean_residuals(t: &Trajectory, split: Split, markers: usize) -> Vec<[f64; 3]> {
+fn mean_residuals(t: &Trajectory, split: Split, markers: usize) -> Vec<[f64; 3]> {
     let mut sum = vec![[0.0; 3]; markers];
     let mut count = vec![0usize; markers];
     for row in t.res.iter().take(split.fit_steps) {
@@ -310,22 +328,10 @@ pub fn fit_model(
     // fitted steps, negated: observed = simulated + offset), and the residuals made those of
     // the data moved by them (each grows by its marker's offset); they take 3 degrees of
     // freedom per marker from the uncertainty's s².
-    let offsets = ds.obs.free_marker_offsets.then(|| {
-        let offsets: Vec<[f64; 3]> = mean_residuals(&traj, split, ds.model.markers.len())
-            .iter()
-            .map(|e| e.map(|v| -v))
-            .collect();
-        for row in &mut traj.res {
-            for (e, c) in row.iter_mut().zip(&offsets) {
-                if let Some(e) = e {
-                    for k in 0..3 {
-                        e[k] += c[k];
-                    }
-                }
-            }
-        }
-        offsets
-    });
+    let offsets = ds
+        .obs
+        .free_marker_offsets
+        .then(|| remove_marker_means(&mut traj, split, ds.model.markers.len()));
     let sc = scores(&traj, split);
     let offset_dof = if offsets.is_some() {
         let seen = (0..ds.model.markers.len())
@@ -402,23 +408,11 @@ fn residual_vector(
     let mut t = run_trajectory(model, mat, obs)?;
     if obs.free_marker_offsets {
         // The residuals of the reduced problem: each marker's mean removed (its free offset).
-        let offsets = mean_residuals(
-            &t,
-            Split {
-                fit_steps: t.res.len(),
-                steps: t.res.len(),
-            },
-            model.markers.len(),
-        );
-        for row in &mut t.res {
-            for (e, c) in row.iter_mut().zip(&offsets) {
-                if let Some(e) = e {
-                    for k in 0..3 {
-                        e[k] -= c[k];
-                    }
-                }
-            }
-        }
+        let all = Split {
+            fit_steps: t.res.len(),
+            steps: t.res.len(),
+        };
+        remove_marker_means(&mut t, all, model.markers.len());
     }
     Ok(t.res
         .iter()
