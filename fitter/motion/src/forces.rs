@@ -44,7 +44,7 @@ pub fn element_internal(
 /// has finished) and on the same thread otherwise. The split depends on the mesh only, so a
 /// result is the same to the last bit wherever the halves ran. Below it the extra buffers cost
 /// more than a second core saves (an element's forces and tangent take about a microsecond).
-const SPLIT_ASSEMBLY_ELEMENTS: usize = 500;
+pub(crate) const SPLIT_ASSEMBLY_ELEMENTS: usize = 500;
 
 /// Assembles f (full dofs, overwritten) and optionally K, D values on the free pattern
 /// (overwritten). Fails on an inverted element (the lowest index) or non-finite force.

@@ -6,7 +6,7 @@
 //! recurrence of eq. 12 (adjoint), so the two agree to round-off and match finite differences
 //! up to the Newton tolerance. Density enters M and f_ext; its terms (§4.3) are included.
 
-use super::forces::param_derivatives;
+use super::forces::{param_derivatives, SPLIT_ASSEMBLY_ELEMENTS};
 use super::model::{Material, Model, Observations, Param};
 use super::objective::{clamp_force_derivatives, step_term, StepTerm};
 use super::sim::{simulate, simulate_states, SimStats, StepView};
@@ -301,6 +301,28 @@ pub fn evaluate(
     obs: &Observations,
     method: Option<Method>,
 ) -> Result<Evaluation, MotionError> {
+    in_pool(|| evaluate_here(model, mat, params, obs, method))
+}
+
+/// Runs `op` on a worker of rayon's pool (at once when called from one): the element passes
+/// split their halves with `rayon::join`, which from a thread outside the pool hands both halves
+/// to the pool and blocks on a lock — a wake-up per pass, hundreds per simulation — while inside
+/// it the second half is merely offered to the other worker.
+fn in_pool<R: Send>(op: impl FnOnce() -> R + Send) -> R {
+    if rayon::current_thread_index().is_some() {
+        op()
+    } else {
+        rayon::scope(|_| op())
+    }
+}
+
+fn evaluate_here(
+    model: &Model,
+    mat: &Material,
+    params: &[Param],
+    obs: &Observations,
+    method: Option<Method>,
+) -> Result<Evaluation, MotionError> {
     match method {
         None => {
             let mut total = StepTerm::default();
@@ -339,7 +361,7 @@ pub fn evaluate_gauss_newton(
     params: &[Param],
     obs: &Observations,
 ) -> Result<(Evaluation, Vec<f64>), MotionError> {
-    let (ev, h) = direct(model, mat, params, obs, true)?;
+    let (ev, h) = in_pool(|| direct(model, mat, params, obs, true))?;
     Ok((ev, h.unwrap_or_default()))
 }
 
@@ -350,7 +372,23 @@ fn zeros_acc(kinds: &[bool], ne: usize) -> Vec<Vec<f64>> {
         .collect()
 }
 
-/// G_p (free dofs) for every parameter at a state: ∂F/∂q of the residual's force part.
+/// The split point of an element pass: meshes of at least
+/// [`forces::SPLIT_ASSEMBLY_ELEMENTS`](super::forces) elements run it in two halves side by side
+/// (`rayon::join`), as the force assembly does; below that, one pass (the split index is the
+/// element count).
+fn element_split(model: &Model) -> usize {
+    let ne = model.tets.len();
+    if ne >= SPLIT_ASSEMBLY_ELEMENTS {
+        ne / 2
+    } else {
+        ne
+    }
+}
+
+/// G_p (free dofs) for every parameter at a state: ∂F/∂q of the residual's force part. The two
+/// halves of the elements ([`element_split`]) scatter into their own columns, added afterwards:
+/// the split depends on the mesh only, so the result is the same wherever the halves ran.
+#[allow(clippy::too_many_arguments)]
 fn g_columns(
     model: &Model,
     mat: &Material,
@@ -361,22 +399,91 @@ fn g_columns(
     v: &[f64],
     inertia: Option<(f64, &[f64])>,
 ) -> Result<Vec<Vec<f64>>, MotionError> {
-    let mut g = vec![vec![0.0; model.nfree]; np];
-    param_derivatives(model, mat, kinds, x, v, inertia, None, |e, kind, ge| {
-        let p = table[e][kind];
-        if p == usize::MAX {
-            return;
-        }
-        for (a, &node) in model.tets[e].iter().enumerate() {
-            for i in 0..3 {
-                let fr = model.free[3 * node + i];
-                if fr != usize::MAX {
-                    g[p][fr] += ge[3 * a + i];
+    let part = |range: std::ops::Range<usize>| -> Result<Vec<Vec<f64>>, MotionError> {
+        let mut g = vec![vec![0.0; model.nfree]; np];
+        let list: Vec<usize> = range.collect();
+        param_derivatives(
+            model,
+            mat,
+            kinds,
+            x,
+            v,
+            inertia,
+            Some(&list),
+            |e, kind, ge| {
+                let p = table[e][kind];
+                if p == usize::MAX {
+                    return;
                 }
-            }
-        }
-    })?;
+                for (a, &node) in model.tets[e].iter().enumerate() {
+                    for i in 0..3 {
+                        let fr = model.free[3 * node + i];
+                        if fr != usize::MAX {
+                            g[p][fr] += ge[3 * a + i];
+                        }
+                    }
+                }
+            },
+        )?;
+        Ok(g)
+    };
+    let (ne, half) = (model.tets.len(), element_split(model));
+    if half == ne {
+        return part(0..ne);
+    }
+    let (first, second) = rayon::join(|| part(0..half), || part(half..ne));
+    let (mut g, g2) = (first?, second?);
+    for (col, col2) in g.iter_mut().zip(&g2) {
+        col.iter_mut().zip(col2).for_each(|(a, b)| *a += b);
+    }
     Ok(g)
+}
+
+/// acc\[kind\]\[e\] += λ_eᵀ ∂F_e/∂q_kind for every element at a state (λ a full-dof vector): the
+/// adjoint's parameter terms. The two halves of the elements ([`element_split`]) run side by
+/// side, each writing only its own elements' entries, so every sum is the same to the last bit
+/// wherever the halves ran; an inverted element of the first half is the error reported.
+#[allow(clippy::too_many_arguments)]
+fn add_param_dots(
+    model: &Model,
+    mat: &Material,
+    kinds: &[bool],
+    x: &[f64],
+    v: &[f64],
+    inertia: Option<(f64, &[f64])>,
+    lambda: &[f64],
+    acc: &mut [Vec<f64>],
+) -> Result<(), MotionError> {
+    let (ne, half) = (model.tets.len(), element_split(model));
+    let (first, second): (Vec<&mut [f64]>, Vec<&mut [f64]>) = acc
+        .iter_mut()
+        .map(|a| {
+            if a.is_empty() {
+                (&mut [] as &mut [f64], &mut [] as &mut [f64])
+            } else {
+                a.split_at_mut(half)
+            }
+        })
+        .unzip();
+    let pass = |range: std::ops::Range<usize>, mut part: Vec<&mut [f64]>| {
+        let start = range.start;
+        let list: Vec<usize> = range.collect();
+        param_derivatives(
+            model,
+            mat,
+            kinds,
+            x,
+            v,
+            inertia,
+            Some(&list),
+            |e, kind, g| part[kind][e - start] += element_dot(model, e, lambda, g),
+        )
+    };
+    if half == ne {
+        return pass(0..ne, first);
+    }
+    let (a, b) = rayon::join(|| pass(0..half, first), || pass(half..ne, second));
+    a.and(b)
 }
 
 /// What both gradient methods start from: the parameter table, the sizes, BDF2's constants
@@ -724,15 +831,15 @@ fn adjoint(
         let mut rbar = vs[j].clone();
         t.factor.solve_in_place(&mut rbar); // λ_v (eq. 12): S is symmetric
         let rfull = model.expand(&rbar);
-        param_derivatives(
+        add_param_dots(
             model,
             mat,
             &kinds,
             &t.x,
             &t.v,
             Some((c, &t.vb)),
-            None,
-            |e, kind, g| acc[kind][e] += element_dot(model, e, &rfull, g),
+            &rfull,
+            &mut acc,
         )?;
         let mut kr = vec![0.0; nf];
         model.pattern.mul_add(&t.k, &rbar, &mut kr);
@@ -752,15 +859,15 @@ fn adjoint(
         let mut lam: Vec<f64> = (0..nf).map(|i| xs[1][i] + xs[0][i]).collect();
         k0.solve_in_place(&mut lam);
         let lfull = model.expand(&lam);
-        param_derivatives(
+        add_param_dots(
             model,
             mat,
             &kinds,
             x0,
             &vec![0.0; ndof],
             None,
-            None,
-            |e, kind, g| acc[kind][e] += element_dot(model, e, &lfull, g),
+            &lfull,
+            &mut acc,
         )?;
     }
     let mut grad = vec![0.0; np];
