@@ -301,64 +301,47 @@ impl Pattern {
         m: usize,
     ) {
         let n = self.n;
-        // Row-major copies (entry (r, j) at r m + j): an entry's m columns are then adjacent,
-        // one cache line instead of m lines n apart. Each Y entry receives the same terms in the
-        // same order as a column-by-column pass, so the result is the same to the last bit.
-        let rows = |v: &[f64]| {
-            let mut t = vec![0.0; n * m];
-            for (j, col) in v.chunks_exact(n).enumerate().take(m) {
-                for (r, &val) in col.iter().enumerate() {
-                    t[r * m + j] = val;
-                }
-            }
-            t
-        };
-        let (xt, zt, mut yt) = (rows(x), rows(z), rows(y));
-        // The column count as a constant for the usual few parameters, so an entry's update is
-        // a short vector operation without index checks.
-        match m {
-            1 => self.difference_rows::<1>(a, a_values, b_values, (&xt, &zt), &mut yt),
-            2 => self.difference_rows::<2>(a, a_values, b_values, (&xt, &zt), &mut yt),
-            3 => self.difference_rows::<3>(a, a_values, b_values, (&xt, &zt), &mut yt),
-            4 => self.difference_rows::<4>(a, a_values, b_values, (&xt, &zt), &mut yt),
-            5 => self.difference_rows::<5>(a, a_values, b_values, (&xt, &zt), &mut yt),
-            6 => self.difference_rows::<6>(a, a_values, b_values, (&xt, &zt), &mut yt),
-            7 => self.difference_rows::<7>(a, a_values, b_values, (&xt, &zt), &mut yt),
-            8 => self.difference_rows::<8>(a, a_values, b_values, (&xt, &zt), &mut yt),
-            _ => {
-                for (((&av, &bv), &r), &c) in a_values
-                    .iter()
-                    .zip(b_values)
-                    .zip(&self.row_free)
-                    .zip(&self.col_free)
-                {
-                    let av = a * av;
-                    let (ro, co) = (r * m, c * m);
-                    for j in 0..m {
-                        yt[ro + j] += av * xt[co + j] - bv * zt[co + j];
-                    }
-                    if r != c {
-                        for j in 0..m {
-                            yt[co + j] += av * xt[ro + j] - bv * zt[ro + j];
-                        }
+        // Row-major copies (entry (r, j) at r w + j) of up to eight columns at a time: an
+        // entry's columns are then adjacent, one cache line instead of w lines n apart, and the
+        // group's width a constant, so an entry's update is a short vector operation without
+        // index checks. Each Y entry receives the same terms in the same order as a
+        // column-by-column pass, so the result is the same to the last bit.
+        for first in (0..m).step_by(8) {
+            let w = (m - first).min(8);
+            let cols = first * n..(first + w) * n;
+            let rows = |v: &[f64]| {
+                let mut t = vec![0.0; n * w];
+                for (j, col) in v[cols.clone()].chunks_exact(n).enumerate() {
+                    for (r, &val) in col.iter().enumerate() {
+                        t[r * w + j] = val;
                     }
                 }
+                t
+            };
+            let (xt, zt, mut yt) = (rows(x), rows(z), rows(y));
+            let pass = (a, a_values, b_values, (&xt[..], &zt[..]));
+            match w {
+                1 => self.difference_rows::<1>(pass, &mut yt),
+                2 => self.difference_rows::<2>(pass, &mut yt),
+                3 => self.difference_rows::<3>(pass, &mut yt),
+                4 => self.difference_rows::<4>(pass, &mut yt),
+                5 => self.difference_rows::<5>(pass, &mut yt),
+                6 => self.difference_rows::<6>(pass, &mut yt),
+                7 => self.difference_rows::<7>(pass, &mut yt),
+                _ => self.difference_rows::<8>(pass, &mut yt),
             }
-        }
-        for (j, col) in y.chunks_exact_mut(n).enumerate().take(m) {
-            for (r, val) in col.iter_mut().enumerate() {
-                *val = yt[r * m + j];
+            for (j, col) in y[cols].chunks_exact_mut(n).enumerate() {
+                for (r, val) in col.iter_mut().enumerate() {
+                    *val = yt[r * w + j];
+                }
             }
         }
     }
 
-    /// The entries' pass of [`Self::mul_add_difference`] on row-major columns, `M` of them.
+    /// The entries' pass of [`Self::mul_add_difference`] on a group of `M` row-major columns.
     fn difference_rows<const M: usize>(
         &self,
-        a: f64,
-        a_values: &[f64],
-        b_values: &[f64],
-        (xt, zt): (&[f64], &[f64]),
+        (a, a_values, b_values, (xt, zt)): (f64, &[f64], &[f64], (&[f64], &[f64])),
         yt: &mut [f64],
     ) {
         let row = |v: &[f64], r: usize| -> [f64; M] {
@@ -518,23 +501,38 @@ mod tests {
                 }
             }
         }
-        let m = 3;
-        let col = |s: f64| -> Vec<f64> { (0..n * m).map(|i| (i as f64 * s).sin()).collect() };
-        let (x, z, y0) = (col(0.37), col(0.61), col(0.13));
-        let mut y = y0.clone();
-        p.mul_add_difference((1.5, &av, &x), (&bv, &z), &mut y, m);
-        for j in 0..m {
-            for r in 0..n {
-                let o = j * n;
-                let want = y0[o + r]
-                    + (0..n)
-                        .map(|c| 1.5 * ad[r][c] * x[o + c] - bd[r][c] * z[o + c])
-                        .sum::<f64>();
-                assert!(
-                    (y[o + r] - want).abs() < 1e-12 * (1.0 + want.abs()),
-                    "column {j} row {r}: {} vs {want}",
-                    y[o + r]
-                );
+        // Three columns, and eleven: a group of eight and one of three.
+        for m in [3, 11] {
+            let col = |s: f64| -> Vec<f64> { (0..n * m).map(|i| (i as f64 * s).sin()).collect() };
+            let (x, z, y0) = (col(0.37), col(0.61), col(0.13));
+            let mut y = y0.clone();
+            p.mul_add_difference((1.5, &av, &x), (&bv, &z), &mut y, m);
+            // The column-by-column pass over the entries, the order the claim of equality to
+            // the last bit is about.
+            let mut by_column = y0.clone();
+            for (((&a, &b), &r), &c) in av.iter().zip(&bv).zip(&p.row_free).zip(&p.col_free) {
+                for j in 0..m {
+                    let o = j * n;
+                    by_column[o + r] += 1.5 * a * x[o + c] - b * z[o + c];
+                    if r != c {
+                        by_column[o + c] += 1.5 * a * x[o + r] - b * z[o + r];
+                    }
+                }
+            }
+            assert_eq!(y, by_column, "{m} columns: not the column-by-column sums");
+            for j in 0..m {
+                for r in 0..n {
+                    let o = j * n;
+                    let want = y0[o + r]
+                        + (0..n)
+                            .map(|c| 1.5 * ad[r][c] * x[o + c] - bd[r][c] * z[o + c])
+                            .sum::<f64>();
+                    assert!(
+                        (y[o + r] - want).abs() < 1e-12 * (1.0 + want.abs()),
+                        "{m} columns, column {j} row {r}: {} vs {want}",
+                        y[o + r]
+                    );
+                }
             }
         }
     }
