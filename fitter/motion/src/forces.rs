@@ -210,7 +210,8 @@ fn assemble_into(
 /// [`super::model::Param::slot`]), where
 /// F = f(x, v) + f_ext − c M (v − b) is the force part of the BDF2 residual (eq. 2) and
 /// `inertia = Some((c, v − b))` (full dofs) includes the density's mass term; `None` drops it
-/// (elastostatic initial condition, eq. 14). `elems` restricts the pass to some elements.
+/// (elastostatic initial condition, eq. 14). `elems` are the elements of the pass, in order (all
+/// of them: `0..model.tets.len()`).
 pub fn param_derivatives(
     model: &Model,
     mat: &Material,
@@ -218,20 +219,12 @@ pub fn param_derivatives(
     x: &[f64],
     v: &[f64],
     inertia: Option<(f64, &[f64])>,
-    elems: Option<&[usize]>,
+    elems: impl IntoIterator<Item = usize>,
     mut sink: impl FnMut(usize, usize, &[f64; 12]),
 ) -> Result<(), MotionError> {
     let nf = mat.spline.as_ref().map_or(0, |s| s.len(Response::F));
     let any_spline = kinds.iter().skip(MATERIAL_KINDS).any(|&b| b);
-    let all: Vec<usize>;
-    let list = match elems {
-        Some(l) => l,
-        None => {
-            all = (0..model.tets.len()).collect();
-            &all
-        }
-    };
-    for &e in list {
+    for e in elems {
         let t = &model.rest[e];
         let fgrad = he::deformation_gradient(t, &model.gather(e, x));
         let neo_hookean = [ParamKind::Lambda, ParamKind::Mu, ParamKind::Stiffening];

@@ -388,7 +388,6 @@ fn element_split(model: &Model) -> usize {
 /// G_p (free dofs) for every parameter at a state: ∂F/∂q of the residual's force part. The two
 /// halves of the elements ([`element_split`]) scatter into their own columns, added afterwards:
 /// the split depends on the mesh only, so the result is the same wherever the halves ran.
-#[allow(clippy::too_many_arguments)]
 fn g_columns(
     model: &Model,
     mat: &Material,
@@ -401,30 +400,20 @@ fn g_columns(
 ) -> Result<Vec<Vec<f64>>, MotionError> {
     let part = |range: std::ops::Range<usize>| -> Result<Vec<Vec<f64>>, MotionError> {
         let mut g = vec![vec![0.0; model.nfree]; np];
-        let list: Vec<usize> = range.collect();
-        param_derivatives(
-            model,
-            mat,
-            kinds,
-            x,
-            v,
-            inertia,
-            Some(&list),
-            |e, kind, ge| {
-                let p = table[e][kind];
-                if p == usize::MAX {
-                    return;
-                }
-                for (a, &node) in model.tets[e].iter().enumerate() {
-                    for i in 0..3 {
-                        let fr = model.free[3 * node + i];
-                        if fr != usize::MAX {
-                            g[p][fr] += ge[3 * a + i];
-                        }
+        param_derivatives(model, mat, kinds, x, v, inertia, range, |e, kind, ge| {
+            let p = table[e][kind];
+            if p == usize::MAX {
+                return;
+            }
+            for (a, &node) in model.tets[e].iter().enumerate() {
+                for i in 0..3 {
+                    let fr = model.free[3 * node + i];
+                    if fr != usize::MAX {
+                        g[p][fr] += ge[3 * a + i];
                     }
                 }
-            },
-        )?;
+            }
+        })?;
         Ok(g)
     };
     let (ne, half) = (model.tets.len(), element_split(model));
@@ -443,7 +432,6 @@ fn g_columns(
 /// adjoint's parameter terms. The two halves of the elements ([`element_split`]) run side by
 /// side, each writing only its own elements' entries, so every sum is the same to the last bit
 /// wherever the halves ran; an inverted element of the first half is the error reported.
-#[allow(clippy::too_many_arguments)]
 fn add_param_dots(
     model: &Model,
     mat: &Material,
@@ -467,17 +455,9 @@ fn add_param_dots(
         .unzip();
     let pass = |range: std::ops::Range<usize>, mut part: Vec<&mut [f64]>| {
         let start = range.start;
-        let list: Vec<usize> = range.collect();
-        param_derivatives(
-            model,
-            mat,
-            kinds,
-            x,
-            v,
-            inertia,
-            Some(&list),
-            |e, kind, g| part[kind][e - start] += element_dot(model, e, lambda, g),
-        )
+        param_derivatives(model, mat, kinds, x, v, inertia, range, |e, kind, g| {
+            part[kind][e - start] += element_dot(model, e, lambda, g)
+        })
     };
     if half == ne {
         return pass(0..ne, first);

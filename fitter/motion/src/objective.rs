@@ -105,7 +105,7 @@ pub fn clamp_force_derivatives(
         x,
         v,
         None,
-        Some(&model.clamp_elems[c]),
+        model.clamp_elems[c].iter().copied(),
         |el, kind, g| {
             let tet = model.tets[el];
             for a in 0..4 {
