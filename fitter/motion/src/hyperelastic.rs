@@ -239,22 +239,38 @@ pub fn element_forces(t: &RestTet, x: &[Vector3<f64>; 4], p: &HyperParams) -> Op
 /// with G_a = (∂Ī₁/∂F) ∇φ_a.
 /// (The per-direction evaluation through `dpk1` was the motion simulator's hottest loop.)
 pub fn element_tangent(t: &RestTet, s: &FParts, p: &HyperParams) -> [[f64; 12]; 12] {
+    // Without the stiffening term (the paper's model, and every fit that has not adopted it) its
+    // four products per entry are zero; a copy of the loop compiled without them is the one the
+    // simpler models run.
+    if p.stiffening == 0.0 {
+        tangent_entries::<false>(t, s, p)
+    } else {
+        tangent_entries::<true>(t, s, p)
+    }
+}
+
+/// [`element_tangent`]'s entries, with the stiffening terms when `STIFFENING`.
+#[inline(always)]
+fn tangent_entries<const STIFFENING: bool>(
+    t: &RestTet,
+    s: &FParts,
+    p: &HyperParams,
+) -> [[f64; 12]; 12] {
     let h: [Vector3<f64>; 4] = std::array::from_fn(|a| s.f_inv_t * t.grad[a]);
-    let fg: [Vector3<f64>; 4] = std::array::from_fn(|a| s.f * t.grad[a]);
     let j2 = s.j * s.j;
     let c = 0.5 * p.lambda * (j2 - 1.0) - p.mu;
     let lj2 = p.lambda * j2;
-    let gs: [Vector3<f64>; 4] = if p.stiffening != 0.0 {
+    let (fg, gs, ks, kb) = if STIFFENING {
         let g = s.dbar();
-        std::array::from_fn(|a| g * t.grad[a])
+        let ks = 2.0 * p.stiffening;
+        (
+            std::array::from_fn(|a| s.f * t.grad[a]),
+            std::array::from_fn(|a| g * t.grad[a]),
+            ks,
+            ks * s.bar() * s.j23(),
+        )
     } else {
-        [Vector3::zeros(); 4]
-    };
-    let ks = 2.0 * p.stiffening;
-    let kb = if p.stiffening != 0.0 {
-        ks * s.bar() * s.j23()
-    } else {
-        0.0
+        ([Vector3::zeros(); 4], [Vector3::zeros(); 4], 0.0, 0.0)
     };
     let diag = p.mu + 2.0 * kb;
     let v = t.volume;
@@ -266,11 +282,13 @@ pub fn element_tangent(t: &RestTet, s: &FParts, p: &HyperParams) -> [[f64; 12]; 
             let gab = t.grad[a].dot(&t.grad[b]);
             for i in 0..3 {
                 for jj in if a == b { i..3 } else { 0..3 } {
-                    let mut val = lj2 * h[a][i] * h[b][jj] - c * h[b][i] * h[a][jj]
-                        + ks * gs[a][i] * gs[b][jj]
-                        + kb * (-4.0 / 3.0 * (fg[a][i] * h[b][jj] + h[a][i] * fg[b][jj])
-                            + 4.0 / 9.0 * s.i1 * h[a][i] * h[b][jj]
-                            + 2.0 / 3.0 * s.i1 * h[b][i] * h[a][jj]);
+                    let mut val = lj2 * h[a][i] * h[b][jj] - c * h[b][i] * h[a][jj];
+                    if STIFFENING {
+                        val += ks * gs[a][i] * gs[b][jj]
+                            + kb * (-4.0 / 3.0 * (fg[a][i] * h[b][jj] + h[a][i] * fg[b][jj])
+                                + 4.0 / 9.0 * s.i1 * h[a][i] * h[b][jj]
+                                + 2.0 / 3.0 * s.i1 * h[b][i] * h[a][jj]);
+                    }
                     if i == jj {
                         val += diag * gab;
                     }
