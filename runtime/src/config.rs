@@ -38,6 +38,17 @@ pub struct RuntimeConfig {
     /// 1 / load_increment increments (0.25: four, as the fitter's default solve). The linear
     /// model (`warp` off) takes one increment (its answer does not depend on the path).
     pub load_increment: f32,
+    /// Incremental loading exists to keep each linearised solve's rotation change small (the
+    /// rotations are frozen during a solve). When the load rule above would split a load change
+    /// and a load is already applied, the split is sized by the rotation change predicted
+    /// instead: the rotations in force scale with the applied load (linear response), so a change
+    /// of ‖∆f‖ turns elements by about θ_max ‖∆f‖ / ‖f_app‖ (θ_max the largest element rotation,
+    /// [`crate::Runtime::largest_rotation`]), and the change takes ⌈that / rotation_increment⌉
+    /// increments — never more than the load rule's. A probe whose lumped load jumps as a node
+    /// crosses its rim (the load redistributed, a large vector change at small strain) then takes
+    /// one increment instead of two; a step from rest (nothing applied: nothing to scale) keeps
+    /// the load rule's. Radians; 0 turns the rotation rule off.
+    pub rotation_increment: f32,
     /// Increments one tick may take (≥ 1). They share the tick's PCG budget (`max_iterations`):
     /// a tick stops incrementing when either runs out and reports how far the applied load got
     /// ([`crate::TickReport::load_remaining`]); the next tick goes on from there.
@@ -86,6 +97,7 @@ impl Default for RuntimeConfig {
             max_iterations: 200,
             load_step: f32::INFINITY,
             load_increment: 0.25,
+            rotation_increment: 0.05,
             max_load_increments: 8,
             line_search: true,
             probe_step: f32::INFINITY,

@@ -394,6 +394,12 @@ impl<'a> Runtime<'a> {
         }
         Some(self.elements.element_rot(e))
     }
+    /// The largest element rotation in force (rad): how far the warped model is from its
+    /// linear regime, and what the load-increment rule scales
+    /// ([`RuntimeConfig::rotation_increment`]).
+    pub fn largest_rotation(&self) -> f32 {
+        self.elements.largest_rotation()
+    }
     /// Gmsh tag of a node (or its index + 1 if the model carries no tags).
     pub fn node_tag(&self, i: usize) -> u32 {
         self.record.node_tags.get(i).unwrap_or(i as u32 + 1)

@@ -6,7 +6,10 @@
 //! the contact set is updated), steps 1–5 run once per load increment:
 //! 1. the applied load f_k moves toward the commanded load by one increment ∆f, chosen from the
 //!    load change ([`crate::RuntimeConfig::load_increment`]): one increment for the small changes
-//!    of a sliding or pressing probe, several for a step; the increments share the tick's PCG
+//!    of a sliding or pressing probe, several for a step — sized, once a load is applied, by the
+//!    rotation change the load change is predicted to cause
+//!    ([`crate::RuntimeConfig::rotation_increment`]), so a load redistributed at small strain (a
+//!    node crossing a lumped probe's rim) is one increment; the increments share the tick's PCG
 //!    budget, and a tick that runs out of budget or increments
 //!    ([`crate::RuntimeConfig::max_load_increments`]) stops with the load partly applied and says
 //!    so ([`TickReport::load_remaining`]);
@@ -232,6 +235,23 @@ impl Runtime<'_> {
         t
     }
 
+    /// Increments a load change of `gap` newtons needs by the rotation change it is predicted to
+    /// cause, θ_max · gap / ‖f_app‖ over [`crate::RuntimeConfig::rotation_increment`] (see there);
+    /// infinite when nothing is applied yet or the rule is off (the load rule decides).
+    fn rotation_increments(&self, gap: f32) -> f32 {
+        let applied = norm(self.nodes.f_app);
+        let step = self.config.rotation_increment;
+        if !(applied > 0.0 && step > 0.0) {
+            return f32::INFINITY;
+        }
+        let predicted = self.elements.largest_rotation() * gap / applied;
+        if predicted.is_finite() {
+            libm::ceilf(predicted / step).max(1.0)
+        } else {
+            f32::INFINITY
+        }
+    }
+
     /// Runs one tick. Never allocates; never panics on any state.
     pub fn tick(&mut self) -> TickReport {
         self.nodes.u_good.copy_from_slice(self.nodes.u);
@@ -263,7 +283,12 @@ impl Runtime<'_> {
                     self.config.load_increment * self.nodes.f_cmd_norm.max(norm(self.nodes.f_app));
                 let left = max_increments.saturating_sub(increments).max(1) as f32;
                 let n = if warped && reach > 0.0 && reach.is_finite() {
-                    libm::ceilf(gap / reach).clamp(1.0, left)
+                    let by_load = libm::ceilf(gap / reach);
+                    if by_load > 1.0 {
+                        by_load.min(self.rotation_increments(gap)).clamp(1.0, left)
+                    } else {
+                        1.0
+                    }
                 } else {
                     1.0
                 };

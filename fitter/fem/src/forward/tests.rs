@@ -438,6 +438,94 @@ fn runtime_agrees_with_the_f64_solve_at_large_loads() {
     }
 }
 
+/// The runtime's rotation rule for load increments (`RuntimeConfig::rotation_increment`): a load
+/// raised by half takes one increment where the cantilever barely rotates (0.01 N) and the load
+/// rule's two where it is bent (0.5 N, a third of its length), and one increment reaches the same
+/// settled answer as two (f32, PCG to 1e-6).
+#[test]
+fn load_increments_follow_the_predicted_rotation() {
+    use crate::export::{BlendData, ModelBuffers, ProvenanceInfo};
+    use crate::runtime_storage::Storage;
+    use palpate_runtime::{Runtime, RuntimeConfig};
+    let mat = Material::from_young_poisson(1e6, 0.3);
+    for (load, rotates) in [(0.01, false), (0.5, true)] {
+        let (p, _, tip, m) = cantilever(load);
+        let prov = ProvenanceInfo {
+            tool: "test".into(),
+            source: "cantilever".into(),
+            notes: String::new(),
+        };
+        let buf = ModelBuffers::new(
+            &p,
+            &m.node_tags,
+            std::slice::from_ref(&mat),
+            &BlendData::None,
+            &prov,
+        )
+        .unwrap();
+        let push = |rt: &mut Runtime<'_>, total: f64| {
+            for &i in &tip {
+                rt.add_nodal_force(i, [0.0, 0.0, -(total / tip.len() as f64) as f32])
+                    .unwrap();
+            }
+        };
+        let settle = |rt: &mut Runtime<'_>| {
+            for _ in 0..400 {
+                let r = rt.tick();
+                let size = rt
+                    .displacements()
+                    .iter()
+                    .fold(0.0f32, |a, v| a.max(v.abs()));
+                if r.load_remaining == 0.0 && r.step < 1e-5 * size {
+                    return;
+                }
+            }
+            panic!("{load} N: did not settle");
+        };
+        // (first tick's increments after the raise, settled displacements, θ_max before it)
+        let mut runs = Vec::new();
+        for rotation_increment in [RuntimeConfig::default().rotation_increment, 0.0] {
+            let cfg = RuntimeConfig {
+                tolerance: 1e-6,
+                max_iterations: 5000,
+                rotation_iterations: 4,
+                rotation_increment,
+                ..Default::default()
+            };
+            let mut st = Storage::for_model(&buf.record(), &cfg);
+            let mut rt = st.runtime(buf.record(), cfg).unwrap();
+            push(&mut rt, load);
+            settle(&mut rt);
+            let theta = rt.largest_rotation();
+            push(&mut rt, 0.5 * load);
+            let first = rt.tick().increments;
+            settle(&mut rt);
+            runs.push((first, rt.displacements().to_vec(), theta));
+        }
+        let (with_rule, off) = (&runs[0], &runs[1]);
+        assert_eq!(
+            off.0, 2,
+            "{load} N: the load rule splits a raise by half in two"
+        );
+        let expected = if rotates { 2 } else { 1 };
+        assert_eq!(
+            with_rule.0, expected,
+            "{load} N: θ_max {} rad before the raise",
+            with_rule.2
+        );
+        let scale = off.1.iter().fold(0.0f32, |a, v| a.max(v.abs()));
+        let diff = with_rule
+            .1
+            .iter()
+            .zip(&off.1)
+            .fold(0.0f32, |a, (x, y)| a.max((x - y).abs()));
+        assert!(
+            diff < 1e-4 * scale,
+            "{load} N: settled answers differ by {diff} m of {scale} m"
+        );
+    }
+}
+
 /// K_e w through the strain (`stiffness_times`) against the formed 12 × 12 product λ_e C_e w +
 /// α_e D_e w, on every element of a block with per-element coefficients and arbitrary nodal
 /// vectors: the same matrix, so agreement to round-off.
