@@ -248,6 +248,24 @@ fn cantilever(load: f64) -> (StaticProblem, Vec<f64>, Vec<usize>, Mesh) {
     (p, f, tip, m)
 }
 
+/// The cantilever's runtime model (linear material, no blend).
+fn cantilever_buffers(p: &StaticProblem, m: &Mesh, mat: &Material) -> crate::export::ModelBuffers {
+    use crate::export::{BlendData, ModelBuffers, ProvenanceInfo};
+    let prov = ProvenanceInfo {
+        tool: "test".into(),
+        source: "cantilever".into(),
+        notes: String::new(),
+    };
+    ModelBuffers::new(
+        p,
+        &m.node_tags,
+        std::slice::from_ref(mat),
+        &BlendData::None,
+        &prov,
+    )
+    .unwrap()
+}
+
 /// The load at which the lagged-rotation fixed point stopped converging (twice the 0.25 N of the
 /// runtime evidence, four times) converges with the energy line search, to the same answer for 10
 /// and 40 increments, and that answer is an equilibrium. Before the line search, 0.5 N cycled with
@@ -330,7 +348,6 @@ fn warped_solve_converges_at_twice_and_four_times_the_load() {
 /// incremental loading is closer to the answer than one step.
 #[test]
 fn runtime_agrees_with_the_f64_solve_at_large_loads() {
-    use crate::export::{BlendData, ModelBuffers, ProvenanceInfo};
     use crate::runtime_storage::Storage;
     use palpate_runtime::{RuntimeConfig, SolveStatus};
     let mat = Material::from_young_poisson(1e6, 0.3);
@@ -347,19 +364,7 @@ fn runtime_agrees_with_the_f64_solve_at_large_loads() {
         let ref_tip =
             |k: usize| tip.iter().map(|&i| reference.x[i][k]).sum::<f64>() / tip.len() as f64;
         let deflection = 0.005 - ref_tip(2);
-        let prov = ProvenanceInfo {
-            tool: "test".into(),
-            source: "cantilever".into(),
-            notes: String::new(),
-        };
-        let buf = ModelBuffers::new(
-            &p,
-            &m.node_tags,
-            std::slice::from_ref(&mat),
-            &BlendData::None,
-            &prov,
-        )
-        .unwrap();
+        let buf = cantilever_buffers(&p, &m, &mat);
         // (line search, load increment): the defaults, one step without the line search.
         let mut results = Vec::new();
         for (line_search, load_increment) in
@@ -444,25 +449,12 @@ fn runtime_agrees_with_the_f64_solve_at_large_loads() {
 /// settled answer as two (f32, PCG to 1e-6).
 #[test]
 fn load_increments_follow_the_predicted_rotation() {
-    use crate::export::{BlendData, ModelBuffers, ProvenanceInfo};
     use crate::runtime_storage::Storage;
     use palpate_runtime::{Runtime, RuntimeConfig};
     let mat = Material::from_young_poisson(1e6, 0.3);
     for (load, rotates) in [(0.01, false), (0.5, true)] {
         let (p, _, tip, m) = cantilever(load);
-        let prov = ProvenanceInfo {
-            tool: "test".into(),
-            source: "cantilever".into(),
-            notes: String::new(),
-        };
-        let buf = ModelBuffers::new(
-            &p,
-            &m.node_tags,
-            std::slice::from_ref(&mat),
-            &BlendData::None,
-            &prov,
-        )
-        .unwrap();
+        let buf = cantilever_buffers(&p, &m, &mat);
         let push = |rt: &mut Runtime<'_>, total: f64| {
             for &i in &tip {
                 rt.add_nodal_force(i, [0.0, 0.0, -(total / tip.len() as f64) as f32])
