@@ -2,6 +2,7 @@
 //! free pattern, and the parameter derivatives ∂F/∂q of the step residual's force terms.
 
 use super::elastic::ElasticState;
+use super::force_lanes;
 use super::hyperelastic::{self as he, FParts};
 use super::model::{Material, Model, ParamKind, MATERIAL_KINDS};
 use super::spline::{Response, SplineMaterial};
@@ -162,6 +163,9 @@ fn assemble_into(
     mut kvals: Option<&mut [f64]>,
     mut dvals: Option<&mut [f64]>,
 ) -> Result<(), MotionError> {
+    if let (None, None, None, Some(f)) = (&kvals, &dvals, &mat.spline, f.as_deref_mut()) {
+        return forces_in_lanes(model, mat, x, v, range, f);
+    }
     for e in range {
         let tet = &model.tets[e];
         let t = &model.rest[e];
@@ -196,11 +200,41 @@ fn assemble_into(
         }
         let mut fe = [0.0; 12];
         he::add_stress_forces(t, &p, 1.0, &mut fe);
-        for a in 0..4 {
-            for i in 0..3 {
-                f[3 * tet[a] + i] += fe[3 * a + i];
-            }
+        scatter(f, tet, &fe);
+    }
+    Ok(())
+}
+
+/// Adds an element's forces into the full force vector.
+fn scatter(f: &mut [f64], tet: &[usize; 4], fe: &[f64; 12]) {
+    for a in 0..4 {
+        for i in 0..3 {
+            f[3 * tet[a] + i] += fe[3 * a + i];
         }
+    }
+}
+
+/// [`assemble_into`]'s forces-only pass (a Newton iteration with a kept factor, a line search)
+/// for Neo-Hookean materials: four elements at a time ([`force_lanes`]), the remainder one by one,
+/// added in element order — the same forces to the last bit as the element-by-element loop.
+fn forces_in_lanes(
+    model: &Model,
+    mat: &Material,
+    x: &[f64],
+    v: &[f64],
+    range: std::ops::Range<usize>,
+    f: &mut [f64],
+) -> Result<(), MotionError> {
+    let mut e = range.start;
+    while e + force_lanes::LANES <= range.end {
+        let fe = force_lanes::element_forces(model, mat, [e, e + 1, e + 2, e + 3], x, v)?;
+        for (l, fe) in fe.iter().enumerate() {
+            scatter(f, &model.tets[e + l], fe);
+        }
+        e += force_lanes::LANES;
+    }
+    for e in e..range.end {
+        scatter(f, &model.tets[e], &element_internal(model, mat, e, x, v)?);
     }
     Ok(())
 }

@@ -19,6 +19,7 @@ pub mod dataset;
 pub mod elastic;
 pub mod export;
 pub mod fitted;
+mod force_lanes;
 pub mod forces;
 pub mod gradient;
 pub mod hyperelastic;

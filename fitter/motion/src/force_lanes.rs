@@ -1,0 +1,295 @@
+//! Internal forces (eqs. 16–17) of four Neo-Hookean elements at once, structure of arrays: the
+//! force pass of a Newton iteration with a kept factor, the most frequent element pass of a
+//! motion simulation (three or more per step against one tangent pass), in 256-bit lanes.
+//!
+//! The arithmetic is that of the scalar path ([`super::hyperelastic::FParts::new`],
+//! [`super::hyperelastic::pk1`], [`super::viscosity::Rate::new`], [`super::viscosity::stress`],
+//! [`super::hyperelastic::add_stress_forces`]) term by term in nalgebra's order, so the forces
+//! are the same to the last bit (Rust does not contract a·b + c into fused multiply-adds); a test
+//! holds the two paths to it. Spline materials keep the scalar path.
+
+use super::hyperelastic::RestTet;
+use super::model::{Material, Model, ParamKind};
+use super::MotionError;
+
+/// Elements per lane group (four f64: one AVX2 register).
+pub(crate) const LANES: usize = 4;
+
+type L = [f64; LANES];
+
+/// 3 × 3 per lane, `m[i][j]` row i, column j.
+type M = [[L; 3]; 3];
+
+#[inline(always)]
+fn lanes(f: impl Fn(usize) -> f64) -> L {
+    [f(0), f(1), f(2), f(3)]
+}
+
+#[inline(always)]
+fn map2(a: &L, b: &L, f: impl Fn(f64, f64) -> f64) -> L {
+    lanes(|l| f(a[l], b[l]))
+}
+
+/// Σ_a y_a ∇φ_aᵀ (F of positions, Ḟ of velocities), summed a = 0..3 from zero as nalgebra's
+/// `f += x_a ∇φ_aᵀ` does.
+#[inline(always)]
+fn gradient(y: &[[L; 3]; 4], g: &[[L; 3]; 4]) -> M {
+    let mut m = [[[0.0; LANES]; 3]; 3];
+    for a in 0..4 {
+        for i in 0..3 {
+            for j in 0..3 {
+                m[i][j] = lanes(|l| m[i][j][l] + y[a][i][l] * g[a][j][l]);
+            }
+        }
+    }
+    m
+}
+
+/// nalgebra's `cross` of columns `p`, `q` (each `[L; 3]`).
+#[inline(always)]
+fn cross(p: &[L; 3], q: &[L; 3]) -> [L; 3] {
+    [
+        lanes(|l| p[1][l] * q[2][l] - p[2][l] * q[1][l]),
+        lanes(|l| p[2][l] * q[0][l] - p[0][l] * q[2][l]),
+        lanes(|l| p[0][l] * q[1][l] - p[1][l] * q[0][l]),
+    ]
+}
+
+/// nalgebra's `norm_squared` of a 3 × 3 matrix: column by column, each (a² + b²) + c².
+#[inline(always)]
+fn norm_squared(m: &M) -> L {
+    let mut s = [0.0; LANES];
+    for j in 0..3 {
+        s = lanes(|l| {
+            s[l] + (m[0][j][l] * m[0][j][l] + m[1][j][l] * m[1][j][l] + m[2][j][l] * m[2][j][l])
+        });
+    }
+    s
+}
+
+/// Forces of the Neo-Hookean elements `es` (full dofs, element-major 12 per lane), or the
+/// lowest-indexed inverted element's error, as [`super::forces::element_internal`] gives them.
+pub(crate) fn element_forces(
+    model: &Model,
+    mat: &Material,
+    es: [usize; LANES],
+    x: &[f64],
+    v: &[f64],
+) -> Result<[[f64; 12]; LANES], MotionError> {
+    let rest: [&RestTet; LANES] = es.map(|e| &model.rest[e]);
+    let tets = es.map(|e| model.tets[e]);
+    let node = |y: &[f64]| -> [[L; 3]; 4] {
+        std::array::from_fn(|a| std::array::from_fn(|i| lanes(|l| y[3 * tets[l][a] + i])))
+    };
+    let g: [[L; 3]; 4] =
+        std::array::from_fn(|a| std::array::from_fn(|j| lanes(|l| rest[l].grad[a][j])));
+    let param = |k: ParamKind| lanes(|l| mat.get(k, es[l]));
+    let (lambda, mu, stiffening) = (
+        param(ParamKind::Lambda),
+        param(ParamKind::Mu),
+        param(ParamKind::Stiffening),
+    );
+    let (nu, h) = (param(ParamKind::Nu), param(ParamKind::PowerH));
+
+    // FParts::new: F⁻ᵀ = cof(F)/J, the cofactor's columns the cross products of F's columns.
+    let f = gradient(&node(x), &g);
+    let col = |m: &M, j: usize| -> [L; 3] { [m[0][j], m[1][j], m[2][j]] };
+    let (c0, c1, c2) = (col(&f, 0), col(&f, 1), col(&f, 2));
+    let cof_cols = [cross(&c1, &c2), cross(&c2, &c0), cross(&c0, &c1)];
+    let j = lanes(|l| {
+        c0[0][l] * cof_cols[0][0][l] + c0[1][l] * cof_cols[0][1][l] + c0[2][l] * cof_cols[0][2][l]
+    });
+    let f_inv_t: M =
+        std::array::from_fn(|r| std::array::from_fn(|c| lanes(|l| cof_cols[c][r][l] / j[l])));
+    for l in 0..LANES {
+        let finite = f_inv_t.iter().flatten().all(|z| z[l].is_finite());
+        if j[l].is_nan() || j[l] <= 0.0 || !finite {
+            return Err(MotionError::Inverted { element: es[l] });
+        }
+    }
+    let i1 = norm_squared(&f);
+
+    // pk1: F⁻ᵀ · (½ λ (J² − 1)) + (F − F⁻ᵀ) · μ.
+    let vol_coef = lanes(|l| 0.5 * lambda[l] * (j[l] * j[l] - 1.0));
+    let mut p: M = std::array::from_fn(|r| {
+        std::array::from_fn(|c| {
+            lanes(|l| f_inv_t[r][c][l] * vol_coef[l] + (f[r][c][l] - f_inv_t[r][c][l]) * mu[l])
+        })
+    });
+    for l in 0..LANES {
+        if stiffening[l] != 0.0 {
+            add_stiffening(&mut p, l, &f, &f_inv_t, j[l], i1[l], stiffening[l]);
+        }
+    }
+
+    // The power-law viscous stress (Rate::new, stress): skipped where ‖Ḟ‖ or γ̇ vanish.
+    let ld = gradient(&node(v), &g);
+    let l_norm = norm_squared(&ld).map(f64::sqrt);
+    let e: M =
+        std::array::from_fn(|r| std::array::from_fn(|c| map2(&ld[r][c], &ld[c][r], |a, b| a + b)));
+    let gamma = norm_squared(&e).map(|s| 0.5f64.sqrt() * s.sqrt());
+    for l in 0..LANES {
+        if l_norm[l] <= f64::MIN_POSITIVE || gamma[l] <= f64::MIN_POSITIVE {
+            continue;
+        }
+        let power = if h[l] == 1.0 {
+            1.0
+        } else {
+            gamma[l].powf(h[l] - 1.0)
+        };
+        let s = nu[l] * power;
+        for r in 0..3 {
+            for c in 0..3 {
+                p[r][c][l] += e[r][c][l] * s;
+            }
+        }
+    }
+
+    // add_stress_forces: f_a = (P ∇φ_a) · (−V), P ∇φ_a as nalgebra's product sums it.
+    let minus_v = lanes(|l| -rest[l].volume * 1.0);
+    let mut out = [[0.0; 12]; LANES];
+    for a in 0..4 {
+        for i in 0..3 {
+            let pg = lanes(|l| {
+                p[i][0][l] * g[a][0][l] + p[i][1][l] * g[a][1][l] + p[i][2][l] * g[a][2][l]
+            });
+            for l in 0..LANES {
+                out[l][3 * a + i] = pg[l] * minus_v[l];
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// P of lane `l` += 2c (Ī₁ − 3) ∂Ī₁/∂F, ∂Ī₁/∂F = J^(−2/3) (2F − ⅔ I₁ F⁻ᵀ), as
+/// [`super::hyperelastic::pk1`] adds it (only for a lane whose c is not zero).
+fn add_stiffening(p: &mut M, l: usize, f: &M, f_inv_t: &M, j: f64, i1: f64, c: f64) {
+    let cb = j.cbrt();
+    let j23 = 1.0 / (cb * cb);
+    let bar = j23 * i1 - 3.0;
+    let k = 2.0 * c * bar;
+    for r in 0..3 {
+        for q in 0..3 {
+            let dbar = (f[r][q][l] * 2.0 - f_inv_t[r][q][l] * (2.0 / 3.0 * i1)) * j23;
+            p[r][q][l] += dbar * k;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::forces::{assemble, element_internal};
+    use super::super::scenario::{bar_model, Gauss};
+    use super::*;
+
+    /// A 144-element bar, deformed and moving at random (no element inverted), with per-element
+    /// λ, μ, ν, h and a stiffening term on every third element, some elements at rest: the lanes'
+    /// forces equal the element-by-element ones to the last bit, one by one and assembled.
+    #[test]
+    fn lane_forces_are_the_element_forces_to_the_last_bit() {
+        let (mesh, model) = bar_model(
+            [0.02, 0.1, 0.02],
+            [2, 6, 2],
+            1.0 / 180.0,
+            1,
+            &|_| [0.0; 3],
+            &[],
+        )
+        .unwrap();
+        let ne = model.tets.len();
+        let mut mat = Material::uniform(ne, 3e5, 2e4, 15.0, 0.8, 1100.0);
+        for e in 0..ne {
+            let s = 1.0 + 0.01 * e as f64;
+            mat.values[ParamKind::Lambda as usize][e] *= s;
+            mat.values[ParamKind::Mu as usize][e] /= s;
+            mat.values[ParamKind::Nu as usize][e] *= s;
+            mat.values[ParamKind::PowerH as usize][e] = if e % 2 == 0 { 1.0 } else { 0.8 };
+            mat.values[ParamKind::Stiffening as usize][e] = if e % 3 == 0 { 4e4 } else { 0.0 };
+        }
+        let mut rng = Gauss::new(7);
+        let x: Vec<f64> = mesh
+            .nodes
+            .iter()
+            .flatten()
+            .map(|&p| p + 5e-4 * rng.next())
+            .collect();
+        // Nodes with y < 2 cm at rest: the elements there have no viscous stress.
+        let v: Vec<f64> = mesh
+            .nodes
+            .iter()
+            .flat_map(|p| {
+                let moving = p[1] >= 0.02;
+                [0; 3].map(|_| if moving { 0.05 * rng.next() } else { 0.0 })
+            })
+            .collect();
+        let mut reference = vec![0.0; x.len()];
+        let mut at_rest = 0;
+        for e in 0..ne {
+            let fe = element_internal(&model, &mat, e, &x, &v).unwrap();
+            for a in 0..4 {
+                for i in 0..3 {
+                    reference[3 * model.tets[e][a] + i] += fe[3 * a + i];
+                }
+            }
+            if model.tets[e].iter().all(|&n| mesh.nodes[n][1] < 0.02) {
+                at_rest += 1;
+            }
+            if e % LANES == 0 && e + LANES <= ne {
+                let lanes = element_forces(&model, &mat, [e, e + 1, e + 2, e + 3], &x, &v).unwrap();
+                for (l, got) in lanes.iter().enumerate() {
+                    let want = element_internal(&model, &mat, e + l, &x, &v).unwrap();
+                    assert_eq!(got, &want, "element {}", e + l);
+                }
+            }
+        }
+        assert!(
+            at_rest > 0 && at_rest < ne,
+            "{at_rest} of {ne} elements at rest"
+        );
+        let mut f = vec![0.0; x.len()];
+        assemble(&model, &mat, &x, &v, &mut f, None, None).unwrap();
+        assert!(f
+            .iter()
+            .zip(&reference)
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
+
+    /// An inverted element is named as the element-by-element pass names it: the lowest index.
+    #[test]
+    fn lanes_name_the_first_inverted_element() {
+        let (mesh, model) = bar_model(
+            [0.02, 0.1, 0.02],
+            [2, 6, 2],
+            1.0 / 180.0,
+            1,
+            &|_| [0.0; 3],
+            &[],
+        )
+        .unwrap();
+        let mat = Material::uniform(model.tets.len(), 3e5, 2e4, 15.0, 1.0, 1100.0);
+        let mut x: Vec<f64> = mesh.nodes.iter().flatten().copied().collect();
+        let v = vec![0.0; x.len()];
+        // Push the last node of element 6 through its opposite face (inverts 6 and others).
+        let n = model.tets[6][3];
+        let centroid: Vec<f64> = (0..3)
+            .map(|i| {
+                model.tets[6][..3]
+                    .iter()
+                    .map(|&m| x[3 * m + i])
+                    .sum::<f64>()
+                    / 3.0
+            })
+            .collect();
+        for i in 0..3 {
+            x[3 * n + i] = 2.0 * centroid[i] - x[3 * n + i];
+        }
+        let first = (0..model.tets.len())
+            .find(|&e| element_internal(&model, &mat, e, &x, &v).is_err())
+            .unwrap();
+        let mut f = vec![0.0; x.len()];
+        match assemble(&model, &mat, &x, &v, &mut f, None, None) {
+            Err(MotionError::Inverted { element }) => assert_eq!(element, first),
+            other => panic!("expected element {first} inverted, got {other:?}"),
+        }
+    }
+}
