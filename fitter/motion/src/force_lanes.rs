@@ -181,13 +181,11 @@ mod tests {
     use super::super::forces::{assemble, element_internal};
     use super::super::scenario::{bar_model, Gauss};
     use super::*;
+    use palpate_fem::mesh::Mesh;
 
-    /// A 144-element bar, deformed and moving at random (no element inverted), with per-element
-    /// λ, μ, ν, h and a stiffening term on every third element, some elements at rest: the lanes'
-    /// forces equal the element-by-element ones to the last bit, one by one and assembled.
-    #[test]
-    fn lane_forces_are_the_element_forces_to_the_last_bit() {
-        let (mesh, model) = bar_model(
+    /// A 2 × 10 × 2 cm bar in 144 elements, at rest.
+    fn bar() -> (Mesh, Model) {
+        bar_model(
             [0.02, 0.1, 0.02],
             [2, 6, 2],
             1.0 / 180.0,
@@ -195,7 +193,15 @@ mod tests {
             &|_| [0.0; 3],
             &[],
         )
-        .unwrap();
+        .unwrap()
+    }
+
+    /// A 144-element bar, deformed and moving at random (no element inverted), with per-element
+    /// λ, μ, ν, h and a stiffening term on every third element, some elements at rest: the lanes'
+    /// forces equal the element-by-element ones to the last bit, one by one and assembled.
+    #[test]
+    fn lane_forces_are_the_element_forces_to_the_last_bit() {
+        let (mesh, model) = bar();
         let ne = model.tets.len();
         let mut mat = Material::uniform(ne, 3e5, 2e4, 15.0, 0.8, 1100.0);
         for e in 0..ne {
@@ -257,15 +263,7 @@ mod tests {
     /// An inverted element is named as the element-by-element pass names it: the lowest index.
     #[test]
     fn lanes_name_the_first_inverted_element() {
-        let (mesh, model) = bar_model(
-            [0.02, 0.1, 0.02],
-            [2, 6, 2],
-            1.0 / 180.0,
-            1,
-            &|_| [0.0; 3],
-            &[],
-        )
-        .unwrap();
+        let (mesh, model) = bar();
         let mat = Material::uniform(model.tets.len(), 3e5, 2e4, 15.0, 1.0, 1100.0);
         let mut x: Vec<f64> = mesh.nodes.iter().flatten().copied().collect();
         let v = vec![0.0; x.len()];
