@@ -146,7 +146,7 @@ pub(crate) fn element_forces(
     }
 
     // add_stress_forces: f_a = (P ∇φ_a) · (−V), P ∇φ_a as nalgebra's product sums it.
-    let minus_v = lanes(|l| -rest[l].volume * 1.0);
+    let minus_v = lanes(|l| -rest[l].volume);
     let mut out = [[0.0; 12]; LANES];
     for a in 0..4 {
         for i in 0..3 {
