@@ -62,8 +62,17 @@ pub struct RuntimeConfig {
     pub probe_step: f32,
     /// Stiffness warping on (eqs. 3.53–3.54) or off (R_e = I, the linear model).
     pub warp: bool,
-    /// Iterations of the warm-started rotation extraction per tick.
+    /// Iterations of the warm-started rotation extraction per tick (at most).
     pub rotation_iterations: u32,
+    /// The rotation extraction of an element stops early once a step turns its rotation by less
+    /// than this multiple of `tolerance` (rad): a rotation off by δθ changes the element's force
+    /// by about δθ of itself, so a rotation within the PCG's relative tolerance of the polar one
+    /// leaves a residual the solve cannot see. Away from the probe an element turns by far less
+    /// than that per tick, so one step leaves its rotation within the tolerance of the polar
+    /// one, and the second of `rotation_iterations` would move it by less than that step did
+    /// (test `the_rotation_tolerance_stops_only_converged_lanes`); the elements the load turns
+    /// keep iterating. 0 runs every iteration.
+    pub rotation_tolerance: f32,
     /// Element kernel.
     pub kernel: Kernel,
     /// Preconditioner.
@@ -103,6 +112,7 @@ impl Default for RuntimeConfig {
             probe_step: f32::INFINITY,
             warp: true,
             rotation_iterations: 2,
+            rotation_tolerance: 1.0,
             kernel: Kernel::Gradient,
             preconditioner: Preconditioner::BlockJacobi,
             blend_every: 1,

@@ -327,11 +327,18 @@ impl<'a> ElementState<'a> {
     }
 
     /// R_e from the displacements `u` (eqs. 3.55–3.58, `iters` warm-started iterations) when
-    /// `warp`, and, for strain blending, ε_e (eq. 6.8) — also without warping (R_e = I), where
+    /// `warp` (each element's extraction stopping early at `tolerance`, see
+    /// [`crate::RuntimeConfig::rotation_tolerance`]), and, for strain blending, ε_e (eq. 6.8) — also without warping (R_e = I), where
     /// ε_e is the linear strain sym(H). Runs LANES elements at a time (SIMD). Returns an upper
     /// bound of how far (rad) any rotation moved.
     #[inline(never)]
-    pub(crate) fn update_rotations(&mut self, u: &[f32], warp: bool, iters: usize) -> f32 {
+    pub(crate) fn update_rotations(
+        &mut self,
+        u: &[f32],
+        warp: bool,
+        iters: usize,
+        tolerance: f32,
+    ) -> f32 {
         let mut moved = 0.0f32;
         let want_strain = !self.strain.is_empty();
         if !warp && !want_strain {
@@ -350,7 +357,9 @@ impl<'a> ElementState<'a> {
             let mut r = block::<9>(self.rot, b);
             if warp {
                 let mut q = block::<4>(self.quat, b);
-                moved = moved.max(warp_rotation_fast_lanes(&f, &mut q, iters, &mut r));
+                moved = moved.max(warp_rotation_fast_lanes(
+                    &f, &mut q, iters, tolerance, &mut r,
+                ));
                 store_block(self.quat, b, &q);
                 store_block(self.rot, b, &r);
                 store_block(self.ghat, b, &rotate_gradients_lanes(&g, &r));

@@ -152,17 +152,27 @@ pub fn warp_rotation_iterative<T: RealField + Copy>(
 /// The runtime's f32 fast path of [`warp_rotation_iterative`]: plain arrays, and each step's
 /// rotation exp(ω) replaced by the normalised first-order quaternion (1, ω/2), which needs no
 /// trigonometry. The fixed point is the same (ω = 0 there), every iterate is a unit quaternion
-/// (a proper rotation), and warm-started from the previous tick one step suffices. `q` is
-/// (w, x, y, z); `r` receives R row-major.
+/// (a proper rotation), and warm-started from the previous tick one step suffices. At most
+/// `iterations` steps; a step that turns the rotation by less than `tolerance` (rad) is the last
+/// (the iteration has converged that far, and the next step would be smaller still: 0 runs every
+/// step). `q` is (w, x, y, z); `r` receives R row-major.
 #[inline(always)]
-pub fn warp_rotation_fast(f: &[f32; 9], q: &mut [f32; 4], iterations: usize, r: &mut [f32; 9]) {
+pub fn warp_rotation_fast(
+    f: &[f32; 9],
+    q: &mut [f32; 4],
+    iterations: usize,
+    tolerance: f32,
+    r: &mut [f32; 9],
+) {
     quat_to_matrix(q, r);
     if !f.iter().all(|v| v.is_finite()) {
         return;
     }
+    let last = converged_step2(tolerance);
     for _ in 0..iterations {
         let h = rotation_step(|k| r[k], |k| f[k]);
-        if h[0] * h[0] + h[1] * h[1] + h[2] * h[2] < 1e-14 {
+        let h2 = h[0] * h[0] + h[1] * h[1] + h[2] * h[2];
+        if h2 < 1e-14 {
             break;
         }
         // q ← normalise((1, h) ⊗ q)
@@ -175,7 +185,17 @@ pub fn warp_rotation_fast(f: &[f32; 9], q: &mut [f32; 4], iterations: usize, r: 
             q[k] = nq[k] / n;
         }
         quat_to_matrix(q, r);
+        if h2 < last {
+            break;
+        }
     }
+}
+
+/// |h|² of a step (1, h) that turns by less than `tolerance` rad (2|h|): the iteration's last.
+#[inline(always)]
+fn converged_step2(tolerance: f32) -> f32 {
+    let t = 0.5 * tolerance;
+    t * t
 }
 
 /// One step of the rotation update, shared by [`warp_rotation_fast`] and its lane version:
@@ -211,9 +231,10 @@ fn quat_step(q: [f32; 4], h: [f32; 3]) -> [f32; 4] {
 
 /// [`warp_rotation_fast`] for [`LANES`] elements at once (structure of arrays: `f[k][l]` is entry
 /// k of lane l's F), so the update compiles to SIMD. Lane by lane it takes the same steps: a lane
-/// whose F is not finite keeps its rotation, and a lane whose increment is below the scalar
+/// whose F is not finite keeps its rotation, a lane whose increment is below the scalar
 /// version's stopping threshold is left unchanged (the scalar loop stops there; later iterations
-/// would find the same increment again). Returns an upper bound of the angle (rad) by which any
+/// would find the same increment again), a lane whose step turned by less than `tolerance` takes
+/// no more, and the loop ends when no lane is left. Returns an upper bound of the angle (rad) by which any
 /// lane's rotation moved: each step (1, h) turns by 2 atan|h| ≤ 2 |h|₁.
 #[inline(always)]
 #[allow(clippy::needless_range_loop)]
@@ -221,6 +242,7 @@ pub fn warp_rotation_fast_lanes(
     f: &[[f32; LANES]; 9],
     q: &mut [[f32; LANES]; 4],
     iterations: usize,
+    tolerance: f32,
     r: &mut [[f32; LANES]; 9],
 ) -> f32 {
     let mut moved = [0.0f32; LANES];
@@ -231,10 +253,15 @@ pub fn warp_rotation_fast_lanes(
         }
     }
     quat_to_matrix_lanes(q, r);
+    let last = converged_step2(tolerance);
+    // Lanes still iterating: a lane stops where the scalar loop does, and the block when every
+    // lane has (a haptic tick's small motions: one step, not `iterations`).
+    let mut active = finite;
     for _ in 0..iterations {
         let mut nq = [[0.0f32; LANES]; 4];
         let mut n2 = [0.0f32; LANES];
         let mut take = [false; LANES];
+        let mut more = false;
         for l in 0..LANES {
             let h = rotation_step(|k| r[k][l], |k| f[k][l]);
             let ql = quat_step([q[0][l], q[1][l], q[2][l], q[3][l]], h);
@@ -245,7 +272,10 @@ pub fn warp_rotation_fast_lanes(
                 + nq[1][l] * nq[1][l]
                 + nq[2][l] * nq[2][l]
                 + nq[3][l] * nq[3][l];
-            take[l] = finite[l] && h[0] * h[0] + h[1] * h[1] + h[2] * h[2] >= 1e-14;
+            let h2 = h[0] * h[0] + h[1] * h[1] + h[2] * h[2];
+            take[l] = active[l] && h2 >= 1e-14;
+            active[l] = take[l] && h2 >= last;
+            more |= active[l];
             let angle = 2.0 * (h[0].abs() + h[1].abs() + h[2].abs());
             moved[l] += if take[l] { angle } else { 0.0 };
         }
@@ -258,6 +288,9 @@ pub fn warp_rotation_fast_lanes(
             }
         }
         quat_to_matrix_lanes(q, r);
+        if !more {
+            break;
+        }
     }
     moved.iter().fold(0.0f32, |m, &a| if a > m { a } else { m })
 }
@@ -411,7 +444,7 @@ mod tests {
             let f32m: [f32; 9] = core::array::from_fn(|k| f[(k / 3, k % 3)] as f32);
             let mut q = [1.0f32, 0.0, 0.0, 0.0];
             let mut r = [0.0f32; 9];
-            warp_rotation_fast(&f32m, &mut q, 200, &mut r);
+            warp_rotation_fast(&f32m, &mut q, 200, 0.0, &mut r);
             let rm = Matrix3::from_fn(|i, j| r[3 * i + j] as f64);
             assert!((rm.transpose() * rm - Matrix3::identity()).norm() < 1e-5);
             assert!((rm.determinant() - 1.0).abs() < 1e-5);
@@ -424,7 +457,7 @@ mod tests {
         let f = [1.0f32, 0.0, 0.0, 0.0, 0.8, 0.0, 0.0, 0.0, -0.3];
         let mut q = [1.0f32, 0.0, 0.0, 0.0];
         let mut r = [0.0f32; 9];
-        warp_rotation_fast(&f, &mut q, 100, &mut r);
+        warp_rotation_fast(&f, &mut q, 100, 0.0, &mut r);
         let rm = Matrix3::from_fn(|i, j| r[3 * i + j] as f64);
         assert!((rm.determinant() - 1.0).abs() < 1e-5);
     }
@@ -445,12 +478,12 @@ mod tests {
                 let mut q = [[0.0f32; LANES]; 4];
                 q[0] = [1.0; LANES];
                 let mut r = [[0.0f32; LANES]; 9];
-                warp_rotation_fast_lanes(&f, &mut q, iterations, &mut r);
+                warp_rotation_fast_lanes(&f, &mut q, iterations, 0.0, &mut r);
                 for l in 0..LANES {
                     let fl: [f32; 9] = core::array::from_fn(|k| f[k][l]);
                     let mut ql = [1.0f32, 0.0, 0.0, 0.0];
                     let mut rl = [0.0f32; 9];
-                    warp_rotation_fast(&fl, &mut ql, iterations, &mut rl);
+                    warp_rotation_fast(&fl, &mut ql, iterations, 0.0, &mut rl);
                     let lane = Matrix3::from_fn(|i, j| r[3 * i + j][l] as f64);
                     let scalar = Matrix3::from_fn(|i, j| rl[3 * i + j] as f64);
                     assert!(
@@ -474,6 +507,73 @@ mod tests {
                 ((y as f64) - exact).abs() < 2e-7 * exact,
                 "1/√{x}: {y} vs {exact}"
             );
+        }
+    }
+
+    /// The tolerance as a tick meets it: each element warm-started from the converged rotation of
+    /// its last state, then turned a little further (by 1e-6 to 0.3 rad) with a 5 % stretch. A
+    /// lane stops where the scalar loop stops. Where the turn is well above the tolerance
+    /// (1e-4 rad) the tick's two steps are taken, exactly as without one; where it is below, one
+    /// step is taken, which leaves the rotation within the tolerance of the polar one (the SVD's)
+    /// and differs from the second step's result by less than half the turn.
+    #[test]
+    fn the_rotation_tolerance_stops_only_converged_lanes() {
+        let tolerance = 1e-4;
+        let mut rnd = uniform(7u64);
+        let turns = [1e-6, 1e-5, 3e-5, 1e-4, 1e-3, 1e-2, 0.1, 0.3];
+        for case in 0..32 {
+            let before: [Matrix3<f64>; LANES] =
+                core::array::from_fn(|_| random_deformation(&mut rnd, 1.5, 0.05));
+            let after: [Matrix3<f64>; LANES] = core::array::from_fn(|l| {
+                let axis = Vector3::new(rnd(), rnd(), rnd()).normalize();
+                Rotation3::from_scaled_axis(axis * turns[l]).into_inner() * before[l]
+            });
+            let lanes = |m: &[Matrix3<f64>; LANES]| -> [[f32; LANES]; 9] {
+                core::array::from_fn(|k| core::array::from_fn(|l| m[l][(k / 3, k % 3)] as f32))
+            };
+            // Converged on the last state: the warm start a tick begins from.
+            let mut q0 = [[0.0f32; LANES]; 4];
+            q0[0] = [1.0; LANES];
+            let mut r = [[0.0f32; LANES]; 9];
+            warp_rotation_fast_lanes(&lanes(&before), &mut q0, 100, 0.0, &mut r);
+            let f = lanes(&after);
+            let (mut q, mut q_all) = (q0, q0);
+            let mut r_all = r;
+            warp_rotation_fast_lanes(&f, &mut q, 2, tolerance, &mut r);
+            warp_rotation_fast_lanes(&f, &mut q_all, 2, 0.0, &mut r_all);
+            for l in 0..LANES {
+                let fl: [f32; 9] = core::array::from_fn(|k| f[k][l]);
+                let mut ql: [f32; 4] = core::array::from_fn(|k| q0[k][l]);
+                let mut rl = [0.0f32; 9];
+                warp_rotation_fast(&fl, &mut ql, 2, tolerance, &mut rl);
+                let lane = Matrix3::from_fn(|i, j| r[3 * i + j][l] as f64);
+                let scalar = Matrix3::from_fn(|i, j| rl[3 * i + j] as f64);
+                assert!(
+                    (lane - scalar).norm() < 1e-6,
+                    "case {case} lane {l}: {lane} vs {scalar}"
+                );
+                let all = Matrix3::from_fn(|i, j| r_all[3 * i + j][l] as f64);
+                let turn = turns[l];
+                if turn >= 10.0 * tolerance as f64 {
+                    assert_eq!(lane, all, "case {case}: a turn of {turn} rad");
+                } else if turn <= tolerance as f64 {
+                    let polar = (lane - warp_rotation_svd(&after[l])).norm();
+                    assert!(
+                        polar < tolerance as f64,
+                        "case {case}: a turn of {turn} rad left {polar:e} from the polar rotation"
+                    );
+                    let second = (lane - all).norm();
+                    // One step, not two: the lane stopped.
+                    assert!(
+                        turn >= tolerance as f64 || turn < 1e-5 || second > 0.0,
+                        "case {case}: a turn of {turn} rad took the second step"
+                    );
+                    assert!(
+                        second < 0.5 * turn + 1e-6,
+                        "case {case}: a turn of {turn} rad, the second step would move {second:e}"
+                    );
+                }
+            }
         }
     }
 

@@ -338,9 +338,9 @@ impl<'a> Runtime<'a> {
         // After a jump the last increment predicts nothing.
         self.nodes.delta_prev.iter_mut().for_each(|v| *v = 0.0);
         // A jump to an arbitrary state needs more than the per-tick warm-started iterations.
-        self.precond.drift += self
-            .elements
-            .update_rotations(self.nodes.u, self.config.warp, 50);
+        self.precond.drift +=
+            self.elements
+                .update_rotations(self.nodes.u, self.config.warp, 50, 0.0);
         self.precond.drift += blend_parameters(&self.record, &self.nodes, &mut self.elements);
     }
 

@@ -168,7 +168,7 @@ impl LinearOperator for Stiffness<'_, '_> {
 
 /// One pass over the elements, LANES at a time (SIMD; padding elements contribute zero):
 /// r_full = f_app − f_int(u) with f_int(x) = Σ R_e K_e (R_eᵀ x_e − x₀_e); with
-/// `rotate = Some(iterations)` first R_e (and R∇φ) from the current state (eqs. 3.55–3.58), fused
+/// `rotate = Some((iterations, tolerance))` first R_e (and R∇φ) from the current state (eqs. 3.55–3.58), fused
 /// here so u and ∇φ are gathered once; with `diag` the 3 × 3 node blocks of K' (6 values per node,
 /// added to what it holds) for the preconditioner. Returns an upper bound of how far (rad) any
 /// rotation moved.
@@ -179,7 +179,7 @@ pub(crate) fn residual_pass(
     u: &[f32],
     f_app: &[f32],
     r_full: &mut [f32],
-    rotate: Option<usize>,
+    rotate: Option<(usize, f32)>,
     mut diag: Option<&mut [f32]>,
 ) -> f32 {
     let mut moved = 0.0f32;
@@ -189,7 +189,7 @@ pub(crate) fn residual_pass(
         let mut r = block::<9>(elements.rot, b);
         let (vol, lam, alp) = elements.block_material(b);
         let h = gradient_of_lanes(&v, &g);
-        if let Some(iters) = rotate {
+        if let Some((iters, tolerance)) = rotate {
             let mut f = h;
             for k in [0, 4, 8] {
                 for fl in f[k].iter_mut() {
@@ -197,7 +197,9 @@ pub(crate) fn residual_pass(
                 }
             }
             let mut q = block::<4>(elements.quat, b);
-            moved = moved.max(warp_rotation_fast_lanes(&f, &mut q, iters, &mut r));
+            moved = moved.max(warp_rotation_fast_lanes(
+                &f, &mut q, iters, tolerance, &mut r,
+            ));
             store_block(elements.quat, b, &q);
             store_block(elements.rot, b, &r);
             store_block(elements.ghat, b, &rotate_gradients_lanes(&g, &r));

@@ -13,7 +13,9 @@
 //!    budget, and a tick that runs out of budget or increments
 //!    ([`crate::RuntimeConfig::max_load_increments`]) stops with the load partly applied and says
 //!    so ([`TickReport::load_remaining`]);
-//! 2. R_e is recomputed from the current state x_k (eqs. 3.55–3.58, warm-started iteration);
+//! 2. R_e is recomputed from the current state x_k (eqs. 3.55–3.58, warm-started iteration;
+//!    an element whose step turns it by less than the PCG's tolerance stops there,
+//!    [`crate::RuntimeConfig::rotation_tolerance`]);
 //! 3. non-linear materials re-blend (λ_e, α_e) (eqs. 6.2–6.11);
 //! 4. the system K' x_{k+1} = f_{k+1} + K'' x₀ (eq. 3.52) is solved in increment form:
 //!    K' δ = f_{k+1} − f_int(x_k) with f_int(x) = Σ R_e K_e (R_eᵀ x_e − x₀_e), which is the same
@@ -89,7 +91,7 @@ pub struct TickReport {
 impl Runtime<'_> {
     /// r_full = f_app − f_int(u), with R_e first when `rotate` (fused), and the preconditioner's
     /// node blocks when they are due.
-    fn assemble(&mut self, rotate: Option<usize>) {
+    fn assemble(&mut self, rotate: Option<(usize, f32)>) {
         let diag = self.precond.due(self.config.precond_refresh_angle);
         if diag {
             self.precond.begin_assembly();
@@ -184,12 +186,13 @@ impl Runtime<'_> {
     /// the residual r_full = f_app − f_int(u) and the preconditioner when due.
     fn refresh(&mut self) {
         let iters = self.config.rotation_iterations as usize;
+        let tolerance = self.config.rotation_tolerance * self.config.tolerance;
         // `%` rather than `is_multiple_of`: the workspace's MSRV is 1.85.
         #[allow(clippy::manual_is_multiple_of)]
         let due = self.tick_count % self.config.blend_every.max(1) as u64 == 0;
         match (self.config.warp, &self.record.blend) {
             // Linear material: rotations and internal forces in one pass.
-            (true, Blend::None) => self.assemble(Some(iters)),
+            (true, Blend::None) => self.assemble(Some((iters, tolerance))),
             // Deformation-space blending reads the node positions only, so it goes first and
             // the rotations stay fused with the forces (one pass over the elements fewer than
             // rotations, blend, forces; the same rotations and parameters).
@@ -198,13 +201,16 @@ impl Runtime<'_> {
                     self.precond.drift +=
                         blend_parameters(&self.record, &self.nodes, &mut self.elements);
                 }
-                self.assemble(Some(iters));
+                self.assemble(Some((iters, tolerance)));
             }
             _ => {
                 // Strain-space blending needs every element's strain before any force.
-                self.precond.drift +=
-                    self.elements
-                        .update_rotations(self.nodes.u, self.config.warp, iters);
+                self.precond.drift += self.elements.update_rotations(
+                    self.nodes.u,
+                    self.config.warp,
+                    iters,
+                    tolerance,
+                );
                 if due {
                     self.precond.drift +=
                         blend_parameters(&self.record, &self.nodes, &mut self.elements);

@@ -48,6 +48,10 @@ pub struct Args {
     /// Warm-started rotation-extraction iterations per tick.
     #[arg(long, default_value_t = RuntimeConfig::default().rotation_iterations)]
     pub rotation_iterations: u32,
+    /// An element's rotation extraction stops once a step turns it by less than this multiple of
+    /// the PCG's tolerance (rad; 0: every iteration; `RuntimeConfig::rotation_tolerance`).
+    #[arg(long, default_value_t = RuntimeConfig::default().rotation_tolerance)]
+    pub rotation_tolerance: f32,
     /// PCG iterations allowed per tick (the tick's budget). A tick that exhausts it keeps its
     /// iterate, reports its residual, and the next tick continues from there.
     #[arg(long, default_value_t = 100)]
@@ -635,6 +639,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         preconditioner: Preconditioner::BlockJacobi,
         coarse_aggregates: args.aggregates,
         rotation_iterations: args.rotation_iterations,
+        rotation_tolerance: args.rotation_tolerance,
         precond_refresh_angle: args.precond_refresh_angle,
         contact_rule: args.rule.runtime(),
         line_search: !args.no_line_search,
