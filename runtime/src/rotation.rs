@@ -234,8 +234,8 @@ fn quat_step(q: [f32; 4], h: [f32; 3]) -> [f32; 4] {
 /// whose F is not finite keeps its rotation, a lane whose increment is below the scalar
 /// version's stopping threshold is left unchanged (the scalar loop stops there; later iterations
 /// would find the same increment again), a lane whose step turned by less than `tolerance` takes
-/// no more, and the loop ends when no lane is left. Returns an upper bound of the angle (rad) by which any
-/// lane's rotation moved: each step (1, h) turns by 2 atan|h| ≤ 2 |h|₁.
+/// no more, and the loop ends when no lane is left. Returns an upper bound of the angle (rad) by
+/// which any lane's rotation moved: each step (1, h) turns by 2 atan|h| ≤ 2 |h|₁.
 #[inline(always)]
 #[allow(clippy::needless_range_loop)]
 pub fn warp_rotation_fast_lanes(
