@@ -328,9 +328,9 @@ impl<'a> ElementState<'a> {
 
     /// R_e from the displacements `u` (eqs. 3.55–3.58, `iters` warm-started iterations) when
     /// `warp` (each element's extraction stopping early at `tolerance`, see
-    /// [`crate::RuntimeConfig::rotation_tolerance`]), and, for strain blending, ε_e (eq. 6.8) — also without warping (R_e = I), where
-    /// ε_e is the linear strain sym(H). Runs LANES elements at a time (SIMD). Returns an upper
-    /// bound of how far (rad) any rotation moved.
+    /// [`crate::RuntimeConfig::rotation_tolerance`]), and, for strain blending, ε_e (eq. 6.8) —
+    /// also without warping (R_e = I), where ε_e is the linear strain sym(H). Runs LANES elements
+    /// at a time (SIMD). Returns an upper bound of how far (rad) any rotation moved.
     #[inline(never)]
     pub(crate) fn update_rotations(
         &mut self,

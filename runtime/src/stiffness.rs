@@ -168,9 +168,10 @@ impl LinearOperator for Stiffness<'_, '_> {
 
 /// One pass over the elements, LANES at a time (SIMD; padding elements contribute zero):
 /// r_full = f_app − f_int(u) with f_int(x) = Σ R_e K_e (R_eᵀ x_e − x₀_e); with
-/// `rotate = Some((iterations, tolerance))` first R_e (and R∇φ) from the current state (eqs. 3.55–3.58), fused
-/// here so u and ∇φ are gathered once; with `diag` the 3 × 3 node blocks of K' (6 values per node,
-/// added to what it holds) for the preconditioner. Returns an upper bound of how far (rad) any
+/// `rotate = Some((iterations, tolerance))` first R_e (and R∇φ) from the current state
+/// (eqs. 3.55–3.58, [`crate::RuntimeConfig::rotation_tolerance`]), fused here so u and ∇φ are
+/// gathered once; with `diag` the 3 × 3 node blocks of K' (6 values per node, added to what it
+/// holds) for the preconditioner. Returns an upper bound of how far (rad) any
 /// rotation moved.
 #[inline(never)]
 pub(crate) fn residual_pass(
