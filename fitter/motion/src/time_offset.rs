@@ -180,20 +180,26 @@ impl Trajectory {
 }
 
 /// The offset of one run: every step within ±[`SCAN_FRAMES`] capture frames, each scored by the
-/// marker χ² of one simulation of `mat` run that much longer; while the best offset lies at the
-/// edge of the scan, the scan is doubled (one more, longer simulation) up to ±[`MAX_SCAN_FRAMES`].
-/// Returns the best offset and the χ² of every offset tried. The objective is a sum over a
-/// ring-down and has a minimum every period apart, hence a scan of the grid rather than a descent.
+/// marker χ² of a simulation of `mat` run that much longer; while the best offset lies at the
+/// edge of the scan, the scan is doubled up to ±[`MAX_SCAN_FRAMES`]. Returns the best offset and
+/// the χ² of every offset of the last scan. The objective is a sum over a ring-down and has a
+/// minimum every period apart, hence a scan of the grid rather than a descent, and the widening
+/// in stages: a nearer minimum is preferred to a lower one a period away.
+///
+/// One simulation, as long as the widest scan needs, serves every stage: a step's state depends
+/// only on the steps before it, so the first `steps + r` steps of the longest run are those of
+/// the run extended by r, to the bit (`the_longest_scan_serves_the_shorter_ones`); a widened scan
+/// used to cost one more, longer simulation per stage.
 pub fn scan(
     model: &Model,
     mat: &Material,
     obs: &Observations,
 ) -> Result<(i64, Vec<(i64, f64)>), MotionError> {
     let per_frame = model.substeps.max(1) as i64;
+    let traj = Trajectory::simulate(&shifted_model(model, -MAX_SCAN_FRAMES * per_frame)?, mat)?;
     let mut frames = SCAN_FRAMES;
     loop {
         let reach = frames * per_frame;
-        let traj = Trajectory::simulate(&shifted_model(model, -reach)?, mat)?;
         let tried: Vec<(i64, f64)> = (-reach..=reach)
             .filter_map(|r| traj.chi2(obs, r).map(|(c, _)| (r, c)))
             .collect();
@@ -213,6 +219,64 @@ mod tests {
     use super::*;
     use crate::model::{Material, Observations};
     use crate::scenario::{bar_model, nine_markers, two_sinusoids};
+
+    /// The prefix property [`scan`] rests on: the run extended by r steps is, step for step and
+    /// to the bit, the start of the run extended by more, so every offset within ±r scores the
+    /// same χ² on either; with a clamp that moves and a dead load that switches on mid-run.
+    #[test]
+    fn the_longest_scan_serves_the_shorter_ones() {
+        let size = [0.02, 0.06, 0.02];
+        let (_, mut model) = bar_model(
+            size,
+            [1, 3, 1],
+            0.01,
+            30,
+            &two_sinusoids,
+            &nine_markers(size),
+        )
+        .unwrap();
+        model.static_start = false;
+        let free_node = (0..model.nodes.len())
+            .find(|&a| model.free[3 * a] != usize::MAX)
+            .unwrap();
+        model.loads.push(crate::model::DeadLoad {
+            name: "weight".into(),
+            nodes: vec![free_node],
+            force: [0.0, 0.0, -0.05],
+            from_step: 10,
+            mass: None,
+            inertia: false,
+        });
+        let mat = Material::uniform(model.tets.len(), 2.0e4, 1.0e4, 3.0, 1.0, 47.0);
+        let long = Trajectory::simulate(&shifted_model(&model, -12).unwrap(), &mat).unwrap();
+        let obs = Observations {
+            markers: long
+                .recorded(model.steps, 2)
+                .unwrap()
+                .iter()
+                .map(|row| {
+                    row.iter()
+                        .map(|p| Some([p[0] + 1e-4, p[1], p[2]]))
+                        .collect()
+                })
+                .collect(),
+            forces: vec![vec![None; model.clamps.len()]; model.steps],
+            marker_weight: 1.0,
+            force_weight: 1.0,
+            free_marker_offsets: false,
+        };
+        for reach in [0i64, 3, 6] {
+            let short =
+                Trajectory::simulate(&shifted_model(&model, -reach).unwrap(), &mat).unwrap();
+            assert_eq!(short.rows.len() as i64, model.steps as i64 + reach);
+            for (a, b) in short.rows.iter().zip(&long.rows) {
+                assert_eq!(a, b, "reach {reach}");
+            }
+            for r in -reach..=reach {
+                assert_eq!(short.chi2(&obs, r), long.chi2(&obs, r), "offset {r}");
+            }
+        }
+    }
 
     /// A recording delayed by r steps against its simulation is found at r by the scan, and
     /// [`shifted`] puts every recorded row where the simulation of the re-timed model reproduces
