@@ -122,14 +122,15 @@ pub(crate) fn element_forces(
         }
     }
 
-    // The power-law viscous stress (Rate::new, stress): skipped where ‖Ḟ‖ or γ̇ vanish.
+    // The power-law viscous stress (Rate::new, stress): skipped where ‖Ḟ‖ or γ̇ or the
+    // viscosity vanish (as `forces::rate` skips it).
     let ld = gradient(&node(v), &g);
     let l_norm = norm_squared(&ld).map(f64::sqrt);
     let e: M =
         std::array::from_fn(|r| std::array::from_fn(|c| map2(&ld[r][c], &ld[c][r], |a, b| a + b)));
     let gamma = norm_squared(&e).map(|s| 0.5f64.sqrt() * s.sqrt());
     for l in 0..LANES {
-        if l_norm[l] <= f64::MIN_POSITIVE || gamma[l] <= f64::MIN_POSITIVE {
+        if nu[l] == 0.0 || l_norm[l] <= f64::MIN_POSITIVE || gamma[l] <= f64::MIN_POSITIVE {
             continue;
         }
         let power = if h[l] == 1.0 {
@@ -196,9 +197,36 @@ mod tests {
         .unwrap()
     }
 
+    /// An element's forces with the viscous stress always added (`forces::rate` skips it where
+    /// the viscosity is 0).
+    fn forces_with_every_rate(
+        model: &Model,
+        mat: &Material,
+        e: usize,
+        x: &[f64],
+        v: &[f64],
+    ) -> [f64; 12] {
+        use super::super::elastic::ElasticState;
+        use super::super::hyperelastic as he;
+        use super::super::viscosity as visc;
+        let t = &model.rest[e];
+        let s =
+            ElasticState::new(mat, e, he::deformation_gradient(t, &model.gather(e, x))).unwrap();
+        let mut p = s.pk1();
+        let l = visc::velocity_gradient(t, &model.gather(e, v));
+        if let Some(r) = visc::Rate::new(&l, mat.get(ParamKind::PowerH, e)) {
+            p += visc::stress(&r, mat.get(ParamKind::Nu, e));
+        }
+        let mut fe = [0.0; 12];
+        he::add_stress_forces(t, &p, 1.0, &mut fe);
+        fe
+    }
+
     /// A 144-element bar, deformed and moving at random (no element inverted), with per-element
-    /// λ, μ, ν, h and a stiffening term on every third element, some elements at rest: the lanes'
-    /// forces equal the element-by-element ones to the last bit, one by one and assembled.
+    /// λ, μ, ν, h and a stiffening term on every third element, some elements at rest and every
+    /// fifth without viscosity: the lanes' forces equal the element-by-element ones to the last
+    /// bit, one by one and assembled, and skipping the viscous stress where the viscosity is 0
+    /// changes no bit either.
     #[test]
     fn lane_forces_are_the_element_forces_to_the_last_bit() {
         let (mesh, model) = bar();
@@ -208,7 +236,7 @@ mod tests {
             let s = 1.0 + 0.01 * e as f64;
             mat.values[ParamKind::Lambda as usize][e] *= s;
             mat.values[ParamKind::Mu as usize][e] /= s;
-            mat.values[ParamKind::Nu as usize][e] *= s;
+            mat.values[ParamKind::Nu as usize][e] *= if e % 5 == 0 { 0.0 } else { s };
             mat.values[ParamKind::PowerH as usize][e] = if e % 2 == 0 { 1.0 } else { 0.8 };
             mat.values[ParamKind::Stiffening as usize][e] = if e % 3 == 0 { 4e4 } else { 0.0 };
         }
@@ -232,6 +260,13 @@ mod tests {
         let mut at_rest = 0;
         for e in 0..ne {
             let fe = element_internal(&model, &mat, e, &x, &v).unwrap();
+            let every_rate = forces_with_every_rate(&model, &mat, e, &x, &v);
+            assert!(
+                fe.iter()
+                    .zip(&every_rate)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "element {e}"
+            );
             for a in 0..4 {
                 for i in 0..3 {
                     reference[3 * model.tets[e][a] + i] += fe[3 * a + i];
@@ -258,6 +293,34 @@ mod tests {
             .iter()
             .zip(&reference)
             .all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
+
+    /// Without viscosity the damping tangent D is zero, as it was when it was assembled from
+    /// the zero viscosity, and K is the same to the last bit as with a viscosity.
+    #[test]
+    fn no_viscosity_assembles_no_damping_tangent() {
+        let (mesh, model) = bar();
+        let ne = model.tets.len();
+        let mut rng = Gauss::new(11);
+        let x: Vec<f64> = mesh
+            .nodes
+            .iter()
+            .flatten()
+            .map(|&p| p + 5e-4 * rng.next())
+            .collect();
+        let v: Vec<f64> = x.iter().map(|_| 0.05 * rng.next()).collect();
+        let nnz = model.pattern.nnz();
+        let tangents = |nu: f64| {
+            let mat = Material::uniform(ne, 3e5, 2e4, nu, 0.8, 1100.0);
+            let (mut f, mut k, mut d) = (vec![0.0; x.len()], vec![0.0; nnz], vec![0.0; nnz]);
+            assemble(&model, &mat, &x, &v, &mut f, Some(&mut k), Some(&mut d)).unwrap();
+            (k, d)
+        };
+        let (k0, d0) = tangents(0.0);
+        let (k1, d1) = tangents(15.0);
+        assert!(d0.iter().all(|&z| z == 0.0));
+        assert!(d1.iter().any(|&z| z != 0.0));
+        assert!(k0.iter().zip(&k1).all(|(a, b)| a.to_bits() == b.to_bits()));
     }
 
     /// An inverted element is named as the element-by-element pass names it: the lowest index.

@@ -30,13 +30,27 @@ pub fn element_internal(
     let s = ElasticState::new(mat, e, he::deformation_gradient(t, &model.gather(e, x)))?;
     // Both stresses act through the same rest gradients: summed first, mapped to forces once.
     let mut p = s.pk1();
-    let h = mat.get(ParamKind::PowerH, e);
-    if let Some(r) = visc::Rate::new(&visc::velocity_gradient(t, &model.gather(e, v)), h) {
+    if let Some(r) = rate(model, mat, e, v) {
         p += visc::stress(&r, mat.get(ParamKind::Nu, e));
     }
     let mut fe = [0.0; 12];
     he::add_stress_forces(t, &p, 1.0, &mut fe);
     Ok(fe)
+}
+
+/// The strain rate of element `e`'s viscous stress, `None` where there is none: no rate (a rest
+/// or rigidly turning element), or no viscosity. The models without damping (viscosity held at
+/// 0: a diagnosis' simplest model and its first candidates) skip the rate, the stress and the
+/// damping tangent, which were zeros: the same forces and tangents to the last bit
+/// (`lane_forces_are_the_element_forces_to_the_last_bit`), and about a tenth less time in those
+/// simulations (BENCHMARKS.md).
+fn rate(model: &Model, mat: &Material, e: usize, v: &[f64]) -> Option<visc::Rate> {
+    let nu = mat.get(ParamKind::Nu, e);
+    if nu == 0.0 {
+        return None;
+    }
+    let l = visc::velocity_gradient(&model.rest[e], &model.gather(e, v));
+    visc::Rate::new(&l, mat.get(ParamKind::PowerH, e))
 }
 
 /// Meshes with at least this many elements are assembled in two halves, the second into its own
@@ -170,8 +184,8 @@ fn assemble_into(
         let tet = &model.tets[e];
         let t = &model.rest[e];
         let s = ElasticState::new(mat, e, he::deformation_gradient(t, &model.gather(e, x)))?;
-        let (nu, h) = (mat.get(ParamKind::Nu, e), mat.get(ParamKind::PowerH, e));
-        let rate = visc::Rate::new(&visc::velocity_gradient(t, &model.gather(e, v)), h);
+        let nu = mat.get(ParamKind::Nu, e);
+        let rate = rate(model, mat, e, v);
         match (kvals.as_deref_mut(), dvals.as_deref_mut(), &rate) {
             (Some(k), Some(d), Some(r)) => model.pattern.add_element_pair(
                 e,
