@@ -456,9 +456,11 @@ pub fn simulate(
                 assemble_tangents(model, mat, &x, &v, &mut kv, &mut dv)?;
             } else if !fresh && nrm > REFACTOR_CONTRACTION * prev_nrm {
                 // The kept factor no longer contracts: assemble the tangent here and factorise.
+                // This state's forces and residual are already at hand (the same to the last bit
+                // as the tangent pass would give them again): the tangents alone.
+                assemble_tangents(model, mat, &x, &v, &mut kv, &mut dv)?;
                 fresh = true;
                 last_step = None;
-                continue;
             }
             for i in 0..sv.len() {
                 sv[i] = c * mvals[i] + a2 * kv[i] + dv[i];
