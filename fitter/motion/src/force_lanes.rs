@@ -197,6 +197,15 @@ mod tests {
         .unwrap()
     }
 
+    /// The mesh's nodes moved at random by 0.5 mm (no element of [`bar`] inverts).
+    fn jiggled(mesh: &Mesh, rng: &mut Gauss) -> Vec<f64> {
+        mesh.nodes
+            .iter()
+            .flatten()
+            .map(|&p| p + 5e-4 * rng.next())
+            .collect()
+    }
+
     /// An element's forces with the viscous stress always added (`forces::rate` skips it where
     /// the viscosity is 0).
     fn forces_with_every_rate(
@@ -241,12 +250,7 @@ mod tests {
             mat.values[ParamKind::Stiffening as usize][e] = if e % 3 == 0 { 4e4 } else { 0.0 };
         }
         let mut rng = Gauss::new(7);
-        let x: Vec<f64> = mesh
-            .nodes
-            .iter()
-            .flatten()
-            .map(|&p| p + 5e-4 * rng.next())
-            .collect();
+        let x = jiggled(&mesh, &mut rng);
         // Nodes with y < 2 cm at rest: the elements there have no viscous stress.
         let v: Vec<f64> = mesh
             .nodes
@@ -302,12 +306,7 @@ mod tests {
         let (mesh, model) = bar();
         let ne = model.tets.len();
         let mut rng = Gauss::new(11);
-        let x: Vec<f64> = mesh
-            .nodes
-            .iter()
-            .flatten()
-            .map(|&p| p + 5e-4 * rng.next())
-            .collect();
+        let x = jiggled(&mesh, &mut rng);
         let v: Vec<f64> = x.iter().map(|_| 0.05 * rng.next()).collect();
         let nnz = model.pattern.nnz();
         let tangents = |nu: f64| {

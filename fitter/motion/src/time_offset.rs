@@ -220,22 +220,29 @@ mod tests {
     use crate::model::{Material, Observations};
     use crate::scenario::{bar_model, nine_markers, two_sinusoids};
 
-    /// The prefix property [`scan`] rests on: the run extended by r steps is, step for step and
-    /// to the bit, the start of the run extended by more, so every offset within ±r scores the
-    /// same χ² on either; with a clamp that moves and a dead load that switches on mid-run.
-    #[test]
-    fn the_longest_scan_serves_the_shorter_ones() {
+    /// A 2 × 6 × 2 cm bar of three cells, its base shaken for `steps` steps of 10 ms,
+    /// nine markers, starting from rest.
+    fn shaken_bar(steps: usize) -> Model {
         let size = [0.02, 0.06, 0.02];
         let (_, mut model) = bar_model(
             size,
             [1, 3, 1],
             0.01,
-            30,
+            steps,
             &two_sinusoids,
             &nine_markers(size),
         )
         .unwrap();
         model.static_start = false;
+        model
+    }
+
+    /// The prefix property [`scan`] rests on: the run extended by r steps is, step for step and
+    /// to the bit, the start of the run extended by more, so every offset within ±r scores the
+    /// same χ² on either; with a clamp that moves and a dead load that switches on mid-run.
+    #[test]
+    fn the_longest_scan_serves_the_shorter_ones() {
+        let mut model = shaken_bar(30);
         let free_node = (0..model.nodes.len())
             .find(|&a| model.free[3 * a] != usize::MAX)
             .unwrap();
@@ -283,17 +290,7 @@ mod tests {
     /// it exactly — for an early start (r < 0) and a late one (r > 0).
     #[test]
     fn a_delayed_recording_is_found_and_realigned() {
-        let size = [0.02, 0.06, 0.02];
-        let (_, mut model) = bar_model(
-            size,
-            [1, 3, 1],
-            0.01,
-            40,
-            &two_sinusoids,
-            &nine_markers(size),
-        )
-        .unwrap();
-        model.static_start = false;
+        let model = shaken_bar(40);
         let mat = Material::uniform(model.tets.len(), 2.0e4, 1.0e4, 3.0, 1.0, 47.0);
         // The truth runs 12 steps longer; the "capture" sees it from various instants (7 and −9
         // lie beyond the first scan's ±3 frames: found by the widened scan).
