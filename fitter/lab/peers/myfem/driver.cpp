@@ -176,7 +176,7 @@ int main(int argc, char* argv[]) {
     fem.setExternalAcceleration(BODY, g);
     set_material(fem, 1e4, 2e4, 12.0, 1.0);
 
-    // The truth run: targets for the fit (and one forward + adjoint timing of a 0 objective).
+    // The truth run: it records the nine patches' displacements, the targets of the fit.
     std::vector<Recorded> targets(9);
     Recorder rec; rec.out = &targets;
     GlobalElasticMaterialParameterHandler elastic(BODY);

@@ -23,6 +23,8 @@ out=$peers/myfem
 mkdir -p "$out/work"
 [ -d "$src/src" ] || git clone --depth 1 https://github.com/david-hahn/MyFEM "$src"
 [ -d "$lbfgs/include" ] || git clone --depth 1 https://github.com/yixuan/LBFGSpp "$lbfgs"
+# The copy of MyFEM's sources the build compiles (made again only when the driver is rebuilt).
+prepare_tree() {
 rm -rf "$out/tree" && mkdir -p "$out/tree/Spectra" && cp -r "$src/src" "$out/tree/src"
 # MyFEM was written against VTK 8, an old Spectra and MSVC. Adaptations to the copy (none changes the
 # numerics of what the driver runs):
@@ -93,6 +95,7 @@ template <class S, int R, class K, class M, int G> struct SymGEigsSolver {
 };
 }
 H
+}
 vtk=$(ls -d /usr/include/vtk-9* | head -1)
 # Every VTK library but the language bindings; the linker keeps those the objects need.
 vtklibs=$(ls /usr/lib/x86_64-linux-gnu/libvtk*-9*.so | grep -v -E "Python|Java|MPI|mpi|Web|Wrapping" | tr '\n' ' ')
@@ -105,6 +108,7 @@ for f in LinearFEM ElmerReader Materials AdjointSensitivity DirectSensitivity Bo
   cpp+=("$out/tree/src/$f.cpp")
 done
 if [ ! -x "$out/driver" ] || [ "$here/driver.cpp" -nt "$out/driver" ]; then
+  prepare_tree
   echo "building MyFEM and the driver (g++ -O3 -march=x86-64-v3 -DNDEBUG -fopenmp)" >&2
   g++ -std=c++14 -O3 -march=x86-64-v3 -DNDEBUG -D_USE_MATH_DEFINES -fopenmp -w -include "$out/tree/src/prelude.h" \
     -I"$out/tree/src" -I/usr/include/eigen3 -I"$vtk" -I"$lbfgs/include" \
