@@ -97,6 +97,11 @@ pub struct RuntimeConfig {
     /// use (default), or the consistent rule whose loads are continuous in the contact point
     /// (a sliding probe; see [`crate::contact_rule`]).
     pub contact_rule: crate::contact_rule::ContactRule,
+    /// Under the lumped rule, PCG iterations a tick may spend solving the load change of the
+    /// probe's next predicted rim crossing ahead of time ([`crate::anticipate`]), after its own
+    /// solve has converged and while that crossing is not solved yet; the crossing tick then
+    /// starts from that solution. 0 turns anticipation off (and carves none of its memory).
+    pub anticipation_iterations: u32,
 }
 
 impl Default for RuntimeConfig {
@@ -121,6 +126,7 @@ impl Default for RuntimeConfig {
             precond_refresh_angle: 0.05,
             predictor: true,
             contact_rule: crate::contact_rule::ContactRule::Lumped,
+            anticipation_iterations: 3,
         }
     }
 }

@@ -16,6 +16,7 @@
 //! loop { let report = rt.tick(); /* render report.reaction … */ }
 //! ```
 
+pub mod anticipate;
 pub mod blend;
 pub mod coarse;
 pub mod config;

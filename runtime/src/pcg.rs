@@ -205,6 +205,70 @@ pub fn predict<A: LinearOperator + ?Sized, S: Projection + ?Sized>(
     true
 }
 
+/// Most directions [`predict_subspace`] combines.
+pub const MAX_DIRECTIONS: usize = 3;
+
+/// The predictor on a subspace: x ← Σ c_j S d_j with the c that minimise the energy
+/// ½ xᵀ A x − xᵀ b over the span of the filtered directions (a Galerkin projection of up to
+/// [`MAX_DIRECTIONS`] dimensions, one A product each, so the error in the energy norm never
+/// grows) — [`predict`] for several directions at once. Directions that are zero after the
+/// filter are skipped; a combination the small system cannot determine (dependent directions)
+/// drops the dependent ones.
+///
+/// Expects x = 0, `r_full` = b and `r` = S b; `scratch` holds two vectors per direction (the
+/// filtered direction and its product). Updates x and `r_full` and returns whether it moved x.
+pub fn predict_subspace<A: LinearOperator + ?Sized, S: Projection + ?Sized>(
+    a: &mut A,
+    s: &S,
+    directions: &[&[f32]],
+    x: &mut [f32],
+    r_full: &mut [f32],
+    r: &[f32],
+    scratch: &mut [&mut [f32]],
+) -> bool {
+    let (sd, kd) = scratch.split_at_mut(scratch.len() / 2);
+    let mut k = 0;
+    for d in directions.iter().take(MAX_DIRECTIONS.min(sd.len())) {
+        copy(sd[k], d);
+        s.project(sd[k]);
+        if dot(sd[k], sd[k]) > 0.0 {
+            a.apply(sd[k], kd[k]);
+            k += 1;
+        }
+    }
+    if k == 0 {
+        return false;
+    }
+    // G c = g with G_ij = d_iᵀ A d_j, g_j = d_jᵀ b (d filtered, so d·r_full = d·r).
+    let mut g = [0.0f32; MAX_DIRECTIONS * MAX_DIRECTIONS];
+    let mut c = [0.0f32; MAX_DIRECTIONS];
+    for i in 0..k {
+        for j in 0..=i {
+            let v = dot(sd[i], kd[j]);
+            g[i * k + j] = v;
+            g[j * k + i] = v;
+        }
+        c[i] = dot(sd[i], r);
+    }
+    crate::dense::cholesky_in_place(&mut g[..k * k], k);
+    crate::dense::cholesky_solve(&g[..k * k], k, &mut c[..k]);
+    if !c[..k].iter().all(|v| v.is_finite()) || c[..k].iter().all(|v| *v == 0.0) {
+        return false;
+    }
+    x.iter_mut().for_each(|v| *v = 0.0);
+    for j in 0..k {
+        for ((xd, d), (r, q)) in x
+            .iter_mut()
+            .zip(sd[j].iter())
+            .zip(r_full.iter_mut().zip(kd[j].iter()))
+        {
+            *xd += c[j] * d;
+            *r -= c[j] * q;
+        }
+    }
+    true
+}
+
 /// Preconditioned CG for S A S x = S b from the iterate `x`, where on entry `r_full` = b − A x
 /// (unfiltered). Updates `x` and `r_full` in place; `work` is scratch. Stops when ‖S r‖₂ ≤
 /// `params.tolerance` ([`CgInfo`]), when the budget runs out ([`CgError::NoConvergence`], the
@@ -224,21 +288,77 @@ where
     M: Preconditioner + ?Sized,
     S: Projection + ?Sized,
 {
-    let tol = params.tolerance;
-    let PcgWork { r, z, p, q } = work;
-    copy(r, r_full);
-    s.project(r);
-    let mut rnorm = norm(r);
-    if rnorm <= tol {
-        // Nothing to solve: skip the preconditioner.
+    let Some(mut carry) = pcg_start(m, s, r_full, work, params.tolerance) else {
+        // Nothing to solve: the preconditioner was skipped.
         return Ok(CgInfo {
             iterations: 0,
-            residual: rnorm,
+            residual: norm(work.r),
         });
+    };
+    pcg_iterate(a, m, s, x, r_full, work, &mut carry, params)
+}
+
+/// What CG carries from one iteration to the next besides its vectors: rᵀz and ‖S r‖₂. With the
+/// vectors of a [`PcgWork`] that persists, a solve can be resumed where it stopped
+/// ([`pcg_iterate`]), e.g. a few iterations per haptic tick.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CgCarry {
+    /// rᵀ z of the current residual.
+    pub rz: f32,
+    /// ‖S r‖₂ of the current residual.
+    pub rnorm: f32,
+}
+
+/// Starts a PCG solve from `r_full` = b − A x: r = S r_full, and — unless ‖r‖ ≤ `tolerance`
+/// already (`None`: nothing to solve, the preconditioner skipped) — z = S M⁻¹ r and p = z.
+pub fn pcg_start<M, S>(
+    m: &mut M,
+    s: &S,
+    r_full: &[f32],
+    work: &mut PcgWork<'_>,
+    tolerance: f32,
+) -> Option<CgCarry>
+where
+    M: Preconditioner + ?Sized,
+    S: Projection + ?Sized,
+{
+    let PcgWork { r, z, p, .. } = work;
+    copy(r, r_full);
+    s.project(r);
+    let rnorm = norm(r);
+    if rnorm <= tolerance {
+        return None;
     }
     m.apply(r, z);
     copy(p, z);
-    let mut rz = dot(r, z);
+    Some(CgCarry {
+        rz: dot(r, z),
+        rnorm,
+    })
+}
+
+/// The iterations of [`pcg`] from a started (or earlier interrupted) solve whose vectors are in
+/// `work` and scalars in `carry`, at most `params.max_iterations` of them; `carry` is updated so a
+/// later call goes on where this one stopped. The outcomes are [`pcg`]'s.
+#[allow(clippy::too_many_arguments)]
+pub fn pcg_iterate<A, M, S>(
+    a: &mut A,
+    m: &mut M,
+    s: &S,
+    x: &mut [f32],
+    r_full: &mut [f32],
+    work: &mut PcgWork<'_>,
+    carry: &mut CgCarry,
+    params: CgParams,
+) -> Result<CgInfo, CgError>
+where
+    A: LinearOperator + ?Sized,
+    M: Preconditioner + ?Sized,
+    S: Projection + ?Sized,
+{
+    let tol = params.tolerance;
+    let PcgWork { r, z, p, q } = work;
+    let CgCarry { mut rz, mut rnorm } = *carry;
     let mut it = 0;
     while it < params.max_iterations {
         if rnorm <= tol {
@@ -294,6 +414,7 @@ where
         }
         rnorm = libm::sqrt(rr) as f32;
         it += 1;
+        *carry = CgCarry { rz, rnorm };
         if !rnorm.is_finite() {
             return Err(CgError::NonFinite {
                 iterations: it,
@@ -532,6 +653,74 @@ mod tests {
         );
         assert!(matches!(res, Err(CgError::Breakdown { iterations: 0, .. })));
         assert_eq!(x, std::vec![0.0f32; n]);
+    }
+
+    #[test]
+    fn subspace_predictor_is_exact_when_the_solution_is_in_the_span() {
+        let n = 6;
+        let a = laplacian(n);
+        // The solution is 2 e₁ − 0.5 (1, …, 1): in the span of e₁ and the ones, not of either.
+        let xs: std::vec::Vec<f32> = (0..n).map(|i| if i == 1 { 1.5 } else { -0.5 }).collect();
+        let b: std::vec::Vec<f32> = (0..n)
+            .map(|i| (0..n).map(|j| a[i * n + j] * xs[j]).sum())
+            .collect();
+        let e1: std::vec::Vec<f32> = (0..n).map(|i| if i == 1 { 3.0 } else { 0.0 }).collect();
+        let ones = std::vec![1.0f32; n];
+        let zero = std::vec![0.0f32; n];
+        let mut x = std::vec![0.0f32; n];
+        let mut r_full = b.clone();
+        let mut s: std::vec::Vec<std::vec::Vec<f32>> =
+            (0..6).map(|_| std::vec![0.0f32; n]).collect();
+        let mut scratch: std::vec::Vec<&mut [f32]> =
+            s.iter_mut().map(|v| v.as_mut_slice()).collect();
+        let mut op = Dense { n, a: &a };
+        // A zero direction is skipped.
+        let dirs: [&[f32]; 3] = [&zero, &e1, &ones];
+        assert!(predict_subspace(
+            &mut op,
+            &(),
+            &dirs,
+            &mut x,
+            &mut r_full,
+            &b,
+            &mut scratch
+        ));
+        for (xi, si) in x.iter().zip(&xs) {
+            assert!((xi - si).abs() < 1e-5, "{x:?}");
+        }
+        assert!(norm(&r_full) < 1e-4);
+        // One direction alone is the 1-D predictor.
+        let (mut x1, mut r1) = (std::vec![0.0f32; n], b.clone());
+        let (mut x2, mut r2) = (std::vec![0.0f32; n], b.clone());
+        assert!(predict_subspace(
+            &mut op,
+            &(),
+            &[&ones],
+            &mut x1,
+            &mut r1,
+            &b,
+            &mut scratch
+        ));
+        let mut buffers = Buffers::new(n);
+        buffers.r.copy_from_slice(&b);
+        let mut work = buffers.work();
+        assert!(predict(&mut op, &(), &ones, &mut x2, &mut r2, &mut work));
+        for ((p, q), (u, v)) in x1.iter().zip(&x2).zip(r1.iter().zip(&r2)) {
+            assert!((p - q).abs() < 1e-6 && (u - v).abs() < 1e-5);
+        }
+        // With only zero directions nothing moves.
+        let mut x3 = std::vec![0.0f32; n];
+        let dirs: [&[f32]; 1] = [&zero];
+        assert!(!predict_subspace(
+            &mut op,
+            &(),
+            &dirs,
+            &mut x3,
+            &mut r1,
+            &b,
+            &mut scratch
+        ));
+        assert!(x3.iter().all(|v| *v == 0.0));
     }
 
     #[test]

@@ -6,6 +6,7 @@
 //! element-force buffer of K' ([`ElementForces`]), the preconditioner ([`TwoLevel`]) and the PCG's
 //! vectors ([`PcgWork`]). This module builds them and keeps the public API.
 
+use crate::anticipate::Anticipation;
 use crate::blend::blend_parameters;
 use crate::config::RuntimeConfig;
 use crate::contact::{ContactSet, Probe, FIXED};
@@ -30,6 +31,7 @@ pub struct Runtime<'a> {
     pub(crate) elements: ElementState<'a>,
     pub(crate) forces: ElementForces<'a>,
     pub(crate) precond: TwoLevel<'a>,
+    pub(crate) anticipation: Anticipation<'a>,
     pub(crate) tick_count: u64,
     /// The energy slope s(0) at the start of the last step, while the line search has yet to
     /// check that step (see [`crate::tick`]).
@@ -101,6 +103,7 @@ impl<'a> Runtime<'a> {
             elements,
             forces,
             precond,
+            anticipation,
         } = layout;
         let mut rt = Runtime {
             record,
@@ -111,6 +114,7 @@ impl<'a> Runtime<'a> {
             precond: TwoLevel::carve(precond, &dims, &mut fc, &mut uc)?,
             elements: ElementState::carve(elements, &dims, &mut fc, &mut uc)?,
             forces: ElementForces::carve(forces, &mut fc, &mut uc)?,
+            anticipation: Anticipation::carve(anticipation, &mut fc, &mut uc)?,
             tick_count: 0,
             pending_slope: None,
         };
@@ -162,6 +166,7 @@ impl<'a> Runtime<'a> {
         self.nodes.reset();
         self.elements.reset_rotations();
         self.contact.reset();
+        self.anticipation.reset();
         self.tick_count = 0;
         self.pending_slope = None;
         self.precond.valid = false;
@@ -171,6 +176,8 @@ impl<'a> Runtime<'a> {
     pub fn clear_loads(&mut self) {
         self.nodes.clear_loads();
         self.contact.probe_cmd = Probe::None;
+        self.anticipation.forget();
+        self.anticipation.force = [0.0; 3];
     }
 
     /// Commands a force-driven contact: `force` (N) spread as a uniform pressure over the rest
@@ -192,10 +199,12 @@ impl<'a> Runtime<'a> {
         let n = self.nodes.n;
         let key = (point, radius);
         if self.contact.weights_for != Some(key) {
-            self.contact.weights_for = None;
+            let before = self.contact.weights_for.take();
             self.contact.weight_scale = self.compute_contact_weights(point, radius)?;
             self.contact.weights_for = Some(key);
+            self.observe_contact_set(before.map(|(p, _)| p));
         }
+        self.anticipation.force = force;
         let (weight, scale) = (&*self.contact.weight, self.contact.weight_scale);
         let f_cmd = &mut *self.nodes.f_cmd;
         let mut count = 0;
@@ -210,6 +219,27 @@ impl<'a> Runtime<'a> {
         }
         self.nodes.f_cmd_norm = norm(f_cmd);
         Ok(count)
+    }
+
+    /// What the anticipation of rim crossings ([`crate::anticipate`]) needs from a new contact
+    /// point: the previous one (the probe's step) and whether the loaded set changed.
+    fn observe_contact_set(&mut self, previous: Option<[f32; 3]>) {
+        if !self.anticipation.enabled() {
+            return;
+        }
+        let signature = crate::anticipate::set_signature(
+            self.contact
+                .weight
+                .iter()
+                .enumerate()
+                .filter(|(_, w)| **w != 0.0)
+                .map(|(i, _)| i),
+        );
+        if signature != self.anticipation.set_signature {
+            self.anticipation.set_signature = signature;
+            self.anticipation.set_changed = true;
+        }
+        self.anticipation.previous_point = previous;
     }
 
     /// The contact rule's weights for a unit force at `point` within `radius` into
@@ -301,6 +331,7 @@ impl<'a> Runtime<'a> {
         self.tick_count = other.tick_count;
         self.pending_slope = other.pending_slope;
         self.precond.valid = false;
+        self.anticipation.reset();
         Ok(())
     }
 

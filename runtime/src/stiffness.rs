@@ -129,6 +129,19 @@ pub(crate) struct Stiffness<'r, 'a> {
     pub forces: &'r mut ElementForces<'a>,
     /// Which element kernel applies K_e.
     pub kernel: Kernel,
+    /// Rotated gradients R∇φ of another state than the elements' own (a planned one,
+    /// [`crate::anticipate`]), laid out like theirs; `None`: the elements' own. The packed
+    /// kernel always uses the elements' own rotations.
+    pub rotated: Option<&'r [f32]>,
+}
+
+/// What a residual pass keeps of the rotations it extracts.
+pub(crate) enum KeepRotations<'x> {
+    /// Everything, as the state's rotations (quaternions, R, R∇φ).
+    State,
+    /// Only the rotated gradients R∇φ, into this array (laid out like the elements'): the
+    /// residual and operator of a state the runtime is not in.
+    Gradients(&'x mut [f32]),
 }
 
 impl LinearOperator for Stiffness<'_, '_> {
@@ -155,7 +168,7 @@ impl LinearOperator for Stiffness<'_, '_> {
         }
         for b in 0..el.tp / LANES {
             let (_, v) = el.gather_nodes(b, p);
-            let gh = block::<9>(el.ghat, b);
+            let gh = block::<9>(self.rotated.unwrap_or(el.ghat), b);
             let (vol, lam, alp) = el.block_material(b);
             let f = rotated_apply_lanes(&v, &gh, &vol, &lam, &alp);
             self.forces.store(b, &f);
@@ -172,8 +185,11 @@ impl LinearOperator for Stiffness<'_, '_> {
 /// (eqs. 3.55–3.58, [`crate::RuntimeConfig::rotation_tolerance`]), fused here so u and ∇φ are
 /// gathered once; with `diag` the 3 × 3 node blocks of K' (6 values per node, added to what it
 /// holds) for the preconditioner. Returns an upper bound of how far (rad) any
-/// rotation moved.
+/// rotation moved. `keep` says what becomes of the rotations: the state's own, or — for the
+/// residual of a state the runtime is not in (what a planned step would leave,
+/// [`crate::anticipate`]) — only their rotated gradients.
 #[inline(never)]
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn residual_pass(
     elements: &mut ElementState<'_>,
     forces: &mut ElementForces<'_>,
@@ -182,6 +198,7 @@ pub(crate) fn residual_pass(
     r_full: &mut [f32],
     rotate: Option<(usize, f32)>,
     mut diag: Option<&mut [f32]>,
+    mut keep: KeepRotations<'_>,
 ) -> f32 {
     let mut moved = 0.0f32;
     for b in 0..elements.tp / LANES {
@@ -201,9 +218,16 @@ pub(crate) fn residual_pass(
             moved = moved.max(warp_rotation_fast_lanes(
                 &f, &mut q, iters, tolerance, &mut r,
             ));
-            store_block(elements.quat, b, &q);
-            store_block(elements.rot, b, &r);
-            store_block(elements.ghat, b, &rotate_gradients_lanes(&g, &r));
+            match &mut keep {
+                KeepRotations::State => {
+                    store_block(elements.quat, b, &q);
+                    store_block(elements.rot, b, &r);
+                    store_block(elements.ghat, b, &rotate_gradients_lanes(&g, &r));
+                }
+                KeepRotations::Gradients(ghat) => {
+                    store_block(ghat, b, &rotate_gradients_lanes(&g, &r));
+                }
+            }
         }
         let f = warped_internal_force_from_h_lanes(&h, &g, &r, &vol, &lam, &alp);
         forces.store(b, &f);

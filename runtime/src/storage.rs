@@ -16,7 +16,8 @@ use palpate_protocol::model::{Blend, ModelRecord};
 
 /// `f32` values per node: x₀, u, u_good, f_cmd, f_app, r_full, δ, previous δ, r_start (the node
 /// state, 3 each), lumped area (1); normal (3) and prescribed normal position (1) (the contact set);
-/// r, z, p, q (the PCG work, 3 each); preconditioner block (6). Derived from `Layout`.
+/// r, z, p, q (the PCG work, 3 each); preconditioner block (6) — without a lumped probe's
+/// anticipation ([`crate::anticipate`], 33 more when configured). Derived from `Layout`.
 pub const F32_PER_NODE: usize = Layout::per_node().0;
 /// Element arrays are padded to a whole number of [`crate::kernel::LANES`]-element blocks so
 /// every element pass runs the batched (SIMD) kernels without a scalar remainder; the padding
@@ -86,6 +87,9 @@ pub(crate) struct Dims {
     pub packed: bool,
     /// Aggregates of the coarse space ([`crate::coarse::aggregate_capacity`]).
     pub aggregates: usize,
+    /// A lumped probe's rim crossings are anticipated ([`crate::anticipate`]): its solve's
+    /// vectors are carved.
+    pub anticipate: bool,
 }
 
 impl Dims {
@@ -104,6 +108,8 @@ impl Dims {
             },
             packed: config.kernel == Kernel::Packed,
             aggregates: crate::coarse::aggregate_capacity(config.coarse_aggregates, n),
+            anticipate: config.anticipation_iterations > 0
+                && config.contact_rule == crate::contact_rule::ContactRule::Lumped,
         }
     }
 }
@@ -167,6 +173,8 @@ pub(crate) struct Layout {
     pub elements: RoomLayout<10, 1>,
     /// [`crate::stiffness::ElementForces`].
     pub forces: RoomLayout<1, 2>,
+    /// [`crate::anticipate::Anticipation`].
+    pub anticipation: RoomLayout<12, 0>,
 }
 
 impl Layout {
@@ -179,6 +187,7 @@ impl Layout {
             elements: crate::elements::ElementState::layout(d),
             forces: crate::stiffness::ElementForces::layout(d),
             precond: crate::precond::TwoLevel::layout(d),
+            anticipation: crate::anticipate::Anticipation::layout(d),
         }
     }
 
@@ -201,6 +210,7 @@ impl Layout {
             elements,
             forces,
             precond,
+            anticipation,
         } = self;
         (
             nodes.f32_total()
@@ -208,13 +218,15 @@ impl Layout {
                 + work.f32_total()
                 + elements.f32_total()
                 + forces.f32_total()
-                + precond.f32_total(),
+                + precond.f32_total()
+                + anticipation.f32_total(),
             nodes.u32_total()
                 + contact.u32_total()
                 + work.u32_total()
                 + elements.u32_total()
                 + forces.u32_total()
-                + precond.u32_total(),
+                + precond.u32_total()
+                + anticipation.u32_total(),
         )
     }
 
@@ -227,6 +239,7 @@ impl Layout {
             blend_sets: 0,
             packed: p,
             aggregates: 0,
+            anticipate: false,
         }
     }
 
@@ -332,11 +345,12 @@ mod tests {
         assert_eq!(F32_PER_ELEMENT_PACKED, 2 * 78);
         assert_eq!(U32_PER_NODE, 3);
         assert_eq!(U32_PER_ELEMENT, 8);
-        for (n, t, s, p, m) in [
-            (10, 7, false, false, 1),
-            (1000, 5184, true, false, 64),
-            (37, 1, true, true, 4),
-            (0, 0, false, true, 0),
+        for (n, t, s, p, m, a) in [
+            (10, 7, false, false, 1, false),
+            (1000, 5184, true, false, 64, true),
+            (37, 1, true, true, 4, false),
+            (0, 0, false, true, 0, true),
+            (12, 9, false, false, 2, true),
         ] {
             let tp = padded_elements(t);
             let d = Dims {
@@ -347,13 +361,16 @@ mod tests {
                 blend_sets: if s { 3 } else { 0 },
                 packed: p,
                 aggregates: m,
+                anticipate: a,
             };
             let l = Layout::of(&d);
             // Strain blending: the strain (6) and its distance to each of the 3 sets' centres.
             let per_element = if s { 6 + 3 } else { 0 } + if p { 156 } else { 0 };
+            // Anticipated crossings: eleven node vectors and one element state's R∇φ.
+            let ahead = if a { n * 33 + tp * 9 } else { 0 };
             assert_eq!(
                 l.f32s(),
-                n * 51 + tp * 46 + t * per_element + crate::coarse::coarse_f32s(m)
+                n * 51 + tp * 46 + t * per_element + crate::coarse::coarse_f32s(m) + ahead
             );
             assert_eq!(l.u32s(), n * 3 + 1 + tp * 8);
         }

@@ -43,11 +43,12 @@
 //! Constraints are filters on the CG vectors (modified PCG, Baraff & Witkin 1998): fixed nodes
 //! have no free direction; probe-held nodes keep their two tangential directions (frictionless).
 
+use crate::anticipate::Fired;
 use crate::blend::blend_parameters;
-use crate::pcg::{dot, norm, pcg, predict, CgError, CgParams, Projection};
+use crate::pcg::{dot, norm, pcg, predict, predict_subspace, CgError, CgParams, Projection};
 use crate::precond::TwoLevelApply;
 use crate::runtime::Runtime;
-use crate::stiffness::{residual_pass, Stiffness};
+use crate::stiffness::{residual_pass, KeepRotations, Stiffness};
 use palpate_protocol::model::Blend;
 
 /// Outcome of one PCG solve.
@@ -86,6 +87,21 @@ pub struct TickReport {
     pub reaction: [f32; 3],
     /// ‖δu‖_∞ of the step (m).
     pub step: f32,
+    /// The tick started from anticipated solves ([`crate::anticipate`]): a planned rim crossing
+    /// of a lumped probe happened in it, or it took the correction of one that happened in the
+    /// tick before.
+    pub anticipated: bool,
+    /// PCG iterations (a residual recomputed counting as one) the tick spent after its own solve
+    /// on the planned crossings ([`crate::RuntimeConfig::anticipation_iterations`]).
+    pub iterations_ahead: u32,
+}
+
+/// Where a tick's first solve starts besides the last increment: the planned direction of a
+/// crossing that happened, the correction due from the tick before (`crate::anticipate`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+struct Start {
+    planned: bool,
+    pending: bool,
 }
 
 impl Runtime<'_> {
@@ -108,16 +124,20 @@ impl Runtime<'_> {
             } else {
                 None
             },
+            KeepRotations::State,
         );
         self.precond.drift += moved;
         if diag {
             self.precond.invert(self.config.preconditioner);
+            self.anticipation.operator_changed();
         }
     }
 
-    /// Solves K' δ = r_full on the filtered space (δ from zero, or from the predictor), tracking
-    /// r_full. Returns (iterations, ‖S r‖, status).
-    fn solve(&mut self, scale: f32, max_iterations: u32) -> (u32, f32, SolveStatus) {
+    /// Solves K' δ = r_full on the filtered space (δ from zero, or from the predictor: along the
+    /// last increment, or — when `start` says so — on the span of a planned crossing's direction
+    /// and a correction due, [`crate::anticipate`]), tracking r_full. Returns (iterations, ‖S r‖,
+    /// status).
+    fn solve(&mut self, scale: f32, max_iterations: u32, start: Start) -> (u32, f32, SolveStatus) {
         let tol = self.config.tolerance * scale + self.config.absolute_tolerance;
         let nodes = &mut self.nodes;
         let work = &mut self.work;
@@ -135,16 +155,42 @@ impl Runtime<'_> {
             elements: &self.elements,
             forces: &mut self.forces,
             kernel: self.config.kernel,
+            rotated: None,
         };
         if self.config.predictor {
-            predict(
-                &mut k,
-                contact,
-                nodes.delta_prev,
-                nodes.delta,
-                nodes.r_full,
-                work,
-            );
+            let a = &mut self.anticipation;
+            let mut directions: [&[f32]; 2] = [&[], &[]];
+            let mut count = 0;
+            for (d, take) in [(&*a.r, start.planned), (&*a.pending, start.pending)] {
+                if take {
+                    directions[count] = d;
+                    count += 1;
+                }
+            }
+            if count == 0 {
+                predict(
+                    &mut k,
+                    contact,
+                    nodes.delta_prev,
+                    nodes.delta,
+                    nodes.r_full,
+                    work,
+                );
+            } else {
+                // The anticipated solves' own vectors are the scratch; their solve restarts.
+                a.carry = None;
+                let mut scratch: [&mut [f32]; 4] =
+                    [&mut *a.z, &mut *a.p, &mut *a.r_full, &mut *work.p];
+                predict_subspace(
+                    &mut k,
+                    contact,
+                    &directions[..count],
+                    nodes.delta,
+                    nodes.r_full,
+                    work.r,
+                    &mut scratch,
+                );
+            }
         }
         let mut m = TwoLevelApply {
             precond: &mut self.precond,
@@ -266,6 +312,15 @@ impl Runtime<'_> {
         // they come first: rotations and forces are then those of the state being solved from.
         let contact_nodes = self.contact.update(&self.nodes);
         self.contact.apply_prescribed(self.nodes.x0, self.nodes.u);
+        let weight = &*self.contact.weight;
+        let fired = self
+            .anticipation
+            .fired(|i| weight.get(i).is_some_and(|w| *w != 0.0));
+        let planned = match fired {
+            Fired::Planned(mask) => self.anticipation.planned_direction(mask),
+            _ => false,
+        };
+        let correction_due = self.anticipation.pending_ready;
         // The line search compares energies along the last step at one load: a probe that holds
         // nodes moves them between ticks and changes the problem, so its check is dropped.
         let mut pending = self.pending_slope.take().filter(|_| contact_nodes == 0);
@@ -315,7 +370,14 @@ impl Runtime<'_> {
             // 4. The solve, in what is left of the budget.
             let scale = norm(self.nodes.f_app).max(self.contact.reaction_norm);
             self.nodes.r_start.copy_from_slice(self.nodes.r_full);
-            let (its, rnorm, mut status) = self.solve(scale, budget.saturating_sub(iterations));
+            // The tick's first increment starts from the anticipated solves when a planned
+            // crossing happened or a crossing's correction is due (`crate::anticipate`).
+            let start = Start {
+                planned: planned && increments == 0,
+                pending: correction_due && increments == 0,
+            };
+            let (its, rnorm, mut status) =
+                self.solve(scale, budget.saturating_sub(iterations), start);
             iterations += its;
             increments += 1;
             // 5. The step.
@@ -355,6 +417,19 @@ impl Runtime<'_> {
         self.pending_slope = pending;
         let reaction = self.contact.update_reaction(self.nodes.r_full);
         self.tick_count += 1;
+        // A crossing that happened hands on its plan; a moved state is a new operator. Only a
+        // still tick (nothing solved, nothing moved) has the time and the operator to go on.
+        let mut ahead = 0;
+        if fired != Fired::Nothing {
+            self.anticipation.advance(fired);
+        } else {
+            self.anticipation.pending_ready = false;
+            if step > 0.0 || status != SolveStatus::Converged {
+                self.anticipation.operator_changed();
+            } else if iterations == 0 {
+                ahead = self.anticipate();
+            }
+        }
         TickReport {
             iterations,
             rel_residual: if scale > 0.0 { rnorm / scale } else { rnorm },
@@ -366,6 +441,8 @@ impl Runtime<'_> {
             contact_nodes,
             reaction,
             step,
+            anticipated: planned || correction_due,
+            iterations_ahead: ahead,
         }
     }
 }

@@ -30,6 +30,7 @@ mod motion_gradients;
 mod motion_loads;
 mod motion_spline;
 mod motion_statics;
+mod runtime_anticipation;
 mod runtime_evidence;
 mod runtime_model_checks;
 mod runtime_solver;

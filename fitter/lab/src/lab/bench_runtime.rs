@@ -94,6 +94,10 @@ pub struct Args {
     /// Turn the energy line search of the warped solve off (`RuntimeConfig::line_search`).
     #[arg(long)]
     pub no_line_search: bool,
+    /// PCG iterations a still tick may spend on the lumped probe's next predicted rim crossing
+    /// (`RuntimeConfig::anticipation_iterations`; 0: off). The consistent rule has no crossings.
+    #[arg(long, default_value_t = RuntimeConfig::default().anticipation_iterations)]
+    pub anticipation: u32,
     /// Write the problem for a peer code into this folder and stop (the block as a VegaFEM
     /// `.veg`, its fixed nodes, the lumped rule's nodal forces of every tick:
     /// `fitter/lab/peers/vegafem/run.sh`).
@@ -259,6 +263,10 @@ struct Record {
     wall_us: Vec<f64>,
     cpu_us: Vec<f64>,
     iters: Vec<u32>,
+    /// PCG iterations each tick spent ahead, on a lumped probe's planned rim crossings.
+    ahead: Vec<u32>,
+    /// Ticks that started from anticipated solves.
+    anticipated: usize,
     capped: Vec<bool>,
     rel_res: Vec<f32>,
     /// ‖u − u_conv‖/‖u_conv‖ against a converged solve (tolerance 1e-9) of the same tick from
@@ -312,11 +320,14 @@ fn timed_pass(
         let c0 = thread_cpu();
         let t0 = Instant::now();
         command(rt, k, ticks, touch)?;
+
         let rep = rt.tick();
         let wall = t0.elapsed().as_secs_f64() * 1e6;
         rec.cpu_us.push((thread_cpu() - c0) * 1e6);
         rec.wall_us.push(wall);
         rec.iters.push(rep.iterations);
+        rec.ahead.push(rep.iterations_ahead);
+        rec.anticipated += rep.anticipated as usize;
         rec.capped.push(rep.status == SolveStatus::BudgetExhausted);
         rec.rel_res.push(rep.rel_residual);
         Ok(())
@@ -412,9 +423,14 @@ struct Summary {
     err_capped: f64,
     drift_max: f64,
     drift_p99: f64,
-    /// Tick CPU time against PCG iterations, least squares over the ticks: (µs per iteration,
-    /// µs at zero iterations — the residual pass, rotations, predictor —, R²).
+    /// Tick CPU time against PCG iterations (the tick's own and those it spent ahead), least
+    /// squares over the ticks: (µs per iteration, µs at zero iterations — the residual pass,
+    /// rotations, predictor —, R²).
     per_iteration: (f64, f64, f64),
+    /// Mean PCG iterations a tick spent ahead, on a lumped probe's planned rim crossings.
+    ahead_mean: f64,
+    /// Ticks that started from anticipated solves.
+    anticipated: usize,
 }
 
 /// Least-squares line y = a + b x: (b, a, R²).
@@ -470,9 +486,15 @@ fn summarise(r: &Record) -> Summary {
         drift_max: *d.last().unwrap_or(&f64::NAN),
         drift_p99: percentile(&d, 0.99),
         per_iteration: line_fit(
-            &r.iters.iter().map(|&v| v as f64).collect::<Vec<_>>(),
+            &r.iters
+                .iter()
+                .zip(&r.ahead)
+                .map(|(&v, &a)| (v + a) as f64)
+                .collect::<Vec<_>>(),
             &r.cpu_us,
         ),
+        ahead_mean: r.ahead.iter().map(|v| *v as f64).sum::<f64>() / r.ahead.len().max(1) as f64,
+        anticipated: r.anticipated,
     }
 }
 
@@ -643,6 +665,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         precond_refresh_angle: args.precond_refresh_angle,
         contact_rule: args.rule.runtime(),
         line_search: !args.no_line_search,
+        anticipation_iterations: args.anticipation,
         ..Default::default()
     };
     let mut variants = vec![Variant {
@@ -673,6 +696,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         vary("1 rotation iteration".into(), &|c| {
             c.rotation_iterations = 1
         });
+        if args.rule == Rule::Lumped && args.anticipation > 0 {
+            vary("no anticipation".into(), &|c| c.anticipation_iterations = 0);
+        }
     } else if !args.gradient_only {
         vary("packed".into(), &|c| c.kernel = Kernel::Packed);
     }
@@ -763,9 +789,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 "max_iterations": v.cfg.max_iterations,
                 "aggregates": v.cfg.coarse_aggregates,
                 "precond_refresh_angle": v.cfg.precond_refresh_angle,
+                "anticipation_iterations": v.cfg.anticipation_iterations,
                 "p50_us": s.wall[0], "p99_us": s.wall[1], "max_us": s.wall[2],
                 "cpu_p50_us": s.cpu[0], "cpu_p99_us": s.cpu[1], "cpu_max_us": s.cpu[2],
                 "mean_pcg_iters": s.iters_mean, "p99_pcg_iters": s.iters[1], "max_pcg_iters": s.iters[2],
+                "mean_pcg_iters_ahead": s.ahead_mean, "anticipated_ticks": s.anticipated,
                 "capped_ticks": s.capped,
                 "rel_residual": s.max_res_converged,
                 "max_rel_error_vs_converged": s.err_converged,
@@ -795,6 +823,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "cpu_mean_us": g.cpu_mean,
             "mean_pcg_iters": g.iters_mean,
             "max_pcg_iters": g.iters[2],
+            "mean_pcg_iters_ahead": g.ahead_mean,
+            "anticipated_ticks": g.anticipated,
             "cpu_us_per_pcg_iteration": g.per_iteration.0,
             "cpu_us_outside_pcg": g.per_iteration.1,
             "per_iteration_fit_r2": g.per_iteration.2,
