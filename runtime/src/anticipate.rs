@@ -726,55 +726,12 @@ impl Runtime<'_> {
         let scale = norm(self.nodes.f_app).max(self.contact.reaction_norm);
         // The tick's own tolerance: a crossing planned right then needs at most a last iteration.
         let tol = self.config.tolerance * scale + self.config.absolute_tolerance;
-        let mut used = 0;
-        if self.anticipation.carry.is_none() {
-            used = 1;
-            if !self.anticipated_rhs(step) {
-                self.anticipation.forget();
-                return used;
-            }
-            let s = &mut self.anticipation;
-            let (x, iterated) = match step {
-                Step::Delta(i) => (&mut *s.deltas[i], s.delta_iterated[i]),
-                Step::Correction(c) => (&mut *s.corrections[c], s.correction_iterated[c]),
-            };
-            if iterated {
-                let mut k = Stiffness {
-                    elements: &self.elements,
-                    forces: &mut self.forces,
-                    kernel: self.config.kernel,
-                    rotated: (s.shadow && !own).then_some(&*s.ghat),
-                };
-                k.apply(x, self.work.q);
-                for (r, q) in s.r_full.iter_mut().zip(self.work.q.iter()) {
-                    *r -= q;
-                }
-            } else {
-                x.iter_mut().for_each(|v| *v = 0.0);
-            }
-            let mut m = TwoLevelApply {
-                precond: &mut self.precond,
-                x0: self.nodes.x0,
-                contact: &self.contact,
-            };
-            let mut work = PcgWork {
-                r: &mut *s.r,
-                z: &mut *s.z,
-                p: &mut *s.p,
-                q: &mut *self.work.q,
-            };
-            match pcg_start(&mut m, &self.contact, s.r_full, &mut work, tol) {
-                Some(carry) => s.carry = Some(carry),
-                None => {
-                    s.phase += 1;
-                    return used;
-                }
-            }
+        let restart = self.anticipation.carry.is_none();
+        if restart && !self.anticipated_rhs(step) {
+            self.anticipation.forget();
+            return 1;
         }
         let s = &mut self.anticipation;
-        let Some(mut carry) = s.carry else {
-            return used;
-        };
         let mut k = Stiffness {
             elements: &self.elements,
             forces: &mut self.forces,
@@ -792,13 +749,36 @@ impl Runtime<'_> {
             p: &mut *s.p,
             q: &mut *self.work.q,
         };
+        let (x, iterated) = match step {
+            Step::Delta(i) => (&mut *s.deltas[i], s.delta_iterated[i]),
+            Step::Correction(c) => (&mut *s.corrections[c], s.correction_iterated[c]),
+        };
+        let mut used = 0;
+        if restart {
+            // From the iterate: r_full = b − K' x (b written by `anticipated_rhs`).
+            used = 1;
+            if iterated {
+                k.apply(x, work.q);
+                for (r, q) in s.r_full.iter_mut().zip(work.q.iter()) {
+                    *r -= q;
+                }
+            } else {
+                x.iter_mut().for_each(|v| *v = 0.0);
+            }
+            match pcg_start(&mut m, &self.contact, s.r_full, &mut work, tol) {
+                Some(carry) => s.carry = Some(carry),
+                None => {
+                    s.phase += 1;
+                    return used;
+                }
+            }
+        }
+        let Some(mut carry) = s.carry else {
+            return used;
+        };
         let params = CgParams {
             tolerance: tol,
             max_iterations: budget.saturating_sub(used),
-        };
-        let x = match step {
-            Step::Delta(i) => &mut *s.deltas[i],
-            Step::Correction(c) => &mut *s.corrections[c],
         };
         let outcome = pcg_iterate(
             &mut k,
