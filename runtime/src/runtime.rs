@@ -366,6 +366,9 @@ impl<'a> Runtime<'a> {
     pub(crate) fn refresh_state(&mut self) {
         self.precond.valid = false;
         self.pending_slope = None;
+        // A jump makes the solves done ahead stale; they restart from their iterates.
+        self.anticipation.operator_changed();
+        self.anticipation.pending_ready = false;
         // After a jump the last increment predicts nothing.
         self.nodes.delta_prev.iter_mut().for_each(|v| *v = 0.0);
         // A jump to an arbitrary state needs more than the per-tick warm-started iterations.
