@@ -12,7 +12,8 @@
 //! **What is solved ahead.** The room keeps a plan of the next [`PLAN_NODES`] crossing nodes in
 //! time order, in up to two groups (the nodes of the earliest contact command, then of the next:
 //! nodes symmetric about the probe's path cross in one command or in consecutive ones, as
-//! rounding decides), and one solve per node, δ_i = K'⁻¹ ∆f_i ([`load_change`]) — relative to
+//! rounding decides; the second only when it comes too soon after the first for the still ticks
+//! between them to plan it), and one solve per node, δ_i = K'⁻¹ ∆f_i ([`load_change`]) — relative to
 //! the loaded set S of the time for the first group, to S after the first group for the second.
 //! Any subset X of a group crossing is covered exactly: the lumped loads of B ⊕ X differ from
 //! those of the group's base set B by Σ_{i∈X} (A_{B⊕i} / A_{B⊕X}) ∆f_i (A the sets' lumped
@@ -58,6 +59,13 @@ pub const HORIZON: f64 = 10_000.0;
 
 /// Crossing nodes one plan holds (a solve each).
 pub const PLAN_NODES: usize = 4;
+
+/// Ticks after a crossing before the still ticks resume (the crossing's own, its correction's,
+/// the rotations' last settling), and PCG iterations a group's solves take from nothing (two
+/// nodes and a correction, restarts included): a second group further from the first than these
+/// allow at the budget is planned after the first has crossed, not before.
+const BUSY_AFTER_CROSSING: u32 = 4;
+const GROUP_WORK: u32 = 60;
 
 /// A node that crosses the probe's rim.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -556,16 +564,20 @@ impl Runtime<'_> {
             self.anticipation.forget();
             return 0;
         }
-        // Two groups: the nodes of the earliest command, then those of the next one.
+        // Two groups: the nodes of the earliest command, then those of the next one — when that
+        // comes too soon after it for the still ticks between them to plan and solve it anew
+        // (the ticks a crossing's step keeps busy, then a group's work at this budget).
         let command = |c: &Crossing| libm::ceil(c.time);
         let first = found[..len]
             .iter()
             .take_while(|c| command(c) == command(&found[0]))
             .count();
+        let reach = (BUSY_AFTER_CROSSING + GROUP_WORK / budget) as f64;
+        let soon = first < len && command(&found[first]) - command(&found[0]) <= reach;
         let len = first
             + found[first..len]
                 .iter()
-                .take_while(|c| command(c) == command(&found[first]))
+                .take_while(|c| soon && command(c) == command(&found[first]))
                 .count();
         let area = |c: &Crossing| nodes.area.get(c.node as usize).map_or(0.0, |a| *a as f64);
         let base_area = (0..nodes.n)
