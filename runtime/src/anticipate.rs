@@ -580,13 +580,10 @@ impl Runtime<'_> {
                 .take_while(|c| soon && command(c) == command(&found[first]))
                 .count();
         let area = |c: &Crossing| nodes.area.get(c.node as usize).map_or(0.0, |a| *a as f64);
-        let base_area = (0..nodes.n)
-            .filter(|&i| member(i))
-            .map(|i| nodes.area[i] as f64)
-            .sum();
         let plan = Plan {
             base: self.anticipation.set_signature,
-            base_area,
+            // Summed by `adopt`, and only for a plan it takes.
+            base_area: 0.0,
             nodes: found,
             areas: found.map(|c| area(&c)),
             len,
@@ -611,9 +608,9 @@ impl Runtime<'_> {
         spent
     }
 
-    /// Makes `plan` the plan: kept as it is when only the times moved; else a new plan whose
-    /// nodes start from the old solves of the same nodes.
-    fn adopt(&mut self, plan: Plan) {
+    /// Makes `plan` the plan: kept as it is when only the times moved; else a new plan (with
+    /// its set's lumped area) whose nodes start from the old solves of the same nodes.
+    fn adopt(&mut self, mut plan: Plan) {
         let s = &mut self.anticipation;
         let key = |p: &Plan| {
             let mut k = [(u32::MAX, false); PLAN_NODES];
@@ -630,8 +627,15 @@ impl Runtime<'_> {
         let old = s
             .plan
             .filter(|o| o.radius == plan.radius && parallel(o.force, plan.force));
+        let (weight, area) = (&*self.contact.weight, &*self.nodes.area);
+        plan.base_area = weight
+            .iter()
+            .zip(area)
+            .filter(|(w, _)| **w != 0.0)
+            .map(|(_, a)| *a as f64)
+            .sum();
         let mut kept = [false; PLAN_NODES];
-        // where[k]: the slot old node k's solve is in now.
+        // at[k]: the slot old node k's solve is in now.
         let mut at: [usize; PLAN_NODES] = core::array::from_fn(|k| k);
         if let Some(old) = old {
             for j in 0..plan.len {
@@ -777,13 +781,12 @@ impl Runtime<'_> {
             } else {
                 x.iter_mut().for_each(|v| *v = 0.0);
             }
-            match pcg_start(&mut m, &self.contact, s.r_full, &mut work, tol) {
-                Some(carry) => s.carry = Some(carry),
-                None => {
-                    s.phase += 1;
-                    return used;
-                }
+            let carry = pcg_start(&mut m, &self.contact, s.r_full, &mut work, tol);
+            if carry.rnorm <= tol {
+                s.phase += 1;
+                return used;
             }
+            s.carry = Some(carry);
         }
         let Some(mut carry) = s.carry else {
             return used;

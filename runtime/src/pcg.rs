@@ -288,13 +288,7 @@ where
     M: Preconditioner + ?Sized,
     S: Projection + ?Sized,
 {
-    let Some(mut carry) = pcg_start(m, s, r_full, work, params.tolerance) else {
-        // Nothing to solve: the preconditioner was skipped.
-        return Ok(CgInfo {
-            iterations: 0,
-            residual: norm(work.r),
-        });
-    };
+    let mut carry = pcg_start(m, s, r_full, work, params.tolerance);
     pcg_iterate(a, m, s, x, r_full, work, &mut carry, params)
 }
 
@@ -310,14 +304,15 @@ pub struct CgCarry {
 }
 
 /// Starts a PCG solve from `r_full` = b − A x: r = S r_full, and — unless ‖r‖ ≤ `tolerance`
-/// already (`None`: nothing to solve, the preconditioner skipped) — z = S M⁻¹ r and p = z.
+/// already, when there is nothing to solve and the preconditioner is skipped ([`pcg_iterate`]
+/// then stops at once) — z = S M⁻¹ r and p = z.
 pub fn pcg_start<M, S>(
     m: &mut M,
     s: &S,
     r_full: &[f32],
     work: &mut PcgWork<'_>,
     tolerance: f32,
-) -> Option<CgCarry>
+) -> CgCarry
 where
     M: Preconditioner + ?Sized,
     S: Projection + ?Sized,
@@ -327,14 +322,14 @@ where
     s.project(r);
     let rnorm = norm(r);
     if rnorm <= tolerance {
-        return None;
+        return CgCarry { rz: 0.0, rnorm };
     }
     m.apply(r, z);
     copy(p, z);
-    Some(CgCarry {
+    CgCarry {
         rz: dot(r, z),
         rnorm,
-    })
+    }
 }
 
 /// The iterations of [`pcg`] from a started (or earlier interrupted) solve whose vectors are in
