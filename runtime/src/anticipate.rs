@@ -45,14 +45,14 @@
 //!
 //! This room changes when what is anticipated, or how, changes.
 
-use crate::contact::Probe;
+use crate::contact_set::Probe;
 use crate::pcg::{
     norm, pcg_iterate, pcg_start, CgCarry, CgError, CgParams, LinearOperator, PcgWork,
 };
-use crate::precond::TwoLevelApply;
 use crate::runtime::Runtime;
 use crate::stiffness::{residual_pass, KeepRotations, Stiffness};
 use crate::storage::{Carver, Dims, RoomLayout};
+use crate::two_level::TwoLevelApply;
 
 /// Crossings further ahead than this many contact commands are not anticipated.
 pub const HORIZON: f64 = 10_000.0;

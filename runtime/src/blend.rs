@@ -6,7 +6,7 @@
 //! inside the physical band −0.999 λ < α < 0.499 λ. The runtime therefore never leaves the
 //! convex range of what was measured.
 
-use crate::elements::ElementState;
+use crate::element_state::ElementState;
 use crate::nodes::NodeState;
 use palpate_protocol::model::{Blend, ModelRecord, ParameterLayout};
 

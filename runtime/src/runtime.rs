@@ -9,16 +9,16 @@
 use crate::anticipate::Anticipation;
 use crate::blend::blend_parameters;
 use crate::config::RuntimeConfig;
-use crate::contact::{ContactSet, Probe, FIXED};
 use crate::contact_rule::{contact_integrals, contact_weights_by, ContactRule, ContactRuleError};
+use crate::contact_set::{ContactSet, Probe, FIXED};
 use crate::element::PACKED_LEN;
-use crate::elements::ElementState;
+use crate::element_state::ElementState;
 use crate::error::RuntimeError;
 use crate::nodes::NodeState;
 use crate::pcg::{norm, PcgWork};
-use crate::precond::TwoLevel;
 use crate::stiffness::{internal_forces, ElementForces};
 use crate::storage::{Carver, Dims, Layout, StorageRequirement};
+use crate::two_level::TwoLevel;
 use palpate_protocol::model::{ModelRecord, ParameterLayout};
 
 /// The fixed-memory warped-stiffness simulator.

@@ -5,7 +5,7 @@
 //! This room changes when the way K' is applied or assembled changes.
 
 use crate::config::Kernel;
-use crate::elements::{block, store_block, ElementState};
+use crate::element_state::{block, store_block, ElementState};
 use crate::error::RuntimeError;
 use crate::kernel::{
     diagonal_blocks_lanes, gradient_of_lanes, rotate_gradients_lanes, rotated_apply_lanes,

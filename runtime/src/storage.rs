@@ -163,13 +163,13 @@ const fn sum<const K: usize>(lens: &[usize; K]) -> usize {
 pub(crate) struct Layout {
     /// [`crate::nodes::NodeState`].
     pub nodes: RoomLayout<10, 0>,
-    /// [`crate::contact::ContactSet`].
+    /// [`crate::contact_set::ContactSet`].
     pub contact: RoomLayout<3, 1>,
     /// [`crate::pcg::PcgWork`].
     pub work: RoomLayout<4, 0>,
-    /// [`crate::precond::TwoLevel`].
+    /// [`crate::two_level::TwoLevel`].
     pub precond: RoomLayout<2, 1>,
-    /// [`crate::elements::ElementState`].
+    /// [`crate::element_state::ElementState`].
     pub elements: RoomLayout<10, 1>,
     /// [`crate::stiffness::ElementForces`].
     pub forces: RoomLayout<1, 2>,
@@ -182,11 +182,11 @@ impl Layout {
     pub(crate) const fn of(d: &Dims) -> Self {
         Self {
             nodes: crate::nodes::NodeState::layout(d),
-            contact: crate::contact::ContactSet::layout(d),
+            contact: crate::contact_set::ContactSet::layout(d),
             work: crate::pcg::PcgWork::layout(d),
-            elements: crate::elements::ElementState::layout(d),
+            elements: crate::element_state::ElementState::layout(d),
             forces: crate::stiffness::ElementForces::layout(d),
-            precond: crate::precond::TwoLevel::layout(d),
+            precond: crate::two_level::TwoLevel::layout(d),
             anticipation: crate::anticipate::Anticipation::layout(d),
         }
     }

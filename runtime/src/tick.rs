@@ -46,9 +46,9 @@
 use crate::anticipate::Fired;
 use crate::blend::blend_parameters;
 use crate::pcg::{dot, norm, pcg, predict, predict_subspace, CgError, CgParams, Projection};
-use crate::precond::TwoLevelApply;
 use crate::runtime::Runtime;
 use crate::stiffness::{residual_pass, KeepRotations, Stiffness};
+use crate::two_level::TwoLevelApply;
 use palpate_protocol::model::Blend;
 
 /// Outcome of one PCG solve.

@@ -43,7 +43,7 @@ const FLOPS_PER_ELEMENT: f64 = 63.0 + 28.0 + 54.0;
 /// gathered p (12 f32), the element forces stored (12 f32), then the node pass's incidences
 /// (4 u32) and the element forces read back (12 f32).
 const BYTES_PER_ELEMENT: f64 = 16.0 + 36.0 + 12.0 + 48.0 + 48.0 + 16.0 + 48.0;
-/// Flops per node and iteration (`runtime/src/pcg.rs`, `precond.rs`, `coarse.rs`): p·q (6), the
+/// Flops per node and iteration (`runtime/src/pcg.rs`, `two_level.rs`, `coarse.rs`): p·q (6), the
 /// update pass x += αp, r_full −= αq, r −= αSq (18), ‖r‖² in f64 (6), z = B_i⁻¹ r_i (15), the
 /// coarse restriction (18) and prolongation (21), r·z (6), p = z + βp (6).
 const FLOPS_PER_NODE: f64 = 6.0 + 18.0 + 6.0 + 15.0 + 18.0 + 21.0 + 6.0 + 6.0;

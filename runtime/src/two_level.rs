@@ -6,7 +6,7 @@
 
 use crate::coarse::Coarse;
 use crate::config::Preconditioner as Kind;
-use crate::contact::ContactSet;
+use crate::contact_set::ContactSet;
 use crate::error::RuntimeError;
 use crate::pcg::{Preconditioner, Projection};
 use crate::storage::{Carver, Dims, RoomLayout};
