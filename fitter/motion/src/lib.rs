@@ -27,6 +27,7 @@ pub mod model;
 pub mod objective;
 pub mod optimize;
 pub mod predict;
+pub mod request;
 pub mod scenario;
 pub mod sim;
 pub mod sparse;

@@ -6,12 +6,10 @@
 use anyhow::Context;
 use indicatif::ProgressStyle;
 use palpate_fem::export::ProvenanceInfo;
-use palpate_motion::fitted::{FittedModel, FittedRun};
 use palpate_motion::gradient::Method;
-use palpate_motion::model::{Material, Param, ParamKind};
-use palpate_motion::optimize::{fit_runs, FitSettings, Optimizer, Run};
-use palpate_motion::predict;
-use palpate_runtime::material::LambdaAlpha;
+use palpate_motion::model::ParamKind;
+use palpate_motion::optimize::{FitSettings, Optimizer};
+use palpate_motion::request::{self, FitRequest, NamedRun};
 use std::path::PathBuf;
 
 /// Options.
@@ -87,126 +85,113 @@ fn param_kind(name: &str, flag: &str) -> Option<ParamKind> {
     })
 }
 
+/// Parses `--initial KIND=VALUE,…` into kinds and finite positive values.
+fn initial_values(given: &[String]) -> anyhow::Result<Vec<(ParamKind, f64)>> {
+    given
+        .iter()
+        .map(|kv| {
+            let (k, v) = kv
+                .split_once('=')
+                .with_context(|| format!("--initial: {kv:?} is not KIND=VALUE"))?;
+            let v: f64 = v
+                .trim()
+                .parse()
+                .ok()
+                .filter(|v: &f64| v.is_finite() && *v > 0.0)
+                .with_context(|| {
+                    format!("--initial: {kv:?}: the value must be a finite number > 0")
+                })?;
+            match param_kind(k, "--initial") {
+                Some(
+                    kind @ (ParamKind::Lambda
+                    | ParamKind::Mu
+                    | ParamKind::Nu
+                    | ParamKind::PowerH
+                    | ParamKind::Stiffening),
+                ) => Ok((kind, v)),
+                _ => anyhow::bail!(
+                    "--initial: unknown kind {:?} (lambda, mu, viscosity, h, stiffening)",
+                    k.trim()
+                ),
+            }
+        })
+        .collect()
+}
+
+/// The request the flags describe.
+fn request(args: &Args) -> anyhow::Result<FitRequest> {
+    let params = args
+        .params
+        .iter()
+        .map(|name| {
+            param_kind(name, "--params").with_context(|| {
+                format!(
+                    "--params: unknown parameter {name:?} (lambda, mu, viscosity, h, density, stiffening)"
+                )
+            })
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let per_element = args
+        .per_element
+        .iter()
+        .map(|name| {
+            param_kind(name, "--per-element")
+                .filter(|k| matches!(k, ParamKind::Lambda | ParamKind::Mu | ParamKind::Density))
+                .with_context(|| {
+                    format!("--per-element: {name:?} is not one of lambda, mu, density")
+                })
+        })
+        .collect::<anyhow::Result<_>>()?;
+    Ok(FitRequest {
+        params,
+        per_element,
+        initial: initial_values(&args.initial)?,
+        hanging_inertia: args.hanging_inertia,
+        settings: FitSettings {
+            optimizer: match args.optimizer.as_str() {
+                "lm" => Optimizer::LevenbergMarquardt,
+                "lbfgs" => Optimizer::Lbfgs,
+                _ => Optimizer::Auto,
+            },
+            method: if args.direct {
+                Method::Direct
+            } else {
+                Method::Adjoint
+            },
+            max_iters: args.max_iters,
+            smoothness: args.smoothness,
+            poisson: args.poisson,
+            ..Default::default()
+        },
+    })
+}
+
 /// Runs the fit and prints the report.
 pub fn run(args: Args) -> anyhow::Result<()> {
     for out in [&args.output, &args.export].into_iter().flatten() {
         super::output::check_writable(out)?;
     }
-    let mut all: Vec<palpate_motion::dataset::MotionDataset> = args
+    let req = request(&args)?;
+    let mut runs: Vec<NamedRun> = args
         .datasets
         .iter()
-        .map(|d| palpate_motion::dataset::load(d))
-        .collect::<Result<_, _>>()?;
-    if args.hanging_inertia {
-        for d in &mut all {
-            palpate_motion::fitted::set_hanging_inertia(&mut d.model, true);
-        }
-    }
-    let ds = &all[0];
-    for (d, other) in args.datasets.iter().zip(&all).skip(1) {
-        anyhow::ensure!(
-            other.mesh.nodes == ds.mesh.nodes && other.mesh.tets == ds.mesh.tets,
-            "{}: its mesh differs from {}'s: the runs of one fit share one mesh and material",
-            d.display(),
-            args.datasets[0].display()
-        );
-    }
-    let ne = ds.model.tets.len();
+        .map(|d| {
+            Ok(NamedRun {
+                name: d.display().to_string(),
+                dataset: palpate_motion::dataset::load(d)?,
+            })
+        })
+        .collect::<anyhow::Result<_>>()?;
     if args.equilibria {
+        let mu0 = req
+            .initial
+            .iter()
+            .find(|(k, _)| *k == ParamKind::Mu)
+            .map(|(_, v)| *v);
         let nu = args.poisson.unwrap_or(0.49);
-        let init = &ds.config.initial;
-        let mut mu0 = init.mu;
-        for kv in &args.initial {
-            if let Some(v) = kv.strip_prefix("mu=") {
-                mu0 = v.trim().parse().context("--initial mu: not a number")?;
-            }
-        }
-        let base = Material::uniform(
-            ne,
-            init.lambda,
-            mu0,
-            0.0,
-            1.0,
-            ds.config.density.unwrap_or(1000.0),
-        );
-        let runs: Vec<_> = all.iter().map(|d| (&d.model, &d.obs)).collect();
-        let (mu, rms, sd) = predict::fit_equilibria(&runs, &base, nu, mu0)?;
-        println!(
-            "equilibria of {} runs: μ = {mu:.5e} Pa ± {sd:.2e} (1σ, independent residuals), E = {:.5e} Pa ± {:.2e} at Poisson's ratio {nu} (held); rest-state RMS {:.3} mm",
-            all.len(),
-            2.0 * (1.0 + nu) * mu,
-            2.0 * (1.0 + nu) * sd,
-            1e3 * rms
-        );
+        println!("{}", request::fit_equilibria(&runs, nu, mu0)?);
         return Ok(());
     }
-    let mut init = ds.config.initial.clone();
-    if args.initial.is_empty() {
-        let start = palpate_motion::start::initial_values(ds, args.poisson);
-        log::info!("{}", start.note);
-        (init.lambda, init.mu, init.nu, init.h) =
-            (start.lambda, start.mu, start.viscosity, start.h);
-    }
-    let mut stiffening: Option<f64> = None;
-    for kv in &args.initial {
-        let (k, v) = kv
-            .split_once('=')
-            .with_context(|| format!("--initial: {kv:?} is not KIND=VALUE"))?;
-        let v: f64 = v
-            .trim()
-            .parse()
-            .ok()
-            .filter(|v: &f64| v.is_finite() && *v > 0.0)
-            .with_context(|| format!("--initial: {kv:?}: the value must be a finite number > 0"))?;
-        match param_kind(k, "--initial") {
-            Some(ParamKind::Lambda) => init.lambda = v,
-            Some(ParamKind::Mu) => init.mu = v,
-            Some(ParamKind::Nu) => init.nu = v,
-            Some(ParamKind::PowerH) => init.h = v,
-            Some(ParamKind::Stiffening) => stiffening = Some(v),
-            _ => anyhow::bail!(
-                "--initial: unknown kind {:?} (lambda, mu, viscosity, h, stiffening)",
-                k.trim()
-            ),
-        }
-    }
-    let density = ds.config.density.unwrap_or(1000.0);
-    let mut base = Material::uniform(ne, init.lambda, init.mu, init.nu, init.h, density);
-    // The stiffening is 0 (eq. 16) unless given or fitted; fitted in ln c, it needs a start
-    // above 0: c = μ unless given (at 10 % strain that adds about 6 % to the Neo-Hookean energy).
-    let fits_stiffening = args
-        .params
-        .iter()
-        .any(|n| n.trim() == ParamKind::Stiffening.name());
-    if let Some(c) = stiffening.or(fits_stiffening.then_some(init.mu)) {
-        base.set_uniform(ParamKind::Stiffening, c);
-    }
-    let mut params = Vec::new();
-    for name in &args.params {
-        let kind = param_kind(name, "--params").with_context(|| {
-            format!(
-                "--params: unknown parameter {name:?} (lambda, mu, viscosity, h, density, stiffening)"
-            )
-        })?;
-        params.push(Param::global(kind));
-    }
-    for name in &args.per_element {
-        let kind = param_kind(name, "--per-element")
-            .filter(|k| matches!(k, ParamKind::Lambda | ParamKind::Mu | ParamKind::Density));
-        let kind = kind.with_context(|| {
-            format!("--per-element: {name:?} is not one of lambda, mu, density")
-        })?;
-        anyhow::ensure!(
-            !params.iter().any(|p| p.kind == kind),
-            "{name} is both global and per-element"
-        );
-        params.extend((0..ne).map(|e| Param::of_element(kind, e)));
-    }
-    anyhow::ensure!(!params.is_empty(), "no parameters to fit");
-    if ds.config.density.is_none() && !params.iter().any(|p| p.kind == ParamKind::Density) {
-        log::info!("note: density not given in dataset.toml; using 1000 kg/m³");
-    }
-    let q0 = base.read(&params);
     let bar = super::logging::bar(Some(args.max_iters * 2));
     bar.set_style(
         ProgressStyle::with_template("{spinner} {pos} simulations, {msg} [{elapsed}]")
@@ -217,214 +202,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         pb.set_position(n as u64);
         pb.set_message(format!("Φ = {phi:.5e}"));
     };
-    let settings = FitSettings {
-        optimizer: match args.optimizer.as_str() {
-            "lm" => Optimizer::LevenbergMarquardt,
-            "lbfgs" => Optimizer::Lbfgs,
-            _ => Optimizer::Auto,
-        },
-        method: if args.direct {
-            Method::Direct
-        } else {
-            Method::Adjoint
-        },
-        max_iters: args.max_iters,
-        smoothness: args.smoothness,
-        poisson: args.poisson,
-        ..Default::default()
-    };
-    let runs: Vec<Run> = all
-        .iter()
-        .map(|d| Run {
-            model: &d.model,
-            obs: &d.obs,
-        })
-        .collect();
-    let r = fit_runs(
-        &runs,
-        &base,
-        &params,
-        &q0,
-        &settings,
-        &ds.mesh.face_neighbours(),
-        &progress,
-    )?;
+    let outcome = request::fit(&mut runs, &req, &progress)?;
     bar.finish_and_clear();
-    let mut fitted = base.clone();
-    fitted.set(&params, &r.q);
-    if let (Some(nu), Some(mu)) = (
-        args.poisson,
-        params.iter().position(|p| p.kind == ParamKind::Mu),
-    ) {
-        fitted.set(
-            &[Param::global(ParamKind::Lambda)],
-            &[2.0 * nu / (1.0 - 2.0 * nu) * r.q[mu]],
-        );
-    }
-    let names: Vec<String> = args
-        .datasets
-        .iter()
-        .map(|d| d.display().to_string())
-        .collect();
-    println!(
-        "fit-motion {}: {} tets, {} steps of {} s, {} markers",
-        names.join(" + "),
-        ne,
-        all.iter()
-            .map(|d| d.model.steps.to_string())
-            .collect::<Vec<_>>()
-            .join(" + "),
-        ds.model.dt,
-        ds.model.markers.len()
-    );
-    println!("| quantity | value |\n|---|---|");
-    println!(
-        "| RMS marker error √(2Φ/(NT)) | {:.4} mm |",
-        r.eval.rms_marker * 1e3
-    );
-    println!("| RMS force error | {:.4e} N |", r.eval.rms_force);
-    if all.len() > 1 {
-        for (name, e) in names.iter().zip(&r.runs) {
-            println!(
-                "| RMS marker error, {name} | {:.4} mm |",
-                e.rms_marker * 1e3
-            );
-        }
-    }
-    println!(
-        "| simulations / {} iterations | {} / {} |",
-        optimizer_name(r.optimizer),
-        r.evaluations,
-        r.iterations
-    );
-    for k in ParamKind::ALL {
-        let v = &fitted.values[k as usize];
-        let mean = v.iter().sum::<f64>() / v.len() as f64;
-        let (lo, hi) = v
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
-                (a.min(*x), b.max(*x))
-            });
-        let tag = if params.iter().any(|p| p.kind == k) {
-            "fitted"
-        } else if k == ParamKind::Lambda && args.poisson.is_some() {
-            "from μ at the fixed Poisson's ratio"
-        } else {
-            "fixed"
-        };
-        println!(
-            "| {} ({tag}) | mean {mean:.6e} (min {lo:.4e}, max {hi:.4e}) |",
-            k.label()
-        );
-    }
-    let la = LambdaAlpha::from_lame(
-        fitted.get(ParamKind::Lambda, 0),
-        fitted.get(ParamKind::Mu, 0),
-    );
-    println!(
-        "| Young's modulus E, Poisson's ratio ν (element 0) | {:.4e} Pa, {:.4} |",
-        la.young(),
-        la.poisson()
-    );
-    println!(
-        "| {} of element 0, as exported | {:.4e} Pa, {:.4e} Pa |",
-        palpate_fem::names::THESIS_PAIR,
-        la.lambda,
-        la.alpha
-    );
-    println!("\n{}", palpate_fem::names::THESIS_PAIR_NOTE);
-    // The result's gates: elastic parameters at the bounds of what a soft object can be refuse
-    // the export; Newton steps that never met their tolerance and an LBFGS run stopped by its cap
-    // are said loudly (stderr, exit status 2).
-    let elastic: Vec<palpate_fem::forward::Material> =
-        (0..fitted.values[0].len().max(fitted.values[1].len()))
-            .map(|e| {
-                let at = |k: usize| fitted.values[k][e.min(fitted.values[k].len() - 1)];
-                palpate_fem::forward::Material::homogeneous(LambdaAlpha::from_lame(at(0), at(1)))
-            })
-            .collect();
-    let mut findings = palpate_fem::sanity::Findings::default();
-    for (e, m) in elastic.iter().enumerate() {
-        for mut f in palpate_fem::sanity::check_material(std::slice::from_ref(m)).0 {
-            if elastic.len() > 1 {
-                f.message = format!("element {e}: {}", f.message);
-            }
-            findings.0.push(f);
-        }
-    }
-    let stats = r.eval.stats;
-    if stats.unconverged_steps > 0 {
-        findings.warn(
-            "newton-not-converged",
-            format!(
-                "{} of {} time steps of the fitted simulation did not meet the Newton tolerance \
-                 (largest residual {:.3e} N): the fitted trajectory is not an accurate solution",
-                stats.unconverged_steps, ds.model.steps, stats.max_residual
-            ),
-        );
-    }
-    findings.extend(palpate_fem::sanity::check_iterations(
-        optimizer_name(r.optimizer),
-        r.iterations as usize,
-        args.max_iters as usize,
-        r.iterations < args.max_iters,
-    ));
-    let findings = findings.into_result()?;
+    println!("{outcome}");
+    let findings = outcome.findings.into_result()?;
     if let Some(out) = &args.output {
-        let record = FittedModel {
-            format: palpate_motion::fitted::FORMAT.into(),
-            datasets: names.clone(),
-            nodes: ds.mesh.nodes.len(),
-            tets: ne,
-            lambda: fitted.values[0].clone(),
-            mu: fitted.values[1].clone(),
-            viscosity: fitted.values[2].clone(),
-            h: fitted.values[3].clone(),
-            density: fitted.values[4].clone(),
-            stiffening: palpate_motion::fitted::FittedModel::stiffening_of(&fitted),
-            poisson_fixed: args.poisson,
-            hanging_inertia: args.hanging_inertia
-                || all.iter().any(|d| d.model.loads.iter().any(|l| l.inertia)),
-            time_offset: false,
-            fitted: params
-                .iter()
-                .map(|p| p.kind.name().to_string())
-                .collect::<std::collections::BTreeSet<_>>()
-                .into_iter()
-                .collect(),
-            runtime_lambda_alpha: fitted.values[0]
-                .iter()
-                .zip(&fitted.values[1])
-                .map(|(l, m)| {
-                    let a = LambdaAlpha::from_lame(*l, *m);
-                    [a.lambda, a.alpha]
-                })
-                .collect(),
-            rms_marker_m: r.eval.rms_marker,
-            rms_force_n: r.eval.rms_force,
-            evaluations: r.evaluations,
-            runs: all
-                .iter()
-                .zip(&names)
-                .zip(&r.runs)
-                .map(|((d, name), e)| {
-                    let rest = predict::rest_markers(&d.model);
-                    FittedRun {
-                        dataset: name.clone(),
-                        load_n: predict::load_along_gravity(&d.model),
-                        rms_marker_m: e.rms_marker,
-                        time_offset_s: 0.0,
-                        markers: d.model.markers.iter().map(|m| m.name.clone()).collect(),
-                        final_displacement_m: predict::final_observed(&d.model, &d.obs)
-                            .iter()
-                            .zip(&rest)
-                            .map(|(f, r0)| f.map(|p| [0, 1, 2].map(|k| p[k] - r0[k])))
-                            .collect(),
-                    }
-                })
-                .collect(),
-        };
-        palpate_fem::io::atomic::write_atomic(out, record.to_json()?.as_bytes())?;
+        palpate_fem::io::atomic::write_atomic(out, outcome.record.to_json()?.as_bytes())?;
         log::info!(
             "wrote {} (fitted parameters; `palpate validate --model {}` predicts other runs)",
             out.display(),
@@ -432,25 +215,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     if let Some(path) = &args.export {
+        let r = &outcome.result;
         let prov = ProvenanceInfo {
             tool: format!(
                 "palpate {} {}",
                 env!("CARGO_PKG_VERSION"),
                 std::env::args().collect::<Vec<_>>().join(" ")
             ),
-            source: names.join(" + "),
+            source: outcome.record.datasets.join(" + "),
             notes: format!(
                 "fit-motion: RMS marker {:.4e} m, RMS force {:.4e} N, {} simulations",
                 r.eval.rms_marker, r.eval.rms_force, r.evaluations
             ),
         };
-        let buffers = palpate_motion::export::model_buffers(&ds.mesh, &ds.model, &fitted, &prov)
-            .with_context(|| format!("exporting {}", path.display()))?;
+        let ds = &runs[0].dataset;
+        let buffers =
+            palpate_motion::export::model_buffers(&ds.mesh, &ds.model, &outcome.fitted, &prov)
+                .with_context(|| format!("exporting {}", path.display()))?;
         let n = buffers.write(path)?;
         log::info!(
             "wrote {} ({n} bytes): runtime model; {}",
             path.display(),
-            palpate_motion::export::lost_in_export(&fitted)
+            palpate_motion::export::lost_in_export(&outcome.fitted)
         );
     }
     let warnings = findings.warnings().count();
@@ -461,12 +247,4 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Err(super::WrittenWithWarnings(warnings).into());
     }
     Ok(())
-}
-
-/// The optimiser's name in reports.
-fn optimizer_name(o: Optimizer) -> &'static str {
-    match o {
-        Optimizer::Lbfgs => "LBFGS",
-        _ => "Levenberg–Marquardt",
-    }
 }
