@@ -148,3 +148,27 @@ pub fn record(
     })?;
     Ok(obs)
 }
+
+/// The example bar of the tests, benches and `models/motion-example`: 2 × 8 × 2 cm.
+pub const EXAMPLE_BAR_SIZE: [f64; 3] = [0.02, 0.08, 0.02];
+/// The example bar's time step: 180 Hz, a motion-capture rate.
+pub const EXAMPLE_DT: f64 = 1.0 / 180.0;
+
+/// The example bar in `cells` hexahedra, its base moving by [`two_sinusoids`] for `steps` steps
+/// of [`EXAMPLE_DT`], watched by the [`nine_markers`].
+pub fn example_bar(cells: [usize; 3], steps: usize) -> Result<(Mesh, Model), MotionError> {
+    bar_model(
+        EXAMPLE_BAR_SIZE,
+        cells,
+        EXAMPLE_DT,
+        steps,
+        &two_sinusoids,
+        &nine_markers(EXAMPLE_BAR_SIZE),
+    )
+}
+
+/// The example bar's material, the truth of `models/motion-example`: λ = 10 kPa, μ = 20 kPa,
+/// viscosity 12 Pa·s^h, h = 1, ρ = 47 kg/m³ in every element of `model`.
+pub fn example_truth(model: &Model) -> Material {
+    Material::uniform(model.tets.len(), 1.0e4, 2.0e4, 12.0, 1.0, 47.0)
+}

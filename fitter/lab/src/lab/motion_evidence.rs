@@ -7,7 +7,10 @@ use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_motion::gradient::evaluate;
 use palpate_motion::model::{Material, Model, Observations, Param, ParamKind};
 use palpate_motion::optimize::{fit, FitSettings};
-use palpate_motion::scenario::{bar_model, nine_markers, record, tension_bar, two_sinusoids};
+use palpate_motion::scenario::{
+    bar_model, example_bar, example_truth, nine_markers, record, tension_bar, two_sinusoids,
+    EXAMPLE_BAR_SIZE, EXAMPLE_DT,
+};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -436,12 +439,11 @@ fn vhb(dir: &Path) -> anyhow::Result<(&'static str, String, serde_json::Value)> 
 /// 9 markers with 0.2 mm noise, truth in `truth.toml` (kept apart from the dataset).
 fn example(dir: &Path) -> anyhow::Result<()> {
     use std::fmt::Write as _;
-    let size = [0.02, 0.08, 0.02];
-    let dt = 1.0 / 180.0;
+    let dt = EXAMPLE_DT;
     let steps = 45;
-    let markers = nine_markers(size);
-    let (mesh, m) = bar_model(size, [1, 4, 1], dt, steps, &two_sinusoids, &markers)?;
-    let truth = Material::uniform(m.tets.len(), 1.0e4, 2.0e4, 12.0, 1.0, 47.0);
+    let markers = nine_markers(EXAMPLE_BAR_SIZE);
+    let (mesh, m) = example_bar([1, 4, 1], steps)?;
+    let truth = example_truth(&m);
     let obs = record(&m, &truth, 2e-4, 11)?;
     std::fs::create_dir_all(dir)?;
     palpate_fem::mesh::gmsh::write_msh(&mesh, dir.join("mesh.msh"))?;

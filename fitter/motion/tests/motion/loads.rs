@@ -2,6 +2,7 @@
 //! Poisson's ratio, and the prediction of a run from a fitted material — on the bundled 24-tet
 //! example bar (front face clamped and shaken, gravity along −y).
 
+use crate::support::{copy_example, example};
 use palpate_motion::dataset::load;
 use palpate_motion::gradient::Method;
 use palpate_motion::model::{DeadLoad, Material, Model, Observations, Param, ParamKind};
@@ -9,7 +10,6 @@ use palpate_motion::optimize::{evaluate_runs, fit_runs, FitSettings, Run};
 use palpate_motion::predict::{linear_baseline, predict};
 use palpate_motion::scenario::record;
 use palpate_motion::sim::{equilibrium, simulate_states};
-use palpate_tests::motion::{copy_example, example};
 
 /// A copy of the example with `extra` appended to its dataset.toml, loaded (or its error).
 fn with_toml(extra: &str) -> Result<palpate_motion::dataset::MotionDataset, String> {
@@ -328,7 +328,7 @@ fn shared_dataset_keys_mean_the_same_in_both_formats() {
         assert!(e.contains("dataset.toml") && e.contains(want), "{key}: {e}");
     }
     // The static reader: `clamps` for `fixed_group`, one group only, not both.
-    let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/sponge/dataset");
+    let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/sponge/dataset");
     let read = |edit: &dyn Fn(&str) -> String| {
         let dir = tempfile::tempdir().unwrap();
         for e in std::fs::read_dir(&src).unwrap() {

@@ -1,7 +1,7 @@
 //! The motion dataset reader on the bundled example and on broken copies of it.
 
+use crate::support::{copy_example, example};
 use palpate_motion::dataset::load;
-use palpate_tests::motion::{copy_example, example};
 use std::path::Path;
 
 #[test]

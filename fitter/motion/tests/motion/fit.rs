@@ -1,11 +1,11 @@
 //! End-to-end motion fit: LBFGS in log space recovers known parameters from noise-free
 //! synthetic markers, and a failed simulation is reported, not fatal.
 
+use crate::support::{bar, truth};
 use palpate_motion::model::{Param, ParamKind};
 use palpate_motion::optimize::{fit, FitResult, FitSettings, Optimizer};
 use palpate_motion::scenario::record;
 use palpate_motion::MotionError;
-use palpate_tests::motion::{bar, truth};
 
 /// Fits the global `kinds` from `start` to the noise-free markers of the ground truth on the
 /// 24-tet bar moved for `steps` steps.

@@ -2,13 +2,13 @@
 //! H = Σ Δt w Jᵀ J that the direct sensitivities sum against JᵀJ of a finite-difference Jacobian
 //! of the residual vector, and the fit it drives against the paper's LBFGS on noisy data.
 
+use crate::support::{assert_gradients_agree, bar, truth};
 use palpate_motion::gradient::{evaluate, evaluate_gauss_newton};
 use palpate_motion::model::{Material, Model, Observations, Param, ParamKind};
 use palpate_motion::objective::clamp_force;
 use palpate_motion::optimize::{fit, FitSettings, Optimizer};
 use palpate_motion::scenario::record;
 use palpate_motion::sim::simulate_states;
-use palpate_tests::motion::{assert_gradients_agree, bar, truth};
 
 /// The weighted residual vector whose half squared norm is Φ: √(Δt w_m)(x̄_i − x_i*) for every
 /// observed marker and √(Δt w_f)(F_c − F_c*) for every observed clamp force, step by step.

@@ -2,13 +2,13 @@
 //! differences of the energy, the Neo-Hookean initialisation (eq. 19) against eq. 16, and the
 //! direct/adjoint gradients with respect to spline control values against finite differences.
 
+use crate::support::{assert_gradients_agree, bar};
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use palpate_motion::elastic::ElasticState;
 use palpate_motion::hyperelastic::{self as he, RestTet};
 use palpate_motion::model::{Material, Param, ParamKind};
 use palpate_motion::scenario::record;
 use palpate_motion::spline::{Response, Spline, SplineMaterial};
-use palpate_tests::motion::{assert_gradients_agree, bar};
 
 const LAMBDA: f64 = 1.0e4;
 const MU: f64 = 2.0e4;

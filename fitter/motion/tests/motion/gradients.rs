@@ -2,9 +2,9 @@
 //! other and with central finite differences for every parameter type, with marker and force
 //! observations, from an elastostatic start.
 
+use crate::support::{assert_gradients_agree, bar, truth};
 use palpate_motion::model::{MassKind, Material, Param, ParamKind};
 use palpate_motion::scenario::record;
-use palpate_tests::motion::{assert_gradients_agree, bar, truth};
 
 fn setup(
     mass: MassKind,

@@ -1,0 +1,15 @@
+//! The motion crate's tests that read files or run whole fits (the unit tests sit beside their
+//! code), linked into one binary: the simulator against analytic and converged references,
+//! the gradients against finite differences, the optimisers, the dataset reader, the loads, the
+//! spline material and the static solve.
+
+mod support;
+
+mod cantilever;
+mod dataset;
+mod fit;
+mod gauss_newton;
+mod gradients;
+mod loads;
+mod spline;
+mod statics;
