@@ -104,6 +104,9 @@ mod tests {
         assert_eq!(pressure(23_014.4), "23.01 kPa");
         assert_eq!(pressure(2.5e6), "2.500 MPa");
         assert_eq!(pressure(950.0), "950.0 Pa");
+        // Each unit from its first value: 1 kPa is "1.000 kPa", not "1000 Pa".
+        assert_eq!(pressure(1_000.0), "1.000 kPa");
+        assert_eq!(pressure(5_000.0), "5.000 kPa");
         assert_eq!(plain(0.49), "0.4900");
         assert_eq!(plain(0.0012346), "0.001235");
         assert_eq!(plain(1.5e-7), "1.500 × 10⁻⁷");
