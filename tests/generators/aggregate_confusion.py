@@ -1,8 +1,8 @@
 """Pool several run_confusion.py outputs into one table: detection and exact naming against SNR, per effect,
 and the verdicts on effect-free draws.
 
-    python tests/generators/aggregate_confusion.py docs/results/diagnose/independent-v2/seed2 \
-        docs/results/diagnose/independent-v2/seed3 ... -o docs/results/diagnose/independent-v2/pooled.md
+    python tests/generators/aggregate_confusion.py /tmp/palpate-indep-seed2 \
+        /tmp/palpate-indep-seed3 ... -o /tmp/palpate-indep-pooled.md
 
 Every input is a folder with a confusion.json; draws keep the scores run_confusion.py gave them (run it with
 --rescore first when the harness's name mapping changed). The binary of each folder (sha256) is listed, so a

@@ -2,7 +2,7 @@
 
     python run_confusion.py --draws 40 --seed 1 [--shapes block,dome,cylinder] [--effects none,inclusion,...]
                             [--palpate target/release/palpate] [--timeout 1800] [--snr-threshold 5]
-                            [-o docs/results/diagnose/independent] [--work /tmp/palpate-indep] [--quick] [--resume]
+                            [-o docs/results/diagnose/static-independent] [--work /tmp/palpate-indep] [--quick] [--resume]
     python run_confusion.py --draws 2 --quick          # smoke test: a few minutes
 
 For every draw: generate a dataset (independent_static.generate), run palpate as a user would,
@@ -435,7 +435,7 @@ def main():
         args.palpate_version = subprocess.run([args.palpate, "--version"], capture_output=True, text=True, timeout=30).stdout.strip()
     except Exception:
         args.palpate_version = "?"
-    outdir = args.out or ("/tmp/palpate-indep-smoke" if args.quick else "docs/results/diagnose/independent")
+    outdir = args.out or ("/tmp/palpate-indep-smoke" if args.quick else "docs/results/diagnose/static-independent")
     os.makedirs(outdir, exist_ok=True)
     # blocks of len(effects) draws: a shuffled effect list, then shuffled shape lists covering the block
     # (prefix-stable: the first draws of a longer run are those of a shorter one with the same seed)

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The measured-beam evidence (issue 15): import the four bundled captures on the coarse mesh, fit
+# The measured-beam evidence: import the four bundled captures on the coarse mesh, fit
 # the diagnosed model (Neo-Hookean, Poisson's ratio held at 0.49, Newtonian damping, the hanging
 # weight's inertia) on all four runs -> models/silicone-beam/fit.json, then leave one run out:
 # fit three, predict the fourth with `palpate validate`. Run from the repository root:

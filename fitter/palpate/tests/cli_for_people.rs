@@ -298,11 +298,20 @@ fn every_json_document_has_a_schema_version_and_units_in_its_names() {
     assert!(row.get("lambda").is_none() && row.get("alpha").is_none());
     assert!(r["fit"]["per_measurement"][0]["rms_m"].as_f64().is_some());
     let md = std::fs::read_to_string(report.join("report.md")).unwrap();
-    assert!(md.contains("| E (Pa) | ν | Lamé λ (Pa) | μ (Pa) |"), "{md}");
     assert!(
-        md.contains("Thesis coefficients (λ_F, α_G)") && md.contains("| λ_F (Pa) | α_G (Pa) |")
+        md.contains("| E (kPa) | ν | Lamé λ (kPa) | μ (kPa) |"),
+        "{md}"
     );
-    assert!(!md.contains("| λ (Pa) |") && !md.contains("| α (Pa) |"));
+    assert!(
+        md.contains("Thesis coefficients (λ_F, α_G)") && md.contains("| λ_F (kPa) | α_G (kPa) |")
+    );
+    assert!(!md.contains("| λ (kPa) |") && !md.contains("| α (kPa) |"));
+    // The report reads as words and shows its figures: no Rust type names, the figure embedded
+    // as the PNG that --plot-format png wrote.
+    for type_name in ["Homogeneous", "Single", "Displacement", "Converged"] {
+        assert!(!md.contains(type_name), "{type_name} in {md}");
+    }
+    assert!(md.contains("](marker_error.png)"), "{md}");
     // --plot-format png: every figure as PNG, no SVG.
     let figures: Vec<String> = std::fs::read_dir(&report)
         .unwrap()

@@ -17,7 +17,7 @@ use palpate_tests::diagnose::summary;
 fn diagnose(effect: Option<Effect>, seed: u64) -> palpate_diagnose::DiagnosisReport {
     // One adoption round is what these tests assert on (the first effect named and the error
     // after it); the second round would re-try all remaining candidates and double the time.
-    // The full loop runs in `palpate-lab diagnose-evidence` (docs/results/diagnose/confusion.md).
+    // The full loop runs in `palpate-lab diagnose-evidence` (docs/results/diagnose/confusion/confusion.md).
     // On the dataset's own mesh: these check the selection loop, whose decisions the refined
     // mesh only sharpens (`diagnose_refined_mesh_reaches_the_noise_floor` checks the refinement),
     // at an eighth of the cost.

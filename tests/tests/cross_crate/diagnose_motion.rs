@@ -439,9 +439,9 @@ fn a_stiffening_bar_is_given_its_stiffening() {
 /// (measured 29,999 / 10,000 Pa) and the forecast brought to the noise floor (measured
 /// 2,284 → 34.4 µm, floor σ√3 = 34.6 µm, with the damping adopted second).
 ///
-/// Until session 21 the refit stopped at 371 µm with μ 19.7 / 12.3 kPa: the region's elements
-/// kept the λ of the one-material fit (a global λ did not reach a region), and the sign split
-/// of the map took one element too many.
+/// Why the bounds are what they are: a region whose elements keep the λ of the one-material fit
+/// (a global λ that does not reach the region) stops the refit at 371 µm with μ 19.7 / 12.3 kPa,
+/// and a sign split of the map takes one element too many.
 #[test]
 fn a_bar_of_two_materials_is_given_its_second_material() {
     use palpate_motion::model::ParamKind;

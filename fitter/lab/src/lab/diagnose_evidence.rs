@@ -1,6 +1,6 @@
 //! `palpate-lab diagnose-evidence`: every specimen effect (and none) × seeds through `diagnose`;
 //! writes the confusion table (effect injected × effect named) to
-//! `docs/results/diagnose/confusion.md` and the per-run figures to `confusion.json`.
+//! `docs/results/diagnose/confusion/confusion.md` and the per-run figures to `confusion.json`.
 //! With `--sweep effect:m1,m2,…` (repeatable) it instead runs each listed magnitude × seed and
 //! writes `sweep.md`/`sweep.json`: what was named, the errors, every candidate's round-1 scores,
 //! and the injected effect's own signal-to-noise ratio (see `palpate_specimen::signal_rms`).
@@ -23,7 +23,7 @@ pub struct Args {
     #[arg(long, value_delimiter = ',', default_value = "1,2")]
     pub seeds: Vec<u64>,
     /// Output directory.
-    #[arg(short, long, default_value = "docs/results/diagnose")]
+    #[arg(short, long, default_value = "docs/results/diagnose/confusion")]
     pub output: PathBuf,
     /// Magnitude sweep instead of the confusion table: `effect:m1,m2,…` (repeatable).
     #[arg(long = "sweep", value_name = "EFFECT:M1,M2,…")]

@@ -33,10 +33,10 @@ pub enum Command {
     Bench(bench::BenchCommand),
     /// Motion-fitter evidence runs (coarsening, recover, vhb, bimaterial) into docs/results/motion.
     MotionEvidence(motion_evidence::Args),
-    /// Every specimen effect × seeds through diagnose: the confusion table (docs/results/diagnose).
+    /// Every specimen effect × seeds through diagnose: the confusion table (docs/results/diagnose/confusion).
     DiagnoseEvidence(diagnose_evidence::Args),
     /// Motion specimens with one effect each, drawn at random, through the motion diagnosis: the
-    /// motion confusion table (docs/results/diagnose).
+    /// motion confusion table (docs/results/diagnose/confusion).
     MotionConfusion(motion_confusion::Args),
     /// The non-linear chain end to end (incremental loading, blends on non-linear data, the γ_m
     /// sweep) into docs/results/nonlinear.

@@ -26,7 +26,7 @@ pub struct Args {
     #[arg(long)]
     pub log: bool,
     /// Output directory (`motion-confusion.md`, `motion-confusion.json`).
-    #[arg(short, long, default_value = "docs/results/diagnose")]
+    #[arg(short, long, default_value = "docs/results/diagnose/confusion")]
     pub output: PathBuf,
 }
 

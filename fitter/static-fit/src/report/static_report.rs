@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 
 use palpate_runtime::material::LambdaAlpha;
 
+use super::words;
 use crate::loo::HeldOut;
 use crate::{FitInput, FitResult, GammaChoice};
 use palpate_fem::mesh::{vtk, Mesh};
@@ -102,67 +103,147 @@ pub fn rows(fit: &FitResult) -> Vec<Row> {
         .collect()
 }
 
-/// Markdown of the report.
+/// Markdown of the report, without its figures (what `palpate fit` prints on stdout; the file
+/// `report.md` that [`write_report`] writes embeds the figures too).
 pub fn markdown(name: &str, command: &str, fit: &FitResult, loo: Option<&[HeldOut]>) -> String {
+    markdown_with_figures(name, command, fit, loo, &[])
+}
+
+/// One figure of the report: the file (relative to the report) and what it shows.
+struct Figure {
+    file: String,
+    caption: &'static str,
+}
+
+/// The figure to show out of the files one plot wrote: the SVG when there is one (sharp at any
+/// zoom), else the PNG.
+fn figure(written: &[PathBuf], caption: &'static str) -> Option<Figure> {
+    let name = |ext: &str| {
+        written
+            .iter()
+            .find(|p| p.extension().and_then(|e| e.to_str()) == Some(ext))
+            .and_then(|p| p.file_name())
+            .map(|f| f.to_string_lossy().into_owned())
+    };
+    name("svg")
+        .or_else(|| name("png"))
+        .map(|file| Figure { file, caption })
+}
+
+fn markdown_with_figures(
+    name: &str,
+    command: &str,
+    fit: &FitResult,
+    loo: Option<&[HeldOut]>,
+    figures: &[Figure],
+) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# Static fit: {name}\n");
     let _ = writeln!(s, "Command: `{command}`\n");
+    let iterations = fit.history.len().saturating_sub(1);
     let _ = writeln!(
         s,
-        "Method {:?}, material {:?} × {:?}, warping {}, {:.2} s, {} iterations. Overall RMS marker error {:.4} mm.\n",
-        fit.method,
-        fit.layout,
-        fit.sets,
-        if fit.warp { "on" } else { "off" },
+        "- **Method:** {}, stiffness warping {}.",
+        words::method(fit.method),
+        if fit.warp { "on" } else { "off" }
+    );
+    let _ = writeln!(
+        s,
+        "- **Material:** {}.",
+        words::material(fit.layout, fit.sets)
+    );
+    let _ = writeln!(
+        s,
+        "- **Result:** {} after {iterations} iteration{} in {:.2} s; RMS marker error over all measurements {:.3} mm.",
+        if fit.converged {
+            "converged"
+        } else {
+            "**NOT CONVERGED** (stopped at the iteration cap)"
+        },
+        if iterations == 1 { "" } else { "s" },
         fit.seconds,
-        fit.history.len().saturating_sub(1),
         fit.rms() * 1e3
     );
-    if !fit.converged || !fit.findings.0.is_empty() {
-        let _ = writeln!(
-            s,
-            "**{}** Sanity findings:\n",
-            if fit.converged {
-                "Converged."
-            } else {
-                "NOT CONVERGED."
-            }
-        );
+    let rows = rows(fit);
+    if fit.layout == crate::Layout::Homogeneous && fit.sets == crate::Sets::Single {
+        if let Some(r) = rows.first() {
+            let _ = writeln!(
+                s,
+                "- **Fitted material:** E = {}, ν = {:.3} (Lamé λ = {}, shear modulus μ = {}).",
+                words::pressure(r.young_modulus_pa),
+                r.poisson_ratio,
+                words::pressure(r.lame_lambda_pa),
+                words::pressure(r.shear_modulus_pa)
+            );
+        }
+    }
+    let g = fit.gammas;
+    let _ = writeln!(
+        s,
+        "- **Regularisation** (on the thesis coefficients λ_F, α_G): {}.\n",
+        match &fit.gamma_choice {
+            GammaChoice::NotNeeded =>
+                "none needed (one material, one parameter set: the problem is overdetermined)"
+                    .to_string(),
+            choice => format!(
+                "spatial γ_s = {} (λ_F), {} (α_G); across measurements γ_m = {} (λ_F), {} (α_G); {}",
+                words::plain(g.s_lambda),
+                words::plain(g.s_alpha),
+                words::plain(g.m_lambda),
+                words::plain(g.m_alpha),
+                match choice {
+                    GammaChoice::LCurve { grid, chosen } => format!(
+                        "chosen at the corner of the L-curve, point {} of {}",
+                        chosen + 1,
+                        grid.len()
+                    ),
+                    _ => "given by the user".to_string(),
+                }
+            ),
+        }
+    );
+    if !fit.findings.0.is_empty() {
+        let _ = writeln!(s, "**Read these findings:**\n");
         for f in &fit.findings.0 {
             let _ = writeln!(s, "- {f}");
         }
         let _ = writeln!(s);
     }
-    let g = fit.gammas;
-    let _ = writeln!(
-        s,
-        "Regularisation weights (on the thesis coefficients λ_F, α_G): spatial γ_s = {:.3e}, {:.3e}; across measurements γ_m = {:.3e}, {:.3e}; choice: {}.\n",
-        g.s_lambda,
-        g.s_alpha,
-        g.m_lambda,
-        g.m_alpha,
-        match &fit.gamma_choice {
-            GammaChoice::User => "given by the user".to_string(),
-            GammaChoice::NotNeeded =>
-                "not needed (homogeneous, one set: overdetermined)".to_string(),
-            GammaChoice::LCurve { grid, chosen } => format!(
-                "L-curve corner, point {} of {} (see {})",
-                chosen + 1,
-                grid.len(),
-                palpate_plot::shown("lcurve.svg")
-            ),
-        }
-    );
-    let _ = writeln!(s, "Inhomogeneous sets show the median over elements.\n");
-    let _ = writeln!(s, "| measurement | set | E (Pa) | ν | Lamé λ (Pa) | μ (Pa) | markers | min (mm) | avg (mm) | max (mm) | rms (mm) | ‖x(p) − x̄‖ (mm) | force residual (N) |");
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|---|---|");
-    let rows = rows(fit);
-    for r in &rows {
+    let _ = writeln!(s, "## Per measurement\n");
+    if fit.layout == crate::Layout::Inhomogeneous {
         let _ = writeln!(
             s,
-            "| {} | {} | {:.1} | {:.4} | {:.1} | {:.1} | {} | {:.4} | {:.4} | {:.4} | {:.4} | {:.4} | {} |",
-            r.id, r.set, r.young_modulus_pa, r.poisson_ratio, r.lame_lambda_pa, r.shear_modulus_pa, r.markers, r.min_m * 1e3, r.mean_m * 1e3, r.max_m * 1e3, r.rms_m * 1e3, r.residual_norm_m * 1e3,
-            r.force_residual_n.map(|v| format!("{v:.4e}")).unwrap_or_else(|| "–".into())
+            "The material varies over the elements: each row gives the median over them.\n"
+        );
+    }
+    let column = |f: fn(&Row) -> f64| -> Vec<f64> { rows.iter().map(f).collect() };
+    let e = column(|r| r.young_modulus_pa);
+    let lame = column(|r| r.lame_lambda_pa);
+    let mu = column(|r| r.shear_modulus_pa);
+    let (e_unit, e_size) = words::pressure_unit(&e);
+    let (l_unit, l_size) = words::pressure_unit(&lame);
+    let (m_unit, m_size) = words::pressure_unit(&mu);
+    let _ = writeln!(s, "Marker errors are distances between simulated and measured markers; ‖x(p) − x̄‖ is their norm over the measurement's markers.\n");
+    let _ = writeln!(s, "| measurement | set | E ({e_unit}) | ν | Lamé λ ({l_unit}) | μ ({m_unit}) | markers | min (mm) | mean (mm) | max (mm) | RMS (mm) | ‖x(p) − x̄‖ (mm) | force residual (N) |");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    for r in &rows {
+        let _ =
+            writeln!(
+            s,
+            "| {} | {} | {} | {:.3} | {} | {} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {} |",
+            r.id,
+            r.set,
+            words::plain_fixed(r.young_modulus_pa / e_size),
+            r.poisson_ratio,
+            words::plain_fixed(r.lame_lambda_pa / l_size),
+            words::plain_fixed(r.shear_modulus_pa / m_size),
+            r.markers,
+            r.min_m * 1e3,
+            r.mean_m * 1e3,
+            r.max_m * 1e3,
+            r.rms_m * 1e3,
+            r.residual_norm_m * 1e3,
+            r.force_residual_n.map(words::plain).unwrap_or_else(|| "–".into())
         );
     }
     let mut heading = THESIS_PAIR.to_string();
@@ -170,24 +251,29 @@ pub fn markdown(name: &str, command: &str, fit: &FitResult, loo: Option<&[HeldOu
         first.make_ascii_uppercase();
     }
     let _ = writeln!(s, "\n### {heading}\n\n{THESIS_PAIR_NOTE}\n");
+    let (f_unit, f_size) = words::pressure_unit(&column(|r| r.thesis_lambda_f_pa));
+    let (g_unit, g_size) = words::pressure_unit(&column(|r| r.thesis_alpha_g_pa));
     let _ = writeln!(
         s,
-        "| measurement | set | λ_F (Pa) | α_G (Pa) |\n|---|---|---|---|"
+        "| measurement | set | λ_F ({f_unit}) | α_G ({g_unit}) |\n|---|---|---|---|"
     );
     for r in &rows {
         let _ = writeln!(
             s,
-            "| {} | {} | {:.1} | {:.1} |",
-            r.id, r.set, r.thesis_lambda_f_pa, r.thesis_alpha_g_pa
+            "| {} | {} | {} | {} |",
+            r.id,
+            r.set,
+            words::plain_fixed(r.thesis_lambda_f_pa / f_size),
+            words::plain_fixed(r.thesis_alpha_g_pa / g_size)
         );
     }
     if let Some(loo) = loo {
         let _ = writeln!(s, "\n## Leave-one-out\n\nEach measurement held out in turn, the model fitted on the rest, the held-out contact synthesised with the forward model (the non-linear classes through the blend of the remaining sets).\n");
-        let _ = writeln!(s, "| held out | set used | rms (mm) | max (mm) | training rms (mm) |\n|---|---|---|---|---|");
+        let _ = writeln!(s, "| held out | set used | RMS (mm) | max (mm) | training RMS (mm) |\n|---|---|---|---|---|");
         for h in loo {
             let _ = writeln!(
                 s,
-                "| {} | {} | {:.4} | {:.4} | {:.4} |",
+                "| {} | {} | {:.3} | {:.3} | {:.3} |",
                 h.residual.id,
                 if h.blended {
                     "blend".to_string()
@@ -200,6 +286,16 @@ pub fn markdown(name: &str, command: &str, fit: &FitResult, loo: Option<&[HeldOu
             );
         }
     }
+    if !figures.is_empty() {
+        let _ = writeln!(s, "\n## Figures\n");
+        for f in figures {
+            let _ = writeln!(s, "![{}]({})\n", f.caption, f.file);
+        }
+        let _ = writeln!(
+            s,
+            "`fit.vtu` holds the fitted E and ν per element and the marker error per node: open it in ParaView."
+        );
+    }
     s
 }
 
@@ -211,6 +307,7 @@ fn material_figures(
     fit: &FitResult,
     e: &[f64],
     nu: &[f64],
+    shown: &mut Vec<Figure>,
 ) -> Result<Vec<PathBuf>, crate::FitError> {
     let mut files = Vec::new();
     let distinct = |v: &[f64]| {
@@ -236,35 +333,47 @@ fn material_figures(
                 .zip(v.iter().copied())
                 .collect()
         };
-        files.extend(palpate_plot::bars(
+        const E_TITLE: &str = "Fitted Young's modulus per measurement";
+        const NU_TITLE: &str = "Fitted Poisson's ratio per measurement";
+        let w = palpate_plot::bars(
             dir.join("young_hist.svg"),
-            "Fitted Young's modulus per measurement",
+            E_TITLE,
             "Young's modulus E (Pa)",
             &bars(e),
-        )?);
-        files.extend(palpate_plot::bars(
+        )?;
+        shown.extend(figure(&w, E_TITLE));
+        files.extend(w);
+        let w = palpate_plot::bars(
             dir.join("poisson_hist.svg"),
-            "Fitted Poisson's ratio per measurement",
+            NU_TITLE,
             "Poisson's ratio ν",
             &bars(nu),
-        )?);
+        )?;
+        shown.extend(figure(&w, NU_TITLE));
+        files.extend(w);
         return Ok(files);
     }
     let bins = (e.len() as f64).sqrt().clamp(5.0, 40.0) as usize;
-    files.extend(palpate_plot::histogram(
+    const E_TITLE: &str = "Fitted Young's modulus (all sets, all elements)";
+    const NU_TITLE: &str = "Fitted Poisson's ratio (all sets, all elements)";
+    let w = palpate_plot::histogram(
         dir.join("young_hist.svg"),
-        "Fitted Young's modulus (all sets, all elements)",
+        E_TITLE,
         "Young's modulus E (Pa)",
         e,
         bins,
-    )?);
-    files.extend(palpate_plot::histogram(
+    )?;
+    shown.extend(figure(&w, E_TITLE));
+    files.extend(w);
+    let w = palpate_plot::histogram(
         dir.join("poisson_hist.svg"),
-        "Fitted Poisson's ratio (all sets, all elements)",
+        NU_TITLE,
         "Poisson's ratio ν",
         nu,
         bins,
-    )?);
+    )?;
+    shown.extend(figure(&w, NU_TITLE));
+    files.extend(w);
     Ok(files)
 }
 
@@ -279,7 +388,59 @@ pub fn write_report(
     loo: Option<&[HeldOut]>,
 ) -> Result<Vec<PathBuf>, crate::FitError> {
     let mut files = Vec::new();
-    let md = markdown(name, command, fit, loo);
+    // The figures first, so report.md embeds exactly the files that were written (SVG, PNG or
+    // both, as `--plot-format` asked).
+    let mut shown = Vec::new();
+    let bars: Vec<(String, f64)> = fit
+        .per_measurement
+        .iter()
+        .map(|m| (m.id.clone(), m.rms * 1e3))
+        .collect();
+    let bar_refs: Vec<(&str, f64)> = bars.iter().map(|(a, b)| (a.as_str(), *b)).collect();
+    const ERROR_TITLE: &str = "RMS marker error per measurement";
+    let w = palpate_plot::bars(
+        dir.join("marker_error.svg"),
+        ERROR_TITLE,
+        "RMS marker error (mm)",
+        &bar_refs,
+    )?;
+    shown.extend(figure(&w, ERROR_TITLE));
+    files.extend(w);
+    let all: Vec<LambdaAlpha> = fit
+        .params
+        .iter()
+        .flat_map(|m| {
+            m.lambda
+                .iter()
+                .zip(&m.alpha)
+                .map(|(&lambda, &alpha)| LambdaAlpha { lambda, alpha })
+        })
+        .collect();
+    let e: Vec<f64> = all.iter().map(|p| p.young()).collect();
+    let nu: Vec<f64> = all.iter().map(|p| p.poisson()).collect();
+    files.extend(material_figures(dir, fit, &e, &nu, &mut shown)?);
+    if let GammaChoice::LCurve { grid, chosen } = &fit.gamma_choice {
+        const LCURVE_TITLE: &str = "L-curve: marker residual vs roughness over γ";
+        let pts: Vec<(f64, f64)> = grid.iter().map(|&(_, r, e)| (r, e)).collect();
+        let pick = vec![pts[*chosen]];
+        let w = palpate_plot::lines_with(
+            dir.join("lcurve.svg"),
+            LCURVE_TITLE,
+            "marker residual norm ‖x(p) − x_measured‖ (m)",
+            "roughness ‖L p‖ (Pa)",
+            &[
+                palpate_plot::Series::new("γ on the grid", &pts, palpate_plot::Style::LinePoints),
+                palpate_plot::Series::new("chosen γ", &pick, palpate_plot::Style::Points),
+            ],
+            palpate_plot::Axes {
+                x_log: true,
+                y_log: true,
+            },
+        )?;
+        shown.extend(figure(&w, LCURVE_TITLE));
+        files.extend(w);
+    }
+    let md = markdown_with_figures(name, command, fit, loo, &shown);
     let p = dir.join("report.md");
     crate::write_file(&p, md.as_bytes())?;
     files.push(p);
@@ -295,50 +456,6 @@ pub fn write_report(
     let p = dir.join("report.json");
     crate::write_file(&p, crate::to_json(&p, &json)?.as_bytes())?;
     files.push(p);
-    // Plots.
-    let bars: Vec<(String, f64)> = fit
-        .per_measurement
-        .iter()
-        .map(|m| (m.id.clone(), m.rms * 1e3))
-        .collect();
-    let bar_refs: Vec<(&str, f64)> = bars.iter().map(|(a, b)| (a.as_str(), *b)).collect();
-    files.extend(palpate_plot::bars(
-        dir.join("marker_error.svg"),
-        "RMS marker error per measurement",
-        "RMS marker error (mm)",
-        &bar_refs,
-    )?);
-    let all: Vec<LambdaAlpha> = fit
-        .params
-        .iter()
-        .flat_map(|m| {
-            m.lambda
-                .iter()
-                .zip(&m.alpha)
-                .map(|(&lambda, &alpha)| LambdaAlpha { lambda, alpha })
-        })
-        .collect();
-    let e: Vec<f64> = all.iter().map(|p| p.young()).collect();
-    let nu: Vec<f64> = all.iter().map(|p| p.poisson()).collect();
-    files.extend(material_figures(dir, fit, &e, &nu)?);
-    if let GammaChoice::LCurve { grid, chosen } = &fit.gamma_choice {
-        let pts: Vec<(f64, f64)> = grid.iter().map(|&(_, r, e)| (r, e)).collect();
-        let pick = vec![pts[*chosen]];
-        files.extend(palpate_plot::lines_with(
-            dir.join("lcurve.svg"),
-            "L-curve: marker residual vs roughness over γ",
-            "marker residual norm ‖x(p) − x_measured‖ (m)",
-            "roughness ‖L p‖ (Pa)",
-            &[
-                palpate_plot::Series::new("γ on the grid", &pts, palpate_plot::Style::LinePoints),
-                palpate_plot::Series::new("chosen γ", &pick, palpate_plot::Style::Points),
-            ],
-            palpate_plot::Axes {
-                x_log: true,
-                y_log: true,
-            },
-        )?);
-    }
     // VTK: first set's E, ν per element; per node the mean marker error norm over measurements,
     // spread to the nodes of each marker's triangle by barycentric weight.
     let first = &fit.params[0];
