@@ -709,8 +709,6 @@ fn compare(
         must_hold,
         norm2_lanes_instructions_per_element: t.kernel.map(|k| k.1 as f64 / k.0 as f64),
     };
-    println!("{}", serde_json::to_string(&summary)?);
-
     let mut failures = Vec::new();
     for f in &figs {
         if f.reactions_equal_bits != f.ticks || f.iterations_equal != f.ticks || !f.state_equal_bits
@@ -758,6 +756,7 @@ fn compare(
             None => failures.push(format!("--must-hold {name}: not in the transcript")),
         }
     }
+    println!("{}", serde_json::to_string(&summary)?);
     if !failures.is_empty() {
         bail!("{}", failures.join("; "));
     }
