@@ -75,10 +75,17 @@ macro_rules! line {
     }};
 }
 
+/// After the semihosting exit (QEMU has stopped by then; a debugger would not).
+fn halt() -> ! {
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
 fn fail(what: &str) -> ! {
     line!("m4 error {what}");
     debug::exit(debug::EXIT_FAILURE);
-    loop {}
+    halt()
 }
 
 /// Timer counts elapsed since `start` (SysTick counts down through 24 bits).
@@ -302,7 +309,7 @@ fn main() -> ! {
     probe_run();
     line!("m4 done");
     debug::exit(debug::EXIT_SUCCESS);
-    loop {}
+    halt()
 }
 
 #[panic_handler]
@@ -311,5 +318,5 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     let _ = write!(l, "m4 error panic: {info}");
     emit(&l);
     debug::exit(debug::EXIT_FAILURE);
-    loop {}
+    halt()
 }

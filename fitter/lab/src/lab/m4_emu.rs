@@ -322,7 +322,10 @@ fn parse(text: &str) -> anyhow::Result<Transcript> {
                     format!("transcript line {line}: frame before the probe line")
                 })?;
                 let hex = w[1];
-                ensure!(hex.len() % 2 == 0, "transcript line {line}: odd hex length");
+                ensure!(
+                    hex.len().is_multiple_of(2),
+                    "transcript line {line}: odd hex length"
+                );
                 let bytes = (0..hex.len())
                     .step_by(2)
                     .map(|j| u8::from_str_radix(&hex[j..j + 2], 16))
