@@ -8,8 +8,9 @@
 //! the emulator counted into the board's cost model: a tick fits the 1 kHz budget of a 64 MHz
 //! Cortex-M4F when `instructions × CPI ≤ 64,000` cycles, with CPI (cycles per instruction) an
 //! assumption stated on the command line, and the largest block model that does is extrapolated
-//! from the two smallest models (instructions per tick linear in the tetrahedra). A named model
-//! that misses the budget, or any difference from the host, fails the command.
+//! by a least-squares line through the models played (instructions per tick linear in the
+//! tetrahedra, for the worst tick and the median one). A model named by `--must-hold` whose worst
+//! tick misses its rate, or any difference from the host, fails the command.
 
 use anyhow::{bail, ensure, Context as _};
 use palpate_fem::block_model::BlockModel;
