@@ -8,6 +8,7 @@ pub mod bench_link;
 pub mod bench_motion;
 pub mod bench_runtime;
 pub mod diagnose_evidence;
+pub mod m4_emu;
 pub mod model_form;
 pub mod motion_confusion;
 pub mod motion_evidence;
@@ -44,6 +45,9 @@ pub enum Command {
     /// Whether a static dataset's residual is the warped linear model's form: its (E, ν) fit
     /// against the Neo-Hookean quasi-static solver's best fit on the same mesh and loads.
     ModelForm(model_form::Args),
+    /// The runtime and probe firmware on an emulated Cortex-M4F: the bundled models, the
+    /// comparison with the host and the board's cost model (firmware/m4-emu).
+    M4Emu(m4_emu::Args),
 }
 
 /// Runs a parsed command line.
@@ -55,5 +59,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::MotionConfusion(a) => motion_confusion::run(a),
         Command::NonlinearEvidence(a) => nonlinear_evidence::run(a),
         Command::ModelForm(a) => model_form::run(a),
+        Command::M4Emu(a) => m4_emu::run(a),
     }
 }
