@@ -109,7 +109,7 @@ pub fn markdown(name: &str, command: &str, fit: &FitResult, loo: Option<&[HeldOu
     let _ = writeln!(s, "Command: `{command}`\n");
     let _ = writeln!(
         s,
-        "Method {:?}, material {:?} × {:?}, warping {}, {:.2} s, {} iterations. Overall RMS marker error {:.4} mm.\n",
+        "Method {}, material {}, {}, warping {}, {:.2} s, {} iterations. Overall RMS marker error {:.4} mm.\n",
         fit.method,
         fit.layout,
         fit.sets,
