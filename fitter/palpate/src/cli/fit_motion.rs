@@ -89,6 +89,9 @@ fn param_kind(name: &str, flag: &str) -> Option<ParamKind> {
 
 /// Runs the fit and prints the report.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    for d in &args.datasets {
+        super::input_kind::expect(d, super::input_kind::Kind::MotionDataset, "fit-motion")?;
+    }
     for out in [&args.output, &args.export].into_iter().flatten() {
         super::output::check_writable(out)?;
     }
@@ -369,6 +372,31 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.max_iters as usize,
         r.iterations < args.max_iters,
     ));
+    // A fit that never left its start (nothing in the data pulled on it) or ended at infinity
+    // is no result.
+    if r.q == q0 {
+        findings.error(
+            "fit-did-not-move",
+            format!(
+                "the fit ended on its starting values after {} simulation(s): the data did not \
+                 move it, so writing it would pass the start off as a measurement (check the \
+                 weights, units and frame of the dataset)",
+                r.evaluations
+            ),
+        );
+    }
+    if !(r.q.iter().all(|v| v.is_finite())
+        && r.eval.rms_marker.is_finite()
+        && r.eval.rms_force.is_finite())
+    {
+        findings.error(
+            "non-finite-fit",
+            format!(
+                "the fit ended at infinity or NaN (RMS marker error {:.3e} m, force {:.3e} N)",
+                r.eval.rms_marker, r.eval.rms_force
+            ),
+        );
+    }
     let findings = findings.into_result()?;
     if let Some(out) = &args.output {
         let record = FittedModel {

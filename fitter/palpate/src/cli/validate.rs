@@ -29,6 +29,16 @@ pub struct Args {
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
     args.plots.apply();
+    super::input_kind::expect(
+        &args.model,
+        super::input_kind::Kind::FitJson,
+        "validate --model",
+    )?;
+    super::input_kind::expect(
+        &args.dataset,
+        super::input_kind::Kind::MotionDataset,
+        "validate",
+    )?;
     let text = std::fs::read_to_string(&args.model)
         .with_context(|| format!("reading {}", args.model.display()))?;
     let fit: FittedModel = serde_json::from_str(&text).with_context(|| {
