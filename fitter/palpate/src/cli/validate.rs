@@ -54,8 +54,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         fit.format,
         palpate_motion::fitted::READABLE_FORMATS
     );
+    // Where the folder will be made is checked now; the folder itself only once there is a
+    // prediction to put in it.
     if let Some(out) = &args.output {
-        super::output::check_writable(&out.join("prediction.csv"))?;
+        super::output::check_writable(out)?;
     }
     let mut ds = palpate_motion::dataset::load(&args.dataset)?;
     if fit.hanging_inertia {
