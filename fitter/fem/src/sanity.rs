@@ -519,7 +519,7 @@ mod tests {
             lambda: 5e3,
             alpha: 2e3,
         });
-        let same = check_fit_result(&start, &[start.clone()], 0.077, Some(1e-4));
+        let same = check_fit_result(&start, std::slice::from_ref(&start), 0.077, Some(1e-4));
         assert!(
             same.0.iter().any(|f| f.code == "fit-did-not-move"),
             "{same:?}"
