@@ -165,9 +165,26 @@ fn check_header(path: &Path, b: &[u8]) -> Result<(), CaptureError> {
             b[1]
         )));
     }
-    let param = (usize::from(b[0]).max(1) - 1) * 512;
+    // Block 1 is this header, so the parameter section starts at block 2 or later; `c3dio`
+    // indexes `512 * (block - 1)` without checking, and a zero here wraps below zero.
+    let param_block = usize::from(b[0]);
+    let blocks = b.len().div_ceil(512);
+    if param_block < 2 || param_block > blocks {
+        return Err(bad(format!(
+            "byte 1 (parameter section start) is block {param_block}, expected 2..={blocks} \
+             (block 1 is the header; the file has {blocks} blocks)"
+        )));
+    }
+    let param = (param_block - 1) * 512;
     // Processor type (parameter block byte 4): 84 Intel, 85 DEC (both little-endian u16), 86 MIPS.
-    let big_endian = b.get(param + 3) == Some(&86);
+    let processor = b.get(param + 3).copied().unwrap_or(0);
+    if !(84..=86).contains(&processor) {
+        return Err(bad(format!(
+            "parameter block byte 4 (processor type) is {processor}, expected 84 (Intel), \
+             85 (DEC) or 86 (MIPS)"
+        )));
+    }
+    let big_endian = processor == 86;
     let u16_at = |i: usize| {
         let w = [b[i], b[i + 1]];
         if big_endian {
@@ -177,6 +194,16 @@ fn check_header(path: &Path, b: &[u8]) -> Result<(), CaptureError> {
         }
     };
     let (markers, first, last) = (u16_at(2), u16_at(6), u16_at(8));
+    // The data section follows the parameter section; the parser slices the parameters as
+    // blocks 2..data_start and the points from data_start on, without checking either.
+    let data_block = usize::from(u16_at(16));
+    if data_block <= param_block || data_block > blocks {
+        return Err(bad(format!(
+            "bytes 17-18 (data section start) say block {data_block}, expected {}..={blocks} \
+             (after the parameter section at block {param_block}; the file has {blocks} blocks)",
+            param_block + 1
+        )));
+    }
     if last < first {
         return Err(bad(format!("last frame {last} before first frame {first}")));
     }
@@ -193,7 +220,7 @@ fn check_header(path: &Path, b: &[u8]) -> Result<(), CaptureError> {
         POINT_BYTES_INTEGER
     };
     let need = frames * usize::from(markers) * per_point;
-    if need > b.len() {
+    if need > b.len() - (data_block - 1) * 512 {
         return Err(bad(format!(
             "the header promises {frames} frames of {markers} markers ({need} bytes of points), \
              but the file has {} bytes (truncated?)",
@@ -243,5 +270,52 @@ impl Capture {
                     > threshold
             })
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn beam_with(patch: &[(usize, u8)]) -> Vec<u8> {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../models/silicone-beam/beam_gravity_V2_a.c3d");
+        let mut b = std::fs::read(path).unwrap();
+        for &(i, v) in patch {
+            b[i] = v;
+        }
+        b
+    }
+
+    fn header_error(b: &[u8]) -> String {
+        match check_header(Path::new("x.c3d"), b) {
+            Err(CaptureError::Header { what, .. }) => what,
+            other => panic!("expected a header error, got {other:?}"),
+        }
+    }
+
+    /// Byte 1 = 0 made the parser index 512 × (0 − 1), a wrapped index and a panic.
+    #[test]
+    fn parameter_block_zero_is_a_header_error() {
+        assert!(check_header(Path::new("x.c3d"), &beam_with(&[])).is_ok());
+        let what = header_error(&beam_with(&[(0, 0)]));
+        assert!(what.contains("parameter section start"), "{what}");
+        let what = header_error(&beam_with(&[(0, 255)]));
+        assert!(what.contains("block 255"), "{what}");
+    }
+
+    /// A zero data-start word made the parser slice the parameters up to 512 × (0 − 1).
+    #[test]
+    fn data_block_zero_or_past_the_end_is_a_header_error() {
+        let what = header_error(&beam_with(&[(16, 0), (17, 0)]));
+        assert!(what.contains("data section start"), "{what}");
+        let what = header_error(&beam_with(&[(16, 0xff), (17, 0xff)]));
+        assert!(what.contains("block 65535"), "{what}");
+    }
+
+    #[test]
+    fn unknown_processor_is_a_header_error() {
+        let what = header_error(&beam_with(&[(512 + 3, 0)]));
+        assert!(what.contains("processor type"), "{what}");
     }
 }

@@ -299,6 +299,160 @@ pub fn check_displacements(rest: &[[f64; 3]], displacement: &[[f64; 3]]) -> Find
     f
 }
 
+/// A fit that ended on its starting values (nothing in the data moved it: every marker off by the
+/// same large amount, observations in other units) or whose residual is not a number is no
+/// result; one whose residual is far above the declared marker noise is a warning. `start` is
+/// the starting material of every set, `rms` the fit's RMS marker error (m), `noise` the
+/// declared σ per axis (m).
+pub fn check_fit_result(
+    start: &Material,
+    result: &[Material],
+    rms: f64,
+    noise: Option<f64>,
+) -> Findings {
+    let mut f = Findings::default();
+    let finite = result
+        .iter()
+        .all(|m| m.lambda.iter().chain(&m.alpha).all(|v| v.is_finite()));
+    if !(finite && rms.is_finite()) {
+        f.error(
+            "non-finite-fit",
+            format!(
+                "the fit ended at infinity or NaN (RMS marker error {rms:.3e} m): an observed \
+                 position is not a number the model can reach (check measurements.csv for huge \
+                 values or other units)"
+            ),
+        );
+        return f;
+    }
+    let same = |a: &[f64], b: &[f64]| a.iter().zip(b.iter().cycle()).all(|(x, y)| x == y);
+    let unmoved = !result.is_empty()
+        && result
+            .iter()
+            .all(|m| same(&m.lambda, &start.lambda) && same(&m.alpha, &start.alpha));
+    if unmoved {
+        f.error(
+            "fit-did-not-move",
+            format!(
+                "the fit ended where it started (λ = {:.4e} Pa, α = {:.4e} Pa, RMS marker error \
+                 {:.3} mm): the data did not move it, so the result is the starting guess, not a \
+                 measurement (check that measured and rest positions share units and frame)",
+                start.lambda[0],
+                start.alpha[0],
+                1e3 * rms
+            ),
+        );
+    }
+    if let Some(sigma) = noise.filter(|s| *s > 0.0) {
+        // σ per axis: a marker's error norm is about σ√3 at the noise floor.
+        let floor = sigma * 3f64.sqrt();
+        if rms > RESIDUAL_NOISE_FACTOR * floor {
+            f.warn(
+                "residual-above-noise",
+                format!(
+                    "the RMS marker error {:.3} mm is {:.0} × the declared noise floor {:.3} mm \
+                     (marker_noise σ√3): the model does not explain the data (displacements in \
+                     other units, a wrong fixed group, or effects the model lacks — try \
+                     `palpate diagnose`)",
+                    1e3 * rms,
+                    rms / floor,
+                    1e3 * floor
+                ),
+            );
+        }
+    }
+    f
+}
+
+/// How many times the declared noise floor a fit's RMS marker error may be before it is warned
+/// about (a fit that explains its data lands within a few times the floor).
+pub const RESIDUAL_NOISE_FACTOR: f64 = 20.0;
+
+/// The largest gravity a dataset or command may declare (m/s²): ten g. Beyond it the number is
+/// almost surely in other units (9810 is g in mm/s²).
+pub const MAX_GRAVITY_M_S2: f64 = 10.0 * 9.81;
+
+/// The densest material a soft object could be (kg/m³), above osmium's 22 590: beyond it the
+/// number is in other units (g/m³, kg/cm³ inverted).
+pub const MAX_DENSITY_KG_M3: f64 = 25_000.0;
+
+/// A number as a user wrote it, but short: `1e300` stays `1e300`, not three hundred digits.
+pub fn show(v: f64) -> String {
+    let plain = v.to_string();
+    if plain.len() <= 12 {
+        plain
+    } else {
+        format!("{v:e}")
+    }
+}
+
+/// Checks a gravity vector: finite and at most [`MAX_GRAVITY_M_S2`]. The message says what was
+/// expected and found; the caller adds file, line and field.
+pub fn check_gravity(g: [f64; 3]) -> Result<(), String> {
+    if !g.iter().all(|v| v.is_finite()) {
+        return Err(format!("expected three finite numbers (m/s²), found {g:?}"));
+    }
+    // Scaled, so that 1e308 is reported as 1e308 and not as an overflowed infinity.
+    let big = g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let norm = if big > 0.0 {
+        big * g.iter().map(|v| (v / big).powi(2)).sum::<f64>().sqrt()
+    } else {
+        0.0
+    };
+    if norm > MAX_GRAVITY_M_S2 {
+        return Err(format!(
+            "|g| = {norm:.4e} m/s² is more than {MAX_GRAVITY_M_S2:.1} m/s² (10 g); gravity is \
+             9.81 m/s² on Earth — {norm:.0} looks like mm/s² or cm/s², give it in m/s²"
+        ));
+    }
+    Ok(())
+}
+
+/// Checks a density: finite, > 0 and at most [`MAX_DENSITY_KG_M3`].
+pub fn check_density(d: f64) -> Result<(), String> {
+    if !(d.is_finite() && d > 0.0) {
+        return Err(format!(
+            "expected a density > 0 kg/m³ (a foam ~50, silicone ~1100), found {}",
+            show(d)
+        ));
+    }
+    if d > MAX_DENSITY_KG_M3 {
+        return Err(format!(
+            "{d:.4e} kg/m³ is denser than any material (at most {MAX_DENSITY_KG_M3} kg/m³): \
+             give it in kg/m³"
+        ));
+    }
+    Ok(())
+}
+
+/// Checks the weights of an objective's terms: each finite and ≥ 0, and not all zero (a fit
+/// with no weighted term has nothing to match and returns its start). `names` and `weights`
+/// are parallel.
+pub fn check_weights(names: &[&str], weights: &[f64]) -> Result<(), String> {
+    for (n, w) in names.iter().zip(weights) {
+        if !(w.is_finite() && *w >= 0.0) {
+            return Err(format!(
+                "{n}: expected a finite weight ≥ 0, found {}",
+                show(*w)
+            ));
+        }
+    }
+    if weights.iter().all(|w| *w == 0.0) {
+        return Err(if names.len() > 1 {
+            format!(
+                "{} are all 0: the fit would have nothing to match; give one a weight > 0",
+                names.join(" and ")
+            )
+        } else {
+            format!(
+                "{} is 0: the fit would have nothing to match; give it a weight > 0",
+                names.join("")
+            )
+        });
+    }
+    Ok(())
+}
+
 /// The diagonal of the points' axis-aligned bounding box (m).
 pub fn bounding_diagonal(points: &[[f64; 3]]) -> f64 {
     let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
@@ -357,5 +511,48 @@ mod tests {
         );
         let nan = check_displacements(&rest, &[[f64::NAN; 3], [0.0; 3]]);
         assert!(nan.has_errors());
+    }
+
+    #[test]
+    fn a_fit_that_never_moved_or_ran_to_infinity_is_refused() {
+        let start = Material::homogeneous(LambdaAlpha {
+            lambda: 5e3,
+            alpha: 2e3,
+        });
+        let same = check_fit_result(&start, std::slice::from_ref(&start), 0.077, Some(1e-4));
+        assert!(
+            same.0.iter().any(|f| f.code == "fit-did-not-move"),
+            "{same:?}"
+        );
+        let mut moved = start.clone();
+        moved.lambda[0] *= 1.01;
+        let ok = check_fit_result(&start, &[moved.clone()], 2e-4, Some(1e-4));
+        assert!(ok.0.is_empty(), "{ok:?}");
+        let inf = check_fit_result(&start, &[moved.clone()], f64::INFINITY, None);
+        assert!(inf.0.iter().any(|f| f.code == "non-finite-fit"), "{inf:?}");
+        let far = check_fit_result(&start, &[moved], 0.053, Some(1e-4));
+        assert!(
+            far.0.iter().any(|f| f.code == "residual-above-noise"),
+            "{far:?}"
+        );
+    }
+
+    #[test]
+    fn bounds_name_the_likely_unit() {
+        assert!(check_gravity([0.0, -9.81, 0.0]).is_ok());
+        assert!(check_gravity([0.0, -9810.0, 0.0])
+            .unwrap_err()
+            .contains("mm/s²"));
+        assert!(check_gravity([1e308, 1e308, 0.0])
+            .unwrap_err()
+            .contains("1.4142e308"));
+        assert!(check_gravity([f64::NAN, 0.0, 0.0]).is_err());
+        assert!(check_density(47.0).is_ok());
+        assert!(check_density(0.0).is_err());
+        assert!(check_density(-47.0).is_err());
+        assert!(check_density(1e6).is_err());
+        assert!(check_weights(&["a", "b"], &[1.0, 0.0]).is_ok());
+        assert!(check_weights(&["a", "b"], &[-1.0, 1.0]).is_err());
+        assert!(check_weights(&["a"], &[0.0]).is_err());
     }
 }

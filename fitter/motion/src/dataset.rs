@@ -426,10 +426,30 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
             format!("field marker_noise: must be finite and > 0 m, found {s}"),
         ));
     }
+    if let Some(d) = config.density {
+        palpate_fem::sanity::check_density(d)
+            .map_err(|why| bad(&tf, 0, format!("field density: {why}")))?;
+    }
+    let i = &config.initial;
+    for (key, v) in [
+        ("initial.lambda", i.lambda),
+        ("initial.mu", i.mu),
+        ("initial.viscosity", i.nu),
+        ("initial.h", i.h),
+    ] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(bad(
+                &tf,
+                0,
+                format!("field {key}: expected a finite value > 0, found {v}"),
+            ));
+        }
+    }
     let gravity = match config.gravity {
-        Some(g) if g.iter().all(|v| v.is_finite()) => g,
         Some(g) => {
-            return Err(bad(&tf, 0, format!("field gravity: not finite: {g:?}")));
+            palpate_fem::sanity::check_gravity(g)
+                .map_err(|why| bad(&tf, 0, format!("field gravity: {why}")))?;
+            g
         }
         None => {
             log::warn!(
@@ -477,6 +497,7 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
         ));
     }
     check_markers_near_mesh(&kf, &krows, &marker_pts, &mesh)?;
+    check_marker_scale(&kf, &marker_pts, &mesh)?;
     // Trajectories, clamps, forces.
     let jf = dir.join("trajectories.csv");
     let traj = csv(&jf, &[&["t", "marker", "x", "y", "z"]])?;
@@ -666,6 +687,31 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
             "neither trajectories.csv nor forces.csv present: nothing to fit",
         ));
     }
+    // Only the terms with data count: a zero marker weight on a dataset without forces.csv
+    // leaves the fit nothing to match, and it would return its start.
+    let mut names = Vec::new();
+    let mut weights = Vec::new();
+    if traj.is_some() {
+        names.push("field marker_weight (trajectories.csv)");
+        weights.push(obs.marker_weight);
+    }
+    if forces.is_some() {
+        names.push("field force_weight (forces.csv)");
+        weights.push(obs.force_weight);
+    }
+    palpate_fem::sanity::check_weights(&names, &weights).map_err(|why| bad(&tf, 0, why))?;
+    for (key, w) in [
+        ("marker_weight", obs.marker_weight),
+        ("force_weight", obs.force_weight),
+    ] {
+        if !(w.is_finite() && w >= 0.0) {
+            return Err(bad(
+                &tf,
+                0,
+                format!("field {key}: expected a finite weight ≥ 0, found {w}"),
+            ));
+        }
+    }
     if config.substeps == Some(0) || config.substeps.is_some_and(|k| k > MAX_DECLARED_SUBSTEPS) {
         return Err(bad(
             &tf,
@@ -826,6 +872,40 @@ fn check_trajectories_near_rest(
     }
     Ok(())
 }
+
+/// Refuses a mesh 1000 × larger than its markers' spread: markers inside a mesh read in the
+/// wrong units (millimetres taken as metres) pass [`check_markers_near_mesh`] because the mesh is
+/// huge, but then sit in a corner of it.
+fn check_marker_scale(
+    file: &Path,
+    markers: &[(String, [f64; 3])],
+    mesh: &Mesh,
+) -> Result<(), DatasetError> {
+    if markers.len() < 2 {
+        return Ok(());
+    }
+    let (_, _, diagonal) = bounding_box(mesh);
+    let spread = palpate_fem::sanity::bounding_diagonal(
+        &markers.iter().map(|(_, p)| *p).collect::<Vec<_>>(),
+    );
+    if spread > 0.0 && diagonal > MESH_MARKER_SCALE * spread {
+        return Err(bad(
+            file,
+            0,
+            format!(
+                "the markers span {spread:.4e} m but the mesh is {diagonal:.4e} m across \
+                 ({:.0} ×): the mesh is probably in millimetres and the markers in metres \
+                 (palpate reads metres; scale the mesh by 0.001)",
+                diagonal / spread
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// How many times the markers' spread the mesh's box diagonal may be: markers cover a good part
+/// of the object they are stuck on; 1000 × is a unit mistake.
+pub const MESH_MARKER_SCALE: f64 = 100.0;
 
 /// Refuses markers far outside the body: a marker in other units or another frame would be
 /// embedded by extrapolating a boundary element's shape functions and fitted as if it were real.

@@ -109,6 +109,45 @@ impl FittedModel {
             per_element("density_kg_m3", &self.density, None)?,
             per_element("stiffening_pa", &self.stiffening, Some(0.0))?,
         ];
+        // A hand-edited or corrupt record must not be simulated: each value within what it
+        // means (moduli and density > 0, the stiffening ≥ 0).
+        // λ may be negative (an auxetic material) and h is any exponent: those only finite.
+        for (k, (name, sign)) in [
+            ("lame_lambda_pa", ""),
+            ("shear_modulus_pa", "> 0"),
+            ("viscosity_pa_s_h", "≥ 0"),
+            ("power_law_index", ""),
+            ("density_kg_m3", "> 0"),
+            ("stiffening_pa", "≥ 0"),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            for (e, &v) in mat.values[k].iter().enumerate() {
+                let ok = v.is_finite()
+                    && match sign {
+                        "> 0" => v > 0.0,
+                        "≥ 0" => v >= 0.0,
+                        _ => true,
+                    };
+                if !ok {
+                    return Err(format!(
+                        "field {name}: element {e} holds {v}, expected a finite value {sign}"
+                    ));
+                }
+            }
+            if name == "density_kg_m3" {
+                if let Some(v) = mat.values[k]
+                    .iter()
+                    .find(|v| **v > palpate_fem::sanity::MAX_DENSITY_KG_M3)
+                {
+                    return Err(format!(
+                        "field {name}: {v} kg/m³ is denser than any material (at most {} kg/m³)",
+                        palpate_fem::sanity::MAX_DENSITY_KG_M3
+                    ));
+                }
+            }
+        }
         Ok(mat)
     }
 
@@ -177,5 +216,31 @@ mod tests {
         }
         let back: FittedModel = serde_json::from_str(&text).unwrap();
         assert_eq!(back, f);
+    }
+
+    #[test]
+    fn a_negative_density_or_modulus_is_refused_with_its_field() {
+        let good = r#"{"format": "palpate-motion-fit/1", "datasets": ["a"], "nodes": 4, "tets": 1,
+            "lambda": [1e4], "mu": [2e4], "viscosity": [3.0], "h": [1.0], "density": [47.0],
+            "poisson_fixed": null, "hanging_inertia": false, "fitted": ["mu", "nu"],
+            "runtime_lambda_alpha": [[6e4, 1e4]], "rms_marker_m": 1e-4, "rms_force_n": 0.0,
+            "evaluations": 3, "runs": []}"#;
+        let f: FittedModel = serde_json::from_str(good).unwrap();
+        assert!(f.material().is_ok());
+        for (field, bad) in [
+            ("density_kg_m3", -47.0),
+            ("shear_modulus_pa", 0.0),
+            ("viscosity_pa_s_h", -1.0),
+            ("density_kg_m3", 1e9),
+        ] {
+            let mut f = f.clone();
+            match field {
+                "density_kg_m3" => f.density = vec![bad],
+                "shear_modulus_pa" => f.mu = vec![bad],
+                _ => f.viscosity = vec![bad],
+            }
+            let e = f.material().unwrap_err();
+            assert!(e.contains(&format!("field {field}: ")), "{e}");
+        }
     }
 }

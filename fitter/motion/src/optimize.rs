@@ -407,8 +407,14 @@ pub fn fit_runs(
         .find(|(i, v)| !v.is_finite() || (!params[*i].kind.is_spline() && **v <= 0.0))
     {
         return Err(MotionError::Invalid(format!(
-            "parameter {} ({:?}) must start positive for the log transform, found {v}",
-            i, params[i]
+            "parameter {} ({}{}) must start positive for the log transform, found {v}",
+            i,
+            params[i].kind.name(),
+            match (params[i].element, params[i].region) {
+                (Some(e), _) => format!(" of element {e}"),
+                (None, Some(r)) => format!(" of region {r}"),
+                (None, None) => String::new(),
+            }
         )));
     }
     let spline_scale = |r: Response| {

@@ -193,7 +193,7 @@ pub fn fit(
             &[2.0 * nu / (1.0 - 2.0 * nu) * r.q[mu]],
         );
     }
-    let findings = result_gates(&fitted, &r, ds.model.steps, req.settings.max_iters);
+    let findings = result_gates(&fitted, &r, &q0, ds.model.steps, req.settings.max_iters);
     let record = record(runs, req, &fitted, &params, &r);
     let summary = Summary {
         names: runs.iter().map(|r| r.name.clone()).collect(),
@@ -216,7 +216,13 @@ pub fn fit(
 /// The result's gates: elastic parameters at the bounds of what a soft object can be refuse the
 /// export; Newton steps that never met their tolerance and an optimiser stopped by its cap are
 /// warnings (said loudly by the command, exit status 2).
-fn result_gates(fitted: &Material, r: &FitResult, steps: usize, max_iters: u64) -> Findings {
+fn result_gates(
+    fitted: &Material,
+    r: &FitResult,
+    q0: &[f64],
+    steps: usize,
+    max_iters: u64,
+) -> Findings {
     let elastic: Vec<palpate_fem::forward::Material> =
         (0..fitted.values[0].len().max(fitted.values[1].len()))
             .map(|e| {
@@ -250,6 +256,31 @@ fn result_gates(fitted: &Material, r: &FitResult, steps: usize, max_iters: u64) 
         max_iters as usize,
         r.iterations < max_iters,
     ));
+    // A fit that never left its start (nothing in the data pulled on it) or ended at infinity
+    // is no result.
+    if r.q == q0 {
+        findings.error(
+            "fit-did-not-move",
+            format!(
+                "the fit ended on its starting values after {} simulation(s): the data did not \
+                 move it, so writing it would pass the start off as a measurement (check the \
+                 weights, units and frame of the dataset)",
+                r.evaluations
+            ),
+        );
+    }
+    if !(r.q.iter().all(|v| v.is_finite())
+        && r.eval.rms_marker.is_finite()
+        && r.eval.rms_force.is_finite())
+    {
+        findings.error(
+            "non-finite-fit",
+            format!(
+                "the fit ended at infinity or NaN (RMS marker error {:.3e} m, force {:.3e} N)",
+                r.eval.rms_marker, r.eval.rms_force
+            ),
+        );
+    }
     findings
 }
 

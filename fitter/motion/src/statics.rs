@@ -227,12 +227,24 @@ pub fn solve_static(p: &StaticProblem<'_>) -> Result<StaticSolution, MotionError
                 }
             }
             residual = r.iter().map(|v| v * v).sum::<f64>().sqrt();
+            if !residual.is_finite() {
+                return Err(MotionError::NonFinite(format!(
+                    "force residual at load step {step} (a material or load too large for f64)"
+                )));
+            }
             if residual < p.tol {
                 converged = true;
                 break;
             }
             // Newton direction; shift the diagonal until K + τI is positive definite.
             let diag_scale = k.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-30);
+            // An overflowed tangent has no finite shift: τ would grow to ∞ and the exit test
+            // below, τ > 10³ · ∞, never hold.
+            if !diag_scale.is_finite() {
+                return Err(MotionError::NonFinite(format!(
+                    "tangent stiffness at load step {step} (a material or load too large for f64)"
+                )));
+            }
             let mut tau = 0.0;
             let factor = loop {
                 let mut kk = k.clone();
@@ -296,4 +308,49 @@ pub fn solve_static(p: &StaticProblem<'_>) -> Result<StaticSolution, MotionError
         iterations,
         residual,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use palpate_fem::mesh::boxmesh::box_mesh;
+    use std::sync::mpsc;
+    use std::time::Duration;
+
+    /// A block with one element 1e300 times stiffer than the rest (the specimen generator's
+    /// inclusion at an absurd magnitude): the tangent's diagonal overflows, and the shift loop
+    /// used to multiply an infinite τ by ten for ever. It must return an error, and promptly.
+    #[test]
+    fn an_overflowing_tangent_is_an_error_not_a_hang() {
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            let mesh = box_mesh([0.08, 0.08, 0.04], [2, 2, 1]);
+            let soft = HyperParams {
+                lambda: 4e4,
+                mu: 3e3,
+                stiffening: 0.0,
+            };
+            let hard = HyperParams {
+                lambda: 4e4 * 1e300,
+                mu: 3e3 * 1e300,
+                stiffening: 0.0,
+            };
+            let mut material = vec![soft; mesh.tets.len()];
+            material[0] = hard;
+            let fixed: Vec<usize> = (0..mesh.nodes.len())
+                .filter(|&n| mesh.nodes[n][2] == 0.0)
+                .collect();
+            let top = (0..mesh.nodes.len())
+                .find(|&n| mesh.nodes[n][2] > 0.03)
+                .unwrap();
+            let mut p = StaticProblem::new(&mesh, soft, fixed);
+            p.material = material;
+            p.forces = vec![(top, [0.0, 0.0, -1.0])];
+            let _ = tx.send(solve_static(&p).map(|s| s.iterations));
+        });
+        let got = rx
+            .recv_timeout(Duration::from_secs(60))
+            .expect("the static solve did not return within 60 s");
+        assert!(got.is_err(), "an overflowing material solved: {got:?}");
+    }
 }

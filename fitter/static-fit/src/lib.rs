@@ -135,6 +135,33 @@ pub enum Method {
     Displacement,
 }
 
+impl std::fmt::Display for Layout {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Layout::Homogeneous => "homogeneous",
+            Layout::Inhomogeneous => "inhomogeneous (one pair per element)",
+        })
+    }
+}
+
+impl std::fmt::Display for Sets {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Sets::Single => "one parameter set (linear)",
+            Sets::PerMeasurement => "one parameter set per measurement (non-linear, blended)",
+        })
+    }
+}
+
+impl std::fmt::Display for Method {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Method::Force => "force-based",
+            Method::Displacement => "displacement-based",
+        })
+    }
+}
+
 /// The four regularisation weights (eqs. 5.50–5.52): spatial (s) and cross-measurement (m), for the
 /// λ-type and α-type parameters.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]

@@ -183,6 +183,24 @@ fn fit_with(
         o.max_iterations,
         converged,
     ));
+    // A fit that never left its start or ran to infinity is refused; one far above the declared
+    // noise is said.
+    let rms = {
+        let (mut s, mut k) = (0.0, 0usize);
+        for m in &per_measurement {
+            for (_, e) in &m.marker_errors {
+                s += e[0] * e[0] + e[1] * e[1] + e[2] * e[2];
+                k += 1;
+            }
+        }
+        (s / k.max(1) as f64).sqrt()
+    };
+    findings.extend(palpate_fem::sanity::check_fit_result(
+        &Material::homogeneous(o.initial),
+        &params,
+        rms,
+        input.marker_noise,
+    ));
     let rough = sets_roughness(
         &input.problem.tets,
         o.layout == Layout::Inhomogeneous,

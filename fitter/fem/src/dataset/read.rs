@@ -357,6 +357,17 @@ impl StaticDataset {
         };
         let surface = mesh.boundary_triangles();
 
+        // Lengths are bounded by the object: a probe wider than the whole mesh, or a marker
+        // that moves farther than the object is long, is in other units or another frame.
+        let size = crate::sanity::bounding_diagonal(&mesh.nodes);
+        if probe_radius > size {
+            return Err(field(
+                "probe_radius",
+                meta.probe_radius.span(),
+                &format!("a radius at most the mesh's size ({size:.4e} m box diagonal)"),
+                format!("{} m", crate::sanity::show(probe_radius)),
+            ));
+        }
         let markers = read_markers(&dir.join(MARKERS_CSV), &mesh, &surface, marker_standoff)?;
         let (mut measurements, contact_lines) = read_contacts(
             &dir.join(CONTACTS_CSV),
@@ -365,7 +376,12 @@ impl StaticDataset {
             &fixed_nodes,
             probe_radius,
         )?;
-        read_measurements(&dir.join(MEASUREMENTS_CSV), &markers, &mut measurements)?;
+        read_measurements(
+            &dir.join(MEASUREMENTS_CSV),
+            &markers,
+            &mut measurements,
+            size,
+        )?;
         for (m, line) in measurements.iter().zip(contact_lines) {
             if m.observed.is_empty() {
                 return Err(DatasetError::ContactWithoutMeasurements {
@@ -485,6 +501,16 @@ fn read_contacts(
         } else {
             default_radius
         };
+        let size = crate::sanity::bounding_diagonal(&mesh.nodes);
+        if radius > size {
+            return Err(DatasetError::Field {
+                file: file.to_path_buf(),
+                line: r.line,
+                field: "radius".into(),
+                expected: format!("a radius at most the mesh's size ({size:.4e} m box diagonal)"),
+                found: format!("{} m", crate::sanity::show(radius)),
+            });
+        }
         match contact_weights(
             contact,
             radius,
@@ -532,6 +558,7 @@ fn read_measurements(
     file: &Path,
     markers: &[Marker],
     measurements: &mut [Measurement],
+    size: f64,
 ) -> Result<(), DatasetError> {
     let table = Table::read(file.to_path_buf())?;
     let rows = table.rows(&["measurement", "marker", "x", "y", "z"], 0)?;
@@ -566,7 +593,38 @@ fn read_measurements(
         first_time(&mut first, (mi, ki), file, r.line, "marker", || {
             format!("{mid}/{kid}")
         })?;
-        measurements[mi].observed.push((ki, r.vec3(2)?));
+        let observed = r.vec3(2)?;
+        let rest = markers[ki].rest;
+        // Scaled so that a coordinate of 1e308 reads as such, not as an overflowed infinity.
+        let d = [0, 1, 2].map(|k| observed[k] - rest[k]);
+        let big = d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let moved = if big > 0.0 {
+            big * d.iter().map(|v| (v / big).powi(2)).sum::<f64>().sqrt()
+        } else {
+            0.0
+        };
+        if moved > size {
+            // Positions in millimetres read as metres move ~1000 × the rest coordinates.
+            let cause = if moved > 1e5 * size {
+                "a value that is no position (a corrupt cell or a placeholder)"
+            } else if moved > 100.0 * size {
+                "positions in other units (millimetres? palpate reads metres)"
+            } else {
+                "displacements scaled up, or positions in another frame than markers.csv"
+            };
+            return Err(DatasetError::Field {
+                file: file.to_path_buf(),
+                line: r.line,
+                field: "x,y,z".into(),
+                expected: format!(
+                    "a position within the object's size ({size:.4e} m box diagonal) of marker \
+                     {kid:?}'s rest place ({:.4}, {:.4}, {:.4}) m",
+                    rest[0], rest[1], rest[2]
+                ),
+                found: format!("a displacement of {moved:.4e} m: likely {cause}"),
+            });
+        }
+        measurements[mi].observed.push((ki, observed));
     }
     for m in measurements.iter_mut() {
         m.observed.sort_by_key(|o| o.0);

@@ -148,7 +148,9 @@ pub enum ForwardError {
     },
     /// The numeric Cholesky factorisation failed.
     #[error(
-        "sparse Cholesky factorisation of K' failed: the system is not positive definite ({0})"
+        "the stiffness matrix could not be factorised, so the object has no equilibrium: it is \
+         not positive definite (a material with E ≤ 0 or Poisson's ratio outside (−1, 0.5), a \
+         flat element, or no fixed node holding the body still) — solver: {0}"
     )]
     Factorisation(String),
     /// Building the sparsity pattern failed.

@@ -45,6 +45,23 @@ fn mm(v: f64) -> String {
 /// Runs the demo.
 pub fn run(args: Args) -> anyhow::Result<()> {
     args.plots.apply();
+    // The bundled data are found relative to the working directory: outside the repository the
+    // demo says so before it makes any folder.
+    let mut needed = vec![args.dataset.clone()];
+    if !args.no_beam {
+        needed.push(PathBuf::from(super::demo_beam::BEAM_DIR));
+    }
+    for p in &needed {
+        if !p.exists() {
+            anyhow::bail!(
+                "{}: not found. The demo runs on the data bundled with palpate's repository: run \
+                 it from the repository's root folder (the one holding README.md and models/), \
+                 or give --dataset DIR{}",
+                p.display(),
+                if args.no_beam { "" } else { " --no-beam" }
+            );
+        }
+    }
     let t0 = Instant::now();
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;

@@ -14,8 +14,10 @@ use std::path::{Path, PathBuf};
 
 use super::import::{import_c3d, C3dArgs};
 
-/// The bundled capture and the mesh the demo fits on.
-const BEAM: &str = "models/silicone-beam";
+/// The measured beam's folder (the bundled capture and the mesh the demo fits on), relative to
+/// the repository root.
+pub const BEAM_DIR: &str = "models/silicone-beam";
+const BEAM: &str = BEAM_DIR;
 /// The coarse mesh (716 tets): the four-run diagnosis takes minutes on it, not a quarter hour.
 const MESH: &str = "beam-coarse.msh";
 /// Runs fitted, then held out (the repeats of the same two loads).

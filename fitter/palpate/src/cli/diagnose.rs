@@ -55,8 +55,30 @@ fn mesh_choice() -> impl clap::builder::TypedValueParser<Value = MeshChoice> {
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
     args.plots.apply();
-    // The output is checked before the diagnosis runs (minutes), not after.
-    super::output::check_writable(&args.output.join("diagnosis.md"))?;
+    // Inputs and flags first, so a typo makes no output folder; then the output, before the
+    // diagnosis runs (minutes), not after.
+    for p in std::iter::once(&args.dataset)
+        .chain(&args.with)
+        .chain(&args.held_out)
+    {
+        if !p.exists() {
+            anyhow::bail!(
+                "{}: no such file or folder (expected a static or motion dataset folder, a \
+                 folder of runs, or a measured curve)",
+                p.display()
+            );
+        }
+    }
+    if !(args.poisson.is_finite() && args.poisson > -1.0 && args.poisson < 0.5) {
+        anyhow::bail!(
+            "--poisson {}: expected Poisson's ratio in (−1, 0.5)",
+            args.poisson
+        );
+    }
+    if let Some(g) = args.gauge_length.filter(|g| !(g.is_finite() && *g > 0.0)) {
+        anyhow::bail!("--gauge-length {g}: expected a finite length > 0 m");
+    }
+    super::output::check_writable(&args.output)?;
     palpate_diagnose::run::run(&palpate_diagnose::run::Request {
         dataset: args.dataset,
         output: args.output,

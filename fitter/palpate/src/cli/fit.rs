@@ -78,6 +78,7 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     args.plots.apply();
     let command = std::env::args().collect::<Vec<_>>().join(" ");
+    super::input_kind::expect(&args.dataset, super::input_kind::Kind::StaticDataset, "fit")?;
     super::output::check_writable(&args.out)?;
     let ds = StaticDataset::read(&args.dataset)
         .with_context(|| format!("reading dataset {}", args.dataset.display()))?;
@@ -137,7 +138,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         tool: format!("palpate {} {}", env!("CARGO_PKG_VERSION"), command),
         source: format!("{} ({})", ds.name, args.dataset.display()),
         notes: format!(
-            "{:?} {:?} {:?}; RMS marker error {:.6e} m; regularisation γ_s {:.3e}, γ_m {:.3e}",
+            "{} fit, {} material, {}; RMS marker error {:.6e} m; regularisation γ_s {:.3e}, γ_m {:.3e}",
             method,
             layout,
             sets,

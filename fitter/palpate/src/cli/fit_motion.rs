@@ -168,6 +168,9 @@ fn request(args: &Args) -> anyhow::Result<FitRequest> {
 
 /// Runs the fit and prints the report.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    for d in &args.datasets {
+        super::input_kind::expect(d, super::input_kind::Kind::MotionDataset, "fit-motion")?;
+    }
     for out in [&args.output, &args.export].into_iter().flatten() {
         super::output::check_writable(out)?;
     }

@@ -85,8 +85,34 @@ pub fn run(cmd: ImportCommand) -> anyhow::Result<()> {
     import_c3d(&a)
 }
 
+/// Checks the flags before the capture is read and before any folder is made.
+fn check_args(a: &C3dArgs) -> anyhow::Result<()> {
+    palpate_fem::sanity::check_gravity(a.gravity)
+        .map_err(|why| anyhow::anyhow!("--gravity: {why}"))?;
+    if let Some(d) = a.density {
+        palpate_fem::sanity::check_density(d).map_err(|why| anyhow::anyhow!("--density: {why}"))?;
+    }
+    // Zero or less would find the release at the first frame that differs by a rounding error.
+    if !(a.release_threshold.is_finite() && a.release_threshold > 0.0 && a.release_threshold <= 1.0)
+    {
+        anyhow::bail!(
+            "--release-threshold {}: expected a movement in (0, 1] m (the default 0.0005 m is \
+             half a millimetre)",
+            palpate_fem::sanity::show(a.release_threshold)
+        );
+    }
+    if a.clamps.iter().any(|c| c.trim().is_empty()) {
+        anyhow::bail!("--clamps: an empty group name in {:?}", a.clamps);
+    }
+    super::input_kind::expect(&a.capture, super::input_kind::Kind::C3d, "import c3d")?;
+    super::input_kind::expect(&a.mesh, super::input_kind::Kind::Gmsh, "import c3d --mesh")?;
+    super::output::check_writable(&a.output)?;
+    Ok(())
+}
+
 /// Imports one capture as `palpate import c3d` does (also the demo's first step).
 pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
+    check_args(a)?;
     let capture = palpate_capture::read_c3d(&a.capture)?;
     let text = std::fs::read_to_string(&a.places)
         .with_context(|| format!("reading {}", a.places.display()))?;
@@ -135,9 +161,12 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
                 )
             })?,
     };
-    std::fs::create_dir_all(&a.output)
-        .with_context(|| format!("creating {}", a.output.display()))?;
-    std::fs::copy(&a.mesh, a.output.join("mesh.msh"))
+    // The dataset is written beside its place and swapped in only once it reads back: a failing
+    // import leaves the previous dataset at the output whole.
+    let had_output = a.output.exists();
+    let staged = super::output::Staged::new(&a.output)?;
+    let out = staged.path.clone();
+    std::fs::copy(&a.mesh, out.join("mesh.msh"))
         .with_context(|| format!("copying {}", a.mesh.display()))?;
     let mut toml = format!(
         "mesh = \"mesh.msh\"\nclamps = [{}]\ngravity = [{}, {}, {}]\n",
@@ -172,23 +201,29 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
             toml,
             locate_undeclared: !a.declared_only,
         },
-        &a.output,
+        &out,
     )?;
     // The dataset must read back as palpate reads it (a `--hang` group the mesh lacks, a load on
-    // the clamp): otherwise nothing stays written.
-    if let Err(e) = palpate_motion::dataset::load(&a.output) {
-        for f in r
-            .files
-            .iter()
-            .chain(std::iter::once(&a.output.join("mesh.msh")))
-        {
-            let _ = std::fs::remove_file(f);
-        }
-        return Err(anyhow::anyhow!(e).context(format!(
-            "the imported dataset {} does not read back; nothing kept",
-            a.output.display()
-        )));
+    // the clamp, a mesh in other units than the places): otherwise the staging folder is
+    // dropped and the output keeps what it had.
+    if let Err(e) = palpate_motion::dataset::load(&out) {
+        // The reader names the staging folder; the user knows the output's name.
+        let what = e
+            .to_string()
+            .replace(&out.display().to_string(), &a.output.display().to_string());
+        return Err(anyhow::anyhow!(what).context(if had_output {
+            format!(
+                "the imported dataset does not read back; {} left as it was",
+                a.output.display()
+            )
+        } else {
+            format!(
+                "the imported dataset does not read back; nothing written to {}",
+                a.output.display()
+            )
+        }));
     }
+    let files = staged.commit(r.files.clone())?;
     // What import did is a note beside the dataset it wrote (stderr; `palpate info` reads the
     // dataset back).
     log::info!(
@@ -219,7 +254,7 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
             r.ignored.join(", ")
         );
     }
-    for f in r.files {
+    for f in files {
         log::info!("wrote {}", f.display());
     }
     Ok(())

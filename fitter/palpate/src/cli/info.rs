@@ -29,6 +29,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if path.is_dir() {
         return dataset(path);
     }
+    if super::input_kind::recognise(path) == Some(super::input_kind::Kind::Stl) {
+        super::input_kind::expect_one_of(
+            path,
+            &[
+                super::input_kind::Kind::Palp,
+                super::input_kind::Kind::FitJson,
+                super::input_kind::Kind::C3d,
+                super::input_kind::Kind::Gmsh,
+                super::input_kind::Kind::StaticDataset,
+                super::input_kind::Kind::MotionDataset,
+            ],
+            "info",
+        )?;
+    }
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
     if bytes.starts_with(b"{") {
         return fitted(path, &bytes);

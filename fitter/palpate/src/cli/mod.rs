@@ -11,6 +11,7 @@ pub mod fit_motion;
 pub mod haptic;
 pub mod import;
 pub mod info;
+pub mod input_kind;
 pub mod logging;
 pub mod output;
 pub mod probe;

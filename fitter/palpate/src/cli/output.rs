@@ -36,56 +36,30 @@ pub fn check_writable(path: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A directory to write a report into beside its final place; [`Staged::commit`] swaps it in.
+/// A directory to write a report or dataset into beside its final place; [`Staged::commit`]
+/// swaps it in, and a run that fails before that leaves the old one as it was.
 pub struct Staged {
     /// Where the files go now.
     pub path: PathBuf,
-    target: PathBuf,
+    inner: palpate_fem::io::atomic::StagedDir,
 }
 
 impl Staged {
     /// Stages `target` (a directory that may already exist).
     pub fn new(target: &Path) -> anyhow::Result<Self> {
-        let name = target
-            .file_name()
-            .with_context(|| format!("{} has no name", target.display()))?;
-        let path = target.with_file_name(format!(
-            ".{}.{}.staging",
-            name.to_string_lossy(),
-            std::process::id()
-        ));
-        if path.exists() {
-            std::fs::remove_dir_all(&path)
-                .with_context(|| format!("removing stale {}", path.display()))?;
-        }
-        std::fs::create_dir_all(&path).with_context(|| format!("creating {}", path.display()))?;
+        let inner = palpate_fem::io::atomic::StagedDir::new(target)?;
         Ok(Self {
-            path,
-            target: target.to_path_buf(),
+            path: inner.path().to_path_buf(),
+            inner,
         })
     }
 
     /// Replaces the target directory by the staged one; `files` written into the staging
     /// directory are returned at their final paths.
     pub fn commit(self, files: Vec<PathBuf>) -> anyhow::Result<Vec<PathBuf>> {
-        if self.target.exists() {
-            std::fs::remove_dir_all(&self.target)
-                .with_context(|| format!("replacing {}", self.target.display()))?;
-        }
-        std::fs::rename(&self.path, &self.target).with_context(|| {
-            format!(
-                "renaming {} to {}",
-                self.path.display(),
-                self.target.display()
-            )
-        })?;
-        Ok(files
-            .into_iter()
-            .map(|f| match f.strip_prefix(&self.path) {
-                Ok(rel) => self.target.join(rel),
-                Err(_) => f,
-            })
-            .collect())
+        let files = files.iter().map(|f| self.inner.final_path(f)).collect();
+        self.inner.commit()?;
+        Ok(files)
     }
 }
 

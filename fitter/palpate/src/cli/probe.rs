@@ -36,6 +36,16 @@ pub struct Args {
 
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    // The recording's place is checked before the seconds of recording, not after.
+    if let Some(path) = &args.csv {
+        super::output::check_writable(path)?;
+    }
+    if !(args.seconds.is_finite() && args.seconds > 0.0) {
+        anyhow::bail!(
+            "--seconds {}: expected a finite duration > 0 s",
+            args.seconds
+        );
+    }
     let port = open(&args.port, args.baud, Duration::from_millis(50))?;
     if let Some(p) = &args.calibration {
         let cfg = Config {

@@ -133,7 +133,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     port.set_timeout(Duration::from_millis(500))?;
     log::info!(
-        "probe-sim: {profile:?} at {} Hz for {} s",
+        "probe-sim: {} at {} Hz for {} s",
+        describe(&profile),
         args.rate,
         args.seconds
     );
@@ -155,4 +156,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         sink.counts()
     );
     Ok(())
+}
+
+/// The profile in words (its Rust form is no message for a user).
+fn describe(p: &Profile) -> String {
+    match *p {
+        Profile::Constant(f) => format!("a constant {f} N"),
+        Profile::Sine {
+            mean,
+            amplitude,
+            hz,
+        } => format!("a sine of {mean} ± {amplitude} N at {hz} Hz"),
+        Profile::Press { peak, period_s } => {
+            format!("presses up to {peak} N every {period_s} s")
+        }
+    }
 }

@@ -211,6 +211,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let buffers;
     let record = match (&args.model, &args.mesh) {
         (Some(m), None) => {
+            super::input_kind::expect(m, super::input_kind::Kind::Palp, "simulate --model")?;
             bytes = std::fs::read(m).with_context(|| format!("reading model {}", m.display()))?;
             palpate_protocol::model::decode(&bytes)
                 .map_err(|e| anyhow::anyhow!("model {}: {e}", m.display()))?
@@ -241,6 +242,38 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
         ..Default::default()
     };
+    // Node forces are read and judged before the runtime is built: a file with no rows, only
+    // zero rows, or forces only on fixed nodes loads nothing, and "max |u| = 0" would read as a
+    // result.
+    let node_forces = match &args.node_forces {
+        Some(path) => {
+            let forces = read_node_forces(path, &mesh.node_tags)?;
+            let fixed: std::collections::HashSet<usize> =
+                record.fixed_nodes.iter().map(|n| n as usize).collect();
+            let loading = forces
+                .iter()
+                .filter(|(n, f)| !fixed.contains(n) && f.iter().any(|v| *v != 0.0))
+                .count();
+            if forces.is_empty() {
+                bail!(
+                    "{}: no force rows (expected a header `node,fx,fy,fz` and one line per \
+                     loaded node, Gmsh node tags and newtons)",
+                    path.display()
+                );
+            }
+            if loading == 0 {
+                bail!(
+                    "{}: {} force row(s), but none puts a non-zero force on a free node (the \
+                     model holds {} fixed nodes, which do not move): nothing would be loaded",
+                    path.display(),
+                    forces.len(),
+                    fixed.len()
+                );
+            }
+            forces
+        }
+        None => Vec::new(),
+    };
     let mut storage = Storage::for_model(&record, &cfg);
     let mut rt = storage.runtime(record, cfg)?;
     let mut total_force = 0.0f64;
@@ -250,8 +283,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         total_force += (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
         loads += 1;
     }
-    if let Some(path) = &args.node_forces {
-        for (node, f) in read_node_forces(path, &mesh.node_tags)? {
+    if args.node_forces.is_some() {
+        for (node, f) in node_forces {
             rt.add_nodal_force(node, f)?;
             total_force += (f.iter().map(|v| (*v as f64).powi(2)).sum::<f64>()).sqrt();
         }
@@ -407,10 +440,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         serde_json::to_string_pretty(&summary)?.as_bytes(),
     )?;
     println!(
-        "simulated {} nodes, {} tets in {ticks} ticks ({:?}, relative residual {:.1e}); max |u| = {:.3} mm; probe reaction {:?} N",
+        "simulated {} nodes, {} tets in {ticks} ticks ({}, relative residual {:.1e}); max |u| = {:.3} mm; probe reaction {:?} N",
         mesh.nodes.len(),
         mesh.tets.len(),
-        rep.status,
+        match rep.status {
+            SolveStatus::Converged => "converged",
+            SolveStatus::BudgetExhausted => "stopped at its iteration budget",
+            SolveStatus::Rejected => "rejected",
+        },
         rep.rel_residual,
         umax * 1e3,
         rep.reaction

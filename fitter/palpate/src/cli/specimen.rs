@@ -67,8 +67,63 @@ pub fn parse_effects(names: &[String], magnitudes: &[f64]) -> anyhow::Result<Vec
         .collect()
 }
 
+/// The most probe measurements of one specimen: each is a non-linear static solve of the truth
+/// mesh, so a million of them never returns, and the diagnosis is tested on 8 to a few dozen.
+pub const MAX_MEASUREMENTS: usize = 1000;
+
+/// The largest magnitude of an effect: beyond it the truth material or load overflows the
+/// solver (an inclusion 1e300 times stiffer than its block) instead of making a specimen.
+pub const MAX_MAGNITUDE: f64 = 1000.0;
+
+/// The largest declared noise, as a fraction of the block's smallest side: noise that large is
+/// not noise on this object any more.
+pub const MAX_NOISE_FRACTION: f64 = 0.1;
+
+/// Checks the flags before any work and before the output folder is made.
+fn check_args(args: &Args) -> anyhow::Result<()> {
+    if !(1..=MAX_MEASUREMENTS).contains(&args.measurements) {
+        anyhow::bail!(
+            "--measurements {}: expected 1 to {MAX_MEASUREMENTS} (each is a non-linear static \
+             solve of the truth mesh)",
+            args.measurements
+        );
+    }
+    let size = SpecimenOptions::default().size;
+    let smallest = size.iter().copied().fold(f64::INFINITY, f64::min);
+    let max_noise = MAX_NOISE_FRACTION * smallest;
+    if !(args.noise.is_finite() && args.noise >= 0.0 && args.noise <= max_noise) {
+        anyhow::bail!(
+            "--noise {}: expected a marker noise σ from 0 to {max_noise} m ({MAX_NOISE_FRACTION} \
+             × the specimen's smallest side {smallest} m; the block is {} × {} × {} m)",
+            palpate_fem::sanity::show(args.noise),
+            size[0],
+            size[1],
+            size[2]
+        );
+    }
+    if !(args.max_force.is_finite() && args.max_force > 0.0 && args.max_force <= 1e3) {
+        anyhow::bail!(
+            "--max-force {}: expected a probe force in (0, 1000] N",
+            palpate_fem::sanity::show(args.max_force)
+        );
+    }
+    for m in &args.magnitude {
+        if !(m.is_finite() && m.abs() <= MAX_MAGNITUDE) {
+            anyhow::bail!(
+                "--magnitude {}: expected a finite magnitude of at most {MAX_MAGNITUDE} in size \
+                 (the effects' units are in `palpate specimen --help`)",
+                palpate_fem::sanity::show(*m)
+            );
+        }
+    }
+    // The staging folder goes beside the output: that is where files must be creatable.
+    super::output::check_writable(&args.output)?;
+    Ok(())
+}
+
 /// Runs the generator.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    check_args(&args)?;
     if args.effect.iter().any(|e| e.trim() == "viscosity") {
         return run_viscous(&args);
     }
@@ -82,8 +137,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ..Default::default()
     };
     let s = generate(&o)?;
-    s.write(&args.output)
+    // Written beside its place and swapped in: a failure leaves the previous folder whole.
+    let staged = super::output::Staged::new(&args.output)?;
+    s.write(&staged.path)
         .with_context(|| format!("writing {}", args.output.display()))?;
+    staged.commit(Vec::new())?;
     println!(
         "specimen written to {} ({} measurements, {} markers, truth mesh {} nodes / {} tets; ground truth in truth.json)",
         args.output.display(),
@@ -123,9 +181,17 @@ fn run_viscous(args: &Args) -> anyhow::Result<()> {
     if let Some(&m) = args.magnitude.first() {
         o.tau = m;
     }
+    if !(o.tau.is_finite() && o.tau > 0.0) {
+        anyhow::bail!(
+            "--magnitude {}: the viscous time τ must be finite and > 0 s",
+            o.tau
+        );
+    }
     let s = generate_viscous(&o)?;
-    s.write(&args.output)
+    let staged = super::output::Staged::new(&args.output)?;
+    s.write(&staged.path)
         .with_context(|| format!("writing {}", args.output.display()))?;
+    staged.commit(Vec::new())?;
     println!(
         "viscous specimen written to {}: {} tension tests (rates {:?} 1/s, peak stretch {}, τ = {} s); ground truth in truth.json",
         args.output.display(),

@@ -29,6 +29,16 @@ pub struct Args {
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
     args.plots.apply();
+    super::input_kind::expect(
+        &args.model,
+        super::input_kind::Kind::FitJson,
+        "validate --model",
+    )?;
+    super::input_kind::expect(
+        &args.dataset,
+        super::input_kind::Kind::MotionDataset,
+        "validate",
+    )?;
     let text = std::fs::read_to_string(&args.model)
         .with_context(|| format!("reading {}", args.model.display()))?;
     let fit: FittedModel = serde_json::from_str(&text).with_context(|| {
@@ -44,8 +54,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         fit.format,
         palpate_motion::fitted::READABLE_FORMATS
     );
+    // Where the folder will be made is checked now; the folder itself only once there is a
+    // prediction to put in it.
     if let Some(out) = &args.output {
-        super::output::check_writable(&out.join("prediction.csv"))?;
+        super::output::check_writable(out)?;
     }
     let mut ds = palpate_motion::dataset::load(&args.dataset)?;
     if fit.hanging_inertia {

@@ -471,3 +471,47 @@ fn spreadsheet_csv_with_byte_order_mark_and_crlf_reads_the_same() {
         &["markers.csv:3", "`x`", "0.0x7"],
     );
 }
+
+/// Measured positions in millimetres (or 1e308): a displacement larger than the object is in
+/// other units, and the fit would start from it and go nowhere.
+#[test]
+fn a_displacement_larger_than_the_object_is_refused_with_its_cause() {
+    rejects(
+        "measurements.csv",
+        "measurement,marker,x,y,z\np1,m1,30,40,49\np1,m2,0.07,0.06,0.0495\n\
+p2,m1,0.03,0.04,0.0498\np2,m3,0.1,0.05,0.0199\n",
+        &["measurements.csv:2", "field `x,y,z`", "millimetres"],
+    );
+    rejects(
+        "measurements.csv",
+        "measurement,marker,x,y,z\np1,m1,0.03,0.04,0.049\np1,m2,0.07,0.06,0.0495\n\
+p2,m1,0.03,0.04,0.0498\np2,m3,0.1,1e308,0.0199\n",
+        &[
+            "measurements.csv:5",
+            "field `x,y,z`",
+            "1.0000e308",
+            "no position",
+        ],
+    );
+    // Displacements ×100: 0.3 m on a 10 cm box.
+    rejects(
+        "measurements.csv",
+        "measurement,marker,x,y,z\np1,m1,0.03,0.04,-0.25\np1,m2,0.07,0.06,0.0495\n\
+p2,m1,0.03,0.04,0.0498\np2,m3,0.1,0.05,0.0199\n",
+        &["measurements.csv:2", "displacements scaled up"],
+    );
+}
+
+#[test]
+fn a_contact_radius_wider_than_the_object_is_refused() {
+    rejects(
+        "contacts.csv",
+        "measurement,x,y,z,fx,fy,fz,radius\np1,0.05,0.05,0.05,0,0,-1.5,1e308\np2,0.05,0.05,0.05,0,0,-0.5\n",
+        &["contacts.csv:2", "field `radius`", "mesh's size"],
+    );
+    rejects(
+        "dataset.toml",
+        &TOML.replace("probe_radius = 0.02", "probe_radius = 1e308"),
+        &["dataset.toml:6", "field `probe_radius`", "mesh's size"],
+    );
+}
