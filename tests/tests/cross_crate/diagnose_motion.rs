@@ -438,10 +438,6 @@ fn a_stiffening_bar_is_given_its_stiffening() {
 /// level sets of the map) —, the candidate must be adopted, both moduli recovered within 5 %
 /// (measured 29,999 / 10,000 Pa) and the forecast brought to the noise floor (measured
 /// 2,284 → 34.4 µm, floor σ√3 = 34.6 µm, with the damping adopted second).
-///
-/// Until session 21 the refit stopped at 371 µm with μ 19.7 / 12.3 kPa: the region's elements
-/// kept the λ of the one-material fit (a global λ did not reach a region), and the sign split
-/// of the map took one element too many.
 #[test]
 fn a_bar_of_two_materials_is_given_its_second_material() {
     use palpate_motion::model::ParamKind;
@@ -490,7 +486,10 @@ fn a_bar_of_two_materials_is_given_its_second_material() {
         (stiff / 3.0e4 - 1.0).abs() < 0.05 && (soft / 1.0e4 - 1.0).abs() < 0.05,
         "near {stiff} far {soft}"
     );
-    let floor = SIGMA * 3f64.sqrt();
+    // The floor of this recording (σ = 20 µm, `run_of`), not of the module's σ = 100 µm runs:
+    // measured 34.4 µm held out against 34.6 µm; 1.2 × the floor (41.5 µm) is the margin the
+    // other forecasts at the floor in this file keep.
+    let floor = 2e-5 * 3f64.sqrt();
     assert!(
         r.after.rms_held < 1.2 * floor,
         "{:?} -> {:?}",
