@@ -218,43 +218,63 @@ mod tests {
         ]
     }
 
-    /// Elastic energy ½ V εᵀ E ε of a displacement with E = λF + αG (eqs. 3.20, 3.38).
-    fn energy(g: &TetGeometry<f64>, u: &SVector<f64, 12>, lambda: f64, alpha: f64) -> f64 {
-        let eps = strain_matrix(g) * u;
-        let e = material_f::<f64>() * lambda + material_g::<f64>() * alpha;
-        0.5 * g.volume * (eps.transpose() * e * eps)[(0, 0)]
-    }
-
-    #[test]
-    fn stiffness_matches_finite_differences_of_energy() {
-        let g = tet_geometry(&reference_tet()).unwrap();
-        let (lambda, alpha) = (14_000.0, 4_000.0);
-        let k = element_stiffness(&g, lambda, alpha);
-        let mut u = SVector::<f64, 12>::zeros();
-        for i in 0..12 {
-            u[i] = 1e-3 * ((i as f64 * 0.77).sin());
+    /// The textbook isotropic element stiffness, written without this module's B_e, F, G or
+    /// `tet_geometry`: the shape functions from the inverse of the 4 × 4 matrix [1 x y z] of the
+    /// corners, and K_(ai)(bj) = V (λ_L ∂_iφ_a ∂_jφ_b + μ ∂_jφ_a ∂_iφ_b + μ δ_ij ∇φ_a·∇φ_b),
+    /// the component form of V BᵀDB for Hooke's law σ = λ_L tr(ε) I + 2με, with Lamé's λ_L and
+    /// μ from E and ν by the textbook formulas.
+    fn textbook_stiffness(x: &[Vector3<f64>; 4], young: f64, nu: f64) -> ElementMatrix<f64> {
+        let lame = young * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));
+        let mu = young / (2.0 * (1.0 + nu));
+        let mut a = nalgebra::Matrix4::<f64>::zeros();
+        for (r, p) in x.iter().enumerate() {
+            a[(r, 0)] = 1.0;
+            a[(r, 1)] = p.x;
+            a[(r, 2)] = p.y;
+            a[(r, 3)] = p.z;
         }
-        // Central differences of the energy's gradient: ∂²E/∂u_i∂u_j.
-        let h = 1e-6;
-        let mut worst: f64 = 0.0;
-        let scale = k.amax();
-        for i in 0..12 {
-            for j in 0..12 {
-                let mut e = [[0.0; 2]; 2];
-                for (a, si) in [1.0, -1.0].iter().enumerate() {
-                    for (b, sj) in [1.0, -1.0].iter().enumerate() {
-                        let mut v = u;
-                        v[i] += si * h;
-                        v[j] += sj * h;
-                        e[a][b] = energy(&g, &v, lambda, alpha);
+        let volume = a.determinant().abs() / 6.0;
+        // φ_b(x) = Σ_k coef[(k, b)] [1 x y z]_k: column b of A⁻¹ holds φ_b's coefficients.
+        let coef = a.try_inverse().expect("non-degenerate test tetrahedron");
+        let grad = |b: usize, i: usize| coef[(i + 1, b)];
+        let mut k = ElementMatrix::<f64>::zeros();
+        for a_ in 0..4 {
+            for b in 0..4 {
+                let dot: f64 = (0..3).map(|m| grad(a_, m) * grad(b, m)).sum();
+                for i in 0..3 {
+                    for j in 0..3 {
+                        let delta = if i == j { 1.0 } else { 0.0 };
+                        k[(3 * a_ + i, 3 * b + j)] = volume
+                            * (lame * grad(a_, i) * grad(b, j)
+                                + mu * grad(a_, j) * grad(b, i)
+                                + mu * delta * dot);
                     }
                 }
-                let fd = (e[0][0] - e[0][1] - e[1][0] + e[1][1]) / (4.0 * h * h);
-                worst = worst.max((fd - k[(i, j)]).abs() / scale);
             }
         }
-        // The energy is exactly quadratic; 1e-6 relative is the round-off of the difference quotient.
-        assert!(worst < 1e-6, "worst relative FD mismatch {worst:e}");
+        k
+    }
+
+    /// K_e = λC_e + αD_e (eqs. 3.33–3.34, 3.63, with λ, α from E, ν by eqs. 3.41–3.42) is the
+    /// isotropic linear-elastic element stiffness of the textbook, computed independently above:
+    /// a wrong entry of F or G, a wrong shear factor in B_e or a wrong volume shows here (and not
+    /// in a finite-difference check of an energy built from the same B_e, F, G and V).
+    #[test]
+    fn stiffness_equals_textbook_isotropic_btdb() {
+        let x = reference_tet();
+        let g = tet_geometry(&x).unwrap();
+        for (young, nu) in [(20e3, 0.35), (1e5, 0.0), (5e3, 0.49), (3e4, -0.3)] {
+            let lambda = young / ((1.0 + nu) * (1.0 - 2.0 * nu));
+            let k = element_stiffness(&g, lambda, lambda * nu);
+            let reference = textbook_stiffness(&x, young, nu);
+            // Both are sums of a few products of the same magnitudes: round-off is ~1e-15 of
+            // the largest entry; 1e-12 leaves room and still sees any wrong coefficient.
+            let worst = (k - reference).amax() / reference.amax();
+            assert!(
+                worst < 1e-12,
+                "E = {young}, ν = {nu}: relative mismatch {worst:e}"
+            );
+        }
     }
 
     #[test]

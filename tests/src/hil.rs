@@ -40,6 +40,8 @@ pub struct HilRun {
     pub base: Instant,
     /// Samples delivered after the reopen (when unplugged).
     pub delivered_after_reopen: usize,
+    /// When the host end was closed and when it was open again (when unplugged).
+    pub unplugged: Option<(Instant, Instant)>,
 }
 
 /// Runs `profile` through the simulated probe for `opts.seconds` over a fresh pty pair, with
@@ -78,6 +80,7 @@ pub fn run_link(
     let mut quiet_since = None;
     let mut unplugged = unplug;
     let mut reopen_at_len = None;
+    let mut away = None;
     let deadline = Instant::now() + Duration::from_secs(60);
     loop {
         let mut batch = Vec::new();
@@ -97,6 +100,7 @@ pub fn run_link(
             if delivered.len() >= u.after_samples {
                 unplugged = None;
                 // Unplug: close the host end for a while, then open the device path again.
+                let closed_at = Instant::now();
                 let old = reader.replace_source(TTYPort::pair().expect("placeholder").1);
                 drop(old);
                 std::thread::sleep(u.away);
@@ -107,6 +111,7 @@ pub fn run_link(
                 port.set_timeout(Duration::from_millis(20)).unwrap();
                 reader.replace_source(port);
                 reopen_at_len = Some(delivered.len());
+                away = Some((closed_at, Instant::now()));
             }
         }
         if n == 0 && done.load(Ordering::SeqCst) {
@@ -134,6 +139,7 @@ pub fn run_link(
         peer_version,
         base,
         delivered_after_reopen,
+        unplugged: away,
     }
 }
 

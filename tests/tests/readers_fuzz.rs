@@ -152,6 +152,46 @@ fn mutated_copy(src: &Path, file: &str, muts: &[Mutation]) -> tempfile::TempDir 
     dir
 }
 
+/// The error and its sources, as one text.
+fn chain(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut next = e.source();
+    while let Some(c) = next {
+        s.push_str(": ");
+        s.push_str(&c.to_string());
+        next = c.source();
+    }
+    s
+}
+
+/// A located error names the file it found the fault in: one of the input's files (a fault in
+/// one file may surface in another that refers to it, e.g. a moved mesh node under a marker) or
+/// the input's own path.
+fn assert_located(r: Result<(), String>, files: &[&str], path: &Path) {
+    if let Err(e) = r {
+        let shown = path.display().to_string();
+        assert!(
+            files.iter().any(|f| e.contains(f)) || e.contains(&shown),
+            "an error that names no file of {files:?} nor {shown}: {e}"
+        );
+    }
+}
+
+const MOTION_FILES: [&str; 5] = [
+    "dataset.toml",
+    "markers.csv",
+    "trajectories.csv",
+    "clamps.csv",
+    "mesh.msh",
+];
+const STATIC_FILES: [&str; 5] = [
+    "markers.csv",
+    "measurements.csv",
+    "contacts.csv",
+    "dataset.toml",
+    "mesh.msh",
+];
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 48, failure_persistence: None, ..ProptestConfig::default() })]
 
@@ -162,7 +202,8 @@ proptest! {
         muts in prop::collection::vec(mutation(), 1..4),
     ) {
         let dir = mutated_copy(&repo().join("models/motion-example"), file, &muts);
-        let _ = palpate_motion::dataset::load(dir.path());
+        let r = palpate_motion::dataset::load(dir.path()).map(|_| ()).map_err(|e| chain(&e));
+        assert_located(r, &MOTION_FILES, dir.path());
     }
 
     /// Static datasets (with the small cube mesh copied beside them so each case is quick).
@@ -172,11 +213,14 @@ proptest! {
         muts in prop::collection::vec(mutation(), 1..4),
     ) {
         let src = tempfile::tempdir().unwrap();
-        for f in ["markers.csv", "measurements.csv", "contacts.csv", "dataset.toml", "mesh.msh"] {
+        for f in STATIC_FILES {
             std::fs::copy(repo().join("models/sponge-specimen").join(f), src.path().join(f)).unwrap();
         }
         let dir = mutated_copy(src.path(), file, &muts);
-        let _ = palpate_fem::dataset::StaticDataset::read(dir.path());
+        let r = palpate_fem::dataset::StaticDataset::read(dir.path())
+            .map(|_| ())
+            .map_err(|e| chain(&e));
+        assert_located(r, &STATIC_FILES, dir.path());
     }
 
     /// Gmsh 4.1 ASCII meshes.
@@ -184,7 +228,10 @@ proptest! {
     fn gmsh_reader_survives_mutations(muts in prop::collection::vec(mutation(), 1..4)) {
         let src = repo().join("fitter/fem/src/mesh/gmsh/testdata");
         let dir = mutated_copy(&src, "cube-ascii.msh", &muts);
-        let _ = palpate_fem::mesh::gmsh::read_msh(dir.path().join("cube-ascii.msh"));
+        let r = palpate_fem::mesh::gmsh::read_msh(dir.path().join("cube-ascii.msh"))
+            .map(|_| ())
+            .map_err(|e| chain(&e));
+        assert_located(r, &["cube-ascii.msh"], dir.path());
     }
 
     /// Measured curves (the silicone tension test format).
@@ -201,7 +248,40 @@ proptest! {
             let t = std::fs::read(dir.path().join("c.csv")).unwrap();
             std::fs::write(dir.path().join("c.csv"), apply(&t, m)).unwrap();
         }
-        let _ = palpate_diagnose::curve::read::read_path(dir.path(), false, false);
+        let r = palpate_diagnose::curve::read::read_path(dir.path(), false, false)
+            .map(|_| ())
+            .map_err(|e| chain(&e));
+        assert_located(r, &["c.csv"], dir.path());
+    }
+}
+
+/// Step counts that would size buffers of many gigabytes (the whole u64 range, 2·10¹⁸, 4·10⁹
+/// steps) are refused with the file and field before anything is allocated for them: the
+/// allocator of this binary refuses any single allocation over 1 GiB, which aborts the test.
+#[test]
+fn huge_step_counts_are_refused_under_a_capped_allocator() {
+    let src = repo().join("models/motion-example");
+    let dt = "dt = 0.005555555555555556";
+    for steps in ["18446744073709551615", "2000000000000000000", "4000000000"] {
+        let dir = tempfile::tempdir().unwrap();
+        for e in std::fs::read_dir(&src).unwrap() {
+            let e = e.unwrap();
+            if e.path().is_file() {
+                std::fs::copy(e.path(), dir.path().join(e.file_name())).unwrap();
+            }
+        }
+        let toml = std::fs::read_to_string(src.join("dataset.toml")).unwrap();
+        assert!(toml.contains(dt), "the example's dt changed");
+        let edited = toml.replacen(dt, &format!("{dt}\nsteps = {steps}"), 1);
+        std::fs::write(dir.path().join("dataset.toml"), edited).unwrap();
+        let e = match palpate_motion::dataset::load(dir.path()) {
+            Ok(_) => panic!("steps = {steps} accepted"),
+            Err(e) => chain(&e),
+        };
+        assert!(
+            e.contains("dataset.toml") && e.contains("steps"),
+            "steps = {steps}: {e}"
+        );
     }
 }
 

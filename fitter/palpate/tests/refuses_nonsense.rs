@@ -145,9 +145,10 @@ fn fit_refuses_nonsense_regularisation() {
     }
 }
 
+/// An output that cannot be written is refused before any work: before the fit, and before the
+/// dataset is even read — a dataset folder that does not exist is not what the error names.
 #[test]
 fn fit_checks_its_output_before_fitting() {
-    let t0 = std::time::Instant::now();
     let o = fit_sponge(
         &[],
         &[],
@@ -159,9 +160,16 @@ fn fit_checks_its_output_before_fitting() {
         err.contains("output") && err.contains("model.palp"),
         "{err}"
     );
+    let o = palpate()
+        .args(["fit", "/nonexistent-palpate-dataset", "-o"])
+        .arg("/proc/palpate-cannot-write-here/model.palp")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(
-        t0.elapsed().as_secs_f64() < 5.0,
-        "checked before the fit ran"
+        err.contains("model.palp") && !err.contains("nonexistent-palpate-dataset"),
+        "the output must be checked before the dataset is read: {err}"
     );
 }
 
@@ -185,7 +193,6 @@ fn simulate(extra: &[&str], out: &Path) -> (i32, String) {
 fn simulate_refuses_loads_beyond_the_model() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("sim");
-    let t0 = std::time::Instant::now();
     let (code, err) = simulate(
         &["--contact", "0.05,0.05,0.05", "--force", "0,0,-1e6"],
         &out,
@@ -193,10 +200,20 @@ fn simulate_refuses_loads_beyond_the_model() {
     assert_eq!(code, 1, "{err}");
     assert!(err.contains("displacement-beyond-size"), "{err}");
     assert!(!out.exists(), "nothing written");
-    assert!(
-        t0.elapsed().as_secs_f64() < 30.0,
-        "stops early, not at the tick cap"
-    );
+    // It stops early, not at the tick cap: the not-settled finding says after how many ticks
+    // ("within N ticks (cap M)").
+    let count = |after: &str| -> usize {
+        let rest = &err[err
+            .find(after)
+            .unwrap_or_else(|| panic!("{after:?} not in: {err}"))
+            + after.len()..];
+        rest.split(|c: char| !c.is_ascii_digit())
+            .next()
+            .and_then(|d| d.parse().ok())
+            .unwrap_or_else(|| panic!("no count after {after:?} in: {err}"))
+    };
+    let (ticks, cap) = (count("within "), count("ticks (cap "));
+    assert!(ticks < cap, "ran to the cap: {ticks} of {cap} ticks: {err}");
     // A probe nowhere near the object.
     let (code, err) = simulate(&["--probe", "5,5,5"], &out);
     assert_eq!(code, 1, "{err}");
@@ -289,8 +306,15 @@ fn validate_predicts_from_a_fit_and_refuses_other_models() {
         let v = last[key].as_f64().unwrap();
         assert!(v.is_finite() && v >= 0.0, "{key} = {v}");
     }
-    // The fit predicts its own run to within the dataset's noise (σ = 0.1 mm per axis).
-    assert!(last["trajectory_rms_m"].as_f64().unwrap() < 1e-3, "{last}");
+    // The fit predicts its own run to the dataset's noise floor: σ = 0.2 mm per axis
+    // (`models/motion-example/truth.toml`), σ√3 = 0.346 mm over the three; measured 0.348 mm
+    // (release build, 60 iterations). 1.15 × the floor leaves room for the optimiser's stopping
+    // point; a misfit of the material shows as millimetres.
+    let floor = 0.2e-3 * 3f64.sqrt();
+    assert!(
+        last["trajectory_rms_m"].as_f64().unwrap() < 1.15 * floor,
+        "{last}"
+    );
     assert_eq!(last["time_offset_s"], 0.0);
 
     // A model fitted with per-run time offsets scans the run's own: this run is in step with its
@@ -497,4 +521,8 @@ fn fit_names_a_zero_force_measurement_whose_markers_move() {
         err.contains("zero-force-moves") && err.contains("\"c1\""),
         "{err}"
     );
+    // The fit goes on: a model is written (exit 0 or 2, written with or without warnings; the
+    // named row is a logged warning, measured exit 0).
+    assert!(matches!(o.status.code(), Some(0 | 2)), "{err}");
+    assert!(model.exists(), "no model written: {err}");
 }

@@ -49,11 +49,10 @@ fn stiffening_model_exports_as_strain_blend_and_replays() {
     for &i in &all {
         let m = &ctx.meas[i];
         let f = model.model_force(&ctx, &theta, i);
-        // The same force vector both sides: the shared contact rule.
-        assert!(ctx
+        let fitted_load = ctx
             .problem
             .force_vector(&Load::contact(m.point, f, m.radius))
-            .is_ok());
+            .expect("force vector");
         rt.reset();
         rt.set_contact_force(
             m.point.map(|v| v as f32),
@@ -61,6 +60,20 @@ fn stiffening_model_exports_as_strain_blend_and_replays() {
             m.radius as f32,
         )
         .expect("contact");
+        // The same nodal force vector both sides (the shared contact rule), node by node: the
+        // runtime's commanded load against the fitter's f64 one, to f32 round-off of the force
+        // (1e-6 of |f|; a node loaded on one side only would differ by a whole share of |f|).
+        let f_norm = f.iter().map(|v| v * v).sum::<f64>().sqrt();
+        for n in 0..x0.len() {
+            let cmd = rt.commanded_force(n).expect("node in range");
+            for k in 0..3 {
+                let (a, b) = (cmd[k] as f64, fitted_load[3 * n + k]);
+                assert!(
+                    (a - b).abs() <= 1e-6 * f_norm,
+                    "measurement {i}, node {n}, axis {k}: runtime commands {a:e} N, fitter {b:e} N"
+                );
+            }
+        }
         let settled = palpate_tests::settle::settle(&mut rt, 400, 1e-5);
         assert!(settled, "measurement {i} did not settle");
         let u = rt.displacements();

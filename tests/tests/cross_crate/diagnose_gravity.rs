@@ -20,10 +20,12 @@ fn rms(ctx: &Context, markers: &[Vec<[f64; 3]>]) -> f64 {
 }
 
 /// Measured: 204.8 µm RMS with the re-located markers vs 379.8 µm with the dataset's embedding
-/// (true E, ν, ρ, uncorrected dataset mesh: the rest is marker noise and the mesh's own error;
-/// asserted a 5 % drop at least); side markers move up by up to 322.6 µm (asserted > 50 µm, never
-/// down), top markers — whose sag is normal to their face — only sideways, by up to 96.9 µm
-/// (the block's bulge; asserted below the side markers' largest move).
+/// (true E, ν, ρ, uncorrected dataset mesh: the rest is marker noise and the mesh's own error),
+/// a ratio of 0.54, asserted below 0.6; side markers move up by up to 322.6 µm (asserted within
+/// 10 %, never down), top markers — whose sag is normal to their face — only sideways, by up to
+/// 96.9 µm (the block's bulge; asserted below the side markers' largest move). The figures are
+/// this test's own output (release build); every step is deterministic, so the margins only
+/// admit a change of solver tolerance.
 #[test]
 fn rest_scan_under_gravity_relocates_side_markers() {
     let s = specimen_with(Effect::Gravity, 1.0);
@@ -43,7 +45,11 @@ fn rest_scan_under_gravity_relocates_side_markers() {
         1e6 * with,
         1e6 * without
     );
-    assert!(with < 0.95 * without, "{with:e} vs {without:e}");
+    assert!(
+        with < 0.6 * without,
+        "{with:e} vs {without:e} m: ratio {:.3}, measured 0.539",
+        with / without
+    );
     let top = ctx.problem.x0.iter().map(|p| p[2]).fold(f64::MIN, f64::max);
     let (mut side_up, mut top_side) = (0.0f64, 0.0f64);
     for (k, m) in embedding.iter().enumerate() {
@@ -64,8 +70,8 @@ fn rest_scan_under_gravity_relocates_side_markers() {
         1e6 * top_side
     );
     assert!(
-        side_up > 5e-5,
-        "largest upward move of a side marker {side_up:e} m"
+        (side_up / 322.6e-6 - 1.0).abs() < 0.1,
+        "largest upward move of a side marker {side_up:e} m, measured 322.6 µm"
     );
     assert!(
         top_side < side_up,

@@ -490,7 +490,10 @@ fn a_bar_of_two_materials_is_given_its_second_material() {
         (stiff / 3.0e4 - 1.0).abs() < 0.05 && (soft / 1.0e4 - 1.0).abs() < 0.05,
         "near {stiff} far {soft}"
     );
-    let floor = SIGMA * 3f64.sqrt();
+    // The floor of this recording (σ = 20 µm, `run_of`), not of the module's σ = 100 µm runs:
+    // measured 34.4 µm held out against 34.6 µm; 1.2 × the floor (41.5 µm) is the margin the
+    // other forecasts at the floor in this file keep.
+    let floor = 2e-5 * 3f64.sqrt();
     assert!(
         r.after.rms_held < 1.2 * floor,
         "{:?} -> {:?}",

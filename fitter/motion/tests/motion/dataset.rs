@@ -83,12 +83,12 @@ fn with_toml(from: &'static str, to: &'static str) -> String {
     })
 }
 
-/// Step counts are bounded before anything is allocated: times and `steps` from the issue's
-/// reproducers (capacity overflow, 24 GB allocations, a million steps) are refused with the line
-/// and field, quickly.
+/// Step counts are bounded before anything is allocated: times and `steps` that once overflowed a
+/// capacity or asked for 24 GB are refused with the line and field. That nothing is allocated
+/// for them first is checked under a capped allocator in `readers_fuzz.rs`
+/// (`huge_step_counts_are_refused_under_a_capped_allocator`), not by a clock here.
 #[test]
 fn step_counts_are_bounded_before_allocation() {
-    let t0 = std::time::Instant::now();
     for t in ["1e20", "1e12", "5555.0"] {
         let row: &'static str = Box::leak(format!("{t},m0,0,0.0267,0.01\n").into_boxed_str());
         let e = with_row("trajectories.csv", row);
@@ -120,10 +120,6 @@ fn step_counts_are_bounded_before_allocation() {
     );
     let e = with_toml("dt = 0.005555555555555556", "dt = inf");
     assert!(e.contains("field dt"), "{e}");
-    assert!(
-        t0.elapsed().as_secs_f64() < 30.0,
-        "bounds are checked before work"
-    );
 }
 
 /// A trajectory row given twice is an error naming both lines, not silently overwritten.

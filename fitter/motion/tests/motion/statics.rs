@@ -1,16 +1,17 @@
 //! The quasi-static hyperelastic solver (`motion::statics`) against independent references.
 
+use nalgebra::Vector3;
 use palpate_fem::mesh::boxmesh::box_mesh;
-use palpate_motion::hyperelastic::HyperParams;
+use palpate_motion::hyperelastic::{element_forces, HyperParams, RestTet};
 use palpate_motion::statics::{solve_static, StaticProblem};
 
 /// Uniaxial stretch of a Neo-Hookean bar with the lateral faces free: the end reaction at
-/// stretch s must equal the analytic homogeneous solution. For eq. 16 uniaxial stress with
-/// lateral stretch t solves λ/2 (J² − 1)/t² … — instead of a closed form we use the exact
-/// homogeneous state found by 1-D Newton on the lateral stretch (an independent computation:
-/// two scalar equations, no FEM), and compare the FEM reaction force to P₁₁·A₀.
-/// Homogeneous deformation is represented exactly by linear tets, so the FEM must reproduce it
-/// to solver precision (tolerance 1e-6 relative).
+/// stretch s must equal the analytic homogeneous solution. The exact homogeneous state
+/// F = diag(t, s, t) comes from a 1-D root search on the lateral stretch t (zero lateral stress;
+/// an independent computation, no FEM). Homogeneous deformation is represented exactly by linear
+/// tets, so the FEM must land every node on it (1e-9 m) and its end reaction must be
+/// P₂₂(s, t)·A₀ (1e-6 relative). The positions alone would not see a stress wrong by a common
+/// factor (the same equilibrium); the reaction does.
 #[test]
 fn uniaxial_neo_hookean_bar_matches_homogeneous_solution() {
     let (l, w) = (0.04, 0.01);
@@ -48,6 +49,37 @@ fn uniaxial_neo_hookean_bar_matches_homogeneous_solution() {
             );
         }
     }
+    // The reaction on the y = l end: what the support holds against the elements' forces on
+    // its nodes, summed.
+    let rest = RestTet::of_mesh(&mesh).unwrap();
+    let end = |n: usize| (mesh.nodes[n][1] - l).abs() < 1e-12;
+    let mut reaction = 0.0;
+    for (tet, r) in mesh.tets.iter().zip(&rest) {
+        let x = tet.map(|n| Vector3::from(sol.positions[n]));
+        let f = element_forces(r, &x, &p).unwrap();
+        for (a, &n) in tet.iter().enumerate() {
+            if end(n) {
+                reaction -= f[3 * a + 1];
+            }
+        }
+    }
+    let want = axial_stress(&p, s, t) * w * w;
+    assert!(
+        (reaction / want - 1.0).abs() < 1e-6,
+        "end reaction {reaction:e} N, analytic P₂₂·A₀ = {want:e} N"
+    );
+}
+
+/// P₂₂ of F = diag(t, s, t) (the stretched axis y): the same derivative as the lateral P₁₁ of
+/// [`lateral_stretch`] with s and t exchanged in the direction of stretch,
+/// λ/2 (J² − 1)/s + μ (s − 1/s) + 2c (Ī₁ − 3) J^(−2/3) (2s − ⅔ I₁/s).
+fn axial_stress(p: &HyperParams, s: f64, t: f64) -> f64 {
+    let j = s * t * t;
+    let i1 = s * s + 2.0 * t * t;
+    let j23 = j.powf(-2.0 / 3.0);
+    0.5 * p.lambda * (j * j - 1.0) / s
+        + p.mu * (s - 1.0 / s)
+        + 2.0 * p.stiffening * (j23 * i1 - 3.0) * j23 * (2.0 * s - 2.0 / 3.0 * i1 / s)
 }
 
 /// Lateral stretch t of the uniaxial state F = diag(t, s, t) with zero lateral stress:

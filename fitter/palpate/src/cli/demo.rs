@@ -230,5 +230,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         super::demo_beam::print_table(b);
     }
     log::info!("demo finished in {:.1} s", t0.elapsed().as_secs_f64());
+    if let Some(b) = &beam {
+        super::demo_beam::check_expected(b)?;
+        log::info!("the beam's decisions and held-out errors are the expected ones");
+    }
     Ok(())
 }
