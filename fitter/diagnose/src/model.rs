@@ -15,7 +15,7 @@ use super::DiagnoseError;
 use palpate_fem::dataset::embed::closest_point_on_triangle;
 use palpate_fem::dataset::{Marker, StaticDataset};
 use palpate_fem::forward::{Factorised, Foundation, Load, Material, SolveOptions, StaticProblem};
-use palpate_specimen::generate::rotate;
+use palpate_fem::geometry::rotate;
 use std::sync::Arc;
 
 /// A candidate effect of the library (each an augmented model with extra parameters).
@@ -1666,7 +1666,7 @@ mod tests {
     fn point_triangle_distance_matches_a_dense_sampling() {
         let t = [[0.0, 0.0, 0.0], [1.0, 0.2, 0.1], [0.3, 0.9, -0.2]];
         let tv = t.map(Vector3::from);
-        let mut rng = palpate_specimen::rng(3);
+        let mut rng = palpate_fem::rng::study_stream(3);
         for _ in 0..200 {
             let p = Vector3::new(
                 3.0 * rng.uniform() - 1.0,

@@ -35,7 +35,7 @@ use serde::Serialize;
 use crate::noise::{
     extrapolation_weights, marker_spacing, median_over_gaussian, percentile, NoiseOptions,
 };
-use palpate_specimen::rng;
+use palpate_fem::rng::study_stream as rng;
 
 /// Options of [`estimate_rest_noise`].
 #[derive(Debug, Clone, Serialize)]
