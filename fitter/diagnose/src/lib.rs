@@ -75,22 +75,8 @@ use signature::{evidence_points, signature, Signature};
 /// units; one type for the static and the curve diagnoses.
 pub use select::ParamValue;
 
-/// Errors of the diagnosis.
-#[derive(Debug, thiserror::Error)]
-pub enum DiagnoseError {
-    /// The dataset cannot be diagnosed.
-    #[error("{0}")]
-    Input(String),
-    /// The forward model failed.
-    #[error(transparent)]
-    Forward(#[from] palpate_fem::forward::ForwardError),
-    /// A fit left the physical range.
-    #[error("the fit diverged: {0}")]
-    Diverged(String),
-    /// Writing the report failed.
-    #[error("writing the report: {0}")]
-    Write(String),
-}
+/// The static diagnosis's errors: the crate's one [`Error`] (the name kept for its callers).
+pub type DiagnoseError = Error;
 
 /// Options of [`run_diagnosis`].
 #[derive(Debug, Clone, Serialize)]

@@ -21,7 +21,6 @@ pub use effect::{Effect, EffectSpec};
 pub use generate::{generate, Specimen, SpecimenOptions, Truth};
 pub use signal::signal_rms;
 
-use palpate_fem::rng::SplitMix64;
 use serde::Serialize;
 
 /// Every error of this crate (generating and writing specimens): one flat enum; each message

@@ -24,37 +24,8 @@ use select::{param_values, select, Errors, ParamValue, Step};
 use std::path::Path;
 use std::time::Instant;
 
-/// Errors of the curve diagnosis.
-#[derive(Debug, thiserror::Error)]
-pub enum CurveError {
-    /// A file or directory cannot be read.
-    #[error("{path}: {message}")]
-    Io {
-        /// Path.
-        path: String,
-        /// OS error.
-        message: String,
-    },
-    /// A file's content is malformed.
-    #[error("{file}:{line}: {message}")]
-    Format {
-        /// File.
-        file: String,
-        /// 1-based line.
-        line: usize,
-        /// What was expected and found.
-        message: String,
-    },
-    /// The input cannot be diagnosed.
-    #[error("{0}")]
-    Input(String),
-    /// The simplest model could not be fitted.
-    #[error("{0}: the fit failed (no finite prediction)")]
-    Fit(String),
-    /// Writing the report failed.
-    #[error("writing the report: {0}")]
-    Write(String),
-}
+/// The curve diagnosis's errors: the crate's one [`crate::Error`] (the name kept for its callers).
+pub type CurveError = crate::Error;
 
 /// Options.
 #[derive(Debug, Clone, serde::Serialize)]

@@ -32,31 +32,17 @@ use crate::select::{
     Policy, Rank, Score, Screen, Verdict,
 };
 use fit::{fit_model, fit_with_offsets, with_offsets, FittedModel, Scores, Split};
-use palpate_motion::dataset::{DatasetError, MotionDataset};
+use palpate_motion::dataset::MotionDataset;
 use palpate_motion::model::{Material, Param, ParamKind};
 use palpate_motion::time_offset;
-use palpate_motion::MotionError;
 use rayon::prelude::*;
 use serde::Serialize;
 use signature::{signature, Signature};
 use std::path::Path;
 
-/// Errors of the motion diagnosis.
-#[derive(Debug, thiserror::Error)]
-pub enum MotionDiagnoseError {
-    /// The dataset cannot be diagnosed (what and why).
-    #[error("{0}")]
-    Input(String),
-    /// Reading the dataset failed.
-    #[error(transparent)]
-    Dataset(#[from] DatasetError),
-    /// The simulator or optimiser failed.
-    #[error(transparent)]
-    Motion(#[from] MotionError),
-    /// Writing the report or the model failed.
-    #[error("writing the report: {0}")]
-    Write(String),
-}
+/// The motion diagnosis's errors: the crate's one [`crate::Error`] (the name kept for its
+/// callers).
+pub type MotionDiagnoseError = crate::Error;
 
 /// True when `dir` holds a motion dataset: a `dataset.toml` with a `dt` key (the static format
 /// has none) — [`palpate_motion::dataset::load`] then needs `trajectories.csv` or `forces.csv`.

@@ -54,20 +54,8 @@ use palpate_motion::time_offset;
 use palpate_motion::MotionError;
 use serde::Serialize;
 
-/// Errors of the runs diagnosis.
-#[derive(Debug, thiserror::Error)]
-#[non_exhaustive]
-pub enum RunsError {
-    /// The runs cannot be diagnosed together (what and why).
-    #[error("{0}")]
-    Input(String),
-    /// The simulator or optimiser failed.
-    #[error(transparent)]
-    Motion(#[from] MotionError),
-    /// Writing the report failed.
-    #[error("writing the report: {0}")]
-    Write(String),
-}
+/// The runs diagnosis's errors: the crate's one [`crate::Error`] (the name kept for its callers).
+pub type RunsError = crate::Error;
 
 /// A candidate effect the simplest model of the runs lacks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
