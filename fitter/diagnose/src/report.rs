@@ -492,3 +492,28 @@ pub fn write_report(r: &DiagnosisReport, dir: &Path) -> Result<Vec<PathBuf>, Dia
     }
     Ok(written)
 }
+
+/// The summary the command prints for `r`: the verdict and RMS marker errors before and after
+/// (µm), then, when the residual is explained, the smallest magnitude of each candidate the data
+/// would have detected.
+pub fn summary_lines(r: &DiagnosisReport) -> Vec<String> {
+    let adopted: Vec<&str> = r.adopted.iter().map(|c| c.name()).collect();
+    let mut lines = vec![format!(
+        "{}: {}; RMS marker error {:.1} → {:.1} µm fitted, {:.1} → {:.1} µm held out (noise floor {:.1} µm)",
+        r.dataset,
+        r.residual_check.verdict(&adopted.join(", ")),
+        1e6 * r.before.fitted_rms,
+        1e6 * r.after.fitted_rms,
+        1e6 * r.before.heldout_rms,
+        1e6 * r.after.heldout_rms,
+        1e6 * r.noise_floor
+    )];
+    if !r.detectable.is_empty() {
+        lines.push(
+            "  would have detected (smallest magnitudes; smaller effects of these kinds may be present):"
+                .into(),
+        );
+        lines.extend(r.detectable.iter().map(|d| format!("    {}", d.describe())));
+    }
+    lines
+}

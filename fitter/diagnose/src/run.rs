@@ -1,7 +1,7 @@
 //! One diagnosis request, whatever the input: a static dataset, a motion dataset, measured
 //! curves, or a folder of these — recognised, dispatched to its diagnosis, reported, and (for
-//! static and motion datasets) exported as the diagnosed model. `palpate diagnose` is a thin shell
-//! over [`run`].
+//! static and motion datasets) exported as the diagnosed model. Each input diagnosed hands back a
+//! [`Summary`]; `palpate diagnose` is a thin shell over [`run_with`] that prints them.
 
 use std::path::{Path, PathBuf};
 
@@ -37,6 +37,23 @@ pub struct Request {
     pub poisson: Option<f64>,
 }
 
+/// What one diagnosed input hands back: the summary lines the command prints (one per input, and
+/// for a static dataset the magnitudes it would have detected) and the files written.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Summary {
+    /// The lines of the summary, without line ends.
+    pub lines: Vec<String>,
+    /// The report files and the model written.
+    pub files: Vec<PathBuf>,
+}
+
+impl std::fmt::Display for Summary {
+    /// The summary lines, each ended by a newline (what the command prints).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.lines.iter().try_for_each(|l| writeln!(f, "{l}"))
+    }
+}
+
 /// The candidates named in `--candidates` (`what` names the library in the error: "candidate",
 /// "motion candidate"), each looked up by name in `all`.
 pub fn pick_candidates<C: Copy>(
@@ -68,12 +85,22 @@ fn diagnosable(path: &Path) -> bool {
         || (path.is_dir() && path.join("dataset.toml").exists())
 }
 
-/// Runs the diagnosis. A directory that is not itself a dataset or a set of curves but holds such
-/// subdirectories (e.g. a data folder with one folder per instrument) is diagnosed one
-/// subdirectory at a time, each into `<output>/<name>`.
-pub fn run(args: &Request) -> Result<(), Error> {
+/// Runs the diagnosis and returns the summaries of every input diagnosed, in order.
+pub fn run(args: &Request) -> Result<Vec<Summary>, Error> {
+    let mut out = Vec::new();
+    run_with(args, &mut |s| out.push(s))?;
+    Ok(out)
+}
+
+/// Runs the diagnosis, handing each input's [`Summary`] to `done` as soon as it is written (a
+/// folder of inputs takes minutes per input). A directory that is not itself a dataset or a set
+/// of curves but holds such subdirectories (e.g. a data folder with one folder per instrument) is
+/// diagnosed one subdirectory at a time, each into `<output>/<name>`; the summaries of those that
+/// succeeded are handed over before the error that names those that failed.
+pub fn run_with(args: &Request, done: &mut dyn FnMut(Summary)) -> Result<(), Error> {
     if !args.more_runs.is_empty() || !args.held_out.is_empty() {
-        return run_runs(args);
+        done(run_runs(args)?);
+        return Ok(());
     }
     if args.dataset.is_dir() && !diagnosable(&args.dataset) {
         let mut subs: Vec<PathBuf> = std::fs::read_dir(&args.dataset)
@@ -93,9 +120,12 @@ pub fn run(args: &Request) -> Result<(), Error> {
                     .map(|n| n.to_os_string())
                     .unwrap_or_default();
                 log::info!("== {}", sub.display());
-                if let Err(e) = diagnose_one(args, sub, &args.output.join(name)) {
-                    log::error!("{}: {e:#}", sub.display());
-                    failed.push(sub.clone());
+                match diagnose_one(args, sub, &args.output.join(name)) {
+                    Ok(summaries) => summaries.into_iter().for_each(&mut *done),
+                    Err(e) => {
+                        log::error!("{}: {e:#}", sub.display());
+                        failed.push(sub.clone());
+                    }
                 }
             }
             if !failed.is_empty() {
@@ -107,17 +137,21 @@ pub fn run(args: &Request) -> Result<(), Error> {
             return Ok(());
         }
     }
-    diagnose_one(args, &args.dataset, &args.output)
+    diagnose_one(args, &args.dataset, &args.output)?
+        .into_iter()
+        .for_each(done);
+    Ok(())
 }
 
 /// Most effects adopted by the static, motion and curve diagnoses unless asked otherwise.
 pub const DEFAULT_MAX_EFFECTS: usize = 3;
 
-/// Diagnoses one dataset or set of curves at `path` into `output`.
-fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<(), Error> {
+/// Diagnoses one dataset or set of curves at `path` into `output` (a set of curves may hold
+/// several datasets: one summary each).
+fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<Vec<Summary>, Error> {
     // A CSV file or a directory of CSVs without dataset.toml: measured curves (diagnose::curve).
     if crate::curve::read::is_curve_input(path) {
-        return crate::curve::cli::run(
+        return crate::curve::run::run(
             path,
             output,
             &args.candidates,
@@ -133,12 +167,12 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<(), Error>
     }
     // dataset.toml with `dt`/`clamps`: a motion dataset (docs/motion-dataset.md).
     if path.is_dir() && crate::motion::is_motion_dataset(path) {
-        return crate::motion::cli::run(
+        return Ok(vec![crate::motion::run::run(
             path,
             output,
             &args.candidates,
             args.max_effects.unwrap_or(DEFAULT_MAX_EFFECTS),
-        );
+        )?]);
     }
     let ds = StaticDataset::read(path).map_err(|source| Error::StaticDataset {
         path: path.into(),
@@ -172,30 +206,14 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<(), Error>
             source,
         })?;
     files.push(model_path);
-    println!(
-        "{}: {}; RMS marker error {:.1} → {:.1} µm fitted, {:.1} → {:.1} µm held out (noise floor {:.1} µm)",
-        r.dataset,
-        r.residual_check.verdict(&r.adopted.iter().map(|c| c.name()).collect::<Vec<_>>().join(", ")),
-        1e6 * r.before.fitted_rms,
-        1e6 * r.after.fitted_rms,
-        1e6 * r.before.heldout_rms,
-        1e6 * r.after.heldout_rms,
-        1e6 * r.noise_floor
-    );
-    if !r.detectable.is_empty() {
-        println!("  would have detected (smallest magnitudes; smaller effects of these kinds may be present):");
-        for d in &r.detectable {
-            println!("    {}", d.describe());
-        }
-    }
-    for f in files {
-        log::info!("wrote {}", f.display());
-    }
-    Ok(())
+    Ok(vec![Summary {
+        lines: crate::report::summary_lines(&r),
+        files,
+    }])
 }
 
 /// The runs diagnosis: `dataset` and `more_runs` fitted, `held_out` predicted.
-fn run_runs(args: &Request) -> Result<(), Error> {
+fn run_runs(args: &Request) -> Result<Summary, Error> {
     let load = |p: &PathBuf| -> Result<(String, palpate_motion::dataset::MotionDataset), Error> {
         let ds = palpate_motion::dataset::load(p).map_err(|source| Error::MotionDataset {
             path: p.clone(),
@@ -225,17 +243,8 @@ fn run_runs(args: &Request) -> Result<(), Error> {
     }
     let r = crate::runs::diagnose_runs(&fit, &held, &o, &|m| log::info!("{m}"))?;
     let files = crate::runs::report::write_report(&r, &args.output, fit[0].1.model.dt)?;
-    println!(
-        "runs diagnosis: adopted [{}]; held-out marker RMS {:.3} → {:.3} mm, held-out rest state {:.3} → {:.3} mm ({:.0} s)",
-        r.adopted.iter().map(|e| e.name()).collect::<Vec<_>>().join(", "),
-        1e3 * r.heldout_rms_m.0,
-        1e3 * r.heldout_rms_m.1,
-        1e3 * r.heldout_final_rms_m.0,
-        1e3 * r.heldout_final_rms_m.1,
-        r.seconds
-    );
-    for f in files {
-        log::info!("wrote {}", f.display());
-    }
-    Ok(())
+    Ok(Summary {
+        lines: vec![crate::runs::report::summary_line(&r)],
+        files,
+    })
 }

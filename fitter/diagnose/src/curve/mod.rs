@@ -9,12 +9,12 @@
 //! Nothing about which effect is present comes from anywhere but the data: the format is read
 //! from the header ([`read`]), every candidate the format admits is tried on every dataset.
 
-pub mod cli;
 pub mod fit;
 pub mod lm;
 pub mod model;
 pub mod read;
 pub mod report;
+pub mod run;
 pub mod select;
 pub mod signature;
 

@@ -21,10 +21,10 @@
 //! drops by at least [`MotionOptions::min_holdout_gain`]. The first passing candidate in
 //! fitted-ΔBIC order is adopted; repeat until none passes.
 
-pub mod cli;
 pub mod fit;
 pub mod region;
 pub mod report;
+pub mod run;
 pub mod signature;
 
 use crate::select::{

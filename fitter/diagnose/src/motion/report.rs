@@ -291,3 +291,18 @@ pub fn write_report(r: &MotionDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, Mot
     );
     Ok(out)
 }
+
+/// The one-line summary of `r` the command prints: the verdict and the RMS marker errors before
+/// and after (µm).
+pub fn summary_line(r: &MotionDiagnosis) -> String {
+    format!(
+        "{}: {}; RMS marker error {:.1} → {:.1} µm fitted, {:.1} → {:.1} µm held out (forecast of the last {} steps)",
+        r.dataset,
+        r.verdict(),
+        1e6 * r.before.rms_fit,
+        1e6 * r.after.rms_fit,
+        1e6 * r.before.rms_held,
+        1e6 * r.after.rms_held,
+        r.split.steps - r.split.fit_steps
+    )
+}

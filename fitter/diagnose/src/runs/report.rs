@@ -316,3 +316,17 @@ pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBu
     }
     Ok(out)
 }
+
+/// The one-line summary of `r` the command prints: the effects adopted and the held-out errors
+/// before and after (mm).
+pub fn summary_line(r: &RunsDiagnosis) -> String {
+    format!(
+        "runs diagnosis: adopted [{}]; held-out marker RMS {:.3} → {:.3} mm, held-out rest state {:.3} → {:.3} mm ({:.0} s)",
+        r.adopted.iter().map(|e| e.name()).collect::<Vec<_>>().join(", "),
+        1e3 * r.heldout_rms_m.0,
+        1e3 * r.heldout_rms_m.1,
+        1e3 * r.heldout_final_rms_m.0,
+        1e3 * r.heldout_final_rms_m.1,
+        r.seconds
+    )
+}

@@ -57,7 +57,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     args.plots.apply();
     // The output is checked before the diagnosis runs (minutes), not after.
     super::output::check_writable(&args.output.join("diagnosis.md"))?;
-    palpate_diagnose::run::run(&palpate_diagnose::run::Request {
+    let request = palpate_diagnose::run::Request {
         dataset: args.dataset,
         output: args.output,
         candidates: args.candidates,
@@ -67,6 +67,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         more_runs: args.with,
         held_out: args.held_out,
         poisson: Some(args.poisson),
+    };
+    // Each input's summary is printed as soon as it is written: a folder of inputs takes minutes
+    // per input.
+    palpate_diagnose::run::run_with(&request, &mut |summary| {
+        print!("{summary}");
+        for f in &summary.files {
+            log::info!("wrote {}", f.display());
+        }
     })?;
     Ok(())
 }

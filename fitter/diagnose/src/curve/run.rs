@@ -1,10 +1,11 @@
-//! Command-line glue of `palpate diagnose <csv file | directory of csv files>`: runs the curve
-//! diagnosis and prints one summary line per dataset (errors as [`crate::Error`]).
+//! Measured curves diagnosed on request (a CSV file or a directory of CSV files): runs the curve
+//! diagnosis, writes one report per dataset and hands back one summary per dataset.
 
 use super::model::{Candidate, Law, HYPERELASTIC};
-use super::report::write_report;
+use super::report::{summary_line, write_report};
 use super::{diagnose_path, CurveOptions};
 use crate::error::Error;
+use crate::run::Summary;
 use std::path::Path;
 
 /// Every candidate name the curve library knows.
@@ -33,7 +34,7 @@ pub fn run(
     candidates: &[String],
     max_effects: usize,
     gauge_mm: Option<f64>,
-) -> Result<(), Error> {
+) -> Result<Vec<Summary>, Error> {
     let known = candidate_names();
     for c in candidates {
         if !known.contains(&c.trim().to_string()) {
@@ -58,34 +59,17 @@ pub fn run(
         ..Default::default()
     };
     let ds = diagnose_path(path, &o, &mut |m| log::info!("{m}"))?;
-    for d in &ds {
-        let dir = if ds.len() == 1 {
-            output.to_path_buf()
-        } else {
-            output.join(&d.name)
-        };
-        let files = write_report(d, &dir)?;
-        println!(
-            "{}: {}; RMS {} → {} fitted, {} → {} held out ({})",
-            d.name,
-            if d.adopted.is_empty() {
-                "clean (no effect adopted)".to_string()
+    ds.iter()
+        .map(|d| {
+            let dir = if ds.len() == 1 {
+                output.to_path_buf()
             } else {
-                format!("adopted {}", d.adopted.join(", "))
-            },
-            fmt(d.before.fitted_rms),
-            fmt(d.after.fitted_rms),
-            fmt(d.before.heldout_rms),
-            fmt(d.after.heldout_rms),
-            d.unit
-        );
-        for f in files {
-            log::info!("wrote {}", f.display());
-        }
-    }
-    Ok(())
-}
-
-fn fmt(v: f64) -> String {
-    format!("{v:.4e}")
+                output.join(&d.name)
+            };
+            Ok(Summary {
+                lines: vec![summary_line(d)],
+                files: write_report(d, &dir)?,
+            })
+        })
+        .collect()
 }
