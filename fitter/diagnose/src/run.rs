@@ -6,10 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use crate::error::Error;
-use crate::model::{Candidate, ALL_CANDIDATES};
-use crate::report::write_report;
-use crate::{run_diagnosis_with, DiagnoseOptions, MeshChoice};
-use palpate_fem::dataset::StaticDataset;
+use crate::MeshChoice;
 
 /// What to diagnose and how.
 #[derive(Debug, Clone)]
@@ -37,46 +34,7 @@ pub struct Request {
     pub poisson: Option<f64>,
 }
 
-/// What one diagnosed input hands back: the summary lines the command prints (one per input, and
-/// for a static dataset the magnitudes it would have detected) and the files written.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Summary {
-    /// The lines of the summary, without line ends.
-    pub lines: Vec<String>,
-    /// The report files and the model written.
-    pub files: Vec<PathBuf>,
-}
-
-impl std::fmt::Display for Summary {
-    /// The summary lines, each ended by a newline (what the command prints).
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        self.lines.iter().try_for_each(|l| writeln!(f, "{l}"))
-    }
-}
-
-/// The candidates named in `--candidates` (`what` names the library in the error: "candidate",
-/// "motion candidate"), each looked up by name in `all`.
-pub fn pick_candidates<C: Copy>(
-    names: &[String],
-    all: &[C],
-    name: impl Fn(C) -> &'static str,
-    what: &str,
-) -> Result<Vec<C>, Error> {
-    names
-        .iter()
-        .map(|n| {
-            all.iter()
-                .copied()
-                .find(|&c| name(c) == n.trim())
-                .ok_or_else(|| Error::UnknownCandidate {
-                    what: what.to_string(),
-                    name: n.clone(),
-                    input: None,
-                    known: all.iter().map(|&c| name(c).to_string()).collect(),
-                })
-        })
-        .collect()
-}
+pub use crate::summary::Summary;
 
 /// Whether `path` is something `diagnose` reads directly: measured curves, or a directory with a
 /// `dataset.toml` (static or motion dataset).
@@ -174,77 +132,27 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<Vec<Summar
             args.max_effects.unwrap_or(DEFAULT_MAX_EFFECTS),
         )?]);
     }
-    let ds = StaticDataset::read(path).map_err(|source| Error::StaticDataset {
-        path: path.into(),
-        source: Box::new(source),
-    })?;
-    let mut o = DiagnoseOptions {
-        max_effects: args.max_effects.unwrap_or(DEFAULT_MAX_EFFECTS),
-        mesh: args.mesh,
-        ..Default::default()
-    };
-    if !args.candidates.is_empty() {
-        o.candidates = pick_candidates(
-            &args.candidates,
-            &ALL_CANDIDATES,
-            Candidate::name,
-            "candidate",
-        )?;
-    }
-    let r = run_diagnosis_with(&ds, &o, |msg| log::info!("{msg}"))?;
-    let mut files = write_report(&r, output)?;
-    let model_path = output.join("model.palp");
-    let buffers = crate::export::diagnosed_model(
-        &r,
-        &format!("palpate {} diagnose", crate::VERSION),
-        &format!("{} ({})", ds.name, path.display()),
-    )?;
-    buffers
-        .write(&model_path)
-        .map_err(|source| Error::WriteModel {
-            path: model_path.clone(),
-            source,
-        })?;
-    files.push(model_path);
-    Ok(vec![Summary {
-        lines: crate::report::summary_lines(&r),
-        files,
-    }])
+    Ok(vec![crate::statics::run::run(
+        path,
+        output,
+        &args.candidates,
+        args.max_effects.unwrap_or(DEFAULT_MAX_EFFECTS),
+        args.mesh,
+    )?])
 }
 
 /// The runs diagnosis: `dataset` and `more_runs` fitted, `held_out` predicted.
 fn run_runs(args: &Request) -> Result<Summary, Error> {
-    let load = |p: &PathBuf| -> Result<(String, palpate_motion::dataset::MotionDataset), Error> {
-        let ds = palpate_motion::dataset::load(p).map_err(|source| Error::MotionDataset {
-            path: p.clone(),
-            source: Box::new(source),
-        })?;
-        Ok((p.display().to_string(), ds))
-    };
-    let fit: Vec<_> = std::iter::once(&args.dataset)
+    let fitted: Vec<PathBuf> = std::iter::once(&args.dataset)
         .chain(&args.more_runs)
-        .map(load)
-        .collect::<Result<_, _>>()?;
-    let held: Vec<_> = args.held_out.iter().map(load).collect::<Result<_, _>>()?;
-    let mut o = crate::runs::RunsOptions::default();
-    if let Some(n) = args.max_effects {
-        o.max_effects = n;
-    }
-    if let Some(nu) = args.poisson {
-        o.poisson = nu;
-    }
-    if !args.candidates.is_empty() {
-        o.candidates = pick_candidates(
-            &args.candidates,
-            &crate::runs::ALL_EFFECTS,
-            crate::runs::Effect::name,
-            "runs candidate",
-        )?;
-    }
-    let r = crate::runs::diagnose_runs(&fit, &held, &o, &|m| log::info!("{m}"))?;
-    let files = crate::runs::report::write_report(&r, &args.output, fit[0].1.model.dt)?;
-    Ok(Summary {
-        lines: vec![crate::runs::report::summary_line(&r)],
-        files,
-    })
+        .cloned()
+        .collect();
+    crate::runs::run::run(
+        &fitted,
+        &args.held_out,
+        &args.output,
+        &args.candidates,
+        args.max_effects,
+        args.poisson,
+    )
 }

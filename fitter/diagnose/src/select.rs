@@ -17,6 +17,8 @@
 
 use serde::Serialize;
 
+use crate::Error;
+
 /// A fitted parameter with its 1σ uncertainty from the Gauss–Newton covariance, in physical units
 /// (static and curve diagnoses; the motion diagnosis' `Value` has another JSON shape and stays).
 #[derive(Debug, Clone, Serialize)]
@@ -629,6 +631,30 @@ pub fn select<M: CandidateModel>(
         }
     }
     Ok(Verdict { rounds, path, stop })
+}
+
+/// The candidates named in `--candidates` (`what` names the library in the error: "candidate",
+/// "motion candidate"), each looked up by name in `all`.
+pub fn pick_candidates<C: Copy>(
+    names: &[String],
+    all: &[C],
+    name: impl Fn(C) -> &'static str,
+    what: &str,
+) -> Result<Vec<C>, Error> {
+    names
+        .iter()
+        .map(|n| {
+            all.iter()
+                .copied()
+                .find(|&c| name(c) == n.trim())
+                .ok_or_else(|| Error::UnknownCandidate {
+                    what: what.to_string(),
+                    name: n.clone(),
+                    input: None,
+                    known: all.iter().map(|&c| name(c).to_string()).collect(),
+                })
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -5,7 +5,7 @@ use super::model::{Candidate, Law, HYPERELASTIC};
 use super::report::{summary_line, write_report};
 use super::{diagnose_path, CurveOptions};
 use crate::error::Error;
-use crate::run::Summary;
+use crate::summary::Summary;
 use std::path::Path;
 
 /// Every candidate name the curve library knows.

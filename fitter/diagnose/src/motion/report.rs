@@ -264,8 +264,7 @@ pub fn json_text(r: &MotionDiagnosis) -> Result<String, serde_json::Error> {
 /// Writes the report files into `dir`; returns their paths.
 pub fn write_report(r: &MotionDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, MotionDiagnoseError> {
     let w = |e: String| MotionDiagnoseError::Write(e);
-    let mut out =
-        crate::report::write_md_and_json(dir, &markdown(r), || json_text(r)).map_err(w)?;
+    let mut out = crate::json::write_md_and_json(dir, &markdown(r), || json_text(r)).map_err(w)?;
     let p = dir.join("residual-vs-speed.svg");
     let scale = |v: &[(f64, f64)]| -> Vec<(f64, f64)> {
         v.iter().map(|&(x, y)| (1e3 * x, 1e6 * y)).collect()

@@ -4,7 +4,7 @@
 use super::report::{summary_line, write_report};
 use super::{diagnose, Candidate, MotionOptions, ALL_CANDIDATES};
 use crate::error::Error;
-use crate::run::Summary;
+use crate::summary::Summary;
 use palpate_fem::export::ProvenanceInfo;
 use std::path::Path;
 
@@ -24,7 +24,7 @@ pub fn run(
         ..Default::default()
     };
     if !candidates.is_empty() {
-        o.candidates = crate::run::pick_candidates(
+        o.candidates = crate::select::pick_candidates(
             candidates,
             &ALL_CANDIDATES,
             Candidate::name,

@@ -40,6 +40,7 @@
 //! mass (the hanging weight's inertia); a decay it gets wrong at the damping.
 
 pub mod report;
+pub mod run;
 
 use crate::select::{
     self, select, CandidateModel, Current, Gate, HeldoutGate, Outcome, ParamValue, PassWords,

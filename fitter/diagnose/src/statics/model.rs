@@ -283,6 +283,21 @@ pub struct MeasData {
     pub observed: Vec<(usize, [f64; 3])>,
 }
 
+/// The best blob of the adjoint sensitivity scan ([`super::sensitivity::scan_blobs`]): where the
+/// inclusion candidate starts. Defined here, beside the context that holds it, so the model does
+/// not depend on the scan that fills it (the scan depends on fits of the model).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BlobScan {
+    /// Centre (m).
+    pub centre: [f64; 3],
+    /// Radius (m).
+    pub radius: f64,
+    /// Gauss–Newton contrast a (log E change at the centre).
+    pub contrast: f64,
+    /// Predicted χ² reduction (units of σ²).
+    pub reduction: f64,
+}
+
 /// Everything fixed about a dataset: forward problem, markers, measurements, reference points.
 #[derive(Debug, Clone)]
 pub struct Context {
@@ -340,7 +355,7 @@ pub struct Context {
     /// start, [`Candidate::start`]).
     pub inclusion_seed: Option<[f64; 5]>,
     /// The scan's best blob, for the report.
-    pub inclusion_scan: Option<crate::sensitivity::BlobScan>,
+    pub inclusion_scan: Option<BlobScan>,
     /// Node tags of the mesh solved on (for the export).
     pub node_tags: Vec<u64>,
     /// Approximation-error correction δ added to every predicted marker (per measurement, aligned

@@ -349,26 +349,6 @@ pub fn json_text(r: &DiagnosisReport) -> Result<String, serde_json::Error> {
     json::finish("static-diagnosis", v)
 }
 
-/// Creates `dir` and writes `diagnosis.md`, then `diagnosis.json` (made by `json` once the
-/// markdown is written), into it; returns their paths. The motion and runs reports begin so, and
-/// word the errors alike (the folder named, the rest as the error says).
-pub(crate) fn write_md_and_json(
-    dir: &Path,
-    md: &str,
-    json: impl FnOnce() -> Result<String, serde_json::Error>,
-) -> Result<Vec<PathBuf>, String> {
-    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    let mut out = Vec::new();
-    let p = dir.join("diagnosis.md");
-    write_atomic(&p, md.as_bytes()).map_err(|e| e.to_string())?;
-    out.push(p);
-    let p = dir.join("diagnosis.json");
-    let json = json().map_err(|e| e.to_string())?;
-    write_atomic(&p, json.as_bytes()).map_err(|e| e.to_string())?;
-    out.push(p);
-    Ok(out)
-}
-
 /// Writes `diagnosis.md`, `diagnosis.json` and the evidence plots into `dir`; returns the paths.
 pub fn write_report(r: &DiagnosisReport, dir: &Path) -> Result<Vec<PathBuf>, DiagnoseError> {
     std::fs::create_dir_all(dir)

@@ -169,18 +169,8 @@ pub fn log_modulus_gradient(ctx: &Context, f: &Fitted) -> Result<Sensitivity, Di
     })
 }
 
-/// The best blob of the scan.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct BlobScan {
-    /// Centre (m).
-    pub centre: [f64; 3],
-    /// Radius (m).
-    pub radius: f64,
-    /// Gauss–Newton contrast a (log E change at the centre).
-    pub contrast: f64,
-    /// Predicted χ² reduction (units of σ²).
-    pub reduction: f64,
-}
+/// The best blob of the scan (a model's inclusion start, so it is defined beside it).
+pub use super::model::BlobScan;
 
 /// Centres of the scan: a `n × n × m` grid over the elements' bounding box, each snapped to the
 /// nearest element centroid (so every centre lies in the body, whatever its shape), duplicates
