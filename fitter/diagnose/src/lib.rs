@@ -17,7 +17,7 @@
 //!
 //! ```no_run
 //! use palpate_diagnose::{run_diagnosis, DiagnoseOptions};
-//! let ds = palpate_fem::dataset::StaticDataset::read("models/sponge-specimen".as_ref())?;
+//! let ds = palpate_fem::dataset::StaticDataset::read("models/sponge-specimen")?;
 //! let report = run_diagnosis(&ds, &DiagnoseOptions::default())?;
 //! println!("{}", palpate_diagnose::report::summary_lines(&report).join("\n"));
 //! # Ok::<(), Box<dyn std::error::Error>>(())

@@ -302,8 +302,8 @@ pub struct Candidate<'a, M: CandidateModel + ?Sized> {
 /// A model with candidate effects that can be fitted and predicted on held-out data: what a
 /// diagnosis supplies to [`select`].
 pub trait CandidateModel {
-    /// A candidate effect.
-    type Candidate: Copy + PartialEq;
+    /// A candidate effect of the room's library.
+    type Candidate: CandidateEffect;
     /// A fitted model.
     type Fitted: Clone;
     /// Held-out evidence of a fitted model (its predictions of data it was not fitted to).
@@ -633,25 +633,34 @@ pub fn select<M: CandidateModel>(
     Ok(Verdict { rounds, path, stop })
 }
 
-/// The candidates named in `--candidates` (`what` names the library in the error: "candidate",
-/// "motion candidate"), each looked up by name in `all`.
-pub fn pick_candidates<C: Copy>(
-    names: &[String],
-    all: &[C],
-    name: impl Fn(C) -> &'static str,
-    what: &str,
-) -> Result<Vec<C>, Error> {
+/// A candidate effect of a room's library, as the shared layer sees it: the selection engine
+/// ([`CandidateModel::Candidate`]) and the request ([`pick_candidates`]) need nothing else of it.
+/// Each room's candidate type implements it where it is defined, so a room's library is stated
+/// once (`statics::model`, `motion`, `runs`, `curve::model`).
+pub trait CandidateEffect: Copy + PartialEq {
+    /// What the library is called in messages ("candidate", "motion candidate").
+    const LIBRARY: &'static str;
+    /// Every candidate of the library, in the order tried.
+    fn library() -> Vec<Self>;
+    /// The name on the command line and in reports.
+    fn label(self) -> String;
+}
+
+/// The candidates named in `--candidates`, each looked up by name in `C`'s library (the error
+/// names the library and lists what it knows).
+pub fn pick_candidates<C: CandidateEffect>(names: &[String]) -> Result<Vec<C>, Error> {
+    let all = C::library();
     names
         .iter()
         .map(|n| {
             all.iter()
                 .copied()
-                .find(|&c| name(c) == n.trim())
+                .find(|&c| c.label() == n.trim())
                 .ok_or_else(|| Error::UnknownCandidate {
-                    what: what.to_string(),
+                    what: C::LIBRARY.to_string(),
                     name: n.clone(),
                     input: None,
-                    known: all.iter().map(|&c| name(c).to_string()).collect(),
+                    known: all.iter().map(|&c| c.label()).collect(),
                 })
         })
         .collect()
@@ -694,5 +703,39 @@ mod tests {
         assert!(!gate.passes(-10.0, None, -0.5));
         assert!(!gate.passes(-20.0, None, -0.04));
         assert!(!gate.passes(-20.0, None, f64::NAN));
+    }
+
+    /// Names are looked up in the library of the room asked for (blanks trimmed), in the order
+    /// given; an unknown name is refused naming that library and listing every name it knows.
+    #[test]
+    fn pick_candidates_looks_names_up_in_the_rooms_library() {
+        let names = |v: &[&str]| v.iter().map(|n| n.to_string()).collect::<Vec<_>>();
+        let got = pick_candidates::<crate::motion::Candidate>(&names(&[" time-offset", "density"]));
+        assert_eq!(
+            got.unwrap(),
+            [
+                crate::motion::Candidate::TimeOffset,
+                crate::motion::Candidate::Density
+            ]
+        );
+        let got = pick_candidates::<crate::runs::Effect>(&names(&["stiffening"])).unwrap();
+        assert_eq!(got, [crate::runs::Effect::Stiffening]);
+        // `layer` is a static candidate, not a motion one.
+        let e = pick_candidates::<crate::motion::Candidate>(&names(&["layer"]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("unknown motion candidate \"layer\"; known: viscosity,")
+                && e.contains("time-offset"),
+            "{e}"
+        );
+        let e = pick_candidates::<crate::statics::model::Candidate>(&names(&["viscosity"]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("unknown candidate \"viscosity\"; known: "),
+            "{e}"
+        );
+        assert!(e.contains("layer") && e.contains("inclusion"), "{e}");
     }
 }

@@ -1,4 +1,4 @@
-//! Diagnosis of measured 1-D curves (issue 6 on real data): tension / relaxation records, material
+//! Diagnosis of measured 1-D curves: tension / relaxation records, material
 //! stress–strain tests and FSR calibrations. Same mechanism as the static diagnosis: fit the
 //! simplest model the data declares (force ∝ displacement, stress ∝ strain, FSR conductance ∝
 //! force through the divider), read the residual's signature ([`signature`]), refit every

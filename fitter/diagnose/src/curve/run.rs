@@ -1,29 +1,20 @@
 //! Measured curves diagnosed on request (a CSV file or a directory of CSV files): runs the curve
 //! diagnosis, writes one report per dataset and hands back one summary per dataset.
 
-use super::model::{Candidate, Law, HYPERELASTIC};
+use super::model::Candidate;
 use super::report::{summary_line, write_report};
 use super::{diagnose_path, CurveOptions};
 use crate::error::Error;
+use crate::select::CandidateEffect as _;
 use crate::summary::Summary;
 use std::path::Path;
 
 /// Every candidate name the curve library knows.
 pub fn candidate_names() -> Vec<String> {
-    let mut v: Vec<Candidate> = HYPERELASTIC
-        .iter()
-        .map(|&l: &Law| Candidate::Hyperelastic(l))
-        .collect();
-    v.extend([
-        Candidate::Viscosity,
-        Candidate::Offset,
-        Candidate::Slack,
-        Candidate::PowerLaw,
-        Candidate::Saturation,
-        Candidate::Threshold,
-        Candidate::Drift,
-    ]);
-    v.into_iter().map(|c| c.name()).collect()
+    Candidate::library()
+        .into_iter()
+        .map(|c| c.label())
+        .collect()
 }
 
 /// Runs the diagnosis of `path`, writing reports under `output` (one sub-directory per dataset

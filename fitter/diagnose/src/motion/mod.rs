@@ -1,4 +1,4 @@
-//! Residual diagnosis of a motion dataset (issue 6 on top of the motion fitter, issue 4):
+//! Residual diagnosis of a motion dataset, on top of the motion fitter:
 //! fit the simplest model the dataset supports (Neo-Hookean, no viscosity), look at the residual
 //! per marker and step ([`signature`](mod@signature)), hold each candidate effect against it by refitting, keep
 //! the one that predicts held-out data, repeat, and report ([`report`]).
@@ -1088,4 +1088,14 @@ pub fn diagnose(
         ),
         material: Some(cur.material.clone()),
     })
+}
+
+impl crate::select::CandidateEffect for Candidate {
+    const LIBRARY: &'static str = "motion candidate";
+    fn library() -> Vec<Self> {
+        ALL_CANDIDATES.to_vec()
+    }
+    fn label(self) -> String {
+        self.name().into()
+    }
 }

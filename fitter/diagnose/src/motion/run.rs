@@ -2,7 +2,7 @@
 //! and hand back the summary the command prints.
 
 use super::report::{summary_line, write_report};
-use super::{diagnose, Candidate, MotionOptions, ALL_CANDIDATES};
+use super::{diagnose, Candidate, MotionOptions};
 use crate::error::Error;
 use crate::summary::Summary;
 use palpate_fem::export::ProvenanceInfo;
@@ -24,12 +24,7 @@ pub fn run(
         ..Default::default()
     };
     if !candidates.is_empty() {
-        o.candidates = crate::select::pick_candidates(
-            candidates,
-            &ALL_CANDIDATES,
-            Candidate::name,
-            "motion candidate",
-        )?;
+        o.candidates = crate::select::pick_candidates::<Candidate>(candidates)?;
     }
     let label = dataset.display().to_string();
     let r = diagnose(&ds, &label, &o, &|m| log::info!("{m}"))?;

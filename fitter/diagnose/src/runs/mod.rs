@@ -1143,6 +1143,16 @@ pub fn diagnose_runs(
     })
 }
 
+impl crate::select::CandidateEffect for Effect {
+    const LIBRARY: &'static str = "runs candidate";
+    fn library() -> Vec<Self> {
+        ALL_EFFECTS.to_vec()
+    }
+    fn label(self) -> String {
+        self.name().into()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::{ring_down, viscosity_from_ring_down, Effect, RunResidual, ALL_EFFECTS};

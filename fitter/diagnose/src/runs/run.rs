@@ -33,12 +33,7 @@ pub fn run(
         o.poisson = nu;
     }
     if !candidates.is_empty() {
-        o.candidates = crate::select::pick_candidates(
-            candidates,
-            &super::ALL_EFFECTS,
-            super::Effect::name,
-            "runs candidate",
-        )?;
+        o.candidates = crate::select::pick_candidates::<super::Effect>(candidates)?;
     }
     let r = super::diagnose_runs(&fit, &held, &o, &|m| log::info!("{m}"))?;
     let files = super::report::write_report(&r, output, fit[0].1.model.dt)?;

@@ -7,17 +7,18 @@ use std::time::Instant;
 use palpate_fem::dataset::StaticDataset;
 
 use super::approx_error::{self, refresh, Correction};
+use super::fit::Fitted;
 use super::fit::{fit, initial_theta};
-use super::holdout::{errors, holdout, marker_norms, stats};
+use super::holdout::{errors, holdout, marker_norms, stats, Held};
 use super::model::{self, poisson_of, Candidate, Context, Model};
-use super::noise::{self, estimate_noise};
+use super::noise::{self, estimate_noise, NoiseFinding};
 use super::params::{base_params, effect_params};
-use super::rest_noise::estimate_rest_noise;
+use super::rest_noise::{estimate_rest_noise, RestNoiseFinding};
 use super::select::{static_steps, StaticModel};
 use super::{power, sensitivity, signature};
 use super::{
-    DiagnoseError, DiagnoseOptions, DiagnosisReport, MeshChoice, MeshErrorSummary, ResidualCheck,
-    SolvedOn, MESH_ERROR_MAX_TETS,
+    DiagnoseError, DiagnoseOptions, DiagnosisReport, Errors, MeshChoice, MeshErrorSummary,
+    ResidualCheck, SolvedOn, Step, MESH_ERROR_MAX_TETS,
 };
 use crate::select::{self, Policy, Rank, Screen};
 
@@ -88,6 +89,83 @@ pub fn run_diagnosis_with(
     mut progress: impl FnMut(&str),
 ) -> Result<DiagnosisReport, DiagnoseError> {
     let started = Instant::now();
+    let (coarse, coarse_fit) = fit_simplest(ds, o, &mut progress)?;
+    let refined = if 8 * ds.mesh.tets.len() <= MESH_ERROR_MAX_TETS {
+        palpate_fem::dataset::refine::refine_dataset(ds).ok()
+    } else {
+        None
+    };
+    let (mesh_error, first_delta) =
+        estimate_mesh_error(refined.as_ref(), &coarse, &coarse_fit, o, &mut progress);
+    let floor = coarse.sigma * 3f64.sqrt();
+    let (choice, reason) = mesh_decision(o, ds.mesh.tets.len(), mesh_error.as_ref(), floor)?;
+    let dataset_mesh_rms = stats(&marker_norms(&coarse, &coarse_fit)).0;
+    let (mut ctx, current, mut correction) = solve_on_chosen_mesh(
+        choice,
+        refined,
+        first_delta,
+        coarse,
+        coarse_fit,
+        o,
+        &mut progress,
+    )?;
+    locate_candidates(&mut ctx, correction.as_mut(), &current, o, &mut progress);
+    let mut solved_on = SolvedOn {
+        tets: ctx.problem.element_count(),
+        choice,
+        correction_rms: None,
+        dataset_mesh_rms,
+        reason,
+    };
+    let current_held = holdout(&ctx, &current, o.holdout_iterations)?;
+    let first = errors(&ctx, &current, &current_held);
+    let (ctx, current, current_held, steps) =
+        select_effects(ctx, correction, current, current_held, o, &mut progress)?;
+    let after = errors(&ctx, &current, &current_held);
+    solved_on.correction_rms = ctx.correction.as_deref().map(approx_error::delta_rms);
+    let noise = test_noise(&ctx, &current, o, &mut progress);
+    let (adopted, residual_check) = judge_residual(&ctx, &current, &noise, &after);
+    let detectable = power_statement(&ctx, &current, &residual_check, o, &mut progress)?;
+    let mut final_params = base_params(&current);
+    for &c in &current.model.effects {
+        final_params.extend(effect_params(&ctx, &current, c));
+    }
+    Ok(DiagnosisReport {
+        dataset: ds.name.clone(),
+        criterion: criterion(o),
+        sigma: ctx.sigma,
+        sigma_declared: ctx.sigma_declared,
+        noise_floor: ctx.sigma * 3f64.sqrt(),
+        options: o.clone(),
+        adopted,
+        noise: noise.noise,
+        rest_noise: noise.rest_noise,
+        noise_evidence: noise.evidence,
+        steps,
+        before: first,
+        mesh_error,
+        solved_on,
+        after,
+        residual_check,
+        detectable,
+        young_poisson: (current.theta[0].exp(), poisson_of(current.theta[1])),
+        final_params,
+        seconds: started.elapsed().as_secs_f64(),
+        final_fit: Some(current),
+        context: Some(ctx),
+    })
+}
+
+/// The approximation-error correction and the δ it computed at the simplest fit, kept for the
+/// correction's first refresh.
+type FirstDelta = (Correction, Vec<Vec<[f64; 3]>>);
+
+/// The data gate, then the simplest model (linear homogeneous) fitted on the dataset's own mesh.
+fn fit_simplest(
+    ds: &StaticDataset,
+    o: &DiagnoseOptions,
+    progress: &mut dyn FnMut(&str),
+) -> Result<(Context, Fitted), DiagnoseError> {
     // The same data gate as `palpate fit` (palpate_fem::sanity): data that cannot determine a
     // stiffness are refused before any model is fitted to them.
     let findings = palpate_fem::sanity::check_static_data(ds, 2)
@@ -108,28 +186,30 @@ pub fn run_diagnosis_with(
         Some(&sim0.x),
         o.max_iterations,
     )?;
-    let refined = if 8 * ds.mesh.tets.len() <= MESH_ERROR_MAX_TETS {
-        palpate_fem::dataset::refine::refine_dataset(ds).ok()
-    } else {
-        None
-    };
-    // The mesh's own discretisation error is the approximation-error correction at the simplest
-    // fit: δ = x_{h/2}(θ*) − x_h(θ*) at the markers. One set of refined solves serves both the
-    // estimate and, when the correction is chosen, its first refresh.
+    Ok((coarse, coarse_fit))
+}
+
+/// The dataset mesh's own discretisation error: the approximation-error correction at the
+/// simplest fit, δ = x_{h/2}(θ*) − x_h(θ*) at the markers (`None` without a refined mesh, or
+/// when a refined solve fails). One set of refined solves serves both the estimate and, when the
+/// correction is chosen, its first refresh.
+fn estimate_mesh_error(
+    refined: Option<&StaticDataset>,
+    coarse: &Context,
+    coarse_fit: &Fitted,
+    o: &DiagnoseOptions,
+    progress: &mut dyn FnMut(&str),
+) -> (Option<MeshErrorSummary>, Option<FirstDelta>) {
     let mut first_delta = None;
-    let mesh_error = match &refined {
+    let mesh_error = match refined {
         Some(fine) => {
             progress(
                 "estimating the mesh's discretisation error (simplest model on the mesh refined once)",
             );
             Correction::new(fine, o.grid)
                 .and_then(|mut corr| {
-                    let delta = corr.delta(
-                        &coarse,
-                        &Model::base(),
-                        &coarse_fit.theta,
-                        &coarse_fit.sim.x,
-                    )?;
+                    let delta =
+                        corr.delta(coarse, &Model::base(), &coarse_fit.theta, &coarse_fit.sim.x)?;
                     Ok((corr, delta))
                 })
                 .ok()
@@ -145,9 +225,22 @@ pub fn run_diagnosis_with(
         }
         None => None,
     };
-    let floor = coarse.sigma * 3f64.sqrt();
-    let (choice, reason) = mesh_decision(o, ds.mesh.tets.len(), mesh_error.as_ref(), floor)?;
-    let dataset_mesh_rms = stats(&marker_norms(&coarse, &coarse_fit)).0;
+    (mesh_error, first_delta)
+}
+
+/// The simplest model on the mesh chosen ([`mesh_decision`]): refitted on the refined mesh, or
+/// with the approximation-error correction (returned, to be refreshed after each adoption), or
+/// the dataset mesh's fit as it is.
+fn solve_on_chosen_mesh(
+    choice: MeshChoice,
+    refined: Option<StaticDataset>,
+    mut first_delta: Option<FirstDelta>,
+    coarse: Context,
+    coarse_fit: Fitted,
+    o: &DiagnoseOptions,
+    progress: &mut dyn FnMut(&str),
+) -> Result<(Context, Fitted, Option<Correction>), DiagnoseError> {
+    let all: Vec<usize> = (0..coarse.meas.len()).collect();
     let mut correction = None;
     let (ctx, current) = match (choice, refined) {
         (MeshChoice::Refined, Some(fine)) => {
@@ -203,25 +296,34 @@ pub fn run_diagnosis_with(
         }
         _ => (coarse, coarse_fit),
     };
-    // Find where before what: the sensitivity scan of the simplest fit places the inclusion
-    // candidate where the residual asks for a stiffer or softer blob (its default start, under
-    // the mean contact point, sees nothing of an inclusion elsewhere), and chooses the surface
-    // the layer candidate's depth is measured from.
-    let mut ctx = ctx;
+    Ok((ctx, current, correction))
+}
+
+/// Find where before what: the sensitivity scan of the simplest fit places the inclusion
+/// candidate where the residual asks for a stiffer or softer blob (its default start, under the
+/// mean contact point, sees nothing of an inclusion elsewhere), and chooses the surface the layer
+/// candidate's depth is measured from.
+fn locate_candidates(
+    ctx: &mut Context,
+    mut correction: Option<&mut Correction>,
+    current: &Fitted,
+    o: &DiagnoseOptions,
+    progress: &mut dyn FnMut(&str),
+) {
     let blob = o.locate_inclusion && o.candidates.contains(&Candidate::Inclusion);
     let layer = o.locate_layer && o.candidates.contains(&Candidate::Layer);
     let gradient = if blob || layer {
         progress(
             "locating where the residual asks for another stiffness (adjoint sensitivity scan)",
         );
-        sensitivity::log_modulus_gradient(&ctx, &current).ok()
+        sensitivity::log_modulus_gradient(ctx, current).ok()
     } else {
         None
     };
     if let Some(scan) = gradient
         .as_ref()
         .filter(|_| blob)
-        .and_then(|s| sensitivity::scan_blobs(&ctx, s, &[0.3, 0.6]))
+        .and_then(|s| sensitivity::scan_blobs(ctx, s, &[0.3, 0.6]))
     {
         progress(&format!(
             "sensitivity scan: a {} blob of radius {:.1} mm at ({:.1}, {:.1}, {:.1}) mm would lower χ² by {:.0}",
@@ -253,7 +355,7 @@ pub fn run_diagnosis_with(
             .iter()
             .filter_map(|(axis, depth, range)| {
                 let width = 0.25 * ctx.element_size / range;
-                sensitivity::scan_layers(&ctx, s, depth, &t, width).map(|l| (*axis, l))
+                sensitivity::scan_layers(ctx, s, depth, &t, width).map(|l| (*axis, l))
             })
             .inspect(|(axis, l)| {
                 progress(&format!(
@@ -279,15 +381,20 @@ pub fn run_diagnosis_with(
             }
         }
     }
-    let mut solved_on = SolvedOn {
-        tets: ctx.problem.element_count(),
-        choice,
-        correction_rms: None,
-        dataset_mesh_rms,
-        reason,
-    };
-    let current_held = holdout(&ctx, &current, o.holdout_iterations)?;
-    let first = errors(&ctx, &current, &current_held);
+}
+
+/// The selection rounds ([`crate::select::select`] driven by [`StaticModel`]) from the simplest
+/// model: the context (with its last correction), the final fit and its held-out errors, and the
+/// report's rounds.
+fn select_effects(
+    ctx: Context,
+    correction: Option<Correction>,
+    current: Fitted,
+    current_held: Held,
+    o: &DiagnoseOptions,
+    progress: &mut dyn FnMut(&str),
+) -> Result<(Context, Fitted, Held, Vec<Step>), DiagnoseError> {
+    let all: Vec<usize> = (0..ctx.meas.len()).collect();
     let policy = Policy {
         // One round more than effects: the last one states that the maximum is reached.
         rounds: o.max_effects + 1,
@@ -304,7 +411,7 @@ pub fn run_diagnosis_with(
         correction,
         all,
         o,
-        progress: &mut progress,
+        progress,
     };
     let verdict = select::select(&mut engine, &policy, current, current_held)?;
     let steps = static_steps(&verdict, o, engine.ctx.meas.len());
@@ -314,10 +421,31 @@ pub fn run_diagnosis_with(
         .into_iter()
         .last()
         .expect("the start is on the path");
-    let after = errors(&ctx, &current, &current_held);
-    solved_on.correction_rms = ctx.correction.as_deref().map(approx_error::delta_rms);
+    Ok((ctx, current, current_held, steps))
+}
+
+/// The noise tests' findings on the final residual.
+struct NoiseTests {
+    /// The marker-noise finding.
+    noise: Option<NoiseFinding>,
+    /// The rest-scan finding.
+    rest_noise: Option<RestNoiseFinding>,
+    /// The noise finding's evidence plot.
+    evidence: Vec<(f64, f64)>,
+    /// The final residual per measurement: (marker, residual vector m).
+    residuals: Vec<Vec<(usize, [f64; 3])>>,
+}
+
+/// The white-noise level of the final residual (marker noise, then the rest scan's own noise),
+/// each finding's statement saying which of the two the excess is.
+fn test_noise(
+    ctx: &Context,
+    current: &Fitted,
+    o: &DiagnoseOptions,
+    progress: &mut dyn FnMut(&str),
+) -> NoiseTests {
     progress("estimating the marker noise level (local nugget)");
-    let residuals = signature::residual_vectors(&ctx, &current);
+    let residuals = signature::residual_vectors(ctx, current);
     let fields: Vec<noise::Field> = residuals
         .iter()
         .map(|r| r.iter().map(|&(k, e)| (ctx.marker_rest[k], e)).collect())
@@ -381,6 +509,23 @@ pub fn run_diagnosis_with(
             );
         }
     }
+    NoiseTests {
+        noise,
+        rest_noise,
+        evidence: noise_evidence,
+        residuals,
+    }
+}
+
+/// The effects adopted (the final model's, then `noise` and `rest-noise` as the tests found) and
+/// whether the final residual is what the noise leaves ([`ResidualCheck`]).
+fn judge_residual(
+    ctx: &Context,
+    current: &Fitted,
+    tests: &NoiseTests,
+    after: &Errors,
+) -> (Vec<Candidate>, ResidualCheck) {
+    let (noise, rest_noise, residuals) = (&tests.noise, &tests.rest_noise, &tests.residuals);
     let noise_adopted = noise.as_ref().filter(|n| n.fired);
     let rest_adopted = rest_noise
         .as_ref()
@@ -406,7 +551,7 @@ pub fn run_diagnosis_with(
         Some(r) => {
             adopted.push(Candidate::RestNoise);
             ResidualCheck::with_rest_noise(
-                &residuals,
+                residuals,
                 check_sigma,
                 remaining,
                 r.estimate,
@@ -423,10 +568,22 @@ pub fn run_diagnosis_with(
             judged,
         ),
     };
-    // "Clean" says little without what the data could have seen: the power statement.
+    (adopted, residual_check)
+}
+
+/// "Clean" says little without what the data could have seen: for a residual the noise explains,
+/// the smallest magnitude of every candidate the final model does not hold that the dataset would
+/// have detected ([`power::detectable`]).
+fn power_statement(
+    ctx: &Context,
+    current: &Fitted,
+    residual_check: &ResidualCheck,
+    o: &DiagnoseOptions,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Vec<power::Detectable>, DiagnoseError> {
     let detectable = if residual_check.judged && residual_check.explained {
         progress("stating the smallest effects this dataset could have detected");
-        match power::detectable(&ctx, &current, o.bic_threshold) {
+        match power::detectable(ctx, current, o.bic_threshold) {
             Ok(d) => d,
             // A secant step that leaves the physical range (a stiffening final model) leaves
             // the statement out; the verdict stands without it.
@@ -439,43 +596,21 @@ pub fn run_diagnosis_with(
     } else {
         Vec::new()
     };
-    let mut final_params = base_params(&current);
-    for &c in &current.model.effects {
-        final_params.extend(effect_params(&ctx, &current, c));
-    }
-    Ok(DiagnosisReport {
-        dataset: ds.name.clone(),
-        criterion: format!(
-            "rank by BIC = n ln(χ²/n) + k ln n; shortlist the best {} with ΔBIC < −{}; a shortlisted candidate passes if on leave-one-measurement-out predictions n ln(χ²_new/χ²_old) + k ln n < 0 AND the held-out error in excess of the noise floor drops by ≥ {:.0} % (when nothing is above the floor before: held-out ΔBIC < −{} instead); adopt the first that passes (fitted-BIC order) and report any later one that also passes with a lower held-out ΔBIC as ambiguous; repeat; then `noise` if the one-sided 95 % lower bound of the nugget estimate σ̂ of the final residual exceeds {:.2} × the declared σ; `rest-noise` if the per-marker persistent residual's nugget sits ≥ {:.1} null standard deviations above what the measurements' noise leaves and τ̂ ≥ {:.2} σ — in place of `noise` when the within-marker estimate of the measurements' own noise is within that margin of the declared σ",
-            o.cv_candidates,
-            o.bic_threshold,
-            100.0 * o.min_holdout_gain,
-            o.bic_threshold,
-            1.0 + o.noise.margin,
-            o.rest_noise.z_limit,
-            o.rest_noise.margin
-        ),
-        sigma: ctx.sigma,
-        sigma_declared: ctx.sigma_declared,
-        noise_floor: ctx.sigma * 3f64.sqrt(),
-        options: o.clone(),
-        adopted,
-        noise,
-        rest_noise,
-        noise_evidence,
-        steps,
-        before: first,
-        mesh_error,
-        solved_on,
-        after,
-        residual_check,
-        detectable,
-        young_poisson: (current.theta[0].exp(), poisson_of(current.theta[1])),
-        final_params,
-        seconds: started.elapsed().as_secs_f64(),
-        final_fit: Some(current),
-        context: Some(ctx),
-    })
+    Ok(detectable)
+}
+
+/// The selection rule in words, with the options' numbers (stated in every report).
+fn criterion(o: &DiagnoseOptions) -> String {
+    format!(
+        "rank by BIC = n ln(χ²/n) + k ln n; shortlist the best {} with ΔBIC < −{}; a shortlisted candidate passes if on leave-one-measurement-out predictions n ln(χ²_new/χ²_old) + k ln n < 0 AND the held-out error in excess of the noise floor drops by ≥ {:.0} % (when nothing is above the floor before: held-out ΔBIC < −{} instead); adopt the first that passes (fitted-BIC order) and report any later one that also passes with a lower held-out ΔBIC as ambiguous; repeat; then `noise` if the one-sided 95 % lower bound of the nugget estimate σ̂ of the final residual exceeds {:.2} × the declared σ; `rest-noise` if the per-marker persistent residual's nugget sits ≥ {:.1} null standard deviations above what the measurements' noise leaves and τ̂ ≥ {:.2} σ — in place of `noise` when the within-marker estimate of the measurements' own noise is within that margin of the declared σ",
+        o.cv_candidates,
+        o.bic_threshold,
+        100.0 * o.min_holdout_gain,
+        o.bic_threshold,
+        1.0 + o.noise.margin,
+        o.rest_noise.z_limit,
+        o.rest_noise.margin
+    )
 }
 
 #[cfg(test)]

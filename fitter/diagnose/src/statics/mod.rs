@@ -35,6 +35,8 @@
 //! `noise`, and when it is above, both are adopted (judged under σ̂_w²I + τ̂²11ᵀ).
 
 pub mod approx_error;
+mod candidate;
+mod context;
 mod diagnose;
 mod diagnosis;
 pub mod export;

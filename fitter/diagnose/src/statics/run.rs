@@ -5,7 +5,7 @@ use std::path::Path;
 
 use palpate_fem::dataset::StaticDataset;
 
-use super::model::{Candidate, ALL_CANDIDATES};
+use super::model::Candidate;
 use super::report::write_report;
 use super::{run_diagnosis_with, DiagnoseOptions, MeshChoice};
 use crate::error::Error;
@@ -30,7 +30,7 @@ pub fn run(
         ..Default::default()
     };
     if !candidates.is_empty() {
-        o.candidates = pick_candidates(candidates, &ALL_CANDIDATES, Candidate::name, "candidate")?;
+        o.candidates = pick_candidates::<Candidate>(candidates)?;
     }
     let r = run_diagnosis_with(&ds, &o, |msg| log::info!("{msg}"))?;
     let mut files = write_report(&r, output)?;

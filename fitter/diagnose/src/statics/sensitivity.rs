@@ -1,6 +1,6 @@
 //! Where the residual asks for a stiffer or softer material: the gradient of χ² with respect to
 //! every element's log E (one adjoint solve per measurement), and a matched-filter scan that
-//! turns it into the inclusion candidate's start — find where, then what (issue 14).
+//! turns it into the inclusion candidate's start — find where, then what.
 //!
 //! The warped equilibrium of measurement i is F(x, p) = Σ_e R_e K_e ũ_e − f = 0 with
 //! ũ_e = R_eᵀ x_e − X_e (eq. 3.53). K_e is proportional to the element's E at a fixed Poisson's
