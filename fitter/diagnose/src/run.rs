@@ -156,3 +156,42 @@ fn run_runs(args: &Request) -> Result<Summary, Error> {
         args.poisson,
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::select::pick_candidates;
+
+    /// Names are looked up in the library of the room asked for (blanks trimmed), in the order
+    /// given; an unknown name is refused naming that library and listing every name it knows.
+    #[test]
+    fn pick_candidates_looks_names_up_in_the_rooms_library() {
+        let names = |v: &[&str]| v.iter().map(|n| n.to_string()).collect::<Vec<_>>();
+        let got = pick_candidates::<crate::motion::Candidate>(&names(&[" time-offset", "density"]));
+        assert_eq!(
+            got.unwrap(),
+            [
+                crate::motion::Candidate::TimeOffset,
+                crate::motion::Candidate::Density
+            ]
+        );
+        let got = pick_candidates::<crate::runs::Effect>(&names(&["stiffening"])).unwrap();
+        assert_eq!(got, [crate::runs::Effect::Stiffening]);
+        // `layer` is a static candidate, not a motion one.
+        let e = pick_candidates::<crate::motion::Candidate>(&names(&["layer"]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("unknown motion candidate \"layer\"; known: viscosity,")
+                && e.contains("time-offset"),
+            "{e}"
+        );
+        let e = pick_candidates::<crate::statics::model::Candidate>(&names(&["viscosity"]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("unknown candidate \"viscosity\"; known: "),
+            "{e}"
+        );
+        assert!(e.contains("layer") && e.contains("inclusion"), "{e}");
+    }
+}
