@@ -89,7 +89,7 @@ pub struct Step {
     pub evidence: Option<Evidence>,
 }
 
-/// The report of [`run_diagnosis`].
+/// The report of [`super::run_diagnosis`].
 #[derive(Debug, Clone, Serialize)]
 pub struct DiagnosisReport {
     /// Dataset name.

@@ -8,7 +8,7 @@ use super::noise::NoiseOptions;
 use super::rest_noise::RestNoiseOptions;
 use crate::Error;
 
-/// Options of [`run_diagnosis`].
+/// Options of [`super::run_diagnosis`].
 #[derive(Debug, Clone, Serialize)]
 pub struct DiagnoseOptions {
     /// Candidates to try.
@@ -47,12 +47,12 @@ pub struct DiagnoseOptions {
     /// a dataset mesh of over 6k tets is usually fine enough for its own error to be small.
     pub refine_max_tets: usize,
     /// Place the inclusion candidate where the adjoint sensitivity scan of the simplest fit
-    /// finds the best blob ([`sensitivity`]); false: under the mean contact point at a quarter
+    /// finds the best blob ([`super::sensitivity`]); false: under the mean contact point at a quarter
     /// of the depth (the start before the scan existed).
     pub locate_inclusion: bool,
     /// Measure the layer candidate's depth along the axis (the pushing direction, gravity, or
     /// the distance to the free surface) whose best layer the adjoint sensitivity scan predicts
-    /// to lower χ² most ([`sensitivity::scan_layers`]); false: along the pushing direction.
+    /// to lower χ² most ([`super::sensitivity::scan_layers`]); false: along the pushing direction.
     pub locate_layer: bool,
 }
 
@@ -66,7 +66,7 @@ pub enum MeshChoice {
     /// ≈ 100× the time of a full diagnosis.
     Refined,
     /// The dataset mesh with the approximation-error correction from the mesh refined once
-    /// ([`approx_error`]): the refined model's predictions at each adopted fit, the coarse cost.
+    /// ([`super::approx_error`]): the refined model's predictions at each adopted fit, the coarse cost.
     Corrected,
     /// [`MeshChoice::Corrected`] when the dataset mesh's own discretisation error is a large part
     /// of the noise floor (see [`DiagnoseOptions::refine_above`]), else the dataset's mesh.

@@ -25,8 +25,8 @@ pub fn run(
         source: Box::new(source),
     })?;
     let mut o = DiagnoseOptions {
-        max_effects: max_effects,
-        mesh: mesh,
+        max_effects,
+        mesh,
         ..Default::default()
     };
     if !candidates.is_empty() {

@@ -74,7 +74,7 @@ impl ResidualCheck {
     }
 
     /// The check of `residuals` (per measurement: (marker, residual vector) in m) when every
-    /// declared rest position carries white noise of `tau` per axis ([`rest_noise`]): marker k's
+    /// declared rest position carries white noise of `tau` per axis ([`super::rest_noise`]): marker k's
     /// residuals over its m_k measurements then have the covariance s² I + τ² 11ᵀ per axis, with
     /// s² = σ² + remaining²/3 (the mesh's remaining error as in
     /// [`ResidualCheck::with_discretisation`]), and the whitened
