@@ -1,29 +1,52 @@
-//! The one error of a diagnosis request ([`crate::run::run`]): what failed and where, with the
-//! diagnosis-specific errors ([`DiagnoseError`], [`MotionDiagnoseError`], [`CurveError`]) as
-//! sources.
+//! The one error of the crate: every diagnosis (static, motion, runs, curve) and the request that
+//! dispatches them ([`crate::run::run`]) fail with [`Error`], whose variants say what failed and
+//! where.
 
 use std::path::PathBuf;
-
-use crate::curve::CurveError;
-use crate::motion::MotionDiagnoseError;
-use crate::DiagnoseError;
 
 /// Why a diagnosis request failed. Every variant names the input or file it is about.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum Error {
-    /// The static diagnosis (fit, adoption, report) failed.
+    /// The input cannot be diagnosed (what and why, naming the dataset, run or curve).
+    #[error("{0}")]
+    Input(String),
+    /// Writing a report failed (the file and the reason).
+    #[error("writing the report: {0}")]
+    Write(String),
+    /// The static forward model failed.
     #[error(transparent)]
-    Static(Box<DiagnoseError>),
-    /// The motion diagnosis (fit, adoption, report) failed.
+    Forward(#[from] palpate_fem::forward::ForwardError),
+    /// A static fit left the physical range, or its law found no equilibrium under a load.
+    #[error("the fit diverged: {0}")]
+    Diverged(String),
+    /// A curve file or directory cannot be read.
+    #[error("{path}: {message}")]
+    Io {
+        /// Path.
+        path: String,
+        /// OS error.
+        message: String,
+    },
+    /// A curve file's content is malformed.
+    #[error("{file}:{line}: {message}")]
+    Format {
+        /// File.
+        file: String,
+        /// 1-based line.
+        line: usize,
+        /// What was expected and found.
+        message: String,
+    },
+    /// The simplest curve model could not be fitted (the dataset named).
+    #[error("{0}: the fit failed (no finite prediction)")]
+    Fit(String),
+    /// A motion dataset given as a value was malformed.
     #[error(transparent)]
-    Motion(Box<MotionDiagnoseError>),
-    /// The curve diagnosis (reading, fit, adoption, report) failed.
+    MotionData(#[from] palpate_motion::dataset::DatasetError),
+    /// The motion simulator or optimiser failed (motion and runs diagnoses).
     #[error(transparent)]
-    Curve(Box<CurveError>),
-    /// The runs diagnosis (fit, adoption, report) failed.
-    #[error(transparent)]
-    Runs(Box<crate::runs::RunsError>),
+    Motion(#[from] palpate_motion::MotionError),
     /// A static dataset could not be read.
     #[error("reading {}: {source}", path.display())]
     StaticDataset {
@@ -115,32 +138,6 @@ pub enum Error {
         /// How many subdirectories were diagnosed.
         total: usize,
     },
-}
-
-// The diagnosis errors are boxed so that `Result<_, Error>` stays small on the happy path
-// (clippy::result_large_err); `?` still converts them.
-impl From<DiagnoseError> for Error {
-    fn from(e: DiagnoseError) -> Self {
-        Error::Static(Box::new(e))
-    }
-}
-
-impl From<MotionDiagnoseError> for Error {
-    fn from(e: MotionDiagnoseError) -> Self {
-        Error::Motion(Box::new(e))
-    }
-}
-
-impl From<crate::runs::RunsError> for Error {
-    fn from(e: crate::runs::RunsError) -> Self {
-        Error::Runs(Box::new(e))
-    }
-}
-
-impl From<CurveError> for Error {
-    fn from(e: CurveError) -> Self {
-        Error::Curve(Box::new(e))
-    }
 }
 
 #[cfg(test)]

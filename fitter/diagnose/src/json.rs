@@ -6,6 +6,9 @@
 //! by path, so that a field added to a report appears (under its own name) without touching this
 //! file, and the algorithms' files need no serde attributes.
 
+use std::path::{Path, PathBuf};
+
+use palpate_fem::io::atomic::write_atomic;
 use palpate_fem::names::Elastic;
 use serde_json::{Map, Value};
 
@@ -87,6 +90,26 @@ pub(crate) fn finish(kind: &str, doc: Value) -> Result<String, serde_json::Error
         out.extend(o);
     }
     serde_json::to_string_pretty(&Value::Object(out))
+}
+
+/// Creates `dir` and writes `diagnosis.md`, then `diagnosis.json` (made by `json` once the
+/// markdown is written), into it; returns their paths. The motion and runs reports begin so, and
+/// word the errors alike (the folder named, the rest as the error says).
+pub(crate) fn write_md_and_json(
+    dir: &Path,
+    md: &str,
+    json: impl FnOnce() -> Result<String, serde_json::Error>,
+) -> Result<Vec<PathBuf>, String> {
+    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let mut out = Vec::new();
+    let p = dir.join("diagnosis.md");
+    write_atomic(&p, md.as_bytes()).map_err(|e| e.to_string())?;
+    out.push(p);
+    let p = dir.join("diagnosis.json");
+    let json = json().map_err(|e| e.to_string())?;
+    write_atomic(&p, json.as_bytes()).map_err(|e| e.to_string())?;
+    out.push(p);
+    Ok(out)
 }
 
 #[cfg(test)]

@@ -1,15 +1,12 @@
 //! One diagnosis request, whatever the input: a static dataset, a motion dataset, measured
 //! curves, or a folder of these — recognised, dispatched to its diagnosis, reported, and (for
-//! static and motion datasets) exported as the diagnosed model. `palpate diagnose` is a thin shell
-//! over [`run`].
+//! static and motion datasets) exported as the diagnosed model. Each input diagnosed hands back a
+//! [`Summary`]; `palpate diagnose` is a thin shell over [`run_with`] that prints them.
 
 use std::path::{Path, PathBuf};
 
 use crate::error::Error;
-use crate::model::{Candidate, ALL_CANDIDATES};
-use crate::report::write_report;
-use crate::{run_diagnosis_with, DiagnoseOptions, MeshChoice};
-use palpate_fem::dataset::StaticDataset;
+use crate::MeshChoice;
 
 /// What to diagnose and how.
 #[derive(Debug, Clone)]
@@ -37,29 +34,7 @@ pub struct Request {
     pub poisson: Option<f64>,
 }
 
-/// The candidates named in `--candidates` (`what` names the library in the error: "candidate",
-/// "motion candidate"), each looked up by name in `all`.
-pub fn pick_candidates<C: Copy>(
-    names: &[String],
-    all: &[C],
-    name: impl Fn(C) -> &'static str,
-    what: &str,
-) -> Result<Vec<C>, Error> {
-    names
-        .iter()
-        .map(|n| {
-            all.iter()
-                .copied()
-                .find(|&c| name(c) == n.trim())
-                .ok_or_else(|| Error::UnknownCandidate {
-                    what: what.to_string(),
-                    name: n.clone(),
-                    input: None,
-                    known: all.iter().map(|&c| name(c).to_string()).collect(),
-                })
-        })
-        .collect()
-}
+pub use crate::summary::Summary;
 
 /// Whether `path` is something `diagnose` reads directly: measured curves, or a directory with a
 /// `dataset.toml` (static or motion dataset).
@@ -68,12 +43,22 @@ fn diagnosable(path: &Path) -> bool {
         || (path.is_dir() && path.join("dataset.toml").exists())
 }
 
-/// Runs the diagnosis. A directory that is not itself a dataset or a set of curves but holds such
-/// subdirectories (e.g. a data folder with one folder per instrument) is diagnosed one
-/// subdirectory at a time, each into `<output>/<name>`.
-pub fn run(args: &Request) -> Result<(), Error> {
+/// Runs the diagnosis and returns the summaries of every input diagnosed, in order.
+pub fn run(args: &Request) -> Result<Vec<Summary>, Error> {
+    let mut out = Vec::new();
+    run_with(args, &mut |s| out.push(s))?;
+    Ok(out)
+}
+
+/// Runs the diagnosis, handing each input's [`Summary`] to `done` as soon as it is written (a
+/// folder of inputs takes minutes per input). A directory that is not itself a dataset or a set
+/// of curves but holds such subdirectories (e.g. a data folder with one folder per instrument) is
+/// diagnosed one subdirectory at a time, each into `<output>/<name>`; the summaries of those that
+/// succeeded are handed over before the error that names those that failed.
+pub fn run_with(args: &Request, done: &mut dyn FnMut(Summary)) -> Result<(), Error> {
     if !args.more_runs.is_empty() || !args.held_out.is_empty() {
-        return run_runs(args);
+        done(run_runs(args)?);
+        return Ok(());
     }
     if args.dataset.is_dir() && !diagnosable(&args.dataset) {
         let mut subs: Vec<PathBuf> = std::fs::read_dir(&args.dataset)
@@ -93,9 +78,12 @@ pub fn run(args: &Request) -> Result<(), Error> {
                     .map(|n| n.to_os_string())
                     .unwrap_or_default();
                 log::info!("== {}", sub.display());
-                if let Err(e) = diagnose_one(args, sub, &args.output.join(name)) {
-                    log::error!("{}: {e:#}", sub.display());
-                    failed.push(sub.clone());
+                match diagnose_one(args, sub, &args.output.join(name)) {
+                    Ok(summaries) => summaries.into_iter().for_each(&mut *done),
+                    Err(e) => {
+                        log::error!("{}: {e:#}", sub.display());
+                        failed.push(sub.clone());
+                    }
                 }
             }
             if !failed.is_empty() {
@@ -107,17 +95,21 @@ pub fn run(args: &Request) -> Result<(), Error> {
             return Ok(());
         }
     }
-    diagnose_one(args, &args.dataset, &args.output)
+    diagnose_one(args, &args.dataset, &args.output)?
+        .into_iter()
+        .for_each(done);
+    Ok(())
 }
 
 /// Most effects adopted by the static, motion and curve diagnoses unless asked otherwise.
 pub const DEFAULT_MAX_EFFECTS: usize = 3;
 
-/// Diagnoses one dataset or set of curves at `path` into `output`.
-fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<(), Error> {
+/// Diagnoses one dataset or set of curves at `path` into `output` (a set of curves may hold
+/// several datasets: one summary each).
+fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<Vec<Summary>, Error> {
     // A CSV file or a directory of CSVs without dataset.toml: measured curves (diagnose::curve).
     if crate::curve::read::is_curve_input(path) {
-        return crate::curve::cli::run(
+        return crate::curve::run::run(
             path,
             output,
             &args.candidates,
@@ -133,109 +125,73 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<(), Error>
     }
     // dataset.toml with `dt`/`clamps`: a motion dataset (docs/motion-dataset.md).
     if path.is_dir() && crate::motion::is_motion_dataset(path) {
-        return crate::motion::cli::run(
+        return Ok(vec![crate::motion::run::run(
             path,
             output,
             &args.candidates,
             args.max_effects.unwrap_or(DEFAULT_MAX_EFFECTS),
-        );
+        )?]);
     }
-    let ds = StaticDataset::read(path).map_err(|source| Error::StaticDataset {
-        path: path.into(),
-        source: Box::new(source),
-    })?;
-    let mut o = DiagnoseOptions {
-        max_effects: args.max_effects.unwrap_or(DEFAULT_MAX_EFFECTS),
-        mesh: args.mesh,
-        ..Default::default()
-    };
-    if !args.candidates.is_empty() {
-        o.candidates = pick_candidates(
-            &args.candidates,
-            &ALL_CANDIDATES,
-            Candidate::name,
-            "candidate",
-        )?;
-    }
-    let r = run_diagnosis_with(&ds, &o, |msg| log::info!("{msg}"))?;
-    let mut files = write_report(&r, output)?;
-    let model_path = output.join("model.palp");
-    let buffers = crate::export::diagnosed_model(
-        &r,
-        &format!("palpate {} diagnose", crate::VERSION),
-        &format!("{} ({})", ds.name, path.display()),
-    )?;
-    buffers
-        .write(&model_path)
-        .map_err(|source| Error::WriteModel {
-            path: model_path.clone(),
-            source,
-        })?;
-    files.push(model_path);
-    println!(
-        "{}: {}; RMS marker error {:.1} → {:.1} µm fitted, {:.1} → {:.1} µm held out (noise floor {:.1} µm)",
-        r.dataset,
-        r.residual_check.verdict(&r.adopted.iter().map(|c| c.name()).collect::<Vec<_>>().join(", ")),
-        1e6 * r.before.fitted_rms,
-        1e6 * r.after.fitted_rms,
-        1e6 * r.before.heldout_rms,
-        1e6 * r.after.heldout_rms,
-        1e6 * r.noise_floor
-    );
-    if !r.detectable.is_empty() {
-        println!("  would have detected (smallest magnitudes; smaller effects of these kinds may be present):");
-        for d in &r.detectable {
-            println!("    {}", d.describe());
-        }
-    }
-    for f in files {
-        log::info!("wrote {}", f.display());
-    }
-    Ok(())
+    Ok(vec![crate::statics::run::run(
+        path,
+        output,
+        &args.candidates,
+        args.max_effects.unwrap_or(DEFAULT_MAX_EFFECTS),
+        args.mesh,
+    )?])
 }
 
 /// The runs diagnosis: `dataset` and `more_runs` fitted, `held_out` predicted.
-fn run_runs(args: &Request) -> Result<(), Error> {
-    let load = |p: &PathBuf| -> Result<(String, palpate_motion::dataset::MotionDataset), Error> {
-        let ds = palpate_motion::dataset::load(p).map_err(|source| Error::MotionDataset {
-            path: p.clone(),
-            source: Box::new(source),
-        })?;
-        Ok((p.display().to_string(), ds))
-    };
-    let fit: Vec<_> = std::iter::once(&args.dataset)
+fn run_runs(args: &Request) -> Result<Summary, Error> {
+    let fitted: Vec<PathBuf> = std::iter::once(&args.dataset)
         .chain(&args.more_runs)
-        .map(load)
-        .collect::<Result<_, _>>()?;
-    let held: Vec<_> = args.held_out.iter().map(load).collect::<Result<_, _>>()?;
-    let mut o = crate::runs::RunsOptions::default();
-    if let Some(n) = args.max_effects {
-        o.max_effects = n;
+        .cloned()
+        .collect();
+    crate::runs::run::run(
+        &fitted,
+        &args.held_out,
+        &args.output,
+        &args.candidates,
+        args.max_effects,
+        args.poisson,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::select::pick_candidates;
+
+    /// Names are looked up in the library of the room asked for (blanks trimmed), in the order
+    /// given; an unknown name is refused naming that library and listing every name it knows.
+    #[test]
+    fn pick_candidates_looks_names_up_in_the_rooms_library() {
+        let names = |v: &[&str]| v.iter().map(|n| n.to_string()).collect::<Vec<_>>();
+        let got = pick_candidates::<crate::motion::Candidate>(&names(&[" time-offset", "density"]));
+        assert_eq!(
+            got.unwrap(),
+            [
+                crate::motion::Candidate::TimeOffset,
+                crate::motion::Candidate::Density
+            ]
+        );
+        let got = pick_candidates::<crate::runs::Effect>(&names(&["stiffening"])).unwrap();
+        assert_eq!(got, [crate::runs::Effect::Stiffening]);
+        // `layer` is a static candidate, not a motion one.
+        let e = pick_candidates::<crate::motion::Candidate>(&names(&["layer"]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("unknown motion candidate \"layer\"; known: viscosity,")
+                && e.contains("time-offset"),
+            "{e}"
+        );
+        let e = pick_candidates::<crate::statics::model::Candidate>(&names(&["viscosity"]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("unknown candidate \"viscosity\"; known: "),
+            "{e}"
+        );
+        assert!(e.contains("layer") && e.contains("inclusion"), "{e}");
     }
-    if let Some(nu) = args.poisson {
-        o.poisson = nu;
-    }
-    if !args.candidates.is_empty() {
-        o.candidates = pick_candidates(
-            &args.candidates,
-            &crate::runs::ALL_EFFECTS,
-            crate::runs::Effect::name,
-            "runs candidate",
-        )?;
-    }
-    let r = crate::runs::diagnose_runs(&fit, &held, &o, &|m| log::info!("{m}"))?;
-    let files = crate::runs::report::write_report(&r, &args.output, fit[0].1.model.dt)?;
-    println!(
-        "runs diagnosis: adopted [{}]; held-out marker RMS {:.3} → {:.3} mm, held-out rest state {:.3} → {:.3} mm ({:.0} s)",
-        r.adopted.iter().map(|e| e.name()).collect::<Vec<_>>().join(", "),
-        1e3 * r.heldout_rms_m.0,
-        1e3 * r.heldout_rms_m.1,
-        1e3 * r.heldout_final_rms_m.0,
-        1e3 * r.heldout_final_rms_m.1,
-        r.seconds
-    );
-    for f in files {
-        log::info!("wrote {}", f.display());
-    }
-    Ok(())
 }

@@ -17,6 +17,8 @@
 
 use serde::Serialize;
 
+use crate::Error;
+
 /// A fitted parameter with its 1σ uncertainty from the Gauss–Newton covariance, in physical units
 /// (static and curve diagnoses; the motion diagnosis' `Value` has another JSON shape and stays).
 #[derive(Debug, Clone, Serialize)]
@@ -300,8 +302,8 @@ pub struct Candidate<'a, M: CandidateModel + ?Sized> {
 /// A model with candidate effects that can be fitted and predicted on held-out data: what a
 /// diagnosis supplies to [`select`].
 pub trait CandidateModel {
-    /// A candidate effect.
-    type Candidate: Copy + PartialEq;
+    /// A candidate effect of the room's library.
+    type Candidate: CandidateEffect;
     /// A fitted model.
     type Fitted: Clone;
     /// Held-out evidence of a fitted model (its predictions of data it was not fitted to).
@@ -629,6 +631,39 @@ pub fn select<M: CandidateModel>(
         }
     }
     Ok(Verdict { rounds, path, stop })
+}
+
+/// A candidate effect of a room's library, as the shared layer sees it: the selection engine
+/// ([`CandidateModel::Candidate`]) and the request ([`pick_candidates`]) need nothing else of it.
+/// Each room's candidate type implements it where it is defined, so a room's library is stated
+/// once (`statics::model`, `motion`, `runs`, `curve::model`).
+pub trait CandidateEffect: Copy + PartialEq {
+    /// What the library is called in messages ("candidate", "motion candidate").
+    const LIBRARY: &'static str;
+    /// Every candidate of the library, in the order tried.
+    fn library() -> Vec<Self>;
+    /// The name on the command line and in reports.
+    fn label(self) -> String;
+}
+
+/// The candidates named in `--candidates`, each looked up by name in `C`'s library (the error
+/// names the library and lists what it knows).
+pub fn pick_candidates<C: CandidateEffect>(names: &[String]) -> Result<Vec<C>, Error> {
+    let all = C::library();
+    names
+        .iter()
+        .map(|n| {
+            all.iter()
+                .copied()
+                .find(|&c| c.label() == n.trim())
+                .ok_or_else(|| Error::UnknownCandidate {
+                    what: C::LIBRARY.to_string(),
+                    name: n.clone(),
+                    input: None,
+                    known: all.iter().map(|&c| c.label()).collect(),
+                })
+        })
+        .collect()
 }
 
 #[cfg(test)]

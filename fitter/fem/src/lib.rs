@@ -10,6 +10,7 @@ pub mod block_model;
 pub mod dataset;
 pub mod export;
 pub mod forward;
+pub mod geometry;
 pub mod io;
 pub mod lm;
 pub mod mesh;

@@ -45,6 +45,13 @@ impl SplitMix64 {
     }
 }
 
+/// The study stream: [`SplitMix64`] seeded with `seed ^ 0x5EED_0006_D1A6_0005`, so it stays fixed
+/// whatever other modules do with theirs. The specimens draw their noise from it and the
+/// diagnosis its bootstrap resamples; committed results depend on both.
+pub fn study_stream(seed: u64) -> SplitMix64 {
+    SplitMix64::new(seed ^ 0x5EED_0006_D1A6_0005)
+}
+
 /// xorshift64* (Vigna 2016). The state must not be zero; callers pick how they avoid it.
 #[derive(Debug, Clone)]
 pub struct XorShift64Star(u64);

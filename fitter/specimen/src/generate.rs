@@ -162,19 +162,8 @@ fn hyper(young: f64, nu: f64) -> HyperParams {
     }
 }
 
-/// Rodrigues rotation of v by rotation vector w.
-pub fn rotate(w: [f64; 3], v: [f64; 3]) -> [f64; 3] {
-    let (w, v) = (Vector3::from(w), Vector3::from(v));
-    let th = w.norm();
-    if th < 1e-300 {
-        return v.into();
-    }
-    let k = w / th;
-    let kxv = k.cross(&v);
-    let kdv = k.dot(&v);
-    let (s, c) = th.sin_cos();
-    (v * c + kxv * s + k * kdv * (1.0 - c)).into()
-}
+/// Rodrigues rotation, shared with the diagnosis (which must rotate markers the same way).
+pub use palpate_fem::geometry::rotate;
 
 /// Markers: an 8 × 8 grid on the top face and two rows of five on each side face (inset from
 /// the edges so every marker sits inside one face).

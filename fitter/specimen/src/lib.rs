@@ -21,7 +21,6 @@ pub use effect::{Effect, EffectSpec};
 pub use generate::{generate, Specimen, SpecimenOptions, Truth};
 pub use signal::signal_rms;
 
-use palpate_fem::rng::SplitMix64;
 use serde::Serialize;
 
 /// Every error of this crate (generating and writing specimens): one flat enum; each message
@@ -100,8 +99,6 @@ fn to_json(file: &std::path::Path, v: &impl Serialize) -> Result<String, Specime
     })
 }
 
-/// The specimen stream: [`SplitMix64`] (Box–Muller normals) seeded with
-/// `seed ^ 0x5EED_0006_D1A6_0005`, so it stays fixed whatever other modules do with theirs.
-pub fn rng(seed: u64) -> SplitMix64 {
-    SplitMix64::new(seed ^ 0x5EED_0006_D1A6_0005)
-}
+/// The specimen stream ([`palpate_fem::rng::study_stream`]), shared with the diagnosis's
+/// noise studies.
+pub use palpate_fem::rng::study_stream as rng;

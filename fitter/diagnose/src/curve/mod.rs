@@ -1,4 +1,4 @@
-//! Diagnosis of measured 1-D curves (issue 6 on real data): tension / relaxation records, material
+//! Diagnosis of measured 1-D curves: tension / relaxation records, material
 //! stress–strain tests and FSR calibrations. Same mechanism as the static diagnosis: fit the
 //! simplest model the data declares (force ∝ displacement, stress ∝ strain, FSR conductance ∝
 //! force through the divider), read the residual's signature ([`signature`]), refit every
@@ -9,12 +9,12 @@
 //! Nothing about which effect is present comes from anywhere but the data: the format is read
 //! from the header ([`read`]), every candidate the format admits is tried on every dataset.
 
-pub mod cli;
 pub mod fit;
 pub mod lm;
 pub mod model;
 pub mod read;
 pub mod report;
+pub mod run;
 pub mod select;
 pub mod signature;
 
@@ -24,37 +24,8 @@ use select::{param_values, select, Errors, ParamValue, Step};
 use std::path::Path;
 use std::time::Instant;
 
-/// Errors of the curve diagnosis.
-#[derive(Debug, thiserror::Error)]
-pub enum CurveError {
-    /// A file or directory cannot be read.
-    #[error("{path}: {message}")]
-    Io {
-        /// Path.
-        path: String,
-        /// OS error.
-        message: String,
-    },
-    /// A file's content is malformed.
-    #[error("{file}:{line}: {message}")]
-    Format {
-        /// File.
-        file: String,
-        /// 1-based line.
-        line: usize,
-        /// What was expected and found.
-        message: String,
-    },
-    /// The input cannot be diagnosed.
-    #[error("{0}")]
-    Input(String),
-    /// The simplest model could not be fitted.
-    #[error("{0}: the fit failed (no finite prediction)")]
-    Fit(String),
-    /// Writing the report failed.
-    #[error("writing the report: {0}")]
-    Write(String),
-}
+/// The curve diagnosis's errors: the crate's one [`crate::Error`] (the name kept for its callers).
+pub type CurveError = crate::Error;
 
 /// Options.
 #[derive(Debug, Clone, serde::Serialize)]

@@ -558,3 +558,27 @@ fn ogden_term(mu: f64, alpha: f64, lam: f64) -> f64 {
         2.0 * mu / alpha * (lam.powf(alpha - 1.0) - lam.powf(-alpha / 2.0 - 1.0))
     }
 }
+
+impl crate::select::CandidateEffect for Candidate {
+    const LIBRARY: &'static str = "candidate";
+    /// The hyperelastic laws, then the effects.
+    fn library() -> Vec<Self> {
+        let mut v: Vec<Candidate> = HYPERELASTIC
+            .iter()
+            .map(|&l| Candidate::Hyperelastic(l))
+            .collect();
+        v.extend([
+            Candidate::Viscosity,
+            Candidate::Offset,
+            Candidate::Slack,
+            Candidate::PowerLaw,
+            Candidate::Saturation,
+            Candidate::Threshold,
+            Candidate::Drift,
+        ]);
+        v
+    }
+    fn label(self) -> String {
+        self.name()
+    }
+}

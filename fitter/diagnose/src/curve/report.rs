@@ -328,3 +328,23 @@ fn markdown(d: &CurveDiagnosis, plots: &[String]) -> String {
     let _ = writeln!(s, "\nWall-clock {:.1} s.", d.seconds);
     s
 }
+
+/// The one-line summary of `d` the command prints: what was adopted and the RMS errors before and
+/// after, in the curves' unit.
+pub fn summary_line(d: &CurveDiagnosis) -> String {
+    let fmt = |v: f64| format!("{v:.4e}");
+    format!(
+        "{}: {}; RMS {} → {} fitted, {} → {} held out ({})",
+        d.name,
+        if d.adopted.is_empty() {
+            "clean (no effect adopted)".to_string()
+        } else {
+            format!("adopted {}", d.adopted.join(", "))
+        },
+        fmt(d.before.fitted_rms),
+        fmt(d.after.fitted_rms),
+        fmt(d.before.heldout_rms),
+        fmt(d.after.heldout_rms),
+        d.unit
+    )
+}

@@ -1,4 +1,4 @@
-//! Residual diagnosis of a motion dataset (issue 6 on top of the motion fitter, issue 4):
+//! Residual diagnosis of a motion dataset, on top of the motion fitter:
 //! fit the simplest model the dataset supports (Neo-Hookean, no viscosity), look at the residual
 //! per marker and step ([`signature`](mod@signature)), hold each candidate effect against it by refitting, keep
 //! the one that predicts held-out data, repeat, and report ([`report`]).
@@ -21,10 +21,10 @@
 //! drops by at least [`MotionOptions::min_holdout_gain`]. The first passing candidate in
 //! fitted-ΔBIC order is adopted; repeat until none passes.
 
-pub mod cli;
 pub mod fit;
 pub mod region;
 pub mod report;
+pub mod run;
 pub mod signature;
 
 use crate::select::{
@@ -32,31 +32,17 @@ use crate::select::{
     Policy, Rank, Score, Screen, Verdict,
 };
 use fit::{fit_model, fit_with_offsets, with_offsets, FittedModel, Scores, Split};
-use palpate_motion::dataset::{DatasetError, MotionDataset};
+use palpate_motion::dataset::MotionDataset;
 use palpate_motion::model::{Material, Param, ParamKind};
 use palpate_motion::time_offset;
-use palpate_motion::MotionError;
 use rayon::prelude::*;
 use serde::Serialize;
 use signature::{signature, Signature};
 use std::path::Path;
 
-/// Errors of the motion diagnosis.
-#[derive(Debug, thiserror::Error)]
-pub enum MotionDiagnoseError {
-    /// The dataset cannot be diagnosed (what and why).
-    #[error("{0}")]
-    Input(String),
-    /// Reading the dataset failed.
-    #[error(transparent)]
-    Dataset(#[from] DatasetError),
-    /// The simulator or optimiser failed.
-    #[error(transparent)]
-    Motion(#[from] MotionError),
-    /// Writing the report or the model failed.
-    #[error("writing the report: {0}")]
-    Write(String),
-}
+/// The motion diagnosis's errors: the crate's one [`crate::Error`] (the name kept for its
+/// callers).
+pub type MotionDiagnoseError = crate::Error;
 
 /// True when `dir` holds a motion dataset: a `dataset.toml` with a `dt` key (the static format
 /// has none) — [`palpate_motion::dataset::load`] then needs `trajectories.csv` or `forces.csv`.
@@ -1102,4 +1088,14 @@ pub fn diagnose(
         ),
         material: Some(cur.material.clone()),
     })
+}
+
+impl crate::select::CandidateEffect for Candidate {
+    const LIBRARY: &'static str = "motion candidate";
+    fn library() -> Vec<Self> {
+        ALL_CANDIDATES.to_vec()
+    }
+    fn label(self) -> String {
+        self.name().into()
+    }
 }

@@ -1,4 +1,4 @@
-//! Where a second material would sit (issue 14, "find where, then what"): the misfit's
+//! Where a second material would sit ("find where, then what"): the misfit's
 //! sensitivity to each element's own shear modulus, from the fit's adjoint — one simulation and
 //! one adjoint pass for every element at once (Real2Sim eqs. 8–12 with a per-element μ_e).
 //!

@@ -264,8 +264,7 @@ pub fn json_text(r: &MotionDiagnosis) -> Result<String, serde_json::Error> {
 /// Writes the report files into `dir`; returns their paths.
 pub fn write_report(r: &MotionDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, MotionDiagnoseError> {
     let w = |e: String| MotionDiagnoseError::Write(e);
-    let mut out =
-        crate::report::write_md_and_json(dir, &markdown(r), || json_text(r)).map_err(w)?;
+    let mut out = crate::json::write_md_and_json(dir, &markdown(r), || json_text(r)).map_err(w)?;
     let p = dir.join("residual-vs-speed.svg");
     let scale = |v: &[(f64, f64)]| -> Vec<(f64, f64)> {
         v.iter().map(|&(x, y)| (1e3 * x, 1e6 * y)).collect()
@@ -290,4 +289,19 @@ pub fn write_report(r: &MotionDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, Mot
         .map_err(|e| w(e.to_string()))?,
     );
     Ok(out)
+}
+
+/// The one-line summary of `r` the command prints: the verdict and the RMS marker errors before
+/// and after (µm).
+pub fn summary_line(r: &MotionDiagnosis) -> String {
+    format!(
+        "{}: {}; RMS marker error {:.1} → {:.1} µm fitted, {:.1} → {:.1} µm held out (forecast of the last {} steps)",
+        r.dataset,
+        r.verdict(),
+        1e6 * r.before.rms_fit,
+        1e6 * r.after.rms_fit,
+        1e6 * r.before.rms_held,
+        1e6 * r.after.rms_held,
+        r.split.steps - r.split.fit_steps
+    )
 }

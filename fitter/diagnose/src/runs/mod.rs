@@ -40,6 +40,7 @@
 //! mass (the hanging weight's inertia); a decay it gets wrong at the damping.
 
 pub mod report;
+pub mod run;
 
 use crate::select::{
     self, select, CandidateModel, Current, Gate, HeldoutGate, Outcome, ParamValue, PassWords,
@@ -54,20 +55,8 @@ use palpate_motion::time_offset;
 use palpate_motion::MotionError;
 use serde::Serialize;
 
-/// Errors of the runs diagnosis.
-#[derive(Debug, thiserror::Error)]
-#[non_exhaustive]
-pub enum RunsError {
-    /// The runs cannot be diagnosed together (what and why).
-    #[error("{0}")]
-    Input(String),
-    /// The simulator or optimiser failed.
-    #[error(transparent)]
-    Motion(#[from] MotionError),
-    /// Writing the report failed.
-    #[error("writing the report: {0}")]
-    Write(String),
-}
+/// The runs diagnosis's errors: the crate's one [`crate::Error`] (the name kept for its callers).
+pub type RunsError = crate::Error;
 
 /// A candidate effect the simplest model of the runs lacks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -1152,6 +1141,16 @@ pub fn diagnose_runs(
         model,
         seconds: t0.elapsed().as_secs_f64(),
     })
+}
+
+impl crate::select::CandidateEffect for Effect {
+    const LIBRARY: &'static str = "runs candidate";
+    fn library() -> Vec<Self> {
+        ALL_EFFECTS.to_vec()
+    }
+    fn label(self) -> String {
+        self.name().into()
+    }
 }
 
 #[cfg(test)]

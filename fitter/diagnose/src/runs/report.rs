@@ -243,8 +243,7 @@ pub fn json_text(r: &RunsDiagnosis) -> Result<String, serde_json::Error> {
 /// Writes the report into `dir`; returns the files written.
 pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBuf>, RunsError> {
     let w = |e: String| RunsError::Write(e);
-    let mut out =
-        crate::report::write_md_and_json(dir, &markdown(r), || json_text(r)).map_err(w)?;
+    let mut out = crate::json::write_md_and_json(dir, &markdown(r), || json_text(r)).map_err(w)?;
     let p = dir.join("fit.json");
     let json = r.model.to_json().map_err(|e| w(e.to_string()))?;
     write_atomic(&p, json.as_bytes()).map_err(|e| w(e.to_string()))?;
@@ -315,4 +314,18 @@ pub fn write_report(r: &RunsDiagnosis, dir: &Path, dt: f64) -> Result<Vec<PathBu
         )?);
     }
     Ok(out)
+}
+
+/// The one-line summary of `r` the command prints: the effects adopted and the held-out errors
+/// before and after (mm).
+pub fn summary_line(r: &RunsDiagnosis) -> String {
+    format!(
+        "runs diagnosis: adopted [{}]; held-out marker RMS {:.3} → {:.3} mm, held-out rest state {:.3} → {:.3} mm ({:.0} s)",
+        r.adopted.iter().map(|e| e.name()).collect::<Vec<_>>().join(", "),
+        1e3 * r.heldout_rms_m.0,
+        1e3 * r.heldout_rms_m.1,
+        1e3 * r.heldout_final_rms_m.0,
+        1e3 * r.heldout_final_rms_m.1,
+        r.seconds
+    )
 }

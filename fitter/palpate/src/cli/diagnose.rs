@@ -79,7 +79,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         anyhow::bail!("--gauge-length {g}: expected a finite length > 0 m");
     }
     super::output::check_writable(&args.output)?;
-    palpate_diagnose::run::run(&palpate_diagnose::run::Request {
+    let request = palpate_diagnose::run::Request {
         dataset: args.dataset,
         output: args.output,
         candidates: args.candidates,
@@ -89,6 +89,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         more_runs: args.with,
         held_out: args.held_out,
         poisson: Some(args.poisson),
+    };
+    // Each input's summary is printed as soon as it is written: a folder of inputs takes minutes
+    // per input.
+    palpate_diagnose::run::run_with(&request, &mut |summary| {
+        print!("{summary}");
+        for f in &summary.files {
+            log::info!("wrote {}", f.display());
+        }
     })?;
     Ok(())
 }

@@ -1,4 +1,4 @@
-//! The diagnosed model for the runtime (issue 6, step 5: "the final model exported").
+//! The diagnosed model for the runtime: the final model exported.
 //!
 //! What of the final model the runtime can play back, and how:
 //! - the base material (E, ν) → one global (λ, α) set (seed 000 eqs. 3.36–3.38);

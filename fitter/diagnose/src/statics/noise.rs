@@ -22,7 +22,7 @@
 use serde::Serialize;
 
 use nalgebra::{DMatrix, Matrix3, SymmetricEigen};
-use palpate_specimen::rng;
+use palpate_fem::rng::study_stream as rng;
 
 /// Median of a χ² variable with 3 degrees of freedom, divided by 3 (the median of |d|²/(3σ²)
 /// for Gaussian d).

@@ -16,6 +16,7 @@
 //! of element centroids over the same bounding box, the loads use the shared contact rule), so one
 //! θ drives both solves.
 
+use super::fit::{fit, Fitted};
 use super::model::{Context, Model};
 use super::DiagnoseError;
 use palpate_fem::dataset::StaticDataset;
@@ -46,7 +47,7 @@ impl Correction {
 
     /// Measures the layer candidate's depth along `axis` on the refined side too (the scan
     /// picks the axis after both contexts are built).
-    pub fn set_layer_axis(&mut self, axis: crate::model::LayerAxis) {
+    pub fn set_layer_axis(&mut self, axis: crate::statics::model::LayerAxis) {
         self.fine.set_layer_axis(axis);
     }
 
@@ -109,4 +110,22 @@ pub fn delta_max(delta: &[Vec<[f64; 3]>]) -> f64 {
         .flatten()
         .map(|d| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt())
         .fold(0.0, f64::max)
+}
+
+/// Refreshes the approximation-error correction at fit `f` (all measurements) and refits.
+pub(super) fn refresh(
+    ctx: &mut Context,
+    corr: &mut Correction,
+    f: &Fitted,
+    iterations: usize,
+) -> Result<Fitted, DiagnoseError> {
+    ctx.correction = Some(corr.delta(ctx, &f.model, &f.theta, &f.sim.x)?);
+    fit(
+        ctx,
+        &f.model,
+        f.theta.clone(),
+        &f.subset,
+        Some(&f.sim.x),
+        iterations,
+    )
 }

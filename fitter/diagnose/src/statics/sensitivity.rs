@@ -1,6 +1,6 @@
 //! Where the residual asks for a stiffer or softer material: the gradient of χ² with respect to
 //! every element's log E (one adjoint solve per measurement), and a matched-filter scan that
-//! turns it into the inclusion candidate's start — find where, then what (issue 14).
+//! turns it into the inclusion candidate's start — find where, then what.
 //!
 //! The warped equilibrium of measurement i is F(x, p) = Σ_e R_e K_e ũ_e − f = 0 with
 //! ũ_e = R_eᵀ x_e − X_e (eq. 3.53). K_e is proportional to the element's E at a fixed Poisson's
@@ -169,18 +169,8 @@ pub fn log_modulus_gradient(ctx: &Context, f: &Fitted) -> Result<Sensitivity, Di
     })
 }
 
-/// The best blob of the scan.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct BlobScan {
-    /// Centre (m).
-    pub centre: [f64; 3],
-    /// Radius (m).
-    pub radius: f64,
-    /// Gauss–Newton contrast a (log E change at the centre).
-    pub contrast: f64,
-    /// Predicted χ² reduction (units of σ²).
-    pub reduction: f64,
-}
+/// The best blob of the scan (a model's inclusion start, so it is defined beside it).
+pub use super::model::BlobScan;
 
 /// Centres of the scan: a `n × n × m` grid over the elements' bounding box, each snapped to the
 /// nearest element centroid (so every centre lies in the body, whatever its shape), duplicates

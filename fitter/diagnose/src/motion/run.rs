@@ -1,18 +1,20 @@
-//! `palpate diagnose <motion dataset>`: load, diagnose, write the report and `model.palp`.
+//! One motion dataset diagnosed on request: load, diagnose, write the report and `model.palp`,
+//! and hand back the summary the command prints.
 
-use super::report::write_report;
-use super::{diagnose, Candidate, MotionOptions, ALL_CANDIDATES};
+use super::report::{summary_line, write_report};
+use super::{diagnose, Candidate, MotionOptions};
 use crate::error::Error;
+use crate::summary::Summary;
 use palpate_fem::export::ProvenanceInfo;
 use std::path::Path;
 
-/// Runs the motion diagnosis from the command line.
+/// Runs the motion diagnosis of `dataset` into `output`.
 pub fn run(
     dataset: &Path,
     output: &Path,
     candidates: &[String],
     max_effects: usize,
-) -> Result<(), Error> {
+) -> Result<Summary, Error> {
     let ds = palpate_motion::dataset::load(dataset).map_err(|source| Error::MotionDataset {
         path: dataset.into(),
         source: Box::new(source),
@@ -22,12 +24,7 @@ pub fn run(
         ..Default::default()
     };
     if !candidates.is_empty() {
-        o.candidates = crate::run::pick_candidates(
-            candidates,
-            &ALL_CANDIDATES,
-            Candidate::name,
-            "motion candidate",
-        )?;
+        o.candidates = crate::select::pick_candidates::<Candidate>(candidates)?;
     }
     let label = dataset.display().to_string();
     let r = diagnose(&ds, &label, &o, &|m| log::info!("{m}"))?;
@@ -55,18 +52,8 @@ pub fn run(
             Err(e) => log::warn!("model.palp not written: {e}"),
         }
     }
-    println!(
-        "{}: {}; RMS marker error {:.1} → {:.1} µm fitted, {:.1} → {:.1} µm held out (forecast of the last {} steps)",
-        r.dataset,
-        r.verdict(),
-        1e6 * r.before.rms_fit,
-        1e6 * r.after.rms_fit,
-        1e6 * r.before.rms_held,
-        1e6 * r.after.rms_held,
-        r.split.steps - r.split.fit_steps
-    );
-    for f in files {
-        log::info!("wrote {}", f.display());
-    }
-    Ok(())
+    Ok(Summary {
+        lines: vec![summary_line(&r)],
+        files,
+    })
 }

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use super::json;
 use super::model::Candidate;
-use super::{DiagnoseError, DiagnosisReport, Errors};
+use super::{DiagnoseError, DiagnosisReport, Errors, Step};
 use palpate_fem::io::atomic::write_atomic;
 use palpate_fem::names::Elastic;
 use palpate_plot::{lines, Series, Style};
@@ -39,6 +39,19 @@ fn error_rows(s: &mut String, label: &str, e: &Errors) {
 /// The Markdown text of a report.
 pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
     let mut s = String::new();
+    header(&mut s, r);
+    detectable(&mut s, r);
+    errors_table(&mut s, r);
+    noise_sections(&mut s, r);
+    final_parameters(&mut s, r);
+    for st in &r.steps {
+        round(&mut s, st, plots);
+    }
+    s
+}
+
+/// The verdict, the selection rule, the noise floor and the mesh the models were solved on.
+fn header(s: &mut String, r: &DiagnosisReport) {
     let _ = writeln!(s, "# Diagnosis of `{}`\n", r.dataset);
     let verdict = format!(
         "**{}**",
@@ -74,6 +87,10 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
             .unwrap_or_default(),
         um(r.solved_on.dataset_mesh_rms)
     );
+}
+
+/// The power statement: what the dataset would have detected.
+fn detectable(s: &mut String, r: &DiagnosisReport) {
     if !r.detectable.is_empty() {
         let _ = writeln!(s, "## What this dataset could have detected\n");
         let _ = writeln!(
@@ -86,12 +103,20 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
         }
         let _ = writeln!(s);
     }
+}
+
+/// The simplest and the final model's errors.
+fn errors_table(s: &mut String, r: &DiagnosisReport) {
     let _ = writeln!(s, "## Error before and after\n");
     let _ = writeln!(s, "Markers in µm; implied-force error in N (|s − 1|·|f|, s the best scale of simulated onto measured displacement). Held-out = leave-one-measurement-out.\n");
     let _ = writeln!(s, "| model | fitted RMS | fitted max | held-out RMS | held-out max | force RMS | force max | held-out force RMS |");
     let _ = writeln!(s, "|---|---|---|---|---|---|---|---|");
-    error_rows(&mut s, "simplest (linear homogeneous)", &r.before);
-    error_rows(&mut s, "final", &r.after);
+    error_rows(s, "simplest (linear homogeneous)", &r.before);
+    error_rows(s, "final", &r.after);
+}
+
+/// The marker-noise and rest-scan findings.
+fn noise_sections(s: &mut String, r: &DiagnosisReport) {
     if let Some(n) = &r.noise {
         let _ = writeln!(s, "\n## Marker noise\n");
         let _ = writeln!(
@@ -121,6 +146,10 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
             let _ = writeln!(s, "\n![rest scan]({})", palpate_plot::shown("rest.svg"));
         }
     }
+}
+
+/// Every parameter of the final model and its base material's constants.
+fn final_parameters(s: &mut String, r: &DiagnosisReport) {
     let _ = writeln!(s, "\n## Final parameters (±1σ, Gauss–Newton covariance)\n");
     let _ = writeln!(s, "| parameter | value | ±1σ | unit |\n|---|---|---|---|");
     for p in &r.final_params {
@@ -137,115 +166,117 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
         "\nBase material: Young's modulus E = {:.5e} Pa, Poisson's ratio ν = {:.4}; Lamé λ = {:.5e} Pa, shear modulus μ = {:.5e} Pa.",
         lame.young_modulus_pa, lame.poisson_ratio, lame.lame_lambda_pa, lame.shear_modulus_pa
     );
-    for st in &r.steps {
-        let model = Candidate::names(&st.model, " + ", "simplest");
-        let _ = writeln!(s, "\n## Round {} (model: {model})\n", st.round);
-        let sig = &st.signature;
-        let _ = writeln!(s, "Residual signature:\n");
-        let _ = writeln!(s, "- scale factor (measured/simulated displacement) vs force: correlation {:.2}; per measurement (|f| N → s): {}", sig.scale_vs_force,
-            comma(sig.per_measurement.iter().map(|p| format!("{:.2}→{:.3}", p.force, p.scale))));
-        let _ = writeln!(
-            s,
-            "- rigid-body part (one transform for all measurements): {:.0}% of the residual energy",
-            100.0 * sig.rigid_fraction
-        );
-        let _ = writeln!(
-            s,
-            "- persistent part (same at a marker in every measurement): {:.0}%",
-            100.0 * sig.persistent_fraction
-        );
-        let _ = writeln!(
-            s,
-            "- RMS vs distance from the contact (upper bin edge mm: µm): {}",
-            comma(
-                sig.vs_distance
-                    .iter()
-                    .map(|(d, r, _)| format!("{:.0}: {}", d * 1e3, um(*r)))
-            )
-        );
-        let _ = writeln!(
-            s,
-            "- per measurement RMS (µm): {}",
-            comma(
-                sig.per_measurement
-                    .iter()
-                    .map(|p| format!("{} {}", p.id, um(p.rms)))
-            )
-        );
-        let _ = writeln!(
-            s,
-            "- worst markers (RMS µm): {}\n",
-            comma(
-                sig.worst_markers
-                    .iter()
-                    .map(|(id, v)| format!("{id} {}", um(*v)))
-            )
-        );
-        if !st.tried.is_empty() {
-            let _ = writeln!(s, "| candidate | extra params | refit RMS µm | ΔBIC | held-out RMS µm | held-out ΔBIC | held-out paired t |\n|---|---|---|---|---|---|---|");
-            for t in &st.tried {
-                if t.not_fitted.is_some() {
-                    let _ = writeln!(
-                        s,
-                        "| {} | {} | not fitted | – | – | – | – |",
-                        t.candidate.name(),
-                        t.extra_params
-                    );
-                    continue;
-                }
+}
+
+/// One round: the residual signature, the candidates tried, the decision, the adoption and its
+/// evidence plots.
+fn round(s: &mut String, st: &Step, plots: &[(usize, String)]) {
+    let model = Candidate::names(&st.model, " + ", "simplest");
+    let _ = writeln!(s, "\n## Round {} (model: {model})\n", st.round);
+    let sig = &st.signature;
+    let _ = writeln!(s, "Residual signature:\n");
+    let _ = writeln!(s, "- scale factor (measured/simulated displacement) vs force: correlation {:.2}; per measurement (|f| N → s): {}", sig.scale_vs_force,
+        comma(sig.per_measurement.iter().map(|p| format!("{:.2}→{:.3}", p.force, p.scale))));
+    let _ = writeln!(
+        s,
+        "- rigid-body part (one transform for all measurements): {:.0}% of the residual energy",
+        100.0 * sig.rigid_fraction
+    );
+    let _ = writeln!(
+        s,
+        "- persistent part (same at a marker in every measurement): {:.0}%",
+        100.0 * sig.persistent_fraction
+    );
+    let _ = writeln!(
+        s,
+        "- RMS vs distance from the contact (upper bin edge mm: µm): {}",
+        comma(
+            sig.vs_distance
+                .iter()
+                .map(|(d, r, _)| format!("{:.0}: {}", d * 1e3, um(*r)))
+        )
+    );
+    let _ = writeln!(
+        s,
+        "- per measurement RMS (µm): {}",
+        comma(
+            sig.per_measurement
+                .iter()
+                .map(|p| format!("{} {}", p.id, um(p.rms)))
+        )
+    );
+    let _ = writeln!(
+        s,
+        "- worst markers (RMS µm): {}\n",
+        comma(
+            sig.worst_markers
+                .iter()
+                .map(|(id, v)| format!("{id} {}", um(*v)))
+        )
+    );
+    if !st.tried.is_empty() {
+        let _ = writeln!(s, "| candidate | extra params | refit RMS µm | ΔBIC | held-out RMS µm | held-out ΔBIC | held-out paired t |\n|---|---|---|---|---|---|---|");
+        for t in &st.tried {
+            if t.not_fitted.is_some() {
                 let _ = writeln!(
                     s,
-                    "| {} | {} | {} | {:.1} | {} | {} | {} |",
+                    "| {} | {} | not fitted | – | – | – | – |",
                     t.candidate.name(),
-                    t.extra_params,
-                    um(t.rms),
-                    t.delta_bic,
-                    t.heldout_rms.map(um).unwrap_or_else(|| "–".into()),
-                    t.heldout_delta_bic
-                        .map(|v| format!("{v:.1}"))
-                        .unwrap_or_else(|| "–".into()),
-                    t.heldout_t
-                        .map(|v| format!("{v:.2}"))
-                        .unwrap_or_else(|| "–".into())
+                    t.extra_params
                 );
+                continue;
             }
-        }
-        for t in st.tried.iter().filter(|t| t.not_fitted.is_some()) {
             let _ = writeln!(
                 s,
-                "\nNot fitted: {} — {}",
+                "| {} | {} | {} | {:.1} | {} | {} | {} |",
                 t.candidate.name(),
-                t.not_fitted.as_deref().unwrap_or_default()
+                t.extra_params,
+                um(t.rms),
+                t.delta_bic,
+                t.heldout_rms.map(um).unwrap_or_else(|| "–".into()),
+                t.heldout_delta_bic
+                    .map(|v| format!("{v:.1}"))
+                    .unwrap_or_else(|| "–".into()),
+                t.heldout_t
+                    .map(|v| format!("{v:.2}"))
+                    .unwrap_or_else(|| "–".into())
             );
-        }
-        let _ = writeln!(s, "\nDecision: {}", st.reason);
-        if !st.ambiguous_with.is_empty() {
-            let _ = writeln!(
-                s,
-                "\n**Ambiguous**: {} also explain(s) this residual and predict(s) the held-out measurements better than the adopted effect; more measurements (other contact points and force levels) are needed to tell them apart.",
-                st.ambiguous_with.iter().map(|c| c.name()).collect::<Vec<_>>().join(", ")
-            );
-        }
-        if let Some(a) = &st.after {
-            let _ = writeln!(s, "\n| | fitted RMS | fitted max | held-out RMS | held-out max | force RMS | force max | held-out force RMS |\n|---|---|---|---|---|---|---|---|");
-            error_rows(&mut s, "before", &st.before);
-            error_rows(&mut s, "after", a);
-            let _ = writeln!(s, "\nNew parameters:\n");
-            for p in &st.new_params {
-                let _ = writeln!(
-                    s,
-                    "- {} = {:.4e} ± {:.2e} {}",
-                    p.name, p.value, p.sd, p.unit
-                );
-            }
-        }
-        for (round, file) in plots {
-            if *round == st.round {
-                let _ = writeln!(s, "\n![evidence]({file})");
-            }
         }
     }
-    s
+    for t in st.tried.iter().filter(|t| t.not_fitted.is_some()) {
+        let _ = writeln!(
+            s,
+            "\nNot fitted: {} — {}",
+            t.candidate.name(),
+            t.not_fitted.as_deref().unwrap_or_default()
+        );
+    }
+    let _ = writeln!(s, "\nDecision: {}", st.reason);
+    if !st.ambiguous_with.is_empty() {
+        let _ = writeln!(
+            s,
+            "\n**Ambiguous**: {} also explain(s) this residual and predict(s) the held-out measurements better than the adopted effect; more measurements (other contact points and force levels) are needed to tell them apart.",
+            st.ambiguous_with.iter().map(|c| c.name()).collect::<Vec<_>>().join(", ")
+        );
+    }
+    if let Some(a) = &st.after {
+        let _ = writeln!(s, "\n| | fitted RMS | fitted max | held-out RMS | held-out max | force RMS | force max | held-out force RMS |\n|---|---|---|---|---|---|---|---|");
+        error_rows(s, "before", &st.before);
+        error_rows(s, "after", a);
+        let _ = writeln!(s, "\nNew parameters:\n");
+        for p in &st.new_params {
+            let _ = writeln!(
+                s,
+                "- {} = {:.4e} ± {:.2e} {}",
+                p.name, p.value, p.sd, p.unit
+            );
+        }
+    }
+    for (round, file) in plots {
+        if *round == st.round {
+            let _ = writeln!(s, "\n![evidence]({file})");
+        }
+    }
 }
 
 /// The text of `diagnosis.json`: the report with `schema_version`, units in the field names and
@@ -347,26 +378,6 @@ pub fn json_text(r: &DiagnosisReport) -> Result<String, serde_json::Error> {
         );
     }
     json::finish("static-diagnosis", v)
-}
-
-/// Creates `dir` and writes `diagnosis.md`, then `diagnosis.json` (made by `json` once the
-/// markdown is written), into it; returns their paths. The motion and runs reports begin so, and
-/// word the errors alike (the folder named, the rest as the error says).
-pub(crate) fn write_md_and_json(
-    dir: &Path,
-    md: &str,
-    json: impl FnOnce() -> Result<String, serde_json::Error>,
-) -> Result<Vec<PathBuf>, String> {
-    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    let mut out = Vec::new();
-    let p = dir.join("diagnosis.md");
-    write_atomic(&p, md.as_bytes()).map_err(|e| e.to_string())?;
-    out.push(p);
-    let p = dir.join("diagnosis.json");
-    let json = json().map_err(|e| e.to_string())?;
-    write_atomic(&p, json.as_bytes()).map_err(|e| e.to_string())?;
-    out.push(p);
-    Ok(out)
 }
 
 /// Writes `diagnosis.md`, `diagnosis.json` and the evidence plots into `dir`; returns the paths.
@@ -491,4 +502,29 @@ pub fn write_report(r: &DiagnosisReport, dir: &Path) -> Result<Vec<PathBuf>, Dia
         written.push(p);
     }
     Ok(written)
+}
+
+/// The summary the command prints for `r`: the verdict and RMS marker errors before and after
+/// (µm), then, when the residual is explained, the smallest magnitude of each candidate the data
+/// would have detected.
+pub fn summary_lines(r: &DiagnosisReport) -> Vec<String> {
+    let adopted: Vec<&str> = r.adopted.iter().map(|c| c.name()).collect();
+    let mut lines = vec![format!(
+        "{}: {}; RMS marker error {:.1} → {:.1} µm fitted, {:.1} → {:.1} µm held out (noise floor {:.1} µm)",
+        r.dataset,
+        r.residual_check.verdict(&adopted.join(", ")),
+        1e6 * r.before.fitted_rms,
+        1e6 * r.after.fitted_rms,
+        1e6 * r.before.heldout_rms,
+        1e6 * r.after.heldout_rms,
+        1e6 * r.noise_floor
+    )];
+    if !r.detectable.is_empty() {
+        lines.push(
+            "  would have detected (smallest magnitudes; smaller effects of these kinds may be present):"
+                .into(),
+        );
+        lines.extend(r.detectable.iter().map(|d| format!("    {}", d.describe())));
+    }
+    lines
 }

@@ -32,10 +32,10 @@
 
 use serde::Serialize;
 
-use crate::noise::{
+use crate::statics::noise::{
     extrapolation_weights, marker_spacing, median_over_gaussian, percentile, NoiseOptions,
 };
-use palpate_specimen::rng;
+use palpate_fem::rng::study_stream as rng;
 
 /// Options of [`estimate_rest_noise`].
 #[derive(Debug, Clone, Serialize)]
@@ -328,7 +328,7 @@ pub fn estimate_rest_noise(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::noise::tests::layout;
+    use crate::statics::noise::tests::layout;
 
     /// Eight measurements of residuals: a bump of `bump` m under a moving contact (the model error
     /// a probe leaves, different in every measurement), a persistent smooth field of `smooth` m (a
@@ -355,9 +355,10 @@ mod tests {
                     if rng.uniform() >= 0.8 {
                         continue;
                     }
-                    let g = (-0.5 * crate::noise::dist2(p, c) / 0.03f64.powi(2)).exp();
-                    let w =
-                        (-0.5 * crate::noise::dist2(p, [0.04, 0.04, 0.04]) / 0.05f64.powi(2)).exp();
+                    let g = (-0.5 * crate::statics::noise::dist2(p, c) / 0.03f64.powi(2)).exp();
+                    let w = (-0.5 * crate::statics::noise::dist2(p, [0.04, 0.04, 0.04])
+                        / 0.05f64.powi(2))
+                    .exp();
                     let r = [0, 1, 2].map(|d| {
                         bump * g * [0.3, -0.2, 1.0][d]
                             + smooth * (w + 5.0 * (p[0] - 0.04)) * [1.0, 0.5, -0.7][d]

@@ -1,0 +1,382 @@
+//! The static diagnosis as the shared selection engine ([`crate::select`]) sees it: how a
+//! candidate is fitted, gated on held-out data and adopted, and the report's rounds made from the
+//! engine's verdict.
+
+use super::approx_error::{self, refresh, Correction};
+use super::fit::{fit, Fitted};
+use super::holdout::{errors, heldout_delta_bic, holdout, marker_norms, paired_t, stats, Held};
+use super::model::{Candidate, Context};
+use super::params::effect_params;
+use super::signature::{evidence_points, signature, Signature};
+use super::{DiagnoseError, DiagnoseOptions, Errors, Evidence, Step, Tried};
+use crate::select::ParamValue;
+use crate::select::{self, Current, Gate, Outcome, Score, Verdict};
+
+/// The static diagnosis as the selection engine sees it: the context it solves in, the
+/// approximation-error correction refreshed after each adoption, and its options (gate numbers).
+pub(super) struct StaticModel<'a> {
+    pub(super) ctx: Context,
+    pub(super) correction: Option<Correction>,
+    pub(super) all: Vec<usize>,
+    pub(super) o: &'a DiagnoseOptions,
+    pub(super) progress: &'a mut dyn FnMut(&str),
+}
+
+/// The static gate's figures of one cross-validated candidate.
+pub(super) struct StaticGate {
+    heldout_rms: f64,
+    heldout_t: f64,
+    heldout_force_rms: f64,
+    /// The figures in words, for the round's reason.
+    words: String,
+}
+
+/// What a static round records of an adoption (before the correction is refreshed, so the
+/// figures are those of the fit the gate judged).
+pub(super) struct StaticAdoption {
+    after: Errors,
+    new_params: Vec<ParamValue>,
+    evidence: Evidence,
+}
+
+impl select::CandidateModel for StaticModel<'_> {
+    type Candidate = Candidate;
+    type Fitted = Fitted;
+    type Held = Held;
+    type Observed = (Signature, Errors);
+    /// Fitted RMS marker error (m).
+    type Summary = f64;
+    type Detail = StaticGate;
+    type Adoption = StaticAdoption;
+    type Error = DiagnoseError;
+
+    fn observe(&mut self, _round: usize, f: &Fitted, held: &Held) -> (Signature, Errors) {
+        (signature(&self.ctx, f), errors(&self.ctx, f, held))
+    }
+
+    fn candidates(&mut self, current: &Fitted, _adopted: &[Candidate]) -> Vec<Candidate> {
+        // At the maximum nothing is tried: the round then only states that the maximum is reached.
+        if current.model.effects.len() >= self.o.max_effects {
+            return Vec::new();
+        }
+        let effects = &current.model.effects;
+        self.o
+            .candidates
+            .iter()
+            .copied()
+            .filter(|c| !effects.contains(c))
+            // An elastic foundation needs a supported face (boundary triangles on fixed nodes).
+            .filter(|&c| c != Candidate::Support || self.ctx.foundation.is_some())
+            .collect()
+    }
+
+    fn fit_with(
+        &mut self,
+        round: usize,
+        current: &Fitted,
+        c: Candidate,
+    ) -> Result<Outcome<Fitted>, DiagnoseError> {
+        (self.progress)(&format!("round {round}: trying {}", c.name()));
+        let m = current.model.with(c);
+        let mut t = current.theta.clone();
+        match (c, self.ctx.inclusion_seed) {
+            // The sensitivity scan's blob: its centre is `inclusion_start`, so the offsets start
+            // at zero; contrast and radius from its Gauss–Newton step.
+            (Candidate::Inclusion, Some(seed)) => t.extend(seed),
+            _ => t.extend(c.start(self.o.grid)),
+        }
+        match fit(
+            &self.ctx,
+            &m,
+            t,
+            &self.all,
+            Some(&current.sim.x),
+            self.o.max_iterations,
+        ) {
+            Ok(f) => Ok(Outcome::Fitted(f)),
+            // A candidate that leaves the physical range (or whose law has no equilibrium under
+            // the loads) is not a finding, but the reader of the round's table must see that it
+            // was tried and why it has no figures.
+            Err(DiagnoseError::Diverged(why)) => {
+                (self.progress)(&format!(
+                    "round {round}: {} not fitted: the fit diverged: {why}",
+                    c.name()
+                ));
+                Ok(Outcome::NotFitted(format!("the fit diverged: {why}")))
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    fn score(&self, f: &Fitted) -> Score {
+        let profiled: usize = f
+            .model
+            .effects
+            .iter()
+            .map(|c| c.profiled(f.subset.len()))
+            .sum();
+        Score {
+            chi2: f.chi2,
+            n: f.n,
+            k: f.theta.len() + profiled,
+        }
+    }
+
+    fn summarise(&self, f: &Fitted) -> f64 {
+        stats(&marker_norms(&self.ctx, f)).0
+    }
+
+    fn heldout(&mut self, round: usize, c: Candidate, f: &Fitted) -> Result<Held, DiagnoseError> {
+        (self.progress)(&format!("round {round}: cross-validating {}", c.name()));
+        holdout(&self.ctx, f, self.o.holdout_iterations)
+    }
+
+    // Adopt the first shortlisted candidate, in fitted-BIC order, that the held-out data confirm.
+    // The others are cross-validated too: one that also passes with a lower held-out ΔBIC is an
+    // equally good explanation these measurements cannot tell apart, and the report says so.
+    // Adopting by held-out ΔBIC instead trades one wrong name for another (calibration p = 0.3,
+    // seed 2: inhomogeneity −248.5 fitted / −208.1 held out, calibration −169.2 / −255.1; but
+    // inclusion seed 1: inclusion −688.6 / −430.2, support rotation −581.7 / −564.1), so the order
+    // stays and the ambiguity is reported.
+    fn gate(
+        &mut self,
+        cur: &Current<'_, Self>,
+        cand: &select::Candidate<'_, Self>,
+    ) -> Gate<StaticGate> {
+        let (o, ctx, before) = (self.o, &self.ctx, &cur.observed.1);
+        let held = cand.held;
+        let h = stats(&held.markers).0;
+        let t = paired_t(cur.held, held);
+        // Leave-one-out: every held-out measurement carries its own profiled parameters.
+        let extra = cand.candidate.all_params(o.grid, ctx.meas.len());
+        let cv_bic = heldout_delta_bic(cur.held, held, extra);
+        let force = stats(&held.forces).0;
+        let gain = 1.0 - h / before.heldout_rms;
+        let words = format!(
+            "{}: ΔBIC = {:.1}; held-out RMS {:.1} µm → {:.1} µm ({:+.1}%), implied force {:.4} N → {:.4} N, held-out ΔBIC {:.1} (< 0 required; paired t of the per-measurement held-out χ² reductions {:.2})",
+            cand.candidate.name(), cand.delta_bic, 1e6 * before.heldout_rms, 1e6 * h, -100.0 * gain, before.heldout_force_rms, force, cv_bic, t
+        );
+        // The floor the excess is measured over: the noise, widened by what the mesh may still
+        // get wrong after the approximation-error correction (δ/3, see
+        // ResidualCheck::with_discretisation) — error no effect should be adopted to explain.
+        let remaining = ctx
+            .correction
+            .as_deref()
+            .map_or(0.0, approx_error::delta_rms)
+            / 3.0;
+        let floor2 = 3.0 * ctx.sigma * ctx.sigma + remaining * remaining;
+        let excess = |r: f64| {
+            if ctx.sigma_declared {
+                (r * r - floor2).max(0.0).sqrt()
+            } else {
+                r
+            }
+        };
+        // Nothing above the floor before: no excess for a candidate to explain (see `below`).
+        let excess_gain = match excess(before.heldout_rms) {
+            e if e > 0.0 => 1.0 - excess(h) / e,
+            _ => 0.0,
+        };
+        // With nothing above the (widened) floor before, the relative excess gain is 0/0 and used
+        // to veto every candidate, however strong the held-out evidence: the specimens' default
+        // stiffening (seed 1: ΔBIC −35.2, held-out ΔBIC −24.9) and calibration (seed 1) were called
+        // clean. There the held-out ΔBIC must clear the fitted side's own threshold instead
+        // (measured: own specimens 18 → 20 of 22 first choices, null specimens seeds 1–6 still
+        // 12/12 clean, the independent draws' adoptions unchanged but one second effect).
+        let below = ctx.sigma_declared && excess(before.heldout_rms) <= 0.0;
+        let words = if below {
+            format!(
+                "{words}; nothing above the noise floor (widened by the mesh's remaining \
+                 discretisation error) before: held-out ΔBIC < −{} required instead of a gain",
+                o.bic_threshold
+            )
+        } else {
+            format!(
+                "{words}; {} {:.0}% lower (≥ {:.0}% required)",
+                if ctx.sigma_declared {
+                    "held-out error in excess of the noise floor (widened by the mesh's remaining discretisation error)"
+                } else {
+                    "held-out RMS"
+                },
+                100.0 * excess_gain,
+                100.0 * o.min_holdout_gain
+            )
+        };
+        let passes = held.unpredicted.is_empty()
+            && if below {
+                cv_bic < -o.bic_threshold
+            } else {
+                cv_bic < 0.0 && excess_gain >= o.min_holdout_gain
+            };
+        let words = if held.unpredicted.is_empty() {
+            words
+        } else {
+            format!(
+                "{words}; its refits without them cannot predict {} held-out measurement(s): {}",
+                held.unpredicted.len(),
+                held.unpredicted.join("; ")
+            )
+        };
+        Gate {
+            passes,
+            heldout_delta_bic: cv_bic,
+            heldout_rank: h,
+            detail: StaticGate {
+                heldout_rms: h,
+                heldout_t: t,
+                heldout_force_rms: force,
+                words,
+            },
+        }
+    }
+
+    fn adopt(
+        &mut self,
+        cur: &Current<'_, Self>,
+        c: Candidate,
+        f: Fitted,
+        held: Held,
+    ) -> Result<(Fitted, Held, StaticAdoption), DiagnoseError> {
+        let ctx = &self.ctx;
+        let (xl, yl, before_pts) = evidence_points(c, ctx, cur.fitted);
+        let (_, _, after_pts) = evidence_points(c, ctx, &f);
+        let adoption = StaticAdoption {
+            after: errors(ctx, &f, &held),
+            new_params: effect_params(ctx, &f, c),
+            evidence: (xl.into(), yl.into(), before_pts, after_pts),
+        };
+        let Some(corr) = self.correction.as_mut() else {
+            return Ok((f, held, adoption));
+        };
+        // δ at the adopted model, so the next round's residual is the refined model's.
+        (self.progress)(&format!(
+            "round {}: refreshing the approximation-error correction",
+            cur.round
+        ));
+        // A refit with the refreshed δ can leave the physical range where the adopted fit did
+        // not (a stiffening fixed point pushed to a corner by the new correction): the adoption
+        // stands on the fit the gate judged, with the previous round's correction, and the
+        // report's progress says so — a diagnosis is not lost to one refit.
+        let kept = self.ctx.correction.clone();
+        let refreshed = refresh(&mut self.ctx, corr, &f, self.o.max_iterations).and_then(|g| {
+            let h = holdout(&self.ctx, &g, self.o.holdout_iterations)?;
+            Ok((g, h))
+        });
+        // The refreshed refit must still predict the held-out measurements better than the model
+        // the adoption replaced (the held-out half of the gate it passed), or the next round
+        // judges every candidate against a broken base: on an independent layer draw a refreshed
+        // inhomogeneity refit put grid nodes at e^−5.8 and predicted held-out measurements at
+        // 2,567 µm RMS where the gate had seen 357.5 µm and the model before it 394.6 µm.
+        let before: f64 = cur.held.chi2.iter().sum();
+        match refreshed {
+            Ok((g, h)) if h.chi2.iter().sum::<f64>() < before => Ok((g, h, adoption)),
+            Ok((_, h)) => {
+                self.ctx.correction = kept;
+                (self.progress)(&format!(
+                    "round {}: the refit with the refreshed correction predicts the held-out \
+                     measurements worse than the model before {} (held-out RMS {:.1} µm against \
+                     {:.1} µm); the adopted fit and the previous round's correction are kept",
+                    cur.round,
+                    c.name(),
+                    1e6 * stats(&h.markers).0,
+                    1e6 * stats(&cur.held.markers).0,
+                ));
+                Ok((f, held, adoption))
+            }
+            Err(DiagnoseError::Diverged(why)) => {
+                self.ctx.correction = kept;
+                (self.progress)(&format!(
+                    "round {}: the refit with the refreshed correction diverged ({why}); the previous round's correction is kept",
+                    cur.round
+                ));
+                Ok((f, held, adoption))
+            }
+            Err(e) => Err(e),
+        }
+    }
+}
+
+/// The static report's rounds from the engine's verdict (tried best-ΔBIC first; the reason in
+/// words, as the reports have always stated it).
+pub(super) fn static_steps(
+    v: &Verdict<StaticModel<'_>>,
+    o: &DiagnoseOptions,
+    ctx_meas: usize,
+) -> Vec<Step> {
+    v.rounds
+        .iter()
+        .map(|r| {
+            let lead = r.adopted_attempt();
+            let mut reasons = Vec::new();
+            for a in r.ranked() {
+                let (Some(g), Some(j)) = (&a.gate, a.judgement) else {
+                    continue;
+                };
+                let words = &g.detail.words;
+                reasons.push(match (j, lead) {
+                    (select::Judgement::Best, _) => format!("adopt {words}"),
+                    (select::Judgement::Ambiguous, Some(l)) => format!(
+                        "AMBIGUOUS: {words} — also passes and predicts the held-out measurements better than {} (held-out ΔBIC {:.1}); these measurements cannot tell the two apart",
+                        l.candidate.name(),
+                        l.gate.as_ref().map_or(f64::NAN, |g| g.heldout_delta_bic)
+                    ),
+                    (select::Judgement::Ambiguous | select::Judgement::AlsoPasses, _) => {
+                        format!("also passes (second in order) {words}")
+                    }
+                    (select::Judgement::Rejected, _) => format!("reject {words}"),
+                });
+            }
+            if r.attempts.is_empty() {
+                reasons.push(format!(
+                    "the model already holds {} effects (the maximum): stop",
+                    r.model.len()
+                ));
+            } else if lead.is_none() {
+                reasons.push(match r.ranked().find(|a| a.not_fitted.is_none()) {
+                    Some(b) => format!(
+                        "nothing significant left (best ΔBIC {:.1} for {}; threshold −{})",
+                        b.delta_bic,
+                        b.candidate.name(),
+                        o.bic_threshold
+                    ),
+                    None => "no candidate could be fitted: stop".to_string(),
+                });
+            }
+            let (signature, before) = r.observed.clone();
+            let adoption = r.adoption.as_ref();
+            Step {
+                round: r.round,
+                model: r.model.clone(),
+                signature,
+                tried: r
+                    .ranked()
+                    .map(|a| {
+                        let g = a.gate.as_ref().map(|g| &g.detail);
+                        Tried {
+                            candidate: a.candidate,
+                            extra_params: a.candidate.all_params(o.grid, ctx_meas),
+                            rms: a.summary.unwrap_or(f64::NAN),
+                            delta_bic: a.delta_bic,
+                            heldout_rms: g.map(|g| g.heldout_rms),
+                            heldout_t: g.map(|g| g.heldout_t),
+                            heldout_delta_bic: a.gate.as_ref().map(|g| g.heldout_delta_bic),
+                            heldout_force_rms: g.map(|g| g.heldout_force_rms),
+                            not_fitted: a.not_fitted.clone(),
+                        }
+                    })
+                    .collect(),
+                adopted: lead.map(|a| a.candidate),
+                reason: reasons.join("; "),
+                ambiguous_with: r
+                    .ranked()
+                    .filter(|a| a.judgement == Some(select::Judgement::Ambiguous))
+                    .map(|a| a.candidate)
+                    .collect(),
+                before,
+                after: adoption.map(|a| a.after),
+                new_params: adoption.map(|a| a.new_params.clone()).unwrap_or_default(),
+                evidence: adoption.map(|a| a.evidence.clone()),
+            }
+        })
+        .collect()
+}
