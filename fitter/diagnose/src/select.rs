@@ -275,6 +275,18 @@ pub enum Stop {
     Rounds,
 }
 
+/// Why the loop ended, in the words a report prints.
+impl std::fmt::Display for Stop {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Stop::NothingToTry => "no candidate left to try",
+            Stop::NothingPasses => "no candidate passes the gate",
+            Stop::Limit => "the most effects a model may adopt are adopted",
+            Stop::Rounds => "every round adopted an effect",
+        })
+    }
+}
+
 /// The current model and its held-out evidence, as the gate sees them.
 pub struct Current<'a, M: CandidateModel + ?Sized> {
     /// Round (1-based).

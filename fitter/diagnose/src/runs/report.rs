@@ -73,7 +73,7 @@ pub fn markdown(r: &RunsDiagnosis) -> String {
     let _ = writeln!(
         md,
         "**Verdict: {adopted}.** Held-out marker RMS {} → {} mm, held-out rest-state RMS {} → {} mm \
-         (fitted runs: {} → {} mm). The loop stopped: {:?}.\n",
+         (fitted runs: {} → {} mm). The loop stopped: {}.\n",
         mm(r.heldout_rms_m.0),
         mm(r.heldout_rms_m.1),
         mm(r.heldout_final_rms_m.0),
