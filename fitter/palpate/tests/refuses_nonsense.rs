@@ -389,7 +389,7 @@ fn import_c3d_declares_a_hanging_weight_and_refuses_an_unknown_group() {
     }
     let bad = dir.path().join("bad");
     let e = refused(&import("0.052@nosuch", &bad));
-    assert!(e.contains("nosuch") && e.contains("nothing kept"), "{e}");
+    assert!(e.contains("nosuch") && e.contains("nothing written"), "{e}");
     assert!(!bad.join("dataset.toml").exists() && !bad.join("trajectories.csv").exists());
 }
 
