@@ -327,52 +327,6 @@ impl<'a, T: Copy + Default> Carver<'a, T> {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The layout sums to what the constants written by hand before the rooms redesign said
-    /// (47 f32 and 3 u32 per node — 48 f32 since the contact weights are cached, 51 since the line
-    /// search keeps the residual at a step's start —, 46 f32 and 8 u32 per padded element, 6 / 156 f32 per element
-    /// for strain blending / the packed kernel, the coarse space, one more u32).
-    #[test]
-    fn layout_matches_the_former_formula() {
-        // + 1: the contact weights cached per contact point (issue 12); + 3: r_start, the line
-        // search's residual at the start of a step (issue 16).
-        assert_eq!(F32_PER_NODE, 13 * 3 + 6 + 2 + 1 + 3);
-        assert_eq!(F32_PER_ELEMENT, 9 + 3 + 9 + 4 + 9 + 12);
-        assert_eq!(F32_PER_ELEMENT_STRAIN, 6);
-        assert_eq!(F32_PER_ELEMENT_PACKED, 2 * 78);
-        assert_eq!(U32_PER_NODE, 3);
-        assert_eq!(U32_PER_ELEMENT, 8);
-        for (n, t, s, p, m, a) in [
-            (10, 7, false, false, 1, false),
-            (1000, 5184, true, false, 64, true),
-            (37, 1, true, true, 4, false),
-            (0, 0, false, true, 0, true),
-            (12, 9, false, false, 2, true),
-        ] {
-            let tp = padded_elements(t);
-            let d = Dims {
-                nodes: n,
-                elements: t,
-                padded: tp,
-                strain: s,
-                blend_sets: if s { 3 } else { 0 },
-                packed: p,
-                aggregates: m,
-                anticipate: a,
-            };
-            let l = Layout::of(&d);
-            // Strain blending: the strain (6) and its distance to each of the 3 sets' centres.
-            let per_element = if s { 6 + 3 } else { 0 } + if p { 156 } else { 0 };
-            // Anticipated crossings: eleven node vectors and one element state's R∇φ.
-            let ahead = if a { n * 33 + tp * 9 } else { 0 };
-            assert_eq!(
-                l.f32s(),
-                n * 51 + tp * 46 + t * per_element + crate::coarse::coarse_f32s(m) + ahead
-            );
-            assert_eq!(l.u32s(), n * 3 + 1 + tp * 8);
-        }
-    }
-}
+// What is tested: that a runtime runs in exactly the storage this file asks for, under every
+// configuration that sizes a room differently, and is refused one value short
+// (`tests/tests/cross_crate/runtime_storage.rs`).

@@ -27,5 +27,6 @@ mod runtime_anticipation;
 mod runtime_evidence;
 mod runtime_model_checks;
 mod runtime_solver;
+mod runtime_storage;
 mod specimen_viscous;
 mod static_export_runtime;
