@@ -1,4 +1,4 @@
-"""Every kind of VTU palpate writes, read by meshio — a reader palpate did not write (issue 13).
+"""Every kind of VTU palpate writes, read by meshio — a reader palpate did not write.
 
 Run by .ci/run after the tests (it needs target/release/palpate):
     python3 tests/readers/vtu_meshio.py target/release/palpate OUT_DIR

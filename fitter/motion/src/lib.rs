@@ -8,7 +8,7 @@
 //! - [`objective`], [`gradient`]: eq. 15 and its force analogue; direct (eqs. 5–6) and adjoint
 //!   (eqs. 8–12, 14) gradients;
 //! - [`optimize`]: log-parameter LBFGS (§4.3) with a Wolfe line search (argmin);
-//! - [`statics`]: a reusable quasi-static hyperelastic solver (specimen generator, issue 6);
+//! - [`statics`]: a reusable quasi-static hyperelastic solver (the specimen generator's);
 //! - [`scenario`]: synthetic set-ups (bars with moving clamps) shared by bench, evidence, tests;
 //! - [`dataset`]: the motion dataset reader (docs/motion-dataset.md);
 //! - [`spline`], [`elastic`]: the principal-stretch spline material of §4.2 (eqs. 18–20) and the

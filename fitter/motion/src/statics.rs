@@ -1,7 +1,7 @@
 //! Quasi-static hyperelastic solver: equilibrium of the Neo-Hookean (+ optional stiffening)
 //! material of [`super::hyperelastic`] on a [`Mesh`] with fixed nodes, nodal forces and gravity.
 //!
-//! Public API for the specimen generator (issue 6). Method: the load (forces, gravity and the
+//! Public API for the specimen generator. Method: the load (forces, gravity and the
 //! prescribed displacement of fixed nodes) is applied in `load_steps` equal increments; each
 //! increment is solved by Newton on the total potential energy
 //! E(x) = Σ_e V_e Ψ(F_e) − s f_extᵀ (x − X), with a faer sparse Cholesky of the tangent

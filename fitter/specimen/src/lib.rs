@@ -1,4 +1,4 @@
-//! The specimen generator of issue 6: a stand-in for a real object, simulated at higher fidelity
+//! The specimen generator: a stand-in for a real object, simulated at higher fidelity
 //! than the model the fitter uses (a finer mesh, Neo-Hookean with optional strain stiffening via
 //! [`palpate_motion::statics::solve_static`], so large strains are non-linear), with physical effects
 //! nobody declared, written as a STATIC dataset ([`palpate_fem::dataset::StaticDataset::write`]).

@@ -1,4 +1,4 @@
-//! Motion specimens with one undeclared effect each, drawn at random (issue 14: "generality as a
+//! Motion specimens with one undeclared effect each, drawn at random ("generality as a
 //! test, not a hope", the motion half): the diagnosis is run on many of them and its adoptions
 //! scored against what was injected (`palpate-lab motion-confusion`).
 //!

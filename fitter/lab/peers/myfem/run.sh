@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The motion bench against MyFEM (the public code behind Real2Sim) on this machine, back to back (issue 18's
-# "peers side by side, in one run"): builds MyFEM's FEM, sensitivity analyses and objective from its public
+# The motion bench against MyFEM (the public code behind Real2Sim) on this machine, back to back (peers
+# side by side, in one run): builds MyFEM's FEM, sensitivity analyses and objective from its public
 # source (never committed: it goes under target/peers/) with the driver beside this script, runs the anchor
 # problem of ANCHORS.md in MyFEM and then `palpate-lab bench motion`, and prints both JSON lines.
 #

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The runtime bench against VegaFEM on this machine, back to back (issue 18's "peers side by side, in one
-# run"): builds VegaFEM's corotational linear FEM + CG from its public source (never committed: it goes
+# The runtime bench against VegaFEM on this machine, back to back (peers side by side, in one
+# run): builds VegaFEM's corotational linear FEM + CG from its public source (never committed: it goes
 # under target/peers/), exports palpate's bench problem (`palpate-lab bench runtime --export-peer`), runs
 # VegaFEM's solve of it and then palpate's bench of the same problem, and prints both JSON lines.
 #

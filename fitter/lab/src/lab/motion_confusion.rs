@@ -1,6 +1,6 @@
 //! `palpate-lab motion-confusion`: motion specimens with one effect each, drawn at random
 //! ([`palpate_specimen::motion`]), through the motion diagnosis; the confusion table of what was
-//! adopted against what was injected (issue 14's evidence, the motion half).
+//! adopted against what was injected.
 
 use anyhow::Context;
 use palpate_diagnose::motion::{diagnose, MotionOptions};

@@ -1,10 +1,10 @@
-//! `palpate-lab nonlinear-evidence`: the thesis' non-linear chain end to end (issue 16), written to
+//! `palpate-lab nonlinear-evidence`: the thesis' non-linear chain end to end, written to
 //! `docs/results/nonlinear/`:
 //!
 //! - `incremental`: the 10 cm cantilever of the runtime evidence at growing tip loads — the f64
 //!   incremental solve (the reference), the runtime with its defaults (incremental loading and
 //!   the energy line search), one step with the line search, and one step without it (the
-//!   runtime before issue 16);
+//!   runtime without incremental loading);
 //! - `blend`: palpate's specimen (a block probed on its top face, the truth a Neo-Hookean solve
 //!   on a mesh twice as fine, with isochoric stiffening c (Ī₁ − 3)² at several magnitudes;
 //!   magnitude 0 is the plain Neo-Hookean reference) fitted on two thirds of its contacts as a
@@ -212,7 +212,7 @@ Reference: the f64 solve (`palpate_fem::forward`, 20 increments, fixed point to 
             rows.push(json!({"load_n": load, "reference_deflection_m": deflection, "f64_converged": r.converged, "f64_solves": r.iterations, "runtime": name, "increments_tick0": first.increments, "first_tick_error_m": first_err, "ticks": ticks, "settled": settled, "error_m": e}));
         }
     }
-    writeln!(md, "\nBefore issue 16 the f64 solve cycled at 0.5 N and 1 N too (largest node move per iteration 0.179 m and 0.728 m, at 10 and 100 increments alike); it converges at every load here. The same comparison is a test (`palpate-fem`: `forward::tests::runtime_agrees_with_the_f64_solve_at_large_loads`).")?;
+    writeln!(md, "\nWithout continuation and the energy line search the f64 solve cycles at 0.5 N and 1 N too (largest node move per iteration 0.179 m and 0.728 m, at 10 and 100 increments alike); it converges at every load here. The same comparison is a test (`palpate-fem`: `forward::tests::runtime_agrees_with_the_f64_solve_at_large_loads`).")?;
     write_md_and_json(&args.out, "incremental", &md, &rows)?;
     Ok(())
 }
