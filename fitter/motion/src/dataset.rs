@@ -76,6 +76,10 @@ pub struct DatasetToml {
     /// oscillation, [`crate::timestep`]; 1 integrates at the capture rate).
     #[serde(default)]
     pub substeps: Option<usize>,
+    /// Time integration scheme: `"bdf2"` (default) or `"midpoint"`
+    /// ([`crate::timestep::Scheme`]); the substeps chosen from the capture follow its rule.
+    #[serde(default)]
+    pub scheme: Option<String>,
     /// Density (kg/m³), if known.
     pub density: Option<f64>,
     /// Gravity (m/s²). Not declared: (0, 0, −9.81), with a warning — a static dataset without
@@ -652,6 +656,15 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
     let mut model = Model::new(&mesh, clamps, Vec::new(), dt, steps, gravity, mass)
         .map_err(|e| bad(&tf, 0, e.to_string()))?;
     model.static_start = config.static_start.unwrap_or(true);
+    if let Some(name) = config.scheme.as_deref() {
+        model.scheme = crate::timestep::Scheme::from_name(name).ok_or_else(|| {
+            bad(
+                &tf,
+                0,
+                format!("field scheme: expected \"bdf2\" or \"midpoint\", found {name:?}"),
+            )
+        })?;
+    }
     model.loads = config
         .loads
         .iter()

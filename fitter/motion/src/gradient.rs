@@ -1,16 +1,26 @@
 //! Objective and gradient: direct sensitivities (eqs. 5–6) and the adjoint method (eqs. 8–12)
 //! with the elastostatic initial-condition term (eq. 14).
 //!
-//! Both are the exact derivatives of the *discrete* BDF2 scheme: differentiating eq. 2 gives
-//! eq. 6 (direct), and transposing that linear recurrence step by step gives the backward
-//! recurrence of eq. 12 (adjoint), so the two agree to round-off and match finite differences
-//! up to the Newton tolerance. Density enters M and f_ext; its terms (§4.3) are included.
+//! Both are the exact derivatives of the *discrete* scheme (BDF2 or the implicit midpoint rule,
+//! [`Scheme`]): differentiating the step's equations (eq. 2 for BDF2) gives eq. 6 (direct), and
+//! transposing that linear recurrence step by step gives the backward recurrence of eq. 12
+//! (adjoint), so the two agree to round-off and match finite differences up to the Newton
+//! tolerance. Density enters M and f_ext; its terms (§4.3) are included.
+//!
+//! Both schemes evaluate a step's forces at a state affine in the step's velocities v^n:
+//! s_xf = s_xa + a_x s_v^n, s_vf = s_va + a_v s_v^n, with the inertia base's sensitivity s_b,
+//! so the sensitivity step is S s_v^n = G + c M s_b − K s_xa − D s_va (G = ∂F/∂q at the force
+//! state with the density's inertia term). BDF2: s_xa = (4s_x^{n−1} − s_x^{n−2})/3, s_va = 0,
+//! s_b = (4s_v^{n−1} − s_v^{n−2})/3, s_x^n = s_xa + a_x s_v^n. Midpoint: s_xa = s_x^{n−1} +
+//! (Δt/4) s_v^{n−1}, s_va = s_v^{n−1}/2, s_b = s_v^{n−1}, s_x^n = s_x^{n−1} + (Δt/2)(s_v^{n−1} +
+//! s_v^n).
 
 use super::forces::{param_derivatives, SPLIT_ASSEMBLY_ELEMENTS};
 use super::model::{Material, Model, Observations, Param};
 use super::objective::{clamp_force_derivatives, step_term, StepTerm};
 use super::sim::{simulate, simulate_states, SimStats, StepView};
 use super::sparse::Factor;
+use super::timestep::Scheme;
 use super::MotionError;
 
 /// How to compute the gradient.
@@ -285,11 +295,9 @@ impl MarkerMeans {
     }
 }
 
-/// v^n − (4 v^{n−1} − v^{n−2})/3 (full dofs): the BDF2 velocity term of the step's residual.
-fn bdf2_velocity_residual(s: &StepView<'_>) -> Vec<f64> {
-    (0..s.v.len())
-        .map(|d| s.v[d] - (4.0 * s.prev[2][d] - s.prev[3][d]) / 3.0)
-        .collect()
+/// v^n − b (full dofs): the velocity term of the step's inertia c M (v^n − b).
+fn inertia_velocity(s: &StepView<'_>) -> Vec<f64> {
+    (0..s.v.len()).map(|d| s.v[d] - s.inertia_base[d]).collect()
 }
 
 /// Simulates with material `mat` (parameters already applied) and evaluates Φ and, if
@@ -466,8 +474,8 @@ fn add_param_dots(
     a.and(b)
 }
 
-/// What both gradient methods start from: the parameter table, the sizes, BDF2's constants
-/// c = 3/(2Δt) and a₂ = 2Δt/3, and M on the free pattern.
+/// What both gradient methods start from: the parameter table, the sizes, the scheme's
+/// constants (c, a_x, a_v) ([`Scheme::coefficients`]), and M on the free pattern.
 struct Setup {
     table: Vec<Vec<usize>>,
     kinds: Vec<bool>,
@@ -475,21 +483,24 @@ struct Setup {
     nf: usize,
     ndof: usize,
     c: f64,
-    a2: f64,
+    ax: f64,
+    av: f64,
     mvals: Vec<f64>,
 }
 
 impl Setup {
     fn new(model: &Model, mat: &Material, params: &[Param]) -> Result<Self, MotionError> {
         let (table, kinds) = param_table(model, mat, params)?;
+        let (c, ax, av) = model.scheme.coefficients(model.dt);
         Ok(Self {
             table,
             kinds,
             np: params.len(),
             nf: model.nfree,
             ndof: 3 * model.nodes.len(),
-            c: 1.5 / model.dt,
-            a2: 2.0 * model.dt / 3.0,
+            c,
+            ax,
+            av,
             mvals: model.mass_values(mat),
         })
     }
@@ -580,9 +591,11 @@ fn direct(
         nf,
         ndof,
         c,
-        a2,
+        ax,
+        av,
         mvals,
     } = Setup::new(model, mat, params)?;
+    let (scheme, dt) = (model.scheme, model.dt);
     // s_x⁰ from the elastostatic start (§3.4): K₀ s_x⁰ = ∂f₀/∂q; zero for a rest-shape start.
     let init: std::cell::RefCell<Option<Result<Vec<Vec<f64>>, MotionError>>> =
         std::cell::RefCell::new(None);
@@ -629,33 +642,56 @@ fn direct(
                 ));
             }
             let (sxm1, sxm2, svm1, svm2) = state.as_mut().expect("initialised");
-            let b = bdf2_velocity_residual(s);
-            let g = g_columns(model, mat, &table, &kinds, np, s.x, s.v, Some((c, &b)))?;
+            let vb = inertia_velocity(s);
+            let [xf, vf] = s.force_state;
+            let g = g_columns(model, mat, &table, &kinds, np, xf, vf, Some((c, &vb)))?;
             let factor = s.factor.expect("factors requested");
             let (gx, gv) = observe_step(model, mat, obs, s, &kinds, &mut total, &mut acc)?;
-            // Every parameter's sensitivity step at once, column after column: the BDF2
-            // history s_a = (4 s_x⁻¹ − s_x⁻²)/3, s_b likewise for velocities, then
-            // S s_v = g + c M s_b − K s_a in one pass over the pattern and one multi-column
-            // solve, s_x = s_a + a₂ s_v.
+            // Every parameter's sensitivity step at once, column after column: the history
+            // parts s_xa, s_b (and the midpoint's s_va), then S s_v = g + c M s_b − K s_xa
+            // (− D s_va) in one pass over the pattern and one multi-column solve, then s_x.
             let mut sa = vec![0.0; nf * np];
             let mut sb = vec![0.0; nf * np];
+            let mut sva = match scheme {
+                Scheme::Bdf2 => Vec::new(),
+                Scheme::Midpoint => vec![0.0; nf * np],
+            };
             let mut rhs = vec![0.0; nf * np];
             for p in 0..np {
                 let o = p * nf;
                 for i in 0..nf {
-                    sa[o + i] = (4.0 * sxm1[p][i] - sxm2[p][i]) / 3.0;
-                    sb[o + i] = (4.0 * svm1[p][i] - svm2[p][i]) / 3.0;
+                    match scheme {
+                        Scheme::Bdf2 => {
+                            sa[o + i] = (4.0 * sxm1[p][i] - sxm2[p][i]) / 3.0;
+                            sb[o + i] = (4.0 * svm1[p][i] - svm2[p][i]) / 3.0;
+                        }
+                        Scheme::Midpoint => {
+                            sa[o + i] = sxm1[p][i] + ax * svm1[p][i];
+                            sb[o + i] = svm1[p][i];
+                            sva[o + i] = av * svm1[p][i];
+                        }
+                    }
                 }
                 rhs[o..o + nf].copy_from_slice(&g[p]);
             }
             model
                 .pattern
                 .mul_add_difference((c, &mvals, &sb), (s.k, &sa), &mut rhs, np);
+            if !sva.is_empty() {
+                model
+                    .pattern
+                    .mul_add_difference((0.0, &mvals, &sva), (s.d, &sva), &mut rhs, np);
+            }
             factor.solve_columns_in_place(&mut rhs, np);
             for p in 0..np {
                 let o = p * nf;
                 let sv = &rhs[o..o + nf];
-                let sxn: Vec<f64> = (0..nf).map(|i| sa[o + i] + a2 * sv[i]).collect();
+                let sxn: Vec<f64> = match scheme {
+                    Scheme::Bdf2 => (0..nf).map(|i| sa[o + i] + ax * sv[i]).collect(),
+                    Scheme::Midpoint => (0..nf)
+                        .map(|i| sxm1[p][i] + 0.5 * dt * (svm1[p][i] + sv[i]))
+                        .collect(),
+                };
                 grad[p] += (0..nf).map(|i| gx[i] * sxn[i] + gv[i] * sv[i]).sum::<f64>();
                 sxm2[p] = std::mem::replace(&mut sxm1[p], sxn);
                 let mut svn = std::mem::take(&mut svm2[p]);
@@ -731,6 +767,9 @@ fn direct(
 struct TapeStep {
     factor: Factor,
     k: Vec<f64>,
+    /// D values (the midpoint rule's history term; empty for BDF2).
+    d: Vec<f64>,
+    /// The force state (x_f, v_f) and the inertia velocity v^n − b (full dofs).
     x: Vec<f64>,
     v: Vec<f64>,
     vb: Vec<f64>,
@@ -751,9 +790,11 @@ fn adjoint(
         nf,
         ndof,
         c,
-        a2,
+        ax,
+        av,
         mvals,
     } = Setup::new(model, mat, params)?;
+    let (scheme, dt) = (model.scheme, model.dt);
     let mut acc = zeros_acc(&kinds, model.tets.len());
     let mut total = StepTerm::default();
     let mut start: Option<(Vec<f64>, Option<Factor>)> = None;
@@ -771,12 +812,16 @@ fn adjoint(
             if let Some(m) = means.as_mut() {
                 m.add_residuals(model, obs, s.n, s.x);
             }
-            let vb = bdf2_velocity_residual(s);
+            let vb = inertia_velocity(s);
             tape.push(TapeStep {
                 factor: s.factor.expect("factors requested").clone(),
                 k: s.k.to_vec(),
-                x: s.x.to_vec(),
-                v: s.v.to_vec(),
+                d: match scheme {
+                    Scheme::Bdf2 => Vec::new(),
+                    Scheme::Midpoint => s.d.to_vec(),
+                },
+                x: s.force_state[0].to_vec(),
+                v: s.force_state[1].to_vec(),
                 vb,
                 gx,
                 gv,
@@ -786,6 +831,7 @@ fn adjoint(
     )?;
     let stored = tape.len()
         * (model.pattern.factor_bytes() + 8 * (model.pattern.nnz() + 3 * ndof + 2 * nf))
+        + tape.iter().map(|t| 8 * t.d.len()).sum::<usize>()
         + model.pattern.factor_bytes();
     // Backward pass. X[n], V[n] accumulate dΦ/ds_x^n, dΦ/ds_v^n (index shift +1 for n = −1).
     let nsteps = tape.len();
@@ -805,8 +851,13 @@ fn adjoint(
     for n in (1..=nsteps).rev() {
         let t = &tape[n - 1];
         let j = n + 1; // storage index of step n
+                       // s_x^n's dependence on s_v^n: a_x (BDF2), Δt/2 (midpoint).
+        let ex = match scheme {
+            Scheme::Bdf2 => ax,
+            Scheme::Midpoint => 0.5 * dt,
+        };
         for i in 0..nf {
-            vs[j][i] += a2 * xs[j][i];
+            vs[j][i] += ex * xs[j][i];
         }
         let mut rbar = vs[j].clone();
         t.factor.solve_in_place(&mut rbar); // λ_v (eq. 12): S is symmetric
@@ -825,13 +876,26 @@ fn adjoint(
         model.pattern.mul_add(&t.k, &rbar, &mut kr);
         let mut mr = vec![0.0; nf];
         model.pattern.mul_add(&mvals, &rbar, &mut mr);
-        for i in 0..nf {
-            let abar = xs[j][i] - kr[i];
-            let bbar = c * mr[i];
-            xs[j - 1][i] += 4.0 / 3.0 * abar;
-            xs[j - 2][i] -= abar / 3.0;
-            vs[j - 1][i] += 4.0 / 3.0 * bbar;
-            vs[j - 2][i] -= bbar / 3.0;
+        match scheme {
+            Scheme::Bdf2 => {
+                for i in 0..nf {
+                    let abar = xs[j][i] - kr[i];
+                    let bbar = c * mr[i];
+                    xs[j - 1][i] += 4.0 / 3.0 * abar;
+                    xs[j - 2][i] -= abar / 3.0;
+                    vs[j - 1][i] += 4.0 / 3.0 * bbar;
+                    vs[j - 2][i] -= bbar / 3.0;
+                }
+            }
+            Scheme::Midpoint => {
+                let mut dr = vec![0.0; nf];
+                model.pattern.mul_add(&t.d, &rbar, &mut dr);
+                for i in 0..nf {
+                    let xbar = xs[j][i];
+                    xs[j - 1][i] += xbar - kr[i];
+                    vs[j - 1][i] += 0.5 * dt * xbar + c * mr[i] - ax * kr[i] - av * dr[i];
+                }
+            }
         }
     }
     // Initial condition (eq. 14): s_x⁰ = s_x⁻¹ = K₀⁻¹ G₀, s_v⁰ = s_v⁻¹ = 0.

@@ -550,6 +550,8 @@ pub struct Model {
     pub static_start: bool,
     /// Known dead loads besides gravity (hanging weights); none by default.
     pub loads: Vec<DeadLoad>,
+    /// Time integration scheme (default BDF2, eq. 2).
+    pub scheme: crate::timestep::Scheme,
 }
 
 /// A known dead load: a constant total force shared equally by `nodes`, acting from step
@@ -670,6 +672,7 @@ impl Model {
             markers,
             static_start: true,
             loads: Vec::new(),
+            scheme: crate::timestep::Scheme::Bdf2,
         })
     }
 

@@ -1,13 +1,17 @@
-//! Forward simulation: elastostatic start (§3.4) and BDF2 steps (eq. 2) solved by Newton.
+//! Forward simulation: elastostatic start (§3.4) and time steps solved by Newton — BDF2 (eq. 2)
+//! or the implicit midpoint rule ([`Scheme`]).
 //!
-//! Unknowns per step are the free velocities v^{n}; positions follow from
-//! x^{n} = (4x^{n−1} − x^{n−2})/3 + (2Δt/3) v^{n}. Clamped dofs are prescribed: their positions
-//! come from the clamp pose and their velocities from the same BDF2 relation, so the scheme is
-//! consistent on every node. Before t = 0 the body rests (v(t ≤ 0) = 0, x^{−1} = x^{0}).
+//! Unknowns per step are the free velocities v^{n}; positions follow from them:
+//! BDF2 x^{n} = (4x^{n−1} − x^{n−2})/3 + (2Δt/3) v^{n}, midpoint x^{n} = x^{n−1} +
+//! (Δt/2)(v^{n−1} + v^{n}). Clamped dofs are prescribed: their positions come from the clamp pose
+//! and their velocities from BDF2's difference of those positions (second order, and without
+//! the step-to-step alternation the trapezoidal velocity rule shows on a noisy capture). Before
+//! t = 0 the body rests (v(t ≤ 0) = 0, x^{−1} = x^{0}).
 
 use super::forces::{assemble, assemble_tangents};
 use super::model::{Material, Model};
 use super::sparse::Factor;
+use super::timestep::Scheme;
 use super::MotionError;
 
 /// Converged end-of-step data handed to a step observer.
@@ -20,12 +24,20 @@ pub struct StepView<'a> {
     pub v: &'a [f64],
     /// x^{n−1}, x^{n−2}, v^{n−1}, v^{n−2} (full dofs).
     pub prev: [&'a [f64]; 4],
-    /// Cholesky factor of S = 3M/(2Δt) + 2Δt K/3 + D at the converged state (present when the
-    /// caller asked for factors).
+    /// The state (positions, velocities; full dofs) where the step's forces and tangents are
+    /// evaluated: x^n, v^n for BDF2, x^{n−½}, v^{n−½} for the midpoint rule.
+    pub force_state: [&'a [f64]; 2],
+    /// b of the step's inertia term c M (v^n − b) (full dofs): (4v^{n−1} − v^{n−2})/3 for BDF2,
+    /// v^{n−1} for the midpoint rule.
+    pub inertia_base: &'a [f64],
+    /// Cholesky factor of S = c M + a_x K + a_v D ([`Scheme::coefficients`]) at the converged
+    /// state (present when the caller asked for factors).
     pub factor: Option<&'a Factor>,
-    /// K values at the converged state (free pattern) when the caller asked for factors;
+    /// K values at the converged force state (free pattern) when the caller asked for factors;
     /// otherwise those of the step's last tangent assembly.
     pub k: &'a [f64],
+    /// D values, as `k`.
+    pub d: &'a [f64],
 }
 
 /// Counters of one forward run.
@@ -189,22 +201,44 @@ fn newton_static(
     })
 }
 
-/// Line search of a BDF2 step along the Newton update `dv` (free dofs) from `v0`.
+/// The affine map from a step's velocities v to the state its forces are evaluated at: on free
+/// dofs x_f = x_a + a_x v, v_f = v_a + a_v v ([`Scheme::coefficients`]); clamped dofs keep the
+/// values the step prescribes them.
+struct ForceMap {
+    xa: Vec<f64>,
+    va: Vec<f64>,
+    ax: f64,
+    av: f64,
+}
+
+impl ForceMap {
+    /// Writes the free entries of (`xf`, `vf`) from `v`.
+    fn fill(&self, free: &[usize], v: &[f64], xf: &mut [f64], vf: &mut [f64]) {
+        for (d, &fr) in free.iter().enumerate() {
+            if fr != usize::MAX {
+                xf[d] = self.xa[d] + self.ax * v[d];
+                vf[d] = self.va[d] + self.av * v[d];
+            }
+        }
+    }
+}
+
+/// Line search of a step along the Newton update `dv` (free dofs) from `v0`.
 ///
-/// The step's residual r(v) = f(x(v), v) + f_ext − (3/(2Δt)) M (v − b), x(v) = xₐ + (2Δt/3) v, is
-/// −∇Π of the incremental potential Π(v) = (3/(4Δt)) (v − b)ᵀM(v − b) + (3/(2Δt)) W(x(v)) −
-/// f_extᵀv + the viscous dissipation potential (convex for the power law), so — as in the
-/// static solve — the root of Π's slope g(α) = −dvᵀ r(v0 + α dv) along dv is the minimum along
-/// it. Regula falsi (Illinois) on g from g(0) = `g0` < 0, halving first while the step inverts
-/// an element. `x_clamped` holds the step's clamped positions (its free entries are ignored).
-/// Returns α.
+/// The step's residual r(v) = f(x_f(v), v_f(v)) + f_ext − c M (v − b) (see [`ForceMap`]) is
+/// −∇Π/a_x of the incremental potential Π(v) = (c a_x/2) (v − b)ᵀM(v − b) + W(x_f(v)) −
+/// a_x f_extᵀv + (a_x/a_v) times the viscous dissipation potential at v_f (convex for the power
+/// law), so — as in the static solve — the root of Π's slope g(α) = −dvᵀ r(v0 + α dv) along dv
+/// is the minimum along it. Regula falsi (Illinois) on g from g(0) = `g0` < 0, halving first
+/// while the step inverts an element. `xf`, `vf` hold the step's clamped values (their free
+/// entries are ignored). Returns α.
 #[allow(clippy::too_many_arguments)]
 fn line_search_dynamic(
     model: &Model,
     mat: &Material,
-    xa: &[f64],
-    x_clamped: &[f64],
-    a2: f64,
+    map: &ForceMap,
+    xf: &[f64],
+    vf: &[f64],
     v0: &[f64],
     dv: &[f64],
     g0: f64,
@@ -214,14 +248,14 @@ fn line_search_dynamic(
     let mut f = vec![0.0; ndof];
     let mut slope = |alpha: f64| -> Option<f64> {
         let mut v = v0.to_vec();
-        let mut x = x_clamped.to_vec();
+        let (mut x, mut w) = (xf.to_vec(), vf.to_vec());
         for (d, &fr) in model.free.iter().enumerate() {
             if fr != usize::MAX {
                 v[d] += alpha * dv[fr];
-                x[d] = xa[d] + a2 * v[d];
             }
         }
-        assemble(model, mat, &x, &v, &mut f, None, None).ok()?;
+        map.fill(&model.free, &v, &mut x, &mut w);
+        assemble(model, mat, &x, &w, &mut f, None, None).ok()?;
         let r = residual(&f, &v);
         Some(-dv.iter().zip(&r).map(|(p, q)| p * q).sum::<f64>())
     };
@@ -337,8 +371,7 @@ pub fn simulate(
     };
     on_start(&x0, k0.as_ref());
     drop(k0);
-    let c = 1.5 / model.dt;
-    let a2 = 2.0 * model.dt / 3.0;
+    let (c, ax, av) = model.scheme.coefficients(model.dt);
     // Gravity once; the dead loads switch on at their step.
     let fgrav = model.gravity_load(mat);
     let mut fext = fgrav.clone();
@@ -352,7 +385,7 @@ pub fn simulate(
     let mut sv = vec![0.0; model.pattern.nnz()];
     let mut mw = vec![0.0; ndof];
     let mut stats = SimStats::default();
-    // Modified Newton: the factor of S = 3M/(2Δt) + 2Δt K/3 + D is kept across iterations and
+    // Modified Newton: the factor of S = c M + a_x K + a_v D is kept across iterations and
     // steps while the residual contracts by at least `REFACTOR_CONTRACTION` per iteration; S
     // changes little from one step to the next of a smooth motion, and an iteration with a
     // kept factor costs one force assembly and two triangular solves instead of the tangent
@@ -364,22 +397,52 @@ pub fn simulate(
             fext.copy_from_slice(&fgrav);
             model.add_dead_loads(n, &mut fext);
         }
-        let xa: Vec<f64> = (0..ndof).map(|d| (4.0 * xm1[d] - xm2[d]) / 3.0).collect();
-        let b: Vec<f64> = (0..ndof).map(|d| (4.0 * vm1[d] - vm2[d]) / 3.0).collect();
+        // End-of-step positions of the clamped dofs, and their velocities by BDF2's difference.
         let mut x = vec![0.0; ndof];
         model.apply_clamps(n, &mut x);
-        // Predictor: the velocity extrapolated linearly from the last two steps (second-order
-        // like the scheme), so Newton starts O(Δt²) from the answer instead of O(Δt).
+        let a2 = 2.0 * model.dt / 3.0;
+        let bdf2_xa = |d: usize| (4.0 * xm1[d] - xm2[d]) / 3.0;
+        // The step's force state as a function of v, its inertia base b, and the clamped
+        // entries of the force state.
+        let (map, b) = match model.scheme {
+            Scheme::Bdf2 => (
+                ForceMap {
+                    xa: (0..ndof).map(bdf2_xa).collect(),
+                    va: vec![0.0; ndof],
+                    ax,
+                    av,
+                },
+                (0..ndof)
+                    .map(|d| (4.0 * vm1[d] - vm2[d]) / 3.0)
+                    .collect::<Vec<f64>>(),
+            ),
+            Scheme::Midpoint => (
+                ForceMap {
+                    xa: (0..ndof).map(|d| xm1[d] + ax * vm1[d]).collect(),
+                    va: (0..ndof).map(|d| av * vm1[d]).collect(),
+                    ax,
+                    av,
+                },
+                vm1.clone(),
+            ),
+        };
+        let (mut xf, mut vf) = (vec![0.0; ndof], vec![0.0; ndof]);
+        // Predictor: the velocity extrapolated quadratically from the last three steps
+        // (second-order like the schemes), so Newton starts O(Δt²) from the answer instead of
+        // O(Δt).
         let mut v: Vec<f64> = (0..ndof)
             .map(|d| 3.0 * vm1[d] - 3.0 * vm2[d] + vm3[d])
             .collect();
         for d in 0..ndof {
             if model.free[d] == usize::MAX {
-                v[d] = (x[d] - xa[d]) / a2;
-            } else {
-                x[d] = xa[d] + a2 * v[d];
+                v[d] = (x[d] - bdf2_xa(d)) / a2;
+                (xf[d], vf[d]) = match model.scheme {
+                    Scheme::Bdf2 => (x[d], v[d]),
+                    Scheme::Midpoint => (0.5 * (x[d] + xm1[d]), (x[d] - xm1[d]) / model.dt),
+                };
             }
         }
+        map.fill(&model.free, &v, &mut xf, &mut vf);
         let mut iter = 0;
         let last_factor: Option<Factor>;
         // The last Newton update: the velocities it started from, its direction (free dofs) and
@@ -390,9 +453,9 @@ pub fn simulate(
         let mut prev_nrm = f64::INFINITY;
         loop {
             let assembled = if fresh {
-                assemble(model, mat, &x, &v, &mut f, Some(&mut kv), Some(&mut dv))
+                assemble(model, mat, &xf, &vf, &mut f, Some(&mut kv), Some(&mut dv))
             } else {
-                assemble(model, mat, &x, &v, &mut f, None, None)
+                assemble(model, mat, &xf, &vf, &mut f, None, None)
             };
             // The full step is kept unless it inverts an element or overshoots the minimum of
             // the step's incremental potential by more than half its initial slope; then it is
@@ -424,16 +487,16 @@ pub fn simulate(
                 assembled?;
             } else if let Some((v0, dvec, g0)) = last_step.take() {
                 let alpha =
-                    line_search_dynamic(model, mat, &xa, &x, a2, &v0, &dvec, g0, &mut |f, v| {
+                    line_search_dynamic(model, mat, &map, &xf, &vf, &v0, &dvec, g0, &mut |f, v| {
                         residual(f, v, &mut mw)
                     });
                 v.copy_from_slice(&v0);
                 for (d, &fr) in model.free.iter().enumerate() {
                     if fr != usize::MAX {
                         v[d] += alpha * dvec[fr];
-                        x[d] = xa[d] + a2 * v[d];
                     }
                 }
+                map.fill(&model.free, &v, &mut xf, &mut vf);
                 continue;
             }
             let mut r = residual(&f, &v, &mut mw);
@@ -453,17 +516,17 @@ pub fn simulate(
             if !fresh && done {
                 // Converged with a kept factor; the gradients need K, D and S at this state.
                 // Its forces are already assembled: the tangents alone.
-                assemble_tangents(model, mat, &x, &v, &mut kv, &mut dv)?;
+                assemble_tangents(model, mat, &xf, &vf, &mut kv, &mut dv)?;
             } else if !fresh && nrm > REFACTOR_CONTRACTION * prev_nrm {
                 // The kept factor no longer contracts: assemble the tangent here and factorise.
                 // This state's forces and residual are already at hand (the same to the last bit
                 // as the tangent pass would give them again): the tangents alone.
-                assemble_tangents(model, mat, &x, &v, &mut kv, &mut dv)?;
+                assemble_tangents(model, mat, &xf, &vf, &mut kv, &mut dv)?;
                 fresh = true;
                 last_step = None;
             }
             for i in 0..sv.len() {
-                sv[i] = c * mvals[i] + a2 * kv[i] + dv[i];
+                sv[i] = c * mvals[i] + ax * kv[i] + av * dv[i];
             }
             if done {
                 // The converged S is what the gradients solve with: no shift here.
@@ -500,22 +563,34 @@ pub fn simulate(
             for (d, &fr) in model.free.iter().enumerate() {
                 if fr != usize::MAX {
                     v[d] += r[fr];
-                    x[d] = xa[d] + a2 * v[d];
                 }
             }
+            map.fill(&model.free, &v, &mut xf, &mut vf);
             last_step = Some((v_before, r, g0));
             prev_nrm = nrm;
             fresh = false;
             iter += 1;
             stats.newton_iterations += 1;
         }
+        // End-of-step positions of the free dofs.
+        for (d, &fr) in model.free.iter().enumerate() {
+            if fr != usize::MAX {
+                x[d] = match model.scheme {
+                    Scheme::Bdf2 => xf[d],
+                    Scheme::Midpoint => xm1[d] + 0.5 * model.dt * (vm1[d] + v[d]),
+                };
+            }
+        }
         on_step(&StepView {
             n,
             x: &x,
             v: &v,
             prev: [&xm1, &xm2, &vm1, &vm2],
+            force_state: [&xf, &vf],
+            inertia_base: &b,
             factor: last_factor.as_ref(),
             k: &kv,
+            d: &dv,
         })?;
         if last_factor.is_some() {
             // The converged step's own factor is the best Newton matrix for the next step.

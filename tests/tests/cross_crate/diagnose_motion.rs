@@ -42,6 +42,7 @@ fn specimen(nu: f64, seed: u64) -> MotionDataset {
             // The specimen is simulated at the capture step (a test of the diagnosis, not of
             // the time discretisation).
             substeps: Some(1),
+            scheme: None,
             density: Some(47.0),
             gravity: Some([0.0, -9.81, 0.0]),
             clamps: vec!["front".into()],

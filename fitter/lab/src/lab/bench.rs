@@ -11,6 +11,9 @@ pub enum BenchCommand {
     Runtime(super::bench_runtime::Args),
     /// Motion fitting (Real2Sim) on the MyFEM anchor bar: simulation, gradients, LBFGS.
     Motion(super::bench_motion::Args),
+    /// The motion integrators (BDF2, implicit midpoint) on a captured run: steps, Newton work,
+    /// CPU time, marker error against the capture and a converged reference.
+    MotionSchemes(super::bench_motion::SchemesArgs),
     /// The probe link over a pty: frames/s, written → solved latency at 1 kHz, host CPU.
     Link(super::bench_link::Args),
     /// This core's f32 FMA peak and read bandwidth by working set, against the flops and bytes of
@@ -24,6 +27,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Fit(a) => super::bench_fit::run(a),
         BenchCommand::Runtime(a) => super::bench_runtime::run(a),
         BenchCommand::Motion(a) => super::bench_motion::run(a),
+        BenchCommand::MotionSchemes(a) => super::bench_motion::run_schemes(a),
         BenchCommand::Link(a) => super::bench_link::run(a),
         BenchCommand::Roofline(a) => super::roofline::run(a),
     }

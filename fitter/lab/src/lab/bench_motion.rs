@@ -245,3 +245,246 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!("{json}");
     Ok(())
 }
+
+/// Options of the integrator benchmark (`bench motion-schemes`).
+#[derive(Debug, clap::Args)]
+pub struct SchemesArgs {
+    /// A motion dataset folder (e.g. the beam's gravity run, imported as in
+    /// models/silicone-beam/README.md); its own `substeps` is ignored.
+    pub dataset: std::path::PathBuf,
+    /// The fitted material to simulate (`palpate fit-motion`'s JSON on the dataset's mesh).
+    #[arg(long, default_value = "models/silicone-beam/fit.json")]
+    pub material: std::path::PathBuf,
+    /// Rounds of the alternating timings (medians are reported).
+    #[arg(long, default_value_t = 3)]
+    pub repeats: usize,
+    /// BDF2 substeps of the converged reference.
+    #[arg(long, default_value_t = 12)]
+    pub reference_substeps: usize,
+}
+
+/// This process's CPU time (user + system, all threads) from /proc/self/stat, in seconds; 0
+/// where unavailable.
+fn process_cpu_seconds() -> f64 {
+    // Fields after the parenthesised command name: state is the 3rd, utime the 14th, stime the
+    // 15th of the whole line; in clock ticks (100 per second on Linux).
+    std::fs::read_to_string("/proc/self/stat")
+        .ok()
+        .and_then(|s| {
+            let rest = &s[s.rfind(')')? + 2..];
+            let f: Vec<&str> = rest.split_whitespace().collect();
+            let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+            Some(ticks / 100.0)
+        })
+        .unwrap_or(0.0)
+}
+
+/// One integrator configuration's simulation of the dataset: the markers at every capture frame
+/// and at every step (the tip's), and the counters.
+struct SchemeRun {
+    frames: Vec<Vec<[f64; 3]>>,
+    steps: Vec<[f64; 3]>,
+}
+
+/// Runs `palpate-lab bench motion-schemes`: BDF2 at its rule's substeps and at the converged
+/// reference's, the midpoint rule at its rule's substeps and at the capture rate, each a forward
+/// simulation and one with the direct gradient (Gauss–Newton), timed in alternation in this one
+/// process; prints JSON.
+pub fn run_schemes(args: SchemesArgs) -> anyhow::Result<()> {
+    use palpate_motion::gradient::evaluate_gauss_newton;
+    use palpate_motion::sim::simulate_states;
+    use palpate_motion::timestep::{substeps_for_scheme, Scheme};
+    let ds = palpate_motion::dataset::load(&args.dataset)?;
+    let fitted: palpate_motion::fitted::FittedModel =
+        serde_json::from_str(&std::fs::read_to_string(&args.material)?)?;
+    let mat = fitted
+        .material()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.material.display()))?;
+    // Back to the capture rate: every configuration resamples from there.
+    let k0 = ds.timestep.substeps;
+    let mut base = ds.model.clone();
+    base.dt *= k0 as f64;
+    base.steps /= k0;
+    base.substeps = 1;
+    base.clamps.iter_mut().for_each(|c| {
+        c.poses = c.poses.iter().step_by(k0).cloned().collect();
+    });
+    base.loads.iter_mut().for_each(|l| l.from_step /= k0);
+    let obs = palpate_motion::model::Observations {
+        markers: ds
+            .obs
+            .markers
+            .iter()
+            .skip(k0 - 1)
+            .step_by(k0)
+            .cloned()
+            .collect(),
+        forces: ds
+            .obs
+            .forces
+            .iter()
+            .skip(k0 - 1)
+            .step_by(k0)
+            .cloned()
+            .collect(),
+        ..ds.obs.clone()
+    };
+    anyhow::ensure!(
+        mat.values[0].len() == base.tets.len(),
+        "{}: {} elements, the dataset's mesh has {}",
+        args.material.display(),
+        mat.values[0].len(),
+        base.tets.len()
+    );
+    let period = ds.timestep.period_s;
+    let params: Vec<Param> = fitted
+        .fitted
+        .iter()
+        .filter_map(|k| ParamKind::ALL.into_iter().find(|p| p.name() == k))
+        .map(Param::global)
+        .collect();
+    let configs = [
+        (
+            "bdf2, its rule",
+            Scheme::Bdf2,
+            substeps_for_scheme(Scheme::Bdf2, base.dt, period),
+        ),
+        (
+            "midpoint, its rule",
+            Scheme::Midpoint,
+            substeps_for_scheme(Scheme::Midpoint, base.dt, period),
+        ),
+        ("midpoint, capture rate", Scheme::Midpoint, 1),
+        ("bdf2, reference", Scheme::Bdf2, args.reference_substeps),
+    ];
+    let models: Vec<_> = configs
+        .iter()
+        .map(|&(_, scheme, k)| {
+            let mut m = base.clone();
+            m.scheme = scheme;
+            m.resampled(&obs, k)
+        })
+        .collect();
+    let record = |m: &palpate_motion::model::Model| -> anyhow::Result<SchemeRun> {
+        let mut run = SchemeRun {
+            frames: Vec::new(),
+            steps: Vec::new(),
+        };
+        simulate_states(m, &mat, |s| {
+            let at = |i: usize| m.marker_position(&m.markers[i], s.x);
+            run.steps.push(at(0));
+            if s.n % m.substeps == 0 {
+                run.frames.push((0..m.markers.len()).map(at).collect());
+            }
+            Ok(())
+        })?;
+        Ok(run)
+    };
+    let runs: Vec<SchemeRun> = models
+        .iter()
+        .map(|(m, _)| record(m))
+        .collect::<Result<_, _>>()?;
+    let reference = runs.last().expect("a reference");
+    let mut wall = vec![(Vec::new(), Vec::new()); configs.len()];
+    let mut cpu = vec![(Vec::new(), Vec::new()); configs.len()];
+    let mut counters = vec![None; configs.len()];
+    for _ in 0..args.repeats.max(1) {
+        for (i, (m, o)) in models.iter().enumerate() {
+            let (c0, t0) = (process_cpu_seconds(), Instant::now());
+            let fwd = evaluate(m, &mat, &params, o, None)?;
+            wall[i].0.push(t0.elapsed().as_secs_f64());
+            cpu[i].0.push(process_cpu_seconds() - c0);
+            // The reference's gradient is not a candidate: its forward run is the reference.
+            let grad = if i + 1 < configs.len() {
+                let (c0, t0) = (process_cpu_seconds(), Instant::now());
+                let (ev, _) = evaluate_gauss_newton(m, &mat, &params, o)?;
+                wall[i].1.push(t0.elapsed().as_secs_f64());
+                cpu[i].1.push(process_cpu_seconds() - c0);
+                Some(ev)
+            } else {
+                None
+            };
+            counters[i] = Some((fwd, grad));
+        }
+    }
+    let med = |v: &[f64]| {
+        if v.is_empty() {
+            None
+        } else {
+            Some(median(v.to_vec()))
+        }
+    };
+    let rms_between = |a: &[Vec<[f64; 3]>], b: &[Vec<[f64; 3]>]| -> f64 {
+        let (mut sq, mut n) = (0.0, 0usize);
+        for (fa, fb) in a.iter().zip(b) {
+            for (p, q) in fa.iter().zip(fb) {
+                sq += (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>();
+                n += 1;
+            }
+        }
+        (sq / n.max(1) as f64).sqrt()
+    };
+    // The alternating (−1)^n component of the first marker's step-by-step path: a scheme that
+    // rang at the Nyquist frequency would show it here.
+    let nyquist = |steps: &[[f64; 3]]| -> f64 {
+        let n = steps.len().max(1) as f64;
+        (0..3)
+            .map(|k| {
+                let mean = steps.iter().map(|p| p[k]).sum::<f64>() / n;
+                let s: f64 = steps
+                    .iter()
+                    .enumerate()
+                    .map(|(j, p)| if j % 2 == 0 { p[k] - mean } else { mean - p[k] })
+                    .sum();
+                (s / n).abs()
+            })
+            .fold(0.0, f64::max)
+    };
+    let rows: Vec<serde_json::Value> = configs
+        .iter()
+        .enumerate()
+        .map(|(i, &(name, scheme, k))| {
+            let (m, _) = &models[i];
+            let (fwd, grad) = counters[i].as_ref().expect("timed");
+            let spp = period.map(|p| p / m.dt);
+            let per = |ev: &palpate_motion::gradient::Evaluation| {
+                serde_json::json!({
+                    "newton_iterations": ev.stats.newton_iterations,
+                    "factorisations": ev.stats.factorisations,
+                    "unconverged_steps": ev.stats.unconverged_steps,
+                })
+            };
+            serde_json::json!({
+                "config": name,
+                "scheme": scheme.name(),
+                "substeps": k,
+                "steps": m.steps,
+                "steps_per_period": spp,
+                "predicted_period_ratio": spp.map(|n| scheme.oscillator_error(n).0),
+                "predicted_amplitude_per_cycle": spp.map(|n| scheme.oscillator_error(n).1),
+                "forward": per(fwd),
+                "forward_wall_s_median": med(&wall[i].0),
+                "forward_cpu_s_median": med(&cpu[i].0),
+                "direct_gradient": grad.as_ref().map(per),
+                "direct_wall_s_median": med(&wall[i].1),
+                "direct_cpu_s_median": med(&cpu[i].1),
+                "marker_rms_vs_capture_mm": 1e3 * fwd.rms_marker,
+                "marker_rms_vs_reference_mm": 1e3 * rms_between(&runs[i].frames, &reference.frames),
+                "nyquist_component_um": 1e6 * nyquist(&runs[i].steps),
+            })
+        })
+        .collect();
+    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
+    let json = serde_json::json!({
+        "dataset": args.dataset.display().to_string(),
+        "material": args.material.display().to_string(),
+        "parameters": fitted.fitted,
+        "capture_period_s": period,
+        "repeats": args.repeats,
+        "threads": rayon::current_num_threads(),
+        "loadavg_at_end": load.trim(),
+        "runs": rows,
+    });
+    println!("{}", serde_json::to_string_pretty(&json)?);
+    Ok(())
+}

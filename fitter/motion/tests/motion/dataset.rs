@@ -191,3 +191,24 @@ fn toml_keys_missing_or_unknown_are_named_on_their_line() {
         "{e}"
     );
 }
+
+/// `scheme` picks the integrator, and the substeps chosen from the capture follow its rule; an
+/// unknown name is refused with the field and the names it takes.
+#[test]
+fn scheme_key_selects_the_integrator() {
+    use palpate_motion::timestep::Scheme;
+    let dir = tempfile::tempdir().unwrap();
+    copy_example(dir.path());
+    edit(dir.path(), "dataset.toml", |t| {
+        format!("scheme = \"midpoint\"\n{t}")
+    });
+    let ds = load(dir.path()).unwrap();
+    assert_eq!(ds.model.scheme, Scheme::Midpoint);
+    assert_eq!(ds.timestep.scheme, Scheme::Midpoint);
+    assert_eq!(load(&example()).unwrap().model.scheme, Scheme::Bdf2);
+    let e = broken(|d| edit(d, "dataset.toml", |t| format!("scheme = \"rk4\"\n{t}")));
+    assert!(
+        e.contains("dataset.toml") && e.contains("field scheme") && e.contains("\"rk4\""),
+        "{e}"
+    );
+}

@@ -6,7 +6,7 @@ use crate::support::{assert_gradients_agree, bar, truth};
 use palpate_motion::model::{MassKind, Material, Param, ParamKind};
 use palpate_motion::scenario::record;
 
-fn setup(
+pub(crate) fn setup(
     mass: MassKind,
 ) -> (
     palpate_motion::model::Model,

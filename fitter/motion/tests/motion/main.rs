@@ -11,5 +11,6 @@ mod fit;
 mod gauss_newton;
 mod gradients;
 mod loads;
+mod schemes;
 mod spline;
 mod statics;
