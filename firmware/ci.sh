@@ -17,16 +17,8 @@ cargo build --release -p palpate-protocol -p palpate-runtime -p palpate-probe --
 (cd firmware/nrf52840 && CARGO_TARGET_DIR="$CARGO_TARGET_DIR/nrf52840" cargo build --release)
 ELF="$CARGO_TARGET_DIR/nrf52840/$TARGET/release/palpate-probe-nrf52840"
 
-FLASH=0; RAM=0
-# readelf -S -W: "[Nr] Name Type Address Off Size ..."; the size is the 4th field after the name.
-while read -r name size; do
-  bytes=$((16#$size))
-  case "$name" in
-    .vector_table|.text|.rodata) FLASH=$((FLASH + bytes)) ;;
-    .data) FLASH=$((FLASH + bytes)); RAM=$((RAM + bytes)) ;;
-    .bss|.uninit) RAM=$((RAM + bytes)) ;;
-  esac
-done < <(readelf -S -W "$ELF" | sed -n 's/^ *\[ *[0-9]*\] *//p' | awk '{ print $1, $5 }')
+source firmware/elf-size.sh
+elf_size "$ELF"
 readelf -S -W "$ELF" | grep -E '\.(vector_table|text|rodata|data|bss|uninit) '
 echo "nrf52840 firmware: flash ${FLASH} bytes ($(( (FLASH + 1023) / 1024 )) KiB), static RAM ${RAM} bytes ($(( (RAM + 1023) / 1024 )) KiB)"
 status=0

@@ -38,15 +38,8 @@ ELF="$OUT/$TARGET/release/palpate-m4-emu"
 
 # RAM = .data + .bss + .uninit (static; the stack grows down from the top of the 256 KiB into the
 # rest); flash = .vector_table + .text + .rodata + .data (the models are in .rodata).
-FLASH=0; RAM=0
-while read -r name size; do
-  bytes=$((16#$size))
-  case "$name" in
-    .vector_table|.text|.rodata) FLASH=$((FLASH + bytes)) ;;
-    .data) FLASH=$((FLASH + bytes)); RAM=$((RAM + bytes)) ;;
-    .bss|.uninit) RAM=$((RAM + bytes)) ;;
-  esac
-done < <(readelf -S -W "$ELF" | sed -n 's/^ *\[ *[0-9]*\] *//p' | awk '{ print $1, $5 }')
+source firmware/elf-size.sh
+elf_size "$ELF"
 echo "linker map $MAP, output sections in RAM (VMA 0x2xxxxxxx):"
 grep -E '^ *[0-9a-f]+ +[0-9a-f]+ +[0-9a-f]+ +[0-9]+ +\.(data|bss|uninit)$' "$MAP" || true
 echo "m4-emu: flash ${FLASH} B, static RAM ${RAM} B of 262144 (the runtime's pool is 229376 B of it)"

@@ -220,3 +220,72 @@ fn the_table_reader_finds_a_wrong_dependency() {
     ]);
     assert!(closure(&graph, "palpate-a").contains("palpate-c"));
 }
+
+/// The production crates a test file names (`palpate_motion::…` → `palpate-motion`), leaving out
+/// the test helpers (`palpate_tests`) and the stand-in objects (`palpate_specimen`), and
+/// counting the offline layer `palpate_fem` only where the file builds a runtime model with it
+/// (its exporter, directly or through `palpate_tests::model`): a mesh or a dataset made by fem is
+/// a test object, not a crate under test.
+fn crates_under_test(source: &str) -> BTreeSet<String> {
+    let mut found = BTreeSet::new();
+    for (i, _) in source.match_indices("palpate_") {
+        if i > 0 {
+            let before = source.as_bytes()[i - 1];
+            if before.is_ascii_alphanumeric() || before == b'_' {
+                continue;
+            }
+        }
+        let name: String = source[i..]
+            .chars()
+            .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+            .collect();
+        found.insert(name.replace('_', "-"));
+    }
+    found.remove("palpate-tests");
+    found.remove("palpate-specimen");
+    let builds_models =
+        source.contains("palpate_fem::export") || source.contains("palpate_tests::model");
+    if !builds_models {
+        found.remove("palpate-fem");
+    }
+    found
+}
+
+#[test]
+fn the_cross_crate_tests_each_cross_crates() {
+    // A test of one crate belongs in that crate's `tests/` folder, where `cargo test -p` that
+    // crate runs it (ARCHITECTURE.md, "Tests").
+    let dir = workspace_root().join("tests/tests/cross_crate");
+    let mut single = Vec::new();
+    for entry in std::fs::read_dir(&dir).expect("tests/tests/cross_crate") {
+        let path = entry.expect("a directory entry").path();
+        if path.file_name().is_some_and(|n| n == "main.rs") {
+            continue;
+        }
+        let source = std::fs::read_to_string(&path).expect("a test file");
+        let crates = crates_under_test(&source);
+        if crates.len() < 2 {
+            single.push(format!("{}: {crates:?}", path.display()));
+        }
+    }
+    assert!(
+        single.is_empty(),
+        "test files in tests/tests/cross_crate/ that test one crate (move them to that crate's \
+         tests/ folder):\n{}",
+        single.join("\n")
+    );
+}
+
+#[test]
+fn the_crate_reader_tells_a_crossing_test_from_a_single_crate_one() {
+    let one = "use palpate_diagnose::run;\nuse palpate_fem::mesh::Mesh;\nuse palpate_specimen::generate;\n";
+    assert_eq!(
+        crates_under_test(one),
+        BTreeSet::from(["palpate-diagnose".to_owned()])
+    );
+    let two = "use palpate_fem::export::ModelBuffers;\nuse palpate_runtime::Runtime;\nlet x = my_palpate_link;\n";
+    assert_eq!(
+        crates_under_test(two),
+        BTreeSet::from(["palpate-fem".to_owned(), "palpate-runtime".to_owned()])
+    );
+}

@@ -24,6 +24,9 @@ use palpate_probe::tx::FrameWriter;
 use palpate_protocol::link::{Frame, MAX_FRAME_ENCODED};
 use palpate_runtime::{Probe, Runtime, RuntimeConfig, StorageRequirement};
 
+mod state_hash;
+use state_hash::fnv1a;
+
 /// The bundled models, by name (`palpate-lab m4-emu models` writes them).
 const MODELS: &[(&str, &[u8])] = &[
     ("block-6", include_bytes!("../models/block-6.palp")),
@@ -103,18 +106,6 @@ fn depth_at(k: u32) -> f32 {
         0.5 * (1.0 + libm::cosf(pi * (k - RAMP - HOLD) as f32 / RELEASE as f32))
     };
     START_DEPTH + (PEAK_DEPTH - START_DEPTH) * shape
-}
-
-/// FNV-1a over the bits of a displacement field (the host computes the same).
-fn fnv1a(u: &[f32]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for x in u {
-        for b in x.to_bits().to_le_bytes() {
-            h ^= u64::from(b);
-            h = h.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    }
-    h
 }
 
 fn play(name: &str, bytes: &[u8], pool: &mut [u32]) {

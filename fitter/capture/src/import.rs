@@ -1,9 +1,10 @@
-//! A capture as a palpate motion dataset (`docs/motion-dataset.md`): the markers registered from
-//! the capture frame to the mesh frame on a frame at rest, their trajectories from the release
-//! on, written as `markers.csv` and `trajectories.csv` beside a `dataset.toml`.
+//! A capture as the data of a palpate motion dataset (`docs/motion-dataset.md`): the markers
+//! registered from the capture frame to the mesh frame on a frame at rest, their trajectories
+//! from the release on. The import returns them as plain data ([`Imported`]); the motion
+//! dataset's one writer (`palpate_motion::dataset::write_dataset`, called by `palpate import
+//! c3d`) writes them, so this crate needs nothing of the fitters.
 
-use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use crate::{absolute_orientation, Capture, CaptureError, RegistrationError, RigidTransform};
 
@@ -18,8 +19,6 @@ pub struct ImportOptions {
     pub release_frame: usize,
     /// The last frame imported (inclusive); `None`: to the end.
     pub last_frame: Option<usize>,
-    /// `dataset.toml` lines written as given (mesh, clamps, gravity, density, …).
-    pub toml: String,
     /// Also track the capture's markers whose places are not declared, located from the rest
     /// frame through the registration (those far from the declared ones are left out).
     pub locate_undeclared: bool,
@@ -49,27 +48,29 @@ pub enum ImportError {
         /// What is wrong.
         what: String,
     },
-    /// Writing the dataset failed.
-    #[error("writing {path}: {source}")]
-    Write {
-        /// The file.
-        path: PathBuf,
-        /// Cause.
-        source: std::io::Error,
-    },
 }
 
-/// What the import did: the registration and its per-marker residuals.
+/// What the import made: the markers and their trajectories in the mesh frame, on the capture's
+/// step grid from the release on, and the registration that put them there.
 #[derive(Debug, Clone)]
 pub struct Imported {
     /// Capture frame → mesh frame.
     pub transform: RigidTransform,
     /// Labels in the order of `transform.residuals`.
     pub labels: Vec<String>,
-    /// Simulated steps written.
+    /// The capture period (s): the dataset's `dt`.
+    pub dt: f64,
+    /// Capture intervals from the release to the last frame imported.
     pub steps: usize,
-    /// Files written.
-    pub files: Vec<PathBuf>,
+    /// Where the data come from, in one line: the file, the frames, the rate, the registration.
+    pub source_note: String,
+    /// Every tracked marker's rest place in the mesh frame (m): where the registration puts it on
+    /// the rest frame (the declared places themselves may be rounded; the registered capture is
+    /// what the trajectories share).
+    pub markers: Vec<(String, [f64; 3])>,
+    /// Tracked positions in the mesh frame (m): (step after the release, marker, position), a
+    /// step's markers in the order of `markers`; a marker missing from a frame has no row.
+    pub trajectories: Vec<(usize, String, [f64; 3])>,
     /// Markers without a declared place, located from the rest frame.
     pub located: Vec<String>,
     /// Markers without a declared place left out: missing in the rest frame, or farther from the
@@ -77,12 +78,9 @@ pub struct Imported {
     pub ignored: Vec<String>,
 }
 
-/// Registers `capture` on `o.rest_frame` and writes a motion dataset into `out`.
-pub fn import_motion_dataset(
-    capture: &Capture,
-    o: &ImportOptions,
-    out: &Path,
-) -> Result<Imported, ImportError> {
+/// Registers `capture` on `o.rest_frame` and returns its markers and trajectories in the mesh
+/// frame, from the release on.
+pub fn import_motion(capture: &Capture, o: &ImportOptions) -> Result<Imported, ImportError> {
     let path = capture.source.clone();
     let frames = capture.positions.len();
     let last = o.last_frame.unwrap_or(frames.saturating_sub(1));
@@ -118,18 +116,6 @@ pub fn import_motion_dataset(
             path: path.clone(),
             source,
         })?;
-    let write = |name: &str, text: &str| -> Result<PathBuf, ImportError> {
-        let p = out.join(name);
-        std::fs::write(&p, text).map_err(|source| ImportError::Write {
-            path: p.clone(),
-            source,
-        })?;
-        Ok(p)
-    };
-    std::fs::create_dir_all(out).map_err(|source| ImportError::Write {
-        path: out.into(),
-        source,
-    })?;
     // Markers without a declared place: located where the registration puts them on the rest
     // frame, if they sit near the declared ones (a marker on the rig or the table is not a point
     // of the object).
@@ -166,54 +152,37 @@ pub fn import_motion_dataset(
             }
         }
     }
-    // The markers' rest places: where the registration puts them on the rest frame (the declared
-    // places themselves may be rounded; the registered capture is what the trajectories share).
-    let mut markers = String::from("marker,x,y,z\n");
-    for (label, p) in tracked.iter().map(|(l, p)| (l, p)) {
-        let q = transform.apply(*p);
-        let _ = writeln!(markers, "{label},{:.7},{:.7},{:.7}", q[0], q[1], q[2]);
-    }
+    let markers = tracked
+        .iter()
+        .map(|(label, p)| (label.clone(), transform.apply(*p)))
+        .collect();
     let dt = 1.0 / capture.rate_hz;
-    let mut traj = String::from("t,marker,x,y,z\n");
-    let mut steps = 0;
+    let mut trajectories = Vec::new();
     for f in o.release_frame + 1..=last {
         let n = f - o.release_frame;
-        steps = n;
         for (label, _) in &tracked {
             let k = capture.marker(label)?;
             if let Some(p) = capture.positions[f][k] {
-                let q = transform.apply(p);
-                let _ = writeln!(
-                    traj,
-                    "{:.6},{label},{:.7},{:.7},{:.7}",
-                    n as f64 * dt,
-                    q[0],
-                    q[1],
-                    q[2]
-                );
+                trajectories.push((n, label.clone(), transform.apply(p)));
             }
         }
     }
-    let toml = format!(
-        "# Imported from {} (frames {}–{last} at {} Hz; registered on frame {}: RMS {:.3} mm).\n\
-         dt = {dt}\nstatic_start = false\n{}\n",
+    let source_note = format!(
+        "Imported from {} (frames {}–{last} at {} Hz; registered on frame {}: RMS {:.3} mm).",
         path.display(),
         o.release_frame,
         capture.rate_hz,
         o.rest_frame,
         1e3 * transform.rms(),
-        o.toml.trim()
     );
-    let files = vec![
-        write("markers.csv", &markers)?,
-        write("trajectories.csv", &traj)?,
-        write("dataset.toml", &toml)?,
-    ];
     Ok(Imported {
         transform,
         labels,
-        steps,
-        files,
+        dt,
+        steps: last - o.release_frame,
+        source_note,
+        markers,
+        trajectories,
         located,
         ignored,
     })

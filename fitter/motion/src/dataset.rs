@@ -1,4 +1,5 @@
-//! Motion dataset reader (format: docs/motion-dataset.md).
+//! Motion dataset reader and its one writer ([`write_dataset`], [`write_files`]; format:
+//! docs/motion-dataset.md).
 //!
 //! A directory with `dataset.toml`, `mesh.msh` (Gmsh 4.1, physical groups name the clamps),
 //! `markers.csv` (`marker,x,y,z` rest) and any of `trajectories.csv` (`t,marker,x,y,z`),
@@ -14,6 +15,11 @@ use palpate_fem::mesh::Mesh;
 use serde::Deserialize;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+
+mod write;
+pub use write::{
+    dataset_toml, write_dataset, write_files, ClampRows, Decimals, MotionDatasetFiles, StepRow,
+};
 
 /// Errors naming the file, line and field.
 #[derive(Debug, thiserror::Error)]
@@ -36,6 +42,9 @@ pub enum DatasetError {
         /// What is wrong (field, expected vs found).
         what: String,
     },
+    /// Writing a dataset failed (the file, the step, the operating system's error).
+    #[error(transparent)]
+    Write(#[from] palpate_fem::io::atomic::AtomicWriteError),
 }
 
 /// `:line` for a 1-based line, nothing for 0 (a finding about the whole file).
@@ -49,7 +58,7 @@ fn line_suffix(line: usize) -> String {
 
 /// `dataset.toml`. The keys it shares with the static datasets (`name`, `description`, `units`,
 /// `mesh`, `clamps`, `marker_noise`, `gravity`) mean the same in both (docs/dataset.md).
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DatasetToml {
     /// Short name, as in static datasets.
@@ -110,6 +119,33 @@ pub struct DatasetToml {
     pub initial_declared: bool,
 }
 
+impl DatasetToml {
+    /// A dataset header with only what has no default: the capture period `dt` (s) and the
+    /// clamped groups; every other key left to the reader's default (mesh `mesh.msh`).
+    pub fn new(dt: f64, clamps: Vec<String>) -> Self {
+        Self {
+            name: None,
+            description: None,
+            units: None,
+            marker_noise: None,
+            mesh: default_mesh(),
+            dt,
+            steps: None,
+            substeps: None,
+            density: None,
+            gravity: None,
+            clamps,
+            mass: None,
+            static_start: None,
+            marker_weight: None,
+            force_weight: None,
+            initial: Initial::default(),
+            loads: Vec::new(),
+            initial_declared: false,
+        }
+    }
+}
+
 /// One `[[loads]]` table: a known dead load on a physical group of the mesh, e.g. a weight hung
 /// from the top edge of the free end:
 ///
@@ -122,7 +158,7 @@ pub struct DatasetToml {
 /// from_t = 0.0       # s: acts from this time on (default 0, i.e. already at the start)
 /// inertia = false    # whether the mass also moves with its nodes (default: a force only)
 /// ```
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LoadToml {
     /// Name in reports (default: the group's name).
@@ -144,7 +180,7 @@ pub struct LoadToml {
 }
 
 /// Initial parameter guesses.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Initial {
     /// λ.
@@ -189,6 +225,30 @@ pub struct MotionDataset {
     pub obs: Observations,
     /// How the simulation step was chosen (`model` and `obs` are already on that step).
     pub timestep: TimeStep,
+}
+
+impl MotionDataset {
+    /// Capture intervals `dt` the dataset covers: `model.steps` counts simulation steps, of
+    /// which there are `model.substeps` per interval.
+    pub fn capture_steps(&self) -> usize {
+        self.model.steps / self.model.substeps.max(1)
+    }
+
+    /// The dataset's extent in time, in one sentence that says both grids: "541 steps of 0.01 s
+    /// (simulated in 1082 steps of 5.000 ms)" — the step count and `dt` as `dataset.toml` and
+    /// the CSV files have them, then the simulation's when it takes several steps per interval.
+    pub fn steps_sentence(&self) -> String {
+        let capture = format!("{} steps of {} s", self.capture_steps(), self.config.dt);
+        if self.model.substeps <= 1 {
+            capture
+        } else {
+            format!(
+                "{capture} (simulated in {} steps of {:.3} ms)",
+                self.model.steps,
+                1e3 * self.model.dt
+            )
+        }
+    }
 }
 
 fn read(file: &Path) -> Result<String, DatasetError> {

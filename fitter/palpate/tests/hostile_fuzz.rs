@@ -6,11 +6,8 @@
 
 mod common;
 
-use common::{palpate, repo, text};
+use common::{copy_dir, palpate, repo, run_within, text};
 use proptest::prelude::*;
-use std::path::Path;
-use std::process::Stdio;
-use std::time::{Duration, Instant};
 
 /// Numbers a hostile or careless user writes: non-finite, huge, zero, negative, units off.
 const HOSTILE: &[&str] = &[
@@ -22,21 +19,7 @@ const HOSTILE: &[&str] = &[
 fn check(args: &[&std::ffi::OsStr], secs: u64) {
     let mut cmd = palpate();
     cmd.arg("-q").args(args);
-    let mut child = cmd
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let t0 = Instant::now();
-    while child.try_wait().unwrap().is_none() {
-        if t0.elapsed() > Duration::from_secs(secs) {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("palpate {args:?}: still running after {secs} s");
-        }
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    let o = child.wait_with_output().unwrap();
+    let o = run_within(cmd, secs);
     let err = text(&o.stderr);
     let code = o.status.code();
     assert!(
@@ -55,16 +38,6 @@ fn check(args: &[&std::ffi::OsStr], secs: u64) {
 
 fn os<S: AsRef<std::ffi::OsStr> + ?Sized>(s: &S) -> &std::ffi::OsStr {
     s.as_ref()
-}
-
-fn copy_dir(src: &Path, dst: &Path) {
-    std::fs::create_dir_all(dst).unwrap();
-    for e in std::fs::read_dir(src).unwrap() {
-        let e = e.unwrap();
-        if e.path().is_file() {
-            std::fs::copy(e.path(), dst.join(e.file_name())).unwrap();
-        }
-    }
 }
 
 fn c3d_bytes() -> Vec<u8> {

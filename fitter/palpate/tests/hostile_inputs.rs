@@ -4,35 +4,9 @@
 
 mod common;
 
-use common::{palpate, repo, text};
+use common::{copy_dir, palpate, repo, run_within, text};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
-use std::time::{Duration, Instant};
-
-/// Runs `cmd`, killing it after `secs` (a hang is a failure, not a stuck test run).
-fn run_within(mut cmd: Command, secs: u64) -> Output {
-    let mut child = cmd
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let t0 = Instant::now();
-    loop {
-        if child.try_wait().unwrap().is_some() {
-            return child.wait_with_output().unwrap();
-        }
-        if t0.elapsed() > Duration::from_secs(secs) {
-            let _ = child.kill();
-            let o = child.wait_with_output().unwrap();
-            panic!(
-                "still running after {secs} s: {:?}\nstderr: {}",
-                cmd.get_args().collect::<Vec<_>>(),
-                text(&o.stderr)
-            );
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
+use std::process::{Command, Output};
 
 /// Asserts a clean refusal: exit status 1 (not a signal: no abort), no panic, and every one of
 /// `parts` on stderr, which is returned.
@@ -51,16 +25,6 @@ fn cmd(args: &[&str]) -> Command {
     let mut c = palpate();
     c.args(args);
     c
-}
-
-fn copy_dir(src: &Path, dst: &Path) {
-    std::fs::create_dir_all(dst).unwrap();
-    for e in std::fs::read_dir(src).unwrap() {
-        let e = e.unwrap();
-        if e.path().is_file() {
-            std::fs::copy(e.path(), dst.join(e.file_name())).unwrap();
-        }
-    }
 }
 
 /// A copy of the bundled beam capture with `patch` bytes written over it.

@@ -2,9 +2,9 @@
 //! the motion fitter's reader: registered to the mesh frame on the held frame, trajectories from
 //! the detected release, the tip sagging along the declared gravity.
 
-use palpate_capture::import::{import_motion_dataset, ImportOptions, Imported};
+use palpate_capture::import::{import_motion, ImportOptions, Imported};
 use palpate_capture::Capture;
-use palpate_motion::dataset::MotionDataset;
+use palpate_motion::dataset::{DatasetToml, Decimals, MotionDataset, MotionDatasetFiles, StepRow};
 use std::path::Path;
 
 fn beam() -> std::path::PathBuf {
@@ -24,30 +24,55 @@ fn marker_places() -> Vec<(String, [f64; 3])> {
 }
 
 /// Imports `capture` from `release_frame` on, with the declared `places` (the others located),
-/// onto the beam mesh `mesh` under the dataset header `toml`, into a fresh folder; returns the
-/// import's report and the dataset as the motion fitter reads it back.
+/// onto the beam mesh `mesh` clamped at `clamp`, with gravity along −x and `density`, writes it
+/// through the motion dataset writer into a fresh folder, and returns the import's report and
+/// the dataset as the motion fitter reads it back.
 fn import_onto(
     capture: &Capture,
     mesh: &str,
     places: Vec<(String, [f64; 3])>,
     release_frame: usize,
-    toml: &str,
+    density: Option<f64>,
 ) -> (Imported, MotionDataset) {
     let dir = tempfile::tempdir().unwrap();
     std::fs::copy(beam().join(mesh), dir.path().join("mesh.msh")).unwrap();
-    let r = import_motion_dataset(
+    let r = import_motion(
         capture,
         &ImportOptions {
             places,
             rest_frame: 0,
             release_frame,
             last_frame: None,
-            toml: toml.into(),
             locate_undeclared: true,
         },
-        dir.path(),
     )
     .unwrap();
+    let mut config = DatasetToml::new(r.dt, vec!["clamp".into()]);
+    config.static_start = Some(false);
+    config.gravity = Some([-9.81, 0.0, 0.0]);
+    config.density = density;
+    let files = MotionDatasetFiles {
+        comments: vec![r.source_note.clone()],
+        config,
+        markers: r.markers.clone(),
+        trajectories: r
+            .trajectories
+            .iter()
+            .map(|(step, name, value)| StepRow {
+                step: *step,
+                name: name.clone(),
+                value: *value,
+            })
+            .collect(),
+        clamps: None,
+        forces: Vec::new(),
+        // As `palpate import c3d` writes a capture: 1 µs, 0.1 µm.
+        decimals: Decimals {
+            time: Some(6),
+            values: Some(7),
+        },
+    };
+    palpate_motion::dataset::write_files(dir.path(), &files).unwrap();
     (r, palpate_motion::dataset::load(dir.path()).unwrap())
 }
 
@@ -69,13 +94,7 @@ fn beam_capture_imports_as_a_motion_dataset() {
         .map(|(l, _)| capture.marker(l).unwrap())
         .collect();
     let release = capture.release_frame(&ids, 0.5e-3).unwrap() - 1;
-    let (r, ds) = import_onto(
-        &capture,
-        "beam.msh",
-        places,
-        release,
-        "mesh = \"mesh.msh\"\nclamps = [\"clamp\"]\ngravity = [-9.81, 0.0, 0.0]\ndensity = 1070.0",
-    );
+    let (r, ds) = import_onto(&capture, "beam.msh", places, release, Some(1070.0));
     // The declared places are the authors' (rounded, on stand-offs): millimetre residuals.
     assert!(
         r.transform.rms() < 1.5e-3,
@@ -117,15 +136,7 @@ fn beam_capture_imports_as_a_motion_dataset() {
 fn an_undeclared_marker_is_located_from_the_rest_frame() {
     let capture = palpate_capture::read_c3d(&beam().join("beam_load52_V2_a.c3d")).unwrap();
     let all = marker_places();
-    let import = |places| {
-        import_onto(
-            &capture,
-            "beam-coarse.msh",
-            places,
-            44,
-            "mesh = \"mesh.msh\"\nclamps = [\"clamp\"]\ngravity = [-9.81, 0.0, 0.0]",
-        )
-    };
+    let import = |places| import_onto(&capture, "beam-coarse.msh", places, 44, None);
     let five: Vec<_> = all
         .iter()
         .filter(|(l, _)| l != "Tip - 2")

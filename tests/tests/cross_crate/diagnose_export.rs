@@ -9,12 +9,16 @@ use palpate_diagnose::export::runtime_material;
 use palpate_diagnose::model::{s_of, Candidate, Context, Model};
 use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
 use palpate_fem::forward::Load;
-use palpate_tests::diagnose::specimen_seeded;
+use palpate_specimen::{generate, SpecimenOptions};
 use palpate_tests::model::{tight_config, Storage};
 
 #[test]
 fn stiffening_model_exports_as_strain_blend_and_replays() {
-    let s = specimen_seeded(3);
+    let s = generate(&SpecimenOptions {
+        seed: 3,
+        ..Default::default()
+    })
+    .expect("specimen");
     let ds = &s.dataset;
     let ctx = Context::new(ds, [2, 2, 2]).expect("context");
     let all: Vec<usize> = (0..ctx.meas.len()).collect();

@@ -103,9 +103,15 @@ fn correction_makes_the_coarse_model_predict_the_refined_one() {
     use palpate_diagnose::approx_error::{delta_rms, Correction};
     use palpate_diagnose::model::{s_of, Context, Model};
     use palpate_fem::dataset::refine::refine_dataset;
-    use palpate_specimen::Effect;
-    use palpate_tests::diagnose::specimen_with;
-    let s = specimen_with(Effect::Occlusion, 0.2);
+    use palpate_specimen::{Effect, EffectSpec};
+    let s = generate(&SpecimenOptions {
+        effects: vec![EffectSpec {
+            effect: Effect::Occlusion,
+            magnitude: 0.2,
+        }],
+        ..Default::default()
+    })
+    .expect("specimen");
     let ds = &s.dataset;
     let counts: Vec<usize> = ds.measurements.iter().map(|m| m.observed.len()).collect();
     assert!(counts.iter().any(|&c| c < ds.markers.len()), "{counts:?}");

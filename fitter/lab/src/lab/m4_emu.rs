@@ -23,6 +23,11 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+/// The emulator's own hash of its state line, the same source on both sides.
+#[path = "../../../../firmware/m4-emu/src/state_hash.rs"]
+mod state_hash;
+use state_hash::fnv1a;
+
 /// The block's material: the runtime bench's (E = 10 kPa, ν = 0.3, a soft foam).
 const YOUNG_PA: f64 = 10_000.0;
 const POISSON: f64 = 0.3;
@@ -354,18 +359,6 @@ fn parse(text: &str) -> anyhow::Result<Transcript> {
         "the transcript has no `m4 done` line: the emulated run did not finish"
     );
     Ok(t)
-}
-
-/// FNV-1a over the bits of a displacement field: the emulator's state line.
-fn fnv1a(u: &[f32]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for x in u {
-        for b in x.to_bits().to_le_bytes() {
-            h ^= u64::from(b);
-            h = h.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    }
-    h
 }
 
 /// What one model's comparison found.

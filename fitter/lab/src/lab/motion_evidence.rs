@@ -438,53 +438,69 @@ fn vhb(dir: &Path) -> anyhow::Result<(&'static str, String, serde_json::Value)> 
 /// The example dataset: a 2 × 8 × 2 cm bar (24 tets) on a moving base, 45 steps at 180 Hz,
 /// 9 markers with 0.2 mm noise, truth in `truth.toml` (kept apart from the dataset).
 fn example(dir: &Path) -> anyhow::Result<()> {
-    use std::fmt::Write as _;
+    use palpate_motion::dataset::{
+        write_dataset, ClampRows, DatasetToml, Decimals, Initial, MotionDatasetFiles, StepRow,
+    };
     let dt = EXAMPLE_DT;
     let steps = 45;
     let markers = nine_markers(EXAMPLE_BAR_SIZE);
     let (mesh, m) = example_bar([1, 4, 1], steps)?;
     let truth = example_truth(&m);
     let obs = record(&m, &truth, 2e-4, 11)?;
-    std::fs::create_dir_all(dir)?;
-    palpate_fem::mesh::gmsh::write_msh(&mesh, dir.join("mesh.msh"))?;
-    let mut k = String::from("marker,x,y,z\n");
-    for (i, p) in markers.iter().enumerate() {
-        writeln!(k, "m{i},{},{},{}", p[0], p[1], p[2])?;
-    }
-    write_atomic(&dir.join("markers.csv"), k.as_bytes())?;
-    let mut t = String::from("t,marker,x,y,z\n");
-    for (n, row) in obs.markers.iter().enumerate() {
-        for (i, p) in row.iter().enumerate() {
-            if let Some(p) = p {
-                writeln!(
-                    t,
-                    "{:.6},m{i},{:.7},{:.7},{:.7}",
-                    (n + 1) as f64 * dt,
-                    p[0],
-                    p[1],
-                    p[2]
-                )?;
-            }
-        }
-    }
-    write_atomic(&dir.join("trajectories.csv"), t.as_bytes())?;
-    let mut c = String::from("t,clamp,ux,uy,uz\n");
-    for n in 0..=steps {
-        let u = two_sinusoids(n as f64 * dt);
-        writeln!(
-            c,
-            "{:.6},front,{:.9},{:.9},{:.9}",
-            n as f64 * dt,
-            u[0],
-            u[1],
-            u[2]
-        )?;
-    }
-    write_atomic(&dir.join("clamps.csv"), c.as_bytes())?;
-    let toml = format!(
-        "# Example motion dataset (docs/motion-dataset.md), simulated by `palpate-lab motion-evidence example`.\nmesh = \"mesh.msh\"\ndt = {dt}\ndensity = 47.0\ngravity = [0.0, -9.81, 0.0]\nclamps = [\"front\"]\n\n[initial]\nlambda = 20000.0\nmu = 10000.0\nviscosity = 6.0\nh = 1.3\n"
-    );
-    write_atomic(&dir.join("dataset.toml"), toml.as_bytes())?;
+    let mut config = DatasetToml::new(dt, vec!["front".into()]);
+    config.density = Some(47.0);
+    config.gravity = Some([0.0, -9.81, 0.0]);
+    // A start away from the truth, so the example shows the fit moving.
+    config.initial = Initial {
+        lambda: 20000.0,
+        mu: 10000.0,
+        nu: 6.0,
+        h: 1.3,
+    };
+    config.initial_declared = true;
+    let files = MotionDatasetFiles {
+        comments: vec![
+            "Example motion dataset (docs/motion-dataset.md), simulated by `palpate-lab \
+             motion-evidence example`."
+                .into(),
+        ],
+        config,
+        markers: markers
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (format!("m{i}"), *p))
+            .collect(),
+        trajectories: obs
+            .markers
+            .iter()
+            .enumerate()
+            .flat_map(|(n, row)| {
+                row.iter().enumerate().filter_map(move |(i, p)| {
+                    p.map(|value| StepRow {
+                        step: n + 1,
+                        name: format!("m{i}"),
+                        value,
+                    })
+                })
+            })
+            .collect(),
+        clamps: Some(ClampRows::Displacements(
+            (0..=steps)
+                .map(|n| StepRow {
+                    step: n,
+                    name: "front".into(),
+                    value: two_sinusoids(n as f64 * dt),
+                })
+                .collect(),
+        )),
+        forces: Vec::new(),
+        // Times to the microsecond as a capture has them; positions exact.
+        decimals: Decimals {
+            time: Some(6),
+            values: None,
+        },
+    };
+    write_dataset(dir, &mesh, &files)?;
     write_atomic(
         &dir.join("truth.toml"),
         b"# Ground truth used to simulate this dataset (not read by the fitter).\nlambda = 10000.0\nmu = 20000.0\nviscosity = 12.0\nh = 1.0\ndensity = 47.0\nmarker_noise_m = 0.0002\n",

@@ -208,52 +208,55 @@ fn horizontal_cantilever_fits_from_a_start_estimated_from_its_sag() {
 /// `[initial]` table the declared values are kept.
 #[test]
 fn a_motion_dataset_without_initial_starts_from_its_sag() {
-    use palpate_fem::mesh::gmsh::write_msh;
+    use palpate_motion::dataset::{
+        write_dataset, ClampRows, DatasetToml, Decimals, MotionDatasetFiles, StepRow,
+    };
     use palpate_motion::start::initial_values;
-    use std::fmt::Write as _;
     let steps = 20;
     let (model, truth, obs) = shaken(steps);
     let mu = truth.values[ParamKind::Mu as usize][0];
     let dir = tempfile::tempdir().unwrap();
-    write_msh(
-        &cylinder_mesh(RADIUS, LENGTH, [2, 15]),
-        dir.path().join("mesh.msh"),
-    )
-    .unwrap();
     let rest: Vec<f64> = model.nodes.iter().flatten().copied().collect();
-    let mut markers = String::from("marker,x,y,z\n");
-    for m in &model.markers {
-        let p = model.marker_position(m, &rest);
-        writeln!(markers, "{},{},{},{}", m.name, p[0], p[1], p[2]).unwrap();
-    }
-    let mut traj = String::from("t,marker,x,y,z\n");
+    let markers = model
+        .markers
+        .iter()
+        .map(|m| (m.name.clone(), model.marker_position(m, &rest)))
+        .collect();
+    let mut trajectories = Vec::new();
     for (n, frame) in obs.markers.iter().enumerate() {
         for (m, p) in model.markers.iter().zip(frame) {
-            let p = p.unwrap();
-            writeln!(
-                traj,
-                "{},{},{},{},{}",
-                (n + 1) as f64 * DT,
-                m.name,
-                p[0],
-                p[1],
-                p[2]
-            )
-            .unwrap();
+            trajectories.push(StepRow {
+                step: n + 1,
+                name: m.name.clone(),
+                value: p.unwrap(),
+            });
         }
     }
-    let mut clamps = String::from("t,clamp,ux,uy,uz\n");
-    for (n, pose) in model.clamps[0].poses.iter().enumerate() {
-        let u = pose.apply(&[0.0; 3]);
-        writeln!(clamps, "{},front,{},{},{}", n as f64 * DT, u[0], u[1], u[2]).unwrap();
-    }
-    std::fs::write(dir.path().join("markers.csv"), markers).unwrap();
-    std::fs::write(dir.path().join("trajectories.csv"), traj).unwrap();
-    std::fs::write(dir.path().join("clamps.csv"), clamps).unwrap();
-    let toml = format!(
-        "dt = {DT}\ndensity = {DENSITY}\ngravity = [0.0, 0.0, -9.81]\nclamps = [\"front\"]\nmarker_noise = 1e-4\n"
-    );
-    std::fs::write(dir.path().join("dataset.toml"), &toml).unwrap();
+    let clamps = model.clamps[0]
+        .poses
+        .iter()
+        .enumerate()
+        .map(|(n, pose)| StepRow {
+            step: n,
+            name: "front".into(),
+            value: pose.apply(&[0.0; 3]),
+        })
+        .collect();
+    let mut config = DatasetToml::new(DT, vec!["front".into()]);
+    config.density = Some(DENSITY);
+    config.gravity = Some([0.0, 0.0, -9.81]);
+    config.marker_noise = Some(1e-4);
+    let mut files = MotionDatasetFiles {
+        comments: Vec::new(),
+        config,
+        markers,
+        trajectories,
+        clamps: Some(ClampRows::Displacements(clamps)),
+        forces: Vec::new(),
+        decimals: Decimals::default(),
+    };
+    let mesh = cylinder_mesh(RADIUS, LENGTH, [2, 15]);
+    write_dataset(dir.path(), &mesh, &files).unwrap();
     let ds = palpate_motion::dataset::load(dir.path()).unwrap();
     assert!(!ds.config.initial_declared);
     let start = initial_values(&ds, Some(POISSON));
@@ -262,8 +265,14 @@ fn a_motion_dataset_without_initial_starts_from_its_sag() {
     assert!(start.note.contains("static sag"), "{}", start.note);
     assert_eq!(start.h, 1.0);
     // Declared: kept as written.
-    let declared = format!("{toml}[initial]\nlambda = 2e4\nmu = 1e4\nnu = 6.0\nh = 1.3\n");
-    std::fs::write(dir.path().join("dataset.toml"), declared).unwrap();
+    files.config.initial = palpate_motion::dataset::Initial {
+        lambda: 2e4,
+        mu: 1e4,
+        nu: 6.0,
+        h: 1.3,
+    };
+    files.config.initial_declared = true;
+    write_dataset(dir.path(), &mesh, &files).unwrap();
     let ds = palpate_motion::dataset::load(dir.path()).unwrap();
     let start = initial_values(&ds, Some(POISSON));
     assert_eq!(

@@ -7,6 +7,7 @@ mod support;
 
 mod cantilever;
 mod dataset;
+mod dataset_write;
 mod fit;
 mod gauss_newton;
 mod gradients;

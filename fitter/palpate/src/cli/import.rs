@@ -5,8 +5,9 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use palpate_capture::import::{import_motion_dataset, ImportOptions};
+use palpate_capture::import::{import_motion, ImportOptions, Imported};
 use palpate_fem::io::parse_vec3_f64;
+use palpate_motion::dataset::{DatasetToml, Decimals, LoadToml, MotionDatasetFiles, StepRow};
 
 /// What to import.
 #[derive(Debug, clap::Subcommand)]
@@ -168,66 +169,45 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
     let out = staged.path.clone();
     std::fs::copy(&a.mesh, out.join("mesh.msh"))
         .with_context(|| format!("copying {}", a.mesh.display()))?;
-    let mut toml = format!(
-        "mesh = \"mesh.msh\"\nclamps = [{}]\ngravity = [{}, {}, {}]\n",
-        a.clamps
-            .iter()
-            .map(|c| format!("{c:?}"))
-            .collect::<Vec<_>>()
-            .join(", "),
-        a.gravity[0],
-        a.gravity[1],
-        a.gravity[2]
-    );
-    if let Some(d) = a.density {
-        toml.push_str(&format!("density = {d}\n"));
-    }
-    // Tables last: every key after a `[[loads]]` header would belong to it.
-    for (m, g) in &a.hang {
-        toml.push_str(&format!(
-            "\n[[loads]]\nname = \"{m} kg hung from {g}\"\ngroup = {g:?}\nedge = [{}, {}, {}]\nmass = {m}\n",
-            -a.gravity[0],
-            -a.gravity[1],
-            -a.gravity[2]
-        ));
-    }
-    let r = import_motion_dataset(
+    let r = import_motion(
         &capture,
         &ImportOptions {
             places,
             rest_frame: a.rest_frame,
             release_frame,
             last_frame: a.last_frame,
-            toml,
             locate_undeclared: !a.declared_only,
         },
-        &out,
     )?;
+    let written = palpate_motion::dataset::write_files(&out, &dataset_files(a, &r))?;
     // The dataset must read back as palpate reads it (a `--hang` group the mesh lacks, a load on
     // the clamp, a mesh in other units than the places): otherwise the staging folder is
     // dropped and the output keeps what it had.
-    if let Err(e) = palpate_motion::dataset::load(&out) {
-        // The reader names the staging folder; the user knows the output's name.
-        let what = e
-            .to_string()
-            .replace(&out.display().to_string(), &a.output.display().to_string());
-        return Err(anyhow::anyhow!(what).context(if had_output {
-            format!(
-                "the imported dataset does not read back; {} left as it was",
-                a.output.display()
-            )
-        } else {
-            format!(
-                "the imported dataset does not read back; nothing written to {}",
-                a.output.display()
-            )
-        }));
-    }
-    let files = staged.commit(r.files.clone())?;
+    let ds = match palpate_motion::dataset::load(&out) {
+        Ok(ds) => ds,
+        Err(e) => {
+            // The reader names the staging folder; the user knows the output's name.
+            let what = e
+                .to_string()
+                .replace(&out.display().to_string(), &a.output.display().to_string());
+            return Err(anyhow::anyhow!(what).context(if had_output {
+                format!(
+                    "the imported dataset does not read back; {} left as it was",
+                    a.output.display()
+                )
+            } else {
+                format!(
+                    "the imported dataset does not read back; nothing written to {}",
+                    a.output.display()
+                )
+            }));
+        }
+    };
+    let files = staged.commit(written)?;
     // What import did is a note beside the dataset it wrote (stderr; `palpate info` reads the
     // dataset back).
     log::info!(
-        "{}: {} markers at {} Hz, registered on frame {} (RMS {:.2} mm; per marker: {}); release at frame {release_frame}; {} steps",
+        "{}: {} markers at {} Hz, registered on frame {} (RMS {:.2} mm; per marker: {}); release at frame {release_frame}; {}",
         a.capture.display(),
         capture.labels.len(),
         capture.rate_hz,
@@ -239,7 +219,7 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
             .map(|(l, e)| format!("{l} {:.2} mm", 1e3 * e))
             .collect::<Vec<_>>()
             .join(", "),
-        r.steps
+        ds.steps_sentence()
     );
     if !r.located.is_empty() {
         log::info!(
@@ -258,4 +238,48 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
         log::info!("wrote {}", f.display());
     }
     Ok(())
+}
+
+/// The imported capture as the files of a motion dataset: the flags' clamps, gravity, density
+/// and hung weights in `dataset.toml`, the capture's markers and trajectories at its precision.
+fn dataset_files(a: &C3dArgs, r: &Imported) -> MotionDatasetFiles {
+    let mut config = DatasetToml::new(r.dt, a.clamps.clone());
+    // The capture starts from the held shape, not from a static sag.
+    config.static_start = Some(false);
+    config.gravity = Some(a.gravity);
+    config.density = a.density;
+    config.loads = a
+        .hang
+        .iter()
+        .map(|(m, g)| LoadToml {
+            name: Some(format!("{m} kg hung from {g}")),
+            group: g.clone(),
+            edge: Some(a.gravity.map(|v| -v)),
+            force: None,
+            mass: Some(*m),
+            from_t: 0.0,
+            inertia: false,
+        })
+        .collect();
+    MotionDatasetFiles {
+        comments: vec![r.source_note.clone()],
+        config,
+        markers: r.markers.clone(),
+        trajectories: r
+            .trajectories
+            .iter()
+            .map(|(step, name, value)| StepRow {
+                step: *step,
+                name: name.clone(),
+                value: *value,
+            })
+            .collect(),
+        clamps: None,
+        forces: Vec::new(),
+        // A capture's precision: 0.1 µm in position, 1 µs in time.
+        decimals: Decimals {
+            time: Some(6),
+            values: Some(7),
+        },
+    }
 }

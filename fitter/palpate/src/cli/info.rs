@@ -294,12 +294,11 @@ fn dataset(dir: &std::path::Path) -> anyhow::Result<()> {
             .map(|r| r.iter().filter(|m| m.is_some()).count())
             .sum();
         println!(
-            "{}: motion dataset; {} nodes, {} tets; {} steps of {} s; {} markers ({} observations); clamps {:?}; {} dead load(s); gravity {:?}",
+            "{}: motion dataset; {} nodes, {} tets; {}; {} markers ({} observations); clamps {:?}; {} dead load(s); gravity {:?}",
             dir.display(),
             ds.mesh.nodes.len(),
             ds.mesh.tets.len(),
-            ds.model.steps,
-            ds.model.dt,
+            ds.steps_sentence(),
             ds.model.markers.len(),
             observed,
             ds.config.clamps,
@@ -308,7 +307,7 @@ fn dataset(dir: &std::path::Path) -> anyhow::Result<()> {
         );
         println!(
             "{}",
-            serde_json::json!({"schema_version": SCHEMA_VERSION, "kind": "motion-dataset", "nodes": ds.mesh.nodes.len(), "tets": ds.mesh.tets.len(), "steps": ds.model.steps, "dt_s": ds.model.dt, "markers": ds.model.markers.len(), "loads": ds.model.loads.len()})
+            serde_json::json!({"schema_version": SCHEMA_VERSION, "kind": "motion-dataset", "nodes": ds.mesh.nodes.len(), "tets": ds.mesh.tets.len(), "steps": ds.capture_steps(), "dt_s": ds.config.dt, "substeps": ds.model.substeps, "markers": ds.model.markers.len(), "loads": ds.model.loads.len()})
         );
         return Ok(());
     }

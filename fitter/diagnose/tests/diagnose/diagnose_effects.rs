@@ -7,12 +7,12 @@
 //! machine, more than the few seconds the team rules ask for: these are the loop's end-to-end
 //! checks and cannot be made smaller without making the specimens too coarse to mean anything.
 
+use crate::support::summary;
 use palpate_diagnose::export::runtime_fit;
 use palpate_diagnose::model::Candidate;
 use palpate_diagnose::{run_diagnosis, DiagnoseOptions, MeshChoice};
 use palpate_fem::dataset::StaticDataset;
 use palpate_specimen::{generate, Effect, SpecimenOptions};
-use palpate_tests::diagnose::summary;
 
 fn diagnose(effect: Option<Effect>, seed: u64) -> palpate_diagnose::DiagnosisReport {
     // One adoption round is what these tests assert on (the first effect named and the error

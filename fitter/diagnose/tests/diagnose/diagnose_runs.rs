@@ -9,13 +9,13 @@
 //! run's offset recovered; runs in step must not be given one. A body that stiffens at larger
 //! strains, hung with a light and a heavy weight, must be found out by the stiffening candidate.
 
+use crate::support::record_late;
 use palpate_diagnose::runs::{diagnose_runs, Effect, RunsDiagnosis, RunsOptions};
 use palpate_motion::dataset::{load, MotionDataset};
 use palpate_motion::model::Material;
-use palpate_tests::motion::record_late;
 
 fn example() -> MotionDataset {
-    load(&palpate_tests::motion::example()).unwrap()
+    load(&crate::support::example()).unwrap()
 }
 
 /// The truth: the example's Lamé pair (Poisson's ratio 1/3), Newtonian damping.
@@ -29,7 +29,7 @@ fn run(name: &str, mass: Option<f64>, seed: u64) -> (String, MotionDataset) {
 }
 
 /// [`run`] with its markers (and clamp forces) recorded `late` steps behind the simulation's
-/// clock (negative: ahead), [`palpate_tests::motion::record_late`].
+/// clock (negative: ahead), [`crate::support::record_late`].
 fn run_late(name: &str, mass: Option<f64>, seed: u64, late: i64) -> (String, MotionDataset) {
     run_of(name, mass, seed, late, &|ds| truth(ds))
 }

@@ -7,9 +7,9 @@
 //! ended there, still moving the log-modulus by ≈ 1.5 per pass, and took three quarters of its
 //! time.) Mild softening and stiffening still solve to their fixed points.
 
+use crate::support::specimen_seeded;
 use palpate_diagnose::model::{s_of, Candidate, Context, Model};
 use palpate_diagnose::DiagnoseError;
-use palpate_tests::diagnose::specimen_seeded;
 
 #[test]
 fn a_softening_law_past_its_limit_load_has_no_equilibrium() {

@@ -8,12 +8,14 @@
 //! motion fitter's own forward model (Neo-Hookean eq. 16 + viscosity eq. 17, BDF2) with marker
 //! noise σ = 0.1 mm. The noise floor of the RMS marker error is σ√3 = 173.2 µm.
 
+use crate::support::{bar, record_late, DT, SIZE};
 use palpate_diagnose::motion::{diagnose, MotionDiagnosis, MotionOptions};
-use palpate_motion::dataset::{DatasetToml, Initial, MotionDataset};
+use palpate_motion::dataset::{
+    write_dataset as write_dataset_files, ClampRows, DatasetToml, Decimals, Initial, MotionDataset,
+    MotionDatasetFiles, StepRow,
+};
 use palpate_motion::model::{Material, Model};
 use palpate_motion::scenario::{nine_markers, record, two_sinusoids};
-use palpate_tests::motion::{bar, record_late, DT, SIZE};
-use std::fmt::Write as _;
 
 const SIGMA: f64 = 1e-4;
 const STEPS: usize = 45;
@@ -67,7 +69,7 @@ fn specimen(nu: f64, seed: u64) -> MotionDataset {
 }
 
 /// [`specimen`] whose markers were recorded `late` steps behind the base's record (negative:
-/// ahead), [`palpate_tests::motion::record_late`].
+/// ahead), [`crate::support::record_late`].
 fn late_specimen(nu: f64, seed: u64, late: i64) -> MotionDataset {
     let mut ds = specimen(nu, seed);
     ds.obs = record_late(&ds.model, &truth(&ds.model, nu), SIGMA, seed, late, 2).unwrap();
@@ -239,37 +241,47 @@ fn viscosity_signal_against_the_noise_floor() {
     assert!(s400 > 0.3 * SIGMA * 3f64.sqrt(), "nu 400 signal {s400}");
 }
 
-/// Writes a motion dataset directory (docs/motion-dataset.md) for `ds`.
+/// Writes a motion dataset directory (docs/motion-dataset.md) for `ds`: its mesh, markers and
+/// trajectories, the base's motion, and a header that leaves the time step and the noise to the
+/// reader (as a user's dataset would).
 fn write_dataset(ds: &MotionDataset, dir: &std::path::Path) {
-    palpate_fem::mesh::gmsh::write_msh(&ds.mesh, dir.join("mesh.msh")).unwrap();
-    let markers = nine_markers(SIZE);
-    let mut k = String::from("marker,x,y,z\n");
-    for (i, p) in markers.iter().enumerate() {
-        writeln!(k, "m{i},{},{},{}", p[0], p[1], p[2]).unwrap();
-    }
-    std::fs::write(dir.join("markers.csv"), k).unwrap();
-    let mut t = String::from("t,marker,x,y,z\n");
+    let mut config = DatasetToml::new(DT, vec!["front".into()]);
+    config.density = Some(47.0);
+    config.gravity = Some([0.0, -9.81, 0.0]);
+    config.initial = ds.config.initial.clone();
+    config.initial_declared = true;
+    let markers: Vec<(String, [f64; 3])> = nine_markers(SIZE)
+        .into_iter()
+        .enumerate()
+        .map(|(i, p)| (format!("m{i}"), p))
+        .collect();
+    let mut trajectories = Vec::new();
     for (n, row) in ds.obs.markers.iter().enumerate() {
         for (i, p) in row.iter().enumerate() {
-            let p = p.unwrap();
-            writeln!(t, "{},m{i},{},{},{}", (n + 1) as f64 * DT, p[0], p[1], p[2]).unwrap();
+            trajectories.push(StepRow {
+                step: n + 1,
+                name: format!("m{i}"),
+                value: p.unwrap(),
+            });
         }
     }
-    std::fs::write(dir.join("trajectories.csv"), t).unwrap();
-    let mut c = String::from("t,clamp,ux,uy,uz\n");
-    for n in 0..=STEPS {
-        let u = two_sinusoids(n as f64 * DT);
-        writeln!(c, "{},front,{},{},{}", n as f64 * DT, u[0], u[1], u[2]).unwrap();
-    }
-    std::fs::write(dir.join("clamps.csv"), c).unwrap();
-    std::fs::write(
-        dir.join("dataset.toml"),
-        format!(
-            "dt = {DT}\ndensity = 47.0\ngravity = [0.0, -9.81, 0.0]\nclamps = [\"front\"]\n\n\
-             [initial]\nlambda = 20000.0\nmu = 10000.0\nnu = 6.0\nh = 1.3\n"
-        ),
-    )
-    .unwrap();
+    let clamps = (0..=STEPS)
+        .map(|n| StepRow {
+            step: n,
+            name: "front".into(),
+            value: two_sinusoids(n as f64 * DT),
+        })
+        .collect();
+    let files = MotionDatasetFiles {
+        comments: Vec::new(),
+        config,
+        markers,
+        trajectories,
+        clamps: Some(ClampRows::Displacements(clamps)),
+        forces: Vec::new(),
+        decimals: Decimals::default(),
+    };
+    write_dataset_files(dir, &ds.mesh, &files).unwrap();
 }
 
 fn cli_args(dataset: &std::path::Path, out: &std::path::Path) -> palpate_diagnose::run::Request {

@@ -1,6 +1,12 @@
-//! Shared pieces of the static-diagnosis tests: specimens and the summary line.
+//! What the diagnosis tests share: static specimens, the summary line of a report, and the
+//! motion example bar.
+
+use std::path::{Path, PathBuf};
 
 use palpate_diagnose::DiagnosisReport;
+use palpate_fem::mesh::Mesh;
+use palpate_motion::model::Model;
+use palpate_motion::scenario::{example_bar, EXAMPLE_BAR_SIZE, EXAMPLE_DT};
 use palpate_specimen::{generate, Effect, EffectSpec, Specimen, SpecimenOptions};
 
 /// The default specimen with the one effect `effect` injected at `magnitude`.
@@ -35,3 +41,22 @@ pub fn summary(r: &DiagnosisReport) -> String {
         1e6 * r.noise_floor,
     )
 }
+
+/// The bundled motion dataset (`models/motion-example`: a 24-tet bar, front face clamped and
+/// shaken, gravity along −y).
+pub fn example() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/motion-example")
+}
+
+/// The bar: 2 × 8 × 2 cm.
+pub const SIZE: [f64; 3] = EXAMPLE_BAR_SIZE;
+/// The time step: 180 Hz.
+pub const DT: f64 = EXAMPLE_DT;
+
+/// The example bar ([`example_bar`]) in `cells` hexahedra for `steps` steps.
+pub fn bar(cells: [usize; 3], steps: usize) -> (Mesh, Model) {
+    example_bar(cells, steps).unwrap()
+}
+
+/// The recording of a run observed out of step with its base, shared with the motion specimens.
+pub use palpate_specimen::motion::record_late;

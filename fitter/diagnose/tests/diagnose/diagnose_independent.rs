@@ -13,7 +13,7 @@ use std::path::PathBuf;
 
 fn dataset(name: &str) -> StaticDataset {
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("data/independent")
+        .join("../../tests/data/independent")
         .join(name);
     StaticDataset::read(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
 }

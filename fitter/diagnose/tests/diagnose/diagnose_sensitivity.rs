@@ -196,7 +196,7 @@ fn an_off_centre_inclusion_is_named() {
     );
     eprintln!(
         "{}; {:.1} s; {}",
-        palpate_tests::diagnose::summary(&r),
+        crate::support::summary(&r),
         r.seconds,
         r.residual_check.verdict("inclusion"),
     );

@@ -4,9 +4,9 @@
 //! the re-located markers must predict the measurements better than the dataset's nearest-point
 //! embedding, which on the side faces sits at a sag-shifted material point.
 
+use crate::support::specimen_with;
 use palpate_diagnose::model::{s_of, Candidate, Context, Model};
 use palpate_specimen::Effect;
-use palpate_tests::diagnose::specimen_with;
 
 fn rms(ctx: &Context, markers: &[Vec<[f64; 3]>]) -> f64 {
     let (mut s, mut n) = (0.0, 0usize);
