@@ -132,6 +132,7 @@ impl DatasetToml {
             dt,
             steps: None,
             substeps: None,
+            scheme: None,
             density: None,
             gravity: None,
             clamps,
