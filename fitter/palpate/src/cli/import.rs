@@ -36,6 +36,11 @@ pub struct C3dArgs {
     /// Density (kg/m³), if known.
     #[arg(long)]
     pub density: Option<f64>,
+    /// Time integration written into the dataset: `midpoint` (the implicit midpoint rule, no
+    /// numerical damping, ≥ 15 steps per period of the capture's ring-down) or `bdf2`
+    /// (Real2Sim's, ≥ 32 steps per period); docs/motion-dataset.md.
+    #[arg(long, default_value = "midpoint", value_parser = ["midpoint", "bdf2"])]
+    pub scheme: String,
     /// A weight hung from the top edge of a group of the mesh (its nodes furthest against
     /// gravity), as `MASS_KG@GROUP`, e.g. `0.052@free_end`; repeat for several. Written as a
     /// `[[loads]]` table of the dataset (docs/motion-dataset.md).
@@ -248,6 +253,9 @@ fn dataset_files(a: &C3dArgs, r: &Imported) -> MotionDatasetFiles {
     config.static_start = Some(false);
     config.gravity = Some(a.gravity);
     config.density = a.density;
+    // A capture rings with its own damping only: an integrator that damps by itself would put
+    // its numerical damping into the fitted viscosity.
+    config.scheme = Some(a.scheme.clone());
     config.loads = a
         .hang
         .iter()
