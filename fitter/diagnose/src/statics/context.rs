@@ -47,7 +47,7 @@ pub struct Context {
     /// The forward problem on the mesh solved on (the dataset's, or it refined once).
     pub problem: StaticProblem,
     /// The same problem with its supported face on an elastic foundation
-    /// ([`super::candidate::Candidate::Support`]); `None` when no boundary triangle lies on the fixed nodes.
+    /// ([`super::candidates::Candidate::Support`]); `None` when no boundary triangle lies on the fixed nodes.
     pub foundation: Option<StaticProblem>,
     /// Markers.
     pub markers: Vec<Marker>,
@@ -95,7 +95,7 @@ pub struct Context {
     /// Starting centre of the inclusion candidate.
     pub inclusion_start: [f64; 3],
     /// Starting θ of the inclusion candidate from the sensitivity scan (`None`: the default
-    /// start, [`super::candidate::Candidate::start`]).
+    /// start, [`super::candidates::Candidate::start`]).
     pub inclusion_seed: Option<[f64; 5]>,
     /// The scan's best blob, for the report.
     pub inclusion_scan: Option<BlobScan>,

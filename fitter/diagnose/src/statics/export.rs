@@ -32,7 +32,7 @@ pub fn runtime_material(
     theta: &[f64],
     xs: &[Vec<[f64; 3]>],
 ) -> Result<(Vec<Material>, BlendData), DiagnoseError> {
-    if !model.effects.contains(&Candidate::Stiffening) {
+    if !model.state_dependent() {
         return Ok((
             vec![model.material_at(ctx, theta, &ctx.problem.x0)?],
             BlendData::None,
@@ -126,13 +126,7 @@ pub fn diagnosed_model(
         ));
     }
     for &c in &r.adopted {
-        let in_model = matches!(
-            c,
-            Candidate::Inhomogeneity
-                | Candidate::Layer
-                | Candidate::Inclusion
-                | Candidate::Stiffening
-        );
+        let in_model = c.effect().in_runtime_model();
         let values: Vec<String> = effect_params(ctx, f, c)
             .iter()
             .map(|p| format!("{} = {:.4e} ± {:.1e} {}", p.name, p.value, p.sd, p.unit))

@@ -35,7 +35,7 @@
 //! `noise`, and when it is above, both are adopted (judged under σ̂_w²I + τ̂²11ᵀ).
 
 pub mod approx_error;
-mod candidate;
+pub mod candidates;
 mod context;
 mod diagnose;
 mod diagnosis;
