@@ -155,56 +155,22 @@ impl Context {
         let (meas, f_ref) = measurements(ds)?;
         let (lo, hi) = ds.mesh.bounds();
         let centre = [0, 1, 2].map(|d| 0.5 * (lo[d] + hi[d]));
-        let mut base = [0.0; 3];
-        for &n in &ds.fixed_nodes {
-            for d in 0..3 {
-                base[d] += ds.mesh.nodes[n][d] / ds.fixed_nodes.len() as f64;
-            }
-        }
+        let base = fixed_centroid(ds);
         let half = 0.5 * (hi[0] - lo[0]).min(hi[1] - lo[1]).max(1e-9);
-        let mut mean = [0.0; 3];
-        for m in &meas {
-            let n = Vector3::from(m.force).norm().max(1e-300);
-            for d in 0..3 {
-                mean[d] += m.force[d] / n;
-            }
-        }
-        let [nz, t1, t2] = frame_along(Vector3::from(mean), 1e-9);
+        let [nz, t1, t2] = frame_along(mean_direction(&meas), 1e-9);
         let gravity = ds.gravity.unwrap_or([0.0, 0.0, -9.81]);
-        let mut node_volume = vec![0.0; ds.mesh.nodes.len()];
-        for (t, g) in ds.mesh.tets.iter().zip(&problem.geometry) {
-            for &n in t {
-                node_volume[n] += 0.25 * g.volume;
-            }
-        }
+        let node_volume = node_volumes(ds, &problem);
         let centroids = palpate_static_fit::blend::centroids(&problem);
         let grid_weights = centroids
             .iter()
             .map(|&c| trilinear(c, lo, hi, grid))
             .collect();
-        // Depth along the mean pushing direction nz, from the probed face (smallest x·nz).
-        let along = |x: &[f64; 3]| x[0] * nz[0] + x[1] * nz[1] + x[2] * nz[2];
-        let (top, bottom) = extent_along(&ds.mesh, nz);
-        let span = (bottom - top).max(1e-12);
-        let depth: Vec<f64> = centroids.iter().map(|c| (along(c) - top) / span).collect();
-        let (vertical, vertical_span) = vertical_depth(&ds.mesh, &centroids, gravity);
-        let (skin, skin_span) = skin_depth(&ds.mesh, &ds.fixed_nodes, &centroids);
-        let depth_maps = vec![
-            (LayerAxis::Push, depth.clone(), span),
-            (LayerAxis::Vertical, vertical, vertical_span),
-            (LayerAxis::Skin, skin, skin_span),
-        ];
+        let (depth_maps, top, span) = layer_depth_maps(ds, &centroids, nz, gravity);
+        let depth = depth_maps[0].1.clone();
         let mean_volume = problem.geometry.iter().map(|g| g.volume).sum::<f64>()
             / problem.geometry.len().max(1) as f64;
         let element_size = (6.0 * 2f64.sqrt() * mean_volume).cbrt();
-        let mut contact_mean = [0.0; 3];
-        for m in &meas {
-            for d in 0..3 {
-                contact_mean[d] += m.point[d] / meas.len() as f64;
-            }
-        }
-        let shift = 0.25 * span - (along(&contact_mean) - top);
-        let inclusion_start = [0, 1, 2].map(|d| contact_mean[d] + shift * nz[d]);
+        let inclusion_start = inclusion_start(&meas, nz, top, span);
         let marker_rest = ds
             .markers
             .iter()
@@ -254,6 +220,78 @@ impl Context {
             .map(|&i| 3 * self.meas[i].observed.len())
             .sum()
     }
+}
+
+/// Centroid of the fixed nodes (the compliant support's pivot).
+fn fixed_centroid(ds: &StaticDataset) -> [f64; 3] {
+    let mut base = [0.0; 3];
+    for &n in &ds.fixed_nodes {
+        for d in 0..3 {
+            base[d] += ds.mesh.nodes[n][d] / ds.fixed_nodes.len() as f64;
+        }
+    }
+    base
+}
+
+/// The sum of the measurements' unit reported force directions (the mean pushing direction,
+/// unnormalised).
+fn mean_direction(meas: &[MeasData]) -> Vector3<f64> {
+    let mut mean = [0.0; 3];
+    for m in meas {
+        let n = Vector3::from(m.force).norm().max(1e-300);
+        for d in 0..3 {
+            mean[d] += m.force[d] / n;
+        }
+    }
+    Vector3::from(mean)
+}
+
+/// Lumped volume per node (m³): a quarter of each tetrahedron's on each of its nodes.
+fn node_volumes(ds: &StaticDataset, problem: &StaticProblem) -> Vec<f64> {
+    let mut node_volume = vec![0.0; ds.mesh.nodes.len()];
+    for (t, g) in ds.mesh.tets.iter().zip(&problem.geometry) {
+        for &n in t {
+            node_volume[n] += 0.25 * g.volume;
+        }
+    }
+    node_volume
+}
+
+/// Every layer axis's depth map of the element `centroids` with the length its unit fraction
+/// stands for, [`LayerAxis::Push`]'s first; and the push axis's probed face `top` and `span`
+/// along the mean pushing direction `nz` (from the probed face: smallest x·nz).
+fn layer_depth_maps(
+    ds: &StaticDataset,
+    centroids: &[[f64; 3]],
+    nz: [f64; 3],
+    gravity: [f64; 3],
+) -> (Vec<(LayerAxis, Vec<f64>, f64)>, f64, f64) {
+    let along = |x: &[f64; 3]| x[0] * nz[0] + x[1] * nz[1] + x[2] * nz[2];
+    let (top, bottom) = extent_along(&ds.mesh, nz);
+    let span = (bottom - top).max(1e-12);
+    let depth: Vec<f64> = centroids.iter().map(|c| (along(c) - top) / span).collect();
+    let (vertical, vertical_span) = vertical_depth(&ds.mesh, centroids, gravity);
+    let (skin, skin_span) = skin_depth(&ds.mesh, &ds.fixed_nodes, centroids);
+    let maps = vec![
+        (LayerAxis::Push, depth, span),
+        (LayerAxis::Vertical, vertical, vertical_span),
+        (LayerAxis::Skin, skin, skin_span),
+    ];
+    (maps, top, span)
+}
+
+/// The inclusion candidate's starting centre: below the mean contact point at a quarter of the
+/// depth `span` along `nz` from the probed face `top`.
+fn inclusion_start(meas: &[MeasData], nz: [f64; 3], top: f64, span: f64) -> [f64; 3] {
+    let along = |x: &[f64; 3]| x[0] * nz[0] + x[1] * nz[1] + x[2] * nz[2];
+    let mut contact_mean = [0.0; 3];
+    for m in meas {
+        for d in 0..3 {
+            contact_mean[d] += m.point[d] / meas.len() as f64;
+        }
+    }
+    let shift = 0.25 * span - (along(&contact_mean) - top);
+    [0, 1, 2].map(|d| contact_mean[d] + shift * nz[d])
 }
 
 /// The dataset's measurements as the diagnosis reads them, and the largest force (N), the

@@ -196,34 +196,7 @@ pub fn estimate_rest_noise(
         .map(|i| extrapolation_weights(&points, i, spacing, noise))
         .collect();
 
-    // The measurements' own σ from the within-marker deviations (the rest error cancels).
-    let mut local = vec![usize::MAX; nm];
-    for (i, &k) in used.iter().enumerate() {
-        local[k] = i;
-    }
-    let mut within: Vec<Term> = Vec::new();
-    for r in residuals {
-        let members: Vec<(usize, [f64; 3])> = r
-            .iter()
-            .filter(|&&(k, _)| seen[k] >= 2)
-            .map(|&(k, e)| {
-                let i = local[k];
-                (i, [0, 1, 2].map(|d| e[d] - mean[i][d]))
-            })
-            .collect();
-        let pts: Vec<[f64; 3]> = members.iter().map(|&(i, _)| points[i]).collect();
-        let vals: Vec<[f64; 3]> = members.iter().map(|&(_, w)| w).collect();
-        let ws: Vec<Option<Vec<(usize, f64)>>> = (0..pts.len())
-            .map(|j| extrapolation_weights(&pts, j, spacing, noise))
-            .collect();
-        for (j, d2) in errors(&vals, &ws) {
-            let g = |q: usize| 1.0 - inv_m[members[q].0];
-            let w = ws[j].as_ref().expect("errors only where weights exist");
-            let a = g(j) + w.iter().map(|&(q, c)| c * c * g(q)).sum::<f64>();
-            within.push(Term { d2, a, b: 0.0 });
-        }
-    }
-    let sigma_within = (within.len() >= 20).then(|| statistic(&within, 1.0, 0.0).sqrt());
+    let sigma_within = within_sigma(residuals, &seen, (&used, &points, &mean), spacing, noise);
     let sigma_null = sigma_within.map_or(sigma, |s| s.max(sigma));
     let s2 = sigma_null * sigma_null;
 
@@ -254,24 +227,7 @@ pub fn estimate_rest_noise(
     let t0 = statistic(&terms, s2, 0.0);
     let tau2 = solve_tau2(&terms, s2);
 
-    // Parametric simulations: the null (persistent noise σ²/m_k only) and at τ̂ (for its interval).
-    let mut rng = rng(o.seed);
-    let mut draw = |tau2: f64| -> Vec<[f64; 3]> {
-        inv_m
-            .iter()
-            .map(|&f| {
-                let sd = (s2 * f + tau2).sqrt();
-                [0; 3].map(|_| sd * rng.normal())
-            })
-            .collect()
-    };
-    let null: Vec<f64> = (0..o.simulations)
-        .map(|_| statistic(&terms_of(&draw(0.0)), s2, 0.0))
-        .collect();
-    let mut at: Vec<f64> = (0..o.simulations)
-        .map(|_| solve_tau2(&terms_of(&draw(tau2)), s2).sqrt())
-        .collect();
-    at.sort_by(f64::total_cmp);
+    let (null, at) = simulations(&inv_m, s2, tau2, &terms_of, o);
     let n = null.len().max(2) as f64;
     let null_mean = null.iter().sum::<f64>() / n;
     let null_sd = (null.iter().map(|v| (v - null_mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
@@ -290,23 +246,7 @@ pub fn estimate_rest_noise(
         .sqrt()
         .max(o.margin * sigma);
     let mean_seen = used.iter().map(|&k| seen[k] as f64).sum::<f64>() / used.len() as f64;
-    let um = |v: f64| 1e6 * v;
-    let within_words = match sigma_within {
-        Some(s) => format!("{:.1} µm from the within-marker deviations", um(s)),
-        None => "too few repeated markers for a within-marker estimate".into(),
-    };
-    let statement = if fired {
-        format!(
-            "the rest scan carries noise of its own: the part of each marker's residual that is the same in every measurement is white from marker to marker with τ̂ = {:.1} µm per axis (95 % interval {:.1}–{:.1} µm; {z:.1} standard deviations above what the measurements' own noise σ = {:.1} µm leaves in a mean over {mean_seen:.1} measurements; σ: declared {:.1} µm, {within_words}). The model is unchanged; the final residual is judged with that error in every marker's rest position",
-            um(estimate), um(interval.0), um(interval.1), um(sigma_null), um(sigma)
-        )
-    } else {
-        format!(
-            "rest positions consistent with a noise-free rest scan: τ̂ = {:.1} µm per axis (95 % interval {:.1}–{:.1} µm), the persistent per-marker residual {z:+.1} standard deviations from what the measurements' own noise σ = {:.1} µm leaves (fired at ≥ {:.1} and τ̂ ≥ {:.2} σ; σ: declared {:.1} µm, {within_words}); a rest scan noisier than about {:.1} µm per axis would have been found",
-            um(estimate), um(interval.0), um(interval.1), um(sigma_null), o.z_limit, o.margin, um(sigma), um(detectable)
-        )
-    };
-    Some(RestNoiseFinding {
+    let mut finding = RestNoiseFinding {
         estimate,
         interval,
         z,
@@ -316,13 +256,107 @@ pub fn estimate_rest_noise(
         markers: terms.len(),
         mean_seen,
         detectable,
-        statement,
+        statement: String::new(),
         points: used
             .iter()
             .zip(&mean)
             .map(|(&k, r)| (seen[k] as f64, r.iter().map(|v| v * v).sum::<f64>().sqrt()))
             .collect(),
-    })
+    };
+    finding.statement = statement(&finding, sigma, o);
+    Some(finding)
+}
+
+/// The measurements' own σ from the within-marker deviations (the rest error cancels): the
+/// markers seen at least twice (`seen` per marker; `used` the seen markers, their `points` and
+/// `mean` residuals by local index). `None` with fewer than 20 terms.
+fn within_sigma(
+    residuals: &[Vec<(usize, [f64; 3])>],
+    seen: &[usize],
+    (used, points, mean): (&[usize], &[[f64; 3]], &[[f64; 3]]),
+    spacing: f64,
+    noise: &NoiseOptions,
+) -> Option<f64> {
+    let nm = seen.len();
+    let inv_m: Vec<f64> = used.iter().map(|&k| 1.0 / seen[k] as f64).collect();
+    let mut local = vec![usize::MAX; nm];
+    for (i, &k) in used.iter().enumerate() {
+        local[k] = i;
+    }
+    let mut within: Vec<Term> = Vec::new();
+    for r in residuals {
+        let members: Vec<(usize, [f64; 3])> = r
+            .iter()
+            .filter(|&&(k, _)| seen[k] >= 2)
+            .map(|&(k, e)| {
+                let i = local[k];
+                (i, [0, 1, 2].map(|d| e[d] - mean[i][d]))
+            })
+            .collect();
+        let pts: Vec<[f64; 3]> = members.iter().map(|&(i, _)| points[i]).collect();
+        let vals: Vec<[f64; 3]> = members.iter().map(|&(_, w)| w).collect();
+        let ws: Vec<Option<Vec<(usize, f64)>>> = (0..pts.len())
+            .map(|j| extrapolation_weights(&pts, j, spacing, noise))
+            .collect();
+        for (j, d2) in errors(&vals, &ws) {
+            let g = |q: usize| 1.0 - inv_m[members[q].0];
+            let w = ws[j].as_ref().expect("errors only where weights exist");
+            let a = g(j) + w.iter().map(|&(q, c)| c * c * g(q)).sum::<f64>();
+            within.push(Term { d2, a, b: 0.0 });
+        }
+    }
+    (within.len() >= 20).then(|| statistic(&within, 1.0, 0.0).sqrt())
+}
+
+/// Parametric simulations of the statistic: under the null (persistent noise σ²/m_k only, `s2`
+/// σ², `inv_m` the 1/m_k) and the τ̂ of draws at `tau2` (for its interval, sorted).
+fn simulations(
+    inv_m: &[f64],
+    s2: f64,
+    tau2: f64,
+    terms_of: &dyn Fn(&[[f64; 3]]) -> Vec<Term>,
+    o: &RestNoiseOptions,
+) -> (Vec<f64>, Vec<f64>) {
+    let mut rng = rng(o.seed);
+    let mut draw = |tau2: f64| -> Vec<[f64; 3]> {
+        inv_m
+            .iter()
+            .map(|&f| {
+                let sd = (s2 * f + tau2).sqrt();
+                [0; 3].map(|_| sd * rng.normal())
+            })
+            .collect()
+    };
+    let null: Vec<f64> = (0..o.simulations)
+        .map(|_| statistic(&terms_of(&draw(0.0)), s2, 0.0))
+        .collect();
+    let mut at: Vec<f64> = (0..o.simulations)
+        .map(|_| solve_tau2(&terms_of(&draw(tau2)), s2).sqrt())
+        .collect();
+    at.sort_by(f64::total_cmp);
+    (null, at)
+}
+
+/// The finding in words (`sigma` the declared marker noise).
+fn statement(f: &RestNoiseFinding, sigma: f64, o: &RestNoiseOptions) -> String {
+    let (estimate, interval, z, sigma_null) = (f.estimate, f.interval, f.z, f.sigma_null);
+    let (mean_seen, detectable) = (f.mean_seen, f.detectable);
+    let um = |v: f64| 1e6 * v;
+    let within_words = match f.sigma_within {
+        Some(s) => format!("{:.1} µm from the within-marker deviations", um(s)),
+        None => "too few repeated markers for a within-marker estimate".into(),
+    };
+    if f.fired {
+        format!(
+            "the rest scan carries noise of its own: the part of each marker's residual that is the same in every measurement is white from marker to marker with τ̂ = {:.1} µm per axis (95 % interval {:.1}–{:.1} µm; {z:.1} standard deviations above what the measurements' own noise σ = {:.1} µm leaves in a mean over {mean_seen:.1} measurements; σ: declared {:.1} µm, {within_words}). The model is unchanged; the final residual is judged with that error in every marker's rest position",
+            um(estimate), um(interval.0), um(interval.1), um(sigma_null), um(sigma)
+        )
+    } else {
+        format!(
+            "rest positions consistent with a noise-free rest scan: τ̂ = {:.1} µm per axis (95 % interval {:.1}–{:.1} µm), the persistent per-marker residual {z:+.1} standard deviations from what the measurements' own noise σ = {:.1} µm leaves (fired at ≥ {:.1} and τ̂ ≥ {:.2} σ; σ: declared {:.1} µm, {within_words}); a rest scan noisier than about {:.1} µm per axis would have been found",
+            um(estimate), um(interval.0), um(interval.1), um(sigma_null), o.z_limit, o.margin, um(sigma), um(detectable)
+        )
+    }
 }
 
 #[cfg(test)]

@@ -207,7 +207,7 @@ pub fn signature(ctx: &Context, f: &Fitted) -> Signature {
 
 /// The variable that gives an effect away and the residual measure plotted against it:
 /// (x label, y label, points).
-pub type Evidence = (&'static str, &'static str, Vec<(f64, f64)>);
+pub type EvidencePoints = (&'static str, &'static str, Vec<(f64, f64)>);
 
 /// A fit's residual as the candidates' evidence reads it: its signature and its vectors.
 pub struct Residual<'a> {
@@ -234,7 +234,7 @@ impl<'a> Residual<'a> {
 
     /// Each measurement's displacement scale against its reported force (a load-dependent
     /// response: a calibration curve, a modulus that changes with the strain).
-    pub fn scale_against_force(&self) -> Evidence {
+    pub fn scale_against_force(&self) -> EvidencePoints {
         (
             "reported force |f| (N)",
             "displacement scale factor (measured / simulated)",
@@ -248,7 +248,7 @@ impl<'a> Residual<'a> {
 
     /// Each measurement's displacement scale in file order (a gain that changes from measurement
     /// to measurement).
-    pub fn scale_by_measurement(&self) -> Evidence {
+    pub fn scale_by_measurement(&self) -> EvidencePoints {
         (
             "measurement (in file order)",
             "displacement scale factor (measured / simulated)",
@@ -263,7 +263,7 @@ impl<'a> Residual<'a> {
 
     /// Each measurement's horizontal mean residual against its reported force (a tangential
     /// force).
-    pub fn horizontal_mean_against_force(&self) -> Evidence {
+    pub fn horizontal_mean_against_force(&self) -> EvidencePoints {
         (
             "reported force |f| (N)",
             "horizontal mean residual (mm)",
@@ -281,7 +281,7 @@ impl<'a> Residual<'a> {
     }
 
     /// Each measurement's rigid translation of the residual against its reported force.
-    pub fn rigid_translation_against_force(&self) -> Evidence {
+    pub fn rigid_translation_against_force(&self) -> EvidencePoints {
         (
             "reported force |f| (N)",
             "rigid translation of the residual (mm)",
@@ -294,7 +294,7 @@ impl<'a> Residual<'a> {
     }
 
     /// Each measurement's rigid part of the residual, |t| + h|ω|, against its reported force.
-    pub fn rigid_part_against_force(&self) -> Evidence {
+    pub fn rigid_part_against_force(&self) -> EvidencePoints {
         let half = self.ctx.half;
         (
             "reported force |f| (N)",
@@ -314,7 +314,7 @@ impl<'a> Residual<'a> {
     }
 
     /// Each marker's mean vertical residual against its height.
-    pub fn vertical_against_height(&self) -> Evidence {
+    pub fn vertical_against_height(&self) -> EvidencePoints {
         let ctx = self.ctx;
         let nm = ctx.markers.len();
         let (mut s, mut n) = (vec![0.0; nm], vec![0usize; nm]);
@@ -336,7 +336,7 @@ impl<'a> Residual<'a> {
 
     /// Every marker error against its distance from the contact (concentrated near it, or
     /// spread evenly).
-    pub fn error_against_distance(&self) -> Evidence {
+    pub fn error_against_distance(&self) -> EvidencePoints {
         let ctx = self.ctx;
         let mut pts = Vec::new();
         for (&i, r) in self.fit.subset.iter().zip(&self.vectors) {
@@ -355,6 +355,6 @@ impl<'a> Residual<'a> {
 
 /// The variable that gives effect `c` away, and the residual measure plotted against it:
 /// (x label, y label, points).
-pub fn evidence_points(c: Candidate, ctx: &Context, f: &Fitted) -> Evidence {
+pub fn evidence_points(c: Candidate, ctx: &Context, f: &Fitted) -> EvidencePoints {
     c.effect().evidence(&Residual::of(ctx, f))
 }

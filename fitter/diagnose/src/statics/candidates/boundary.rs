@@ -7,7 +7,7 @@ use nalgebra::Vector3;
 
 use super::{ParamName, StaticEffect};
 use crate::statics::context::{Context, MeasData};
-use crate::statics::signature::{Evidence, Residual};
+use crate::statics::signature::{EvidencePoints, Residual};
 
 /// See the module.
 pub struct Boundary;
@@ -33,7 +33,7 @@ impl StaticEffect for Boundary {
     }
 
     /// A support that gives way moves the whole body nearly rigidly, in proportion to the force.
-    fn evidence(&self, r: &Residual) -> Evidence {
+    fn evidence(&self, r: &Residual) -> EvidencePoints {
         r.rigid_translation_against_force()
     }
 

@@ -5,7 +5,7 @@
 
 use super::{ParamName, StaticEffect};
 use crate::statics::context::Context;
-use crate::statics::signature::{Evidence, Residual};
+use crate::statics::signature::{EvidencePoints, Residual};
 
 /// See the module.
 pub struct Calibration;
@@ -24,7 +24,7 @@ impl StaticEffect for Calibration {
     }
 
     /// A curved calibration makes the displacement scale drift with the load.
-    fn evidence(&self, r: &Residual) -> Evidence {
+    fn evidence(&self, r: &Residual) -> EvidencePoints {
         r.scale_against_force()
     }
 

@@ -22,7 +22,7 @@ use palpate_fem::forward::StaticProblem;
 
 use super::{ParamName, StaticEffect};
 use crate::statics::context::MeasData;
-use crate::statics::signature::{Evidence, Residual};
+use crate::statics::signature::{EvidencePoints, Residual};
 use crate::statics::DiagnoseError;
 
 /// See the module.
@@ -43,7 +43,7 @@ impl StaticEffect for ContactRadius {
 
     /// A contact patch of another size: the marker error against distance from the contact
     /// shows it concentrated within a probe radius or two.
-    fn evidence(&self, r: &Residual) -> Evidence {
+    fn evidence(&self, r: &Residual) -> EvidencePoints {
         r.error_against_distance()
     }
 

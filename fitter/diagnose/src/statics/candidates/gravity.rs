@@ -7,7 +7,7 @@ use palpate_fem::dataset::Marker;
 
 use super::{At, ParamName, StaticEffect};
 use crate::statics::context::Context;
-use crate::statics::signature::{Evidence, Residual};
+use crate::statics::signature::{EvidencePoints, Residual};
 use crate::statics::DiagnoseError;
 
 /// See the module.
@@ -36,7 +36,7 @@ impl StaticEffect for Gravity {
         vec![("density ρ".into(), "kg/m³", 1000.0)]
     }
 
-    fn evidence(&self, r: &Residual) -> Evidence {
+    fn evidence(&self, r: &Residual) -> EvidencePoints {
         r.vertical_against_height()
     }
 

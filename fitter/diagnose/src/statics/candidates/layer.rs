@@ -5,7 +5,7 @@
 
 use super::{ParamName, StaticEffect};
 use crate::statics::context::{Context, LAYER_NODES};
-use crate::statics::signature::{Evidence, Residual};
+use crate::statics::signature::{EvidencePoints, Residual};
 
 /// See the module.
 pub struct Layer;
@@ -29,7 +29,7 @@ impl StaticEffect for Layer {
         true
     }
 
-    fn evidence(&self, r: &Residual) -> Evidence {
+    fn evidence(&self, r: &Residual) -> EvidencePoints {
         r.error_against_distance()
     }
 

@@ -20,7 +20,7 @@ use serde::Serialize;
 
 use super::context::{Context, MeasData};
 use super::model::{Model, Simulated};
-use super::signature::{Evidence, Residual};
+use super::signature::{EvidencePoints, Residual};
 use super::DiagnoseError;
 
 mod boundary;
@@ -185,7 +185,7 @@ pub trait StaticEffect: Sync {
     }
 
     /// The variable that gives the effect away and the residual measure plotted against it.
-    fn evidence(&self, r: &Residual) -> Evidence;
+    fn evidence(&self, r: &Residual) -> EvidencePoints;
 
     /// Its θ block at zero effect for the power statement (`None`: no θ statement).
     fn power_start(&self, grid: [usize; 3]) -> Option<Vec<f64>> {

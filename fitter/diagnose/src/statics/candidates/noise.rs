@@ -4,7 +4,7 @@
 //! nugget test of [`crate::statics::noise`]. 0 params.
 
 use super::StaticEffect;
-use crate::statics::signature::{Evidence, Residual};
+use crate::statics::signature::{EvidencePoints, Residual};
 
 /// See the module.
 pub struct Noise;
@@ -16,7 +16,7 @@ impl StaticEffect for Noise {
 
     /// The marker error against distance from the contact shows it spread evenly (the noise
     /// report plots the nugget itself, see [`crate::statics::noise`]).
-    fn evidence(&self, r: &Residual) -> Evidence {
+    fn evidence(&self, r: &Residual) -> EvidencePoints {
         r.error_against_distance()
     }
 }

@@ -6,7 +6,7 @@ use palpate_fem::geometry::rotate;
 
 use super::{ParamName, StaticEffect};
 use crate::statics::context::{Context, MeasData};
-use crate::statics::signature::{Evidence, Residual};
+use crate::statics::signature::{EvidencePoints, Residual};
 
 /// See the module.
 pub struct Registration;
@@ -36,7 +36,7 @@ impl StaticEffect for Registration {
         ]
     }
 
-    fn evidence(&self, r: &Residual) -> Evidence {
+    fn evidence(&self, r: &Residual) -> EvidencePoints {
         r.rigid_part_against_force()
     }
 

@@ -10,7 +10,7 @@ use nalgebra::Vector3;
 use super::{PowerPoint, ProfiledKind, StaticEffect};
 use crate::statics::context::Context;
 use crate::statics::power::measurement_columns;
-use crate::statics::signature::{Evidence, Residual};
+use crate::statics::signature::{EvidencePoints, Residual};
 use crate::statics::DiagnoseError;
 
 /// See the module.
@@ -29,7 +29,7 @@ impl StaticEffect for RegistrationEach {
         false
     }
 
-    fn evidence(&self, r: &Residual) -> Evidence {
+    fn evidence(&self, r: &Residual) -> EvidencePoints {
         r.rigid_part_against_force()
     }
 

@@ -4,7 +4,7 @@
 //! test of [`crate::statics::rest_noise`]. 0 params.
 
 use super::StaticEffect;
-use crate::statics::signature::{Evidence, Residual};
+use crate::statics::signature::{EvidencePoints, Residual};
 
 /// See the module.
 pub struct RestNoise;
@@ -16,7 +16,7 @@ impl StaticEffect for RestNoise {
 
     /// The marker error against distance from the contact shows it spread evenly (the rest
     /// scan's report plots its per-marker means, `rest.svg`).
-    fn evidence(&self, r: &Residual) -> Evidence {
+    fn evidence(&self, r: &Residual) -> EvidencePoints {
         r.error_against_distance()
     }
 }

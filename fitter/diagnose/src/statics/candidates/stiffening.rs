@@ -9,7 +9,7 @@ use palpate_fem::forward::{Factorised, SolveOptions};
 
 use super::{At, ParamName, StaticEffect};
 use crate::statics::context::Context;
-use crate::statics::signature::{Evidence, Residual};
+use crate::statics::signature::{EvidencePoints, Residual};
 use crate::statics::DiagnoseError;
 
 /// See the module.
@@ -33,7 +33,7 @@ impl StaticEffect for Stiffening {
     }
 
     /// A modulus that grows with the strain makes the displacement scale fall with the load.
-    fn evidence(&self, r: &Residual) -> Evidence {
+    fn evidence(&self, r: &Residual) -> EvidencePoints {
         r.scale_against_force()
     }
 

@@ -11,7 +11,7 @@ use palpate_fem::forward::{Foundation, Material};
 
 use super::{ParamName, StaticEffect};
 use crate::statics::context::Context;
-use crate::statics::signature::{Evidence, Residual};
+use crate::statics::signature::{EvidencePoints, Residual};
 
 /// The starting equivalent thickness ℓ_n / h.
 const SUPPORT_START: f64 = 0.1;
@@ -50,7 +50,7 @@ impl StaticEffect for Support {
         ]
     }
 
-    fn evidence(&self, r: &Residual) -> Evidence {
+    fn evidence(&self, r: &Residual) -> EvidencePoints {
         r.rigid_translation_against_force()
     }
 

@@ -4,7 +4,7 @@
 
 use super::{ParamName, StaticEffect};
 use crate::statics::context::Context;
-use crate::statics::signature::{Evidence, Residual};
+use crate::statics::signature::{EvidencePoints, Residual};
 
 /// See the module.
 pub struct Tilt;
@@ -25,7 +25,7 @@ impl StaticEffect for Tilt {
         ]
     }
 
-    fn evidence(&self, r: &Residual) -> Evidence {
+    fn evidence(&self, r: &Residual) -> EvidencePoints {
         r.horizontal_mean_against_force()
     }
 

@@ -16,7 +16,7 @@ use rayon::prelude::*;
 use super::{At, PowerPoint, ProfiledKind, Responses, StaticEffect};
 use crate::statics::context::Context;
 use crate::statics::power::row_offsets;
-use crate::statics::signature::{Evidence, Residual};
+use crate::statics::signature::{EvidencePoints, Residual};
 use crate::statics::DiagnoseError;
 
 /// The tangential coefficient of the probing solves: a tilt of ≈ 6°, small enough for the warped
@@ -35,7 +35,7 @@ impl StaticEffect for TiltEach {
         2 * measurements
     }
 
-    fn evidence(&self, r: &Residual) -> Evidence {
+    fn evidence(&self, r: &Residual) -> EvidencePoints {
         r.horizontal_mean_against_force()
     }
 
