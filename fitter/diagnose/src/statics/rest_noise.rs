@@ -170,16 +170,7 @@ pub fn estimate_rest_noise(
         ..noise.clone()
     };
     let nm = rest.len();
-    let mut seen = vec![0usize; nm];
-    let mut sum = vec![[0.0f64; 3]; nm];
-    for r in residuals {
-        for &(k, e) in r {
-            seen[k] += 1;
-            for d in 0..3 {
-                sum[k][d] += e[d];
-            }
-        }
-    }
+    let (seen, sum) = marker_sums(residuals, nm);
     // The persistent field over the markers seen at least once (local index → marker).
     let used: Vec<usize> = (0..nm).filter(|&k| seen[k] > 0).collect();
     if used.iter().filter(|&&k| seen[k] >= 2).count() < 20 {
@@ -200,17 +191,7 @@ pub fn estimate_rest_noise(
     let sigma_null = sigma_within.map_or(sigma, |s| s.max(sigma));
     let s2 = sigma_null * sigma_null;
 
-    let factors: Vec<Option<(f64, f64)>> = weights
-        .iter()
-        .enumerate()
-        .map(|(i, w)| {
-            w.as_ref().map(|w| {
-                let a = inv_m[i] + w.iter().map(|&(j, c)| c * c * inv_m[j]).sum::<f64>();
-                let b = 1.0 + w.iter().map(|&(_, c)| c * c).sum::<f64>();
-                (a, b)
-            })
-        })
-        .collect();
+    let factors = term_factors(&weights, &inv_m);
     let terms_of = |values: &[[f64; 3]]| -> Vec<Term> {
         errors(values, &weights)
             .into_iter()
@@ -265,6 +246,37 @@ pub fn estimate_rest_noise(
     };
     finding.statement = statement(&finding, sigma, o);
     Some(finding)
+}
+
+/// How often each of `nm` markers was seen in `residuals`, and the sum of its residuals.
+fn marker_sums(residuals: &[Vec<(usize, [f64; 3])>], nm: usize) -> (Vec<usize>, Vec<[f64; 3]>) {
+    let mut seen = vec![0usize; nm];
+    let mut sum = vec![[0.0f64; 3]; nm];
+    for r in residuals {
+        for &(k, e) in r {
+            seen[k] += 1;
+            for d in 0..3 {
+                sum[k][d] += e[d];
+            }
+        }
+    }
+    (seen, sum)
+}
+
+/// Each marker's variance factors (a, b) of its nugget term, E|d|² = 3 (a σ² + b τ²), from its
+/// extrapolation `weights` and the 1/m_k of the markers `inv_m` (`None` without weights).
+fn term_factors(weights: &[Option<Vec<(usize, f64)>>], inv_m: &[f64]) -> Vec<Option<(f64, f64)>> {
+    weights
+        .iter()
+        .enumerate()
+        .map(|(i, w)| {
+            w.as_ref().map(|w| {
+                let a = inv_m[i] + w.iter().map(|&(j, c)| c * c * inv_m[j]).sum::<f64>();
+                let b = 1.0 + w.iter().map(|&(_, c)| c * c).sum::<f64>();
+                (a, b)
+            })
+        })
+        .collect()
 }
 
 /// The measurements' own σ from the within-marker deviations (the rest error cancels): the
