@@ -57,20 +57,10 @@ pub struct Context {
     pub sigma: f64,
     /// Whether σ was declared by the dataset.
     pub sigma_declared: bool,
-    /// Largest reported force magnitude (N), the calibration reference.
-    pub f_ref: f64,
-    /// Mesh bounding-box centre (registration pivot).
-    pub centre: [f64; 3],
-    /// Centroid of the fixed nodes (support pivot).
-    pub base: [f64; 3],
-    /// Half the smaller horizontal box width (m).
-    pub half: f64,
+    /// The pivots and scales the effects are measured against.
+    pub frame: Frame,
     /// Tangent basis perpendicular to the mean reported force.
     pub tangents: [[f64; 3]; 2],
-    /// Gravity vector used by the gravity candidate (m/s²).
-    pub gravity: [f64; 3],
-    /// Lumped volume per node (m³).
-    pub node_volume: Vec<f64>,
     /// Trilinear weights of each element centroid on the inhomogeneity grid: (grid node, weight).
     pub grid_weights: Vec<Vec<(usize, f64)>>,
     /// Inhomogeneity grid size.
@@ -81,24 +71,10 @@ pub struct Context {
     pub marker_rest: Vec<[f64; 3]>,
     /// Element centroids (m).
     pub centroids: Vec<[f64; 3]>,
-    /// Depth of each element centroid in the layer candidate's stack, as a fraction (0 at the
-    /// surface the layers start from): one of [`Context::depth_maps`], by default
-    /// [`LayerAxis::Push`]'s.
-    pub depth: Vec<f64>,
-    /// The axis [`Context::depth`] is measured along.
-    pub layer_axis: LayerAxis,
-    /// Every layer axis's depth map and the length (m) its unit fraction stands for (the
-    /// sensitivity scan picks one, [`Context::set_layer_axis`]).
-    pub depth_maps: Vec<(LayerAxis, Vec<f64>, f64)>,
-    /// Edge of a regular tetrahedron of the mean element volume (m): the layer scan's step width.
-    pub element_size: f64,
-    /// Starting centre of the inclusion candidate.
-    pub inclusion_start: [f64; 3],
-    /// Starting θ of the inclusion candidate from the sensitivity scan (`None`: the default
-    /// start, [`super::candidates::Candidate::start`]).
-    pub inclusion_seed: Option<[f64; 5]>,
-    /// The scan's best blob, for the report.
-    pub inclusion_scan: Option<BlobScan>,
+    /// The layer candidate's depth maps.
+    pub layer: LayerDepth,
+    /// Where the inclusion candidate starts.
+    pub inclusion: InclusionStart,
     /// Node tags of the mesh solved on (for the export).
     pub node_tags: Vec<u64>,
     /// Approximation-error correction δ added to every predicted marker (per measurement, aligned
@@ -106,12 +82,57 @@ pub struct Context {
     pub correction: Option<Vec<Vec<[f64; 3]>>>,
 }
 
+/// The pivots and scales the effects are measured against.
+#[derive(Debug, Clone)]
+pub struct Frame {
+    /// Largest reported force magnitude (N), the calibration reference.
+    pub f_ref: f64,
+    /// Mesh bounding-box centre (registration pivot).
+    pub centre: [f64; 3],
+    /// Centroid of the fixed nodes (support pivot).
+    pub base: [f64; 3],
+    /// Half the smaller horizontal box width (m).
+    pub half: f64,
+    /// Gravity vector used by the gravity candidate (m/s²).
+    pub gravity: [f64; 3],
+    /// Lumped volume per node (m³).
+    pub node_volume: Vec<f64>,
+}
+
+/// Where the layer candidate's depth is measured from.
+#[derive(Debug, Clone)]
+pub struct LayerDepth {
+    /// Depth of each element centroid in the layer candidate's stack, as a fraction (0 at the
+    /// surface the layers start from): one of [`LayerDepth::maps`], by default
+    /// [`LayerAxis::Push`]'s.
+    pub depth: Vec<f64>,
+    /// The axis [`LayerDepth::depth`] is measured along.
+    pub axis: LayerAxis,
+    /// Every layer axis's depth map and the length (m) its unit fraction stands for (the
+    /// sensitivity scan picks one, [`Context::set_layer_axis`]).
+    pub maps: Vec<(LayerAxis, Vec<f64>, f64)>,
+    /// Edge of a regular tetrahedron of the mean element volume (m): the layer scan's step width.
+    pub element_size: f64,
+}
+
+/// Where the inclusion candidate starts.
+#[derive(Debug, Clone)]
+pub struct InclusionStart {
+    /// Starting centre of the inclusion candidate.
+    pub centre: [f64; 3],
+    /// Starting θ of the inclusion candidate from the sensitivity scan (`None`: the default
+    /// start, [`super::candidates::Candidate::start`]).
+    pub seed: Option<[f64; 5]>,
+    /// The scan's best blob, for the report.
+    pub scan: Option<BlobScan>,
+}
+
 impl Context {
     /// Measures the layer candidate's depth along `axis` from now on.
     pub fn set_layer_axis(&mut self, axis: LayerAxis) {
-        if let Some((_, d, _)) = self.depth_maps.iter().find(|(a, _, _)| *a == axis) {
-            self.depth = d.clone();
-            self.layer_axis = axis;
+        if let Some((_, d, _)) = self.layer.maps.iter().find(|(a, _, _)| *a == axis) {
+            self.layer.depth = d.clone();
+            self.layer.axis = axis;
         }
     }
 
@@ -183,13 +204,15 @@ impl Context {
             meas,
             sigma: ds.marker_noise.unwrap_or(1e-4),
             sigma_declared: ds.marker_noise.is_some(),
-            f_ref,
-            centre,
-            base,
-            half,
+            frame: Frame {
+                f_ref,
+                centre,
+                base,
+                half,
+                gravity,
+                node_volume,
+            },
             tangents: [t1, t2],
-            gravity,
-            node_volume,
             grid_weights,
             grid,
             solve: SolveOptions {
@@ -201,13 +224,17 @@ impl Context {
             },
             marker_rest,
             centroids,
-            depth,
-            layer_axis: LayerAxis::Push,
-            depth_maps,
-            element_size,
-            inclusion_start,
-            inclusion_seed: None,
-            inclusion_scan: None,
+            layer: LayerDepth {
+                depth,
+                axis: LayerAxis::Push,
+                maps: depth_maps,
+                element_size,
+            },
+            inclusion: InclusionStart {
+                centre: inclusion_start,
+                seed: None,
+                scan: None,
+            },
             node_tags: ds.mesh.node_tags.clone(),
             correction: None,
         })

@@ -20,7 +20,9 @@ use super::candidates::{At, StaticEffect};
 use super::DiagnoseError;
 
 pub use super::candidates::{Candidate, ALL_CANDIDATES, TILT_PROBE};
-pub use super::context::{BlobScan, Context, LayerAxis, MeasData, LAYER_NODES};
+pub use super::context::{
+    BlobScan, Context, Frame, InclusionStart, LayerAxis, LayerDepth, MeasData, LAYER_NODES,
+};
 use palpate_fem::dataset::Marker;
 use palpate_fem::forward::{Factorised, Load, Material, StaticProblem};
 use std::sync::Arc;

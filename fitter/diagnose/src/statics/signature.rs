@@ -141,7 +141,7 @@ pub fn signature(ctx: &Context, f: &Fitted) -> Signature {
         let pts: Vec<[f64; 3]> = r.iter().map(|&(k, _)| ctx.marker_rest[k]).collect();
         let es: Vec<[f64; 3]> = r.iter().map(|&(_, e)| e).collect();
         let norms: Vec<f64> = es.iter().map(|&e| Vector3::from(e).norm()).collect();
-        let (t, w, _) = rigid_fit(&pts, &es, ctx.centre);
+        let (t, w, _) = rigid_fit(&pts, &es, ctx.frame.centre);
         let mut mean = [0.0; 3];
         for e in &es {
             for d in 0..3 {
@@ -171,7 +171,7 @@ pub fn signature(ctx: &Context, f: &Fitted) -> Signature {
         all_p.extend(pts);
         all_e.extend(es);
     }
-    let (_, _, rigid_fraction) = rigid_fit(&all_p, &all_e, ctx.centre);
+    let (_, _, rigid_fraction) = rigid_fit(&all_p, &all_e, ctx.frame.centre);
     let total: f64 = sumsq.iter().sum();
     let persistent: f64 = (0..nm)
         .filter(|&k| count[k] > 0)
@@ -295,7 +295,7 @@ impl<'a> Residual<'a> {
 
     /// Each measurement's rigid part of the residual, |t| + h|ω|, against its reported force.
     pub fn rigid_part_against_force(&self) -> EvidencePoints {
-        let half = self.ctx.half;
+        let half = self.ctx.frame.half;
         (
             "reported force |f| (N)",
             "rigid part of the residual: |t| + h|ω| (mm)",

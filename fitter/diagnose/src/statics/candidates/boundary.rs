@@ -46,10 +46,10 @@ impl StaticEffect for Boundary {
         p: [f64; 3],
     ) -> [f64; 3] {
         let t = force.map(|v| v * b[0] * 1e-4);
-        let arm = [0, 1, 2].map(|d| m.point[d] - ctx.base[d]);
+        let arm = [0, 1, 2].map(|d| m.point[d] - ctx.frame.base[d]);
         let w = <[f64; 3]>::from(Vector3::from(arm).cross(&Vector3::from(force)))
-            .map(|v| v * b[1] * 1e-4 / (ctx.half * ctx.half));
-        let r = [0, 1, 2].map(|d| p[d] - ctx.base[d]);
+            .map(|v| v * b[1] * 1e-4 / (ctx.frame.half * ctx.frame.half));
+        let r = [0, 1, 2].map(|d| p[d] - ctx.frame.base[d]);
         let wr = Vector3::from(w).cross(&Vector3::from(r));
         [0, 1, 2].map(|d| p[d] + t[d] + wr[d])
     }

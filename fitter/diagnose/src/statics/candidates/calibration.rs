@@ -30,7 +30,7 @@ impl StaticEffect for Calibration {
 
     fn force(&self, ctx: &Context, b: &[f64], reported: f64, force: [f64; 3]) -> [f64; 3] {
         let k = if reported > 0.0 {
-            (reported / ctx.f_ref).powf(b[0])
+            (reported / ctx.frame.f_ref).powf(b[0])
         } else {
             1.0
         };

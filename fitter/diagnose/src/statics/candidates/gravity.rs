@@ -1,5 +1,5 @@
 //! Gravity preload: body force ρ g (ρ in 1000 kg/m³, g the declared gravity or 9.81 m/s² along
-//! −z, [`Context::gravity`]) acting in every measurement, with the rest scan taken under it
+//! −z, [`Frame::gravity`](crate::statics::context::Frame::gravity)) acting in every measurement, with the rest scan taken under it
 //! ([`Gravity::marker_embedding`]). 1 param. The rest scan's state, not the object: not in the
 //! runtime model.
 
@@ -16,9 +16,9 @@ pub struct Gravity;
 /// Adds the lumped body force ρ V_n g (ρ in 1000 kg/m³) to `fvec`.
 fn add_gravity(ctx: &Context, rho: f64, fvec: &mut [f64]) {
     let rho = rho * 1000.0;
-    for (n, v) in ctx.node_volume.iter().enumerate() {
+    for (n, v) in ctx.frame.node_volume.iter().enumerate() {
         for d in 0..3 {
-            fvec[3 * n + d] += rho * v * ctx.gravity[d];
+            fvec[3 * n + d] += rho * v * ctx.frame.gravity[d];
         }
     }
 }
@@ -64,7 +64,7 @@ impl StaticEffect for Gravity {
 /// [`Gravity::marker_embedding`] at density `rho` (1000 kg/m³).
 fn rest_scan_embedding(at: At, rho: f64) -> Result<Vec<Marker>, DiagnoseError> {
     let ctx = at.ctx;
-    let mut fvec = vec![0.0; 3 * ctx.node_volume.len()];
+    let mut fvec = vec![0.0; 3 * ctx.frame.node_volume.len()];
     add_gravity(ctx, rho, &mut fvec);
     let mat = at.model.material(ctx, at.theta, at.log_e, None)?;
     let xg = at

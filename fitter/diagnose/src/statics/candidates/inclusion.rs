@@ -1,5 +1,5 @@
 //! A stiff or soft inclusion: log E += a exp(−½ ‖x_e − p‖² / r²), a Gaussian blob with contrast
-//! a, centre p = p₀ + h θ (h the half width, p₀ = [`Context::inclusion_start`], below the mean
+//! a, centre p = p₀ + h θ (h the half width, p₀ = [`InclusionStart::centre`](crate::statics::context::InclusionStart::centre), below the mean
 //! contact point at a quarter of the depth) and radius r = ½ h exp(θ_r). 5 params (a, p/h, θ_r,
 //! dimensionless). A property of the object: the runtime model carries it per element.
 
@@ -24,10 +24,10 @@ impl StaticEffect for Inclusion {
         vec![0.5, 0.0, 0.0, 0.0, 0.0]
     }
 
-    /// The sensitivity scan's blob: its centre is `inclusion_start`, so the offsets start at
+    /// The sensitivity scan's blob: its centre is the start's centre, so the offsets start at
     /// zero; contrast and radius from its Gauss–Newton step.
     fn fit_start(&self, ctx: &Context, grid: [usize; 3]) -> Vec<f64> {
-        match ctx.inclusion_seed {
+        match ctx.inclusion.seed {
             Some(seed) => seed.to_vec(),
             None => self.start(grid),
         }
@@ -74,8 +74,8 @@ impl StaticEffect for Inclusion {
     }
 
     fn add_log_e(&self, ctx: &Context, b: &[f64], out: &mut [f64]) {
-        let p = [0, 1, 2].map(|d| ctx.inclusion_start[d] + ctx.half * b[1 + d]);
-        let r = 0.5 * ctx.half * b[4].clamp(-5.0, 5.0).exp();
+        let p = [0, 1, 2].map(|d| ctx.inclusion.centre[d] + ctx.frame.half * b[1 + d]);
+        let r = 0.5 * ctx.frame.half * b[4].clamp(-5.0, 5.0).exp();
         for (o, c) in out.iter_mut().zip(&ctx.centroids) {
             let d2: f64 = (0..3).map(|d| (c[d] - p[d]).powi(2)).sum();
             *o += b[0] * (-0.5 * d2 / (r * r)).exp();

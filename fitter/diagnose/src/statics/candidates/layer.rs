@@ -1,5 +1,5 @@
-//! Layered material: log E varies with depth below the probed face ([`Context::depth`], along
-//! [`Context::layer_axis`]), piecewise linear over [`LAYER_NODES`] equally spaced depths, the
+//! Layered material: log E varies with depth below the probed face ([`LayerDepth::depth`](crate::statics::context::LayerDepth::depth), along
+//! [`LayerDepth::axis`](crate::statics::context::LayerDepth::axis)), piecewise linear over [`LAYER_NODES`] equally spaced depths, the
 //! deepest node the reference. LAYER_NODES − 1 params, each a dimensionless Δlog E. A property
 //! of the object: the runtime model carries it per element.
 
@@ -40,7 +40,7 @@ impl StaticEffect for Layer {
     fn add_log_e(&self, ctx: &Context, b: &[f64], out: &mut [f64]) {
         // Nodes at depth k/(L−1); the deepest (k = L−1) is the reference.
         let last = (LAYER_NODES - 1) as f64;
-        for (o, &d) in out.iter_mut().zip(&ctx.depth) {
+        for (o, &d) in out.iter_mut().zip(&ctx.layer.depth) {
             let t = (d.clamp(0.0, 1.0) * last).min(last - 1e-12);
             let k = t.floor() as usize;
             let w = t - k as f64;

@@ -49,7 +49,7 @@ impl StaticEffect for Registration {
         p: [f64; 3],
     ) -> [f64; 3] {
         let w = [b[0], b[1], b[2]].map(|v| v * 1e-3);
-        let r = rotate(w, [0, 1, 2].map(|d| p[d] - ctx.centre[d]));
-        [0, 1, 2].map(|d| ctx.centre[d] + r[d] + b[3 + d] * 1e-4)
+        let r = rotate(w, [0, 1, 2].map(|d| p[d] - ctx.frame.centre[d]));
+        [0, 1, 2].map(|d| ctx.frame.centre[d] + r[d] + b[3 + d] * 1e-4)
     }
 }

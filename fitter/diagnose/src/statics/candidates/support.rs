@@ -63,7 +63,7 @@ impl StaticEffect for Support {
     fn material(&self, ctx: &Context, theta: &[f64], b: &[f64], m: &mut Material) {
         // k_n = E / ℓ_n with ℓ_n = h e^{θ₀}; the exponents clamped so that a wandering
         // optimiser trial stays finite (e^{±30}: far beyond any support a dataset can show).
-        let normal = theta[0].exp() / (ctx.half * b[0].clamp(-30.0, 30.0).exp());
+        let normal = theta[0].exp() / (ctx.frame.half * b[0].clamp(-30.0, 30.0).exp());
         m.foundation = Some(Foundation {
             normal,
             tangential: normal * b[1].clamp(-30.0, 30.0).exp(),
