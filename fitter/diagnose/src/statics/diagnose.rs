@@ -17,8 +17,8 @@ use super::rest_noise::{estimate_rest_noise, RestNoiseFinding};
 use super::select::{static_steps, StaticModel};
 use super::{power, sensitivity, signature};
 use super::{
-    DiagnoseError, DiagnoseOptions, DiagnosisReport, Errors, MeshChoice, MeshErrorSummary,
-    ResidualCheck, SolvedOn, Step, MESH_ERROR_MAX_TETS,
+    DiagnoseError, DiagnoseOptions, Diagnosed, DiagnosisReport, Errors, Kept, MeshChoice,
+    MeshErrorSummary, ResidualCheck, SolvedOn, Step, MESH_ERROR_MAX_TETS,
 };
 use crate::select::{self, Policy, Rank, Screen};
 
@@ -131,10 +131,12 @@ pub fn run_diagnosis_with(
         final_params.extend(effect_params(&ctx, &current, c));
     }
     Ok(DiagnosisReport {
-        dataset: ds.name.clone(),
-        criterion: criterion(o),
-        sigma: ctx.sigma,
-        sigma_declared: ctx.sigma_declared,
+        input: Diagnosed {
+            dataset: ds.name.clone(),
+            criterion: criterion(o),
+            sigma: ctx.sigma,
+            sigma_declared: ctx.sigma_declared,
+        },
         noise_floor: ctx.sigma * 3f64.sqrt(),
         options: o.clone(),
         adopted,
@@ -151,8 +153,10 @@ pub fn run_diagnosis_with(
         young_poisson: (current.theta[0].exp(), poisson_of(current.theta[1])),
         final_params,
         seconds: started.elapsed().as_secs_f64(),
-        final_fit: Some(current),
-        context: Some(ctx),
+        kept: Kept {
+            final_fit: Some(current),
+            context: Some(ctx),
+        },
     })
 }
 

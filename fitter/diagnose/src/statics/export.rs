@@ -57,7 +57,7 @@ pub fn runtime_material(
 /// parameter of the coarse model can remove); a mesh error that acts as a stiffness bias would
 /// show up as a difference here.
 pub fn runtime_fit(r: &DiagnosisReport) -> Result<(Context, Fitted), DiagnoseError> {
-    let (Some(f), Some(ctx)) = (&r.final_fit, &r.context) else {
+    let (Some(f), Some(ctx)) = (&r.kept.final_fit, &r.kept.context) else {
         return Err(DiagnoseError::Input(
             "the diagnosis kept no final fit to export".into(),
         ));
@@ -84,7 +84,7 @@ pub fn diagnosed_model(
     tool: &str,
     source: &str,
 ) -> Result<ModelBuffers, DiagnoseError> {
-    let (Some(f), Some(ctx)) = (&r.final_fit, &r.context) else {
+    let (Some(f), Some(ctx)) = (&r.kept.final_fit, &r.kept.context) else {
         return Err(DiagnoseError::Input(
             "the diagnosis kept no final fit to export".into(),
         ));

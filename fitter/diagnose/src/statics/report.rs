@@ -53,18 +53,22 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
 
 /// The verdict, the selection rule, the noise floor and the mesh the models were solved on.
 fn header(s: &mut String, r: &DiagnosisReport) {
-    let _ = writeln!(s, "# Diagnosis of `{}`\n", r.dataset);
+    let _ = writeln!(s, "# Diagnosis of `{}`\n", r.input.dataset);
     let verdict = format!(
         "**{}**",
         r.residual_check
             .verdict(&Candidate::names(&r.adopted, " → ", ""))
     );
-    let _ = writeln!(s, "Verdict: {verdict}. Selection rule: {}.", r.criterion);
+    let _ = writeln!(
+        s,
+        "Verdict: {verdict}. Selection rule: {}.",
+        r.input.criterion
+    );
     let _ = writeln!(
         s,
         "Marker noise σ = {} µm ({}); noise floor of the RMS marker error σ√3 = {} µm. Run time {:.1} s.\n",
-        um(r.sigma),
-        if r.sigma_declared { "declared" } else { "not declared: 100 µm used to scale" },
+        um(r.input.sigma),
+        if r.input.sigma_declared { "declared" } else { "not declared: 100 µm used to scale" },
         um(r.noise_floor),
         r.seconds
     );
@@ -554,7 +558,7 @@ pub fn summary_lines(r: &DiagnosisReport) -> Vec<String> {
     let adopted: Vec<&str> = r.adopted.iter().map(|c| c.name()).collect();
     let mut lines = vec![format!(
         "{}: {}; RMS marker error {:.1} → {:.1} µm fitted, {:.1} → {:.1} µm held out (noise floor {:.1} µm)",
-        r.dataset,
+        r.input.dataset,
         r.residual_check.verdict(&adopted.join(", ")),
         1e6 * r.before.fitted_rms,
         1e6 * r.after.fitted_rms,
