@@ -409,7 +409,7 @@ impl Model {
     }
 
     /// Marker positions from solved node positions: the effects' marker motion applied
-    /// ([`Model::physical_markers`]), then the profiled per-measurement effects (a gain per
+    /// (the physical markers), then the profiled per-measurement effects (a gain per
     /// measurement, the tangential force of [`Candidate::TiltEach`] from its responses `tilt`,
     /// the rigid transform of [`Candidate::RegistrationEach`]).
     pub fn markers_from(
