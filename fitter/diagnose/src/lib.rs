@@ -4,7 +4,7 @@
 //!
 //! | room | data | candidates | fit | signature | report |
 //! |---|---|---|---|---|---|
-//! | [`statics`] | static contact datasets (`docs/dataset.md`) | [`statics::model`] | [`statics::fit`] | [`statics::signature`] | [`statics::report`] |
+//! | [`statics`] | static contact datasets (`docs/dataset.md`) | [`statics::candidates`] | [`statics::fit`] | [`statics::signature`] | [`statics::report`] |
 //! | [`motion`] | one motion dataset (`docs/motion-dataset.md`) | [`motion::Candidate`] | [`motion::fit`] | [`motion::signature`] | [`motion::report`] |
 //! | [`runs`] | several runs of one object, some held out | [`runs::Effect`] | [`runs`] | [`runs::RunResidual`] | [`runs::report`] |
 //! | [`curve`] | measured curves (tension tests, CSV) | [`curve::model`] | [`curve::fit`] | [`curve::signature`] | [`curve::report`] |

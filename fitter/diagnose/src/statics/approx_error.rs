@@ -42,7 +42,7 @@ impl Correction {
     /// scan moves it after both contexts are built; the refined side must evaluate the same
     /// field, or δ compares two different models).
     pub fn set_inclusion_start(&mut self, p: [f64; 3]) {
-        self.fine.inclusion_start = p;
+        self.fine.inclusion.centre = p;
     }
 
     /// Measures the layer candidate's depth along `axis` on the refined side too (the scan

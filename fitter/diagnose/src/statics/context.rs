@@ -47,7 +47,7 @@ pub struct Context {
     /// The forward problem on the mesh solved on (the dataset's, or it refined once).
     pub problem: StaticProblem,
     /// The same problem with its supported face on an elastic foundation
-    /// ([`super::candidate::Candidate::Support`]); `None` when no boundary triangle lies on the fixed nodes.
+    /// ([`super::candidates::Candidate::Support`]); `None` when no boundary triangle lies on the fixed nodes.
     pub foundation: Option<StaticProblem>,
     /// Markers.
     pub markers: Vec<Marker>,
@@ -57,20 +57,10 @@ pub struct Context {
     pub sigma: f64,
     /// Whether σ was declared by the dataset.
     pub sigma_declared: bool,
-    /// Largest reported force magnitude (N), the calibration reference.
-    pub f_ref: f64,
-    /// Mesh bounding-box centre (registration pivot).
-    pub centre: [f64; 3],
-    /// Centroid of the fixed nodes (support pivot).
-    pub base: [f64; 3],
-    /// Half the smaller horizontal box width (m).
-    pub half: f64,
+    /// The pivots and scales the effects are measured against.
+    pub frame: Frame,
     /// Tangent basis perpendicular to the mean reported force.
     pub tangents: [[f64; 3]; 2],
-    /// Gravity vector used by the gravity candidate (m/s²).
-    pub gravity: [f64; 3],
-    /// Lumped volume per node (m³).
-    pub node_volume: Vec<f64>,
     /// Trilinear weights of each element centroid on the inhomogeneity grid: (grid node, weight).
     pub grid_weights: Vec<Vec<(usize, f64)>>,
     /// Inhomogeneity grid size.
@@ -81,24 +71,10 @@ pub struct Context {
     pub marker_rest: Vec<[f64; 3]>,
     /// Element centroids (m).
     pub centroids: Vec<[f64; 3]>,
-    /// Depth of each element centroid in the layer candidate's stack, as a fraction (0 at the
-    /// surface the layers start from): one of [`Context::depth_maps`], by default
-    /// [`LayerAxis::Push`]'s.
-    pub depth: Vec<f64>,
-    /// The axis [`Context::depth`] is measured along.
-    pub layer_axis: LayerAxis,
-    /// Every layer axis's depth map and the length (m) its unit fraction stands for (the
-    /// sensitivity scan picks one, [`Context::set_layer_axis`]).
-    pub depth_maps: Vec<(LayerAxis, Vec<f64>, f64)>,
-    /// Edge of a regular tetrahedron of the mean element volume (m): the layer scan's step width.
-    pub element_size: f64,
-    /// Starting centre of the inclusion candidate.
-    pub inclusion_start: [f64; 3],
-    /// Starting θ of the inclusion candidate from the sensitivity scan (`None`: the default
-    /// start, [`super::candidate::Candidate::start`]).
-    pub inclusion_seed: Option<[f64; 5]>,
-    /// The scan's best blob, for the report.
-    pub inclusion_scan: Option<BlobScan>,
+    /// The layer candidate's depth maps.
+    pub layer: LayerDepth,
+    /// Where the inclusion candidate starts.
+    pub inclusion: InclusionStart,
     /// Node tags of the mesh solved on (for the export).
     pub node_tags: Vec<u64>,
     /// Approximation-error correction δ added to every predicted marker (per measurement, aligned
@@ -106,12 +82,57 @@ pub struct Context {
     pub correction: Option<Vec<Vec<[f64; 3]>>>,
 }
 
+/// The pivots and scales the effects are measured against.
+#[derive(Debug, Clone)]
+pub struct Frame {
+    /// Largest reported force magnitude (N), the calibration reference.
+    pub f_ref: f64,
+    /// Mesh bounding-box centre (registration pivot).
+    pub centre: [f64; 3],
+    /// Centroid of the fixed nodes (support pivot).
+    pub base: [f64; 3],
+    /// Half the smaller horizontal box width (m).
+    pub half: f64,
+    /// Gravity vector used by the gravity candidate (m/s²).
+    pub gravity: [f64; 3],
+    /// Lumped volume per node (m³).
+    pub node_volume: Vec<f64>,
+}
+
+/// Where the layer candidate's depth is measured from.
+#[derive(Debug, Clone)]
+pub struct LayerDepth {
+    /// Depth of each element centroid in the layer candidate's stack, as a fraction (0 at the
+    /// surface the layers start from): one of [`LayerDepth::maps`], by default
+    /// [`LayerAxis::Push`]'s.
+    pub depth: Vec<f64>,
+    /// The axis [`LayerDepth::depth`] is measured along.
+    pub axis: LayerAxis,
+    /// Every layer axis's depth map and the length (m) its unit fraction stands for (the
+    /// sensitivity scan picks one, [`Context::set_layer_axis`]).
+    pub maps: Vec<(LayerAxis, Vec<f64>, f64)>,
+    /// Edge of a regular tetrahedron of the mean element volume (m): the layer scan's step width.
+    pub element_size: f64,
+}
+
+/// Where the inclusion candidate starts.
+#[derive(Debug, Clone)]
+pub struct InclusionStart {
+    /// Starting centre of the inclusion candidate.
+    pub centre: [f64; 3],
+    /// Starting θ of the inclusion candidate from the sensitivity scan (`None`: the default
+    /// start, [`super::candidates::Candidate::start`]).
+    pub seed: Option<[f64; 5]>,
+    /// The scan's best blob, for the report.
+    pub scan: Option<BlobScan>,
+}
+
 impl Context {
     /// Measures the layer candidate's depth along `axis` from now on.
     pub fn set_layer_axis(&mut self, axis: LayerAxis) {
-        if let Some((_, d, _)) = self.depth_maps.iter().find(|(a, _, _)| *a == axis) {
-            self.depth = d.clone();
-            self.layer_axis = axis;
+        if let Some((_, d, _)) = self.layer.maps.iter().find(|(a, _, _)| *a == axis) {
+            self.layer.depth = d.clone();
+            self.layer.axis = axis;
         }
     }
 
@@ -155,56 +176,22 @@ impl Context {
         let (meas, f_ref) = measurements(ds)?;
         let (lo, hi) = ds.mesh.bounds();
         let centre = [0, 1, 2].map(|d| 0.5 * (lo[d] + hi[d]));
-        let mut base = [0.0; 3];
-        for &n in &ds.fixed_nodes {
-            for d in 0..3 {
-                base[d] += ds.mesh.nodes[n][d] / ds.fixed_nodes.len() as f64;
-            }
-        }
+        let base = fixed_centroid(ds);
         let half = 0.5 * (hi[0] - lo[0]).min(hi[1] - lo[1]).max(1e-9);
-        let mut mean = [0.0; 3];
-        for m in &meas {
-            let n = Vector3::from(m.force).norm().max(1e-300);
-            for d in 0..3 {
-                mean[d] += m.force[d] / n;
-            }
-        }
-        let [nz, t1, t2] = frame_along(Vector3::from(mean), 1e-9);
+        let [nz, t1, t2] = frame_along(mean_direction(&meas), 1e-9);
         let gravity = ds.gravity.unwrap_or([0.0, 0.0, -9.81]);
-        let mut node_volume = vec![0.0; ds.mesh.nodes.len()];
-        for (t, g) in ds.mesh.tets.iter().zip(&problem.geometry) {
-            for &n in t {
-                node_volume[n] += 0.25 * g.volume;
-            }
-        }
+        let node_volume = node_volumes(ds, &problem);
         let centroids = palpate_static_fit::blend::centroids(&problem);
         let grid_weights = centroids
             .iter()
             .map(|&c| trilinear(c, lo, hi, grid))
             .collect();
-        // Depth along the mean pushing direction nz, from the probed face (smallest x·nz).
-        let along = |x: &[f64; 3]| x[0] * nz[0] + x[1] * nz[1] + x[2] * nz[2];
-        let (top, bottom) = extent_along(&ds.mesh, nz);
-        let span = (bottom - top).max(1e-12);
-        let depth: Vec<f64> = centroids.iter().map(|c| (along(c) - top) / span).collect();
-        let (vertical, vertical_span) = vertical_depth(&ds.mesh, &centroids, gravity);
-        let (skin, skin_span) = skin_depth(&ds.mesh, &ds.fixed_nodes, &centroids);
-        let depth_maps = vec![
-            (LayerAxis::Push, depth.clone(), span),
-            (LayerAxis::Vertical, vertical, vertical_span),
-            (LayerAxis::Skin, skin, skin_span),
-        ];
+        let (depth_maps, top, span) = layer_depth_maps(ds, &centroids, nz, gravity);
+        let depth = depth_maps[0].1.clone();
         let mean_volume = problem.geometry.iter().map(|g| g.volume).sum::<f64>()
             / problem.geometry.len().max(1) as f64;
         let element_size = (6.0 * 2f64.sqrt() * mean_volume).cbrt();
-        let mut contact_mean = [0.0; 3];
-        for m in &meas {
-            for d in 0..3 {
-                contact_mean[d] += m.point[d] / meas.len() as f64;
-            }
-        }
-        let shift = 0.25 * span - (along(&contact_mean) - top);
-        let inclusion_start = [0, 1, 2].map(|d| contact_mean[d] + shift * nz[d]);
+        let inclusion_start = inclusion_start(&meas, nz, top, span);
         let marker_rest = ds
             .markers
             .iter()
@@ -217,13 +204,15 @@ impl Context {
             meas,
             sigma: ds.marker_noise.unwrap_or(1e-4),
             sigma_declared: ds.marker_noise.is_some(),
-            f_ref,
-            centre,
-            base,
-            half,
+            frame: Frame {
+                f_ref,
+                centre,
+                base,
+                half,
+                gravity,
+                node_volume,
+            },
             tangents: [t1, t2],
-            gravity,
-            node_volume,
             grid_weights,
             grid,
             solve: SolveOptions {
@@ -235,13 +224,17 @@ impl Context {
             },
             marker_rest,
             centroids,
-            depth,
-            layer_axis: LayerAxis::Push,
-            depth_maps,
-            element_size,
-            inclusion_start,
-            inclusion_seed: None,
-            inclusion_scan: None,
+            layer: LayerDepth {
+                depth,
+                axis: LayerAxis::Push,
+                maps: depth_maps,
+                element_size,
+            },
+            inclusion: InclusionStart {
+                centre: inclusion_start,
+                seed: None,
+                scan: None,
+            },
             node_tags: ds.mesh.node_tags.clone(),
             correction: None,
         })
@@ -254,6 +247,78 @@ impl Context {
             .map(|&i| 3 * self.meas[i].observed.len())
             .sum()
     }
+}
+
+/// Centroid of the fixed nodes (the compliant support's pivot).
+fn fixed_centroid(ds: &StaticDataset) -> [f64; 3] {
+    let mut base = [0.0; 3];
+    for &n in &ds.fixed_nodes {
+        for d in 0..3 {
+            base[d] += ds.mesh.nodes[n][d] / ds.fixed_nodes.len() as f64;
+        }
+    }
+    base
+}
+
+/// The sum of the measurements' unit reported force directions (the mean pushing direction,
+/// unnormalised).
+fn mean_direction(meas: &[MeasData]) -> Vector3<f64> {
+    let mut mean = [0.0; 3];
+    for m in meas {
+        let n = Vector3::from(m.force).norm().max(1e-300);
+        for d in 0..3 {
+            mean[d] += m.force[d] / n;
+        }
+    }
+    Vector3::from(mean)
+}
+
+/// Lumped volume per node (m³): a quarter of each tetrahedron's on each of its nodes.
+fn node_volumes(ds: &StaticDataset, problem: &StaticProblem) -> Vec<f64> {
+    let mut node_volume = vec![0.0; ds.mesh.nodes.len()];
+    for (t, g) in ds.mesh.tets.iter().zip(&problem.geometry) {
+        for &n in t {
+            node_volume[n] += 0.25 * g.volume;
+        }
+    }
+    node_volume
+}
+
+/// Every layer axis's depth map of the element `centroids` with the length its unit fraction
+/// stands for, [`LayerAxis::Push`]'s first; and the push axis's probed face `top` and `span`
+/// along the mean pushing direction `nz` (from the probed face: smallest x·nz).
+fn layer_depth_maps(
+    ds: &StaticDataset,
+    centroids: &[[f64; 3]],
+    nz: [f64; 3],
+    gravity: [f64; 3],
+) -> (Vec<(LayerAxis, Vec<f64>, f64)>, f64, f64) {
+    let along = |x: &[f64; 3]| x[0] * nz[0] + x[1] * nz[1] + x[2] * nz[2];
+    let (top, bottom) = extent_along(&ds.mesh, nz);
+    let span = (bottom - top).max(1e-12);
+    let depth: Vec<f64> = centroids.iter().map(|c| (along(c) - top) / span).collect();
+    let (vertical, vertical_span) = vertical_depth(&ds.mesh, centroids, gravity);
+    let (skin, skin_span) = skin_depth(&ds.mesh, &ds.fixed_nodes, centroids);
+    let maps = vec![
+        (LayerAxis::Push, depth, span),
+        (LayerAxis::Vertical, vertical, vertical_span),
+        (LayerAxis::Skin, skin, skin_span),
+    ];
+    (maps, top, span)
+}
+
+/// The inclusion candidate's starting centre: below the mean contact point at a quarter of the
+/// depth `span` along `nz` from the probed face `top`.
+fn inclusion_start(meas: &[MeasData], nz: [f64; 3], top: f64, span: f64) -> [f64; 3] {
+    let along = |x: &[f64; 3]| x[0] * nz[0] + x[1] * nz[1] + x[2] * nz[2];
+    let mut contact_mean = [0.0; 3];
+    for m in meas {
+        for d in 0..3 {
+            contact_mean[d] += m.point[d] / meas.len() as f64;
+        }
+    }
+    let shift = 0.25 * span - (along(&contact_mean) - top);
+    [0, 1, 2].map(|d| contact_mean[d] + shift * nz[d])
 }
 
 /// The dataset's measurements as the diagnosis reads them, and the largest force (N), the

@@ -17,8 +17,8 @@ use super::rest_noise::{estimate_rest_noise, RestNoiseFinding};
 use super::select::{static_steps, StaticModel};
 use super::{power, sensitivity, signature};
 use super::{
-    DiagnoseError, DiagnoseOptions, DiagnosisReport, Errors, MeshChoice, MeshErrorSummary,
-    ResidualCheck, SolvedOn, Step, MESH_ERROR_MAX_TETS,
+    DiagnoseError, DiagnoseOptions, Diagnosed, DiagnosisReport, Errors, Kept, MeshChoice,
+    MeshErrorSummary, ResidualCheck, SolvedOn, Step, MESH_ERROR_MAX_TETS,
 };
 use crate::select::{self, Policy, Rank, Screen};
 
@@ -131,10 +131,12 @@ pub fn run_diagnosis_with(
         final_params.extend(effect_params(&ctx, &current, c));
     }
     Ok(DiagnosisReport {
-        dataset: ds.name.clone(),
-        criterion: criterion(o),
-        sigma: ctx.sigma,
-        sigma_declared: ctx.sigma_declared,
+        input: Diagnosed {
+            dataset: ds.name.clone(),
+            criterion: criterion(o),
+            sigma: ctx.sigma,
+            sigma_declared: ctx.sigma_declared,
+        },
         noise_floor: ctx.sigma * 3f64.sqrt(),
         options: o.clone(),
         adopted,
@@ -151,8 +153,10 @@ pub fn run_diagnosis_with(
         young_poisson: (current.theta[0].exp(), poisson_of(current.theta[1])),
         final_params,
         seconds: started.elapsed().as_secs_f64(),
-        final_fit: Some(current),
-        context: Some(ctx),
+        kept: Kept {
+            final_fit: Some(current),
+            context: Some(ctx),
+        },
     })
 }
 
@@ -334,16 +338,16 @@ fn locate_candidates(
             1e3 * scan.centre[2],
             scan.reduction
         ));
-        ctx.inclusion_start = scan.centre;
+        ctx.inclusion.centre = scan.centre;
         if let Some(c) = correction.as_mut() {
             c.set_inclusion_start(scan.centre);
         }
         // log contrast at least 0.3 in size (the position is invisible at zero contrast),
         // at most ln 10; radius r = ½ h e^θ_r.
         let a = scan.contrast.signum() * scan.contrast.abs().clamp(0.3, 10f64.ln());
-        let theta_r = (2.0 * scan.radius / ctx.half).ln();
-        ctx.inclusion_seed = Some([a, 0.0, 0.0, 0.0, theta_r]);
-        ctx.inclusion_scan = Some(scan);
+        let theta_r = (2.0 * scan.radius / ctx.frame.half).ln();
+        ctx.inclusion.seed = Some([a, 0.0, 0.0, 0.0, theta_r]);
+        ctx.inclusion.scan = Some(scan);
     }
     if let Some(s) = gradient.as_ref().filter(|_| layer) {
         // Per axis, the best step in log E over thicknesses of 5–70 % of its depth range (the
@@ -351,10 +355,10 @@ fn locate_candidates(
         // candidate's depth is the winning axis's.
         let t: Vec<f64> = (0..14).map(|k| 0.05 + 0.05 * k as f64).collect();
         let best = ctx
-            .depth_maps
+            .layer.maps
             .iter()
             .filter_map(|(axis, depth, range)| {
-                let width = 0.25 * ctx.element_size / range;
+                let width = 0.25 * ctx.layer.element_size / range;
                 sensitivity::scan_layers(ctx, s, depth, &t, width).map(|l| (*axis, l))
             })
             .inspect(|(axis, l)| {

@@ -92,14 +92,9 @@ pub struct Step {
 /// The report of [`super::run_diagnosis`].
 #[derive(Debug, Clone, Serialize)]
 pub struct DiagnosisReport {
-    /// Dataset name.
-    pub dataset: String,
-    /// Selection rule in words.
-    pub criterion: String,
-    /// σ (m) used to scale residuals.
-    pub sigma: f64,
-    /// Whether σ was declared.
-    pub sigma_declared: bool,
+    /// What was diagnosed and by which rule (serialised in its place, field by field).
+    #[serde(flatten)]
+    pub input: Diagnosed,
     /// Noise floor of the RMS marker error, σ √3 (m).
     pub noise_floor: f64,
     /// Options.
@@ -139,11 +134,30 @@ pub struct DiagnosisReport {
     pub young_poisson: (f64, f64),
     /// Wall-clock seconds.
     pub seconds: f64,
-    /// The final fit (parameters, simulation) for export.
+    /// The final fit and its context, kept for the export (not serialised).
     #[serde(skip)]
+    pub kept: Kept,
+}
+
+/// What a diagnosis was run on and by which rule.
+#[derive(Debug, Clone, Serialize)]
+pub struct Diagnosed {
+    /// Dataset name.
+    pub dataset: String,
+    /// Selection rule in words.
+    pub criterion: String,
+    /// σ (m) used to scale residuals.
+    pub sigma: f64,
+    /// Whether σ was declared.
+    pub sigma_declared: bool,
+}
+
+/// The final fit and its context, kept for the export.
+#[derive(Debug, Clone, Default)]
+pub struct Kept {
+    /// The final fit (parameters, simulation).
     pub final_fit: Option<Fitted>,
-    /// The prepared context (for export).
-    #[serde(skip)]
+    /// The prepared context.
     pub context: Option<Context>,
 }
 

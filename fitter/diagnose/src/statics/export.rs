@@ -32,7 +32,7 @@ pub fn runtime_material(
     theta: &[f64],
     xs: &[Vec<[f64; 3]>],
 ) -> Result<(Vec<Material>, BlendData), DiagnoseError> {
-    if !model.effects.contains(&Candidate::Stiffening) {
+    if !model.state_dependent() {
         return Ok((
             vec![model.material_at(ctx, theta, &ctx.problem.x0)?],
             BlendData::None,
@@ -57,7 +57,7 @@ pub fn runtime_material(
 /// parameter of the coarse model can remove); a mesh error that acts as a stiffness bias would
 /// show up as a difference here.
 pub fn runtime_fit(r: &DiagnosisReport) -> Result<(Context, Fitted), DiagnoseError> {
-    let (Some(f), Some(ctx)) = (&r.final_fit, &r.context) else {
+    let (Some(f), Some(ctx)) = (&r.kept.final_fit, &r.kept.context) else {
         return Err(DiagnoseError::Input(
             "the diagnosis kept no final fit to export".into(),
         ));
@@ -84,7 +84,7 @@ pub fn diagnosed_model(
     tool: &str,
     source: &str,
 ) -> Result<ModelBuffers, DiagnoseError> {
-    let (Some(f), Some(ctx)) = (&r.final_fit, &r.context) else {
+    let (Some(f), Some(ctx)) = (&r.kept.final_fit, &r.kept.context) else {
         return Err(DiagnoseError::Input(
             "the diagnosis kept no final fit to export".into(),
         ));
@@ -126,13 +126,7 @@ pub fn diagnosed_model(
         ));
     }
     for &c in &r.adopted {
-        let in_model = matches!(
-            c,
-            Candidate::Inhomogeneity
-                | Candidate::Layer
-                | Candidate::Inclusion
-                | Candidate::Stiffening
-        );
+        let in_model = c.effect().in_runtime_model();
         let values: Vec<String> = effect_params(ctx, f, c)
             .iter()
             .map(|p| format!("{} = {:.4e} ± {:.1e} {}", p.name, p.value, p.sd, p.unit))

@@ -35,7 +35,7 @@
 //! `noise`, and when it is above, both are adopted (judged under σ̂_w²I + τ̂²11ᵀ).
 
 pub mod approx_error;
-mod candidate;
+pub mod candidates;
 mod context;
 mod diagnose;
 mod diagnosis;
@@ -57,7 +57,8 @@ mod verdict;
 
 pub use diagnose::{run_diagnosis, run_diagnosis_with};
 pub use diagnosis::{
-    DiagnosisReport, Errors, Evidence, MeshErrorSummary, SolvedOn, Step, Tried, MESH_ERROR_MAX_TETS,
+    Diagnosed, DiagnosisReport, Errors, Evidence, Kept, MeshErrorSummary, SolvedOn, Step, Tried,
+    MESH_ERROR_MAX_TETS,
 };
 pub use options::{DiagnoseOptions, MeshChoice};
 pub use params::{base_params, effect_params};

@@ -29,8 +29,9 @@
 use nalgebra::DMatrix;
 use serde::Serialize;
 
+use super::candidates::{At, PowerPoint};
 use super::fit::{jacobian_columns, Fitted};
-use super::model::{Candidate, Context, ALL_CANDIDATES};
+use super::model::{Candidate, Context, Model, Simulated, ALL_CANDIDATES};
 use super::DiagnoseError;
 
 /// Secant step on the dimensionless θ (scaled so that 1 is a large effect: 1000 kg/m³, a factor
@@ -127,46 +128,27 @@ fn sig3(v: f64) -> String {
     }
 }
 
-/// The columns of the candidates' blocks that carry their magnitude at zero effect: every
-/// parameter, except the inclusion's position and radius, which are invisible at zero contrast
-/// (its contrast is stated at the candidate's starting place).
-fn live_columns(c: Candidate, grid: [usize; 3]) -> Vec<usize> {
-    match c {
-        Candidate::Inclusion => vec![0],
-        _ => (0..c.params(grid)).collect(),
-    }
-}
-
 /// The smallest detectable magnitudes of every θ-candidate the final fit `f` does not hold, at
-/// the shortlist threshold `bic_threshold` (T above).
+/// the shortlist threshold `bic_threshold` (T above), then of every profiled one.
 pub fn detectable(
     ctx: &Context,
     f: &Fitted,
     bic_threshold: f64,
 ) -> Result<Vec<Detectable>, DiagnoseError> {
-    let grid = ctx.grid;
-    let candidates: Vec<Candidate> = ALL_CANDIDATES
+    let candidates: Vec<(Candidate, Vec<f64>)> = ALL_CANDIDATES
         .iter()
         .copied()
-        .filter(|&c| c.params(grid) > 0 && !f.model.effects.contains(&c))
-        // The fixed support is the foundation's limit ℓ_n → 0, not a point of its θ, and its
-        // response vanishes there: no finite column states its power.
-        .filter(|&c| c != Candidate::Support)
+        .filter(|c| !f.model.effects.contains(c))
+        .filter_map(|c| c.effect().power_start(ctx.grid).map(|b| (c, b)))
         .collect();
     if candidates.is_empty() {
         return Ok(Vec::new());
     }
     // Every candidate at zero effect in one augmented model: the simulation is the final fit's.
     let mut model = f.model.clone();
-    for &c in &candidates {
-        model = model.with(c);
-    }
     let mut theta = f.theta.clone();
-    for &c in &candidates {
-        let mut block = c.start(grid);
-        if c == Candidate::Inclusion {
-            block[0] = 0.0;
-        }
+    for (c, block) in &candidates {
+        model = model.with(*c);
         theta.extend(block);
     }
     let subset = &f.subset;
@@ -174,104 +156,42 @@ pub fn detectable(
     let r0 = model.residuals(ctx, subset, &sim.markers);
     let n = r0.len();
     let chi2: f64 = r0.iter().map(|v| v * v).sum();
-    let s2 = chi2 / n.max(1) as f64;
-
-    // Columns: the final model's parameters (base and adopted), then the candidates' live ones.
-    let kb = f.theta.len();
-    let mut cols: Vec<usize> = (0..kb).collect();
-    let mut where_: Vec<(Candidate, Vec<usize>)> = Vec::new();
-    for &c in &candidates {
-        let o = model.offset(c, grid).expect("added above");
-        let mine: Vec<usize> = live_columns(c, grid)
-            .into_iter()
-            .map(|j| {
-                cols.push(o + j);
-                cols.len() - 1
-            })
-            .collect();
-        where_.push((c, mine));
-    }
-    let j = jacobian_columns(ctx, &model, &theta, subset, &sim, &r0, &cols, FD_STEP)?;
-    let jb = j.columns(0, kb).into_owned();
+    let lin = Linearised {
+        s2: chi2 / n.max(1) as f64,
+        n,
+        threshold: bic_threshold,
+    };
+    let (j, where_) = live_jacobian(ctx, f, (&model, &theta), &sim, &r0, &candidates)?;
+    let jb = j.columns(0, f.theta.len()).into_owned();
     let hbb = jb.transpose() * &jb;
     let hbb_inv = hbb.clone().pseudo_inverse(1e-12 * hbb.norm()).ok();
-
-    let mut out = Vec::new();
-    for (c, mine) in where_ {
-        let k = c.params(grid) as f64;
-        let mut jc = DMatrix::zeros(n, mine.len());
-        for (a, &col) in mine.iter().enumerate() {
-            jc.column_mut(a).copy_from(&j.column(col));
-        }
-        let hcc = jc.transpose() * &jc;
-        let hcb = jc.transpose() * &jb;
-        let s = match &hbb_inv {
-            Some(inv) => &hcc - &hcb * inv * hcb.transpose(),
-            None => hcc.clone(),
-        };
-        let need = s2 * (k * (n as f64).ln() + bic_threshold);
-        let s_inv = s.clone().try_inverse();
-        let names = c.param_names(grid);
-        let params = live_columns(c, grid)
-            .into_iter()
-            .enumerate()
-            .map(|(a, p)| {
-                let (name, unit, scale) = names[p].clone();
-                // A direction the fitted parameters already explain (S singular there, or S⁻¹
-                // negative from round-off) is not detectable at any magnitude.
-                let var = s_inv
-                    .as_ref()
-                    .map(|inv| inv[(a, a)])
-                    .filter(|v| v.is_finite() && *v > 0.0 && s[(a, a)] > 1e-12 * hcc[(a, a)]);
-                DetectableParam {
-                    name,
-                    unit,
-                    min: var.map(|v| (need * v).sqrt() * scale),
-                }
-            })
-            .collect();
-        out.push(Detectable {
-            candidate: c,
-            params,
-            note: (c == Candidate::Inclusion).then_some(
-                "r = h/2, centred a quarter deep below the mean contact point: its starting place",
-            ),
-        });
-    }
-    // tr S of a set of columns against the fitted parameters: Σ ‖c‖² − (J_bᵀc)ᵀ H_bb⁻¹ (J_bᵀc).
-    let trace = |cols: &[Vec<f64>]| -> f64 {
-        cols.iter()
-            .map(|c| {
-                let c = nalgebra::DVector::from_column_slice(c);
-                let bc = jb.transpose() * &c;
-                c.norm_squared() - hbb_inv.as_ref().map_or(0.0, |inv| bc.dot(&(inv * &bc)))
-            })
-            .sum()
+    let mut out: Vec<Detectable> = where_
+        .into_iter()
+        .map(|(c, mine)| block_statement(ctx.grid, &lin, c, &mine, &j, (&jb, &hbb_inv)))
+        .collect();
+    let point = PowerPoint {
+        at: At {
+            model: &model,
+            ctx,
+            theta: &theta,
+            log_e: None,
+        },
+        subset,
+        sim: &sim,
     };
-    let m = subset.len();
-    for c in [
-        Candidate::ForceScaleEach,
-        Candidate::RegistrationEach,
-        Candidate::TiltEach,
-    ] {
+    // The profiled statements follow the θ ones, the last tried first.
+    for &c in ALL_CANDIDATES.iter().rev() {
         if f.model.effects.contains(&c) {
             continue;
         }
-        let need = s2 * (c.profiled(m) as f64 * (n as f64).ln() + bic_threshold);
-        let kinds = if c == Candidate::TiltEach {
-            let tilt = model.tilt_responses(ctx, &theta, subset, &sim)?;
-            vec![(
-                "tangential coefficient per direction",
-                "",
-                tilt_columns(ctx, subset, &tilt),
-            )]
-        } else {
-            per_measurement_columns(ctx, subset, &sim.markers, c)
+        let Some(kinds) = c.effect().profiled_columns(&point) else {
+            continue;
         };
-        let params = kinds
+        let need = lin.need(c.profiled(subset.len()) as f64);
+        let params = kinds?
             .into_iter()
             .map(|(name, unit, cols)| {
-                let t = trace(&cols);
+                let t = trace(&cols, &jb, &hbb_inv);
                 DetectableParam {
                     name: name.into(),
                     unit,
@@ -288,32 +208,117 @@ pub fn detectable(
     Ok(out)
 }
 
-/// `tilt-each`'s residual columns (units of σ, in [`Model::residuals`]'s order): per measurement
-/// and tangent direction, its markers' response to a unit tangential coefficient (× |f|).
-///
-/// [`Model::residuals`]: super::model::Model::residuals
-fn tilt_columns(ctx: &Context, subset: &[usize], tilt: &[[Vec<[f64; 3]>; 2]]) -> Vec<Vec<f64>> {
-    let (offset, n) = row_offsets(ctx, subset);
-    let mut out = Vec::with_capacity(2 * subset.len());
-    for (a, responses) in tilt.iter().enumerate() {
-        for resp in responses {
-            let mut col = vec![0.0; n];
-            for (j, p) in resp.iter().enumerate() {
-                for d in 0..3 {
-                    col[offset[a] + 3 * j + d] = p[d] / ctx.sigma;
-                }
-            }
-            out.push(col);
-        }
+/// The linearisation's scale: the residual variance per entry s², the entries n and the
+/// shortlist threshold T.
+struct Linearised {
+    s2: f64,
+    n: usize,
+    threshold: f64,
+}
+
+impl Linearised {
+    /// The Δχ² a candidate of `k` parameters must explain to be shortlisted, s² (k ln n + T).
+    fn need(&self, k: f64) -> f64 {
+        self.s2 * (k * (self.n as f64).ln() + self.threshold)
     }
-    out
+}
+
+/// The Jacobian at the augmented model's point `(model, theta)`: the final model's parameters
+/// (base and adopted), then the candidates' live columns, and where each candidate's are.
+fn live_jacobian(
+    ctx: &Context,
+    f: &Fitted,
+    (model, theta): (&Model, &[f64]),
+    sim: &Simulated,
+    r0: &[f64],
+    candidates: &[(Candidate, Vec<f64>)],
+) -> Result<(DMatrix<f64>, Vec<(Candidate, Vec<usize>)>), DiagnoseError> {
+    let grid = ctx.grid;
+    let mut cols: Vec<usize> = (0..f.theta.len()).collect();
+    let mut where_: Vec<(Candidate, Vec<usize>)> = Vec::new();
+    for &(c, _) in candidates {
+        let o = model.offset(c, grid).expect("added above");
+        let mine: Vec<usize> = c
+            .effect()
+            .live_columns(grid)
+            .into_iter()
+            .map(|j| {
+                cols.push(o + j);
+                cols.len() - 1
+            })
+            .collect();
+        where_.push((c, mine));
+    }
+    let j = jacobian_columns(ctx, model, theta, &f.subset, sim, r0, &cols, FD_STEP)?;
+    Ok((j, where_))
+}
+
+/// The power statement of θ-candidate `c` from its columns `mine` of `j`, against the fitted
+/// parameters' columns `jb` (and the pseudo-inverse of their normal matrix).
+fn block_statement(
+    grid: [usize; 3],
+    lin: &Linearised,
+    c: Candidate,
+    mine: &[usize],
+    j: &DMatrix<f64>,
+    (jb, hbb_inv): (&DMatrix<f64>, &Option<DMatrix<f64>>),
+) -> Detectable {
+    let effect = c.effect();
+    let k = c.params(grid) as f64;
+    let mut jc = DMatrix::zeros(lin.n, mine.len());
+    for (a, &col) in mine.iter().enumerate() {
+        jc.column_mut(a).copy_from(&j.column(col));
+    }
+    let hcc = jc.transpose() * &jc;
+    let hcb = jc.transpose() * jb;
+    let s = match hbb_inv {
+        Some(inv) => &hcc - &hcb * inv * hcb.transpose(),
+        None => hcc.clone(),
+    };
+    let need = lin.need(k);
+    let s_inv = s.clone().try_inverse();
+    let names = c.param_names(grid);
+    let params = effect
+        .live_columns(grid)
+        .into_iter()
+        .enumerate()
+        .map(|(a, p)| {
+            let (name, unit, scale) = names[p].clone();
+            // A direction the fitted parameters already explain (S singular there, or S⁻¹
+            // negative from round-off) is not detectable at any magnitude.
+            let var = s_inv
+                .as_ref()
+                .map(|inv| inv[(a, a)])
+                .filter(|v| v.is_finite() && *v > 0.0 && s[(a, a)] > 1e-12 * hcc[(a, a)]);
+            DetectableParam {
+                name,
+                unit,
+                min: var.map(|v| (need * v).sqrt() * scale),
+            }
+        })
+        .collect();
+    Detectable {
+        candidate: c,
+        params,
+        note: effect.power_note(),
+    }
+}
+
+/// tr S of a set of columns against the fitted parameters' columns `jb`:
+/// Σ ‖c‖² − (J_bᵀc)ᵀ H_bb⁻¹ (J_bᵀc).
+fn trace(cols: &[Vec<f64>], jb: &DMatrix<f64>, hbb_inv: &Option<DMatrix<f64>>) -> f64 {
+    cols.iter()
+        .map(|c| {
+            let c = nalgebra::DVector::from_column_slice(c);
+            let bc = jb.transpose() * &c;
+            c.norm_squared() - hbb_inv.as_ref().map_or(0.0, |inv| bc.dot(&(inv * &bc)))
+        })
+        .sum()
 }
 
 /// The first residual row of each measurement of `subset` in [`Model::residuals`]'s order, and
 /// the number of rows.
-///
-/// [`Model::residuals`]: super::model::Model::residuals
-fn row_offsets(ctx: &Context, subset: &[usize]) -> (Vec<usize>, usize) {
+pub(in crate::statics) fn row_offsets(ctx: &Context, subset: &[usize]) -> (Vec<usize>, usize) {
     let mut offset = Vec::with_capacity(subset.len());
     let mut n = 0;
     for &i in subset {
@@ -323,77 +328,35 @@ fn row_offsets(ctx: &Context, subset: &[usize]) -> (Vec<usize>, usize) {
     (offset, n)
 }
 
-/// The residual columns (units of σ, in [`Model::residuals`]'s order) of a per-measurement
-/// candidate's parameters at the simulated markers `sims`, grouped by kind: for
-/// `force-scale-each` one column per measurement (its markers' displacement: a scale 1 + s
-/// moves them by s times it); for `registration-each` a translation column per measurement and
-/// axis, and a rotation column per measurement and axis (about its markers' centroid).
-///
-/// [`Model::residuals`]: super::model::Model::residuals
-fn per_measurement_columns(
+/// Residual columns (units of σ, in [`Model::residuals`]'s order) of a per-measurement
+/// parameter at the simulated markers `sims`: one column per measurement of `subset`, its rows
+/// `entry(marker index, simulated position, the measurement's marker centroid)`.
+pub(in crate::statics) fn measurement_columns(
     ctx: &Context,
     subset: &[usize],
     sims: &[Vec<[f64; 3]>],
-    c: Candidate,
-) -> Vec<(&'static str, &'static str, Vec<Vec<f64>>)> {
+    entry: &dyn Fn(usize, [f64; 3], [f64; 3]) -> [f64; 3],
+) -> Vec<Vec<f64>> {
     let (offset, n) = row_offsets(ctx, subset);
-    // One column per measurement from `entry(k, marker position, centroid) -> 3 rows`.
-    let columns = |entry: &dyn Fn(usize, [f64; 3], [f64; 3]) -> [f64; 3]| -> Vec<Vec<f64>> {
-        subset
-            .iter()
-            .enumerate()
-            .map(|(a, &i)| {
-                let pts = &sims[a];
-                let mut centre = [0.0; 3];
-                for p in pts {
-                    (0..3).for_each(|d| centre[d] += p[d] / pts.len().max(1) as f64);
-                }
-                let mut col = vec![0.0; n];
-                for (j, (&(k, _), p)) in ctx.meas[i].observed.iter().zip(pts).enumerate() {
-                    let e = entry(k, *p, centre);
-                    for d in 0..3 {
-                        col[offset[a] + 3 * j + d] = e[d] / ctx.sigma;
-                    }
-                }
-                col
-            })
-            .collect()
-    };
-    match c {
-        Candidate::ForceScaleEach => vec![(
-            "force scale s",
-            "",
-            columns(&|k, p, _| {
-                let rest = ctx.marker_rest[k];
-                [0, 1, 2].map(|d| p[d] - rest[d])
-            }),
-        )],
-        Candidate::RegistrationEach => {
-            let mut t = Vec::new();
-            let mut r = Vec::new();
-            for axis in 0..3 {
-                t.extend(columns(&|_, _, _| {
-                    let mut e = [0.0; 3];
-                    e[axis] = 1.0;
-                    e
-                }));
-                r.extend(columns(&|_, p, centre| {
-                    let v = [0, 1, 2].map(|d| p[d] - centre[d]);
-                    // e_axis × v
-                    match axis {
-                        0 => [0.0, -v[2], v[1]],
-                        1 => [v[2], 0.0, -v[0]],
-                        _ => [-v[1], v[0], 0.0],
-                    }
-                }));
+    subset
+        .iter()
+        .enumerate()
+        .map(|(a, &i)| {
+            let pts = &sims[a];
+            let mut centre = [0.0; 3];
+            for p in pts {
+                (0..3).for_each(|d| centre[d] += p[d] / pts.len().max(1) as f64);
             }
-            vec![
-                ("translation per axis", "m", t),
-                ("rotation per axis", "rad", r),
-            ]
-        }
-        _ => Vec::new(),
-    }
+            let mut col = vec![0.0; n];
+            for (j, (&(k, _), p)) in ctx.meas[i].observed.iter().zip(pts).enumerate() {
+                let e = entry(k, *p, centre);
+                for d in 0..3 {
+                    col[offset[a] + 3 * j + d] = e[d] / ctx.sigma;
+                }
+            }
+            col
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 
 use super::json;
 use super::model::Candidate;
+use super::signature::Signature;
 use super::{DiagnoseError, DiagnosisReport, Errors, Step};
 use palpate_fem::io::atomic::write_atomic;
 use palpate_fem::names::Elastic;
@@ -52,18 +53,22 @@ pub fn markdown(r: &DiagnosisReport, plots: &[(usize, String)]) -> String {
 
 /// The verdict, the selection rule, the noise floor and the mesh the models were solved on.
 fn header(s: &mut String, r: &DiagnosisReport) {
-    let _ = writeln!(s, "# Diagnosis of `{}`\n", r.dataset);
+    let _ = writeln!(s, "# Diagnosis of `{}`\n", r.input.dataset);
     let verdict = format!(
         "**{}**",
         r.residual_check
             .verdict(&Candidate::names(&r.adopted, " → ", ""))
     );
-    let _ = writeln!(s, "Verdict: {verdict}. Selection rule: {}.", r.criterion);
+    let _ = writeln!(
+        s,
+        "Verdict: {verdict}. Selection rule: {}.",
+        r.input.criterion
+    );
     let _ = writeln!(
         s,
         "Marker noise σ = {} µm ({}); noise floor of the RMS marker error σ√3 = {} µm. Run time {:.1} s.\n",
-        um(r.sigma),
-        if r.sigma_declared { "declared" } else { "not declared: 100 µm used to scale" },
+        um(r.input.sigma),
+        if r.input.sigma_declared { "declared" } else { "not declared: 100 µm used to scale" },
         um(r.noise_floor),
         r.seconds
     );
@@ -170,10 +175,8 @@ fn final_parameters(s: &mut String, r: &DiagnosisReport) {
 
 /// One round: the residual signature, the candidates tried, the decision, the adoption and its
 /// evidence plots.
-fn round(s: &mut String, st: &Step, plots: &[(usize, String)]) {
-    let model = Candidate::names(&st.model, " + ", "simplest");
-    let _ = writeln!(s, "\n## Round {} (model: {model})\n", st.round);
-    let sig = &st.signature;
+/// The residual signature's lines of a round.
+fn signature_lines(s: &mut String, sig: &Signature) {
     let _ = writeln!(s, "Residual signature:\n");
     let _ = writeln!(s, "- scale factor (measured/simulated displacement) vs force: correlation {:.2}; per measurement (|f| N → s): {}", sig.scale_vs_force,
         comma(sig.per_measurement.iter().map(|p| format!("{:.2}→{:.3}", p.force, p.scale))));
@@ -214,6 +217,10 @@ fn round(s: &mut String, st: &Step, plots: &[(usize, String)]) {
                 .map(|(id, v)| format!("{id} {}", um(*v)))
         )
     );
+}
+
+/// The table of the candidates a round tried, and why any was not fitted.
+fn tried_table(s: &mut String, st: &Step) {
     if !st.tried.is_empty() {
         let _ = writeln!(s, "| candidate | extra params | refit RMS µm | ΔBIC | held-out RMS µm | held-out ΔBIC | held-out paired t |\n|---|---|---|---|---|---|---|");
         for t in &st.tried {
@@ -251,6 +258,13 @@ fn round(s: &mut String, st: &Step, plots: &[(usize, String)]) {
             t.not_fitted.as_deref().unwrap_or_default()
         );
     }
+}
+
+fn round(s: &mut String, st: &Step, plots: &[(usize, String)]) {
+    let model = Candidate::names(&st.model, " + ", "simplest");
+    let _ = writeln!(s, "\n## Round {} (model: {model})\n", st.round);
+    signature_lines(s, &st.signature);
+    tried_table(s, st);
     let _ = writeln!(s, "\nDecision: {}", st.reason);
     if !st.ambiguous_with.is_empty() {
         let _ = writeln!(
@@ -385,6 +399,27 @@ pub fn write_report(r: &DiagnosisReport, dir: &Path) -> Result<Vec<PathBuf>, Dia
     std::fs::create_dir_all(dir)
         .map_err(|e| DiagnoseError::Write(format!("{}: {e}", dir.display())))?;
     let mut written = Vec::new();
+    let plots = evidence_plots(r, dir, &mut written)?;
+    noise_plot(r, dir, &mut written)?;
+    rest_plot(r, dir, &mut written)?;
+    let md = markdown(r, &plots);
+    let json = json_text(r).map_err(|e| DiagnoseError::Write(e.to_string()))?;
+    for (name, text) in [("diagnosis.md", md), ("diagnosis.json", json)] {
+        let p = dir.join(name);
+        write_atomic(&p, text.as_bytes())
+            .map_err(|e| DiagnoseError::Write(format!("{}: {e:#}", p.display())))?;
+        written.push(p);
+    }
+    Ok(written)
+}
+
+/// Each adopted effect's evidence before and after its adoption (`round<k>-<name>.svg`, added to
+/// `written`); the plots by round, for the Markdown report.
+fn evidence_plots(
+    r: &DiagnosisReport,
+    dir: &Path,
+    written: &mut Vec<PathBuf>,
+) -> Result<Vec<(usize, String)>, DiagnoseError> {
     let mut plots = Vec::new();
     for st in &r.steps {
         if let (Some(c), Some((xl, yl, before, after))) = (st.adopted, &st.evidence) {
@@ -422,6 +457,16 @@ pub fn write_report(r: &DiagnosisReport, dir: &Path) -> Result<Vec<PathBuf>, Dia
             plots.push((st.round, palpate_plot::shown(&file)));
         }
     }
+    Ok(plots)
+}
+
+/// The noise test's nugget errors against distance, with the estimated and declared σ
+/// (`noise.svg`, added to `written`), when noise was adopted.
+fn noise_plot(
+    r: &DiagnosisReport,
+    dir: &Path,
+    written: &mut Vec<PathBuf>,
+) -> Result<(), DiagnoseError> {
     if let Some(n) = &r.noise {
         if !r.noise_evidence.is_empty() {
             let path = dir.join("noise.svg");
@@ -455,6 +500,16 @@ pub fn write_report(r: &DiagnosisReport, dir: &Path) -> Result<Vec<PathBuf>, Dia
             );
         }
     }
+    Ok(())
+}
+
+/// The rest-scan test's per-marker mean residuals with the RMS each noise alone would give
+/// (`rest.svg`, added to `written`), when it ran.
+fn rest_plot(
+    r: &DiagnosisReport,
+    dir: &Path,
+    written: &mut Vec<PathBuf>,
+) -> Result<(), DiagnoseError> {
     if let Some(n) = r.rest_noise.as_ref().filter(|n| !n.points.is_empty()) {
         // What each marker's mean residual would be (RMS) with the measurements' noise alone,
         // σ√(3/m), and with the rest scan's too, √(3(σ²/m + τ̂²)).
@@ -493,15 +548,7 @@ pub fn write_report(r: &DiagnosisReport, dir: &Path) -> Result<Vec<PathBuf>, Dia
             .map_err(|e| DiagnoseError::Write(e.to_string()))?,
         );
     }
-    let md = markdown(r, &plots);
-    let json = json_text(r).map_err(|e| DiagnoseError::Write(e.to_string()))?;
-    for (name, text) in [("diagnosis.md", md), ("diagnosis.json", json)] {
-        let p = dir.join(name);
-        write_atomic(&p, text.as_bytes())
-            .map_err(|e| DiagnoseError::Write(format!("{}: {e:#}", p.display())))?;
-        written.push(p);
-    }
-    Ok(written)
+    Ok(())
 }
 
 /// The summary the command prints for `r`: the verdict and RMS marker errors before and after
@@ -511,7 +558,7 @@ pub fn summary_lines(r: &DiagnosisReport) -> Vec<String> {
     let adopted: Vec<&str> = r.adopted.iter().map(|c| c.name()).collect();
     let mut lines = vec![format!(
         "{}: {}; RMS marker error {:.1} → {:.1} µm fitted, {:.1} → {:.1} µm held out (noise floor {:.1} µm)",
-        r.dataset,
+        r.input.dataset,
         r.residual_check.verdict(&adopted.join(", ")),
         1e6 * r.before.fitted_rms,
         1e6 * r.after.fitted_rms,

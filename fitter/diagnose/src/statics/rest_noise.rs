@@ -170,16 +170,7 @@ pub fn estimate_rest_noise(
         ..noise.clone()
     };
     let nm = rest.len();
-    let mut seen = vec![0usize; nm];
-    let mut sum = vec![[0.0f64; 3]; nm];
-    for r in residuals {
-        for &(k, e) in r {
-            seen[k] += 1;
-            for d in 0..3 {
-                sum[k][d] += e[d];
-            }
-        }
-    }
+    let (seen, sum) = marker_sums(residuals, nm);
     // The persistent field over the markers seen at least once (local index → marker).
     let used: Vec<usize> = (0..nm).filter(|&k| seen[k] > 0).collect();
     if used.iter().filter(|&&k| seen[k] >= 2).count() < 20 {
@@ -196,7 +187,110 @@ pub fn estimate_rest_noise(
         .map(|i| extrapolation_weights(&points, i, spacing, noise))
         .collect();
 
-    // The measurements' own σ from the within-marker deviations (the rest error cancels).
+    let sigma_within = within_sigma(residuals, &seen, (&used, &points, &mean), spacing, noise);
+    let sigma_null = sigma_within.map_or(sigma, |s| s.max(sigma));
+    let s2 = sigma_null * sigma_null;
+
+    let factors = term_factors(&weights, &inv_m);
+    let terms_of = |values: &[[f64; 3]]| -> Vec<Term> {
+        errors(values, &weights)
+            .into_iter()
+            .map(|(i, d2)| {
+                let (a, b) = factors[i].expect("errors only where weights exist");
+                Term { d2, a, b }
+            })
+            .collect()
+    };
+    let terms = terms_of(&mean);
+    if terms.len() < 20 {
+        return None;
+    }
+    let t0 = statistic(&terms, s2, 0.0);
+    let tau2 = solve_tau2(&terms, s2);
+
+    let (null, at) = simulations(&inv_m, s2, tau2, &terms_of, o);
+    let n = null.len().max(2) as f64;
+    let null_mean = null.iter().sum::<f64>() / n;
+    let null_sd = (null.iter().map(|v| (v - null_mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    let z = (t0 - null_mean) / null_sd;
+    let estimate = tau2.sqrt();
+    let interval = if at.len() >= 20 {
+        (percentile(&at, 0.025), percentile(&at, 0.975))
+    } else {
+        (estimate, estimate)
+    };
+    let fired = z >= o.z_limit && estimate >= o.margin * sigma;
+    let mut gain: Vec<f64> = terms.iter().map(|t| t.b / t.a).collect();
+    gain.sort_by(f64::total_cmp);
+    let rise = (null_mean - 1.0).max(0.0) + o.z_limit * null_sd;
+    let detectable = (s2 * rise / gain[gain.len() / 2])
+        .sqrt()
+        .max(o.margin * sigma);
+    let mean_seen = used.iter().map(|&k| seen[k] as f64).sum::<f64>() / used.len() as f64;
+    let mut finding = RestNoiseFinding {
+        estimate,
+        interval,
+        z,
+        sigma_null,
+        sigma_within,
+        fired,
+        markers: terms.len(),
+        mean_seen,
+        detectable,
+        statement: String::new(),
+        points: used
+            .iter()
+            .zip(&mean)
+            .map(|(&k, r)| (seen[k] as f64, r.iter().map(|v| v * v).sum::<f64>().sqrt()))
+            .collect(),
+    };
+    finding.statement = statement(&finding, sigma, o);
+    Some(finding)
+}
+
+/// How often each of `nm` markers was seen in `residuals`, and the sum of its residuals.
+fn marker_sums(residuals: &[Vec<(usize, [f64; 3])>], nm: usize) -> (Vec<usize>, Vec<[f64; 3]>) {
+    let mut seen = vec![0usize; nm];
+    let mut sum = vec![[0.0f64; 3]; nm];
+    for r in residuals {
+        for &(k, e) in r {
+            seen[k] += 1;
+            for d in 0..3 {
+                sum[k][d] += e[d];
+            }
+        }
+    }
+    (seen, sum)
+}
+
+/// Each marker's variance factors (a, b) of its nugget term, E|d|² = 3 (a σ² + b τ²), from its
+/// extrapolation `weights` and the 1/m_k of the markers `inv_m` (`None` without weights).
+fn term_factors(weights: &[Option<Vec<(usize, f64)>>], inv_m: &[f64]) -> Vec<Option<(f64, f64)>> {
+    weights
+        .iter()
+        .enumerate()
+        .map(|(i, w)| {
+            w.as_ref().map(|w| {
+                let a = inv_m[i] + w.iter().map(|&(j, c)| c * c * inv_m[j]).sum::<f64>();
+                let b = 1.0 + w.iter().map(|&(_, c)| c * c).sum::<f64>();
+                (a, b)
+            })
+        })
+        .collect()
+}
+
+/// The measurements' own σ from the within-marker deviations (the rest error cancels): the
+/// markers seen at least twice (`seen` per marker; `used` the seen markers, their `points` and
+/// `mean` residuals by local index). `None` with fewer than 20 terms.
+fn within_sigma(
+    residuals: &[Vec<(usize, [f64; 3])>],
+    seen: &[usize],
+    (used, points, mean): (&[usize], &[[f64; 3]], &[[f64; 3]]),
+    spacing: f64,
+    noise: &NoiseOptions,
+) -> Option<f64> {
+    let nm = seen.len();
+    let inv_m: Vec<f64> = used.iter().map(|&k| 1.0 / seen[k] as f64).collect();
     let mut local = vec![usize::MAX; nm];
     for (i, &k) in used.iter().enumerate() {
         local[k] = i;
@@ -223,38 +317,18 @@ pub fn estimate_rest_noise(
             within.push(Term { d2, a, b: 0.0 });
         }
     }
-    let sigma_within = (within.len() >= 20).then(|| statistic(&within, 1.0, 0.0).sqrt());
-    let sigma_null = sigma_within.map_or(sigma, |s| s.max(sigma));
-    let s2 = sigma_null * sigma_null;
+    (within.len() >= 20).then(|| statistic(&within, 1.0, 0.0).sqrt())
+}
 
-    let factors: Vec<Option<(f64, f64)>> = weights
-        .iter()
-        .enumerate()
-        .map(|(i, w)| {
-            w.as_ref().map(|w| {
-                let a = inv_m[i] + w.iter().map(|&(j, c)| c * c * inv_m[j]).sum::<f64>();
-                let b = 1.0 + w.iter().map(|&(_, c)| c * c).sum::<f64>();
-                (a, b)
-            })
-        })
-        .collect();
-    let terms_of = |values: &[[f64; 3]]| -> Vec<Term> {
-        errors(values, &weights)
-            .into_iter()
-            .map(|(i, d2)| {
-                let (a, b) = factors[i].expect("errors only where weights exist");
-                Term { d2, a, b }
-            })
-            .collect()
-    };
-    let terms = terms_of(&mean);
-    if terms.len() < 20 {
-        return None;
-    }
-    let t0 = statistic(&terms, s2, 0.0);
-    let tau2 = solve_tau2(&terms, s2);
-
-    // Parametric simulations: the null (persistent noise σ²/m_k only) and at τ̂ (for its interval).
+/// Parametric simulations of the statistic: under the null (persistent noise σ²/m_k only, `s2`
+/// σ², `inv_m` the 1/m_k) and the τ̂ of draws at `tau2` (for its interval, sorted).
+fn simulations(
+    inv_m: &[f64],
+    s2: f64,
+    tau2: f64,
+    terms_of: &dyn Fn(&[[f64; 3]]) -> Vec<Term>,
+    o: &RestNoiseOptions,
+) -> (Vec<f64>, Vec<f64>) {
     let mut rng = rng(o.seed);
     let mut draw = |tau2: f64| -> Vec<[f64; 3]> {
         inv_m
@@ -272,30 +346,19 @@ pub fn estimate_rest_noise(
         .map(|_| solve_tau2(&terms_of(&draw(tau2)), s2).sqrt())
         .collect();
     at.sort_by(f64::total_cmp);
-    let n = null.len().max(2) as f64;
-    let null_mean = null.iter().sum::<f64>() / n;
-    let null_sd = (null.iter().map(|v| (v - null_mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
-    let z = (t0 - null_mean) / null_sd;
-    let estimate = tau2.sqrt();
-    let interval = if at.len() >= 20 {
-        (percentile(&at, 0.025), percentile(&at, 0.975))
-    } else {
-        (estimate, estimate)
-    };
-    let fired = z >= o.z_limit && estimate >= o.margin * sigma;
-    let mut gain: Vec<f64> = terms.iter().map(|t| t.b / t.a).collect();
-    gain.sort_by(f64::total_cmp);
-    let rise = (null_mean - 1.0).max(0.0) + o.z_limit * null_sd;
-    let detectable = (s2 * rise / gain[gain.len() / 2])
-        .sqrt()
-        .max(o.margin * sigma);
-    let mean_seen = used.iter().map(|&k| seen[k] as f64).sum::<f64>() / used.len() as f64;
+    (null, at)
+}
+
+/// The finding in words (`sigma` the declared marker noise).
+fn statement(f: &RestNoiseFinding, sigma: f64, o: &RestNoiseOptions) -> String {
+    let (estimate, interval, z, sigma_null) = (f.estimate, f.interval, f.z, f.sigma_null);
+    let (mean_seen, detectable) = (f.mean_seen, f.detectable);
     let um = |v: f64| 1e6 * v;
-    let within_words = match sigma_within {
+    let within_words = match f.sigma_within {
         Some(s) => format!("{:.1} µm from the within-marker deviations", um(s)),
         None => "too few repeated markers for a within-marker estimate".into(),
     };
-    let statement = if fired {
+    if f.fired {
         format!(
             "the rest scan carries noise of its own: the part of each marker's residual that is the same in every measurement is white from marker to marker with τ̂ = {:.1} µm per axis (95 % interval {:.1}–{:.1} µm; {z:.1} standard deviations above what the measurements' own noise σ = {:.1} µm leaves in a mean over {mean_seen:.1} measurements; σ: declared {:.1} µm, {within_words}). The model is unchanged; the final residual is judged with that error in every marker's rest position",
             um(estimate), um(interval.0), um(interval.1), um(sigma_null), um(sigma)
@@ -305,24 +368,7 @@ pub fn estimate_rest_noise(
             "rest positions consistent with a noise-free rest scan: τ̂ = {:.1} µm per axis (95 % interval {:.1}–{:.1} µm), the persistent per-marker residual {z:+.1} standard deviations from what the measurements' own noise σ = {:.1} µm leaves (fired at ≥ {:.1} and τ̂ ≥ {:.2} σ; σ: declared {:.1} µm, {within_words}); a rest scan noisier than about {:.1} µm per axis would have been found",
             um(estimate), um(interval.0), um(interval.1), um(sigma_null), o.z_limit, o.margin, um(sigma), um(detectable)
         )
-    };
-    Some(RestNoiseFinding {
-        estimate,
-        interval,
-        z,
-        sigma_null,
-        sigma_within,
-        fired,
-        markers: terms.len(),
-        mean_seen,
-        detectable,
-        statement,
-        points: used
-            .iter()
-            .zip(&mean)
-            .map(|(&k, r)| (seen[k] as f64, r.iter().map(|v| v * v).sum::<f64>().sqrt()))
-            .collect(),
-    })
+    }
 }
 
 #[cfg(test)]

@@ -65,8 +65,7 @@ impl select::CandidateModel for StaticModel<'_> {
             .iter()
             .copied()
             .filter(|c| !effects.contains(c))
-            // An elastic foundation needs a supported face (boundary triangles on fixed nodes).
-            .filter(|&c| c != Candidate::Support || self.ctx.foundation.is_some())
+            .filter(|c| c.effect().available(&self.ctx))
             .collect()
     }
 
@@ -79,12 +78,7 @@ impl select::CandidateModel for StaticModel<'_> {
         (self.progress)(&format!("round {round}: trying {}", c.name()));
         let m = current.model.with(c);
         let mut t = current.theta.clone();
-        match (c, self.ctx.inclusion_seed) {
-            // The sensitivity scan's blob: its centre is `inclusion_start`, so the offsets start
-            // at zero; contrast and radius from its Gauss–Newton step.
-            (Candidate::Inclusion, Some(seed)) => t.extend(seed),
-            _ => t.extend(c.start(self.o.grid)),
-        }
+        t.extend(c.effect().fit_start(&self.ctx, self.o.grid));
         match fit(
             &self.ctx,
             &m,

@@ -258,12 +258,12 @@ fn gauss_newton_along(ctx: &Context, s: &Sensitivity, phi: &[f64]) -> Option<(f6
 }
 
 /// Matched-filter scan of Gaussian blobs of log E over the body (radii as fractions of the half
-/// width `ctx.half`): the blob whose Gauss–Newton step predicts the largest χ² reduction.
+/// width `ctx.frame.half`): the blob whose Gauss–Newton step predicts the largest χ² reduction.
 pub fn scan_blobs(ctx: &Context, s: &Sensitivity, radii: &[f64]) -> Option<BlobScan> {
     let centres = scan_centres(ctx, 6, 4);
     let trials: Vec<(f64, [f64; 3])> = radii
         .iter()
-        .flat_map(|&r| centres.iter().map(move |&p| (r * ctx.half, p)))
+        .flat_map(|&r| centres.iter().map(move |&p| (r * ctx.frame.half, p)))
         .collect();
     trials
         .par_iter()

@@ -141,7 +141,7 @@ pub fn signature(ctx: &Context, f: &Fitted) -> Signature {
         let pts: Vec<[f64; 3]> = r.iter().map(|&(k, _)| ctx.marker_rest[k]).collect();
         let es: Vec<[f64; 3]> = r.iter().map(|&(_, e)| e).collect();
         let norms: Vec<f64> = es.iter().map(|&e| Vector3::from(e).norm()).collect();
-        let (t, w, _) = rigid_fit(&pts, &es, ctx.centre);
+        let (t, w, _) = rigid_fit(&pts, &es, ctx.frame.centre);
         let mut mean = [0.0; 3];
         for e in &es {
             for d in 0..3 {
@@ -171,7 +171,7 @@ pub fn signature(ctx: &Context, f: &Fitted) -> Signature {
         all_p.extend(pts);
         all_e.extend(es);
     }
-    let (_, _, rigid_fraction) = rigid_fit(&all_p, &all_e, ctx.centre);
+    let (_, _, rigid_fraction) = rigid_fit(&all_p, &all_e, ctx.frame.centre);
     let total: f64 = sumsq.iter().sum();
     let persistent: f64 = (0..nm)
         .filter(|&k| count[k] > 0)
@@ -205,37 +205,70 @@ pub fn signature(ctx: &Context, f: &Fitted) -> Signature {
     }
 }
 
-/// The variable that gives effect `c` away, and the residual measure plotted against it:
+/// The variable that gives an effect away and the residual measure plotted against it:
 /// (x label, y label, points).
-pub fn evidence_points(
-    c: Candidate,
-    ctx: &Context,
-    f: &Fitted,
-) -> (&'static str, &'static str, Vec<(f64, f64)>) {
-    let sig = signature(ctx, f);
-    let res = residual_vectors(ctx, f);
-    match c {
-        Candidate::Calibration | Candidate::Stiffening => (
+pub type EvidencePoints = (&'static str, &'static str, Vec<(f64, f64)>);
+
+/// A fit's residual as the candidates' evidence reads it: its signature and its vectors.
+pub struct Residual<'a> {
+    /// The dataset.
+    pub ctx: &'a Context,
+    /// The fit.
+    pub fit: &'a Fitted,
+    /// Its signature.
+    pub signature: Signature,
+    /// Its residual vectors ([`residual_vectors`]).
+    pub vectors: Vec<Vec<(usize, [f64; 3])>>,
+}
+
+impl<'a> Residual<'a> {
+    /// The residual of fit `f`.
+    pub fn of(ctx: &'a Context, f: &'a Fitted) -> Self {
+        Self {
+            ctx,
+            fit: f,
+            signature: signature(ctx, f),
+            vectors: residual_vectors(ctx, f),
+        }
+    }
+
+    /// Each measurement's displacement scale against its reported force (a load-dependent
+    /// response: a calibration curve, a modulus that changes with the strain).
+    pub fn scale_against_force(&self) -> EvidencePoints {
+        (
             "reported force |f| (N)",
             "displacement scale factor (measured / simulated)",
-            sig.per_measurement
+            self.signature
+                .per_measurement
                 .iter()
                 .map(|p| (p.force, p.scale))
                 .collect(),
-        ),
-        Candidate::ForceScaleEach => (
+        )
+    }
+
+    /// Each measurement's displacement scale in file order (a gain that changes from measurement
+    /// to measurement).
+    pub fn scale_by_measurement(&self) -> EvidencePoints {
+        (
             "measurement (in file order)",
             "displacement scale factor (measured / simulated)",
-            sig.per_measurement
+            self.signature
+                .per_measurement
                 .iter()
                 .enumerate()
                 .map(|(i, p)| ((i + 1) as f64, p.scale))
                 .collect(),
-        ),
-        Candidate::Tilt | Candidate::TiltEach => (
+        )
+    }
+
+    /// Each measurement's horizontal mean residual against its reported force (a tangential
+    /// force).
+    pub fn horizontal_mean_against_force(&self) -> EvidencePoints {
+        (
             "reported force |f| (N)",
             "horizontal mean residual (mm)",
-            sig.per_measurement
+            self.signature
+                .per_measurement
                 .iter()
                 .map(|p| {
                     (
@@ -244,71 +277,84 @@ pub fn evidence_points(
                     )
                 })
                 .collect(),
-        ),
-        // A support that gives way moves the whole body nearly rigidly, in proportion to the force.
-        Candidate::Boundary | Candidate::Support => (
+        )
+    }
+
+    /// Each measurement's rigid translation of the residual against its reported force.
+    pub fn rigid_translation_against_force(&self) -> EvidencePoints {
+        (
             "reported force |f| (N)",
             "rigid translation of the residual (mm)",
-            sig.per_measurement
+            self.signature
+                .per_measurement
                 .iter()
                 .map(|p| (p.force, 1e3 * Vector3::from(p.rigid.0).norm()))
                 .collect(),
-        ),
-        Candidate::Registration | Candidate::RegistrationEach => (
+        )
+    }
+
+    /// Each measurement's rigid part of the residual, |t| + h|ω|, against its reported force.
+    pub fn rigid_part_against_force(&self) -> EvidencePoints {
+        let half = self.ctx.frame.half;
+        (
             "reported force |f| (N)",
             "rigid part of the residual: |t| + h|ω| (mm)",
-            sig.per_measurement
+            self.signature
+                .per_measurement
                 .iter()
                 .map(|p| {
                     (
                         p.force,
                         1e3 * (Vector3::from(p.rigid.0).norm()
-                            + ctx.half * Vector3::from(p.rigid.1).norm()),
+                            + half * Vector3::from(p.rigid.1).norm()),
                     )
                 })
                 .collect(),
-        ),
-        Candidate::Gravity => {
-            let nm = ctx.markers.len();
-            let (mut s, mut n) = (vec![0.0; nm], vec![0usize; nm]);
-            for r in &res {
-                for &(k, e) in r {
-                    s[k] += e[2];
-                    n[k] += 1;
-                }
-            }
-            (
-                "marker height z (m)",
-                "mean vertical residual (mm)",
-                (0..nm)
-                    .filter(|&k| n[k] > 0)
-                    .map(|k| (ctx.marker_rest[k][2], 1e3 * s[k] / n[k] as f64))
-                    .collect(),
-            )
-        }
-        // A contact patch of another size: the marker error against distance from the contact
-        // shows it concentrated within a probe radius or two.
-        // Noise: the marker error against distance from the contact shows it spread evenly
-        // (the noise report plots the nugget itself, see `super::noise`; the rest scan's report
-        // its per-marker means, `rest.svg`).
-        Candidate::Inhomogeneity
-        | Candidate::Layer
-        | Candidate::Inclusion
-        | Candidate::ContactRadius
-        | Candidate::Noise
-        | Candidate::RestNoise => {
-            let mut pts = Vec::new();
-            for (&i, r) in f.subset.iter().zip(&res) {
-                let c = ctx.meas[i].point;
-                for &(k, e) in r {
-                    let p = ctx.marker_rest[k];
-                    pts.push((
-                        (Vector3::from(p) - Vector3::from(c)).norm(),
-                        1e3 * Vector3::from(e).norm(),
-                    ));
-                }
-            }
-            ("distance from the contact (m)", "marker error (mm)", pts)
-        }
+        )
     }
+
+    /// Each marker's mean vertical residual against its height.
+    pub fn vertical_against_height(&self) -> EvidencePoints {
+        let ctx = self.ctx;
+        let nm = ctx.markers.len();
+        let (mut s, mut n) = (vec![0.0; nm], vec![0usize; nm]);
+        for r in &self.vectors {
+            for &(k, e) in r {
+                s[k] += e[2];
+                n[k] += 1;
+            }
+        }
+        (
+            "marker height z (m)",
+            "mean vertical residual (mm)",
+            (0..nm)
+                .filter(|&k| n[k] > 0)
+                .map(|k| (ctx.marker_rest[k][2], 1e3 * s[k] / n[k] as f64))
+                .collect(),
+        )
+    }
+
+    /// Every marker error against its distance from the contact (concentrated near it, or
+    /// spread evenly).
+    pub fn error_against_distance(&self) -> EvidencePoints {
+        let ctx = self.ctx;
+        let mut pts = Vec::new();
+        for (&i, r) in self.fit.subset.iter().zip(&self.vectors) {
+            let c = ctx.meas[i].point;
+            for &(k, e) in r {
+                let p = ctx.marker_rest[k];
+                pts.push((
+                    (Vector3::from(p) - Vector3::from(c)).norm(),
+                    1e3 * Vector3::from(e).norm(),
+                ));
+            }
+        }
+        ("distance from the contact (m)", "marker error (mm)", pts)
+    }
+}
+
+/// The variable that gives effect `c` away, and the residual measure plotted against it:
+/// (x label, y label, points).
+pub fn evidence_points(c: Candidate, ctx: &Context, f: &Fitted) -> EvidencePoints {
+    c.effect().evidence(&Residual::of(ctx, f))
 }
