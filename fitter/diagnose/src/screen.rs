@@ -262,8 +262,9 @@ mod tests {
     fn dead_and_repeated_columns_add_no_gain() {
         let j: Vec<[f64; 3]> = J.iter().map(|r| [r[0], r[0], 0.0]).collect();
         let p = linear(&j, &Y);
-        let alone = change(&[p.clone()], &[0], &step(&[p.clone()], &[0]))[0];
-        let all = change(&[p.clone()], &[0, 1, 2], &step(&[p.clone()], &[0, 1, 2]))[0];
+        let one = std::slice::from_ref(&p);
+        let alone = change(one, &[0], &step(one, &[0]))[0];
+        let all = change(one, &[0, 1, 2], &step(one, &[0, 1, 2]))[0];
         assert!(alone < 0.0);
         assert!((all - alone).abs() < 1e-6 * alone.abs(), "{all} vs {alone}");
     }
