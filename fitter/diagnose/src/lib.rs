@@ -32,6 +32,7 @@ mod json;
 pub mod motion;
 pub mod run;
 pub mod runs;
+pub mod screen;
 pub mod select;
 pub mod statics;
 mod summary;

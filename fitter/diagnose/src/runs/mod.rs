@@ -34,6 +34,18 @@
 //! marker error drops by at least [`RunsOptions::min_holdout_gain`]. The first passing candidate
 //! in fitted-ΔBIC order is adopted; repeat until none passes ([`crate::select`]).
 //!
+//! **The fit screen** ([`RunsOptions::screen`], [`crate::screen`]): before a round's fits, one
+//! Gauss–Newton evaluation of the fitted runs at the current fit, with the damping's and the
+//! stiffening's parameters at their neutral values (ν = 0, h = 1, c = 0: the current model),
+//! predicts each of them by the χ² drop of one Gauss–Newton step over the current parameters
+//! and its own. The power-law index has no effect at ν = 0, so the power law is predicted as
+//! Newtonian damping with one more parameter. The hanging weights' inertia, a switch, is
+//! predicted by one Gauss–Newton evaluation of the switched model (the current parameters
+//! stepped); the time offset by its scan at the current material (its fit starts from that scan,
+//! which is not repeated), without the material's refit. The best predicted are fitted in full
+//! (the screen's `least`, and those within its `margin` of the best); the rest are reported with
+//! their predicted ΔBIC, and fitted after all if nothing fitted passes the gate.
+//!
 //! **The residual's signature** ([`RunResidual`]): per run, the RMS per marker, in the first and
 //! last quarter of the run, and — on the marker that moves most — the ring-down's period and its
 //! amplitude ratio per cycle, measured and simulated. A period the model gets wrong points at the
@@ -42,12 +54,14 @@
 pub mod report;
 pub mod run;
 
+use crate::screen::{self, Normal};
 use crate::select::{
-    self, select, CandidateModel, Current, Gate, HeldoutGate, Outcome, ParamValue, PassWords,
-    Policy, Rank, Score, Screen, Stop,
+    self, select, CandidateModel, Current, FitScreen, Gate, HeldoutGate, Outcome, ParamValue,
+    PassWords, Policy, Progress, Rank, Score, Screen, Stop,
 };
 use palpate_motion::dataset::MotionDataset;
 use palpate_motion::fitted::{set_hanging_inertia, FittedModel, FittedRun};
+use palpate_motion::gradient::evaluate_gauss_newton;
 use palpate_motion::model::{Material, Observations, Param, ParamKind};
 use palpate_motion::optimize::{fit_runs, FitSettings, Run};
 use palpate_motion::predict::{self, Prediction};
@@ -153,6 +167,14 @@ pub struct RunsOptions {
     pub bic_threshold: f64,
     /// Held-out RMS must drop by at least this fraction.
     pub min_holdout_gain: f64,
+    /// Predict each round's candidates before fitting them and fit only the best predicted
+    /// (module note); `false`: fit every open candidate (the full search).
+    pub screen: bool,
+    /// With the screen: fewest candidates fitted per round.
+    pub screen_least: usize,
+    /// With the screen: a candidate is fitted when its predicted ΔBIC is within this fraction of
+    /// the best predicted one's magnitude.
+    pub screen_margin: f64,
 }
 
 impl Default for RunsOptions {
@@ -169,6 +191,9 @@ impl Default for RunsOptions {
             start_viscosity: None,
             bic_threshold: 10.0,
             min_holdout_gain: 0.05,
+            screen: true,
+            screen_least: 2,
+            screen_margin: 0.5,
         }
     }
 }
@@ -302,6 +327,10 @@ pub struct Trial {
     pub not_fitted: Option<String>,
     /// Adopted.
     pub adopted: bool,
+    /// ΔBIC the fit screen predicted before any fit (`None`: screen off).
+    pub predicted_delta_bic: Option<f64>,
+    /// Left unfitted by the fit screen.
+    pub screened_out: bool,
 }
 
 /// The result of [`diagnose_runs`].
@@ -338,6 +367,19 @@ pub struct RunsDiagnosis {
     pub model: FittedModel,
     /// Seconds the diagnosis took.
     pub seconds: f64,
+    /// Simulations of one run the diagnosis made.
+    pub simulations: Simulations,
+}
+
+/// Simulations of one run (a fit's evaluation of two runs is two), by kind: what the
+/// diagnosis' time is made of, whatever the machine's load.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct Simulations {
+    /// With the sensitivities of every fitted parameter (a Levenberg–Marquardt evaluation, the
+    /// fit screen's).
+    pub with_sensitivities: usize,
+    /// Without (a prediction, a residual, a time-offset scan).
+    pub plain: usize,
 }
 
 impl RunsDiagnosis {
@@ -489,9 +531,29 @@ struct RunsModel<'a> {
     /// Each fitted candidate's material, by round: the start of a later candidate of the same
     /// round that nests it.
     fitted: Vec<(usize, Effect, Material)>,
+    /// The fit screen's predictions, by round.
+    predicted: Vec<(usize, Effect, f64)>,
+    /// The time offsets the screen scanned at the current material, by round: the start of the
+    /// time offset's fit in that round.
+    scanned: Option<(usize, Vec<i64>)>,
+    /// Receives the selection's progress.
+    progress: &'a dyn Fn(&Progress),
+    /// Simulations so far.
+    simulations: std::cell::Cell<Simulations>,
 }
 
 impl RunsModel<'_> {
+    /// Counts `n` simulations of one run, with sensitivities or without.
+    fn count(&self, n: usize, sensitivities: bool) {
+        let mut s = self.simulations.get();
+        if sensitivities {
+            s.with_sensitivities += n;
+        } else {
+            s.plain += n;
+        }
+        self.simulations.set(s);
+    }
+
     /// Records a candidate that could not be fitted, and tells the engine why.
     fn not_fitted(&mut self, round: usize, effect: Effect, why: String) -> Outcome<RunsFit> {
         self.trials.push(Trial {
@@ -503,9 +565,86 @@ impl RunsModel<'_> {
             gate: None,
             not_fitted: Some(why.clone()),
             adopted: false,
+            predicted_delta_bic: self.prediction(round, effect),
+            screened_out: false,
         });
         Outcome::NotFitted(why)
     }
+    /// The screen's prediction of `effect` in `round`.
+    fn prediction(&self, round: usize, effect: Effect) -> Option<f64> {
+        self.predicted
+            .iter()
+            .rev()
+            .find(|(r, e, _)| *r == round && *e == effect)
+            .map(|p| p.2)
+    }
+
+    /// The fitted runs with `effects`' structural changes, run i's markers `offsets[i]` steps
+    /// late.
+    fn retimed(
+        &self,
+        effects: &[Effect],
+        offsets: &[i64],
+    ) -> Result<Vec<(palpate_motion::model::Model, Observations)>, MotionError> {
+        Self::models(self.fit, effects)
+            .into_iter()
+            .zip(self.fit)
+            .enumerate()
+            .map(
+                |(i, (model, (_, d)))| match offsets.get(i).copied().unwrap_or(0) {
+                    0 => Ok((model, d.obs.clone())),
+                    r => time_offset::shifted(&model, &d.obs, r),
+                },
+            )
+            .collect()
+    }
+
+    /// Each fitted run's Φ, gradient and Gauss–Newton matrix over the global `kinds` (μ first;
+    /// λ tied to μ at the held Poisson's ratio) under `mat`, and its marker χ² (m²).
+    fn normals(
+        &self,
+        effects: &[Effect],
+        mat: &Material,
+        kinds: &[ParamKind],
+        offsets: &[i64],
+    ) -> Result<Vec<(Normal, f64)>, MotionError> {
+        let runs = self.retimed(effects, offsets)?;
+        self.count(runs.len(), true);
+        let mut params: Vec<Param> = kinds.iter().map(|k| Param::global(*k)).collect();
+        params.push(Param::global(ParamKind::Lambda));
+        let nu = self.o.poisson;
+        let ratio = 2.0 * nu / (1.0 - 2.0 * nu);
+        use rayon::prelude::*;
+        runs.par_iter()
+            .map(|(m, obs)| {
+                let (ev, gn) = evaluate_gauss_newton(m, mat, &params, obs)?;
+                let chi2 = ev.rms_marker * ev.rms_marker * ev.marker_count as f64;
+                let all = Normal {
+                    phi: ev.phi,
+                    grad: ev.grad.unwrap_or_default(),
+                    gn,
+                };
+                Ok((all.tie(0, kinds.len(), ratio), chi2))
+            })
+            .collect()
+    }
+
+    /// χ² (m²) after one Gauss–Newton step over the columns `cols` of `parts` (run χ² and its Φ
+    /// in proportion: the marker term's weight is the run's).
+    fn stepped_chi2(parts: &[(Normal, f64)], cols: &[usize]) -> f64 {
+        let normals: Vec<Normal> = parts.iter().map(|p| p.0.clone()).collect();
+        let delta = screen::step(&normals, cols);
+        let change = screen::change(&normals, cols, &delta);
+        parts
+            .iter()
+            .zip(change)
+            .map(|((n, chi2), d)| {
+                let scale = if n.phi > 0.0 { chi2 / n.phi } else { 0.0 };
+                (chi2 + scale * d).max(0.0)
+            })
+            .sum()
+    }
+
     /// The runs with the effects' structural changes (hanging inertia) applied.
     fn models(
         sets: &[(String, MotionDataset)],
@@ -604,18 +743,7 @@ impl RunsModel<'_> {
         let base = start.clone();
         let params: Vec<Param> = kinds.iter().map(|k| Param::global(*k)).collect();
         let q0 = base.read(&params);
-        let retimed: Vec<(palpate_motion::model::Model, Observations)> =
-            Self::models(self.fit, effects)
-                .into_iter()
-                .zip(self.fit)
-                .enumerate()
-                .map(
-                    |(i, (model, (_, d)))| match offsets.get(i).copied().unwrap_or(0) {
-                        0 => Ok((model, d.obs.clone())),
-                        r => time_offset::shifted(&model, &d.obs, r),
-                    },
-                )
-                .collect::<Result<_, _>>()?;
+        let retimed = self.retimed(effects, offsets)?;
         let runs: Vec<Run> = retimed
             .iter()
             .map(|(model, obs)| Run { model, obs })
@@ -626,6 +754,8 @@ impl RunsModel<'_> {
             ..Default::default()
         };
         let r = fit_runs(&runs, &base, &params, &q0, &settings, &[], &|_, _| {})?;
+        self.count(r.evaluations * runs.len(), true);
+        self.count(runs.len(), false);
         let mut material = base.clone();
         material.set(&params, &r.q);
         let nu = self.o.poisson;
@@ -659,6 +789,7 @@ impl RunsModel<'_> {
     ) -> Result<RunsFit, MotionError> {
         let mut f = self.fit(effects, start, &offsets, max_iters)?;
         let again = Self::scan_offsets(self.fit, effects, &f.material)?;
+        self.count(self.fit.len(), false);
         if again != offsets {
             offsets = again;
             (self.log)(&format!(
@@ -768,7 +899,13 @@ impl CandidateModel for RunsModel<'_> {
         }
         let budget = self.o.screen_max_iters.min(self.o.max_iters);
         let fitted = if c == Effect::TimeOffset {
-            let scanned = Self::scan_offsets(self.fit, &effects, &start)?;
+            let scanned = match self.scanned.take() {
+                Some((r, o)) if r == round => o,
+                _ => {
+                    self.count(self.fit.len(), false);
+                    Self::scan_offsets(self.fit, &effects, &start)?
+                }
+            };
             (self.log)(&format!(
                 "round {round}: time offsets scanned (±{} frames, widened to ±{} at an edge): {}",
                 time_offset::SCAN_FRAMES,
@@ -808,6 +945,7 @@ impl CandidateModel for RunsModel<'_> {
     fn heldout(&mut self, round: usize, _: Effect, f: &RunsFit) -> Result<Held, RunsError> {
         let offsets = if f.effects.contains(&Effect::TimeOffset) {
             let o = Self::scan_offsets(self.held, &f.effects, &f.material)?;
+            self.count(self.held.len(), false);
             (self.log)(&format!(
                 "round {round}: held-out time offsets (each run its own): {}",
                 Self::describe_offsets(self.held, &o)
@@ -816,6 +954,7 @@ impl CandidateModel for RunsModel<'_> {
         } else {
             Vec::new()
         };
+        self.count(self.held.len(), false);
         Ok(Held {
             runs: Self::residuals(self.held, &f.effects, &f.material, &offsets)?,
             offsets,
@@ -861,6 +1000,8 @@ impl CandidateModel for RunsModel<'_> {
             gate: Some(detail.clone()),
             not_fitted: None,
             adopted: false,
+            predicted_delta_bic: self.prediction(cur.round, cand.candidate),
+            screened_out: false,
         });
         Gate {
             passes,
@@ -901,6 +1042,152 @@ impl CandidateModel for RunsModel<'_> {
         full.evaluations += evaluations;
         let held = self.heldout(cur.round, c, &full)?;
         Ok((full, held, ()))
+    }
+
+    fn fit_screen(&self) -> FitScreen {
+        if !self.o.screen {
+            return FitScreen::Off;
+        }
+        FitScreen::Predicted {
+            least: self.o.screen_least,
+            margin: self.o.screen_margin,
+            fallback_below: -self.o.bic_threshold,
+        }
+    }
+
+    fn predict(
+        &mut self,
+        round: usize,
+        cur: &RunsFit,
+        open: &[Effect],
+    ) -> Result<Vec<select::Prediction>, RunsError> {
+        let (chi0, n) = cur.chi2();
+        let runs = self.fit.len();
+        let delta =
+            |chi2: f64, c: Effect| select::heldout_delta_bic(chi0, chi2, n, c.parameters(runs));
+        // The continuous candidates: one evaluation with every new parameter at its neutral
+        // value, the current model's.
+        let mut kinds = cur.kinds.clone();
+        for c in open {
+            for k in c.kinds() {
+                if !kinds.contains(k) {
+                    kinds.push(*k);
+                }
+            }
+        }
+        let mut mat = cur.material.clone();
+        for k in &kinds[cur.kinds.len()..] {
+            let neutral = match k {
+                ParamKind::PowerH => 1.0,
+                _ => 0.0,
+            };
+            mat.set(&[Param::global(*k)], &[neutral]);
+        }
+        let continuous = open.iter().any(|c| !c.kinds().is_empty());
+        let parts = if continuous {
+            self.normals(&cur.effects, &mat, &kinds, &cur.offsets)?
+        } else {
+            Vec::new()
+        };
+        let own: Vec<usize> = (0..cur.kinds.len()).collect();
+        let mut out = Vec::new();
+        for &c in open {
+            let p = match c {
+                Effect::HangingInertia => {
+                    let mut effects = cur.effects.clone();
+                    effects.push(c);
+                    let switched =
+                        self.normals(&effects, &cur.material, &cur.kinds, &cur.offsets)?;
+                    select::Prediction {
+                        delta_bic: Some(delta(Self::stepped_chi2(&switched, &own), c)),
+                        how: "the switched model, its parameters one Gauss–Newton step on".into(),
+                    }
+                }
+                Effect::TimeOffset => {
+                    let mut effects = cur.effects.clone();
+                    effects.push(c);
+                    let models = Self::models(self.fit, &effects);
+                    use rayon::prelude::*;
+                    let scans: Vec<(i64, Vec<(i64, f64)>)> = self
+                        .fit
+                        .par_iter()
+                        .zip(models.par_iter())
+                        .map(|((_, d), m)| time_offset::scan(m, &cur.material, &d.obs))
+                        .collect::<Result<_, _>>()?;
+                    // Each run's χ² in proportion to the scan's own at offset 0 (the scan's
+                    // window of steps may differ from the fit's).
+                    let chi2: f64 = scans
+                        .iter()
+                        .zip(&cur.fitted)
+                        .map(|((best, tried), r)| {
+                            let at = |o: i64| tried.iter().find(|t| t.0 == o).map(|t| t.1);
+                            match (at(*best), at(0)) {
+                                (Some(b), Some(z)) if z > 0.0 => r.chi2 * b / z,
+                                _ => r.chi2,
+                            }
+                        })
+                        .sum();
+                    self.count(self.fit.len(), false);
+                    self.scanned = Some((round, scans.iter().map(|s| s.0).collect()));
+                    select::Prediction {
+                        delta_bic: Some(delta(chi2, c)),
+                        how: "the offsets scanned, the material not refitted".into(),
+                    }
+                }
+                _ => {
+                    let mut cols = own.clone();
+                    cols.extend(
+                        c.kinds()
+                            .iter()
+                            .filter_map(|k| kinds.iter().position(|j| j == k))
+                            .filter(|i| !own.contains(i)),
+                    );
+                    // χ² in proportion to the current fit's, so that an evaluation's own
+                    // rounding does not count as a gain.
+                    let sim: f64 = parts.iter().map(|p| p.1).sum();
+                    let chi2 =
+                        chi0 * Self::stepped_chi2(&parts, &cols) / sim.max(f64::MIN_POSITIVE);
+                    select::Prediction {
+                        delta_bic: Some(delta(chi2, c)),
+                        how: "one Gauss–Newton step from the neutral value".into(),
+                    }
+                }
+            };
+            (self.log)(&format!(
+                "round {round}: screen: {} predicted ΔBIC {:.1} ({})",
+                c.name(),
+                p.delta_bic.unwrap_or(f64::NAN),
+                p.how
+            ));
+            self.predicted
+                .push((round, c, p.delta_bic.unwrap_or(f64::NAN)));
+            out.push(p);
+        }
+        Ok(out)
+    }
+
+    fn screened_out(&mut self, round: usize, c: Effect, p: &select::Prediction) {
+        let d = p.delta_bic.unwrap_or(f64::NAN);
+        (self.log)(&format!(
+            "round {round}: {} screened out (predicted ΔBIC {d:.1})",
+            c.name()
+        ));
+        self.trials.push(Trial {
+            round,
+            effect: c,
+            delta_bic: f64::NAN,
+            rms_fit_m: None,
+            rms_held_m: None,
+            gate: None,
+            not_fitted: Some(format!("screened out: predicted ΔBIC {d:.1} ({})", p.how)),
+            adopted: false,
+            predicted_delta_bic: Some(d),
+            screened_out: true,
+        });
+    }
+
+    fn progress(&mut self, event: &Progress) {
+        (self.progress)(event)
     }
 }
 
@@ -949,6 +1236,18 @@ pub fn diagnose_runs(
     o: &RunsOptions,
     log: &dyn Fn(&str),
 ) -> Result<RunsDiagnosis, RunsError> {
+    diagnose_runs_with(fit, held, o, log, &|_| {})
+}
+
+/// [`diagnose_runs`], with the selection's [`Progress`] handed to `progress` as it goes (the
+/// round, the candidate fitted and how many are planned: what a progress bar draws).
+pub fn diagnose_runs_with(
+    fit: &[(String, MotionDataset)],
+    held: &[(String, MotionDataset)],
+    o: &RunsOptions,
+    log: &dyn Fn(&str),
+    progress: &dyn Fn(&Progress),
+) -> Result<RunsDiagnosis, RunsError> {
     let t0 = std::time::Instant::now();
     if fit.is_empty() || held.is_empty() {
         return Err(RunsError::Input(
@@ -988,11 +1287,18 @@ pub fn diagnose_runs(
         log,
         trials: Vec::new(),
         fitted: Vec::new(),
+        predicted: Vec::new(),
+        scanned: None,
+        progress,
+        simulations: Default::default(),
     };
     log("fitting the simplest model (Neo-Hookean, fixed Poisson's ratio, no damping)");
     let start = m.fit(&[], &base, &[], o.max_iters)?;
     let start_held = Held {
-        runs: RunsModel::residuals(held, &[], &start.material, &[])?,
+        runs: {
+            m.count(held.len(), false);
+            RunsModel::residuals(held, &[], &start.material, &[])?
+        },
         offsets: Vec::new(),
     };
     let policy = Policy {
@@ -1024,6 +1330,7 @@ pub fn diagnose_runs(
         .collect();
     let (_, n) = last.chi2();
     let sd_mu = mu_sd(&runs, &last.material, nu, n, last.parameters())?;
+    m.count(3 * runs.len(), false);
     let mu = last.material.get(ParamKind::Mu, 0);
     let mut values = vec![
         ParamValue {
@@ -1140,6 +1447,7 @@ pub fn diagnose_runs(
         values,
         model,
         seconds: t0.elapsed().as_secs_f64(),
+        simulations: m.simulations.get(),
     })
 }
 

@@ -114,15 +114,21 @@ pub fn markdown(r: &RunsDiagnosis) -> String {
         r.options.bic_threshold,
         100.0 * r.options.min_holdout_gain
     );
-    let _ = writeln!(md, "## Candidates\n\n| round | effect | ΔBIC | fitted RMS (mm) | held-out RMS (mm) | verdict |\n|---|---|---|---|---|---|");
+    let _ = writeln!(md, "## Candidates\n\n| round | effect | predicted ΔBIC | ΔBIC | fitted RMS (mm) | held-out RMS (mm) | verdict |\n|---|---|---|---|---|---|---|");
     for t in &r.trials {
         let _ = writeln!(
             md,
-            "| {} | {}{} | {:.1} | {} | {} | {} |",
+            "| {} | {}{} | {} | {} | {} | {} | {} |",
             t.round,
             t.effect.name(),
             if t.adopted { " (adopted)" } else { "" },
-            t.delta_bic,
+            t.predicted_delta_bic
+                .map_or("–".into(), |d| format!("{d:.1}")),
+            if t.delta_bic.is_nan() {
+                "–".to_string()
+            } else {
+                format!("{:.1}", t.delta_bic)
+            },
             t.rms_fit_m.map_or("–".into(), mm),
             t.rms_held_m.map_or("–".into(), mm),
             t.gate
