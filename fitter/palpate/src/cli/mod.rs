@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 pub mod calibrate_fsr;
 pub mod demo;
 pub mod demo_beam;
+pub mod demo_readme;
 pub mod diagnose;
 pub mod fit;
 pub mod fit_motion;
