@@ -12,6 +12,7 @@ use palpate_static_fit::{fit_static, FitInput, FitOptions, Layout, Method, Sets}
 use std::path::{Path, PathBuf};
 
 use super::demo_readme::{figures_in, DemoReadme, Part, Table};
+use super::logging::Stage;
 use std::time::Instant;
 
 /// Arguments of `palpate demo`.
@@ -65,16 +66,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     }
     let t0 = Instant::now();
+    let progress = super::logging::Progress::start("palpate demo");
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     // First the loop on measured data (a real capture), then the synthetic specimen whose
     // injected effects are known.
+    let parts = if args.no_beam { 1 } else { 2 };
     let beam = if args.no_beam {
         None
     } else {
+        progress.stage(&Stage {
+            step: Some((1, parts)),
+            text: "the measured silicone beam".into(),
+            ..Stage::default()
+        });
         log::info!("palpate demo, part 1: the measured silicone beam (models/silicone-beam, C3D)");
         Some(super::demo_beam::run(&args.out)?)
     };
+    progress.stage(&Stage {
+        step: Some((parts, parts)),
+        text: "the synthetic specimen".into(),
+        ..Stage::default()
+    });
     if beam.is_some() {
         log::info!("palpate demo, part 2: the synthetic specimen (effects known)");
     }
@@ -181,6 +194,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         palpate_link::replay::replay(rt, contact, ds.probe_radius as f32, args.haptic_seconds)?;
     let lost = replay.lost;
 
+    drop(progress);
     // The tables: printed, and written with the figures into the folder's README.
     let specimen = specimen_part(&report, &diag_files, &args.out);
     let haptic = format!(

@@ -92,8 +92,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     // Each input's summary is printed as soon as it is written: a folder of inputs takes minutes
     // per input.
+    let progress = super::logging::Progress::start("diagnosing");
     palpate_diagnose::run::run_with(&request, &mut |summary| {
-        print!("{summary}");
+        progress.suspend(|| print!("{summary}"));
         for f in &summary.files {
             log::info!("wrote {}", f.display());
         }
