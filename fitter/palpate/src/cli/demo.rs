@@ -21,7 +21,7 @@ pub struct Args {
     /// The static dataset to run the loop on.
     #[arg(long, default_value = "models/sponge-specimen")]
     pub dataset: PathBuf,
-    /// Output folder (model, reports).
+    /// Output: the folder written (README.md, models, reports).
     #[arg(
         short = 'o',
         long = "output",
@@ -104,9 +104,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
 
-    // 1. Fit the simplest model the thesis offers: linear homogeneous, displacement-based.
+    // 1. Fit the simplest model the method offers: linear homogeneous, displacement-based.
     log::info!(
-        "[1/4] fit: linear homogeneous material, displacement-based inverse (seed 000 §5.3)"
+        "[1/4] fit: linear homogeneous material, displacement-based inverse (docs/method.md)"
     );
     let input = FitInput::from_dataset(&ds)?;
     let o = FitOptions::new(Method::Displacement, Layout::Homogeneous, Sets::Single);
