@@ -333,7 +333,7 @@ impl StaticDataset {
                     file: toml_file.clone(),
                     line: 0,
                     problem:
-                        "missing: give `clamps = [\"group\"]`, the clamped face's physical group"
+                        "missing: give `clamps = [\"group\"]`, the clamped face's physical group (older name: `fixed_group`)"
                             .into(),
                 })
             }
