@@ -36,14 +36,47 @@ pub fn fields(record: &str) -> Vec<&str> {
 /// is dropped (see [`records`]). A malformed record is returned as its line and the reason.
 pub fn parse(text: &str, comments: bool) -> Result<Vec<(usize, Vec<String>)>, (usize, String)> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    // Comment lines are blanked here rather than skipped by the csv reader, so that a record's
+    // byte offset still counts every line before it: errors must name the file's line.
+    let blanked: String;
+    let text = if comments {
+        blanked = text
+            .split_inclusive('\n')
+            .map(|l| {
+                if l.trim_start().starts_with('#') {
+                    if l.ends_with("\r\n") {
+                        "\r\n"
+                    } else if l.ends_with('\n') {
+                        "\n"
+                    } else {
+                        ""
+                    }
+                } else {
+                    l
+                }
+            })
+            .collect();
+        blanked.as_str()
+    } else {
+        text
+    };
     let mut b = csv::ReaderBuilder::new();
     b.has_headers(false).flexible(true).trim(csv::Trim::All);
-    if comments {
-        b.comment(Some(b'#'));
-    }
     let mut out = Vec::new();
     for rec in b.from_reader(text.as_bytes()).records() {
-        let line = |p: Option<&csv::Position>| p.map_or(0, |p| p.line() as usize);
+        // The line from the byte offset: the reader's own line count skips blank lines, and a
+        // record's offset is where the reader began looking for it — before the line ends it
+        // skipped on the way, which belong to the lines above.
+        let line = |p: Option<&csv::Position>| {
+            p.map_or(0, |p| {
+                let bytes = text.as_bytes();
+                let mut at = (p.byte() as usize).min(bytes.len());
+                while at < bytes.len() && matches!(bytes[at], b'\r' | b'\n') {
+                    at += 1;
+                }
+                bytes[..at].iter().filter(|&&c| c == b'\n').count() + 1
+            })
+        };
         let rec = rec.map_err(|e| (line(e.position()), e.to_string()))?;
         // A line of blanks (or of empty fields only) is not a record.
         if rec.iter().all(str::is_empty) {
