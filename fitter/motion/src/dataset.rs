@@ -267,7 +267,8 @@ fn bad(file: &Path, line: usize, what: impl Into<String>) -> DatasetError {
     }
 }
 
-/// CSV rows after the header, checked against the expected header names.
+/// CSV rows after the header, their fields in the order of the header alternative the file's
+/// header names (its columns in any order; fields unquoted by [`csv::parse`]).
 fn csv(
     file: &Path,
     headers: &[&[&str]],
@@ -276,20 +277,25 @@ fn csv(
         return Ok(None);
     }
     let text = read(file)?;
-    let mut lines = csv::records(&text, true);
-    let (_, head) = lines
+    let records = csv::parse(&text, true).map_err(|(line, why)| bad(file, line, why))?;
+    let mut lines = records.into_iter();
+    let (hline, cols) = lines
         .next()
         .ok_or_else(|| bad(file, 1, "empty file (expected a header line)"))?;
-    let cols = csv::fields(head);
+    // The alternative whose names are the file's columns, each once, in any order.
     let which = headers
         .iter()
-        .position(|h| *h == cols.as_slice())
+        .position(|h| {
+            h.len() == cols.len()
+                && h.iter()
+                    .all(|n| cols.iter().filter(|c| c == n).count() == 1)
+        })
         .ok_or_else(|| {
             bad(
                 file,
-                1,
+                hline,
                 format!(
-                    "header {:?}, expected one of {}",
+                    "header {:?}, expected one of {} (columns in any order)",
                     cols,
                     headers
                         .iter()
@@ -299,22 +305,21 @@ fn csv(
                 ),
             )
         })?;
+    let order: Vec<usize> = headers[which]
+        .iter()
+        .map(|n| cols.iter().position(|c| c == n).expect("matched above"))
+        .collect();
     let n = headers[which].len();
     let mut rows = Vec::new();
-    for (line, l) in lines {
-        let f: Vec<String> = csv::fields(l).into_iter().map(String::from).collect();
+    for (line, f) in lines {
         if f.len() != n {
             return Err(bad(
                 file,
                 line,
-                format!(
-                    "{} fields, expected {n} ({})",
-                    f.len(),
-                    headers[which].join(",")
-                ),
+                format!("{} fields, expected {n} ({})", f.len(), cols.join(",")),
             ));
         }
-        rows.push((line, f));
+        rows.push((line, order.iter().map(|&p| f[p].clone()).collect()));
     }
     Ok(Some((which, rows)))
 }

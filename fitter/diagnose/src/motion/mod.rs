@@ -51,7 +51,11 @@ pub fn is_motion_dataset(dir: &Path) -> bool {
         return false;
     };
     text.parse::<toml::Table>()
-        .is_ok_and(|t| t.contains_key("dt") || t.contains_key("clamps"))
+        // `clamps` is the static datasets' key for their clamped face too; only a static dataset
+        // has a `probe_radius`.
+        .is_ok_and(|t| {
+            t.contains_key("dt") || (t.contains_key("clamps") && !t.contains_key("probe_radius"))
+        })
 }
 
 /// Refits that move the two-material candidate's boundary ([`MotionModel::fit_two_material`]).

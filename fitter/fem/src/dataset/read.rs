@@ -134,7 +134,7 @@ pub enum DatasetError {
         median_edge: f64,
     },
     /// The fixed group is missing from the mesh or holds no node.
-    #[error("{file}:{line}: field `fixed_group`: {problem}")]
+    #[error("{file}:{line}: field `clamps`: {problem}")]
     FixedGroup {
         /// The file (dataset.toml).
         file: PathBuf,
@@ -299,7 +299,15 @@ impl StaticDataset {
         let mesh = read_msh(dir.join(meta.mesh.get_ref()))?;
         // One schema with the motion datasets: `clamps = ["group"]` or the older `fixed_group`.
         let (fixed_group, fixed_span) = match (&meta.fixed_group, &meta.clamps) {
-            (Some(g), None) => (g.get_ref().clone(), g.span()),
+            (Some(g), None) => {
+                log::warn!(
+                    "{}:{}: `fixed_group` is the older name of `clamps = [{:?}]`: read as that",
+                    toml_file.display(),
+                    at(g.span()),
+                    g.get_ref()
+                );
+                (g.get_ref().clone(), g.span())
+            }
             (None, Some(c)) if c.get_ref().len() == 1 => (c.get_ref()[0].clone(), c.span()),
             (None, Some(c)) => {
                 return Err(DatasetError::FixedGroup {
@@ -324,8 +332,9 @@ impl StaticDataset {
                 return Err(DatasetError::FixedGroup {
                     file: toml_file.clone(),
                     line: 0,
-                    problem: "missing: give `clamps = [\"group\"]` (or `fixed_group = \"group\"`)"
-                        .into(),
+                    problem:
+                        "missing: give `clamps = [\"group\"]`, the clamped face's physical group (older name: `fixed_group`)"
+                            .into(),
                 })
             }
         };

@@ -19,7 +19,7 @@ struct DatasetTomlOut<'a> {
     description: &'a str,
     units: &'a str,
     mesh: &'a str,
-    fixed_group: &'a str,
+    clamps: [&'a str; 1],
     probe_radius: f64,
     #[serde(skip_serializing_if = "Option::is_none")]
     marker_noise: Option<f64>,
@@ -101,7 +101,7 @@ impl StaticDataset {
             description: &self.description,
             units: "SI",
             mesh: MESH_MSH,
-            fixed_group: &self.fixed_group,
+            clamps: [&self.fixed_group],
             probe_radius: self.probe_radius,
             marker_noise: self.marker_noise,
             gravity: self.gravity,

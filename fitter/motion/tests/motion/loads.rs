@@ -339,16 +339,16 @@ fn shared_dataset_keys_mean_the_same_in_both_formats() {
         std::fs::write(dir.path().join("dataset.toml"), edit(&t)).unwrap();
         palpate_fem::dataset::StaticDataset::read(dir.path()).map_err(|e| e.to_string())
     };
-    let plain = read(&|t| t.to_string()).unwrap();
-    let aliased =
-        read(&|t| t.replace("fixed_group = \"bottom\"", "clamps = [\"bottom\"]")).unwrap();
+    // The bundled dataset says `clamps`; the older `fixed_group` is the alias under test.
+    let plain = read(&|t| t.replace("clamps = [\"bottom\"]", "fixed_group = \"bottom\"")).unwrap();
+    let aliased = read(&|t| t.to_string()).unwrap();
     assert_eq!(plain.fixed_nodes, aliased.fixed_nodes);
-    let two = read(&|t| t.replace("fixed_group = \"bottom\"", "clamps = [\"bottom\", \"top\"]"))
+    let two = read(&|t| t.replace("clamps = [\"bottom\"]", "clamps = [\"bottom\", \"top\"]"))
         .unwrap_err();
     assert!(two.contains("exactly one"), "{two}");
     let both = read(&|t| {
         t.replace(
-            "fixed_group = \"bottom\"",
+            "clamps = [\"bottom\"]",
             "fixed_group = \"bottom\"\nclamps = [\"bottom\"]",
         )
     })

@@ -21,8 +21,14 @@ pub struct Args {
     /// Calibration table: `run,adc_counts,reference_mass_g` (balance) or
     /// `force_N,resistance_ohm,divider_output_V` (published points).
     pub csv: PathBuf,
-    /// Write the calibration (and the full fit report) as JSON here.
-    #[arg(short, long)]
+    /// Output: the calibration (and the full fit report) written as JSON; the result is printed,
+    /// and nothing is written without it.
+    #[arg(
+        short = 'o',
+        long = "output",
+        visible_alias = "out",
+        value_name = "FILE"
+    )]
     pub output: Option<PathBuf>,
     /// Curve written into the calibration.
     #[arg(long, default_value = "power", value_parser = curve_parser())]

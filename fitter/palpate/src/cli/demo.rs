@@ -9,7 +9,10 @@ use palpate_fem::runtime_storage::Storage;
 use palpate_runtime::RuntimeConfig;
 use palpate_static_fit::blend::BlendData;
 use palpate_static_fit::{fit_static, FitInput, FitOptions, Layout, Method, Sets};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+
+use super::demo_readme::{figures_in, DemoReadme, Part, Table};
+use super::logging::Stage;
 use std::time::Instant;
 
 /// Arguments of `palpate demo`.
@@ -18,7 +21,7 @@ pub struct Args {
     /// The static dataset to run the loop on.
     #[arg(long, default_value = "models/sponge-specimen")]
     pub dataset: PathBuf,
-    /// Output folder (model, reports).
+    /// Output: the folder written (README.md, models, reports).
     #[arg(
         short = 'o',
         long = "output",
@@ -63,16 +66,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     }
     let t0 = Instant::now();
+    let progress = super::logging::Progress::start("palpate demo");
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     // First the loop on measured data (a real capture), then the synthetic specimen whose
     // injected effects are known.
+    let parts = if args.no_beam { 1 } else { 2 };
     let beam = if args.no_beam {
         None
     } else {
+        progress.stage(&Stage {
+            step: Some((1, parts)),
+            text: "the measured silicone beam".into(),
+            ..Stage::default()
+        });
         log::info!("palpate demo, part 1: the measured silicone beam (models/silicone-beam, C3D)");
         Some(super::demo_beam::run(&args.out)?)
     };
+    progress.stage(&Stage {
+        step: Some((parts, parts)),
+        text: "the synthetic specimen".into(),
+        ..Stage::default()
+    });
     if beam.is_some() {
         log::info!("palpate demo, part 2: the synthetic specimen (effects known)");
     }
@@ -89,9 +104,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
 
-    // 1. Fit the simplest model the thesis offers: linear homogeneous, displacement-based.
+    // 1. Fit the simplest model the method offers: linear homogeneous, displacement-based.
     log::info!(
-        "[1/4] fit: linear homogeneous material, displacement-based inverse (seed 000 §5.3)"
+        "[1/4] fit: linear homogeneous material, displacement-based inverse (docs/method.md)"
     );
     let input = FitInput::from_dataset(&ds)?;
     let o = FitOptions::new(Method::Displacement, Layout::Homogeneous, Sets::Single);
@@ -114,10 +129,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         log::info!("  {msg}")
     })?;
     let diag_dir = args.out.join("diagnosis");
-    let files = palpate_diagnose::report::write_report(&report, &diag_dir)?;
+    let diag_files = palpate_diagnose::report::write_report(&report, &diag_dir)?;
     log::info!(
         "      report: {} files in {}",
-        files.len(),
+        diag_files.len(),
         diag_dir.display()
     );
 
@@ -179,60 +194,124 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         palpate_link::replay::replay(rt, contact, ds.probe_radius as f32, args.haptic_seconds)?;
     let lost = replay.lost;
 
-    // The table.
-    let b = &report.before;
-    let a = &report.after;
-    let adopted: Vec<String> = report
-        .adopted
-        .iter()
-        .map(|c| c.name().to_string())
-        .collect();
-    println!(
-        "\n== before / after (marker errors in mm; noise floor {} mm)",
-        mm(report.noise_floor)
-    );
-    println!(
-        "| model | fitted RMS | fitted max | held-out RMS | held-out max | implied force RMS (N) |"
-    );
-    println!("|---|---|---|---|---|---|");
-    println!(
-        "| simplest (linear homogeneous) | {} | {} | {} | {} | {:.4} |",
-        mm(b.fitted_rms),
-        mm(b.fitted_max),
-        mm(b.heldout_rms),
-        mm(b.heldout_max),
-        b.force_rms
-    );
-    println!(
-        "| after diagnosis (+ {}) | {} | {} | {} | {} | {:.4} |",
-        if adopted.is_empty() {
-            "nothing".to_string()
-        } else {
-            adopted.join(", ")
-        },
-        mm(a.fitted_rms),
-        mm(a.fitted_max),
-        mm(a.heldout_rms),
-        mm(a.heldout_max),
-        a.force_rms
-    );
-    println!(
-        "\nhaptic replay: {} samples solved ({} lost), latency frame written → solved p50 {:.0} µs, p99 {:.0} µs; mean PCG iterations {:.1}; runtime memory {} bytes",
+    drop(progress);
+    // The tables: printed, and written with the figures into the folder's README.
+    let specimen = specimen_part(&report, &diag_files, &args.out);
+    let haptic = format!(
+        "Haptic replay of the diagnosed model over a pseudo-terminal: {} samples solved ({} lost); \
+         latency from frame written to solved p50 {:.0} µs, p99 {:.0} µs; mean PCG iterations \
+         {:.1}; runtime memory {} bytes.",
         replay.solved, lost, replay.p50_us, replay.p99_us, replay.mean_iterations, footprint
     );
+    for t in &specimen.tables {
+        println!("\n{}", t.markdown());
+    }
+    println!("{haptic}");
     if replay.non_monotonic > 0 {
         log::warn!(
             "{} latency pairs were out of clock order and are excluded from the figures",
             replay.non_monotonic
         );
     }
+    let mut parts = Vec::new();
     if let Some(b) = &beam {
-        super::demo_beam::print_table(b);
+        let part = super::demo_beam::part(b, &args.out);
+        super::demo_beam::print_table(&part);
+        parts.push(part);
     }
+    parts.push(specimen);
+    let readme = DemoReadme {
+        command: "palpate demo".into(),
+        parts,
+        notes: vec![
+            haptic,
+            format!(
+                "Models: `{}` (the simplest) and `{}` (the diagnosed one); `palpate info` says \
+                 what each holds.",
+                "model-simplest.palp", "model.palp"
+            ),
+            format!("The demo ran for {:.0} s.", t0.elapsed().as_secs_f64()),
+        ],
+    };
+    let readme_path = super::demo_readme::write(&args.out, &readme)?;
+    println!(
+        "\nthe results, tables and figures: {}",
+        readme_path.display()
+    );
     log::info!("demo finished in {:.1} s", t0.elapsed().as_secs_f64());
     if let Some(b) = &beam {
         super::demo_beam::check_expected(b)?;
         log::info!("the beam's decisions and held-out errors are the expected ones");
     }
     Ok(())
+}
+
+/// The synthetic specimen's part of the README: verdict, before/after table, figures. `root` is
+/// the README's folder.
+fn specimen_part(
+    report: &palpate_diagnose::DiagnosisReport,
+    files: &[PathBuf],
+    root: &Path,
+) -> Part {
+    let adopted = palpate_diagnose::model::Candidate::names(&report.adopted, ", ", "");
+    let row = |label: String, e: &palpate_diagnose::Errors| {
+        vec![
+            label,
+            mm(e.fitted_rms),
+            mm(e.fitted_max),
+            mm(e.heldout_rms),
+            mm(e.heldout_max),
+            format!("{:.4}", e.force_rms),
+        ]
+    };
+    let table = Table {
+        caption: format!(
+            "Before / after (marker errors in mm; noise floor {} mm)",
+            mm(report.noise_floor)
+        ),
+        header: [
+            "model",
+            "fitted RMS",
+            "fitted max",
+            "held-out RMS",
+            "held-out max",
+            "implied force RMS (N)",
+        ]
+        .map(String::from)
+        .to_vec(),
+        rows: vec![
+            row("simplest (linear homogeneous)".into(), &report.before),
+            row(
+                format!(
+                    "after diagnosis (+ {})",
+                    if adopted.is_empty() {
+                        "nothing"
+                    } else {
+                        &adopted
+                    }
+                ),
+                &report.after,
+            ),
+        ],
+    };
+    Part {
+        title: format!(
+            "A synthetic specimen with known effects ({})",
+            report.dataset
+        ),
+        verdict: format!(
+            "{}.",
+            report
+                .residual_check
+                .verdict(&palpate_diagnose::model::Candidate::names(
+                    &report.adopted,
+                    " → ",
+                    ""
+                ))
+        ),
+        tables: vec![table],
+        notes: Vec::new(),
+        report: super::demo_beam::markdown_report(root, files),
+        figures: figures_in(root, files),
+    }
 }

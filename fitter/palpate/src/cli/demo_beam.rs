@@ -12,6 +12,7 @@ use palpate_motion::predict;
 use palpate_runtime::{RuntimeConfig, SolveStatus};
 use std::path::{Path, PathBuf};
 
+use super::demo_readme::{figures_in, Part, Table};
 use super::import::{import_c3d, C3dArgs};
 
 /// The measured beam's folder (the bundled capture and the mesh the demo fits on), relative to
@@ -38,6 +39,8 @@ pub struct BeamOutcome {
     pub measured_tip_m: f64,
     /// Young's modulus of the warped-linear runtime model fitted to that deflection (Pa).
     pub warped_linear_e: f64,
+    /// The diagnosis report's folder and the files written in it.
+    pub report: (PathBuf, Vec<PathBuf>),
 }
 
 fn import(run: &str, out: &Path) -> anyhow::Result<(String, MotionDataset)> {
@@ -93,7 +96,8 @@ pub fn run(out: &Path) -> anyhow::Result<BeamOutcome> {
     let d = diagnose_runs(&fit, &held, &RunsOptions::default(), &|m| {
         log::info!("  {m}")
     })?;
-    let files = write_report(&d, &out.join("diagnosis"), fit[0].1.model.dt)?;
+    let report_dir = out.join("diagnosis");
+    let files = write_report(&d, &report_dir, fit[0].1.model.dt)?;
     log::info!(
         "      report: {} files in {}",
         files.len(),
@@ -196,6 +200,7 @@ pub fn run(out: &Path) -> anyhow::Result<BeamOutcome> {
         runtime_tip_m,
         measured_tip_m,
         warped_linear_e: e_fit * scale,
+        report: (report_dir, files),
     })
 }
 
@@ -321,42 +326,91 @@ fn runtime_tip(
     ))
 }
 
-/// The beam's before/after table.
-pub fn print_table(b: &BeamOutcome) {
+/// The beam's part of the demo's README: verdict, held-out table, the modulus, the figures.
+/// `root` is the README's folder.
+pub fn part(b: &BeamOutcome, root: &Path) -> Part {
     let d = &b.diagnosis;
-    println!(
-        "\n== measured beam: held-out runs predicted (marker errors in mm; adopted: {})",
-        if d.adopted.is_empty() {
-            "nothing".to_string()
-        } else {
-            d.adopted
-                .iter()
-                .map(|e| e.name())
-                .collect::<Vec<_>>()
-                .join(", ")
-        }
-    );
-    println!("| held-out run | trajectory RMS simplest → final | rest state simplest → final | rest state, linear baseline |");
-    println!("|---|---|---|---|");
-    for ((before, after), (_, base)) in d.before.1.iter().zip(&d.after.1).zip(&b.baseline) {
-        println!(
-            "| {} | {} → {} | {} → {} | {} |",
-            before.run,
-            mm(before.rms_m),
-            mm(after.rms_m),
-            mm(before.final_rms_m),
-            mm(after.final_rms_m),
-            base.map_or("–".into(), mm)
-        );
-    }
+    let adopted = if d.adopted.is_empty() {
+        "nothing".to_string()
+    } else {
+        d.adopted
+            .iter()
+            .map(|e| e.name())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let rows = d
+        .before
+        .1
+        .iter()
+        .zip(&d.after.1)
+        .zip(&b.baseline)
+        .map(|((before, after), (_, base))| {
+            vec![
+                before.run.clone(),
+                format!("{} → {}", mm(before.rms_m), mm(after.rms_m)),
+                format!("{} → {}", mm(before.final_rms_m), mm(after.final_rms_m)),
+                base.map_or("–".into(), mm),
+            ]
+        })
+        .collect();
+    let table = Table {
+        caption: format!(
+            "Held-out runs predicted, never fitted (marker errors in mm; adopted: {adopted})"
+        ),
+        header: [
+            "held-out run",
+            "trajectory RMS, simplest → final",
+            "rest state, simplest → final",
+            "rest state, linear baseline",
+        ]
+        .map(String::from)
+        .to_vec(),
+        rows,
+    };
     let e = &d.values[0];
-    println!(
-        "Neo-Hookean E = {:.0} Pa (1σ ≥ {:.0} Pa, Poisson's ratio held at {}); the exported warped-linear model deflects {} mm under the weight vs {} mm measured; refitted to it, E = {:.0} Pa",
-        e.value,
-        e.sd,
+    let modulus = format!(
+        "Neo-Hookean E = {:.1} kPa (1σ ≥ {:.1} kPa, Poisson's ratio held at {:.3}); the exported \
+         warped-linear model deflects {} mm under the 52 g weight against {} mm measured; refitted \
+         to that deflection, E = {:.1} kPa.",
+        e.value / 1e3,
+        e.sd / 1e3,
         d.options.poisson,
         mm(b.runtime_tip_m),
         mm(b.measured_tip_m),
-        b.warped_linear_e
+        b.warped_linear_e / 1e3
     );
+    let files = &b.report.1;
+    Part {
+        title: format!("A measured silicone beam ({BEAM})"),
+        verdict: format!(
+            "adopted {adopted}; held-out marker RMS {} → {} mm. The loop stopped: {}.",
+            mm(d.heldout_rms_m.0),
+            mm(d.heldout_rms_m.1),
+            d.stop
+        ),
+        tables: vec![table],
+        notes: vec![modulus],
+        report: markdown_report(root, files),
+        figures: figures_in(root, files),
+    }
+}
+
+/// The Markdown report among a report's `files`, relative to `root`.
+pub fn markdown_report(root: &Path, files: &[PathBuf]) -> Option<PathBuf> {
+    files
+        .iter()
+        .find(|f| f.extension().is_some_and(|e| e == "md"))
+        .and_then(|f| f.strip_prefix(root).ok())
+        .map(Path::to_path_buf)
+}
+
+/// Prints the beam's before/after table on stdout.
+pub fn print_table(part: &Part) {
+    for t in &part.tables {
+        println!("\n{}", t.markdown());
+    }
+    for n in &part.notes {
+        println!("{n}");
+    }
 }

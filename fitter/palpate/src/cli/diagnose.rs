@@ -12,8 +12,15 @@ use palpate_diagnose::MeshChoice;
 pub struct Args {
     /// Static or motion dataset directory, or measured curves (CSV file or directory).
     pub dataset: PathBuf,
-    /// Report directory (diagnosis.md, diagnosis.json, evidence plots, model.palp for the runtime).
-    #[arg(short, long, default_value = "diagnosis")]
+    /// Output: the report folder written (diagnosis.md, diagnosis.json, evidence plots, model.palp
+    /// for the runtime).
+    #[arg(
+        short = 'o',
+        long = "output",
+        visible_alias = "out",
+        value_name = "DIR",
+        default_value = "diagnosis"
+    )]
     pub output: PathBuf,
     /// Candidates to try (default: all).
     #[arg(long, value_delimiter = ',')]
@@ -26,8 +33,9 @@ pub struct Args {
     /// discretisation error is a large part of the noise floor; `dataset`, `refined` force one.
     #[arg(long, default_value = "auto", value_parser = mesh_choice())]
     pub mesh: MeshChoice,
-    /// Gauge length L0 (mm) of tension-test CSVs (stretch λ = 1 + Δ/L0); fitted if not given.
-    #[arg(long)]
+    /// Gauge length L0 in mm of tension-test CSVs (stretch λ = 1 + Δ/L0); fitted if not given
+    /// (`--gauge-length` is its older name).
+    #[arg(long = "gauge-length-mm", alias = "gauge-length", value_name = "MM")]
     pub gauge_length: Option<f64>,
     /// More runs of the same object (motion datasets on one mesh) fitted together with DATASET.
     #[arg(long, value_delimiter = ',')]
@@ -54,6 +62,7 @@ fn mesh_choice() -> impl clap::builder::TypedValueParser<Value = MeshChoice> {
 
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    super::renamed::warn_if_used("--gauge-length", "--gauge-length-mm");
     args.plots.apply();
     // Inputs and flags first, so a typo makes no output folder; then the output, before the
     // diagnosis runs (minutes), not after.
@@ -76,7 +85,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     if let Some(g) = args.gauge_length.filter(|g| !(g.is_finite() && *g > 0.0)) {
-        anyhow::bail!("--gauge-length {g}: expected a finite length > 0 m");
+        anyhow::bail!("--gauge-length-mm {g}: expected a finite length > 0 mm");
     }
     super::output::check_writable(&args.output)?;
     let request = palpate_diagnose::run::Request {
@@ -92,8 +101,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     // Each input's summary is printed as soon as it is written: a folder of inputs takes minutes
     // per input.
+    let progress = super::logging::Progress::start("diagnosing");
     palpate_diagnose::run::run_with(&request, &mut |summary| {
-        print!("{summary}");
+        progress.suspend(|| print!("{summary}"));
         for f in &summary.files {
             log::info!("wrote {}", f.display());
         }

@@ -13,7 +13,7 @@ use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
 use palpate_static_fit::loo::leave_one_out;
 use palpate_static_fit::{fit_static, FitInput, FitOptions, Gammas, Layout, Method, Sets};
 
-/// Material class (the thesis' linear and non-linear materials, seed 000 §5.2.2 and §6.2).
+/// Material class (docs/method.md, "The static model").
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum MaterialClass {
     /// One material (E, ν) for the whole object.
@@ -29,9 +29,9 @@ pub enum MaterialClass {
 /// Inverse method.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum MethodArg {
-    /// Force-based linear least squares (the thesis' §5.2).
+    /// Force-based: linear least squares on the measured positions (fast; docs/method.md).
     Force,
-    /// Displacement-based non-linear least squares (the thesis' §5.3).
+    /// Displacement-based: non-linear least squares on the marker errors (docs/method.md).
     Displacement,
 }
 
@@ -61,12 +61,13 @@ pub struct Args {
     /// Also run leave-one-out validation (one extra fit per measurement).
     #[arg(long)]
     pub leave_one_out: bool,
-    /// Output model file; the report goes to `<model>.report/`.
+    /// Output: the model file written; the report goes to `<model>.report/`.
     #[arg(
         short = 'o',
         long = "output",
         visible_alias = "out",
-        value_name = "MODEL"
+        value_name = "MODEL",
+        default_value = "model.palp"
     )]
     pub out: PathBuf,
     /// Figure format.

@@ -35,7 +35,7 @@ pub struct Args {
     #[arg(long)]
     pub direct: bool,
     /// Optimiser: `auto` (Levenberg–Marquardt on the Gauss–Newton matrix for global parameters,
-    /// LBFGS for per-element ones), `lm`, or `lbfgs` (the paper's, §4.3).
+    /// LBFGS for per-element ones), `lm`, or `lbfgs` (Real2Sim's optimiser, docs/method.md).
     #[arg(long, default_value = "auto", value_parser = ["auto", "lm", "lbfgs"])]
     pub optimizer: String,
     /// Hold Poisson's ratio fixed at this value (λ follows μ; give `mu` and not `lambda` in
@@ -60,10 +60,16 @@ pub struct Args {
         default_value_t = 150
     )]
     pub max_iters: u64,
-    /// Write the fitted parameters (JSON) here.
-    #[arg(short, long)]
+    /// Output: the fitted parameters (fit.json) written; the result is printed, and nothing is
+    /// written without it.
+    #[arg(
+        short = 'o',
+        long = "output",
+        visible_alias = "out",
+        value_name = "FILE"
+    )]
     pub output: Option<PathBuf>,
-    /// Export the fit as a runtime model (.palp): Lamé's (λ, μ) → the thesis coefficients
+    /// Export the fit as a runtime model (.palp): Lamé's (λ, μ) → the coefficients
     /// (λ_F, α_G) the runtime stores, per element, clamp groups fixed; viscosity, density and the large-strain response are not kept (stated in the
     /// model's provenance).
     #[arg(long)]

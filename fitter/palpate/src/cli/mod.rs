@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 pub mod calibrate_fsr;
 pub mod demo;
 pub mod demo_beam;
+pub mod demo_readme;
 pub mod diagnose;
 pub mod fit;
 pub mod fit_motion;
@@ -16,6 +17,7 @@ pub mod logging;
 pub mod output;
 pub mod probe;
 pub mod probe_sim;
+pub mod renamed;
 pub mod simulate;
 pub mod specimen;
 pub mod validate;
@@ -28,7 +30,10 @@ pub mod validate;
     about,
     long_about = None,
     after_help = "Results (tables, summaries, a last JSON line) go to stdout; progress, notes, the \
-                  files written and warnings go to stderr (-q: only warnings and errors)."
+                  files written and warnings go to stderr (-q: only warnings and errors).\n\
+                  -o/--output (also --out) is what a command writes, a file or a folder: a command \
+                  that exists to write files has a default (shown in its help); a command whose \
+                  result is printed writes a file only when -o is given."
 )]
 pub struct Cli {
     /// Quiet: only warnings and errors on stderr (no progress, no notes, no list of files
@@ -54,7 +59,7 @@ pub enum Command {
     Import(import::ImportCommand),
     /// Simulate one static interaction with the runtime; writes displacements CSV and VTK.
     Simulate(simulate::Args),
-    /// Fit material parameters to a static contact dataset (seed 000) and export a model.
+    /// Fit material parameters to a static contact dataset and export a model.
     Fit(fit::Args),
     /// Fit an FSR calibration (balance readings or datasheet points) and write the probe's calibration.
     CalibrateFsr(calibrate_fsr::Args),

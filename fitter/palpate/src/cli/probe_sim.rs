@@ -37,9 +37,9 @@ pub struct Args {
     /// Calibration written by `palpate calibrate-fsr -o` (default: the FSR 402 fit on a 3.3 V / 10 kΩ divider).
     #[arg(long)]
     pub calibration: Option<PathBuf>,
-    /// ADC dither, ± counts.
-    #[arg(long, default_value_t = 2)]
-    pub noise: i16,
+    /// ADC dither in counts (±), added to every simulated reading (`--noise` is its older name).
+    #[arg(long = "adc-dither-counts", alias = "noise", default_value_t = 2)]
+    pub adc_dither_counts: i16,
     /// Probability of corrupting each byte on the wire (fault demo).
     #[arg(long, default_value_t = 0.0)]
     pub corrupt: f64,
@@ -101,6 +101,7 @@ pub fn parse_profile(s: &str) -> anyhow::Result<Profile> {
 
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    super::renamed::warn_if_used("--noise", "--adc-dither-counts");
     let profile = parse_profile(&args.profile)?;
     let mut config = default_config();
     config.rate_hz = args.rate;
@@ -108,7 +109,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(p) = &args.calibration {
         config.calibration = read_calibration_json(p)?;
     }
-    let sim = SimProbe::new(config, profile, args.noise)
+    let sim = SimProbe::new(config, profile, args.adc_dither_counts)
         .map_err(|e| anyhow::anyhow!("starting the simulated probe: {e}"))?;
     let opts = SenderOptions::clean(args.seconds, Pacing::RealTime);
     let plan = FaultPlan {

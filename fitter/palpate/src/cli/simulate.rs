@@ -29,10 +29,10 @@ pub enum RuleArg {
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// A fitted model (`.palp`).
-    #[arg(long, conflicts_with_all = ["mesh", "young", "poisson", "fixed"])]
+    #[arg(long, conflicts_with_all = ["mesh", "young", "poisson", "clamps"])]
     pub model: Option<PathBuf>,
     /// A Gmsh 4.1 mesh (linear tetrahedra) to simulate with a homogeneous material.
-    #[arg(long, requires_all = ["young", "poisson", "fixed"])]
+    #[arg(long, requires_all = ["young", "poisson", "clamps"])]
     pub mesh: Option<PathBuf>,
     /// Young's modulus E (Pa) for `--mesh`.
     #[arg(long)]
@@ -40,9 +40,10 @@ pub struct Args {
     /// Poisson ratio ν for `--mesh`.
     #[arg(long)]
     pub poisson: Option<f64>,
-    /// Name of the fixed (Dirichlet) physical group for `--mesh`.
-    #[arg(long)]
-    pub fixed: Option<String>,
+    /// The clamped face for `--mesh`: the name of the physical group whose nodes do not move
+    /// (`--fixed` is its older name).
+    #[arg(long, alias = "fixed", value_name = "GROUP")]
+    pub clamps: Option<String>,
     /// Force-driven contact point x,y,z (m), on the rest surface.
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     pub contact: Option<[f64; 3]>,
@@ -73,16 +74,17 @@ pub struct Args {
     /// Linear model (no stiffness warping).
     #[arg(long)]
     pub no_warp: bool,
-    /// Load increments of the incremental loading (seed 000 §6.1), 1–1000: each increment is at
+    /// Load increments of the incremental loading (docs/method.md), 1–1000: each increment is at
     /// least one solve, and a thousand already resolve any load path a static model can follow.
     #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub increments: u32,
-    /// Output folder.
+    /// Output: the folder written.
     #[arg(
         short = 'o',
         long = "output",
         visible_alias = "out",
-        value_name = "DIR"
+        value_name = "DIR",
+        default_value = "simulate"
     )]
     pub out: PathBuf,
 }
@@ -142,7 +144,7 @@ pub fn model_from_mesh(
         .to_vec();
     if fixed.is_empty() {
         bail!(
-            "mesh {}: fixed group {fixed_group:?} has no nodes",
+            "mesh {}: clamped group {fixed_group:?} (--clamps) has no nodes",
             path.display()
         );
     }
@@ -207,6 +209,7 @@ fn read_node_forces(path: &Path, tags: &[u64]) -> anyhow::Result<Vec<(usize, [f3
 
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    super::renamed::warn_if_used("--fixed", "--clamps");
     let bytes;
     let buffers;
     let record = match (&args.model, &args.mesh) {
@@ -221,12 +224,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 mesh,
                 args.young.unwrap_or_default(),
                 args.poisson.unwrap_or_default(),
-                args.fixed.as_deref().unwrap_or_default(),
+                args.clamps.as_deref().unwrap_or_default(),
             )?;
             buffers.record()
         }
         _ => bail!(
-            "give either --model FILE or --mesh FILE.msh --young E --poisson NU --fixed GROUP"
+            "give either --model FILE or --mesh FILE.msh --young E --poisson NU --clamps GROUP"
         ),
     };
     let mesh = mesh_from_record(&record);

@@ -32,8 +32,14 @@ pub struct Args {
     /// Largest probe force (N).
     #[arg(long, default_value_t = 1.5)]
     pub max_force: f64,
-    /// Output dataset directory.
-    #[arg(short, long)]
+    /// Output: the dataset folder written.
+    #[arg(
+        short = 'o',
+        long = "output",
+        visible_alias = "out",
+        value_name = "DIR",
+        default_value = "specimen"
+    )]
     pub output: PathBuf,
 }
 

@@ -17,9 +17,15 @@ pub struct Args {
     pub model: PathBuf,
     /// The motion dataset to predict (e.g. from `palpate import c3d`), on the model's mesh.
     pub dataset: PathBuf,
-    /// Also write the prediction here: a folder with `prediction.csv` (simulated and observed
+    /// Output: also write the prediction here, a folder with `prediction.csv` (simulated and observed
     /// markers per step) and `tip.svg`/`tip.png` (the markers' displacement along gravity).
-    #[arg(short, long)]
+    /// The result is printed; nothing is written without it.
+    #[arg(
+        short = 'o',
+        long = "output",
+        visible_alias = "out",
+        value_name = "DIR"
+    )]
     pub output: Option<PathBuf>,
     /// Figure format.
     #[command(flatten)]

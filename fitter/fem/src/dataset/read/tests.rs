@@ -321,7 +321,7 @@ fn missing_or_empty_fixed_group_is_rejected() {
         &toml,
         &[
             "dataset.toml:5:",
-            "field `fixed_group`",
+            "field `clamps`",
             "no physical group \"floor\"",
             "\"bottom\"",
         ],
@@ -332,7 +332,7 @@ fn missing_or_empty_fixed_group_is_rejected() {
         &toml,
         &[
             "dataset.toml:5:",
-            "field `fixed_group`",
+            "field `clamps`",
             "\"nothing\" of the mesh holds no node",
         ],
     );
