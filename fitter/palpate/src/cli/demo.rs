@@ -297,7 +297,7 @@ fn specimen_part(
     Part {
         title: format!(
             "A synthetic specimen with known effects ({})",
-            report.dataset
+            report.input.dataset
         ),
         verdict: format!(
             "{}.",

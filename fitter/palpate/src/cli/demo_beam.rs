@@ -57,7 +57,7 @@ fn import(run: &str, out: &Path) -> anyhow::Result<(String, MotionDataset)> {
         clamps: vec!["clamp".into()],
         gravity: [-9.81, 0.0, 0.0],
         density: Some(1070.0),
-        scheme: "midpoint".into(),
+        scheme: "bdf2".into(),
         hang,
         rest_frame: 0,
         release_frame: None,

@@ -36,10 +36,11 @@ pub struct C3dArgs {
     /// Density (kg/m³), if known.
     #[arg(long)]
     pub density: Option<f64>,
-    /// Time integration written into the dataset: `midpoint` (the implicit midpoint rule, no
-    /// numerical damping, ≥ 15 steps per period of the capture's ring-down) or `bdf2`
-    /// (Real2Sim's, ≥ 32 steps per period); docs/motion-dataset.md.
-    #[arg(long, default_value = "midpoint", value_parser = ["midpoint", "bdf2"])]
+    /// Time integration written into the dataset: `bdf2` (Real2Sim's, ≥ 32 steps per period of
+    /// the capture's ring-down) or `midpoint` (the implicit midpoint rule: no numerical damping,
+    /// ≥ 15 steps per period, but an undamped model of a released body can blow up with it);
+    /// docs/motion-dataset.md.
+    #[arg(long, default_value = "bdf2", value_parser = ["bdf2", "midpoint"])]
     pub scheme: String,
     /// A weight hung from the top edge of a group of the mesh (its nodes furthest against
     /// gravity), as `MASS_KG@GROUP`, e.g. `0.052@free_end`; repeat for several. Written as a
@@ -253,8 +254,7 @@ fn dataset_files(a: &C3dArgs, r: &Imported) -> MotionDatasetFiles {
     config.static_start = Some(false);
     config.gravity = Some(a.gravity);
     config.density = a.density;
-    // A capture rings with its own damping only: an integrator that damps by itself would put
-    // its numerical damping into the fitted viscosity.
+    // Written even at its default, so that the dataset says how it is integrated.
     config.scheme = Some(a.scheme.clone());
     config.loads = a
         .hang
