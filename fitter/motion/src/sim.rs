@@ -827,7 +827,8 @@ pub fn simulate_solving(
         }
         let solver = kept.map(|(fac, exact)| {
             let solver = StepSolver {
-                s: sv.clone(),
+                // An exact factor never needs S's values.
+                s: if exact { Vec::new() } else { sv.clone() },
                 handed: fac.clone(),
                 factor: RefCell::new(fac),
                 exact: Cell::new(exact),
