@@ -18,10 +18,18 @@
 use super::forces::{param_derivatives, SPLIT_ASSEMBLY_ELEMENTS};
 use super::model::{Material, Model, Observations, Param};
 use super::objective::{clamp_force_derivatives, step_term, StepTerm};
-use super::sim::{simulate, simulate_states, SimStats, StepView};
+use super::sim::{simulate_solving, simulate_states, SimStats, StepSolve, StepSolver, StepView};
 use super::sparse::Factor;
 use super::timestep::Scheme;
 use super::MotionError;
+
+/// How the gradients solve with each converged step's S. Factorising every step afresh stays
+/// the default: on the beam's gravity run (716 tets) CG preconditioned with Newton's kept factor
+/// cuts the factorisations tenfold (871 to 80) but takes ~6 iterations a step, each two
+/// triangular solves, and leaves Newton without the converged factors it would carry, so a
+/// direct-gradient evaluation took 1.5× the CPU time (`palpate-lab bench motion-schemes`).
+/// [`StepSolve::Kept`] is for meshes where a factorisation costs many triangular solves.
+pub const DEFAULT_STEP_SOLVE: StepSolve = StepSolve::Fresh;
 
 /// How to compute the gradient.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -91,6 +99,7 @@ impl Evaluation {
                     .map(|p| p.stats.max_residual)
                     .fold(0.0, f64::max),
                 factorisations: parts.iter().map(|p| p.stats.factorisations).sum(),
+                cg_iterations: parts.iter().map(|p| p.stats.cg_iterations).sum(),
             },
             stored_bytes: parts.iter().map(|p| p.stored_bytes).max().unwrap_or(0),
             marker_count: parts.iter().map(|p| p.marker_count).sum(),
@@ -352,8 +361,10 @@ fn evaluate_here(
             }
             Ok(finish(&total, stats, None, 0))
         }
-        Some(Method::Direct) => direct(model, mat, params, obs, false).map(|(e, _)| e),
-        Some(Method::Adjoint) => adjoint(model, mat, params, obs),
+        Some(Method::Direct) => {
+            direct(model, mat, params, obs, false, DEFAULT_STEP_SOLVE).map(|(e, _)| e)
+        }
+        Some(Method::Adjoint) => adjoint(model, mat, params, obs, DEFAULT_STEP_SOLVE),
     }
 }
 
@@ -369,7 +380,20 @@ pub fn evaluate_gauss_newton(
     params: &[Param],
     obs: &Observations,
 ) -> Result<(Evaluation, Vec<f64>), MotionError> {
-    let (ev, h) = in_pool(|| direct(model, mat, params, obs, true))?;
+    evaluate_gauss_newton_with(model, mat, params, obs, DEFAULT_STEP_SOLVE)
+}
+
+/// [`evaluate_gauss_newton`] with the sensitivity systems solved as `solve` says
+/// ([`StepSolve::Fresh`] or [`StepSolve::Kept`]; [`StepSolve::None`] is taken as
+/// [`DEFAULT_STEP_SOLVE`]).
+pub fn evaluate_gauss_newton_with(
+    model: &Model,
+    mat: &Material,
+    params: &[Param],
+    obs: &Observations,
+    solve: StepSolve,
+) -> Result<(Evaluation, Vec<f64>), MotionError> {
+    let (ev, h) = in_pool(|| direct(model, mat, params, obs, true, solve))?;
     Ok((ev, h.unwrap_or_default()))
 }
 
@@ -583,6 +607,7 @@ fn direct(
     params: &[Param],
     obs: &Observations,
     gauss_newton: bool,
+    solve: StepSolve,
 ) -> Result<(Evaluation, Option<Vec<f64>>), MotionError> {
     let Setup {
         table,
@@ -609,10 +634,14 @@ fn direct(
         .then(|| MarkerMeans::new(model.markers.len(), np));
     let wdt = obs.marker_weight * model.observation_interval();
     let wf = obs.force_weight * model.observation_interval();
-    let stats = simulate(
+    let solve = match solve {
+        StepSolve::None => DEFAULT_STEP_SOLVE,
+        other => other,
+    };
+    let stats = simulate_solving(
         model,
         mat,
-        true,
+        solve,
         |x0, k0| {
             let r = match k0 {
                 Some(k0) => g_columns(model, mat, &table, &kinds, np, x0, &vec![0.0; ndof], None)
@@ -645,7 +674,7 @@ fn direct(
             let vb = inertia_velocity(s);
             let [xf, vf] = s.force_state;
             let g = g_columns(model, mat, &table, &kinds, np, xf, vf, Some((c, &vb)))?;
-            let factor = s.factor.expect("factors requested");
+            let solver = s.solver.expect("solves requested");
             let (gx, gv) = observe_step(model, mat, obs, s, &kinds, &mut total, &mut acc)?;
             // Every parameter's sensitivity step at once, column after column: the history
             // parts s_xa, s_b (and the midpoint's s_va), then S s_v = g + c M s_b − K s_xa
@@ -682,7 +711,7 @@ fn direct(
                     .pattern
                     .mul_add_difference((0.0, &mvals, &sva), (s.d, &sva), &mut rhs, np);
             }
-            factor.solve_columns_in_place(&mut rhs, np);
+            solver.solve_columns(&model.pattern, &mut rhs, np)?;
             for p in 0..np {
                 let o = p * nf;
                 let sv = &rhs[o..o + nf];
@@ -765,7 +794,8 @@ fn direct(
 }
 
 struct TapeStep {
-    factor: Factor,
+    /// Solves with the step's S (symmetric: the backward solve of eq. 12 is the same).
+    solver: StepSolver,
     k: Vec<f64>,
     /// D values (the midpoint rule's history term; empty for BDF2).
     d: Vec<f64>,
@@ -782,7 +812,12 @@ fn adjoint(
     mat: &Material,
     params: &[Param],
     obs: &Observations,
+    solve: StepSolve,
 ) -> Result<Evaluation, MotionError> {
+    let solve = match solve {
+        StepSolve::None => DEFAULT_STEP_SOLVE,
+        other => other,
+    };
     let Setup {
         table,
         kinds,
@@ -802,10 +837,10 @@ fn adjoint(
     let mut means = obs
         .free_marker_offsets
         .then(|| MarkerMeans::new(model.markers.len(), 0));
-    let stats = simulate(
+    let mut stats = simulate_solving(
         model,
         mat,
-        true,
+        solve,
         |x0, k0| start = Some((x0.to_vec(), k0.cloned())),
         |s| {
             let (gx, gv) = observe_step(model, mat, obs, s, &kinds, &mut total, &mut acc)?;
@@ -814,7 +849,7 @@ fn adjoint(
             }
             let vb = inertia_velocity(s);
             tape.push(TapeStep {
-                factor: s.factor.expect("factors requested").clone(),
+                solver: s.solver.expect("solves requested").clone(),
                 k: s.k.to_vec(),
                 d: match scheme {
                     Scheme::Bdf2 => Vec::new(),
@@ -829,10 +864,21 @@ fn adjoint(
             Ok(())
         },
     )?;
-    let stored = tape.len()
-        * (model.pattern.factor_bytes() + 8 * (model.pattern.nnz() + 3 * ndof + 2 * nf))
-        + tape.iter().map(|t| 8 * t.d.len()).sum::<usize>()
-        + model.pattern.factor_bytes();
+    // Steps share their preconditioning factors: count each once.
+    let mut factors: Vec<&Factor> = Vec::new();
+    for t in &tape {
+        let f = t.solver.preconditioner();
+        if !factors.iter().any(|g| g.shares_values(f)) {
+            factors.push(f);
+        }
+    }
+    let stored = tape.len() * 8 * (model.pattern.nnz() + 3 * ndof + 2 * nf)
+        + tape
+            .iter()
+            .map(|t| 8 * t.d.len() + t.solver.value_bytes())
+            .sum::<usize>()
+        + (factors.len() + 1) * model.pattern.factor_bytes();
+    drop(factors);
     // Backward pass. X[n], V[n] accumulate dΦ/ds_x^n, dΦ/ds_v^n (index shift +1 for n = −1).
     let nsteps = tape.len();
     let mut xs = vec![vec![0.0; nf]; nsteps + 2];
@@ -848,6 +894,9 @@ fn adjoint(
     if let Some(m) = &means {
         m.project_terms(&mut total, wdt);
     }
+    // A backward solve that had to factorise S hands its fresh factor on to the earlier steps
+    // that were handed the same stale one, as the forward solves do.
+    let mut refresh: Option<(Factor, Factor)> = None;
     for n in (1..=nsteps).rev() {
         let t = &tape[n - 1];
         let j = n + 1; // storage index of step n
@@ -860,7 +909,15 @@ fn adjoint(
             vs[j][i] += ex * xs[j][i];
         }
         let mut rbar = vs[j].clone();
-        t.factor.solve_in_place(&mut rbar); // λ_v (eq. 12): S is symmetric
+        if let Some(r) = &refresh {
+            t.solver.precondition_after(r);
+        }
+        t.solver.solve_columns(&model.pattern, &mut rbar, 1)?; // λ_v (eq. 12): S is symmetric
+        stats.factorisations += t.solver.refactorisations();
+        stats.cg_iterations += t.solver.cg_iterations();
+        if let Some(r) = t.solver.refreshed() {
+            refresh = Some(r);
+        }
         let rfull = model.expand(&rbar);
         add_param_dots(
             model,

@@ -10,9 +10,206 @@
 
 use super::forces::{assemble, assemble_tangents};
 use super::model::{Material, Model};
-use super::sparse::Factor;
+use super::sparse::{Factor, Pattern};
 use super::timestep::Scheme;
 use super::MotionError;
+use std::cell::{Cell, RefCell};
+
+/// How a run solves with each converged step's S = c M + a_x K + a_v D (what the gradients
+/// need).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum StepSolve {
+    /// No solves: the forward run alone.
+    #[default]
+    None,
+    /// Every converged step is factorised afresh at its own state ([`StepView::factor`]).
+    Fresh,
+    /// Solves by conjugate gradients on the exact S, preconditioned with the factor Newton
+    /// kept (from an earlier iteration or step); S is factorised afresh only when that does not
+    /// converge in [`KEPT_FACTOR_ITERATIONS`], and the fresh factor then preconditions the next
+    /// steps' solves in its place ([`StepSolver::refreshed`]). Newton itself goes on with its
+    /// own factor, so the forward run is the same to the last bit as without solves, whatever
+    /// the solves needed.
+    Kept,
+}
+
+/// Preconditioned-CG iterations a kept factor gets before S is factorised afresh: a factor
+/// from a nearby state leaves F⁻¹S within a few per cent of I, where each iteration gains two
+/// or more digits.
+pub const KEPT_FACTOR_ITERATIONS: usize = 6;
+
+/// Relative residual ‖b − S x‖ ≤ tol ‖b‖ (per column) the kept-factor solves reach: far below
+/// the Newton tolerance's effect on the gradients, so they agree with a direct solve to what
+/// finite differences can tell.
+pub const KEPT_FACTOR_TOLERANCE: f64 = 1e-10;
+
+/// Solves with a converged step's S (see [`StepSolve`]). Cloning shares the factors.
+#[derive(Debug, Clone)]
+pub struct StepSolver {
+    /// S values at the converged state (free pattern).
+    s: Vec<f64>,
+    /// The preconditioner the solver was handed.
+    handed: Factor,
+    factor: RefCell<Factor>,
+    /// Whether `factor` is S's own (then one triangular solve is exact).
+    exact: Cell<bool>,
+    step: usize,
+    refactorisations: Cell<usize>,
+    cg_iterations: Cell<usize>,
+}
+
+impl StepSolver {
+    /// When a solve had to factorise S: (the factor it was handed, S's own factor). A later
+    /// solver handed the same stale factor should start from the fresh one
+    /// ([`Self::precondition_after`]).
+    pub fn refreshed(&self) -> Option<(Factor, Factor)> {
+        (self.refactorisations.get() > 0)
+            .then(|| (self.handed.clone(), self.factor.borrow().clone()))
+    }
+
+    /// Takes the fresh factor of an earlier solver's [`Self::refreshed`] as preconditioner when
+    /// this solver was handed the same stale one.
+    pub fn precondition_after(&self, refresh: &(Factor, Factor)) {
+        if !self.exact.get() && self.factor.borrow().shares_values(&refresh.0) {
+            *self.factor.borrow_mut() = refresh.1.clone();
+        }
+    }
+
+    /// The factor the solver was handed (shared with other steps').
+    pub fn preconditioner(&self) -> &Factor {
+        &self.handed
+    }
+
+    /// Numeric factorisations of S these solves made.
+    pub fn refactorisations(&self) -> usize {
+        self.refactorisations.get()
+    }
+
+    /// Preconditioned-CG iterations these solves took.
+    pub fn cg_iterations(&self) -> usize {
+        self.cg_iterations.get()
+    }
+
+    /// Bytes of S's values this solver keeps (the factor is shared with other steps).
+    pub fn value_bytes(&self) -> usize {
+        8 * self.s.len()
+    }
+
+    /// Solves S X = B in place for `m` right-hand sides stored column after column (the
+    /// caller's free-dof numbering); `pattern` is the model's, which S's values are on.
+    pub fn solve_columns(
+        &self,
+        pattern: &Pattern,
+        b: &mut [f64],
+        m: usize,
+    ) -> Result<(), MotionError> {
+        if m == 0 {
+            return Ok(());
+        }
+        if !self.exact.get() {
+            let converged = {
+                let f = self.factor.borrow();
+                let (ok, its) = pcg_columns(
+                    pattern,
+                    &self.s,
+                    &f,
+                    b,
+                    m,
+                    KEPT_FACTOR_TOLERANCE,
+                    KEPT_FACTOR_ITERATIONS,
+                );
+                self.cg_iterations.set(self.cg_iterations.get() + its);
+                ok
+            };
+            if converged {
+                return Ok(());
+            }
+            let fresh = pattern
+                .factor(&self.s)
+                .ok_or(MotionError::NotPositiveDefinite { step: self.step })?;
+            *self.factor.borrow_mut() = fresh;
+            self.exact.set(true);
+            self.refactorisations.set(self.refactorisations.get() + 1);
+        }
+        self.factor.borrow().solve_columns_in_place(b, m);
+        Ok(())
+    }
+}
+
+/// Preconditioned conjugate gradients for S X = B (`m` columns, each with its own step
+/// lengths) with `f` ≈ S as preconditioner, from X = 0. On success `b` holds X with
+/// ‖B − S X‖ ≤ `tol` ‖B‖ per column (the recurrence's residual) and the result is `(true,
+/// iterations)`; otherwise `b` is left as it came.
+fn pcg_columns(
+    pattern: &Pattern,
+    s: &[f64],
+    f: &Factor,
+    b: &mut [f64],
+    m: usize,
+    tol: f64,
+    max_iter: usize,
+) -> (bool, usize) {
+    let n = b.len() / m;
+    let dot = |a: &[f64], c: &[f64]| a.iter().zip(c).map(|(p, q)| p * q).sum::<f64>();
+    let goal: Vec<f64> = b
+        .chunks_exact(n)
+        .map(|col| tol * dot(col, col).sqrt())
+        .collect();
+    let mut x = vec![0.0; n * m];
+    let mut r = b.to_vec();
+    let mut z = r.clone();
+    f.solve_columns_in_place(&mut z, m);
+    let mut p = z.clone();
+    let mut rz: Vec<f64> = (0..m)
+        .map(|j| dot(&r[j * n..(j + 1) * n], &z[j * n..(j + 1) * n]))
+        .collect();
+    let mut q = vec![0.0; n * m];
+    let done =
+        |r: &[f64], j: usize| dot(&r[j * n..(j + 1) * n], &r[j * n..(j + 1) * n]).sqrt() <= goal[j];
+    let mut active: Vec<bool> = (0..m).map(|j| !done(&r, j)).collect();
+    let mut its = 0;
+    while active.iter().any(|&a| a) {
+        if its == max_iter {
+            return (false, its);
+        }
+        its += 1;
+        q.iter_mut().for_each(|v| *v = 0.0);
+        for j in (0..m).filter(|&j| active[j]) {
+            let cols = j * n..(j + 1) * n;
+            pattern.mul_add(s, &p[cols.clone()], &mut q[cols]);
+        }
+        for j in 0..m {
+            if !active[j] {
+                continue;
+            }
+            let cols = j * n..(j + 1) * n;
+            let pq = dot(&p[cols.clone()], &q[cols.clone()]);
+            if pq.is_nan() || pq <= 0.0 {
+                // S is not positive definite along p (or the iteration broke down).
+                return (false, its);
+            }
+            let alpha = rz[j] / pq;
+            for i in cols {
+                x[i] += alpha * p[i];
+                r[i] -= alpha * q[i];
+            }
+            active[j] = !done(&r, j);
+        }
+        z.copy_from_slice(&r);
+        f.solve_columns_in_place(&mut z, m);
+        for j in (0..m).filter(|&j| active[j]) {
+            let cols = j * n..(j + 1) * n;
+            let rz_new = dot(&r[cols.clone()], &z[cols.clone()]);
+            let beta = rz_new / rz[j];
+            rz[j] = rz_new;
+            for i in cols {
+                p[i] = z[i] + beta * p[i];
+            }
+        }
+    }
+    b.copy_from_slice(&x);
+    (true, its)
+}
 
 /// Converged end-of-step data handed to a step observer.
 pub struct StepView<'a> {
@@ -31,9 +228,11 @@ pub struct StepView<'a> {
     /// v^{n−1} for the midpoint rule.
     pub inertia_base: &'a [f64],
     /// Cholesky factor of S = c M + a_x K + a_v D ([`Scheme::coefficients`]) at the converged
-    /// state (present when the caller asked for factors).
+    /// state (present when the caller asked for [`StepSolve::Fresh`]).
     pub factor: Option<&'a Factor>,
-    /// K values at the converged force state (free pattern) when the caller asked for factors;
+    /// Solves with S at the converged state (present unless the run was [`StepSolve::None`]).
+    pub solver: Option<&'a StepSolver>,
+    /// K values at the converged force state (free pattern) when the caller asked for solves;
     /// otherwise those of the step's last tangent assembly.
     pub k: &'a [f64],
     /// D values, as `k`.
@@ -52,6 +251,8 @@ pub struct SimStats {
     /// Numeric factorisations of S (fresh tangents; the rest of the iterations reused a kept
     /// factor).
     pub factorisations: usize,
+    /// Preconditioned-CG iterations of the [`StepSolve::Kept`] solves.
+    pub cg_iterations: usize,
 }
 
 /// Elastostatic equilibrium f(x, 0) + f_ext = 0 with clamps at their step-0 pose (§3.4).
@@ -345,18 +546,35 @@ pub fn simulate_states(
     mat: &Material,
     on_step: impl FnMut(&StepView<'_>) -> Result<(), MotionError>,
 ) -> Result<SimStats, MotionError> {
-    simulate(model, mat, false, |_, _| {}, on_step)
+    simulate_solving(model, mat, StepSolve::None, |_, _| {}, on_step)
 }
 
 /// Runs the forward simulation from the rest shape or the elastostatic start.
 ///
 /// `on_start(x⁰, K₀ factor)` is called once (factor `None` for a rest-shape start), then
 /// `on_step` after every converged step. With `factors = true` each step's S is factorised at
-/// the converged state (one extra factorisation per step) and handed to `on_step`.
+/// the converged state (one extra factorisation per step) and handed to `on_step`
+/// ([`StepSolve::Fresh`]).
 pub fn simulate(
     model: &Model,
     mat: &Material,
     factors: bool,
+    on_start: impl FnMut(&[f64], Option<&Factor>),
+    on_step: impl FnMut(&StepView<'_>) -> Result<(), MotionError>,
+) -> Result<SimStats, MotionError> {
+    let solve = if factors {
+        StepSolve::Fresh
+    } else {
+        StepSolve::None
+    };
+    simulate_solving(model, mat, solve, on_start, on_step)
+}
+
+/// [`simulate`] with the converged steps' S solved as `solve` says ([`StepView::solver`]).
+pub fn simulate_solving(
+    model: &Model,
+    mat: &Material,
+    solve: StepSolve,
     mut on_start: impl FnMut(&[f64], Option<&Factor>),
     mut on_step: impl FnMut(&StepView<'_>) -> Result<(), MotionError>,
 ) -> Result<SimStats, MotionError> {
@@ -390,8 +608,12 @@ pub fn simulate(
     // changes little from one step to the next of a smooth motion, and an iteration with a
     // kept factor costs one force assembly and two triangular solves instead of the tangent
     // assembly and a numeric factorisation. A converged step whose factor the caller asked
-    // for (the gradients) is always factorised afresh at its own state.
+    // for (`StepSolve::Fresh`) is factorised afresh at its own state; `StepSolve::Kept` solves
+    // with S there by CG preconditioned with the kept factor.
+    let factors = solve != StepSolve::None;
     let mut carried: Option<Factor> = None;
+    // StepSolve::Kept: the last solve's refactorisation, (stale factor, fresh factor).
+    let mut refresh: Option<(Factor, Factor)> = None;
     for n in 1..=model.steps {
         if !model.loads.is_empty() {
             fext.copy_from_slice(&fgrav);
@@ -445,6 +667,8 @@ pub fn simulate(
         map.fill(&model.free, &v, &mut xf, &mut vf);
         let mut iter = 0;
         let last_factor: Option<Factor>;
+        // The factor the step's solver starts from, and whether it is S's own.
+        let mut kept: Option<(Factor, bool)> = None;
         // The last Newton update: the velocities it started from, its direction (free dofs) and
         // the incremental potential's slope there (see `line_search_dynamic`).
         let mut last_step: Option<(Vec<f64>, Vec<f64>, f64)> = None;
@@ -528,6 +752,25 @@ pub fn simulate(
             for i in 0..sv.len() {
                 sv[i] = c * mvals[i] + ax * kv[i] + av * dv[i];
             }
+            if done && solve == StepSolve::Kept {
+                stats.max_residual = stats.max_residual.max(nrm);
+                if nrm >= model.newton.tol {
+                    stats.unconverged_steps += 1;
+                }
+                kept = Some(match carried.clone() {
+                    Some(fac) => (fac, false),
+                    None => {
+                        stats.factorisations += 1;
+                        let fac = model
+                            .pattern
+                            .factor(&sv)
+                            .ok_or(MotionError::NotPositiveDefinite { step: n })?;
+                        (fac, true)
+                    }
+                });
+                last_factor = None;
+                break;
+            }
             if done {
                 // The converged S is what the gradients solve with: no shift here.
                 let fac = model
@@ -539,6 +782,7 @@ pub fn simulate(
                 if nrm >= model.newton.tol {
                     stats.unconverged_steps += 1;
                 }
+                kept = Some((fac.clone(), true));
                 last_factor = Some(fac);
                 break;
             }
@@ -581,6 +825,22 @@ pub fn simulate(
                 };
             }
         }
+        let solver = kept.map(|(fac, exact)| {
+            let solver = StepSolver {
+                // An exact factor never needs S's values.
+                s: if exact { Vec::new() } else { sv.clone() },
+                handed: fac.clone(),
+                factor: RefCell::new(fac),
+                exact: Cell::new(exact),
+                step: n,
+                refactorisations: Cell::new(0),
+                cg_iterations: Cell::new(0),
+            };
+            if let Some(r) = &refresh {
+                solver.precondition_after(r);
+            }
+            solver
+        });
         on_step(&StepView {
             n,
             x: &x,
@@ -589,9 +849,17 @@ pub fn simulate(
             force_state: [&xf, &vf],
             inertia_base: &b,
             factor: last_factor.as_ref(),
+            solver: solver.as_ref(),
             k: &kv,
             d: &dv,
         })?;
+        if let Some(sol) = &solver {
+            stats.factorisations += sol.refactorisations();
+            stats.cg_iterations += sol.cg_iterations();
+            if let Some(r) = sol.refreshed() {
+                refresh = Some(r);
+            }
+        }
         if last_factor.is_some() {
             // The converged step's own factor is the best Newton matrix for the next step.
             carried = last_factor;
@@ -613,3 +881,114 @@ pub fn simulate(
 /// Largest residual ratio ‖r_k‖/‖r_{k−1}‖ an iteration with a kept factor may show before S is
 /// factorised afresh.
 const REFACTOR_CONTRACTION: f64 = 0.25;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two tetrahedra sharing a face, node 0 clamped (12 free dofs), with symmetric positive
+    /// definite element blocks Bᵀ B + I; `scale[e]` multiplies element e's block.
+    fn matrix(scale: [f64; 2]) -> (Pattern, Vec<f64>) {
+        let tets = vec![[0, 1, 2, 3], [1, 2, 3, 4]];
+        let mut free = vec![usize::MAX; 15];
+        for (k, d) in (3..15).enumerate() {
+            free[d] = k;
+        }
+        let p = Pattern::new(&tets, &free, 12).unwrap();
+        let mut values = vec![0.0; p.nnz()];
+        for (e, &sc) in scale.iter().enumerate() {
+            let b = |r: usize, c: usize| ((r * 7 + c * 3 + e * 5) % 11) as f64 / 11.0 - 0.4;
+            let mut k = [[0.0; 12]; 12];
+            for (r, row) in k.iter_mut().enumerate() {
+                for (c, v) in row.iter_mut().enumerate() {
+                    *v = (0..12).map(|i| b(i, r) * b(i, c)).sum::<f64>()
+                        + if r == c { 1.0 } else { 0.0 };
+                }
+            }
+            p.add_element(e, &k, sc, &mut values);
+        }
+        (p, values)
+    }
+
+    fn solver(s: Vec<f64>, handed: Factor) -> StepSolver {
+        StepSolver {
+            s,
+            handed: handed.clone(),
+            factor: RefCell::new(handed),
+            exact: Cell::new(false),
+            step: 1,
+            refactorisations: Cell::new(0),
+            cg_iterations: Cell::new(0),
+        }
+    }
+
+    /// Largest relative residual ‖b − S x‖/‖b‖ over the columns, by the pattern's product.
+    fn relative_residual(p: &Pattern, s: &[f64], x: &[f64], b: &[f64], m: usize) -> f64 {
+        let n = b.len() / m;
+        (0..m)
+            .map(|j| {
+                let cols = j * n..(j + 1) * n;
+                let mut sx = vec![0.0; n];
+                p.mul_add(s, &x[cols.clone()], &mut sx);
+                let r: f64 = sx
+                    .iter()
+                    .zip(&b[cols.clone()])
+                    .map(|(a, c)| (c - a).powi(2))
+                    .sum();
+                let bb: f64 = b[cols].iter().map(|c| c * c).sum();
+                (r / bb).sqrt()
+            })
+            .fold(0.0, f64::max)
+    }
+
+    fn columns(m: usize) -> Vec<f64> {
+        (0..12 * m).map(|i| (i as f64 * 0.37).sin() + 0.1).collect()
+    }
+
+    /// A factor of a matrix 5 % off in one element preconditions CG to the tolerance in a few
+    /// iterations, with no factorisation of S.
+    #[test]
+    fn a_nearby_factor_solves_to_the_tolerance_without_refactorising() {
+        let (p, s) = matrix([1.0, 1.0]);
+        let (_, near) = matrix([1.05, 1.0]);
+        let sol = solver(s.clone(), p.factor(&near).unwrap());
+        let b = columns(3);
+        let mut x = b.clone();
+        sol.solve_columns(&p, &mut x, 3).unwrap();
+        let res = relative_residual(&p, &s, &x, &b, 3);
+        assert!(res <= 1e-10, "relative residual {res:.1e}");
+        assert_eq!(sol.refactorisations(), 0);
+        assert!((1..=KEPT_FACTOR_ITERATIONS).contains(&sol.cg_iterations()));
+        assert!(sol.refreshed().is_none());
+    }
+
+    /// A factor far from S does not converge in the allowed iterations: S is factorised, the
+    /// answer is S's own, and a later solver handed the same stale factor starts from the fresh
+    /// one (no factorisation, at most one CG iteration).
+    #[test]
+    fn a_far_factor_is_replaced_by_s_own_and_handed_on() {
+        let (p, s) = matrix([1.0, 1.0]);
+        let (_, far) = matrix([1.0, 1e4]);
+        let stale = p.factor(&far).unwrap();
+        let sol = solver(s.clone(), stale.clone());
+        let b = columns(2);
+        let mut x = b.clone();
+        sol.solve_columns(&p, &mut x, 2).unwrap();
+        let res = relative_residual(&p, &s, &x, &b, 2);
+        assert!(res <= 1e-10, "relative residual {res:.1e}");
+        assert_eq!(sol.refactorisations(), 1);
+        let refresh = sol.refreshed().expect("refactorised");
+        assert!(refresh.0.shares_values(&stale));
+        let next = solver(s.clone(), stale);
+        next.precondition_after(&refresh);
+        let mut y = b.clone();
+        next.solve_columns(&p, &mut y, 2).unwrap();
+        assert_eq!(next.refactorisations(), 0);
+        assert!(
+            next.cg_iterations() <= 1,
+            "{} iterations",
+            next.cg_iterations()
+        );
+        assert!(relative_residual(&p, &s, &y, &b, 2) <= 1e-10);
+    }
+}

@@ -56,6 +56,11 @@ pub struct Factor {
 }
 
 impl Factor {
+    /// Whether `self` and `other` are clones of one factorisation.
+    pub fn shares_values(&self, other: &Factor) -> bool {
+        Arc::ptr_eq(&self.values, &other.values)
+    }
+
     /// Solves S x = b in place (`b` in the caller's free-dof numbering).
     pub fn solve_in_place(&self, b: &mut [f64]) {
         self.solve_columns_in_place(b, 1);

@@ -291,8 +291,8 @@ struct SchemeRun {
 /// simulation and one with the direct gradient (Gauss–Newton), timed in alternation in this one
 /// process; prints JSON.
 pub fn run_schemes(args: SchemesArgs) -> anyhow::Result<()> {
-    use palpate_motion::gradient::evaluate_gauss_newton;
-    use palpate_motion::sim::simulate_states;
+    use palpate_motion::gradient::evaluate_gauss_newton_with;
+    use palpate_motion::sim::{simulate_states, StepSolve};
     use palpate_motion::timestep::{substeps_for_scheme, Scheme};
     let ds = palpate_motion::dataset::load(&args.dataset)?;
     let fitted: palpate_motion::fitted::FittedModel =
@@ -388,6 +388,12 @@ pub fn run_schemes(args: SchemesArgs) -> anyhow::Result<()> {
     let mut wall = vec![(Vec::new(), Vec::new()); configs.len()];
     let mut cpu = vec![(Vec::new(), Vec::new()); configs.len()];
     let mut counters = vec![None; configs.len()];
+    // "direct_gradient" is timed with the kept-factor CG solves (`StepSolve::Kept`), and the
+    // same evaluation with every converged step factorised afresh (`StepSolve::Fresh`) in the
+    // same alternation, with the largest relative differences of the gradient and of the
+    // Gauss–Newton matrix between the two.
+    let mut fresh_cpu = vec![Vec::new(); configs.len()];
+    let mut fresh = vec![None; configs.len()];
     for _ in 0..args.repeats.max(1) {
         for (i, (m, o)) in models.iter().enumerate() {
             let (c0, t0) = (process_cpu_seconds(), Instant::now());
@@ -397,9 +403,25 @@ pub fn run_schemes(args: SchemesArgs) -> anyhow::Result<()> {
             // The reference's gradient is not a candidate: its forward run is the reference.
             let grad = if i + 1 < configs.len() {
                 let (c0, t0) = (process_cpu_seconds(), Instant::now());
-                let (ev, _) = evaluate_gauss_newton(m, &mat, &params, o)?;
+                let (ev, h) = evaluate_gauss_newton_with(m, &mat, &params, o, StepSolve::Kept)?;
                 wall[i].1.push(t0.elapsed().as_secs_f64());
                 cpu[i].1.push(process_cpu_seconds() - c0);
+                let c0 = process_cpu_seconds();
+                let (ev_f, h_f) =
+                    evaluate_gauss_newton_with(m, &mat, &params, o, StepSolve::Fresh)?;
+                fresh_cpu[i].push(process_cpu_seconds() - c0);
+                let rel = |a: &[f64], b: &[f64]| {
+                    let scale = b.iter().fold(0.0f64, |s, v| s.max(v.abs()));
+                    a.iter()
+                        .zip(b)
+                        .map(|(p, q)| (p - q).abs() / scale.max(f64::MIN_POSITIVE))
+                        .fold(0.0, f64::max)
+                };
+                let g_diff = match (&ev.grad, &ev_f.grad) {
+                    (Some(a), Some(b)) => rel(a, b),
+                    _ => f64::NAN,
+                };
+                fresh[i] = Some((ev_f, g_diff, rel(&h, &h_f)));
                 Some(ev)
             } else {
                 None
@@ -451,6 +473,7 @@ pub fn run_schemes(args: SchemesArgs) -> anyhow::Result<()> {
                 serde_json::json!({
                     "newton_iterations": ev.stats.newton_iterations,
                     "factorisations": ev.stats.factorisations,
+                    "cg_iterations": ev.stats.cg_iterations,
                     "unconverged_steps": ev.stats.unconverged_steps,
                 })
             };
@@ -468,6 +491,13 @@ pub fn run_schemes(args: SchemesArgs) -> anyhow::Result<()> {
                 "direct_gradient": grad.as_ref().map(per),
                 "direct_wall_s_median": med(&wall[i].1),
                 "direct_cpu_s_median": med(&cpu[i].1),
+                "direct_fresh_factor": fresh[i].as_ref().map(|(ev, g, h)| serde_json::json!({
+                    "newton_iterations": ev.stats.newton_iterations,
+                    "factorisations": ev.stats.factorisations,
+                    "cpu_s_median": med(&fresh_cpu[i]),
+                    "gradient_max_rel_diff_vs_kept": g,
+                    "gauss_newton_max_rel_diff_vs_kept": h,
+                })),
                 "marker_rms_vs_capture_mm": 1e3 * fwd.rms_marker,
                 "marker_rms_vs_reference_mm": 1e3 * rms_between(&runs[i].frames, &reference.frames),
                 "nyquist_component_um": 1e6 * nyquist(&runs[i].steps),
