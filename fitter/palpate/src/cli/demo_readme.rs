@@ -3,7 +3,7 @@
 //! can be moved or attached as a whole.
 //!
 //! Plain data in, one file out: the demo fills a [`DemoReadme`] from its results and
-//! [`write`] renders it, so the page can be checked on a small value without running the demo
+//! [`write()`] renders it, so the page can be checked on a small value without running the demo
 //! (`tests/demo_readme.rs`).
 
 use std::fmt::Write as _;
