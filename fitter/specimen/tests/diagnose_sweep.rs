@@ -1,4 +1,4 @@
-//! Issue 6, the signal of an injected effect used by `diagnose-evidence --sweep`: the specimen's
+//! The signal of an injected effect used by `diagnose-evidence --sweep`: the specimen's
 //! noise-free truth minus the truth of the reference world (same seed, the reported force
 //! applied, nothing else injected).
 

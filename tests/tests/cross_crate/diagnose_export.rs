@@ -1,4 +1,4 @@
-//! Issue 6, step 5: the diagnosed model exported for the runtime plays back what diagnose
+//! The diagnosed model exported for the runtime plays back what diagnose
 //! fitted. A strain-stiffening model (secant E_e = E (1 + β (‖ε_e‖/0.1)²)) is exported as the
 //! thesis' per-element strain-space blend (one set per measurement state, eqs. 6.7–6.11); the
 //! runtime, driven with each measurement's contact force, must settle on the diagnose model's

@@ -1,4 +1,4 @@
-//! A motion fit exported to the runtime model (issue 4, export): Lamé → thesis (λ, α) exactly,
+//! A motion fit exported to the runtime model: Lamé → thesis (λ, α) exactly,
 //! the exported file loads in `palpate_runtime`, and a small static load on it matches the
 //! fitter's own f64 warped static solve with the same (λ, α).
 

@@ -1,4 +1,4 @@
-//! Issue 6: `diagnose` on specimens (Neo-Hookean truth on a 2× finer mesh, linear warped model on
+//! `diagnose` on specimens (Neo-Hookean truth on a 2× finer mesh, linear warped model on
 //! the dataset's 6 × 6 × 3 box). A clean specimen must come back clean; injected effects must be
 //! named, with the RMS marker error after adoption within 1.5× the declared noise floor σ√3
 //! (σ = 100 µm declared → floor 173.2 µm; the tolerance is the issue's own 1.5×). Measured on

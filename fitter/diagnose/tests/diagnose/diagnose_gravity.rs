@@ -1,4 +1,4 @@
-//! Issue 6, the gravity candidate (`diagnose::model`, "the rest scan was taken under gravity"):
+//! The gravity candidate (`diagnose::model`, "the rest scan was taken under gravity"):
 //! markers are re-located at the material point X with X + u_g(X) = their scanned (sagged) rest
 //! position. On a gravity specimen (ρ = 1000 kg/m³, rest scan under gravity) with the true material,
 //! the re-located markers must predict the measurements better than the dataset's nearest-point

@@ -1,4 +1,4 @@
-//! `palpate diagnose` on motion datasets (issue 6 on top of the motion fitter): a viscous
+//! `palpate diagnose` on motion datasets (on top of the motion fitter): a viscous
 //! specimen must be diagnosed as viscous and forecast to the noise floor; an elastic one must come
 //! back clean; one whose markers were recorded out of step with its base's record must be given
 //! its time offset; `palpate diagnose <dir>` must recognise a motion dataset on disk.

@@ -1,4 +1,4 @@
-//! Issue 6, marker noise: the nugget estimator of `diagnose::noise` on specimens' residuals after
+//! Marker noise: the nugget estimator of `diagnose::noise` on specimens' residuals after
 //! the simplest model's fit (the model-form error of the coarse linear model against the 2× finer
 //! Neo-Hookean truth is the smooth field it must see through). Declared σ = 100 µm.
 //! Measured on the committed code (seed 1): clean σ̂ = 98.7 µm, noise (actual σ 200 µm)

@@ -1,4 +1,4 @@
-//! The power statement of a clean verdict (issue 14): the smallest gravity preload the dataset
+//! The power statement of a clean verdict: the smallest gravity preload the dataset
 //! would have detected, checked against what the selection rule's criterion actually does when
 //! that preload is put into the data. The statement is linearised (Schur complement of the
 //! candidate's Jacobian block against the fitted parameters, a secant Jacobian); here the

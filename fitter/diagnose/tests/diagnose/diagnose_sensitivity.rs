@@ -1,4 +1,4 @@
-//! The diagnosis' sensitivity map (issue 14, "find where, then what"): the adjoint gradient of
+//! The diagnosis' sensitivity map ("find where, then what"): the adjoint gradient of
 //! χ² with respect to each element's log E agrees with finite differences of the forward model,
 //! and the matched-filter scan built on it finds a stiff inclusion placed away from the probes.
 

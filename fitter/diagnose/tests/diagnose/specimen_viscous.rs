@@ -1,4 +1,4 @@
-//! Issue 6, viscosity effect: the specimen generator's visco-elastic strip (Real2Sim forward
+//! The viscosity effect: the specimen generator's visco-elastic strip (Real2Sim forward
 //! model — Neo-Hookean + Newtonian viscosity, BDF2 — in a simulated tensile tester) is written as
 //! tension-test curves in the real VHB records' format; `palpate diagnose` reads them as a user's
 //! record would be read and must name viscosity first. The same strip without viscosity (τ = 0)
