@@ -15,6 +15,7 @@ pub mod io;
 pub mod lm;
 pub mod mesh;
 pub mod names;
+pub mod numbers;
 pub mod rng;
 pub mod runtime_storage;
 pub mod sanity;

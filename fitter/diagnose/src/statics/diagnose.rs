@@ -12,7 +12,7 @@ use super::fit::{fit, initial_theta};
 use super::holdout::{errors, holdout, marker_norms, stats, Held};
 use super::model::{self, poisson_of, Candidate, Context, Model};
 use super::noise::{self, estimate_noise, NoiseFinding};
-use super::params::{base_params, effect_params};
+use super::params::{base_params, effect_params, identifiability};
 use super::rest_noise::{estimate_rest_noise, RestNoiseFinding};
 use super::select::{static_steps, StaticModel};
 use super::{power, sensitivity, signature};
@@ -130,6 +130,7 @@ pub fn run_diagnosis_with(
     for &c in &current.model.effects {
         final_params.extend(effect_params(&ctx, &current, c));
     }
+    let identifiability = identifiability(&ctx, &current);
     Ok(DiagnosisReport {
         input: Diagnosed {
             dataset: ds.name.clone(),
@@ -152,6 +153,7 @@ pub fn run_diagnosis_with(
         detectable,
         young_poisson: (current.theta[0].exp(), poisson_of(current.theta[1])),
         final_params,
+        identifiability,
         seconds: started.elapsed().as_secs_f64(),
         kept: Kept {
             final_fit: Some(current),

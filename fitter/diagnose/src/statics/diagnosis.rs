@@ -7,6 +7,7 @@ use serde::Serialize;
 use super::fit::Fitted;
 use super::model::{Candidate, Context};
 use super::noise::NoiseFinding;
+use super::params::Identifiability;
 use super::power;
 use super::rest_noise::RestNoiseFinding;
 use super::signature::Signature;
@@ -130,6 +131,8 @@ pub struct DiagnosisReport {
     pub detectable: Vec<power::Detectable>,
     /// Every parameter of the final model.
     pub final_params: Vec<ParamValue>,
+    /// What those parameters are known only relative to: degenerate pairs and assumptions.
+    pub identifiability: Identifiability,
     /// Young's modulus (Pa) and Poisson ratio of the final model's base material.
     pub young_poisson: (f64, f64),
     /// Wall-clock seconds.

@@ -29,6 +29,9 @@ pub struct Fitted {
     /// Standard deviation of each θ from the Gauss–Newton covariance s² (JᵀJ)⁻¹ with
     /// s² = max(1, χ²/(n − k)) (inflated when the residual exceeds the declared noise).
     pub theta_sd: Vec<f64>,
+    /// Correlations of θ from the same covariance, row-major k × k (NaN where JᵀJ is singular):
+    /// a pair near ±1 is determined only in combination ([`super::params::degeneracies`]).
+    pub theta_corr: Vec<f64>,
     /// LM iterations.
     pub iterations: usize,
     /// The simulation at θ.
@@ -216,9 +219,15 @@ fn finish(
     let n = ctx.residual_len(subset);
     let k = theta.len();
     let s2 = (c2 / (n.saturating_sub(k).max(1)) as f64).max(1.0);
-    let theta_sd = match h.clone().try_inverse() {
-        Some(inv) if h.nrows() == k => (0..k).map(|d| (s2 * inv[(d, d)].max(0.0)).sqrt()).collect(),
-        _ => vec![f64::NAN; k],
+    let inverse = h.clone().try_inverse().filter(|_| h.nrows() == k);
+    let theta_sd = match &inverse {
+        Some(inv) => (0..k).map(|d| (s2 * inv[(d, d)].max(0.0)).sqrt()).collect(),
+        None => vec![f64::NAN; k],
+    };
+    let theta_corr = if h.nrows() == k {
+        correlations(h)
+    } else {
+        vec![f64::NAN; k * k]
     };
     Fitted {
         model: model.clone(),
@@ -226,8 +235,73 @@ fn finish(
         chi2: c2,
         n,
         theta_sd,
+        theta_corr,
         iterations,
         sim,
         subset: subset.to_vec(),
+    }
+}
+
+/// The correlations of the Gauss–Newton covariance (JᵀJ)⁻¹ (s² cancels), row-major. A singular
+/// JᵀJ — parameters these data cannot tell apart at all — is inverted with a ridge of 10⁻¹⁰ of
+/// its mean diagonal, which leaves the determined directions as they are and gives the
+/// undetermined ones correlations of ±1: a degeneracy is then reported, not hidden behind NaN.
+pub(crate) fn correlations(h: &DMatrix<f64>) -> Vec<f64> {
+    let k = h.nrows();
+    let inverse = h.clone().try_inverse().or_else(|| {
+        let ridge = 1e-10 * h.trace().abs().max(f64::MIN_POSITIVE) / k.max(1) as f64;
+        (h + DMatrix::identity(k, k) * ridge).try_inverse()
+    });
+    let Some(inv) = inverse else {
+        return vec![f64::NAN; k * k];
+    };
+    (0..k * k)
+        .map(|ij| {
+            let (i, j) = (ij / k, ij % k);
+            let d = (inv[(i, i)] * inv[(j, j)]).max(0.0).sqrt();
+            if d > 0.0 {
+                inv[(i, j)] / d
+            } else {
+                f64::NAN
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// JᵀJ of a Jacobian with columns `cols` (each of the same length).
+    fn normal(cols: &[&[f64]]) -> DMatrix<f64> {
+        let n = cols[0].len();
+        let j = DMatrix::from_fn(n, cols.len(), |r, c| cols[c][r]);
+        j.transpose() * j
+    }
+
+    #[test]
+    fn correlations_follow_the_covariance() {
+        // Orthogonal columns: uncorrelated parameters.
+        let c = correlations(&normal(&[&[1.0, 0.0, 1.0], &[0.0, 2.0, 0.0]]));
+        assert_eq!(c.len(), 4);
+        assert!((c[0] - 1.0).abs() < 1e-12 && (c[3] - 1.0).abs() < 1e-12);
+        assert!(c[1].abs() < 1e-12 && c[2].abs() < 1e-12);
+        // Two columns that nearly coincide: the covariance of (a, b) is that of a sum known and a
+        // difference unknown, so the correlation tends to −1 — computed by hand for
+        // J = [1 1; 1 1+ε]: (JᵀJ)⁻¹ ∝ [2+2ε+ε², −(2+ε); −(2+ε), 2], r = −(2+ε)/√(2(2+2ε+ε²)).
+        let e = 0.01;
+        let c = correlations(&normal(&[&[1.0, 1.0], &[1.0, 1.0 + e]]));
+        let want = -(2.0 + e) / (2.0 * (2.0 + 2.0 * e + e * e)).sqrt();
+        assert!((c[1] - want).abs() < 1e-9, "{} vs {want}", c[1]);
+        // Columns exactly proportional (a gain and a stiffness in a linear model): singular JᵀJ,
+        // reported as a correlation of −1, not hidden as NaN.
+        let c = correlations(&normal(&[&[1.0, 2.0, 3.0], &[-2.0, -4.0, -6.0]]));
+        assert!(c[1] > 0.999, "{c:?}");
+        let c = correlations(&normal(&[
+            &[1.0, 2.0, 3.0],
+            &[2.0, 4.0, 6.0],
+            &[0.0, 1.0, 0.0],
+        ]));
+        assert!(c[1] < -0.999 && c[2].abs() < 0.5, "{c:?}");
     }
 }

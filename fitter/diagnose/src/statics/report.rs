@@ -11,6 +11,7 @@ use super::signature::Signature;
 use super::{DiagnoseError, DiagnosisReport, Errors, Step};
 use palpate_fem::io::atomic::write_atomic;
 use palpate_fem::names::Elastic;
+use palpate_fem::numbers;
 use palpate_plot::{lines, Series, Style};
 use palpate_runtime::material::LambdaAlpha;
 
@@ -156,21 +157,38 @@ fn noise_sections(s: &mut String, r: &DiagnosisReport) {
 /// Every parameter of the final model and its base material's constants.
 fn final_parameters(s: &mut String, r: &DiagnosisReport) {
     let _ = writeln!(s, "\n## Final parameters (±1σ, Gauss–Newton covariance)\n");
-    let _ = writeln!(s, "| parameter | value | ±1σ | unit |\n|---|---|---|---|");
+    let _ = writeln!(s, "| parameter | value | ±1σ |\n|---|---|---|");
     for p in &r.final_params {
-        let _ = writeln!(
-            s,
-            "| {} | {:.5e} | {:.2e} | {} |",
-            p.name, p.value, p.sd, p.unit
-        );
+        let (value, sd) = numbers::value_and_sd(p.value, p.sd, &p.unit);
+        let _ = writeln!(s, "| {} | {value} | {sd} |", p.name);
     }
     let (young, poisson) = r.young_poisson;
     let lame = Elastic::of(&LambdaAlpha::from_young_poisson(young, poisson));
     let _ = writeln!(
         s,
-        "\nBase material: Young's modulus E = {:.5e} Pa, Poisson's ratio ν = {:.4}; Lamé λ = {:.5e} Pa, shear modulus μ = {:.5e} Pa.",
-        lame.young_modulus_pa, lame.poisson_ratio, lame.lame_lambda_pa, lame.shear_modulus_pa
+        "\nBase material: Young's modulus E = {}, Poisson's ratio ν = {:.3}; Lamé λ = {}, shear modulus μ = {}.",
+        numbers::pressure(lame.young_modulus_pa),
+        lame.poisson_ratio,
+        numbers::pressure(lame.lame_lambda_pa),
+        numbers::pressure(lame.shear_modulus_pa)
     );
+    let id = &r.identifiability;
+    if !id.degenerate.is_empty() || !id.relative.is_empty() {
+        let _ = writeln!(
+            s,
+            "\n### What these data determine only relative to something else\n"
+        );
+        for d in &id.degenerate {
+            let _ = writeln!(
+                s,
+                "- {} and {} are determined only in combination (correlation {:+.3}): each ±1σ above is mostly their trade-off, and either alone is known only relative to the other.",
+                d.parameters[0], d.parameters[1], d.correlation
+            );
+        }
+        for w in &id.relative {
+            let _ = writeln!(s, "- {w}.");
+        }
+    }
 }
 
 /// One round: the residual signature, the candidates tried, the decision, the adoption and its
@@ -279,11 +297,13 @@ fn round(s: &mut String, st: &Step, plots: &[(usize, String)]) {
         error_rows(s, "after", a);
         let _ = writeln!(s, "\nNew parameters:\n");
         for p in &st.new_params {
-            let _ = writeln!(
-                s,
-                "- {} = {:.4e} ± {:.2e} {}",
-                p.name, p.value, p.sd, p.unit
-            );
+            let (value, sd) = numbers::value_and_sd(p.value, p.sd, &p.unit);
+            let sd = if p.sd.is_finite() {
+                format!("± {sd}")
+            } else {
+                format!("(±1σ {sd})")
+            };
+            let _ = writeln!(s, "- {} = {value} {sd}", p.name);
         }
     }
     for (round, file) in plots {

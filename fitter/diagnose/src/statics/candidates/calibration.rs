@@ -23,6 +23,16 @@ impl StaticEffect for Calibration {
         vec![("power p".into(), "", 1.0)]
     }
 
+    fn relative_note(&self, ctx: &Context) -> Option<String> {
+        Some(format!(
+            "Young's modulus is relative to the force sensor reading true at its largest force \
+             ({} N): in a linear model the displacements scale with force over stiffness, so a \
+             sensor gain cannot be told from E — only the calibration curve's power is fitted, \
+             and E moves with whatever gain the sensor really has",
+            palpate_fem::numbers::plain(ctx.frame.f_ref)
+        ))
+    }
+
     /// A curved calibration makes the displacement scale drift with the load.
     fn evidence(&self, r: &Residual) -> EvidencePoints {
         r.scale_against_force()

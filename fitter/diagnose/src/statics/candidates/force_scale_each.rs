@@ -21,6 +21,15 @@ impl StaticEffect for ForceScaleEach {
         "force-scale-each"
     }
 
+    fn relative_note(&self, _ctx: &Context) -> Option<String> {
+        Some(
+            "Young's modulus is relative to the geometric mean of the fitted measurements' force \
+             gains: each measurement's gain is fitted, and a gain common to all of them cannot \
+             be told from E"
+                .into(),
+        )
+    }
+
     fn profiled(&self, measurements: usize) -> usize {
         measurements
     }

@@ -184,6 +184,12 @@ pub trait StaticEffect: Sync {
         false
     }
 
+    /// What its adoption leaves known only relative to an assumption, in words for the report
+    /// (`None`: nothing): a sensor gain that E absorbs, for one.
+    fn relative_note(&self, _ctx: &Context) -> Option<String> {
+        None
+    }
+
     /// The variable that gives the effect away and the residual measure plotted against it.
     fn evidence(&self, r: &Residual) -> EvidencePoints;
 
