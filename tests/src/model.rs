@@ -32,6 +32,36 @@ pub fn homogeneous(mesh: &Mesh, fixed: &[usize], lambda: f64, alpha: f64) -> Mod
     )
 }
 
+/// Two parameter sets blended in strain space, each element its own only neighbour (weight 1):
+/// set 0 centred at zero strain, set 1 at the strain `eps` (Voigt order), every element's RBF
+/// weights for λ and for α given by `weights(value of set 0, value of set 1)`.
+pub fn strain_blend(
+    mesh: &Mesh,
+    fixed: &[usize],
+    [p0, p1]: [LambdaAlpha; 2],
+    eps: [f64; 6],
+    weights: impl Fn(f64, f64) -> [f64; 2],
+) -> ModelBuffers {
+    let t = mesh.tets.len();
+    let sets = [p0, p1].map(|p| Material::per_element(&vec![p; t]));
+    build(
+        mesh,
+        fixed,
+        &sets,
+        &BlendData::Strain {
+            decay: 1.0,
+            neighbours: 1,
+            neighbour_index: (0..t as u32).collect(),
+            neighbour_weight: vec![1.0; t],
+            centres: (0..2 * t)
+                .flat_map(|k| if k < t { [0.0; 6] } else { eps })
+                .collect(),
+            weights_lambda: (0..t).flat_map(|_| weights(p0.lambda, p1.lambda)).collect(),
+            weights_alpha: (0..t).flat_map(|_| weights(p0.alpha, p1.alpha)).collect(),
+        },
+    )
+}
+
 /// Linear (unwarped) solver settings: PCG to `tolerance`, at most `max_iterations` iterations,
 /// the rest the defaults — the runtime checked against linear references.
 pub fn linear_config(tolerance: f32, max_iterations: u32) -> RuntimeConfig {

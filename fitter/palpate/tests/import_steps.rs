@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{assert_succeeded, palpate, repo, text};
+use common::{assert_succeeded, palpate, text};
 
 /// The bundled beam capture (100 Hz, 500 frames) imported as the README does, with `-v` so the
 /// import's note is on stderr; then `palpate info` on the result. The reference is the dataset's
@@ -12,24 +12,10 @@ use common::{assert_succeeded, palpate, repo, text};
 /// number of capture intervals (frames after the release).
 #[test]
 fn import_and_info_count_the_same_steps_of_the_same_dt() {
-    let beam = repo().join("models/silicone-beam");
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("beam");
-    let import = palpate()
+    let import = common::import_beam("beam_gravity_V2_a.c3d")
         .arg("-v")
-        .args(["import", "c3d"])
-        .arg(beam.join("beam_gravity_V2_a.c3d"))
-        .arg("--mesh")
-        .arg(beam.join("beam-coarse.msh"))
-        .arg("--places")
-        .arg(beam.join("marker-places.csv"))
-        .args([
-            "--clamps",
-            "clamp",
-            "--gravity=-9.81,0,0",
-            "--density",
-            "1070",
-        ])
         .arg("-o")
         .arg(&out)
         .output()

@@ -16,13 +16,8 @@ fn sponge_with(
     file: &str,
     edit: impl Fn(usize, Vec<String>) -> Vec<String>,
 ) -> PathBuf {
-    let src = repo().join("models/sponge/dataset");
     let dst = dir.join("dataset");
-    std::fs::create_dir_all(&dst).unwrap();
-    for e in std::fs::read_dir(&src).unwrap() {
-        let e = e.unwrap();
-        std::fs::copy(e.path(), dst.join(e.file_name())).unwrap();
-    }
+    common::copy_dir(&repo().join("models/sponge/dataset"), &dst);
     let text = std::fs::read_to_string(dst.join(file)).unwrap();
     let mut out = Vec::new();
     for (i, line) in text.lines().enumerate() {
@@ -354,22 +349,8 @@ fn validate_predicts_from_a_fit_and_refuses_other_models() {
 #[test]
 fn import_c3d_declares_a_hanging_weight_and_refuses_an_unknown_group() {
     let dir = tempfile::tempdir().unwrap();
-    let beam = repo().join("models/silicone-beam");
     let import = |hang: &str, out: &Path| {
-        palpate()
-            .args(["import", "c3d"])
-            .arg(beam.join("beam_load52_V2_a.c3d"))
-            .arg("--mesh")
-            .arg(beam.join("beam-coarse.msh"))
-            .arg("--places")
-            .arg(beam.join("marker-places.csv"))
-            .args([
-                "--clamps",
-                "clamp",
-                "--gravity=-9.81,0,0",
-                "--density",
-                "1070",
-            ])
+        common::import_beam("beam_load52_V2_a.c3d")
             .args(["--hang", hang, "-o"])
             .arg(out)
             .output()
@@ -427,16 +408,7 @@ fn info_reads_models_fits_and_datasets_and_refuses_the_rest() {
 /// square brackets, "[`Type`]") or a bare paper section ("§5.3") without words around it.
 #[test]
 fn help_texts_have_no_rustdoc_links() {
-    let top = palpate().arg("--help").output().unwrap();
-    let text = String::from_utf8_lossy(&top.stdout).to_string();
-    let commands: Vec<String> = text
-        .lines()
-        .skip_while(|l| !l.starts_with("Commands:"))
-        .skip(1)
-        .take_while(|l| l.starts_with("  "))
-        .filter_map(|l| l.split_whitespace().next().map(String::from))
-        .filter(|c| c != "help")
-        .collect();
+    let commands = common::commands();
     assert!(commands.len() >= 10, "{commands:?}");
     for c in std::iter::once(String::new()).chain(commands) {
         let mut cmd = palpate();

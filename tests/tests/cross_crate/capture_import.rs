@@ -4,22 +4,20 @@
 
 use palpate_capture::import::{import_motion, ImportOptions, Imported};
 use palpate_capture::Capture;
-use palpate_motion::dataset::{DatasetToml, Decimals, MotionDataset, MotionDatasetFiles, StepRow};
+use palpate_motion::dataset::{DatasetToml, MotionDataset, MotionDatasetFiles};
 use std::path::Path;
 
 fn beam() -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/silicone-beam")
 }
 
-/// The beam's declared marker places (`marker-places.csv`: name, x, y, z; `#` comments).
+/// The beam's declared marker places (`marker-places.csv`: marker, x, y, z), read by the
+/// dataset readers' CSV layer.
 fn marker_places() -> Vec<(String, [f64; 3])> {
-    let text = std::fs::read_to_string(beam().join("marker-places.csv")).unwrap();
-    text.lines()
-        .filter(|l| !l.starts_with('#') && !l.starts_with("marker,"))
-        .map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            (f[0].to_string(), [1, 2, 3].map(|k| f[k].parse().unwrap()))
-        })
+    let table = palpate_fem::io::csv::Table::read(beam().join("marker-places.csv")).unwrap();
+    let rows = table.rows(&["marker", "x", "y", "z"], 0).unwrap();
+    rows.iter()
+        .map(|r| (r.id(0).unwrap().to_string(), r.vec3(1).unwrap()))
         .collect()
 }
 
@@ -51,27 +49,12 @@ fn import_onto(
     config.static_start = Some(false);
     config.gravity = Some([-9.81, 0.0, 0.0]);
     config.density = density;
-    let files = MotionDatasetFiles {
-        comments: vec![r.source_note.clone()],
+    let files = MotionDatasetFiles::captured(
         config,
-        markers: r.markers.clone(),
-        trajectories: r
-            .trajectories
-            .iter()
-            .map(|(step, name, value)| StepRow {
-                step: *step,
-                name: name.clone(),
-                value: *value,
-            })
-            .collect(),
-        clamps: None,
-        forces: Vec::new(),
-        // As `palpate import c3d` writes a capture: 1 µs, 0.1 µm.
-        decimals: Decimals {
-            time: Some(6),
-            values: Some(7),
-        },
-    };
+        vec![r.source_note.clone()],
+        r.markers.clone(),
+        &r.trajectories,
+    );
     palpate_motion::dataset::write_files(dir.path(), &files).unwrap();
     (r, palpate_motion::dataset::load(dir.path()).unwrap())
 }

@@ -3,14 +3,13 @@
 //! also when warping is off (the linear strain sym(H), R = I).
 
 use nalgebra::Vector3;
-use palpate_fem::forward::Material;
 use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_protocol::model::{validate_node_coverage, Invalid, ModelError};
 use palpate_runtime::element::tet_geometry;
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::{RuntimeConfig, RuntimeError};
+use palpate_tests::model;
 use palpate_tests::model::Storage;
-use palpate_tests::model::{self, BlendData};
 
 #[test]
 fn runtime_new_rejects_an_orphan_free_node() {
@@ -66,27 +65,10 @@ fn strain_blending_without_warping_follows_the_linear_strain() {
     let dist = eps.iter().map(|v| v * v).sum::<f64>().sqrt();
     let p0 = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
     let p1 = LambdaAlpha::from_young_poisson(30_000.0, 0.3);
-    let sets = [p0, p1].map(|p| Material::per_element(&vec![p; t]));
     // Each element's metric uses only itself (one neighbour, weight 1), so the distance of
     // its strain to the two centres is exactly 0 and ‖ε_A‖ at the centres. With φ(r) = r the
     // RBF interpolant through (0 → v0, ‖ε_A‖ → v1) has weights w0 = v1/D, w1 = v0/D.
-    let w = |v0: f64, v1: f64| [v1 / dist, v0 / dist];
-    let buf = model::build(
-        &m,
-        &fixed,
-        &sets,
-        &BlendData::Strain {
-            decay: 1.0,
-            neighbours: 1,
-            neighbour_index: (0..t as u32).collect(),
-            neighbour_weight: vec![1.0; t],
-            centres: (0..2 * t)
-                .flat_map(|k| if k < t { [0.0; 6] } else { eps })
-                .collect(),
-            weights_lambda: (0..t).flat_map(|_| w(p0.lambda, p1.lambda)).collect(),
-            weights_alpha: (0..t).flat_map(|_| w(p0.alpha, p1.alpha)).collect(),
-        },
-    );
+    let buf = model::strain_blend(&m, &fixed, [p0, p1], eps, |v0, v1| [v1 / dist, v0 / dist]);
     let cfg = model::linear_config(1e-7, 2000);
     let mut storage = Storage::for_model(&buf.record(), &cfg);
     let mut rt = storage.runtime(buf.record(), cfg).unwrap();

@@ -10,8 +10,6 @@
 //! constants are derived from the same layout, so comparing them with hand-written sums checks
 //! nothing the compiler does not.
 
-use palpate_fem::export::BlendData;
-use palpate_fem::forward::Material;
 use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_runtime::material::LambdaAlpha;
 use palpate_runtime::{Kernel, Probe, Runtime, RuntimeConfig, RuntimeError, StorageRequirement};
@@ -21,30 +19,13 @@ use palpate_tests::model::{self, ModelBuffers};
 fn block(strain_blend: bool) -> ModelBuffers {
     let m = box_mesh([0.1, 0.1, 0.05], [4, 4, 2]);
     let fixed = m.group("bottom").unwrap().to_vec();
-    let t = m.tets.len();
     let p0 = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
     if !strain_blend {
         return model::homogeneous(&m, &fixed, p0.lambda, p0.alpha);
     }
     let p1 = LambdaAlpha::from_young_poisson(30_000.0, 0.3);
-    let sets = [p0, p1].map(|p| Material::per_element(&vec![p; t]));
     let eps = [0.0, 0.0, -0.02, 0.0, 0.0, 0.01];
-    model::build(
-        &m,
-        &fixed,
-        &sets,
-        &BlendData::Strain {
-            decay: 1.0,
-            neighbours: 1,
-            neighbour_index: (0..t as u32).collect(),
-            neighbour_weight: vec![1.0; t],
-            centres: (0..2 * t)
-                .flat_map(|k| if k < t { [0.0; 6] } else { eps })
-                .collect(),
-            weights_lambda: (0..t).flat_map(|_| [0.5, 0.5]).collect(),
-            weights_alpha: (0..t).flat_map(|_| [0.5, 0.5]).collect(),
-        },
-    )
+    model::strain_blend(&m, &fixed, [p0, p1], eps, |_, _| [0.5, 0.5])
 }
 
 /// The configurations that change what the layout carves.

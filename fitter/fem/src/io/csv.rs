@@ -3,8 +3,8 @@
 //!
 //! - [`parse`]: whole files through the `csv` crate — quoted fields (`"m0"` is the id `m0`, and
 //!   `"a,b"` one field), blank lines and `#` comment lines skipped; the dataset readers use it;
-//! - [`records`] and [`fields`]: a line tokenizer without quoting, for the small tables whose ids
-//!   and numbers hold no commas (FSR tables, measured curves, marker places);
+//! - [`records`] and [`fields`]: a line tokenizer without quoting, for the measured curves' tables
+//!   (their readers sniff the header line before choosing columns);
 //! - [`finite`]: a finite number, or why not;
 //! - [`Table`] / [`Row`]: columns found by their header names in any order, and typed fields whose
 //!   errors read ``file:line: field `name`: expected …, found …`` ([`CsvError::Field`]) — the static
@@ -187,6 +187,13 @@ impl<'a> Row<'a> {
         ])
     }
 
+    /// A whole number ≥ 0 (a Gmsh node tag, a count).
+    pub fn unsigned(&self, col: usize) -> Result<u64, CsvError> {
+        self.fields[col]
+            .parse()
+            .map_err(|_| self.field_error(col, "a whole number >= 0"))
+    }
+
     /// A finite, strictly positive number.
     pub fn positive(&self, col: usize) -> Result<f64, CsvError> {
         let v = self.number(col)?;
@@ -212,6 +219,11 @@ impl Table {
             source,
         })?;
         Ok(Table { file, text })
+    }
+
+    /// Whether the file holds no record at all (only blank and `#` comment lines).
+    pub fn is_blank(&self) -> bool {
+        records(&self.text, true).next().is_none()
     }
 
     /// The rows, their fields in the order of `header`, whose last `optional` names may be

@@ -70,61 +70,75 @@ pub fn read_csv(path: &Path, rig: &Rig) -> Result<(Format, Vec<Point>), FsrError
     parse_csv(&text, &path.display().to_string(), rig)
 }
 
-/// Parses calibration CSV text (`name` is used in errors).
+/// The two tables' columns, each format's in the order [`parse_csv`] reads them (lower case; a
+/// file may spell them in any case and list them in any order).
+const COLUMNS: [(Format, [&str; 3]); 2] = [
+    (
+        Format::BalanceCounts,
+        ["run", "adc_counts", "reference_mass_g"],
+    ),
+    (
+        Format::ForceResistance,
+        ["force_n", "resistance_ohm", "divider_output_v"],
+    ),
+];
+
+/// Parses calibration CSV text (`name` is used in errors): the shared CSV layer's records
+/// (quoted fields, a spreadsheet's byte-order mark), the format told by the header's column
+/// names in any order.
 pub fn parse_csv(text: &str, name: &str, rig: &Rig) -> Result<(Format, Vec<Point>), FsrError> {
-    let mut lines = csv::records(text, false);
-    let (_, header) = lines.next().ok_or_else(|| FsrError::Format {
+    let format_error = |line: usize, what: String| FsrError::Format {
         file: name.into(),
-        line: 1,
-        what: "empty file".into(),
-    })?;
-    let cols: Vec<String> = csv::fields(header)
-        .into_iter()
-        .map(str::to_ascii_lowercase)
-        .collect();
-    let format = match cols.iter().map(String::as_str).collect::<Vec<_>>().as_slice() {
-        ["run", "adc_counts", "reference_mass_g"] => Format::BalanceCounts,
-        ["force_n", "resistance_ohm", "divider_output_v"] => Format::ForceResistance,
-        _ => {
-            return Err(FsrError::Format {
-                file: name.into(),
-                line: 1,
-                what: format!(
-                    "unknown header {header:?}: expected run,adc_counts,reference_mass_g or force_N,resistance_ohm,divider_output_V"
-                ),
-            })
-        }
+        line,
+        what,
     };
+    let records = csv::parse(text, false)
+        .map_err(|(line, why)| format_error(line, format!("malformed CSV: {why}")))?;
+    let mut records = records.into_iter();
+    let (hline, header) = records
+        .next()
+        .ok_or_else(|| format_error(1, "empty file".into()))?;
+    let cols: Vec<String> = header.iter().map(|c| c.to_ascii_lowercase()).collect();
+    let same_set = |names: &[&str; 3]| {
+        cols.len() == names.len() && names.iter().all(|n| cols.iter().any(|c| c == n))
+    };
+    let Some((format, names)) = COLUMNS.iter().find(|(_, names)| same_set(names)) else {
+        return Err(format_error(
+            hline,
+            format!(
+                "unknown header {:?}: expected the columns run,adc_counts,reference_mass_g or \
+                 force_N,resistance_ohm,divider_output_V, in any order",
+                header.join(",")
+            ),
+        ));
+    };
+    let format = *format;
+    // Where each of the format's columns sits in this file.
+    let at = names.map(|n| cols.iter().position(|c| c == n).unwrap_or_default());
     let mut points = Vec::new();
-    for (line, l) in lines {
-        let f = csv::fields(l);
+    for (line, f) in records {
+        if f.len() != cols.len() {
+            return Err(format_error(
+                line,
+                format!("expected {} fields, found {}", cols.len(), f.len()),
+            ));
+        }
         let num = |k: usize| -> Result<f64, FsrError> {
-            let s = f.get(k).ok_or_else(|| FsrError::Format {
-                file: name.into(),
-                line,
-                what: format!("expected {} fields, found {}", cols.len(), f.len()),
-            })?;
-            let v: f64 = s.parse().map_err(|_| FsrError::Format {
-                file: name.into(),
-                line,
-                what: format!("field {:?} = {s:?} is not a number", cols[k]),
+            let s = &f[at[k]];
+            let v: f64 = s.parse().map_err(|_| {
+                format_error(
+                    line,
+                    format!("field {:?} = {s:?} is not a number", header[at[k]]),
+                )
             })?;
             if !v.is_finite() || v < 0.0 {
-                return Err(FsrError::Format {
-                    file: name.into(),
+                return Err(format_error(
                     line,
-                    what: format!("field {:?} = {v} must be finite and >= 0", cols[k]),
-                });
+                    format!("field {:?} = {v} must be finite and >= 0", header[at[k]]),
+                ));
             }
             Ok(v)
         };
-        if f.len() != cols.len() {
-            return Err(FsrError::Format {
-                file: name.into(),
-                line,
-                what: format!("expected {} fields, found {}", cols.len(), f.len()),
-            });
-        }
         points.push(match format {
             Format::BalanceCounts => {
                 let counts = num(1)?;
@@ -176,7 +190,7 @@ pub fn parse_csv(text: &str, name: &str, rig: &Rig) -> Result<(Format, Vec<Point
     if points.is_empty() {
         return Err(FsrError::Format {
             file: name.into(),
-            line: 2,
+            line: hline + 1,
             what: "no data rows".into(),
         });
     }

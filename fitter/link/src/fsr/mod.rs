@@ -399,4 +399,34 @@ mod tests {
         let e = data::parse_csv("a,b\n", "f.csv", &rig).unwrap_err();
         assert!(e.to_string().starts_with("f.csv:1: unknown header"));
     }
+
+    /// A spreadsheet's table: columns in another order and case, fields quoted. The values are
+    /// read by column name, and an error names the file, the line and the column as the file
+    /// spells it.
+    #[test]
+    fn columns_by_name_in_any_order_and_quoted_fields() {
+        let rig = Rig {
+            adc_bits: 10,
+            v_supply_v: 5.0,
+            r_pulldown_ohm: 10_000.0,
+        };
+        let text = "\"Reference_Mass_g\",run,\"ADC_counts\"\n\"100\",2,\"500\"\n";
+        let (format, pts) = data::parse_csv(text, "f.csv", &rig).unwrap();
+        assert_eq!(format, Format::BalanceCounts);
+        assert_eq!(
+            (pts[0].line, pts[0].run, pts[0].counts),
+            (2, Some(2), Some(500.0))
+        );
+        assert!((pts[0].force_n - 0.1 * data::G_STANDARD).abs() < 1e-12);
+        let e = data::parse_csv(
+            "divider_output_V,force_N,resistance_ohm\n1.5,2,300\n\"1.7\",3,\"3x0\"\n",
+            "f.csv",
+            &rig,
+        )
+        .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "f.csv:3: field \"resistance_ohm\" = \"3x0\" is not a number"
+        );
+    }
 }

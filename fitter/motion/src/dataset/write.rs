@@ -67,6 +67,40 @@ pub struct MotionDatasetFiles {
     pub decimals: Decimals,
 }
 
+impl MotionDatasetFiles {
+    /// A motion capture's dataset: its markers' rest places and tracked positions, as the
+    /// capture import returns them (`palpate_capture::import::Imported`: (step after the
+    /// release, marker, position) in the mesh frame), written at a capture's precision (1 µs in
+    /// time, 0.1 µm in position) under `config` and the `comments` that say where they come
+    /// from; no clamp motion, no forces.
+    pub fn captured(
+        config: DatasetToml,
+        comments: Vec<String>,
+        markers: Vec<(String, [f64; 3])>,
+        trajectories: &[(usize, String, [f64; 3])],
+    ) -> Self {
+        Self {
+            comments,
+            config,
+            markers,
+            trajectories: trajectories
+                .iter()
+                .map(|(step, name, value)| StepRow {
+                    step: *step,
+                    name: name.clone(),
+                    value: *value,
+                })
+                .collect(),
+            clamps: None,
+            forces: Vec::new(),
+            decimals: Decimals {
+                time: Some(6),
+                values: Some(7),
+            },
+        }
+    }
+}
+
 /// A number as TOML reads it back to the same `f64`: Rust's shortest round-trip text, in
 /// exponent form where that text would be an integer too long for TOML's i64 or a long run of
 /// zeros.

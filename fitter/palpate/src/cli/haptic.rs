@@ -20,7 +20,9 @@ use std::time::{Duration, Instant};
 /// Arguments.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Model file (palpate model format). Without it: a generated 10 × 10 × 5 cm block, E = 10 kPa, ν = 0.3.
+    /// Model file: a runtime model (`.palp`), or a `fit.json` of `fit-motion` or `diagnose`
+    /// (exported for the runtime on the mesh of a run it was fitted on); told apart by content.
+    /// Without it: a generated 10 × 10 × 5 cm block, E = 10 kPa, ν = 0.3.
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// Tetrahedra of the generated block (when no --model).
@@ -91,10 +93,14 @@ fn check_args(args: &Args) -> anyhow::Result<()> {
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
     check_args(&args)?;
-    if let Some(m) = &args.model {
-        super::input_kind::expect(m, super::input_kind::Kind::Palp, "haptic --model")?;
-    }
-    let src = ModelSource::load(args.model.as_deref(), args.block_tets)?;
+    let src = match &args.model {
+        Some(m) => {
+            let (path, bytes) = super::model_file::ModelFile::read(m, "haptic --model")?
+                .into_runtime_bytes("haptic --model")?;
+            ModelSource::File(path, bytes)
+        }
+        None => ModelSource::load(None, args.block_tets)?,
+    };
     let rec = src.record()?;
     let cfg = haptic_config();
     let mut storage = Storage::for_model(&rec, &cfg);

@@ -2,12 +2,12 @@
 //! capture frame registered to the mesh frame (Horn) on a frame at rest, the trajectories from
 //! the release on, the mesh copied beside them.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use palpate_capture::import::{import_motion, ImportOptions, Imported};
 use palpate_fem::io::parse_vec3_f64;
-use palpate_motion::dataset::{DatasetToml, Decimals, LoadToml, MotionDatasetFiles, StepRow};
+use palpate_motion::dataset::{DatasetToml, LoadToml, MotionDatasetFiles};
 
 /// What to import.
 #[derive(Debug, clap::Subcommand)]
@@ -24,17 +24,23 @@ pub struct C3dArgs {
     /// Tetrahedral mesh of the object in its own frame (Gmsh 4.1; see models/mesh_stl.py).
     #[arg(long)]
     pub mesh: PathBuf,
-    /// Marker places in the mesh frame: CSV `marker,x,y,z` (m), labels as in the capture.
+    /// Marker places in the mesh frame: CSV with the header `marker,x,y,z` (columns in any
+    /// order; m), labels as in the capture.
     #[arg(long)]
     pub places: PathBuf,
     /// Clamped physical groups of the mesh (comma-separated).
-    #[arg(long, value_delimiter = ',', required = true)]
+    #[arg(long, value_delimiter = ',', required = true, value_name = "GROUP,…")]
     pub clamps: Vec<String>,
     /// Gravity in the mesh frame, gx,gy,gz (m/s²).
-    #[arg(long, value_parser = parse_vec3_f64, allow_hyphen_values = true)]
+    #[arg(
+        long,
+        value_parser = parse_vec3_f64,
+        allow_hyphen_values = true,
+        value_name = "GX,GY,GZ"
+    )]
     pub gravity: [f64; 3],
     /// Density (kg/m³), if known.
-    #[arg(long)]
+    #[arg(long, value_name = "KG_M3")]
     pub density: Option<f64>,
     /// Time integration written into the dataset: `bdf2` (Real2Sim's, ≥ 32 steps per period of
     /// the capture's ring-down) or `midpoint` (the implicit midpoint rule: no numerical damping,
@@ -55,7 +61,7 @@ pub struct C3dArgs {
     #[arg(long)]
     pub release_frame: Option<usize>,
     /// Movement (m) that detects the release.
-    #[arg(long, default_value_t = 0.5e-3)]
+    #[arg(long, default_value_t = 0.5e-3, value_name = "M")]
     pub release_threshold: f64,
     /// Last frame imported (default: the end of the capture).
     #[arg(long)]
@@ -64,8 +70,15 @@ pub struct C3dArgs {
     /// near the object are located from the rest frame and tracked too).
     #[arg(long)]
     pub declared_only: bool,
-    /// Output dataset folder.
-    #[arg(short, long)]
+    /// Output: the motion dataset folder written (`dataset.toml`, `markers.csv`,
+    /// `trajectories.csv` and the mesh).
+    #[arg(
+        short = 'o',
+        long = "output",
+        visible_alias = "out",
+        value_name = "DIR",
+        default_value = "motion-dataset"
+    )]
     pub output: PathBuf,
 }
 
@@ -84,6 +97,18 @@ fn parse_hang(s: &str) -> Result<(f64, String), String> {
         return Err(format!("{s:?}: no group after '@'"));
     }
     Ok((m, g.trim().to_string()))
+}
+
+/// The marker places: CSV `marker,x,y,z` (m), its header naming the columns in any order,
+/// read by the dataset readers' CSV layer (quoted labels, `#` comments, errors naming the
+/// file, line and column).
+fn read_places(path: &Path) -> anyhow::Result<Vec<(String, [f64; 3])>> {
+    let table = palpate_fem::io::csv::Table::read(path.to_path_buf())?;
+    table
+        .rows(&["marker", "x", "y", "z"], 0)?
+        .iter()
+        .map(|row| Ok((row.id(0)?.to_string(), row.vec3(1)?)))
+        .collect()
 }
 
 /// Runs the command.
@@ -121,36 +146,7 @@ fn check_args(a: &C3dArgs) -> anyhow::Result<()> {
 pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
     check_args(a)?;
     let capture = palpate_capture::read_c3d(&a.capture)?;
-    let text = std::fs::read_to_string(&a.places)
-        .with_context(|| format!("reading {}", a.places.display()))?;
-    let mut places = Vec::new();
-    // The one CSV tokenizer (1-based lines, `#` comments, a spreadsheet's byte-order mark).
-    for (line, l) in palpate_fem::io::csv::records(&text, true) {
-        if l.starts_with("marker,") {
-            continue;
-        }
-        let f = palpate_fem::io::csv::fields(l);
-        let at = |what: &str| format!("{}:{line}: {what}", a.places.display());
-        if f.len() != 4 {
-            anyhow::bail!(
-                "{}",
-                at(&format!("expected marker,x,y,z, found {} fields", f.len()))
-            );
-        }
-        let mut p = [0.0; 3];
-        for k in 0..3 {
-            p[k] = palpate_fem::io::csv::finite(f[k + 1])
-                .ok()
-                .with_context(|| {
-                    at(&format!(
-                        "field {}: {:?} is not a finite number",
-                        ["x", "y", "z"][k],
-                        f[k + 1]
-                    ))
-                })?;
-        }
-        places.push((f[0].to_string(), p));
-    }
+    let places = read_places(&a.places)?;
     let ids: Vec<usize> = places
         .iter()
         .map(|(l, _)| capture.marker(l))
@@ -269,25 +265,10 @@ fn dataset_files(a: &C3dArgs, r: &Imported) -> MotionDatasetFiles {
             inertia: false,
         })
         .collect();
-    MotionDatasetFiles {
-        comments: vec![r.source_note.clone()],
+    MotionDatasetFiles::captured(
         config,
-        markers: r.markers.clone(),
-        trajectories: r
-            .trajectories
-            .iter()
-            .map(|(step, name, value)| StepRow {
-                step: *step,
-                name: name.clone(),
-                value: *value,
-            })
-            .collect(),
-        clamps: None,
-        forces: Vec::new(),
-        // A capture's precision: 0.1 µm in position, 1 µs in time.
-        decimals: Decimals {
-            time: Some(6),
-            values: Some(7),
-        },
-    }
+        vec![r.source_note.clone()],
+        r.markers.clone(),
+        &r.trajectories,
+    )
 }

@@ -36,7 +36,10 @@ impl Kind {
                  `palpate info`"
             }
             Kind::Palp => "`palpate simulate --model`, `palpate haptic --model` or `palpate info`",
-            Kind::FitJson => "`palpate validate --model` or `palpate info`",
+            Kind::FitJson => {
+                "`palpate validate --model`, `palpate simulate --model`, `palpate haptic \
+                 --model` or `palpate info`"
+            }
             Kind::C3d => "`palpate import c3d` or `palpate info`",
             Kind::Stl => {
                 "`python3 models/mesh_stl.py` first (palpate reads tetrahedral Gmsh meshes, not \

@@ -14,6 +14,7 @@ pub mod import;
 pub mod info;
 pub mod input_kind;
 pub mod logging;
+pub mod model_file;
 pub mod output;
 pub mod probe;
 pub mod probe_sim;

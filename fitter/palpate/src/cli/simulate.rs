@@ -28,7 +28,8 @@ pub enum RuleArg {
 /// Arguments of `palpate simulate`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// A fitted model (`.palp`).
+    /// A fitted model: a runtime model (`.palp`), or a `fit.json` of `fit-motion` or `diagnose`
+    /// (exported for the runtime on the mesh of a run it was fitted on); told apart by content.
     #[arg(long, conflicts_with_all = ["mesh", "young", "poisson", "clamps"])]
     pub model: Option<PathBuf>,
     /// A Gmsh 4.1 mesh (linear tetrahedra) to simulate with a homogeneous material.
@@ -68,7 +69,8 @@ pub struct Args {
     /// Flat punch instead of a sphere, pushing along this unit axis (e.g. 0,0,-1).
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     pub flat_axis: Option<[f64; 3]>,
-    /// Explicit nodal forces: CSV `node,fx,fy,fz` with Gmsh node tags.
+    /// Explicit nodal forces: CSV with the header `node,fx,fy,fz` (columns in any order), Gmsh
+    /// node tags and forces in N.
     #[arg(long)]
     pub node_forces: Option<PathBuf>,
     /// Linear model (no stiffness warping).
@@ -168,41 +170,37 @@ pub fn model_from_mesh(
     )?)
 }
 
-/// Reads `node,fx,fy,fz` (Gmsh tags) into (node index, force).
+/// Reads `node,fx,fy,fz` (Gmsh tags; the header names the columns, in any order) into (node
+/// index, force). A file with no record reads as no forces, which the caller refuses by name.
 fn read_node_forces(path: &Path, tags: &[u64]) -> anyhow::Result<Vec<(usize, [f32; 3])>> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let table = palpate_fem::io::csv::Table::read(path.to_path_buf())?;
+    if table.is_blank() {
+        return Ok(Vec::new());
+    }
     let index: std::collections::HashMap<u64, usize> =
         tags.iter().enumerate().map(|(i, t)| (*t, i)).collect();
     let mut out = Vec::new();
-    for (ln, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || (ln == 0 && line.starts_with("node")) {
-            continue;
-        }
-        let f: Vec<&str> = line.split(',').map(str::trim).collect();
-        let at = |field: &str| format!("{}:{}: field {field}", path.display(), ln + 1);
-        if f.len() != 4 {
-            bail!(
-                "{}:{}: expected 4 fields node,fx,fy,fz, found {}",
+    for row in table.rows(&["node", "fx", "fy", "fz"], 0)? {
+        let tag = row.unsigned(0)?;
+        let node = *index.get(&tag).with_context(|| {
+            format!(
+                "{}:{}: field `node`: no node with Gmsh tag {tag} in the model",
                 path.display(),
-                ln + 1,
-                f.len()
+                row.line
+            )
+        })?;
+        // The runtime's forces are f32; a force beyond f32 is not finite there.
+        let f = row.vec3(1)?.map(|v| v as f32);
+        if let Some(k) = (0..3).find(|&k| !f[k].is_finite()) {
+            bail!(
+                "{}:{}: field `{}`: expected a force within f32 range, found {:e} N",
+                path.display(),
+                row.line,
+                ["fx", "fy", "fz"][k],
+                row.number(k + 1)?
             );
         }
-        let tag: u64 = f[0].parse().with_context(|| at("node"))?;
-        let node = *index
-            .get(&tag)
-            .with_context(|| format!("{}: no node with Gmsh tag {tag}", at("node")))?;
-        let mut v = [0.0f32; 3];
-        for k in 0..3 {
-            let name = ["fx", "fy", "fz"][k];
-            v[k] = f[k + 1].parse().with_context(|| at(name))?;
-            if !v[k].is_finite() {
-                bail!("{}: not finite", at(name));
-            }
-        }
-        out.push((node, v));
+        out.push((node, f));
     }
     Ok(out)
 }
@@ -214,8 +212,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let buffers;
     let record = match (&args.model, &args.mesh) {
         (Some(m), None) => {
-            super::input_kind::expect(m, super::input_kind::Kind::Palp, "simulate --model")?;
-            bytes = std::fs::read(m).with_context(|| format!("reading model {}", m.display()))?;
+            bytes = super::model_file::ModelFile::read(m, "simulate --model")?
+                .into_runtime_bytes("simulate --model")?
+                .1;
             palpate_protocol::model::decode(&bytes)
                 .map_err(|e| anyhow::anyhow!("model {}: {e}", m.display()))?
         }

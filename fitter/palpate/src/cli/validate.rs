@@ -6,13 +6,13 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use palpate_motion::fitted::FittedModel;
 use palpate_motion::predict;
 
 /// Options.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// The fitted model: the JSON `palpate fit-motion -o` wrote.
+    /// The fitted model: the `fit.json` that `palpate fit-motion -o` or `palpate diagnose` wrote
+    /// (a `.palp` is refused: it holds the runtime's linear material only).
     #[arg(long)]
     pub model: PathBuf,
     /// The motion dataset to predict (e.g. from `palpate import c3d`), on the model's mesh.
@@ -35,31 +35,13 @@ pub struct Args {
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
     args.plots.apply();
-    super::input_kind::expect(
-        &args.model,
-        super::input_kind::Kind::FitJson,
-        "validate --model",
-    )?;
+    let fit = super::model_file::ModelFile::read(&args.model, "validate --model")?
+        .into_fit("validate --model")?;
     super::input_kind::expect(
         &args.dataset,
         super::input_kind::Kind::MotionDataset,
         "validate",
     )?;
-    let text = std::fs::read_to_string(&args.model)
-        .with_context(|| format!("reading {}", args.model.display()))?;
-    let fit: FittedModel = serde_json::from_str(&text).with_context(|| {
-        format!(
-            "{}: not a fitted motion model (the JSON of `palpate fit-motion -o`)",
-            args.model.display()
-        )
-    })?;
-    anyhow::ensure!(
-        palpate_motion::fitted::READABLE_FORMATS.contains(&fit.format.as_str()),
-        "{}: format {:?}, expected one of {:?}",
-        args.model.display(),
-        fit.format,
-        palpate_motion::fitted::READABLE_FORMATS
-    );
     // Where the folder will be made is checked now; the folder itself only once there is a
     // prediction to put in it.
     if let Some(out) = &args.output {

@@ -1,5 +1,5 @@
-//! What the `palpate` program's test files share: the program, the repository root, and the
-//! check that a fit was written.
+//! What the `palpate` program's test files share: the program, the repository root, the check
+//! that a fit was written, and the bundled data copied or imported as the README does.
 
 // Each test file uses its own part of this module.
 #![allow(dead_code)]
@@ -30,6 +30,18 @@ pub fn fit_sponge(before: &[&str], options: &[&str], model: &Path) -> Output {
         .arg(model)
         .output()
         .unwrap()
+}
+
+/// The commands `palpate --help` lists (without `help`).
+pub fn commands() -> Vec<String> {
+    let top = text(&palpate().arg("--help").output().unwrap().stdout);
+    top.lines()
+        .skip_while(|l| !l.starts_with("Commands:"))
+        .skip(1)
+        .take_while(|l| l.starts_with("  "))
+        .filter_map(|l| l.split_whitespace().next().map(String::from))
+        .filter(|c| c != "help")
+        .collect()
 }
 
 /// Bytes a program wrote, as text.
@@ -129,4 +141,34 @@ pub fn copy_dir(src: &Path, dst: &Path) {
             std::fs::copy(e.path(), dst.join(e.file_name())).unwrap();
         }
     }
+}
+
+/// `palpate import c3d` of the bundled beam capture `capture` (e.g. `beam_gravity_V2_a.c3d`)
+/// onto the coarse beam mesh, as the README does it (the bundled places, clamps, gravity,
+/// density); the caller adds the output and any other flag.
+pub fn import_beam(capture: &str) -> Command {
+    import_beam_with_places(
+        capture,
+        &repo().join("models/silicone-beam/marker-places.csv"),
+    )
+}
+
+/// [`import_beam`] with the marker places of `places`.
+pub fn import_beam_with_places(capture: &str, places: &Path) -> Command {
+    let beam = repo().join("models/silicone-beam");
+    let mut c = palpate();
+    c.args(["import", "c3d"])
+        .arg(beam.join(capture))
+        .arg("--mesh")
+        .arg(beam.join("beam-coarse.msh"))
+        .arg("--places")
+        .arg(places)
+        .args([
+            "--clamps",
+            "clamp",
+            "--gravity=-9.81,0,0",
+            "--density",
+            "1070",
+        ]);
+    c
 }
