@@ -97,6 +97,23 @@ pub fn unit_for(v: f64, unit: &str) -> (String, f64) {
     }
 }
 
+/// `v` (in the SI unit `unit`) with three significant digits in the unit [`unit_for`] chooses:
+/// `25.6 µm`, `0.740 mrad`, `1759 kg/m³`.
+pub fn quantity(v: f64, unit: &str) -> String {
+    let (u, size) = unit_for(v, unit);
+    let x = v / size;
+    let shown = if (1e-4..1e6).contains(&x.abs()) || x == 0.0 {
+        format!("{x:.*}", decimals(x, 3))
+    } else {
+        plain(x)
+    };
+    if u.is_empty() {
+        shown
+    } else {
+        format!("{shown} {u}")
+    }
+}
+
 /// A fitted value and its standard deviation in one unit chosen from the value: (`131.5 kPa`,
 /// `1.2 kPa`); the deviation with two significant digits.
 pub fn value_and_sd(value: f64, sd: f64, unit: &str) -> (String, String) {

@@ -27,6 +27,7 @@
 //! (two more solves per measurement, made only for the statement).
 
 use nalgebra::DMatrix;
+use palpate_fem::numbers;
 use serde::Serialize;
 
 use super::candidates::{At, PowerPoint};
@@ -70,7 +71,7 @@ impl Detectable {
     /// parameters of the same kind).
     pub fn describe(&self) -> String {
         let fmt = |p: &DetectableParam| match p.min {
-            Some(v) => format!("{} ≥ {}{}", p.name, sig3(v), unit_suffix(p.unit)),
+            Some(v) => format!("{} ≥ {}", p.name, numbers::quantity(v, p.unit)),
             None => format!("{}: not separable from the fitted parameters", p.name),
         };
         let body = if self.params.len() > 6 {
@@ -105,14 +106,6 @@ impl Detectable {
             Some(n) => format!("{}: {body} ({n})", self.candidate.name()),
             None => format!("{}: {body}", self.candidate.name()),
         }
-    }
-}
-
-fn unit_suffix(unit: &str) -> String {
-    if unit.is_empty() {
-        String::new()
-    } else {
-        format!(" {unit}")
     }
 }
 

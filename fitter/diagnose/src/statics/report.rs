@@ -295,7 +295,9 @@ fn round(s: &mut String, st: &Step, plots: &[(usize, String)]) {
         let _ = writeln!(s, "\n| | fitted RMS | fitted max | held-out RMS | held-out max | force RMS | force max | held-out force RMS |\n|---|---|---|---|---|---|---|---|");
         error_rows(s, "before", &st.before);
         error_rows(s, "after", a);
-        let _ = writeln!(s, "\nNew parameters:\n");
+        if !st.new_params.is_empty() {
+            let _ = writeln!(s, "\nNew parameters:\n");
+        }
         for p in &st.new_params {
             let (value, sd) = numbers::value_and_sd(p.value, p.sd, &p.unit);
             let sd = if p.sd.is_finite() {
