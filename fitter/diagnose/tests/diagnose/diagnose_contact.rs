@@ -3,15 +3,16 @@
 //! continuously with s (its Jacobian column is a finite difference), and the diagnosis names it
 //! on palpate's own specimens whose truth was loaded over a patch 1.6× the declared probe.
 
+use crate::support::drawn;
 use palpate_diagnose::model::{Candidate, Context, Model};
 use palpate_fem::forward::Load;
-use palpate_specimen::{generate, Effect, SpecimenOptions};
+use palpate_specimen::{Effect, SpecimenOptions};
 
 use palpate_diagnose::{run_diagnosis, DiagnoseOptions};
 
 #[test]
 fn contact_radius_load_nests_the_lumped_one_and_keeps_the_resultant() {
-    let s = generate(&SpecimenOptions::with_effect(None, 1)).expect("specimen");
+    let s = drawn(&SpecimenOptions::with_effect(None, 1)).expect("specimen");
     let ctx = Context::new(&s.dataset, [3, 3, 2]).expect("context");
     let model = Model::base().with(Candidate::ContactRadius);
     let at = model.offset(Candidate::ContactRadius, ctx.grid).unwrap();
@@ -59,7 +60,7 @@ fn contact_radius_load_nests_the_lumped_one_and_keeps_the_resultant() {
 #[test]
 fn diagnose_names_a_wider_contact_patch() {
     for seed in [1, 2] {
-        let s = generate(&SpecimenOptions::with_effect(
+        let s = drawn(&SpecimenOptions::with_effect(
             Some(Effect::ContactRadius),
             seed,
         ))

@@ -7,12 +7,13 @@
 //! machine, more than the few seconds the team rules ask for: these are the loop's end-to-end
 //! checks and cannot be made smaller without making the specimens too coarse to mean anything.
 
+use crate::support::drawn;
 use crate::support::summary;
 use palpate_diagnose::export::runtime_fit;
 use palpate_diagnose::model::Candidate;
 use palpate_diagnose::{run_diagnosis, DiagnoseOptions, MeshChoice};
 use palpate_fem::dataset::StaticDataset;
-use palpate_specimen::{generate, Effect, SpecimenOptions};
+use palpate_specimen::{Effect, SpecimenOptions};
 
 fn diagnose(effect: Option<Effect>, seed: u64) -> palpate_diagnose::DiagnosisReport {
     // One adoption round is what these tests assert on (the first effect named and the error
@@ -21,7 +22,7 @@ fn diagnose(effect: Option<Effect>, seed: u64) -> palpate_diagnose::DiagnosisRep
     // On the dataset's own mesh: these check the selection loop, whose decisions the refined
     // mesh only sharpens (`diagnose_refined_mesh_reaches_the_noise_floor` checks the refinement),
     // at an eighth of the cost.
-    let s = generate(&SpecimenOptions::with_effect(effect, seed)).expect("specimen");
+    let s = drawn(&SpecimenOptions::with_effect(effect, seed)).expect("specimen");
     let r = one_round(&s.dataset);
     eprintln!(
         "{effect:?} seed {seed}: {}; {:.1} s",
@@ -115,7 +116,7 @@ fn diagnose_names_compliant_boundary() {
 /// may be adopted.
 #[test]
 fn diagnose_corrected_mesh_reaches_the_noise_floor() {
-    let s = generate(&SpecimenOptions::default()).expect("specimen");
+    let s = drawn(&SpecimenOptions::default()).expect("specimen");
     let o = DiagnoseOptions {
         candidates: vec![Candidate::Gravity],
         max_effects: 1,
@@ -175,7 +176,7 @@ fn diagnose_corrected_mesh_reaches_the_noise_floor() {
 #[test]
 fn diagnose_names_a_registration_that_differs_per_measurement() {
     use palpate_fem::rng::SplitMix64 as Rng;
-    let mut s = generate(&SpecimenOptions::with_effect(None, 3)).expect("specimen");
+    let mut s = drawn(&SpecimenOptions::with_effect(None, 3)).expect("specimen");
     let (lo, hi) = s.dataset.mesh.bounds();
     let centre = [0, 1, 2].map(|d| 0.5 * (lo[d] + hi[d]));
     let mut rng = Rng::new(11);
@@ -208,7 +209,7 @@ fn diagnose_names_a_registration_that_differs_per_measurement() {
 #[test]
 fn diagnose_names_a_tangential_force_that_differs_per_measurement() {
     use palpate_fem::rng::SplitMix64 as Rng;
-    let mut s = generate(&SpecimenOptions::with_effect(None, 4)).expect("specimen");
+    let mut s = drawn(&SpecimenOptions::with_effect(None, 4)).expect("specimen");
     let mut rng = Rng::new(5);
     for m in &mut s.dataset.measurements {
         let f = nalgebra::Vector3::from(m.force);
@@ -262,7 +263,7 @@ fn names_per_measurement(
 /// the approximation-error correction (the default), where the widened floor applies.
 #[test]
 fn an_effect_below_the_floor_is_named_on_held_out_evidence() {
-    let s = generate(&SpecimenOptions::with_effect(Some(Effect::Stiffening), 1)).expect("specimen");
+    let s = drawn(&SpecimenOptions::with_effect(Some(Effect::Stiffening), 1)).expect("specimen");
     let o = DiagnoseOptions {
         max_effects: 1,
         ..Default::default()
@@ -292,7 +293,7 @@ fn an_effect_below_the_floor_is_named_on_held_out_evidence() {
 #[test]
 fn diagnose_names_an_elastic_foundation() {
     use palpate_fem::forward::{Foundation, Load, Material, SolveOptions, StaticProblem};
-    let mut s = generate(&SpecimenOptions::with_effect(None, 6)).expect("specimen");
+    let mut s = drawn(&SpecimenOptions::with_effect(None, 6)).expect("specimen");
     let ds = &s.dataset;
     let (lo, hi) = ds.mesh.bounds();
     let half = 0.5 * (hi[0] - lo[0]).min(hi[1] - lo[1]);

@@ -5,15 +5,16 @@
 //! σ̂ = 194.8 µm; over all 22 specimen runs (default magnitudes, seeds 1–2) the non-noise
 //! effects give 97–111 µm on this base fit, never a lower bound above 125 µm.
 
+use crate::support::drawn;
 use palpate_diagnose::fit::{fit, initial_theta, Fitted};
 use palpate_diagnose::model::{Context, Model};
 use palpate_diagnose::noise::{estimate_noise, Field, NoiseOptions};
 use palpate_diagnose::signature::residual_vectors;
-use palpate_specimen::{generate, Effect, SpecimenOptions};
+use palpate_specimen::{Effect, SpecimenOptions};
 
 /// The specimen of `effect` and `seed`, its context and the simplest model's fit.
 fn base_fit(effect: Option<Effect>, seed: u64) -> (Option<f64>, Context, Fitted) {
-    let s = generate(&SpecimenOptions::with_effect(effect, seed)).expect("specimen");
+    let s = drawn(&SpecimenOptions::with_effect(effect, seed)).expect("specimen");
     let ctx = Context::new(&s.dataset, [2, 2, 2]).expect("context");
     let all: Vec<usize> = (0..ctx.meas.len()).collect();
     let (t0, s0) = initial_theta(&ctx, &all).expect("start");
@@ -102,7 +103,7 @@ fn diagnosis_of(effects: &[(Effect, f64)], seed: u64) -> palpate_diagnose::Diagn
             .collect(),
         ..SpecimenOptions::with_effect(None, seed)
     };
-    let s = generate(&o).expect("specimen");
+    let s = drawn(&o).expect("specimen");
     let d = DiagnoseOptions {
         max_effects: 1,
         mesh: MeshChoice::Dataset,

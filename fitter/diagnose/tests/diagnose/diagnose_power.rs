@@ -4,10 +4,11 @@
 //! candidate's Jacobian block against the fitted parameters, a secant Jacobian); here the
 //! models are refitted for real.
 
+use crate::support::drawn;
 use palpate_diagnose::fit::{fit, initial_theta, Fitted};
 use palpate_diagnose::model::{Candidate, Context, Model};
 use palpate_diagnose::power::detectable;
-use palpate_specimen::{generate, SpecimenOptions};
+use palpate_specimen::SpecimenOptions;
 
 /// The shortlist threshold T of ΔBIC < −T (the diagnosis' default).
 const T: f64 = 10.0;
@@ -19,7 +20,7 @@ fn fitted(ctx: &Context, model: &Model, theta0: Vec<f64>, warm: &[Vec<[f64; 3]>]
 
 /// palpate's clean specimen (seed 5) and its simplest fit.
 fn clean_fit() -> (Context, Fitted) {
-    let s = generate(&SpecimenOptions {
+    let s = drawn(&SpecimenOptions {
         seed: 5,
         ..SpecimenOptions::default()
     })

@@ -2,16 +2,17 @@
 //! χ² with respect to each element's log E agrees with finite differences of the forward model,
 //! and the matched-filter scan built on it finds a stiff inclusion placed away from the probes.
 
+use crate::support::drawn;
 use palpate_diagnose::fit::{fit, initial_theta};
 use palpate_diagnose::model::{Candidate, Context, Model};
 use palpate_diagnose::sensitivity::{log_modulus_gradient, scan_blobs};
 use palpate_fem::forward::{Load, Material};
-use palpate_specimen::{generate, Effect, EffectSpec, SpecimenOptions};
+use palpate_specimen::{Effect, EffectSpec, SpecimenOptions};
 
 /// A ×10 inclusion of radius 0.15 × 8 cm centred at (0.25, 0.7, 0.5) of the 8 × 8 × 4 cm block:
 /// off the middle, where the default inclusion candidate does not start.
 fn off_centre_inclusion(seed: u64) -> palpate_specimen::Specimen {
-    generate(&SpecimenOptions {
+    drawn(&SpecimenOptions {
         effects: vec![EffectSpec {
             effect: Effect::Inclusion,
             magnitude: 9.0,
@@ -235,7 +236,7 @@ fn an_off_centre_inclusion_is_named() {
 /// 6.8 mm off, contrast −2.42 for ln 0.13 = −2.04; unprofiled: 13.7 mm off, −1.17).
 #[test]
 fn the_profiled_scan_finds_a_large_soft_core() {
-    let s = generate(&SpecimenOptions {
+    let s = drawn(&SpecimenOptions {
         effects: vec![EffectSpec {
             effect: Effect::Inclusion,
             magnitude: -0.87,
