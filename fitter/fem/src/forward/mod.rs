@@ -20,10 +20,15 @@
 #![allow(clippy::type_complexity)]
 
 mod assembly;
+pub mod cantilever;
+mod discretisation;
 mod load;
+mod nodal_pressure;
+mod quadratic;
 mod solve;
 
 pub use assembly::{rotate_sandwich, rotate_vec, rotate_vec_t, Factorised};
+pub use discretisation::{Discretisation, DiscretisedFactor, DiscretisedModel};
 pub use load::{Contact, Load};
 pub use solve::{Solution, SolveOptions, SolvedWithFactor};
 
@@ -156,6 +161,14 @@ pub enum ForwardError {
     /// Building the sparsity pattern failed.
     #[error("building the sparse matrix failed: {0}")]
     Sparse(String),
+    /// A discretisation other than linear tetrahedra was asked for something it does not serve.
+    #[error("the {discretisation} discretisation {reason}")]
+    Discretisation {
+        /// Which ([`Discretisation::name`]).
+        discretisation: &'static str,
+        /// What it does not serve.
+        reason: &'static str,
+    },
     /// The solution contains NaN or infinity.
     #[error("the solve produced a non-finite position (at increment {increment})")]
     NonFinite {
@@ -298,6 +311,9 @@ pub struct StaticProblem {
     /// [`StaticProblem::on_foundation`]).
     pub foundation: Vec<FoundationNode>,
     pattern: assembly::Pattern,
+    /// The model of another discretisation that [`StaticProblem::solve`] uses instead of the
+    /// linear tetrahedra ([`StaticProblem::with_discretisation`]).
+    discretised: Option<std::sync::Arc<DiscretisedModel>>,
 }
 
 impl StaticProblem {
@@ -448,6 +464,7 @@ impl StaticProblem {
             areas,
             foundation,
             pattern,
+            discretised: None,
         })
     }
 
@@ -499,3 +516,5 @@ impl StaticProblem {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_discretisation;

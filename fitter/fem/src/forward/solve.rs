@@ -136,6 +136,16 @@ impl StaticProblem {
         options: &SolveOptions,
     ) -> Result<Solution, ForwardError> {
         let f = self.force_vector(load)?;
+        if let Some(model) = &self.discretised {
+            let x = self.solve_discretised(model, material, &f, options.warp)?;
+            return Ok(Solution {
+                x,
+                rotations: vec![Matrix3::identity(); self.tets.len()],
+                iterations: 1,
+                last_change: 0.0,
+                converged: true,
+            });
+        }
         Ok(self.solve_forces(material, &f, None, options)?.solution)
     }
 
@@ -170,6 +180,12 @@ impl StaticProblem {
         options: &SolveOptions,
         hint: Option<&Arc<Factorised>>,
     ) -> Result<SolvedWithFactor, ForwardError> {
+        if let Some(model) = &self.discretised {
+            return Err(ForwardError::Discretisation {
+                discretisation: model.kind().name(),
+                reason: "has no factorisation of the linear model's K' to hand back: call `solve`",
+            });
+        }
         material.check(self.tets.len())?;
         self.check_foundation(material)?;
         if f_ext.len() != 3 * self.x0.len() {

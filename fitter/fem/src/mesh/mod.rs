@@ -3,6 +3,7 @@
 
 pub mod boxmesh;
 pub mod gmsh;
+pub mod quadratic;
 pub mod refine;
 pub mod vtk;
 

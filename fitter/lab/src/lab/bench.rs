@@ -19,6 +19,9 @@ pub enum BenchCommand {
     /// This core's f32 FMA peak and read bandwidth by working set, against the flops and bytes of
     /// one PCG iteration of the tick on `bench runtime`'s block.
     Roofline(super::roofline::Args),
+    /// The end-loaded cantilever with linear, quadratic and average-nodal-pressure tetrahedra at
+    /// ν up to 0.499: tip error per mesh against a converged reference and Timoshenko, solve cost.
+    Discretisation(super::bench_discretisation::Args),
 }
 
 /// Runs a benchmark.
@@ -30,5 +33,6 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::MotionSchemes(a) => super::bench_motion::run_schemes(a),
         BenchCommand::Link(a) => super::bench_link::run(a),
         BenchCommand::Roofline(a) => super::roofline::run(a),
+        BenchCommand::Discretisation(a) => super::bench_discretisation::run(a),
     }
 }

@@ -3,6 +3,7 @@
 use clap::{Parser, Subcommand};
 
 pub mod bench;
+pub mod bench_discretisation;
 pub mod bench_fit;
 pub mod bench_link;
 pub mod bench_motion;
