@@ -1,0 +1,41 @@
+//! Power-law viscosity of eq. 17: the viscous stress ν γ̇^(h−1)(∇v + ∇vᵀ) with ν and h free
+//! (2 parameters). Excludes the Newtonian law.
+
+use palpate_motion::model::ParamKind;
+
+use super::{Candidate, MotionEffect};
+use crate::motion::fit::FittedModel;
+
+/// See the module.
+pub struct Viscosity;
+
+/// Starting viscosities on top of `cur`: the viscous time τ = ν/μ over three decades around the
+/// step, 0.03, 0.3 and 3 Δt (shared by both laws).
+pub(super) fn viscosity_starts(cur: &FittedModel, dt: f64) -> [f64; 3] {
+    let mu = cur
+        .material
+        .read(&[palpate_motion::model::Param::global(ParamKind::Mu)])[0];
+    [0.03, 0.3, 3.0].map(|f| mu * f * dt)
+}
+
+impl MotionEffect for Viscosity {
+    fn name(&self) -> &'static str {
+        "viscosity"
+    }
+
+    fn kinds(&self) -> &'static [ParamKind] {
+        &[ParamKind::Nu, ParamKind::PowerH]
+    }
+
+    fn conflicts(&self, other: Candidate) -> bool {
+        other == Candidate::ViscosityNewtonian
+    }
+
+    /// Each viscosity start with h = 1 (Newtonian).
+    fn new_starts(&self, cur: &FittedModel, dt: f64) -> Vec<Vec<f64>> {
+        viscosity_starts(cur, dt)
+            .iter()
+            .map(|&nu| vec![nu, 1.0])
+            .collect()
+    }
+}
