@@ -11,7 +11,8 @@ use super::fit::{self, fit_model, fit_with_offsets, with_offsets, FittedModel, S
 use super::signature::{signature, Signature};
 use super::{values_of, MotionDiagnoseError, MotionOptions, Round, Trial, Value};
 use crate::select::{
-    self, CandidateModel, Current, Gate, GateDetail, HeldoutGate, Outcome, PassWords, Verdict,
+    self, CandidateModel, Current, FitScreen, Gate, GateDetail, HeldoutGate, Outcome, PassWords,
+    Prediction, Verdict,
 };
 
 /// The motion diagnosis as the selection engine sees it, and the fitter its candidates call.
@@ -26,6 +27,8 @@ pub struct MotionModel<'a> {
     pub(in crate::motion) has_forces: bool,
     /// One line per fit.
     pub(in crate::motion) log: &'a (dyn Fn(&str) + Sync),
+    /// Simulations the fit screen ran.
+    pub(in crate::motion) screen_simulations: usize,
 }
 
 /// Starting values of a candidate's parameters, given the current fit: the global values, the
@@ -55,6 +58,7 @@ impl<'a> MotionModel<'a> {
             o,
             has_forces: ds.obs.forces.iter().flatten().flatten().count() > 0,
             log,
+            screen_simulations: 0,
         }
     }
 
@@ -69,6 +73,7 @@ impl<'a> MotionModel<'a> {
             o,
             has_forces: self.has_forces,
             log: self.log,
+            screen_simulations: 0,
         }
     }
 
@@ -259,10 +264,42 @@ impl CandidateModel for MotionModel<'_> {
         let held = m.scores;
         Ok((m, held, ()))
     }
+
+    fn fit_screen(&self) -> FitScreen {
+        if !self.o.screen {
+            return FitScreen::Off;
+        }
+        FitScreen::Predicted {
+            least: self.o.screen_least,
+            margin: self.o.screen_margin,
+            fallback_below: -self.o.bic_threshold,
+        }
+    }
+
+    fn predict(
+        &mut self,
+        round: usize,
+        cur: &FittedModel,
+        open: &[Candidate],
+    ) -> Result<Vec<Prediction>, MotionDiagnoseError> {
+        let (p, simulations) = super::screen::predict(self, round, cur, open)?;
+        self.screen_simulations += simulations;
+        Ok(p)
+    }
+
+    fn screened_out(&mut self, round: usize, c: Candidate, p: &Prediction) {
+        (self.log)(&format!(
+            "round {round}: {} screened out (predicted ΔBIC {:.1})",
+            c.name(),
+            p.delta_bic.unwrap_or(f64::NAN)
+        ));
+    }
 }
 
 /// The motion report's rounds from the engine's verdict (trials in the order tried).
 pub(in crate::motion) fn motion_rounds(v: &Verdict<MotionModel<'_>>, markers: usize) -> Vec<Round> {
+    let predicted =
+        |a: &select::Attempt<MotionModel<'_>>| a.prediction.as_ref().and_then(|p| p.delta_bic);
     v.rounds
         .iter()
         .map(|r| {
@@ -284,6 +321,8 @@ pub(in crate::motion) fn motion_rounds(v: &Verdict<MotionModel<'_>>, markers: us
                         passed: g.passes,
                         reason: g.detail.reason.clone(),
                         evaluations: *evaluations,
+                        predicted_delta_bic: predicted(a),
+                        screened_out: false,
                     },
                     _ => Trial {
                         candidate: a.candidate.name().into(),
@@ -297,6 +336,8 @@ pub(in crate::motion) fn motion_rounds(v: &Verdict<MotionModel<'_>>, markers: us
                         passed: false,
                         reason: a.not_fitted.clone().unwrap_or_default(),
                         evaluations: 0,
+                        predicted_delta_bic: predicted(a),
+                        screened_out: a.screened_out,
                     },
                 })
                 .collect();

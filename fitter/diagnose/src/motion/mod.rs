@@ -28,6 +28,7 @@ pub mod fit;
 pub mod region;
 pub mod report;
 pub mod run;
+pub mod screen;
 pub mod signature;
 
 pub use candidates::{Candidate, MotionEffect, ALL_CANDIDATES};
@@ -76,6 +77,14 @@ pub struct MotionOptions {
     pub bic_threshold: f64,
     /// Held-out RMS must drop by at least this fraction.
     pub min_holdout_gain: f64,
+    /// Predict each round's candidates before fitting them and fit only the best predicted
+    /// ([`screen`]); `false`: fit every open candidate (the full search).
+    pub screen: bool,
+    /// With the screen: fewest candidates fitted per round.
+    pub screen_least: usize,
+    /// With the screen: a candidate is fitted when its predicted ΔBIC is within this fraction of
+    /// the best predicted one's magnitude.
+    pub screen_margin: f64,
 }
 
 impl Default for MotionOptions {
@@ -88,6 +97,9 @@ impl Default for MotionOptions {
             screen_iters: 15,
             bic_threshold: 10.0,
             min_holdout_gain: 0.05,
+            screen: true,
+            screen_least: 2,
+            screen_margin: 0.5,
         }
     }
 }
@@ -128,6 +140,10 @@ pub struct Trial {
     pub reason: String,
     /// Simulations.
     pub evaluations: usize,
+    /// ΔBIC the fit screen predicted before any fit (`None`: screen off, or not predicted).
+    pub predicted_delta_bic: Option<f64>,
+    /// Left unfitted by the fit screen.
+    pub screened_out: bool,
 }
 
 /// One round: the residual of the current model and what was tried against it.
@@ -183,6 +199,11 @@ pub struct MotionDiagnosis {
     pub residual_check: crate::ResidualCheck,
     /// The same for the held-out (forecast) steps, no fitted parameters.
     pub heldout_check: crate::ResidualCheck,
+    /// Simulations of the optimiser's fits: the simplest model's and every trial's.
+    pub evaluations: usize,
+    /// Simulations of the fit screen (one with sensitivities per round, and each time-offset
+    /// scan).
+    pub screen_simulations: usize,
     /// Final material (for export; not serialised).
     #[serde(skip)]
     pub material: Option<Material>,
@@ -300,7 +321,14 @@ pub fn diagnose(
         screen: Screen::All,
     };
     let verdict = select(&mut engine, &policy, simplest.clone(), simplest.scores)?;
+    let screen_simulations = engine.screen_simulations;
     let rounds = motion_rounds(&verdict, ds.model.markers.len());
+    let evaluations = simplest.evaluations
+        + rounds
+            .iter()
+            .flat_map(|r| &r.trials)
+            .map(|t| t.evaluations)
+            .sum::<usize>();
     let adopted = verdict.adopted();
     let cur = verdict
         .path
@@ -355,6 +383,8 @@ pub fn diagnose(
             0,
             judged,
         ),
+        evaluations,
+        screen_simulations,
         material: Some(cur.material.clone()),
     })
 }

@@ -6,8 +6,9 @@ use palpate_motion::model::ParamKind;
 use super::{Candidate, MotionEffect};
 use crate::motion::engine::MotionModel;
 use crate::motion::fit::FittedModel;
+use crate::motion::screen::Screening;
 use crate::motion::MotionDiagnoseError;
-use crate::select::Outcome;
+use crate::select::{Outcome, Prediction};
 
 /// See the module.
 pub struct Density;
@@ -19,6 +20,23 @@ impl MotionEffect for Density {
 
     fn kinds(&self) -> &'static [ParamKind] {
         &[ParamKind::Density]
+    }
+
+    /// Linearised at the current density.
+    fn screened_params(&self) -> &'static [(ParamKind, Option<f64>)] {
+        &[(ParamKind::Density, None)]
+    }
+
+    /// Without clamp forces it is not fitted (nothing to predict); with them, linearised.
+    fn predict(&self, s: &Screening<'_, '_>) -> Result<Prediction, MotionDiagnoseError> {
+        if !s.model.has_forces {
+            return Ok(Prediction::none("not identifiable without clamp forces"));
+        }
+        Ok(s.linearised(
+            &[ParamKind::Density],
+            1,
+            "one Gauss–Newton step from the current density",
+        ))
     }
 
     fn new_starts(&self, cur: &FittedModel, _dt: f64) -> Vec<Vec<f64>> {

@@ -5,8 +5,10 @@
 //! the held-out steps use the offsets fitted on the fitted steps.
 
 use super::MotionEffect;
-use crate::motion::fit::FittedModel;
-use crate::motion::Value;
+use crate::motion::fit::{self, FittedModel};
+use crate::motion::screen::Screening;
+use crate::motion::{MotionDiagnoseError, Value};
+use crate::select::Prediction;
 
 /// See the module.
 pub struct MarkerOffsets;
@@ -22,6 +24,19 @@ impl MotionEffect for MarkerOffsets {
 
     fn frees_marker_offsets(&self) -> bool {
         true
+    }
+
+    /// In closed form at the current material: each marker's mean residual on the fitted steps
+    /// removed (the gain of the offsets alone, the material not refitted).
+    fn predict(&self, s: &Screening<'_, '_>) -> Result<Prediction, MotionDiagnoseError> {
+        let markers = s.model.ds.model.markers.len();
+        let mut traj = s.cur.traj.clone();
+        fit::remove_marker_means(&mut traj, s.model.split, markers);
+        let chi2 = fit::scores(&traj, s.model.split).chi2_fit;
+        Ok(Prediction {
+            delta_bic: Some(s.delta_bic(chi2, self.extra_params(markers))),
+            how: "each marker's mean residual removed, the material not refitted".into(),
+        })
     }
 
     /// The largest offset, when the model has them.

@@ -14,8 +14,9 @@ use serde::Serialize;
 
 use super::engine::MotionModel;
 use super::fit::FittedModel;
+use super::screen::Screening;
 use super::{MotionDiagnoseError, Value};
-use crate::select::Outcome;
+use crate::select::{Outcome, Prediction};
 
 mod density;
 mod marker_offsets;
@@ -119,6 +120,32 @@ pub trait MotionEffect: Sync {
             Ok(f) => Outcome::Fitted(f),
             Err(e) => Outcome::NotFitted(format!("fit failed: {e}")),
         })
+    }
+
+    /// The parameters through which the fit screen linearises it ([`super::screen`]), each with
+    /// its neutral value, where the augmented model is the current one (`None`: the current
+    /// model's value). Empty: not linearised.
+    fn screened_params(&self) -> &'static [(ParamKind, Option<f64>)] {
+        &[]
+    }
+
+    /// Its gain predicted before its fit, at the current fit linearised once for the round
+    /// (`s`). The default: one Gauss–Newton step over the current parameters and
+    /// [`Self::screened_params`], charged [`Self::extra_params`]; not predicted (always fitted)
+    /// without such parameters.
+    fn predict(&self, s: &Screening<'_, '_>) -> Result<Prediction, MotionDiagnoseError> {
+        let kinds: Vec<ParamKind> = self.screened_params().iter().map(|p| p.0).collect();
+        if kinds.is_empty() {
+            return Ok(Prediction::none(
+                "no neutral value to linearise at: always fitted",
+            ));
+        }
+        let extra = self.extra_params(s.model.ds.model.markers.len());
+        Ok(s.linearised(
+            &kinds,
+            extra,
+            "one Gauss–Newton step from the neutral value",
+        ))
     }
 
     /// The gated fit refined on adoption (the default keeps it).

@@ -18,6 +18,10 @@ impl MotionEffect for Stiffening {
         &[ParamKind::Stiffening]
     }
 
+    fn screened_params(&self) -> &'static [(ParamKind, Option<f64>)] {
+        &[(ParamKind::Stiffening, Some(0.0))]
+    }
+
     /// From c = μ: at 10 % strain the term adds about 6 % to the Neo-Hookean energy.
     fn new_starts(&self, cur: &FittedModel, _dt: f64) -> Vec<Vec<f64>> {
         vec![vec![cur.material.read(&[Param::global(ParamKind::Mu)])[0]]]

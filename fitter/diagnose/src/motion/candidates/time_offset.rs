@@ -14,8 +14,9 @@ use rayon::prelude::*;
 use super::{Candidate, MotionEffect};
 use crate::motion::engine::MotionModel;
 use crate::motion::fit::{self, with_offsets, FittedModel};
+use crate::motion::screen::Screening;
 use crate::motion::{MotionDiagnoseError, MotionOptions, Value};
-use crate::select::Outcome;
+use crate::select::{Outcome, Prediction};
 
 /// Steps the candidate moves from its scanned offset, each way, while a refit there lowers χ²
 /// ([`fit_timed`]).
@@ -52,6 +53,32 @@ impl MotionEffect for TimeOffset {
             Ok(f) => Outcome::Fitted(f),
             Err(e) => Outcome::NotFitted(format!("fit failed: {e}")),
         })
+    }
+
+    /// By its scan at the current material, χ² in proportion to the scan's own at offset 0 (the
+    /// material not refitted). A scan at 0 is not predicted: the fit then tries a step either
+    /// way ([`fit_step_off`]), which the scan cannot see.
+    fn predict(&self, s: &Screening<'_, '_>) -> Result<Prediction, MotionDiagnoseError> {
+        let m = s.model;
+        let (best, tried) = match scan(m.ds, m.split, &s.cur.material, s.cur.offsets.as_deref()) {
+            Ok(t) => t,
+            Err(e) => return Ok(Prediction::none(&format!("scan failed: {e}"))),
+        };
+        s.count(1);
+        let at = |o: i64| tried.iter().find(|t| t.0 == o).map(|t| t.1);
+        match (best, at(best), at(0)) {
+            (0, ..) => Ok(Prediction::none(
+                "the scan says 0: a step either way is fitted",
+            )),
+            (_, Some(b), Some(z)) if z > 0.0 => Ok(Prediction {
+                delta_bic: Some(s.delta_bic(s.cur.scores.chi2_fit * b / z, 1)),
+                how: format!(
+                    "the offset scanned ({:+.1} ms), the material not refitted",
+                    1e3 * best as f64 * m.ds.model.dt
+                ),
+            }),
+            _ => Ok(Prediction::none("the scan has no χ² at 0")),
+        }
     }
 
     /// The offset in seconds (from steps of `dt`), when the model has one.

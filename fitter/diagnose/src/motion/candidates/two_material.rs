@@ -11,8 +11,9 @@ use rayon::prelude::*;
 use super::{Candidate, MotionEffect};
 use crate::motion::engine::MotionModel;
 use crate::motion::fit::{FittedModel, REGION_SHAPE_PARAMS};
+use crate::motion::screen::Screening;
 use crate::motion::{region, MotionDiagnoseError, MotionOptions, Value};
-use crate::select::Outcome;
+use crate::select::{Outcome, Prediction};
 
 /// Refits that move the region's boundary on adoption ([`refine_boundary`]).
 const REGION_REFITS: usize = 4;
@@ -36,6 +37,14 @@ impl MotionEffect for TwoMaterial {
         cur: &FittedModel,
     ) -> Result<Outcome<FittedModel>, MotionDiagnoseError> {
         fit_two_material(m, c, cur)
+    }
+
+    /// Not predicted: where the region sits is searched by short fits of its own
+    /// ([`fit_two_material`]), which no linearisation at the one-material fit replaces.
+    fn predict(&self, _s: &Screening<'_, '_>) -> Result<Prediction, MotionDiagnoseError> {
+        Ok(Prediction::none(
+            "its region is searched by its own short fits: always fitted",
+        ))
     }
 
     fn adopt(&self, m: &MotionModel<'_>, gated: FittedModel) -> FittedModel {

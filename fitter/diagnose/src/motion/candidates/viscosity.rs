@@ -5,6 +5,9 @@ use palpate_motion::model::ParamKind;
 
 use super::{Candidate, MotionEffect};
 use crate::motion::fit::FittedModel;
+use crate::motion::screen::Screening;
+use crate::motion::MotionDiagnoseError;
+use crate::select::Prediction;
 
 /// See the module.
 pub struct Viscosity;
@@ -29,6 +32,20 @@ impl MotionEffect for Viscosity {
 
     fn conflicts(&self, other: Candidate) -> bool {
         other == Candidate::ViscosityNewtonian
+    }
+
+    fn screened_params(&self) -> &'static [(ParamKind, Option<f64>)] {
+        &[(ParamKind::Nu, Some(0.0))]
+    }
+
+    /// The power-law index has no effect at ν = 0: the law is predicted as Newtonian damping,
+    /// charged its two parameters.
+    fn predict(&self, s: &Screening<'_, '_>) -> Result<Prediction, MotionDiagnoseError> {
+        Ok(s.linearised(
+            &[ParamKind::Nu],
+            2,
+            "one Gauss–Newton step from ν = 0, as Newtonian (h has no effect there)",
+        ))
     }
 
     /// Each viscosity start with h = 1 (Newtonian).

@@ -23,6 +23,10 @@ impl MotionEffect for ViscosityNewtonian {
         other == Candidate::Viscosity
     }
 
+    fn screened_params(&self) -> &'static [(ParamKind, Option<f64>)] {
+        &[(ParamKind::Nu, Some(0.0))]
+    }
+
     fn new_starts(&self, cur: &FittedModel, dt: f64) -> Vec<Vec<f64>> {
         viscosity_starts(cur, dt)
             .iter()
