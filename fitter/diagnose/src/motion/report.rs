@@ -8,6 +8,12 @@ use palpate_plot::{lines, Series, Style};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+/// A trial's predicted ΔBIC for the table ("—": not predicted).
+fn predicted(t: &super::Trial) -> String {
+    t.predicted_delta_bic
+        .map_or_else(|| "—".into(), |d| format!("{d:.1}"))
+}
+
 fn um(v: f64) -> String {
     format!("{:.1}", 1e6 * v)
 }
@@ -126,14 +132,15 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
                 .join(", "),
             s.worst_marker_ratio
         );
-        md.push_str("| candidate | k | RMS fitted (µm) | RMS held out (µm) | ΔBIC | held-out ΔBIC | held-out RMS | decision |\n|---|---|---|---|---|---|---|---|\n");
+        md.push_str("| candidate | k | predicted ΔBIC | RMS fitted (µm) | RMS held out (µm) | ΔBIC | held-out ΔBIC | held-out RMS | decision |\n|---|---|---|---|---|---|---|---|---|\n");
         for t in &rd.trials {
             if t.fitted {
                 let _ = writeln!(
                     md,
-                    "| {} | {} | {} | {} | {:.1} | {:.1} | {:+.1} % | {} |",
+                    "| {} | {} | {} | {} | {} | {:.1} | {:.1} | {:+.1} % | {} |",
                     t.candidate,
                     t.k,
+                    predicted(t),
                     um(t.scores.rms_fit),
                     um(t.scores.rms_held),
                     t.delta_bic,
@@ -144,8 +151,11 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
             } else {
                 let _ = writeln!(
                     md,
-                    "| {} | {} | — | — | — | — | — | not fitted: {} |",
-                    t.candidate, t.k, t.reason
+                    "| {} | {} | {} | — | — | — | — | — | not fitted: {} |",
+                    t.candidate,
+                    t.k,
+                    predicted(t),
+                    t.reason
                 );
             }
         }

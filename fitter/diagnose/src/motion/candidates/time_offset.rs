@@ -1,0 +1,214 @@
+//! The markers are recorded out of step with the clamps' record (1 parameter: an integer number
+//! of simulation steps, [`palpate_motion::time_offset`]): two capture streams on two clocks, or a
+//! start instant misread. Scanned on the fitted steps within ±3 capture frames (widened to ±12
+//! while the best lies at the edge) with the current material, the material refitted, scanned
+//! again (refitted once more if it moved), then the neighbouring offsets refitted while χ² falls
+//! (a scan at 0 has both ±1 fitted, [`fit_step_off`]); the held-out steps are forecast at the
+//! same offset.
+
+use palpate_motion::dataset::MotionDataset;
+use palpate_motion::model::{Material, ParamKind};
+use palpate_motion::time_offset;
+use rayon::prelude::*;
+
+use super::{Candidate, MotionEffect};
+use crate::motion::engine::MotionModel;
+use crate::motion::fit::{self, with_offsets, FittedModel};
+use crate::motion::screen::Screening;
+use crate::motion::{MotionDiagnoseError, MotionOptions, Value};
+use crate::select::{Outcome, Prediction};
+
+/// Steps the candidate moves from its scanned offset, each way, while a refit there lowers χ²
+/// ([`fit_timed`]).
+const OFFSET_NEIGHBOURS: usize = 3;
+
+/// See the module.
+pub struct TimeOffset;
+
+impl MotionEffect for TimeOffset {
+    fn name(&self) -> &'static str {
+        "time-offset"
+    }
+
+    fn extra_params(&self, _markers: usize) -> usize {
+        1
+    }
+
+    /// With a time offset every fit runs on the data re-timed to the simulation's clock and is
+    /// read back on the data's own rows.
+    fn fit(
+        &self,
+        m: &MotionModel<'_>,
+        c: Candidate,
+        cur: &FittedModel,
+    ) -> Result<Outcome<FittedModel>, MotionDiagnoseError> {
+        let r = match scan_offset(m, &cur.material, cur.offsets.as_deref()) {
+            Ok(r) => r,
+            Err(e) => return Ok(Outcome::NotFitted(format!("scan failed: {e}"))),
+        };
+        if r == 0 {
+            return fit_step_off(m, c, cur);
+        }
+        Ok(match fit_timed(m, c, cur, r) {
+            Ok(f) => Outcome::Fitted(f),
+            Err(e) => Outcome::NotFitted(format!("fit failed: {e}")),
+        })
+    }
+
+    /// By its scan at the current material, χ² in proportion to the scan's own at offset 0 (the
+    /// material not refitted). A scan at 0 is not predicted: the fit then tries a step either
+    /// way ([`fit_step_off`]), which the scan cannot see.
+    fn predict(&self, s: &Screening<'_, '_>) -> Result<Prediction, MotionDiagnoseError> {
+        let m = s.model;
+        let (best, tried) = match scan(m.ds, m.split, &s.cur.material, s.cur.offsets.as_deref()) {
+            Ok(t) => t,
+            Err(e) => return Ok(Prediction::none(&format!("scan failed: {e}"))),
+        };
+        s.count(1);
+        let at = |o: i64| tried.iter().find(|t| t.0 == o).map(|t| t.1);
+        match (best, at(best), at(0)) {
+            (0, ..) => Ok(Prediction::none(
+                "the scan says 0: a step either way is fitted",
+            )),
+            (_, Some(b), Some(z)) if z > 0.0 => Ok(Prediction {
+                delta_bic: Some(s.delta_bic(s.cur.scores.chi2_fit * b / z, 1)),
+                how: format!(
+                    "the offset scanned ({:+.1} ms), the material not refitted",
+                    1e3 * best as f64 * m.ds.model.dt
+                ),
+            }),
+            _ => Ok(Prediction::none("the scan has no χ² at 0")),
+        }
+    }
+
+    /// The offset in seconds (from steps of `dt`), when the model has one.
+    fn values(&self, fitted: &FittedModel, model: &palpate_motion::model::Model) -> Vec<Value> {
+        fitted
+            .time_offset
+            .map(|r| Value {
+                name: "time offset of the markers (s)".into(),
+                value: r as f64 * model.dt,
+                sigma: None,
+            })
+            .into_iter()
+            .collect()
+    }
+}
+
+/// The time offset of the fitted steps under `mat` with the marker offsets `offsets`, scanned
+/// ([`time_offset::scan`]; the held-out steps are a forecast and take no part).
+pub(in crate::motion) fn scan_offset(
+    m: &MotionModel<'_>,
+    mat: &Material,
+    offsets: Option<&[[f64; 3]]>,
+) -> Result<i64, MotionDiagnoseError> {
+    Ok(scan(m.ds, m.split, mat, offsets)?.0)
+}
+
+/// [`scan_offset`] with every offset tried and its χ² on the fitted steps.
+pub(in crate::motion) fn scan(
+    ds: &MotionDataset,
+    split: fit::Split,
+    mat: &Material,
+    offsets: Option<&[[f64; 3]]>,
+) -> Result<(i64, Vec<(i64, f64)>), MotionDiagnoseError> {
+    let ds = offsets.map_or_else(|| ds.clone(), |o| with_offsets(ds, o));
+    let (model, obs) = fit::fitted_part(&ds, split);
+    Ok(time_offset::scan(&model, mat, &obs)?)
+}
+
+/// The candidate fitted at the scanned time offset `r`: the fit on the re-timed data, its
+/// trajectory and scores read back on the data's rows; the offset is scanned again with the
+/// refitted material and, if it moved, the material refitted once more; then the neighbouring
+/// offsets are refitted while that lowers χ² on the fitted steps (at most [`OFFSET_NEIGHBOURS`]
+/// steps each way): the scan runs at a material fitted without the offset, and on a strongly
+/// loaded run it can settle a step off (−2 for −3 on drawn specimens, the fit then far above the
+/// floor).
+fn fit_timed(
+    m: &MotionModel<'_>,
+    c: Candidate,
+    cur: &FittedModel,
+    mut r: i64,
+) -> Result<FittedModel, MotionDiagnoseError> {
+    let kinds: &[ParamKind] = &cur.kinds;
+    let mut evaluations = 0;
+    let mut rescanned = false;
+    let mut best = loop {
+        let f = m.fit_at(cur, c, kinds, r, &mut evaluations)?;
+        if rescanned {
+            break f;
+        }
+        let again = scan_offset(m, &f.material, f.offsets.as_deref())?;
+        if again == r {
+            break f;
+        }
+        (r, rescanned) = (again, true);
+    };
+    for dir in [-1, 1] {
+        for _ in 0..OFFSET_NEIGHBOURS {
+            let next = best.time_offset.unwrap_or(r) + dir;
+            match m.fit_at(cur, c, kinds, next, &mut evaluations) {
+                Ok(n) if n.scores.chi2_fit < best.scores.chi2_fit => best = n,
+                _ => break,
+            }
+        }
+    }
+    best.evaluations = evaluations;
+    Ok(best)
+}
+
+/// The time offset when the scan says 0. The scan runs at a material fitted without an
+/// offset, which has absorbed part of one: a step off is what it can miss (random bars: 2 of
+/// 8 draws with ±1 step were scanned to 0 and another effect adopted, 25–34× the floor).
+/// Both neighbours are fitted for [`MotionOptions::screen_iters`] iterations; the better,
+/// if it lowers χ² on the fitted steps below the current model's, is fitted in full and its
+/// own neighbours that way while χ² falls ([`fit_timed`]), and gated as any other fit.
+fn fit_step_off(
+    m: &MotionModel<'_>,
+    c: Candidate,
+    cur: &FittedModel,
+) -> Result<Outcome<FittedModel>, MotionDiagnoseError> {
+    let screen = MotionOptions {
+        max_iters: m.o.screen_iters,
+        ..m.o.clone()
+    };
+    let screener = m.with_options(&screen);
+    // The two neighbours are independent fits: one per core.
+    let fits: Vec<(i64, usize, Option<FittedModel>)> = [-1i64, 1]
+        .par_iter()
+        .map(|&r| {
+            let mut evaluations = 0;
+            let f = screener.fit_at(cur, c, &cur.kinds, r, &mut evaluations);
+            (r, evaluations, f.ok())
+        })
+        .collect();
+    let evaluations: usize = fits.iter().map(|f| f.1).sum();
+    let mut best: Option<(FittedModel, i64)> = None;
+    for (r, _, f) in fits {
+        if let Some(f) = f {
+            if best
+                .as_ref()
+                .is_none_or(|(b, _)| f.scores.chi2_fit < b.scores.chi2_fit)
+            {
+                best = Some((f, r));
+            }
+        }
+    }
+    let r = match best {
+        Some((f, r)) if f.scores.chi2_fit < cur.scores.chi2_fit => r,
+        _ => {
+            return Ok(Outcome::NotFitted(
+                "the scan puts the markers in step with the simulation (offset 0), and a \
+                 step either way fits no better"
+                    .into(),
+            ))
+        }
+    };
+    Ok(match fit_timed(m, c, cur, r) {
+        Ok(mut f) => {
+            f.evaluations += evaluations;
+            Outcome::Fitted(f)
+        }
+        Err(e) => Outcome::NotFitted(format!("fit failed: {e}")),
+    })
+}

@@ -1,0 +1,58 @@
+//! Power-law viscosity of eq. 17: the viscous stress ν γ̇^(h−1)(∇v + ∇vᵀ) with ν and h free
+//! (2 parameters). Excludes the Newtonian law.
+
+use palpate_motion::model::ParamKind;
+
+use super::{Candidate, MotionEffect};
+use crate::motion::fit::FittedModel;
+use crate::motion::screen::Screening;
+use crate::motion::MotionDiagnoseError;
+use crate::select::Prediction;
+
+/// See the module.
+pub struct Viscosity;
+
+/// Starting viscosities on top of `cur`: the viscous time τ = ν/μ over three decades around the
+/// step, 0.03, 0.3 and 3 Δt (shared by both laws).
+pub(super) fn viscosity_starts(cur: &FittedModel, dt: f64) -> [f64; 3] {
+    let mu = cur
+        .material
+        .read(&[palpate_motion::model::Param::global(ParamKind::Mu)])[0];
+    [0.03, 0.3, 3.0].map(|f| mu * f * dt)
+}
+
+impl MotionEffect for Viscosity {
+    fn name(&self) -> &'static str {
+        "viscosity"
+    }
+
+    fn kinds(&self) -> &'static [ParamKind] {
+        &[ParamKind::Nu, ParamKind::PowerH]
+    }
+
+    fn conflicts(&self, other: Candidate) -> bool {
+        other == Candidate::ViscosityNewtonian
+    }
+
+    fn screened_params(&self) -> &'static [(ParamKind, Option<f64>)] {
+        &[(ParamKind::Nu, Some(0.0))]
+    }
+
+    /// The power-law index has no effect at ν = 0: the law is predicted as Newtonian damping,
+    /// charged its two parameters.
+    fn predict(&self, s: &Screening<'_, '_>) -> Result<Prediction, MotionDiagnoseError> {
+        Ok(s.linearised(
+            &[ParamKind::Nu],
+            2,
+            "one Gauss–Newton step from ν = 0, as Newtonian (h has no effect there)",
+        ))
+    }
+
+    /// Each viscosity start with h = 1 (Newtonian).
+    fn new_starts(&self, cur: &FittedModel, dt: f64) -> Vec<Vec<f64>> {
+        viscosity_starts(cur, dt)
+            .iter()
+            .map(|&nu| vec![nu, 1.0])
+            .collect()
+    }
+}

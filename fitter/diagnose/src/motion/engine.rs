@@ -1,0 +1,353 @@
+//! The motion diagnosis as the selection engine sees it ([`MotionModel`]): the room's fitter —
+//! a candidate's refit on top of the current model, at the current model's time offset and with
+//! its marker offsets when those are adopted — and the engine's hooks, which reach each
+//! candidate through its [`MotionEffect`](super::candidates::MotionEffect).
+
+use palpate_motion::dataset::MotionDataset;
+use palpate_motion::model::ParamKind;
+
+use super::candidates::{Candidate, REPORT_ORDER};
+use super::fit::{self, fit_model, fit_with_offsets, with_offsets, FittedModel, Scores, Split};
+use super::signature::{signature, Signature};
+use super::{values_of, MotionDiagnoseError, MotionOptions, Round, Trial, Value};
+use crate::select::{
+    self, CandidateModel, Current, FitScreen, Gate, GateDetail, HeldoutGate, Outcome, PassWords,
+    Prediction, Verdict,
+};
+
+/// The motion diagnosis as the selection engine sees it, and the fitter its candidates call.
+pub struct MotionModel<'a> {
+    /// The dataset.
+    pub(in crate::motion) ds: &'a MotionDataset,
+    /// Where its steps are cut into fitted and held out.
+    pub(in crate::motion) split: Split,
+    /// The options.
+    pub(in crate::motion) o: &'a MotionOptions,
+    /// Measured clamp forces: the density is identifiable only with them.
+    pub(in crate::motion) has_forces: bool,
+    /// One line per fit.
+    pub(in crate::motion) log: &'a (dyn Fn(&str) + Sync),
+    /// Simulations the fit screen ran.
+    pub(in crate::motion) screen_simulations: usize,
+}
+
+/// Starting values of a candidate's parameters, given the current fit: the global values, the
+/// candidate's new ones ([`MotionEffect::new_starts`](super::candidates::MotionEffect::new_starts)),
+/// then each region's μ ([`fit::params_for`]).
+fn starts(c: Candidate, cur: &FittedModel, ds: &MotionDataset) -> Vec<Vec<f64>> {
+    let globals = cur.kinds.len();
+    let (base, regions) = cur.values.split_at(globals);
+    c.effect()
+        .new_starts(cur, ds.model.dt)
+        .into_iter()
+        .map(|new| [base, new.as_slice(), regions].concat())
+        .collect()
+}
+
+impl<'a> MotionModel<'a> {
+    /// The engine of the diagnosis of `ds` split at `split`.
+    pub(in crate::motion) fn new(
+        ds: &'a MotionDataset,
+        split: Split,
+        o: &'a MotionOptions,
+        log: &'a (dyn Fn(&str) + Sync),
+    ) -> Self {
+        Self {
+            ds,
+            split,
+            o,
+            has_forces: ds.obs.forces.iter().flatten().flatten().count() > 0,
+            log,
+            screen_simulations: 0,
+        }
+    }
+
+    /// The same fitter with the options `o` (a screen's shorter fits).
+    pub(in crate::motion) fn with_options<'b>(&self, o: &'b MotionOptions) -> MotionModel<'b>
+    where
+        'a: 'b,
+    {
+        MotionModel {
+            ds: self.ds,
+            split: self.split,
+            o,
+            has_forces: self.has_forces,
+            log: self.log,
+            screen_simulations: 0,
+        }
+    }
+
+    /// The fit of `c` on top of `cur` on the data `ds` split at `split`: with the marker offsets
+    /// free when `c` frees them or they are adopted (later candidates refit the material and
+    /// the offsets together).
+    fn fit_on(
+        &self,
+        ds: &MotionDataset,
+        split: Split,
+        cur: &FittedModel,
+        c: Candidate,
+        kinds: &[ParamKind],
+    ) -> Result<FittedModel, MotionDiagnoseError> {
+        let starts = starts(c, cur, ds);
+        if c.effect().frees_marker_offsets() || cur.offsets.is_some() {
+            fit_with_offsets(
+                ds,
+                split,
+                &cur.material,
+                kinds,
+                &starts[0],
+                self.o.max_iters,
+            )
+        } else {
+            fit_model(
+                ds,
+                split,
+                &cur.material,
+                kinds,
+                &starts,
+                self.o.max_iters,
+                self.o.screen_iters,
+            )
+        }
+    }
+
+    /// One fit of `c` at the time offset `r`, its simulations added to `evaluations`: the fit
+    /// on the re-timed data, its trajectory and scores read back on the data's rows.
+    pub(in crate::motion) fn fit_at(
+        &self,
+        cur: &FittedModel,
+        c: Candidate,
+        kinds: &[ParamKind],
+        r: i64,
+        evaluations: &mut usize,
+    ) -> Result<FittedModel, MotionDiagnoseError> {
+        let (d, split) = fit::retimed(self.ds, self.split, r)?;
+        let mut m = self.fit_on(&d, split, cur, c, kinds)?;
+        *evaluations += m.evaluations;
+        let data = m
+            .offsets
+            .as_deref()
+            .map_or_else(|| self.ds.clone(), |o| with_offsets(self.ds, o));
+        m.traj = fit::run_trajectory_at(&data.model, &m.material, &data.obs, r)?;
+        m.scores = fit::scores(&m.traj, self.split);
+        m.time_offset = Some(r);
+        m.evaluations = *evaluations;
+        (self.log)(&format!(
+            "  {} fitted at a time offset of {:+.1} ms",
+            c.name(),
+            1e3 * r as f64 * self.ds.model.dt
+        ));
+        Ok(m)
+    }
+
+    /// The fit of `c` from `cur`, at `cur`'s time offset if it has one (no new scan).
+    pub(in crate::motion) fn fit_from(
+        &self,
+        cur: &FittedModel,
+        c: Candidate,
+    ) -> Result<FittedModel, MotionDiagnoseError> {
+        let mut kinds = cur.kinds.clone();
+        kinds.extend_from_slice(c.kinds());
+        match cur.time_offset {
+            Some(r) => self.fit_at(cur, c, &kinds, r, &mut 0),
+            None => self.fit_on(self.ds, self.split, cur, c, &kinds),
+        }
+    }
+}
+
+impl CandidateModel for MotionModel<'_> {
+    type Candidate = Candidate;
+    type Fitted = FittedModel;
+    /// The held-out (forecast) figures are part of every fit's scores.
+    type Held = Scores;
+    type Observed = Signature;
+    /// Free values (fixed ones left out), scores, simulations run.
+    type Summary = (Vec<Value>, Scores, usize);
+    type Detail = GateDetail;
+    type Adoption = ();
+    type Error = MotionDiagnoseError;
+
+    fn observe(&mut self, _round: usize, f: &FittedModel, _held: &Scores) -> Signature {
+        signature(self.ds, self.split, f)
+    }
+
+    fn candidates(&mut self, _current: &FittedModel, adopted: &[Candidate]) -> Vec<Candidate> {
+        let open = |c: &Candidate| !adopted.iter().any(|&a| a == *c || a.conflicts(*c));
+        self.o.candidates.iter().copied().filter(open).collect()
+    }
+
+    fn fit_with(
+        &mut self,
+        _round: usize,
+        cur: &FittedModel,
+        c: Candidate,
+    ) -> Result<Outcome<FittedModel>, MotionDiagnoseError> {
+        c.effect().fit(self, c, cur)
+    }
+
+    fn score(&self, m: &FittedModel) -> select::Score {
+        select::Score {
+            chi2: m.scores.chi2_fit,
+            n: m.scores.n_fit,
+            k: m.parameter_count(),
+        }
+    }
+
+    fn summarise(&self, m: &FittedModel) -> (Vec<Value>, Scores, usize) {
+        let mut values: Vec<Value> = values_of(m, &self.ds.model)
+            .into_iter()
+            .filter(|v| !v.name.ends_with("(fixed)"))
+            .collect();
+        for c in REPORT_ORDER {
+            values.extend(c.effect().summary_values(m));
+        }
+        (values, m.scores, m.evaluations)
+    }
+
+    fn heldout(
+        &mut self,
+        _round: usize,
+        _c: Candidate,
+        m: &FittedModel,
+    ) -> Result<Scores, MotionDiagnoseError> {
+        Ok(m.scores)
+    }
+
+    fn gate(
+        &mut self,
+        cur: &Current<'_, Self>,
+        cand: &select::Candidate<'_, Self>,
+    ) -> Gate<GateDetail> {
+        let o = self.o;
+        let (s0, s1) = (cur.held, cand.held);
+        let delta_bic = cand.delta_bic;
+        let dk = cand.candidate.extra_params(self.ds.model.markers.len());
+        let heldout_delta_bic =
+            select::heldout_delta_bic(s0.chi2_held, s1.chi2_held, s1.n_held, dk);
+        let heldout_gain = s1.rms_held / s0.rms_held - 1.0;
+        let gate = HeldoutGate {
+            bic_threshold: o.bic_threshold,
+            min_holdout_gain: o.min_holdout_gain,
+        };
+        let (passes, detail) = gate.judge(
+            delta_bic,
+            heldout_delta_bic,
+            heldout_gain,
+            PassWords::WithThresholds,
+        );
+        let reason = &detail.reason;
+        (self.log)(&format!(
+            "round {}: {}: RMS {:.1}/{:.1} µm, ΔBIC {delta_bic:.1}, held-out ΔBIC \
+             {heldout_delta_bic:.1}, {reason}",
+            cur.round,
+            cand.candidate.name(),
+            1e6 * s1.rms_fit,
+            1e6 * s1.rms_held
+        ));
+        Gate {
+            passes,
+            heldout_delta_bic,
+            heldout_rank: s1.rms_held,
+            detail,
+        }
+    }
+
+    fn adopt(
+        &mut self,
+        _cur: &Current<'_, Self>,
+        c: Candidate,
+        m: FittedModel,
+        _held: Scores,
+    ) -> Result<(FittedModel, Scores, ()), MotionDiagnoseError> {
+        // The held-out figures are the (possibly refined) fit's own.
+        let m = c.effect().adopt(self, m);
+        let held = m.scores;
+        Ok((m, held, ()))
+    }
+
+    fn fit_screen(&self) -> FitScreen {
+        if !self.o.screen {
+            return FitScreen::Off;
+        }
+        FitScreen::Predicted {
+            least: self.o.screen_least,
+            margin: self.o.screen_margin,
+            fallback_below: -self.o.bic_threshold,
+        }
+    }
+
+    fn predict(
+        &mut self,
+        round: usize,
+        cur: &FittedModel,
+        open: &[Candidate],
+    ) -> Result<Vec<Prediction>, MotionDiagnoseError> {
+        let (p, simulations) = super::screen::predict(self, round, cur, open)?;
+        self.screen_simulations += simulations;
+        Ok(p)
+    }
+
+    fn screened_out(&mut self, round: usize, c: Candidate, p: &Prediction) {
+        (self.log)(&format!(
+            "round {round}: {} screened out (predicted ΔBIC {:.1})",
+            c.name(),
+            p.delta_bic.unwrap_or(f64::NAN)
+        ));
+    }
+}
+
+/// The motion report's rounds from the engine's verdict (trials in the order tried).
+pub(in crate::motion) fn motion_rounds(v: &Verdict<MotionModel<'_>>, markers: usize) -> Vec<Round> {
+    let predicted =
+        |a: &select::Attempt<MotionModel<'_>>| a.prediction.as_ref().and_then(|p| p.delta_bic);
+    v.rounds
+        .iter()
+        .map(|r| {
+            // Round r starts from path[r − 1]; a candidate adds its kinds to that model's.
+            let k0 = v.path[r.round - 1].0.parameter_count();
+            let trials = r
+                .attempts
+                .iter()
+                .map(|a| match (&a.summary, &a.gate, &a.score) {
+                    (Some((values, scores, evaluations)), Some(g), Some(s)) => Trial {
+                        candidate: a.candidate.name().into(),
+                        fitted: true,
+                        k: s.k,
+                        values: values.clone(),
+                        scores: *scores,
+                        delta_bic: a.delta_bic,
+                        heldout_delta_bic: g.detail.heldout_delta_bic,
+                        heldout_gain: g.detail.heldout_gain,
+                        passed: g.passes,
+                        reason: g.detail.reason.clone(),
+                        evaluations: *evaluations,
+                        predicted_delta_bic: predicted(a),
+                        screened_out: false,
+                    },
+                    _ => Trial {
+                        candidate: a.candidate.name().into(),
+                        fitted: false,
+                        k: k0 + a.candidate.extra_params(markers),
+                        values: Vec::new(),
+                        scores: Scores::default(),
+                        delta_bic: f64::NAN,
+                        heldout_delta_bic: f64::NAN,
+                        heldout_gain: f64::NAN,
+                        passed: false,
+                        reason: a.not_fitted.clone().unwrap_or_default(),
+                        evaluations: 0,
+                        predicted_delta_bic: predicted(a),
+                        screened_out: a.screened_out,
+                    },
+                })
+                .collect();
+            Round {
+                round: r.round,
+                model: r.model.iter().map(|c| c.name().to_string()).collect(),
+                signature: r.observed.clone(),
+                trials,
+                adopted: r.adopted_attempt().map(|a| a.candidate.name().to_string()),
+            }
+        })
+        .collect()
+}

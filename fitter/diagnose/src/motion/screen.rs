@@ -1,0 +1,167 @@
+//! The motion room's fit screen ([`crate::select::FitScreen`], [`super::MotionOptions::screen`]):
+//! before a round's fits, one simulation with direct sensitivities at the current fit gives the
+//! misfit's gradient and Gauss–Newton matrix over the current parameters and the union of the
+//! open candidates' new ones, each at its neutral value (ν = 0, c = 0: the current model; the
+//! density at its current value) — [`crate::screen`]. A candidate's predicted gain is the χ²
+//! drop of one Gauss–Newton step over the current parameters and its own (the score statistic),
+//! charged its parameters as BIC charges them. The candidates without such a column say how they
+//! are predicted in their files ([`super::MotionEffect::predict`]): the marker offsets in closed form
+//! at the current material, the time offset by its scan, the second material not at all (its
+//! region search is a screen of its own: always fitted). The best predicted are fitted in full;
+//! the rest are reported with their predicted ΔBIC and fitted after all if nothing fitted
+//! passes the gate.
+
+use std::cell::Cell;
+
+use palpate_motion::gradient::evaluate_gauss_newton;
+use palpate_motion::model::{Param, ParamKind};
+
+use super::candidates::Candidate;
+use super::engine::MotionModel;
+use super::fit::{self, FittedModel};
+use super::MotionDiagnoseError;
+use crate::screen::{self, Normal};
+use crate::select::{self, Prediction};
+
+/// The current fit linearised once for a round's predictions.
+pub struct Screening<'m, 'a> {
+    /// The room's fitter.
+    pub(in crate::motion) model: &'m MotionModel<'a>,
+    /// The current fit.
+    pub(in crate::motion) cur: &'m FittedModel,
+    /// Φ, gradient and Gauss–Newton matrix over `kinds`, then each region's μ (`None`: no
+    /// candidate is linearised).
+    normal: Option<Normal>,
+    /// χ² of the linearisation's own simulation (m²).
+    chi2_sim: f64,
+    /// The global parameters linearised: the current model's, then the candidates'.
+    kinds: Vec<ParamKind>,
+    /// Simulations run for the round's predictions.
+    simulations: Cell<usize>,
+}
+
+impl<'m, 'a> Screening<'m, 'a> {
+    /// The linearisation at `cur` for the candidates `open`: one simulation with direct
+    /// sensitivities, on the data as the current model sees them (its time offset, its marker
+    /// offsets eliminated in closed form).
+    pub(in crate::motion) fn new(
+        model: &'m MotionModel<'a>,
+        cur: &'m FittedModel,
+        open: &[Candidate],
+    ) -> Result<Self, MotionDiagnoseError> {
+        let mut kinds = cur.kinds.clone();
+        let mut mat = cur.material.clone();
+        for c in open {
+            for &(k, neutral) in c.effect().screened_params() {
+                if kinds.contains(&k) {
+                    continue;
+                }
+                kinds.push(k);
+                if let Some(v) = neutral {
+                    mat.set(&[Param::global(k)], &[v]);
+                }
+            }
+        }
+        let mut screening = Self {
+            model,
+            cur,
+            normal: None,
+            chi2_sim: 0.0,
+            kinds,
+            simulations: Cell::new(0),
+        };
+        if screening.kinds.len() == cur.kinds.len() {
+            return Ok(screening);
+        }
+        let mut ds = model.ds.clone();
+        ds.obs.free_marker_offsets = cur.offsets.is_some();
+        let (ds, split) = match cur.time_offset {
+            Some(r) => fit::retimed(&ds, model.split, r)?,
+            None => (ds, model.split),
+        };
+        let (m, obs) = fit::fitted_part(&ds, split);
+        let params = fit::params_for(&screening.kinds, &mat);
+        let (ev, gn) = evaluate_gauss_newton(&m, &mat, &params, &obs)?;
+        screening.count(1);
+        screening.chi2_sim = ev.rms_marker * ev.rms_marker * ev.marker_count as f64;
+        screening.normal = Some(Normal {
+            phi: ev.phi,
+            grad: ev.grad.unwrap_or_default(),
+            gn,
+        });
+        Ok(screening)
+    }
+
+    /// Counts `n` more simulations run for the predictions (a candidate's own scan).
+    pub(in crate::motion) fn count(&self, n: usize) {
+        self.simulations.set(self.simulations.get() + n);
+    }
+
+    /// ΔBIC of a model with χ² = `chi2` on the fitted steps and `extra` more parameters than the
+    /// current one.
+    pub(in crate::motion) fn delta_bic(&self, chi2: f64, extra: usize) -> f64 {
+        let s = &self.cur.scores;
+        select::heldout_delta_bic(s.chi2_fit, chi2, s.n_fit, extra)
+    }
+
+    /// The prediction of a candidate whose new parameters are `kinds` (columns of the
+    /// linearisation) and that adds `extra` parameters: χ² after one Gauss–Newton step over the
+    /// current parameters and `kinds`, in proportion to the current fit's χ² (so that the
+    /// linearisation's own simulation does not count as a gain).
+    pub(in crate::motion) fn linearised(
+        &self,
+        kinds: &[ParamKind],
+        extra: usize,
+        how: &str,
+    ) -> Prediction {
+        let Some(normal) = &self.normal else {
+            return Prediction::none("not linearised: always fitted");
+        };
+        let globals = self.kinds.len();
+        let own = self.cur.kinds.len();
+        let mut cols: Vec<usize> = (0..own).chain(globals..normal.len()).collect();
+        cols.extend(
+            kinds
+                .iter()
+                .filter_map(|k| self.kinds.iter().position(|j| j == k))
+                .filter(|i| *i >= own),
+        );
+        let parts = std::slice::from_ref(normal);
+        let delta = screen::step(parts, &cols);
+        let change = screen::change(parts, &cols, &delta)[0];
+        let scale = if normal.phi > 0.0 {
+            self.chi2_sim / normal.phi
+        } else {
+            0.0
+        };
+        let stepped = (self.chi2_sim + scale * change).max(0.0);
+        let chi2 = self.cur.scores.chi2_fit * stepped / self.chi2_sim.max(f64::MIN_POSITIVE);
+        Prediction {
+            delta_bic: Some(self.delta_bic(chi2, extra)),
+            how: how.into(),
+        }
+    }
+}
+
+/// Every open candidate's prediction on top of `cur` (one each, in order), and the simulations
+/// they took.
+pub(in crate::motion) fn predict(
+    model: &MotionModel<'_>,
+    round: usize,
+    cur: &FittedModel,
+    open: &[Candidate],
+) -> Result<(Vec<Prediction>, usize), MotionDiagnoseError> {
+    let s = Screening::new(model, cur, open)?;
+    let mut out = Vec::with_capacity(open.len());
+    for &c in open {
+        let p = c.effect().predict(&s)?;
+        (model.log)(&format!(
+            "round {round}: screen: {} predicted ΔBIC {:.1} ({})",
+            c.name(),
+            p.delta_bic.unwrap_or(f64::NAN),
+            p.how
+        ));
+        out.push(p);
+    }
+    Ok((out, s.simulations.get()))
+}
