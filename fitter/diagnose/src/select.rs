@@ -584,6 +584,10 @@ impl<M: CandidateModel + ?Sized> Verdict<M> {
 /// Greedy forward selection from `start` (with its held-out evidence `held`): round after round,
 /// try every open candidate, adopt the best one that passes the gate, stop when none passes, none
 /// is left or the policy's limits are reached.
+///
+/// A round is four steps: the fit screen predicts the open candidates (`screen_round`), the
+/// planned ones are fitted and gated (`fit_round`), the gated ones are ranked and judged
+/// (`judge_round`), and the best is adopted (`adopt_best`) or the loop stops.
 pub fn select<M: CandidateModel>(
     model: &mut M,
     policy: &Policy,
@@ -605,219 +609,16 @@ pub fn select<M: CandidateModel>(
             rounds: policy.rounds,
             open: open.len(),
         });
-        let predictions: Vec<Option<Prediction>> = match fit_screen {
-            FitScreen::Predicted { .. } if !open.is_empty() => {
-                model.progress(&Progress::Screening {
-                    round,
-                    open: open.len(),
-                });
-                let p = model.predict(round, cur, &open)?;
-                assert_eq!(p.len(), open.len(), "one prediction per open candidate");
-                p.into_iter().map(Some).collect()
-            }
-            _ => vec![None; open.len()],
+        let predictions = screen_round(model, &fit_screen, round, cur, &open)?;
+        let now = Current {
+            round,
+            fitted: cur,
+            held: cur_held,
+            observed: &observed,
         };
-        let (mut batch, mut reserve) = plan_fits(&fit_screen, &predictions);
-        // One slot per open candidate, in the order tried: the report's order and the ranking's
-        // tie-break do not depend on which fits the screen chose.
-        let mut slots: Vec<Option<(Attempt<M>, Option<M::Fitted>)>> =
-            (0..open.len()).map(|_| None).collect();
-        let mut planned = batch.len();
-        let mut tried = vec![false; open.len()];
-        loop {
-            for &i in &batch {
-                tried[i] = true;
-                let done = tried.iter().filter(|&&t| t).count();
-                let c = open[i];
-                model.progress(&Progress::Fitting {
-                    round,
-                    index: done,
-                    of: planned,
-                    candidate: c.label(),
-                });
-                let mut a = Attempt {
-                    candidate: c,
-                    not_fitted: None,
-                    prediction: predictions[i].clone(),
-                    screened_out: false,
-                    score: None,
-                    summary: None,
-                    delta_bic: f64::NAN,
-                    held: None,
-                    gate: None,
-                    judgement: None,
-                };
-                let f = match model.fit_with(round, cur, c)? {
-                    Outcome::Dropped => continue,
-                    Outcome::NotFitted(why) => {
-                        a.not_fitted = Some(why);
-                        slots[i] = Some((a, None));
-                        continue;
-                    }
-                    Outcome::Fitted(f) => f,
-                };
-                let score = model.score(&f);
-                a.score = Some(score);
-                a.summary = Some(model.summarise(&f));
-                a.delta_bic = score.bic() - bic0;
-                if policy.screen == Screen::All {
-                    model.progress(&Progress::HeldOut {
-                        round,
-                        candidate: c.label(),
-                    });
-                    let h = model.heldout(round, c, &f)?;
-                    let now = Current {
-                        round,
-                        fitted: cur,
-                        held: cur_held,
-                        observed: &observed,
-                    };
-                    a.gate = Some(model.gate(
-                        &now,
-                        &Candidate {
-                            candidate: c,
-                            fitted: &f,
-                            held: &h,
-                            delta_bic: a.delta_bic,
-                        },
-                    ));
-                    a.held = Some(h);
-                }
-                slots[i] = Some((a, Some(f)));
-            }
-            if let Screen::Shortlist {
-                bic_threshold,
-                size,
-            } = policy.screen
-            {
-                let mut fitted: Vec<usize> = (0..slots.len())
-                    .filter(|&i| matches!(&slots[i], Some((_, Some(_)))))
-                    .collect();
-                fitted.sort_by(|&a, &b| {
-                    let d = |i: usize| slots[i].as_ref().map_or(f64::NAN, |s| s.0.delta_bic);
-                    d(a).total_cmp(&d(b))
-                });
-                let shortlist: Vec<usize> = fitted
-                    .into_iter()
-                    .filter(|&i| {
-                        slots[i]
-                            .as_ref()
-                            .is_some_and(|s| s.0.delta_bic < -bic_threshold)
-                    })
-                    .take(size)
-                    .collect();
-                for i in shortlist {
-                    let Some((a, Some(f))) = &mut slots[i] else {
-                        continue;
-                    };
-                    if a.gate.is_some() {
-                        continue;
-                    }
-                    let c = a.candidate;
-                    model.progress(&Progress::HeldOut {
-                        round,
-                        candidate: c.label(),
-                    });
-                    let h = model.heldout(round, c, f)?;
-                    let now = Current {
-                        round,
-                        fitted: cur,
-                        held: cur_held,
-                        observed: &observed,
-                    };
-                    a.gate = Some(model.gate(
-                        &now,
-                        &Candidate {
-                            candidate: c,
-                            fitted: f,
-                            held: &h,
-                            delta_bic: a.delta_bic,
-                        },
-                    ));
-                    a.held = Some(h);
-                }
-            }
-            let passes = slots
-                .iter()
-                .flatten()
-                .any(|(a, _)| a.gate.as_ref().is_some_and(|g| g.passes));
-            if passes || reserve.is_empty() {
-                break;
-            }
-            // Nothing fitted passes: the screen may have ranked a winner too low. The next
-            // predicted to pay for itself is fitted before the round gives up.
-            batch = vec![reserve.remove(0)];
-            planned += 1;
-        }
-        let mut attempts: Vec<Attempt<M>> = Vec::new();
-        let mut fits: Vec<Option<M::Fitted>> = Vec::new();
-        for (i, slot) in slots.into_iter().enumerate() {
-            match slot {
-                Some((a, f)) => {
-                    attempts.push(a);
-                    fits.push(f);
-                }
-                None => {
-                    // Dropped by the diagnosis, or left out by the screen.
-                    let Some(p) = predictions[i].clone().filter(|_| !tried[i]) else {
-                        continue;
-                    };
-                    model.screened_out(round, open[i], &p);
-                    attempts.push(Attempt {
-                        candidate: open[i],
-                        not_fitted: Some(format!(
-                            "screened out: predicted ΔBIC {:.1} ({})",
-                            p.delta_bic.unwrap_or(f64::NAN),
-                            p.how
-                        )),
-                        prediction: Some(p),
-                        screened_out: true,
-                        score: None,
-                        summary: None,
-                        delta_bic: f64::NAN,
-                        held: None,
-                        gate: None,
-                        judgement: None,
-                    });
-                    fits.push(None);
-                }
-            }
-        }
-        // Stable sorts: ties keep the order tried, as every diagnosis did before the engine.
-        let mut ranked: Vec<usize> = (0..attempts.len()).collect();
-        match policy.rank {
-            Rank::FittedBic => {
-                ranked.sort_by(|&a, &b| attempts[a].delta_bic.total_cmp(&attempts[b].delta_bic))
-            }
-            Rank::Heldout => {
-                let key =
-                    |a: &Attempt<M>| a.gate.as_ref().map_or(f64::INFINITY, |g| g.heldout_rank);
-                ranked.sort_by(|&a, &b| key(&attempts[a]).total_cmp(&key(&attempts[b])))
-            }
-        }
-        let mut best: Option<usize> = None;
-        for &i in &ranked {
-            let Some(g) = &attempts[i].gate else { continue };
-            let j = match best {
-                None if g.passes => {
-                    best = Some(i);
-                    Judgement::Best
-                }
-                Some(b) if g.passes => {
-                    let lead = attempts[b]
-                        .gate
-                        .as_ref()
-                        .map_or(f64::NAN, |g| g.heldout_delta_bic);
-                    if g.heldout_delta_bic < lead {
-                        Judgement::Ambiguous
-                    } else {
-                        Judgement::AlsoPasses
-                    }
-                }
-                _ => Judgement::Rejected,
-            };
-            attempts[i].judgement = Some(j);
-        }
+        let (mut attempts, mut fits) =
+            fit_round(model, policy, &fit_screen, &now, bic0, &open, &predictions)?;
+        let (ranked, best) = judge_round(policy.rank, &mut attempts);
         let mut this = Round {
             round,
             model: adopted.clone(),
@@ -830,28 +631,10 @@ pub fn select<M: CandidateModel>(
         };
         match best {
             Some(i) if round <= policy.max_adopted => {
-                let f = fits[i].take().expect("a gated candidate was fitted");
-                let h = this.attempts[i]
-                    .held
-                    .clone()
-                    .expect("a gated candidate has held-out evidence");
-                let c = this.attempts[i].candidate;
-                model.progress(&Progress::Adopting {
-                    round,
-                    candidate: c.label(),
-                });
-                let now = Current {
-                    round,
-                    fitted: cur,
-                    held: cur_held,
-                    observed: &this.observed,
-                };
-                let (f, h, adoption) = model.adopt(&now, c, f, h)?;
-                this.adopted = Some(i);
-                this.adoption = Some(adoption);
+                let next = adopt_best(model, &mut this, i, &mut fits, cur, cur_held)?;
+                adopted.push(this.attempts[i].candidate);
                 rounds.push(this);
-                adopted.push(c);
-                path.push((f, h));
+                path.push(next);
             }
             other => {
                 stop = if other.is_some() {
@@ -874,6 +657,299 @@ pub fn select<M: CandidateModel>(
     }
     model.progress(&Progress::Done { stop });
     Ok(Verdict { rounds, path, stop })
+}
+
+/// A round's screen: every open candidate's predicted gain when the fit screen is on, else none.
+fn screen_round<M: CandidateModel>(
+    model: &mut M,
+    fit_screen: &FitScreen,
+    round: usize,
+    cur: &M::Fitted,
+    open: &[M::Candidate],
+) -> Result<Vec<Option<Prediction>>, M::Error> {
+    Ok(match fit_screen {
+        FitScreen::Predicted { .. } if !open.is_empty() => {
+            model.progress(&Progress::Screening {
+                round,
+                open: open.len(),
+            });
+            let p = model.predict(round, cur, open)?;
+            assert_eq!(p.len(), open.len(), "one prediction per open candidate");
+            p.into_iter().map(Some).collect()
+        }
+        _ => vec![None; open.len()],
+    })
+}
+
+/// A fitted candidate's slot of a round: its attempt and its fit (`None`: not fitted).
+type Slot<M> = (Attempt<M>, Option<<M as CandidateModel>::Fitted>);
+
+/// A round's fits: the planned ones ([`plan_fits`]), each gated as it is fitted or the
+/// shortlist after them ([`Screen`]); if none passes, the screen's reserve one at a time. Returns
+/// every attempt in the order tried (the screened out among them) beside its fit.
+#[allow(clippy::type_complexity)]
+fn fit_round<M: CandidateModel>(
+    model: &mut M,
+    policy: &Policy,
+    fit_screen: &FitScreen,
+    now: &Current<'_, M>,
+    bic0: f64,
+    open: &[M::Candidate],
+    predictions: &[Option<Prediction>],
+) -> Result<(Vec<Attempt<M>>, Vec<Option<M::Fitted>>), M::Error> {
+    let (mut batch, mut reserve) = plan_fits(fit_screen, predictions);
+    // One slot per open candidate, in the order tried: the report's order and the ranking's
+    // tie-break do not depend on which fits the screen chose.
+    let mut slots: Vec<Option<Slot<M>>> = (0..open.len()).map(|_| None).collect();
+    let mut planned = batch.len();
+    let mut tried = vec![false; open.len()];
+    loop {
+        for &i in &batch {
+            tried[i] = true;
+            let done = tried.iter().filter(|&&t| t).count();
+            model.progress(&Progress::Fitting {
+                round: now.round,
+                index: done,
+                of: planned,
+                candidate: open[i].label(),
+            });
+            if let Some(slot) = fit_one(model, policy, now, bic0, open[i], &predictions[i])? {
+                slots[i] = Some(slot);
+            }
+        }
+        if let Screen::Shortlist {
+            bic_threshold,
+            size,
+        } = policy.screen
+        {
+            gate_shortlist(model, now, &mut slots, bic_threshold, size)?;
+        }
+        let passes = slots
+            .iter()
+            .flatten()
+            .any(|(a, _)| a.gate.as_ref().is_some_and(|g| g.passes));
+        if passes || reserve.is_empty() {
+            break;
+        }
+        // Nothing fitted passes: the screen may have ranked a winner too low. The next
+        // predicted to pay for itself is fitted before the round gives up.
+        batch = vec![reserve.remove(0)];
+        planned += 1;
+    }
+    let mut attempts: Vec<Attempt<M>> = Vec::new();
+    let mut fits: Vec<Option<M::Fitted>> = Vec::new();
+    for (i, slot) in slots.into_iter().enumerate() {
+        match slot {
+            Some((a, f)) => {
+                attempts.push(a);
+                fits.push(f);
+            }
+            None => {
+                // Dropped by the diagnosis, or left out by the screen.
+                let Some(p) = predictions[i].clone().filter(|_| !tried[i]) else {
+                    continue;
+                };
+                model.screened_out(now.round, open[i], &p);
+                attempts.push(Attempt {
+                    candidate: open[i],
+                    not_fitted: Some(format!(
+                        "screened out: predicted ΔBIC {:.1} ({})",
+                        p.delta_bic.unwrap_or(f64::NAN),
+                        p.how
+                    )),
+                    prediction: Some(p),
+                    screened_out: true,
+                    score: None,
+                    summary: None,
+                    delta_bic: f64::NAN,
+                    held: None,
+                    gate: None,
+                    judgement: None,
+                });
+                fits.push(None);
+            }
+        }
+    }
+    Ok((attempts, fits))
+}
+
+/// Fits candidate `c` on top of the current model and scores it (gated at once when every
+/// fitted candidate is: [`Screen::All`]); `None` when the diagnosis dropped it.
+fn fit_one<M: CandidateModel>(
+    model: &mut M,
+    policy: &Policy,
+    now: &Current<'_, M>,
+    bic0: f64,
+    c: M::Candidate,
+    prediction: &Option<Prediction>,
+) -> Result<Option<Slot<M>>, M::Error> {
+    let mut a = Attempt {
+        candidate: c,
+        not_fitted: None,
+        prediction: prediction.clone(),
+        screened_out: false,
+        score: None,
+        summary: None,
+        delta_bic: f64::NAN,
+        held: None,
+        gate: None,
+        judgement: None,
+    };
+    let f = match model.fit_with(now.round, now.fitted, c)? {
+        Outcome::Dropped => return Ok(None),
+        Outcome::NotFitted(why) => {
+            a.not_fitted = Some(why);
+            return Ok(Some((a, None)));
+        }
+        Outcome::Fitted(f) => f,
+    };
+    let score = model.score(&f);
+    a.score = Some(score);
+    a.summary = Some(model.summarise(&f));
+    a.delta_bic = score.bic() - bic0;
+    if policy.screen == Screen::All {
+        gate_one(model, now, &mut a, &f)?;
+    }
+    Ok(Some((a, Some(f))))
+}
+
+/// Gates the first `size` fitted candidates in ΔBIC order with ΔBIC < −`bic_threshold` that
+/// are not gated yet ([`Screen::Shortlist`]).
+fn gate_shortlist<M: CandidateModel>(
+    model: &mut M,
+    now: &Current<'_, M>,
+    slots: &mut [Option<Slot<M>>],
+    bic_threshold: f64,
+    size: usize,
+) -> Result<(), M::Error> {
+    let mut fitted: Vec<usize> = (0..slots.len())
+        .filter(|&i| matches!(&slots[i], Some((_, Some(_)))))
+        .collect();
+    fitted.sort_by(|&a, &b| {
+        let d = |i: usize| slots[i].as_ref().map_or(f64::NAN, |s| s.0.delta_bic);
+        d(a).total_cmp(&d(b))
+    });
+    let shortlist: Vec<usize> = fitted
+        .into_iter()
+        .filter(|&i| {
+            slots[i]
+                .as_ref()
+                .is_some_and(|s| s.0.delta_bic < -bic_threshold)
+        })
+        .take(size)
+        .collect();
+    for i in shortlist {
+        let Some((a, Some(f))) = &mut slots[i] else {
+            continue;
+        };
+        if a.gate.is_some() {
+            continue;
+        }
+        gate_one(model, now, a, f)?;
+    }
+    Ok(())
+}
+
+/// The held-out gate of one fitted candidate: its held-out evidence, then the diagnosis' verdict
+/// on it against the current model.
+fn gate_one<M: CandidateModel>(
+    model: &mut M,
+    now: &Current<'_, M>,
+    a: &mut Attempt<M>,
+    f: &M::Fitted,
+) -> Result<(), M::Error> {
+    let c = a.candidate;
+    model.progress(&Progress::HeldOut {
+        round: now.round,
+        candidate: c.label(),
+    });
+    let h = model.heldout(now.round, c, f)?;
+    a.gate = Some(model.gate(
+        now,
+        &Candidate {
+            candidate: c,
+            fitted: f,
+            held: &h,
+            delta_bic: a.delta_bic,
+        },
+    ));
+    a.held = Some(h);
+    Ok(())
+}
+
+/// Ranks a round's attempts ([`Rank`]) and judges the gated ones in that order ([`Judgement`]):
+/// the rank order (indices into `attempts`) and the best that passes.
+fn judge_round<M: CandidateModel>(
+    rank: Rank,
+    attempts: &mut [Attempt<M>],
+) -> (Vec<usize>, Option<usize>) {
+    // Stable sorts: ties keep the order tried, as every diagnosis did before the engine.
+    let mut ranked: Vec<usize> = (0..attempts.len()).collect();
+    match rank {
+        Rank::FittedBic => {
+            ranked.sort_by(|&a, &b| attempts[a].delta_bic.total_cmp(&attempts[b].delta_bic))
+        }
+        Rank::Heldout => {
+            let key = |a: &Attempt<M>| a.gate.as_ref().map_or(f64::INFINITY, |g| g.heldout_rank);
+            ranked.sort_by(|&a, &b| key(&attempts[a]).total_cmp(&key(&attempts[b])))
+        }
+    }
+    let mut best: Option<usize> = None;
+    for &i in &ranked {
+        let Some(g) = &attempts[i].gate else { continue };
+        let j = match best {
+            None if g.passes => {
+                best = Some(i);
+                Judgement::Best
+            }
+            Some(b) if g.passes => {
+                let lead = attempts[b]
+                    .gate
+                    .as_ref()
+                    .map_or(f64::NAN, |g| g.heldout_delta_bic);
+                if g.heldout_delta_bic < lead {
+                    Judgement::Ambiguous
+                } else {
+                    Judgement::AlsoPasses
+                }
+            }
+            _ => Judgement::Rejected,
+        };
+        attempts[i].judgement = Some(j);
+    }
+    (ranked, best)
+}
+
+/// Adopts attempt `i` of round `this` (its fit taken from `fits`): the diagnosis' adoption on
+/// top of the current model, recorded in the round; returns the model the next round starts from.
+fn adopt_best<M: CandidateModel>(
+    model: &mut M,
+    this: &mut Round<M>,
+    i: usize,
+    fits: &mut [Option<M::Fitted>],
+    cur: &M::Fitted,
+    cur_held: &M::Held,
+) -> Result<(M::Fitted, M::Held), M::Error> {
+    let f = fits[i].take().expect("a gated candidate was fitted");
+    let h = this.attempts[i]
+        .held
+        .clone()
+        .expect("a gated candidate has held-out evidence");
+    let c = this.attempts[i].candidate;
+    model.progress(&Progress::Adopting {
+        round: this.round,
+        candidate: c.label(),
+    });
+    let now = Current {
+        round: this.round,
+        fitted: cur,
+        held: cur_held,
+        observed: &this.observed,
+    };
+    let (f, h, adoption) = model.adopt(&now, c, f, h)?;
+    this.adopted = Some(i);
+    this.adoption = Some(adoption);
+    Ok((f, h))
 }
 
 /// The fits of a round: the first batch (indices into the open candidates, in the order tried)

@@ -53,6 +53,16 @@ fn adopted_names(r: &RunsDiagnosis, separator: &str) -> String {
 /// The markdown report.
 pub fn markdown(r: &RunsDiagnosis) -> String {
     let mut md = String::new();
+    verdict(&mut md, r);
+    candidates(&mut md, r);
+    per_run(&mut md, r);
+    parameters(&mut md, r);
+    md
+}
+
+/// The title, the verdict with the held-out figures, what the held-out runs test, the simplest
+/// model and the adoption rule.
+fn verdict(md: &mut String, r: &RunsDiagnosis) {
     let _ = writeln!(
         md,
         "# Diagnosis of {} runs\n",
@@ -114,6 +124,10 @@ pub fn markdown(r: &RunsDiagnosis) -> String {
         r.options.bic_threshold,
         100.0 * r.options.min_holdout_gain
     );
+}
+
+/// Every candidate tried, round by round.
+fn candidates(md: &mut String, r: &RunsDiagnosis) {
     let _ = writeln!(md, "## Candidates\n\n| round | effect | predicted ΔBIC | ΔBIC | fitted RMS (mm) | held-out RMS (mm) | verdict |\n|---|---|---|---|---|---|---|");
     for t in &r.trials {
         let _ = writeln!(
@@ -138,6 +152,10 @@ pub fn markdown(r: &RunsDiagnosis) -> String {
                 .unwrap_or_default()
         );
     }
+}
+
+/// Each run's residual before and after, and what an adopted effect adds to it.
+fn per_run(md: &mut String, r: &RunsDiagnosis) {
     let _ = writeln!(
         md,
         "\n## Before → after, per run\n\nMarker RMS over the run, over its first quarter (the swing), \
@@ -146,22 +164,18 @@ pub fn markdown(r: &RunsDiagnosis) -> String {
          rest state (mm) | period measured (s) | period simulated (s) | decay per cycle measured | \
          decay simulated |\n|---|---|---|---|---|---|---|---|"
     );
-    rows(&mut md, &r.before.0, &r.after.0);
-    rows(&mut md, &r.before.1, &r.after.1);
-    if r.adopted.contains(&super::Effect::TimeOffset) {
-        let _ = writeln!(
-            md,
-            "\nTime offsets (each run's markers compared with the simulation this much later; \
-             a held-out run's own, scanned with the final material): {}.",
-            r.after
-                .0
-                .iter()
-                .chain(&r.after.1)
-                .map(|a| format!("{} {:+.1} ms", a.run, 1e3 * a.time_offset_s))
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
+    rows(md, &r.before.0, &r.after.0);
+    rows(md, &r.before.1, &r.after.1);
+    // What an adopted effect has to say beyond the table (e.g. each run's time offset).
+    for e in &r.adopted {
+        if let Some(words) = e.effect().report(r) {
+            let _ = writeln!(md, "{words}");
+        }
     }
+}
+
+/// The final model's parameters and elastic constants, and the figures.
+fn parameters(md: &mut String, r: &RunsDiagnosis) {
     let _ = writeln!(
         md,
         "\n## Parameters of the final model\n\n| parameter | value | 1σ |\n|---|---|---|"
@@ -202,7 +216,6 @@ pub fn markdown(r: &RunsDiagnosis) -> String {
         let file = palpate_plot::shown(&format!("ring-{}.svg", slug(&h.run)));
         let _ = writeln!(md, "![{}]({file})\n", h.run);
     }
-    md
 }
 
 fn slug(s: &str) -> String {

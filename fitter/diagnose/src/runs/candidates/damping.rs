@@ -1,0 +1,78 @@
+//! Newtonian viscosity: the viscous stress of eq. 17 at h = 1, ν free (1 parameter, Pa·s). A
+//! ring-down that decays faster than the simplest model's (which has no viscosity) points to it.
+//! Its fit starts from the viscosity the measured ring-downs show
+//! ([`crate::runs::viscosity_from_ring_down`]) unless the options give one.
+
+use palpate_motion::model::{Material, Param, ParamKind};
+
+use super::RunsEffect;
+use crate::runs::fit::RunsModel;
+use crate::runs::{viscosity_from_ring_down, RunsFit};
+use crate::select::ParamValue;
+
+/// See the module.
+pub struct Damping;
+
+impl RunsEffect for Damping {
+    fn name(&self) -> &'static str {
+        "damping"
+    }
+
+    fn kinds(&self) -> &'static [ParamKind] {
+        &[ParamKind::Nu]
+    }
+
+    fn start(&self, room: &RunsModel, round: usize, cur: &RunsFit, start: &mut Material) {
+        start_viscosity(self, room, round, cur, start);
+    }
+
+    fn values(&self, material: &Material) -> Vec<ParamValue> {
+        viscosity_values(material)
+    }
+}
+
+/// Starts a damping law's viscosity where `start` has none (a law that nests one fitted this
+/// round starts from that fit's): the option, else the ring-down estimate of the current model's
+/// runs, else 10 Pa·s.
+pub(super) fn start_viscosity(
+    effect: &dyn RunsEffect,
+    room: &RunsModel,
+    round: usize,
+    cur: &RunsFit,
+    start: &mut Material,
+) {
+    if start.get(ParamKind::Nu, 0) <= 0.0 {
+        let (nu, source) = match room.o.start_viscosity {
+            Some(v) => (v, "given"),
+            None => match viscosity_from_ring_down(&cur.fitted, cur.material.get(ParamKind::Mu, 0))
+            {
+                Some(v) => (v, "from the measured ring-downs"),
+                None => (10.0, "no run rings down: the default"),
+            },
+        };
+        (room.log)(&format!(
+            "round {round}: {} starts at viscosity {nu:.3e} Pa·s ({source})",
+            effect.name()
+        ));
+        start.set(&[Param::global(ParamKind::Nu)], &[nu]);
+    }
+}
+
+/// The viscosity and the power-law index of the final material, as the report lists them for
+/// either damping law (Newtonian damping holds h at 1).
+pub(super) fn viscosity_values(material: &Material) -> Vec<ParamValue> {
+    vec![
+        ParamValue {
+            name: "viscosity (power law)".into(),
+            value: material.get(ParamKind::Nu, 0),
+            sd: f64::NAN,
+            unit: "Pa·s^h".into(),
+        },
+        ParamValue {
+            name: "power-law index h".into(),
+            value: material.get(ParamKind::PowerH, 0),
+            sd: f64::NAN,
+            unit: "".into(),
+        },
+    ]
+}

@@ -1,0 +1,292 @@
+//! The runs room's fits: the runs' models with the candidates' changes, the material fitted to
+//! the fitted runs (retimed when an effect offsets them in time), their residuals, and the time
+//! offsets scanned.
+
+use palpate_motion::dataset::MotionDataset;
+use palpate_motion::fitted::set_hanging_inertia;
+use palpate_motion::model::{Material, Observations, Param, ParamKind};
+use palpate_motion::optimize::{fit_runs, FitSettings, Run};
+use palpate_motion::predict;
+use palpate_motion::time_offset;
+use palpate_motion::MotionError;
+
+use super::candidates::Effect;
+use super::signature::read_residual;
+use super::{RunResidual, RunsFit, RunsOptions, Simulations, Trial};
+use crate::select::{Outcome, Progress};
+
+/// The runs room's driver: the runs, the options, and what the selection has recorded so far.
+pub(in crate::runs) struct RunsModel<'a> {
+    /// The fitted runs.
+    pub(in crate::runs) fit: &'a [(String, MotionDataset)],
+    /// The held-out runs.
+    pub(in crate::runs) held: &'a [(String, MotionDataset)],
+    /// The options.
+    pub(in crate::runs) o: &'a RunsOptions,
+    /// Receives progress lines.
+    pub(in crate::runs) log: &'a dyn Fn(&str),
+    /// Every candidate tried, as reported.
+    pub(in crate::runs) trials: Vec<Trial>,
+    /// Each fitted candidate's material, by round: the start of a later candidate of the same
+    /// round that nests it.
+    pub(in crate::runs) fitted: Vec<(usize, Effect, Material)>,
+    /// The fit screen's predictions, by round.
+    pub(in crate::runs) predicted: Vec<(usize, Effect, f64)>,
+    /// The time offsets the screen scanned at the current material, by round: the start of the
+    /// time offset's fit in that round.
+    pub(in crate::runs) scanned: Option<(usize, Vec<i64>)>,
+    /// Receives the selection's progress.
+    pub(in crate::runs) progress: &'a dyn Fn(&Progress),
+    /// Simulations so far.
+    pub(in crate::runs) simulations: std::cell::Cell<Simulations>,
+}
+
+impl RunsModel<'_> {
+    /// Counts `n` simulations of one run, with sensitivities or without.
+    pub(in crate::runs) fn count(&self, n: usize, sensitivities: bool) {
+        let mut s = self.simulations.get();
+        if sensitivities {
+            s.with_sensitivities += n;
+        } else {
+            s.plain += n;
+        }
+        self.simulations.set(s);
+    }
+
+    /// Records a candidate that could not be fitted, and tells the engine why.
+    pub(in crate::runs) fn not_fitted(
+        &mut self,
+        round: usize,
+        effect: Effect,
+        why: String,
+    ) -> Outcome<RunsFit> {
+        self.trials.push(Trial {
+            round,
+            effect,
+            delta_bic: f64::NAN,
+            rms_fit_m: None,
+            rms_held_m: None,
+            gate: None,
+            not_fitted: Some(why.clone()),
+            adopted: false,
+            predicted_delta_bic: self.prediction(round, effect),
+            screened_out: false,
+        });
+        Outcome::NotFitted(why)
+    }
+    /// The screen's prediction of `effect` in `round`.
+    pub(in crate::runs) fn prediction(&self, round: usize, effect: Effect) -> Option<f64> {
+        self.predicted
+            .iter()
+            .rev()
+            .find(|(r, e, _)| *r == round && *e == effect)
+            .map(|p| p.2)
+    }
+
+    /// The fitted runs with `effects`' structural changes, run i's markers `offsets[i]` steps
+    /// late.
+    pub(in crate::runs) fn retimed(
+        &self,
+        effects: &[Effect],
+        offsets: &[i64],
+    ) -> Result<Vec<(palpate_motion::model::Model, Observations)>, MotionError> {
+        Self::models(self.fit, effects)
+            .into_iter()
+            .zip(self.fit)
+            .enumerate()
+            .map(
+                |(i, (model, (_, d)))| match offsets.get(i).copied().unwrap_or(0) {
+                    0 => Ok((model, d.obs.clone())),
+                    r => time_offset::shifted(&model, &d.obs, r),
+                },
+            )
+            .collect()
+    }
+
+    /// The runs' models with the effects' changes ([`RunsEffect::change_model`](super::candidates::RunsEffect::change_model)) applied.
+    pub(in crate::runs) fn models(
+        sets: &[(String, MotionDataset)],
+        effects: &[Effect],
+    ) -> Vec<palpate_motion::model::Model> {
+        sets.iter()
+            .map(|(_, d)| {
+                let mut m = d.model.clone();
+                // The simplest model: hanging weights as forces only.
+                set_hanging_inertia(&mut m, false);
+                for e in effects {
+                    e.effect().change_model(&mut m);
+                }
+                m
+            })
+            .collect()
+    }
+
+    /// The residual of every run of `sets` under `mat`, run i's markers `offsets[i]` steps late
+    /// (none when `offsets` is empty).
+    pub(in crate::runs) fn residuals(
+        sets: &[(String, MotionDataset)],
+        effects: &[Effect],
+        mat: &Material,
+        offsets: &[i64],
+    ) -> Result<Vec<RunResidual>, MotionError> {
+        let models = Self::models(sets, effects);
+        use rayon::prelude::*;
+        sets.par_iter()
+            .zip(models.par_iter())
+            .enumerate()
+            .map(|(i, ((name, d), m))| {
+                let r = offsets.get(i).copied().unwrap_or(0);
+                let p = predict::predict_offset(m, mat, &d.obs, r)?;
+                let mut ds = d.clone();
+                ds.model = m.clone();
+                Ok(read_residual(name, &ds, &p, r))
+            })
+            .collect()
+    }
+
+    /// Each run's time offset under `mat`, scanned ([`time_offset::scan`]).
+    pub(in crate::runs) fn scan_offsets(
+        sets: &[(String, MotionDataset)],
+        effects: &[Effect],
+        mat: &Material,
+    ) -> Result<Vec<i64>, MotionError> {
+        let models = Self::models(sets, effects);
+        use rayon::prelude::*;
+        sets.par_iter()
+            .zip(models.par_iter())
+            .map(|((_, d), m)| Ok(time_offset::scan(m, mat, &d.obs)?.0))
+            .collect()
+    }
+
+    /// Each run's offset in words (ms), marked at the edge of the scan.
+    pub(in crate::runs) fn describe_offsets(
+        sets: &[(String, MotionDataset)],
+        offsets: &[i64],
+    ) -> String {
+        sets.iter()
+            .zip(offsets)
+            .map(|((name, d), r)| {
+                let edge = r.abs() >= time_offset::MAX_SCAN_FRAMES * d.model.substeps.max(1) as i64;
+                format!(
+                    "{name} {:+.1} ms{}",
+                    1e3 * *r as f64 * d.model.dt,
+                    if edge { " (the edge of the scan)" } else { "" }
+                )
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+
+    /// Fits the material of `effects` to the fitted runs, run i's markers `offsets[i]` steps late.
+    pub(in crate::runs) fn fit(
+        &self,
+        effects: &[Effect],
+        start: &Material,
+        offsets: &[i64],
+        max_iters: u64,
+    ) -> Result<RunsFit, MotionError> {
+        let mut kinds = vec![ParamKind::Mu];
+        for e in effects {
+            for k in e.kinds() {
+                if !kinds.contains(k) {
+                    kinds.push(*k);
+                }
+            }
+        }
+        let base = start.clone();
+        let params: Vec<Param> = kinds.iter().map(|k| Param::global(*k)).collect();
+        let q0 = base.read(&params);
+        let retimed = self.retimed(effects, offsets)?;
+        let runs: Vec<Run> = retimed
+            .iter()
+            .map(|(model, obs)| Run { model, obs })
+            .collect();
+        let settings = FitSettings {
+            max_iters,
+            poisson: Some(self.o.poisson),
+            ..Default::default()
+        };
+        let r = fit_runs(&runs, &base, &params, &q0, &settings, &[], &|_, _| {})?;
+        self.count(r.evaluations * runs.len(), true);
+        self.count(runs.len(), false);
+        let mut material = base.clone();
+        material.set(&params, &r.q);
+        let nu = self.o.poisson;
+        material.set(
+            &[Param::global(ParamKind::Lambda)],
+            &[2.0 * nu / (1.0 - 2.0 * nu) * material.get(ParamKind::Mu, 0)],
+        );
+        let fitted = Self::residuals(self.fit, effects, &material, offsets)?;
+        Ok(RunsFit {
+            effects: effects.to_vec(),
+            material,
+            kinds,
+            offsets: offsets.to_vec(),
+            fitted,
+            evaluations: r.evaluations,
+            capped: r.iterations >= max_iters,
+        })
+    }
+
+    /// A fit of `effects` with the runs offset in time ([`RunsEffect::retimes`](super::candidates::RunsEffect::retimes)), from `offsets`
+    /// (scanned with the current material for the candidate itself, adopted for a later one):
+    /// the material refitted with them held; scanned again with the refitted material, refitted
+    /// once more if one moved (module note).
+    pub(in crate::runs) fn fit_retimed(
+        &self,
+        round: usize,
+        effects: &[Effect],
+        start: &Material,
+        mut offsets: Vec<i64>,
+        max_iters: u64,
+    ) -> Result<RunsFit, MotionError> {
+        let mut f = self.fit(effects, start, &offsets, max_iters)?;
+        let again = Self::scan_offsets(self.fit, effects, &f.material)?;
+        self.count(self.fit.len(), false);
+        if again != offsets {
+            offsets = again;
+            (self.log)(&format!(
+                "round {round}: time offsets after the refit: {}",
+                Self::describe_offsets(self.fit, &offsets)
+            ));
+            let evaluations = f.evaluations;
+            f = self.fit(effects, &f.material, &offsets, max_iters)?;
+            f.evaluations += evaluations;
+        }
+        Ok(f)
+    }
+
+    /// Fits the material of `effects` from `start`, run i's markers `offsets[i]` steps late: the
+    /// offsets held, or scanned again after the fit when an effect offsets the runs in time.
+    pub(in crate::runs) fn fit_effects(
+        &self,
+        round: usize,
+        effects: &[Effect],
+        start: &Material,
+        offsets: &[i64],
+        max_iters: u64,
+    ) -> Result<RunsFit, MotionError> {
+        if Effect::retimed(effects) {
+            self.fit_retimed(round, effects, start, offsets.to_vec(), max_iters)
+        } else {
+            self.fit(effects, start, offsets, max_iters)
+        }
+    }
+
+    /// The model of `e`, in words.
+    pub(in crate::runs) fn name(e: &[Effect]) -> String {
+        if e.is_empty() {
+            "the simplest model".into()
+        } else {
+            e.iter().map(|e| e.name()).collect::<Vec<_>>().join(" + ")
+        }
+    }
+}
+/// A fit's result as the selection takes it: a fit that fails is a candidate not fitted, and
+/// the report says why.
+pub(in crate::runs) fn fitted(f: Result<RunsFit, MotionError>) -> Outcome<RunsFit> {
+    match f {
+        Ok(f) => Outcome::Fitted(f),
+        Err(e) => Outcome::NotFitted(e.to_string()),
+    }
+}

@@ -1,0 +1,143 @@
+//! The runs room's fit screen ([`crate::screen`]): one Gauss–Newton evaluation of the fitted
+//! runs at the current fit, with every open candidate's material parameters at their neutral
+//! values (the current model), from which a continuous candidate's gain is predicted by one step
+//! over the current parameters and its own. The other candidates predict themselves
+//! ([`super::candidates`]).
+
+use palpate_motion::gradient::evaluate_gauss_newton;
+use palpate_motion::model::{Param, ParamKind};
+use palpate_motion::MotionError;
+
+use super::candidates::Effect;
+use super::fit::RunsModel;
+use super::RunsFit;
+use crate::screen::{self, Normal};
+use crate::select::{heldout_delta_bic, Prediction};
+
+/// Where the screen predicts a round's candidates: the current fit and, when a continuous
+/// candidate is open, its linearisation.
+pub(in crate::runs) struct ScreenPoint<'a> {
+    /// The round.
+    pub(in crate::runs) round: usize,
+    /// The current fit.
+    pub(in crate::runs) cur: &'a RunsFit,
+    /// Fitted runs.
+    pub(in crate::runs) runs: usize,
+    /// The current fit's χ² (m²) and its scalar residual count.
+    chi2: (f64, usize),
+    /// The current parameters (the first `own`), then every open candidate's.
+    kinds: Vec<ParamKind>,
+    /// The current model's parameters.
+    own: usize,
+    /// Each fitted run's Φ, gradient and Gauss–Newton matrix over `kinds` (empty when no open
+    /// candidate has a material parameter).
+    normals: Vec<Normal>,
+    /// Each fitted run's marker χ² (m²) at the same evaluation.
+    run_chi2: Vec<f64>,
+}
+
+impl<'a> ScreenPoint<'a> {
+    /// Linearises the fitted runs at `cur` over its parameters and those of `open` (at their
+    /// neutral values: no viscosity, h = 1, no stiffening), when any of them has one.
+    pub(in crate::runs) fn new(
+        room: &RunsModel,
+        round: usize,
+        cur: &'a RunsFit,
+        open: &[Effect],
+    ) -> Result<Self, MotionError> {
+        let mut kinds = cur.kinds.clone();
+        for c in open {
+            for k in c.kinds() {
+                if !kinds.contains(k) {
+                    kinds.push(*k);
+                }
+            }
+        }
+        let mut mat = cur.material.clone();
+        for k in &kinds[cur.kinds.len()..] {
+            let neutral = match k {
+                ParamKind::PowerH => 1.0,
+                _ => 0.0,
+            };
+            mat.set(&[Param::global(*k)], &[neutral]);
+        }
+        let (mut normals, mut run_chi2) = (Vec::new(), Vec::new());
+        if open.iter().any(|c| !c.kinds().is_empty()) {
+            let runs = room.retimed(&cur.effects, &cur.offsets)?;
+            room.count(runs.len(), true);
+            // λ is tied to μ at the held Poisson's ratio: its column is folded into μ's.
+            let mut params: Vec<Param> = kinds.iter().map(|k| Param::global(*k)).collect();
+            params.push(Param::global(ParamKind::Lambda));
+            let nu = room.o.poisson;
+            let ratio = 2.0 * nu / (1.0 - 2.0 * nu);
+            use rayon::prelude::*;
+            let parts: Vec<(Normal, f64)> = runs
+                .par_iter()
+                .map(|(m, obs)| {
+                    let (ev, gn) = evaluate_gauss_newton(m, &mat, &params, obs)?;
+                    let chi2 = ev.rms_marker * ev.rms_marker * ev.marker_count as f64;
+                    let all = Normal {
+                        phi: ev.phi,
+                        grad: ev.grad.unwrap_or_default(),
+                        gn,
+                    };
+                    Ok((all.tie(0, kinds.len(), ratio), chi2))
+                })
+                .collect::<Result<_, MotionError>>()?;
+            (normals, run_chi2) = parts.into_iter().unzip();
+        }
+        Ok(Self {
+            round,
+            cur,
+            runs: room.fit.len(),
+            chi2: cur.chi2(),
+            own: cur.kinds.len(),
+            kinds,
+            normals,
+            run_chi2,
+        })
+    }
+
+    /// ΔBIC of a candidate with `k` parameters whose fit would reach `chi2` (m²) on the fitted
+    /// runs.
+    pub(in crate::runs) fn delta_bic(&self, chi2: f64, k: usize) -> f64 {
+        let (chi0, n) = self.chi2;
+        heldout_delta_bic(chi0, chi2, n, k)
+    }
+
+    /// The prediction of a continuous candidate that frees `kinds` (`k` parameters): χ² after one
+    /// Gauss–Newton step over the current parameters and `kinds` from their neutral values.
+    pub(in crate::runs) fn stepped(&self, kinds: &[ParamKind], k: usize) -> Prediction {
+        if kinds.is_empty() || self.normals.is_empty() {
+            return Prediction::none("no parameter to linearise: always fitted");
+        }
+        let mut cols: Vec<usize> = (0..self.own).collect();
+        cols.extend(
+            kinds
+                .iter()
+                .filter_map(|k| self.kinds.iter().position(|j| j == k))
+                .filter(|&i| i >= self.own),
+        );
+        let delta = screen::step(&self.normals, &cols);
+        let change = screen::change(&self.normals, &cols, &delta);
+        // Each run's χ² and its Φ in proportion (the marker term's weight is the run's).
+        let stepped: f64 = self
+            .normals
+            .iter()
+            .zip(&self.run_chi2)
+            .zip(change)
+            .map(|((n, chi2), d)| {
+                let scale = if n.phi > 0.0 { chi2 / n.phi } else { 0.0 };
+                (chi2 + scale * d).max(0.0)
+            })
+            .sum();
+        // χ² in proportion to the current fit's, so that an evaluation's own rounding does not
+        // count as a gain.
+        let sim: f64 = self.run_chi2.iter().sum();
+        let chi2 = self.chi2.0 * stepped / sim.max(f64::MIN_POSITIVE);
+        Prediction {
+            delta_bic: Some(self.delta_bic(chi2, k)),
+            how: "one Gauss–Newton step from the neutral value".into(),
+        }
+    }
+}

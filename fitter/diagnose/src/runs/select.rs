@@ -1,0 +1,266 @@
+//! The runs room's side of the selection ([`crate::select`]): the candidates open on these runs,
+//! each fitted on top of the current model through its
+//! [`RunsEffect`](super::candidates::RunsEffect) hooks, predicted by the fit
+//! screen, gated on the held-out runs, and the adopted one refitted in full when its screening
+//! fit stopped at the cap.
+
+use super::candidates::Effect;
+use super::fit::RunsModel;
+use super::screen::ScreenPoint;
+use super::{GateDetail, Held, RunsError, RunsFit, Trial};
+use crate::select::{
+    self, CandidateModel, Current, FitScreen, Gate, HeldoutGate, Outcome, PassWords, Progress,
+    Score,
+};
+
+impl CandidateModel for RunsModel<'_> {
+    type Candidate = Effect;
+    type Fitted = RunsFit;
+    type Held = Held;
+    type Observed = ();
+    type Summary = ();
+    type Detail = GateDetail;
+    type Adoption = ();
+    type Error = RunsError;
+
+    fn observe(&mut self, round: usize, f: &RunsFit, h: &Held) {
+        for r in f.fitted.iter().chain(&h.runs) {
+            (self.log)(&format!(
+                "round {round}: {}: RMS {:.2} mm (first quarter {:.2}, last {:.2}); period {} s measured, {} simulated; decay per cycle {} measured, {} simulated",
+                r.run,
+                1e3 * r.rms_m,
+                1e3 * r.early_m,
+                1e3 * r.late_m,
+                fmt(r.period_s.0, 3),
+                fmt(r.period_s.1, 3),
+                fmt(r.decay_per_cycle.0, 2),
+                fmt(r.decay_per_cycle.1, 2),
+            ));
+        }
+    }
+
+    fn candidates(&mut self, _: &RunsFit, adopted: &[Effect]) -> Vec<Effect> {
+        self.o
+            .candidates
+            .iter()
+            .copied()
+            .filter(|c| !adopted.contains(c) && !adopted.iter().any(|a| a.conflicts(*c)))
+            .filter(|c| c.effect().available(self))
+            .collect()
+    }
+
+    fn fit_with(
+        &mut self,
+        round: usize,
+        cur: &RunsFit,
+        c: Effect,
+    ) -> Result<Outcome<RunsFit>, RunsError> {
+        let mut effects = cur.effects.clone();
+        effects.push(c);
+        (self.log)(&format!("round {round}: fitting {}", Self::name(&effects)));
+        // A candidate that nests one already fitted this round (the power law holds Newtonian
+        // damping at h = 1) starts from that fit, its own extra parameters at their neutral
+        // values: it starts where the nested model ended, so its fit can only end as low, and
+        // it spends no simulations finding the shared parameters again.
+        let nested = self
+            .fitted
+            .iter()
+            .rev()
+            .find(|(r, d, _)| *r == round && d.nested_in(c))
+            .map(|(_, d, m)| (*d, m.clone()));
+        let mut start = cur.material.clone();
+        if let Some((d, m)) = nested {
+            (self.log)(&format!(
+                "round {round}: {} starts from the fit of {} (nested in it)",
+                c.name(),
+                d.name()
+            ));
+            start = m;
+        }
+        c.effect().start(self, round, cur, &mut start);
+        let budget = self.o.screen_max_iters.min(self.o.max_iters);
+        match c.effect().fit(self, round, cur, &effects, &start, budget)? {
+            Outcome::Fitted(f) => {
+                self.fitted.push((round, c, f.material.clone()));
+                Ok(Outcome::Fitted(f))
+            }
+            Outcome::NotFitted(why) => Ok(self.not_fitted(round, c, why)),
+            Outcome::Dropped => Ok(Outcome::Dropped),
+        }
+    }
+
+    fn score(&self, f: &RunsFit) -> Score {
+        let (chi2, n) = f.chi2();
+        Score {
+            chi2,
+            n,
+            k: f.parameters(),
+        }
+    }
+
+    fn summarise(&self, _: &RunsFit) {}
+
+    fn heldout(&mut self, round: usize, _: Effect, f: &RunsFit) -> Result<Held, RunsError> {
+        let offsets = if Effect::retimed(&f.effects) {
+            let o = Self::scan_offsets(self.held, &f.effects, &f.material)?;
+            self.count(self.held.len(), false);
+            (self.log)(&format!(
+                "round {round}: held-out time offsets (each run its own): {}",
+                Self::describe_offsets(self.held, &o)
+            ));
+            o
+        } else {
+            Vec::new()
+        };
+        self.count(self.held.len(), false);
+        Ok(Held {
+            runs: Self::residuals(self.held, &f.effects, &f.material, &offsets)?,
+            offsets,
+        })
+    }
+
+    fn gate(
+        &mut self,
+        cur: &Current<'_, Self>,
+        cand: &select::Candidate<'_, Self>,
+    ) -> Gate<GateDetail> {
+        let o = self.o;
+        let ((c0, _), (c1, n1)) = (cur.held.chi2(), cand.held.chi2());
+        let dk = cand.candidate.parameters(self.held.len());
+        let heldout_delta_bic = select::heldout_delta_bic(c0, c1, n1, dk);
+        let heldout_gain = cand.held.rms() / cur.held.rms() - 1.0;
+        let gate = HeldoutGate {
+            bic_threshold: o.bic_threshold,
+            min_holdout_gain: o.min_holdout_gain,
+        };
+        let (passes, detail) = gate.judge(
+            cand.delta_bic,
+            heldout_delta_bic,
+            heldout_gain,
+            PassWords::Figures,
+        );
+        let reason = &detail.reason;
+        let (fc, fnn) = cand.fitted.chi2();
+        (self.log)(&format!(
+            "round {}: {}: fitted RMS {:.3} mm, held-out RMS {:.3} mm ({} simulations): {reason}",
+            cur.round,
+            cand.candidate.name(),
+            1e3 * (3.0 * fc / fnn.max(1) as f64).sqrt(),
+            1e3 * cand.held.rms(),
+            cand.fitted.evaluations
+        ));
+        self.trials.push(Trial {
+            round: cur.round,
+            effect: cand.candidate,
+            delta_bic: cand.delta_bic,
+            rms_fit_m: Some((3.0 * fc / fnn.max(1) as f64).sqrt()),
+            rms_held_m: Some(cand.held.rms()),
+            gate: Some(detail.clone()),
+            not_fitted: None,
+            adopted: false,
+            predicted_delta_bic: self.prediction(cur.round, cand.candidate),
+            screened_out: false,
+        });
+        Gate {
+            passes,
+            heldout_delta_bic,
+            heldout_rank: cand.held.rms(),
+            detail,
+        }
+    }
+
+    fn adopt(
+        &mut self,
+        cur: &Current<'_, Self>,
+        c: Effect,
+        f: RunsFit,
+        h: Held,
+    ) -> Result<(RunsFit, Held, ()), RunsError> {
+        if let Some(t) = self
+            .trials
+            .iter_mut()
+            .rev()
+            .find(|t| t.round == cur.round && t.effect == c)
+        {
+            t.adopted = true;
+        }
+        if !f.capped {
+            return Ok((f, h, ()));
+        }
+        // Screened with a capped fit: refitted to the full budget before the next round builds
+        // on it (its offsets held, its material as the start).
+        (self.log)(&format!(
+            "round {}: {} stopped at the screening cap ({} iterations): refitting it in full",
+            cur.round,
+            c.name(),
+            self.o.screen_max_iters
+        ));
+        let evaluations = f.evaluations;
+        let mut full = self.fit(&f.effects, &f.material, &f.offsets, self.o.max_iters)?;
+        full.evaluations += evaluations;
+        let held = self.heldout(cur.round, c, &full)?;
+        Ok((full, held, ()))
+    }
+
+    fn fit_screen(&self) -> FitScreen {
+        if !self.o.screen {
+            return FitScreen::Off;
+        }
+        FitScreen::Predicted {
+            least: self.o.screen_least,
+            margin: self.o.screen_margin,
+            fallback_below: -self.o.bic_threshold,
+        }
+    }
+
+    fn predict(
+        &mut self,
+        round: usize,
+        cur: &RunsFit,
+        open: &[Effect],
+    ) -> Result<Vec<select::Prediction>, RunsError> {
+        let at = ScreenPoint::new(self, round, cur, open)?;
+        let mut out = Vec::new();
+        for &c in open {
+            let p = c.effect().predict(self, &at)?;
+            (self.log)(&format!(
+                "round {round}: screen: {} predicted ΔBIC {:.1} ({})",
+                c.name(),
+                p.delta_bic.unwrap_or(f64::NAN),
+                p.how
+            ));
+            self.predicted
+                .push((round, c, p.delta_bic.unwrap_or(f64::NAN)));
+            out.push(p);
+        }
+        Ok(out)
+    }
+
+    fn screened_out(&mut self, round: usize, c: Effect, p: &select::Prediction) {
+        let d = p.delta_bic.unwrap_or(f64::NAN);
+        (self.log)(&format!(
+            "round {round}: {} screened out (predicted ΔBIC {d:.1})",
+            c.name()
+        ));
+        self.trials.push(Trial {
+            round,
+            effect: c,
+            delta_bic: f64::NAN,
+            rms_fit_m: None,
+            rms_held_m: None,
+            gate: None,
+            not_fitted: Some(format!("screened out: predicted ΔBIC {d:.1} ({})", p.how)),
+            adopted: false,
+            predicted_delta_bic: Some(d),
+            screened_out: true,
+        });
+    }
+
+    fn progress(&mut self, event: &Progress) {
+        (self.progress)(event)
+    }
+}
+
+fn fmt(v: Option<f64>, digits: usize) -> String {
+    v.map_or("–".into(), |v| format!("{v:.digits$}"))
+}
