@@ -30,7 +30,7 @@ pub struct Fitted {
     /// s² = max(1, χ²/(n − k)) (inflated when the residual exceeds the declared noise).
     pub theta_sd: Vec<f64>,
     /// Correlations of θ from the same covariance, row-major k × k (NaN where JᵀJ is singular):
-    /// a pair near ±1 is determined only in combination ([`super::params::degeneracies`]).
+    /// a pair near ±1 is determined only in combination (the report lists such pairs).
     pub theta_corr: Vec<f64>,
     /// LM iterations.
     pub iterations: usize,
