@@ -85,7 +85,7 @@ pub struct DatasetToml {
     /// oscillation, [`crate::timestep`]; 1 integrates at the capture rate).
     #[serde(default)]
     pub substeps: Option<usize>,
-    /// Time integration scheme: `"bdf2"` (default) or `"midpoint"`
+    /// Time integration scheme: `"bdf2"` (default), `"midpoint"` or `"alpha"`
     /// ([`crate::timestep::Scheme`]); the substeps chosen from the capture follow its rule.
     #[serde(default)]
     pub scheme: Option<String>,
@@ -727,7 +727,9 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
             bad(
                 &tf,
                 0,
-                format!("field scheme: expected \"bdf2\" or \"midpoint\", found {name:?}"),
+                format!(
+                    "field scheme: expected \"bdf2\", \"midpoint\" or \"alpha\", found {name:?}"
+                ),
             )
         })?;
     }

@@ -1,8 +1,8 @@
 //! Objective and gradient: direct sensitivities (eqs. 5–6) and the adjoint method (eqs. 8–12)
 //! with the elastostatic initial-condition term (eq. 14).
 //!
-//! Both are the exact derivatives of the *discrete* scheme (BDF2 or the implicit midpoint rule,
-//! [`Scheme`]): differentiating the step's equations (eq. 2 for BDF2) gives eq. 6 (direct), and
+//! Both are the exact derivatives of the *discrete* scheme (BDF2, the implicit midpoint rule or
+//! generalised-α, [`Scheme`]): differentiating the step's equations (eq. 2 for BDF2) gives eq. 6 (direct), and
 //! transposing that linear recurrence step by step gives the backward recurrence of eq. 12
 //! (adjoint), so the two agree to round-off and match finite differences up to the Newton
 //! tolerance. Density enters M and f_ext; its terms (§4.3) are included.
@@ -13,7 +13,10 @@
 //! state with the density's inertia term). BDF2: s_xa = (4s_x^{n−1} − s_x^{n−2})/3, s_va = 0,
 //! s_b = (4s_v^{n−1} − s_v^{n−2})/3, s_x^n = s_xa + a_x s_v^n. Midpoint: s_xa = s_x^{n−1} +
 //! (Δt/4) s_v^{n−1}, s_va = s_v^{n−1}/2, s_b = s_v^{n−1}, s_x^n = s_x^{n−1} + (Δt/2)(s_v^{n−1} +
-//! s_v^n).
+//! s_v^n). Generalised-α ([`crate::timestep::TwoStep`], A_j, E its force history):
+//! s_xa = A_1 s_x^{n−1} + A_0 s_x^{n−2} + E s_va, s_va = β_1 s_v^{n−1} + β_0 s_v^{n−2},
+//! s_b = −(α_1 s_v^{n−1} + α_0 s_v^{n−2})/α_2, s_x^n = (Δt Σ β_j s_v − α_1 s_x^{n−1} −
+//! α_0 s_x^{n−2})/α_2.
 
 use super::forces::{param_derivatives, SPLIT_ASSEMBLY_ELEMENTS};
 use super::model::{Material, Model, Observations, Param};
@@ -621,6 +624,8 @@ fn direct(
         mvals,
     } = Setup::new(model, mat, params)?;
     let (scheme, dt) = (model.scheme, model.dt);
+    let two = scheme.two_step();
+    let (hist_a0, hist_a1, hist_e) = two.force_history(dt);
     // s_x⁰ from the elastostatic start (§3.4): K₀ s_x⁰ = ∂f₀/∂q; zero for a rest-shape start.
     let init: std::cell::RefCell<Option<Result<Vec<Vec<f64>>, MotionError>>> =
         std::cell::RefCell::new(None);
@@ -683,7 +688,7 @@ fn direct(
             let mut sb = vec![0.0; nf * np];
             let mut sva = match scheme {
                 Scheme::Bdf2 => Vec::new(),
-                Scheme::Midpoint => vec![0.0; nf * np],
+                Scheme::Midpoint | Scheme::Alpha => vec![0.0; nf * np],
             };
             let mut rhs = vec![0.0; nf * np];
             for p in 0..np {
@@ -698,6 +703,14 @@ fn direct(
                             sa[o + i] = sxm1[p][i] + ax * svm1[p][i];
                             sb[o + i] = svm1[p][i];
                             sva[o + i] = av * svm1[p][i];
+                        }
+                        Scheme::Alpha => {
+                            let hist_v = two.beta[1] * svm1[p][i] + two.beta[0] * svm2[p][i];
+                            sa[o + i] =
+                                hist_a1 * sxm1[p][i] + hist_a0 * sxm2[p][i] + hist_e * hist_v;
+                            sb[o + i] = -(two.alpha[1] * svm1[p][i] + two.alpha[0] * svm2[p][i])
+                                / two.alpha[2];
+                            sva[o + i] = hist_v;
                         }
                     }
                 }
@@ -719,6 +732,15 @@ fn direct(
                     Scheme::Bdf2 => (0..nf).map(|i| sa[o + i] + ax * sv[i]).collect(),
                     Scheme::Midpoint => (0..nf)
                         .map(|i| sxm1[p][i] + 0.5 * dt * (svm1[p][i] + sv[i]))
+                        .collect(),
+                    Scheme::Alpha => (0..nf)
+                        .map(|i| {
+                            two.position(
+                                dt,
+                                [sxm2[p][i], sxm1[p][i]],
+                                [svm2[p][i], svm1[p][i], sv[i]],
+                            )
+                        })
                         .collect(),
                 };
                 grad[p] += (0..nf).map(|i| gx[i] * sxn[i] + gv[i] * sv[i]).sum::<f64>();
@@ -830,6 +852,8 @@ fn adjoint(
         mvals,
     } = Setup::new(model, mat, params)?;
     let (scheme, dt) = (model.scheme, model.dt);
+    let two = scheme.two_step();
+    let (hist_a0, hist_a1, hist_e) = two.force_history(dt);
     let mut acc = zeros_acc(&kinds, model.tets.len());
     let mut total = StepTerm::default();
     let mut start: Option<(Vec<f64>, Option<Factor>)> = None;
@@ -853,7 +877,7 @@ fn adjoint(
                 k: s.k.to_vec(),
                 d: match scheme {
                     Scheme::Bdf2 => Vec::new(),
-                    Scheme::Midpoint => s.d.to_vec(),
+                    Scheme::Midpoint | Scheme::Alpha => s.d.to_vec(),
                 },
                 x: s.force_state[0].to_vec(),
                 v: s.force_state[1].to_vec(),
@@ -900,10 +924,11 @@ fn adjoint(
     for n in (1..=nsteps).rev() {
         let t = &tape[n - 1];
         let j = n + 1; // storage index of step n
-                       // s_x^n's dependence on s_v^n: a_x (BDF2), Δt/2 (midpoint).
+                       // s_x^n's dependence on s_v^n: a_x (BDF2), Δt/2 (midpoint), Δt β_2/α_2.
         let ex = match scheme {
             Scheme::Bdf2 => ax,
             Scheme::Midpoint => 0.5 * dt,
+            Scheme::Alpha => hist_e,
         };
         for i in 0..nf {
             vs[j][i] += ex * xs[j][i];
@@ -951,6 +976,23 @@ fn adjoint(
                     let xbar = xs[j][i];
                     xs[j - 1][i] += xbar - kr[i];
                     vs[j - 1][i] += 0.5 * dt * xbar + c * mr[i] - ax * kr[i] - av * dr[i];
+                }
+            }
+            Scheme::Alpha => {
+                // The transpose of the direct step: s_x^n = (Δt Σ β_j s_v − α_1 s_x^{n−1} −
+                // α_0 s_x^{n−2})/α_2 and S s_v^n = G + c M s_b − K s_xa − D s_va.
+                let mut dr = vec![0.0; nf];
+                model.pattern.mul_add(&t.d, &rbar, &mut dr);
+                let (a, b) = (two.alpha, two.beta);
+                for i in 0..nf {
+                    let xbar = xs[j][i];
+                    xs[j - 1][i] += -a[1] / a[2] * xbar - hist_a1 * kr[i];
+                    xs[j - 2][i] += -a[0] / a[2] * xbar - hist_a0 * kr[i];
+                    for (back, k) in [(1, 1), (2, 0)] {
+                        vs[j - back][i] += dt * b[k] / a[2] * xbar
+                            - c * a[k] / a[2] * mr[i]
+                            - b[k] * (hist_e * kr[i] + dr[i]);
+                    }
                 }
             }
         }

@@ -1,5 +1,5 @@
-//! Forward simulation: elastostatic start (§3.4) and time steps solved by Newton — BDF2 (eq. 2)
-//! or the implicit midpoint rule ([`Scheme`]).
+//! Forward simulation: elastostatic start (§3.4) and time steps solved by Newton — BDF2 (eq. 2),
+//! the implicit midpoint rule or generalised-α ([`Scheme`]).
 //!
 //! Unknowns per step are the free velocities v^{n}; positions follow from them:
 //! BDF2 x^{n} = (4x^{n−1} − x^{n−2})/3 + (2Δt/3) v^{n}, midpoint x^{n} = x^{n−1} +
@@ -222,10 +222,11 @@ pub struct StepView<'a> {
     /// x^{n−1}, x^{n−2}, v^{n−1}, v^{n−2} (full dofs).
     pub prev: [&'a [f64]; 4],
     /// The state (positions, velocities; full dofs) where the step's forces and tangents are
-    /// evaluated: x^n, v^n for BDF2, x^{n−½}, v^{n−½} for the midpoint rule.
+    /// evaluated: x^n, v^n for BDF2, x^{n−½}, v^{n−½} for the midpoint rule, Σ β_j x^{n−2+j},
+    /// Σ β_j v^{n−2+j} for generalised-α ([`crate::timestep::TwoStep`]).
     pub force_state: [&'a [f64]; 2],
     /// b of the step's inertia term c M (v^n − b) (full dofs): (4v^{n−1} − v^{n−2})/3 for BDF2,
-    /// v^{n−1} for the midpoint rule.
+    /// v^{n−1} for the midpoint rule, −(α_1 v^{n−1} + α_0 v^{n−2})/α_2 for generalised-α.
     pub inertia_base: &'a [f64],
     /// Cholesky factor of S = c M + a_x K + a_v D ([`Scheme::coefficients`]) at the converged
     /// state (present when the caller asked for [`StepSolve::Fresh`]).
@@ -590,6 +591,8 @@ pub fn simulate_solving(
     on_start(&x0, k0.as_ref());
     drop(k0);
     let (c, ax, av) = model.scheme.coefficients(model.dt);
+    let two = model.scheme.two_step();
+    let (hist_a0, hist_a1, hist_e) = two.force_history(model.dt);
     // Gravity once; the dead loads switch on at their step.
     let fgrav = model.gravity_load(mat);
     let mut fext = fgrav.clone();
@@ -647,6 +650,22 @@ pub fn simulate_solving(
                 },
                 vm1.clone(),
             ),
+            Scheme::Alpha => {
+                let hist_v = |d: usize| two.beta[1] * vm1[d] + two.beta[0] * vm2[d];
+                (
+                    ForceMap {
+                        xa: (0..ndof)
+                            .map(|d| hist_a1 * xm1[d] + hist_a0 * xm2[d] + hist_e * hist_v(d))
+                            .collect(),
+                        va: (0..ndof).map(hist_v).collect(),
+                        ax,
+                        av,
+                    },
+                    (0..ndof)
+                        .map(|d| -(two.alpha[1] * vm1[d] + two.alpha[0] * vm2[d]) / two.alpha[2])
+                        .collect(),
+                )
+            }
         };
         let (mut xf, mut vf) = (vec![0.0; ndof], vec![0.0; ndof]);
         // Predictor: the velocity extrapolated quadratically from the last three steps
@@ -661,6 +680,12 @@ pub fn simulate_solving(
                 (xf[d], vf[d]) = match model.scheme {
                     Scheme::Bdf2 => (x[d], v[d]),
                     Scheme::Midpoint => (0.5 * (x[d] + xm1[d]), (x[d] - xm1[d]) / model.dt),
+                    // The scheme's own mean velocity Σ β_j v_j = Σ α_j x_j / Δt of the pose.
+                    Scheme::Alpha => (
+                        two.beta[2] * x[d] + two.beta[1] * xm1[d] + two.beta[0] * xm2[d],
+                        (two.alpha[2] * x[d] + two.alpha[1] * xm1[d] + two.alpha[0] * xm2[d])
+                            / model.dt,
+                    ),
                 };
             }
         }
@@ -822,6 +847,9 @@ pub fn simulate_solving(
                 x[d] = match model.scheme {
                     Scheme::Bdf2 => xf[d],
                     Scheme::Midpoint => xm1[d] + 0.5 * model.dt * (vm1[d] + v[d]),
+                    Scheme::Alpha => {
+                        two.position(model.dt, [xm2[d], xm1[d]], [vm2[d], vm1[d], v[d]])
+                    }
                 };
             }
         }

@@ -33,11 +33,18 @@ use nalgebra::Complex;
 /// | BDF2: amplitude per cycle | 0.887 | 0.919 | 0.931 | 0.961 | 0.981 | 0.989 |
 /// | implicit midpoint: period × | 1.019 | 1.014 | 1.013 | 1.008 | 1.005 | 1.003 |
 /// | implicit midpoint: amplitude per cycle | 1 | 1 | 1 | 1 | 1 | 1 |
+/// | generalised-α, ρ∞ = 0.8: period × | 1.020 | 1.015 | 1.013 | 1.009 | 1.005 | 1.003 |
+/// | generalised-α, ρ∞ = 0.8: amplitude per cycle | 1.000 | 1.000 | 1.000 | 1.000 | 1.000 | 1.000 |
 ///
 /// The midpoint rule reaches BDF2's period error with half the steps and adds no numerical
 /// damping, so a fitted viscosity is the material's and not partly the integrator's. Its highest
 /// modes are not damped by the scheme either (|z| = 1 at any ωΔt); the material viscosity damps
-/// them (D enters S and the residual at full weight).
+/// them (D enters S and the residual at full weight), and an undamped model of a released body
+/// can blow up with it.
+///
+/// The generalised-α scheme ([`Scheme::Alpha`], ρ∞ = [`ALPHA_RHO_INF`]) sits between the two:
+/// second order, a period error near the midpoint rule's, little damping in the resolved band,
+/// and every unresolved mode damped by ρ∞ per step ([`Scheme::two_step`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Scheme {
     /// BDF2 (Real2Sim eq. 2): x^n = (4x^{n−1} − x^{n−2})/3 + (2Δt/3) v^n,
@@ -49,6 +56,71 @@ pub enum Scheme {
     /// v^{n−½} = (x^n − x^{n−1})/Δt. Second order, symplectic, no numerical damping (on a
     /// linear system identical to the trapezoidal rule, Newmark's average acceleration).
     Midpoint,
+    /// Generalised-α (Jansen, Whiting & Hulbert 2000, the first-order form of Chung & Hulbert
+    /// 1993) on the system in (x, v), written as the two-step one-leg method it is for a linear
+    /// system: with ρ = ρ∞ = [`ALPHA_RHO_INF`],
+    /// Σ α_j x^{n−2+j} = Δt Σ β_j v^{n−2+j}, M Σ α_j v^{n−2+j} / Δt = f(Σ β_j x^{n−2+j},
+    /// Σ β_j v^{n−2+j}) + f_ext, with β(ζ) = (ζ + ρ)²/(1 + ρ)² (the double root −ρ is the
+    /// amplification of every mode as ωΔt → ∞) and α(ζ) the second-order α for that β
+    /// ([`Scheme::two_step`]). ρ = 0 is BDF2, ρ = 1 the trapezoidal rule. A-stable, second
+    /// order, and its one-leg form is G-stable (Dahlquist), so its stability carries over to the
+    /// nonlinear forces.
+    Alpha,
+}
+
+/// The spectral radius at infinity of [`Scheme::Alpha`]: every mode with ωΔt ≫ 1 loses 1 − ρ∞ =
+/// 20 % of its amplitude per step, while a mode resolved by 13 steps per period loses 0.02 % per
+/// cycle ([`Scheme::oscillator_error`]).
+pub const ALPHA_RHO_INF: f64 = 0.8;
+
+/// A two-step one-leg method's coefficients, oldest first: Σ_j α_j x^{n−2+j} = Δt Σ_j β_j
+/// v^{n−2+j} and M Σ_j α_j v^{n−2+j} / Δt = f(Σ_j β_j x^{n−2+j}, Σ_j β_j v^{n−2+j}) + f_ext.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TwoStep {
+    /// α_0, α_1, α_2 (Σ α = 0, Σ j α_j = 1: consistent).
+    pub alpha: [f64; 3],
+    /// β_0, β_1, β_2 (Σ β = 1).
+    pub beta: [f64; 3],
+}
+
+impl TwoStep {
+    /// Generalised-α with spectral radius at infinity `rho` (0 ≤ ρ ≤ 1): β(ζ) = (ζ + ρ)²/(1 +
+    /// ρ)², α from the order conditions Σ α_j = 0, Σ j α_j = Σ β_j, Σ j² α_j = 2 Σ j β_j.
+    pub fn generalised_alpha(rho: f64) -> Self {
+        let q = 1.0 + rho;
+        Self {
+            alpha: [
+                (1.0 - 3.0 * rho) / (2.0 * q),
+                -2.0 * (1.0 - rho) / q,
+                (3.0 - rho) / (2.0 * q),
+            ],
+            beta: [rho * rho / (q * q), 2.0 * rho / (q * q), 1.0 / (q * q)],
+        }
+    }
+
+    /// The step's (c, a_x, a_v) ([`Scheme::coefficients`]): c = α_2/Δt, a_x = Δt β_2²/α_2,
+    /// a_v = β_2.
+    pub fn coefficients(&self, dt: f64) -> (f64, f64, f64) {
+        let (a2, b2) = (self.alpha[2], self.beta[2]);
+        (a2 / dt, dt * b2 * b2 / a2, b2)
+    }
+
+    /// The force state's history part x_a = A_1 x^{n−1} + A_0 x^{n−2} + E (β_1 v^{n−1} + β_0
+    /// v^{n−2}): (A_0, A_1, E) with A_j = β_j − β_2 α_j/α_2, E = Δt β_2/α_2.
+    pub fn force_history(&self, dt: f64) -> (f64, f64, f64) {
+        let (a, b) = (self.alpha, self.beta);
+        (
+            b[0] - b[2] * a[0] / a[2],
+            b[1] - b[2] * a[1] / a[2],
+            dt * b[2] / a[2],
+        )
+    }
+
+    /// x^n = (Δt Σ_j β_j v^{n−2+j} − α_1 x^{n−1} − α_0 x^{n−2}) / α_2.
+    pub fn position(&self, dt: f64, x: [f64; 2], v: [f64; 3]) -> f64 {
+        let (a, b) = (self.alpha, self.beta);
+        (dt * (b[0] * v[0] + b[1] * v[1] + b[2] * v[2]) - a[1] * x[1] - a[0] * x[0]) / a[2]
+    }
 }
 
 impl Scheme {
@@ -57,6 +129,7 @@ impl Scheme {
         match self {
             Scheme::Bdf2 => "bdf2",
             Scheme::Midpoint => "midpoint",
+            Scheme::Alpha => "alpha",
         }
     }
 
@@ -65,17 +138,36 @@ impl Scheme {
         match name {
             "bdf2" => Some(Scheme::Bdf2),
             "midpoint" => Some(Scheme::Midpoint),
+            "alpha" => Some(Scheme::Alpha),
             _ => None,
         }
     }
 
     /// Steps per period of the capture's oscillation asked for by the substep rule
     /// ([`substeps_for_scheme`]): BDF2 32 (period +1.2 %, amplitude ×0.990 per cycle), midpoint
-    /// 15 (period +1.4 %, no numerical damping).
+    /// 15 (period +1.4 %, no numerical damping), generalised-α [`ALPHA_STEPS_PER_PERIOD`].
     pub fn steps_per_period(self) -> f64 {
         match self {
             Scheme::Bdf2 => STEPS_PER_PERIOD,
             Scheme::Midpoint => MIDPOINT_STEPS_PER_PERIOD,
+            Scheme::Alpha => ALPHA_STEPS_PER_PERIOD,
+        }
+    }
+
+    /// The scheme as a two-step one-leg method ([`TwoStep`]): BDF2 α = (1/2, −2, 3/2), β = (0,
+    /// 0, 1); midpoint α = (0, −1, 1), β = (0, 1/2, 1/2); generalised-α
+    /// [`TwoStep::generalised_alpha`] at [`ALPHA_RHO_INF`].
+    pub fn two_step(self) -> TwoStep {
+        match self {
+            Scheme::Bdf2 => TwoStep {
+                alpha: [0.5, -2.0, 1.5],
+                beta: [0.0, 0.0, 1.0],
+            },
+            Scheme::Midpoint => TwoStep {
+                alpha: [0.0, -1.0, 1.0],
+                beta: [0.0, 0.5, 0.5],
+            },
+            Scheme::Alpha => TwoStep::generalised_alpha(ALPHA_RHO_INF),
         }
     }
 
@@ -85,17 +177,20 @@ impl Scheme {
         match self {
             Scheme::Bdf2 => bdf2_oscillator_error(n),
             Scheme::Midpoint => midpoint_oscillator_error(n),
+            Scheme::Alpha => damped_oscillator_error(self, n, 0.0),
         }
     }
 
     /// (c, a_x, a_v) of a step of length `dt`: the step's residual is
     /// r(v) = f(x_f, v_f) + f_ext − c M (v − b) with the force state x_f = x_a + a_x v,
     /// v_f = v_a + a_v v affine in the step's velocities v, so −∂r/∂v = S = c M + a_x K + a_v D.
-    /// BDF2: (3/(2Δt), 2Δt/3, 1); midpoint: (1/Δt, Δt/4, 1/2).
+    /// BDF2: (3/(2Δt), 2Δt/3, 1); midpoint: (1/Δt, Δt/4, 1/2); generalised-α
+    /// [`TwoStep::coefficients`].
     pub fn coefficients(self, dt: f64) -> (f64, f64, f64) {
         match self {
             Scheme::Bdf2 => (1.5 / dt, 2.0 * dt / 3.0, 1.0),
             Scheme::Midpoint => (1.0 / dt, 0.25 * dt, 0.5),
+            Scheme::Alpha => self.two_step().coefficients(dt),
         }
     }
 }
@@ -113,19 +208,30 @@ pub fn damped_oscillator_error(scheme: Scheme, n: f64, zeta: f64) -> (f64, f64) 
     // One step from the history `s` (BDF2: x¹, x², v¹, v²; midpoint: x¹, v¹, 0, 0): the new
     // history. The residual −ω²x_f − 2ζω v_f − c(v − b) = 0 with x_f = x_a + a_x v,
     // v_f = v_a + a_v v, solved for v.
+    let ts = scheme.two_step();
+    let (a0, a1, e) = ts.force_history(h);
     let step = |s: [f64; 4]| -> [f64; 4] {
         let (xa, va, b) = match scheme {
             Scheme::Bdf2 => ((4.0 * s[0] - s[1]) / 3.0, 0.0, (4.0 * s[2] - s[3]) / 3.0),
             Scheme::Midpoint => (s[0] + ax * s[1], av * s[1], s[1]),
+            Scheme::Alpha => {
+                let hist_v = ts.beta[1] * s[2] + ts.beta[0] * s[3];
+                (
+                    a1 * s[0] + a0 * s[1] + e * hist_v,
+                    hist_v,
+                    -(ts.alpha[1] * s[2] + ts.alpha[0] * s[3]) / ts.alpha[2],
+                )
+            }
         };
         let v = (c * b - w * w * xa - 2.0 * zeta * w * va) / (c + ax * w * w + 2.0 * zeta * w * av);
         match scheme {
             Scheme::Bdf2 => [xa + ax * v, s[0], v, s[2]],
             Scheme::Midpoint => [s[0] + 0.5 * h * (s[1] + v), v, 0.0, 0.0],
+            Scheme::Alpha => [ts.position(h, [s[1], s[0]], [s[3], s[2], v]), s[0], v, s[2]],
         }
     };
     let dim = match scheme {
-        Scheme::Bdf2 => 4,
+        Scheme::Bdf2 | Scheme::Alpha => 4,
         Scheme::Midpoint => 2,
     };
     let a = nalgebra::DMatrix::from_fn(dim, dim, |r, col| {
@@ -146,6 +252,10 @@ pub fn damped_oscillator_error(scheme: Scheme, n: f64, zeta: f64) -> (f64, f64) 
     let true_decay = (-tau * zeta / damped).exp();
     (steps / true_period, z.norm().powf(steps) / true_decay)
 }
+
+/// Generalised-α steps per period of the capture's oscillation asked for: at ρ∞ = 0.8, period
+/// +1.5 % and amplitude ×0.9998 per cycle, the midpoint rule's rule.
+pub const ALPHA_STEPS_PER_PERIOD: f64 = 15.0;
 
 /// Midpoint steps per period of the capture's oscillation asked for (period error ≈ 1.4 %, no
 /// numerical damping).
@@ -449,6 +559,11 @@ mod tests {
                 [1.019, 1.014, 1.013, 1.008, 1.005, 1.003],
                 [1.0; 6],
             ),
+            (
+                Scheme::Alpha,
+                [1.020, 1.015, 1.013, 1.009, 1.005, 1.003],
+                [1.0; 6],
+            ),
         ];
         for (scheme, period, amp) in table {
             for (i, n) in [13.0, 15.0, 16.0, 20.0, 26.0, 32.0].into_iter().enumerate() {
@@ -470,7 +585,7 @@ mod tests {
     /// Undamped, the amplification matrix gives the closed forms.
     #[test]
     fn damped_error_reduces_to_the_closed_forms() {
-        for scheme in [Scheme::Bdf2, Scheme::Midpoint] {
+        for scheme in [Scheme::Bdf2, Scheme::Midpoint, Scheme::Alpha] {
             for n in [13.0, 32.0] {
                 let (r, a) = scheme.oscillator_error(n);
                 let (rd, ad) = damped_oscillator_error(scheme, n, 0.0);
@@ -482,12 +597,97 @@ mod tests {
         }
     }
 
+    /// Generalised-α as written here is the first-order generalised-α of Jansen, Whiting &
+    /// Hulbert on the oscillator's (x, v): the physical eigenvalue of that scheme's
+    /// amplification (state y, ẏ) equals the two-step method's largest root, at every ωΔt and
+    /// damping, and both lose ρ∞ per step as ωΔt → ∞.
+    #[test]
+    fn alpha_is_jansen_whiting_hulbert_generalised_alpha() {
+        use nalgebra::{DMatrix, Matrix2};
+        for rho in [0.0, 0.5, ALPHA_RHO_INF, 0.9] {
+            let two = TwoStep::generalised_alpha(rho);
+            let (am, af) = (0.5 * (3.0 - rho) / (1.0 + rho), 1.0 / (1.0 + rho));
+            let gamma = 0.5 + am - af;
+            for (wh, zeta) in [
+                (0.05, 0.0),
+                (0.4, 0.0),
+                (0.4, 0.05),
+                (3.0, 0.02),
+                (1e4, 0.0),
+            ] {
+                let a = Matrix2::new(0.0, 1.0, -wh * wh, -2.0 * zeta * wh);
+                // (αm/γ I − αf A) y' = (αm/γ I + (1 − αf) A) y + (αm(1 − γ)/γ − (1 − αm)) ẏ,
+                // ẏ' = (y' − y − (1 − γ) ẏ)/γ, with Δt = 1.
+                let lhs = Matrix2::identity() * (am / gamma) - a * af;
+                let inv = lhs.try_inverse().expect("invertible");
+                let py = inv * (Matrix2::identity() * (am / gamma) + a * (1.0 - af));
+                let pd = inv * (am * (1.0 - gamma) / gamma - (1.0 - am));
+                let qy = (py - Matrix2::identity()) / gamma;
+                let qd = pd / gamma - Matrix2::identity() * ((1.0 - gamma) / gamma);
+                let amp = DMatrix::from_fn(4, 4, |r, c| match (r < 2, c < 2) {
+                    (true, true) => py[(r, c)],
+                    (true, false) => pd[(r, c - 2)],
+                    (false, true) => qy[(r - 2, c)],
+                    (false, false) => qd[(r - 2, c - 2)],
+                });
+                let jwh = amp
+                    .complex_eigenvalues()
+                    .iter()
+                    .copied()
+                    .max_by(|p, q| p.norm().total_cmp(&q.norm()))
+                    .expect("four eigenvalues");
+                // The two-step method on y' = λ y, λ the oscillator's eigenvalue.
+                let lam = Complex::new(-zeta * wh, wh * (1.0 - zeta * zeta).sqrt());
+                let (al, be) = (two.alpha, two.beta);
+                let p2 = lam * (-be[2]) + al[2];
+                let p1 = lam * (-be[1]) + al[1];
+                let p0 = lam * (-be[0]) + al[0];
+                let disc = (p1 * p1 - p2 * p0 * 4.0).sqrt();
+                let roots = [(-p1 + disc) / (p2 * 2.0), (-p1 - disc) / (p2 * 2.0)];
+                let lmm = roots
+                    .into_iter()
+                    .max_by(|p, q| p.norm().total_cmp(&q.norm()))
+                    .expect("two roots");
+                assert!(
+                    (jwh.norm() - lmm.norm()).abs() < 1e-7
+                        && (jwh.arg().abs() - lmm.arg().abs()).abs() < 1e-7,
+                    "ρ∞ {rho}, ωΔt {wh}, ζ {zeta}: JWH {jwh} two-step {lmm}"
+                );
+                if wh > 1e3 {
+                    assert!((lmm.norm() - rho).abs() < 2e-2, "ρ∞ {rho}: {lmm}");
+                }
+            }
+        }
+    }
+
+    /// BDF2's and the midpoint rule's two-step coefficients give their own step constants, and
+    /// generalised-α meets the order conditions.
+    #[test]
+    fn two_step_coefficients_are_consistent() {
+        for scheme in [Scheme::Bdf2, Scheme::Midpoint] {
+            let (c, ax, av) = scheme.coefficients(0.01);
+            let (c2, ax2, av2) = scheme.two_step().coefficients(0.01);
+            assert!(
+                (c - c2).abs() < 1e-9 && (ax - ax2).abs() < 1e-15 && (av - av2).abs() < 1e-15,
+                "{scheme:?}"
+            );
+        }
+        let t = TwoStep::generalised_alpha(ALPHA_RHO_INF);
+        let sum = |w: [f64; 3], p: i32| (0..3).map(|j| w[j] * (j as f64).powi(p)).sum::<f64>();
+        assert!(sum(t.alpha, 0).abs() < 1e-14);
+        assert!((sum(t.alpha, 1) - sum(t.beta, 0)).abs() < 1e-14);
+        assert!((sum(t.beta, 0) - 1.0).abs() < 1e-14);
+        assert!((sum(t.alpha, 2) - 2.0 * sum(t.beta, 1)).abs() < 1e-14);
+    }
+
     #[test]
     fn midpoint_substeps_follow_the_rule() {
         // The beam's gravity runs (0.130 s) and 52 g runs (0.231 s) at 100 Hz.
         assert_eq!(substeps_for_scheme(Scheme::Midpoint, 0.01, Some(0.13)), 2);
         assert_eq!(substeps_for_scheme(Scheme::Midpoint, 0.01, Some(0.231)), 1);
         assert_eq!(substeps_for_scheme(Scheme::Bdf2, 0.01, Some(0.13)), 3);
+        assert_eq!(substeps_for_scheme(Scheme::Alpha, 0.01, Some(0.13)), 2);
+        assert_eq!(substeps_for_scheme(Scheme::Alpha, 0.01, Some(0.231)), 1);
     }
 
     #[test]

@@ -355,6 +355,12 @@ pub fn run_schemes(args: SchemesArgs) -> anyhow::Result<()> {
             substeps_for_scheme(Scheme::Midpoint, base.dt, period),
         ),
         ("midpoint, capture rate", Scheme::Midpoint, 1),
+        (
+            "alpha, its rule",
+            Scheme::Alpha,
+            substeps_for_scheme(Scheme::Alpha, base.dt, period),
+        ),
+        ("alpha, capture rate", Scheme::Alpha, 1),
         ("bdf2, reference", Scheme::Bdf2, args.reference_substeps),
     ];
     let models: Vec<_> = configs

@@ -44,9 +44,10 @@ pub struct C3dArgs {
     pub density: Option<f64>,
     /// Time integration written into the dataset: `bdf2` (Real2Sim's, ≥ 32 steps per period of
     /// the capture's ring-down) or `midpoint` (the implicit midpoint rule: no numerical damping,
-    /// ≥ 15 steps per period, but an undamped model of a released body can blow up with it);
+    /// ≥ 15 steps per period, but an undamped model of a released body can blow up with it) or
+    /// `alpha` (generalised-α, ρ∞ = 0.8: ≥ 16 steps per period, damps only the unresolved modes);
     /// docs/motion-dataset.md.
-    #[arg(long, default_value = "bdf2", value_parser = ["bdf2", "midpoint"])]
+    #[arg(long, default_value = "bdf2", value_parser = ["bdf2", "midpoint", "alpha"])]
     pub scheme: String,
     /// A weight hung from the top edge of a group of the mesh (its nodes furthest against
     /// gravity), as `MASS_KG@GROUP`, e.g. `0.052@free_end`; repeat for several. Written as a
