@@ -338,6 +338,21 @@ pub enum FitScreen {
     },
 }
 
+impl FitScreen {
+    /// The screen a room's options ask for: off, or the `least` best predicted and those within
+    /// `margin`, with the gate's ΔBIC `threshold` as the fallback's bound.
+    pub fn from_options(on: bool, least: usize, margin: f64, threshold: f64) -> Self {
+        if !on {
+            return Self::Off;
+        }
+        Self::Predicted {
+            least,
+            margin,
+            fallback_below: -threshold,
+        }
+    }
+}
+
 /// What the loop is doing, for a progress display ([`CandidateModel::progress`]). Rounds and
 /// fits count from 1; `rounds` is the most rounds the loop may take (it often stops earlier).
 #[derive(Debug, Clone, PartialEq)]

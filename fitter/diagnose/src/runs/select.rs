@@ -203,14 +203,12 @@ impl CandidateModel for RunsModel<'_> {
     }
 
     fn fit_screen(&self) -> FitScreen {
-        if !self.o.screen {
-            return FitScreen::Off;
-        }
-        FitScreen::Predicted {
-            least: self.o.screen_least,
-            margin: self.o.screen_margin,
-            fallback_below: -self.o.bic_threshold,
-        }
+        FitScreen::from_options(
+            self.o.screen,
+            self.o.screen_least,
+            self.o.screen_margin,
+            self.o.bic_threshold,
+        )
     }
 
     fn predict(
