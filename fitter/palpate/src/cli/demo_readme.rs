@@ -4,7 +4,7 @@
 //!
 //! Plain data in, one file out: the demo fills a [`DemoReadme`] from its results and
 //! [`write()`] renders it, so the page can be checked on a small value without running the demo
-//! (`tests/demo_readme.rs`).
+//! (`tests/cli/demo_readme.rs`).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};

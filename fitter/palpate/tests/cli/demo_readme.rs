@@ -2,12 +2,12 @@
 //! minutes of fitting. The page must hold both before/after tables and the verdicts, and every
 //! figure or report it links must exist at a path relative to the page.
 
-#[path = "../src/cli/demo_readme.rs"]
+#[path = "../../src/cli/demo_readme.rs"]
 #[allow(dead_code)]
-mod demo_readme;
+mod writer;
 
-use demo_readme::{figures_in, write, DemoReadme, Part, Table};
 use std::path::{Path, PathBuf};
+use writer::{figures_in, write, DemoReadme, Part, Table};
 
 fn table(caption: &str, first: &str, row: &[&str]) -> Table {
     Table {

@@ -4,7 +4,7 @@
 //! without `use-crc`, the crates built without their default features). A dependency added to
 //! `Cargo.toml` without a line saying why it is there fails here.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -7,7 +7,7 @@
 //! the convention ParaView users expect: points at the rest positions plus a `displacement`
 //! vector, so Warp By Vector shows the deformation once.
 
-mod common;
+use crate::common;
 
 use common::{assert_fit_written, assert_succeeded, fit_sponge, palpate, repo};
 use std::collections::HashMap;

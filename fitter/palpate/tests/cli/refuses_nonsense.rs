@@ -2,7 +2,7 @@
 //! degenerate static data, absurd loads, a probe nowhere near the object, out-of-range options.
 //! Each must exit non-zero, name what is wrong, and write nothing.
 
-mod common;
+use crate::common;
 
 use common::{
     assert_exit_and_stderr, assert_succeeded, fit_sponge, last_json, palpate, refused, repo,

@@ -4,7 +4,7 @@
 //! (`.palp` models are fuzzed where they are decoded, in the protocol crate). The property: `palpate` ends within a bound with exit status
 //! 0, 1 or 2 (never a signal: no abort), never panics, and an exit 1 says why on stderr.
 
-mod common;
+use crate::common;
 
 use common::{copy_dir, palpate, repo, run_within, text};
 use proptest::prelude::*;

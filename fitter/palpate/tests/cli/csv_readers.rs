@@ -2,7 +2,7 @@
 //! (`"m0"` is the marker m0), as spreadsheet programs write them. A dataset rewritten so reads
 //! exactly as the original: `palpate info` says the same of both.
 
-mod common;
+use crate::common;
 
 use common::{assert_succeeded, copy_dir, palpate, repo, text};
 use std::path::Path;

@@ -3,7 +3,7 @@
 //! with `-q`/`-v`/RUST_LOG, JSON documents with a schema version and units in their field names,
 //! and figures in the format asked for.
 
-mod common;
+use crate::common;
 
 use common::{
     assert_exit_and_stderr, assert_fit_written, assert_succeeded, fit_sponge, last_json, palpate,

@@ -3,7 +3,7 @@
 //! writes, `--model` takes a runtime model or a fit and says which it read. Old spellings are
 //! still read, with a warning that names the new one.
 
-mod common;
+use crate::common;
 
 use common::{assert_exit_and_stderr, assert_succeeded, palpate, refused, repo, text};
 use std::path::Path;

@@ -2,7 +2,7 @@
 //! length in time: the capture intervals and `dt` that `dataset.toml` and `trajectories.csv`
 //! hold, and, where the simulation takes several steps per interval, those too.
 
-mod common;
+use crate::common;
 
 use common::{assert_succeeded, palpate, text};
 

@@ -2,7 +2,7 @@
 //! flags, data in other units, the wrong kind of file. Each must end promptly with a clear error
 //! (no panic, no abort, no hang), write nothing, and destroy nothing that was there before.
 
-mod common;
+use crate::common;
 
 use common::{copy_dir, palpate, repo, run_within, text};
 use std::path::{Path, PathBuf};

@@ -1,7 +1,7 @@
 //! The progress line of long commands: drawn only on a terminal. Run with stderr piped (as in a
 //! log file or CI), a command that shows one writes its messages and no cursor control codes.
 
-mod common;
+use crate::common;
 
 use common::{assert_succeeded, palpate, repo, text};
 

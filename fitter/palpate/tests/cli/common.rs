@@ -1,8 +1,5 @@
-//! What the `palpate` program's test files share: the program, the repository root, the check
+//! What the `palpate` program's test modules share: the program, the repository root, the check
 //! that a fit was written, and the bundled data copied or imported as the README does.
-
-// Each test file uses its own part of this module.
-#![allow(dead_code)]
 
 use std::io::Read;
 use std::path::{Path, PathBuf};
