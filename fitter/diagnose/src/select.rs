@@ -1092,6 +1092,8 @@ mod tests {
         screen: FitScreen,
         fits: usize,
         screened: Vec<(usize, usize)>,
+        /// Candidates whose fit does not converge ([`Outcome::NotFitted`]).
+        diverges: Vec<usize>,
     }
 
     #[derive(Debug, Clone, Copy, PartialEq)]
@@ -1126,6 +1128,9 @@ mod tests {
         }
         fn fit_with(&mut self, _: usize, cur: &f64, c: C) -> Result<Outcome<f64>, ()> {
             self.fits += 1;
+            if self.diverges.contains(&c.0) {
+                return Ok(Outcome::NotFitted(format!("c{} diverged", c.0)));
+            }
             Ok(Outcome::Fitted(cur + self.gain[c.0]))
         }
         fn score(&self, f: &f64) -> Score {
@@ -1181,6 +1186,7 @@ mod tests {
             screen,
             fits: 0,
             screened: Vec::new(),
+            diverges: Vec::new(),
         };
         let policy = Policy {
             rounds: 5,
@@ -1225,5 +1231,39 @@ mod tests {
         // is never fitted in round 1.
         assert!(toy.screened.contains(&(1, 1)));
         assert!(!toy.screened.contains(&(1, 0)));
+    }
+
+    /// A candidate whose fit diverges is not a finding, but it was tried: the engine itself (no
+    /// mark set by hand) lists it in every round's attempts as not fitted, with the fit's own
+    /// reason, never gated and never adopted; the others are selected as without it.
+    #[test]
+    fn a_fit_that_diverges_is_listed_as_not_fitted_in_each_round() {
+        let mut toy = Toy {
+            gain: vec![-50.0, -5.0, -200.0, -30.0],
+            predicted: vec![-40.0, -1.0, -150.0, -60.0],
+            fails: Vec::new(),
+            screen: FitScreen::Off,
+            fits: 0,
+            screened: Vec::new(),
+            diverges: vec![2],
+        };
+        let policy = Policy {
+            rounds: 5,
+            max_adopted: 4,
+            rank: Rank::FittedBic,
+            screen: Screen::All,
+        };
+        let v = select(&mut toy, &policy, 0.0, ()).unwrap();
+        assert_eq!(v.adopted(), [C(0), C(3)]);
+        assert!(!v.rounds.is_empty());
+        for (r, round) in v.rounds.iter().enumerate() {
+            let a = round
+                .attempts
+                .iter()
+                .find(|a| a.candidate == C(2))
+                .unwrap_or_else(|| panic!("round {r}: the diverged c2 is not among the attempts"));
+            assert_eq!(a.not_fitted.as_deref(), Some("c2 diverged"), "round {r}");
+            assert!(a.gate.is_none() && a.score.is_none(), "round {r}");
+        }
     }
 }

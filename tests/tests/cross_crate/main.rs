@@ -8,6 +8,7 @@
 mod capture_import;
 mod contact_rule;
 mod diagnose_export;
+mod diagnose_independent_motion;
 mod hil_link;
 mod hil_runtime;
 mod mesh_error;

@@ -58,7 +58,8 @@ fn a_softening_law_past_its_limit_load_has_no_equilibrium() {
 /// found no equilibrium under one of the loads is not a finding, but it was tried): the round's
 /// table must show it as not fitted and say why, in the Markdown and in the JSON. This checks the
 /// report writers only: the mark is set here by hand on a real one-candidate diagnosis; that
-/// the engine sets it when a fit diverges is not what this test shows.
+/// the engine sets it when a fit diverges is checked on a toy model in `palpate_diagnose`'s
+/// `select` tests (`a_fit_that_diverges_is_listed_as_not_fitted_in_each_round`).
 #[test]
 fn the_report_shows_a_not_fitted_attempt_in_the_round_table() {
     use palpate_diagnose::{run_diagnosis, DiagnoseOptions, MeshChoice};
