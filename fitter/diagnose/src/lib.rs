@@ -7,7 +7,7 @@
 //! | [`statics`] | static contact datasets (`docs/dataset.md`) | [`statics::candidates`] | [`statics::fit`] | [`statics::signature`] | [`statics::report`] |
 //! | [`motion`] | one motion dataset (`docs/motion-dataset.md`) | [`motion::Candidate`] | [`motion::fit`] | [`motion::signature`] | [`motion::report`] |
 //! | [`runs`] | several runs of one object, some held out | [`runs::Effect`] | [`runs`] | [`runs::RunResidual`] | [`runs::report`] |
-//! | [`curve`] | measured curves (tension tests, CSV) | [`curve::model`] | [`curve::fit`] | [`curve::signature`] | [`curve::report`] |
+//! | [`curve`] | measured curves (tension tests, CSV) | [`curve::candidates`] | [`curve::fit`] | [`curve::signature`] | [`curve::report`] |
 //!
 //! Each room has a `run.rs` that diagnoses one input on request and hands back a
 //! [`run::Summary`]. Shared above the rooms: the selection engine every room drives

@@ -9,6 +9,7 @@ use crate::fitted::{FittedModel, FittedRun};
 use crate::model::{Material, Param, ParamKind};
 use crate::optimize::{fit_runs, FitResult, FitSettings, Optimizer, Run};
 use crate::{predict, MotionError};
+use palpate_fem::numbers;
 use palpate_fem::sanity::Findings;
 use palpate_runtime::material::LambdaAlpha;
 use std::fmt;
@@ -379,7 +380,11 @@ impl fmt::Display for FitOutcome {
             "| RMS marker error √(2Φ/(NT)) | {:.4} mm |",
             r.eval.rms_marker * 1e3
         )?;
-        writeln!(f, "| RMS force error | {:.4e} N |", r.eval.rms_force)?;
+        writeln!(
+            f,
+            "| RMS force error | {} N |",
+            numbers::plain(r.eval.rms_force)
+        )?;
         if s.names.len() > 1 {
             for (name, e) in s.names.iter().zip(&r.runs) {
                 writeln!(
@@ -411,10 +416,26 @@ impl fmt::Display for FitOutcome {
             } else {
                 "fixed"
             };
+            // The label's unit ("shear modulus μ (Pa)") picks one unit for the three figures.
+            let (name, unit) = match k.label().rsplit_once(" (") {
+                Some((n, u)) if u.ends_with(')') => (n, u.trim_end_matches(')')),
+                _ => (k.label(), ""),
+            };
+            let (unit, size) = numbers::unit_for(mean, unit);
+            let q = |v: f64| {
+                let v = numbers::plain(v / size);
+                if unit.is_empty() {
+                    v
+                } else {
+                    format!("{v} {unit}")
+                }
+            };
             writeln!(
                 f,
-                "| {} ({tag}) | mean {mean:.6e} (min {lo:.4e}, max {hi:.4e}) |",
-                k.label()
+                "| {name} ({tag}) | mean {} (min {}, max {}) |",
+                q(mean),
+                q(lo),
+                q(hi)
             )?;
         }
         let la = LambdaAlpha::from_lame(
@@ -423,16 +444,16 @@ impl fmt::Display for FitOutcome {
         );
         writeln!(
             f,
-            "| Young's modulus E, Poisson's ratio ν (element 0) | {:.4e} Pa, {:.4} |",
-            la.young(),
+            "| Young's modulus E, Poisson's ratio ν (element 0) | {}, {:.4} |",
+            numbers::pressure(la.young()),
             la.poisson()
         )?;
         writeln!(
             f,
-            "| {} of element 0, as exported | {:.4e} Pa, {:.4e} Pa |",
+            "| {} of element 0, as exported | {}, {} |",
             palpate_fem::names::THESIS_PAIR,
-            la.lambda,
-            la.alpha
+            numbers::pressure(la.lambda),
+            numbers::pressure(la.alpha)
         )?;
         write!(f, "\n{}", palpate_fem::names::THESIS_PAIR_NOTE)
     }
@@ -485,12 +506,16 @@ pub fn fit_equilibria(
 impl fmt::Display for Equilibria {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let ((mu, sd), nu) = (self.mu, self.poisson);
+        let (mu_v, mu_sd) = numbers::value_and_sd(mu, sd, "Pa");
+        let (e_v, e_sd) = numbers::value_and_sd(2.0 * (1.0 + nu) * mu, 2.0 * (1.0 + nu) * sd, "Pa");
         write!(
             f,
-            "equilibria of {} runs: μ = {mu:.5e} Pa ± {sd:.2e} (1σ, independent residuals), E = {:.5e} Pa ± {:.2e} at Poisson's ratio {nu} (held); rest-state RMS {:.3} mm",
+            "equilibria of {} runs: μ = {} ± {} (1σ, independent residuals), E = {} ± {} at Poisson's ratio {nu} (held); rest-state RMS {:.3} mm",
             self.runs,
-            2.0 * (1.0 + nu) * mu,
-            2.0 * (1.0 + nu) * sd,
+            mu_v,
+            mu_sd,
+            e_v,
+            e_sd,
             1e3 * self.rms_m
         )
     }

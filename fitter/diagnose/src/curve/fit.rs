@@ -3,6 +3,7 @@
 //! the parameters the prediction is linear in solved by linear least squares at each start, a
 //! short Levenberg–Marquardt screen of every start, then the best one polished.
 
+use super::candidates::effects;
 use super::lm::{levenberg_marquardt, linear_lsq};
 use super::model::{Model, Param};
 use super::read::Group;
@@ -50,22 +51,12 @@ pub fn residuals(
     Some(r)
 }
 
-/// Alternative start values of a newly added non-linear parameter.
+/// Alternative start values of a newly added non-linear parameter: the candidate's that frees
+/// it, else its one default start.
 fn alternatives(p: &Param, model: &Model) -> Vec<f64> {
-    let d = model.scale.duration.max(1e-6);
-    let x = model.scale.x_max.max(1e-9);
-    if p.name.starts_with("tau") {
-        vec![d / 300.0, d / 30.0, d / 3.0]
-    } else {
-        match p.name.as_str() {
-            "L0" => vec![x, x / 3.0, 3.0 * x],
-            "alpha" | "alpha1" => vec![2.0, 5.0, -2.0],
-            "alpha2" => vec![-2.0, 8.0, 1.0],
-            "F_sat" => vec![x, x / 5.0],
-            "F0" => vec![0.0, 0.05 * x],
-            _ => vec![p.start],
-        }
-    }
+    effects()
+        .find_map(|e| e.alternatives(p, model))
+        .unwrap_or_else(|| vec![p.start])
 }
 
 /// Start vectors: warm values by name, the cartesian product of alternatives of the other

@@ -2,13 +2,14 @@
 //! stress–strain tests and FSR calibrations. Same mechanism as the static diagnosis: fit the
 //! simplest model the data declares (force ∝ displacement, stress ∝ strain, FSR conductance ∝
 //! force through the divider), read the residual's signature ([`signature`]), refit every
-//! candidate effect of the library ([`model`]) with a small Levenberg–Marquardt ([`lm`], [`fit`]),
+//! candidate effect of the library ([`candidates`], on the [`model`]) with a small Levenberg–Marquardt ([`lm`], [`fit`]),
 //! adopt the best one only if it lowers BIC and the held-out RMS by a margin ([`select`](mod@select)), repeat,
 //! and report ([`report`]).
 //!
 //! Nothing about which effect is present comes from anywhere but the data: the format is read
 //! from the header ([`read`]), every candidate the format admits is tried on every dataset.
 
+pub mod candidates;
 pub mod fit;
 pub mod lm;
 pub mod model;
@@ -144,22 +145,7 @@ pub fn diagnose(
         })
         .collect();
     check_plausible(data, &groups)?;
-    let mut bits = o.adc_bits.clamp(1, 31);
-    if data.format == Format::FsrBalance {
-        let top = groups
-            .iter()
-            .flat_map(|g| g.y.iter())
-            .fold(0.0f64, |m, &c| m.max(c));
-        while bits < 31 && f64::from((1u32 << bits) - 1) < top {
-            bits += 1;
-        }
-        if f64::from((1u32 << bits) - 1) < top {
-            return Err(CurveError::Input(format!(
-                "{}: {top} counts exceed any 31-bit converter",
-                data.name
-            )));
-        }
-    }
+    let bits = adc_bits(data, &groups, o)?;
     let x_max = groups
         .iter()
         .flat_map(|g| g.x.iter())
@@ -181,6 +167,47 @@ pub fn diagnose(
     let family = Family::of(data.format, o.gauge_mm, bits);
     let sel = select(Model::simplest(family, scale), &groups, ts, o, log)
         .ok_or_else(|| CurveError::Fit(data.name.clone()))?;
+    let notes = notes(data, o, bits);
+    // A residual that is not a finite number is no verdict: never "clean" with RMS inf.
+    if let Some(e) = sel
+        .errors
+        .iter()
+        .find(|e| !(e.fitted_rms.is_finite() && e.heldout_rms.is_finite()))
+    {
+        return Err(CurveError::Input(format!(
+            "{}: the fit's residual is not finite (fitted RMS {}, held out {}): the data's \
+             magnitudes are outside what the models can represent",
+            data.name, e.fitted_rms, e.heldout_rms
+        )));
+    }
+    Ok(diagnosis(data, o, groups, sel, notes, t0))
+}
+
+/// The ADC resolution of FSR balance data: the option's, raised to the smallest one that holds
+/// the largest count (other formats: the option's, unused).
+fn adc_bits(data: &CurveData, groups: &[Group], o: &CurveOptions) -> Result<u32, CurveError> {
+    let mut bits = o.adc_bits.clamp(1, 31);
+    if data.format == Format::FsrBalance {
+        let top = groups
+            .iter()
+            .flat_map(|g| g.y.iter())
+            .fold(0.0f64, |m, &c| m.max(c));
+        while bits < 31 && f64::from((1u32 << bits) - 1) < top {
+            bits += 1;
+        }
+        if f64::from((1u32 << bits) - 1) < top {
+            return Err(CurveError::Input(format!(
+                "{}: {top} counts exceed any 31-bit converter",
+                data.name
+            )));
+        }
+    }
+    Ok(bits)
+}
+
+/// The caveats stated with the result: the reader's repairs, then what the format implies.
+fn notes(data: &CurveData, o: &CurveOptions, bits: u32) -> Vec<String> {
+    let ts = data.format.is_time_series();
     let mut notes = data.warnings.clone();
     match data.format {
         Format::Tension => {
@@ -204,18 +231,18 @@ pub fn diagnose(
     if ts {
         notes.push("Parameter uncertainties assume independent residuals; samples of a time series are correlated, so they are lower bounds.".into());
     }
-    // A residual that is not a finite number is no verdict: never "clean" with RMS inf.
-    if let Some(e) = sel
-        .errors
-        .iter()
-        .find(|e| !(e.fitted_rms.is_finite() && e.heldout_rms.is_finite()))
-    {
-        return Err(CurveError::Input(format!(
-            "{}: the fit's residual is not finite (fitted RMS {}, held out {}): the data's \
-             magnitudes are outside what the models can represent",
-            data.name, e.fitted_rms, e.heldout_rms
-        )));
-    }
+    notes
+}
+
+/// The diagnosis of `data` from its selection (`groups`: the samples used; `t0`: when it began).
+fn diagnosis(
+    data: &CurveData,
+    o: &CurveOptions,
+    groups: Vec<Group>,
+    sel: select::Selection,
+    notes: Vec<String>,
+    t0: Instant,
+) -> CurveDiagnosis {
     let first = &sel.fits[0];
     let last = sel.fits.last().expect("at least the simplest fit");
     let unit = data.format.labels().1.to_string();
@@ -235,7 +262,7 @@ pub fn diagnose(
             )
         })
         .collect();
-    Ok(CurveDiagnosis {
+    CurveDiagnosis {
         name: data.name.clone(),
         format: data.format,
         sources: data.sources.iter().map(|p| p.display().to_string()).collect(),
@@ -270,7 +297,7 @@ pub fn diagnose(
         seconds: t0.elapsed().as_secs_f64(),
         data: groups,
         selection: Some(sel),
-    })
+    }
 }
 
 /// The largest magnitude a load or response may have: its square must not overflow in a

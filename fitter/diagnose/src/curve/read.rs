@@ -1,5 +1,8 @@
 //! Reading measured curves: the header picks the format, every bad cell is reported with its
-//! file, line and column. A directory contributes every `*.csv` it holds (not recursively).
+//! file, line and column (its position and name). Files are read through the one CSV layer of
+//! the offline tools ([`palpate_fem::io::csv::parse`], the `csv` crate): columns found by their
+//! header names in any order and any letter case, quoted fields (`"a,b"` is one field). A
+//! directory contributes every `*.csv` it holds (not recursively).
 //!
 //! | header columns (any order, extra columns ignored) | format | x | y |
 //! |---|---|---|---|
@@ -96,31 +99,6 @@ impl CurveData {
     }
 }
 
-/// Reads the format of a CSV header, `None` if it is none of the known ones.
-pub fn detect(header: &str) -> Option<Format> {
-    let cols = columns(header);
-    let has = |n: &str| cols.iter().any(|c| c == &n.to_ascii_lowercase());
-    if has("run") && has("adc_counts") && has("reference_mass_g") {
-        Some(Format::FsrBalance)
-    } else if has("force_n") && has("resistance_ohm") {
-        Some(Format::FsrDatasheet)
-    } else if has("engineering_strain") && has("engineering_stress_mpa") {
-        Some(Format::StressStrain)
-    } else if has("time_s") && has("displacement_mm") && has("force_n") {
-        Some(Format::Tension)
-    } else {
-        None
-    }
-}
-
-fn columns(header: &str) -> Vec<String> {
-    header
-        .trim_start_matches('\u{feff}')
-        .split(',')
-        .map(|c| c.trim().trim_matches('"').to_ascii_lowercase())
-        .collect()
-}
-
 /// Whether `path` is something the curve diagnosis reads: a `.csv` file, or a directory with CSV
 /// files and no `dataset.toml` (that one is a static FEM dataset).
 pub fn is_curve_input(path: &Path) -> bool {
@@ -145,114 +123,201 @@ fn csv_files(dir: &Path) -> Result<Vec<PathBuf>, CurveError> {
     Ok(v)
 }
 
-/// Parses one file's text into groups (`name` is used in errors and group names).
-/// Returns the format, the groups and warnings (repairs made, with their location).
-pub fn parse(text: &str, name: &str) -> Result<(Format, Vec<Group>, Vec<String>), CurveError> {
-    let mut warnings = Vec::new();
-    let mut lines = csv::records(text, false);
-    let (_, header) = lines.next().ok_or_else(|| CurveError::Format {
-        file: name.into(),
-        line: 1,
-        message: "empty file: expected a header line".into(),
-    })?;
-    let format = detect(header).ok_or_else(|| CurveError::Format {
-        file: name.into(),
-        line: 1,
-        message: format!(
-            "unknown header {:?}: expected the columns `time_s,displacement_mm,force_N` (tension), \
-             `engineering_strain,engineering_stress_MPa` (stress–strain), \
-             `run,adc_counts,reference_mass_g` (FSR balance) or `force_N,resistance_ohm` (FSR points)",
-            header.trim()
-        ),
-    })?;
-    let cols = columns(header);
-    let idx = |n: &str| cols.iter().position(|c| c == n);
-    let need: &[&str] = match format {
+/// Reads the format of a CSV header line, `None` if it is none of the known ones.
+pub fn detect(header: &str) -> Option<Format> {
+    let cols = csv::parse(header, false)
+        .ok()?
+        .into_iter()
+        .next()
+        .map_or_else(Vec::new, |(_, fields)| names(&fields));
+    format_of(&cols)
+}
+
+/// Column names as the formats spell them: lower case (`force_N` and `force_n` are one column).
+fn names(header: &[String]) -> Vec<String> {
+    header.iter().map(|c| c.to_ascii_lowercase()).collect()
+}
+
+fn format_of(cols: &[String]) -> Option<Format> {
+    let has = |n: &str| cols.iter().any(|c| c == n);
+    if has("run") && has("adc_counts") && has("reference_mass_g") {
+        Some(Format::FsrBalance)
+    } else if has("force_n") && has("resistance_ohm") {
+        Some(Format::FsrDatasheet)
+    } else if has("engineering_strain") && has("engineering_stress_mpa") {
+        Some(Format::StressStrain)
+    } else if has("time_s") && has("displacement_mm") && has("force_n") {
+        Some(Format::Tension)
+    } else {
+        None
+    }
+}
+
+/// The columns a format reads, by name: the load, response and run columns it needs and, for
+/// stress–strain, the optional time.
+fn needed(format: Format) -> &'static [&'static str] {
+    match format {
         Format::Tension => &["time_s", "displacement_mm", "force_n"],
         Format::StressStrain => &["engineering_strain", "engineering_stress_mpa"],
         Format::FsrBalance => &["run", "adc_counts", "reference_mass_g"],
         Format::FsrDatasheet => &["force_n", "resistance_ohm"],
+    }
+}
+
+/// One data row of a file being read: its cells and where it is, so every error names the file,
+/// the line and the column (its 1-based position and its name).
+struct Cells<'a> {
+    file: &'a str,
+    line: usize,
+    cells: &'a [String],
+    width: usize,
+}
+
+impl Cells<'_> {
+    fn error(&self, message: String) -> CurveError {
+        CurveError::Format {
+            file: self.file.into(),
+            line: self.line,
+            message,
+        }
+    }
+
+    /// The finite number in column `c` (0-based) named `col`.
+    fn number(&self, c: usize, col: &str) -> Result<f64, CurveError> {
+        let s = self.cells.get(c).ok_or_else(|| {
+            self.error(format!(
+                "column {} `{col}` missing: expected {} cells, found {}",
+                c + 1,
+                self.width,
+                self.cells.len()
+            ))
+        })?;
+        csv::finite(s).map_err(|e| {
+            self.error(match e {
+                NumberError::NotANumber => {
+                    format!("column {} `{col}`: expected a number, found {s:?}", c + 1)
+                }
+                NumberError::NotFinite => {
+                    format!("column {} `{col}`: value {s} is not finite", c + 1)
+                }
+            })
+        })
+    }
+
+    fn bad(&self, c: usize, col: &str, what: String) -> CurveError {
+        self.error(format!("column {} `{col}`: {what}", c + 1))
+    }
+}
+
+/// Where a format's columns sit in one file.
+struct Layout {
+    format: Format,
+    /// Position of each of [`needed`]'s columns.
+    pos: Vec<usize>,
+    /// Position of `time_s`, if the file has it.
+    time: Option<usize>,
+}
+
+impl Layout {
+    /// One sample of a row: (run, t, x, y); `t` of a stress–strain file without time is `None`.
+    fn sample(&self, row: &Cells<'_>) -> Result<(f64, Option<f64>, f64, f64), CurveError> {
+        let need = needed(self.format);
+        let at = |k: usize| row.number(self.pos[k], need[k]);
+        Ok(match self.format {
+            Format::Tension => (0.0, Some(at(0)?), at(1)?, at(2)?),
+            Format::StressStrain => {
+                let t = match self.time {
+                    Some(c) => Some(row.number(c, "time_s")?),
+                    None => None,
+                };
+                (0.0, t, at(0)?, at(1)?)
+            }
+            Format::FsrBalance => {
+                let (run, counts, mass) = (at(0)?, at(1)?, at(2)?);
+                if counts < 0.0 {
+                    let why = format!("expected ≥ 0 counts, found {counts}");
+                    return Err(row.bad(self.pos[1], need[1], why));
+                }
+                if mass < 0.0 {
+                    let why = format!("expected a mass ≥ 0 g, found {mass}");
+                    return Err(row.bad(self.pos[2], need[2], why));
+                }
+                (run, Some(0.0), mass * 1e-3 * G_STANDARD, counts)
+            }
+            Format::FsrDatasheet => {
+                let (f, r) = (at(0)?, at(1)?);
+                if f <= 0.0 {
+                    let why = format!("expected a force > 0 N, found {f}");
+                    return Err(row.bad(self.pos[0], need[0], why));
+                }
+                if r <= 0.0 {
+                    let why = format!("expected a resistance > 0 Ω, found {r}");
+                    return Err(row.bad(self.pos[1], need[1], why));
+                }
+                (0.0, Some(0.0), f, r.ln())
+            }
+        })
+    }
+}
+
+/// Parses one file's text into groups (`name` is used in errors and group names): the header
+/// line names the columns, in any order and any letter case, extra columns ignored; fields may
+/// be quoted (`"a,b"` is one field). Returns the format, the groups and warnings (repairs made,
+/// with their location).
+pub fn parse(text: &str, name: &str) -> Result<(Format, Vec<Group>, Vec<String>), CurveError> {
+    let located = |line: usize, message: String| CurveError::Format {
+        file: name.into(),
+        line,
+        message,
     };
-    let pos: Vec<usize> = need.iter().map(|n| idx(n).unwrap_or(usize::MAX)).collect();
-    let time_col = idx("time_s");
+    let records = csv::parse(text, false)
+        .map_err(|(line, why)| located(line, format!("malformed CSV: {why}")))?;
+    let mut records = records.into_iter();
+    let (hline, header) = records
+        .next()
+        .ok_or_else(|| located(1, "empty file: expected a header line".into()))?;
+    let cols = names(&header);
+    let format = format_of(&cols).ok_or_else(|| {
+        located(
+            hline,
+            format!(
+                "unknown header {:?}: expected the columns `time_s,displacement_mm,force_N` \
+                 (tension), `engineering_strain,engineering_stress_MPa` (stress–strain), \
+                 `run,adc_counts,reference_mass_g` (FSR balance) or `force_N,resistance_ohm` \
+                 (FSR points)",
+                header.join(",")
+            ),
+        )
+    })?;
+    let idx = |n: &str| cols.iter().position(|c| c == n);
+    let layout = Layout {
+        format,
+        pos: needed(format)
+            .iter()
+            .map(|n| idx(n).unwrap_or(usize::MAX))
+            .collect(),
+        time: idx("time_s"),
+    };
     let stem = Path::new(name)
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| name.to_string());
     let mut groups: Vec<Group> = Vec::new();
-    for (line, l) in lines {
-        let cells: Vec<&str> = l.split(',').map(|c| c.trim().trim_matches('"')).collect();
-        let cell = |c: usize, col: &str| -> Result<f64, CurveError> {
-            let s = cells.get(c).ok_or_else(|| CurveError::Format {
-                file: name.into(),
-                line,
-                message: format!(
-                    "column `{col}` missing: expected {} cells, found {}",
-                    cols.len(),
-                    cells.len()
-                ),
-            })?;
-            csv::finite(s).map_err(|e| CurveError::Format {
-                file: name.into(),
-                line,
-                message: match e {
-                    NumberError::NotANumber => {
-                        format!("column `{col}`: expected a number, found {s:?}")
-                    }
-                    NumberError::NotFinite => format!("column `{col}`: value {s} is not finite"),
-                },
-            })
-        };
-        let bad = |col: &str, what: String| CurveError::Format {
-            file: name.into(),
+    let mut warnings = Vec::new();
+    for (line, cells) in records {
+        let row = Cells {
+            file: name,
             line,
-            message: format!("column `{col}`: {what}"),
+            cells: &cells,
+            width: cols.len(),
         };
-        let (run, t, x, y) = match format {
-            Format::Tension => {
-                let t = cell(pos[0], need[0])?;
-                (0.0, t, cell(pos[1], need[1])?, cell(pos[2], need[2])?)
-            }
-            Format::StressStrain => {
-                let t = match time_col {
-                    Some(c) => cell(c, "time_s")?,
-                    None => groups.first().map_or(0.0, |g| g.t.len() as f64),
-                };
-                (0.0, t, cell(pos[0], need[0])?, cell(pos[1], need[1])?)
-            }
-            Format::FsrBalance => {
-                let run = cell(pos[0], need[0])?;
-                let counts = cell(pos[1], need[1])?;
-                let mass = cell(pos[2], need[2])?;
-                if counts < 0.0 {
-                    return Err(bad(need[1], format!("expected ≥ 0 counts, found {counts}")));
-                }
-                if mass < 0.0 {
-                    return Err(bad(need[2], format!("expected a mass ≥ 0 g, found {mass}")));
-                }
-                (run, 0.0, mass * 1e-3 * G_STANDARD, counts)
-            }
-            Format::FsrDatasheet => {
-                let f = cell(pos[0], need[0])?;
-                let r = cell(pos[1], need[1])?;
-                if f <= 0.0 {
-                    return Err(bad(need[0], format!("expected a force > 0 N, found {f}")));
-                }
-                if r <= 0.0 {
-                    return Err(bad(
-                        need[1],
-                        format!("expected a resistance > 0 Ω, found {r}"),
-                    ));
-                }
-                (0.0, 0.0, f, r.ln())
-            }
-        };
+        let (run, t, x, y) = layout.sample(&row)?;
         let gname = if format == Format::FsrBalance {
             format!("{stem}#run{run}")
         } else {
             stem.clone()
         };
-        let g = match groups.iter_mut().position(|g| g.name == gname) {
+        let g = match groups.iter().position(|g| g.name == gname) {
             Some(i) => &mut groups[i],
             None => {
                 groups.push(Group {
@@ -267,22 +332,9 @@ pub fn parse(text: &str, name: &str) -> Result<(Format, Vec<Group>, Vec<String>)
             }
         };
         let t = if format.is_time_series() {
-            if let Some(&prev) = g.t.last() {
-                // Stress–strain: time is auxiliary (the load variable is the strain), so a
-                // broken time column is repaired below instead of rejected.
-                if t < prev && format == Format::StressStrain {
-                    if !warnings.iter().any(|w: &String| w.starts_with(name)) {
-                        warnings.push(format!(
-                            "{name}:{line}: column `time_s` goes backwards ({t} s after {prev} s): time replaced by sample index × median positive step"
-                        ));
-                    }
-                } else if t < prev {
-                    return Err(bad(
-                        "time_s",
-                        format!("time goes backwards: {t} s after {prev} s"),
-                    ));
-                }
-            }
+            // A stress–strain file without time counts samples (of its first group).
+            let t = t.unwrap_or(g.t.len() as f64);
+            check_time(&row, layout.time.unwrap_or(0), format, g, t, &mut warnings)?;
             t
         } else {
             g.t.len() as f64
@@ -292,7 +344,44 @@ pub fn parse(text: &str, name: &str) -> Result<(Format, Vec<Group>, Vec<String>)
         g.y.push(y);
         g.line.push(line);
     }
-    for g in &groups {
+    check_groups(&groups, name)?;
+    if !warnings.is_empty() {
+        retime(&mut groups);
+    }
+    Ok((format, groups, warnings))
+}
+
+/// Time must not go backwards within a group. Stress–strain: time is auxiliary (the load variable
+/// is the strain), so a broken time column is repaired ([`retime`]) with a warning instead of
+/// rejected.
+fn check_time(
+    row: &Cells<'_>,
+    time_col: usize,
+    format: Format,
+    g: &Group,
+    t: f64,
+    warnings: &mut Vec<String>,
+) -> Result<(), CurveError> {
+    let Some(&prev) = g.t.last() else {
+        return Ok(());
+    };
+    if t < prev && format == Format::StressStrain {
+        if !warnings.iter().any(|w| w.starts_with(row.file)) {
+            warnings.push(format!(
+                "{}:{}: column `time_s` goes backwards ({t} s after {prev} s): time replaced by sample index × median positive step",
+                row.file, row.line
+            ));
+        }
+    } else if t < prev {
+        let why = format!("time goes backwards: {t} s after {prev} s");
+        return Err(row.bad(time_col, "time_s", why));
+    }
+    Ok(())
+}
+
+/// Every group needs 3 samples, and the file at least one group.
+fn check_groups(groups: &[Group], name: &str) -> Result<(), CurveError> {
+    for g in groups {
         if g.x.len() < 3 {
             return Err(CurveError::Format {
                 file: name.into(),
@@ -312,22 +401,24 @@ pub fn parse(text: &str, name: &str) -> Result<(Format, Vec<Group>, Vec<String>)
             message: "no data rows after the header".into(),
         });
     }
-    if !warnings.is_empty() {
-        for g in &mut groups {
-            let mut steps: Vec<f64> =
-                g.t.windows(2)
-                    .map(|w| w[1] - w[0])
-                    .filter(|d| *d > 0.0)
-                    .collect();
-            steps.sort_by(f64::total_cmp);
-            let dt = steps.get(steps.len() / 2).copied().unwrap_or(1.0);
-            let t0 = g.t[0];
-            for (i, t) in g.t.iter_mut().enumerate() {
-                *t = t0 + i as f64 * dt;
-            }
+    Ok(())
+}
+
+/// Rebuilds each group's time from its sample index × its median positive step.
+fn retime(groups: &mut [Group]) {
+    for g in groups {
+        let mut steps: Vec<f64> =
+            g.t.windows(2)
+                .map(|w| w[1] - w[0])
+                .filter(|d| *d > 0.0)
+                .collect();
+        steps.sort_by(f64::total_cmp);
+        let dt = steps.get(steps.len() / 2).copied().unwrap_or(1.0);
+        let t0 = g.t[0];
+        for (i, t) in g.t.iter_mut().enumerate() {
+            *t = t0 + i as f64 * dt;
         }
     }
-    Ok((format, groups, warnings))
 }
 
 /// Reads one CSV file.
@@ -470,5 +561,56 @@ pub fn decimate(g: &Group, max_points: usize) -> Group {
         x: pick(&g.x),
         y: pick(&g.y),
         line: keep.iter().map(|&i| g.line[i]).collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{parse, Format};
+    use crate::Error;
+
+    /// A field quoted because it holds a comma (a spreadsheet's note column) is one field, so
+    /// the columns after it keep their places; the columns are found by name in any order and
+    /// letter case.
+    #[test]
+    fn quoted_fields_hold_commas_and_columns_come_in_any_order() {
+        let text = "specimen,Force_N,\"time_s\",displacement_mm\n\
+                    \"strip A, 80 mm\",0.0,0.0,0.0\n\
+                    \"strip A, 80 mm\",0.5,0.1,1.0\n\
+                    \"strip A, 80 mm\",1.0,0.2,2.0\n";
+        let (format, groups, warnings) = parse(text, "quoted.csv").unwrap();
+        assert_eq!(format, Format::Tension);
+        assert!(warnings.is_empty(), "{warnings:?}");
+        let g = &groups[0];
+        assert_eq!(
+            (g.t.as_slice(), g.x.as_slice()),
+            (&[0.0, 0.1, 0.2][..], &[0.0, 1.0, 2.0][..])
+        );
+        assert_eq!(
+            (g.y.as_slice(), g.line.as_slice()),
+            (&[0.0, 0.5, 1.0][..], &[2, 3, 4][..])
+        );
+    }
+
+    /// A bad cell names the file, its line, and the column by position and name.
+    #[test]
+    fn a_bad_cell_names_file_line_and_column() {
+        let text = "specimen,time_s,displacement_mm,force_N\n\
+                    \"strip A, 80 mm\",0,0,0\n\
+                    \"strip A, 80 mm\",0.1,0.5,abc\n";
+        match parse(text, "bad.csv") {
+            Err(Error::Format {
+                file,
+                line,
+                message,
+            }) => {
+                assert_eq!((file.as_str(), line), ("bad.csv", 3));
+                assert!(
+                    message.starts_with("column 4 `force_n`: ") && message.contains("\"abc\""),
+                    "{message}"
+                );
+            }
+            other => panic!("expected a located format error, got {other:?}"),
+        }
     }
 }

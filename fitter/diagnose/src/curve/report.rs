@@ -2,7 +2,7 @@
 //! the simplest and the final model) and one `residual-<round>-<variable>.svg` per adopted effect
 //! (the residual before and after against the variable that gave the effect away).
 
-use super::select::resid_of;
+use super::select::{resid_of, Selection, Step};
 use super::signature::{evidence, Variable};
 use super::{CurveDiagnosis, CurveError};
 use palpate_fem::io::atomic::write_atomic;
@@ -95,7 +95,30 @@ pub fn write_report(d: &CurveDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, Curv
         .map_err(|e| CurveError::Write(e.to_string()))?,
     );
 
-    // Residual vs the variable that gave each adopted effect away (or vs magnitude when clean).
+    let plot_names = residual_plots(d, sel, dir, &mut files)?;
+    let md = markdown(d, &plot_names);
+    let mdp = dir.join("diagnosis.md");
+    write_atomic(&mdp, md.as_bytes()).map_err(werr)?;
+    files.push(mdp);
+    let json = json_text(d).map_err(|e| CurveError::Write(e.to_string()))?;
+    let jp = dir.join("diagnosis.json");
+    write_atomic(&jp, json.as_bytes()).map_err(werr)?;
+    files.push(jp);
+    Ok(files)
+}
+
+/// The residual against the variable that gave each adopted effect away (or against the load
+/// magnitude when clean), before and after: writes the plots, appends them to `files` and returns
+/// their names as the report shows them.
+fn residual_plots(
+    d: &CurveDiagnosis,
+    sel: &Selection,
+    dir: &Path,
+    files: &mut Vec<PathBuf>,
+) -> Result<Vec<String>, CurveError> {
+    let ts = d.format.is_time_series();
+    let (xl, yl) = d.format.labels();
+    let groups = &d.data;
     let mut plots: Vec<(usize, Variable)> = d
         .steps
         .iter()
@@ -166,16 +189,7 @@ pub fn write_report(d: &CurveDiagnosis, dir: &Path) -> Result<Vec<PathBuf>, Curv
         );
         plot_names.push(palpate_plot::shown(&name));
     }
-
-    let md = markdown(d, &plot_names);
-    let mdp = dir.join("diagnosis.md");
-    write_atomic(&mdp, md.as_bytes()).map_err(werr)?;
-    files.push(mdp);
-    let json = json_text(d).map_err(|e| CurveError::Write(e.to_string()))?;
-    let jp = dir.join("diagnosis.json");
-    write_atomic(&jp, json.as_bytes()).map_err(werr)?;
-    files.push(jp);
-    Ok(files)
+    Ok(plot_names)
 }
 
 /// The text of `diagnosis.json`: the diagnosis with `schema_version`. The errors are in the
@@ -238,56 +252,80 @@ fn markdown(d: &CurveDiagnosis, plots: &[String]) -> String {
     }
     let _ = writeln!(s);
     for st in &d.steps {
-        let _ = writeln!(s, "## Round {}: {}\n", st.round, st.model);
-        let _ = writeln!(
-            s,
-            "Residual RMS {}. Signature (strongest first):\n",
-            g4(st.signature.rms)
-        );
-        let _ = writeln!(
-            s,
-            "| residual vs | share | points to | detail |\n|---|---|---|---|"
-        );
-        for sg in &st.signature.signals {
-            let _ = writeln!(
-                s,
-                "| {} | {:.2} | {} | {} |",
-                sg.variable.name(),
-                sg.explained,
-                sg.variable.points_to(),
-                sg.detail
-            );
-        }
-        let _ = writeln!(s, "\n| candidate | extra params | fitted RMS | ΔBIC | held-out RMS | gain | passes |\n|---|---|---|---|---|---|---|");
-        for t in &st.tried {
-            let _ = writeln!(
-                s,
-                "| {} | {} | {} | {:.1} | {} | {:+.1} % | {} |",
-                t.candidate,
-                t.extra_params,
-                g4(t.rms),
-                t.delta_bic,
-                g4(t.heldout_rms),
-                100.0 * t.gain,
-                if t.passed { "yes" } else { "no" }
-            );
-        }
-        let _ = writeln!(s, "\n**Decision:** {}", st.reason);
-        if let (Some(c), Some(e)) = (st.adopted, st.after) {
-            let _ = writeln!(
-                s,
-                "\nEffect: {}. Evidence: residual vs {}. RMS {} → {} fitted, {} → {} held out.\n",
-                c.effect(),
-                st.evidence.map_or("-", |v| v.name()),
-                g4(st.before.fitted_rms),
-                g4(e.fitted_rms),
-                g4(st.before.heldout_rms),
-                g4(e.heldout_rms)
-            );
-        } else {
-            let _ = writeln!(s);
-        }
+        round(&mut s, st);
     }
+    parameters(&mut s, d);
+    let _ = writeln!(s, "## Notes\n");
+    for n in &d.notes {
+        let _ = writeln!(s, "- {n}");
+    }
+    let _ = writeln!(
+        s,
+        "\n## Plots\n\n- `{}`: measured vs the simplest and the final model",
+        palpate_plot::shown("curves.svg")
+    );
+    for p in plots {
+        let _ = writeln!(s, "- `{p}`");
+    }
+    let _ = writeln!(s, "\nWall-clock {:.1} s.", d.seconds);
+    s
+}
+
+/// One round: the signature, every candidate tried, the decision.
+fn round(s: &mut String, st: &Step) {
+    let _ = writeln!(s, "## Round {}: {}\n", st.round, st.model);
+    let _ = writeln!(
+        s,
+        "Residual RMS {}. Signature (strongest first):\n",
+        g4(st.signature.rms)
+    );
+    let _ = writeln!(
+        s,
+        "| residual vs | share | points to | detail |\n|---|---|---|---|"
+    );
+    for sg in &st.signature.signals {
+        let _ = writeln!(
+            s,
+            "| {} | {:.2} | {} | {} |",
+            sg.variable.name(),
+            sg.explained,
+            sg.variable.points_to(),
+            sg.detail
+        );
+    }
+    let _ = writeln!(s, "\n| candidate | extra params | fitted RMS | ΔBIC | held-out RMS | gain | passes |\n|---|---|---|---|---|---|---|");
+    for t in &st.tried {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {:.1} | {} | {:+.1} % | {} |",
+            t.candidate,
+            t.extra_params,
+            g4(t.rms),
+            t.delta_bic,
+            g4(t.heldout_rms),
+            100.0 * t.gain,
+            if t.passed { "yes" } else { "no" }
+        );
+    }
+    let _ = writeln!(s, "\n**Decision:** {}", st.reason);
+    if let (Some(c), Some(e)) = (st.adopted, st.after) {
+        let _ = writeln!(
+            s,
+            "\nEffect: {}. Evidence: residual vs {}. RMS {} → {} fitted, {} → {} held out.\n",
+            c.words(),
+            st.evidence.map_or("-", |v| v.name()),
+            g4(st.before.fitted_rms),
+            g4(e.fitted_rms),
+            g4(st.before.heldout_rms),
+            g4(e.heldout_rms)
+        );
+    } else {
+        let _ = writeln!(s);
+    }
+}
+
+/// The parameters of the final and of the simplest model.
+fn parameters(s: &mut String, d: &CurveDiagnosis) {
     for (title, ps) in [
         ("Final model: ", &d.final_params),
         ("Simplest model: ", &d.before_params),
@@ -313,20 +351,6 @@ fn markdown(d: &CurveDiagnosis, plots: &[String]) -> String {
         }
         let _ = writeln!(s);
     }
-    let _ = writeln!(s, "## Notes\n");
-    for n in &d.notes {
-        let _ = writeln!(s, "- {n}");
-    }
-    let _ = writeln!(
-        s,
-        "\n## Plots\n\n- `{}`: measured vs the simplest and the final model",
-        palpate_plot::shown("curves.svg")
-    );
-    for p in plots {
-        let _ = writeln!(s, "- `{p}`");
-    }
-    let _ = writeln!(s, "\nWall-clock {:.1} s.", d.seconds);
-    s
 }
 
 /// The one-line summary of `d` the command prints: what was adopted and the RMS errors before and

@@ -1,7 +1,7 @@
 //! Measured curves diagnosed on request (a CSV file or a directory of CSV files): runs the curve
 //! diagnosis, writes one report per dataset and hands back one summary per dataset.
 
-use super::model::Candidate;
+use super::candidates::Candidate;
 use super::report::{summary_line, write_report};
 use super::{diagnose_path, CurveOptions};
 use crate::error::Error;

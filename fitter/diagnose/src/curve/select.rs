@@ -7,8 +7,9 @@
 //! x for a monotone pull). Time-series models are always integrated over the whole record; only
 //! the residuals of held-out samples are left out of the fit.
 
+use super::candidates::Candidate;
 use super::fit::{fit, residuals, Fit, Mask};
-use super::model::{Candidate, Model};
+use super::model::Model;
 use super::read::Group;
 use super::signature::{directions, holds, rates, signature, Signature, Variable};
 use super::CurveOptions;
@@ -233,13 +234,7 @@ pub fn resid_of(f: &Fit, groups: &[Group]) -> Vec<Vec<f64>> {
 
 /// The variable that best shows what `c` explains, from the signature of the model it augments.
 pub fn evidence_variable(c: Candidate, sig: &Signature) -> Variable {
-    let wanted: &[Variable] = match c {
-        Candidate::Viscosity => &[Variable::Direction, Variable::Rate, Variable::HoldTime],
-        Candidate::Saturation => &[Variable::Top, Variable::Magnitude],
-        Candidate::Drift => &[Variable::Group],
-        Candidate::Slack => &[Variable::Direction, Variable::Magnitude],
-        _ => &[Variable::Magnitude],
-    };
+    let wanted = c.effect().evidence();
     sig.signals
         .iter()
         .find(|s| wanted.contains(&s.variable))

@@ -272,77 +272,7 @@ pub fn signature(groups: &[Group], resid: &[Vec<f64>], time_series: bool) -> Sig
         ),
     });
     if time_series {
-        let dirs = directions(groups);
-        let d: Vec<i8> = dirs.iter().flatten().copied().collect();
-        let moving: Vec<usize> = (0..flat.len()).filter(|&i| d[i] != 0).collect();
-        if moving.len() > 10 && d.contains(&1) && d.contains(&-1) {
-            let r: Vec<f64> = moving.iter().map(|&i| flat[i]).collect();
-            let b: Vec<usize> = moving.iter().map(|&i| bins[i]).collect();
-            let cells: Vec<usize> = moving
-                .iter()
-                .map(|&i| 2 * bins[i] + usize::from(d[i] > 0))
-                .collect();
-            let extra = (eta2(&r, &cells) - eta2(&r, &b)).max(0.0);
-            let mean = |s: i8| {
-                let v: Vec<f64> = moving
-                    .iter()
-                    .filter(|&&i| d[i] == s)
-                    .map(|&i| flat[i])
-                    .collect();
-                v.iter().sum::<f64>() / v.len().max(1) as f64
-            };
-            signals.push(Signal {
-                variable: Variable::Direction,
-                explained: extra,
-                detail: format!(
-                    "loading vs unloading at equal x explains {:.0} % more of Σr² (mean residual {:+.4} loading, {:+.4} unloading)",
-                    100.0 * extra,
-                    mean(1),
-                    mean(-1)
-                ),
-            });
-        }
-        let ev = evidence(Variable::Rate, groups, resid, true);
-        let pts = &ev[0].1;
-        let (lo, hi) = pts.iter().fold((f64::INFINITY, 0.0f64), |(a, b), p| {
-            (a.min(p.0), b.max(p.0))
-        });
-        if pts.len() >= 3 && lo > 0.0 && hi / lo > 1.5 {
-            let lr: Vec<f64> = pts.iter().map(|p| p.0.ln()).collect();
-            let mr: Vec<f64> = pts.iter().map(|p| p.1).collect();
-            let c = r2(&lr, &mr);
-            signals.push(Signal {
-                variable: Variable::Rate,
-                explained: c,
-                detail: format!(
-                    "r² = {c:.2} between ln(mean loading rate) and the mean loading residual over {} files (rates {lo:.3}–{hi:.3} per s)",
-                    pts.len()
-                ),
-            });
-        }
-        let hs = holds(groups, &dirs);
-        if !hs.is_empty() {
-            let (mut lt, mut rr) = (Vec::new(), Vec::new());
-            for &(gi, a, b) in &hs {
-                let m = resid[gi][a..=b].iter().sum::<f64>() / (b - a + 1) as f64;
-                let t0 = groups[gi].t[a];
-                let dt = (groups[gi].t[b] - t0) / (b - a) as f64;
-                for i in a..=b {
-                    lt.push((groups[gi].t[i] - t0 + dt).ln());
-                    rr.push(resid[gi][i] - m);
-                }
-            }
-            let c = r2(&lt, &rr);
-            signals.push(Signal {
-                variable: Variable::HoldTime,
-                explained: c,
-                detail: format!(
-                    "r² = {c:.2} between ln(time since the hold began) and the residual about each hold's mean ({} holds, {} samples)",
-                    hs.len(),
-                    rr.len()
-                ),
-            });
-        }
+        time_signals(groups, resid, &flat, &bins, &mut signals);
     }
     if groups.len() >= 2 {
         let key: Vec<usize> = groups
@@ -385,4 +315,87 @@ pub fn signature(groups: &[Group], resid: &[Vec<f64>], time_series: bool) -> Sig
     }
     signals.sort_by(|a, b| b.explained.total_cmp(&a.explained));
     Signature { rms, signals }
+}
+
+/// The signals only a time series has: loading direction (hysteresis), rate across files and
+/// time at constant load (relaxation), appended to `signals` (`flat`, `bins`: the residual and
+/// its x bin, sample by sample over all groups).
+fn time_signals(
+    groups: &[Group],
+    resid: &[Vec<f64>],
+    flat: &[f64],
+    bins: &[usize],
+    signals: &mut Vec<Signal>,
+) {
+    let dirs = directions(groups);
+    let d: Vec<i8> = dirs.iter().flatten().copied().collect();
+    let moving: Vec<usize> = (0..flat.len()).filter(|&i| d[i] != 0).collect();
+    if moving.len() > 10 && d.contains(&1) && d.contains(&-1) {
+        let r: Vec<f64> = moving.iter().map(|&i| flat[i]).collect();
+        let b: Vec<usize> = moving.iter().map(|&i| bins[i]).collect();
+        let cells: Vec<usize> = moving
+            .iter()
+            .map(|&i| 2 * bins[i] + usize::from(d[i] > 0))
+            .collect();
+        let extra = (eta2(&r, &cells) - eta2(&r, &b)).max(0.0);
+        let mean = |s: i8| {
+            let v: Vec<f64> = moving
+                .iter()
+                .filter(|&&i| d[i] == s)
+                .map(|&i| flat[i])
+                .collect();
+            v.iter().sum::<f64>() / v.len().max(1) as f64
+        };
+        signals.push(Signal {
+                variable: Variable::Direction,
+                explained: extra,
+                detail: format!(
+                    "loading vs unloading at equal x explains {:.0} % more of Σr² (mean residual {:+.4} loading, {:+.4} unloading)",
+                    100.0 * extra,
+                    mean(1),
+                    mean(-1)
+                ),
+            });
+    }
+    let ev = evidence(Variable::Rate, groups, resid, true);
+    let pts = &ev[0].1;
+    let (lo, hi) = pts.iter().fold((f64::INFINITY, 0.0f64), |(a, b), p| {
+        (a.min(p.0), b.max(p.0))
+    });
+    if pts.len() >= 3 && lo > 0.0 && hi / lo > 1.5 {
+        let lr: Vec<f64> = pts.iter().map(|p| p.0.ln()).collect();
+        let mr: Vec<f64> = pts.iter().map(|p| p.1).collect();
+        let c = r2(&lr, &mr);
+        signals.push(Signal {
+                variable: Variable::Rate,
+                explained: c,
+                detail: format!(
+                    "r² = {c:.2} between ln(mean loading rate) and the mean loading residual over {} files (rates {lo:.3}–{hi:.3} per s)",
+                    pts.len()
+                ),
+            });
+    }
+    let hs = holds(groups, &dirs);
+    if !hs.is_empty() {
+        let (mut lt, mut rr) = (Vec::new(), Vec::new());
+        for &(gi, a, b) in &hs {
+            let m = resid[gi][a..=b].iter().sum::<f64>() / (b - a + 1) as f64;
+            let t0 = groups[gi].t[a];
+            let dt = (groups[gi].t[b] - t0) / (b - a) as f64;
+            for i in a..=b {
+                lt.push((groups[gi].t[i] - t0 + dt).ln());
+                rr.push(resid[gi][i] - m);
+            }
+        }
+        let c = r2(&lt, &rr);
+        signals.push(Signal {
+                variable: Variable::HoldTime,
+                explained: c,
+                detail: format!(
+                    "r² = {c:.2} between ln(time since the hold began) and the residual about each hold's mean ({} holds, {} samples)",
+                    hs.len(),
+                    rr.len()
+                ),
+            });
+    }
 }

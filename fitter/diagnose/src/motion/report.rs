@@ -3,6 +3,7 @@
 use super::{MotionDiagnoseError, MotionDiagnosis, Value};
 use crate::json;
 use palpate_fem::names::Elastic;
+use palpate_fem::numbers;
 use palpate_motion::model::ParamKind;
 use palpate_plot::{lines, Series, Style};
 use std::fmt::Write as _;
@@ -18,24 +19,39 @@ fn um(v: f64) -> String {
     format!("{:.1}", 1e6 * v)
 }
 
-/// A parameter's name as the report prints it: its label with the unit (`Lamé λ (Pa)`,
-/// `viscosity (Pa·s^h)`), "(fixed)" kept.
-fn label(name: &str) -> String {
+/// A parameter's name and unit apart, as a table prints them (`Lamé λ`, `Pa`), "(fixed)" kept
+/// with the name: a material parameter's from its label, any other's (offsets, a second
+/// material) its name as it is and the unit [`unit`] knows by the name.
+fn name_and_unit(name: &str) -> (String, String) {
     let (base, fixed) = match name.strip_suffix(" (fixed)") {
         Some(b) => (b, " (fixed)"),
         None => (name, ""),
     };
-    match ParamKind::parse(base) {
-        Some(k) => format!("{}{fixed}", k.label()),
-        None => name.to_string(),
+    let Some(kind) = ParamKind::parse(base) else {
+        return (name.to_string(), unit(name).to_string());
+    };
+    match kind.label().rsplit_once(" (") {
+        Some((n, u)) if u.ends_with(')') => (format!("{n}{fixed}"), u.trim_end_matches(')').into()),
+        _ => (format!("{}{fixed}", kind.label()), unit(name).into()),
     }
+}
+
+/// A value and its 1σ (if known) in plain numbers, in one unit chosen from the value.
+fn value_sd(v: &Value) -> (String, String, Option<String>) {
+    let (name, unit) = name_and_unit(&v.name);
+    let (value, sd) = numbers::value_and_sd(v.value, v.sigma.unwrap_or(f64::NAN), &unit);
+    (name, value, v.sigma.map(|_| sd))
 }
 
 fn value_table(md: &mut String, vals: &[Value]) {
     md.push_str("| parameter | value | 1σ |\n|---|---|---|\n");
     for v in vals {
-        let s = v.sigma.map_or("—".to_string(), |s| format!("{s:.3e}"));
-        let _ = writeln!(md, "| {} | {:.4e} | {s} |", label(&v.name), v.value);
+        let (name, value, sd) = value_sd(v);
+        let _ = writeln!(
+            md,
+            "| {name} | {value} | {} |",
+            sd.as_deref().unwrap_or("—")
+        );
     }
     let value = |kind: ParamKind| {
         vals.iter()
@@ -46,8 +62,9 @@ fn value_table(md: &mut String, vals: &[Value]) {
         let e = Elastic::from_lame(l, m);
         let _ = writeln!(
             md,
-            "\nYoung's modulus E = {:.4e} Pa, Poisson's ratio ν = {:.4} (from Lamé's λ and μ).",
-            e.young_modulus_pa, e.poisson_ratio
+            "\nYoung's modulus E = {}, Poisson's ratio ν = {:.4} (from Lamé's λ and μ).",
+            numbers::pressure(e.young_modulus_pa),
+            e.poisson_ratio
         );
     }
 }
@@ -100,15 +117,15 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
         let _ = writeln!(md, "Signature: {}.\n", s.reading);
         let _ = writeln!(
             md,
-            "- lag along the relative marker velocity: e ≈ {:.3e} s · u_rel, {:.1} % of the residual energy (ΔBIC {:.1})",
-            s.speed_coef_s,
+            "- lag along the relative marker velocity: e ≈ {} s · u_rel, {:.1} % of the residual energy (ΔBIC {:.1})",
+            numbers::plain(s.speed_coef_s),
             100.0 * s.speed_share,
             s.speed_dbic
         );
         let _ = writeln!(
             md,
-            "- along the acceleration: e ≈ {:.3e} s² · a, {:.1} % of the residual energy (ΔBIC {:.1})",
-            s.accel_coef_s2,
+            "- along the acceleration: e ≈ {} s² · a, {:.1} % of the residual energy (ΔBIC {:.1})",
+            numbers::plain(s.accel_coef_s2),
             100.0 * s.accel_share,
             s.accel_dbic
         );
@@ -166,9 +183,9 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
                 t.candidate,
                 t.values
                     .iter()
-                    .map(|v| match v.sigma {
-                        Some(s) => format!("{} = {:.4e} ± {s:.2e}", label(&v.name), v.value),
-                        None => format!("{} = {:.4e}", label(&v.name), v.value),
+                    .map(|v| match value_sd(v) {
+                        (name, value, Some(sd)) => format!("{name} = {value} ± {sd}"),
+                        (name, value, None) => format!("{name} = {value}"),
                     })
                     .collect::<Vec<_>>()
                     .join(", ")

@@ -7,6 +7,7 @@ use super::{RunResidual, RunsDiagnosis, RunsError};
 use crate::json;
 use palpate_fem::io::atomic::write_atomic;
 use palpate_fem::names::Elastic;
+use palpate_fem::numbers;
 use palpate_plot::{lines, Series, Style};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -181,25 +182,19 @@ fn parameters(md: &mut String, r: &RunsDiagnosis) {
         "\n## Parameters of the final model\n\n| parameter | value | 1σ |\n|---|---|---|"
     );
     for v in &r.values {
-        let _ = writeln!(
-            md,
-            "| {} | {:.5e} {} | {} |",
-            v.name,
-            v.value,
-            v.unit,
-            if v.sd.is_finite() {
-                format!("{:.2e}", v.sd)
-            } else {
-                "–".into()
-            }
-        );
+        let (value, sd) = numbers::value_and_sd(v.value, v.sd, &v.unit);
+        let sd = if v.sd.is_finite() { sd } else { "–".into() };
+        let _ = writeln!(md, "| {} | {value} | {sd} |", v.name);
     }
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
     let e = Elastic::from_lame(mean(&r.model.lambda), mean(&r.model.mu));
     let _ = writeln!(
         md,
-        "\nElastic constants: Young's modulus E = {:.5e} Pa, Poisson's ratio ν = {:.4}, Lamé λ = {:.5e} Pa, shear modulus μ = {:.5e} Pa.",
-        e.young_modulus_pa, e.poisson_ratio, e.lame_lambda_pa, e.shear_modulus_pa
+        "\nElastic constants: Young's modulus E = {}, Poisson's ratio ν = {:.4}, Lamé λ = {}, shear modulus μ = {}.",
+        numbers::pressure(e.young_modulus_pa),
+        e.poisson_ratio,
+        numbers::pressure(e.lame_lambda_pa),
+        numbers::pressure(e.shear_modulus_pa)
     );
     let _ = writeln!(
         md,

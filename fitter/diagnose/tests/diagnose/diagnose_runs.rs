@@ -96,6 +96,22 @@ fn names_damping_and_the_hanging_weights_inertia_on_held_out_runs() {
     assert!(d.held_out_loads_beyond_fitted().is_empty());
     let md = palpate_diagnose::runs::report::markdown(&d);
     assert!(md.contains("not extrapolation to other loads"), "{md}");
+    // The parameters in plain numbers with their units (`shear modulus μ = 10.02 kPa`), never in
+    // exponent notation (`1.00200e4 Pa`).
+    let exponent = |l: &str| {
+        l.as_bytes().windows(3).any(|w| {
+            w[0].is_ascii_digit() && w[1] == b'e' && (w[2].is_ascii_digit() || w[2] == b'-')
+        })
+    };
+    let parameters: Vec<&str> = md
+        .lines()
+        .skip_while(|l| !l.starts_with("## Parameters of the final model"))
+        .filter(|l| l.starts_with('|') || l.starts_with("Elastic constants"))
+        .collect();
+    assert!(
+        parameters.iter().any(|l| l.contains(" kPa")) && !parameters.iter().any(|l| exponent(l)),
+        "{parameters:#?}"
+    );
     // A Neo-Hookean truth: no stiffening, and none recorded.
     assert!(!d.adopted.contains(&Effect::Stiffening), "{:?}", d.adopted);
     assert!(d.model.stiffening.is_empty());

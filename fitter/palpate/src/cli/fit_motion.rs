@@ -209,7 +209,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let pb = bar.clone();
     let progress = move |n: usize, phi: f64| {
         pb.set_position(n as u64);
-        pb.set_message(format!("Φ = {phi:.5e}"));
+        pb.set_message(format!("Φ = {}", palpate_fem::numbers::plain(phi)));
     };
     let outcome = request::fit(&mut runs, &req, &progress)?;
     bar.finish_and_clear();

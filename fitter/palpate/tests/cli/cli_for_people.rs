@@ -38,7 +38,7 @@ fn quick_fit_motion(example: &Path, fit: &Path) -> Output {
 /// `fit-motion --params mu,nu` (the old name of the viscosity) still fits, says on stderr that
 /// the name is now `viscosity`, and writes `viscosity` in fit.json's list of fitted parameters;
 /// the table names Lamé's λ, μ, E and ν and the thesis pair under its own name, with the
-/// sentence that says what it is.
+/// sentence that says what it is, and prints plain numbers with their units.
 #[test]
 fn fit_motion_reads_the_old_nu_with_a_warning_and_names_things_once() {
     let dir = tempfile::tempdir().unwrap();
@@ -76,15 +76,27 @@ fn fit_motion_reads_the_old_nu_with_a_warning_and_names_things_once() {
     }
     assert!(record.get("lambda").is_none() && record.get("nu").is_none());
     for words in [
-        "Lamé λ (Pa)",
-        "shear modulus μ (Pa)",
-        "viscosity (Pa·s^h)",
+        "| Lamé λ (",
+        "| shear modulus μ (",
+        "| viscosity (",
         "Young's modulus E, Poisson's ratio ν",
         "thesis coefficients (λ_F, α_G)",
         "not Lamé's (λ, μ)",
     ] {
         assert!(out.contains(words), "{words:?} not in:\n{out}");
     }
+    // Plain numbers in the unit each figure reads best in (`20.00 kPa`, `5.312 Pa·s^h`), never
+    // exponent notation (`2.000000e4`).
+    assert!(out.contains(" kPa") && out.contains(" Pa·s^h"), "{out}");
+    let exponent = |l: &str| {
+        l.as_bytes().windows(3).any(|w| {
+            w[0].is_ascii_digit() && w[1] == b'e' && (w[2].is_ascii_digit() || w[2] == b'-')
+        })
+    };
+    assert!(
+        !out.lines().any(|l| l.starts_with('|') && exponent(l)),
+        "exponent notation in:\n{out}"
+    );
     assert!(!out.contains("| λ (Pa)") && !out.contains("runtime (thesis) λ"));
     // The new name needs no warning.
     let o = palpate()
