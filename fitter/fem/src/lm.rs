@@ -231,6 +231,35 @@ pub fn trust_region_step(b: &[f64], g: &[f64], radius: f64) -> Vec<f64> {
     step_at(hi)
 }
 
+/// The decrease −(gᵀs + ½ sᵀBs) that the model B predicts for the step s.
+fn model_decrease(b: &[f64], g: &[f64], step: &[f64]) -> f64 {
+    let bs = mat_vec(b, step);
+    -(0..g.len())
+        .map(|i| g[i] * step[i] + 0.5 * step[i] * bs[i])
+        .sum::<f64>()
+}
+
+/// The trust-region step of the model in use (H + S when `augmented`, else H) and whether it is
+/// still H + S. Φ = ½‖r‖² ≥ 0, so a model promising a decrease larger than Φ is wrong before it
+/// is tried (the secant term has turned indefinite the wrong way): the step is then H's, and no
+/// simulation is spent on the other.
+fn model_step(
+    h: &[f64],
+    with_s: &[f64],
+    g: &[f64],
+    phi: f64,
+    radius: f64,
+    augmented: bool,
+) -> (Vec<f64>, bool) {
+    if augmented {
+        let step = trust_region_step(with_s, g, radius);
+        if model_decrease(with_s, g, &step) <= phi {
+            return (step, true);
+        }
+    }
+    (trust_region_step(h, g, radius), false)
+}
+
 /// Minimises Φ from θ₀ (evaluated: `first`) by Levenberg–Marquardt in Moré's trust-region form:
 /// each iteration minimises the model gᵀs + ½ sᵀBs within the radius Δ ([`trust_region_step`]),
 /// evaluates θ + s (`eval` gives `None` where the model is undefined: a rejected step), accepts it
@@ -266,17 +295,12 @@ pub fn minimise_trust_region(
         iterations += 1;
         let (g, h, phi) = (&cur.grad, &cur.gn, cur.phi);
         let with_s: Vec<f64> = h.iter().zip(&sc).map(|(a, b)| a + b).collect();
-        let model = if augmented { &with_s } else { h };
-        let step = trust_region_step(model, g, radius);
-        let decrease = |m: &[f64]| {
-            let md = mat_vec(m, &step);
-            -(0..np)
-                .map(|i| g[i] * step[i] + 0.5 * step[i] * md[i])
-                .sum::<f64>()
-        };
-        let predicted = decrease(model);
-        let other = decrease(if augmented { h } else { &with_s });
+        let step;
+        (step, augmented) = model_step(h, &with_s, g, phi, radius, augmented);
         let length = norm(&step);
+        let model = if augmented { &with_s } else { h };
+        let predicted = model_decrease(model, g, &step);
+        let other = model_decrease(if augmented { h } else { &with_s }, g, &step);
         // A NaN prediction (a model that cannot say) counts as no decrease.
         let small =
             predicted.partial_cmp(&(o.rel_tolerance * phi)) != Some(std::cmp::Ordering::Greater);
@@ -452,6 +476,22 @@ mod tests {
             "evaluations: trust region {tr_evals}, diagonal {}",
             calls.get()
         );
+    }
+
+    /// A secant model that promises more than Φ is not tried: H's step instead. One parameter,
+    /// Φ = ½, g = 1, H = 1: H's step is Newton's, −1. H + S = −100 (indefinite) steps to the
+    /// radius, −2, and promises 2 + 200 ≫ Φ; H + S = 2 promises 0.25 and keeps its own step.
+    #[test]
+    fn a_secant_model_promising_more_than_phi_gives_way_to_gauss_newton() {
+        let (h, g, phi, radius) = ([1.0], [1.0], 0.5, 2.0);
+        let (s, aug) = model_step(&h, &[-100.0], &g, phi, radius, true);
+        assert!(!aug);
+        assert!((s[0] + 1.0).abs() < 1e-12, "{s:?}");
+        let (s, aug) = model_step(&h, &[2.0], &g, phi, radius, true);
+        assert!(aug);
+        assert!((s[0] + 0.5).abs() < 1e-12, "{s:?}");
+        let (s, aug) = model_step(&h, &[-100.0], &g, phi, radius, false);
+        assert!(!aug && (s[0] + 1.0).abs() < 1e-12, "{s:?}");
     }
 
     /// The subproblem: inside the radius the Newton step; on an indefinite B a step of exactly

@@ -27,6 +27,7 @@ pub mod model;
 pub mod objective;
 pub mod optimize;
 pub mod predict;
+pub mod refine;
 pub mod request;
 pub mod scenario;
 pub mod sim;

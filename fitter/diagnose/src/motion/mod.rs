@@ -25,6 +25,7 @@
 pub mod candidates;
 mod engine;
 pub mod fit;
+pub mod mesh;
 pub mod region;
 pub mod report;
 pub mod run;
@@ -85,6 +86,11 @@ pub struct MotionOptions {
     /// With the screen: a candidate is fitted when its predicted ΔBIC is within this fraction of
     /// the best predicted one's magnitude.
     pub screen_margin: f64,
+    /// Measure the dataset mesh's own discretisation error at the simplest fit and state it
+    /// in the report ([`mesh`]): two more simulations, one of them on the mesh refined once.
+    pub mesh_error: bool,
+    /// The error is measured only when the refined mesh has at most this many tetrahedra.
+    pub refine_max_tets: usize,
 }
 
 impl Default for MotionOptions {
@@ -100,6 +106,8 @@ impl Default for MotionOptions {
             screen: true,
             screen_least: 2,
             screen_margin: 0.5,
+            mesh_error: true,
+            refine_max_tets: 50_000,
         }
     }
 }
@@ -204,6 +212,8 @@ pub struct MotionDiagnosis {
     /// Simulations of the fit screen (one with sensitivities per round, and each time-offset
     /// scan).
     pub screen_simulations: usize,
+    /// The dataset mesh's own discretisation error at the simplest fit, stated.
+    pub mesh: mesh::MeshNote,
     /// Final material (for export; not serialised).
     #[serde(skip)]
     pub material: Option<Material>,
@@ -311,6 +321,12 @@ pub fn diagnose(
         1e6 * simplest.scores.rms_fit,
         1e6 * simplest.scores.rms_held
     ));
+    // The declared marker noise σ per axis: the RMS of a 3-D marker error is σ√3 at the floor.
+    let (floor, judged) = match ds.config.marker_noise {
+        Some(s) => (s * 3f64.sqrt(), true),
+        None => (f64::NAN, false),
+    };
+    let mesh_note = mesh::estimate(ds, &simplest, floor, o, log);
     let mut engine = MotionModel::new(ds, split, o, log);
     let rounds_max = o.max_effects.max(1);
     let policy = Policy {
@@ -337,11 +353,6 @@ pub fn diagnose(
         .expect("the start is on the path");
     let mut sp_b = Vec::new();
     let final_signature = signature(ds, split, &cur);
-    // The declared marker noise σ per axis: the RMS of a 3-D marker error is σ√3 at the floor.
-    let (floor, judged) = match ds.config.marker_noise {
-        Some(s) => (s * 3f64.sqrt(), true),
-        None => (f64::NAN, false),
-    };
     sp_b.extend(signature(ds, split, &simplest).speed_bins);
     Ok(MotionDiagnosis {
         dataset: label.to_string(),
@@ -385,6 +396,7 @@ pub fn diagnose(
         ),
         evaluations,
         screen_simulations,
+        mesh: mesh_note,
         material: Some(cur.material.clone()),
     })
 }

@@ -87,6 +87,7 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
         }
     );
     let _ = writeln!(md, "**Result**: {}.\n", r.verdict());
+    let _ = writeln!(md, "**Mesh**: {}.\n", r.mesh.statement);
     md.push_str("| marker error | simplest (elastic) | final | \n|---|---|---|\n");
     let _ = writeln!(
         md,
