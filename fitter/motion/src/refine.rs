@@ -104,7 +104,7 @@ impl Material {
 /// The dataset mesh's discretisation error at the markers for one material.
 #[derive(Debug, Clone)]
 pub struct MeshError {
-    /// δ[n][i] = marker i at step n + 1 on the dataset mesh minus on the refined mesh (m).
+    /// `delta[n][i]`: marker i at step n + 1 on the dataset mesh minus on the refined mesh (m).
     pub delta: Vec<Vec<[f64; 3]>>,
     /// RMS of |δ| over every marker and step (m).
     pub rms: f64,
