@@ -57,13 +57,11 @@ impl Model {
             self.gravity,
             self.mass,
         )?;
+        let rest: Vec<f64> = self.nodes.iter().flatten().copied().collect();
         m.markers = self
             .markers
             .iter()
-            .map(|mk| {
-                let rest: Vec<f64> = self.nodes.iter().flatten().copied().collect();
-                m.marker_at(&mk.name, self.marker_position(mk, &rest))
-            })
+            .map(|mk| m.marker_at(&mk.name, self.marker_position(mk, &rest)))
             .collect();
         m.loads = self
             .loads
