@@ -38,6 +38,23 @@ pub const LEVEL_FRACTIONS: [f64; 9] = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0
 /// Most cuts screened between the best coarse cut's neighbours ([`Family::between`]).
 pub const FINE_LEVELS: usize = 6;
 
+/// The fewest elements a second material's region may hold. A coarse mesh's own error
+/// concentrates in a few elements where the stress does (a cantilever's root at its clamp), and
+/// one element made several times stiffer there mimics the refinement the mesh lacks: a region
+/// that small is a symptom of the mesh, not a material, and the sensitivity map — smoothed over
+/// node-sharing neighbourhoods — cannot place it anyway.
+pub const MIN_REGION_ELEMENTS: usize = 4;
+
+/// The smallest share of the body's volume a second material's region may hold, for the same
+/// reason as [`MIN_REGION_ELEMENTS`] on a fine mesh, where four elements are a speck.
+pub const MIN_REGION_VOLUME: f64 = 0.01;
+
+/// Whether a region of `elements` elements and `volume` of the body's `total` volume is large
+/// enough to be a material ([`MIN_REGION_ELEMENTS`], [`MIN_REGION_VOLUME`]).
+pub fn plausible(elements: usize, volume: f64, total: f64) -> bool {
+    elements >= MIN_REGION_ELEMENTS && volume >= MIN_REGION_VOLUME * total
+}
+
 /// Iterations of each region's screening fit: the region's μ and the global ones from the
 /// current model, a ranking, not an answer (the random bars' screens converged in 5–6; the
 /// chosen region is then fitted in full).
@@ -58,14 +75,33 @@ pub struct Region {
 pub fn describe(model: &Model, elements: &[usize], stiffer: bool) -> String {
     let (fraction, centre) = extent(model, elements);
     format!(
-        "{} elements, {:.0} % of the volume, centred at ({:.1}, {:.1}, {:.1}) mm, {} than the rest",
+        "{} elements, {:.0} % of the volume, centred at ({:.1}, {:.1}, {:.1}) mm, {} than the \
+         rest{}",
         elements.len(),
         100.0 * fraction,
         1e3 * centre[0],
         1e3 * centre[1],
         1e3 * centre[2],
-        if stiffer { "stiffer" } else { "softer" }
+        if stiffer { "stiffer" } else { "softer" },
+        at_clamps(model, elements)
     )
+}
+
+/// ", N of them at clamp `name`" for each clamp the region's elements touch (share a node
+/// with), or nothing: a region at a clamp sits where a coarse mesh's own error is largest, which
+/// a reader weighing the region should know.
+fn at_clamps(model: &Model, elements: &[usize]) -> String {
+    model
+        .clamps
+        .iter()
+        .filter_map(|c| {
+            let touching = elements
+                .iter()
+                .filter(|&&e| model.tets[e].iter().any(|n| c.nodes.contains(n)))
+                .count();
+            (touching > 0).then(|| format!(", {touching} of them at clamp `{}`", c.name))
+        })
+        .collect()
 }
 
 /// A region's share of the body's volume and its volume-weighted centroid (m).
@@ -111,8 +147,21 @@ impl Family {
         Region { elements, stiffer }
     }
 
+    /// Whether the cut after the first `k` elements leaves a region (its smaller side) large
+    /// enough to be a material ([`plausible`]).
+    fn plausible_cut(&self, k: usize) -> bool {
+        let n = self.order.len();
+        let total = self.volume[n];
+        if self.volume[k] <= 0.5 * total {
+            plausible(k, self.volume[k], total)
+        } else {
+            plausible(n - k, total - self.volume[k], total)
+        }
+    }
+
     /// The coarse cuts, ascending: the sign split's and those at [`LEVEL_FRACTIONS`] of the
-    /// volume (the first k holding at least that fraction), each leaving both sides non-empty.
+    /// volume (the first k holding at least that fraction), each leaving a [`plausible`]
+    /// region.
     pub fn coarse(&self) -> Vec<usize> {
         let n = self.order.len();
         let total = self.volume[n];
@@ -120,7 +169,7 @@ impl Family {
             .iter()
             .map(|&f| (1..=n).find(|&k| self.volume[k] >= f * total).unwrap_or(n))
             .chain(std::iter::once(self.sign_cut))
-            .filter(|&k| k > 0 && k < n)
+            .filter(|&k| k > 0 && k < n && self.plausible_cut(k))
             .collect();
         cuts.sort_unstable();
         cuts.dedup();
@@ -128,8 +177,8 @@ impl Family {
     }
 
     /// Up to `most` cuts strictly between the coarse neighbours of `best` in `coarse` (or the
-    /// family's ends), evenly spaced: where the boundary is, to the element, once the coarse scan
-    /// has said roughly where.
+    /// family's ends), evenly spaced, each leaving a [`plausible`] region: where the boundary
+    /// is, to the element, once the coarse scan has said roughly where.
     pub fn between(&self, coarse: &[usize], best: usize, most: usize) -> Vec<usize> {
         let lo = coarse
             .iter()
@@ -143,7 +192,9 @@ impl Family {
             .filter(|&k| k > best)
             .min()
             .unwrap_or(self.order.len());
-        let inner: Vec<usize> = (lo + 1..hi).filter(|&k| k != best).collect();
+        let inner: Vec<usize> = (lo + 1..hi)
+            .filter(|&k| k != best && self.plausible_cut(k))
+            .collect();
         if inner.len() <= most {
             return inner;
         }
@@ -288,13 +339,18 @@ pub fn switches(region: &[usize], grad: &[f64], mu_region: f64, mu_rest: f64) ->
 }
 
 /// `region` with the elements `moved` switched to the other material; `None` when that would
-/// leave one of the two materials without elements (`elements` in all).
-pub fn switched(region: &[usize], moved: &[usize], elements: usize) -> Option<Vec<usize>> {
-    let mut inside = vec![false; elements];
+/// leave either material a region too small to be one ([`plausible`]); `volumes` of every
+/// element.
+pub fn switched(region: &[usize], moved: &[usize], volumes: &[f64]) -> Option<Vec<usize>> {
+    let mut inside = vec![false; volumes.len()];
     region.iter().for_each(|&e| inside[e] = true);
     moved.iter().for_each(|&e| inside[e] = !inside[e]);
-    let next: Vec<usize> = (0..elements).filter(|&e| inside[e]).collect();
-    (!next.is_empty() && next.len() < elements).then_some(next)
+    let next: Vec<usize> = (0..volumes.len()).filter(|&e| inside[e]).collect();
+    let total: f64 = volumes.iter().sum();
+    let v: f64 = next.iter().map(|&e| volumes[e]).sum();
+    let both =
+        plausible(next.len(), v, total) && plausible(volumes.len() - next.len(), total - v, total);
+    both.then_some(next)
 }
 
 #[cfg(test)]
@@ -313,7 +369,8 @@ mod tests {
         let map: Vec<f64> = (0..n).map(|e| e as f64 - 9.5).collect();
         let f = family(&volumes, &map).unwrap();
         let coarse = f.coarse();
-        assert_eq!(coarse, vec![3, 5, 8, 10, 12, 15, 17, 20, 22]);
+        // The tenths at 3 and 22 leave three and two elements: too few to be a material.
+        assert_eq!(coarse, vec![5, 8, 10, 12, 15, 17, 20]);
         assert!(!coarse.contains(&16));
         let fine = f.between(&coarse, 15, FINE_LEVELS);
         assert_eq!(fine, vec![13, 14, 16]);
@@ -337,7 +394,44 @@ mod tests {
             fine.iter().all(|&k| k > 400 && k < 600 && k != 500),
             "{fine:?}"
         );
+        // Below the best coarse cut the fine cuts stop where the region would be a speck.
+        let fine = f.between(&coarse, 5, FINE_LEVELS);
+        assert_eq!(fine, vec![4, 6, 7]);
         // One sign everywhere: nothing to split.
         assert!(family(&volumes, &vec![1.0; n]).is_none());
+    }
+
+    /// A region of one or a few elements — where a coarse mesh's own error sits at a clamp —
+    /// is never a candidate, whether cut from the map or reached by moving the boundary, and
+    /// neither is a split that leaves the rest that small.
+    #[test]
+    fn a_region_smaller_than_a_few_elements_is_not_a_material() {
+        let n = 200;
+        let volumes = vec![1.0; n];
+        // The map's most negative element alone: the first fine cut would be that one element.
+        let map: Vec<f64> = (0..n).map(|e| e as f64 - 0.5).collect();
+        let f = family(&volumes, &map).unwrap();
+        let coarse = f.coarse();
+        let fine = f.between(&coarse, coarse[0], FINE_LEVELS);
+        for k in coarse.iter().chain(&fine) {
+            let r = f.region(*k);
+            assert!(
+                r.elements.len() >= MIN_REGION_ELEMENTS,
+                "cut {k}: {} elements",
+                r.elements.len()
+            );
+        }
+        // The sign split here is one element: dropped, not screened.
+        assert!(!coarse.contains(&1), "{coarse:?}");
+        // Moving the boundary may not shrink a region below the limit, nor grow it to leave
+        // the rest below it.
+        let region: Vec<usize> = (0..6).collect();
+        assert!(switched(&region, &[0, 1, 2], &volumes).is_none());
+        assert_eq!(switched(&region, &[0, 1], &volumes), Some(vec![2, 3, 4, 5]));
+        let most: Vec<usize> = (6..n - 2).collect();
+        assert!(switched(&region, &most, &volumes).is_none());
+        // 1 % of the volume: four elements of 1000 are a speck.
+        assert!(!plausible(4, 4.0, 1000.0));
+        assert!(plausible(10, 10.0, 1000.0));
     }
 }

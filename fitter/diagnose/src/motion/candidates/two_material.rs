@@ -137,6 +137,14 @@ fn fit_two_material(
         }
     };
     let coarse = family.coarse();
+    if coarse.is_empty() {
+        return Ok(Outcome::NotFitted(format!(
+            "no level set of the sensitivity map leaves a region of at least {} elements and \
+             {:.0} % of the volume on both sides",
+            region::MIN_REGION_ELEMENTS,
+            100.0 * region::MIN_REGION_VOLUME
+        )));
+    }
     scan(&coarse, &mut best);
     if let Some(k) = best.as_ref().map(|b| b.1) {
         scan(&family.between(&coarse, k, region::FINE_LEVELS), &mut best);
@@ -171,7 +179,7 @@ fn fit_two_material(
 fn refine_boundary(m: &MotionModel<'_>, gated: FittedModel) -> FittedModel {
     let c = Candidate::TwoMaterial;
     let mut best = gated.clone();
-    let ne = m.ds.model.tets.len();
+    let volumes: Vec<f64> = m.ds.model.rest.iter().map(|r| r.volume).collect();
     let mut refits = 0;
     'passes: while refits < REGION_REFITS {
         let grad = match region::sensitivity(m.ds, m.split, &best) {
@@ -187,7 +195,7 @@ fn refine_boundary(m: &MotionModel<'_>, gated: FittedModel) -> FittedModel {
         let moves = region::switches(&region, &grad, mu_in, mu_out);
         let mut k = moves.len();
         while k > 0 && refits < REGION_REFITS {
-            let Some(next) = region::switched(&region, &moves[..k], ne) else {
+            let Some(next) = region::switched(&region, &moves[..k], &volumes) else {
                 k /= 2;
                 continue;
             };
