@@ -19,3 +19,4 @@ pub mod numbers;
 pub mod rng;
 pub mod runtime_storage;
 pub mod sanity;
+pub mod simulate;

@@ -12,6 +12,7 @@ pub mod model_source;
 pub mod port;
 pub mod replay;
 pub mod sender;
+pub mod session;
 pub mod stats;
 
 pub use gate::{ForceGate, GateDecision};
@@ -75,6 +76,17 @@ pub enum LinkHostError {
     /// The runtime rejected a tick of the haptic loop.
     #[error("runtime tick: {0}")]
     Tick(#[source] palpate_runtime::RuntimeError),
+    /// The runtime could not be built for the model.
+    #[error("building the runtime: {0}")]
+    Runtime(#[source] palpate_runtime::RuntimeError),
+    /// The runtime refused the contact a sample commanded.
+    #[error("runtime refused the contact at {point:?}: {source}")]
+    Contact {
+        /// The contact point (model coordinates, m).
+        point: [f32; 3],
+        /// The runtime's reason.
+        source: palpate_runtime::RuntimeError,
+    },
     /// The replay's sender thread panicked.
     #[error("sender thread panicked")]
     SenderPanicked,

@@ -9,10 +9,12 @@ use crate::port::FrameReader;
 use crate::sender::{run_sender, Pacing, SenderOptions, SenderReport};
 use crate::stats::{process_cpu_seconds, thread_cpu_seconds, Percentiles};
 use crate::LinkHostError;
+use palpate_fem::runtime_storage::Storage;
 use palpate_probe::sim::{default_config, Profile, SimProbe};
 use palpate_protocol::link::{ForceSample, Frame, LinkStats};
-use palpate_runtime::Runtime;
+use palpate_runtime::{Runtime, RuntimeConfig};
 use serialport::{SerialPort, TTYPort};
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -150,6 +152,41 @@ pub fn phase(
         proc_cpu_s,
         iterations,
         superseded,
+    })
+}
+
+/// A model file replayed by [`replay`], and the memory its runtime used.
+#[derive(Debug, Clone, Copy)]
+pub struct ModelReplay {
+    /// What the replay measured.
+    pub replay: Replay,
+    /// The runtime's memory (bytes), sized once from the model.
+    pub footprint_bytes: usize,
+}
+
+/// Reads the runtime model (`.palp`) at `path`, builds its runtime under `config` in memory
+/// sized for it, and replays it as [`replay`] does.
+pub fn replay_model_file(
+    path: &Path,
+    config: RuntimeConfig,
+    point: [f32; 3],
+    radius: f32,
+    seconds: f64,
+) -> Result<ModelReplay, LinkHostError> {
+    let model = |message: String| LinkHostError::Model {
+        file: path.into(),
+        message,
+    };
+    let file = std::fs::read(path).map_err(|e| model(e.to_string()))?;
+    let record = palpate_protocol::model::decode(&file).map_err(|e| model(e.to_string()))?;
+    let mut storage = Storage::for_model(&record, &config);
+    let runtime = storage
+        .runtime(record, config)
+        .map_err(|e| model(e.to_string()))?;
+    let footprint_bytes = runtime.footprint_bytes();
+    Ok(ModelReplay {
+        replay: replay(runtime, point, radius, seconds)?,
+        footprint_bytes,
     })
 }
 

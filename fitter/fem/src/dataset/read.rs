@@ -15,6 +15,7 @@ use super::embed::{
 use super::{Marker, Measurement, StaticDataset};
 use crate::io::csv::{CsvError, Table};
 use crate::mesh::gmsh::{read_msh, MeshError};
+use crate::mesh::Mesh;
 use palpate_runtime::contact_rule::{contact_weights, lumped_surface_areas, ContactRuleError};
 use serde::Deserialize;
 use std::collections::HashMap;
@@ -224,6 +225,50 @@ fn line_of(text: &str, offset: usize) -> usize {
         + 1
 }
 
+/// Where in `dataset.toml` a value stands, for errors that name its line.
+struct TomlAt<'a> {
+    file: &'a Path,
+    text: &'a str,
+}
+
+impl TomlAt<'_> {
+    fn line(&self, span: std::ops::Range<usize>) -> usize {
+        line_of(self.text, span.start)
+    }
+
+    fn field(
+        &self,
+        key: &str,
+        span: std::ops::Range<usize>,
+        expected: &str,
+        found: String,
+    ) -> DatasetError {
+        DatasetError::Field {
+            file: self.file.to_path_buf(),
+            line: self.line(span),
+            field: key.to_string(),
+            expected: expected.to_string(),
+            found,
+        }
+    }
+
+    fn fixed_group(&self, line: usize, problem: String) -> DatasetError {
+        DatasetError::FixedGroup {
+            file: self.file.to_path_buf(),
+            line,
+            problem,
+        }
+    }
+}
+
+/// The scalar fields of `dataset.toml`, checked.
+struct Header {
+    probe_radius: f64,
+    marker_noise: Option<f64>,
+    marker_standoff: Option<f64>,
+    gravity: Option<[f64; 3]>,
+}
+
 impl StaticDataset {
     /// Reads and validates the dataset folder `dir` (see the module docs for the checks).
     pub fn read(dir: impl AsRef<Path>) -> Result<StaticDataset, DatasetError> {
@@ -238,146 +283,34 @@ impl StaticDataset {
             line: e.span().map(|s| line_of(&text, s.start)).unwrap_or(1),
             message: e.message().trim().to_string(),
         })?;
-        let at = |span: std::ops::Range<usize>| line_of(&text, span.start);
-        let field = |key: &str, span: std::ops::Range<usize>, expected: &str, found: String| {
-            DatasetError::Field {
-                file: toml_file.clone(),
-                line: at(span),
-                field: key.to_string(),
-                expected: expected.to_string(),
-                found,
-            }
+        let toml_at = TomlAt {
+            file: &toml_file,
+            text: &text,
         };
-        if meta.units.get_ref() != "SI" {
-            return Err(field(
-                "units",
-                meta.units.span(),
-                "\"SI\" (metres, newtons, seconds)",
-                format!("{:?}", meta.units.get_ref()),
-            ));
-        }
-        let probe_radius = *meta.probe_radius.get_ref();
-        if !(probe_radius.is_finite() && probe_radius > 0.0) {
-            return Err(field(
-                "probe_radius",
-                meta.probe_radius.span(),
-                "a positive length in m",
-                probe_radius.to_string(),
-            ));
-        }
-        // An optional length, when given, must be finite and ≥ 0.
-        let non_negative = |key: &str, value: &Option<Spanned<f64>>, expected: &str| match value {
-            Some(s) if !(s.get_ref().is_finite() && *s.get_ref() >= 0.0) => {
-                Err(field(key, s.span(), expected, s.get_ref().to_string()))
-            }
-            Some(s) => Ok(Some(*s.get_ref())),
-            None => Ok(None),
-        };
-        let marker_noise = non_negative(
-            "marker_noise",
-            &meta.marker_noise,
-            "a non-negative length in m",
-        )?;
-        let marker_standoff = non_negative(
-            "marker_standoff",
-            &meta.marker_standoff,
-            "a non-negative height in m",
-        )?;
-        let gravity = match &meta.gravity {
-            Some(g) if !g.get_ref().iter().all(|v| v.is_finite()) => {
-                return Err(field(
-                    "gravity",
-                    g.span(),
-                    "three finite numbers (m/s²)",
-                    format!("{:?}", g.get_ref()),
-                ))
-            }
-            Some(g) => Some(*g.get_ref()),
-            None => None,
-        };
-
+        let header = check_header(&meta, &toml_at)?;
+        let probe_radius = header.probe_radius;
         let mesh = read_msh(dir.join(meta.mesh.get_ref()))?;
-        // One schema with the motion datasets: `clamps = ["group"]` or the older `fixed_group`.
-        let (fixed_group, fixed_span) = match (&meta.fixed_group, &meta.clamps) {
-            (Some(g), None) => {
-                log::warn!(
-                    "{}:{}: `fixed_group` is the older name of `clamps = [{:?}]`: read as that",
-                    toml_file.display(),
-                    at(g.span()),
-                    g.get_ref()
-                );
-                (g.get_ref().clone(), g.span())
-            }
-            (None, Some(c)) if c.get_ref().len() == 1 => (c.get_ref()[0].clone(), c.span()),
-            (None, Some(c)) => {
-                return Err(DatasetError::FixedGroup {
-                    file: toml_file.clone(),
-                    line: at(c.span()),
-                    problem: format!(
-                        "`clamps` lists {} groups, a static dataset fixes exactly one: {:?}",
-                        c.get_ref().len(),
-                        c.get_ref()
-                    ),
-                })
-            }
-            (Some(g), Some(_)) => {
-                return Err(DatasetError::FixedGroup {
-                    file: toml_file.clone(),
-                    line: at(g.span()),
-                    problem: "both `fixed_group` and `clamps` given: they say the same, give one"
-                        .into(),
-                })
-            }
-            (None, None) => {
-                return Err(DatasetError::FixedGroup {
-                    file: toml_file.clone(),
-                    line: 0,
-                    problem:
-                        "missing: give `clamps = [\"group\"]`, the clamped face's physical group (older name: `fixed_group`)"
-                            .into(),
-                })
-            }
-        };
-        let fixed_nodes = match mesh.node_groups.get(&fixed_group) {
-            None => {
-                return Err(DatasetError::FixedGroup {
-                    file: toml_file.clone(),
-                    line: at(fixed_span.clone()),
-                    problem: format!(
-                        "the mesh {} has no physical group {:?} (groups present: {})",
-                        meta.mesh.get_ref(),
-                        fixed_group,
-                        mesh.node_groups
-                            .keys()
-                            .map(|k| format!("{k:?}"))
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    ),
-                })
-            }
-            Some(n) if n.is_empty() => {
-                return Err(DatasetError::FixedGroup {
-                    file: toml_file.clone(),
-                    line: at(fixed_span.clone()),
-                    problem: format!("physical group {fixed_group:?} of the mesh holds no node"),
-                })
-            }
-            Some(n) => n.clone(),
-        };
+        let (fixed_group, fixed_span) = fixed_group(&meta, &toml_at)?;
+        let fixed_nodes = fixed_nodes(&mesh, &fixed_group, &fixed_span, &meta, &toml_at)?;
         let surface = mesh.boundary_triangles();
 
         // Lengths are bounded by the object: a probe wider than the whole mesh, or a marker
         // that moves farther than the object is long, is in other units or another frame.
         let size = crate::sanity::bounding_diagonal(&mesh.nodes);
         if probe_radius > size {
-            return Err(field(
+            return Err(toml_at.field(
                 "probe_radius",
                 meta.probe_radius.span(),
                 &format!("a radius at most the mesh's size ({size:.4e} m box diagonal)"),
                 format!("{} m", crate::sanity::show(probe_radius)),
             ));
         }
-        let markers = read_markers(&dir.join(MARKERS_CSV), &mesh, &surface, marker_standoff)?;
+        let markers = read_markers(
+            &dir.join(MARKERS_CSV),
+            &mesh,
+            &surface,
+            header.marker_standoff,
+        )?;
         let (mut measurements, contact_lines) = read_contacts(
             &dir.join(CONTACTS_CSV),
             &mesh,
@@ -401,7 +334,7 @@ impl StaticDataset {
             }
         }
         Ok(StaticDataset {
-            marker_standoff,
+            marker_standoff: header.marker_standoff,
             name: meta.name.into_inner(),
             description: meta.description.unwrap_or_default(),
             mesh,
@@ -409,11 +342,136 @@ impl StaticDataset {
             fixed_nodes,
             surface,
             probe_radius,
-            marker_noise,
-            gravity,
+            marker_noise: header.marker_noise,
+            gravity: header.gravity,
             markers,
             measurements,
         })
+    }
+}
+
+/// Checks `dataset.toml`'s scalar fields: units, probe radius, marker noise and standoff,
+/// gravity.
+fn check_header(meta: &DatasetToml, toml_at: &TomlAt<'_>) -> Result<Header, DatasetError> {
+    if meta.units.get_ref() != "SI" {
+        return Err(toml_at.field(
+            "units",
+            meta.units.span(),
+            "\"SI\" (metres, newtons, seconds)",
+            format!("{:?}", meta.units.get_ref()),
+        ));
+    }
+    let probe_radius = *meta.probe_radius.get_ref();
+    if !(probe_radius.is_finite() && probe_radius > 0.0) {
+        return Err(toml_at.field(
+            "probe_radius",
+            meta.probe_radius.span(),
+            "a positive length in m",
+            probe_radius.to_string(),
+        ));
+    }
+    // An optional length, when given, must be finite and ≥ 0.
+    let non_negative = |key: &str, value: &Option<Spanned<f64>>, expected: &str| match value {
+        Some(s) if !(s.get_ref().is_finite() && *s.get_ref() >= 0.0) => {
+            Err(toml_at.field(key, s.span(), expected, s.get_ref().to_string()))
+        }
+        Some(s) => Ok(Some(*s.get_ref())),
+        None => Ok(None),
+    };
+    let marker_noise = non_negative(
+        "marker_noise",
+        &meta.marker_noise,
+        "a non-negative length in m",
+    )?;
+    let marker_standoff = non_negative(
+        "marker_standoff",
+        &meta.marker_standoff,
+        "a non-negative height in m",
+    )?;
+    let gravity = match &meta.gravity {
+        Some(g) if !g.get_ref().iter().all(|v| v.is_finite()) => {
+            return Err(toml_at.field(
+                "gravity",
+                g.span(),
+                "three finite numbers (m/s²)",
+                format!("{:?}", g.get_ref()),
+            ))
+        }
+        Some(g) => Some(*g.get_ref()),
+        None => None,
+    };
+    Ok(Header {
+        probe_radius,
+        marker_noise,
+        marker_standoff,
+        gravity,
+    })
+}
+
+/// The fixed group's nodes: the group must be in the mesh and hold a node.
+fn fixed_nodes(
+    mesh: &Mesh,
+    fixed_group: &str,
+    fixed_span: &std::ops::Range<usize>,
+    meta: &DatasetToml,
+    toml_at: &TomlAt<'_>,
+) -> Result<Vec<usize>, DatasetError> {
+    match mesh.node_groups.get(fixed_group) {
+        None => Err(toml_at.fixed_group(
+            toml_at.line(fixed_span.clone()),
+            format!(
+                "the mesh {} has no physical group {:?} (groups present: {})",
+                meta.mesh.get_ref(),
+                fixed_group,
+                mesh.node_groups
+                    .keys()
+                    .map(|k| format!("{k:?}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        )),
+        Some(n) if n.is_empty() => Err(toml_at.fixed_group(
+            toml_at.line(fixed_span.clone()),
+            format!("physical group {fixed_group:?} of the mesh holds no node"),
+        )),
+        Some(n) => Ok(n.clone()),
+    }
+}
+
+/// The fixed group's name and where it stands: one schema with the motion datasets,
+/// `clamps = ["group"]` or the older `fixed_group`.
+fn fixed_group(
+    meta: &DatasetToml,
+    toml_at: &TomlAt<'_>,
+) -> Result<(String, std::ops::Range<usize>), DatasetError> {
+    match (&meta.fixed_group, &meta.clamps) {
+        (Some(g), None) => {
+            log::warn!(
+                "{}:{}: `fixed_group` is the older name of `clamps = [{:?}]`: read as that",
+                toml_at.file.display(),
+                toml_at.line(g.span()),
+                g.get_ref()
+            );
+            Ok((g.get_ref().clone(), g.span()))
+        }
+        (None, Some(c)) if c.get_ref().len() == 1 => Ok((c.get_ref()[0].clone(), c.span())),
+        (None, Some(c)) => Err(toml_at.fixed_group(
+            toml_at.line(c.span()),
+            format!(
+                "`clamps` lists {} groups, a static dataset fixes exactly one: {:?}",
+                c.get_ref().len(),
+                c.get_ref()
+            ),
+        )),
+        (Some(g), Some(_)) => Err(toml_at.fixed_group(
+            toml_at.line(g.span()),
+            "both `fixed_group` and `clamps` given: they say the same, give one".into(),
+        )),
+        (None, None) => Err(toml_at.fixed_group(
+            0,
+            "missing: give `clamps = [\"group\"]`, the clamped face's physical group (older name: `fixed_group`)"
+                .into(),
+        )),
     }
 }
 

@@ -12,6 +12,56 @@ use palpate_runtime::rotation::warp_rotation_polar;
 
 use super::{ForwardError, Material, StaticProblem};
 
+/// The sparsity pattern over the free dofs of a sum of dense element blocks (each block the 3
+/// dofs of each of its nodes, in order), with zero values; where each block entry (a, c) lands in
+/// the value array, row-major per block (`u32::MAX` when either dof is fixed); and where each
+/// block's entries start. The element stiffnesses and the discretisation-error blocks share it.
+pub(super) fn block_pattern<'a>(
+    blocks: impl Iterator<Item = &'a [usize]> + Clone,
+    free_index: &[usize],
+    free_count: usize,
+) -> Result<(SparseColMat<usize, f64>, Vec<u32>, Vec<usize>), ForwardError> {
+    let nd = 3 * free_count;
+    let dof = |nodes: &[usize], a: usize| -> Option<usize> {
+        let f = free_index[nodes[a / 3]];
+        (f != usize::MAX).then(|| 3 * f + a % 3)
+    };
+    let entries: usize = blocks.clone().map(|n| 9 * n.len() * n.len()).sum();
+    let mut trip = Vec::with_capacity(entries);
+    for nodes in blocks.clone() {
+        for a in 0..3 * nodes.len() {
+            for c in 0..3 * nodes.len() {
+                if let (Some(i), Some(j)) = (dof(nodes, a), dof(nodes, c)) {
+                    trip.push(Triplet::new(i, j, 0.0));
+                }
+            }
+        }
+    }
+    let matrix = SparseColMat::<usize, f64>::try_new_from_triplets(nd, nd, &trip)
+        .map_err(|e| ForwardError::Sparse(format!("{e:?}")))?;
+    drop(trip);
+    let (cp, ri) = (matrix.symbolic().col_ptr(), matrix.symbolic().row_idx());
+    let mut scatter = Vec::with_capacity(entries);
+    let mut starts = Vec::new();
+    for nodes in blocks {
+        starts.push(scatter.len());
+        for a in 0..3 * nodes.len() {
+            for c in 0..3 * nodes.len() {
+                scatter.push(match (dof(nodes, a), dof(nodes, c)) {
+                    (Some(i), Some(j)) => {
+                        let k = ri[cp[j]..cp[j + 1]]
+                            .binary_search(&i)
+                            .expect("entry is in the pattern by construction");
+                        (cp[j] + k) as u32
+                    }
+                    _ => u32::MAX,
+                });
+            }
+        }
+    }
+    Ok((matrix, scatter, starts))
+}
+
 /// The fixed sparsity pattern of K' (both triangles) and where each element entry lands.
 #[derive(Debug, Clone)]
 pub(super) struct Pattern {
@@ -30,41 +80,8 @@ impl Pattern {
         free_index: &[usize],
         free_count: usize,
     ) -> Result<Self, ForwardError> {
-        let nd = 3 * free_count;
-        let dof = |t: &[usize; 4], a: usize| -> Option<usize> {
-            let f = free_index[t[a / 3]];
-            (f != usize::MAX).then(|| 3 * f + a % 3)
-        };
-        let mut trip = Vec::with_capacity(tets.len() * 144);
-        for t in tets {
-            for a in 0..12 {
-                for b in 0..12 {
-                    if let (Some(i), Some(j)) = (dof(t, a), dof(t, b)) {
-                        trip.push(Triplet::new(i, j, 0.0));
-                    }
-                }
-            }
-        }
-        let matrix = SparseColMat::<usize, f64>::try_new_from_triplets(nd, nd, &trip)
-            .map_err(|e| ForwardError::Sparse(format!("{e:?}")))?;
-        let (cp, ri) = (matrix.symbolic().col_ptr(), matrix.symbolic().row_idx());
-        let mut scatter = Vec::with_capacity(tets.len() * 144);
-        for t in tets {
-            for a in 0..12 {
-                for b in 0..12 {
-                    scatter.push(match (dof(t, a), dof(t, b)) {
-                        (Some(i), Some(j)) => {
-                            let col = &ri[cp[j]..cp[j + 1]];
-                            let k = col
-                                .binary_search(&i)
-                                .expect("entry is in the pattern by construction");
-                            (cp[j] + k) as u32
-                        }
-                        _ => u32::MAX,
-                    });
-                }
-            }
-        }
+        let (matrix, scatter, _) =
+            block_pattern(tets.iter().map(|t| t.as_slice()), free_index, free_count)?;
         let symbolic = SymbolicLlt::try_new(matrix.symbolic(), Side::Lower)
             .map_err(|e| ForwardError::Sparse(format!("symbolic Cholesky: {e:?}")))?;
         Ok(Self {

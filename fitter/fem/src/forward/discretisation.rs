@@ -13,7 +13,7 @@
 
 use faer::linalg::solvers::Solve;
 use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
-use faer::sparse::{SparseColMat, SparseColMatRef, Triplet};
+use faer::sparse::{SparseColMat, SparseColMatRef};
 use faer::{MatMut, Side};
 use nalgebra::{DMatrix, Vector3};
 
@@ -86,45 +86,11 @@ struct BlockPattern {
 
 impl BlockPattern {
     fn new(blocks: &Blocks, free_index: &[usize], free_count: usize) -> Result<Self, ForwardError> {
-        let nd = 3 * free_count;
-        let dof = |nodes: &[usize], a: usize| -> Option<usize> {
-            let f = free_index[nodes[a / 3]];
-            (f != usize::MAX).then(|| 3 * f + a % 3)
-        };
-        let mut trip = Vec::new();
-        for b in 0..blocks.len() {
-            let nodes = blocks.get(b);
-            for a in 0..3 * nodes.len() {
-                for c in 0..3 * nodes.len() {
-                    if let (Some(i), Some(j)) = (dof(nodes, a), dof(nodes, c)) {
-                        trip.push(Triplet::new(i, j, 0.0));
-                    }
-                }
-            }
-        }
-        let matrix = SparseColMat::<usize, f64>::try_new_from_triplets(nd, nd, &trip)
-            .map_err(|e| ForwardError::Sparse(format!("{e:?}")))?;
-        drop(trip);
-        let (cp, ri) = (matrix.symbolic().col_ptr(), matrix.symbolic().row_idx());
-        let mut scatter = Vec::new();
-        let mut starts = Vec::with_capacity(blocks.len());
-        for b in 0..blocks.len() {
-            starts.push(scatter.len());
-            let nodes = blocks.get(b);
-            for a in 0..3 * nodes.len() {
-                for c in 0..3 * nodes.len() {
-                    scatter.push(match (dof(nodes, a), dof(nodes, c)) {
-                        (Some(i), Some(j)) => {
-                            let k = ri[cp[j]..cp[j + 1]]
-                                .binary_search(&i)
-                                .expect("entry is in the pattern by construction");
-                            (cp[j] + k) as u32
-                        }
-                        _ => u32::MAX,
-                    });
-                }
-            }
-        }
+        let (matrix, scatter, starts) = super::assembly::block_pattern(
+            (0..blocks.len()).map(|b| blocks.get(b)),
+            free_index,
+            free_count,
+        )?;
         let symbolic = SymbolicLlt::try_new(matrix.symbolic(), Side::Lower)
             .map_err(|e| ForwardError::Sparse(format!("symbolic Cholesky: {e:?}")))?;
         Ok(Self {

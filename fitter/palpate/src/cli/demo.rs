@@ -5,9 +5,9 @@ use anyhow::Context;
 use palpate_diagnose::{run_diagnosis_with, DiagnoseOptions};
 use palpate_fem::dataset::StaticDataset;
 use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
-use palpate_fem::runtime_storage::Storage;
 use palpate_runtime::RuntimeConfig;
 use palpate_static_fit::blend::BlendData;
+use palpate_static_fit::FitResult;
 use palpate_static_fit::{fit_static, FitInput, FitOptions, Layout, Method, Sets};
 use std::path::{Path, PathBuf};
 
@@ -48,23 +48,7 @@ fn mm(v: f64) -> String {
 /// Runs the demo.
 pub fn run(args: Args) -> anyhow::Result<()> {
     args.plots.apply();
-    // The bundled data are found relative to the working directory: outside the repository the
-    // demo says so before it makes any folder.
-    let mut needed = vec![args.dataset.clone()];
-    if !args.no_beam {
-        needed.push(PathBuf::from(super::demo_beam::BEAM_DIR));
-    }
-    for p in &needed {
-        if !p.exists() {
-            anyhow::bail!(
-                "{}: not found. The demo runs on the data bundled with palpate's repository: run \
-                 it from the repository's root folder (the one holding README.md and models/), \
-                 or give --dataset DIR{}",
-                p.display(),
-                if args.no_beam { "" } else { " --no-beam" }
-            );
-        }
-    }
+    check_bundled_data(&args)?;
     let t0 = Instant::now();
     let progress = super::logging::Progress::start("palpate demo");
     std::fs::create_dir_all(&args.out)
@@ -91,6 +75,97 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if beam.is_some() {
         log::info!("palpate demo, part 2: the synthetic specimen (effects known)");
     }
+    let specimen = specimen_loop(&args)?;
+    drop(progress);
+    // The tables: printed, and written with the figures into the folder's README.
+    let part = specimen_part(&specimen.report, &specimen.diag_files, &args.out);
+    let replay = &specimen.replay.replay;
+    let haptic = format!(
+        "Haptic replay of the diagnosed model over a pseudo-terminal: {} samples solved ({} lost); \
+         latency from frame written to solved p50 {:.0} µs, p99 {:.0} µs; mean PCG iterations \
+         {:.1}; runtime memory {} bytes.",
+        replay.solved,
+        replay.lost,
+        replay.p50_us,
+        replay.p99_us,
+        replay.mean_iterations,
+        specimen.replay.footprint_bytes
+    );
+    for t in &part.tables {
+        println!("\n{}", t.markdown());
+    }
+    println!("{haptic}");
+    if replay.non_monotonic > 0 {
+        log::warn!(
+            "{} latency pairs were out of clock order and are excluded from the figures",
+            replay.non_monotonic
+        );
+    }
+    let mut parts = Vec::new();
+    if let Some(b) = &beam {
+        let part = super::demo_beam::part(b, &args.out);
+        super::demo_beam::print_table(&part);
+        parts.push(part);
+    }
+    parts.push(part);
+    let readme = DemoReadme {
+        command: "palpate demo".into(),
+        parts,
+        notes: vec![
+            haptic,
+            format!(
+                "Models: `{}` (the simplest) and `{}` (the diagnosed one); `palpate info` says \
+                 what each holds.",
+                "model-simplest.palp", "model.palp"
+            ),
+            format!("The demo ran for {:.0} s.", t0.elapsed().as_secs_f64()),
+        ],
+    };
+    let readme_path = super::demo_readme::write(&args.out, &readme)?;
+    println!(
+        "\nthe results, tables and figures: {}",
+        readme_path.display()
+    );
+    log::info!("demo finished in {:.1} s", t0.elapsed().as_secs_f64());
+    if let Some(b) = &beam {
+        super::demo_beam::check_expected(b)?;
+        log::info!("the beam's decisions and held-out errors are the expected ones");
+    }
+    Ok(())
+}
+
+/// The bundled data are found relative to the working directory: outside the repository the
+/// demo says so before it makes any folder.
+fn check_bundled_data(args: &Args) -> anyhow::Result<()> {
+    let mut needed = vec![args.dataset.clone()];
+    if !args.no_beam {
+        needed.push(PathBuf::from(super::demo_beam::BEAM_DIR));
+    }
+    for p in &needed {
+        if !p.exists() {
+            anyhow::bail!(
+                "{}: not found. The demo runs on the data bundled with palpate's repository: run \
+                 it from the repository's root folder (the one holding README.md and models/), \
+                 or give --dataset DIR{}",
+                p.display(),
+                if args.no_beam { "" } else { " --no-beam" }
+            );
+        }
+    }
+    Ok(())
+}
+
+/// What the synthetic specimen's loop made: the diagnosis, its report's files, the replay of
+/// the diagnosed model.
+struct SpecimenLoop {
+    report: palpate_diagnose::DiagnosisReport,
+    diag_files: Vec<PathBuf>,
+    replay: palpate_link::replay::ModelReplay,
+}
+
+/// The loop on the static dataset: fit the simplest model, diagnose, export both models, replay
+/// the diagnosed one over a pseudo-terminal. Each step is one library call.
+fn specimen_loop(args: &Args) -> anyhow::Result<SpecimenLoop> {
     let ds = StaticDataset::read(&args.dataset)
         .with_context(|| format!("reading dataset {}", args.dataset.display()))?;
     log::info!(
@@ -104,24 +179,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
 
-    // 1. Fit the simplest model the method offers: linear homogeneous, displacement-based.
-    log::info!(
-        "[1/4] fit: linear homogeneous material, displacement-based inverse (docs/method.md)"
-    );
-    let input = FitInput::from_dataset(&ds)?;
-    let o = FitOptions::new(Method::Displacement, Layout::Homogeneous, Sets::Single);
-    let fit = fit_static(&input, &o, |_, _| {})?;
-    let p = palpate_runtime::material::LambdaAlpha {
-        lambda: fit.params[0].lambda[0],
-        alpha: fit.params[0].alpha[0],
-    };
-    log::info!(
-        "      E = {:.0} Pa, ν = {:.3}, RMS marker error {} mm ({:.1} s)",
-        p.young(),
-        p.poisson(),
-        mm(fit.rms()),
-        fit.seconds
-    );
+    let (input, fit) = fit_simplest(&ds)?;
 
     // 2. Diagnose: residual signatures, candidate effects scored on held-out data.
     log::info!("[2/4] diagnose: residual signatures, candidate effects, held-out scoring");
@@ -136,6 +194,71 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         diag_dir.display()
     );
 
+    let model_path = export_models(args, &ds, &input, &fit, &report)?;
+
+    // 4. Haptic replay: the simulated probe streams forces over a pseudo-terminal; the runtime
+    //    solves one warped tick per sample.
+    log::info!(
+        "[4/4] haptic replay over a pseudo-terminal ({} s at 1 kHz)",
+        args.haptic_seconds
+    );
+    let cfg = RuntimeConfig {
+        max_iterations: 100,
+        ..Default::default()
+    };
+    let (lo, hi) = ds.mesh.bounds();
+    let contact = [
+        (lo[0] + hi[0]) as f32 / 2.0,
+        (lo[1] + hi[1]) as f32 / 2.0,
+        hi[2] as f32,
+    ];
+    let replay = palpate_link::replay::replay_model_file(
+        &model_path,
+        cfg,
+        contact,
+        ds.probe_radius as f32,
+        args.haptic_seconds,
+    )?;
+    Ok(SpecimenLoop {
+        report,
+        diag_files,
+        replay,
+    })
+}
+
+/// Step 1: fits the simplest model the method offers, linear homogeneous and
+/// displacement-based.
+fn fit_simplest(ds: &StaticDataset) -> anyhow::Result<(FitInput, FitResult)> {
+    // 1. Fit the simplest model the method offers: linear homogeneous, displacement-based.
+    log::info!(
+        "[1/4] fit: linear homogeneous material, displacement-based inverse (docs/method.md)"
+    );
+    let input = FitInput::from_dataset(ds)?;
+    let o = FitOptions::new(Method::Displacement, Layout::Homogeneous, Sets::Single);
+    let fit = fit_static(&input, &o, |_, _| {})?;
+    let p = palpate_runtime::material::LambdaAlpha {
+        lambda: fit.params[0].lambda[0],
+        alpha: fit.params[0].alpha[0],
+    };
+    log::info!(
+        "      E = {:.0} Pa, ν = {:.3}, RMS marker error {} mm ({:.1} s)",
+        p.young(),
+        p.poisson(),
+        mm(fit.rms()),
+        fit.seconds
+    );
+    Ok((input, fit))
+}
+
+/// Step 3: exports the simplest and the diagnosed model for the runtime; returns the
+/// diagnosed model's path.
+fn export_models(
+    args: &Args,
+    ds: &StaticDataset,
+    input: &FitInput,
+    fit: &FitResult,
+    report: &palpate_diagnose::DiagnosisReport,
+) -> anyhow::Result<PathBuf> {
     // 3. Export the fitted model for the runtime.
     log::info!("[3/4] export");
     let prov = ProvenanceInfo {
@@ -161,89 +284,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bytes
     );
     let model_path = args.out.join("model.palp");
-    let diagnosed = palpate_diagnose::export::diagnosed_model(&report, &prov.tool, &prov.source)?;
+    let diagnosed = palpate_diagnose::export::diagnosed_model(report, &prov.tool, &prov.source)?;
     let bytes = diagnosed.write(&model_path)?;
     log::info!(
         "      {} ({} bytes): the diagnosed model (replayed below)",
         model_path.display(),
         bytes
     );
-
-    // 4. Haptic replay: the simulated probe streams forces over a pseudo-terminal; the runtime
-    //    solves one warped tick per sample.
-    log::info!(
-        "[4/4] haptic replay over a pseudo-terminal ({} s at 1 kHz)",
-        args.haptic_seconds
-    );
-    let file = std::fs::read(&model_path)?;
-    let record = palpate_protocol::model::decode(&file).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let cfg = RuntimeConfig {
-        max_iterations: 100,
-        ..Default::default()
-    };
-    let mut storage = Storage::for_model(&record, &cfg);
-    let rt = storage.runtime(record, cfg)?;
-    let footprint = rt.footprint_bytes();
-    let (lo, hi) = ds.mesh.bounds();
-    let contact = [
-        (lo[0] + hi[0]) as f32 / 2.0,
-        (lo[1] + hi[1]) as f32 / 2.0,
-        hi[2] as f32,
-    ];
-    let replay =
-        palpate_link::replay::replay(rt, contact, ds.probe_radius as f32, args.haptic_seconds)?;
-    let lost = replay.lost;
-
-    drop(progress);
-    // The tables: printed, and written with the figures into the folder's README.
-    let specimen = specimen_part(&report, &diag_files, &args.out);
-    let haptic = format!(
-        "Haptic replay of the diagnosed model over a pseudo-terminal: {} samples solved ({} lost); \
-         latency from frame written to solved p50 {:.0} µs, p99 {:.0} µs; mean PCG iterations \
-         {:.1}; runtime memory {} bytes.",
-        replay.solved, lost, replay.p50_us, replay.p99_us, replay.mean_iterations, footprint
-    );
-    for t in &specimen.tables {
-        println!("\n{}", t.markdown());
-    }
-    println!("{haptic}");
-    if replay.non_monotonic > 0 {
-        log::warn!(
-            "{} latency pairs were out of clock order and are excluded from the figures",
-            replay.non_monotonic
-        );
-    }
-    let mut parts = Vec::new();
-    if let Some(b) = &beam {
-        let part = super::demo_beam::part(b, &args.out);
-        super::demo_beam::print_table(&part);
-        parts.push(part);
-    }
-    parts.push(specimen);
-    let readme = DemoReadme {
-        command: "palpate demo".into(),
-        parts,
-        notes: vec![
-            haptic,
-            format!(
-                "Models: `{}` (the simplest) and `{}` (the diagnosed one); `palpate info` says \
-                 what each holds.",
-                "model-simplest.palp", "model.palp"
-            ),
-            format!("The demo ran for {:.0} s.", t0.elapsed().as_secs_f64()),
-        ],
-    };
-    let readme_path = super::demo_readme::write(&args.out, &readme)?;
-    println!(
-        "\nthe results, tables and figures: {}",
-        readme_path.display()
-    );
-    log::info!("demo finished in {:.1} s", t0.elapsed().as_secs_f64());
-    if let Some(b) = &beam {
-        super::demo_beam::check_expected(b)?;
-        log::info!("the beam's decisions and held-out errors are the expected ones");
-    }
-    Ok(())
+    Ok(model_path)
 }
 
 /// The synthetic specimen's part of the README: verdict, before/after table, figures. `root` is

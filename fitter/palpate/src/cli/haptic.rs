@@ -2,20 +2,12 @@
 //! stream — each sample a force-driven contact at the given point, one solve per sample — and
 //! report per-sample latency from frame arrival to solved state.
 
-use anyhow::Context;
 use palpate_fem::io::parse_vec3;
-use palpate_fem::runtime_storage::Storage;
-use palpate_link::gate::ForceGate;
-use palpate_link::haptic::{Contact, HapticLoop};
+use palpate_link::haptic::Contact;
 use palpate_link::model_source::{haptic_config, ModelSource};
-use palpate_link::port::{open, FrameReader};
-use palpate_link::stats::{thread_cpu_seconds, Percentiles};
-use palpate_link::{GateDecision, LinkHostError};
-use palpate_protocol::link::Frame;
-use palpate_runtime::SolveStatus;
+use palpate_link::session::{run_session, SessionOptions};
 use serde_json::json;
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
 
 /// Arguments.
 #[derive(Debug, clap::Args)]
@@ -102,87 +94,35 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         None => ModelSource::load(None, args.block_tets)?,
     };
     let rec = src.record()?;
-    let cfg = haptic_config();
-    let mut storage = Storage::for_model(&rec, &cfg);
-    let rt = storage.runtime(rec, cfg).context("building the runtime")?;
-    let contact = Contact {
-        point: args.contact,
-        direction: args.direction,
-        radius: args.radius,
-    };
-    let mut hl = HapticLoop::new(rt, ForceGate::new(args.hold, 100.0), contact);
-    let mut reader = FrameReader::new(open(&args.port, args.baud, Duration::from_millis(50))?);
-    let (mut lat, mut iters) = (Vec::new(), Vec::new());
-    let (mut fed, mut held, mut released, mut unconverged) = (0u64, 0u64, 0u64, 0u64);
-    let mut worst_res = 0.0f32;
-    let mut err = None;
-    let t0 = Instant::now();
-    let cpu0 = thread_cpu_seconds();
-    let mut batch = Vec::new();
-    while t0.elapsed().as_secs_f64() < args.seconds && err.is_none() {
-        batch.clear();
-        let mut arrival = None;
-        reader
-            .poll(|fr, at| {
-                if let Frame::Sample(s) = fr {
-                    batch.push(s);
-                    arrival = Some(at);
-                }
-            })
-            .map_err(|source| LinkHostError::Io {
-                what: "reading",
-                path: args.port.clone(),
-                source,
-            })?;
-        if let Some(at) = arrival {
-            // Several samples in one read (the host fell behind): all pass the gate, the newest
-            // drives the solve.
-            match hl.on_batch(&batch) {
-                Ok(Some((d, rep))) => {
-                    lat.push(at.elapsed().as_secs_f64() * 1e6);
-                    iters.push(f64::from(rep.iterations));
-                    worst_res = worst_res.max(rep.rel_residual);
-                    unconverged += u64::from(rep.status != SolveStatus::Converged);
-                    match d {
-                        GateDecision::Feed(_) => fed += 1,
-                        GateDecision::Hold(_) => held += 1,
-                        GateDecision::Release => released += 1,
-                    }
-                }
-                Ok(None) => {}
-                Err(e) => err = Some(e),
-            }
-        }
-        if lat.is_empty() && t0.elapsed() > Duration::from_secs(2) {
-            if let Some(e) = reader.version_mismatch(&args.port) {
-                return Err(e.into());
-            }
-        }
-    }
-    if let Some(e) = err {
-        anyhow::bail!("runtime refused the contact at {:?}: {e}", args.contact);
-    }
-    let wall = t0.elapsed().as_secs_f64();
-    let cpu = cpu0.zip(thread_cpu_seconds()).map(|(a, b)| (b - a) / wall);
-    let p = Percentiles::of(&mut lat);
-    let it = Percentiles::of(&mut iters);
-    let st = *reader.stats();
+    let r = run_session(
+        rec,
+        haptic_config(),
+        &SessionOptions {
+            port: args.port.clone(),
+            baud: args.baud,
+            seconds: args.seconds,
+            contact: Contact {
+                point: args.contact,
+                direction: args.direction,
+                radius: args.radius,
+            },
+            hold: args.hold,
+        },
+    )?;
+    let (p, it, st) = (r.latency_us, r.iterations, r.stats);
     println!(
         "haptic loop: {} nodes, {} tets, contact {:?} r = {} m",
-        hl.runtime.node_count(),
-        hl.runtime.element_count(),
-        args.contact,
-        args.radius
+        r.nodes, r.tets, args.contact, args.radius
     );
     println!(
         "{:<40} {:>12}",
         "solves / superseded samples",
-        format!("{}/{}", p.n, hl.superseded)
+        format!("{}/{}", p.n, r.superseded)
     );
     println!(
         "{:<40} {:>12}",
         "fed / held / released",
-        format!("{fed}/{held}/{released}")
+        format!("{}/{}/{}", r.fed, r.held, r.released)
     );
     println!(
         "{:<40} {:>12}",
@@ -193,17 +133,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!("{:<40} {:>12.1}", "arrival → solved p99 [µs]", p.p99);
     println!("{:<40} {:>12.1}", "arrival → solved max [µs]", p.max);
     println!("{:<40} {:>12.1}", "PCG iterations mean / p99", it.mean);
-    println!("{:<40} {:>12}", "unconverged ticks", unconverged);
+    println!("{:<40} {:>12}", "unconverged ticks", r.unconverged);
     println!(
         "{:<40} {:>12.1}",
         "host CPU (loop thread) [%]",
-        cpu.unwrap_or(f64::NAN) * 100.0
+        r.cpu_fraction.unwrap_or(f64::NAN) * 100.0
     );
     println!(
         "{}",
-        json!({"schema_version": 1, "kind": "haptic", "samples": p.n, "fed": fed, "held": held, "released": released, "missing": st.missing_samples,
-               "rejected": st.rejected(), "superseded": hl.superseded, "latency_us": p, "iterations": it, "worst_rel_residual": worst_res,
-               "unconverged": unconverged, "cpu_fraction": cpu})
+        json!({"schema_version": 1, "kind": "haptic", "samples": p.n, "fed": r.fed, "held": r.held, "released": r.released, "missing": st.missing_samples,
+               "rejected": st.rejected(), "superseded": r.superseded, "latency_us": p, "iterations": it, "worst_rel_residual": r.worst_rel_residual,
+               "unconverged": r.unconverged, "cpu_fraction": r.cpu_fraction})
     );
     Ok(())
 }

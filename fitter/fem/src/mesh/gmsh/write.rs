@@ -25,6 +25,25 @@ pub fn write_msh(mesh: &Mesh, path: impl AsRef<Path>) -> Result<(), MeshError> {
         file: path.to_path_buf(),
         message,
     };
+    let tags = checked_tags(mesh).map_err(invalid)?;
+    let layout = Layout::new(mesh, tags);
+    write_atomic_with(path, |w| {
+        writeln!(w, "$MeshFormat\n4.1 0 8\n$EndMeshFormat")?;
+        layout.physical_names(w)?;
+        let point_entities = layout.entities(w)?;
+        layout.nodes(w)?;
+        layout.elements(w, &point_entities)
+    })
+    .map_err(|e| MeshError::Write {
+        file: path.to_path_buf(),
+        message: format!("{e:#}"),
+    })
+}
+
+/// The node tags to write (1, 2, … if the mesh has none), after checking that they are distinct
+/// and non-zero, that the tetrahedra and groups refer to nodes of the mesh, and that every group
+/// name can be quoted.
+fn checked_tags(mesh: &Mesh) -> Result<Vec<u64>, String> {
     let n = mesh.nodes.len();
     let tags: Vec<u64> = if mesh.node_tags.is_empty() {
         (1..=n as u64).collect()
@@ -32,113 +51,128 @@ pub fn write_msh(mesh: &Mesh, path: impl AsRef<Path>) -> Result<(), MeshError> {
         mesh.node_tags.clone()
     };
     if tags.len() != n {
-        return Err(invalid(format!("{} node tags for {} nodes", tags.len(), n)));
+        return Err(format!("{} node tags for {} nodes", tags.len(), n));
     }
     let mut distinct = BTreeSet::new();
     for &t in &tags {
         if t == 0 || !distinct.insert(t) {
-            return Err(invalid(format!("node tag {t} is zero or repeated")));
+            return Err(format!("node tag {t} is zero or repeated"));
         }
     }
     if let Some(t) = mesh.tets.iter().find(|t| t.iter().any(|&i| i >= n)) {
-        return Err(invalid(format!(
-            "tetrahedron {t:?} refers to a node index ≥ {n}"
-        )));
+        return Err(format!("tetrahedron {t:?} refers to a node index ≥ {n}"));
     }
     for (name, members) in &mesh.node_groups {
         if name.contains('"') || name.contains('\n') {
-            return Err(invalid(format!(
-                "group name {name:?} holds a quote or newline"
-            )));
+            return Err(format!("group name {name:?} holds a quote or newline"));
         }
         if let Some(i) = members.iter().find(|&&i| i >= n) {
-            return Err(invalid(format!(
-                "group {name:?} refers to node index {i} ≥ {n}"
-            )));
+            return Err(format!("group {name:?} refers to node index {i} ≥ {n}"));
         }
     }
+    Ok(tags)
+}
 
-    // Per group: boundary triangles inside it, and the leftover nodes.
-    let boundary = mesh.boundary_triangles();
-    // (name, boundary triangles inside the group, group nodes on none of them)
-    type GroupLayout<'a> = (&'a String, Vec<[usize; 3]>, Vec<usize>);
-    let groups: Vec<GroupLayout> = mesh
-        .node_groups
-        .iter()
-        .map(|(name, members)| {
-            let inside: BTreeSet<usize> = members.iter().copied().collect();
-            if inside.len() == n {
-                // The whole mesh: a physical volume group, no surface or point entities.
-                return (name, Vec::new(), Vec::new());
-            }
-            let tris: Vec<[usize; 3]> = boundary
-                .iter()
-                .filter(|t| t.iter().all(|i| inside.contains(i)))
-                .copied()
-                .collect();
-            let covered: BTreeSet<usize> = tris.iter().flatten().copied().collect();
-            let rest = inside.difference(&covered).copied().collect();
-            (name, tris, rest)
-        })
-        .collect();
+/// One node group as written: its name, the boundary triangles inside it, and its nodes on
+/// none of them.
+struct GroupLayout<'a> {
+    name: &'a String,
+    tris: Vec<[usize; 3]>,
+    rest: Vec<usize>,
+    /// The group holds every node of the mesh: a physical volume group.
+    whole: bool,
+}
 
-    let bbox = |idx: &mut dyn Iterator<Item = usize>| {
+/// What the file holds beyond the mesh itself: the node tags and each group's entities.
+struct Layout<'a> {
+    mesh: &'a Mesh,
+    tags: Vec<u64>,
+    groups: Vec<GroupLayout<'a>>,
+}
+
+impl<'a> Layout<'a> {
+    fn new(mesh: &'a Mesh, tags: Vec<u64>) -> Self {
+        let n = mesh.nodes.len();
+        let boundary = mesh.boundary_triangles();
+        let groups = mesh
+            .node_groups
+            .iter()
+            .map(|(name, members)| {
+                let whole = members.len() >= n
+                    && members.iter().copied().collect::<BTreeSet<usize>>().len() == n;
+                let inside: BTreeSet<usize> = members.iter().copied().collect();
+                if inside.len() == n {
+                    // The whole mesh: a physical volume group, no surface or point entities.
+                    return GroupLayout {
+                        name,
+                        tris: Vec::new(),
+                        rest: Vec::new(),
+                        whole,
+                    };
+                }
+                let tris: Vec<[usize; 3]> = boundary
+                    .iter()
+                    .filter(|t| t.iter().all(|i| inside.contains(i)))
+                    .copied()
+                    .collect();
+                let covered: BTreeSet<usize> = tris.iter().flatten().copied().collect();
+                let rest = inside.difference(&covered).copied().collect();
+                GroupLayout {
+                    name,
+                    tris,
+                    rest,
+                    whole,
+                }
+            })
+            .collect();
+        Self { mesh, tags, groups }
+    }
+
+    /// The bounding box of the nodes `idx`.
+    fn bbox(&self, idx: &mut dyn Iterator<Item = usize>) -> ([f64; 3], [f64; 3]) {
         let mut lo = [f64::INFINITY; 3];
         let mut hi = [f64::NEG_INFINITY; 3];
         for i in idx {
             for d in 0..3 {
-                lo[d] = lo[d].min(mesh.nodes[i][d]);
-                hi[d] = hi[d].max(mesh.nodes[i][d]);
+                lo[d] = lo[d].min(self.mesh.nodes[i][d]);
+                hi[d] = hi[d].max(self.mesh.nodes[i][d]);
             }
         }
         (lo, hi)
-    };
+    }
 
-    let whole = |k: usize| {
-        mesh.node_groups.values().nth(k).is_some_and(|m| {
-            m.len() >= n && m.iter().copied().collect::<BTreeSet<usize>>().len() == n
-        })
-    };
-    let volume_groups: Vec<String> = (0..groups.len())
-        .filter(|&k| whole(k))
-        .map(|k| (k + 1).to_string())
-        .collect();
-
-    let volume_physicals = std::iter::once(volume_groups.len().to_string())
-        .chain(volume_groups.iter().cloned())
-        .collect::<Vec<_>>()
-        .join(" ");
-
-    write_atomic_with(path, |w| {
-        writeln!(w, "$MeshFormat\n4.1 0 8\n$EndMeshFormat")?;
-        // Physical names: surface and point groups share the group's name and number.
+    /// `$PhysicalNames`: surface and point groups share the group's name and number.
+    fn physical_names(&self, w: &mut impl Write) -> std::io::Result<()> {
         let mut names = Vec::new();
-        for (k, (name, tris, rest)) in groups.iter().enumerate() {
-            if !tris.is_empty() {
-                names.push(format!("2 {} \"{}\"", k + 1, name));
+        for (k, g) in self.groups.iter().enumerate() {
+            if !g.tris.is_empty() {
+                names.push(format!("2 {} \"{}\"", k + 1, g.name));
             }
-            if whole(k) {
-                names.push(format!("3 {} \"{}\"", k + 1, name));
-            } else if !rest.is_empty() || tris.is_empty() {
-                names.push(format!("0 {} \"{}\"", k + 1, name));
+            if g.whole {
+                names.push(format!("3 {} \"{}\"", k + 1, g.name));
+            } else if !g.rest.is_empty() || g.tris.is_empty() {
+                names.push(format!("0 {} \"{}\"", k + 1, g.name));
             }
         }
         writeln!(w, "$PhysicalNames\n{}", names.len())?;
         for l in &names {
             writeln!(w, "{l}")?;
         }
-        writeln!(w, "$EndPhysicalNames")?;
+        writeln!(w, "$EndPhysicalNames")
+    }
 
-        // Entities.
-        let n_points: usize = groups.iter().map(|g| g.2.len()).sum();
-        let n_surfaces = groups.iter().filter(|g| !g.1.is_empty()).count();
+    /// `$Entities`: a point per leftover group node, a surface per group with triangles, the
+    /// volume. Returns the point entities' (tag, node index).
+    fn entities(&self, w: &mut impl Write) -> std::io::Result<Vec<(usize, usize)>> {
+        let n_points: usize = self.groups.iter().map(|g| g.rest.len()).sum();
+        let n_surfaces = self.groups.iter().filter(|g| !g.tris.is_empty()).count();
         writeln!(w, "$Entities\n{} 0 {} 1", n_points, n_surfaces)?;
         let mut point_tag = 0;
         let mut point_entities = Vec::new();
-        for (k, (_, _, rest)) in groups.iter().enumerate() {
-            for &i in rest {
+        for (k, g) in self.groups.iter().enumerate() {
+            for &i in &g.rest {
                 point_tag += 1;
-                let p = mesh.nodes[i];
+                let p = self.mesh.nodes[i];
                 writeln!(
                     w,
                     "{} {:e} {:e} {:e} 1 {}",
@@ -151,9 +185,9 @@ pub fn write_msh(mesh: &Mesh, path: impl AsRef<Path>) -> Result<(), MeshError> {
                 point_entities.push((point_tag, i));
             }
         }
-        for (k, (_, tris, _)) in groups.iter().enumerate() {
-            if !tris.is_empty() {
-                let (lo, hi) = bbox(&mut tris.iter().flatten().copied());
+        for (k, g) in self.groups.iter().enumerate() {
+            if !g.tris.is_empty() {
+                let (lo, hi) = self.bbox(&mut g.tris.iter().flatten().copied());
                 writeln!(
                     w,
                     "{} {:e} {:e} {:e} {:e} {:e} {:e} 1 {} 0",
@@ -168,37 +202,56 @@ pub fn write_msh(mesh: &Mesh, path: impl AsRef<Path>) -> Result<(), MeshError> {
                 )?;
             }
         }
-        let (lo, hi) = bbox(&mut (0..n));
+        let volume_groups: Vec<String> = (0..self.groups.len())
+            .filter(|&k| self.groups[k].whole)
+            .map(|k| (k + 1).to_string())
+            .collect();
+        let volume_physicals = std::iter::once(volume_groups.len().to_string())
+            .chain(volume_groups.iter().cloned())
+            .collect::<Vec<_>>()
+            .join(" ");
+        let (lo, hi) = self.bbox(&mut (0..self.mesh.nodes.len()));
         writeln!(
             w,
             "1 {:e} {:e} {:e} {:e} {:e} {:e} {} 0",
             lo[0], lo[1], lo[2], hi[0], hi[1], hi[2], volume_physicals
         )?;
         writeln!(w, "$EndEntities")?;
+        Ok(point_entities)
+    }
 
-        // Nodes: one block on the volume.
-        let (min_tag, max_tag) = (
-            distinct.first().copied().unwrap_or(0),
-            distinct.last().copied().unwrap_or(0),
-        );
+    /// `$Nodes`: one block on the volume.
+    fn nodes(&self, w: &mut impl Write) -> std::io::Result<()> {
+        let n = self.mesh.nodes.len();
+        let min_tag = self.tags.iter().copied().min().unwrap_or(0);
+        let max_tag = self.tags.iter().copied().max().unwrap_or(0);
         writeln!(w, "$Nodes\n1 {n} {min_tag} {max_tag}\n3 1 0 {n}")?;
-        for t in &tags {
+        for t in &self.tags {
             writeln!(w, "{t}")?;
         }
-        for p in &mesh.nodes {
+        for p in &self.mesh.nodes {
             // `{:?}` prints the shortest text that parses back to the same f64.
             writeln!(w, "{:?} {:?} {:?}", p[0], p[1], p[2])?;
         }
-        writeln!(w, "$EndNodes")?;
+        writeln!(w, "$EndNodes")
+    }
 
-        // Elements: tetrahedra, then group triangles, then group points.
-        let n_tris: usize = groups.iter().map(|g| g.1.len()).sum();
-        let total = mesh.tets.len() + n_tris + n_points;
+    /// `$Elements`: tetrahedra, then group triangles, then group points.
+    fn elements(
+        &self,
+        w: &mut impl Write,
+        point_entities: &[(usize, usize)],
+    ) -> std::io::Result<()> {
+        let tags = &self.tags;
+        let n_tris: usize = self.groups.iter().map(|g| g.tris.len()).sum();
+        let n_surfaces = self.groups.iter().filter(|g| !g.tris.is_empty()).count();
+        let n_points = point_entities.len();
+        let total = self.mesh.tets.len() + n_tris + n_points;
         let blocks = 1 + n_surfaces + n_points;
         writeln!(w, "$Elements\n{blocks} {total} 1 {total}")?;
-        writeln!(w, "3 1 4 {}", mesh.tets.len())?;
+        writeln!(w, "3 1 4 {}", self.mesh.tets.len())?;
         let mut etag = 0usize;
-        for t in &mesh.tets {
+        for t in &self.mesh.tets {
             etag += 1;
             writeln!(
                 w,
@@ -206,24 +259,19 @@ pub fn write_msh(mesh: &Mesh, path: impl AsRef<Path>) -> Result<(), MeshError> {
                 etag, tags[t[0]], tags[t[1]], tags[t[2]], tags[t[3]]
             )?;
         }
-        for (k, (_, tris, _)) in groups.iter().enumerate() {
-            if !tris.is_empty() {
-                writeln!(w, "2 {} 2 {}", k + 1, tris.len())?;
-                for t in tris {
+        for (k, g) in self.groups.iter().enumerate() {
+            if !g.tris.is_empty() {
+                writeln!(w, "2 {} 2 {}", k + 1, g.tris.len())?;
+                for t in &g.tris {
                     etag += 1;
                     writeln!(w, "{} {} {} {}", etag, tags[t[0]], tags[t[1]], tags[t[2]])?;
                 }
             }
         }
-        for (ptag, i) in point_entities {
+        for &(ptag, i) in point_entities {
             etag += 1;
             writeln!(w, "0 {ptag} 15 1\n{etag} {}", tags[i])?;
         }
-        writeln!(w, "$EndElements")?;
-        Ok(())
-    })
-    .map_err(|e| MeshError::Write {
-        file: path.to_path_buf(),
-        message: format!("{e:#}"),
-    })
+        writeln!(w, "$EndElements")
+    }
 }
