@@ -687,10 +687,10 @@ impl RateReference {
     }
 
     /// z = ln q from the fit's coordinates w; `None` where an h is not positive.
-    fn to_log(&self, w: &[f64]) -> Option<Vec<f64>> {
+    fn log_params(&self, w: &[f64]) -> Option<Vec<f64>> {
         let mut z = w.to_vec();
         for &(n, h, l) in &self.pairs {
-            if !(w[h] > 0.0) {
+            if w[h].is_nan() || w[h] <= 0.0 {
                 return None;
             }
             z[n] = w[n] - (w[h] - 1.0) * l;
@@ -700,7 +700,7 @@ impl RateReference {
     }
 
     /// The fit's coordinates w from z = ln q.
-    fn from_log(&self, z: &[f64]) -> Vec<f64> {
+    fn coordinates(&self, z: &[f64]) -> Vec<f64> {
         let mut w = z.to_vec();
         for &(n, h, l) in &self.pairs {
             w[n] = z[n] + (z[h].exp() - 1.0) * l;
@@ -712,7 +712,7 @@ impl RateReference {
     /// ∇Φ and the Gauss–Newton matrix in z carried to w at `w` by the chain rule: with
     /// T = ∂z/∂w (the identity but for T_{ln h, h} = 1/h and T_{ln ν, h} = −ln γ̇_ref),
     /// J_w = J_z T, so ∇_w Φ = Tᵀ ∇_z Φ and H_w = Tᵀ H_z T.
-    fn to_fit_coordinates(&self, w: &[f64], mut normal: Normal) -> Normal {
+    fn normal_in_coordinates(&self, w: &[f64], mut normal: Normal) -> Normal {
         let np = w.len();
         let gn = &mut normal.gn;
         for &(n, h, l) in &self.pairs {
@@ -787,8 +787,8 @@ fn levenberg_marquardt(
             params[h].kind.name()
         );
     }
-    let w0 = reference.from_log(z0);
-    let first = reference.to_fit_coordinates(&w0, first);
+    let w0 = reference.coordinates(z0);
+    let first = reference.normal_in_coordinates(&w0, first);
     let options = TrustOptions {
         max_iterations: settings.max_iters as usize,
         // The precision the fit is worth: a relative change of 1e-6 in Φ moves a BIC over 10⁴
@@ -801,11 +801,12 @@ fn levenberg_marquardt(
         max_radius: 3.0,
     };
     let mut in_w = |w: &[f64]| {
-        let Some(z) = reference.to_log(w) else {
+        let Some(z) = reference.log_params(w) else {
             log::debug!("a step to a power-law index h ≤ 0: rejected unsimulated");
             return None;
         };
-        eval(&z, &mut history, &mut failures).map(|normal| reference.to_fit_coordinates(w, normal))
+        eval(&z, &mut history, &mut failures)
+            .map(|normal| reference.normal_in_coordinates(w, normal))
     };
     let mut out = minimise_trust_region(w0, first, &mut in_w, &options);
     let mut iterations = out.iterations;
@@ -826,7 +827,7 @@ fn levenberg_marquardt(
                 step[i] * (g[i] + 0.5 * hs)
             })
             .sum::<f64>();
-        if !(promised > options.noise_tolerance * phi) {
+        if promised.is_nan() || promised <= options.noise_tolerance * phi {
             break;
         }
         log::debug!(
@@ -848,7 +849,7 @@ fn levenberg_marquardt(
         }
     }
     let z = reference
-        .to_log(&out.theta)
+        .log_params(&out.theta)
         .expect("an accepted point has h > 0");
     let (phi, iterations) = (out.normal.phi, iterations as u64);
     let q: Vec<f64> = z.iter().map(|v| v.exp()).collect();
@@ -912,10 +913,10 @@ mod tests {
             ln_rate.abs() > 0.1,
             "ln γ̇_ref {ln_rate}: too near 1/s to test"
         );
-        let w = reference.from_log(&z);
-        let back = reference.to_log(&w).unwrap();
+        let w = reference.coordinates(&z);
+        let back = reference.log_params(&w).unwrap();
         assert!(back.iter().zip(&z).all(|(a, b)| (a - b).abs() < 1e-12));
-        let at_w = reference.to_fit_coordinates(
+        let at_w = reference.normal_in_coordinates(
             &w,
             Normal {
                 phi,
@@ -926,7 +927,7 @@ mod tests {
 
         let phi_at = |w: &[f64]| {
             let q: Vec<f64> = reference
-                .to_log(w)
+                .log_params(w)
                 .unwrap()
                 .iter()
                 .map(|v| v.exp())
