@@ -1196,6 +1196,9 @@ mod tests {
         ahead: Option<Ahead<C, Outcome<f64>>>,
         /// What the toy records, in order: "fit c1 = …", "gate c1".
         events: Vec<String>,
+        /// c1 starts from c0's fit of the same round (as the power law from the Newtonian
+        /// damping it nests): each fit recorded, by round.
+        fitted: Vec<(usize, C, f64)>,
     }
 
     impl Toy {
@@ -1210,14 +1213,20 @@ mod tests {
                 diverges: diverges.to_vec(),
                 ahead: None,
                 events: Vec::new(),
+                fitted: Vec::new(),
             }
         }
-        /// The fit proper: read-only, as a fit done ahead must be.
-        fn fit_alone(&self, cur: f64, c: C) -> Outcome<f64> {
+        /// The fit proper: read-only, as a fit done ahead must be; `nested` is c0's fit this
+        /// round when `c` is c1.
+        fn fit_alone(&self, cur: f64, c: C, nested: Option<f64>) -> Outcome<f64> {
             if self.diverges.contains(&c.0) {
                 return Outcome::NotFitted(format!("c{} diverged", c.0));
             }
-            Outcome::Fitted(cur + self.gain[c.0])
+            let start = nested.map_or(cur, |f| 0.5 * (f + cur));
+            Outcome::Fitted(start + self.gain[c.0])
+        }
+        fn nests(c: C, earlier: C) -> bool {
+            (c.0, earlier.0) == (1, 0)
         }
     }
 
@@ -1255,10 +1264,20 @@ mod tests {
             self.fits += 1;
             let out = match self.ahead.as_mut().and_then(|a| a.take(round, c)) {
                 Some(out) => out,
-                None => self.fit_alone(*cur, c),
+                None => {
+                    let nested = self
+                        .fitted
+                        .iter()
+                        .rev()
+                        .find(|(r, e, _)| *r == round && Self::nests(c, *e));
+                    self.fit_alone(*cur, c, nested.map(|n| n.2))
+                }
             };
             let f = match &out {
-                Outcome::Fitted(f) => format!("{f}"),
+                Outcome::Fitted(f) => {
+                    self.fitted.push((round, c, *f));
+                    format!("{f}")
+                }
                 _ => "-".into(),
             };
             self.events.push(format!("fit c{} = {f}", c.0));
@@ -1269,7 +1288,13 @@ mod tests {
                 return;
             }
             let this = &*self;
-            let results = fit_ahead(batch, |_, _| false, |c, _| this.fit_alone(*cur, c));
+            let results = fit_ahead(batch, Self::nests, |c, earlier: &[(C, &Outcome<f64>)]| {
+                let nested = earlier.iter().find_map(|(_, o)| match o {
+                    Outcome::Fitted(f) => Some(*f),
+                    _ => None,
+                });
+                this.fit_alone(*cur, c, nested)
+            });
             self.ahead = Some(Ahead::new(round, batch, results));
         }
         fn score(&self, f: &f64) -> Score {
@@ -1402,14 +1427,15 @@ mod tests {
             rank: Rank::FittedBic,
             screen: Screen::All,
         };
-        for (fails, screen) in [
-            (vec![], FitScreen::Off),
-            (vec![2, 3], FitScreen::Off),
-            (vec![2, 3], PREDICTED),
+        for (fails, screen, diverges) in [
+            (vec![], FitScreen::Off, vec![]),
+            (vec![], FitScreen::Off, vec![3]),
+            (vec![2, 3], FitScreen::Off, vec![1]),
+            (vec![2, 3], PREDICTED, vec![]),
         ] {
-            let mut in_turn = Toy::new(&fails, screen, &[1]);
+            let mut in_turn = Toy::new(&fails, screen, &diverges);
             let v = select(&mut in_turn, &policy, 0.0, ()).unwrap();
-            let mut ahead = Toy::new(&fails, screen, &[1]);
+            let mut ahead = Toy::new(&fails, screen, &diverges);
             ahead.ahead = Some(Ahead::default());
             let w = select(&mut ahead, &policy, 0.0, ()).unwrap();
             assert_eq!(w.adopted(), v.adopted(), "{fails:?} {screen:?}");
