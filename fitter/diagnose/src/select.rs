@@ -26,7 +26,8 @@
 //! the current model (but for a candidate that starts from another's fit, which waits for it:
 //! [`fit_ahead`]), so a room whose fits only read it fits a round's batch in parallel before the
 //! loop takes them one by one; what each fit records (log lines, counts, trials) is recorded when
-//! the loop reaches it, so the records and the verdict are those of fits one after the other.
+//! the loop reaches it, so the records and the verdict are those of fits one after the other. On
+//! one thread (`RAYON_NUM_THREADS=1`) nothing is fitted ahead.
 //!
 //! **Progress** ([`Progress`]): the loop tells the diagnosis what it is doing (the screen, the
 //! i-th fit of n, the held-out predictions, the adoption), for a progress bar.
@@ -733,7 +734,8 @@ fn fit_round<M: CandidateModel>(
     let mut planned = batch.len();
     let mut tried = vec![false; open.len()];
     loop {
-        if batch.len() > 1 {
+        // On one thread, fits ahead would only delay their log lines.
+        if batch.len() > 1 && rayon::current_num_threads() > 1 {
             let cands: Vec<M::Candidate> = batch.iter().map(|&i| open[i]).collect();
             model.prefit(now.round, now.fitted, &cands);
         }
@@ -1068,9 +1070,9 @@ impl<C: Copy + PartialEq, T> Ahead<C, T> {
 /// Fits every candidate of `batch` with `fit`, in parallel on rayon's pool, and returns the
 /// results in `batch`'s order. A candidate waits for every one before it in `batch` it depends
 /// on (`waits_for(c, earlier)`: its fit starts from theirs), and `fit` is handed those results;
-/// the others run together in waves. With `RAYON_NUM_THREADS=1` the fits run one after the
-/// other. A fit's own parallel loops share the pool: rayon's joins steal work rather than block
-/// a thread, so nesting neither deadlocks nor starts more threads than the pool has.
+/// the others run together in waves. A fit's own parallel loops share the pool: rayon's joins
+/// steal work rather than block a thread, so nesting neither deadlocks nor starts more threads
+/// than the pool has.
 pub fn fit_ahead<C, T>(
     batch: &[C],
     waits_for: impl Fn(C, C) -> bool + Sync,
