@@ -22,6 +22,13 @@
 //! gate, the next predicted to pay for its parameters is fitted, one at a time, so that a poor
 //! prediction costs fits, not the verdict.
 //!
+//! **Fits side by side** ([`CandidateModel::prefit`]): the fits of a round are independent given
+//! the current model (but for a candidate that starts from another's fit, which waits for it:
+//! [`fit_ahead`]), so a room whose fits only read it fits a round's batch in parallel before the
+//! loop takes them one by one; what each fit records (log lines, counts, trials) is recorded when
+//! the loop reaches it, so the records and the verdict are those of fits one after the other. On
+//! one thread (`RAYON_NUM_THREADS=1`) nothing is fitted ahead.
+//!
 //! **Progress** ([`Progress`]): the loop tells the diagnosis what it is doing (the screen, the
 //! i-th fit of n, the held-out predictions, the adoption), for a progress bar.
 
@@ -513,6 +520,14 @@ pub trait CandidateModel {
             .map(|_| Prediction::none("no prediction"))
             .collect())
     }
+    /// Fits the candidates of `batch` (two or more, in the order tried) ahead of their turn, on
+    /// top of `current`; the engine then calls [`Self::fit_with`] for each in that order. A room
+    /// whose fits only read it fits them here in parallel ([`fit_ahead`]) and keeps each outcome
+    /// with what it would have recorded of the fit (log lines, counts) in an [`Ahead`], for
+    /// `fit_with` to hand back and record when the candidate's turn comes: the records, the
+    /// gates and the verdict are then those of fits one after the other. The default fits
+    /// nothing ahead.
+    fn prefit(&mut self, _round: usize, _current: &Self::Fitted, _batch: &[Self::Candidate]) {}
     /// Records a candidate the screen left unfitted (the default records nothing).
     fn screened_out(&mut self, _round: usize, _candidate: Self::Candidate, _p: &Prediction) {}
     /// Receives what the loop is doing (the default ignores it).
@@ -719,6 +734,11 @@ fn fit_round<M: CandidateModel>(
     let mut planned = batch.len();
     let mut tried = vec![false; open.len()];
     loop {
+        // On one thread, fits ahead would only delay their log lines.
+        if batch.len() > 1 && rayon::current_num_threads() > 1 {
+            let cands: Vec<M::Candidate> = batch.iter().map(|&i| open[i]).collect();
+            model.prefit(now.round, now.fitted, &cands);
+        }
         for &i in &batch {
             tried[i] = true;
             let done = tried.iter().filter(|&&t| t).count();
@@ -1011,6 +1031,86 @@ fn plan_fits(screen: &FitScreen, predictions: &[Option<Prediction>]) -> (Vec<usi
     (batch, reserve)
 }
 
+/// Candidates fitted ahead of their turn ([`CandidateModel::prefit`]), each with what its room
+/// records of it; each is taken once, when the engine reaches it ([`CandidateModel::fit_with`]).
+pub struct Ahead<C, T> {
+    round: usize,
+    fits: Vec<(C, T)>,
+}
+
+impl<C, T> Default for Ahead<C, T> {
+    fn default() -> Self {
+        Self {
+            round: 0,
+            fits: Vec::new(),
+        }
+    }
+}
+
+impl<C: Copy + PartialEq, T> Ahead<C, T> {
+    /// The results of `batch`'s fits in `round`, one per candidate in order.
+    pub fn new(round: usize, batch: &[C], results: Vec<T>) -> Self {
+        assert_eq!(batch.len(), results.len(), "one result per candidate");
+        Self {
+            round,
+            fits: batch.iter().copied().zip(results).collect(),
+        }
+    }
+
+    /// The result of `candidate`'s fit in `round`, if it was fitted ahead and not taken yet.
+    pub fn take(&mut self, round: usize, candidate: C) -> Option<T> {
+        if round != self.round {
+            return None;
+        }
+        let i = self.fits.iter().position(|(c, _)| *c == candidate)?;
+        Some(self.fits.remove(i).1)
+    }
+}
+
+/// Fits every candidate of `batch` with `fit`, in parallel on rayon's pool, and returns the
+/// results in `batch`'s order. A candidate waits for every one before it in `batch` it depends
+/// on (`waits_for(c, earlier)`: its fit starts from theirs), and `fit` is handed those results;
+/// the others run together in waves. A fit's own parallel loops share the pool: rayon's joins
+/// steal work rather than block a thread, so nesting neither deadlocks nor starts more threads
+/// than the pool has.
+pub fn fit_ahead<C, T>(
+    batch: &[C],
+    waits_for: impl Fn(C, C) -> bool + Sync,
+    fit: impl Fn(C, &[(C, &T)]) -> T + Sync,
+) -> Vec<T>
+where
+    C: Copy + Send + Sync,
+    T: Send + Sync,
+{
+    use rayon::prelude::*;
+    let waits_for = &waits_for;
+    let deps = |i: usize| (0..i).filter(move |&j| waits_for(batch[i], batch[j]));
+    let mut done: Vec<Option<T>> = batch.iter().map(|_| None).collect();
+    while done.iter().any(Option::is_none) {
+        let ready: Vec<usize> = (0..batch.len())
+            .filter(|&i| done[i].is_none() && deps(i).all(|j| done[j].is_some()))
+            .collect();
+        // Dependencies point only to earlier candidates, so the first one open is always ready.
+        assert!(!ready.is_empty(), "a candidate waits for none after it");
+        let wave: Vec<T> = {
+            let done = &done;
+            ready
+                .par_iter()
+                .map(|&i| {
+                    let earlier: Vec<(C, &T)> = deps(i)
+                        .filter_map(|j| done[j].as_ref().map(|t| (batch[j], t)))
+                        .collect();
+                    fit(batch[i], &earlier)
+                })
+                .collect()
+        };
+        for (i, t) in ready.into_iter().zip(wave) {
+            done[i] = Some(t);
+        }
+    }
+    done.into_iter().flatten().collect()
+}
+
 /// A candidate effect of a room's library, as the shared layer sees it: the selection engine
 /// ([`CandidateModel::Candidate`]) and the request ([`pick_candidates`]) need nothing else of it.
 /// Each room's candidate type implements it where it is defined, so a room's library is stated
@@ -1094,6 +1194,42 @@ mod tests {
         screened: Vec<(usize, usize)>,
         /// Candidates whose fit does not converge ([`Outcome::NotFitted`]).
         diverges: Vec<usize>,
+        /// Fits done ahead ([`CandidateModel::prefit`]); `None`: the toy fits nothing ahead.
+        ahead: Option<Ahead<C, Outcome<f64>>>,
+        /// What the toy records, in order: "fit c1 = …", "gate c1".
+        events: Vec<String>,
+        /// c1 starts from c0's fit of the same round (as the power law from the Newtonian
+        /// damping it nests): each fit recorded, by round.
+        fitted: Vec<(usize, C, f64)>,
+    }
+
+    impl Toy {
+        fn new(fails: &[usize], screen: FitScreen, diverges: &[usize]) -> Self {
+            Toy {
+                gain: vec![-50.0, -5.0, -200.0, -30.0],
+                predicted: vec![-40.0, -1.0, -150.0, -60.0],
+                fails: fails.to_vec(),
+                screen,
+                fits: 0,
+                screened: Vec::new(),
+                diverges: diverges.to_vec(),
+                ahead: None,
+                events: Vec::new(),
+                fitted: Vec::new(),
+            }
+        }
+        /// The fit proper: read-only, as a fit done ahead must be; `nested` is c0's fit this
+        /// round when `c` is c1.
+        fn fit_alone(&self, cur: f64, c: C, nested: Option<f64>) -> Outcome<f64> {
+            if self.diverges.contains(&c.0) {
+                return Outcome::NotFitted(format!("c{} diverged", c.0));
+            }
+            let start = nested.map_or(cur, |f| 0.5 * (f + cur));
+            Outcome::Fitted(start + self.gain[c.0])
+        }
+        fn nests(c: C, earlier: C) -> bool {
+            (c.0, earlier.0) == (1, 0)
+        }
     }
 
     #[derive(Debug, Clone, Copy, PartialEq)]
@@ -1126,12 +1262,42 @@ mod tests {
                 .filter(|c| !adopted.contains(c))
                 .collect()
         }
-        fn fit_with(&mut self, _: usize, cur: &f64, c: C) -> Result<Outcome<f64>, ()> {
+        fn fit_with(&mut self, round: usize, cur: &f64, c: C) -> Result<Outcome<f64>, ()> {
             self.fits += 1;
-            if self.diverges.contains(&c.0) {
-                return Ok(Outcome::NotFitted(format!("c{} diverged", c.0)));
+            let out = match self.ahead.as_mut().and_then(|a| a.take(round, c)) {
+                Some(out) => out,
+                None => {
+                    let nested = self
+                        .fitted
+                        .iter()
+                        .rev()
+                        .find(|(r, e, _)| *r == round && Self::nests(c, *e));
+                    self.fit_alone(*cur, c, nested.map(|n| n.2))
+                }
+            };
+            let f = match &out {
+                Outcome::Fitted(f) => {
+                    self.fitted.push((round, c, *f));
+                    format!("{f}")
+                }
+                _ => "-".into(),
+            };
+            self.events.push(format!("fit c{} = {f}", c.0));
+            Ok(out)
+        }
+        fn prefit(&mut self, round: usize, cur: &f64, batch: &[C]) {
+            if self.ahead.is_none() {
+                return;
             }
-            Ok(Outcome::Fitted(cur + self.gain[c.0]))
+            let this = &*self;
+            let results = fit_ahead(batch, Self::nests, |c, earlier: &[(C, &Outcome<f64>)]| {
+                let nested = earlier.iter().find_map(|(_, o)| match o {
+                    Outcome::Fitted(f) => Some(*f),
+                    _ => None,
+                });
+                this.fit_alone(*cur, c, nested)
+            });
+            self.ahead = Some(Ahead::new(round, batch, results));
         }
         fn score(&self, f: &f64) -> Score {
             Score {
@@ -1145,6 +1311,7 @@ mod tests {
             Ok(())
         }
         fn gate(&mut self, _: &Current<'_, Self>, c: &Candidate<'_, Self>) -> Gate<()> {
+            self.events.push(format!("gate c{}", c.candidate.0));
             Gate {
                 passes: c.delta_bic < -10.0 && !self.fails.contains(&c.candidate.0),
                 heldout_delta_bic: f64::NAN,
@@ -1179,15 +1346,7 @@ mod tests {
     }
 
     fn run_toy(fails: &[usize], screen: FitScreen) -> (Vec<C>, Toy) {
-        let mut toy = Toy {
-            gain: vec![-50.0, -5.0, -200.0, -30.0],
-            predicted: vec![-40.0, -1.0, -150.0, -60.0],
-            fails: fails.to_vec(),
-            screen,
-            fits: 0,
-            screened: Vec::new(),
-            diverges: Vec::new(),
-        };
+        let mut toy = Toy::new(fails, screen, &[]);
         let policy = Policy {
             rounds: 5,
             max_adopted: 4,
@@ -1238,15 +1397,7 @@ mod tests {
     /// reason, never gated and never adopted; the others are selected as without it.
     #[test]
     fn a_fit_that_diverges_is_listed_as_not_fitted_in_each_round() {
-        let mut toy = Toy {
-            gain: vec![-50.0, -5.0, -200.0, -30.0],
-            predicted: vec![-40.0, -1.0, -150.0, -60.0],
-            fails: Vec::new(),
-            screen: FitScreen::Off,
-            fits: 0,
-            screened: Vec::new(),
-            diverges: vec![2],
-        };
+        let mut toy = Toy::new(&[], FitScreen::Off, &[2]);
         let policy = Policy {
             rounds: 5,
             max_adopted: 4,
@@ -1265,5 +1416,58 @@ mod tests {
             assert_eq!(a.not_fitted.as_deref(), Some("c2 diverged"), "round {r}");
             assert!(a.gate.is_none() && a.score.is_none(), "round {r}");
         }
+    }
+
+    /// Fits done ahead, side by side, leave the verdict and the order of every record as fits
+    /// one after the other: each is recorded when the engine reaches it, and a round never takes
+    /// another round's fit.
+    #[test]
+    fn fits_done_ahead_give_the_verdict_and_records_of_fits_in_turn() {
+        let policy = Policy {
+            rounds: 5,
+            max_adopted: 4,
+            rank: Rank::FittedBic,
+            screen: Screen::All,
+        };
+        for (fails, screen, diverges) in [
+            (vec![], FitScreen::Off, vec![]),
+            (vec![], FitScreen::Off, vec![3]),
+            (vec![2, 3], FitScreen::Off, vec![1]),
+            (vec![2, 3], PREDICTED, vec![]),
+        ] {
+            let mut in_turn = Toy::new(&fails, screen, &diverges);
+            let v = select(&mut in_turn, &policy, 0.0, ()).unwrap();
+            let mut ahead = Toy::new(&fails, screen, &diverges);
+            ahead.ahead = Some(Ahead::default());
+            let w = select(&mut ahead, &policy, 0.0, ()).unwrap();
+            assert_eq!(w.adopted(), v.adopted(), "{fails:?} {screen:?}");
+            assert_eq!(ahead.events, in_turn.events, "{fails:?} {screen:?}");
+            assert_eq!(ahead.fits, in_turn.fits);
+            let scores = |v: &Verdict<Toy>| -> Vec<Option<f64>> {
+                let r = v.rounds.iter().flat_map(|r| &r.attempts);
+                r.map(|a| a.score.map(|s| s.chi2)).collect()
+            };
+            assert_eq!(scores(&w), scores(&v));
+        }
+    }
+
+    /// A candidate that depends on another of its batch is fitted after it and handed its
+    /// result; the others are fitted together; the results come back in the batch's order.
+    #[test]
+    fn fit_ahead_waits_for_what_a_fit_starts_from() {
+        let batch = [C(0), C(1), C(2), C(3)];
+        // c1 starts from c0's fit (as a power law from the Newtonian fit it nests), c3 from c1's.
+        let waits = |c: C, e: C| (c.0, e.0) == (1, 0) || (c.0, e.0) == (3, 1);
+        let seen = std::sync::Mutex::new(Vec::new());
+        let out = fit_ahead(&batch, waits, |c, earlier: &[(C, &(usize, usize))]| {
+            seen.lock().unwrap().push(c.0);
+            let from: usize = earlier.iter().map(|(_, t)| 10 * t.0 + t.1).sum();
+            (c.0 + 1, from)
+        });
+        assert_eq!(out, [(1, 0), (2, 10), (3, 0), (4, 30)]);
+        let seen = seen.into_inner().unwrap();
+        let at = |c: usize| seen.iter().position(|&s| s == c).unwrap();
+        assert!(at(0) < at(1) && at(1) < at(3), "{seen:?}");
+        assert_eq!(seen.len(), 4);
     }
 }

@@ -29,7 +29,15 @@ pub struct MotionModel<'a> {
     pub(in crate::motion) log: &'a (dyn Fn(&str) + Sync),
     /// Simulations the fit screen ran.
     pub(in crate::motion) screen_simulations: usize,
+    /// The round's candidates fitted ahead of their turn, side by side, each with its log lines.
+    pub(in crate::motion) ahead: select::Ahead<Candidate, AheadFit>,
 }
+
+/// A candidate's fit done ahead of its turn, and its log lines in order.
+type AheadFit = (
+    Result<Outcome<FittedModel>, MotionDiagnoseError>,
+    Vec<String>,
+);
 
 /// Starting values of a candidate's parameters, given the current fit: the global values, the
 /// candidate's new ones ([`MotionEffect::new_starts`](super::candidates::MotionEffect::new_starts)),
@@ -59,6 +67,7 @@ impl<'a> MotionModel<'a> {
             has_forces: ds.obs.forces.iter().flatten().flatten().count() > 0,
             log,
             screen_simulations: 0,
+            ahead: select::Ahead::default(),
         }
     }
 
@@ -74,6 +83,7 @@ impl<'a> MotionModel<'a> {
             has_forces: self.has_forces,
             log: self.log,
             screen_simulations: 0,
+            ahead: select::Ahead::default(),
         }
     }
 
@@ -178,11 +188,56 @@ impl CandidateModel for MotionModel<'_> {
 
     fn fit_with(
         &mut self,
-        _round: usize,
+        round: usize,
         cur: &FittedModel,
         c: Candidate,
     ) -> Result<Outcome<FittedModel>, MotionDiagnoseError> {
-        c.effect().fit(self, c, cur)
+        match self.ahead.take(round, c) {
+            Some((outcome, lines)) => {
+                for line in &lines {
+                    (self.log)(line);
+                }
+                outcome
+            }
+            None => c.effect().fit(self, c, cur),
+        }
+    }
+
+    fn prefit(&mut self, round: usize, cur: &FittedModel, batch: &[Candidate]) {
+        (self.log)(&format!(
+            "round {round}: fitting {} side by side (the lines of each follow in turn)",
+            batch
+                .iter()
+                .map(|c| c.name())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+        let this = &*self;
+        let results = select::fit_ahead(
+            batch,
+            |_, _| false,
+            |c, _| {
+                let lines = std::sync::Mutex::new(Vec::new());
+                let log = |line: &str| {
+                    lines
+                        .lock()
+                        .expect("a fit's log lines")
+                        .push(line.to_string())
+                };
+                let fitter = MotionModel {
+                    ds: this.ds,
+                    split: this.split,
+                    o: this.o,
+                    has_forces: this.has_forces,
+                    log: &log,
+                    screen_simulations: 0,
+                    ahead: select::Ahead::default(),
+                };
+                let outcome = c.effect().fit(&fitter, c, cur);
+                (outcome, lines.into_inner().expect("a fit's log lines"))
+            },
+        );
+        self.ahead = select::Ahead::new(round, batch, results);
     }
 
     fn score(&self, m: &FittedModel) -> select::Score {

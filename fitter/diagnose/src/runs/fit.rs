@@ -39,6 +39,8 @@ pub(in crate::runs) struct RunsModel<'a> {
     pub(in crate::runs) progress: &'a dyn Fn(&Progress),
     /// Simulations so far.
     pub(in crate::runs) simulations: std::cell::Cell<Simulations>,
+    /// The round's candidates fitted ahead of their turn, side by side.
+    pub(in crate::runs) ahead: crate::select::Ahead<Effect, super::select::AheadFit>,
 }
 
 impl RunsModel<'_> {

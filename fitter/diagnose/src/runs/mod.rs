@@ -375,6 +375,7 @@ pub fn diagnose_runs_with(
         scanned: None,
         progress,
         simulations: Default::default(),
+        ahead: Default::default(),
     };
     log("fitting the simplest model (Neo-Hookean, fixed Poisson's ratio, no damping)");
     let start = m.fit(&[], &base, &[], o.max_iters)?;

@@ -7,11 +7,81 @@
 use super::candidates::Effect;
 use super::fit::RunsModel;
 use super::screen::ScreenPoint;
-use super::{GateDetail, Held, RunsError, RunsFit, Trial};
+use super::{GateDetail, Held, RunsError, RunsFit, Simulations, Trial};
 use crate::select::{
     self, CandidateModel, Current, FitScreen, Gate, HeldoutGate, Outcome, PassWords, Progress,
     Score,
 };
+
+/// A candidate fitted ahead of its turn ([`CandidateModel::prefit`]), with what the room records
+/// of its fit when the turn comes.
+pub(in crate::runs) struct AheadFit {
+    outcome: Result<Outcome<RunsFit>, RunsError>,
+    /// Its log lines, in order.
+    lines: Vec<String>,
+    /// The trial it records when it is not fitted.
+    trials: Vec<Trial>,
+    /// The simulations it ran.
+    simulations: Simulations,
+    /// Whether it started from the fit screen's scan of the time offsets (which only one fit
+    /// of a round may take).
+    took_scan: bool,
+}
+
+impl RunsModel<'_> {
+    /// Fits `c` on top of `cur`: from the fit of a candidate of this round nested in it, if
+    /// there is one, else from the current material.
+    fn fit_candidate(
+        &mut self,
+        round: usize,
+        cur: &RunsFit,
+        c: Effect,
+    ) -> Result<Outcome<RunsFit>, RunsError> {
+        let mut effects = cur.effects.clone();
+        effects.push(c);
+        (self.log)(&format!("round {round}: fitting {}", Self::name(&effects)));
+        // A candidate that nests one already fitted this round (the power law holds Newtonian
+        // damping at h = 1) starts from that fit, its own extra parameters at their neutral
+        // values: it starts where the nested model ended, so its fit can only end as low, and
+        // it spends no simulations finding the shared parameters again.
+        let nested = self
+            .fitted
+            .iter()
+            .rev()
+            .find(|(r, d, _)| *r == round && d.nested_in(c))
+            .map(|(_, d, m)| (*d, m.clone()));
+        let mut start = cur.material.clone();
+        if let Some((d, m)) = nested {
+            (self.log)(&format!(
+                "round {round}: {} starts from the fit of {} (nested in it)",
+                c.name(),
+                d.name()
+            ));
+            start = m;
+        }
+        c.effect().start(self, round, cur, &mut start);
+        let budget = self.o.screen_max_iters.min(self.o.max_iters);
+        match c.effect().fit(self, round, cur, &effects, &start, budget)? {
+            Outcome::NotFitted(why) => Ok(self.not_fitted(round, c, why)),
+            other => Ok(other),
+        }
+    }
+
+    /// Records a fit done ahead as if it were done now: its log lines, its simulations, its
+    /// trial, the scan it took.
+    fn record_ahead(&mut self, a: AheadFit) -> Result<Outcome<RunsFit>, RunsError> {
+        for line in &a.lines {
+            (self.log)(line);
+        }
+        self.count(a.simulations.with_sensitivities, true);
+        self.count(a.simulations.plain, false);
+        self.trials.extend(a.trials);
+        if a.took_scan {
+            self.scanned = None;
+        }
+        a.outcome
+    }
+}
 
 impl CandidateModel for RunsModel<'_> {
     type Candidate = Effect;
@@ -55,38 +125,63 @@ impl CandidateModel for RunsModel<'_> {
         cur: &RunsFit,
         c: Effect,
     ) -> Result<Outcome<RunsFit>, RunsError> {
-        let mut effects = cur.effects.clone();
-        effects.push(c);
-        (self.log)(&format!("round {round}: fitting {}", Self::name(&effects)));
-        // A candidate that nests one already fitted this round (the power law holds Newtonian
-        // damping at h = 1) starts from that fit, its own extra parameters at their neutral
-        // values: it starts where the nested model ended, so its fit can only end as low, and
-        // it spends no simulations finding the shared parameters again.
-        let nested = self
-            .fitted
-            .iter()
-            .rev()
-            .find(|(r, d, _)| *r == round && d.nested_in(c))
-            .map(|(_, d, m)| (*d, m.clone()));
-        let mut start = cur.material.clone();
-        if let Some((d, m)) = nested {
-            (self.log)(&format!(
-                "round {round}: {} starts from the fit of {} (nested in it)",
-                c.name(),
-                d.name()
-            ));
-            start = m;
+        let out = match self.ahead.take(round, c) {
+            Some(fit) => self.record_ahead(fit),
+            None => self.fit_candidate(round, cur, c),
+        }?;
+        if let Outcome::Fitted(f) = &out {
+            self.fitted.push((round, c, f.material.clone()));
         }
-        c.effect().start(self, round, cur, &mut start);
-        let budget = self.o.screen_max_iters.min(self.o.max_iters);
-        match c.effect().fit(self, round, cur, &effects, &start, budget)? {
-            Outcome::Fitted(f) => {
-                self.fitted.push((round, c, f.material.clone()));
-                Ok(Outcome::Fitted(f))
-            }
-            Outcome::NotFitted(why) => Ok(self.not_fitted(round, c, why)),
-            Outcome::Dropped => Ok(Outcome::Dropped),
-        }
+        Ok(out)
+    }
+
+    fn prefit(&mut self, round: usize, cur: &RunsFit, batch: &[Effect]) {
+        (self.log)(&format!(
+            "round {round}: fitting {} side by side (the lines of each follow in turn)",
+            batch
+                .iter()
+                .map(|c| c.name())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+        let (fit, held, o) = (self.fit, self.held, self.o);
+        let (fitted, predicted, scanned) = (&self.fitted, &self.predicted, &self.scanned);
+        // A candidate that nests one of the batch starts from its fit (`fit_candidate`).
+        let results = select::fit_ahead(
+            batch,
+            |c, earlier| earlier.nested_in(c),
+            |c, earlier: &[(Effect, &AheadFit)]| {
+                let lines = std::cell::RefCell::new(Vec::new());
+                let log = |line: &str| lines.borrow_mut().push(line.to_string());
+                let mut room = RunsModel {
+                    fit,
+                    held,
+                    o,
+                    log: &log,
+                    trials: Vec::new(),
+                    fitted: fitted.clone(),
+                    predicted: predicted.clone(),
+                    scanned: scanned.clone(),
+                    progress: &|_| {},
+                    simulations: Default::default(),
+                    ahead: Default::default(),
+                };
+                for (d, a) in earlier {
+                    if let Ok(Outcome::Fitted(f)) = &a.outcome {
+                        room.fitted.push((round, *d, f.material.clone()));
+                    }
+                }
+                let outcome = room.fit_candidate(round, cur, c);
+                AheadFit {
+                    outcome,
+                    lines: lines.take(),
+                    trials: room.trials,
+                    simulations: room.simulations.get(),
+                    took_scan: scanned.is_some() && room.scanned.is_none(),
+                }
+            },
+        );
+        self.ahead = select::Ahead::new(round, batch, results);
     }
 
     fn score(&self, f: &RunsFit) -> Score {
