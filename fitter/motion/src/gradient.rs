@@ -21,6 +21,7 @@
 use super::forces::{param_derivatives, SPLIT_ASSEMBLY_ELEMENTS};
 use super::model::{Material, Model, Observations, Param};
 use super::objective::{clamp_force_derivatives, step_term, StepTerm};
+use super::relaxation::Sensitivities as CreepSensitivities;
 use super::sim::{simulate_solving, simulate_states, SimStats, StepSolve, StepSolver, StepView};
 use super::sparse::Factor;
 use super::timestep::Scheme;
@@ -343,6 +344,15 @@ fn evaluate_here(
     obs: &Observations,
     method: Option<Method>,
 ) -> Result<Evaluation, MotionError> {
+    if mat.has_creep() && obs.forces.iter().flatten().any(Option::is_some) {
+        // The clamp's reaction (objective.rs) sums the elements' elastic and viscous forces; the
+        // branch's stress is not among them.
+        return Err(MotionError::Invalid(
+            "observed clamp forces with a creep branch: the reaction force does not carry the \
+             branch's stress; fit the markers alone (drop the forces) or the model without creep"
+                .into(),
+        ));
+    }
     match method {
         None => {
             let mut total = StepTerm::default();
@@ -634,6 +644,12 @@ fn direct(
     let mut grad = vec![0.0; np];
     let mut acc = zeros_acc(&kinds, model.tets.len());
     let mut h = gauss_newton.then(|| vec![0.0; np * np]);
+    if mat.has_creep() {
+        CreepSensitivities::check(mat)?;
+    }
+    // The start positions, kept for the creep branch's start (its S⁰ and dS⁰ at x⁰).
+    let creep_x0: std::cell::RefCell<Option<Vec<f64>>> = std::cell::RefCell::new(None);
+    let mut creep: Option<CreepSensitivities> = None;
     let mut means = obs
         .free_marker_offsets
         .then(|| MarkerMeans::new(model.markers.len(), np));
@@ -648,6 +664,9 @@ fn direct(
         mat,
         solve,
         |x0, k0| {
+            if mat.has_creep() {
+                *creep_x0.borrow_mut() = Some(x0.to_vec());
+            }
             let r = match k0 {
                 Some(k0) => g_columns(model, mat, &table, &kinds, np, x0, &vec![0.0; ndof], None)
                     .map(|g| {
@@ -668,6 +687,9 @@ fn direct(
                     .borrow_mut()
                     .take()
                     .unwrap_or_else(|| Ok(vec![vec![0.0; nf]; np]))?;
+                if let Some(x0) = creep_x0.borrow_mut().take() {
+                    creep = Some(CreepSensitivities::start(model, mat, &table, &x0, &sx0)?);
+                }
                 state = Some((
                     sx0.clone(),
                     sx0,
@@ -724,6 +746,9 @@ fn direct(
                     .pattern
                     .mul_add_difference((0.0, &mvals, &sva), (s.d, &sva), &mut rhs, np);
             }
+            if let (Some(cs), Some((branch, _))) = (creep.as_mut(), s.relaxation) {
+                cs.add_history(model, mat, &table, branch, xf, np, &mut rhs)?;
+            }
             solver.solve_columns(&model.pattern, &mut rhs, np)?;
             for p in 0..np {
                 let o = p * nf;
@@ -748,6 +773,9 @@ fn direct(
                 let mut svn = std::mem::take(&mut svm2[p]);
                 svn.copy_from_slice(sv);
                 svm2[p] = std::mem::replace(&mut svm1[p], svn);
+            }
+            if let (Some(cs), Some((branch, after))) = (creep.as_mut(), s.relaxation) {
+                cs.advance(model, mat, &table, branch, after, s.x, &sxm1[..])?;
             }
             if let Some(m) = means.as_mut() {
                 m.add_residuals(model, obs, s.n, s.x);
@@ -836,6 +864,13 @@ fn adjoint(
     obs: &Observations,
     solve: StepSolve,
 ) -> Result<Evaluation, MotionError> {
+    if mat.has_creep() {
+        return Err(MotionError::Invalid(
+            "the adjoint gradient does not carry the creep branch's internal variables: use the \
+             direct method (Levenberg–Marquardt's, or --gradient direct)"
+                .into(),
+        ));
+    }
     let solve = match solve {
         StepSolve::None => DEFAULT_STEP_SOLVE,
         other => other,
