@@ -313,6 +313,23 @@ fn inertia_velocity(s: &StepView<'_>) -> Vec<f64> {
     (0..s.v.len()).map(|d| s.v[d] - s.inertia_base[d]).collect()
 }
 
+/// Refuses observed clamp forces (with a weight) beside a creep branch: the clamp's reaction
+/// ([`super::objective::clamp_force`]) sums the elements' elastic and viscous forces, and the
+/// branch's stress is not among them.
+fn refuse_creep_forces(mat: &Material, obs: &Observations) -> Result<(), MotionError> {
+    if mat.has_creep()
+        && obs.force_weight != 0.0
+        && obs.forces.iter().flatten().any(Option::is_some)
+    {
+        return Err(MotionError::Invalid(
+            "observed clamp forces with a creep branch: the reaction force does not carry the \
+             branch's stress; fit the markers alone (force weight 0) or the model without creep"
+                .into(),
+        ));
+    }
+    Ok(())
+}
+
 /// Simulates with material `mat` (parameters already applied) and evaluates Φ and, if
 /// `method` is given, dΦ/dq for `params`.
 pub fn evaluate(
@@ -344,15 +361,7 @@ fn evaluate_here(
     obs: &Observations,
     method: Option<Method>,
 ) -> Result<Evaluation, MotionError> {
-    if mat.has_creep() && obs.forces.iter().flatten().any(Option::is_some) {
-        // The clamp's reaction (objective.rs) sums the elements' elastic and viscous forces; the
-        // branch's stress is not among them.
-        return Err(MotionError::Invalid(
-            "observed clamp forces with a creep branch: the reaction force does not carry the \
-             branch's stress; fit the markers alone (drop the forces) or the model without creep"
-                .into(),
-        ));
-    }
+    refuse_creep_forces(mat, obs)?;
     match method {
         None => {
             let mut total = StepTerm::default();
@@ -646,6 +655,7 @@ fn direct(
     let mut h = gauss_newton.then(|| vec![0.0; np * np]);
     if mat.has_creep() {
         CreepSensitivities::check(mat)?;
+        refuse_creep_forces(mat, obs)?;
     }
     // The start positions, kept for the creep branch's start (its S⁰ and dS⁰ at x⁰).
     let creep_x0: std::cell::RefCell<Option<Vec<f64>>> = std::cell::RefCell::new(None);
