@@ -50,6 +50,14 @@ impl<'a> ElasticState<'a> {
         }
     }
 
+    /// Directional derivative dP\[dF\] of the first Piola–Kirchhoff stress.
+    pub fn dpk1(&self, df: &Matrix3<f64>) -> Matrix3<f64> {
+        match self {
+            Self::NeoHookean(s, p) => he::dpk1(s, p, df),
+            Self::Spline(s, m) => m.dpk1(s, df),
+        }
+    }
+
     /// Element tangent K_e = −∂f_e/∂x_e (12 × 12).
     pub fn tangent(&self, t: &RestTet) -> [[f64; 12]; 12] {
         match self {

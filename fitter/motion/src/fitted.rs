@@ -60,6 +60,9 @@ pub struct FittedModel {
         skip_serializing_if = "Vec::is_empty"
     )]
     pub stiffening: Vec<f64>,
+    /// The creep branch ([`super::relaxation`]), absent without one (and in older records).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub creep: Option<CreepRecord>,
     /// Poisson's ratio, when it was held fixed (λ followed μ).
     #[serde(rename = "poisson_ratio_fixed", alias = "poisson_fixed")]
     pub poisson_fixed: Option<f64>,
@@ -88,6 +91,27 @@ pub struct FittedModel {
     pub runs: Vec<FittedRun>,
 }
 
+/// The creep branch of a fit ([`super::relaxation`]): one value for every element or one per
+/// element.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CreepRecord {
+    /// Relaxed fraction g ([`ParamKind::CreepFraction`]): the short-time elastic stress is
+    /// (1 + g) times the long-term law's.
+    pub fraction: Vec<f64>,
+    /// Relaxation time τ (s, [`ParamKind::CreepTime`]).
+    pub time_s: Vec<f64>,
+}
+
+impl CreepRecord {
+    /// The record of `mat`'s branch, `None` without one.
+    pub fn of(mat: &Material) -> Option<Self> {
+        mat.has_creep().then(|| Self {
+            fraction: mat.values[ParamKind::CreepFraction as usize].clone(),
+            time_s: mat.values[ParamKind::CreepTime as usize].clone(),
+        })
+    }
+}
+
 impl FittedModel {
     /// The fitted material on its `tets` elements: each field holds one value (the same in
     /// every element) or one per element; the stiffening may be absent (0). The error names
@@ -108,6 +132,16 @@ impl FittedModel {
             per_element("power_law_index", &self.h, None)?,
             per_element("density_kg_m3", &self.density, None)?,
             per_element("stiffening_pa", &self.stiffening, Some(0.0))?,
+            per_element(
+                "creep.fraction",
+                self.creep.as_ref().map_or(&[][..], |c| &c.fraction),
+                Some(0.0),
+            )?,
+            per_element(
+                "creep.time_s",
+                self.creep.as_ref().map_or(&[][..], |c| &c.time_s),
+                Some(1.0),
+            )?,
         ];
         // A hand-edited or corrupt record must not be simulated: each value within what it
         // means (moduli and density > 0, the stiffening ≥ 0).
@@ -119,6 +153,8 @@ impl FittedModel {
             ("power_law_index", ""),
             ("density_kg_m3", "> 0"),
             ("stiffening_pa", "≥ 0"),
+            ("creep.fraction", "≥ 0"),
+            ("creep.time_s", "> 0"),
         ]
         .into_iter()
         .enumerate()

@@ -5,6 +5,7 @@ use super::elastic::ElasticState;
 use super::force_lanes;
 use super::hyperelastic::{self as he, FParts};
 use super::model::{Material, Model, ParamKind, MATERIAL_KINDS};
+use super::relaxation::StepBranch;
 use super::spline::{Response, SplineMaterial};
 use super::viscosity as visc;
 use super::MotionError;
@@ -72,7 +73,24 @@ pub fn assemble(
     kvals: Option<&mut [f64]>,
     dvals: Option<&mut [f64]>,
 ) -> Result<(), MotionError> {
-    assemble_parts(model, mat, x, v, Some(f), kvals, dvals)
+    assemble_parts(model, mat, x, v, None, Some(f), kvals, dvals)
+}
+
+/// [`assemble`] with a creep branch's history for the step ([`super::relaxation`]): each
+/// element's stress is (1 + g b) P⁰ + F C_n and its tangent gains the branch's terms; `None` is
+/// [`assemble`] itself.
+#[allow(clippy::too_many_arguments)]
+pub fn assemble_relaxing(
+    model: &Model,
+    mat: &Material,
+    x: &[f64],
+    v: &[f64],
+    branch: Option<&StepBranch>,
+    f: &mut [f64],
+    kvals: Option<&mut [f64]>,
+    dvals: Option<&mut [f64]>,
+) -> Result<(), MotionError> {
+    assemble_parts(model, mat, x, v, branch, Some(f), kvals, dvals)
 }
 
 /// Assembles K and D values on the free pattern (overwritten) without the forces: a Newton
@@ -83,17 +101,20 @@ pub fn assemble_tangents(
     mat: &Material,
     x: &[f64],
     v: &[f64],
+    branch: Option<&StepBranch>,
     kvals: &mut [f64],
     dvals: &mut [f64],
 ) -> Result<(), MotionError> {
-    assemble_parts(model, mat, x, v, None, Some(kvals), Some(dvals))
+    assemble_parts(model, mat, x, v, branch, None, Some(kvals), Some(dvals))
 }
 
+#[allow(clippy::too_many_arguments)]
 fn assemble_parts(
     model: &Model,
     mat: &Material,
     x: &[f64],
     v: &[f64],
+    branch: Option<&StepBranch>,
     mut f: Option<&mut [f64]>,
     mut kvals: Option<&mut [f64]>,
     mut dvals: Option<&mut [f64]>,
@@ -108,7 +129,17 @@ fn assemble_parts(
     zero(dvals.as_deref_mut());
     let ne = model.tets.len();
     if ne < SPLIT_ASSEMBLY_ELEMENTS {
-        assemble_into(model, mat, x, v, 0..ne, f.as_deref_mut(), kvals, dvals)?;
+        assemble_into(
+            model,
+            mat,
+            x,
+            v,
+            branch,
+            0..ne,
+            f.as_deref_mut(),
+            kvals,
+            dvals,
+        )?;
     } else {
         let half = ne / 2;
         let (want_k, want_d) = (kvals.is_some(), dvals.is_some());
@@ -123,6 +154,7 @@ fn assemble_parts(
                 mat,
                 x,
                 v,
+                branch,
                 half..ne,
                 (ndof > 0).then_some(f2.as_mut_slice()),
                 want_k.then_some(k2.as_mut_slice()),
@@ -137,6 +169,7 @@ fn assemble_parts(
                     mat,
                     x,
                     v,
+                    branch,
                     0..half,
                     f.as_deref_mut(),
                     kvals.as_deref_mut(),
@@ -172,29 +205,37 @@ fn assemble_into(
     mat: &Material,
     x: &[f64],
     v: &[f64],
+    branch: Option<&StepBranch>,
     range: std::ops::Range<usize>,
     mut f: Option<&mut [f64]>,
     mut kvals: Option<&mut [f64]>,
     mut dvals: Option<&mut [f64]>,
 ) -> Result<(), MotionError> {
-    if let (None, None, None, Some(f)) = (&kvals, &dvals, &mat.spline, f.as_deref_mut()) {
+    if let (None, None, None, None, Some(f)) =
+        (&kvals, &dvals, &mat.spline, branch, f.as_deref_mut())
+    {
         return forces_in_lanes(model, mat, x, v, range, f);
     }
     for e in range {
         let tet = &model.tets[e];
         let t = &model.rest[e];
-        let s = ElasticState::new(mat, e, he::deformation_gradient(t, &model.gather(e, x)))?;
+        let fgrad = he::deformation_gradient(t, &model.gather(e, x));
+        let s = ElasticState::new(mat, e, fgrad)?;
         let nu = mat.get(ParamKind::Nu, e);
         let rate = rate(model, mat, e, v);
+        let tangent = || match branch {
+            Some(b) => b.tangent(e, t, &s.tangent(t)),
+            None => s.tangent(t),
+        };
         match (kvals.as_deref_mut(), dvals.as_deref_mut(), &rate) {
             (Some(k), Some(d), Some(r)) => model.pattern.add_element_pair(
                 e,
-                (&s.tangent(t), k),
+                (&tangent(), k),
                 (&visc::element_damping(t, r, nu), d),
             ),
             (k, d, r) => {
                 if let Some(k) = k {
-                    model.pattern.add_element(e, &s.tangent(t), 1.0, k);
+                    model.pattern.add_element(e, &tangent(), 1.0, k);
                 }
                 if let (Some(d), Some(r)) = (d, r) {
                     model
@@ -209,6 +250,9 @@ fn assemble_into(
         // Elastic and viscous stresses act through the same rest gradients: summed first, mapped
         // to nodal forces once.
         let mut p = s.pk1();
+        if let Some(b) = branch {
+            p = b.stress(e, &fgrad, &p);
+        }
         if let Some(r) = &rate {
             p += visc::stress(r, nu);
         }

@@ -21,6 +21,7 @@
 use super::forces::{param_derivatives, SPLIT_ASSEMBLY_ELEMENTS};
 use super::model::{Material, Model, Observations, Param};
 use super::objective::{clamp_force_derivatives, step_term, StepTerm};
+use super::relaxation::Sensitivities as CreepSensitivities;
 use super::sim::{simulate_solving, simulate_states, SimStats, StepSolve, StepSolver, StepView};
 use super::sparse::Factor;
 use super::timestep::Scheme;
@@ -312,6 +313,23 @@ fn inertia_velocity(s: &StepView<'_>) -> Vec<f64> {
     (0..s.v.len()).map(|d| s.v[d] - s.inertia_base[d]).collect()
 }
 
+/// Refuses observed clamp forces (with a weight) beside a creep branch: the clamp's reaction
+/// ([`super::objective::clamp_force`]) sums the elements' elastic and viscous forces, and the
+/// branch's stress is not among them.
+fn refuse_creep_forces(mat: &Material, obs: &Observations) -> Result<(), MotionError> {
+    if mat.has_creep()
+        && obs.force_weight != 0.0
+        && obs.forces.iter().flatten().any(Option::is_some)
+    {
+        return Err(MotionError::Invalid(
+            "observed clamp forces with a creep branch: the reaction force does not carry the \
+             branch's stress; fit the markers alone (force weight 0) or the model without creep"
+                .into(),
+        ));
+    }
+    Ok(())
+}
+
 /// Simulates with material `mat` (parameters already applied) and evaluates Φ and, if
 /// `method` is given, dΦ/dq for `params`.
 pub fn evaluate(
@@ -343,6 +361,7 @@ fn evaluate_here(
     obs: &Observations,
     method: Option<Method>,
 ) -> Result<Evaluation, MotionError> {
+    refuse_creep_forces(mat, obs)?;
     match method {
         None => {
             let mut total = StepTerm::default();
@@ -634,6 +653,13 @@ fn direct(
     let mut grad = vec![0.0; np];
     let mut acc = zeros_acc(&kinds, model.tets.len());
     let mut h = gauss_newton.then(|| vec![0.0; np * np]);
+    if mat.has_creep() {
+        CreepSensitivities::check(mat)?;
+        refuse_creep_forces(mat, obs)?;
+    }
+    // The start positions, kept for the creep branch's start (its S⁰ and dS⁰ at x⁰).
+    let creep_x0: std::cell::RefCell<Option<Vec<f64>>> = std::cell::RefCell::new(None);
+    let mut creep: Option<CreepSensitivities> = None;
     let mut means = obs
         .free_marker_offsets
         .then(|| MarkerMeans::new(model.markers.len(), np));
@@ -648,6 +674,9 @@ fn direct(
         mat,
         solve,
         |x0, k0| {
+            if mat.has_creep() {
+                *creep_x0.borrow_mut() = Some(x0.to_vec());
+            }
             let r = match k0 {
                 Some(k0) => g_columns(model, mat, &table, &kinds, np, x0, &vec![0.0; ndof], None)
                     .map(|g| {
@@ -668,6 +697,9 @@ fn direct(
                     .borrow_mut()
                     .take()
                     .unwrap_or_else(|| Ok(vec![vec![0.0; nf]; np]))?;
+                if let Some(x0) = creep_x0.borrow_mut().take() {
+                    creep = Some(CreepSensitivities::start(model, mat, &table, &x0, &sx0)?);
+                }
                 state = Some((
                     sx0.clone(),
                     sx0,
@@ -724,6 +756,9 @@ fn direct(
                     .pattern
                     .mul_add_difference((0.0, &mvals, &sva), (s.d, &sva), &mut rhs, np);
             }
+            if let (Some(cs), Some((branch, _))) = (creep.as_mut(), s.relaxation) {
+                cs.add_history(model, mat, &table, branch, xf, np, &mut rhs)?;
+            }
             solver.solve_columns(&model.pattern, &mut rhs, np)?;
             for p in 0..np {
                 let o = p * nf;
@@ -748,6 +783,9 @@ fn direct(
                 let mut svn = std::mem::take(&mut svm2[p]);
                 svn.copy_from_slice(sv);
                 svm2[p] = std::mem::replace(&mut svm1[p], svn);
+            }
+            if let (Some(cs), Some((branch, after))) = (creep.as_mut(), s.relaxation) {
+                cs.advance(model, mat, &table, branch, after, s.x, &sxm1[..])?;
             }
             if let Some(m) = means.as_mut() {
                 m.add_residuals(model, obs, s.n, s.x);
@@ -836,6 +874,13 @@ fn adjoint(
     obs: &Observations,
     solve: StepSolve,
 ) -> Result<Evaluation, MotionError> {
+    if mat.has_creep() {
+        return Err(MotionError::Invalid(
+            "the adjoint gradient does not carry the creep branch's internal variables: use the \
+             direct method (Levenberg–Marquardt's, or --gradient direct)"
+                .into(),
+        ));
+    }
     let solve = match solve {
         StepSolve::None => DEFAULT_STEP_SOLVE,
         other => other,

@@ -28,6 +28,7 @@ pub mod objective;
 pub mod optimize;
 pub mod predict;
 pub mod refine;
+pub mod relaxation;
 pub mod request;
 pub mod scenario;
 pub mod sim;

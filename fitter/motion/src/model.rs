@@ -34,27 +34,49 @@ pub enum ParamKind {
     /// Yeoh-type second-order term, Ī₁ = J^(−2/3) I₁, see [`super::hyperelastic`]); 0 is the
     /// paper's eq. 16.
     Stiffening = 5,
+    /// Relaxed fraction g of the creep branch (dimensionless; [`super::relaxation`]): the
+    /// elastic stress is (1 + g) times the elastic law's at short times and relaxes to the
+    /// law's own (the fitted, long-term stiffness); 0 is no branch.
+    CreepFraction = 6,
+    /// Relaxation time τ of the creep branch (s; [`super::relaxation`]).
+    CreepTime = 7,
     /// A control value of the spline f′ of §4.2 (Pa); `Param::element` holds the control index.
-    SplineF = 6,
+    SplineF = 8,
     /// A control value J·h′(J) of the spline h′ of §4.2 (Pa); `Param::element` holds the
     /// control index.
-    SplineH = 7,
+    SplineH = 9,
 }
 
-/// Number of per-element material kinds ([`ParamKind::ALL`]): the derivative slots before the
-/// spline control values.
-pub const MATERIAL_KINDS: usize = 6;
+/// Number of per-element material kinds ([`ParamKind::EVERY`]): the derivative slots before
+/// the spline control values.
+pub const MATERIAL_KINDS: usize = 8;
 
 impl ParamKind {
-    /// All per-element material kinds in index order (the spline kinds are separate: their
-    /// parameters are control points, see [`Param`]).
-    pub const ALL: [ParamKind; MATERIAL_KINDS] = [
+    /// The elastic, viscous and inertial kinds of Real2Sim's model (eqs. 16–17) in index order,
+    /// the stiffening included: what a fit frees by default and a report lists. The creep
+    /// branch's kinds ([`Self::CREEP`]) are not among them: at g = 0 the branch is absent and
+    /// its time has no effect, so a fit of "every kind" would have no gradient there.
+    pub const ALL: [ParamKind; 6] = [
         Self::Lambda,
         Self::Mu,
         Self::Nu,
         Self::PowerH,
         Self::Density,
         Self::Stiffening,
+    ];
+    /// The creep branch's kinds ([`super::relaxation`]).
+    pub const CREEP: [ParamKind; 2] = [Self::CreepFraction, Self::CreepTime];
+    /// Every per-element material kind in index order (the spline kinds are separate: their
+    /// parameters are control points, see [`Param`]).
+    pub const EVERY: [ParamKind; MATERIAL_KINDS] = [
+        Self::Lambda,
+        Self::Mu,
+        Self::Nu,
+        Self::PowerH,
+        Self::Density,
+        Self::Stiffening,
+        Self::CreepFraction,
+        Self::CreepTime,
     ];
     /// Short name as used on the command line and in reports. The viscosity coefficient is
     /// `viscosity` (the paper's ν; ν is Poisson's ratio everywhere else in palpate).
@@ -66,6 +88,8 @@ impl ParamKind {
             Self::PowerH => "h",
             Self::Density => "density",
             Self::Stiffening => "stiffening",
+            Self::CreepFraction => "creep_fraction",
+            Self::CreepTime => "creep_time",
             Self::SplineF => "spline_f",
             Self::SplineH => "spline_h",
         }
@@ -79,6 +103,8 @@ impl ParamKind {
             Self::PowerH => "power-law index h",
             Self::Density => "density (kg/m³)",
             Self::Stiffening => "strain-stiffening c (Pa)",
+            Self::CreepFraction => "creep: relaxed fraction g",
+            Self::CreepTime => "creep: relaxation time τ (s)",
             Self::SplineF => "spline f′ control value (Pa)",
             Self::SplineH => "spline J·h′ control value (Pa)",
         }
@@ -97,7 +123,7 @@ impl ParamKind {
     }
     /// Parses a command-line name.
     pub fn parse(s: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|k| k.name() == s)
+        Self::EVERY.into_iter().find(|k| k.name() == s)
     }
     /// The name a kind had before, if `s` is one (`nu`, the viscosity's until the names followed
     /// the rest of palpate): callers accept it and warn with [`ParamKind::name`].
@@ -181,8 +207,8 @@ impl Param {
 /// Per-element material values.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Material {
-    /// Values indexed `[kind as usize][element]` ([`ParamKind::ALL`]; the stiffening is 0
-    /// unless set: the paper's eq. 16).
+    /// Values indexed `[kind as usize][element]` ([`ParamKind::EVERY`]; the stiffening and the
+    /// creep fraction are 0 unless set: the paper's eq. 16, no creep branch).
     pub values: [Vec<f64>; MATERIAL_KINDS],
     /// The principal-stretch material of §4.2; when present it replaces Neo-Hookean (λ, μ and
     /// the stiffening unused).
@@ -203,16 +229,26 @@ impl Material {
                 vec![h; n],
                 vec![density; n],
                 vec![0.0; n],
+                vec![0.0; n],
+                // Any positive time: without a relaxed fraction it has no effect.
+                vec![1.0; n],
             ],
             spline: None,
             regions: Vec::new(),
         }
     }
+    /// Whether any element has a creep branch (a relaxed fraction other than 0,
+    /// [`super::relaxation`]).
+    pub fn has_creep(&self) -> bool {
+        self.values[ParamKind::CreepFraction as usize]
+            .iter()
+            .any(|&g| g != 0.0)
+    }
     /// Sets `kind` to `value` in every element.
     pub fn set_uniform(&mut self, kind: ParamKind, value: f64) {
         self.values[kind as usize].fill(value);
     }
-    /// Derivative slots (see [`Param::slot`]): 5 material kinds plus the spline controls.
+    /// Derivative slots (see [`Param::slot`]): the material kinds plus the spline controls.
     pub fn slots(&self) -> usize {
         MATERIAL_KINDS
             + self

@@ -305,6 +305,7 @@ fn record(
         h: fitted.values[3].clone(),
         density: fitted.values[4].clone(),
         stiffening: FittedModel::stiffening_of(fitted),
+        creep: crate::fitted::CreepRecord::of(fitted),
         poisson_fixed: req.settings.poisson,
         hanging_inertia: req.hanging_inertia
             || runs

@@ -8,8 +8,9 @@
 //! the step-to-step alternation the trapezoidal velocity rule shows on a noisy capture). Before
 //! t = 0 the body rests (v(t ≤ 0) = 0, x^{−1} = x^{0}).
 
-use super::forces::{assemble, assemble_tangents};
+use super::forces::{assemble, assemble_relaxing, assemble_tangents};
 use super::model::{Material, Model};
+use super::relaxation::{Relaxation, StepBranch};
 use super::sparse::{Factor, Pattern};
 use super::timestep::Scheme;
 use super::MotionError;
@@ -238,6 +239,9 @@ pub struct StepView<'a> {
     pub k: &'a [f64],
     /// D values, as `k`.
     pub d: &'a [f64],
+    /// With a creep branch ([`super::relaxation`]): what the step took from the history, and
+    /// the branch's state at its end.
+    pub relaxation: Option<(&'a StepBranch, &'a Relaxation)>,
 }
 
 /// Counters of one forward run.
@@ -438,6 +442,7 @@ impl ForceMap {
 fn line_search_dynamic(
     model: &Model,
     mat: &Material,
+    branch: Option<&StepBranch>,
     map: &ForceMap,
     xf: &[f64],
     vf: &[f64],
@@ -457,7 +462,7 @@ fn line_search_dynamic(
             }
         }
         map.fill(&model.free, &v, &mut x, &mut w);
-        assemble(model, mat, &x, &w, &mut f, None, None).ok()?;
+        assemble_relaxing(model, mat, &x, &w, branch, &mut f, None, None).ok()?;
         let r = residual(&f, &v);
         Some(-dv.iter().zip(&r).map(|(p, q)| p * q).sum::<f64>())
     };
@@ -590,6 +595,15 @@ pub fn simulate_solving(
     };
     on_start(&x0, k0.as_ref());
     drop(k0);
+    // The creep branch starts fully relaxed at x⁰ ([`super::relaxation`]).
+    let mut relax = Relaxation::start(model, mat, &x0)?;
+    if relax.is_some() && model.scheme != Scheme::Bdf2 {
+        return Err(MotionError::Invalid(format!(
+            "the creep branch (relaxed fraction g > 0) is integrated under the BDF2 scheme only; \
+             the model's scheme is {}",
+            model.scheme.name()
+        )));
+    }
     let (c, ax, av) = model.scheme.coefficients(model.dt);
     let two = model.scheme.two_step();
     let (hist_a0, hist_a1, hist_e) = two.force_history(model.dt);
@@ -668,6 +682,7 @@ pub fn simulate_solving(
             }
         };
         let (mut xf, mut vf) = (vec![0.0; ndof], vec![0.0; ndof]);
+        let branch = relax.as_ref().map(Relaxation::step_branch);
         // Predictor: the velocity extrapolated quadratically from the last three steps
         // (second-order like the schemes), so Newton starts O(Δt²) from the answer instead of
         // O(Δt).
@@ -702,9 +717,18 @@ pub fn simulate_solving(
         let mut prev_nrm = f64::INFINITY;
         loop {
             let assembled = if fresh {
-                assemble(model, mat, &xf, &vf, &mut f, Some(&mut kv), Some(&mut dv))
+                assemble_relaxing(
+                    model,
+                    mat,
+                    &xf,
+                    &vf,
+                    branch.as_ref(),
+                    &mut f,
+                    Some(&mut kv),
+                    Some(&mut dv),
+                )
             } else {
-                assemble(model, mat, &xf, &vf, &mut f, None, None)
+                assemble_relaxing(model, mat, &xf, &vf, branch.as_ref(), &mut f, None, None)
             };
             // The full step is kept unless it inverts an element or overshoots the minimum of
             // the step's incremental potential by more than half its initial slope; then it is
@@ -735,10 +759,18 @@ pub fn simulate_solving(
             if !overshoot {
                 assembled?;
             } else if let Some((v0, dvec, g0)) = last_step.take() {
-                let alpha =
-                    line_search_dynamic(model, mat, &map, &xf, &vf, &v0, &dvec, g0, &mut |f, v| {
-                        residual(f, v, &mut mw)
-                    });
+                let alpha = line_search_dynamic(
+                    model,
+                    mat,
+                    branch.as_ref(),
+                    &map,
+                    &xf,
+                    &vf,
+                    &v0,
+                    &dvec,
+                    g0,
+                    &mut |f, v| residual(f, v, &mut mw),
+                );
                 v.copy_from_slice(&v0);
                 for (d, &fr) in model.free.iter().enumerate() {
                     if fr != usize::MAX {
@@ -765,12 +797,12 @@ pub fn simulate_solving(
             if !fresh && done {
                 // Converged with a kept factor; the gradients need K, D and S at this state.
                 // Its forces are already assembled: the tangents alone.
-                assemble_tangents(model, mat, &xf, &vf, &mut kv, &mut dv)?;
+                assemble_tangents(model, mat, &xf, &vf, branch.as_ref(), &mut kv, &mut dv)?;
             } else if !fresh && nrm > REFACTOR_CONTRACTION * prev_nrm {
                 // The kept factor no longer contracts: assemble the tangent here and factorise.
                 // This state's forces and residual are already at hand (the same to the last bit
                 // as the tangent pass would give them again): the tangents alone.
-                assemble_tangents(model, mat, &xf, &vf, &mut kv, &mut dv)?;
+                assemble_tangents(model, mat, &xf, &vf, branch.as_ref(), &mut kv, &mut dv)?;
                 fresh = true;
                 last_step = None;
             }
@@ -869,6 +901,9 @@ pub fn simulate_solving(
             }
             solver
         });
+        if let (Some(r), Some(b)) = (relax.as_mut(), &branch) {
+            r.advance(model, mat, b, &x)?;
+        }
         on_step(&StepView {
             n,
             x: &x,
@@ -880,6 +915,7 @@ pub fn simulate_solving(
             solver: solver.as_ref(),
             k: &kv,
             d: &dv,
+            relaxation: branch.as_ref().zip(relax.as_ref()),
         })?;
         if let Some(sol) = &solver {
             stats.factorisations += sol.refactorisations();

@@ -530,6 +530,7 @@ fn fitted_model(
         h: mat.values[3].clone(),
         density: mat.values[4].clone(),
         stiffening: palpate_motion::fitted::FittedModel::stiffening_of(mat),
+        creep: palpate_motion::fitted::CreepRecord::of(mat),
         poisson_fixed: Some(nu),
         hanging_inertia: false,
         time_offset: false,

@@ -16,5 +16,6 @@ mod diagnose_motion;
 mod diagnose_noise;
 mod diagnose_power;
 mod diagnose_runs;
+mod diagnose_runs_creep;
 mod diagnose_sensitivity;
 mod specimen_viscous;

@@ -6,6 +6,7 @@
 mod support;
 
 mod cantilever;
+mod creep;
 mod dataset;
 mod dataset_write;
 mod fit;

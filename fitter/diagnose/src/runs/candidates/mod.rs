@@ -16,6 +16,7 @@ use super::screen::ScreenPoint;
 use super::{RunsDiagnosis, RunsError, RunsFit};
 use crate::select::{Outcome, ParamValue, Prediction};
 
+mod creep;
 mod damping;
 mod damping_power_law;
 mod hanging_inertia;
@@ -40,15 +41,19 @@ pub enum Effect {
     /// The material stiffens (or holds its stiffness) at larger strains beyond Neo-Hookean: a
     /// Yeoh-type c (Ī₁ − 3)² term beside eq. 16 (1 parameter, c ≥ 0; `stiffening.rs`).
     Stiffening,
+    /// The elastic stress relaxes: one generalised-Maxwell branch, relaxed fraction g and time
+    /// τ free (2 parameters; `creep.rs`).
+    Creep,
 }
 
 /// Every effect, in the order tried.
-pub const ALL_EFFECTS: [Effect; 5] = [
+pub const ALL_EFFECTS: [Effect; 6] = [
     Effect::Damping,
     Effect::DampingPowerLaw,
     Effect::HangingInertia,
     Effect::TimeOffset,
     Effect::Stiffening,
+    Effect::Creep,
 ];
 
 /// What a candidate effect of the runs is: its parameters, its part of the runs' models and of
@@ -136,6 +141,7 @@ impl Effect {
             Effect::HangingInertia => &hanging_inertia::HangingInertia,
             Effect::TimeOffset => &time_offset::TimeOffset,
             Effect::Stiffening => &stiffening::Stiffening,
+            Effect::Creep => &creep::Creep,
         }
     }
     /// Name on the command line and in reports.
