@@ -206,21 +206,17 @@ pub fn run(out: &Path) -> anyhow::Result<BeamOutcome> {
 
 /// The beam's expected decisions: the effects its diagnosis adopts, in any order
 /// (`docs/results/beam/README.md`, the round table).
-const EXPECTED_ADOPTED: [&str; 4] = [
-    "damping-power-law",
-    "hanging-inertia",
-    "stiffening",
-    "time-offset",
-];
+const EXPECTED_ADOPTED: [&str; 3] = ["creep", "damping-power-law", "hanging-inertia"];
 
 /// Upper bounds of the final model's held-out errors (m): per held-out run, the trajectory RMS
-/// and the rest-state RMS. Measured 0.470 / 0.285 mm (gravity_V2_b) and 0.699 / 0.613 mm
+/// and the rest-state RMS. Measured 0.313 / 0.265 mm (gravity_V2_b) and 0.555 / 0.412 mm
 /// (load52_V2_b) (`docs/results/beam/README.md`, "Before → after on the held-out runs"), each
 /// bound 15 % above: the diagnosis is deterministic up to its last printed digits, and losing
-/// any one adopted effect costs more (without the stiffening the loaded run's error is 0.915 mm).
+/// the creep costs more (the model without it, with stiffening and the time offset, predicts
+/// 0.699 / 0.613 mm on the loaded run).
 const HELD_OUT_BOUNDS_M: [(&str, f64, f64); 2] = [
-    ("gravity_V2_b", 1.15 * 0.470e-3, 1.15 * 0.285e-3),
-    ("load52_V2_b", 1.15 * 0.699e-3, 1.15 * 0.613e-3),
+    ("gravity_V2_b", 1.15 * 0.313e-3, 1.15 * 0.265e-3),
+    ("load52_V2_b", 1.15 * 0.555e-3, 1.15 * 0.412e-3),
 ];
 
 /// Checks the beam's diagnosis against its expected decisions and held-out errors; an error

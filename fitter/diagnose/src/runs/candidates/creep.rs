@@ -89,7 +89,7 @@ impl RunsEffect for Creep {
         let c = r.model.creep.as_ref()?;
         let (g, tau) = (*c.fraction.first()?, *c.time_s.first()?);
         Some(format!(
-            "**Creep.** Just after a change of strain the elastic stress is {:.3} times the fitted \
+            "\n**Creep.** Just after a change of strain the elastic stress is {:.3} times the fitted \
              law's (relaxed fraction g = {g:.3}), relaxing to it in τ = {tau:.3} s: under a \
              constant load the body creeps on by g/(1 + g) = {:.1} % of its deflection, with \
              creep time (1 + g) τ = {:.3} s (the standard linear solid at small strain).",
