@@ -1111,6 +1111,19 @@ where
     done.into_iter().flatten().collect()
 }
 
+/// The line a room logs before [`fit_ahead`] fits `batch` in `round`: what is fitted side by
+/// side, and that each fit's own lines are replayed after it, in the batch's order.
+pub fn side_by_side_line<C: CandidateEffect>(round: usize, batch: &[C]) -> String {
+    format!(
+        "round {round}: fitting {} side by side (the lines of each follow in turn)",
+        batch
+            .iter()
+            .map(|&c| c.label())
+            .collect::<Vec<_>>()
+            .join(", ")
+    )
+}
+
 /// A candidate effect of a room's library, as the shared layer sees it: the selection engine
 /// ([`CandidateModel::Candidate`]) and the request ([`pick_candidates`]) need nothing else of it.
 /// Each room's candidate type implements it where it is defined, so a room's library is stated
@@ -1469,5 +1482,15 @@ mod tests {
         let at = |c: usize| seen.iter().position(|&s| s == c).unwrap();
         assert!(at(0) < at(1) && at(1) < at(3), "{seen:?}");
         assert_eq!(seen.len(), 4);
+    }
+
+    /// The motion and runs rooms log this line before a batch; the words are the ones their
+    /// logs carried when each room wrote it out itself, labels in the batch's order.
+    #[test]
+    fn the_side_by_side_line_names_the_round_and_the_batch_in_order() {
+        assert_eq!(
+            side_by_side_line(3, &[C(2), C(0)]),
+            "round 3: fitting c2, c0 side by side (the lines of each follow in turn)"
+        );
     }
 }

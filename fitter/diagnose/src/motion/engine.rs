@@ -204,14 +204,7 @@ impl CandidateModel for MotionModel<'_> {
     }
 
     fn prefit(&mut self, round: usize, cur: &FittedModel, batch: &[Candidate]) {
-        (self.log)(&format!(
-            "round {round}: fitting {} side by side (the lines of each follow in turn)",
-            batch
-                .iter()
-                .map(|c| c.name())
-                .collect::<Vec<_>>()
-                .join(", ")
-        ));
+        (self.log)(&select::side_by_side_line(round, batch));
         let this = &*self;
         let results = select::fit_ahead(
             batch,

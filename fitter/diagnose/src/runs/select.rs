@@ -136,14 +136,7 @@ impl CandidateModel for RunsModel<'_> {
     }
 
     fn prefit(&mut self, round: usize, cur: &RunsFit, batch: &[Effect]) {
-        (self.log)(&format!(
-            "round {round}: fitting {} side by side (the lines of each follow in turn)",
-            batch
-                .iter()
-                .map(|c| c.name())
-                .collect::<Vec<_>>()
-                .join(", ")
-        ));
+        (self.log)(&select::side_by_side_line(round, batch));
         let (fit, held, o) = (self.fit, self.held, self.o);
         let (fitted, predicted, scanned) = (&self.fitted, &self.predicted, &self.scanned);
         // A candidate that nests one of the batch starts from its fit (`fit_candidate`).
