@@ -67,17 +67,23 @@ impl ParamKind {
     /// The creep branch's kinds ([`super::relaxation`]).
     pub const CREEP: [ParamKind; 2] = [Self::CreepFraction, Self::CreepTime];
     /// Every per-element material kind in index order (the spline kinds are separate: their
-    /// parameters are control points, see [`Param`]).
-    pub const EVERY: [ParamKind; MATERIAL_KINDS] = [
-        Self::Lambda,
-        Self::Mu,
-        Self::Nu,
-        Self::PowerH,
-        Self::Density,
-        Self::Stiffening,
-        Self::CreepFraction,
-        Self::CreepTime,
-    ];
+    /// parameters are control points, see [`Param`]): [`Self::ALL`], then [`Self::CREEP`],
+    /// joined here so that a kind added to either is in it.
+    pub const EVERY: [ParamKind; MATERIAL_KINDS] = {
+        // A kind added to ALL or CREEP without MATERIAL_KINDS following stops the build here.
+        assert!(Self::ALL.len() + Self::CREEP.len() == MATERIAL_KINDS);
+        let mut every = [Self::Lambda; MATERIAL_KINDS];
+        let mut i = 0;
+        while i < Self::ALL.len() {
+            every[i] = Self::ALL[i];
+            i += 1;
+        }
+        while i < MATERIAL_KINDS {
+            every[i] = Self::CREEP[i - Self::ALL.len()];
+            i += 1;
+        }
+        every
+    };
     /// Short name as used on the command line and in reports. The viscosity coefficient is
     /// `viscosity` (the paper's ν; ν is Poisson's ratio everywhere else in palpate).
     pub fn name(self) -> &'static str {
@@ -955,5 +961,20 @@ impl Model {
             }
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `Material::values` is indexed by `kind as usize` and derivative slots follow `EVERY`: the
+    /// joined list must be the discriminants 0..8 in order, each kind once.
+    #[test]
+    fn every_kind_is_all_then_creep_in_index_order() {
+        assert_eq!(
+            ParamKind::EVERY.map(|k| k as usize),
+            [0, 1, 2, 3, 4, 5, 6, 7]
+        );
     }
 }
