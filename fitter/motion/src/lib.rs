@@ -13,7 +13,9 @@
 //! - [`dataset`]: the motion dataset reader (docs/motion-dataset.md);
 //! - [`spline`], [`elastic`]: the principal-stretch spline material of §4.2 (eqs. 18–20) and the
 //!   per-element switch between it and Neo-Hookean;
-//! - [`export`]: a motion fit as a runtime model (Lamé → thesis (λ, α)).
+//! - [`export`]: a motion fit as a runtime model (Lamé → thesis (λ, α));
+//! - [`predict`], [`validation`]: a run predicted from a fitted material and its linear
+//!   baseline; a fitted model validated on a run, its table, JSON line and files.
 
 pub mod dataset;
 pub mod elastic;
@@ -38,6 +40,7 @@ pub mod start;
 pub mod statics;
 pub mod time_offset;
 pub mod timestep;
+pub mod validation;
 pub mod viscosity;
 
 /// Errors of the motion simulator, gradients and optimiser.

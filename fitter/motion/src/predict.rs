@@ -7,6 +7,7 @@
 //! [`FINAL_WINDOW_S`] of the run: a ring-down never quite stops, and one frame carries the
 //! capture noise.
 
+use super::fitted::FittedModel;
 use super::model::{Material, Model, Observations};
 use super::sim::equilibrium_from;
 use super::time_offset::{shifted_model, Trajectory};
@@ -244,6 +245,30 @@ pub fn baseline_rest_rms(
         })
         .collect();
     (!errors.is_empty()).then(|| rms(errors.into_iter()).0)
+}
+
+/// [`baseline_rest_rms`] through the runs a fitted model records (`fit.json`), each run's final
+/// displacements matched to `model`'s markers by name: the fitted runs may list the markers in
+/// another order, or lack some.
+pub fn fitted_baseline_rms(fit: &FittedModel, model: &Model, obs: &Observations) -> Option<f64> {
+    let fitted_runs: Vec<(f64, Vec<Option<[f64; 3]>>)> = fit
+        .runs
+        .iter()
+        .map(|r| {
+            let by_name = model
+                .markers
+                .iter()
+                .map(|n| {
+                    r.markers
+                        .iter()
+                        .position(|m| *m == n.name)
+                        .and_then(|i| r.final_displacement_m.get(i).copied().flatten())
+                })
+                .collect();
+            (r.load_n, by_name)
+        })
+        .collect();
+    baseline_rest_rms(&fitted_runs, model, obs)
 }
 
 /// The shear modulus μ that best places every run's equilibrium (under its loads, Poisson's ratio
