@@ -4,15 +4,17 @@
 //! sanity findings. The command only parses its flags, calls [`fit`] (or [`fit_equilibria`])
 //! and prints or writes what comes back.
 
-use crate::dataset::MotionDataset;
+use crate::dataset::{DatasetError, MotionDataset};
 use crate::fitted::{FittedModel, FittedRun};
 use crate::model::{Material, Param, ParamKind};
 use crate::optimize::{fit_runs, FitResult, FitSettings, Optimizer, Run};
 use crate::{predict, MotionError};
+use palpate_fem::export::{ExportError, ModelBuffers, ProvenanceInfo};
 use palpate_fem::numbers;
 use palpate_fem::sanity::Findings;
 use palpate_runtime::material::LambdaAlpha;
 use std::fmt;
+use std::path::Path;
 
 /// Density assumed when a dataset gives none and the fit does not estimate it (kg/m³).
 pub const DEFAULT_DENSITY: f64 = 1000.0;
@@ -24,6 +26,16 @@ pub struct NamedRun {
     pub name: String,
     /// The loaded dataset.
     pub dataset: MotionDataset,
+}
+
+impl NamedRun {
+    /// Loads the motion dataset at `dir`, named as the user typed it.
+    pub fn load(dir: &Path) -> Result<Self, DatasetError> {
+        Ok(Self {
+            name: dir.display().to_string(),
+            dataset: crate::dataset::load(dir)?,
+        })
+    }
 }
 
 /// What to fit and how.
@@ -212,6 +224,28 @@ pub fn fit(
         findings,
         summary,
     })
+}
+
+impl FitOutcome {
+    /// The fit as a runtime model (`.palp`) on `run`'s mesh and clamps (the first of the runs
+    /// fitted: they share them), its provenance naming `tool` (the command line that made it),
+    /// the runs and the fit's errors and effort.
+    pub fn runtime_model(
+        &self,
+        run: &MotionDataset,
+        tool: String,
+    ) -> Result<ModelBuffers, ExportError> {
+        let r = &self.result;
+        let prov = ProvenanceInfo {
+            tool,
+            source: self.record.datasets.join(" + "),
+            notes: format!(
+                "fit-motion: RMS marker {:.4e} m, RMS force {:.4e} N, {} simulations",
+                r.eval.rms_marker, r.eval.rms_force, r.evaluations
+            ),
+        };
+        crate::export::model_buffers(&run.mesh, &run.model, &self.fitted, &prov)
+    }
 }
 
 /// The result's gates: elastic parameters at the bounds of what a soft object can be refuse the
@@ -473,16 +507,22 @@ pub struct Equilibria {
     pub rms_m: f64,
 }
 
-/// Fits μ alone to the runs' rest states (`crate::predict::fit_equilibria`), from the first
-/// run's `[initial]` μ or `mu0`.
-pub fn fit_equilibria(
-    runs: &[NamedRun],
-    poisson: f64,
-    mu0: Option<f64>,
-) -> Result<Equilibria, MotionError> {
+/// Poisson's ratio held by [`fit_equilibria`] when the request holds none: a nearly
+/// incompressible soft solid.
+pub const EQUILIBRIA_POISSON: f64 = 0.49;
+
+/// Fits μ alone to the runs' rest states (`crate::predict::fit_equilibria`), Poisson's ratio
+/// held at the request's (or [`EQUILIBRIA_POISSON`]), from the request's starting μ or else the
+/// first run's `[initial]` μ.
+pub fn fit_equilibria(runs: &[NamedRun], req: &FitRequest) -> Result<Equilibria, MotionError> {
+    let poisson = req.settings.poisson.unwrap_or(EQUILIBRIA_POISSON);
     let ds = first_of_one_object(runs)?;
     let init = &ds.config.initial;
-    let mu0 = mu0.unwrap_or(init.mu);
+    let mu0 = req
+        .initial
+        .iter()
+        .find(|(k, _)| *k == ParamKind::Mu)
+        .map_or(init.mu, |(_, v)| *v);
     let base = Material::uniform(
         ds.model.tets.len(),
         init.lambda,

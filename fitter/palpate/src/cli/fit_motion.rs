@@ -5,7 +5,6 @@
 
 use anyhow::Context;
 use indicatif::ProgressStyle;
-use palpate_fem::export::ProvenanceInfo;
 use palpate_motion::gradient::Method;
 use palpate_motion::model::ParamKind;
 use palpate_motion::optimize::{FitSettings, Optimizer};
@@ -181,31 +180,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         super::output::check_writable(out)?;
     }
     let req = request(&args)?;
-    let mut runs: Vec<NamedRun> = args
+    let mut runs = args
         .datasets
         .iter()
-        .map(|d| {
-            Ok(NamedRun {
-                name: d.display().to_string(),
-                dataset: palpate_motion::dataset::load(d)?,
-            })
-        })
-        .collect::<anyhow::Result<_>>()?;
+        .map(|d| NamedRun::load(d))
+        .collect::<Result<Vec<_>, _>>()?;
     if args.equilibria {
-        let mu0 = req
-            .initial
-            .iter()
-            .find(|(k, _)| *k == ParamKind::Mu)
-            .map(|(_, v)| *v);
-        let nu = args.poisson.unwrap_or(0.49);
-        println!("{}", request::fit_equilibria(&runs, nu, mu0)?);
+        println!("{}", request::fit_equilibria(&runs, &req)?);
         return Ok(());
     }
-    let bar = super::logging::bar(Some(args.max_iters * 2));
-    bar.set_style(
-        ProgressStyle::with_template("{spinner} {pos} simulations, {msg} [{elapsed}]")
-            .unwrap_or(ProgressStyle::default_spinner()),
-    );
+    let bar = progress_bar(args.max_iters);
     let pb = bar.clone();
     let progress = move |n: usize, phi: f64| {
         pb.set_position(n as u64);
@@ -214,7 +198,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let outcome = request::fit(&mut runs, &req, &progress)?;
     bar.finish_and_clear();
     println!("{outcome}");
-    let findings = outcome.findings.into_result()?;
+    let findings = outcome.findings.clone().into_result()?;
     if let Some(out) = &args.output {
         palpate_fem::io::atomic::write_atomic(out, outcome.record.to_json()?.as_bytes())?;
         log::info!(
@@ -224,24 +208,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     if let Some(path) = &args.export {
-        let r = &outcome.result;
-        let prov = ProvenanceInfo {
-            tool: format!(
-                "palpate {} {}",
-                env!("CARGO_PKG_VERSION"),
-                std::env::args().collect::<Vec<_>>().join(" ")
-            ),
-            source: outcome.record.datasets.join(" + "),
-            notes: format!(
-                "fit-motion: RMS marker {:.4e} m, RMS force {:.4e} N, {} simulations",
-                r.eval.rms_marker, r.eval.rms_force, r.evaluations
-            ),
-        };
-        let ds = &runs[0].dataset;
-        let buffers =
-            palpate_motion::export::model_buffers(&ds.mesh, &ds.model, &outcome.fitted, &prov)
-                .with_context(|| format!("exporting {}", path.display()))?;
-        let n = buffers.write(path)?;
+        let tool = format!(
+            "palpate {} {}",
+            env!("CARGO_PKG_VERSION"),
+            std::env::args().collect::<Vec<_>>().join(" ")
+        );
+        let n = outcome
+            .runtime_model(&runs[0].dataset, tool)
+            .with_context(|| format!("exporting {}", path.display()))?
+            .write(path)?;
         log::info!(
             "wrote {} ({n} bytes): runtime model; {}",
             path.display(),
@@ -256,4 +231,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Err(super::WrittenWithWarnings(warnings).into());
     }
     Ok(())
+}
+
+/// The spinner that counts the fit's simulations and shows Φ (on stderr; hidden by `-q`).
+fn progress_bar(max_iters: u64) -> indicatif::ProgressBar {
+    let bar = super::logging::bar(Some(max_iters * 2));
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} {pos} simulations, {msg} [{elapsed}]")
+            .unwrap_or(ProgressStyle::default_spinner()),
+    );
+    bar
 }
