@@ -1,6 +1,8 @@
 //! A haptic replay over a real pseudo-terminal: the simulated probe (firmware library behind a
 //! mock ADC) writes frames on one end, the host link and the runtime read and solve on the other.
-//! `palpate demo` plays its diagnosed model this way; the link benchmark measures it.
+//! `palpate demo` plays its diagnosed model this way; the link benchmark measures it. Beside it,
+//! one model file held under a constant contact force until it settles
+//! ([`settle_contact_force`]: the demo's weight at the beam's tip).
 
 use crate::faults::{FaultPlan, FaultyWriter};
 use crate::gate::ForceGate;
@@ -12,7 +14,7 @@ use crate::LinkHostError;
 use palpate_fem::runtime_storage::Storage;
 use palpate_probe::sim::{default_config, Profile, SimProbe};
 use palpate_protocol::link::{ForceSample, Frame, LinkStats};
-use palpate_runtime::{Runtime, RuntimeConfig};
+use palpate_runtime::{Runtime, RuntimeConfig, SolveStatus};
 use serialport::{SerialPort, TTYPort};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -188,6 +190,44 @@ pub fn replay_model_file(
         replay: replay(runtime, point, radius, seconds)?,
         footprint_bytes,
     })
+}
+
+/// Reads the runtime model (`.palp`) at `path`, builds its runtime under `config` in memory
+/// sized for it, holds `force` (N) on the surface at `point` as a contact force of `radius` (m)
+/// and ticks until a converged tick moves the displacements by at most 10⁻⁶ of their largest,
+/// for at most `max_ticks`: the settled displacements (m, three per node), or `None` when the
+/// runtime never settled.
+pub fn settle_contact_force(
+    path: &Path,
+    config: RuntimeConfig,
+    point: [f32; 3],
+    force: [f32; 3],
+    radius: f32,
+    max_ticks: usize,
+) -> Result<Option<Vec<f32>>, LinkHostError> {
+    let model = |message: String| LinkHostError::Model {
+        file: path.into(),
+        message,
+    };
+    let file = std::fs::read(path).map_err(|e| model(e.to_string()))?;
+    let record = palpate_protocol::model::decode(&file).map_err(|e| model(e.to_string()))?;
+    let mut storage = Storage::for_model(&record, &config);
+    let mut rt = storage
+        .runtime(record, config)
+        .map_err(|e| model(e.to_string()))?;
+    rt.set_contact_force(point, force, radius)
+        .map_err(|e| model(format!("contact force at {point:?}: {e}")))?;
+    for _ in 0..max_ticks {
+        let rep = rt.tick();
+        let umax = rt
+            .displacements()
+            .iter()
+            .fold(0.0f32, |a, v| a.max(v.abs()));
+        if rep.status == SolveStatus::Converged && rep.step <= 1e-6 * umax {
+            return Ok(Some(rt.displacements().to_vec()));
+        }
+    }
+    Ok(None)
 }
 
 /// What a haptic replay measured.

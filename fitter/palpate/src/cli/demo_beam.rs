@@ -6,10 +6,10 @@
 use anyhow::Context;
 use palpate_diagnose::runs::{diagnose_runs, report::write_report, RunsDiagnosis, RunsOptions};
 use palpate_fem::export::ProvenanceInfo;
-use palpate_fem::runtime_storage::Storage;
+use palpate_link::replay::settle_contact_force;
 use palpate_motion::dataset::MotionDataset;
 use palpate_motion::predict;
-use palpate_runtime::{RuntimeConfig, SolveStatus};
+use palpate_runtime::RuntimeConfig;
 use std::path::{Path, PathBuf};
 
 use super::demo_readme::{figures_in, Part, Table};
@@ -75,7 +75,10 @@ fn mm(v: f64) -> String {
     format!("{:.3}", 1e3 * v)
 }
 
-/// Runs the beam part of the demo into `out/beam`.
+/// Runs the beam part of the demo into `out/beam`. The import (capture → motion dataset) is the
+/// `import c3d` command's, which joins `palpate-capture` and `palpate-motion`'s dataset writer;
+/// the diagnosis is `palpate-diagnose`'s, the baseline `palpate-motion`'s, the tip load played
+/// by `palpate-link`: this function only joins them, as no library may.
 pub fn run(out: &Path) -> anyhow::Result<BeamOutcome> {
     let out = out.join("beam");
     log::info!("[beam 1/4] import the four captures (C3D → registered motion datasets)");
@@ -107,19 +110,13 @@ pub fn run(out: &Path) -> anyhow::Result<BeamOutcome> {
     log::info!(
         "[beam 3/4] validate: the final model predicts the held-out runs; the linear baseline"
     );
-    let fitted_runs: Vec<(f64, Vec<Option<[f64; 3]>>)> = d
-        .model
-        .runs
+    let baseline = held
         .iter()
-        .map(|r| (r.load_n, r.final_displacement_m.clone()))
+        .map(|(name, ds)| {
+            let b = predict::fitted_baseline_rms(&d.model, &ds.model, &ds.obs);
+            (name.clone(), b)
+        })
         .collect();
-    let mut baseline = Vec::new();
-    for (name, ds) in &held {
-        baseline.push((
-            name.clone(),
-            predict::baseline_rest_rms(&fitted_runs, &ds.model, &ds.obs),
-        ));
-    }
     let fit_json = out.join("diagnosis").join("fit.json");
     log::info!(
         "      the model: {} (palpate validate --model {} <dataset> predicts any run imported on {})",
@@ -129,6 +126,27 @@ pub fn run(out: &Path) -> anyhow::Result<BeamOutcome> {
     );
 
     log::info!("[beam 4/4] export the fitted beam and play the weight at its tip in the runtime");
+    let (runtime_tip_m, measured_tip_m, warped_linear_e) = tip_deflection(&out, &d, &fit, &held)?;
+    Ok(BeamOutcome {
+        diagnosis: d,
+        baseline,
+        runtime_tip_m,
+        measured_tip_m,
+        warped_linear_e,
+        report: (report_dir, files),
+    })
+}
+
+/// The fitted beam exported and played in the runtime under the weight at its tip, against the
+/// measured deflection (the tip markers' rest state with the weight minus without, mean of the
+/// repeats), and the warped-linear model refitted to that deflection: (runtime tip deflection
+/// (m), measured (m), the refitted Young's modulus (Pa)).
+fn tip_deflection(
+    out: &Path,
+    d: &RunsDiagnosis,
+    fit: &[(String, MotionDataset)],
+    held: &[(String, MotionDataset)],
+) -> anyhow::Result<(f64, f64, f64)> {
     let (_, ds) = &fit[0];
     let prov = ProvenanceInfo {
         tool: format!("palpate {} demo", env!("CARGO_PKG_VERSION")),
@@ -148,11 +166,10 @@ pub fn run(out: &Path) -> anyhow::Result<BeamOutcome> {
     let (runtime_tip_m, bytes) = runtime_tip(ds, &mat, &prov, weight, &palp)?;
     let rest = predict::rest_markers(&ds.model);
     let tips = tip_markers(ds);
-    // Measured: the tip markers' rest state with the weight minus without, mean of the repeats.
     let finals = |name: &str| -> Vec<f64> {
         let ds = &fit
             .iter()
-            .chain(&held)
+            .chain(held)
             .find(|(n, _)| n == name)
             .expect("imported")
             .1;
@@ -194,14 +211,7 @@ pub fn run(out: &Path) -> anyhow::Result<BeamOutcome> {
         mm(check_m),
         mm(measured_tip_m)
     );
-    Ok(BeamOutcome {
-        diagnosis: d,
-        baseline,
-        runtime_tip_m,
-        measured_tip_m,
-        warped_linear_e: e_fit * scale,
-        report: (report_dir, files),
-    })
+    Ok((runtime_tip_m, measured_tip_m, e_fit * scale))
 }
 
 /// The beam's expected decisions: the effects its diagnosis adopts, in any order
@@ -272,9 +282,9 @@ fn tip_markers(ds: &MotionDataset) -> Vec<usize> {
         .collect()
 }
 
-/// Exports `mat` on the beam to `palp`, loads it in the runtime, hangs `weight` (N) on the top
-/// edge of the free end as a contact force (1 cm radius) and returns the tip markers' mean
-/// deflection along gravity when the runtime has settled, and the file's size.
+/// Exports `mat` on the beam to `palp`, plays it in the runtime with `weight` (N) hung on the top
+/// edge of the free end as a contact force (1 cm radius) until it settles, and returns the tip
+/// markers' mean deflection along gravity and the file's size.
 fn runtime_tip(
     ds: &MotionDataset,
     mat: &palpate_motion::model::Material,
@@ -284,29 +294,19 @@ fn runtime_tip(
 ) -> anyhow::Result<(f64, usize)> {
     let buffers = palpate_motion::export::model_buffers(&ds.mesh, &ds.model, mat, prov)?;
     let bytes = buffers.write(palp)?;
-    let file = std::fs::read(palp)?;
-    let record = palpate_protocol::model::decode(&file).map_err(|e| anyhow::anyhow!("{e}"))?;
     let cfg = RuntimeConfig {
         max_iterations: 200,
         ..Default::default()
     };
-    let mut storage = Storage::for_model(&record, &cfg);
-    let mut rt = storage.runtime(record, cfg)?;
-    rt.set_contact_force([0.03, 0.015, 0.0], [-weight as f32, 0.0, 0.0], 0.01)?;
-    let mut settled = false;
-    for _ in 0..2000 {
-        let rep = rt.tick();
-        let umax = rt
-            .displacements()
-            .iter()
-            .fold(0.0f32, |a, v| a.max(v.abs()));
-        if rep.status == SolveStatus::Converged && rep.step <= 1e-6 * umax {
-            settled = true;
-            break;
-        }
-    }
-    anyhow::ensure!(settled, "the runtime did not settle under the tip weight");
-    let u = rt.displacements();
+    let u = settle_contact_force(
+        palp,
+        cfg,
+        [0.03, 0.015, 0.0],
+        [-weight as f32, 0.0, 0.0],
+        0.01,
+        2000,
+    )?
+    .context("the runtime did not settle under the tip weight")?;
     let tips = tip_markers(ds);
     // Gravity is −x in the beam's mesh frame: the deflection along it is −u_x.
     let along = |i: usize| -> f64 {
