@@ -64,13 +64,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 /// and the physical groups (the names `clamps`, `--clamps`, `--hang` and `group` refer to).
 fn mesh(path: &std::path::Path) -> anyhow::Result<()> {
     let (m, report) = palpate_fem::mesh::gmsh::read_msh_with_report(path)?;
-    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-    for p in &m.nodes {
-        for k in 0..3 {
-            lo[k] = lo[k].min(p[k]);
-            hi[k] = hi[k].max(p[k]);
-        }
-    }
+    let (lo, hi) = m.bounds();
     let extent = [0, 1, 2].map(|k| hi[k] - lo[k]);
     let volume: f64 = m
         .tets
