@@ -359,4 +359,48 @@ mod tests {
         assert_eq!(p[1], None, "one load behind marker 1");
         assert_eq!(linear_baseline(&[a.clone(), a], 1.0)[0], None);
     }
+
+    /// `fit.json`'s runs list their markers in their own order: the baseline matches them to
+    /// the run's markers by name. Marker i's displacement is (0, 0, i mm) at load 0 and 2 mm more
+    /// at load 2 N, both runs listing the markers backwards; the run (load 0) rests where the
+    /// line says except marker 0, 3 mm off: RMS over the 9 markers √(3²/9) = 1 mm. Matched by
+    /// place in the list, marker i would take marker 8 − i's line and be |2i − 8| mm off.
+    #[test]
+    fn the_fitted_baseline_matches_markers_by_name() {
+        let (_, model) = crate::scenario::example_bar([1, 2, 1], 4).unwrap();
+        let names: Vec<String> = model.markers.iter().map(|m| m.name.clone()).collect();
+        assert_eq!(names.len(), 9);
+        let displacement = |i: usize, extra: f64| Some([0.0, 0.0, 1e-3 * i as f64 + extra]);
+        let run = |load_n: f64| crate::fitted::FittedRun {
+            dataset: format!("at {load_n} N"),
+            load_n,
+            rms_marker_m: 0.0,
+            time_offset_s: 0.0,
+            markers: names.iter().rev().cloned().collect(),
+            final_displacement_m: (0..9)
+                .rev()
+                .map(|i| displacement(i, 1e-3 * load_n))
+                .collect(),
+        };
+        let text = r#"{"format": "palpate-motion-fit/2", "datasets": [], "nodes": 0, "tets": 0,
+            "lambda": [1e4], "mu": [2e4], "viscosity": [3.0], "h": [1.0], "density": [47.0],
+            "poisson_fixed": null, "hanging_inertia": false, "fitted": ["mu"],
+            "runtime_lambda_alpha": [], "rms_marker_m": 0.0, "rms_force_n": 0.0,
+            "evaluations": 1, "runs": []}"#;
+        let mut fit: FittedModel = serde_json::from_str(text).unwrap();
+        fit.runs = vec![run(0.0), run(2.0)];
+        let rest = rest_markers(&model);
+        let row: Vec<Option<[f64; 3]>> = (0..9)
+            .map(|i| {
+                let off = if i == 0 { 3e-3 } else { 0.0 };
+                displacement(i, off).map(|d| [0, 1, 2].map(|k| rest[i][k] + d[k]))
+            })
+            .collect();
+        let obs = Observations {
+            markers: vec![row; model.steps],
+            ..Default::default()
+        };
+        let rms = fitted_baseline_rms(&fit, &model, &obs).unwrap();
+        assert!((rms - 1e-3).abs() < 1e-12, "{rms}");
+    }
 }
