@@ -167,14 +167,13 @@ pub struct ModelReplay {
 }
 
 /// Reads the runtime model (`.palp`) at `path`, builds its runtime under `config` in memory
-/// sized for it, and replays it as [`replay`] does.
-pub fn replay_model_file(
+/// sized for it, and hands it to `play`; an unreadable model, or one the runtime refuses, is a
+/// [`LinkHostError::Model`] naming the file.
+fn with_model_file<T>(
     path: &Path,
     config: RuntimeConfig,
-    point: [f32; 3],
-    radius: f32,
-    seconds: f64,
-) -> Result<ModelReplay, LinkHostError> {
+    play: impl FnOnce(Runtime<'_>) -> Result<T, LinkHostError>,
+) -> Result<T, LinkHostError> {
     let model = |message: String| LinkHostError::Model {
         file: path.into(),
         message,
@@ -185,10 +184,24 @@ pub fn replay_model_file(
     let runtime = storage
         .runtime(record, config)
         .map_err(|e| model(e.to_string()))?;
-    let footprint_bytes = runtime.footprint_bytes();
-    Ok(ModelReplay {
-        replay: replay(runtime, point, radius, seconds)?,
-        footprint_bytes,
+    play(runtime)
+}
+
+/// Reads the runtime model (`.palp`) at `path`, builds its runtime under `config` in memory
+/// sized for it, and replays it as [`replay`] does.
+pub fn replay_model_file(
+    path: &Path,
+    config: RuntimeConfig,
+    point: [f32; 3],
+    radius: f32,
+    seconds: f64,
+) -> Result<ModelReplay, LinkHostError> {
+    with_model_file(path, config, |runtime| {
+        let footprint_bytes = runtime.footprint_bytes();
+        Ok(ModelReplay {
+            replay: replay(runtime, point, radius, seconds)?,
+            footprint_bytes,
+        })
     })
 }
 
@@ -205,29 +218,24 @@ pub fn settle_contact_force(
     radius: f32,
     max_ticks: usize,
 ) -> Result<Option<Vec<f32>>, LinkHostError> {
-    let model = |message: String| LinkHostError::Model {
-        file: path.into(),
-        message,
-    };
-    let file = std::fs::read(path).map_err(|e| model(e.to_string()))?;
-    let record = palpate_protocol::model::decode(&file).map_err(|e| model(e.to_string()))?;
-    let mut storage = Storage::for_model(&record, &config);
-    let mut rt = storage
-        .runtime(record, config)
-        .map_err(|e| model(e.to_string()))?;
-    rt.set_contact_force(point, force, radius)
-        .map_err(|e| model(format!("contact force at {point:?}: {e}")))?;
-    for _ in 0..max_ticks {
-        let rep = rt.tick();
-        let umax = rt
-            .displacements()
-            .iter()
-            .fold(0.0f32, |a, v| a.max(v.abs()));
-        if rep.status == SolveStatus::Converged && rep.step <= 1e-6 * umax {
-            return Ok(Some(rt.displacements().to_vec()));
+    with_model_file(path, config, |mut rt| {
+        rt.set_contact_force(point, force, radius)
+            .map_err(|e| LinkHostError::Model {
+                file: path.into(),
+                message: format!("contact force at {point:?}: {e}"),
+            })?;
+        for _ in 0..max_ticks {
+            let rep = rt.tick();
+            let umax = rt
+                .displacements()
+                .iter()
+                .fold(0.0f32, |a, v| a.max(v.abs()));
+            if rep.status == SolveStatus::Converged && rep.step <= 1e-6 * umax {
+                return Ok(Some(rt.displacements().to_vec()));
+            }
         }
-    }
-    Ok(None)
+        Ok(None)
+    })
 }
 
 /// What a haptic replay measured.
@@ -292,4 +300,69 @@ pub fn replay(
         lost: lp.stats.missing_samples + lp.stats.rejected(),
         non_monotonic,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use palpate_fem::block_model::BlockModel;
+    use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
+    use palpate_fem::forward::Material;
+    use palpate_fem::simulate::{simulate, Request};
+    use palpate_runtime::material::LambdaAlpha;
+
+    /// A 1 N press (2 cm radius: the block's top nodes are 1.4 cm apart) on the top of the
+    /// generated block, held until the runtime settles, lands where `palpate_fem::simulate` — its
+    /// own loop, incremental loading to a 10⁻⁶ tolerance and 20 000 PCG iterations — puts the same
+    /// contact: measured 4.7·10⁻⁵ of the largest displacement (1.43 mm) apart; 10⁻³ leaves room
+    /// for the two loops' tolerances, and a force 10 % off is 0.10 apart. No tick is no settled
+    /// state.
+    #[test]
+    fn a_held_contact_force_settles_where_the_static_simulation_does() {
+        let p = LambdaAlpha::from_young_poisson(10e3, 0.3);
+        let block = BlockModel::block(300, p).unwrap();
+        let prov = ProvenanceInfo {
+            tool: "test".into(),
+            source: "generated block".into(),
+            notes: String::new(),
+        };
+        let buffers =
+            ModelBuffers::from_mesh(&block.mesh, &block.fixed, &Material::homogeneous(p), &prov)
+                .unwrap();
+        let path = std::env::temp_dir().join(format!("settle-{}.palp", std::process::id()));
+        buffers.write(&path).unwrap();
+        let cfg = RuntimeConfig {
+            max_iterations: 200,
+            ..Default::default()
+        };
+        let (point, force) = ([0.05f32, 0.05, 0.05], [0.0f32, 0.0, -1.0]);
+        let u = settle_contact_force(&path, cfg, point, force, 0.02, 2000)
+            .unwrap()
+            .expect("settled");
+        let never = settle_contact_force(&path, cfg, point, force, 0.02, 0).unwrap();
+        std::fs::remove_file(&path).unwrap();
+        assert!(never.is_none());
+        let reference = simulate(
+            buffers.record(),
+            &Request {
+                contact: Some(([0.05, 0.05, 0.05], [0.0, 0.0, -1.0], 0.02)),
+                contact_rule: cfg.contact_rule,
+                node_forces: None,
+                probe: None,
+                warp: cfg.warp,
+                increments: 1,
+            },
+        )
+        .unwrap();
+        let umax = reference
+            .displacements
+            .iter()
+            .fold(0.0f32, |a, v| a.max(v.abs()));
+        let diff = u
+            .iter()
+            .zip(&reference.displacements)
+            .fold(0.0f32, |a, (x, y)| a.max((x - y).abs()));
+        assert!(umax > 1e-4, "the press moves the block: {umax} m");
+        assert!(diff <= 1e-3 * umax, "{diff} m apart, largest {umax} m");
+    }
 }
