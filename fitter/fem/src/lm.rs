@@ -360,6 +360,49 @@ pub fn minimise_trust_region(
     }
 }
 
+/// [`minimise_trust_region`], started again from where it stopped while a convergence test fired
+/// that is not the minimum's. Rejected steps (a simulation that fails, a secant model that
+/// misled) shrink the radius until the step is too short to count or the little the model
+/// predicts looks converged, far from the minimum. From the point reached, Gauss–Newton's model
+/// and a fresh radius ([`TrustOptions::initial_radius`]) decide: while its step promises more
+/// than Φ's noise (`noise_tolerance` of Φ) the iteration goes on, and it ends when a restart
+/// gains less than the precision asked (`rel_tolerance` of Φ) or the iteration limit, counted
+/// over every restart, is reached.
+pub fn minimise_restarting(
+    theta0: Vec<f64>,
+    first: Normal,
+    mut eval: impl FnMut(&[f64]) -> Option<Normal>,
+    o: &TrustOptions,
+) -> TrustOutcome {
+    let mut out = minimise_trust_region(theta0, first, &mut eval, o);
+    let mut iterations = out.iterations;
+    while out.converged && iterations < o.max_iterations {
+        let phi = out.normal.phi;
+        let (g, h) = (&out.normal.grad, &out.normal.gn);
+        let promised = model_decrease(h, g, &trust_region_step(h, g, o.initial_radius));
+        if promised.is_nan() || promised <= o.noise_tolerance * phi {
+            break;
+        }
+        log::debug!(
+            "Levenberg–Marquardt restarted at Φ {phi:.6e}: Gauss–Newton's step promises {promised:.3e}"
+        );
+        out = minimise_trust_region(
+            out.theta,
+            out.normal,
+            &mut eval,
+            &TrustOptions {
+                max_iterations: o.max_iterations - iterations,
+                ..*o
+            },
+        );
+        iterations += out.iterations;
+        if phi - out.normal.phi <= o.rel_tolerance * phi {
+            break;
+        }
+    }
+    TrustOutcome { iterations, ..out }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -476,6 +519,38 @@ mod tests {
             "evaluations: trust region {tr_evals}, diagonal {}",
             calls.get()
         );
+    }
+
+    /// A start where every trial fails (a simulation that inverts an element, say) until the
+    /// radius has shrunk below what counts as a step: the trust-region iteration stops there,
+    /// "converged" at the start's Φ, and the restart, whose fresh radius Gauss–Newton's model
+    /// promises a large gain from, goes on to the minimum of r = (θ₀ − 1, 2 (θ₁ + 3)).
+    #[test]
+    fn a_stop_after_failed_trials_is_restarted_to_the_minimum() {
+        let eval = |t: &[f64]| normal(&[t[0] - 1.0, 2.0 * (t[1] + 3.0)], &[1.0, 0.0, 0.0, 2.0], 2);
+        let o = TrustOptions {
+            max_iterations: 100,
+            rel_tolerance: 1e-12,
+            noise_tolerance: 1e-10,
+            initial_radius: 1.0,
+            max_radius: 10.0,
+        };
+        let calls = std::cell::Cell::new(0);
+        let failing_first = |t: &[f64]| {
+            calls.set(calls.get() + 1);
+            (calls.get() > 20).then(|| eval(t))
+        };
+        let once = minimise_trust_region(vec![0.0, 0.0], eval(&[0.0, 0.0]), failing_first, &o);
+        assert!(once.converged && once.theta == [0.0, 0.0], "{once:?}");
+        calls.set(0);
+        let out = minimise_restarting(vec![0.0, 0.0], eval(&[0.0, 0.0]), failing_first, &o);
+        assert!(out.converged, "{out:?}");
+        assert!(
+            (out.theta[0] - 1.0).abs() < 1e-9 && (out.theta[1] + 3.0).abs() < 1e-9,
+            "{:?}",
+            out.theta
+        );
+        assert!(out.iterations > once.iterations, "{out:?}");
     }
 
     /// A secant model that promises more than Φ is not tried: H's step instead. One parameter,

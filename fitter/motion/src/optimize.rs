@@ -25,7 +25,7 @@ use super::MotionError;
 use argmin::core::{CostFunction, Error as ArgminError, Executor, Gradient, State};
 use argmin::solver::linesearch::MoreThuenteLineSearch;
 use argmin::solver::quasinewton::LBFGS;
-use palpate_fem::lm::{minimise_trust_region, trust_region_step, Normal, TrustOptions};
+use palpate_fem::lm::{minimise_restarting, Normal, TrustOptions};
 use std::sync::Mutex;
 
 /// Which optimiser a fit runs.
@@ -732,7 +732,7 @@ impl RateReference {
 
 /// Levenberg–Marquardt in z = ln q, a fitted viscosity with its index read at the data's strain
 /// rate ([`RateReference`]): palpate's trust-region form of it
-/// ([`palpate_fem::lm::minimise_trust_region`]) on Φ, ∇Φ and the Gauss–Newton matrix of every
+/// ([`palpate_fem::lm::minimise_restarting`]) on Φ, ∇Φ and the Gauss–Newton matrix of every
 /// simulation ([`gauss_newton_runs`]), radius in log space (a factor e to start), stopping at a
 /// relative precision max(`tol_cost`, 1e-6) of Φ or after `max_iters` iterations.
 fn levenberg_marquardt(
@@ -808,46 +808,8 @@ fn levenberg_marquardt(
         eval(&z, &mut history, &mut failures)
             .map(|normal| reference.normal_in_coordinates(w, normal))
     };
-    let mut out = minimise_trust_region(w0, first, &mut in_w, &options);
-    let mut iterations = out.iterations;
-    // A convergence test that fires where the radius has shrunk (after rejected secant steps)
-    // sees a small predicted decrease that is not the minimum's: start again from the point
-    // reached, with Gauss–Newton's model and a fresh radius, while that model's step promises
-    // more than the simulations' noise (`noise_tolerance` of Φ) and a restart gains more than
-    // the precision asked.
-    while out.converged && iterations < options.max_iterations {
-        let phi = out.normal.phi;
-        let (g, h) = (&out.normal.grad, &out.normal.gn);
-        let step = trust_region_step(h, g, options.initial_radius);
-        let promised = -(0..step.len())
-            .map(|i| {
-                let hs: f64 = (0..step.len())
-                    .map(|j| h[i * step.len() + j] * step[j])
-                    .sum();
-                step[i] * (g[i] + 0.5 * hs)
-            })
-            .sum::<f64>();
-        if promised.is_nan() || promised <= options.noise_tolerance * phi {
-            break;
-        }
-        log::debug!(
-            "Levenberg–Marquardt restarted at Φ {phi:.6e}: Gauss–Newton's step promises {promised:.3e}"
-        );
-        let again = minimise_trust_region(
-            out.theta.clone(),
-            out.normal.clone(),
-            &mut in_w,
-            &TrustOptions {
-                max_iterations: options.max_iterations - iterations,
-                ..options
-            },
-        );
-        iterations += again.iterations;
-        out = again;
-        if phi - out.normal.phi <= options.rel_tolerance * phi {
-            break;
-        }
-    }
+    let out = minimise_restarting(w0, first, &mut in_w, &options);
+    let iterations = out.iterations;
     let z = reference
         .log_params(&out.theta)
         .expect("an accepted point has h > 0");

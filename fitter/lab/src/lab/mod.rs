@@ -17,6 +17,7 @@ pub mod motion_evidence_spline;
 pub mod nonlinear_evidence;
 pub mod peer_export;
 pub mod roofline;
+pub mod scan_strip;
 
 /// palpate-lab: benchmarks and evidence runs of the palpate project.
 #[derive(Debug, Parser)]
@@ -49,6 +50,9 @@ pub enum Command {
     /// The runtime and probe firmware on an emulated Cortex-M4F: the bundled models, the
     /// comparison with the host and the board's cost model (firmware/m4-emu).
     M4Emu(m4_emu::Args),
+    /// A hanging strip's modulus fitted to one rendered depth image (the scan residual end to
+    /// end), with the truth on the fit's mesh and on a finer one.
+    ScanStrip(scan_strip::Args),
 }
 
 /// Runs a parsed command line.
@@ -61,5 +65,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::NonlinearEvidence(a) => nonlinear_evidence::run(a),
         Command::ModelForm(a) => model_form::run(a),
         Command::M4Emu(a) => m4_emu::run(a),
+        Command::ScanStrip(a) => scan_strip::run(a),
     }
 }

@@ -1,0 +1,60 @@
+//! Surface scans as observations of a deforming object: what a depth camera or a scanner records
+//! of it, read and brought into the mesh's frame, and compared with the mesh's deformed surface.
+//!
+//! - [`camera`]: the pinhole camera (intrinsics and pose) that back-projects a depth image into
+//!   points and projects points into pixels;
+//! - [`depth`]: depth images, 16-bit PNG in and out;
+//! - [`cloud`]: point clouds, PLY (ASCII and binary) and XYZ/CSV text;
+//! - [`surface`]: the scan residual — each point's signed distance to the deformed surface along
+//!   the normal at its closest point, with its Jacobian in the node positions, a robust weight
+//!   for background and flying pixels and a weight that keeps a dense patch from drowning the
+//!   rest;
+//! - [`render`]: depth images of a mesh's surface from a virtual camera, to make test data.
+//!
+//! Units are metres throughout; a depth image's integer unit is declared by the caller.
+
+pub mod camera;
+pub mod cloud;
+pub mod depth;
+pub mod render;
+pub mod surface;
+
+/// What goes wrong reading or using a scan. Every message names the file and where in it.
+#[derive(Debug, thiserror::Error)]
+pub enum ScanError {
+    /// The file could not be opened or read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The file's content is not what its format says.
+    #[error("{path}: {what}")]
+    Format {
+        /// The file.
+        path: String,
+        /// What was expected and what was found, and where.
+        what: String,
+    },
+    /// A value out of its range (a camera parameter, an image size).
+    #[error("{0}")]
+    Invalid(String),
+}
+
+impl ScanError {
+    fn format(path: &std::path::Path, what: impl Into<String>) -> Self {
+        Self::Format {
+            path: path.display().to_string(),
+            what: what.into(),
+        }
+    }
+
+    fn io(path: &std::path::Path, source: std::io::Error) -> Self {
+        Self::Io {
+            path: path.display().to_string(),
+            source,
+        }
+    }
+}
