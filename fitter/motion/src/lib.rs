@@ -10,6 +10,7 @@
 //! - [`optimize`]: log-parameter LBFGS (§4.3) with a Wolfe line search (argmin);
 //! - [`statics`]: a reusable quasi-static hyperelastic solver (the specimen generator's);
 //! - [`quadratic_statics`]: the same on quadratic (10-node) tetrahedra, which do not lock;
+//! - [`rest_fit`]: the shear modulus fitted to datasets' rest states through either design;
 //! - [`scenario`]: synthetic set-ups (bars with moving clamps) shared by bench, evidence, tests;
 //! - [`dataset`]: the motion dataset reader (docs/motion-dataset.md);
 //! - [`spline`], [`elastic`]: the principal-stretch spline material of §4.2 (eqs. 18–20) and the
@@ -32,6 +33,7 @@ pub mod quadratic_statics;
 pub mod refine;
 pub mod relaxation;
 pub mod request;
+pub mod rest_fit;
 pub mod scenario;
 pub mod sim;
 pub mod sparse;
