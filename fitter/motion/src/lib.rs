@@ -9,6 +9,8 @@
 //!   (eqs. 8–12, 14) gradients;
 //! - [`optimize`]: log-parameter LBFGS (§4.3) with a Wolfe line search (argmin);
 //! - [`statics`]: a reusable quasi-static hyperelastic solver (the specimen generator's);
+//! - [`quadratic_statics`]: the same on quadratic (10-node) tetrahedra, which do not lock;
+//! - [`rest_fit`]: the shear modulus fitted to datasets' rest states through either design;
 //! - [`scenario`]: synthetic set-ups (bars with moving clamps) shared by bench, evidence, tests;
 //! - [`dataset`]: the motion dataset reader (docs/motion-dataset.md);
 //! - [`spline`], [`elastic`]: the principal-stretch spline material of §4.2 (eqs. 18–20) and the
@@ -29,14 +31,17 @@ pub mod model;
 pub mod objective;
 pub mod optimize;
 pub mod predict;
+pub mod quadratic_statics;
 pub mod refine;
 pub mod relaxation;
 pub mod request;
+pub mod rest_fit;
 pub mod scenario;
 pub mod sim;
 pub mod sparse;
 pub mod spline;
 pub mod start;
+mod static_newton;
 pub mod statics;
 pub mod time_offset;
 pub mod timestep;

@@ -10,6 +10,7 @@
 
 use super::hyperelastic::{self as he, FParts, HyperParams, RestTet};
 use super::sparse::Pattern;
+use super::static_newton::{check_problem, Discretised, Dofs, Prepared};
 use super::MotionError;
 use nalgebra::Vector3;
 use palpate_fem::mesh::Mesh;
@@ -57,7 +58,14 @@ impl<'a> StaticProblem<'a> {
     }
 }
 
-/// The equilibrium found.
+impl StaticProblem<'_> {
+    /// The material of element `e` (the one entry when there is one for all).
+    pub(crate) fn material_of(&self, e: usize) -> &HyperParams {
+        &self.material[if self.material.len() == 1 { 0 } else { e }]
+    }
+}
+
+/// The equilibrium found (for quadratic tetrahedra, on the nodes of the quadratic mesh).
 #[derive(Debug, Clone)]
 pub struct StaticSolution {
     /// Deformed node positions (m).
@@ -68,26 +76,39 @@ pub struct StaticSolution {
     pub residual: f64,
 }
 
+/// The sensitivities of an equilibrium to a uniform material's Lamé parameters, per node (m/Pa;
+/// zero at fixed nodes): ∂x/∂q = K⁻¹ ∂f/∂q at equilibrium, K = −∂f/∂x the tangent.
+#[derive(Debug, Clone)]
+pub struct StaticSensitivity {
+    /// ∂x/∂λ per node.
+    pub dlambda: Vec<[f64; 3]>,
+    /// ∂x/∂μ per node.
+    pub dmu: Vec<[f64; 3]>,
+}
+
 struct Ctx<'a> {
     p: &'a StaticProblem<'a>,
     rest: Vec<RestTet>,
-    free: Vec<usize>,
-    nfree: usize,
-    pattern: Pattern,
 }
 
 impl Ctx<'_> {
     fn mat(&self, e: usize) -> &HyperParams {
-        if self.p.material.len() == 1 {
-            &self.p.material[0]
-        } else {
-            &self.p.material[e]
-        }
+        self.p.material_of(e)
     }
     fn gather(&self, e: usize, x: &[f64]) -> [Vector3<f64>; 4] {
         self.p.mesh.tets[e].map(|n| Vector3::new(x[3 * n], x[3 * n + 1], x[3 * n + 2]))
     }
-    /// Internal energy; `None` if an element is inverted.
+    /// Adds an element's 12 forces into the global vector.
+    fn scatter(&self, e: usize, fe: &[f64; 12], f: &mut [f64]) {
+        for (a, &n) in self.p.mesh.tets[e].iter().enumerate() {
+            for i in 0..3 {
+                f[3 * n + i] += fe[3 * a + i];
+            }
+        }
+    }
+}
+
+impl Discretised for Ctx<'_> {
     fn energy(&self, x: &[f64]) -> Option<f64> {
         let mut e_tot = 0.0;
         for e in 0..self.rest.len() {
@@ -96,23 +117,18 @@ impl Ctx<'_> {
         }
         Some(e_tot)
     }
-    /// Internal forces (full) and optionally K on the free pattern.
-    fn forces(&self, x: &[f64], mut k: Option<&mut [f64]>) -> Option<Vec<f64>> {
+    fn forces(&self, x: &[f64], mut k: Option<(&Pattern, &mut [f64])>) -> Option<Vec<f64>> {
         let mut f = vec![0.0; x.len()];
-        if let Some(k) = k.as_deref_mut() {
+        if let Some((_, k)) = k.as_mut() {
             k.iter_mut().for_each(|v| *v = 0.0);
         }
         for e in 0..self.rest.len() {
             let s = FParts::new(he::deformation_gradient(&self.rest[e], &self.gather(e, x)))?;
             let mut fe = [0.0; 12];
             he::add_stress_forces(&self.rest[e], &he::pk1(&s, self.mat(e)), 1.0, &mut fe);
-            for (a, &n) in self.p.mesh.tets[e].iter().enumerate() {
-                for i in 0..3 {
-                    f[3 * n + i] += fe[3 * a + i];
-                }
-            }
-            if let Some(k) = k.as_deref_mut() {
-                self.pattern.add_element(
+            self.scatter(e, &fe, &mut f);
+            if let Some((pattern, k)) = k.as_mut() {
+                pattern.add_element(
                     e,
                     &he::element_tangent(&self.rest[e], &s, self.mat(e)),
                     1.0,
@@ -122,64 +138,29 @@ impl Ctx<'_> {
         }
         Some(f)
     }
-}
-
-/// Solves the quasi-static problem; positions are returned for every node.
-pub fn solve_static(p: &StaticProblem<'_>) -> Result<StaticSolution, MotionError> {
-    let mesh = p.mesh;
-    let nn = mesh.nodes.len();
-    if p.material.len() != 1 && p.material.len() != mesh.tets.len() {
-        return Err(MotionError::Invalid(format!(
-            "material has {} entries for {} elements (expected 1 or {})",
-            p.material.len(),
-            mesh.tets.len(),
-            mesh.tets.len()
-        )));
-    }
-    if !p.fixed_displacement.is_empty() && p.fixed_displacement.len() != p.fixed.len() {
-        return Err(MotionError::Invalid(format!(
-            "{} fixed displacements for {} fixed nodes",
-            p.fixed_displacement.len(),
-            p.fixed.len()
-        )));
-    }
-    let rest = RestTet::of_mesh(mesh)?;
-    let mut is_fixed = vec![false; nn];
-    for &n in &p.fixed {
-        if n >= nn {
-            return Err(MotionError::Invalid(format!(
-                "fixed node {n} out of range (mesh has {nn} nodes)"
-            )));
-        }
-        is_fixed[n] = true;
-    }
-    let mut free = vec![usize::MAX; 3 * nn];
-    let mut nfree = 0;
-    for n in 0..nn {
-        if !is_fixed[n] {
-            for i in 0..3 {
-                free[3 * n + i] = nfree;
-                nfree += 1;
+    fn parameter_forces(&self, x: &[f64]) -> Option<[Vec<f64>; 2]> {
+        let mut out = [vec![0.0; x.len()], vec![0.0; x.len()]];
+        for e in 0..self.rest.len() {
+            let s = FParts::new(he::deformation_gradient(&self.rest[e], &self.gather(e, x)))?;
+            for (o, dp) in out.iter_mut().zip([he::pk1_dlambda(&s), he::pk1_dmu(&s)]) {
+                let mut fe = [0.0; 12];
+                he::add_stress_forces(&self.rest[e], &dp, 1.0, &mut fe);
+                self.scatter(e, &fe, o);
             }
         }
+        Some(out)
     }
-    let pattern =
-        Pattern::new(&mesh.tets, &free, nfree).map_err(|e| MotionError::Invalid(e.to_string()))?;
-    let ctx = Ctx {
-        p,
-        rest,
-        free,
-        nfree,
-        pattern,
-    };
+}
+
+/// The linear design's context, dofs and loading.
+fn setup<'a>(p: &'a StaticProblem<'a>) -> Result<(Ctx<'a>, Prepared), MotionError> {
+    let mesh = p.mesh;
+    let is_fixed = check_problem(p)?;
+    let rest = RestTet::of_mesh(mesh)?;
+    let dofs = Dofs::new(&is_fixed, &mesh.tets)?;
     // Full external load: nodal forces + gravity (ρ V g / 4 per node of each element).
-    let mut fext = vec![0.0; 3 * nn];
+    let mut fext = vec![0.0; 3 * mesh.nodes.len()];
     for &(n, f) in &p.forces {
-        if n >= nn {
-            return Err(MotionError::Invalid(format!(
-                "force on node {n} out of range (mesh has {nn} nodes)"
-            )));
-        }
         for i in 0..3 {
             fext[3 * n + i] += f[i];
         }
@@ -187,127 +168,39 @@ pub fn solve_static(p: &StaticProblem<'_>) -> Result<StaticSolution, MotionError
     for (e, t) in mesh.tets.iter().enumerate() {
         for &n in t {
             for i in 0..3 {
-                fext[3 * n + i] += p.density * ctx.rest[e].volume / 4.0 * p.gravity[i];
+                fext[3 * n + i] += p.density * rest[e].volume / 4.0 * p.gravity[i];
             }
         }
     }
-    let rest_x: Vec<f64> = mesh.nodes.iter().flatten().copied().collect();
-    let mut x = rest_x.clone();
-    let mut k = vec![0.0; ctx.pattern.nnz()];
-    let mut iterations = 0;
-    let mut residual = 0.0;
-    let steps = p.load_steps.max(1);
-    for step in 1..=steps {
-        let s = step as f64 / steps as f64;
-        for (i, &n) in p.fixed.iter().enumerate() {
-            let u = p.fixed_displacement.get(i).copied().unwrap_or([0.0; 3]);
-            for d in 0..3 {
-                x[3 * n + d] = rest_x[3 * n + d] + s * u[d];
-            }
-        }
-        let total_energy = |x: &[f64]| -> Option<f64> {
-            let w: f64 = (0..x.len())
-                .filter(|&d| ctx.free[d] != usize::MAX)
-                .map(|d| s * fext[d] * (x[d] - rest_x[d]))
-                .sum();
-            Some(ctx.energy(x)? - w)
-        };
-        let mut converged = false;
-        for _ in 0..p.max_iter {
-            let f = ctx
-                .forces(&x, Some(&mut k))
-                .ok_or(MotionError::NoConvergence {
-                    step,
-                    residual: f64::INFINITY,
-                })?;
-            let mut r = vec![0.0; ctx.nfree];
-            for (d, &fr) in ctx.free.iter().enumerate() {
-                if fr != usize::MAX {
-                    r[fr] = f[d] + s * fext[d];
-                }
-            }
-            residual = r.iter().map(|v| v * v).sum::<f64>().sqrt();
-            if !residual.is_finite() {
-                return Err(MotionError::NonFinite(format!(
-                    "force residual at load step {step} (a material or load too large for f64)"
-                )));
-            }
-            if residual < p.tol {
-                converged = true;
-                break;
-            }
-            // Newton direction; shift the diagonal until K + τI is positive definite.
-            let diag_scale = k.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-30);
-            // An overflowed tangent has no finite shift: τ would grow to ∞ and the exit test
-            // below, τ > 10³ · ∞, never hold.
-            if !diag_scale.is_finite() {
-                return Err(MotionError::NonFinite(format!(
-                    "tangent stiffness at load step {step} (a material or load too large for f64)"
-                )));
-            }
-            let mut tau = 0.0;
-            let factor = loop {
-                let mut kk = k.clone();
-                if tau > 0.0 {
-                    for i in 0..ctx.nfree {
-                        ctx.pattern.add_diagonal(i, tau, &mut kk);
-                    }
-                }
-                if let Some(f) = ctx.pattern.factor(&kk) {
-                    break f;
-                }
-                tau = if tau == 0.0 {
-                    1e-8 * diag_scale
-                } else {
-                    tau * 10.0
-                };
-                if tau > 1e3 * diag_scale {
-                    return Err(MotionError::NotPositiveDefinite { step });
-                }
-            };
-            let mut dx = r.clone();
-            factor.solve_in_place(&mut dx);
-            let e0 = total_energy(&x).ok_or(MotionError::Inverted {
-                element: usize::MAX,
-            })?;
-            let slope: f64 = -dx.iter().zip(&r).map(|(a, b)| a * b).sum::<f64>();
-            let mut alpha = 1.0;
-            loop {
-                let mut xt = x.clone();
-                for (d, &fr) in ctx.free.iter().enumerate() {
-                    if fr != usize::MAX {
-                        xt[d] += alpha * dx[fr];
-                    }
-                }
-                // Armijo on the energy; near convergence energy differences drown in round-off,
-                // so a step that does not increase the energy beyond 1e-12 relative is taken.
-                let ok = match total_energy(&xt) {
-                    Some(e1) => {
-                        e1 <= e0 + 1e-4 * alpha * slope
-                            || (e1 - e0).abs() <= 1e-12 * e0.abs().max(1e-30)
-                    }
-                    None => false,
-                };
-                if ok {
-                    x = xt;
-                    break;
-                }
-                alpha *= 0.5;
-                if alpha < 1e-10 {
-                    return Err(MotionError::NoConvergence { step, residual });
-                }
-            }
-            iterations += 1;
-        }
-        if !converged {
-            return Err(MotionError::NoConvergence { step, residual });
-        }
-    }
-    Ok(StaticSolution {
-        positions: x.chunks(3).map(|c| [c[0], c[1], c[2]]).collect(),
-        iterations,
-        residual,
-    })
+    let moved = p
+        .fixed
+        .iter()
+        .zip(&p.fixed_displacement)
+        .flat_map(|(&n, u)| (0..3).map(move |d| (3 * n + d, u[d])))
+        .collect();
+    let prepared = Prepared {
+        dofs,
+        fext,
+        rest: mesh.nodes.iter().flatten().copied().collect(),
+        moved,
+    };
+    Ok((Ctx { p, rest }, prepared))
+}
+
+/// Solves the quasi-static problem; positions are returned for every node.
+pub fn solve_static(p: &StaticProblem<'_>) -> Result<StaticSolution, MotionError> {
+    let (ctx, prepared) = setup(p)?;
+    prepared.solve(&ctx, p)
+}
+
+/// The sensitivities of an equilibrium found by [`solve_static`] to the (uniform) material's λ
+/// and μ, for a Gauss–Newton fit of the Lamé parameters.
+pub fn static_sensitivity(
+    p: &StaticProblem<'_>,
+    solution: &StaticSolution,
+) -> Result<StaticSensitivity, MotionError> {
+    let (ctx, prepared) = setup(p)?;
+    prepared.sensitivity(&ctx, p, &solution.positions)
 }
 
 #[cfg(test)]

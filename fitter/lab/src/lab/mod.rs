@@ -2,6 +2,7 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod beam_convergence;
 pub mod bench;
 pub mod bench_discretisation;
 pub mod bench_fit;
@@ -47,6 +48,10 @@ pub enum Command {
     /// Whether a static dataset's residual is the warped linear model's form: its (E, ν) fit
     /// against the Neo-Hookean quasi-static solver's best fit on the same mesh and loads.
     ModelForm(model_form::Args),
+    /// The beam's shear modulus fitted to imported rest states with linear and quadratic
+    /// tetrahedra on two meshes: how converged the fitted material is
+    /// (docs/results/beam/convergence.md).
+    BeamConvergence(beam_convergence::Args),
     /// The runtime and probe firmware on an emulated Cortex-M4F: the bundled models, the
     /// comparison with the host and the board's cost model (firmware/m4-emu).
     M4Emu(m4_emu::Args),
@@ -64,6 +69,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::MotionConfusion(a) => motion_confusion::run(a),
         Command::NonlinearEvidence(a) => nonlinear_evidence::run(a),
         Command::ModelForm(a) => model_form::run(a),
+        Command::BeamConvergence(a) => beam_convergence::run(a),
         Command::M4Emu(a) => m4_emu::run(a),
         Command::ScanStrip(a) => scan_strip::run(a),
     }

@@ -13,6 +13,7 @@ mod fit;
 mod gauss_newton;
 mod gradients;
 mod loads;
+mod quadratic_statics;
 mod schemes;
 mod spline;
 mod statics;

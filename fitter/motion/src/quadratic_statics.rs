@@ -1,0 +1,431 @@
+//! The quasi-static Neo-Hookean problem of [`super::statics`] on quadratic (10-node) tetrahedra:
+//! the same [`StaticProblem`] (mesh, material, fixed nodes, nodal forces, gravity) solved on
+//! [`QuadraticMesh::from_linear`] of its linear mesh. Linear tetrahedra lock in bending as
+//! Poisson's ratio nears ½ (docs/results/discretisation); quadratic ones do not.
+//!
+//! - Corner nodes keep the linear mesh's indices, so fixed nodes, nodal forces and markers named
+//!   on the linear mesh mean the same here; an edge node is fixed when both its corners are
+//!   ([`QuadraticMesh::lift_flags`]) and moves with their mean (a straight edge stays straight).
+//! - Nodal forces act on the corner nodes as given; gravity is the consistent load ∫ ρ g N_a dV.
+//! - Energy, forces and tangent are integrated with the 4-point rule (degree 2, exact for the
+//!   small-strain stiffness of straight-sided elements), with the kernel of
+//!   [`super::hyperelastic`] at each quadrature point's deformation gradient
+//!   F = Σ_a x_a ∇N_aᵀ.
+//! - The load-increment Newton loop and the sensitivities are [`super::statics`]' own.
+
+use super::hyperelastic::{self as he, FParts, HyperParams, RestTet};
+use super::sparse::Pattern;
+use super::static_newton::{check_problem, Discretised, Dofs, Prepared};
+use super::statics::{StaticProblem, StaticSensitivity, StaticSolution};
+use super::MotionError;
+use nalgebra::{Matrix3, Vector3};
+use palpate_fem::mesh::quadratic::{QuadraticMesh, QUADRATIC_EDGES};
+
+/// The 4-point rule on a tetrahedron (degree 2): barycentric coordinates (a, b, b, b) and its
+/// permutations, weight ¼ of the volume each.
+const QUADRATURE_A: f64 = 0.585_410_196_624_968_5;
+const QUADRATURE_B: f64 = 0.138_196_601_125_010_5;
+
+/// The quadrature points' barycentric coordinates.
+fn quadrature_points() -> [[f64; 4]; 4] {
+    std::array::from_fn(|q| {
+        std::array::from_fn(|a| if a == q { QUADRATURE_A } else { QUADRATURE_B })
+    })
+}
+
+/// The ten quadratic shape functions at barycentric coordinates `l` (corners, then the edge
+/// nodes in [`QUADRATIC_EDGES`] order): N_a = L_a (2 L_a − 1), N_ab = 4 L_a L_b.
+pub fn shape_functions(l: &[f64; 4]) -> [f64; 10] {
+    std::array::from_fn(|k| {
+        if k < 4 {
+            l[k] * (2.0 * l[k] - 1.0)
+        } else {
+            let [a, b] = QUADRATIC_EDGES[k - 4];
+            4.0 * l[a] * l[b]
+        }
+    })
+}
+
+/// Gradients of the ten shape functions at `l`, from the linear element's constant ∇L_a:
+/// ∇N_a = (4 L_a − 1) ∇L_a, ∇N_ab = 4 (L_b ∇L_a + L_a ∇L_b).
+fn shape_gradients(grad: &[Vector3<f64>; 4], l: &[f64; 4]) -> [Vector3<f64>; 10] {
+    std::array::from_fn(|k| {
+        if k < 4 {
+            grad[k] * (4.0 * l[k] - 1.0)
+        } else {
+            let [a, b] = QUADRATIC_EDGES[k - 4];
+            (grad[a] * l[b] + grad[b] * l[a]) * 4.0
+        }
+    })
+}
+
+/// The element's 10 × 10 node pairs split into ten 4-node blocks, so that the linear element's
+/// closed-form tangent ([`he::element_tangent`], which holds for any four gradient vectors) and
+/// the 4-node sparsity [`Pattern`] serve the 10-node element: the nodes are paired
+/// {0,1}, {2,3}, …, {8,9} and block (g, h) holds pairs g and h. A pair of nodes from different
+/// groups lies in exactly one block; a pair within one group lies in four, so its entries are
+/// added at a quarter ([`BLOCK_SHARE`]).
+const BLOCKS: [[usize; 4]; 10] = {
+    let mut out = [[0; 4]; 10];
+    let mut k = 0;
+    let mut g = 0;
+    while g < 5 {
+        let mut h = g + 1;
+        while h < 5 {
+            out[k] = [2 * g, 2 * g + 1, 2 * h, 2 * h + 1];
+            k += 1;
+            h += 1;
+        }
+        g += 1;
+    }
+    out
+};
+
+/// The share of a block's local entry (r, c): ¼ when both dofs' nodes are in one group.
+fn block_share(r: usize, c: usize) -> f64 {
+    if r / 6 == c / 6 {
+        0.25
+    } else {
+        1.0
+    }
+}
+
+/// One quadrature point of one element: shape-function gradients and weight (volume share).
+#[derive(Debug, Clone, Copy)]
+struct QuadPoint {
+    grad: [Vector3<f64>; 10],
+    weight: f64,
+}
+
+/// The equilibrium found on quadratic tetrahedra.
+#[derive(Debug, Clone)]
+pub struct QuadraticSolution {
+    /// The quadratic mesh solved on.
+    pub mesh: QuadraticMesh,
+    /// Positions of every node of [`Self::mesh`] (the linear mesh's corners first), Newton
+    /// iterations and residual.
+    pub solution: StaticSolution,
+}
+
+impl QuadraticSolution {
+    /// The deformed position of the point at barycentric coordinates `l` in linear element `e`
+    /// (the same element index as the linear mesh's), through the quadratic shape functions.
+    pub fn position_at(&self, e: usize, l: &[f64; 4]) -> [f64; 3] {
+        value_at(&self.mesh, &self.solution.positions, e, l)
+    }
+}
+
+/// A nodal field of `mesh` (positions, sensitivities) at barycentric coordinates `l` of linear
+/// element `e`, through the quadratic shape functions.
+pub fn value_at(mesh: &QuadraticMesh, values: &[[f64; 3]], e: usize, l: &[f64; 4]) -> [f64; 3] {
+    interpolate(&mesh.tets[e], &shape_functions(l), values)
+}
+
+/// Σ_a N_a v_a over an element's ten nodes.
+fn interpolate(t: &[usize; 10], n: &[f64; 10], v: &[[f64; 3]]) -> [f64; 3] {
+    let mut p = [0.0; 3];
+    for (a, &node) in t.iter().enumerate() {
+        for d in 0..3 {
+            p[d] += n[a] * v[node][d];
+        }
+    }
+    p
+}
+
+struct Ctx<'a> {
+    p: &'a StaticProblem<'a>,
+    q: &'a QuadraticMesh,
+    points: Vec<[QuadPoint; 4]>,
+}
+
+impl Ctx<'_> {
+    fn mat(&self, e: usize) -> &HyperParams {
+        self.p.material_of(e)
+    }
+    fn deformation_gradient(&self, e: usize, qp: &QuadPoint, x: &[f64]) -> Matrix3<f64> {
+        let mut f = Matrix3::zeros();
+        for (a, &n) in self.q.tets[e].iter().enumerate() {
+            f += Vector3::new(x[3 * n], x[3 * n + 1], x[3 * n + 2]) * qp.grad[a].transpose();
+        }
+        f
+    }
+    /// Adds −w P ∇N_a at every node of element `e` into `f`.
+    fn add_stress(&self, e: usize, qp: &QuadPoint, p: &Matrix3<f64>, f: &mut [f64]) {
+        for (a, &n) in self.q.tets[e].iter().enumerate() {
+            let fa = p * qp.grad[a] * (-qp.weight);
+            for i in 0..3 {
+                f[3 * n + i] += fa[i];
+            }
+        }
+    }
+}
+
+impl Discretised for Ctx<'_> {
+    fn energy(&self, x: &[f64]) -> Option<f64> {
+        let mut total = 0.0;
+        for (e, pts) in self.points.iter().enumerate() {
+            for qp in pts {
+                let f = self.deformation_gradient(e, qp, x);
+                total += qp.weight * he::energy_density(&f, self.mat(e))?;
+            }
+        }
+        Some(total)
+    }
+
+    fn forces(&self, x: &[f64], mut k: Option<(&Pattern, &mut [f64])>) -> Option<Vec<f64>> {
+        let mut f = vec![0.0; x.len()];
+        if let Some((_, k)) = k.as_mut() {
+            k.iter_mut().for_each(|v| *v = 0.0);
+        }
+        for (e, pts) in self.points.iter().enumerate() {
+            for qp in pts {
+                let s = FParts::new(self.deformation_gradient(e, qp, x))?;
+                self.add_stress(e, qp, &he::pk1(&s, self.mat(e)), &mut f);
+                let Some((pattern, k)) = k.as_mut() else {
+                    continue;
+                };
+                for (b, nodes) in BLOCKS.iter().enumerate() {
+                    let block = RestTet {
+                        grad: nodes.map(|a| qp.grad[a]),
+                        volume: qp.weight,
+                    };
+                    let mut kb = he::element_tangent(&block, &s, self.mat(e));
+                    for (r, row) in kb.iter_mut().enumerate() {
+                        for (c, v) in row.iter_mut().enumerate() {
+                            *v *= block_share(r, c);
+                        }
+                    }
+                    pattern.add_element(BLOCKS.len() * e + b, &kb, 1.0, k);
+                }
+            }
+        }
+        Some(f)
+    }
+
+    fn parameter_forces(&self, x: &[f64]) -> Option<[Vec<f64>; 2]> {
+        let mut out = [vec![0.0; x.len()], vec![0.0; x.len()]];
+        for (e, pts) in self.points.iter().enumerate() {
+            for qp in pts {
+                let s = FParts::new(self.deformation_gradient(e, qp, x))?;
+                for (o, dp) in out.iter_mut().zip([he::pk1_dlambda(&s), he::pk1_dmu(&s)]) {
+                    self.add_stress(e, qp, &dp, o);
+                }
+            }
+        }
+        Some(out)
+    }
+}
+
+/// The quadrature data of every element, and the dofs and loading.
+fn setup(
+    p: &StaticProblem<'_>,
+    q: &QuadraticMesh,
+) -> Result<(Vec<[QuadPoint; 4]>, Prepared), MotionError> {
+    let is_fixed = check_problem(p)?;
+    let rest = RestTet::of_mesh(p.mesh)?;
+    let bary = quadrature_points();
+    let points: Vec<[QuadPoint; 4]> = rest
+        .iter()
+        .map(|r| {
+            bary.map(|l| QuadPoint {
+                grad: shape_gradients(&r.grad, &l),
+                weight: r.volume / 4.0,
+            })
+        })
+        .collect();
+    let blocks: Vec<[usize; 4]> = q
+        .tets
+        .iter()
+        .flat_map(|t| BLOCKS.map(|b| b.map(|a| t[a])))
+        .collect();
+    let dofs = Dofs::new(&q.lift_flags(&is_fixed), &blocks)?;
+    let mut fext = vec![0.0; 3 * q.nodes.len()];
+    for &(n, f) in &p.forces {
+        for i in 0..3 {
+            fext[3 * n + i] += f[i];
+        }
+    }
+    // Consistent gravity ∫ ρ g N_a dV: the rule is exact for the quadratic N_a.
+    let n_at: [[f64; 10]; 4] = bary.map(|l| shape_functions(&l));
+    for (t, pts) in q.tets.iter().zip(&points) {
+        for (qp, n) in pts.iter().zip(&n_at) {
+            for (a, &node) in t.iter().enumerate() {
+                for i in 0..3 {
+                    fext[3 * node + i] += p.density * qp.weight * n[a] * p.gravity[i];
+                }
+            }
+        }
+    }
+    // Each fixed corner's final displacement; an edge node between two fixed corners moves with
+    // their mean.
+    let mut corner = vec![[0.0; 3]; q.vertex_count];
+    for (&n, u) in p.fixed.iter().zip(&p.fixed_displacement) {
+        corner[n] = *u;
+    }
+    let flags = q.lift_flags(&is_fixed);
+    let moved = (0..q.nodes.len())
+        .filter(|&n| flags[n] && !p.fixed_displacement.is_empty())
+        .flat_map(|n| {
+            let u = if n < q.vertex_count {
+                corner[n]
+            } else {
+                let [a, b] = q.edges[n - q.vertex_count];
+                [0, 1, 2].map(|d| 0.5 * (corner[a][d] + corner[b][d]))
+            };
+            (0..3).map(move |d| (3 * n + d, u[d]))
+        })
+        .collect();
+    let prepared = Prepared {
+        dofs,
+        fext,
+        rest: q.nodes.iter().flatten().copied().collect(),
+        moved,
+    };
+    Ok((points, prepared))
+}
+
+/// Solves `p` on the quadratic lift of its mesh.
+pub fn solve_static_quadratic(p: &StaticProblem<'_>) -> Result<QuadraticSolution, MotionError> {
+    let q = QuadraticMesh::from_linear(p.mesh);
+    let (points, prepared) = setup(p, &q)?;
+    let ctx = Ctx { p, q: &q, points };
+    let solution = prepared.solve(&ctx, p)?;
+    Ok(QuadraticSolution { mesh: q, solution })
+}
+
+/// The sensitivities of an equilibrium found by [`solve_static_quadratic`] to the (uniform)
+/// material's λ and μ, per node of the quadratic mesh.
+pub fn quadratic_sensitivity(
+    p: &StaticProblem<'_>,
+    solution: &QuadraticSolution,
+) -> Result<StaticSensitivity, MotionError> {
+    let (points, prepared) = setup(p, &solution.mesh)?;
+    let ctx = Ctx {
+        p,
+        q: &solution.mesh,
+        points,
+    };
+    prepared.sensitivity(&ctx, p, &solution.solution.positions)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use palpate_fem::mesh::Mesh;
+
+    /// One quadratic element on the sample tetrahedron, nothing fixed, deformed by a smooth
+    /// non-affine field of about 20 % strain (so that F differs between quadrature points).
+    fn one_element() -> (Mesh, Vec<f64>) {
+        let (_, corners) = RestTet::sample();
+        let mesh = Mesh {
+            nodes: corners.map(|c| [c.x, c.y, c.z]).to_vec(),
+            tets: vec![[0, 1, 2, 3]],
+            ..Default::default()
+        };
+        let q = QuadraticMesh::from_linear(&mesh);
+        let x = q
+            .nodes
+            .iter()
+            .flat_map(|&[a, b, c]| {
+                [
+                    a + 0.15 * b + 8.0 * a * c,
+                    b - 0.1 * c + 6.0 * a * b,
+                    c + 0.2 * a - 5.0 * b * b,
+                ]
+            })
+            .collect();
+        (mesh, x)
+    }
+
+    fn material() -> HyperParams {
+        HyperParams {
+            lambda: 2.4e5,
+            mu: 1.6e4,
+            stiffening: 0.0,
+        }
+    }
+
+    /// Forces are minus the energy's gradient and the tangent minus the forces' Jacobian, by
+    /// central differences (h = 1e-8 m on a 1 cm element: ~1e-7 relative, asserted 1e-5).
+    #[test]
+    fn element_forces_and_tangent_match_finite_differences() {
+        let (mesh, x) = one_element();
+        let p = StaticProblem::new(&mesh, material(), Vec::new());
+        let q = QuadraticMesh::from_linear(&mesh);
+        let (points, prepared) = setup(&p, &q).unwrap();
+        let ctx = Ctx {
+            p: &p,
+            q: &q,
+            points,
+        };
+        let pattern = &prepared.dofs.pattern;
+        let mut k = vec![0.0; pattern.nnz()];
+        let f = ctx.forces(&x, Some((pattern, &mut k))).unwrap();
+        let fmax = f.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let h = 1e-8;
+        let mut kcol = vec![0.0; 30];
+        for c in 0..30 {
+            let (mut xp, mut xm) = (x.clone(), x.clone());
+            xp[c] += h;
+            xm[c] -= h;
+            let fd_e = (ctx.energy(&xp).unwrap() - ctx.energy(&xm).unwrap()) / (2.0 * h);
+            assert!(
+                (f[c] + fd_e).abs() < 1e-5 * fmax,
+                "force {c}: {} vs {}",
+                f[c],
+                -fd_e
+            );
+            let (fp, fm) = (
+                ctx.forces(&xp, None).unwrap(),
+                ctx.forces(&xm, None).unwrap(),
+            );
+            // Column c of K (every dof is free, free index = dof).
+            let mut unit = vec![0.0; 30];
+            unit[c] = 1.0;
+            kcol.iter_mut().for_each(|v| *v = 0.0);
+            pattern.mul_add(&k, &unit, &mut kcol);
+            let kmax = kcol.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for r in 0..30 {
+                let fd = -(fp[r] - fm[r]) / (2.0 * h);
+                assert!(
+                    (kcol[r] - fd).abs() < 1e-5 * kmax,
+                    "K[{r}][{c}] {} vs {fd}",
+                    kcol[r]
+                );
+            }
+        }
+    }
+
+    /// The shape functions are a partition of unity with N_a(corner b) = δ_ab, and the blocks
+    /// hold every pair of the ten nodes (a pair in one group four times, otherwise once).
+    #[test]
+    fn shape_functions_and_blocks() {
+        for l in quadrature_points() {
+            assert!((shape_functions(&l).iter().sum::<f64>() - 1.0).abs() < 1e-14);
+        }
+        for b in 0..4 {
+            let l: [f64; 4] = std::array::from_fn(|a| if a == b { 1.0 } else { 0.0 });
+            let n = shape_functions(&l);
+            for (k, v) in n.iter().enumerate() {
+                assert_eq!(*v, if k == b { 1.0 } else { 0.0 });
+            }
+        }
+        let mut count = [[0; 10]; 10];
+        for blk in BLOCKS {
+            for a in blk {
+                for b in blk {
+                    count[a][b] += 1;
+                }
+            }
+        }
+        for a in 0..10 {
+            for b in 0..10 {
+                assert_eq!(
+                    count[a][b],
+                    if a / 2 == b / 2 { 4 } else { 1 },
+                    "({a}, {b})"
+                );
+            }
+        }
+    }
+}
