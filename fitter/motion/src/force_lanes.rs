@@ -6,10 +6,13 @@
 //! [`super::hyperelastic::pk1`], [`super::viscosity::Rate::new`], [`super::viscosity::stress`],
 //! [`super::hyperelastic::add_stress_forces`]) term by term in nalgebra's order, so the forces
 //! are the same to the last bit (Rust does not contract a·b + c into fused multiply-adds); a test
-//! holds the two paths to it. Spline materials keep the scalar path.
+//! holds the two paths to it. A creep branch's step stress (1 + g b) P⁰ + F C_n
+//! ([`super::relaxation::StepBranch::stress`]) is added the same way, so a material with the
+//! branch keeps the fast pass. Spline materials keep the scalar path.
 
 use super::hyperelastic::RestTet;
 use super::model::{Material, Model, ParamKind};
+use super::relaxation::StepBranch;
 use super::MotionError;
 
 /// Elements per lane group (four f64: one AVX2 register).
@@ -68,10 +71,12 @@ fn norm_squared(m: &M) -> L {
 }
 
 /// Forces of the Neo-Hookean elements `es` (full dofs, element-major 12 per lane), or the
-/// lowest-indexed inverted element's error, as [`super::forces::element_internal`] gives them.
+/// lowest-indexed inverted element's error, as [`super::forces::element_internal`] gives them
+/// (with a creep branch's step history `branch`, as the element-by-element assembly does).
 pub(crate) fn element_forces(
     model: &Model,
     mat: &Material,
+    branch: Option<&StepBranch>,
     es: [usize; LANES],
     x: &[f64],
     v: &[f64],
@@ -120,6 +125,9 @@ pub(crate) fn element_forces(
         if stiffening[l] != 0.0 {
             add_stiffening(&mut p, l, &f, &f_inv_t, j[l], i1[l], stiffening[l]);
         }
+    }
+    if let Some(b) = branch {
+        add_branch(&mut p, &f, b, es);
     }
 
     // The power-law viscous stress (Rate::new, stress): skipped where ‖Ḟ‖ or γ̇ or the
@@ -173,6 +181,24 @@ fn add_stiffening(p: &mut M, l: usize, f: &M, f_inv_t: &M, j: f64, i1: f64, c: f
         for q in 0..3 {
             let dbar = (f[r][q][l] * 2.0 - f_inv_t[r][q][l] * (2.0 / 3.0 * i1)) * j23;
             p[r][q][l] += dbar * k;
+        }
+    }
+}
+
+/// P ← (1 + g b) P + F C_n per lane, as [`StepBranch::stress`] computes it: the scaled
+/// matrix plus nalgebra's product F C, whose entry (r, c) it sums as
+/// (F_r0 C_0c + F_r1 C_1c) + F_r2 C_2c.
+fn add_branch(p: &mut M, f: &M, b: &StepBranch, es: [usize; LANES]) {
+    let scale = lanes(|l| 1.0 + b.gain[es[l]]);
+    let c = es.map(|e| &b.c[e]);
+    for r in 0..3 {
+        for q in 0..3 {
+            p[r][q] = lanes(|l| {
+                let fc = f[r][0][l] * c[l][(0, q)]
+                    + f[r][1][l] * c[l][(1, q)]
+                    + f[r][2][l] * c[l][(2, q)];
+                p[r][q][l] * scale[l] + fc
+            });
         }
     }
 }
@@ -280,7 +306,8 @@ mod tests {
                 at_rest += 1;
             }
             if e % LANES == 0 && e + LANES <= ne {
-                let lanes = element_forces(&model, &mat, [e, e + 1, e + 2, e + 3], &x, &v).unwrap();
+                let lanes =
+                    element_forces(&model, &mat, None, [e, e + 1, e + 2, e + 3], &x, &v).unwrap();
                 for (l, got) in lanes.iter().enumerate() {
                     let want = element_internal(&model, &mat, e + l, &x, &v).unwrap();
                     assert_eq!(got, &want, "element {}", e + l);
@@ -297,6 +324,92 @@ mod tests {
             .iter()
             .zip(&reference)
             .all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
+
+    /// With a creep branch (per-element gain g b and history C_n, as after some steps) on a bar
+    /// whose element count leaves a remainder past the last group of four, the forces-only pass
+    /// (lanes, then the remainder one by one) equals the element-by-element assembly to the last
+    /// bit, and each lane equals (1 + g b) P⁰ + F C_n plus the viscous stress mapped to forces.
+    #[test]
+    fn lane_forces_with_a_creep_branch_are_the_element_forces_to_the_last_bit() {
+        use super::super::elastic::ElasticState;
+        use super::super::forces::assemble_relaxing;
+        use super::super::hyperelastic as he;
+        use super::super::viscosity as visc;
+        use nalgebra::Matrix3;
+        let (mesh, model) = bar_model(
+            [0.02, 0.1, 0.02],
+            [3, 5, 1],
+            1.0 / 180.0,
+            1,
+            &|_| [0.0; 3],
+            &[],
+        )
+        .unwrap();
+        let ne = model.tets.len();
+        assert_ne!(ne % LANES, 0, "{ne} elements leave no remainder");
+        let mut mat = Material::uniform(ne, 3e5, 2e4, 15.0, 0.8, 1100.0);
+        for e in 0..ne {
+            mat.values[ParamKind::Nu as usize][e] *= if e % 5 == 0 { 0.0 } else { 1.0 };
+            mat.values[ParamKind::Stiffening as usize][e] = if e % 3 == 0 { 4e4 } else { 0.0 };
+        }
+        let mut rng = Gauss::new(13);
+        let x = jiggled(&mesh, &mut rng);
+        let v: Vec<f64> = x.iter().map(|_| 0.05 * rng.next()).collect();
+        // C_n of the size of the stresses here (kPa), symmetric as the branch's is.
+        let branch = StepBranch {
+            c: (0..ne)
+                .map(|_| {
+                    let m = Matrix3::from_fn(|_, _| 2e3 * rng.next());
+                    m + m.transpose()
+                })
+                .collect(),
+            gain: (0..ne).map(|_| 0.3 * rng.next().abs()).collect(),
+        };
+        for e in (0..ne - ne % LANES).step_by(LANES) {
+            let es = [e, e + 1, e + 2, e + 3];
+            let got = element_forces(&model, &mat, Some(&branch), es, &x, &v).unwrap();
+            for (l, got) in got.iter().enumerate() {
+                let e = es[l];
+                let t = &model.rest[e];
+                let fgrad = he::deformation_gradient(t, &model.gather(e, &x));
+                let s = ElasticState::new(&mat, e, fgrad).unwrap();
+                let mut p = branch.stress(e, &fgrad, &s.pk1());
+                let rate = visc::Rate::new(
+                    &visc::velocity_gradient(t, &model.gather(e, &v)),
+                    mat.get(ParamKind::PowerH, e),
+                );
+                if let (Some(r), true) = (rate, mat.get(ParamKind::Nu, e) != 0.0) {
+                    p += visc::stress(&r, mat.get(ParamKind::Nu, e));
+                }
+                let mut want = [0.0; 12];
+                he::add_stress_forces(t, &p, 1.0, &mut want);
+                assert_eq!(got, &want, "element {e}");
+            }
+        }
+        // The element-by-element loop (it runs when K is asked for) against the forces-only pass.
+        let (mut by_element, mut fast) = (vec![0.0; x.len()], vec![0.0; x.len()]);
+        let mut k = vec![0.0; model.pattern.nnz()];
+        assemble_relaxing(
+            &model,
+            &mat,
+            &x,
+            &v,
+            Some(&branch),
+            &mut by_element,
+            Some(&mut k),
+            None,
+        )
+        .unwrap();
+        assemble_relaxing(&model, &mat, &x, &v, Some(&branch), &mut fast, None, None).unwrap();
+        assert!(fast
+            .iter()
+            .zip(&by_element)
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
+        // The branch is in them: without it the forces differ.
+        let mut plain = vec![0.0; x.len()];
+        assemble(&model, &mat, &x, &v, &mut plain, None, None).unwrap();
+        assert!(plain.iter().zip(&fast).any(|(a, b)| a != b));
     }
 
     /// Without viscosity the damping tangent D is zero, as it was when it was assembled from

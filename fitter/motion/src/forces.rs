@@ -27,10 +27,27 @@ pub fn element_internal(
     x: &[f64],
     v: &[f64],
 ) -> Result<[f64; 12], MotionError> {
+    element_internal_relaxing(model, mat, None, e, x, v)
+}
+
+/// [`element_internal`] with a creep branch's step history (the elastic stress becomes
+/// [`StepBranch::stress`]); `None` is [`element_internal`] itself.
+fn element_internal_relaxing(
+    model: &Model,
+    mat: &Material,
+    branch: Option<&StepBranch>,
+    e: usize,
+    x: &[f64],
+    v: &[f64],
+) -> Result<[f64; 12], MotionError> {
     let t = &model.rest[e];
-    let s = ElasticState::new(mat, e, he::deformation_gradient(t, &model.gather(e, x)))?;
+    let fgrad = he::deformation_gradient(t, &model.gather(e, x));
+    let s = ElasticState::new(mat, e, fgrad)?;
     // Both stresses act through the same rest gradients: summed first, mapped to forces once.
     let mut p = s.pk1();
+    if let Some(b) = branch {
+        p = b.stress(e, &fgrad, &p);
+    }
     if let Some(r) = rate(model, mat, e, v) {
         p += visc::stress(&r, mat.get(ParamKind::Nu, e));
     }
@@ -211,10 +228,8 @@ fn assemble_into(
     mut kvals: Option<&mut [f64]>,
     mut dvals: Option<&mut [f64]>,
 ) -> Result<(), MotionError> {
-    if let (None, None, None, None, Some(f)) =
-        (&kvals, &dvals, &mat.spline, branch, f.as_deref_mut())
-    {
-        return forces_in_lanes(model, mat, x, v, range, f);
+    if let (None, None, None, Some(f)) = (&kvals, &dvals, &mat.spline, f.as_deref_mut()) {
+        return forces_in_lanes(model, mat, x, v, branch, range, f);
     }
     for e in range {
         let tet = &model.tets[e];
@@ -273,26 +288,29 @@ fn scatter(f: &mut [f64], tet: &[usize; 4], fe: &[f64; 12]) {
 }
 
 /// [`assemble_into`]'s forces-only pass (a Newton iteration with a kept factor, a line search)
-/// for Neo-Hookean materials: four elements at a time ([`force_lanes`]), the remainder one by one,
-/// added in element order — the same forces to the last bit as the element-by-element loop.
+/// for Neo-Hookean materials, with or without a creep branch: four elements at a time
+/// ([`force_lanes`]), the remainder one by one, added in element order — the same forces to the
+/// last bit as the element-by-element loop.
 fn forces_in_lanes(
     model: &Model,
     mat: &Material,
     x: &[f64],
     v: &[f64],
+    branch: Option<&StepBranch>,
     range: std::ops::Range<usize>,
     f: &mut [f64],
 ) -> Result<(), MotionError> {
     let mut e = range.start;
     while e + force_lanes::LANES <= range.end {
-        let fe = force_lanes::element_forces(model, mat, [e, e + 1, e + 2, e + 3], x, v)?;
+        let fe = force_lanes::element_forces(model, mat, branch, [e, e + 1, e + 2, e + 3], x, v)?;
         for (l, fe) in fe.iter().enumerate() {
             scatter(f, &model.tets[e + l], fe);
         }
         e += force_lanes::LANES;
     }
     for e in e..range.end {
-        scatter(f, &model.tets[e], &element_internal(model, mat, e, x, v)?);
+        let fe = element_internal_relaxing(model, mat, branch, e, x, v)?;
+        scatter(f, &model.tets[e], &fe);
     }
     Ok(())
 }

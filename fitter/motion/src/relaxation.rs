@@ -35,6 +35,7 @@
 use super::elastic::ElasticState;
 use super::hyperelastic::{self as he, FParts, RestTet};
 use super::model::{Material, Model, ParamKind};
+use super::timestep::Scheme;
 use super::MotionError;
 use nalgebra::Matrix3;
 
@@ -117,7 +118,7 @@ pub fn elastic_pk2<'a>(
 
 impl Relaxation {
     /// The fully relaxed branch (H = 0) at the start positions `x0`; `None` when the material
-    /// has no creep branch.
+    /// has no creep branch. The branch is integrated under BDF2 only: another scheme is refused.
     pub fn start(model: &Model, mat: &Material, x0: &[f64]) -> Result<Option<Self>, MotionError> {
         if !mat.has_creep() {
             return Ok(None);
@@ -140,6 +141,13 @@ impl Relaxation {
             decay.push(a);
             gain.push(gb);
             s0.push(elastic_pk2(model, mat, e, x0)?.0);
+        }
+        if model.scheme != Scheme::Bdf2 {
+            return Err(MotionError::Invalid(format!(
+                "the creep branch (relaxed fraction g > 0) is integrated under the BDF2 scheme \
+                 only; the model's scheme is {}",
+                model.scheme.name()
+            )));
         }
         Ok(Some(Self {
             h: vec![Matrix3::zeros(); ne],

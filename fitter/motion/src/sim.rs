@@ -12,7 +12,7 @@ use super::forces::{assemble, assemble_relaxing, assemble_tangents};
 use super::model::{Material, Model};
 use super::relaxation::{Relaxation, StepBranch};
 use super::sparse::{Factor, Pattern};
-use super::timestep::Scheme;
+use super::timestep::{Scheme, TwoStep};
 use super::MotionError;
 use std::cell::{Cell, RefCell};
 
@@ -576,6 +576,199 @@ pub fn simulate(
     simulate_solving(model, mat, solve, on_start, on_step)
 }
 
+/// The elastostatic start x⁰ with the factor of K₀ there ([`static_start`]), or the rest shape
+/// with the clamps at their step-0 pose (no factor).
+fn start_state(model: &Model, mat: &Material) -> Result<(Vec<f64>, Option<Factor>), MotionError> {
+    if model.static_start {
+        let (x, f) = static_start(model, mat)?;
+        return Ok((x, Some(f)));
+    }
+    let mut x: Vec<f64> = model.nodes.iter().flatten().copied().collect();
+    model.apply_clamps(0, &mut x);
+    Ok((x, None))
+}
+
+/// A scheme's constants over a run: S = c M + a_x K + a_v D ([`Scheme::coefficients`]) and
+/// generalised-α's two-step weights with their force-state history coefficients.
+struct SchemeTerms {
+    scheme: Scheme,
+    dt: f64,
+    c: f64,
+    ax: f64,
+    av: f64,
+    two: TwoStep,
+    hist: (f64, f64, f64),
+}
+
+impl SchemeTerms {
+    fn new(model: &Model) -> Self {
+        let (c, ax, av) = model.scheme.coefficients(model.dt);
+        let two = model.scheme.two_step();
+        let hist = two.force_history(model.dt);
+        Self {
+            scheme: model.scheme,
+            dt: model.dt,
+            c,
+            ax,
+            av,
+            two,
+            hist,
+        }
+    }
+
+    /// BDF2's extrapolated position (4x^{n−1} − x^{n−2})/3 of dof `d`.
+    fn bdf2_xa(xm1: &[f64], xm2: &[f64], d: usize) -> f64 {
+        (4.0 * xm1[d] - xm2[d]) / 3.0
+    }
+
+    /// The step's force state as a function of v ([`ForceMap`]) and its inertia base b, from
+    /// the two steps before it.
+    fn step_map(&self, xm: [&[f64]; 2], vm: [&[f64]; 2]) -> (ForceMap, Vec<f64>) {
+        let ([xm1, xm2], [vm1, vm2]) = (xm, vm);
+        let (ax, av, two) = (self.ax, self.av, &self.two);
+        let (hist_a0, hist_a1, hist_e) = self.hist;
+        let ndof = xm1.len();
+        match self.scheme {
+            Scheme::Bdf2 => (
+                ForceMap {
+                    xa: (0..ndof).map(|d| Self::bdf2_xa(xm1, xm2, d)).collect(),
+                    va: vec![0.0; ndof],
+                    ax,
+                    av,
+                },
+                (0..ndof)
+                    .map(|d| (4.0 * vm1[d] - vm2[d]) / 3.0)
+                    .collect::<Vec<f64>>(),
+            ),
+            Scheme::Midpoint => (
+                ForceMap {
+                    xa: (0..ndof).map(|d| xm1[d] + ax * vm1[d]).collect(),
+                    va: (0..ndof).map(|d| av * vm1[d]).collect(),
+                    ax,
+                    av,
+                },
+                vm1.to_vec(),
+            ),
+            Scheme::Alpha => {
+                let hist_v = |d: usize| two.beta[1] * vm1[d] + two.beta[0] * vm2[d];
+                (
+                    ForceMap {
+                        xa: (0..ndof)
+                            .map(|d| hist_a1 * xm1[d] + hist_a0 * xm2[d] + hist_e * hist_v(d))
+                            .collect(),
+                        va: (0..ndof).map(hist_v).collect(),
+                        ax,
+                        av,
+                    },
+                    (0..ndof)
+                        .map(|d| -(two.alpha[1] * vm1[d] + two.alpha[0] * vm2[d]) / two.alpha[2])
+                        .collect(),
+                )
+            }
+        }
+    }
+
+    /// Newton's start for step n: the velocity extrapolated quadratically from the last three
+    /// steps (second-order like the schemes, so Newton starts O(Δt²) from the answer instead of
+    /// O(Δt)), and on the clamped dofs the velocities of their prescribed positions `x` with
+    /// the force state (`xf`, `vf`) the scheme evaluates there.
+    fn predictor(
+        &self,
+        model: &Model,
+        x: &[f64],
+        xm: [&[f64]; 2],
+        vm: [&[f64]; 3],
+        xf: &mut [f64],
+        vf: &mut [f64],
+    ) -> Vec<f64> {
+        let ([xm1, xm2], [vm1, vm2, vm3]) = (xm, vm);
+        let (dt, two) = (self.dt, &self.two);
+        let a2 = 2.0 * dt / 3.0;
+        let mut v: Vec<f64> = (0..x.len())
+            .map(|d| 3.0 * vm1[d] - 3.0 * vm2[d] + vm3[d])
+            .collect();
+        for d in 0..x.len() {
+            if model.free[d] == usize::MAX {
+                v[d] = (x[d] - Self::bdf2_xa(xm1, xm2, d)) / a2;
+                (xf[d], vf[d]) = match self.scheme {
+                    Scheme::Bdf2 => (x[d], v[d]),
+                    Scheme::Midpoint => (0.5 * (x[d] + xm1[d]), (x[d] - xm1[d]) / dt),
+                    // The scheme's own mean velocity Σ β_j v_j = Σ α_j x_j / Δt of the pose.
+                    Scheme::Alpha => (
+                        two.beta[2] * x[d] + two.beta[1] * xm1[d] + two.beta[0] * xm2[d],
+                        (two.alpha[2] * x[d] + two.alpha[1] * xm1[d] + two.alpha[0] * xm2[d]) / dt,
+                    ),
+                };
+            }
+        }
+        v
+    }
+
+    /// Writes the free dofs' end-of-step positions into `x` from the converged velocities `v`
+    /// and force state `xf`.
+    fn end_positions(
+        &self,
+        model: &Model,
+        xf: &[f64],
+        v: &[f64],
+        xm: [&[f64]; 2],
+        vm: [&[f64]; 2],
+        x: &mut [f64],
+    ) {
+        let ([xm1, xm2], [vm1, vm2]) = (xm, vm);
+        for (d, &fr) in model.free.iter().enumerate() {
+            if fr != usize::MAX {
+                x[d] = match self.scheme {
+                    Scheme::Bdf2 => xf[d],
+                    Scheme::Midpoint => xm1[d] + 0.5 * self.dt * (vm1[d] + v[d]),
+                    Scheme::Alpha => {
+                        self.two
+                            .position(self.dt, [xm2[d], xm1[d]], [vm2[d], vm1[d], v[d]])
+                    }
+                };
+            }
+        }
+    }
+}
+
+impl SimStats {
+    /// Counts a converged (or capped) step whose final residual norm is `nrm` against the
+    /// tolerance `tol`.
+    fn finish_step(&mut self, nrm: f64, tol: f64) {
+        self.max_residual = self.max_residual.max(nrm);
+        if nrm >= tol {
+            self.unconverged_steps += 1;
+        }
+    }
+}
+
+impl StepSolver {
+    /// The solver of step `n` with S (values `sv`) from Newton's factor `fac` — S's own when
+    /// `exact` — preconditioned after the run's last refactorisation `refresh`.
+    fn for_step(
+        n: usize,
+        fac: Factor,
+        exact: bool,
+        sv: &[f64],
+        refresh: Option<&(Factor, Factor)>,
+    ) -> Self {
+        let solver = StepSolver {
+            // An exact factor never needs S's values.
+            s: if exact { Vec::new() } else { sv.to_vec() },
+            handed: fac.clone(),
+            factor: RefCell::new(fac),
+            exact: Cell::new(exact),
+            step: n,
+            refactorisations: Cell::new(0),
+            cg_iterations: Cell::new(0),
+        };
+        if let Some(r) = refresh {
+            solver.precondition_after(r);
+        }
+        solver
+    }
+}
+
 /// [`simulate`] with the converged steps' S solved as `solve` says ([`StepView::solver`]).
 pub fn simulate_solving(
     model: &Model,
@@ -585,28 +778,13 @@ pub fn simulate_solving(
     mut on_step: impl FnMut(&StepView<'_>) -> Result<(), MotionError>,
 ) -> Result<SimStats, MotionError> {
     let ndof = 3 * model.nodes.len();
-    let (x0, k0) = if model.static_start {
-        let (x, f) = static_start(model, mat)?;
-        (x, Some(f))
-    } else {
-        let mut x: Vec<f64> = model.nodes.iter().flatten().copied().collect();
-        model.apply_clamps(0, &mut x);
-        (x, None)
-    };
+    let (x0, k0) = start_state(model, mat)?;
     on_start(&x0, k0.as_ref());
     drop(k0);
     // The creep branch starts fully relaxed at x⁰ ([`super::relaxation`]).
     let mut relax = Relaxation::start(model, mat, &x0)?;
-    if relax.is_some() && model.scheme != Scheme::Bdf2 {
-        return Err(MotionError::Invalid(format!(
-            "the creep branch (relaxed fraction g > 0) is integrated under the BDF2 scheme only; \
-             the model's scheme is {}",
-            model.scheme.name()
-        )));
-    }
-    let (c, ax, av) = model.scheme.coefficients(model.dt);
-    let two = model.scheme.two_step();
-    let (hist_a0, hist_a1, hist_e) = two.force_history(model.dt);
+    let terms = SchemeTerms::new(model);
+    let (c, ax, av) = (terms.c, terms.ax, terms.av);
     // Gravity once; the dead loads switch on at their step.
     let fgrav = model.gravity_load(mat);
     let mut fext = fgrav.clone();
@@ -636,74 +814,20 @@ pub fn simulate_solving(
             fext.copy_from_slice(&fgrav);
             model.add_dead_loads(n, &mut fext);
         }
-        // End-of-step positions of the clamped dofs, and their velocities by BDF2's difference.
+        // End-of-step positions of the clamped dofs.
         let mut x = vec![0.0; ndof];
         model.apply_clamps(n, &mut x);
-        let a2 = 2.0 * model.dt / 3.0;
-        let bdf2_xa = |d: usize| (4.0 * xm1[d] - xm2[d]) / 3.0;
-        // The step's force state as a function of v, its inertia base b, and the clamped
-        // entries of the force state.
-        let (map, b) = match model.scheme {
-            Scheme::Bdf2 => (
-                ForceMap {
-                    xa: (0..ndof).map(bdf2_xa).collect(),
-                    va: vec![0.0; ndof],
-                    ax,
-                    av,
-                },
-                (0..ndof)
-                    .map(|d| (4.0 * vm1[d] - vm2[d]) / 3.0)
-                    .collect::<Vec<f64>>(),
-            ),
-            Scheme::Midpoint => (
-                ForceMap {
-                    xa: (0..ndof).map(|d| xm1[d] + ax * vm1[d]).collect(),
-                    va: (0..ndof).map(|d| av * vm1[d]).collect(),
-                    ax,
-                    av,
-                },
-                vm1.clone(),
-            ),
-            Scheme::Alpha => {
-                let hist_v = |d: usize| two.beta[1] * vm1[d] + two.beta[0] * vm2[d];
-                (
-                    ForceMap {
-                        xa: (0..ndof)
-                            .map(|d| hist_a1 * xm1[d] + hist_a0 * xm2[d] + hist_e * hist_v(d))
-                            .collect(),
-                        va: (0..ndof).map(hist_v).collect(),
-                        ax,
-                        av,
-                    },
-                    (0..ndof)
-                        .map(|d| -(two.alpha[1] * vm1[d] + two.alpha[0] * vm2[d]) / two.alpha[2])
-                        .collect(),
-                )
-            }
-        };
+        let (map, b) = terms.step_map([&xm1, &xm2], [&vm1, &vm2]);
         let (mut xf, mut vf) = (vec![0.0; ndof], vec![0.0; ndof]);
         let branch = relax.as_ref().map(Relaxation::step_branch);
-        // Predictor: the velocity extrapolated quadratically from the last three steps
-        // (second-order like the schemes), so Newton starts O(Δt²) from the answer instead of
-        // O(Δt).
-        let mut v: Vec<f64> = (0..ndof)
-            .map(|d| 3.0 * vm1[d] - 3.0 * vm2[d] + vm3[d])
-            .collect();
-        for d in 0..ndof {
-            if model.free[d] == usize::MAX {
-                v[d] = (x[d] - bdf2_xa(d)) / a2;
-                (xf[d], vf[d]) = match model.scheme {
-                    Scheme::Bdf2 => (x[d], v[d]),
-                    Scheme::Midpoint => (0.5 * (x[d] + xm1[d]), (x[d] - xm1[d]) / model.dt),
-                    // The scheme's own mean velocity Σ β_j v_j = Σ α_j x_j / Δt of the pose.
-                    Scheme::Alpha => (
-                        two.beta[2] * x[d] + two.beta[1] * xm1[d] + two.beta[0] * xm2[d],
-                        (two.alpha[2] * x[d] + two.alpha[1] * xm1[d] + two.alpha[0] * xm2[d])
-                            / model.dt,
-                    ),
-                };
-            }
-        }
+        let mut v = terms.predictor(
+            model,
+            &x,
+            [&xm1, &xm2],
+            [&vm1, &vm2, &vm3],
+            &mut xf,
+            &mut vf,
+        );
         map.fill(&model.free, &v, &mut xf, &mut vf);
         let mut iter = 0;
         let last_factor: Option<Factor>;
@@ -787,10 +911,7 @@ pub fn simulate_solving(
             }
             let done = nrm < model.newton.tol || iter >= model.newton.max_iter;
             if done && !factors {
-                stats.max_residual = stats.max_residual.max(nrm);
-                if nrm >= model.newton.tol {
-                    stats.unconverged_steps += 1;
-                }
+                stats.finish_step(nrm, model.newton.tol);
                 last_factor = None;
                 break;
             }
@@ -810,10 +931,7 @@ pub fn simulate_solving(
                 sv[i] = c * mvals[i] + ax * kv[i] + av * dv[i];
             }
             if done && solve == StepSolve::Kept {
-                stats.max_residual = stats.max_residual.max(nrm);
-                if nrm >= model.newton.tol {
-                    stats.unconverged_steps += 1;
-                }
+                stats.finish_step(nrm, model.newton.tol);
                 kept = Some(match carried.clone() {
                     Some(fac) => (fac, false),
                     None => {
@@ -835,10 +953,7 @@ pub fn simulate_solving(
                     .factor(&sv)
                     .ok_or(MotionError::NotPositiveDefinite { step: n })?;
                 stats.factorisations += 1;
-                stats.max_residual = stats.max_residual.max(nrm);
-                if nrm >= model.newton.tol {
-                    stats.unconverged_steps += 1;
-                }
+                stats.finish_step(nrm, model.newton.tol);
                 kept = Some((fac.clone(), true));
                 last_factor = Some(fac);
                 break;
@@ -873,34 +988,9 @@ pub fn simulate_solving(
             iter += 1;
             stats.newton_iterations += 1;
         }
-        // End-of-step positions of the free dofs.
-        for (d, &fr) in model.free.iter().enumerate() {
-            if fr != usize::MAX {
-                x[d] = match model.scheme {
-                    Scheme::Bdf2 => xf[d],
-                    Scheme::Midpoint => xm1[d] + 0.5 * model.dt * (vm1[d] + v[d]),
-                    Scheme::Alpha => {
-                        two.position(model.dt, [xm2[d], xm1[d]], [vm2[d], vm1[d], v[d]])
-                    }
-                };
-            }
-        }
-        let solver = kept.map(|(fac, exact)| {
-            let solver = StepSolver {
-                // An exact factor never needs S's values.
-                s: if exact { Vec::new() } else { sv.clone() },
-                handed: fac.clone(),
-                factor: RefCell::new(fac),
-                exact: Cell::new(exact),
-                step: n,
-                refactorisations: Cell::new(0),
-                cg_iterations: Cell::new(0),
-            };
-            if let Some(r) = &refresh {
-                solver.precondition_after(r);
-            }
-            solver
-        });
+        terms.end_positions(model, &xf, &v, [&xm1, &xm2], [&vm1, &vm2], &mut x);
+        let solver =
+            kept.map(|(fac, exact)| StepSolver::for_step(n, fac, exact, &sv, refresh.as_ref()));
         if let (Some(r), Some(b)) = (relax.as_mut(), &branch) {
             r.advance(model, mat, b, &x)?;
         }

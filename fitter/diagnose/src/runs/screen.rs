@@ -3,12 +3,16 @@
 //! values (the current model), from which a continuous candidate's gain is predicted by one step
 //! over the current parameters and its own. The other candidates predict themselves
 //! ([`super::candidates`]).
+//!
+//! Creep's neutral value g = 0 is no branch at all, whose relaxed fraction has no sensitivity to
+//! carry; the evaluation holds it at [`creep::SCREEN_FRACTION`] instead (the runs are the current
+//! model's to about that fraction), where dr/dg is the slope at g = 0, and τ at its fit's start.
 
 use palpate_motion::gradient::evaluate_gauss_newton;
 use palpate_motion::model::{Param, ParamKind};
 use palpate_motion::MotionError;
 
-use super::candidates::Effect;
+use super::candidates::{creep, Effect};
 use super::fit::RunsModel;
 use super::RunsFit;
 use crate::screen::{self, Normal};
@@ -34,6 +38,9 @@ pub(in crate::runs) struct ScreenPoint<'a> {
     normals: Vec<Normal>,
     /// Each fitted run's marker χ² (m²) at the same evaluation.
     run_chi2: Vec<f64>,
+    /// Whether the creep branch's relaxed fraction has its slope in `normals` (creep is open
+    /// and no fitted run observes clamp forces, which a model with the branch cannot predict).
+    pub(in crate::runs) creep_slope: bool,
 }
 
 impl<'a> ScreenPoint<'a> {
@@ -62,9 +69,19 @@ impl<'a> ScreenPoint<'a> {
             mat.set(&[Param::global(*k)], &[neutral]);
         }
         let (mut normals, mut run_chi2) = (Vec::new(), Vec::new());
+        let mut creep_slope = false;
         if open.iter().any(|c| !c.kinds().is_empty()) {
             let runs = room.retimed(&cur.effects, &cur.offsets)?;
             room.count(runs.len(), true);
+            creep_slope = open.contains(&Effect::Creep)
+                && !cur.material.has_creep()
+                && runs.iter().all(|(_, obs)| {
+                    obs.force_weight == 0.0 || obs.forces.iter().flatten().all(Option::is_none)
+                });
+            if creep_slope {
+                mat.set_uniform(ParamKind::CreepFraction, creep::SCREEN_FRACTION);
+                mat.set_uniform(ParamKind::CreepTime, creep::start_time(room));
+            }
             // λ is tied to μ at the held Poisson's ratio: its column is folded into μ's.
             let mut params: Vec<Param> = kinds.iter().map(|k| Param::global(*k)).collect();
             params.push(Param::global(ParamKind::Lambda));
@@ -95,6 +112,7 @@ impl<'a> ScreenPoint<'a> {
             kinds,
             normals,
             run_chi2,
+            creep_slope,
         })
     }
 
@@ -108,6 +126,16 @@ impl<'a> ScreenPoint<'a> {
     /// The prediction of a continuous candidate that frees `kinds` (`k` parameters): χ² after one
     /// Gauss–Newton step over the current parameters and `kinds` from their neutral values.
     pub(in crate::runs) fn stepped(&self, kinds: &[ParamKind], k: usize) -> Prediction {
+        self.stepped_as(kinds, k, "one Gauss–Newton step from the neutral value")
+    }
+
+    /// [`Self::stepped`], its method told in `how`.
+    pub(in crate::runs) fn stepped_as(
+        &self,
+        kinds: &[ParamKind],
+        k: usize,
+        how: &str,
+    ) -> Prediction {
         if kinds.is_empty() || self.normals.is_empty() {
             return Prediction::none("no parameter to linearise: always fitted");
         }
@@ -137,7 +165,7 @@ impl<'a> ScreenPoint<'a> {
         let chi2 = self.chi2.0 * stepped / sim.max(f64::MIN_POSITIVE);
         Prediction {
             delta_bic: Some(self.delta_bic(chi2, k)),
-            how: "one Gauss–Newton step from the neutral value".into(),
+            how: how.into(),
         }
     }
 }

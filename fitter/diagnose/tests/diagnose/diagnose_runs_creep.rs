@@ -30,14 +30,19 @@ fn run(name: &str, seed: u64, t: &dyn Fn(&MotionDataset) -> Material) -> (String
 /// Two fitted and two held-out runs ([`run`]), diagnosed with the candidates that can be in
 /// such a body's model: damping, the weight's inertia and creep.
 fn diagnose(g: f64) -> RunsDiagnosis {
-    let t = truth(g);
-    let fit = vec![run("creep-a", 1, &t), run("creep-b", 2, &t)];
-    let held = vec![run("creep-c", 3, &t), run("creep-d", 4, &t)];
+    diagnose_with(&truth(g), g, RunsOptions::default())
+}
+
+/// [`diagnose`] of runs recorded from `t` (relaxed fraction `g`, for the log) with `options`'
+/// screen.
+fn diagnose_with(t: &dyn Fn(&MotionDataset) -> Material, g: f64, o: RunsOptions) -> RunsDiagnosis {
+    let fit = vec![run("creep-a", 1, t), run("creep-b", 2, t)];
+    let held = vec![run("creep-c", 3, t), run("creep-d", 4, t)];
     let options = RunsOptions {
         poisson: 1.0 / 3.0,
         start_mu: 2.0e4,
         candidates: vec![Effect::Damping, Effect::HangingInertia, Effect::Creep],
-        ..Default::default()
+        ..o
     };
     let d = diagnose_runs(&fit, &held, &options, &|m| eprintln!("{m}")).unwrap();
     eprintln!(
@@ -73,4 +78,74 @@ fn gives_no_creep_to_a_body_without_it() {
     let d = diagnose(0.0);
     assert!(!d.adopted.contains(&Effect::Creep), "{:?}", d.adopted);
     assert!(d.model.creep.is_none());
+}
+
+/// The creep trials of a diagnosis: (round, predicted ΔBIC, fitted ΔBIC, screened out).
+fn creep_trials(d: &RunsDiagnosis) -> Vec<(usize, Option<f64>, f64, bool)> {
+    d.trials
+        .iter()
+        .filter(|t| t.effect == Effect::Creep)
+        .map(|t| (t.round, t.predicted_delta_bic, t.delta_bic, t.screened_out))
+        .collect()
+}
+
+/// A small branch (g = 0.05) whose time is the one creep's fit starts from (a quarter of the
+/// run), so that the screen's step in g with τ held is the linearisation of the truth: every
+/// prediction is finite, and where creep gains most the prediction is a lower bound of the
+/// fitted gain within 25 % of it (measured: −7,343 predicted, −8,837 fitted, in the round it is
+/// adopted; what is left is the curvature in g and μ's refit).
+#[test]
+fn screen_predicts_a_small_creep_branch() {
+    let g = 0.05;
+    let t = move |ds: &MotionDataset| {
+        let mut m = truth(g)(ds);
+        let tau = 0.25 * ds.model.steps as f64 * ds.model.dt;
+        m.set_uniform(ParamKind::CreepTime, tau);
+        m
+    };
+    let d = diagnose_with(&t, g, RunsOptions::default());
+    let trials = creep_trials(&d);
+    eprintln!("creep trials (round, predicted, fitted, screened out): {trials:?}");
+    assert!(
+        trials.iter().all(|t| t.1.is_some_and(f64::is_finite)),
+        "{trials:?}"
+    );
+    let best = trials
+        .iter()
+        .filter(|t| !t.3)
+        .min_by(|a, b| a.2.total_cmp(&b.2))
+        .expect("creep fitted");
+    let (predicted, fitted) = (best.1.unwrap(), best.2);
+    let ratio = predicted / fitted;
+    assert!(
+        fitted < -10.0 && (0.75..1.0).contains(&ratio),
+        "round {}: predicted ΔBIC {predicted}, fitted {fitted}",
+        best.0
+    );
+}
+
+/// Runs without creep: every creep prediction is finite, and once damping and the weight's
+/// inertia are in the model (the last round creep is tried) the screen predicts, as the fit
+/// finds, that creep does not pay for its two parameters (measured: +14.3 predicted, +12.1
+/// fitted). Before damping is adopted a relaxing stress is a loss too and creep is predicted
+/// to pay (−4,278): there it is fitted, as it should be.
+#[test]
+fn screen_predicts_no_gain_from_creep_where_there_is_none() {
+    let o = RunsOptions {
+        screen_least: 1,
+        ..Default::default()
+    };
+    let d = diagnose_with(&truth(0.0), 0.0, o);
+    let trials = creep_trials(&d);
+    eprintln!("creep trials (round, predicted, fitted, screened out): {trials:?}");
+    assert!(!d.adopted.contains(&Effect::Creep), "{:?}", d.adopted);
+    assert!(
+        trials.iter().all(|t| t.1.is_some_and(f64::is_finite)),
+        "{trials:?}"
+    );
+    let last = trials.last().expect("creep tried");
+    assert!(
+        last.1.is_some_and(|p| p > -10.0) && last.2 > -10.0,
+        "{trials:?}"
+    );
 }

@@ -6,9 +6,13 @@
 //! capture ends, point to it.
 //!
 //! Its fit starts at g = 0.05 and τ a quarter of the shortest fitted run (creep slower than the
-//! ring-down but seen within the capture). At g = 0 the branch is absent and τ has no effect,
-//! so there is no slope to linearise about: the fit screen does not predict it, it is always
-//! fitted.
+//! ring-down but seen within the capture). The fit screen predicts it by one Gauss–Newton step
+//! in g itself from g = 0 with τ held at that start (at g = 0, τ has no effect: there is no slope
+//! in τ, nor in ln g, the fit's coordinate). A step with τ held can only under-state the gain of
+//! the fit, which frees τ; the screen's own rule then decides (fitted when among the best
+//! predicted or within its margin of the best, or as a fall-back when nothing fitted passes and
+//! it is predicted to pay). Runs that observe clamp forces, which a model with the branch cannot
+//! predict, leave it unpredicted: always fitted.
 
 use palpate_motion::fitted::FittedModel;
 use palpate_motion::model::{Material, ParamKind};
@@ -22,6 +26,27 @@ use crate::select::{ParamValue, Prediction};
 /// The relaxed fraction the fit starts from: a small branch, so that the start is the current
 /// model nearly unchanged.
 const START_FRACTION: f64 = 0.05;
+
+/// The relaxed fraction the fit screen linearises at ([`ScreenPoint`]): at g = 0 the branch is
+/// absent and carries no sensitivity, while here the runs differ from the current model's by
+/// about this fraction of the branch's effect and dr/dg is its slope at g = 0 to the same
+/// fraction — far below anything the screen's rule turns on.
+pub(in crate::runs) const SCREEN_FRACTION: f64 = 1e-6;
+
+/// The relaxation time the fit starts from (s): a quarter of the shortest fitted run (1 s when
+/// the runs have no length).
+pub(in crate::runs) fn start_time(room: &RunsModel) -> f64 {
+    let shortest = room
+        .fit
+        .iter()
+        .map(|(_, d)| d.model.steps as f64 * d.model.dt)
+        .fold(f64::INFINITY, f64::min);
+    if shortest.is_finite() && shortest > 0.0 {
+        0.25 * shortest
+    } else {
+        1.0
+    }
+}
 
 /// See the module.
 pub struct Creep;
@@ -39,16 +64,7 @@ impl RunsEffect for Creep {
         if start.has_creep() {
             return;
         }
-        let shortest = room
-            .fit
-            .iter()
-            .map(|(_, d)| d.model.steps as f64 * d.model.dt)
-            .fold(f64::INFINITY, f64::min);
-        let tau = if shortest.is_finite() && shortest > 0.0 {
-            0.25 * shortest
-        } else {
-            1.0
-        };
+        let tau = start_time(room);
         (room.log)(&format!(
             "round {round}: creep starts at g = {START_FRACTION}, τ = {tau:.3} s (a quarter of \
              the shortest fitted run)"
@@ -57,11 +73,17 @@ impl RunsEffect for Creep {
         start.set_uniform(ParamKind::CreepTime, tau);
     }
 
-    fn predict(&self, _room: &mut RunsModel, _at: &ScreenPoint) -> Result<Prediction, RunsError> {
-        Ok(Prediction {
-            delta_bic: None,
-            how: "no slope at g = 0: always fitted".into(),
-        })
+    fn predict(&self, room: &mut RunsModel, at: &ScreenPoint) -> Result<Prediction, RunsError> {
+        if !at.creep_slope {
+            return Ok(Prediction::none(
+                "clamp forces observed, which the branch cannot predict: always fitted",
+            ));
+        }
+        let how = format!(
+            "one Gauss–Newton step in g from 0, τ held at {:.3} s",
+            start_time(room)
+        );
+        Ok(at.stepped_as(&[ParamKind::CreepFraction], self.parameters(at.runs), &how))
     }
 
     fn values(&self, material: &Material) -> Vec<ParamValue> {

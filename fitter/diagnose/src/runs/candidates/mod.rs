@@ -16,7 +16,7 @@ use super::screen::ScreenPoint;
 use super::{RunsDiagnosis, RunsError, RunsFit};
 use crate::select::{Outcome, ParamValue, Prediction};
 
-mod creep;
+pub(in crate::runs) mod creep;
 mod damping;
 mod damping_power_law;
 mod hanging_inertia;
