@@ -377,6 +377,16 @@ pub fn diagnose_runs_with(
         simulations: Default::default(),
         ahead: Default::default(),
     };
+    for c in &o.candidates {
+        let e = c.effect();
+        if !e.available(&m) {
+            log(&format!(
+                "{} not offered: {}",
+                e.name(),
+                e.unavailable_because()
+            ));
+        }
+    }
     log("fitting the simplest model (Neo-Hookean, fixed Poisson's ratio, no damping)");
     let start = m.fit(&[], &base, &[], o.max_iters)?;
     let start_held = Held {
