@@ -52,6 +52,7 @@
 //! mass (the hanging weight's inertia); a decay it gets wrong at the damping.
 
 mod candidates;
+pub mod convergence;
 mod fit;
 pub mod report;
 pub mod run;
@@ -109,6 +110,9 @@ pub struct RunsOptions {
     /// With the screen: a candidate is fitted when its predicted ΔBIC is within this fraction of
     /// the best predicted one's magnitude.
     pub screen_margin: f64,
+    /// Fit the fitted runs' rest states on linear and quadratic elements after the diagnosis
+    /// ([`convergence`]): whether the fitted modulus is the material's or the mesh's.
+    pub mesh_convergence: bool,
 }
 
 impl Default for RunsOptions {
@@ -128,6 +132,7 @@ impl Default for RunsOptions {
             screen: true,
             screen_least: 2,
             screen_margin: 0.5,
+            mesh_convergence: true,
         }
     }
 }
@@ -263,6 +268,9 @@ pub struct RunsDiagnosis {
     /// The final model as the record `palpate validate` reads.
     #[serde(skip)]
     pub model: FittedModel,
+    /// Whether the fitted modulus is the material's or the mesh's ([`convergence`]); `None`
+    /// when not asked for.
+    pub mesh_convergence: Option<convergence::MeshConvergence>,
     /// Seconds the diagnosis took.
     pub seconds: f64,
     /// Simulations of one run the diagnosis made.
@@ -428,6 +436,10 @@ pub fn diagnose_runs_with(
     m.count(3 * runs.len(), false);
     let values = final_values(&last, nu, sd_mu);
     let model = fitted_model(fit, &models, &last, nu);
+    let mesh_convergence = o.mesh_convergence.then(|| {
+        let mu = last.material.get(ParamKind::Mu, 0);
+        convergence::check(fit, nu, mu, rms_of(&last.fitted), log)
+    });
     Ok(RunsDiagnosis {
         fitted_runs: fit.iter().map(|(n, _)| n.clone()).collect(),
         held_out_runs: held.iter().map(|(n, _)| n.clone()).collect(),
@@ -442,6 +454,7 @@ pub fn diagnose_runs_with(
         after: (last.fitted, last_held.runs),
         values,
         model,
+        mesh_convergence,
         seconds: t0.elapsed().as_secs_f64(),
         simulations: m.simulations.get(),
     })
