@@ -52,7 +52,6 @@
 //! mass (the hanging weight's inertia); a decay it gets wrong at the damping.
 
 mod candidates;
-pub mod convergence;
 mod fit;
 pub mod report;
 pub mod run;
@@ -111,7 +110,7 @@ pub struct RunsOptions {
     /// the best predicted one's magnitude.
     pub screen_margin: f64,
     /// Fit the fitted runs' rest states on linear and quadratic elements after the diagnosis
-    /// ([`convergence`]): whether the fitted modulus is the material's or the mesh's.
+    /// ([`crate::convergence`]): whether the fitted modulus is the material's or the mesh's.
     pub mesh_convergence: bool,
 }
 
@@ -268,9 +267,9 @@ pub struct RunsDiagnosis {
     /// The final model as the record `palpate validate` reads.
     #[serde(skip)]
     pub model: FittedModel,
-    /// Whether the fitted modulus is the material's or the mesh's ([`convergence`]); `None`
+    /// Whether the fitted modulus is the material's or the mesh's ([`crate::convergence`]); `None`
     /// when not asked for.
-    pub mesh_convergence: Option<convergence::MeshConvergence>,
+    pub mesh_convergence: Option<crate::convergence::MeshConvergence>,
     /// Seconds the diagnosis took.
     pub seconds: f64,
     /// Simulations of one run the diagnosis made.
@@ -438,7 +437,7 @@ pub fn diagnose_runs_with(
     let model = fitted_model(fit, &models, &last, nu);
     let mesh_convergence = o.mesh_convergence.then(|| {
         let mu = last.material.get(ParamKind::Mu, 0);
-        convergence::check(fit, nu, mu, rms_of(&last.fitted), log)
+        crate::convergence::check(fit, nu, mu, rms_of(&last.fitted), log)
     });
     Ok(RunsDiagnosis {
         fitted_runs: fit.iter().map(|(n, _)| n.clone()).collect(),

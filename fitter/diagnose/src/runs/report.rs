@@ -176,62 +176,11 @@ fn per_run(md: &mut String, r: &RunsDiagnosis) {
     }
 }
 
-/// Whether the fitted modulus is the material's or the mesh's ([`super::convergence`]).
+/// Whether the fitted modulus is the material's or the mesh's ([`crate::convergence`]).
 fn mesh_convergence(md: &mut String, r: &RunsDiagnosis) {
-    use super::convergence::{MeshConvergence, TOLERANCE};
-    let Some(c) = &r.mesh_convergence else {
-        return;
-    };
-    let _ = writeln!(md, "\n## Mesh convergence of the modulus\n");
-    let (window_s, linear, quadratic) = match c {
-        MeshConvergence::Skipped { reason } => {
-            let _ = writeln!(md, "Not checked: {reason}.\n");
-            return;
-        }
-        MeshConvergence::Checked {
-            window_s,
-            linear,
-            quadratic,
-            ..
-        } => (window_s, linear, quadratic),
-    };
-    let rms = |m: &super::convergence::RestModulus| {
-        m.rest_rms_m
-            .iter()
-            .map(|v| mm(*v))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
-    let _ = writeln!(
-        md,
-        "The fitted runs' rest states (the markers' mean over the last {window_s} s of each) fitted \
-         for E at the held Poisson's ratio on this mesh, with the motion fit's linear elements and with \
-         quadratic 10-node elements on the same corners (which do not lock in bending):\n\n\
-         | elements | E | rest-state RMS per fitted run (mm) |\n|---|---|---|\n\
-         | linear (P1, the motion fit's) | {} | {} |\n| quadratic (P2) | {} | {} |\n",
-        numbers::pressure(linear.young_pa),
-        rms(linear),
-        numbers::pressure(quadratic.young_pa),
-        rms(quadratic),
-    );
-    let d = 100.0 * c.difference().unwrap_or(f64::NAN);
-    let _ = if c.converged() == Some(true) {
-        writeln!(
-            md,
-            "**Converged**: the two differ by {d:+.1} % (within {:.0} %): the fitted modulus is the \
-             material's, not this mesh's.\n",
-            100.0 * TOLERANCE
-        )
-    } else {
-        writeln!(
-            md,
-            "**Not converged**: quadratic elements give {d:+.1} % (more than {:.0} %). The motion fit's \
-             modulus is this mesh's: carried to another mesh or object it is wrong by about that much. \
-             The material's modulus is the quadratic figure; the fitted model is this mesh's effective one, \
-             right on this mesh (what the runtime replays).\n",
-            100.0 * TOLERANCE
-        )
-    };
+    if let Some(c) = &r.mesh_convergence {
+        md.push_str(&c.markdown());
+    }
 }
 
 /// The final model's parameters and elastic constants, and the figures.

@@ -4,7 +4,7 @@
 //! after with the linear baseline, export the fitted beam and play a tip load in the runtime.
 
 use anyhow::Context;
-use palpate_diagnose::runs::convergence::MeshConvergence;
+use palpate_diagnose::convergence::MeshConvergence;
 use palpate_diagnose::runs::{diagnose_runs, report::write_report, RunsDiagnosis, RunsOptions};
 use palpate_fem::export::ProvenanceInfo;
 use palpate_link::replay::settle_contact_force;

@@ -5,7 +5,7 @@
 //! whose markers move more in the window than the fit's error allows has no rest state to fit.
 
 use crate::common::{self, assert_succeeded};
-use palpate_diagnose::runs::convergence::{check, MeshConvergence};
+use palpate_diagnose::convergence::{check, MeshConvergence};
 
 #[test]
 fn the_beams_modulus_on_linear_tets_is_the_meshs() {

@@ -11,9 +11,11 @@
 //! A run whose markers still move in the window (their scatter about its mean above the final
 //! model's fitted RMS) has no rest state to fit: the check is skipped and says so.
 
+use palpate_fem::numbers;
 use palpate_motion::dataset::MotionDataset;
 use palpate_motion::rest_fit::{fit_shear_modulus, Design, RestSolve, RestState};
 use serde::Serialize;
+use std::fmt::Write as _;
 
 /// The last stretch of each capture taken as its rest state (s).
 pub const WINDOW_S: f64 = 0.5;
@@ -81,6 +83,61 @@ impl MeshConvergence {
     /// when not checked.
     pub fn converged(&self) -> Option<bool> {
         self.difference().map(|d| d.abs() <= TOLERANCE)
+    }
+
+    /// The report's section: both moduli, the fitted runs' rest-state errors and the verdict,
+    /// or why it was not checked.
+    pub fn markdown(&self) -> String {
+        let mut md = String::from("\n## Mesh convergence of the modulus\n\n");
+        let (window_s, linear, quadratic) = match self {
+            Self::Skipped { reason } => {
+                let _ = writeln!(md, "Not checked: {reason}.\n");
+                return md;
+            }
+            Self::Checked {
+                window_s,
+                linear,
+                quadratic,
+                ..
+            } => (window_s, linear, quadratic),
+        };
+        let rms = |m: &RestModulus| {
+            m.rest_rms_m
+                .iter()
+                .map(|v| format!("{:.3}", 1e3 * v))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let _ = writeln!(
+            md,
+            "The fitted runs' rest states (the markers' mean over the last {window_s} s of each) \
+             fitted for E at the held Poisson's ratio on this mesh, with the motion fit's linear \
+             elements and with quadratic 10-node elements on the same corners (which do not lock in \
+             bending):\n\n| elements | E | rest-state RMS per fitted run (mm) |\n|---|---|---|\n\
+             | linear (P1, the motion fit's) | {} | {} |\n| quadratic (P2) | {} | {} |\n",
+            numbers::pressure(linear.young_pa),
+            rms(linear),
+            numbers::pressure(quadratic.young_pa),
+            rms(quadratic),
+        );
+        let d = 100.0 * self.difference().unwrap_or(f64::NAN);
+        let tol = 100.0 * TOLERANCE;
+        let _ = if self.converged() == Some(true) {
+            writeln!(
+                md,
+                "**Converged**: the two differ by {d:+.1} % (within {tol:.0} %): the fitted modulus \
+                 is the material's, not this mesh's.\n"
+            )
+        } else {
+            writeln!(
+                md,
+                "**Not converged**: quadratic elements give {d:+.1} % (more than {tol:.0} %). The \
+                 motion fit's modulus is this mesh's: carried to another mesh or object it is wrong by \
+                 about that much. The material's modulus is the quadratic figure; the fitted model is \
+                 this mesh's effective one, right on this mesh (what the runtime replays).\n"
+            )
+        };
+        md
     }
 }
 
@@ -187,5 +244,49 @@ fn scatter_in_window(ds: &MotionDataset, window: f64) -> f64 {
         f64::INFINITY
     } else {
         (sum / count as f64).sqrt()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn checked(p1: f64, p2: f64) -> MeshConvergence {
+        let m = |design, young_pa| RestModulus {
+            design,
+            young_pa,
+            rest_rms_m: vec![4e-4, 7e-4],
+            iterations: 3,
+        };
+        MeshConvergence::Checked {
+            window_s: WINDOW_S,
+            poisson: 0.49,
+            linear: m("P1", p1),
+            quadratic: m("P2", p2),
+        }
+    }
+
+    #[test]
+    fn the_verdict_turns_at_the_tolerance() {
+        let locked = checked(133.3e3, 256.3e3);
+        assert_eq!(locked.converged(), Some(false));
+        let md = locked.markdown();
+        assert!(
+            md.contains("**Not converged**") && md.contains("+92.3 %"),
+            "{md}"
+        );
+        assert!(md.contains("0.400, 0.700"), "{md}");
+        let close = checked(250e3, 250e3 * (1.0 + 0.9 * TOLERANCE));
+        assert_eq!(close.converged(), Some(true));
+        assert!(close.markdown().contains("**Converged**"));
+        assert_eq!(
+            checked(250e3, 250e3 * (1.0 - 1.1 * TOLERANCE)).converged(),
+            Some(false)
+        );
+        let skipped = MeshConvergence::Skipped {
+            reason: "no density".into(),
+        };
+        assert_eq!(skipped.converged(), None);
+        assert!(skipped.markdown().contains("Not checked: no density."));
     }
 }
