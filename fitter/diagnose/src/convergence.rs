@@ -85,6 +85,27 @@ impl MeshConvergence {
         self.difference().map(|d| d.abs() <= TOLERANCE)
     }
 
+    /// One line for a terminal: both moduli and the verdict, or why it was not checked.
+    pub fn summary_line(&self) -> String {
+        match self {
+            Self::Skipped { reason } => format!("mesh convergence not checked: {reason}"),
+            Self::Checked {
+                linear, quadratic, ..
+            } => format!(
+                "mesh convergence: E {} on linear elements, {} on quadratic ones ({:+.1} %): {}",
+                numbers::pressure(linear.young_pa),
+                numbers::pressure(quadratic.young_pa),
+                100.0 * self.difference().unwrap_or(f64::NAN),
+                if self.converged() == Some(true) {
+                    "converged, the modulus is the material's"
+                } else {
+                    "not converged, the fitted modulus is this mesh's and the quadratic one the \
+                     material's"
+                }
+            ),
+        }
+    }
+
     /// The report's section: both moduli, the fitted runs' rest-state errors and the verdict,
     /// or why it was not checked.
     pub fn markdown(&self) -> String {
@@ -145,7 +166,7 @@ impl MeshConvergence {
 /// `fitted_rms_m` is the final model's fitted marker RMS, the scale below which the markers'
 /// scatter in the window counts as at rest. `log` receives progress lines.
 pub fn check(
-    fit: &[(String, MotionDataset)],
+    fit: &[(&str, &MotionDataset)],
     poisson: f64,
     mu: f64,
     fitted_rms_m: f64,
@@ -153,7 +174,7 @@ pub fn check(
 ) -> MeshConvergence {
     let skipped = |reason: String| MeshConvergence::Skipped { reason };
     let mut states = Vec::with_capacity(fit.len());
-    for (name, ds) in fit {
+    for &(name, ds) in fit {
         if ds.config.density.is_none() {
             return skipped(format!(
                 "{name} declares no density: a rest state needs the body's weight"
@@ -276,6 +297,11 @@ mod tests {
             "{md}"
         );
         assert!(md.contains("0.400, 0.700"), "{md}");
+        let line = locked.summary_line();
+        assert!(
+            line.contains("+92.3 %") && line.contains("not converged"),
+            "{line}"
+        );
         let close = checked(250e3, 250e3 * (1.0 + 0.9 * TOLERANCE));
         assert_eq!(close.converged(), Some(true));
         assert!(close.markdown().contains("**Converged**"));

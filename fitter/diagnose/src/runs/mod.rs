@@ -437,7 +437,8 @@ pub fn diagnose_runs_with(
     let model = fitted_model(fit, &models, &last, nu);
     let mesh_convergence = o.mesh_convergence.then(|| {
         let mu = last.material.get(ParamKind::Mu, 0);
-        crate::convergence::check(fit, nu, mu, rms_of(&last.fitted), log)
+        let named: Vec<(&str, &MotionDataset)> = fit.iter().map(|(n, d)| (n.as_str(), d)).collect();
+        crate::convergence::check(&named, nu, mu, rms_of(&last.fitted), log)
     });
     Ok(RunsDiagnosis {
         fitted_runs: fit.iter().map(|(n, _)| n.clone()).collect(),

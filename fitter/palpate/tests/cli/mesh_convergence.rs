@@ -3,6 +3,7 @@
 //! Linear tetrahedra lock at ν = 0.49, so the check must find the modulus not converged, with the
 //! figures `docs/results/beam/convergence.md` measured (E 133.3 kPa P1, 256.3 kPa P2); and a run
 //! whose markers move more in the window than the fit's error allows has no rest state to fit.
+//! `palpate fit-motion --mesh-convergence` prints the same verdict.
 
 use crate::common::{self, assert_succeeded};
 use palpate_diagnose::convergence::{check, MeshConvergence};
@@ -26,6 +27,8 @@ fn the_beams_modulus_on_linear_tets_is_the_meshs() {
             palpate_motion::dataset::load(&out).unwrap(),
         ));
     }
+    let fit: Vec<(&str, &palpate_motion::dataset::MotionDataset)> =
+        fit.iter().map(|(n, d)| (n.as_str(), d)).collect();
     let nu = 0.49;
     let mu = 133e3 / (2.0 * (1.0 + nu));
     // The markers settle to ≈ 0.1 mm of scatter; a fit 1 µm off would call them moving.
@@ -53,4 +56,19 @@ fn the_beams_modulus_on_linear_tets_is_the_meshs() {
     );
     assert_eq!(c.converged(), Some(false));
     assert!(c.difference().unwrap() > 0.5, "{c:?}");
+    // The same check from the command line, after an equilibria fit of the two runs.
+    let out = common::palpate()
+        .args(["fit-motion"])
+        .arg(dir.path().join("gravity_V2_a"))
+        .arg(dir.path().join("load52_V2_a"))
+        .args(["--equilibria", "--poisson", "0.49", "--mesh-convergence"])
+        .output()
+        .unwrap();
+    assert_succeeded(&out);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let line = stdout
+        .lines()
+        .find(|l| l.starts_with("mesh convergence: E"))
+        .unwrap_or_else(|| panic!("no convergence line in {stdout}"));
+    assert!(line.contains("not converged"), "{line}");
 }
