@@ -110,17 +110,17 @@ impl MeshConvergence {
     /// or why it was not checked.
     pub fn markdown(&self) -> String {
         let mut md = String::from("\n## Mesh convergence of the modulus\n\n");
-        let (window_s, linear, quadratic) = match self {
+        let (window_s, poisson, linear, quadratic) = match self {
             Self::Skipped { reason } => {
                 let _ = writeln!(md, "Not checked: {reason}.\n");
                 return md;
             }
             Self::Checked {
                 window_s,
+                poisson,
                 linear,
                 quadratic,
-                ..
-            } => (window_s, linear, quadratic),
+            } => (window_s, poisson, linear, quadratic),
         };
         let rms = |m: &RestModulus| {
             m.rest_rms_m
@@ -132,7 +132,7 @@ impl MeshConvergence {
         let _ = writeln!(
             md,
             "The fitted runs' rest states (the markers' mean over the last {window_s} s of each) \
-             fitted for E at the held Poisson's ratio on this mesh, with the motion fit's linear \
+             fitted for E at the motion fit's Poisson's ratio ({poisson:.3}) on this mesh, with its linear \
              elements and with quadratic 10-node elements on the same corners (which do not lock in \
              bending):\n\n| elements | E | rest-state RMS per fitted run (mm) |\n|---|---|---|\n\
              | linear (P1, the motion fit's) | {} | {} |\n| quadratic (P2) | {} | {} |\n",
