@@ -26,6 +26,7 @@
 /// The version the reports and exported models name as their tool.
 pub const VERSION: &str = env!("CARGO_PKG_VERSION");
 
+pub mod convergence;
 pub mod curve;
 mod error;
 mod json;

@@ -91,6 +91,10 @@ pub struct MotionOptions {
     pub mesh_error: bool,
     /// The error is measured only when the refined mesh has at most this many tetrahedra.
     pub refine_max_tets: usize,
+    /// Fit the capture's rest state (its last 0.5 s) on linear and quadratic elements after the
+    /// diagnosis ([`crate::convergence`]): whether the fitted modulus is the material's or the
+    /// mesh's. Skipped, saying why, where the markers have not settled.
+    pub mesh_convergence: bool,
 }
 
 impl Default for MotionOptions {
@@ -108,6 +112,7 @@ impl Default for MotionOptions {
             screen_margin: 0.5,
             mesh_error: true,
             refine_max_tets: 50_000,
+            mesh_convergence: true,
         }
     }
 }
@@ -214,6 +219,9 @@ pub struct MotionDiagnosis {
     pub screen_simulations: usize,
     /// The dataset mesh's own discretisation error at the simplest fit, stated.
     pub mesh: mesh::MeshNote,
+    /// Whether the fitted modulus is the material's or the mesh's ([`crate::convergence`]);
+    /// `None` when not asked for.
+    pub mesh_convergence: Option<crate::convergence::MeshConvergence>,
     /// Final material (for export; not serialised).
     #[serde(skip)]
     pub material: Option<Material>,
@@ -351,6 +359,12 @@ pub fn diagnose(
         .last()
         .map(|p| p.0.clone())
         .expect("the start is on the path");
+    let mesh_convergence = o.mesh_convergence.then(|| {
+        let mean = |k| (0..ne).map(|e| cur.material.get(k, e)).sum::<f64>() / ne.max(1) as f64;
+        let (lambda, mu) = (mean(ParamKind::Lambda), mean(ParamKind::Mu));
+        let poisson = lambda / (2.0 * (lambda + mu));
+        crate::convergence::check(&[(label, ds)], poisson, mu, cur.scores.rms_fit, log)
+    });
     let mut sp_b = Vec::new();
     let final_signature = signature(ds, split, &cur);
     sp_b.extend(signature(ds, split, &simplest).speed_bins);
@@ -397,6 +411,7 @@ pub fn diagnose(
         evaluations,
         screen_simulations,
         mesh: mesh_note,
+        mesh_convergence,
         material: Some(cur.material.clone()),
     })
 }

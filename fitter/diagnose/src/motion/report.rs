@@ -212,6 +212,9 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
         r.final_signature.reading,
         palpate_plot::shown("residual-vs-speed.svg")
     );
+    if let Some(c) = &r.mesh_convergence {
+        md.push_str(&c.markdown());
+    }
     md
 }
 

@@ -109,6 +109,9 @@ pub struct RunsOptions {
     /// With the screen: a candidate is fitted when its predicted ΔBIC is within this fraction of
     /// the best predicted one's magnitude.
     pub screen_margin: f64,
+    /// Fit the fitted runs' rest states on linear and quadratic elements after the diagnosis
+    /// ([`crate::convergence`]): whether the fitted modulus is the material's or the mesh's.
+    pub mesh_convergence: bool,
 }
 
 impl Default for RunsOptions {
@@ -128,6 +131,7 @@ impl Default for RunsOptions {
             screen: true,
             screen_least: 2,
             screen_margin: 0.5,
+            mesh_convergence: true,
         }
     }
 }
@@ -263,6 +267,9 @@ pub struct RunsDiagnosis {
     /// The final model as the record `palpate validate` reads.
     #[serde(skip)]
     pub model: FittedModel,
+    /// Whether the fitted modulus is the material's or the mesh's ([`crate::convergence`]); `None`
+    /// when not asked for.
+    pub mesh_convergence: Option<crate::convergence::MeshConvergence>,
     /// Seconds the diagnosis took.
     pub seconds: f64,
     /// Simulations of one run the diagnosis made.
@@ -377,6 +384,16 @@ pub fn diagnose_runs_with(
         simulations: Default::default(),
         ahead: Default::default(),
     };
+    for c in &o.candidates {
+        let e = c.effect();
+        if !e.available(&m) {
+            log(&format!(
+                "{} not offered: {}",
+                e.name(),
+                e.unavailable_because()
+            ));
+        }
+    }
     log("fitting the simplest model (Neo-Hookean, fixed Poisson's ratio, no damping)");
     let start = m.fit(&[], &base, &[], o.max_iters)?;
     let start_held = Held {
@@ -418,6 +435,11 @@ pub fn diagnose_runs_with(
     m.count(3 * runs.len(), false);
     let values = final_values(&last, nu, sd_mu);
     let model = fitted_model(fit, &models, &last, nu);
+    let mesh_convergence = o.mesh_convergence.then(|| {
+        let mu = last.material.get(ParamKind::Mu, 0);
+        let named: Vec<(&str, &MotionDataset)> = fit.iter().map(|(n, d)| (n.as_str(), d)).collect();
+        crate::convergence::check(&named, nu, mu, rms_of(&last.fitted), log)
+    });
     Ok(RunsDiagnosis {
         fitted_runs: fit.iter().map(|(n, _)| n.clone()).collect(),
         held_out_runs: held.iter().map(|(n, _)| n.clone()).collect(),
@@ -432,6 +454,7 @@ pub fn diagnose_runs_with(
         after: (last.fitted, last_held.runs),
         values,
         model,
+        mesh_convergence,
         seconds: t0.elapsed().as_secs_f64(),
         simulations: m.simulations.get(),
     })

@@ -58,6 +58,7 @@ pub fn markdown(r: &RunsDiagnosis) -> String {
     candidates(&mut md, r);
     per_run(&mut md, r);
     parameters(&mut md, r);
+    mesh_convergence(&mut md, r);
     md
 }
 
@@ -172,6 +173,13 @@ fn per_run(md: &mut String, r: &RunsDiagnosis) {
         if let Some(words) = e.effect().report(r) {
             let _ = writeln!(md, "{words}");
         }
+    }
+}
+
+/// Whether the fitted modulus is the material's or the mesh's ([`crate::convergence`]).
+fn mesh_convergence(md: &mut String, r: &RunsDiagnosis) {
+    if let Some(c) = &r.mesh_convergence {
+        md.push_str(&c.markdown());
     }
 }
 

@@ -38,8 +38,8 @@ pub(in crate::runs) struct ScreenPoint<'a> {
     normals: Vec<Normal>,
     /// Each fitted run's marker χ² (m²) at the same evaluation.
     run_chi2: Vec<f64>,
-    /// Whether the creep branch's relaxed fraction has its slope in `normals` (creep is open
-    /// and no fitted run observes clamp forces, which a model with the branch cannot predict).
+    /// Whether the creep branch's relaxed fraction has its slope in `normals` (creep is open and
+    /// not yet in the model).
     pub(in crate::runs) creep_slope: bool,
 }
 
@@ -73,11 +73,7 @@ impl<'a> ScreenPoint<'a> {
         if open.iter().any(|c| !c.kinds().is_empty()) {
             let runs = room.retimed(&cur.effects, &cur.offsets)?;
             room.count(runs.len(), true);
-            creep_slope = open.contains(&Effect::Creep)
-                && !cur.material.has_creep()
-                && runs.iter().all(|(_, obs)| {
-                    obs.force_weight == 0.0 || obs.forces.iter().flatten().all(Option::is_none)
-                });
+            creep_slope = open.contains(&Effect::Creep) && !cur.material.has_creep();
             if creep_slope {
                 mat.set_uniform(ParamKind::CreepFraction, creep::SCREEN_FRACTION);
                 mat.set_uniform(ParamKind::CreepTime, creep::start_time(room));

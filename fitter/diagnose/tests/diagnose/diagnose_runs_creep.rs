@@ -149,3 +149,39 @@ fn screen_predicts_no_gain_from_creep_where_there_is_none() {
         "{trials:?}"
     );
 }
+
+/// Runs that weigh the clamp's reaction force beside the markers: a model with the branch cannot
+/// predict that force (its evaluation is refused), so creep is not offered, the log says why, and
+/// the diagnosis ends with a verdict on the others.
+#[test]
+fn runs_that_weigh_clamp_forces_are_not_offered_creep() {
+    let t = truth(0.0);
+    let fit = vec![run_of("forces-a", Some(0.005), 1, 0, &t)];
+    let held = vec![run_of("forces-b", Some(0.005), 2, 0, &t)];
+    assert!(fit[0].1.obs.forces.iter().flatten().any(Option::is_some));
+    let options = RunsOptions {
+        poisson: 1.0 / 3.0,
+        start_mu: 2.0e4,
+        candidates: vec![Effect::Damping, Effect::HangingInertia, Effect::Creep],
+        ..Default::default()
+    };
+    let lines = std::cell::RefCell::new(Vec::<String>::new());
+    let d = diagnose_runs(&fit, &held, &options, &|m| {
+        eprintln!("{m}");
+        lines.borrow_mut().push(m.to_string());
+    })
+    .unwrap();
+    assert!(creep_trials(&d).is_empty(), "{:?}", creep_trials(&d));
+    assert!(
+        lines
+            .borrow()
+            .iter()
+            .any(|l| l.starts_with("creep not offered") && l.contains("reaction force")),
+        "the log does not say why creep is left out"
+    );
+    assert!(
+        d.adopted.contains(&Effect::HangingInertia),
+        "{:?}",
+        d.adopted
+    );
+}

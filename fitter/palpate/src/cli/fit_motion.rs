@@ -52,6 +52,11 @@ pub struct Args {
     /// equilibria under their loads, no dynamics — and print E with its 1σ.
     #[arg(long, requires = "poisson")]
     pub equilibria: bool,
+    /// After the fit, fit the runs' rest states on linear and on quadratic elements of the same
+    /// mesh and say whether the fitted modulus is the material's or the mesh's (linear tetrahedra
+    /// lock in bending near incompressibility; docs/diagnose.md, "Mesh convergence").
+    #[arg(long)]
+    pub mesh_convergence: bool,
     /// Optimiser iteration cap.
     #[arg(
         long = "max-iterations",
@@ -186,7 +191,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map(|d| NamedRun::load(d))
         .collect::<Result<Vec<_>, _>>()?;
     if args.equilibria {
-        println!("{}", request::fit_equilibria(&runs, &req)?);
+        let eq = request::fit_equilibria(&runs, &req)?;
+        println!("{eq}");
+        if args.mesh_convergence {
+            print_convergence(&runs, eq.poisson, eq.mu.0, eq.rms_m);
+        }
         return Ok(());
     }
     let bar = progress_bar(args.max_iters);
@@ -198,6 +207,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let outcome = request::fit(&mut runs, &req, &progress)?;
     bar.finish_and_clear();
     println!("{outcome}");
+    if args.mesh_convergence {
+        let r = &outcome.record;
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+        let (lambda, mu) = (mean(&r.lambda), mean(&r.mu));
+        let poisson = r.poisson_fixed.unwrap_or(lambda / (2.0 * (lambda + mu)));
+        print_convergence(&runs, poisson, mu, r.rms_marker_m);
+    }
     let findings = outcome.findings.clone().into_result()?;
     if let Some(out) = &args.output {
         palpate_fem::io::atomic::write_atomic(out, outcome.record.to_json()?.as_bytes())?;
@@ -231,6 +247,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Err(super::WrittenWithWarnings(warnings).into());
     }
     Ok(())
+}
+
+/// Prints whether the modulus `mu` fitted at Poisson's ratio `poisson` (marker RMS `rms_m`) is
+/// the material's or the mesh's ([`palpate_diagnose::convergence`]).
+fn print_convergence(runs: &[NamedRun], poisson: f64, mu: f64, rms_m: f64) {
+    let named: Vec<(&str, &palpate_motion::dataset::MotionDataset)> =
+        runs.iter().map(|r| (r.name.as_str(), &r.dataset)).collect();
+    let c =
+        palpate_diagnose::convergence::check(&named, poisson, mu, rms_m, &|l| log::info!("{l}"));
+    println!("{}", c.summary_line());
 }
 
 /// The spinner that counts the fit's simulations and shows Φ (on stderr; hidden by `-q`).

@@ -11,6 +11,7 @@ mod demo_readme;
 mod hostile_fuzz;
 mod hostile_inputs;
 mod import_steps;
+mod mesh_convergence;
 mod progress;
 mod readme_facts;
 mod refuses_nonsense;

@@ -11,8 +11,8 @@
 //! in τ, nor in ln g, the fit's coordinate). A step with τ held can only under-state the gain of
 //! the fit, which frees τ; the screen's own rule then decides (fitted when among the best
 //! predicted or within its margin of the best, or as a fall-back when nothing fitted passes and
-//! it is predicted to pay). Runs that observe clamp forces, which a model with the branch cannot
-//! predict, leave it unpredicted: always fitted.
+//! it is predicted to pay). Runs that weigh the clamp's reaction force, which a model with the
+//! branch cannot predict, are not offered it.
 
 use palpate_motion::fitted::FittedModel;
 use palpate_motion::model::{Material, ParamKind};
@@ -60,6 +60,20 @@ impl RunsEffect for Creep {
         &ParamKind::CREEP
     }
 
+    /// Not where a run weighs its clamp's reaction force: the reaction sums the elements'
+    /// elastic and viscous forces, not the branch's stress, so no model with the branch can be
+    /// evaluated on those runs ([`palpate_motion::gradient`] refuses it).
+    fn available(&self, room: &RunsModel) -> bool {
+        room.fit.iter().chain(room.held).all(|(_, d)| {
+            d.obs.force_weight == 0.0 || d.obs.forces.iter().flatten().all(Option::is_none)
+        })
+    }
+
+    fn unavailable_because(&self) -> &'static str {
+        "a run records the clamp's reaction force, which a model with the branch cannot \
+         predict (give the forces weight 0 to fit the markers alone)"
+    }
+
     fn start(&self, room: &RunsModel, round: usize, _cur: &RunsFit, start: &mut Material) {
         if start.has_creep() {
             return;
@@ -76,7 +90,7 @@ impl RunsEffect for Creep {
     fn predict(&self, room: &mut RunsModel, at: &ScreenPoint) -> Result<Prediction, RunsError> {
         if !at.creep_slope {
             return Ok(Prediction::none(
-                "clamp forces observed, which the branch cannot predict: always fitted",
+                "no slope in g to step along: always fitted",
             ));
         }
         let how = format!(

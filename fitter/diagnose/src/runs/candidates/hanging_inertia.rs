@@ -29,6 +29,10 @@ impl RunsEffect for HangingInertia {
         })
     }
 
+    fn unavailable_because(&self) -> &'static str {
+        "no run hangs a weight from its start"
+    }
+
     fn change_model(&self, model: &mut Model) {
         set_hanging_inertia(model, true);
     }

@@ -78,6 +78,11 @@ pub(in crate::runs) trait RunsEffect: Sync {
         true
     }
 
+    /// Why it is not [`Self::available`], as the log says when a requested candidate is left out.
+    fn unavailable_because(&self) -> &'static str {
+        "the runs cannot show it"
+    }
+
     /// Whether it offsets each run's markers in time against the simulation: then every fit of a
     /// model that holds it scans the offsets again after refitting the material
     /// ([`RunsModel::fit_retimed`]), and each held-out run is given its own.
