@@ -760,6 +760,17 @@ fn direct(
                 cs.add_history(model, mat, &table, branch, xf, np, &mut rhs)?;
             }
             solver.solve_columns(&model.pattern, &mut rhs, np)?;
+            // The creep branch advances at the force state: its sensitivity s_xa + a_x s_v.
+            let sxf: Vec<Vec<f64>> = match &creep {
+                None => Vec::new(),
+                Some(_) => (0..np)
+                    .map(|p| {
+                        (0..nf)
+                            .map(|i| sa[p * nf + i] + ax * rhs[p * nf + i])
+                            .collect()
+                    })
+                    .collect(),
+            };
             for p in 0..np {
                 let o = p * nf;
                 let sv = &rhs[o..o + nf];
@@ -785,7 +796,7 @@ fn direct(
                 svm2[p] = std::mem::replace(&mut svm1[p], svn);
             }
             if let (Some(cs), Some((branch, after))) = (creep.as_mut(), s.relaxation) {
-                cs.advance(model, mat, &table, branch, after, s.x, &sxm1[..])?;
+                cs.advance(model, mat, &table, branch, after, xf, &sxf)?;
             }
             if let Some(m) = means.as_mut() {
                 m.add_residuals(model, obs, s.n, s.x);

@@ -28,14 +28,21 @@
 //! K = (1 + g b) K⁰ + V (∇φ_a · C_n ∇φ_b) I₃ (symmetric: C_n is). The step remains the minimum
 //! of an incremental potential, so the Newton line search holds as it is.
 //!
-//! The branch is integrated under BDF2 (whose force state is the end of the step); the other
-//! schemes refuse it. Cost when absent: none — a material without a relaxed fraction
+//! **Under every scheme.** The branch lives where the scheme evaluates its forces: S⁰_n and H_n
+//! are taken at step n's force state x_f (BDF2: x^n; the midpoint rule: x^{n−½};
+//! generalised-α: Σ β_j x^{n−2+j}, [`super::timestep::TwoStep`]), not at the end of the step.
+//! Those states are Δt apart in time like the steps, so the update above is the same
+//! exponential midpoint rule on the same convolution H(t) = ∫ g e^{−(t−s)/τ} dS⁰/ds ds, second
+//! order, and the step's stress (1 + g b) P⁰(F(x_f)) + F(x_f) C_n is the total stress at the
+//! time the scheme's forces stand for: the scheme stays second order. Taking S⁰ at x^n instead
+//! would mix two times in one update (x^n is half a step after the midpoint force state, and
+//! on a stiff, barely damped body it alternates about it), an O(Δt) error. With BDF2 x_f = x^n
+//! and nothing changes. Cost when absent: none — a material without a relaxed fraction
 //! ([`Material::has_creep`]) never builds a [`Relaxation`].
 
 use super::elastic::ElasticState;
 use super::hyperelastic::{self as he, FParts, RestTet};
 use super::model::{Material, Model, ParamKind};
-use super::timestep::Scheme;
 use super::MotionError;
 use nalgebra::Matrix3;
 
@@ -117,8 +124,9 @@ pub fn elastic_pk2<'a>(
 }
 
 impl Relaxation {
-    /// The fully relaxed branch (H = 0) at the start positions `x0`; `None` when the material
-    /// has no creep branch. The branch is integrated under BDF2 only: another scheme is refused.
+    /// The fully relaxed branch (H = 0) at the start positions `x0` (the body rests before the
+    /// first step, so `x0` is also the force state before it); `None` when the material has no
+    /// creep branch.
     pub fn start(model: &Model, mat: &Material, x0: &[f64]) -> Result<Option<Self>, MotionError> {
         if !mat.has_creep() {
             return Ok(None);
@@ -142,13 +150,6 @@ impl Relaxation {
             gain.push(gb);
             s0.push(elastic_pk2(model, mat, e, x0)?.0);
         }
-        if model.scheme != Scheme::Bdf2 {
-            return Err(MotionError::Invalid(format!(
-                "the creep branch (relaxed fraction g > 0) is integrated under the BDF2 scheme \
-                 only; the model's scheme is {}",
-                model.scheme.name()
-            )));
-        }
         Ok(Some(Self {
             h: vec![Matrix3::zeros(); ne],
             s0,
@@ -167,17 +168,18 @@ impl Relaxation {
         }
     }
 
-    /// The state after the step that took `branch` and converged at positions `x`:
-    /// S⁰_{n+1} at `x`, H_{n+1} = C_n + g b S⁰_{n+1}.
+    /// The state after the step that took `branch` and converged with the force state at
+    /// positions `xf` (the step's x_f, see the module doc): S⁰_{n+1} at `xf`,
+    /// H_{n+1} = C_n + g b S⁰_{n+1}.
     pub fn advance(
         &mut self,
         model: &Model,
         mat: &Material,
         branch: &StepBranch,
-        x: &[f64],
+        xf: &[f64],
     ) -> Result<(), MotionError> {
         for e in 0..self.h.len() {
-            let s0 = elastic_pk2(model, mat, e, x)?.0;
+            let s0 = elastic_pk2(model, mat, e, xf)?.0;
             self.h[e] = branch.c[e] + s0 * self.gain[e];
             self.s0[e] = s0;
         }
@@ -215,8 +217,9 @@ pub fn pk2_change(
 /// explicit part g b ∂P⁰/∂q + ∂(g b)/∂q P⁰ + F dC_n/dq, with
 /// dC_n/dq = ∂a/∂q H_n + a dH_n/dq − ∂(g b)/∂q S⁰_n − g b dS⁰_n/dq (history: known before the
 /// step's solve); the state's part goes through the step's tangent, which already holds the
-/// branch. After the solve, dS⁰_{n+1} = F⁻¹(dP⁰ − dF S⁰) with dF from s_x^{n+1}, and
-/// dH_{n+1} = dC_n + ∂(g b)/∂q S⁰_{n+1} + g b dS⁰_{n+1}.
+/// branch. After the solve, dS⁰_{n+1} = F⁻¹(dP⁰ − dF S⁰) with dF from the force state's
+/// sensitivity s_xf = s_xa + a_x s_v^{n+1} (the branch lives at the force state; for BDF2 that
+/// is s_x^{n+1}), and dH_{n+1} = dC_n + ∂(g b)/∂q S⁰_{n+1} + g b dS⁰_{n+1}.
 pub(crate) struct Sensitivities {
     /// H_n and S⁰_n per element (the state before the coming step).
     h: Vec<Matrix3<f64>>,
@@ -341,7 +344,7 @@ impl Sensitivities {
     }
 
     /// Adds the branch's explicit part of the step's ∂F/∂q (see the type's doc) at the step's
-    /// end positions `x` to `rhs` (free dofs, `np` columns one after the other), and keeps
+    /// force state `x` to `rhs` (free dofs, `np` columns one after the other), and keeps
     /// dC_n/dq for [`Self::advance`].
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn add_history(
@@ -390,8 +393,8 @@ impl Sensitivities {
     }
 
     /// The state after the step: the branch's own `after` (H_{n+1}, S⁰_{n+1}) and the
-    /// derivatives from the step's solved sensitivities `sx` (s_x^{n+1}, free dofs per
-    /// parameter) at its end positions `x`.
+    /// derivatives from the sensitivities `sxf` of the step's force state (s_xf, free dofs per
+    /// parameter) at its positions `xf` (the state [`Relaxation::advance`] took).
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn advance(
         &mut self,
@@ -400,12 +403,12 @@ impl Sensitivities {
         table: &[Vec<usize>],
         branch: &StepBranch,
         after: &Relaxation,
-        x: &[f64],
-        sx: &[Vec<f64>],
+        xf: &[f64],
+        sxf: &[Vec<f64>],
     ) -> Result<(), MotionError> {
         for e in 0..model.tets.len() {
-            let (s0, ds0) = Self::pk2_sensitivity(model, mat, table, e, x, sx)?;
-            for p in 0..sx.len() {
+            let (s0, ds0) = Self::pk2_sensitivity(model, mat, table, e, xf, sxf)?;
+            for p in 0..sxf.len() {
                 let (_, dgb) = Self::coefficient_change(model, mat, table, e, p);
                 self.dh[e][p] = self.dc[e][p] + s0 * dgb + ds0[p] * branch.gain[e];
             }

@@ -992,7 +992,8 @@ pub fn simulate_solving(
         let solver =
             kept.map(|(fac, exact)| StepSolver::for_step(n, fac, exact, &sv, refresh.as_ref()));
         if let (Some(r), Some(b)) = (relax.as_mut(), &branch) {
-            r.advance(model, mat, b, &x)?;
+            // At the force state, where the step's stress stood ([`super::relaxation`]).
+            r.advance(model, mat, b, &xf)?;
         }
         on_step(&StepView {
             n,
