@@ -12,6 +12,9 @@
 //! - [`render`]: depth images of a mesh's surface from a virtual camera, to make test data;
 //! - [`fit`]: a shear modulus fitted to a scan of the object hanging under its weight, through
 //!   the static solver on linear or quadratic tetrahedra with its analytic sensitivity;
+//! - [`record`]: a scan on disk (points in metres in the mesh's frame with their noise, and
+//!   where they came from), imported from a depth image and its camera or from a point cloud;
+//! - [`noise`]: a scan's noise estimated from its points' local scatter;
 //! - [`residual_vtu`]: a fit's residual on the points and on the deformed surface, for ParaView.
 //!
 //! Units are metres throughout; a depth image's integer unit is declared by the caller.
@@ -20,6 +23,8 @@ pub mod camera;
 pub mod cloud;
 pub mod depth;
 pub mod fit;
+pub mod noise;
+pub mod record;
 pub mod render;
 pub mod residual_vtu;
 pub mod surface;

@@ -14,5 +14,6 @@ mod import_steps;
 mod progress;
 mod readme_facts;
 mod refuses_nonsense;
+mod scan_import;
 mod vocabulary;
 mod vtu_other_readers;
