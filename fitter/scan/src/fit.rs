@@ -369,7 +369,7 @@ pub fn fit_scan(
     };
     let mut lin = linearise(object, scan, theta, settings.max_distance)?;
     for it in 1..=settings.max_iter {
-        if lin.residuals.len() < 10 || !(lin.hessian > 0.0) || !lin.hessian.is_finite() {
+        if lin.residuals.len() < 10 || !(lin.hessian.is_finite() && lin.hessian > 0.0) {
             return Err(ScanError::Invalid(format!(
                 "scan fit, iteration {it}: {} points near the surface, JᵀJ = {:e} at E = {:.1} kPa: \
                  the scan does not see the object move with its modulus",
