@@ -14,8 +14,9 @@ pub struct DepthArgs {
     pub frame: PathBuf,
     /// The camera: a TOML file with fx, fy, cx, cy (pixels), depth_unit_m (metres per PNG
     /// unit), optionally sigma_m and sigma_per_m (depth noise σ = sigma_m + sigma_per_m·z²;
-    /// estimated from the points' local scatter when absent) and a [pose] into the mesh's frame
-    /// (eye, target, up; or rotation rows and translation). See docs/results/scans/README.md.
+    /// estimated from the points' local scatter when absent) and a `[pose]` table into the
+    /// mesh's frame (eye, target, up; or rotation rows and translation). Format:
+    /// fitter/scan/src/record.rs.
     #[arg(long, value_name = "TOML")]
     pub camera: PathBuf,
     /// Output: the scan folder written (`points.ply`, `scan.toml`).
