@@ -18,7 +18,7 @@ pub fn read_points(path: &Path) -> Result<Vec<Vector3<f64>>, ScanError> {
         .unwrap_or_default();
     let bytes = std::fs::read(path).map_err(|e| ScanError::io(path, e))?;
     match ext.as_str() {
-        "ply" => read_ply(path, &bytes),
+        "ply" => Ok(read_ply(path, &bytes, None)?.0),
         "xyz" | "csv" | "txt" => read_text(path, &bytes),
         _ => Err(ScanError::format(
             path,
@@ -192,7 +192,44 @@ fn ply_header(path: &Path, bytes: &[u8]) -> Result<(Encoding, Vec<Element>, usiz
     Ok((encoding, elements, at))
 }
 
-fn read_ply(path: &Path, bytes: &[u8]) -> Result<Vec<Vector3<f64>>, ScanError> {
+/// Reads a PLY's points and the vertex property `property` (one value per point), as
+/// [`write_ply`] writes them with `sigma`.
+pub fn read_ply_with(
+    path: &Path,
+    property: &str,
+) -> Result<(Vec<Vector3<f64>>, Vec<f64>), ScanError> {
+    let bytes = std::fs::read(path).map_err(|e| ScanError::io(path, e))?;
+    read_ply(path, &bytes, Some(property))
+}
+
+/// Writes `points` (m) and each one's `sigma` (m) as an ASCII PLY, atomically.
+pub fn write_ply(path: &Path, points: &[Vector3<f64>], sigma: &[f64]) -> Result<(), ScanError> {
+    use std::fmt::Write as _;
+    if points.len() != sigma.len() {
+        return Err(ScanError::Invalid(format!(
+            "{}: {} points but {} sigma values",
+            path.display(),
+            points.len(),
+            sigma.len()
+        )));
+    }
+    let mut text = format!(
+        "ply\nformat ascii 1.0\ncomment palpate scan: metres in the mesh's frame; sigma: the point's noise (m)\n\
+         element vertex {}\nproperty double x\nproperty double y\nproperty double z\nproperty double sigma\nend_header\n",
+        points.len()
+    );
+    for (p, s) in points.iter().zip(sigma) {
+        // 17 significant digits: the f64 read back is the one written.
+        let _ = writeln!(text, "{:.17e} {:.17e} {:.17e} {:.17e}", p.x, p.y, p.z, s);
+    }
+    palpate_fem::io::atomic::write_atomic(path, text.as_bytes())
+        .map_err(|e| ScanError::Invalid(format!("{}: {e}", path.display())))
+}
+
+/// Points and the values of the vertex property `extra` if asked for.
+type PlyPoints = (Vec<Vector3<f64>>, Vec<f64>);
+
+fn read_ply(path: &Path, bytes: &[u8], extra: Option<&str>) -> Result<PlyPoints, ScanError> {
     let (encoding, elements, start) = ply_header(path, bytes)?;
     let vertex = elements
         .iter()
@@ -211,7 +248,10 @@ fn read_ply(path: &Path, bytes: &[u8]) -> Result<Vec<Vector3<f64>>, ScanError> {
             })
     };
     let xyz = [slot("x")?, slot("y")?, slot("z")?];
-    let mut points = Vec::with_capacity(elements[vertex].count);
+    let extra_slot = extra.map(slot).transpose()?;
+    let mut extras = Vec::new();
+    // The header's count is not trusted to size memory: every point takes at least a byte.
+    let mut points = Vec::with_capacity(elements[vertex].count.min(bytes.len()));
     match encoding {
         Encoding::Ascii => {
             let text = std::str::from_utf8(&bytes[start..])
@@ -235,6 +275,9 @@ fn read_ply(path: &Path, bytes: &[u8]) -> Result<Vec<Vector3<f64>>, ScanError> {
                     }
                     let values = ascii_values(path, line_no, line, &el.properties)?;
                     points.push(Vector3::new(values[xyz[0]], values[xyz[1]], values[xyz[2]]));
+                    if let Some(k) = extra_slot {
+                        extras.push(values[k]);
+                    }
                 }
             }
         }
@@ -279,13 +322,16 @@ fn read_ply(path: &Path, bytes: &[u8]) -> Result<Vec<Vector3<f64>>, ScanError> {
                     }
                     if e == vertex {
                         points.push(Vector3::new(values[xyz[0]], values[xyz[1]], values[xyz[2]]));
+                        if let Some(k) = extra_slot {
+                            extras.push(values[k]);
+                        }
                     }
                 }
             }
         }
     }
     check_finite(path, &points)?;
-    Ok(points)
+    Ok((points, extras))
 }
 
 /// The scalar values of one ASCII instance (lists read past, NaN in their slot).

@@ -9,14 +9,24 @@
 //!   the normal at its closest point, with its Jacobian in the node positions, a robust weight
 //!   for background and flying pixels and a weight that keeps a dense patch from drowning the
 //!   rest;
-//! - [`render`]: depth images of a mesh's surface from a virtual camera, to make test data.
+//! - [`render`]: depth images of a mesh's surface from a virtual camera, to make test data;
+//! - [`fit`]: a shear modulus fitted to a scan of the object hanging under its weight, through
+//!   the static solver on linear or quadratic tetrahedra with its analytic sensitivity;
+//! - [`record`]: a scan on disk (points in metres in the mesh's frame with their noise, and
+//!   where they came from), imported from a depth image and its camera or from a point cloud;
+//! - [`noise`]: a scan's noise estimated from its points' local scatter;
+//! - [`residual_vtu`]: a fit's residual on the points and on the deformed surface, for ParaView.
 //!
 //! Units are metres throughout; a depth image's integer unit is declared by the caller.
 
 pub mod camera;
 pub mod cloud;
 pub mod depth;
+pub mod fit;
+pub mod noise;
+pub mod record;
 pub mod render;
+pub mod residual_vtu;
 pub mod surface;
 
 /// What goes wrong reading or using a scan. Every message names the file and where in it.
@@ -41,6 +51,14 @@ pub enum ScanError {
     /// A value out of its range (a camera parameter, an image size).
     #[error("{0}")]
     Invalid(String),
+    /// The static solver behind a fit failed.
+    #[error("{what}: {source}")]
+    Solve {
+        /// Which solve.
+        what: String,
+        /// Why.
+        source: palpate_motion::MotionError,
+    },
 }
 
 impl ScanError {

@@ -56,7 +56,7 @@ pub enum Command {
     /// comparison with the host and the board's cost model (firmware/m4-emu).
     M4Emu(m4_emu::Args),
     /// A hanging strip's modulus fitted to one rendered depth image (the scan residual end to
-    /// end), with the truth on the fit's mesh and on a finer one.
+    /// end) with linear or quadratic tetrahedra, against truths on its own mesh and on a finer one.
     ScanStrip(scan_strip::Args),
 }
 

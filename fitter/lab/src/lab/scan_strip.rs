@@ -1,18 +1,14 @@
-//! A hanging strip's modulus from one depth image: the scan residual
-//! ([`palpate_scan::surface`]) closing a fit, end to end on data whose truth is known.
+//! A hanging strip's modulus from one depth image: the scan fit ([`palpate_scan::fit`]) end to
+//! end on data whose truth is known.
 //!
 //! A silicone-like strip (80 × 20 × 10 mm, clamped over its end face, sagging under its own
-//! weight) is solved with the Neo-Hookean static solver ([`palpate_motion::statics`]) at the true
-//! modulus, rendered by a depth camera looking at it from the side and above
-//! ([`palpate_scan::render`]) with depth noise σ = 0.2 mm + 1 mm⁻¹·z² and pixels dropped at
-//! random, and back-projected into points. From a start chosen on a coarse grid of moduli (a
-//! factor 2 apart, not holding the truth), μ is fitted by
-//! Gauss–Newton in ln μ (ν held at the truth's) on the points' distances to the deformed
-//! surface over the noise along each face's normal, Tukey-weighted, the correspondences found
-//! again at every iteration; ∂x/∂ln μ by central differences of the static solve. Two cases:
-//! the truth on the fit's own mesh (what the residual and the fit can recover at all), and the
-//! truth on a mesh refined twice per axis (what a fit on a coarse mesh makes of a real strip:
-//! linear tetrahedra are stiff in bending, so the modulus comes out low).
+//! weight) is solved at the true modulus, rendered by a depth camera looking at it from the side
+//! and above ([`palpate_scan::render`]) with depth noise σ = 0.2 mm + 1 mm⁻¹·z² and pixels
+//! dropped at random, and back-projected into points; μ is fitted on the coarse mesh with the
+//! chosen element design (`--design p1|p2`). Three truths: the fit's own mesh and design (what
+//! the residual and the fit can recover at all); linear tetrahedra on a mesh refined twice per
+//! axis; quadratic tetrahedra on that refined mesh — the converged reference, what a real strip
+//! of that modulus does.
 
 use anyhow::{bail, Context as _};
 use clap::Parser;
@@ -20,11 +16,10 @@ use nalgebra::Vector3;
 use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_fem::mesh::Mesh;
 use palpate_fem::rng::SplitMix64;
-use palpate_motion::hyperelastic::HyperParams;
-use palpate_motion::statics::{solve_static, StaticProblem};
 use palpate_scan::camera::{Camera, Intrinsics, Pose};
+use palpate_scan::fit::{fit_scan, young, Design, FitSettings, HangingObject, ScanPoints};
 use palpate_scan::render::render_depth;
-use palpate_scan::surface::{correspond, Correspondence, RobustLoss};
+use palpate_scan::residual_vtu::write_fit_residual;
 
 /// Arguments.
 #[derive(Debug, Parser)]
@@ -35,38 +30,48 @@ pub struct Args {
     /// Seed of the depth noise and the dropped pixels.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// The fit's element design: p1 (linear tetrahedra) or p2 (quadratic).
+    #[arg(long, default_value = "p1")]
+    pub design: String,
+    /// The truths fitted: own (the fit's mesh and design), p1-fine, p2-fine (the mesh refined
+    /// twice per axis, linear or quadratic tetrahedra).
+    #[arg(long, value_delimiter = ',', default_value = "own,p1-fine,p2-fine")]
+    pub truths: Vec<String>,
+    /// A folder to write each fit's residual into as VTU (`<design>-<truth>-points.vtu`,
+    /// `<design>-<truth>-surface.vtu`); nothing is written without it.
+    #[arg(long)]
+    pub vtu: Option<std::path::PathBuf>,
 }
 
 const SIZE: [f64; 3] = [0.08, 0.02, 0.01];
 const E_TRUE: f64 = 300e3;
 const NU: f64 = 0.45;
-const DENSITY: f64 = 1100.0;
-const GRAVITY: [f64; 3] = [0.0, 0.0, -9.81];
 const SIGMA_A: f64 = 2e-4;
 const SIGMA_B: f64 = 1e-3;
 const DROPPED: f64 = 0.1;
 
-fn params(mu: f64) -> HyperParams {
-    HyperParams {
-        lambda: 2.0 * mu * NU / (1.0 - 2.0 * NU),
-        mu,
-        stiffening: 0.0,
+fn design(name: &str) -> anyhow::Result<Design> {
+    match name.to_ascii_lowercase().as_str() {
+        "p1" => Ok(Design::Linear),
+        "p2" => Ok(Design::Quadratic),
+        _ => bail!("--design: expected p1 or p2, found {name:?}"),
     }
 }
 
-/// The strip's equilibrium under its weight at shear modulus `mu`: node positions.
-fn hang(mesh: &Mesh, mu: f64) -> anyhow::Result<Vec<[f64; 3]>> {
-    let fixed: Vec<usize> = (0..mesh.nodes.len())
-        .filter(|&n| mesh.nodes[n][0] < 1e-9)
-        .collect();
-    let mut p = StaticProblem::new(mesh, params(mu), fixed);
-    p.density = DENSITY;
-    p.gravity = GRAVITY;
-    // 1e-7 N against the strip's 0.17 N weight: below that Newton meets round-off.
-    p.tol = 1e-7;
-    Ok(solve_static(&p)
-        .with_context(|| format!("the strip's equilibrium at μ = {mu:.1} Pa"))?
-        .positions)
+/// The strip on `mesh`, clamped over its end face x = 0.
+fn strip(mesh: &Mesh, design: Design) -> HangingObject<'_> {
+    HangingObject {
+        mesh,
+        fixed: (0..mesh.nodes.len())
+            .filter(|&n| mesh.nodes[n][0] < 1e-9)
+            .collect(),
+        density: 1100.0,
+        gravity: [0.0, 0.0, -9.81],
+        poisson: NU,
+        design,
+        // 1e-7 N against the strip's 0.17 N weight: below that Newton meets round-off.
+        tol: 1e-7,
+    }
 }
 
 /// The camera: beside the strip and above it, looking at its middle.
@@ -86,10 +91,11 @@ fn camera() -> Camera {
     }
 }
 
-/// A depth image of the truth, with the sensor's noise and dropped pixels, back-projected.
-fn scan(truth: &Mesh, positions: &[[f64; 3]], seed: u64) -> Vec<Vector3<f64>> {
+/// A depth image of the truth's surface, with the sensor's noise and dropped pixels,
+/// back-projected, each point's depth σ beside it.
+fn scan(positions: &[[f64; 3]], surface: &[[usize; 3]], seed: u64) -> ScanPoints {
     let cam = camera();
-    let mut image = render_depth(&cam, 320, 240, positions, &truth.boundary_triangles());
+    let mut image = render_depth(&cam, 320, 240, positions, surface);
     let mut rng = SplitMix64::new(seed);
     for z in image.depth.iter_mut().filter(|z| **z > 0.0) {
         *z = if rng.uniform() < DROPPED {
@@ -98,162 +104,146 @@ fn scan(truth: &Mesh, positions: &[[f64; 3]], seed: u64) -> Vec<Vector3<f64>> {
             *z + (SIGMA_A + SIGMA_B * *z * *z) * rng.normal()
         };
     }
-    cam.points(&image)
-}
-
-/// Residuals over their noise and their Tukey weights, at the surface `positions`.
-fn residuals(
-    positions: &[[f64; 3]],
-    tris: &[[usize; 3]],
-    points: &[Vector3<f64>],
-) -> (Vec<Correspondence>, Vec<f64>, Vec<f64>) {
-    let cam = camera();
-    // Far enough that the start's misfit (millimetres at the tip) keeps its points.
-    let (found, _) = correspond(positions, tris, points, 2e-2);
-    let r: Vec<f64> = found
+    let points = cam.points(&image);
+    let sigma = points
         .iter()
-        .map(|c| {
-            let p = points[c.point];
-            let z = cam.pose.to_camera(p).z;
-            c.distance
-                / cam
-                    .noise_along(p, c.normal, SIGMA_A + SIGMA_B * z * z)
-                    .max(1e-9)
+        .map(|p| {
+            let z = cam.pose.to_camera(*p).z;
+            SIGMA_A + SIGMA_B * z * z
         })
         .collect();
-    // Tukey's window at 4 of the residuals' robust scale (1.4826 × their median absolute
-    // value), never narrower than 4 σ: far from the fit the whole misfit is "outlying" for a
-    // window of 4 σ, and the points that would pull the fit there get no weight.
-    let mut abs: Vec<f64> = r.iter().map(|v| v.abs()).collect();
-    abs.sort_by(f64::total_cmp);
-    let scale = (1.4826 * abs.get(abs.len() / 2).copied().unwrap_or(1.0)).max(1.0);
-    let w = r
-        .iter()
-        .map(|v| RobustLoss::Tukey(4.0).weight(v / scale))
-        .collect();
-    (found, r, w)
+    ScanPoints {
+        points,
+        sigma,
+        camera: Some(cam),
+    }
 }
 
-/// One case: the fitted E, the points used, the iterations.
-fn fit(mesh: &Mesh, points: &[Vector3<f64>]) -> anyhow::Result<(f64, usize, usize)> {
-    let tris = mesh.boundary_triangles();
-    let cam = camera();
-    // The start: of moduli a factor 2 apart around 1.7 × the truth (a grid that does not hold
-    // the truth itself), the one whose surface
-    // leaves the fewest points far off (a truncated quadratic, every point beyond 4 σ or
-    // unmatched counting 16). Far from the fit, closest points pair a scan's face with the
-    // wrong face of the model, and Gauss–Newton from there can walk away from the minimum.
-    let start = (1.7 * E_TRUE / (2.0 * (1.0 + NU))).ln();
-    let mut best = (f64::INFINITY, start);
-    for k in -3..=2 {
-        let ln_mu = start + k as f64 * std::f64::consts::LN_2;
-        let x = hang(mesh, ln_mu.exp())?;
-        let (found, r, _) = residuals(&x, &tris, points);
-        let cost = r.iter().map(|v| (v * v).min(16.0)).sum::<f64>()
-            + 16.0 * (points.len() - found.len()) as f64;
-        log::info!(
-            "start E {:.1} kPa: truncated cost {cost:.4e}",
-            2.0 * (1.0 + NU) * ln_mu.exp() / 1e3
-        );
-        if cost < best.0 {
-            best = (cost, ln_mu);
-        }
-    }
-    let mut ln_mu = best.1;
-    for it in 1..=30 {
-        let x = hang(mesh, ln_mu.exp())?;
-        let (found, r, w) = residuals(&x, &tris, points);
-        if found.len() < 100 {
-            bail!(
-                "iteration {it}: only {} points near the surface",
-                found.len()
-            );
-        }
-        let h = 1e-3;
-        let (xp, xm) = (
-            hang(mesh, (ln_mu + h).exp())?,
-            hang(mesh, (ln_mu - h).exp())?,
-        );
-        let (mut jtj, mut jtr) = (0.0, 0.0);
-        for ((c, r), w) in found.iter().zip(&r).zip(&w) {
-            let p = points[c.point];
-            let z = cam.pose.to_camera(p).z;
-            let s = cam
-                .noise_along(p, c.normal, SIGMA_A + SIGMA_B * z * z)
-                .max(1e-9);
-            let j: f64 = c
-                .jacobian()
-                .iter()
-                .map(|(n, d)| {
-                    let dx = (Vector3::from(xp[*n]) - Vector3::from(xm[*n])) / (2.0 * h);
-                    d.dot(&dx)
-                })
-                .sum::<f64>()
-                / s;
-            jtj += w * j * j;
-            jtr += w * j * r;
-        }
-        let step = (-jtr / jtj).clamp(-0.5, 0.5);
-        ln_mu += step;
-        log::info!(
-            "iteration {it}: E {:.1} kPa, {} points, step {step:+.2e}",
-            2.0 * (1.0 + NU) * ln_mu.exp() / 1e3,
-            found.len()
-        );
-        // 1e-4 in ln E: a hundredth of a per cent, below what the correspondences' switching
-        // between triangles lets the steps settle to.
-        if step.abs() < 1e-4 {
-            return Ok((2.0 * (1.0 + NU) * ln_mu.exp(), found.len(), it));
-        }
-    }
-    bail!("Gauss–Newton did not settle in 30 iterations")
-}
-
-/// Runs both cases and prints a table and one JSON line.
+/// Runs the three cases and prints a table and one JSON line.
 pub fn run(a: Args) -> anyhow::Result<()> {
     let [nx, ny, nz] = a.cells[..] else {
         bail!("--cells takes three counts, found {:?}", a.cells);
     };
+    let fit_design = design(&a.design)?;
+    if let Some(t) = a
+        .truths
+        .iter()
+        .find(|t| !["own", "p1-fine", "p2-fine"].contains(&t.as_str()))
+    {
+        bail!("--truths: expected own, p1-fine or p2-fine, found {t:?}");
+    }
     let mesh = box_mesh(SIZE, [nx, ny, nz]);
     let fine = box_mesh(SIZE, [2 * nx, 2 * ny, 2 * nz]);
     let mu_true = E_TRUE / (2.0 * (1.0 + NU));
+    let object = strip(&mesh, fit_design);
+    // Moduli a factor 2 apart around 1.7 × the truth: a grid that does not hold the truth.
+    let settings = FitSettings {
+        starts: (-3..=2).map(|k| 1.7 * mu_true * 2f64.powi(k)).collect(),
+        // Far enough that the start's misfit (millimetres at the tip) keeps its points.
+        max_distance: 2e-2,
+        max_iter: 30,
+    };
     let mut rows = Vec::new();
-    for (case, truth) in [
-        ("truth on the fit's mesh", &mesh),
-        ("truth on the mesh refined 2×", &fine),
-    ] {
+    for (case, key, truth) in [
+        (
+            "truth: the fit's mesh and design",
+            "own",
+            strip(&mesh, fit_design),
+        ),
+        (
+            "truth: P1 on the mesh refined 2×",
+            "p1-fine",
+            strip(&fine, Design::Linear),
+        ),
+        (
+            "truth: P2 on the mesh refined 2× (converged)",
+            "p2-fine",
+            strip(&fine, Design::Quadratic),
+        ),
+    ]
+    .into_iter()
+    .filter(|(_, key, _)| a.truths.iter().any(|t| t == key))
+    {
         let t0 = std::time::Instant::now();
-        let x = hang(truth, mu_true)?;
-        let tip = x
+        let eq = truth
+            .equilibrium(mu_true, false)
+            .with_context(|| format!("{case}: the truth's equilibrium"))?;
+        let tip = eq
+            .positions
             .iter()
-            .zip(&truth.nodes)
+            .zip(&eq.rest)
             .map(|(x, x0)| x0[2] - x[2])
             .fold(0.0, f64::max);
-        let points = scan(truth, &x, a.seed);
+        let points = scan(&eq.positions, &eq.surface, a.seed);
         log::info!(
             "{case}: tip sag {:.2} mm, {} points",
             1e3 * tip,
-            points.len()
+            points.points.len()
         );
-        let (e, used, iterations) = fit(&mesh, &points)?;
-        let err = 100.0 * (e / E_TRUE - 1.0);
+        let t1 = std::time::Instant::now();
+        let fit = match fit_scan(&object, &points, &settings) {
+            Ok(f) => f,
+            // A design that cannot take the truth's shape may find no modulus: that is a
+            // result of the comparison, printed as a row, not the end of the run.
+            Err(e) => {
+                println!(
+                    "| {} fit, {case} | {} tets | tip sag {:.1} mm | {} points | no fit: {e} | | fit {:.1} s |",
+                    fit_design.name(),
+                    truth.mesh.tets.len(),
+                    1e3 * tip,
+                    points.points.len(),
+                    t1.elapsed().as_secs_f64()
+                );
+                rows.push(serde_json::json!({
+                    "case": key, "truth_design": truth.design.name(), "truth_tets": truth.mesh.tets.len(),
+                    "fit_design": fit_design.name(), "fit_tets": mesh.tets.len(),
+                    "tip_sag_m": tip, "points": points.points.len(), "error": e.to_string(),
+                }));
+                continue;
+            }
+        };
+        let used = fit
+            .at_fit
+            .residuals
+            .iter()
+            .filter(|r| r.weight > 0.0)
+            .count();
+        let err = 100.0 * (fit.young_modulus / E_TRUE - 1.0);
+        if let Some(dir) = &a.vtu {
+            let name = format!("{}-{key}", fit_design.name().to_ascii_lowercase());
+            for f in write_fit_residual(dir, &name, &points, &fit)
+                .with_context(|| format!("{case}: the residual's VTU"))?
+            {
+                log::info!("wrote {}", f.display());
+            }
+        }
         println!(
-            "| {case} | {} tets | tip sag {:.1} mm | {} points, {used} used | E {:.1} kPa ({err:+.2} %) | {iterations} iterations | {:.1} s |",
-            truth.tets.len(),
+            "| {} fit, {case} | {} tets | tip sag {:.1} mm | {} points, {used} used | E {:.1} kPa ({err:+.2} %) | {} iterations | fit {:.1} s |",
+            fit_design.name(),
+            truth.mesh.tets.len(),
             1e3 * tip,
-            points.len(),
-            e / 1e3,
+            points.points.len(),
+            fit.young_modulus / 1e3,
+            fit.iterations,
+            t1.elapsed().as_secs_f64()
+        );
+        log::info!(
+            "{case}: {:.1} s with the truth's solve",
             t0.elapsed().as_secs_f64()
         );
         rows.push(serde_json::json!({
-            "case": case, "truth_tets": truth.tets.len(), "fit_tets": mesh.tets.len(),
-            "tip_sag_m": tip, "points": points.len(), "used": used, "e_fitted_pa": e,
-            "e_error_percent": err, "iterations": iterations,
+            "case": key, "truth_design": truth.design.name(), "truth_tets": truth.mesh.tets.len(),
+            "fit_design": fit_design.name(), "fit_tets": mesh.tets.len(),
+            "tip_sag_m": tip, "points": points.points.len(), "used": used,
+            "e_fitted_pa": fit.young_modulus, "e_error_percent": err, "iterations": fit.iterations,
+            "fit_seconds": t1.elapsed().as_secs_f64(),
         }));
     }
     println!(
         "{}",
-        serde_json::json!({ "e_true_pa": E_TRUE, "nu": NU, "seed": a.seed, "cases": rows })
+        serde_json::json!({
+            "e_true_pa": young(mu_true, NU), "nu": NU, "seed": a.seed, "cases": rows
+        })
     );
     Ok(())
 }

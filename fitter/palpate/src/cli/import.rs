@@ -1,6 +1,7 @@
 //! `palpate import c3d <capture.c3d> …`: a motion capture as a palpate motion dataset — the
 //! capture frame registered to the mesh frame (Horn) on a frame at rest, the trajectories from
-//! the release on, the mesh copied beside them.
+//! the release on, the mesh copied beside them. `palpate import depth|cloud`: a scan
+//! (`super::import_scan`).
 
 use std::path::{Path, PathBuf};
 
@@ -14,6 +15,10 @@ use palpate_motion::dataset::{DatasetToml, LoadToml, MotionDatasetFiles};
 pub enum ImportCommand {
     /// A C3D file (Qualisys, Vicon, OptiTrack, Motion Analysis export).
     C3d(C3dArgs),
+    /// A depth frame (16-bit PNG) and its camera (TOML), back-projected into a scan folder.
+    Depth(super::import_scan::DepthArgs),
+    /// A point cloud (PLY, XYZ, CSV) in the mesh's frame, as a scan folder.
+    Cloud(super::import_scan::CloudArgs),
 }
 
 /// Options of `palpate import c3d`.
@@ -114,8 +119,11 @@ fn read_places(path: &Path) -> anyhow::Result<Vec<(String, [f64; 3])>> {
 
 /// Runs the command.
 pub fn run(cmd: ImportCommand) -> anyhow::Result<()> {
-    let ImportCommand::C3d(a) = cmd;
-    import_c3d(&a)
+    match cmd {
+        ImportCommand::C3d(a) => import_c3d(&a),
+        ImportCommand::Depth(a) => super::import_scan::run_depth(&a),
+        ImportCommand::Cloud(a) => super::import_scan::run_cloud(&a),
+    }
 }
 
 /// Checks the flags before the capture is read and before any folder is made.

@@ -2,7 +2,8 @@
 //! (`.palp`: format, sizes, material layout and range, blend, provenance, the runtime memory it
 //! needs), a fitted motion model (`fit.json` of `fit-motion`/`diagnose`), a dataset directory, or
 //! a motion capture (C3D: its markers, rate, frames and gaps — what `palpate import c3d` will read),
-//! or a Gmsh mesh (its size, extent, volume and the physical groups clamps and loads can name).
+//! or a Gmsh mesh (its size, extent, volume and the physical groups clamps and loads can name),
+//! or a scan folder of `palpate import depth|cloud` (its points, bounds, units, camera, noise).
 //! The last line is one JSON object with the same facts, for scripts.
 
 use std::path::PathBuf;
@@ -19,13 +20,16 @@ const SCHEMA_VERSION: u32 = 1;
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// A `.palp` model, a `fit.json` of `fit-motion`/`diagnose`, a dataset directory, a C3D
-    /// capture, or a Gmsh mesh (`.msh`).
+    /// capture, a Gmsh mesh (`.msh`), or a scan folder (or its `scan.toml`).
     pub file: PathBuf,
 }
 
 /// Runs the command.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let path = &args.file;
+    if super::import_scan::is_scan(path) {
+        return super::import_scan::info(path);
+    }
     if path.is_dir() {
         return dataset(path);
     }

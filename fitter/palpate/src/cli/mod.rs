@@ -11,6 +11,7 @@ pub mod fit;
 pub mod fit_motion;
 pub mod haptic;
 pub mod import;
+pub mod import_scan;
 pub mod info;
 pub mod input_kind;
 pub mod logging;
@@ -55,7 +56,7 @@ pub struct Cli {
 pub enum Command {
     /// The whole loop on the bundled data: fit, diagnose, export, haptic replay over a pty.
     Demo(demo::Args),
-    /// Import a motion capture (C3D) as a motion dataset, registered to the mesh frame.
+    /// Import a motion capture (C3D) as a motion dataset, or a scan (depth frame, point cloud).
     #[command(subcommand)]
     Import(import::ImportCommand),
     /// Simulate one static interaction with the runtime; writes displacements CSV and VTK.

@@ -15,5 +15,6 @@ mod mesh_convergence;
 mod progress;
 mod readme_facts;
 mod refuses_nonsense;
+mod scan_import;
 mod vocabulary;
 mod vtu_other_readers;

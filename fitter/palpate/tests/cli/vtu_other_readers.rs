@@ -295,3 +295,92 @@ fn fit_writes_a_vtu_other_readers_accept() {
         "−1 < ν < 0.5"
     );
 }
+
+/// The scan fit's residual files (`palpate_scan::residual_vtu`), for a hand-made fit of two
+/// triangles and three points, one of them with no surface near: the point file has one vertex
+/// cell per point and the surface file only the four surface nodes and two triangles; each
+/// array holds one value per point; the unmatched point's distance is NaN and its weight 0; the
+/// node means are those derived by hand (node 0: 1 mm from the point at it; node 3: −2 mm).
+#[test]
+fn the_scan_residual_files_are_what_a_vtk_reader_expects() {
+    use nalgebra::Vector3;
+    use palpate_scan::fit::{Equilibrium, Linearisation, PointResidual, ScanFit, ScanPoints};
+    use palpate_scan::surface::Correspondence;
+    let tmp = tempfile::tempdir().unwrap();
+    let at = |point, triangle, barycentric, distance| PointResidual {
+        correspondence: Correspondence {
+            point,
+            triangle,
+            barycentric,
+            normal: Vector3::z(),
+            distance,
+        },
+        sigma: 1e-3,
+        weight: 0.5,
+    };
+    // Five nodes, node 4 interior (in no triangle): the surface file must leave it out.
+    let rest = vec![
+        [0.0, 0.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [1.0, 1.0, 0.0],
+        [0.5, 0.5, -1.0],
+    ];
+    let positions: Vec<[f64; 3]> = rest.iter().map(|p| [p[0], p[1], p[2] - 0.1]).collect();
+    let fit = ScanFit {
+        mu: 1e5,
+        young_modulus: 2.9e5,
+        iterations: 1,
+        at_fit: Linearisation {
+            equilibrium: Equilibrium {
+                mu: 1e5,
+                rest,
+                positions,
+                dln_mu: None,
+                surface: vec![[0, 1, 2], [1, 3, 2]],
+            },
+            residuals: vec![
+                at(0, [0, 1, 2], [1.0, 0.0, 0.0], 1e-3),
+                at(2, [1, 3, 2], [0.0, 1.0, 0.0], -2e-3),
+            ],
+            cost: 0.0,
+            gradient: 0.0,
+            hessian: 1.0,
+        },
+    };
+    let scan = ScanPoints {
+        points: vec![
+            Vector3::new(0.0, 0.0, -0.099),
+            Vector3::new(9.0, 9.0, 9.0),
+            Vector3::new(1.0, 1.0, -0.102),
+        ],
+        sigma: vec![1e-3; 3],
+        camera: None,
+    };
+    let files =
+        palpate_scan::residual_vtu::write_fit_residual(tmp.path(), "t", &scan, &fit).unwrap();
+    let points = read_vtu(&files[0]);
+    assert_eq!((points.points, points.cells), (3, 3));
+    assert_eq!(points.array("Cells", "offsets").values, [1.0, 2.0, 3.0]);
+    assert_eq!(points.array("Cells", "types").values, [1.0; 3]);
+    let d = &points.array("PointData", "signed_distance_m").values;
+    assert!(d[0] == 1e-3 && d[1].is_nan() && d[2] == -2e-3, "{d:?}");
+    assert_eq!(points.array("PointData", "weight").values, [0.5, 0.0, 0.5]);
+    let surface = read_vtu(&files[1]);
+    assert_eq!((surface.points, surface.cells), (4, 2));
+    assert_eq!(surface.array("Cells", "types").values, [5.0; 2]);
+    assert_eq!(surface.array("Cells", "offsets").values, [3.0, 6.0]);
+    let mean = &surface.array("PointData", "mean_residual_m").values;
+    // Renumbered in first-seen order: 0, 1, 2, 3.
+    assert!(
+        mean[0] == 1e-3 && mean[3] == -2e-3 && mean[1].is_nan(),
+        "{mean:?}"
+    );
+    let u = surface.array("PointData", "displacement");
+    assert_eq!(u.components, 3);
+    assert!(
+        u.values.chunks(3).all(|c| c == [0.0, 0.0, -0.1]),
+        "{:?}",
+        u.values
+    );
+}
