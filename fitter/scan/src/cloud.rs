@@ -110,6 +110,17 @@ enum Encoding {
     Binary { little: bool },
 }
 
+/// Adds `p` to the element the header declared last (a property belongs to the element line
+/// above it); an error when no element came before it.
+fn add_property(elements: &mut [Element], p: Property) -> Result<(), String> {
+    elements
+        .last_mut()
+        .ok_or_else(|| "a property before any element".to_string())?
+        .properties
+        .push(p);
+    Ok(())
+}
+
 /// The header: encoding, elements, and the byte offset where the data start.
 fn ply_header(path: &Path, bytes: &[u8]) -> Result<(Encoding, Vec<Element>, usize), ScanError> {
     let mut encoding = None;
@@ -160,28 +171,22 @@ fn ply_header(path: &Path, bytes: &[u8]) -> Result<(Encoding, Vec<Element>, usiz
                         "property list {name}: unknown types \"{c} {i}\""
                     )));
                 };
-                elements
-                    .last_mut()
-                    .ok_or_else(|| bad("a property before any element".into()))?
-                    .properties
-                    .push(Property {
-                        name: (*name).into(),
-                        count: Some(count),
-                        item,
-                    });
+                let p = Property {
+                    name: (*name).into(),
+                    count: Some(count),
+                    item,
+                };
+                add_property(&mut elements, p).map_err(bad)?;
             }
             ["property", t, name] => {
                 let item = Scalar::parse(t)
                     .ok_or_else(|| bad(format!("property {name}: unknown type \"{t}\"")))?;
-                elements
-                    .last_mut()
-                    .ok_or_else(|| bad("a property before any element".into()))?
-                    .properties
-                    .push(Property {
-                        name: (*name).into(),
-                        count: None,
-                        item,
-                    });
+                let p = Property {
+                    name: (*name).into(),
+                    count: None,
+                    item,
+                };
+                add_property(&mut elements, p).map_err(bad)?;
             }
             ["end_header"] => break,
             _ => return Err(bad(format!("not a PLY header line: \"{line}\""))),
@@ -523,5 +528,15 @@ mod tests {
         let p = write(dir.path(), "t.ply", b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n1 1 1\n");
         let e = read_points(&p).unwrap_err().to_string();
         assert!(e.contains("instance 2 of 3"), "{e}");
+        let p = write(
+            dir.path(),
+            "u.ply",
+            b"ply\nformat ascii 1.0\nproperty float x\nelement vertex 1\nend_header\n0\n",
+        );
+        let e = read_points(&p).unwrap_err().to_string();
+        assert!(
+            e.contains("u.ply") && e.contains("line 3") && e.contains("before any element"),
+            "{e}"
+        );
     }
 }
