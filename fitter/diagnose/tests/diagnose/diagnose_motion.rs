@@ -442,6 +442,59 @@ fn a_stiffening_bar_is_given_its_stiffening() {
     assert!(r.before.rms_held > 10.0 * floor);
 }
 
+/// The bar of [`a_bar_of_two_materials_is_given_its_second_material`] with only the elements
+/// that touch its clamp nine times as stiff (μ 90 kPa against 10 kPa): what a coarse mesh's own
+/// error at a cantilever's root looks like to the sensitivity map. The two-material candidate
+/// must not be adopted, and its row must say why: the region it found lies in the clamp's element
+/// layer, where a material cannot be told from the mesh's error at a boundary.
+#[test]
+fn a_stiff_element_layer_at_the_clamp_is_refused_as_a_second_material() {
+    use palpate_motion::model::ParamKind;
+    let layer = |m: &Model| -> Vec<bool> {
+        let clamped: Vec<usize> = m.clamps.iter().flat_map(|c| c.nodes.clone()).collect();
+        m.tets
+            .iter()
+            .map(|t| t.iter().any(|n| clamped.contains(n)))
+            .collect()
+    };
+    let stiff_root = |ds: &MotionDataset| {
+        let mut t = Material::uniform(ds.model.tets.len(), 2.0e4, 1.0e4, 6.0, 1.0, 47.0);
+        for (e, at) in layer(&ds.model).into_iter().enumerate() {
+            if at {
+                t.values[ParamKind::Mu as usize][e] = 9.0e4;
+            }
+        }
+        t
+    };
+    let (_, mut ds) = crate::diagnose_runs::run_of("stiff-root", Some(0.03), 6, 0, &stiff_root);
+    for l in &mut ds.model.loads {
+        l.inertia = true;
+    }
+    let r = run(&ds, "stiff-root");
+    assert!(
+        !r.adopted.iter().any(|a| a == "two-material"),
+        "{:?}",
+        r.adopted
+    );
+    let tried: Vec<&palpate_diagnose::motion::Trial> = r
+        .rounds
+        .iter()
+        .flat_map(|rd| &rd.trials)
+        .filter(|t| t.candidate == "two-material")
+        .collect();
+    assert!(!tried.is_empty(), "two-material never tried");
+    for t in tried {
+        assert!(
+            !t.fitted
+                && t.reason.contains("refused: a region of")
+                && t.reason
+                    .contains("discretisation error at a boundary is not a material"),
+            "{}",
+            t.reason
+        );
+    }
+}
+
 /// A bar of two materials: the half next to its moving base three times as stiff as the rest
 /// (μ 30 kPa against 10 kPa, λ one value), Newtonian damping as the other runs of its kind,
 /// hung with a 30 g weight as the stiffening bar (σ = 20 µm). The simplest model's one μ cannot
