@@ -174,6 +174,18 @@ fn elastic_specimen_comes_back_clean() {
         // The elastic fit itself is at the noise floor (within 10 %: 34 × 9 markers give the
         // RMS a relative sampling error of ≈ 2.3 %, plus the bias of fitting 2 parameters).
         assert!((r.before.rms_fit / (SIGMA * 3f64.sqrt()) - 1.0).abs() < 0.1);
+        // Markers only, no load: the moduli are those of the declared density, and the
+        // report says so.
+        assert!(
+            r.relative.len() == 1
+                && r.relative[0].contains("relative to the density ρ = 47")
+                && r.relative[0].contains("kg/m³ (declared)")
+                && r.relative[0].contains("μ/ρ is determined, not μ"),
+            "{:?}",
+            r.relative
+        );
+        let md = palpate_diagnose::motion::report::markdown(&r);
+        assert!(md.contains("**Relative figures**: the moduli"), "{md}");
     }
 }
 
@@ -471,6 +483,8 @@ fn a_stiff_element_layer_at_the_clamp_is_refused_as_a_second_material() {
         l.inertia = true;
     }
     let r = run(&ds, "stiff-root");
+    // The hung weight is a known force: the moduli are absolute.
+    assert!(r.relative.is_empty(), "{:?}", r.relative);
     assert!(
         !r.adopted.iter().any(|a| a == "two-material"),
         "{:?}",
