@@ -185,6 +185,9 @@ pub struct MotionDiagnosis {
     pub split: Split,
     /// Whether dataset.toml declares the density.
     pub density_declared: bool,
+    /// Figures these data determine only relative to another, in words: with neither a measured
+    /// force nor a known load, the moduli and the viscosity relative to the density held.
+    pub relative: Vec<String>,
     /// Options used.
     pub options: MotionOptions,
     /// The rule, in words.
@@ -373,6 +376,7 @@ pub fn diagnose(
         size: (ne, ds.model.markers.len(), steps, ds.model.dt),
         split,
         density_declared: ds.config.density.is_some(),
+        relative: relative_figures(ds, &adopted, &cur),
         options: o.clone(),
         rule: format!(
             "BIC = n ln(χ²/n) + k ln n over the n scalar marker residuals (unknown noise \
@@ -414,4 +418,27 @@ pub fn diagnose(
         mesh_convergence,
         material: Some(cur.material.clone()),
     })
+}
+
+/// What the final fit `cur` knows only relative to another figure. With prescribed clamps, no
+/// measured clamp force and no known load, M a = f_int + f_visc + M g divides through by ρ: the
+/// motion depends on λ/ρ, μ/ρ and the viscosity over ρ only, so the moduli and the viscosity are
+/// those of the density held (declared or assumed), and a density off by a factor moves them
+/// all by it — which the value tables do not show.
+fn relative_figures(ds: &MotionDataset, adopted: &[Candidate], cur: &FittedModel) -> Vec<String> {
+    let forces = ds.obs.forces.iter().flatten().flatten().count() > 0;
+    if forces || !ds.model.loads.is_empty() || adopted.contains(&Candidate::Density) {
+        return Vec::new();
+    }
+    vec![format!(
+        "the moduli λ and μ and the viscosity are relative to the density ρ = {} kg/m³ ({}): \
+         with prescribed clamps and neither a measured force nor a known load, the motion \
+         depends on λ/ρ, μ/ρ and the viscosity over ρ only — μ/ρ is determined, not μ",
+        palpate_fem::numbers::plain(cur.material.get(ParamKind::Density, 0)),
+        if ds.config.density.is_some() {
+            "declared"
+        } else {
+            "assumed: not declared"
+        }
+    )]
 }

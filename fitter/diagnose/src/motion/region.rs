@@ -55,6 +55,60 @@ pub fn plausible(elements: usize, volume: f64, total: f64) -> bool {
     elements >= MIN_REGION_ELEMENTS && volume >= MIN_REGION_VOLUME * total
 }
 
+/// The share of a region's volume in a clamp's element layer from which it is refused
+/// ([`at_clamp_layer`]): two thirds, so that a region mostly in the layer, reaching less than
+/// half a layer beyond it, is refused, while one with as much volume beyond the layer as in it
+/// (the half of a bar next to its clamp, two element layers deep) is kept.
+pub const CLAMP_LAYER_SHARE: f64 = 2.0 / 3.0;
+
+/// Why a region is not taken for a second material because of where it sits, or `None`: at
+/// least [`CLAMP_LAYER_SHARE`] of its volume lies in the layer of elements that touch a clamp's
+/// nodes. The size floor ([`plausible`]) keeps out one element; this keeps out the next symptom
+/// of the same cause — a coarse mesh's error at a Dirichlet boundary sits in exactly that layer
+/// (a cantilever's root, where the stress is largest and linear tets are too stiff), and another
+/// material there, hardly thicker than one element, mimics the refinement the mesh lacks. A
+/// material that thin at a clamp cannot be told from the mesh's error there.
+pub fn at_clamp_layer(model: &Model, elements: &[usize]) -> Option<String> {
+    let volumes: Vec<f64> = model.rest.iter().map(|r| r.volume).collect();
+    let clamps: Vec<(&str, &[usize])> = model
+        .clamps
+        .iter()
+        .map(|c| (c.name.as_str(), c.nodes.as_slice()))
+        .collect();
+    clamp_layer_refusal(&model.tets, &volumes, &clamps, elements)
+}
+
+/// [`at_clamp_layer`] on the mesh's `tets`, their `volumes` and the `clamps`' (name, nodes).
+fn clamp_layer_refusal(
+    tets: &[[usize; 4]],
+    volumes: &[f64],
+    clamps: &[(&str, &[usize])],
+    elements: &[usize],
+) -> Option<String> {
+    let region: f64 = elements.iter().map(|&e| volumes[e]).sum();
+    let total: f64 = volumes.iter().sum();
+    clamps.iter().find_map(|&(name, nodes)| {
+        let clamped: std::collections::HashSet<usize> = nodes.iter().copied().collect();
+        let touches = |e: usize| tets[e].iter().any(|n| clamped.contains(n));
+        let layer: Vec<usize> = (0..tets.len()).filter(|&e| touches(e)).collect();
+        let inside: Vec<usize> = elements.iter().copied().filter(|&e| touches(e)).collect();
+        let inside_volume: f64 = inside.iter().map(|&e| volumes[e]).sum();
+        (region > 0.0 && inside_volume >= CLAMP_LAYER_SHARE * region).then(|| {
+            format!(
+                "a region of {} element{} ({:.1} % of the volume), {} of them ({:.0} % of its \
+                 volume) in the layer of {} elements at clamp `{name}` — discretisation error \
+                 at a boundary is not a material",
+                elements.len(),
+                if elements.len() == 1 { "" } else { "s" },
+                100.0 * region / total,
+                inside.len(),
+                100.0 * inside_volume / region,
+                layer.len()
+            )
+        })
+    })
+}
+
 /// Iterations of each region's screening fit: the region's μ and the global ones from the
 /// current model, a ranking, not an answer (the random bars' screens converged in 5–6; the
 /// chosen region is then fitted in full).
@@ -433,5 +487,43 @@ mod tests {
         // 1 % of the volume: four elements of 1000 are a speck.
         assert!(!plausible(4, 4.0, 1000.0));
         assert!(plausible(10, 10.0, 1000.0));
+    }
+
+    /// A bar of six element layers (four elements each) clamped at its first plane of nodes: a
+    /// region mostly in the clamp's element layer is refused, whatever its size; one reaching as
+    /// far beyond the layer as into it (half the bar), or away from the clamp, is kept.
+    #[test]
+    fn a_region_in_the_clamps_element_layer_is_not_a_material() {
+        // Plane j holds nodes 4j..4j+3; element (j, i) joins planes j and j + 1.
+        let tets: Vec<[usize; 4]> = (0..6)
+            .flat_map(|j| {
+                (0..4).map(move |i| {
+                    let (a, b) = (4 * j + i, 4 * j + (i + 1) % 4);
+                    [a, b, a + 4, b + 4]
+                })
+            })
+            .collect();
+        let volumes = vec![1.0; tets.len()];
+        let clamp: Vec<usize> = (0..4).collect();
+        let clamps = [("front", clamp.as_slice())];
+        let refused = |elements: &[usize]| clamp_layer_refusal(&tets, &volumes, &clamps, elements);
+        let one = refused(&[2]).expect("one element at the clamp");
+        assert!(
+            one.starts_with("a region of 1 element (4.2 % of the volume)")
+                && one.contains("at clamp `front`")
+                && one.contains("discretisation error at a boundary is not a material"),
+            "{one}"
+        );
+        assert!(refused(&[0, 1, 2, 3]).is_some(), "the whole layer");
+        // The layer and one element beyond it: four fifths in the layer.
+        assert!(refused(&[0, 1, 2, 3, 4]).is_some());
+        // Three quarters of a layer beyond it: kept.
+        assert!(refused(&[0, 1, 2, 3, 4, 5, 6]).is_none());
+        // Half the bar next to its clamp: a material three element layers deep.
+        assert!(refused(&(0..12).collect::<Vec<_>>()).is_none());
+        // Away from the clamp.
+        assert!(refused(&[8, 9, 10, 11]).is_none());
+        // No clamp: nothing to refuse.
+        assert!(clamp_layer_refusal(&tets, &volumes, &[], &[0]).is_none());
     }
 }

@@ -88,6 +88,9 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
     );
     let _ = writeln!(md, "**Result**: {}.\n", r.verdict());
     let _ = writeln!(md, "**Mesh**: {}.\n", r.mesh.statement);
+    for w in &r.relative {
+        let _ = writeln!(md, "**Relative figures**: {w}.\n");
+    }
     md.push_str("| marker error | simplest (elastic) | final | \n|---|---|---|\n");
     let _ = writeln!(
         md,

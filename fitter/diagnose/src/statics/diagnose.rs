@@ -418,6 +418,7 @@ fn select_effects(
         all,
         o,
         progress,
+        refreshed: None,
     };
     let verdict = select::select(&mut engine, &policy, current, current_held)?;
     let steps = static_steps(&verdict, o, engine.ctx.meas.len());

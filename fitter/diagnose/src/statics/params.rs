@@ -106,15 +106,31 @@ pub struct Identifiability {
     pub relative: Vec<String>,
 }
 
-/// The identifiability of fit `f`.
+/// What E is relative to when no adopted effect rescales the reported forces (whose own notes
+/// say it then, [`super::candidates::StaticEffect::relative_note`]): the displacements of a
+/// force-driven linear model scale with force over stiffness, so the force sensor's gain and E
+/// are one direction of the data — a fit of E alone hides it behind an assumed gain of 1, and a
+/// sensor off by a gain (or a power law read at another force) moves E by as much, unannounced.
+pub const FORCE_GAIN_NOTE: &str = "Young's modulus E is relative to the force gain: in a linear \
+     model the displacements scale with force over stiffness, so E/gain is determined, not E — E \
+     is stated for a force sensor that reads true (gain 1), and a sensor that reads 20 % high \
+     makes E 20 % high";
+
+/// The effects that rescale the reported forces, each stating what E is then relative to.
+fn rescales_forces(c: Candidate) -> bool {
+    matches!(c, Candidate::Calibration | Candidate::ForceScaleEach)
+}
+
+/// The identifiability of fit `f`: the degenerate pairs of its parameters, what E is relative to
+/// ([`FORCE_GAIN_NOTE`] unless an adopted effect says it), and the adopted effects' notes.
 pub fn identifiability(ctx: &Context, f: &Fitted) -> Identifiability {
+    let effects = &f.model.effects;
+    let base = (!effects.iter().any(|&c| rescales_forces(c))).then(|| FORCE_GAIN_NOTE.to_string());
     Identifiability {
         degenerate: degeneracies(ctx, f),
-        relative: f
-            .model
-            .effects
-            .iter()
-            .filter_map(|c| c.effect().relative_note(ctx))
+        relative: base
+            .into_iter()
+            .chain(effects.iter().filter_map(|c| c.effect().relative_note(ctx)))
             .collect(),
     }
 }

@@ -10,7 +10,7 @@ use super::params::effect_params;
 use super::signature::{evidence_points, signature, Signature};
 use super::{DiagnoseError, DiagnoseOptions, Errors, Evidence, Step, Tried};
 use crate::select::ParamValue;
-use crate::select::{self, Current, Gate, Outcome, Score, Verdict};
+use crate::select::{self, CandidateModel as _, Current, Gate, Outcome, Score, Verdict};
 
 /// The static diagnosis as the selection engine sees it: the context it solves in, the
 /// approximation-error correction refreshed after each adoption, and its options (gate numbers).
@@ -20,6 +20,137 @@ pub(super) struct StaticModel<'a> {
     pub(super) all: Vec<usize>,
     pub(super) o: &'a DiagnoseOptions,
     pub(super) progress: &'a mut dyn FnMut(&str),
+    /// The approximation-error correction refreshed at the fit of the round's first candidate
+    /// to pass the held-out gate, for [`select::CandidateModel::adopt`] to keep
+    /// ([`StaticModel::refresh_at`]).
+    pub(super) refreshed: Option<Refreshed>,
+}
+
+/// The correction refreshed at one candidate's fit, and what became of the refit with it.
+pub(super) struct Refreshed {
+    round: usize,
+    candidate: Candidate,
+    /// δ at the candidate's fit (`None` when the refit failed before δ was replaced).
+    delta: Option<Vec<Vec<[f64; 3]>>>,
+    outcome: RefreshOutcome,
+}
+
+/// What the refit with a refreshed correction says of the adoption it would follow.
+enum RefreshOutcome {
+    /// The refit and its held-out evidence: the next round starts from them.
+    Keep(Box<(Fitted, Held)>),
+    /// The refit does not lower the fitted error against the model before (in words): the
+    /// candidate is refused.
+    Refuse(String),
+    /// The refit cannot be used (it predicts the held-out measurements worse than the model
+    /// before, or it diverged; in words): the adoption stands on the fit the gate judged, with
+    /// the previous round's correction.
+    KeepGated(String),
+    /// An error that ends the diagnosis, raised if the candidate is adopted.
+    Failed(DiagnoseError),
+}
+
+/// Why an adoption is refused when its refit raises the fitted error, in words, or `None` when it
+/// lowers it by what BIC charges for its parameters: `before` and `after` the fitted figures of
+/// the model the adoption would replace and of the adopted model refitted, with the RMS marker
+/// errors (m) the reader compares; `threshold` the ΔBIC the candidate's own fit had to beat.
+///
+/// The fitted ΔBIC of a candidate is taken against the current model under one approximation-
+/// error correction; the correction is then refreshed at the candidate's fit and the model
+/// refitted, and the figures a reader sees — the rounds' errors, the summary's "RMS fitted
+/// before → after" — compare the model before (old correction) with the refit (new one). A gain
+/// smaller than the change of the mesh's own correction is a gain of the mesh, not of the effect,
+/// so the refit must clear the same ΔBIC as the fit did: the correction brings no parameter of
+/// its own, and the effect's parameters are charged once.
+pub(super) fn refusal_of_refit(
+    before: (Score, f64),
+    after: (Score, f64),
+    threshold: f64,
+) -> Option<String> {
+    // `bic` floors χ²/n, which turns a NaN χ² into the best score there is.
+    let delta_bic = if after.0.chi2.is_finite() && before.0.chi2.is_finite() {
+        after.0.bic() - before.0.bic()
+    } else {
+        f64::NAN
+    };
+    (delta_bic.is_nan() || delta_bic >= -threshold).then(|| {
+        format!(
+            "refused: fitted RMS {:.1} → {:.1} µm (ΔBIC {:+.1}, < −{threshold} required)",
+            1e6 * before.1,
+            1e6 * after.1,
+            delta_bic
+        )
+    })
+}
+
+impl StaticModel<'_> {
+    /// Refreshes the approximation-error correction at `f` (candidate `c`'s fit, which passed
+    /// the held-out gate) and refits, judging the refit against the model before; the context
+    /// keeps its correction (the round's other candidates are judged under it) and the refreshed
+    /// δ waits in [`Self::refreshed`] for the adoption.
+    fn refresh_at(&mut self, cur: &Current<'_, Self>, c: Candidate, f: &Fitted) -> Refreshed {
+        let done = |delta, outcome| Refreshed {
+            round: cur.round,
+            candidate: c,
+            delta,
+            outcome,
+        };
+        let Some(corr) = self.correction.as_mut() else {
+            return done(None, RefreshOutcome::KeepGated(String::new()));
+        };
+        (self.progress)(&format!(
+            "round {}: refreshing the approximation-error correction at the fit of {}",
+            cur.round,
+            c.name()
+        ));
+        let kept = self.ctx.correction.clone();
+        // A refit with the refreshed δ can leave the physical range where the gated fit did
+        // not (a stiffening fixed point pushed to a corner by the new correction): the adoption
+        // then stands on the fit the gate judged, with the previous round's correction — a
+        // diagnosis is not lost to one refit.
+        let refit = refresh(&mut self.ctx, corr, f, self.o.max_iterations).and_then(|g| {
+            let h = holdout(&self.ctx, &g, self.o.holdout_iterations)?;
+            Ok((g, h))
+        });
+        let delta = std::mem::replace(&mut self.ctx.correction, kept);
+        let outcome = match refit {
+            Ok((g, h)) => {
+                let before = (self.score(cur.fitted), cur.observed.1.fitted_rms);
+                let after = (self.score(&g), stats(&marker_norms(&self.ctx, &g)).0);
+                // The refreshed refit must still predict the held-out measurements better than
+                // the model the adoption replaced (the held-out half of the gate it passed), or
+                // the next round judges every candidate against a broken base: on an independent
+                // layer draw a refreshed inhomogeneity refit put grid nodes at e^−5.8 and
+                // predicted held-out measurements at 2,567 µm RMS where the gate had seen
+                // 357.5 µm and the model before it 394.6 µm.
+                let held_before: f64 = cur.held.chi2.iter().sum();
+                if let Some(why) = refusal_of_refit(before, after, self.o.bic_threshold) {
+                    RefreshOutcome::Refuse(format!(
+                        "{why} once the approximation-error correction is refreshed at its fit: \
+                         a gain smaller than the change of the mesh's own correction"
+                    ))
+                } else if h.chi2.iter().sum::<f64>() < held_before {
+                    RefreshOutcome::Keep(Box::new((g, h)))
+                } else {
+                    RefreshOutcome::KeepGated(format!(
+                        "the refit with the refreshed correction predicts the held-out \
+                         measurements worse than the model before {} (held-out RMS {:.1} µm \
+                         against {:.1} µm); the adopted fit and the previous round's correction \
+                         are kept",
+                        c.name(),
+                        1e6 * stats(&h.markers).0,
+                        1e6 * stats(&cur.held.markers).0,
+                    ))
+                }
+            }
+            Err(DiagnoseError::Diverged(why)) => RefreshOutcome::KeepGated(format!(
+                "the refit with the refreshed correction diverged ({why}); the previous \
+                 round's correction is kept"
+            )),
+            Err(e) => RefreshOutcome::Failed(e),
+        };
+        done(delta, outcome)
+    }
 }
 
 /// The static gate's figures of one cross-validated candidate.
@@ -211,6 +342,37 @@ impl select::CandidateModel for StaticModel<'_> {
                 held.unpredicted.join("; ")
             )
         };
+        // The adoption must lower the fitted error the reader compares. Without a correction
+        // that is the fitted ΔBIC the shortlist already required (checked again here, so that
+        // no other path adopts a rise); with one, the refit with the correction refreshed at
+        // this fit must clear it too, judged for the first candidate of the round to pass
+        // (the one the engine adopts) and for the next one if that is refused.
+        let before_rms = cur.observed.1.fitted_rms;
+        let refusal = if !passes {
+            None
+        } else if self.correction.is_none() {
+            let before = (self.score(cur.fitted), before_rms);
+            let after = (self.score(cand.fitted), self.summarise(cand.fitted));
+            refusal_of_refit(before, after, o.bic_threshold)
+        } else if self.refreshed.as_ref().is_some_and(|r| {
+            r.round == cur.round && !matches!(r.outcome, RefreshOutcome::Refuse(_))
+        }) {
+            // An earlier candidate of this round passed and will be adopted.
+            None
+        } else {
+            let r = self.refresh_at(cur, cand.candidate, cand.fitted);
+            let why = match &r.outcome {
+                RefreshOutcome::Refuse(w) => Some(w.clone()),
+                _ => None,
+            };
+            self.refreshed = Some(r);
+            why
+        };
+        let passes = passes && refusal.is_none();
+        let words = match refusal {
+            Some(r) => format!("{words}; {r}"),
+            None => words,
+        };
         Gate {
             passes,
             heldout_delta_bic: cv_bic,
@@ -239,53 +401,30 @@ impl select::CandidateModel for StaticModel<'_> {
             new_params: effect_params(ctx, &f, c),
             evidence: (xl.into(), yl.into(), before_pts, after_pts),
         };
-        let Some(corr) = self.correction.as_mut() else {
+        // The refit with the correction refreshed at this fit, made when the gate passed it.
+        let Some(r) = self
+            .refreshed
+            .take()
+            .filter(|r| r.round == cur.round && r.candidate == c)
+        else {
             return Ok((f, held, adoption));
         };
-        // δ at the adopted model, so the next round's residual is the refined model's.
-        (self.progress)(&format!(
-            "round {}: refreshing the approximation-error correction",
-            cur.round
-        ));
-        // A refit with the refreshed δ can leave the physical range where the adopted fit did
-        // not (a stiffening fixed point pushed to a corner by the new correction): the adoption
-        // stands on the fit the gate judged, with the previous round's correction, and the
-        // report's progress says so — a diagnosis is not lost to one refit.
-        let kept = self.ctx.correction.clone();
-        let refreshed = refresh(&mut self.ctx, corr, &f, self.o.max_iterations).and_then(|g| {
-            let h = holdout(&self.ctx, &g, self.o.holdout_iterations)?;
-            Ok((g, h))
-        });
-        // The refreshed refit must still predict the held-out measurements better than the model
-        // the adoption replaced (the held-out half of the gate it passed), or the next round
-        // judges every candidate against a broken base: on an independent layer draw a refreshed
-        // inhomogeneity refit put grid nodes at e^−5.8 and predicted held-out measurements at
-        // 2,567 µm RMS where the gate had seen 357.5 µm and the model before it 394.6 µm.
-        let before: f64 = cur.held.chi2.iter().sum();
-        match refreshed {
-            Ok((g, h)) if h.chi2.iter().sum::<f64>() < before => Ok((g, h, adoption)),
-            Ok((_, h)) => {
-                self.ctx.correction = kept;
-                (self.progress)(&format!(
-                    "round {}: the refit with the refreshed correction predicts the held-out \
-                     measurements worse than the model before {} (held-out RMS {:.1} µm against \
-                     {:.1} µm); the adopted fit and the previous round's correction are kept",
-                    cur.round,
-                    c.name(),
-                    1e6 * stats(&h.markers).0,
-                    1e6 * stats(&cur.held.markers).0,
-                ));
+        match r.outcome {
+            RefreshOutcome::Keep(kept) => {
+                self.ctx.correction = r.delta;
+                let (g, h) = *kept;
+                Ok((g, h, adoption))
+            }
+            RefreshOutcome::KeepGated(why) => {
+                if !why.is_empty() {
+                    (self.progress)(&format!("round {}: {why}", cur.round));
+                }
                 Ok((f, held, adoption))
             }
-            Err(DiagnoseError::Diverged(why)) => {
-                self.ctx.correction = kept;
-                (self.progress)(&format!(
-                    "round {}: the refit with the refreshed correction diverged ({why}); the previous round's correction is kept",
-                    cur.round
-                ));
-                Ok((f, held, adoption))
-            }
-            Err(e) => Err(e),
+            RefreshOutcome::Failed(e) => Err(e),
+            // Not reached: the gate failed a refused candidate, and the engine adopts only one
+            // that passed.
+            RefreshOutcome::Refuse(_) => Ok((f, held, adoption)),
         }
     }
 }
@@ -373,4 +512,48 @@ pub(super) fn static_steps(
             }
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The fitted figures of a fit with `n` residual entries, `k` parameters and RMS marker
+    /// error `rms` (µm), σ = 100 µm (χ² = n/3 · (rms/σ)² over n/3 markers).
+    fn fit(n: usize, k: usize, rms: f64) -> (Score, f64) {
+        let chi2 = n as f64 / 3.0 * (rms / 100.0).powi(2);
+        (Score { chi2, n, k }, 1e-6 * rms)
+    }
+
+    /// An adoption whose refit raises the fitted RMS (186.9 → 187.1 µm, the figures of a
+    /// calibration adopted on an independent layered block) is refused with the figures in
+    /// words; so is one that lowers it by less than BIC charges for its parameter; one that
+    /// lowers it as a layer does (218.3 → 214.5 µm, 3 parameters) is not.
+    #[test]
+    fn a_refit_that_does_not_lower_the_fitted_error_is_refused() {
+        let n = 2400;
+        let rose = refusal_of_refit(fit(n, 2, 186.9), fit(n, 3, 187.1), 10.0)
+            .expect("a rising RMS is refused");
+        assert!(
+            rose.starts_with("refused: fitted RMS 186.9 → 187.1 µm (ΔBIC +"),
+            "{rose}"
+        );
+        // 0.2 µm lower: χ² 0.2 % lower, ΔBIC = 2400 ln(0.9979) + ln 2400 ≈ +2.6.
+        assert!(refusal_of_refit(fit(n, 2, 187.1), fit(n, 3, 186.9), 10.0).is_some());
+        // Lower by enough to pay for its parameter but not by the threshold: 0.6 µm lower is
+        // ΔBIC ≈ −7.6 (refused); 0.8 µm lower is ΔBIC ≈ −12.8 (kept).
+        assert!(refusal_of_refit(fit(n, 2, 187.1), fit(n, 3, 186.5), 10.0).is_some());
+        assert!(refusal_of_refit(fit(n, 2, 187.1), fit(n, 3, 186.3), 10.0).is_none());
+        assert!(refusal_of_refit(fit(n, 2, 218.3), fit(n, 5, 214.5), 10.0).is_none());
+        // A refit with no figures is not an adoption.
+        let nan = (
+            Score {
+                chi2: f64::NAN,
+                n,
+                k: 3,
+            },
+            f64::NAN,
+        );
+        assert!(refusal_of_refit(fit(n, 2, 187.1), nan, 10.0).is_some());
+    }
 }

@@ -72,6 +72,20 @@ fn diagnose_clean_specimen_adopts_nothing() {
         r.after.fitted_rms,
         r.noise_floor
     );
+    // A force-driven fit determines E over the force sensor's gain: the report says so in its
+    // text and its JSON, though no effect was adopted.
+    let relative = json["identifiability"]["relative"].as_array().unwrap();
+    assert!(
+        relative.iter().any(|w| w
+            .as_str()
+            .is_some_and(|w| w.contains("E/gain is determined, not E"))),
+        "{relative:?}"
+    );
+    let md = palpate_diagnose::report::markdown(&r, &[]);
+    assert!(
+        md.contains("Young's modulus E is relative to the force gain"),
+        "{md}"
+    );
 }
 
 fn named(effect: Effect, candidate: Candidate) {

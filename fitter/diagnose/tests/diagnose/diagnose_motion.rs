@@ -174,6 +174,18 @@ fn elastic_specimen_comes_back_clean() {
         // The elastic fit itself is at the noise floor (within 10 %: 34 × 9 markers give the
         // RMS a relative sampling error of ≈ 2.3 %, plus the bias of fitting 2 parameters).
         assert!((r.before.rms_fit / (SIGMA * 3f64.sqrt()) - 1.0).abs() < 0.1);
+        // Markers only, no load: the moduli are those of the declared density, and the
+        // report says so.
+        assert!(
+            r.relative.len() == 1
+                && r.relative[0].contains("relative to the density ρ = 47")
+                && r.relative[0].contains("kg/m³ (declared)")
+                && r.relative[0].contains("μ/ρ is determined, not μ"),
+            "{:?}",
+            r.relative
+        );
+        let md = palpate_diagnose::motion::report::markdown(&r);
+        assert!(md.contains("**Relative figures**: the moduli"), "{md}");
     }
 }
 
@@ -440,6 +452,61 @@ fn a_stiffening_bar_is_given_its_stiffening() {
         1e6 * r.after.rms_held
     );
     assert!(r.before.rms_held > 10.0 * floor);
+}
+
+/// The bar of [`a_bar_of_two_materials_is_given_its_second_material`] with only the elements
+/// that touch its clamp nine times as stiff (μ 90 kPa against 10 kPa): what a coarse mesh's own
+/// error at a cantilever's root looks like to the sensitivity map. The two-material candidate
+/// must not be adopted, and its row must say why: the region it found lies in the clamp's element
+/// layer, where a material cannot be told from the mesh's error at a boundary.
+#[test]
+fn a_stiff_element_layer_at_the_clamp_is_refused_as_a_second_material() {
+    use palpate_motion::model::ParamKind;
+    let layer = |m: &Model| -> Vec<bool> {
+        let clamped: Vec<usize> = m.clamps.iter().flat_map(|c| c.nodes.clone()).collect();
+        m.tets
+            .iter()
+            .map(|t| t.iter().any(|n| clamped.contains(n)))
+            .collect()
+    };
+    let stiff_root = |ds: &MotionDataset| {
+        let mut t = Material::uniform(ds.model.tets.len(), 2.0e4, 1.0e4, 6.0, 1.0, 47.0);
+        for (e, at) in layer(&ds.model).into_iter().enumerate() {
+            if at {
+                t.values[ParamKind::Mu as usize][e] = 9.0e4;
+            }
+        }
+        t
+    };
+    let (_, mut ds) = crate::diagnose_runs::run_of("stiff-root", Some(0.03), 6, 0, &stiff_root);
+    for l in &mut ds.model.loads {
+        l.inertia = true;
+    }
+    let r = run(&ds, "stiff-root");
+    // The hung weight is a known force: the moduli are absolute.
+    assert!(r.relative.is_empty(), "{:?}", r.relative);
+    assert!(
+        !r.adopted.iter().any(|a| a == "two-material"),
+        "{:?}",
+        r.adopted
+    );
+    let tried: Vec<&palpate_diagnose::motion::Trial> = r
+        .rounds
+        .iter()
+        .flat_map(|rd| &rd.trials)
+        .filter(|t| t.candidate == "two-material")
+        .collect();
+    assert!(!tried.is_empty(), "two-material never tried");
+    for t in tried {
+        assert!(
+            !t.fitted
+                && t.reason.contains("refused: a region of")
+                && t.reason
+                    .contains("discretisation error at a boundary is not a material"),
+            "{}",
+            t.reason
+        );
+    }
 }
 
 /// A bar of two materials: the half next to its moving base three times as stiff as the rest

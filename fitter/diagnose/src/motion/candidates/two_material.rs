@@ -3,7 +3,8 @@
 //! sensitivity to each element's own μ at the current fit ([`region`]): of the map's level sets,
 //! the region whose screened fit is best; its μ is then fitted, the rest keeps the global μ (λ
 //! stays one value: Poisson's ratio differs between the two), and its boundary is refined on
-//! adoption ([`refine_boundary`]).
+//! adoption ([`refine_boundary`]). A region no thicker than the element layer at a clamp is
+//! refused ([`region::at_clamp_layer`]): there a coarse mesh's own error looks like a material.
 
 use palpate_motion::model::{Model, Param, ParamKind};
 use rayon::prelude::*;
@@ -156,6 +157,16 @@ fn fit_two_material(
         )));
     };
     let region = family.region(k);
+    // The best region is judged where it sits, not replaced by the best of the rest: a clamp's
+    // element layer that fits better than every region elsewhere says the misfit the map sees
+    // is the mesh's at the boundary, which a region elsewhere would only absorb in part.
+    if let Some(why) = region::at_clamp_layer(&m.ds.model, &region.elements) {
+        (m.log)(&format!(
+            "  two-material: the best of {screened} level sets of the sensitivity map is \
+             refused: {why}"
+        ));
+        return Ok(Outcome::NotFitted(format!("refused: {why}")));
+    }
     (m.log)(&format!(
         "  two-material: region of {} (the best of {screened} level sets of the sensitivity \
          map)",
@@ -195,7 +206,9 @@ fn refine_boundary(m: &MotionModel<'_>, gated: FittedModel) -> FittedModel {
         let moves = region::switches(&region, &grad, mu_in, mu_out);
         let mut k = moves.len();
         while k > 0 && refits < REGION_REFITS {
-            let Some(next) = region::switched(&region, &moves[..k], &volumes) else {
+            let Some(next) = region::switched(&region, &moves[..k], &volumes)
+                .filter(|next| region::at_clamp_layer(&m.ds.model, next).is_none())
+            else {
                 k /= 2;
                 continue;
             };

@@ -36,6 +36,17 @@ impl StaticEffect for Gravity {
         vec![("density ρ".into(), "kg/m³", 1000.0)]
     }
 
+    /// The sag under the object's own weight scales with ρ g over E, the contacts' displacements
+    /// with force over E: ρ is fixed through E, and is as relative as E is.
+    fn relative_note(&self, _ctx: &Context) -> Option<String> {
+        Some(
+            "the density ρ is relative to E as the sag fixes it: the object's own weight \
+             displaces it by ρ g over E, so ρ/E is determined and ρ moves with E (and with \
+             whatever force gain E is relative to)"
+                .into(),
+        )
+    }
+
     fn evidence(&self, r: &Residual) -> EvidencePoints {
         r.vertical_against_height()
     }
