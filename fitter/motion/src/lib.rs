@@ -37,6 +37,7 @@ pub mod relaxation;
 pub mod request;
 pub mod rest_fit;
 pub mod scenario;
+pub mod settling;
 pub mod sim;
 pub mod sparse;
 pub mod spline;

@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 use crate::dataset::{DatasetError, MotionDataset};
 use crate::fitted::FittedModel;
 use crate::predict::{self, Prediction};
+use crate::settling::{self, Settling};
 use crate::{time_offset, MotionError};
 
 /// Why a run could not be predicted, or its prediction not written.
@@ -97,6 +98,11 @@ pub struct Validation {
     pub baseline_final_rms_m: Option<f64>,
     /// The run (loaded with the model's hanging inertia).
     pub run: MotionDataset,
+    /// How the prediction settles after the ring-down against the capture
+    /// ([`settling::settling`]).
+    pub settling: Option<Settling>,
+    /// The rest error's RMS along gravity and across it (m), [`settling::rest_error_directions`].
+    pub rest_directions: Option<(f64, f64)>,
 }
 
 /// Reads the motion dataset at `dataset` and predicts it with `fit` (read from `model`): at the
@@ -142,7 +148,12 @@ pub fn validate(
             dataset: dataset.into(),
             source,
         })?;
+    let settling = settling::settling(&ds.model, &ds.obs, &prediction.simulated);
+    let rest_directions =
+        settling::rest_error_directions(&ds.model, &ds.obs, &prediction.equilibrium);
     Ok(Validation {
+        settling,
+        rest_directions,
         dataset: dataset.into(),
         model: model.into(),
         fitted_on: fit.datasets.clone(),
@@ -174,6 +185,18 @@ impl Validation {
             "steps": m.steps,
             "dt_s": m.dt,
             "time_offset_s": self.time_offset.unwrap_or(0) as f64 * m.dt,
+            "rest_along_gravity_rms_m": self.rest_directions.map(|d| d.0),
+            "rest_across_gravity_rms_m": self.rest_directions.map(|d| d.1),
+            "settling": self.settling.as_ref().map(|s| serde_json::json!({
+                "from_s": s.from_s,
+                "markers": s.markers.iter().map(|&i| m.markers[i].name.clone()).collect::<Vec<_>>(),
+                "max_abs_error_m": s.max_abs_error_m(),
+                "measured_drift_m": s.measured_drift_m(),
+                "simulated_drift_m": s.simulated_drift_m(),
+                "windows": s.windows.iter().map(|w| serde_json::json!({
+                    "t_s": w.0, "measured_m": w.1, "simulated_m": w.2,
+                })).collect::<Vec<_>>(),
+            })),
         })
     }
 
@@ -323,6 +346,32 @@ impl fmt::Display for Validation {
             1e3 * p.final_rms_m,
             1e3 * p.final_max_m
         )?;
+        if let Some((along, across)) = self.rest_directions {
+            writeln!(
+                f,
+                "rest error by direction (RMS over the markers): {:.3} mm along gravity, {:.3} mm across it",
+                1e3 * along,
+                1e3 * across
+            )?;
+        }
+        if let Some(s) = &self.settling {
+            let names: Vec<&str> = s
+                .markers
+                .iter()
+                .map(|&i| m.markers[i].name.as_str())
+                .collect();
+            writeln!(
+                f,
+                "settling from {:.2} s (the measured swing below {:.0} % of its largest), mean of {} along gravity in {:.1} s windows: simulated − measured within {:.3} mm; the capture drifts {:+.3} mm over it, the simulation {:+.3} mm",
+                s.from_s,
+                100.0 * settling::SETTLED_FRACTION,
+                names.join(", "),
+                settling::WINDOW_S,
+                1e3 * s.max_abs_error_m(),
+                1e3 * s.measured_drift_m(),
+                1e3 * s.simulated_drift_m()
+            )?;
+        }
         match self.baseline_final_rms_m {
             Some(b) => writeln!(
                 f,

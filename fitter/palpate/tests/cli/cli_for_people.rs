@@ -256,6 +256,18 @@ fn every_json_document_has_a_schema_version_and_units_in_its_names() {
     for k in ["final_rms_m", "trajectory_rms_m", "load_n", "dt_s"] {
         assert!(v[k].as_f64().is_some(), "{k}: {v}");
     }
+    // The rest error split along gravity and across it is the whole rest error.
+    let (along, across, whole) = (
+        v["rest_along_gravity_rms_m"]
+            .as_f64()
+            .expect("the example has gravity"),
+        v["rest_across_gravity_rms_m"].as_f64().unwrap(),
+        v["final_rms_m"].as_f64().unwrap(),
+    );
+    assert!(
+        (along.hypot(across) - whole).abs() <= 1e-9 * whole.max(1e-12),
+        "{along} ⊕ {across} against {whole}"
+    );
     // info on the fit, the dataset and a model.
     for arg in [fit.clone(), example.clone()] {
         let o = palpate().arg("info").arg(&arg).output().unwrap();
