@@ -13,6 +13,7 @@
 
 use palpate_fem::numbers;
 use palpate_motion::dataset::MotionDataset;
+use palpate_motion::fitted::ConvergedModulus;
 use palpate_motion::rest_fit::{fit_shear_modulus, Design, RestSolve, RestState};
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -69,6 +70,28 @@ pub enum MeshConvergence {
 }
 
 impl MeshConvergence {
+    /// What `fit.json` records of a checked outcome: both shear moduli at the held Poisson's
+    /// ratio.
+    pub fn converged_modulus(&self) -> Option<ConvergedModulus> {
+        match self {
+            Self::Checked {
+                poisson,
+                linear,
+                quadratic,
+                ..
+            } => {
+                let mu = |e: f64| e / (2.0 * (1.0 + poisson));
+                Some(ConvergedModulus {
+                    design: quadratic.design.into(),
+                    poisson: *poisson,
+                    shear_modulus_pa: mu(quadratic.young_pa),
+                    mesh_shear_modulus_pa: mu(linear.young_pa),
+                })
+            }
+            Self::Skipped { .. } => None,
+        }
+    }
+
     /// P2's modulus over P1's, minus one, when checked.
     pub fn difference(&self) -> Option<f64> {
         match self {

@@ -89,6 +89,27 @@ pub struct FittedModel {
     pub evaluations: usize,
     /// Per fitted run.
     pub runs: Vec<FittedRun>,
+    /// The shear modulus of the fitted runs' rest states on elements that do not lock, beside
+    /// the one on this mesh's linear elements (the mesh-convergence check); absent when the check
+    /// was not made. With it a prediction can carry the material to another mesh
+    /// ([`super::transfer`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub converged: Option<ConvergedModulus>,
+}
+
+/// The material's modulus as elements that do not lock see it, and the same rest states'
+/// modulus on the fit's own linear mesh: their ratio is how much that mesh's locking stiffens
+/// it (`fit.json`'s `converged`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ConvergedModulus {
+    /// The discretisation of the material's modulus ("P2": quadratic tetrahedra).
+    pub design: String,
+    /// Poisson's ratio held in both fits.
+    pub poisson: f64,
+    /// μ fitted to the rest states with `design` (Pa): the material's.
+    pub shear_modulus_pa: f64,
+    /// μ fitted to the same rest states on the fit's linear mesh (Pa): the mesh's.
+    pub mesh_shear_modulus_pa: f64,
 }
 
 /// The creep branch of a fit ([`super::relaxation`]): one value for every element or one per

@@ -46,6 +46,7 @@ mod static_newton;
 pub mod statics;
 pub mod time_offset;
 pub mod timestep;
+pub mod transfer;
 pub mod validation;
 pub mod viscosity;
 

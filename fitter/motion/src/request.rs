@@ -383,6 +383,7 @@ fn record(
                 }
             })
             .collect(),
+        converged: None,
     }
 }
 

@@ -11,6 +11,7 @@ use crate::dataset::{DatasetError, MotionDataset};
 use crate::fitted::FittedModel;
 use crate::predict::{self, Prediction};
 use crate::settling::{self, Settling};
+use crate::transfer::{self, Carried};
 use crate::{time_offset, MotionError};
 
 /// Why a run could not be predicted, or its prediction not written.
@@ -23,7 +24,8 @@ pub enum ValidationError {
     /// The run is on another mesh than the model's.
     #[error(
         "{}: its mesh has {nodes} nodes and {tets} tets, the model's {model_nodes} and \
-         {model_tets}: a model predicts runs on the mesh it was fitted on",
+         {model_tets}, and the model records no converged modulus to carry its material to \
+         another mesh: fit it with `--mesh-convergence` (or `palpate diagnose`, which checks it)",
         dataset.display()
     )]
     OtherMesh {
@@ -37,6 +39,14 @@ pub enum ValidationError {
         model_nodes: usize,
         /// The model's tetrahedra.
         model_tets: usize,
+    },
+    /// The model's material could not be carried to the run's mesh.
+    #[error("{}: carrying the model's material to its mesh: {message}", dataset.display())]
+    Carry {
+        /// The dataset.
+        dataset: PathBuf,
+        /// Why.
+        message: String,
     },
     /// The model's material fields are inconsistent.
     #[error("{}: {message}", model.display())]
@@ -103,6 +113,9 @@ pub struct Validation {
     pub settling: Option<Settling>,
     /// The rest error's RMS along gravity and across it (m), [`settling::rest_error_directions`].
     pub rest_directions: Option<(f64, f64)>,
+    /// How the material was carried to the run's mesh, when it is not the model's
+    /// ([`transfer::carry`]).
+    pub carried: Option<Carried>,
 }
 
 /// Reads the motion dataset at `dataset` and predicts it with `fit` (read from `model`): at the
@@ -117,15 +130,28 @@ pub fn validate(
     if fit.hanging_inertia {
         crate::fitted::set_hanging_inertia(&mut ds.model, true);
     }
-    if ds.mesh.nodes.len() != fit.nodes || ds.mesh.tets.len() != fit.tets {
-        return Err(ValidationError::OtherMesh {
+    let mut carried = None;
+    let carried_fit;
+    let fit = if ds.mesh.nodes.len() != fit.nodes || ds.mesh.tets.len() != fit.tets {
+        if fit.converged.is_none() {
+            return Err(ValidationError::OtherMesh {
+                dataset: dataset.into(),
+                nodes: ds.mesh.nodes.len(),
+                tets: ds.mesh.tets.len(),
+                model_nodes: fit.nodes,
+                model_tets: fit.tets,
+            });
+        }
+        let (f, c) = transfer::carry(fit, &ds).map_err(|message| ValidationError::Carry {
             dataset: dataset.into(),
-            nodes: ds.mesh.nodes.len(),
-            tets: ds.mesh.tets.len(),
-            model_nodes: fit.nodes,
-            model_tets: fit.tets,
-        });
-    }
+            message,
+        })?;
+        carried = Some(c);
+        carried_fit = f;
+        &carried_fit
+    } else {
+        fit
+    };
     let mat = fit
         .material()
         .map_err(|message| ValidationError::Material {
@@ -152,6 +178,7 @@ pub fn validate(
     let rest_directions =
         settling::rest_error_directions(&ds.model, &ds.obs, &prediction.equilibrium);
     Ok(Validation {
+        carried,
         settling,
         rest_directions,
         dataset: dataset.into(),
@@ -185,6 +212,14 @@ impl Validation {
             "steps": m.steps,
             "dt_s": m.dt,
             "time_offset_s": self.time_offset.unwrap_or(0) as f64 * m.dt,
+            "carried": self.carried.as_ref().map(|c| serde_json::json!({
+                "converged_shear_modulus_pa": c.converged_mu_pa,
+                "fit_mesh_shear_modulus_pa": c.fit_mesh_mu_pa,
+                "new_mesh_shear_modulus_pa": c.new_mesh_mu_pa,
+                "scale": c.scale,
+                "match_rms_m": c.match_rms_m,
+                "largest_displacement_m": c.largest_displacement_m,
+            })),
             "rest_along_gravity_rms_m": self.rest_directions.map(|d| d.0),
             "rest_across_gravity_rms_m": self.rest_directions.map(|d| d.1),
             "settling": self.settling.as_ref().map(|s| serde_json::json!({
@@ -310,6 +345,19 @@ impl fmt::Display for Validation {
                 1e3 * offset as f64 * m.dt,
                 time_offset::SCAN_FRAMES,
                 time_offset::MAX_SCAN_FRAMES
+            )?;
+        }
+        if let Some(c) = &self.carried {
+            writeln!(
+                f,
+                "the material carried to this mesh ({} tets): μ {} on quadratic tetrahedra (the material's) is μ {} on the fit's linear mesh and {} on this one under this run's loads (match RMS {:.3} mm of a {:.1} mm displacement), so the moduli, the viscosity and the stiffening are scaled by {:.4}",
+                m.tets.len(),
+                palpate_fem::numbers::quantity(c.converged_mu_pa, "Pa"),
+                palpate_fem::numbers::quantity(c.fit_mesh_mu_pa, "Pa"),
+                palpate_fem::numbers::quantity(c.new_mesh_mu_pa, "Pa"),
+                1e3 * c.match_rms_m,
+                1e3 * c.largest_displacement_m,
+                c.scale
             )?;
         }
         writeln!(

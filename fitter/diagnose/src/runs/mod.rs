@@ -434,12 +434,17 @@ pub fn diagnose_runs_with(
     let sd_mu = mu_sd(&runs, &last.material, nu, n, last.parameters())?;
     m.count(3 * runs.len(), false);
     let values = final_values(&last, nu, sd_mu);
-    let model = fitted_model(fit, &models, &last, nu);
+    let mut model = fitted_model(fit, &models, &last, nu);
     let mesh_convergence = o.mesh_convergence.then(|| {
         let mu = last.material.get(ParamKind::Mu, 0);
         let named: Vec<(&str, &MotionDataset)> = fit.iter().map(|(n, d)| (n.as_str(), d)).collect();
         crate::convergence::check(&named, nu, mu, rms_of(&last.fitted), log)
     });
+    // fit.json carries the converged modulus, so `palpate validate` can take the material to
+    // another mesh.
+    model.converged = mesh_convergence
+        .as_ref()
+        .and_then(|c| c.converged_modulus());
     Ok(RunsDiagnosis {
         fitted_runs: fit.iter().map(|(n, _)| n.clone()).collect(),
         held_out_runs: held.iter().map(|(n, _)| n.clone()).collect(),
@@ -589,6 +594,7 @@ fn fitted_model(
                 }
             })
             .collect(),
+        converged: None,
     };
     for e in &last.effects {
         e.effect().record(&mut model);

@@ -54,7 +54,8 @@ pub struct Args {
     pub equilibria: bool,
     /// After the fit, fit the runs' rest states on linear and on quadratic elements of the same
     /// mesh and say whether the fitted modulus is the material's or the mesh's (linear tetrahedra
-    /// lock in bending near incompressibility; docs/diagnose.md, "Mesh convergence").
+    /// lock in bending near incompressibility; docs/diagnose.md, "Mesh convergence"). The
+    /// output's `converged` then lets `palpate validate` carry the material to another mesh.
     #[arg(long)]
     pub mesh_convergence: bool,
     /// Optimiser iteration cap.
@@ -204,7 +205,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         pb.set_position(n as u64);
         pb.set_message(format!("Φ = {}", palpate_fem::numbers::plain(phi)));
     };
-    let outcome = request::fit(&mut runs, &req, &progress)?;
+    let mut outcome = request::fit(&mut runs, &req, &progress)?;
     bar.finish_and_clear();
     println!("{outcome}");
     if args.mesh_convergence {
@@ -212,7 +213,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
         let (lambda, mu) = (mean(&r.lambda), mean(&r.mu));
         let poisson = r.poisson_fixed.unwrap_or(lambda / (2.0 * (lambda + mu)));
-        print_convergence(&runs, poisson, mu, r.rms_marker_m);
+        let c = print_convergence(&runs, poisson, mu, r.rms_marker_m);
+        // fit.json carries the converged modulus: `palpate validate` can then take the material
+        // to another mesh.
+        outcome.record.converged = c.converged_modulus();
     }
     let findings = outcome.findings.clone().into_result()?;
     if let Some(out) = &args.output {
@@ -250,13 +254,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 /// Prints whether the modulus `mu` fitted at Poisson's ratio `poisson` (marker RMS `rms_m`) is
-/// the material's or the mesh's ([`palpate_diagnose::convergence`]).
-fn print_convergence(runs: &[NamedRun], poisson: f64, mu: f64, rms_m: f64) {
+/// the material's or the mesh's ([`palpate_diagnose::convergence`]), and returns the check.
+fn print_convergence(
+    runs: &[NamedRun],
+    poisson: f64,
+    mu: f64,
+    rms_m: f64,
+) -> palpate_diagnose::convergence::MeshConvergence {
     let named: Vec<(&str, &palpate_motion::dataset::MotionDataset)> =
         runs.iter().map(|r| (r.name.as_str(), &r.dataset)).collect();
     let c =
         palpate_diagnose::convergence::check(&named, poisson, mu, rms_m, &|l| log::info!("{l}"));
     println!("{}", c.summary_line());
+    c
 }
 
 /// The spinner that counts the fit's simulations and shows Φ (on stderr; hidden by `-q`).
