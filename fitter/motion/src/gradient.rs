@@ -35,6 +35,27 @@ use super::MotionError;
 /// [`StepSolve::Kept`] is for meshes where a factorisation costs many triangular solves.
 pub const DEFAULT_STEP_SOLVE: StepSolve = StepSolve::Fresh;
 
+/// The process's step solve (see [`set_step_solve`]).
+static STEP_SOLVE: std::sync::RwLock<StepSolve> = std::sync::RwLock::new(DEFAULT_STEP_SOLVE);
+
+/// Sets how every gradient evaluation of this process that names no [`StepSolve`] solves the
+/// step systems ([`evaluate`], [`evaluate_gauss_newton`] and the fits through them): a whole fit
+/// can then be run under another solve without a setting threaded through the optimiser.
+/// [`StepSolve::None`] restores [`DEFAULT_STEP_SOLVE`].
+pub fn set_step_solve(solve: StepSolve) {
+    let solve = match solve {
+        StepSolve::None => step_solve(),
+        other => other,
+    };
+    // A poisoned lock only means a panic elsewhere while it was held; the value is a plain copy.
+    *STEP_SOLVE.write().unwrap_or_else(|e| e.into_inner()) = solve;
+}
+
+/// The step solve gradient evaluations use when their caller names none ([`set_step_solve`]).
+pub fn step_solve() -> StepSolve {
+    *STEP_SOLVE.read().unwrap_or_else(|e| e.into_inner())
+}
+
 /// How to compute the gradient.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Method {
@@ -384,9 +405,9 @@ fn evaluate_here(
             Ok(finish(&total, stats, None, 0))
         }
         Some(Method::Direct) => {
-            direct(model, mat, params, obs, false, DEFAULT_STEP_SOLVE).map(|(e, _)| e)
+            direct(model, mat, params, obs, false, step_solve()).map(|(e, _)| e)
         }
-        Some(Method::Adjoint) => adjoint(model, mat, params, obs, DEFAULT_STEP_SOLVE),
+        Some(Method::Adjoint) => adjoint(model, mat, params, obs, step_solve()),
     }
 }
 
@@ -402,12 +423,12 @@ pub fn evaluate_gauss_newton(
     params: &[Param],
     obs: &Observations,
 ) -> Result<(Evaluation, Vec<f64>), MotionError> {
-    evaluate_gauss_newton_with(model, mat, params, obs, DEFAULT_STEP_SOLVE)
+    evaluate_gauss_newton_with(model, mat, params, obs, step_solve())
 }
 
 /// [`evaluate_gauss_newton`] with the sensitivity systems solved as `solve` says
 /// ([`StepSolve::Fresh`] or [`StepSolve::Kept`]; [`StepSolve::None`] is taken as
-/// [`DEFAULT_STEP_SOLVE`]).
+/// [`step_solve`]).
 pub fn evaluate_gauss_newton_with(
     model: &Model,
     mat: &Material,
@@ -666,7 +687,7 @@ fn direct(
     let wdt = obs.marker_weight * model.observation_interval();
     let wf = obs.force_weight * model.observation_interval();
     let solve = match solve {
-        StepSolve::None => DEFAULT_STEP_SOLVE,
+        StepSolve::None => step_solve(),
         other => other,
     };
     let stats = simulate_solving(
@@ -893,7 +914,7 @@ fn adjoint(
         ));
     }
     let solve = match solve {
-        StepSolve::None => DEFAULT_STEP_SOLVE,
+        StepSolve::None => step_solve(),
         other => other,
     };
     let Setup {
