@@ -246,6 +246,15 @@ impl Pattern {
         })
     }
 
+    /// Each stored entry's (row, column) in the caller's free-dof numbering, in the order of a
+    /// value array (one entry per unordered pair: the matrices are symmetric).
+    pub fn entries(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        self.row_free
+            .iter()
+            .copied()
+            .zip(self.col_free.iter().copied())
+    }
+
     /// Number of stored entries (the lower triangle): the length of a value array.
     pub fn nnz(&self) -> usize {
         self.row_free.len()
