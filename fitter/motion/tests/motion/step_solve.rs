@@ -72,8 +72,8 @@ fn loose_kept_solves_give_the_finite_difference_gradient() {
 }
 
 /// Each tolerance's gradient and Gauss–Newton matrix H = Σ Δt w JᵀJ agree with the fresh
-/// factorisations' within the tolerance (above the Newton paths' floor), and a looser tolerance takes fewer CG
-/// iterations: the setting is what the solves reach, and it buys something.
+/// factorisations' within the tolerance (above the Newton paths' floor), and a looser tolerance
+/// takes fewer CG iterations: the setting is what the solves reach, and it buys something.
 #[test]
 fn kept_solves_agree_with_fresh_factors_within_their_tolerance() {
     let (model, at, params, obs) = problem();
