@@ -28,11 +28,16 @@ use super::timestep::Scheme;
 use super::MotionError;
 
 /// How the gradients solve with each converged step's S. Factorising every step afresh stays
-/// the default: on the beam's gravity run (716 tets) CG preconditioned with Newton's kept factor
-/// cuts the factorisations tenfold (871 to 80) but takes ~6 iterations a step, each two
-/// triangular solves, and leaves Newton without the converged factors it would carry, so a
-/// direct-gradient evaluation took 1.5× the CPU time (`palpate-lab bench motion-schemes`).
-/// [`StepSolve::Kept`] is for meshes where a factorisation costs many triangular solves.
+/// the default. On the beam's gravity run (716 tets, BDF2 at 3 substeps) CG preconditioned with
+/// Newton's kept factor to 10⁻¹⁰ cuts the factorisations from 1302 to 91 but takes 5.8
+/// iterations a step (each a triangular solve and a product per column, where one
+/// factorisation costs 0.7 ms) and leaves Newton without the converged factors it carries:
+/// 1.44× the CPU of a direct-gradient evaluation. Loosened to 10⁻², with S refactorised after a
+/// solve of more than one iteration and Newton carrying that factor, it takes 0.81× the CPU with
+/// the Jacobian's columns within 2·10⁻⁴ (`palpate-lab bench motion-step`); an option
+/// ([`KeptSolve`](super::sim::KeptSolve)), not the default: the adjoint method's solves run after
+/// the forward run, where Newton cannot reuse them, and the direct and adjoint gradients would no
+/// longer agree to round-off.
 pub const DEFAULT_STEP_SOLVE: StepSolve = StepSolve::Fresh;
 
 /// The process's step solve (see [`set_step_solve`]).
