@@ -186,8 +186,9 @@ impl Pattern {
         }
         let (fcp, fri) = compress(full_cols);
         let (lcp, lri) = compress(lower_cols);
-        // Supernodal: measured faster than faer's automatic choice (simplicial) on these 3D
-        // tetrahedral systems (bench motion, see docs/results/motion/bench.md).
+        // Supernodal: 3.1–3.4× faster than faer's automatic choice (simplicial) on these 3D
+        // tetrahedral systems at 716 and 1,512 tets, and LDLᵀ no faster than LLᵀ
+        // (`palpate-lab bench motion-step`, BENCHMARKS.md "A step with sensitivities").
         let symbolic = factorize_symbolic_cholesky(
             SymbolicSparseColMatRef::new_checked(n, n, &fcp, None, &fri),
             Side::Lower,
