@@ -28,12 +28,38 @@ use super::timestep::Scheme;
 use super::MotionError;
 
 /// How the gradients solve with each converged step's S. Factorising every step afresh stays
-/// the default: on the beam's gravity run (716 tets) CG preconditioned with Newton's kept factor
-/// cuts the factorisations tenfold (871 to 80) but takes ~6 iterations a step, each two
-/// triangular solves, and leaves Newton without the converged factors it would carry, so a
-/// direct-gradient evaluation took 1.5× the CPU time (`palpate-lab bench motion-schemes`).
-/// [`StepSolve::Kept`] is for meshes where a factorisation costs many triangular solves.
+/// the default. On the beam's gravity run (716 tets, BDF2 at 3 substeps) CG preconditioned with
+/// Newton's kept factor to 10⁻¹⁰ cuts the factorisations from 1302 to 91 but takes 5.8
+/// iterations a step (each a triangular solve and a product per column, where one
+/// factorisation costs 0.7 ms) and leaves Newton without the converged factors it carries:
+/// 1.44× the CPU of a direct-gradient evaluation. Loosened to 10⁻², with S refactorised after a
+/// solve of more than one iteration and Newton carrying that factor, it takes 0.81× the CPU with
+/// the Jacobian's columns within 2·10⁻⁴ (`palpate-lab bench motion-step`); an option
+/// ([`KeptSolve`](super::sim::KeptSolve)), not the default: the adjoint method's solves run after
+/// the forward run, where Newton cannot reuse them, and the direct and adjoint gradients would no
+/// longer agree to round-off.
 pub const DEFAULT_STEP_SOLVE: StepSolve = StepSolve::Fresh;
+
+/// The process's step solve (see [`set_step_solve`]).
+static STEP_SOLVE: std::sync::RwLock<StepSolve> = std::sync::RwLock::new(DEFAULT_STEP_SOLVE);
+
+/// Sets how every gradient evaluation of this process that names no [`StepSolve`] solves the
+/// step systems ([`evaluate`], [`evaluate_gauss_newton`] and the fits through them): a whole fit
+/// can then be run under another solve without a setting threaded through the optimiser.
+/// [`StepSolve::None`] restores [`DEFAULT_STEP_SOLVE`].
+pub fn set_step_solve(solve: StepSolve) {
+    let solve = match solve {
+        StepSolve::None => step_solve(),
+        other => other,
+    };
+    // A poisoned lock only means a panic elsewhere while it was held; the value is a plain copy.
+    *STEP_SOLVE.write().unwrap_or_else(|e| e.into_inner()) = solve;
+}
+
+/// The step solve gradient evaluations use when their caller names none ([`set_step_solve`]).
+pub fn step_solve() -> StepSolve {
+    *STEP_SOLVE.read().unwrap_or_else(|e| e.into_inner())
+}
 
 /// How to compute the gradient.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -384,9 +410,9 @@ fn evaluate_here(
             Ok(finish(&total, stats, None, 0))
         }
         Some(Method::Direct) => {
-            direct(model, mat, params, obs, false, DEFAULT_STEP_SOLVE).map(|(e, _)| e)
+            direct(model, mat, params, obs, false, step_solve()).map(|(e, _)| e)
         }
-        Some(Method::Adjoint) => adjoint(model, mat, params, obs, DEFAULT_STEP_SOLVE),
+        Some(Method::Adjoint) => adjoint(model, mat, params, obs, step_solve()),
     }
 }
 
@@ -402,12 +428,12 @@ pub fn evaluate_gauss_newton(
     params: &[Param],
     obs: &Observations,
 ) -> Result<(Evaluation, Vec<f64>), MotionError> {
-    evaluate_gauss_newton_with(model, mat, params, obs, DEFAULT_STEP_SOLVE)
+    evaluate_gauss_newton_with(model, mat, params, obs, step_solve())
 }
 
 /// [`evaluate_gauss_newton`] with the sensitivity systems solved as `solve` says
 /// ([`StepSolve::Fresh`] or [`StepSolve::Kept`]; [`StepSolve::None`] is taken as
-/// [`DEFAULT_STEP_SOLVE`]).
+/// [`step_solve`]).
 pub fn evaluate_gauss_newton_with(
     model: &Model,
     mat: &Material,
@@ -666,7 +692,7 @@ fn direct(
     let wdt = obs.marker_weight * model.observation_interval();
     let wf = obs.force_weight * model.observation_interval();
     let solve = match solve {
-        StepSolve::None => DEFAULT_STEP_SOLVE,
+        StepSolve::None => step_solve(),
         other => other,
     };
     let stats = simulate_solving(
@@ -893,7 +919,7 @@ fn adjoint(
         ));
     }
     let solve = match solve {
-        StepSolve::None => DEFAULT_STEP_SOLVE,
+        StepSolve::None => step_solve(),
         other => other,
     };
     let Setup {

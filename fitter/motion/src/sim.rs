@@ -18,7 +18,7 @@ use std::cell::{Cell, RefCell};
 
 /// How a run solves with each converged step's S = c M + a_x K + a_v D (what the gradients
 /// need).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub enum StepSolve {
     /// No solves: the forward run alone.
     #[default]
@@ -26,12 +26,53 @@ pub enum StepSolve {
     /// Every converged step is factorised afresh at its own state ([`StepView::factor`]).
     Fresh,
     /// Solves by conjugate gradients on the exact S, preconditioned with the factor Newton
-    /// kept (from an earlier iteration or step); S is factorised afresh only when that does not
-    /// converge in [`KEPT_FACTOR_ITERATIONS`], and the fresh factor then preconditions the next
-    /// steps' solves in its place ([`StepSolver::refreshed`]). Newton itself goes on with its
-    /// own factor, so the forward run is the same to the last bit as without solves, whatever
-    /// the solves needed.
-    Kept,
+    /// kept (from an earlier iteration or step), to the accuracy [`KeptSolve`] asks; S is
+    /// factorised afresh when that does not converge (or, by its policy, needed many
+    /// iterations), and the fresh factor then preconditions the next steps' solves in its place
+    /// ([`StepSolver::refreshed`]).
+    Kept(KeptSolve),
+}
+
+/// The settings of [`StepSolve::Kept`].
+///
+/// The gradients' consumers need far less than a direct solve's accuracy: Levenberg–Marquardt
+/// evaluates its residual exactly and uses J only for the step, where a relative error ε of J
+/// changes the step (and the covariance) by O(ε).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct KeptSolve {
+    /// Relative residual ‖b − S x‖ ≤ tol ‖b‖ (per column) the solves reach.
+    pub tolerance: f64,
+    /// Preconditioned-CG iterations before S is factorised afresh.
+    pub max_iterations: usize,
+    /// A solve that converged but needed more than this many iterations also factorises S, so
+    /// that the next steps are preconditioned with a factor of their own neighbourhood
+    /// (`usize::MAX`: only when CG fails).
+    pub refresh_above: usize,
+    /// Newton's next step starts from a factor the solves made (S's own at the converged
+    /// state, as with [`StepSolve::Fresh`]); otherwise Newton goes on with its own factor and
+    /// the forward run is the same to the last bit as without solves.
+    pub newton_reuses: bool,
+}
+
+impl KeptSolve {
+    /// Solves to a relative residual of 10⁻¹⁰ in at most [`KEPT_FACTOR_ITERATIONS`]: far below
+    /// the Newton tolerance's effect on the gradients, so they agree with a direct solve to what
+    /// finite differences can tell. S is factorised only when CG fails, and Newton keeps its
+    /// own factors.
+    pub const EXACT: KeptSolve = KeptSolve {
+        tolerance: KEPT_FACTOR_TOLERANCE,
+        max_iterations: KEPT_FACTOR_ITERATIONS,
+        refresh_above: usize::MAX,
+        newton_reuses: false,
+    };
+
+    /// [`Self::EXACT`] with the relative residual `tolerance`.
+    pub fn with_tolerance(tolerance: f64) -> Self {
+        Self {
+            tolerance,
+            ..Self::EXACT
+        }
+    }
 }
 
 /// Preconditioned-CG iterations a kept factor gets before S is factorised afresh: a factor
@@ -39,9 +80,7 @@ pub enum StepSolve {
 /// or more digits.
 pub const KEPT_FACTOR_ITERATIONS: usize = 6;
 
-/// Relative residual ‖b − S x‖ ≤ tol ‖b‖ (per column) the kept-factor solves reach: far below
-/// the Newton tolerance's effect on the gradients, so they agree with a direct solve to what
-/// finite differences can tell.
+/// Relative residual ‖b − S x‖ ≤ tol ‖b‖ (per column) of [`KeptSolve::EXACT`].
 pub const KEPT_FACTOR_TOLERANCE: f64 = 1e-10;
 
 /// Solves with a converged step's S (see [`StepSolve`]). Cloning shares the factors.
@@ -55,6 +94,7 @@ pub struct StepSolver {
     /// Whether `factor` is S's own (then one triangular solve is exact).
     exact: Cell<bool>,
     step: usize,
+    settings: KeptSolve,
     refactorisations: Cell<usize>,
     cg_iterations: Cell<usize>,
 }
@@ -108,21 +148,21 @@ impl StepSolver {
             return Ok(());
         }
         if !self.exact.get() {
-            let converged = {
+            let set = self.settings;
+            let (converged, its) = {
                 let f = self.factor.borrow();
-                let (ok, its) = pcg_columns(
+                pcg_columns(
                     pattern,
                     &self.s,
                     &f,
                     b,
                     m,
-                    KEPT_FACTOR_TOLERANCE,
-                    KEPT_FACTOR_ITERATIONS,
-                );
-                self.cg_iterations.set(self.cg_iterations.get() + its);
-                ok
+                    set.tolerance,
+                    set.max_iterations,
+                )
             };
-            if converged {
+            self.cg_iterations.set(self.cg_iterations.get() + its);
+            if converged && its <= set.refresh_above {
                 return Ok(());
             }
             let fresh = pattern
@@ -131,6 +171,10 @@ impl StepSolver {
             *self.factor.borrow_mut() = fresh;
             self.exact.set(true);
             self.refactorisations.set(self.refactorisations.get() + 1);
+            if converged {
+                // Solved to the tolerance already; the factor is for the steps after this one.
+                return Ok(());
+            }
         }
         self.factor.borrow().solve_columns_in_place(b, m);
         Ok(())
@@ -747,9 +791,9 @@ impl StepSolver {
     /// `exact` — preconditioned after the run's last refactorisation `refresh`.
     fn for_step(
         n: usize,
-        fac: Factor,
-        exact: bool,
+        (fac, exact): (Factor, bool),
         sv: &[f64],
+        settings: KeptSolve,
         refresh: Option<&(Factor, Factor)>,
     ) -> Self {
         let solver = StepSolver {
@@ -759,6 +803,7 @@ impl StepSolver {
             factor: RefCell::new(fac),
             exact: Cell::new(exact),
             step: n,
+            settings,
             refactorisations: Cell::new(0),
             cg_iterations: Cell::new(0),
         };
@@ -930,7 +975,7 @@ pub fn simulate_solving(
             for i in 0..sv.len() {
                 sv[i] = c * mvals[i] + ax * kv[i] + av * dv[i];
             }
-            if done && solve == StepSolve::Kept {
+            if let (true, StepSolve::Kept(_)) = (done, solve) {
                 stats.finish_step(nrm, model.newton.tol);
                 kept = Some(match carried.clone() {
                     Some(fac) => (fac, false),
@@ -989,8 +1034,12 @@ pub fn simulate_solving(
             stats.newton_iterations += 1;
         }
         terms.end_positions(model, &xf, &v, [&xm1, &xm2], [&vm1, &vm2], &mut x);
-        let solver =
-            kept.map(|(fac, exact)| StepSolver::for_step(n, fac, exact, &sv, refresh.as_ref()));
+        // Fresh solves are exact: the settings only steer CG on a kept factor.
+        let settings = match solve {
+            StepSolve::Kept(k) => k,
+            _ => KeptSolve::EXACT,
+        };
+        let solver = kept.map(|fac| StepSolver::for_step(n, fac, &sv, settings, refresh.as_ref()));
         if let (Some(r), Some(b)) = (relax.as_mut(), &branch) {
             // At the force state, where the step's stress stood ([`super::relaxation`]).
             r.advance(model, mat, b, &xf)?;
@@ -1012,6 +1061,10 @@ pub fn simulate_solving(
             stats.factorisations += sol.refactorisations();
             stats.cg_iterations += sol.cg_iterations();
             if let Some(r) = sol.refreshed() {
+                if settings.newton_reuses {
+                    // S's own factor at this step's converged state: what `Fresh` carries.
+                    carried = Some(r.1.clone());
+                }
                 refresh = Some(r);
             }
         }
@@ -1072,6 +1125,7 @@ mod tests {
             factor: RefCell::new(handed),
             exact: Cell::new(false),
             step: 1,
+            settings: KeptSolve::EXACT,
             refactorisations: Cell::new(0),
             cg_iterations: Cell::new(0),
         }

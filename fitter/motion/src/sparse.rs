@@ -186,8 +186,9 @@ impl Pattern {
         }
         let (fcp, fri) = compress(full_cols);
         let (lcp, lri) = compress(lower_cols);
-        // Supernodal: measured faster than faer's automatic choice (simplicial) on these 3D
-        // tetrahedral systems (bench motion, see docs/results/motion/bench.md).
+        // Supernodal: 3.1–3.4× faster than faer's automatic choice (simplicial) on these 3D
+        // tetrahedral systems at 716 and 1,512 tets, and LDLᵀ no faster than LLᵀ
+        // (`palpate-lab bench motion-step`, BENCHMARKS.md "A step with sensitivities").
         let symbolic = factorize_symbolic_cholesky(
             SymbolicSparseColMatRef::new_checked(n, n, &fcp, None, &fri),
             Side::Lower,
@@ -244,6 +245,15 @@ impl Pattern {
             symbolic: Arc::new(symbolic),
             factor_len,
         })
+    }
+
+    /// Each stored entry's (row, column) in the caller's free-dof numbering, in the order of a
+    /// value array (one entry per unordered pair: the matrices are symmetric).
+    pub fn entries(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        self.row_free
+            .iter()
+            .copied()
+            .zip(self.col_free.iter().copied())
     }
 
     /// Number of stored entries (the lower triangle): the length of a value array.

@@ -14,6 +14,9 @@ pub enum BenchCommand {
     /// The motion integrators (BDF2, implicit midpoint) on a captured run: steps, Newton work,
     /// CPU time, marker error against the capture and a converged reference.
     MotionSchemes(super::bench_motion::SchemesArgs),
+    /// A time step with sensitivities on a captured run: faer's Cholesky variants on its S, the
+    /// gradient with fresh factorisations against kept-factor CG at looser tolerances, whole fits.
+    MotionStep(super::bench_motion_step::Args),
     /// The probe link over a pty: frames/s, written → solved latency at 1 kHz, host CPU.
     Link(super::bench_link::Args),
     /// This core's f32 FMA peak and read bandwidth by working set, against the flops and bytes of
@@ -31,6 +34,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Runtime(a) => super::bench_runtime::run(a),
         BenchCommand::Motion(a) => super::bench_motion::run(a),
         BenchCommand::MotionSchemes(a) => super::bench_motion::run_schemes(a),
+        BenchCommand::MotionStep(a) => super::bench_motion_step::run(a),
         BenchCommand::Link(a) => super::bench_link::run(a),
         BenchCommand::Roofline(a) => super::roofline::run(a),
         BenchCommand::Discretisation(a) => super::bench_discretisation::run(a),

@@ -292,7 +292,7 @@ struct SchemeRun {
 /// process; prints JSON.
 pub fn run_schemes(args: SchemesArgs) -> anyhow::Result<()> {
     use palpate_motion::gradient::evaluate_gauss_newton_with;
-    use palpate_motion::sim::{simulate_states, StepSolve};
+    use palpate_motion::sim::{simulate_states, KeptSolve, StepSolve};
     use palpate_motion::timestep::{substeps_for_scheme, Scheme};
     let ds = palpate_motion::dataset::load(&args.dataset)?;
     let fitted: palpate_motion::fitted::FittedModel =
@@ -409,7 +409,13 @@ pub fn run_schemes(args: SchemesArgs) -> anyhow::Result<()> {
             // The reference's gradient is not a candidate: its forward run is the reference.
             let grad = if i + 1 < configs.len() {
                 let (c0, t0) = (process_cpu_seconds(), Instant::now());
-                let (ev, h) = evaluate_gauss_newton_with(m, &mat, &params, o, StepSolve::Kept)?;
+                let (ev, h) = evaluate_gauss_newton_with(
+                    m,
+                    &mat,
+                    &params,
+                    o,
+                    StepSolve::Kept(KeptSolve::EXACT),
+                )?;
                 wall[i].1.push(t0.elapsed().as_secs_f64());
                 cpu[i].1.push(process_cpu_seconds() - c0);
                 let c0 = process_cpu_seconds();

@@ -17,3 +17,4 @@ mod quadratic_statics;
 mod schemes;
 mod spline;
 mod statics;
+mod step_solve;
