@@ -10,7 +10,7 @@ use nalgebra::Vector3;
 
 use crate::dataset::ScanDataset;
 use crate::fit::{fit_states, Design, FitSettings, JointFit, Linearisation, ScanFit};
-use crate::regions::{search_regions, RegionSearch, ADOPT_DELTA_BIC, MIN_PART_ELEMENTS};
+use crate::regions::{search_regions, RegionSearch, ADOPT_DELTA_BIC, MIN_PART_ELEMENTS, MIN_RATIO};
 use crate::surface::correspond;
 use crate::ScanError;
 
@@ -32,8 +32,11 @@ impl Default for DatasetFitOptions {
         Self {
             design: Design::Quadratic,
             regions: true,
-            // Silicones span about 10 kPa to 3 MPa: trials a factor √10 apart over that range.
-            start_young: (0..6).map(|k| 1e4 * 10f64.powf(0.5 * k as f64)).collect(),
+            // Silicones span about 10 kPa to 3 MPa: trials a factor 2 apart over that range, so
+            // one lies within √2 of any modulus there. From a start 3× off, the closest points
+            // pair the scan's faces with the wrong faces of the model and Gauss–Newton settles
+            // where they lead (a strip of 300 kPa started at 1 MPa: 683 kPa).
+            start_young: (0..9).map(|k| 1e4 * 2f64.powi(k)).collect(),
             max_iter: 30,
         }
     }
@@ -268,12 +271,14 @@ impl DatasetFit {
             });
             serde_json::json!({
                 "adopted": r.adopted, "points": r.points,
-                "rule": format!("ΔBIC < {ADOPT_DELTA_BIC} and ≥ {MIN_PART_ELEMENTS} elements per part"),
+                "rule": format!("ΔBIC < {ADOPT_DELTA_BIC}, ≥ {MIN_PART_ELEMENTS} elements per part, E₂/E₁ beyond {MIN_RATIO} or its inverse"),
                 "best": best,
                 "screened": r.screened.iter().map(|(l, g)| serde_json::json!({"split": l, "predicted_cost_fall": g})).collect::<Vec<_>>(),
             })
         });
         serde_json::json!({
+            "schema_version": 1,
+            "kind": "scan fit",
             "design": self.design.name(),
             "elements": self.elements,
             "poisson": self.poisson,
@@ -334,7 +339,7 @@ impl DatasetFit {
                     };
                     let _ = writeln!(
                         o,
-                        "- Second material: **{}**. Best split: {} ({} / {} elements; part 2 spans {} to {} mm): E {:.1} / {:.1} kPa, ratio E₂/E₁ = {:.3} ± {:.3}, ΔBIC = {:.1} (adopted when < {ADOPT_DELTA_BIC} with ≥ {MIN_PART_ELEMENTS} elements per part).",
+                        "- Second material: **{}**. Best split: {} ({} / {} elements; part 2 spans {} to {} mm): E {:.1} / {:.1} kPa, ratio E₂/E₁ = {:.3} ± {:.3}, ΔBIC = {:.1} (adopted when < {ADOPT_DELTA_BIC} with ≥ {MIN_PART_ELEMENTS} elements per part and a ratio beyond {MIN_RATIO} or its inverse).",
                         if r.adopted { "found" } else { "not found" },
                         b.split.label,
                         b.split.elements[0],

@@ -24,7 +24,8 @@ pub struct Args {
     #[arg(long)]
     pub single_material: bool,
     /// Trial Young's moduli (kPa) to start from, the one whose surfaces lie nearest the scans
-    /// (default: 10 kPa to 3.2 MPa, a factor √10 apart).
+    /// (default: 10 kPa to 2.56 MPa, a factor 2 apart; a start 3× off may settle in a wrong
+    /// pairing of the scan's faces with the model's).
     #[arg(long, value_delimiter = ',', value_name = "KPA")]
     pub starts: Vec<f64>,
     /// Gauss–Newton iterations at most.
@@ -94,10 +95,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         log::info!("wrote {}", f.display());
     }
     println!("{}", summary(&fit));
-    let mut json = fit.to_json();
-    json["schema_version"] = 1.into();
-    json["kind"] = "scan fit".into();
-    println!("{json}");
+    println!("{}", fit.to_json());
     Ok(())
 }
 
@@ -110,10 +108,11 @@ fn write(
 ) -> anyhow::Result<Vec<PathBuf>> {
     let mut files = Vec::new();
     let json = dir.join("fit.json");
-    let mut j = fit.to_json();
-    j["schema_version"] = 1.into();
-    palpate_fem::io::atomic::write_atomic(&json, serde_json::to_string_pretty(&j)?.as_bytes())
-        .with_context(|| format!("writing {}", json.display()))?;
+    palpate_fem::io::atomic::write_atomic(
+        &json,
+        serde_json::to_string_pretty(&fit.to_json())?.as_bytes(),
+    )
+    .with_context(|| format!("writing {}", json.display()))?;
     files.push(json);
     for (i, s) in dataset.states.iter().enumerate() {
         files.extend(write_fit_residual(
@@ -244,7 +243,7 @@ pub fn info(path: &Path) -> anyhow::Result<()> {
             "schema_version": 1, "kind": "scan dataset",
             "nodes": d.mesh.nodes.len(), "tets": d.mesh.tets.len(),
             "poisson": d.poisson, "poisson_declared": d.poisson_declared,
-            "density": d.density, "gravity": d.gravity,
+            "density_kg_m3": d.density, "gravity_m_s2": d.gravity,
             "rest_scan": d.rest.as_ref().map(|r| r.points.points.len()),
             "states": states,
         })
