@@ -10,8 +10,12 @@
 //!   for background and flying pixels and a weight that keeps a dense patch from drowning the
 //!   rest;
 //! - [`render`]: depth images of a mesh's surface from a virtual camera, to make test data;
-//! - [`fit`]: a shear modulus fitted to a scan of the object hanging under its weight, through
-//!   the static solver on linear or quadratic tetrahedra with its analytic sensitivity;
+//! - [`fit`]: a shear modulus (or two, one per part) fitted to scans of the object hanging under
+//!   its weight, held or loaded, through the static solver on linear or quadratic tetrahedra with its analytic sensitivity;
+//! - [`dataset`]: a scan dataset on disk — the rest mesh and the scans of the object in several
+//!   states (clamped, a grip moved rigidly, dead loads), `scans.toml`;
+//! - [`regions`]: a second material searched for, a split of the object into two parts;
+//! - [`dataset_fit`]: a scan dataset fitted, with the second-material search, as JSON and Markdown;
 //! - [`record`]: a scan on disk (points in metres in the mesh's frame with their noise, and
 //!   where they came from), imported from a depth image and its camera or from a point cloud;
 //! - [`noise`]: a scan's noise estimated from its points' local scatter;
@@ -21,10 +25,13 @@
 
 pub mod camera;
 pub mod cloud;
+pub mod dataset;
+pub mod dataset_fit;
 pub mod depth;
 pub mod fit;
 pub mod noise;
 pub mod record;
+pub mod regions;
 pub mod render;
 pub mod residual_vtu;
 pub mod surface;

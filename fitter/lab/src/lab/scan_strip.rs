@@ -17,7 +17,7 @@ use palpate_fem::mesh::boxmesh::box_mesh;
 use palpate_fem::mesh::Mesh;
 use palpate_fem::rng::SplitMix64;
 use palpate_scan::camera::{Camera, Intrinsics, Pose};
-use palpate_scan::fit::{fit_scan, young, Design, FitSettings, HangingObject, ScanPoints};
+use palpate_scan::fit::{fit_scan, young, Design, FitSettings, LoadedObject, ScanPoints};
 use palpate_scan::render::render_depth;
 use palpate_scan::residual_vtu::write_fit_residual;
 
@@ -59,19 +59,19 @@ fn design(name: &str) -> anyhow::Result<Design> {
 }
 
 /// The strip on `mesh`, clamped over its end face x = 0.
-fn strip(mesh: &Mesh, design: Design) -> HangingObject<'_> {
-    HangingObject {
+fn strip(mesh: &Mesh, design: Design) -> LoadedObject<'_> {
+    LoadedObject::hanging(
         mesh,
-        fixed: (0..mesh.nodes.len())
+        (0..mesh.nodes.len())
             .filter(|&n| mesh.nodes[n][0] < 1e-9)
             .collect(),
-        density: 1100.0,
-        gravity: [0.0, 0.0, -9.81],
-        poisson: NU,
+        1100.0,
+        [0.0, 0.0, -9.81],
+        NU,
         design,
         // 1e-7 N against the strip's 0.17 N weight: below that Newton meets round-off.
-        tol: 1e-7,
-    }
+        1e-7,
+    )
 }
 
 /// The camera: beside the strip and above it, looking at its middle.

@@ -3,7 +3,8 @@
 //! needs), a fitted motion model (`fit.json` of `fit-motion`/`diagnose`), a dataset directory, or
 //! a motion capture (C3D: its markers, rate, frames and gaps — what `palpate import c3d` will read),
 //! or a Gmsh mesh (its size, extent, volume and the physical groups clamps and loads can name),
-//! or a scan folder of `palpate import depth|cloud` (its points, bounds, units, camera, noise).
+//! or a scan folder of `palpate import depth|cloud` (its points, bounds, units, camera, noise), or
+//! a scan dataset (its mesh, material and states: what `palpate fit-scan` will fit).
 //! The last line is one JSON object with the same facts, for scripts.
 
 use std::path::PathBuf;
@@ -20,7 +21,8 @@ const SCHEMA_VERSION: u32 = 1;
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// A `.palp` model, a `fit.json` of `fit-motion`/`diagnose`, a dataset directory, a C3D
-    /// capture, a Gmsh mesh (`.msh`), or a scan folder (or its `scan.toml`).
+    /// capture, a Gmsh mesh (`.msh`), a scan folder (or its `scan.toml`), or a scan dataset
+    /// (a folder with `scans.toml`).
     pub file: PathBuf,
 }
 
@@ -29,6 +31,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let path = &args.file;
     if super::import_scan::is_scan(path) {
         return super::import_scan::info(path);
+    }
+    if palpate_scan::dataset::is_scan_dataset(path) {
+        return super::fit_scan::info(path);
     }
     if path.is_dir() {
         return dataset(path);

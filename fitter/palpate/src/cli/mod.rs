@@ -9,6 +9,7 @@ pub mod demo_readme;
 pub mod diagnose;
 pub mod fit;
 pub mod fit_motion;
+pub mod fit_scan;
 pub mod haptic;
 pub mod import;
 pub mod import_scan;
@@ -73,6 +74,8 @@ pub enum Command {
     Haptic(haptic::Args),
     /// Fit visco-elastic parameters to a motion dataset (Real2Sim).
     FitMotion(fit_motion::Args),
+    /// Fit Young's modulus to scans of an object hanging, held or twisted (a scan dataset); find a second material.
+    FitScan(fit_scan::Args),
     /// What a model, a fitted motion model or a dataset is and where it came from.
     Info(info::Args),
     /// Predict a motion dataset from a fitted model without refitting; report the marker errors.
@@ -113,6 +116,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::ProbeSim(a) => probe_sim::run(a),
         Command::Haptic(a) => haptic::run(a),
         Command::FitMotion(a) => fit_motion::run(a),
+        Command::FitScan(a) => fit_scan::run(a),
         Command::Validate(a) => validate::run(a),
         Command::Info(a) => info::run(a),
         Command::Specimen(a) => specimen::run(a),

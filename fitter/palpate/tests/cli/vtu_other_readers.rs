@@ -333,10 +333,10 @@ fn the_scan_residual_files_are_what_a_vtk_reader_expects() {
         iterations: 1,
         at_fit: Linearisation {
             equilibrium: Equilibrium {
-                mu: 1e5,
+                mu: vec![1e5],
                 rest,
                 positions,
-                dln_mu: None,
+                dln_mu: Vec::new(),
                 surface: vec![[0, 1, 2], [1, 3, 2]],
             },
             residuals: vec![
@@ -344,8 +344,8 @@ fn the_scan_residual_files_are_what_a_vtk_reader_expects() {
                 at(2, [1, 3, 2], [0.0, 1.0, 0.0], -2e-3),
             ],
             cost: 0.0,
-            gradient: 0.0,
-            hessian: 1.0,
+            gradient: vec![0.0],
+            hessian: vec![1.0],
         },
     };
     let scan = ScanPoints {
