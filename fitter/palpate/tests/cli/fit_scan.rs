@@ -11,7 +11,7 @@ use palpate_fem::rng::SplitMix64;
 use palpate_scan::camera::{Camera, Intrinsics, Pose};
 use palpate_scan::dataset::HeldToml;
 use palpate_scan::fit::{Design, LoadedObject};
-use palpate_scan::render::render_depth;
+use palpate_scan::render::{add_depth_noise, render_depth, DepthNoise};
 
 use crate::common::{assert_succeeded, last_json, palpate, refused, text};
 
@@ -81,13 +81,15 @@ fn dataset(dir: &Path) {
         let eq = o.equilibrium(E_TRUE / (2.0 * (1.0 + NU)), false).unwrap();
         let cam = camera();
         let mut image = render_depth(&cam, 160, 120, &eq.positions, &eq.surface);
-        for z in image.depth.iter_mut().filter(|z| **z > 0.0) {
-            *z = if rng.uniform() < 0.1 {
-                0.0
-            } else {
-                *z + (2e-4 + 1e-3 * *z * *z) * rng.normal()
-            };
-        }
+        add_depth_noise(
+            &mut image,
+            &DepthNoise {
+                sigma_m: 2e-4,
+                sigma_per_m: 1e-3,
+                dropped: 0.1,
+            },
+            &mut rng,
+        );
         let png = dir.join(format!("{name}.png"));
         image.write_png(&png, 1e-4).unwrap();
         let o = palpate()
