@@ -10,7 +10,8 @@
 //! rest = "rest"               # optional: a scan folder of the object unloaded
 //! register = "fixed-part"     # optional: "none" (default), "fixed-part" or "rest"
 //! register_band_m = 0.008     # optional: the fixed part's band (default a tenth of the
-//!                             # mesh's diagonal)
+//!                             # mesh's diagonal, or the longest surface edge from a fixed
+//!                             # node if longer)
 //!
 //! [[states]]
 //! name = "twisted"            # optional, default "state <i>"
@@ -348,11 +349,29 @@ impl ScanDataset {
         }
         let (lo, hi) = mesh.bounds();
         let diagonal = (Vector3::from(hi) - Vector3::from(lo)).norm();
+        // A tenth of the object's size: enough surface to pin the scan, little of it bent; and
+        // at least the longest surface edge from a fixed node, or a coarse mesh's band holds
+        // no triangle but the clamped face itself, which the clamp hides.
+        let mut fixed_nodes = vec![false; mesh.nodes.len()];
+        for n in states.iter().flat_map(|s| s.fixed.iter()) {
+            fixed_nodes[*n] = true;
+        }
+        let mut edge: f64 = 0.0;
+        for tri in mesh.boundary_triangles() {
+            for k in 0..3 {
+                let (a, b) = (tri[k], tri[(k + 1) % 3]);
+                if fixed_nodes[a] || fixed_nodes[b] {
+                    let d = Vector3::from(mesh.nodes[a]) - Vector3::from(mesh.nodes[b]);
+                    edge = edge.max(d.norm());
+                }
+            }
+        }
         Ok(Self {
             dir,
             register: t.register,
-            // A tenth of the object's size: enough surface to pin the scan, little of it bent.
-            register_band_m: t.register_band_m.unwrap_or(0.1 * diagonal),
+            register_band_m: t
+                .register_band_m
+                .unwrap_or((0.1 * diagonal).max(1.01 * edge)),
             mesh,
             poisson,
             poisson_declared: t.poisson.is_some(),

@@ -1,7 +1,7 @@
-//! A scan dataset fitted: its scans registered when it asks for it ([`Register`]), μ
-//! (E = 2μ(1 + ν)) of one material to every state's scan at once ([`crate::fit::fit_states`]),
-//! a rigid correction of each registered scan tried ([`rigid_correction`]), then a second
-//! material searched for ([`crate::regions`]), and
+//! A scan dataset fitted: its scans registered when it asks for it ([`Register`],
+//! [`fit_fixed_part_registered`]), μ (E = 2μ(1 + ν)) of one material to every state's scan at
+//! once ([`crate::fit::fit_states`]), then a second material searched for
+//! ([`crate::regions`]), and
 //! what a person reads of it: the moduli with their σ, each state's residual against its scan's
 //! noise, the rest scan's registration, as JSON ([`DatasetFit::to_json`]) and Markdown
 //! ([`DatasetFit::report_markdown`]).
@@ -11,123 +11,18 @@ use std::fmt::Write as _;
 use nalgebra::Vector3;
 
 use crate::dataset::{Register, ScanDataset};
-use crate::fit::{
-    cost_at, fit_states, Design, FitSettings, JointFit, Linearisation, ScanFit, ScanState,
-};
-use crate::regions::{
-    bic, search_regions, RegionSearch, ADOPT_DELTA_BIC, MIN_PART_ELEMENTS, MIN_RATIO,
-};
-use crate::registration::{register, Registration, RegistrationSettings, RigidTransform};
+use crate::fit::{fit_states, Design, FitSettings, JointFit, Linearisation, ScanFit, ScanState};
+use crate::regions::{search_regions, RegionSearch, ADOPT_DELTA_BIC, MIN_PART_ELEMENTS, MIN_RATIO};
+use crate::registration::{register, Registration, RegistrationSettings};
 use crate::surface::correspond;
 use crate::ScanError;
 
-/// Rounds of the rigid correction at most: each registers every scan onto its state's fitted
-/// surface, then fits the modulus again.
-pub const CORRECTION_ROUNDS: usize = 8;
-/// The correction has settled when a round moves no node of the object by more than this (m):
-/// a hundredth of a millimetre, far below a depth camera's noise.
-const CORRECTION_SETTLED_M: f64 = 1e-5;
-
-/// A rigid correction of each state's scan, fitted with the material: block-coordinate
-/// descent on the modulus and each scan's six rigid parameters — each round registers every
-/// scan onto its state's surface at the fitted modulus (the robust point-to-plane ICP of
-/// [`crate::registration`], all six directions), then fits the modulus from where it was.
-/// Adopted as a second material is: when BIC (n ln(RSS/n) + k ln n, the one-material fit's
-/// robust weights held; k = 1 + 6 × states against 1) falls by more than 10.
-#[derive(Debug, Clone)]
-pub struct RigidCorrection {
-    /// Each state's correction, after its registration.
-    pub transforms: Vec<RigidTransform>,
-    /// The one-material fit to the corrected scans.
-    pub fit: JointFit,
-    /// BIC of the uncorrected one-material fit.
-    pub bic_single: f64,
-    /// BIC of the corrected one.
-    pub bic_corrected: f64,
-    /// Rounds run.
-    pub rounds: usize,
-    /// Whether it is adopted.
-    pub adopted: bool,
-}
-
-impl RigidCorrection {
-    /// BIC of the corrected fit minus the uncorrected one's.
-    pub fn delta_bic(&self) -> f64 {
-        self.bic_corrected - self.bic_single
-    }
-}
-
-/// Tries a rigid correction of each state's scan (fitted as `single`, [`RigidCorrection`]).
-pub fn rigid_correction(
-    states: &[ScanState<'_>],
-    single: &JointFit,
-    settings: &FitSettings,
-) -> Result<RigidCorrection, ScanError> {
-    let n: usize = states.iter().map(|s| s.scan.points.len()).sum();
-    let omegas: Vec<Vec<f64>> = single
-        .states
-        .iter()
-        .zip(states)
-        .map(|(l, s)| l.omegas(s.scan.points.len()))
-        .collect();
-    let bic_single = bic(
-        2.0 * single.states.iter().map(|l| l.cost).sum::<f64>(),
-        n,
-        1,
-    );
-    let icp = RegistrationSettings {
-        max_distance: settings.max_distance,
-        ..RegistrationSettings::default()
-    };
-    let mut moved: Vec<ScanState<'_>> = states.to_vec();
-    let mut transforms = vec![RigidTransform::identity(); states.len()];
-    let mut fit = single.clone();
-    let mut rounds = 0;
-    while rounds < CORRECTION_ROUNDS {
-        rounds += 1;
-        let mut largest: f64 = 0.0;
-        for (i, s) in moved.iter_mut().enumerate() {
-            let eq = &fit.states[i].equilibrium;
-            let r = register(&s.scan, &eq.positions, &eq.surface, &icp, &s.name)?;
-            let nodes: Vec<Vector3<f64>> = eq.positions.iter().map(|p| Vector3::from(*p)).collect();
-            largest = largest.max(r.transform.largest_move(&nodes));
-            s.scan = r.transform.move_scan(&s.scan);
-            transforms[i] = r.transform.after(&transforms[i]);
-        }
-        fit = fit_states(
-            &moved,
-            &FitSettings {
-                starts: vec![fit.mu[0]],
-                ..settings.clone()
-            },
-        )?;
-        log::info!(
-            "rigid correction, round {rounds}: E {:.1} kPa, the scans moved by {:.3} mm at most",
-            fit.young_modulus(0) / 1e3,
-            1e3 * largest
-        );
-        if largest < CORRECTION_SETTLED_M {
-            break;
-        }
-    }
-    let rss: f64 = 2.0
-        * fit
-            .states
-            .iter()
-            .zip(&moved)
-            .zip(&omegas)
-            .map(|((l, s), w)| cost_at(&l.equilibrium, &s.scan, w, settings.max_distance))
-            .sum::<f64>();
-    let bic_corrected = bic(rss, n, 1 + 6 * states.len());
-    Ok(RigidCorrection {
-        adopted: bic_corrected - bic_single < ADOPT_DELTA_BIC,
-        transforms,
-        fit,
-        bic_single,
-        bic_corrected,
-        rounds,
-    })
-}
+/// Rounds of the fixed part's registration at most: each registers every scan onto its fixed
+/// part at the fitted equilibrium, then fits the modulus again.
+pub const REGISTRATION_ROUNDS: usize = 8;
+/// The registration has settled when a round moves no node of the object by more than this
+/// (m): a hundredth of a millimetre, far below a depth camera's noise.
+const REGISTRATION_SETTLED_M: f64 = 1e-5;
 
 /// Each state's scan registered onto its fixed part, alternated with the fit of the modulus:
 /// first onto `parts` (each state's fixed part placed as at rest, [`crate::registration::fixed_part_surface`]),
@@ -135,7 +30,7 @@ pub fn rigid_correction(
 /// bends a little with the load (a hanging strip's top face there tilts by degrees), and a
 /// registration onto its rest shape would take that tilt for the camera's — then the modulus
 /// fitted again from where it was. Done when a round moves no node of the object by more than
-/// 0.01 mm ([`CORRECTION_ROUNDS`] at most). Returns the states with their scans registered,
+/// 0.01 mm ([`REGISTRATION_ROUNDS`] at most). Returns the states with their scans registered,
 /// the fit, each state's registration (the motion from the scan as given) and the rounds.
 pub fn fit_fixed_part_registered<'a>(
     states: &[ScanState<'a>],
@@ -161,7 +56,7 @@ pub fn fit_fixed_part_registered<'a>(
     let mut registered = moved(&regs);
     let mut fit = fit_states(&registered, settings)?;
     let mut rounds = 0;
-    while rounds < CORRECTION_ROUNDS {
+    while rounds < REGISTRATION_ROUNDS {
         rounds += 1;
         let mut largest: f64 = 0.0;
         for (i, ((s, (_, tris)), what)) in registered.iter().zip(parts).zip(names).enumerate() {
@@ -189,7 +84,7 @@ pub fn fit_fixed_part_registered<'a>(
             fit.young_modulus(0) / 1e3,
             1e3 * largest
         );
-        if largest < CORRECTION_SETTLED_M {
+        if largest < REGISTRATION_SETTLED_M {
             break;
         }
     }
@@ -268,8 +163,6 @@ pub struct DatasetFitOptions {
     pub start_young: Vec<f64>,
     /// Gauss–Newton iterations at most.
     pub max_iter: usize,
-    /// Try a rigid correction of each scan over the whole object ([`rigid_correction`]).
-    pub rigid_correction: bool,
 }
 
 impl Default for DatasetFitOptions {
@@ -283,7 +176,6 @@ impl Default for DatasetFitOptions {
             // where they lead (a strip of 300 kPa started at 1 MPa: 683 kPa).
             start_young: (0..9).map(|k| 1e4 * 2f64.powi(k)).collect(),
             max_iter: 30,
-            rigid_correction: false,
         }
     }
 }
@@ -395,7 +287,7 @@ pub fn fit_dataset(
         max_distance: settings.max_distance,
         ..RegistrationSettings::default()
     };
-    let (mut single, registrations, rounds) = match dataset.register {
+    let (single, registrations, rounds) = match dataset.register {
         Register::FixedPart => {
             let (parts, names) = fixed_parts(dataset)?;
             let (registered, fit, regs, rounds) =
@@ -428,26 +320,6 @@ pub fn fit_dataset(
         single.young_modulus(0) / 1e3,
         100.0 * single.sigma_ln_mu(0)
     );
-    let correction = if options.rigid_correction {
-        log::info!("fitting a rigid correction of each scan with the material");
-        let c = rigid_correction(&states, &single, &settings)?;
-        log::info!(
-            "rigid correction: E {:.1} kPa, ΔBIC {:.1}: {}",
-            c.fit.young_modulus(0) / 1e3,
-            c.delta_bic(),
-            if c.adopted { "adopted" } else { "not adopted" }
-        );
-        Some(c)
-    } else {
-        None
-    };
-    let uncorrected_young = single.young_modulus(0);
-    if let Some(c) = correction.as_ref().filter(|c| c.adopted) {
-        for (s, t) in states.iter_mut().zip(&c.transforms) {
-            s.scan = t.move_scan(&s.scan);
-        }
-        single = c.fit.clone();
-    }
     let search = if options.regions {
         log::info!("searching for a second material");
         Some(search_regions(&states, &single, &settings)?)
@@ -489,7 +361,7 @@ pub fn fit_dataset(
         states: summaries,
         rest,
         elements: dataset.mesh.tets.len(),
-        registration: (dataset.register != Register::None || correction.is_some()).then(|| {
+        registration: (dataset.register != Register::None).then(|| {
             let nodes: Vec<Vector3<f64>> = dataset
                 .mesh
                 .nodes
@@ -501,20 +373,11 @@ pub fn fit_dataset(
                 band_m: dataset.register_band_m,
                 states: registrations
                     .iter()
-                    .enumerate()
-                    .map(|(i, r)| StateRegistration {
+                    .map(|r| StateRegistration {
                         registration: *r,
-                        correction: correction
-                            .as_ref()
-                            .map_or(RigidTransform::identity(), |c| c.transforms[i]),
                         largest_move_m: r.transform.largest_move(&nodes),
-                        correction_move_m: correction
-                            .as_ref()
-                            .map_or(0.0, |c| c.transforms[i].largest_move(&nodes)),
                     })
                     .collect(),
-                correction,
-                uncorrected_young,
                 rounds,
             }
         }),
@@ -530,10 +393,6 @@ pub struct DatasetRegistration {
     pub band_m: f64,
     /// Each state's.
     pub states: Vec<StateRegistration>,
-    /// The rigid correction tried.
-    pub correction: Option<RigidCorrection>,
-    /// E of the one-material fit before the correction (Pa).
-    pub uncorrected_young: f64,
     /// Rounds of the fixed part's registration alternated with the fit (0 for the rest's).
     pub rounds: usize,
 }
@@ -543,12 +402,8 @@ pub struct DatasetRegistration {
 pub struct StateRegistration {
     /// Onto the fixed part (or the rest mesh).
     pub registration: Registration,
-    /// The rigid correction tried after it (applied when adopted).
-    pub correction: RigidTransform,
     /// The largest distance the registration moves a node of the rest mesh (m).
     pub largest_move_m: f64,
-    /// The largest distance the correction moves one (m).
-    pub correction_move_m: f64,
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -799,11 +654,6 @@ impl DatasetRegistration {
                     "largest_move_mm": 1e3 * r.largest_move_m,
                     "rms_m": t.rms_m, "used": t.used, "points": t.points,
                     "pinned_directions": t.pinned, "iterations": t.iterations,
-                    "correction": {
-                        "angle_deg": r.correction.angle_deg(),
-                        "translation_mm": mm(r.correction.translation),
-                        "largest_move_mm": 1e3 * r.correction_move_m,
-                    },
                 })
             })
             .collect();
@@ -812,14 +662,6 @@ impl DatasetRegistration {
             "band_m": self.band_m,
             "rounds": self.rounds,
             "states": per_state,
-            "rigid_correction": self.correction.as_ref().map(|c| serde_json::json!({
-                "adopted": c.adopted, "rounds": c.rounds,
-                "bic_uncorrected": c.bic_single, "bic_corrected": c.bic_corrected,
-                "delta_bic": c.delta_bic(),
-                "young_modulus_uncorrected_pa": self.uncorrected_young,
-                "young_modulus_corrected_pa": c.fit.young_modulus(0),
-                "rule": format!("ΔBIC < {ADOPT_DELTA_BIC}, k = 1 + 6 × states against 1"),
-            })),
         })
     }
 
@@ -827,41 +669,32 @@ impl DatasetRegistration {
     fn report_markdown(&self, o: &mut String, states: &[StateSummary]) {
         let _ = writeln!(
             o,
-            "\nThe scans were registered to the mesh ({}){}; per state, the motion found (its angle, how far it moves the rest mesh at most), the RMS distance of the points used to the target, and the rigid correction fitted with the material:\n",
+            "\nThe scans were registered to the mesh ({}); per state, the motion found (its angle, how far it moves a node of the rest mesh at most), the RMS distance to the target of the points used, and the directions of the six the target pins (the others left as declared):\n",
             match self.mode {
                 Register::Rest => "the rest scan onto the rest mesh, its motion applied to every scan".to_string(),
-                _ => format!("each scan onto the surface within {:.1} mm of its clamped and held nodes", 1e3 * self.band_m),
-                },
-            match &self.correction {
-                Some(c) => format!(
-                    ". Rigid correction of each scan: **{}** (ΔBIC = {:.1} after {} round(s); E {:.1} kPa without it, {:.1} kPa with it)",
-                    if c.adopted { "adopted" } else { "not adopted" },
-                    c.delta_bic(),
-                    c.rounds,
-                    self.uncorrected_young / 1e3,
-                    c.fit.young_modulus(0) / 1e3
+                _ => format!(
+                    "each scan onto the surface within {:.1} mm of its clamped and held nodes, at the fitted equilibrium, alternated with the fit: {} round(s)",
+                    1e3 * self.band_m,
+                    self.rounds
                 ),
-                None => String::new(),
             }
         );
         let _ = writeln!(
             o,
-            "| state | angle (°) | largest move (mm) | RMS (mm) | points used | directions pinned | correction (°) | correction (mm) |"
+            "| state | angle (°) | largest move (mm) | RMS (mm) | points used | directions pinned |"
         );
-        let _ = writeln!(o, "|---|---|---|---|---|---|---|---|");
+        let _ = writeln!(o, "|---|---|---|---|---|---|");
         for (r, st) in self.states.iter().zip(states) {
             let _ = writeln!(
                 o,
-                "| {} | {:.3} | {:.3} | {:.3} | {} of {} | {} | {:.3} | {:.3} |",
+                "| {} | {:.3} | {:.3} | {:.3} | {} of {} | {} |",
                 st.name,
                 r.registration.transform.angle_deg(),
                 1e3 * r.largest_move_m,
                 1e3 * r.registration.rms_m,
                 r.registration.used,
                 r.registration.points,
-                r.registration.pinned,
-                r.correction.angle_deg(),
-                1e3 * r.correction_move_m
+                r.registration.pinned
             );
         }
     }

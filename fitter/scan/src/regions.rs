@@ -228,8 +228,7 @@ pub struct RegionSearch {
     pub points: usize,
 }
 
-/// BIC = n ln(RSS/n) + k ln n.
-pub(crate) fn bic(rss: f64, n: usize, k: usize) -> f64 {
+fn bic(rss: f64, n: usize, k: usize) -> f64 {
     let n = n as f64;
     n * (rss / n).ln() + k as f64 * n.ln()
 }

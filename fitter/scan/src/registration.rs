@@ -21,8 +21,9 @@
 //!   largest are left as declared, and counted in [`Registration::pinned`].
 //! - **Done** when a step moves no matched point by more than 1 µm (far below a depth camera's
 //!   noise), or when a step undoes the one before (a point's match flipping at each iteration):
-//!   then half of it is taken, the pose between the two; otherwise an error after the
-//!   iterations allowed.
+//!   then half of it is taken, the pose between the two; or, past 30 iterations, when a step
+//!   moves no point by more than a twentieth of the scan's median noise (a longer cycle of
+//!   switching matches); otherwise an error after the iterations allowed.
 
 use std::collections::{HashMap, HashSet};
 
@@ -133,6 +134,9 @@ pub struct RegistrationSettings {
     pub max_iter: usize,
     /// Points with a weight needed at least.
     pub min_points: usize,
+    /// The largest rotation accepted (degrees): a declared pose is off by a few degrees, and a
+    /// registration that turns the scan further has paired the wrong faces.
+    pub max_angle_deg: f64,
 }
 
 impl Default for RegistrationSettings {
@@ -141,6 +145,7 @@ impl Default for RegistrationSettings {
             max_distance: 0.01,
             max_iter: 200,
             min_points: 50,
+            max_angle_deg: 10.0,
         }
     }
 }
@@ -177,6 +182,11 @@ pub fn register(
     let mut t = RigidTransform::identity();
     let mut last = (0, f64::NAN, 6);
     let mut previous: Option<Vector6<f64>> = None;
+    let median_sigma = {
+        let mut s = scan.sigma.clone();
+        s.sort_by(f64::total_cmp);
+        s.get(s.len() / 2).copied().unwrap_or(0.0)
+    };
     for it in 1..=settings.max_iter {
         let moved: Vec<Vector3<f64>> = scan.points.iter().map(|p| t.apply(*p)).collect();
         let found: Vec<(usize, Vector3<f64>, f64)> = moved
@@ -284,7 +294,17 @@ pub fn register(
             1e3 * rms,
             moves
         );
-        if moves < SETTLED_M || cycling {
+        // Past 30 iterations, points switching between triangles can keep the pose wobbling
+        // in a longer cycle; a wobble under a twentieth of the noise is settled.
+        let wobble = it >= 30 && moves < 0.05 * median_sigma;
+        if moves < SETTLED_M || cycling || wobble {
+            if t.angle_deg() > settings.max_angle_deg {
+                return Err(ScanError::Invalid(format!(
+                    "registering {what}: ICP settled with the scan turned by {:.1}°, more than the {}° a declared pose may be off ({used} of {n} points used, {pinned} of 6 directions pinned): the target does not hold the scan; declare the pose more closely or widen the target",
+                    t.angle_deg(),
+                    settings.max_angle_deg
+                )));
+            }
             return Ok(Registration {
                 transform: t,
                 rms_m: rms,

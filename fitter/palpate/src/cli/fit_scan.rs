@@ -172,25 +172,16 @@ fn summary(fit: &DatasetFit) -> String {
         ));
     }
     if let Some(r) = &fit.registration {
-        if let Some(c) = &r.correction {
-            out.push_str(&format!(
-                "\nscans registered ({}); rigid correction {}: ΔBIC {:.1}, E {:.1} kPa without it",
-                r.mode.name(),
-                if c.adopted { "adopted" } else { "not adopted" },
-                c.delta_bic(),
-                r.uncorrected_young / 1e3
-            ));
-        }
         for (sr, st) in r.states.iter().zip(&fit.states) {
             out.push_str(&format!(
-                "\n  {}: registered by {:.3}° ({:.3} mm at most), RMS {:.3} mm on {} points; correction {:.3}° ({:.3} mm)",
+                "\n  {}: registered ({}) by {:.3}° ({:.3} mm at most), RMS {:.3} mm on {} points, {} of 6 directions pinned",
                 st.name,
+                r.mode.name(),
                 sr.registration.transform.angle_deg(),
                 1e3 * sr.largest_move_m,
                 1e3 * sr.registration.rms_m,
                 sr.registration.used,
-                sr.correction.angle_deg(),
-                1e3 * sr.correction_move_m
+                sr.registration.pinned
             ));
         }
     }
