@@ -214,6 +214,13 @@ pub fn info(path: &Path) -> anyhow::Result<()> {
         d.states.len(),
         if d.rest.is_some() { ", a rest scan" } else { "" }
     );
+    if d.register != palpate_scan::dataset::Register::None {
+        println!(
+            "  scans registered: {} (band {:.1} mm)",
+            d.register.name(),
+            1e3 * d.register_band_m
+        );
+    }
     let mut states = Vec::new();
     for s in &d.states {
         let held = s.toml.held.as_ref().map(|h| {
@@ -259,6 +266,7 @@ pub fn info(path: &Path) -> anyhow::Result<()> {
             "poisson": d.poisson, "poisson_declared": d.poisson_declared,
             "density_kg_m3": d.density, "gravity_m_s2": d.gravity,
             "rest_scan": d.rest.as_ref().map(|r| r.points.points.len()),
+            "register": d.register.name(), "register_band_m": d.register_band_m,
             "states": states,
         })
     );
