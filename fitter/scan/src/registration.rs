@@ -511,6 +511,44 @@ mod tests {
         assert!(t.x.abs() < 1e-7, "moved along the edge by {}", t.x);
     }
 
+    /// ∂dᵢ/∂δ = ((yᵢ − c) × n, n) against central differences of the distance with the
+    /// closest triangle held, for points over a tilted triangle, about a centre c off them.
+    #[test]
+    fn the_jacobian_of_the_distance_in_a_small_motion() {
+        let nodes = [[0.0, 0.0, 0.0], [0.05, 0.01, 0.004], [0.01, 0.04, -0.006]];
+        let (a, b, c) = (
+            Vector3::from(nodes[0]),
+            Vector3::from(nodes[1]),
+            Vector3::from(nodes[2]),
+        );
+        let n = (b - a).cross(&(c - a)).normalize();
+        let centre = Vector3::new(0.02, -0.01, 0.03);
+        let mut rng = SplitMix64::new(3);
+        for _ in 0..20 {
+            let (u, v) = (0.3 * rng.uniform(), 0.3 * rng.uniform());
+            let y = a + (b - a) * u + (c - a) * v + n * (2e-3 * (rng.uniform() - 0.5));
+            let arm = (y - centre).cross(&n);
+            let jac = [arm.x, arm.y, arm.z, n.x, n.y, n.z];
+            for k in 0..6 {
+                let h = 1e-6;
+                let at = |s: f64| {
+                    let mut d = [0.0; 6];
+                    d[k] = s;
+                    let w = Vector3::new(d[0], d[1], d[2]);
+                    let t =
+                        RigidTransform::about(w, w.norm(), centre, Vector3::new(d[3], d[4], d[5]));
+                    n.dot(&(t.apply(y) - a))
+                };
+                let fd = (at(h) - at(-h)) / (2.0 * h);
+                assert!(
+                    (fd - jac[k]).abs() < 1e-8,
+                    "direction {k}: fd {fd} vs {}",
+                    jac[k]
+                );
+            }
+        }
+    }
+
     /// Too few points near the target: refused, naming the scan and the counts.
     #[test]
     fn too_few_points_on_the_target_are_refused_by_name() {
