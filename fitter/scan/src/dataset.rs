@@ -8,6 +8,10 @@
 //! density = 1100.0            # kg/m³
 //! gravity = [0.0, 0.0, -9.81] # m/s², in the mesh's frame
 //! rest = "rest"               # optional: a scan folder of the object unloaded
+//! register = "fixed-part"     # optional: "none" (default), "fixed-part" or "rest"
+//! register_band_m = 0.008     # optional: the fixed part's band (default a tenth of the
+//!                             # mesh's diagonal, or the longest surface edge from a fixed
+//!                             # node if longer)
 //!
 //! [[states]]
 //! name = "twisted"            # optional, default "state <i>"
@@ -56,8 +60,40 @@ pub struct ScansToml {
     pub gravity: [f64; 3],
     /// A scan folder of the object at rest, unloaded.
     pub rest: Option<String>,
+    /// How the scans are brought into the mesh's frame.
+    #[serde(default)]
+    pub register: Register,
+    /// The fixed part's band (m): the surface within it of a clamped or held node.
+    pub register_band_m: Option<f64>,
     /// The loaded states.
     pub states: Vec<StateToml>,
+}
+
+/// How a dataset's scans are brought into the mesh's frame (docs/scan-dataset.md).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Register {
+    /// The scans are in the mesh's frame as imported.
+    #[default]
+    None,
+    /// Each state's scan registered onto the surface near its clamped and held groups, placed
+    /// where they are in that state; then a rigid correction of each scan fitted with the
+    /// material ([`crate::dataset_fit`]).
+    FixedPart,
+    /// The rest scan registered onto the whole rest mesh, its motion applied to every scan
+    /// (the camera not moved between scans); then the rigid correction.
+    Rest,
+}
+
+impl Register {
+    /// Its name in `scans.toml`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::FixedPart => "fixed-part",
+            Self::Rest => "rest",
+        }
+    }
 }
 
 /// One `[[states]]` table.
@@ -158,6 +194,10 @@ pub struct ScanDataset {
     pub gravity: [f64; 3],
     /// The rest scan, if any.
     pub rest: Option<Scan>,
+    /// How the scans are brought into the mesh's frame.
+    pub register: Register,
+    /// The fixed part's band (m).
+    pub register_band_m: f64,
     /// The states.
     pub states: Vec<DatasetState>,
 }
@@ -200,6 +240,18 @@ impl ScanDataset {
                 "field gravity: expected three finite numbers (m/s²), found {:?}",
                 t.gravity
             )));
+        }
+        if t.register == Register::Rest && t.rest.is_none() {
+            return Err(bad(
+                "field register: \"rest\" registers the rest scan onto the rest mesh; expected a field rest naming its folder, found none".into(),
+            ));
+        }
+        if let Some(b) = t.register_band_m {
+            if !(b.is_finite() && b > 0.0) {
+                return Err(bad(format!(
+                    "field register_band_m: expected a positive distance (m), found {b}"
+                )));
+            }
         }
         if t.states.is_empty() {
             return Err(bad(
@@ -295,8 +347,31 @@ impl ScanDataset {
                 forces,
             });
         }
+        let (lo, hi) = mesh.bounds();
+        let diagonal = (Vector3::from(hi) - Vector3::from(lo)).norm();
+        // A tenth of the object's size: enough surface to pin the scan, little of it bent; and
+        // at least the longest surface edge from a fixed node, or a coarse mesh's band holds
+        // no triangle but the clamped face itself, which the clamp hides.
+        let mut fixed_nodes = vec![false; mesh.nodes.len()];
+        for n in states.iter().flat_map(|s| s.fixed.iter()) {
+            fixed_nodes[*n] = true;
+        }
+        let mut edge: f64 = 0.0;
+        for tri in mesh.boundary_triangles() {
+            for k in 0..3 {
+                let (a, b) = (tri[k], tri[(k + 1) % 3]);
+                if fixed_nodes[a] || fixed_nodes[b] {
+                    let d = Vector3::from(mesh.nodes[a]) - Vector3::from(mesh.nodes[b]);
+                    edge = edge.max(d.norm());
+                }
+            }
+        }
         Ok(Self {
             dir,
+            register: t.register,
+            register_band_m: t
+                .register_band_m
+                .unwrap_or((0.1 * diagonal).max(1.01 * edge)),
             mesh,
             poisson,
             poisson_declared: t.poisson.is_some(),
@@ -331,6 +406,25 @@ impl ScanDataset {
             o.load_steps = 20;
         }
         o
+    }
+
+    /// State `i`'s fixed part ([`crate::registration::fixed_part_surface`]): the rest
+    /// mesh's surface within [`Self::register_band_m`] of a clamped node, at rest, or of a held
+    /// node, moved with its grip. Returns the nodes and the triangles.
+    pub fn fixed_part(&self, i: usize) -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
+        let s = &self.states[i];
+        let held = s.toml.held.as_ref();
+        let clamped =
+            s.fixed.len() - held.map_or(0, |h| self.mesh.group(&h.group).map_or(0, <[usize]>::len));
+        crate::registration::fixed_part_surface(
+            &self.mesh,
+            &s.fixed,
+            self.register_band_m,
+            |k, x| match held {
+                Some(h) if k >= clamped => h.apply(x),
+                _ => x,
+            },
+        )
     }
 
     /// Every state with its scan, ready for [`crate::fit::fit_states`].

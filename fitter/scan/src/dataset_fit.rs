@@ -1,5 +1,7 @@
-//! A scan dataset fitted: μ (E = 2μ(1 + ν)) of one material to every state's scan at once
-//! ([`crate::fit::fit_states`]), then a second material searched for ([`crate::regions`]), and
+//! A scan dataset fitted: its scans registered when it asks for it ([`Register`],
+//! [`fit_fixed_part_registered`]), μ (E = 2μ(1 + ν)) of one material to every state's scan at
+//! once ([`crate::fit::fit_states`]), then a second material searched for
+//! ([`crate::regions`]), and
 //! what a person reads of it: the moduli with their σ, each state's residual against its scan's
 //! noise, the rest scan's registration, as JSON ([`DatasetFit::to_json`]) and Markdown
 //! ([`DatasetFit::report_markdown`]).
@@ -8,11 +10,147 @@ use std::fmt::Write as _;
 
 use nalgebra::Vector3;
 
-use crate::dataset::ScanDataset;
-use crate::fit::{fit_states, Design, FitSettings, JointFit, Linearisation, ScanFit};
+use crate::dataset::{Register, ScanDataset};
+use crate::fit::{fit_states, Design, FitSettings, JointFit, Linearisation, ScanFit, ScanState};
 use crate::regions::{search_regions, RegionSearch, ADOPT_DELTA_BIC, MIN_PART_ELEMENTS, MIN_RATIO};
+use crate::registration::{register, Registration, RegistrationSettings};
 use crate::surface::correspond;
 use crate::ScanError;
+
+/// Rounds of the fixed part's registration at most: each registers every scan onto its fixed
+/// part at the fitted equilibrium, then fits the modulus again.
+pub const REGISTRATION_ROUNDS: usize = 8;
+/// The registration has settled when a round moves no node of the object by more than this
+/// (m): a hundredth of a millimetre, far below a depth camera's noise.
+const REGISTRATION_SETTLED_M: f64 = 1e-5;
+
+/// Each state's scan registered onto its fixed part, alternated with the fit of the modulus:
+/// first onto `parts` (each state's fixed part placed as at rest, [`crate::registration::fixed_part_surface`]),
+/// then, each round, onto the same triangles at the fitted equilibrium — a band near a clamp
+/// bends a little with the load (a hanging strip's top face there tilts by degrees), and a
+/// registration onto its rest shape would take that tilt for the camera's — then the modulus
+/// fitted again from where it was. Done when a round moves no node of the object by more than
+/// 0.01 mm ([`REGISTRATION_ROUNDS`] at most). Returns the states with their scans registered,
+/// the fit, each state's registration (the motion from the scan as given) and the rounds.
+pub fn fit_fixed_part_registered<'a>(
+    states: &[ScanState<'a>],
+    parts: &[(Vec<[f64; 3]>, Vec<[usize; 3]>)],
+    settings: &FitSettings,
+    icp: &RegistrationSettings,
+    names: &[String],
+) -> Result<(Vec<ScanState<'a>>, JointFit, Vec<Registration>, usize), ScanError> {
+    let mut regs = Vec::with_capacity(states.len());
+    for ((s, (nodes, tris)), what) in states.iter().zip(parts).zip(names) {
+        regs.push(register(&s.scan, nodes, tris, icp, what)?);
+    }
+    let moved = |regs: &[Registration]| -> Vec<ScanState<'a>> {
+        states
+            .iter()
+            .zip(regs)
+            .map(|(s, r)| ScanState {
+                scan: r.transform.move_scan(&s.scan),
+                ..s.clone()
+            })
+            .collect()
+    };
+    let mut registered = moved(&regs);
+    let mut fit = fit_states(&registered, settings)?;
+    let mut rounds = 0;
+    while rounds < REGISTRATION_ROUNDS {
+        rounds += 1;
+        let mut largest: f64 = 0.0;
+        for (i, ((s, (_, tris)), what)) in registered.iter().zip(parts).zip(names).enumerate() {
+            let eq = &fit.states[i].equilibrium;
+            // The design's nodes begin with the linear mesh's, the triangles' corners.
+            let r = register(&s.scan, &eq.positions, tris, icp, what)?;
+            let object: Vec<Vector3<f64>> =
+                eq.positions.iter().map(|p| Vector3::from(*p)).collect();
+            largest = largest.max(r.transform.largest_move(&object));
+            regs[i] = Registration {
+                transform: r.transform.after(&regs[i].transform),
+                ..r
+            };
+        }
+        registered = moved(&regs);
+        fit = fit_states(
+            &registered,
+            &FitSettings {
+                starts: vec![fit.mu[0]],
+                ..settings.clone()
+            },
+        )?;
+        log::info!(
+            "fixed-part registration, round {rounds}: E {:.1} kPa, the scans moved by {:.3} mm at most",
+            fit.young_modulus(0) / 1e3,
+            1e3 * largest
+        );
+        if largest < REGISTRATION_SETTLED_M {
+            break;
+        }
+    }
+    Ok((registered, fit, regs, rounds))
+}
+
+/// Each state's scan registered as `dataset` asks ([`Register`]); empty for
+/// [`Register::None`].
+pub fn register_scans(
+    dataset: &ScanDataset,
+    max_distance: f64,
+) -> Result<Vec<Registration>, ScanError> {
+    let icp = RegistrationSettings {
+        max_distance,
+        ..RegistrationSettings::default()
+    };
+    match dataset.register {
+        Register::None => Ok(Vec::new()),
+        Register::Rest => {
+            let rest = dataset.rest.as_ref().ok_or_else(|| {
+                ScanError::Invalid("register = \"rest\" without a rest scan".into())
+            })?;
+            let what = format!("the rest scan ({})", rest.record.source);
+            let r = register(
+                &rest.points,
+                &dataset.mesh.nodes,
+                &dataset.mesh.boundary_triangles(),
+                &icp,
+                &what,
+            )?;
+            Ok(vec![r; dataset.states.len()])
+        }
+        Register::FixedPart => {
+            let (parts, names) = fixed_parts(dataset)?;
+            parts
+                .iter()
+                .zip(&names)
+                .zip(&dataset.states)
+                .map(|(((nodes, tris), what), s)| register(&s.scan.points, nodes, tris, &icp, what))
+                .collect()
+        }
+    }
+}
+
+/// Each state's fixed part ([`ScanDataset::fixed_part`]) and its name in errors; refused when
+/// a state has none.
+#[allow(clippy::type_complexity)]
+fn fixed_parts(
+    dataset: &ScanDataset,
+) -> Result<(Vec<(Vec<[f64; 3]>, Vec<[usize; 3]>)>, Vec<String>), ScanError> {
+    let mut parts = Vec::new();
+    let mut names = Vec::new();
+    for (i, s) in dataset.states.iter().enumerate() {
+        let what = format!("states[{i}] ({:?}, {})", s.name, s.scan_dir.display());
+        let (nodes, tris) = dataset.fixed_part(i);
+        if tris.is_empty() {
+            return Err(ScanError::Invalid(format!(
+                "registering {what}: no surface triangle lies within register_band_m = {} m of its clamped or held nodes; expected some: widen the band",
+                dataset.register_band_m
+            )));
+        }
+        parts.push((nodes, tris));
+        names.push(what);
+    }
+    Ok((parts, names))
+}
 
 /// How a dataset is fitted.
 #[derive(Debug, Clone)]
@@ -109,6 +247,8 @@ pub struct DatasetFit {
     pub rest: Option<RestCheck>,
     /// Elements in the mesh.
     pub elements: usize,
+    /// How the scans were registered, unless they were declared in the mesh's frame.
+    pub registration: Option<DatasetRegistration>,
 }
 
 /// Fits `dataset` (module doc); progress goes to the log.
@@ -130,7 +270,7 @@ pub fn fit_dataset(
     };
     // A millionth of the object's weight: far below what a scan resolves, above round-off.
     let tol = 1e-6 * dataset.weight().max(1e-9);
-    let states = dataset.scan_states(options.design, tol);
+    let mut states = dataset.scan_states(options.design, tol);
     log::info!(
         "fitting E on {} ({} tets) to {} state(s), ν = {}{}",
         options.design.name(),
@@ -143,7 +283,38 @@ pub fn fit_dataset(
             " (not declared: a silicone's)"
         }
     );
-    let single = fit_states(&states, &settings)?;
+    let icp = RegistrationSettings {
+        max_distance: settings.max_distance,
+        ..RegistrationSettings::default()
+    };
+    let (single, registrations, rounds) = match dataset.register {
+        Register::FixedPart => {
+            let (parts, names) = fixed_parts(dataset)?;
+            let (registered, fit, regs, rounds) =
+                fit_fixed_part_registered(&states, &parts, &settings, &icp, &names)?;
+            states = registered;
+            (fit, regs, rounds)
+        }
+        _ => {
+            let regs = register_scans(dataset, settings.max_distance)?;
+            for (s, r) in states.iter_mut().zip(&regs) {
+                s.scan = r.transform.move_scan(&s.scan);
+            }
+            (fit_states(&states, &settings)?, regs, 0)
+        }
+    };
+    for (r, d) in registrations.iter().zip(&dataset.states) {
+        log::info!(
+            "{}: registered ({}) by {:.3}°, RMS {:.3} mm on {} of {} points, {} of 6 directions pinned",
+            d.scan_dir.display(),
+            dataset.register.name(),
+            r.transform.angle_deg(),
+            1e3 * r.rms_m,
+            r.used,
+            r.points,
+            r.pinned
+        );
+    }
     log::info!(
         "one material: E {:.1} kPa ± {:.2} %",
         single.young_modulus(0) / 1e3,
@@ -167,12 +338,11 @@ pub fn fit_dataset(
         .collect();
     let rest = dataset.rest.as_ref().map(|scan| {
         let tris = dataset.mesh.boundary_triangles();
-        let (found, _) = correspond(
-            &dataset.mesh.nodes,
-            &tris,
-            &scan.points.points,
-            settings.max_distance,
-        );
+        let points = match (dataset.register, registrations.first()) {
+            (Register::Rest, Some(r)) => r.transform.move_scan(&scan.points).points,
+            _ => scan.points.points.clone(),
+        };
+        let (found, _) = correspond(&dataset.mesh.nodes, &tris, &points, settings.max_distance);
         let mut d: Vec<f64> = found.iter().map(|c| c.distance.abs()).collect();
         let mut s = scan.points.sigma.clone();
         RestCheck {
@@ -191,7 +361,49 @@ pub fn fit_dataset(
         states: summaries,
         rest,
         elements: dataset.mesh.tets.len(),
+        registration: (dataset.register != Register::None).then(|| {
+            let nodes: Vec<Vector3<f64>> = dataset
+                .mesh
+                .nodes
+                .iter()
+                .map(|p| Vector3::from(*p))
+                .collect();
+            DatasetRegistration {
+                mode: dataset.register,
+                band_m: dataset.register_band_m,
+                states: registrations
+                    .iter()
+                    .map(|r| StateRegistration {
+                        registration: *r,
+                        largest_move_m: r.transform.largest_move(&nodes),
+                    })
+                    .collect(),
+                rounds,
+            }
+        }),
     })
+}
+
+/// How the scans were brought into the mesh's frame.
+#[derive(Debug, Clone)]
+pub struct DatasetRegistration {
+    /// As `scans.toml` asks.
+    pub mode: Register,
+    /// The fixed part's band (m).
+    pub band_m: f64,
+    /// Each state's.
+    pub states: Vec<StateRegistration>,
+    /// Rounds of the fixed part's registration alternated with the fit (0 for the rest's).
+    pub rounds: usize,
+}
+
+/// One state's registration.
+#[derive(Debug, Clone, Copy)]
+pub struct StateRegistration {
+    /// Onto the fixed part (or the rest mesh).
+    pub registration: Registration,
+    /// The largest distance the registration moves a node of the rest mesh (m).
+    pub largest_move_m: f64,
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -292,6 +504,7 @@ impl DatasetFit {
             "rms_m": self.rms_m(),
             "noise_m": self.noise_m(),
             "rms_over_noise": self.rms_m() / self.noise_m(),
+            "registration": self.registration.as_ref().map(|r| r.to_json(&self.states)),
             "rest_scan": self.rest.map(|r| serde_json::json!({
                 "points": r.points, "matched": r.matched, "median_distance_m": r.median_m,
                 "median_sigma_m": r.noise_m,
@@ -381,6 +594,9 @@ impl DatasetFit {
                 st.ratio()
             );
         }
+        if let Some(r) = &self.registration {
+            r.report_markdown(&mut o, &self.states);
+        }
         if let Some(r) = &self.rest {
             let _ = writeln!(
                 o,
@@ -415,5 +631,71 @@ impl DatasetFit {
                     .map(|r| r.scaled())
             })
             .collect()
+    }
+}
+
+fn mm(v: Vector3<f64>) -> [f64; 3] {
+    [1e3 * v.x, 1e3 * v.y, 1e3 * v.z]
+}
+
+impl DatasetRegistration {
+    /// `registration` of `fit.json` (docs/scan-dataset.md).
+    fn to_json(&self, states: &[StateSummary]) -> serde_json::Value {
+        let per_state: Vec<_> = self
+            .states
+            .iter()
+            .zip(states)
+            .map(|(r, st)| {
+                let t = &r.registration;
+                serde_json::json!({
+                    "name": st.name,
+                    "angle_deg": t.transform.angle_deg(),
+                    "translation_mm": mm(t.transform.translation),
+                    "largest_move_mm": 1e3 * r.largest_move_m,
+                    "rms_m": t.rms_m, "used": t.used, "points": t.points,
+                    "pinned_directions": t.pinned, "iterations": t.iterations,
+                })
+            })
+            .collect();
+        serde_json::json!({
+            "mode": self.mode.name(),
+            "band_m": self.band_m,
+            "rounds": self.rounds,
+            "states": per_state,
+        })
+    }
+
+    /// The registration's section of `report.md`.
+    fn report_markdown(&self, o: &mut String, states: &[StateSummary]) {
+        let _ = writeln!(
+            o,
+            "\nThe scans were registered to the mesh ({}); per state, the motion found (its angle, how far it moves a node of the rest mesh at most), the RMS distance to the target of the points used, and the directions of the six the target pins (the others left as declared):\n",
+            match self.mode {
+                Register::Rest => "the rest scan onto the rest mesh, its motion applied to every scan".to_string(),
+                _ => format!(
+                    "each scan onto the surface within {:.1} mm of its clamped and held nodes, at the fitted equilibrium, alternated with the fit: {} round(s)",
+                    1e3 * self.band_m,
+                    self.rounds
+                ),
+            }
+        );
+        let _ = writeln!(
+            o,
+            "| state | angle (°) | largest move (mm) | RMS (mm) | points used | directions pinned |"
+        );
+        let _ = writeln!(o, "|---|---|---|---|---|---|");
+        for (r, st) in self.states.iter().zip(states) {
+            let _ = writeln!(
+                o,
+                "| {} | {:.3} | {:.3} | {:.3} | {} of {} | {} |",
+                st.name,
+                r.registration.transform.angle_deg(),
+                1e3 * r.largest_move_m,
+                1e3 * r.registration.rms_m,
+                r.registration.used,
+                r.registration.points,
+                r.registration.pinned
+            );
+        }
     }
 }

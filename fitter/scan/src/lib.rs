@@ -15,6 +15,8 @@
 //! - [`dataset`]: a scan dataset on disk — the rest mesh and the scans of the object in several
 //!   states (clamped, a grip moved rigidly, dead loads), `scans.toml`;
 //! - [`regions`]: a second material searched for, a split of the object into two parts;
+//! - [`registration`]: a scan brought onto a surface by a rigid motion (robust point-to-plane
+//!   ICP): onto the part of the object that does not move in its state, or the rest mesh;
 //! - [`dataset_fit`]: a scan dataset fitted, with the second-material search, as JSON and Markdown;
 //! - [`record`]: a scan on disk (points in metres in the mesh's frame with their noise, and
 //!   where they came from), imported from a depth image and its camera or from a point cloud;
@@ -32,6 +34,7 @@ pub mod fit;
 pub mod noise;
 pub mod record;
 pub mod regions;
+pub mod registration;
 pub mod render;
 pub mod residual_vtu;
 pub mod surface;

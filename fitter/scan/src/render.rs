@@ -2,13 +2,15 @@
 //! simulated object, to make scans whose truth is known. A z-buffer: each triangle in front of
 //! the camera is rasterised at the pixel centres it covers, its depth interpolated in 1/z
 //! (perspective-correct, so a back-projected pixel lies on its triangle's plane), the nearest
-//! kept. The sensor's faults (noise growing with depth, missing pixels at silhouettes, a
-//! background) are the caller's to add.
+//! kept. A sensor's faults — depth noise growing with depth and pixels dropped at random —
+//! are added by [`add_depth_noise`]; a background is the caller's to put in the scene.
 
 use nalgebra::Vector3;
+use palpate_fem::rng::SplitMix64;
 
 use crate::camera::Camera;
 use crate::depth::DepthImage;
+use crate::fit::ScanPoints;
 
 /// Depths nearer than this (m) are clipped: a triangle reaching behind it is skipped whole.
 const NEAR: f64 = 1e-3;
@@ -62,6 +64,68 @@ pub fn render_depth(
         }
     }
     image
+}
+
+/// A depth sensor's faults: depth noise σ(z) = `sigma_m` + `sigma_per_m`·z² (a structured-light
+/// or stereo camera's noise grows with the square of the depth) and a share of the pixels
+/// returning nothing.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DepthNoise {
+    /// σ at zero depth (m).
+    pub sigma_m: f64,
+    /// Growth of σ with the squared depth (m⁻¹).
+    pub sigma_per_m: f64,
+    /// The share of valid pixels dropped (0–1).
+    pub dropped: f64,
+}
+
+impl DepthNoise {
+    /// σ at depth `z` (m).
+    pub fn sigma(&self, z: f64) -> f64 {
+        self.sigma_m + self.sigma_per_m * z * z
+    }
+}
+
+/// Adds `noise` to every valid pixel of `image`: each dropped with probability
+/// [`DepthNoise::dropped`], else its depth moved by a normal draw of σ(z).
+pub fn add_depth_noise(image: &mut DepthImage, noise: &DepthNoise, rng: &mut SplitMix64) {
+    for z in image.depth.iter_mut().filter(|z| **z > 0.0) {
+        *z = if rng.uniform() < noise.dropped {
+            0.0
+        } else {
+            *z + noise.sigma(*z) * rng.normal()
+        };
+    }
+}
+
+/// The scan `camera` makes of `image`: its valid pixels back-projected, each with the depth σ
+/// of `noise` at its depth, the camera kept for the noise's direction.
+pub fn scan_points(camera: &Camera, image: &DepthImage, noise: &DepthNoise) -> ScanPoints {
+    let points = camera.points(image);
+    let sigma = points
+        .iter()
+        .map(|p| noise.sigma(camera.pose.to_camera(*p).z))
+        .collect();
+    ScanPoints {
+        points,
+        sigma,
+        camera: Some(*camera),
+    }
+}
+
+/// A noisy scan of `triangles` over `nodes` seen by `camera` at `width` × `height` pixels:
+/// [`render_depth`], [`add_depth_noise`] drawn from `rng`, then [`scan_points`].
+pub fn noisy_scan(
+    camera: &Camera,
+    (width, height): (usize, usize),
+    nodes: &[[f64; 3]],
+    triangles: &[[usize; 3]],
+    noise: &DepthNoise,
+    rng: &mut SplitMix64,
+) -> ScanPoints {
+    let mut image = render_depth(camera, width, height, nodes, triangles);
+    add_depth_noise(&mut image, noise, rng);
+    scan_points(camera, &image, noise)
 }
 
 /// The pixel centres (a half-open index range, clamped to the image) between the smallest and

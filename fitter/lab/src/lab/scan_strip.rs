@@ -18,7 +18,7 @@ use palpate_fem::mesh::Mesh;
 use palpate_fem::rng::SplitMix64;
 use palpate_scan::camera::{Camera, Intrinsics, Pose};
 use palpate_scan::fit::{fit_scan, young, Design, FitSettings, LoadedObject, ScanPoints};
-use palpate_scan::render::render_depth;
+use palpate_scan::render::{noisy_scan, DepthNoise};
 use palpate_scan::residual_vtu::write_fit_residual;
 
 /// Arguments.
@@ -94,29 +94,18 @@ fn camera() -> Camera {
 /// A depth image of the truth's surface, with the sensor's noise and dropped pixels,
 /// back-projected, each point's depth σ beside it.
 fn scan(positions: &[[f64; 3]], surface: &[[usize; 3]], seed: u64) -> ScanPoints {
-    let cam = camera();
-    let mut image = render_depth(&cam, 320, 240, positions, surface);
-    let mut rng = SplitMix64::new(seed);
-    for z in image.depth.iter_mut().filter(|z| **z > 0.0) {
-        *z = if rng.uniform() < DROPPED {
-            0.0
-        } else {
-            *z + (SIGMA_A + SIGMA_B * *z * *z) * rng.normal()
-        };
-    }
-    let points = cam.points(&image);
-    let sigma = points
-        .iter()
-        .map(|p| {
-            let z = cam.pose.to_camera(*p).z;
-            SIGMA_A + SIGMA_B * z * z
-        })
-        .collect();
-    ScanPoints {
-        points,
-        sigma,
-        camera: Some(cam),
-    }
+    noisy_scan(
+        &camera(),
+        (320, 240),
+        positions,
+        surface,
+        &DepthNoise {
+            sigma_m: SIGMA_A,
+            sigma_per_m: SIGMA_B,
+            dropped: DROPPED,
+        },
+        &mut SplitMix64::new(seed),
+    )
 }
 
 /// Runs the three cases and prints a table and one JSON line.

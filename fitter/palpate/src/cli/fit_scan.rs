@@ -171,6 +171,20 @@ fn summary(fit: &DatasetFit) -> String {
             b.delta_bic()
         ));
     }
+    if let Some(r) = &fit.registration {
+        for (sr, st) in r.states.iter().zip(&fit.states) {
+            out.push_str(&format!(
+                "\n  {}: registered ({}) by {:.3}° ({:.3} mm at most), RMS {:.3} mm on {} points, {} of 6 directions pinned",
+                st.name,
+                r.mode.name(),
+                sr.registration.transform.angle_deg(),
+                1e3 * sr.largest_move_m,
+                1e3 * sr.registration.rms_m,
+                sr.registration.used,
+                sr.registration.pinned
+            ));
+        }
+    }
     for st in &fit.states {
         out.push_str(&format!(
             "\n  {}: {} points ({} used), RMS {:.3} mm, noise {:.3} mm ({:.2}×)",
@@ -200,6 +214,13 @@ pub fn info(path: &Path) -> anyhow::Result<()> {
         d.states.len(),
         if d.rest.is_some() { ", a rest scan" } else { "" }
     );
+    if d.register != palpate_scan::dataset::Register::None {
+        println!(
+            "  scans registered: {} (band {:.1} mm)",
+            d.register.name(),
+            1e3 * d.register_band_m
+        );
+    }
     let mut states = Vec::new();
     for s in &d.states {
         let held = s.toml.held.as_ref().map(|h| {
@@ -245,6 +266,7 @@ pub fn info(path: &Path) -> anyhow::Result<()> {
             "poisson": d.poisson, "poisson_declared": d.poisson_declared,
             "density_kg_m3": d.density, "gravity_m_s2": d.gravity,
             "rest_scan": d.rest.as_ref().map(|r| r.points.points.len()),
+            "register": d.register.name(), "register_band_m": d.register_band_m,
             "states": states,
         })
     );
