@@ -412,7 +412,6 @@ fn select_effects(
             size: o.cv_candidates,
         },
     };
-    let rest_tau = rest_noise_before(&ctx, &current, o, progress);
     let mut engine = StaticModel {
         ctx,
         correction,
@@ -420,7 +419,6 @@ fn select_effects(
         o,
         progress,
         refreshed: None,
-        rest_tau,
     };
     let verdict = select::select(&mut engine, &policy, current, current_held)?;
     let steps = static_steps(&verdict, o, engine.ctx.meas.len());
@@ -431,35 +429,6 @@ fn select_effects(
         .last()
         .expect("the start is on the path");
     Ok((ctx, current, current_held, steps))
-}
-
-/// The rest scan's own noise (τ̂ per axis, m) as the rest-noise test finds it on the residual of
-/// the simplest fit, 0 when it does not fire (or σ is not declared). The test cancels any locally
-/// linear model error ([`super::rest_noise`]), so a missing effect of the object does not pass for
-/// it; what it finds is in every measurement of every model and no candidate can explain it, so
-/// the held-out gate measures a candidate's gain over a floor that holds it
-/// ([`StaticModel`]'s `rest_tau`), as the final verdict does.
-fn rest_noise_before(
-    ctx: &Context,
-    current: &Fitted,
-    o: &DiagnoseOptions,
-    progress: &mut dyn FnMut(&str),
-) -> f64 {
-    if !ctx.sigma_declared {
-        return 0.0;
-    }
-    progress("testing the rest scan for noise of its own at the simplest fit (the gate's floor)");
-    let residuals = signature::residual_vectors(ctx, current);
-    match estimate_rest_noise(
-        &ctx.marker_rest,
-        &residuals,
-        ctx.sigma,
-        &o.noise,
-        &o.rest_noise,
-    ) {
-        Some(r) if r.fired => r.estimate,
-        _ => 0.0,
-    }
 }
 
 /// The noise tests' findings on the final residual.

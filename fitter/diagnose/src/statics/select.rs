@@ -24,9 +24,6 @@ pub(super) struct StaticModel<'a> {
     /// to pass the held-out gate, for [`select::CandidateModel::adopt`] to keep
     /// ([`StaticModel::refresh_at`]).
     pub(super) refreshed: Option<Refreshed>,
-    /// The rest scan's own noise per axis (m) found at the simplest fit, 0 when none: part of the
-    /// floor a candidate's held-out gain is measured over.
-    pub(super) rest_tau: f64,
 }
 
 /// The correction refreshed at one candidate's fit, and what became of the refit with it.
@@ -153,26 +150,6 @@ impl StaticModel<'_> {
             Err(e) => RefreshOutcome::Failed(e),
         };
         done(delta, outcome)
-    }
-}
-
-/// The squared floor (m²) a candidate's held-out error in excess of it is measured over: the
-/// markers' noise 3σ², the rest scan's own noise 3τ² (`rest_tau` per axis) and the mesh's
-/// remaining discretisation error. The rest scan's noise sits in every marker's residual in every
-/// measurement: no candidate explains it, and the final verdict's floor holds it
-/// ([`super::ResidualCheck`]); left out, it enlarges the excess every candidate must cut by the
-/// same fraction.
-pub(super) fn gate_floor2(sigma: f64, rest_tau: f64, remaining: f64) -> f64 {
-    3.0 * sigma * sigma + 3.0 * rest_tau * rest_tau + remaining * remaining
-}
-
-/// The fraction by which the held-out RMS error `after` cuts the error in excess of the floor
-/// (squared: `floor2`) that `before` leaves, 0 when nothing is above the floor before.
-pub(super) fn excess_gain(before: f64, after: f64, floor2: f64) -> f64 {
-    let excess = |r: f64| (r * r - floor2).max(0.0).sqrt();
-    match excess(before) {
-        e if e > 0.0 => 1.0 - excess(after) / e,
-        _ => 0.0,
     }
 }
 
@@ -312,7 +289,7 @@ impl select::CandidateModel for StaticModel<'_> {
             .as_deref()
             .map_or(0.0, approx_error::delta_rms)
             / 3.0;
-        let floor2 = gate_floor2(ctx.sigma, self.rest_tau, remaining);
+        let floor2 = 3.0 * ctx.sigma * ctx.sigma + remaining * remaining;
         let excess = |r: f64| {
             if ctx.sigma_declared {
                 (r * r - floor2).max(0.0).sqrt()
@@ -321,10 +298,9 @@ impl select::CandidateModel for StaticModel<'_> {
             }
         };
         // Nothing above the floor before: no excess for a candidate to explain (see `below`).
-        let excess_gain = if ctx.sigma_declared {
-            excess_gain(before.heldout_rms, h, floor2)
-        } else {
-            excess_gain(before.heldout_rms, h, 0.0)
+        let excess_gain = match excess(before.heldout_rms) {
+            e if e > 0.0 => 1.0 - excess(h) / e,
+            _ => 0.0,
         };
         // With nothing above the (widened) floor before, the relative excess gain is 0/0 and used
         // to veto every candidate, however strong the held-out evidence: the specimens' default
@@ -333,28 +309,19 @@ impl select::CandidateModel for StaticModel<'_> {
         // (measured: own specimens 18 → 20 of 22 first choices, null specimens seeds 1–6 still
         // 12/12 clean, the independent draws' adoptions unchanged but one second effect).
         let below = ctx.sigma_declared && excess(before.heldout_rms) <= 0.0;
-        let widened = if self.rest_tau > 0.0 {
-            format!(
-                "widened by the rest scan's noise, {:.1} µm per axis at the simplest fit, and by \
-                 the mesh's remaining discretisation error",
-                1e6 * self.rest_tau
-            )
-        } else {
-            "widened by the mesh's remaining discretisation error".to_string()
-        };
         let words = if below {
             format!(
-                "{words}; nothing above the noise floor ({widened}) before: held-out ΔBIC < −{} \
-                 required instead of a gain",
+                "{words}; nothing above the noise floor (widened by the mesh's remaining \
+                 discretisation error) before: held-out ΔBIC < −{} required instead of a gain",
                 o.bic_threshold
             )
         } else {
             format!(
                 "{words}; {} {:.0}% lower (≥ {:.0}% required)",
                 if ctx.sigma_declared {
-                    format!("held-out error in excess of the noise floor ({widened})")
+                    "held-out error in excess of the noise floor (widened by the mesh's remaining discretisation error)"
                 } else {
-                    "held-out RMS".to_string()
+                    "held-out RMS"
                 },
                 100.0 * excess_gain,
                 100.0 * o.min_holdout_gain
@@ -588,24 +555,5 @@ mod tests {
             f64::NAN,
         );
         assert!(refusal_of_refit(fit(n, 2, 187.1), nan, 10.0).is_some());
-    }
-
-    /// The figures of an independent stiff inclusion on a dome (rest scan the mean of ten frames,
-    /// its noise found at 39.7 µm per axis; noise floor σ√3 = 276.5 µm, the mesh's remaining
-    /// error 14.7 µm): held out 292.7 → 290.2 µm cuts 8 % of the excess over a floor without the
-    /// rest scan's noise, short of the gate's 10 %, and 18 % over the floor that holds it.
-    #[test]
-    fn the_rest_scan_noise_is_part_of_the_gate_floor() {
-        let sigma = 276.5e-6 / 3f64.sqrt();
-        let (before, after, remaining) = (292.7e-6, 290.2e-6, 14.7e-6);
-        let without = excess_gain(before, after, gate_floor2(sigma, 0.0, remaining));
-        let with = excess_gain(before, after, gate_floor2(sigma, 39.7e-6, remaining));
-        assert!((0.08..0.09).contains(&without), "{without}");
-        assert!((0.18..0.20).contains(&with), "{with}");
-        // Nothing above the floor before: no gain to speak of, whatever after is.
-        assert_eq!(
-            excess_gain(270e-6, 260e-6, gate_floor2(sigma, 0.0, 0.0)),
-            0.0
-        );
     }
 }
