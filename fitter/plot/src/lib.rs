@@ -1,7 +1,8 @@
 //! Small plotting helpers for every report in palpate: line/scatter plots with several series,
-//! histograms and bar charts, written atomically. A figure is asked for by its `.svg` path and
-//! written in the process' [`PlotFormat`] (default both: the SVG and its PNG sibling; `palpate
-//! --plot-format png|svg|both` sets it); a `.png` path writes the PNG only. Every function returns
+//! histograms, bar charts and a signed value on a projected surface ([`surface_map`]), written
+//! atomically. A figure is asked for by its `.svg` path and written in the process'
+//! [`PlotFormat`] (default both: the SVG and its PNG sibling; `palpate --plot-format
+//! png|svg|both` sets it); a `.png` path writes the PNG only. Every function returns
 //! the files it wrote, and [`shown`] names the one a document should link to.
 //!
 //! Layout rules every figure follows: the title is measured and set smaller, or on two lines, until
@@ -25,6 +26,9 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::path::{Path, PathBuf};
+
+mod surface_map;
+pub use surface_map::{diverging, magnitude_quantile, surface_map, SurfaceMap, NO_VALUE};
 
 static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 const SIZE: (u32, u32) = (900, 560);

@@ -512,8 +512,9 @@ impl DatasetFit {
         })
     }
 
-    /// `report.md`: what a person reads; `figure` is the residual picture's file name.
-    pub fn report_markdown(&self, dataset: &str, figure: &str) -> String {
+    /// `report.md`: what a person reads; `figure` is the residual histogram's file name, `maps`
+    /// each state's residual map's (`None` where it was not drawn).
+    pub fn report_markdown(&self, dataset: &str, figure: &str, maps: &[Option<String>]) -> String {
         let s = &self.single;
         let mut o = String::new();
         let _ = writeln!(o, "# Scan fit: {dataset}\n");
@@ -616,6 +617,21 @@ impl DatasetFit {
             o,
             "\nAn RMS near the noise floor means the model explains the scans; well above it, a part of the object the model does not describe (look where in `<state>-surface.vtu`, `mean_residual_m`).\n\n![residual]({figure})"
         );
+        let drawn: Vec<_> = self
+            .states
+            .iter()
+            .zip(maps)
+            .filter_map(|(st, m)| Some((st, m.as_ref()?)))
+            .collect();
+        if !drawn.is_empty() {
+            let _ = writeln!(
+                o,
+                "\nWhere on the object the residual sits, per state (the fitted surface seen along the rest mesh's thinnest axis, each triangle coloured by the mean signed distance of the points nearest it; red: the scan lies outside the model):\n"
+            );
+            for (st, m) in drawn {
+                let _ = writeln!(o, "- {}: [{m}]({m})", st.name);
+            }
+        }
         o
     }
 

@@ -22,6 +22,8 @@
 //!   where they came from), imported from a depth image and its camera or from a point cloud;
 //! - [`noise`]: a scan's noise estimated from its points' local scatter;
 //! - [`residual_vtu`]: a fit's residual on the points and on the deformed surface, for ParaView.
+//! - [`residual_map`]: a fit's residual on the deformed surface projected along its thinnest axis,
+//!   per triangle in painter's order, for a figure.
 //!
 //! Units are metres throughout; a depth image's integer unit is declared by the caller.
 
@@ -36,6 +38,7 @@ pub mod record;
 pub mod regions;
 pub mod registration;
 pub mod render;
+pub mod residual_map;
 pub mod residual_vtu;
 pub mod surface;
 

@@ -1,14 +1,16 @@
 //! `palpate fit-scan <dataset> -o <dir>`: Young's modulus of an object from scans of it hanging,
 //! held or twisted (a scan dataset, docs/scan-dataset.md), every state at once, on quadratic
 //! tetrahedra by default; then a second material searched for (`--single-material` skips it).
-//! Writes `fit.json`, `report.md`, each state's residual as VTU and a histogram of the residual.
+//! Writes `fit.json`, `report.md`, each state's residual as VTU and drawn on its fitted surface,
+//! and a histogram of the residual.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use palpate_scan::dataset::ScanDataset;
-use palpate_scan::dataset_fit::{fit_dataset, DatasetFit, DatasetFitOptions};
+use palpate_scan::dataset_fit::{fit_dataset, DatasetFit, DatasetFitOptions, StateSummary};
 use palpate_scan::fit::Design;
+use palpate_scan::residual_map::residual_map;
 use palpate_scan::residual_vtu::write_fit_residual;
 
 /// Options.
@@ -32,7 +34,7 @@ pub struct Args {
     #[arg(long = "max-iterations", default_value_t = 30)]
     pub max_iter: usize,
     /// Output: the folder written (`fit.json`, `report.md`, `<state>-points.vtu`,
-    /// `<state>-surface.vtu`, `residual.svg`/`.png`).
+    /// `<state>-surface.vtu`, `<state>-residual.svg`/`.png`, `residual.svg`/`.png`).
     #[arg(
         short = 'o',
         long = "output",
@@ -114,13 +116,22 @@ fn write(
     )
     .with_context(|| format!("writing {}", json.display()))?;
     files.push(json);
+    let mut maps = Vec::new();
     for (i, s) in dataset.states.iter().enumerate() {
-        files.extend(write_fit_residual(
-            dir,
-            &file_stem(&s.name),
-            &s.scan.points,
-            &fit.state_fit(i),
-        )?);
+        let state_fit = fit.state_fit(i);
+        let stem = file_stem(&s.name);
+        files.extend(write_fit_residual(dir, &stem, &s.scan.points, &state_fit)?);
+        let file = format!("{stem}-residual.svg");
+        match residual_figure(&dir.join(&file), &fit.states[i], &state_fit) {
+            Ok(f) => {
+                files.extend(f);
+                maps.push(Some(palpate_plot::shown(&file)));
+            }
+            Err(e) => {
+                log::warn!("{}: the residual's map was not drawn: {e}", s.name);
+                maps.push(None);
+            }
+        }
     }
     let values = fit.scaled_residuals();
     let figure = palpate_plot::shown("residual.svg");
@@ -137,12 +148,52 @@ fn write(
     let report = dir.join("report.md");
     palpate_fem::io::atomic::write_atomic(
         &report,
-        fit.report_markdown(&name.display().to_string(), &figure)
+        fit.report_markdown(&name.display().to_string(), &figure, &maps)
             .as_bytes(),
     )
     .with_context(|| format!("writing {}", report.display()))?;
     files.push(report);
     Ok(files)
+}
+
+/// A state's residual drawn on its fitted surface (`palpate_scan::residual_map`): seen along the
+/// rest surface's thinnest axis, each triangle coloured by the mean signed distance of the points
+/// nearest it, in mm.
+fn residual_figure(
+    path: &Path,
+    state: &StateSummary,
+    fit: &palpate_scan::fit::ScanFit,
+) -> anyhow::Result<Vec<PathBuf>> {
+    let map = residual_map(fit).context("the fitted surface has fewer than three nodes")?;
+    let mm = |p: (f64, f64)| (1e3 * p.0, 1e3 * p.1);
+    let triangles: Vec<[(f64, f64); 3]> = map.triangles.iter().map(|t| t.map(mm)).collect();
+    let values: Vec<f64> = map.mean_m.iter().map(|v| 1e3 * v).collect();
+    let axis = |a: [f64; 3]| {
+        format!(
+            "along ({:.2}, {:.2}, {:.2}) of the mesh's frame (mm)",
+            a[0], a[1], a[2]
+        )
+        .replace("-0.00", "0.00")
+    };
+    let title = format!(
+        "{}: scan residual on the fitted surface, RMS {:.3} mm, noise {:.3} mm ({:.2}×)",
+        state.name,
+        1e3 * state.rms_m,
+        1e3 * state.noise_m,
+        state.ratio()
+    );
+    let (x_label, y_label) = (axis(map.axes[0]), axis(map.axes[1]));
+    Ok(palpate_plot::surface_map(
+        path,
+        &palpate_plot::SurfaceMap {
+            title: &title,
+            x_label: &x_label,
+            y_label: &y_label,
+            value_label: "mean signed residual (mm)",
+            triangles: &triangles,
+            values: &values,
+        },
+    )?)
 }
 
 /// The lines printed on stdout before the JSON.

@@ -190,6 +190,29 @@ fn a_hanging_and_a_twisted_scan_give_the_modulus() {
     let written: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("fit.json")).unwrap()).unwrap();
     assert_eq!(written["young_modulus_pa"], j["young_modulus_pa"]);
+    // Each state's residual drawn on its surface: a PNG and an SVG of filled triangles titled
+    // with the state, linked from the report.
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let _ = std::process::Command::new("cp")
+        .arg("-r")
+        .arg(&out)
+        .status();
+    for state in ["hanging", "twisted"] {
+        let png = std::fs::read(out.join(format!("{state}-residual.png"))).unwrap();
+        assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n", "{state}-residual.png");
+        let svg = std::fs::read_to_string(out.join(format!("{state}-residual.svg"))).unwrap();
+        assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
+        assert!(svg.contains(&format!("{state}: scan residual on the fitted surface")));
+        // The 8 × 2 × 1 mesh's surface has 2 (8·2 + 8·1 + 2·1) · 2 = 104 triangles, each drawn
+        // as the 4 flat ones of its quadratic (P2) triangle.
+        assert_eq!(svg.matches("<polygon").count(), 4 * 104, "{state}");
+        assert!(
+            report.contains(&format!(
+                "- {state}: [{state}-residual.svg]({state}-residual.svg)"
+            )),
+            "{report}"
+        );
+    }
 }
 
 /// The camera's pose declared off by 2.4° and 3.5 mm (its eye 5 mm above, its target 3 mm
