@@ -350,7 +350,7 @@ impl fmt::Display for Validation {
         if let Some(c) = &self.carried {
             writeln!(
                 f,
-                "the material carried to this mesh ({} tets): μ {} on quadratic tetrahedra (the material's) is μ {} on the fit's linear mesh and {} on this one under this run's loads (match RMS {:.3} mm of a {:.1} mm displacement), so the moduli, the viscosity and the stiffening are scaled by {:.4}",
+                "the material carried to this mesh ({} tets): μ {} on quadratic tetrahedra (the material's) is μ {} on the fit's linear mesh and {} on this one under this run's loads (match RMS {:.3} mm of a {:.1} mm displacement), so the moduli, the viscosity and the stiffening are scaled by {:.4} (the viscosity's own factor is smaller where the locking is volumetric, near ν = ½: on a silicone beam refined from 716 to 2,600 tets the fitted viscosity grew by 1.085 where μ grew by 1.196)",
                 m.tets.len(),
                 palpate_fem::numbers::quantity(c.converged_mu_pa, "Pa"),
                 palpate_fem::numbers::quantity(c.fit_mesh_mu_pa, "Pa"),
