@@ -488,25 +488,52 @@ mod tests {
         );
     }
 
+    /// The phase of a sampled sinusoid: r_i = sin(ω t_i) − d_i, d from ω = 2.3 plus a fixed
+    /// "noise", sixty samples 0.1 apart; its misfit has a hump at ω ≈ 1.5.
+    struct SinusoidPhase {
+        t: Vec<f64>,
+        d: Vec<f64>,
+    }
+
+    impl SinusoidPhase {
+        fn new() -> Self {
+            let t: Vec<f64> = (0..60).map(|i| 0.1 * i as f64).collect();
+            let d = t
+                .iter()
+                .enumerate()
+                .map(|(i, t)| (2.3 * t).sin() + 0.3 * ((7 * i % 11) as f64 / 11.0 - 0.5))
+                .collect();
+            Self { t, d }
+        }
+
+        fn residuals(&self, w: f64) -> Vec<f64> {
+            self.t
+                .iter()
+                .zip(&self.d)
+                .map(|(t, d)| (w * t).sin() - d)
+                .collect()
+        }
+
+        fn jacobian(&self, w: f64) -> Vec<f64> {
+            self.t.iter().map(|t| t * (w * t).cos()).collect()
+        }
+
+        fn normal(&self, w: f64) -> Normal {
+            normal(&self.residuals(w), &self.jacobian(w), 1)
+        }
+    }
+
     /// A residual that does not vanish and a Φ that is not convex along the way: the phase of a
     /// sampled sinusoid, r_i = sin(ω t_i) − d_i with d from ω = 2.3 plus a fixed "noise". From
     /// ω = 2.0 the trust-region form reaches the same minimum as the diagonal-scaling form, to
     /// 1e-8 in ω, in fewer evaluations.
     #[test]
     fn trust_region_matches_the_diagonal_form_on_a_large_residual() {
-        let t: Vec<f64> = (0..60).map(|i| 0.1 * i as f64).collect();
-        let d: Vec<f64> = t
-            .iter()
-            .enumerate()
-            .map(|(i, t)| (2.3 * t).sin() + 0.3 * ((7 * i % 11) as f64 / 11.0 - 0.5))
-            .collect();
-        let res =
-            |w: f64| -> Vec<f64> { t.iter().zip(&d).map(|(t, d)| (w * t).sin() - d).collect() };
-        let jac = |w: f64| -> Vec<f64> { t.iter().map(|t| t * (w * t).cos()).collect() };
+        let phase = SinusoidPhase::new();
         let evals = std::cell::Cell::new(0);
         let eval = |th: &[f64]| {
             evals.set(evals.get() + 1);
-            normal(&res(th[0]), &jac(th[0]), 1)
+            phase.normal(th[0])
         };
         let o = TrustOptions {
             max_iterations: 100,
@@ -529,12 +556,18 @@ mod tests {
         let calls = std::cell::Cell::new(1);
         let diag = minimise(
             vec![2.0],
-            res(2.0),
+            phase.residuals(2.0),
             (),
-            |th, _, _| Ok::<_, ()>(DMatrix::from_column_slice(t.len(), 1, &jac(th[0]))),
+            |th, _, _| {
+                Ok::<_, ()>(DMatrix::from_column_slice(
+                    phase.t.len(),
+                    1,
+                    &phase.jacobian(th[0]),
+                ))
+            },
             |th, _| {
                 calls.set(calls.get() + 2); // the trial, and its Jacobian if accepted
-                Some((res(th[0]), ()))
+                Some((phase.residuals(th[0]), ()))
             },
             &lo,
         )
@@ -632,19 +665,11 @@ mod tests {
     /// over-promising secant step).
     #[test]
     fn a_concave_start_does_not_crawl() {
-        let t: Vec<f64> = (0..60).map(|i| 0.1 * i as f64).collect();
-        let d: Vec<f64> = t
-            .iter()
-            .enumerate()
-            .map(|(i, t)| (2.3 * t).sin() + 0.3 * ((7 * i % 11) as f64 / 11.0 - 0.5))
-            .collect();
-        let res =
-            |w: f64| -> Vec<f64> { t.iter().zip(&d).map(|(t, d)| (w * t).sin() - d).collect() };
-        let jac = |w: f64| -> Vec<f64> { t.iter().map(|t| t * (w * t).cos()).collect() };
+        let phase = SinusoidPhase::new();
         let evals = std::cell::Cell::new(0);
         let eval = |th: &[f64]| {
             evals.set(evals.get() + 1);
-            normal(&res(th[0]), &jac(th[0]), 1)
+            phase.normal(th[0])
         };
         let o = TrustOptions {
             max_iterations: 100,
