@@ -41,36 +41,29 @@ impl Normal {
         self.grad.is_empty()
     }
 
-    /// The same over the parameters with `from` tied to `into` (q_from = ratio · q_into, e.g. λ
-    /// to μ at a fixed Poisson's ratio): the chain rule folds `from`'s column into `into`'s, and
-    /// `from` is dropped.
-    pub fn tie(&self, into: usize, from: usize, ratio: f64) -> Normal {
+    /// The same over new parameters that are linear combinations of the old ones: new parameter
+    /// a moves old parameter i by `t[a][i]` (a region's value set in all of its parts at once,
+    /// say). The chain rule gives Tᵀ∇Φ and TᵀHT.
+    pub fn combine(&self, t: &[Vec<f64>]) -> Normal {
         let n = self.len();
-        // T maps the kept parameters onto all of them.
-        let kept: Vec<usize> = (0..n).filter(|&i| i != from).collect();
-        let t = |i: usize, a: usize| -> f64 {
-            let k = kept[a];
-            if i == k {
-                1.0
-            } else if i == from && k == into {
-                ratio
-            } else {
-                0.0
-            }
-        };
-        let m = kept.len();
-        let mut grad = vec![0.0; m];
+        let m = t.len();
+        let grad = t
+            .iter()
+            .map(|ta| ta.iter().zip(&self.grad).map(|(a, g)| a * g).sum())
+            .collect();
+        // H T, column by column, then Tᵀ (H T).
+        let ht: Vec<Vec<f64>> = t
+            .iter()
+            .map(|tb| {
+                (0..n)
+                    .map(|i| (0..n).map(|j| self.gn[i * n + j] * tb[j]).sum())
+                    .collect()
+            })
+            .collect();
         let mut gn = vec![0.0; m * m];
         for a in 0..m {
-            grad[a] = (0..n).map(|i| t(i, a) * self.grad[i]).sum();
             for b in 0..m {
-                let mut s = 0.0;
-                for i in 0..n {
-                    for j in 0..n {
-                        s += t(i, a) * self.gn[i * n + j] * t(j, b);
-                    }
-                }
-                gn[a * m + b] = s;
+                gn[a * m + b] = t[a].iter().zip(&ht[b]).map(|(x, y)| x * y).sum();
             }
         }
         Normal {
@@ -78,6 +71,26 @@ impl Normal {
             grad,
             gn,
         }
+    }
+
+    /// The same over the parameters with `from` tied to `into` (q_from = ratio · q_into, e.g. λ
+    /// to μ at a fixed Poisson's ratio): the chain rule folds `from`'s column into `into`'s, and
+    /// `from` is dropped.
+    pub fn tie(&self, into: usize, from: usize, ratio: f64) -> Normal {
+        let n = self.len();
+        // Kept parameter k moves itself, and `from` by `ratio` when it is `into`.
+        let t: Vec<Vec<f64>> = (0..n)
+            .filter(|&k| k != from)
+            .map(|k| {
+                let mut col = vec![0.0; n];
+                col[k] = 1.0;
+                if k == into {
+                    col[from] = ratio;
+                }
+                col
+            })
+            .collect();
+        self.combine(&t)
     }
 }
 
@@ -282,6 +295,28 @@ mod tests {
             assert!((tied.grad[a] - direct.grad[a]).abs() < 1e-12);
             for b in 0..2 {
                 assert!((tied.gn[a * 2 + b] - direct.gn[a * 3 + b]).abs() < 1e-12);
+            }
+        }
+    }
+
+    /// Folding columns into combinations (two bands' parameters moved together, one of them
+    /// with a third column) gives the normal equations of the combined Jacobian's columns.
+    #[test]
+    fn combined_columns_are_the_combined_jacobians() {
+        let p = linear(&J, &Y);
+        let t = vec![vec![1.0, 1.0, 0.0], vec![0.0, 0.5, -2.0]];
+        let combined = p.combine(&t);
+        let j: Vec<[f64; 3]> = J
+            .iter()
+            .map(|r| [r[0] + r[1], 0.5 * r[1] - 2.0 * r[2], 0.0])
+            .collect();
+        let direct = linear(&j, &Y);
+        assert_eq!(combined.len(), 2);
+        assert_eq!(combined.phi, p.phi);
+        for a in 0..2 {
+            assert!((combined.grad[a] - direct.grad[a]).abs() < 1e-12);
+            for b in 0..2 {
+                assert!((combined.gn[a * 2 + b] - direct.gn[a * 3 + b]).abs() < 1e-12);
             }
         }
     }

@@ -27,6 +27,7 @@ mod engine;
 pub mod fit;
 pub mod mesh;
 pub mod region;
+mod region_rank;
 pub mod report;
 pub mod run;
 pub mod screen;

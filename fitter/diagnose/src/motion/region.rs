@@ -201,6 +201,24 @@ impl Family {
         Region { elements, stiffer }
     }
 
+    /// Elements in the family's order.
+    pub fn len(&self) -> usize {
+        self.order.len()
+    }
+
+    /// Whether the family has no elements (never: a family splits a map of two signs).
+    pub fn is_empty(&self) -> bool {
+        self.order.is_empty()
+    }
+
+    /// The elements from the `lo`-th to before the `hi`-th in the family's order, sorted: the
+    /// band between two cuts.
+    pub fn band(&self, lo: usize, hi: usize) -> Vec<usize> {
+        let mut elements = self.order[lo..hi].to_vec();
+        elements.sort_unstable();
+        elements
+    }
+
     /// Whether the cut after the first `k` elements leaves a region (its smaller side) large
     /// enough to be a material ([`plausible`]).
     fn plausible_cut(&self, k: usize) -> bool {

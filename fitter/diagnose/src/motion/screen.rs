@@ -14,7 +14,7 @@
 use std::cell::Cell;
 
 use palpate_motion::gradient::evaluate_gauss_newton;
-use palpate_motion::model::{Param, ParamKind};
+use palpate_motion::model::{Material, Param, ParamKind};
 
 use super::candidates::Candidate;
 use super::engine::MotionModel;
@@ -73,22 +73,11 @@ impl<'m, 'a> Screening<'m, 'a> {
         if screening.kinds.len() == cur.kinds.len() {
             return Ok(screening);
         }
-        let mut ds = model.ds.clone();
-        ds.obs.free_marker_offsets = cur.offsets.is_some();
-        let (ds, split) = match cur.time_offset {
-            Some(r) => fit::retimed(&ds, model.split, r)?,
-            None => (ds, model.split),
-        };
-        let (m, obs) = fit::fitted_part(&ds, split);
         let params = fit::params_for(&screening.kinds, &mat);
-        let (ev, gn) = evaluate_gauss_newton(&m, &mat, &params, &obs)?;
+        let (normal, chi2_sim) = linearise(model, cur, &mat, &params)?;
         screening.count(1);
-        screening.chi2_sim = ev.rms_marker * ev.rms_marker * ev.marker_count as f64;
-        screening.normal = Some(Normal {
-            phi: ev.phi,
-            grad: ev.grad.unwrap_or_default(),
-            gn,
-        });
+        screening.chi2_sim = chi2_sim;
+        screening.normal = Some(normal);
         Ok(screening)
     }
 
@@ -129,18 +118,56 @@ impl<'m, 'a> Screening<'m, 'a> {
         let parts = std::slice::from_ref(normal);
         let delta = screen::step(parts, &cols);
         let change = screen::change(parts, &cols, &delta)[0];
-        let scale = if normal.phi > 0.0 {
-            self.chi2_sim / normal.phi
-        } else {
-            0.0
-        };
-        let stepped = (self.chi2_sim + scale * change).max(0.0);
-        let chi2 = self.cur.scores.chi2_fit * stepped / self.chi2_sim.max(f64::MIN_POSITIVE);
+        let chi2 = stepped_chi2(self.cur, normal, self.chi2_sim, change);
         Prediction {
             delta_bic: Some(self.delta_bic(chi2, extra)),
             how: how.into(),
         }
     }
+}
+
+/// One simulation with the direct sensitivities of `params` at `mat`, on the data as the current
+/// fit `cur` sees them (its time offset, its marker offsets eliminated in closed form): Φ, its
+/// gradient and Gauss–Newton matrix, and the simulation's own χ² (m²).
+pub(in crate::motion) fn linearise(
+    model: &MotionModel<'_>,
+    cur: &FittedModel,
+    mat: &Material,
+    params: &[Param],
+) -> Result<(Normal, f64), MotionDiagnoseError> {
+    let mut ds = model.ds.clone();
+    ds.obs.free_marker_offsets = cur.offsets.is_some();
+    let (ds, split) = match cur.time_offset {
+        Some(r) => fit::retimed(&ds, model.split, r)?,
+        None => (ds, model.split),
+    };
+    let (m, obs) = fit::fitted_part(&ds, split);
+    let (ev, gn) = evaluate_gauss_newton(&m, mat, params, &obs)?;
+    let chi2_sim = ev.rms_marker * ev.rms_marker * ev.marker_count as f64;
+    let normal = Normal {
+        phi: ev.phi,
+        grad: ev.grad.unwrap_or_default(),
+        gn,
+    };
+    Ok((normal, chi2_sim))
+}
+
+/// χ² on the fitted steps after a Gauss–Newton step that changes the linearisation's Φ by
+/// `change`, in proportion to the current fit's χ² (so that the linearisation's own simulation,
+/// whose χ² is `chi2_sim`, does not count as a gain).
+pub(in crate::motion) fn stepped_chi2(
+    cur: &FittedModel,
+    normal: &Normal,
+    chi2_sim: f64,
+    change: f64,
+) -> f64 {
+    let scale = if normal.phi > 0.0 {
+        chi2_sim / normal.phi
+    } else {
+        0.0
+    };
+    let stepped = (chi2_sim + scale * change).max(0.0);
+    cur.scores.chi2_fit * stepped / chi2_sim.max(f64::MIN_POSITIVE)
 }
 
 /// Every open candidate's prediction on top of `cur` (one each, in order), and the simulations

@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use super::{Candidate, MotionEffect};
 use crate::motion::engine::MotionModel;
 use crate::motion::fit::{self, with_offsets, FittedModel};
-use crate::motion::screen::Screening;
+use crate::motion::screen::{self, Screening};
 use crate::motion::{MotionDiagnoseError, MotionOptions, Value};
 use crate::select::{Outcome, Prediction};
 
@@ -42,12 +42,12 @@ impl MotionEffect for TimeOffset {
         c: Candidate,
         cur: &FittedModel,
     ) -> Result<Outcome<FittedModel>, MotionDiagnoseError> {
-        let r = match scan_offset(m, &cur.material, cur.offsets.as_deref()) {
-            Ok(r) => r,
+        let (r, tried) = match scan(m.ds, m.split, &cur.material, cur.offsets.as_deref()) {
+            Ok(t) => t,
             Err(e) => return Ok(Outcome::NotFitted(format!("scan failed: {e}"))),
         };
         if r == 0 {
-            return fit_step_off(m, c, cur);
+            return fit_step_off(m, c, cur, &tried);
         }
         Ok(match fit_timed(m, c, cur, r) {
             Ok(f) => Outcome::Fitted(f),
@@ -160,21 +160,60 @@ fn fit_timed(
 /// The time offset when the scan says 0. The scan runs at a material fitted without an
 /// offset, which has absorbed part of one: a step off is what it can miss (random bars: 2 of
 /// 8 draws with ±1 step were scanned to 0 and another effect adopted, 25–34× the floor).
-/// Both neighbours are fitted for [`MotionOptions::screen_iters`] iterations; the better,
-/// if it lowers χ² on the fitted steps below the current model's, is fitted in full and its
-/// own neighbours that way while χ² falls ([`fit_timed`]), and gated as any other fit.
+/// First one Gauss–Newton step of the material at each neighbour, from one simulation with
+/// sensitivities there ([`refit_gain`]), predicts the neighbour's refit: χ² the scan's at that
+/// offset times the step's relative gain. A neighbour predicted no better than offset 0 is not
+/// fitted. The others are fitted for [`MotionOptions::screen_iters`] iterations; the better, if
+/// it lowers χ² on the fitted steps below the current model's, is fitted in full and its own
+/// neighbours that way while χ² falls ([`fit_timed`]), and gated as any other fit.
 fn fit_step_off(
     m: &MotionModel<'_>,
     c: Candidate,
     cur: &FittedModel,
+    tried: &[(i64, f64)],
 ) -> Result<Outcome<FittedModel>, MotionDiagnoseError> {
+    let at = |o: i64| tried.iter().find(|t| t.0 == o).map(|t| t.1);
+    let predicted: Vec<(i64, Option<f64>)> = [-1i64, 1]
+        .par_iter()
+        .map(|&r| {
+            let relative = match (refit_gain(m, cur, r), at(r), at(0)) {
+                (Ok(gain), Some(chi2), Some(zero)) if zero > 0.0 => Some(chi2 * gain / zero),
+                _ => None,
+            };
+            (r, relative)
+        })
+        .collect();
+    let mut evaluations = predicted.len();
+    for &(r, rel) in &predicted {
+        if let Some(rel) = rel {
+            (m.log)(&format!(
+                "  time-offset: one Gauss–Newton step of the material at {:+.1} ms predicts χ² \
+                 {:.4}× offset 0's",
+                1e3 * r as f64 * m.ds.model.dt,
+                rel
+            ));
+        }
+    }
+    // An offset whose prediction failed is fitted, as one predicted better.
+    let open: Vec<i64> = predicted
+        .iter()
+        .filter(|p| p.1.is_none_or(|rel| rel < 1.0))
+        .map(|p| p.0)
+        .collect();
+    if open.is_empty() {
+        return Ok(Outcome::NotFitted(
+            "the scan puts the markers in step with the simulation (offset 0), and one \
+             Gauss–Newton step of the material a step either way predicts no better fit"
+                .into(),
+        ));
+    }
     let screen = MotionOptions {
         max_iters: m.o.screen_iters,
         ..m.o.clone()
     };
     let screener = m.with_options(&screen);
-    // The two neighbours are independent fits: one per core.
-    let fits: Vec<(i64, usize, Option<FittedModel>)> = [-1i64, 1]
+    // The open neighbours are independent fits: one per core.
+    let fits: Vec<(i64, usize, Option<FittedModel>)> = open
         .par_iter()
         .map(|&r| {
             let mut evaluations = 0;
@@ -182,7 +221,7 @@ fn fit_step_off(
             (r, evaluations, f.ok())
         })
         .collect();
-    let evaluations: usize = fits.iter().map(|f| f.1).sum();
+    evaluations += fits.iter().map(|f| f.1).sum::<usize>();
     let mut best: Option<(FittedModel, i64)> = None;
     for (r, _, f) in fits {
         if let Some(f) = f {
@@ -211,4 +250,22 @@ fn fit_step_off(
         }
         Err(e) => Outcome::NotFitted(format!("fit failed: {e}")),
     })
+}
+
+/// The relative χ² gain of one Gauss–Newton step of the current parameters with the markers
+/// `r` steps off the clamps' record: (χ² after the step) / (χ² before), from one simulation with
+/// sensitivities at the current material on the data re-timed by `r`.
+fn refit_gain(m: &MotionModel<'_>, cur: &FittedModel, r: i64) -> Result<f64, MotionDiagnoseError> {
+    let mut at = cur.clone();
+    at.time_offset = Some(r);
+    let params = fit::params_for(&cur.kinds, &cur.material);
+    let (normal, _) = screen::linearise(m, &at, &cur.material, &params)?;
+    if normal.phi <= 0.0 {
+        return Ok(1.0);
+    }
+    let cols: Vec<usize> = (0..normal.len()).collect();
+    let parts = std::slice::from_ref(&normal);
+    let delta = crate::screen::step(parts, &cols);
+    let change = crate::screen::change(parts, &cols, &delta)[0];
+    Ok(((normal.phi + change) / normal.phi).max(0.0))
 }
