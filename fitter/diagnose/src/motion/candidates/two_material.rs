@@ -183,12 +183,8 @@ fn fit_two_material(
         }
     };
     let ranked_once = ranked.is_some();
-    let offered = if ranked_once {
-        cuts.len()
-    } else {
-        coarse.len()
-    };
-    match ranked {
+    // The level sets the search chose among: every ranked cut, or every cut fitted short.
+    let offered = match ranked {
         Some(chi2) => {
             let mut order: Vec<(usize, f64)> = cuts.iter().copied().zip(chi2).collect();
             order.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
@@ -197,14 +193,16 @@ fn fit_two_material(
                 log::debug!("two-material: rank {rank}: cut {k}: predicted χ² {chi2:.6e} m²");
             }
             scan(&top, &mut best);
+            cuts.len()
         }
         None => {
             scan(&coarse, &mut best);
             if let Some(k) = best.as_ref().map(|b| b.1) {
                 scan(&family.between(&coarse, k, region::FINE_LEVELS), &mut best);
             }
+            screened
         }
-    }
+    };
     let Some((start, k)) = best else {
         return Ok(Outcome::NotFitted(format!(
             "fit failed on all {screened} candidate regions: {}",
