@@ -56,8 +56,9 @@ impl MotionEffect for TimeOffset {
     }
 
     /// By its scan at the current material, χ² in proportion to the scan's own at offset 0 (the
-    /// material not refitted). A scan at 0 is not predicted: the fit then tries a step either
-    /// way ([`fit_step_off`]), which the scan cannot see.
+    /// material not refitted). A scan at 0 is not predicted here: the fit then predicts a step
+    /// either way with the material refitted by one Gauss–Newton step ([`fit_step_off`]), which
+    /// the scan at the current material cannot see.
     fn predict(&self, s: &Screening<'_, '_>) -> Result<Prediction, MotionDiagnoseError> {
         let m = s.model;
         let (best, tried) = match scan(m.ds, m.split, &s.cur.material, s.cur.offsets.as_deref()) {
@@ -68,7 +69,8 @@ impl MotionEffect for TimeOffset {
         let at = |o: i64| tried.iter().find(|t| t.0 == o).map(|t| t.1);
         match (best, at(best), at(0)) {
             (0, ..) => Ok(Prediction::none(
-                "the scan says 0: a step either way is fitted",
+                "the scan says 0: a step either way is predicted by a Gauss–Newton step of the \
+                 material there, and fitted where that promises a better fit",
             )),
             (_, Some(b), Some(z)) if z > 0.0 => Ok(Prediction {
                 delta_bic: Some(s.delta_bic(s.cur.scores.chi2_fit * b / z, 1)),
