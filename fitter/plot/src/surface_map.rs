@@ -287,19 +287,16 @@ mod tests {
         triangles.extend(square(0.0, 0.0)); // far: no value
         triangles.extend(square(1.0, 0.0)); // near: +1 (the bound)
         let values = [f64::NAN, f64::NAN, 1.0, 1.0];
+        let map = SurfaceMap {
+            title: "Overlap",
+            x_label: "x (mm)",
+            y_label: "y (mm)",
+            value_label: "r (mm)",
+            triangles: &triangles,
+            values: &values,
+        };
         let p = dir.path().join("m.png");
-        surface_map(
-            &p,
-            &SurfaceMap {
-                title: "Overlap",
-                x_label: "x (mm)",
-                y_label: "y (mm)",
-                value_label: "r (mm)",
-                triangles: &triangles,
-                values: &values,
-            },
-        )
-        .unwrap();
+        surface_map(&p, &map).unwrap();
         let dec = png::Decoder::new(std::io::Cursor::new(std::fs::read(&p).unwrap()));
         let mut r = dec.read_info().unwrap();
         let mut buf = vec![0; r.output_buffer_size()];
@@ -325,18 +322,7 @@ mod tests {
         let share = f64::from(runs[0].1) / f64::from(runs[0].1 + runs[1].1);
         assert!((share - 1.0 / 3.0).abs() < 0.03, "{share}");
         let svg = dir.path().join("m.svg");
-        surface_map(
-            &svg,
-            &SurfaceMap {
-                title: "Overlap",
-                x_label: "x (mm)",
-                y_label: "y (mm)",
-                value_label: "r (mm)",
-                triangles: &triangles,
-                values: &values,
-            },
-        )
-        .unwrap();
+        surface_map(&svg, &map).unwrap();
         let s = std::fs::read_to_string(&svg).unwrap();
         assert!(s.contains("Overlap") && s.contains("clipped at ±1.00 (95th pct"));
         assert!(s.matches("<polygon").count() >= 4);

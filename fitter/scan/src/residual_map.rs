@@ -65,6 +65,21 @@ pub fn triangle_mean_residual(
     (mean, count)
 }
 
+/// The covariance of `points` about their centroid, each offset projected onto the plane across
+/// the unit vector `across` when it is given (zero for no points).
+fn covariance(points: &[[f64; 3]], across: Option<&Vector3<f64>>) -> Matrix3<f64> {
+    let n = points.len().max(1) as f64;
+    let centre = points
+        .iter()
+        .fold(Vector3::zeros(), |a, p| a + Vector3::from(*p))
+        / n;
+    points.iter().fold(Matrix3::zeros(), |a, p| {
+        let d = Vector3::from(*p) - centre;
+        let d = across.map_or(d, |v| d - v * v.dot(&d));
+        a + d * d.transpose()
+    }) / n
+}
+
 /// The direction from the object to the viewer: the smallest principal axis of `rest`'s points
 /// (the surface nodes at rest), signed so that the residuals' outward normals face it on the
 /// whole (+ when they balance). `None` for fewer than three points.
@@ -72,16 +87,7 @@ pub fn view_axis(rest: &[[f64; 3]], residuals: &[PointResidual]) -> Option<Vecto
     if rest.len() < 3 {
         return None;
     }
-    let n = rest.len() as f64;
-    let centre = rest
-        .iter()
-        .fold(Vector3::zeros(), |a, p| a + Vector3::from(*p))
-        / n;
-    let cov = rest.iter().fold(Matrix3::zeros(), |a, p| {
-        let d = Vector3::from(*p) - centre;
-        a + d * d.transpose()
-    }) / n;
-    let eig = SymmetricEigen::new(cov);
+    let eig = SymmetricEigen::new(covariance(rest, None));
     let k = eig.eigenvalues.imin();
     let axis = eig.eigenvectors.column(k).into_owned();
     let facing: f64 = residuals
@@ -107,17 +113,7 @@ pub fn project(
     // The widest direction across the view: the largest eigenvector of the rest shape's
     // covariance projected onto the screen plane.
     let x = {
-        let n = rest.len().max(1) as f64;
-        let centre = rest
-            .iter()
-            .fold(Vector3::zeros(), |a, p| a + Vector3::from(*p))
-            / n;
-        let cov = rest.iter().fold(Matrix3::zeros(), |a, p| {
-            let d = Vector3::from(*p) - centre;
-            let d = d - v * v.dot(&d);
-            a + d * d.transpose()
-        }) / n;
-        let eig = SymmetricEigen::new(cov);
+        let eig = SymmetricEigen::new(covariance(rest, Some(&v)));
         let e = eig.eigenvectors.column(eig.eigenvalues.imax()).into_owned();
         let e = e - v * v.dot(&e);
         if e.norm() > 1e-9 {
