@@ -130,6 +130,7 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<Vec<Summar
             output,
             &args.candidates,
             args.max_effects.unwrap_or(DEFAULT_MAX_EFFECTS),
+            args.mesh,
         )?]);
     }
     Ok(vec![crate::statics::run::run(

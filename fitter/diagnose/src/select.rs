@@ -528,6 +528,17 @@ pub trait CandidateModel {
     /// gates and the verdict are then those of fits one after the other. The default fits
     /// nothing ahead.
     fn prefit(&mut self, _round: usize, _current: &Self::Fitted, _batch: &[Self::Candidate]) {}
+    /// A last check of the round's best passing candidate before it is adopted: the diagnosis
+    /// may refuse it by setting `gate.passes` to false (and saying why in its detail); the next
+    /// best that passes is then checked in turn. The default confirms every candidate.
+    fn confirm(
+        &mut self,
+        _current: &Current<'_, Self>,
+        _candidate: &Candidate<'_, Self>,
+        _gate: &mut Gate<Self::Detail>,
+    ) -> Result<(), Self::Error> {
+        Ok(())
+    }
     /// Records a candidate the screen left unfitted (the default records nothing).
     fn screened_out(&mut self, _round: usize, _candidate: Self::Candidate, _p: &Prediction) {}
     /// Receives what the loop is doing (the default ignores it).
@@ -648,7 +659,14 @@ pub fn select<M: CandidateModel>(
         };
         let (mut attempts, mut fits) =
             fit_round(model, policy, &fit_screen, &now, bic0, &open, &predictions)?;
-        let (ranked, best) = judge_round(policy.rank, &mut attempts);
+        let (mut ranked, mut best) = judge_round(policy.rank, &mut attempts);
+        while let Some(i) = best {
+            if !confirm_one(model, &now, &mut attempts[i], fits[i].as_ref())? {
+                break;
+            }
+            // Refused: the next best that passes is judged and checked in its turn.
+            (ranked, best) = judge_round(policy.rank, &mut attempts);
+        }
         let mut this = Round {
             round,
             model: adopted.clone(),
@@ -910,6 +928,32 @@ fn gate_one<M: CandidateModel>(
     ));
     a.held = Some(h);
     Ok(())
+}
+
+/// The diagnosis' last check of a passing attempt ([`CandidateModel::confirm`]); `true` when it
+/// refused the attempt.
+fn confirm_one<M: CandidateModel>(
+    model: &mut M,
+    now: &Current<'_, M>,
+    a: &mut Attempt<M>,
+    f: Option<&M::Fitted>,
+) -> Result<bool, M::Error> {
+    let (Some(f), Some(h), Some(mut g)) = (f, a.held.as_ref(), a.gate.take()) else {
+        return Ok(false);
+    };
+    model.confirm(
+        now,
+        &Candidate {
+            candidate: a.candidate,
+            fitted: f,
+            held: h,
+            delta_bic: a.delta_bic,
+        },
+        &mut g,
+    )?;
+    let refused = !g.passes;
+    a.gate = Some(g);
+    Ok(refused)
 }
 
 /// Ranks a round's attempts ([`Rank`]) and judges the gated ones in that order ([`Judgement`]):

@@ -31,6 +31,13 @@ pub struct MotionModel<'a> {
     pub(in crate::motion) screen_simulations: usize,
     /// The round's candidates fitted ahead of their turn, side by side, each with its log lines.
     pub(in crate::motion) ahead: select::Ahead<Candidate, AheadFit>,
+    /// The dataset's model on the mesh refined once, built at the first check against the
+    /// mesh's own null (`Err`: why it could not be).
+    pub(in crate::motion) fine: Option<Result<palpate_motion::model::Model, String>>,
+    /// The current round's null ([`super::mesh_null`]).
+    pub(in crate::motion) null: Option<super::mesh_null::NullRound>,
+    /// Every check against the null: round, candidate, what it found.
+    pub(in crate::motion) null_checks: Vec<(usize, Candidate, super::mesh_null::NullCheck)>,
 }
 
 /// A candidate's fit done ahead of its turn, and its log lines in order.
@@ -68,6 +75,9 @@ impl<'a> MotionModel<'a> {
             log,
             screen_simulations: 0,
             ahead: select::Ahead::default(),
+            fine: None,
+            null: None,
+            null_checks: Vec::new(),
         }
     }
 
@@ -84,6 +94,9 @@ impl<'a> MotionModel<'a> {
             log: self.log,
             screen_simulations: 0,
             ahead: select::Ahead::default(),
+            fine: None,
+            null: None,
+            null_checks: Vec::new(),
         }
     }
 
@@ -225,6 +238,9 @@ impl CandidateModel for MotionModel<'_> {
                     log: &log,
                     screen_simulations: 0,
                     ahead: select::Ahead::default(),
+                    fine: None,
+                    null: None,
+                    null_checks: Vec::new(),
                 };
                 let outcome = c.effect().fit(&fitter, c, cur);
                 (outcome, lines.into_inner().expect("a fit's log lines"))
@@ -333,6 +349,28 @@ impl CandidateModel for MotionModel<'_> {
         Ok(p)
     }
 
+    fn confirm(
+        &mut self,
+        cur: &Current<'_, Self>,
+        cand: &select::Candidate<'_, Self>,
+        gate: &mut Gate<GateDetail>,
+    ) -> Result<(), MotionDiagnoseError> {
+        let c = cand.candidate;
+        let Some(check) = self.null_check(cur.round, cur.fitted, c, cand.fitted, cand.delta_bic)
+        else {
+            return Ok(());
+        };
+        let but = if check.refused {
+            gate.passes = false;
+            "but "
+        } else {
+            ""
+        };
+        gate.detail.reason = format!("{}; {but}{}", gate.detail.reason, check.statement);
+        self.null_checks.push((cur.round, c, check));
+        Ok(())
+    }
+
     fn screened_out(&mut self, round: usize, c: Candidate, p: &Prediction) {
         (self.log)(&format!(
             "round {round}: {} screened out (predicted ΔBIC {:.1})",
@@ -343,7 +381,11 @@ impl CandidateModel for MotionModel<'_> {
 }
 
 /// The motion report's rounds from the engine's verdict (trials in the order tried).
-pub(in crate::motion) fn motion_rounds(v: &Verdict<MotionModel<'_>>, markers: usize) -> Vec<Round> {
+pub(in crate::motion) fn motion_rounds(
+    v: &Verdict<MotionModel<'_>>,
+    markers: usize,
+    checks: &[(usize, Candidate, super::mesh_null::NullCheck)],
+) -> Vec<Round> {
     let predicted =
         |a: &select::Attempt<MotionModel<'_>>| a.prediction.as_ref().and_then(|p| p.delta_bic);
     v.rounds
@@ -351,6 +393,12 @@ pub(in crate::motion) fn motion_rounds(v: &Verdict<MotionModel<'_>>, markers: us
         .map(|r| {
             // Round r starts from path[r − 1]; a candidate adds its kinds to that model's.
             let k0 = v.path[r.round - 1].0.parameter_count();
+            let null = |c: Candidate| {
+                checks
+                    .iter()
+                    .find(|(round, cand, _)| *round == r.round && *cand == c)
+                    .map(|(_, _, check)| check.clone())
+            };
             let trials = r
                 .attempts
                 .iter()
@@ -369,6 +417,7 @@ pub(in crate::motion) fn motion_rounds(v: &Verdict<MotionModel<'_>>, markers: us
                         evaluations: *evaluations,
                         predicted_delta_bic: predicted(a),
                         screened_out: false,
+                        mesh_null: null(a.candidate),
                     },
                     _ => Trial {
                         candidate: a.candidate.name().into(),
@@ -384,6 +433,7 @@ pub(in crate::motion) fn motion_rounds(v: &Verdict<MotionModel<'_>>, markers: us
                         evaluations: 0,
                         predicted_delta_bic: predicted(a),
                         screened_out: a.screened_out,
+                        mesh_null: None,
                     },
                 })
                 .collect();

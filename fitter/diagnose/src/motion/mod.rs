@@ -26,6 +26,7 @@ pub mod candidates;
 mod engine;
 pub mod fit;
 pub mod mesh;
+pub mod mesh_null;
 pub mod region;
 mod region_rank;
 pub mod report;
@@ -92,6 +93,10 @@ pub struct MotionOptions {
     pub mesh_error: bool,
     /// The error is measured only when the refined mesh has at most this many tetrahedra.
     pub refine_max_tets: usize,
+    /// Check a passing candidate against the mesh's own null before adopting it
+    /// ([`mesh_null`]): it must gain more on the data than on data the current model makes on
+    /// the mesh refined once (with `mesh_error`).
+    pub mesh_null: bool,
     /// Fit the capture's rest state (its last 0.5 s) on linear and quadratic elements after the
     /// diagnosis ([`crate::convergence`]): whether the fitted modulus is the material's or the
     /// mesh's. Skipped, saying why, where the markers have not settled.
@@ -113,6 +118,7 @@ impl Default for MotionOptions {
             screen_margin: 0.5,
             mesh_error: true,
             refine_max_tets: 50_000,
+            mesh_null: true,
             mesh_convergence: true,
         }
     }
@@ -158,6 +164,9 @@ pub struct Trial {
     pub predicted_delta_bic: Option<f64>,
     /// Left unfitted by the fit screen.
     pub screened_out: bool,
+    /// Its check against the mesh's own null, when it passed on the data and was next in line
+    /// for adoption ([`mesh_null`]).
+    pub mesh_null: Option<mesh_null::NullCheck>,
 }
 
 /// One round: the residual of the current model and what was tried against it.
@@ -350,7 +359,7 @@ pub fn diagnose(
     };
     let verdict = select(&mut engine, &policy, simplest.clone(), simplest.scores)?;
     let screen_simulations = engine.screen_simulations;
-    let rounds = motion_rounds(&verdict, ds.model.markers.len());
+    let rounds = motion_rounds(&verdict, ds.model.markers.len(), &engine.null_checks);
     let evaluations = simplest.evaluations
         + rounds
             .iter()
@@ -385,10 +394,18 @@ pub fn diagnose(
              simulated and steps {}..={steps} are scored as held out (a forecast). A candidate \
              passes if ΔBIC < −{} on the fitted steps AND the held-out ΔBIC (same formula on the \
              held-out residuals) < 0 AND the held-out RMS drops by ≥ {:.0} %; the first passing \
-             candidate in fitted-ΔBIC order is adopted; repeat until none passes.",
+             candidate in fitted-ΔBIC order is adopted; repeat until none passes.{}",
             fit_steps + 1,
             o.bic_threshold,
-            100.0 * o.min_holdout_gain
+            100.0 * o.min_holdout_gain,
+            if o.mesh_error && o.mesh_null {
+                " Before it is adopted, a passing candidate that the mesh's own error could \
+                 imitate is fitted again on the mesh's null (the current model simulated on the \
+                 mesh refined once, with the declared noise) and must gain more on the data than \
+                 there by the same thresholds (ΔBIC and held-out RMS beyond the null's)."
+            } else {
+                ""
+            }
         ),
         rounds,
         adopted: adopted.iter().map(|c| c.name().to_string()).collect(),

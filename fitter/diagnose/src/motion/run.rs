@@ -14,13 +14,27 @@ pub fn run(
     output: &Path,
     candidates: &[String],
     max_effects: usize,
+    mesh: crate::MeshChoice,
 ) -> Result<Summary, Error> {
+    if mesh == crate::MeshChoice::Refined {
+        return Err(Error::Input(format!(
+            "{}: --mesh refined: a motion diagnosis fits on the dataset's mesh (the refined mesh \
+             measures its error and checks each adoption against it); expected `auto` or \
+             `dataset`",
+            dataset.display()
+        )));
+    }
     let ds = palpate_motion::dataset::load(dataset).map_err(|source| Error::MotionDataset {
         path: dataset.into(),
         source: Box::new(source),
     })?;
+    // `--mesh dataset`: nothing on the refined mesh (neither the error's estimate nor the
+    // check of each adoption against the mesh's own null).
+    let refined = mesh != crate::MeshChoice::Dataset;
     let mut o = MotionOptions {
         max_effects,
+        mesh_error: refined,
+        mesh_null: refined,
         ..Default::default()
     };
     if !candidates.is_empty() {

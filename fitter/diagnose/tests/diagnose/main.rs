@@ -12,6 +12,7 @@ mod diagnose_effects;
 mod diagnose_equilibrium;
 mod diagnose_gravity;
 mod diagnose_independent;
+mod diagnose_mesh_null;
 mod diagnose_motion;
 mod diagnose_noise;
 mod diagnose_power;

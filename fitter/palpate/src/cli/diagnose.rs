@@ -31,6 +31,8 @@ pub struct Args {
     pub max_effects: Option<usize>,
     /// Mesh of static datasets' models: `auto` refines the dataset mesh once when its own
     /// discretisation error is a large part of the noise floor; `dataset`, `refined` force one.
+    /// Motion datasets: `auto` measures the mesh's error on the mesh refined once and checks
+    /// every adoption against it; `dataset` does neither.
     #[arg(long, default_value = "auto", value_parser = mesh_choice())]
     pub mesh: MeshChoice,
     /// Gauge length L0 in mm of tension-test CSVs (stretch λ = 1 + Δ/L0); fitted if not given

@@ -148,6 +148,13 @@ pub trait MotionEffect: Sync {
         ))
     }
 
+    /// Whether the dataset mesh's own discretisation error can pass for this effect, so that a
+    /// passing fit is checked against the mesh's null before it is adopted
+    /// ([`super::mesh_null`]). The default: it can.
+    fn mimics_mesh_error(&self) -> bool {
+        true
+    }
+
     /// The gated fit refined on adoption (the default keeps it).
     fn adopt(&self, _m: &MotionModel<'_>, gated: FittedModel) -> FittedModel {
         gated

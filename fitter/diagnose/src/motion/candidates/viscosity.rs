@@ -34,6 +34,13 @@ impl MotionEffect for Viscosity {
         other == Candidate::ViscosityNewtonian
     }
 
+    /// A loss of energy: the mesh's error cannot make one. Refining the mesh changes an elastic
+    /// body's stiffness, not its energy balance (the coarse and the refined elastic models both
+    /// conserve energy up to the integrator's own damping, the same scheme on both).
+    fn mimics_mesh_error(&self) -> bool {
+        false
+    }
+
     fn screened_params(&self) -> &'static [(ParamKind, Option<f64>)] {
         &[(ParamKind::Nu, Some(0.0))]
     }

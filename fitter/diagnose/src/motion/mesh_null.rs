@@ -1,0 +1,427 @@
+//! The mesh's own null: would a candidate pass on data that hold no effect but the dataset
+//! mesh's discretisation error?
+//!
+//! Linear tetrahedra at a dataset's resolution are too stiff, most where the strain varies
+//! fastest (at a clamp, in bending), and a fit on that mesh leaves a residual shaped by it. A
+//! candidate that can bend the coarse model towards a finer one — a second material at the clamp,
+//! a strain stiffening, a constant offset per marker for the static sag the coarse mesh gets
+//! wrong — lowers that residual and passes the gate on data that hold no such effect (on the
+//! independent generator's cylinders: marker offsets, a stiffer region at the clamp and a
+//! stiffening adopted on data whose only effect was a viscous damping).
+//!
+//! Before a passing candidate is adopted it is therefore fitted a second time, on the null: the
+//! current model simulated on the mesh refined once ([`Model::refined`]), observed at the same
+//! markers and steps with Gaussian noise of the declared σ (else the current fit's RMS / √3). On
+//! the null the current model is refitted first, from its moduli scaled to the softer refined
+//! object (a golden-section search over one scale of the moduli), then the candidate on top of
+//! it, exactly as on the data. The χ² it removes there, fitted (Δχ²₀) and held out (Δχ²₀,h), is what the mesh's own error lets it
+//! remove. On the data it must remove more: with χ²₀ the current fit's and χ²₁ the candidate's,
+//!
+//!   ΔBIC beyond the null = n ln((χ²₁ + Δχ²₀)/χ²₀) + Δk ln n < −threshold,
+//!   held-out RMS beyond the null = √((χ²₁,h + Δχ²₀,h)/χ²₀,h) − 1 ≤ −min_holdout_gain,
+//!
+//! the adoption rule's own thresholds on what the candidate explains beyond the mesh. The null
+//! holds the declared noise, so its χ² is on the data's scale. It stands for a truth finer than
+//! the dataset's mesh — what a real object is; on data simulated on the dataset's mesh itself
+//! (a test of the library's confusions, `palpate-lab motion-confusion`) there is no mesh error
+//! to guard against and the check is off. Where the data's own truth is coarser than the refined
+//! mesh, the null holds more mesh error than the data do and the check errs on the side of
+//! refusing. Clamp forces are left out of the null (the density candidate, identifiable only
+//! with them, is not fitted there: nothing is handed back from its gain). A dissipative
+//! candidate is not checked ([`super::candidates::MotionEffect::mimics_mesh_error`]).
+
+use palpate_fem::rng::SplitMix64;
+use palpate_motion::dataset::MotionDataset;
+use palpate_motion::model::{Material, Model, ParamKind};
+use palpate_motion::refine::marker_paths;
+use serde::Serialize;
+
+use super::candidates::Candidate;
+use super::engine::MotionModel;
+use super::fit::{
+    fit_model, fit_with_offsets, fitted_part, remove_marker_means, run_trajectory, FittedModel,
+    Split,
+};
+use crate::select::{bic, Outcome};
+
+/// The noise stream of the null (a fixed seed: a diagnosis repeats to the bit).
+const NULL_SEED: u64 = 0x6d65_7368_6e75_6c6c;
+
+/// A candidate checked against the mesh's own null.
+#[derive(Debug, Clone, Serialize)]
+pub struct NullCheck {
+    /// Tetrahedra of the refined mesh that made the null.
+    pub refined_tets: usize,
+    /// Noise σ per axis added to the null (m).
+    pub sigma: f64,
+    /// RMS of the current model refitted on the null, fitted steps (m).
+    pub base_rms_fit: f64,
+    /// The scale of the current moduli the refit on the null started from: how much softer
+    /// the refined mesh is.
+    pub modulus_scale: f64,
+    /// The candidate's fitted ΔBIC on the null (0 when it could not be fitted there).
+    pub delta_bic: f64,
+    /// The candidate's relative held-out RMS change on the null.
+    pub heldout_gain: f64,
+    /// Its fitted ΔBIC on the data with the χ² it removes on the null handed back.
+    pub excess_delta_bic: f64,
+    /// Its held-out RMS change on the data with the held-out χ² it removes on the null handed
+    /// back.
+    pub excess_heldout_gain: f64,
+    /// Refused: it explains no more than the mesh's own error.
+    pub refused: bool,
+    /// Simulations the check ran (the null, the refit of the current model, the candidate's).
+    pub evaluations: usize,
+    /// What was found, in words for the report.
+    pub statement: String,
+}
+
+/// A round's null: the data the current model makes on the refined mesh, and the current model
+/// refitted on them.
+pub(super) struct NullRound {
+    round: usize,
+    data: MotionDataset,
+    base: FittedModel,
+    sigma: f64,
+    refined_tets: usize,
+    /// The scale of the moduli the refit started from ([`modulus_scale`]).
+    scale: f64,
+    /// Simulations of the null and of its refit not yet charged to a check.
+    uncharged: usize,
+}
+
+/// The null data of `cur` on `fine` (the refined model): its simulated marker places wherever
+/// `ds` observed a marker, plus noise of σ per axis.
+fn null_data(
+    ds: &MotionDataset,
+    fine: &Model,
+    cur: &FittedModel,
+    sigma: f64,
+) -> Result<MotionDataset, String> {
+    let paths = marker_paths(fine, &cur.material.refined()).map_err(|e| e.to_string())?;
+    let mut rng = SplitMix64::new(NULL_SEED);
+    let mut null = ds.clone();
+    for (row, sim) in null.obs.markers.iter_mut().zip(&paths) {
+        for (p, s) in row.iter_mut().zip(sim) {
+            if let Some(p) = p {
+                for k in 0..3 {
+                    p[k] = s[k] + sigma * rng.normal();
+                }
+            }
+        }
+    }
+    for row in &mut null.obs.forces {
+        row.iter_mut().for_each(|f| *f = None);
+    }
+    Ok(null)
+}
+
+/// The moduli that scale with the mesh's stiffness: λ, μ (a region's μ too) and the
+/// stiffening c.
+const SCALED: [ParamKind; 3] = [ParamKind::Lambda, ParamKind::Mu, ParamKind::Stiffening];
+
+/// `m` with its [`SCALED`] moduli times `s`.
+fn scaled(m: &Material, s: f64) -> Material {
+    let mut m = m.clone();
+    for k in SCALED {
+        m.values[k as usize].iter_mut().for_each(|v| *v *= s);
+    }
+    m
+}
+
+/// The scale of the current model's moduli at which the dataset mesh best fits the null, and
+/// the simulations it took: a golden-section search in ln s over [1/20, 2] on the fitted
+/// steps' χ² (each marker's mean removed when the offsets are in the model), forward
+/// simulations only. The refined mesh is softer than the dataset's, by as much as locking makes
+/// it (× 0.81 and × 0.72 at the current fits of the independent generator's 1,267- and
+/// 1,412-tet cylinders): the refit of the current model on the null starts there
+/// instead of crawling from the dataset mesh's moduli.
+fn modulus_scale(null: &MotionDataset, split: Split, cur: &FittedModel) -> (f64, usize) {
+    let (model, obs) = fitted_part(null, split);
+    let chi2 = |ln_s: f64| -> f64 {
+        let Ok(mut t) = run_trajectory(&model, &scaled(&cur.material, ln_s.exp()), &obs) else {
+            return f64::INFINITY;
+        };
+        if cur.offsets.is_some() {
+            let all = Split {
+                fit_steps: t.res.len(),
+                steps: t.res.len(),
+            };
+            remove_marker_means(&mut t, all, model.markers.len());
+        }
+        t.res
+            .iter()
+            .flatten()
+            .flatten()
+            .map(|e| e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+            .sum()
+    };
+    const GOLDEN: f64 = 0.618_033_988_749_895;
+    const SEARCHES: usize = 10;
+    let (mut a, mut b) = (0.05f64.ln(), 2f64.ln());
+    let mut c = b - GOLDEN * (b - a);
+    let mut d = a + GOLDEN * (b - a);
+    let (mut fc, mut fd) = (chi2(c), chi2(d));
+    for _ in 0..SEARCHES {
+        if fc <= fd {
+            (b, d, fd) = (d, c, fc);
+            c = b - GOLDEN * (b - a);
+            fc = chi2(c);
+        } else {
+            (a, c, fc) = (c, d, fd);
+            d = a + GOLDEN * (b - a);
+            fd = chi2(d);
+        }
+    }
+    let ln_s = if fc <= fd { c } else { d };
+    (ln_s.exp(), SEARCHES + 2)
+}
+
+impl MotionModel<'_> {
+    /// The null of round `round` at the current model `cur`, made and refitted once per round;
+    /// `Err` says why there is none.
+    fn null_round(&mut self, round: usize, cur: &FittedModel) -> Result<&mut NullRound, String> {
+        if self.null.as_ref().is_some_and(|n| n.round == round) {
+            return Ok(self.null.as_mut().expect("checked"));
+        }
+        let refined_tets = 8 * self.ds.model.tets.len();
+        if refined_tets > self.o.refine_max_tets {
+            return Err(format!(
+                "the mesh refined once would have {refined_tets} tetrahedra (limit {})",
+                self.o.refine_max_tets
+            ));
+        }
+        if self.fine.is_none() {
+            self.fine = Some(self.ds.model.refined().map_err(|e| e.to_string()));
+        }
+        let fine = match self.fine.as_ref().expect("built above") {
+            Ok(f) => f,
+            Err(e) => return Err(format!("the refined mesh could not be built: {e}")),
+        };
+        let sigma = self
+            .ds
+            .config
+            .marker_noise
+            .unwrap_or(cur.scores.rms_fit / 3f64.sqrt());
+        let data = null_data(self.ds, fine, cur, sigma)
+            .map_err(|e| format!("the current model did not simulate on the refined mesh: {e}"))?;
+        // On the null the markers are in step with the simulation and carry no offset: the
+        // current model is refitted as it stands, its offsets (if adopted) free again, from its
+        // moduli scaled to the softer refined object.
+        let (scale, scans) = modulus_scale(&data, self.split, cur);
+        let material = scaled(&cur.material, scale);
+        let start: Vec<f64> = cur
+            .values
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| match cur.kinds.get(i) {
+                Some(k) if !SCALED.contains(k) => v,
+                _ => v * scale,
+            })
+            .collect();
+        let base = if cur.offsets.is_some() {
+            fit_with_offsets(
+                &data,
+                self.split,
+                &material,
+                &cur.kinds,
+                &start,
+                self.o.max_iters,
+            )
+        } else {
+            fit_model(
+                &data,
+                self.split,
+                &material,
+                &cur.kinds,
+                &[start],
+                self.o.max_iters,
+                self.o.screen_iters,
+            )
+        }
+        .map_err(|e| format!("the current model did not refit on the null: {e}"))?;
+        let uncharged = 1 + scans + base.evaluations;
+        self.null = Some(NullRound {
+            round,
+            data,
+            base,
+            sigma,
+            refined_tets,
+            scale,
+            uncharged,
+        });
+        Ok(self.null.as_mut().expect("just set"))
+    }
+
+    /// Checks candidate `c`, fitted on the data as `fitted` on top of `cur` with fitted ΔBIC
+    /// `delta_bic`, against the mesh's own null ([`NullCheck`]); `None` when it is not checked
+    /// (the reason logged when there is no null).
+    pub(super) fn null_check(
+        &mut self,
+        round: usize,
+        cur: &FittedModel,
+        c: Candidate,
+        fitted: &FittedModel,
+        delta_bic: f64,
+    ) -> Option<NullCheck> {
+        if !self.o.mesh_error || !self.o.mesh_null || !c.effect().mimics_mesh_error() {
+            return None;
+        }
+        let log = self.log;
+        let (split, o) = (self.split, self.o);
+        let null = match self.null_round(round, cur) {
+            Ok(n) => n,
+            Err(why) => {
+                log(&format!(
+                    "round {round}: {}: not checked against the mesh's own null: {why}",
+                    c.name()
+                ));
+                return None;
+            }
+        };
+        let quiet = |_: &str| {};
+        let fitter = MotionModel::new(&null.data, split, o, &quiet);
+        let outcome = c.effect().fit(&fitter, c, &null.base);
+        let base = &null.base;
+        let score = |m: &FittedModel| bic(m.scores.chi2_fit, m.scores.n_fit, m.parameter_count());
+        // What the candidate removes of χ² on the null, fitted and held-out steps (none when
+        // it could not be fitted there, or made the null worse).
+        let (null_bic, null_gain, removed, removed_held, fitted_evals, how) = match outcome {
+            Ok(Outcome::Fitted(f)) => (
+                score(&f) - score(base),
+                f.scores.rms_held / base.scores.rms_held - 1.0,
+                (base.scores.chi2_fit - f.scores.chi2_fit).max(0.0),
+                (base.scores.chi2_held - f.scores.chi2_held).max(0.0),
+                f.evaluations,
+                String::new(),
+            ),
+            Ok(Outcome::NotFitted(why)) => {
+                (0.0, 0.0, 0.0, 0.0, 0, format!(" (not fitted there: {why})"))
+            }
+            Ok(Outcome::Dropped) => (0.0, 0.0, 0.0, 0.0, 0, " (not fitted there)".into()),
+            Err(e) => (
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                0,
+                format!(" (its fit failed there: {e})"),
+            ),
+        };
+        // The candidate's fit on the data with the null's removal handed back: the χ² it
+        // lowers beyond what the mesh's own error lets it lower, charged the same parameters.
+        let (s0, s1) = (&cur.scores, &fitted.scores);
+        let n = s1.n_fit.max(1) as f64;
+        let charge = delta_bic - n * (s1.chi2_fit / s0.chi2_fit).ln();
+        let excess_bic = n * ((s1.chi2_fit + removed) / s0.chi2_fit).ln() + charge;
+        let excess_gain = ((s1.chi2_held + removed_held) / s0.chi2_held).sqrt() - 1.0;
+        let refused = !(excess_bic < -o.bic_threshold && excess_gain <= -o.min_holdout_gain);
+        let verdict = if refused {
+            format!(
+                "refused: it explains no more than the mesh's own error (beyond the null ΔBIC \
+                 {excess_bic:.1}, held-out RMS {:+.1} %; needs < −{} and ≤ −{:.0} %)",
+                100.0 * excess_gain,
+                o.bic_threshold,
+                100.0 * o.min_holdout_gain
+            )
+        } else {
+            format!(
+                "beyond the null ΔBIC {excess_bic:.1}, held-out RMS {:+.1} %: more than the \
+                 mesh's own error",
+                100.0 * excess_gain
+            )
+        };
+        let statement = format!(
+            "on the mesh's own null (the current model on the mesh refined once, {} tets, \
+             σ {:.0} µm; refitted there from the moduli × {:.3} to {:.1} µm) ΔBIC {null_bic:.1}, held-out RMS {:+.1} %{how}; \
+             {verdict}",
+            null.refined_tets,
+            1e6 * null.sigma,
+            null.scale,
+            1e6 * base.scores.rms_fit,
+            100.0 * null_gain
+        );
+        log(&format!("round {round}: {}: {statement}", c.name()));
+        Some(NullCheck {
+            refined_tets: null.refined_tets,
+            sigma: null.sigma,
+            base_rms_fit: base.scores.rms_fit,
+            modulus_scale: null.scale,
+            delta_bic: null_bic,
+            heldout_gain: null_gain,
+            excess_delta_bic: excess_bic,
+            excess_heldout_gain: excess_gain,
+            refused,
+            evaluations: std::mem::take(&mut null.uncharged) + fitted_evals,
+            statement,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use palpate_motion::dataset::{DatasetToml, Initial};
+    use palpate_motion::scenario::{example_bar, record, EXAMPLE_DT};
+
+    /// Data made by the bar at half the current moduli: the search finds the half.
+    #[test]
+    fn the_modulus_scale_is_found_where_the_data_were_made() {
+        let steps = 30;
+        let (mesh, model) = example_bar([1, 4, 1], steps).unwrap();
+        let ne = model.tets.len();
+        let current = Material::uniform(ne, 4.0e4, 2.0e4, 0.0, 1.0, 47.0);
+        let obs = record(&model, &scaled(&current, 0.5), 0.0, 1).unwrap();
+        let ds = MotionDataset {
+            config: DatasetToml {
+                name: None,
+                description: None,
+                units: None,
+                marker_noise: None,
+                mesh: "mesh.msh".into(),
+                dt: EXAMPLE_DT,
+                steps: Some(steps),
+                substeps: Some(1),
+                scheme: None,
+                density: Some(47.0),
+                gravity: Some(model.gravity),
+                clamps: vec!["front".into()],
+                mass: None,
+                static_start: None,
+                marker_weight: None,
+                force_weight: None,
+                initial: Initial {
+                    lambda: 4.0e4,
+                    mu: 2.0e4,
+                    nu: 0.0,
+                    h: 1.0,
+                },
+                loads: Vec::new(),
+                initial_declared: true,
+            },
+            mesh,
+            model,
+            obs,
+            timestep: palpate_motion::timestep::TimeStep::capture_rate(EXAMPLE_DT),
+        };
+        let cur = FittedModel {
+            kinds: vec![ParamKind::Lambda, ParamKind::Mu],
+            values: vec![4.0e4, 2.0e4],
+            sigma: None,
+            material: current,
+            scores: Default::default(),
+            traj: Default::default(),
+            evaluations: 0,
+            failures: Vec::new(),
+            offsets: None,
+            time_offset: None,
+        };
+        let split = Split {
+            fit_steps: 20,
+            steps,
+        };
+        let (s, simulations) = modulus_scale(&ds, split, &cur);
+        assert!((s / 0.5 - 1.0).abs() < 0.03, "scale {s}");
+        assert_eq!(simulations, 12);
+    }
+}
