@@ -256,7 +256,31 @@ impl MotionDiagnosis {
         } else {
             ""
         };
-        format!("{}{which}", worse.verdict(&adopted))
+        let mut v = format!("{}{which}", worse.verdict(&adopted));
+        // Candidates refused against the mesh's own null: what the mesh leaves by itself there
+        // is the scale of what is left here.
+        let refused: Vec<(&str, &mesh_null::NullCheck)> = self
+            .rounds
+            .iter()
+            .flat_map(|r| &r.trials)
+            .filter_map(|t| t.mesh_null.as_ref().map(|c| (t.candidate.as_str(), c)))
+            .filter(|(_, c)| c.refused)
+            .collect();
+        if let Some((_, last)) = refused.last().filter(|_| worse.judged && worse.ratio > 1.0) {
+            let mut names: Vec<&str> = Vec::new();
+            for (n, _) in &refused {
+                if !names.contains(n) {
+                    names.push(n);
+                }
+            }
+            v.push_str(&format!(
+                "; the mesh's own null, refitted, leaves {:.2}× the floor by itself ({} refused \
+                 against it): much of what is left is this mesh's discretisation error",
+                last.base_rms_fit / (last.sigma * 3f64.sqrt()),
+                names.join(", ")
+            ));
+        }
+        v
     }
 }
 
