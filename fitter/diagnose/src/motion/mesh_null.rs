@@ -11,7 +11,7 @@
 //!
 //! Before a passing candidate is adopted it is therefore fitted a second time, on the null: the
 //! current model simulated on the mesh refined once ([`Model::refined`]), observed at the same
-//! markers and steps with Gaussian noise of the declared σ (else the current fit's RMS / √3). On
+//! markers and steps without noise. On
 //! the null the current model is refitted first, from its moduli scaled to the softer refined
 //! object (a golden-section search over one scale of the moduli), then the candidate on top of
 //! it, exactly as on the data. The χ² it removes there, fitted (Δχ²₀) and held out (Δχ²₀,h), is what the mesh's own error lets it
@@ -21,7 +21,8 @@
 //!   held-out RMS beyond the null = √((χ²₁,h + Δχ²₀,h)/χ²₀,h) − 1 ≤ −min_holdout_gain,
 //!
 //! the adoption rule's own thresholds on what the candidate explains beyond the mesh. The null
-//! holds the declared noise, so its χ² is on the data's scale. It stands for a truth finer than
+//! holds no noise: what a candidate removes of noise by chance it removes on the data too, and
+//! the rule's k ln n already charges it. It stands for a truth finer than
 //! the dataset's mesh — what a real object is; on data simulated on the dataset's mesh itself
 //! (a test of the library's confusions, `palpate-lab motion-confusion`) there is no mesh error
 //! to guard against and the check is off. Where the data's own truth is coarser than the refined
@@ -30,7 +31,6 @@
 //! with them, is not fitted there: nothing is handed back from its gain). A dissipative
 //! candidate is not checked ([`super::candidates::MotionEffect::mimics_mesh_error`]).
 
-use palpate_fem::rng::SplitMix64;
 use palpate_motion::dataset::MotionDataset;
 use palpate_motion::model::{Material, Model, ParamKind};
 use palpate_motion::refine::marker_paths;
@@ -44,22 +44,21 @@ use super::fit::{
 };
 use crate::select::{bic, Outcome};
 
-/// The noise stream of the null (a fixed seed: a diagnosis repeats to the bit).
-const NULL_SEED: u64 = 0x6d65_7368_6e75_6c6c;
-
 /// A candidate checked against the mesh's own null.
 #[derive(Debug, Clone, Serialize)]
 pub struct NullCheck {
     /// Tetrahedra of the refined mesh that made the null.
     pub refined_tets: usize,
-    /// Noise σ per axis added to the null (m).
-    pub sigma: f64,
+    /// The data's declared noise floor σ√3 (m), when declared.
+    pub noise_floor: Option<f64>,
     /// RMS of the current model refitted on the null, fitted steps (m).
     pub base_rms_fit: f64,
     /// The scale of the current moduli the refit on the null started from: how much softer
     /// the refined mesh is.
     pub modulus_scale: f64,
-    /// The candidate's fitted ΔBIC on the null (0 when it could not be fitted there).
+    /// The candidate's fitted ΔBIC on the null (0 when it could not be fitted there). The null
+    /// holds no noise, so this log ratio of small χ² runs large; the decision reads the χ²
+    /// removed instead.
     pub delta_bic: f64,
     /// The candidate's relative held-out RMS change on the null.
     pub heldout_gain: f64,
@@ -82,7 +81,6 @@ pub(super) struct NullRound {
     round: usize,
     data: MotionDataset,
     base: FittedModel,
-    sigma: f64,
     refined_tets: usize,
     /// The scale of the moduli the refit started from ([`modulus_scale`]).
     scale: f64,
@@ -91,22 +89,17 @@ pub(super) struct NullRound {
 }
 
 /// The null data of `cur` on `fine` (the refined model): its simulated marker places wherever
-/// `ds` observed a marker, plus noise of σ per axis.
-fn null_data(
-    ds: &MotionDataset,
-    fine: &Model,
-    cur: &FittedModel,
-    sigma: f64,
-) -> Result<MotionDataset, String> {
+/// `ds` observed a marker, without noise. The data's noise is not added: a candidate fitted to
+/// noise removes about σ² per parameter by chance, on the data as on a noisy null, and the rule
+/// charges that once already (k ln n); the null is to measure what the mesh's error alone lets
+/// a candidate remove.
+fn null_data(ds: &MotionDataset, fine: &Model, cur: &FittedModel) -> Result<MotionDataset, String> {
     let paths = marker_paths(fine, &cur.material.refined()).map_err(|e| e.to_string())?;
-    let mut rng = SplitMix64::new(NULL_SEED);
     let mut null = ds.clone();
     for (row, sim) in null.obs.markers.iter_mut().zip(&paths) {
         for (p, s) in row.iter_mut().zip(sim) {
             if let Some(p) = p {
-                for k in 0..3 {
-                    p[k] = s[k] + sigma * rng.normal();
-                }
+                *p = *s;
             }
         }
     }
@@ -198,12 +191,7 @@ impl MotionModel<'_> {
             Ok(f) => f,
             Err(e) => return Err(format!("the refined mesh could not be built: {e}")),
         };
-        let sigma = self
-            .ds
-            .config
-            .marker_noise
-            .unwrap_or(cur.scores.rms_fit / 3f64.sqrt());
-        let data = null_data(self.ds, fine, cur, sigma)
+        let data = null_data(self.ds, fine, cur)
             .map_err(|e| format!("the current model did not simulate on the refined mesh: {e}"))?;
         // On the null the markers are in step with the simulation and carry no offset: the
         // current model is refitted as it stands, its offsets (if adopted) free again, from its
@@ -245,7 +233,6 @@ impl MotionModel<'_> {
             round,
             data,
             base,
-            sigma,
             refined_tets,
             scale,
             uncharged,
@@ -269,6 +256,7 @@ impl MotionModel<'_> {
         }
         let log = self.log;
         let (split, o) = (self.split, self.o);
+        let noise_floor = self.ds.config.marker_noise.map(|s| s * 3f64.sqrt());
         let null = match self.null_round(round, cur) {
             Ok(n) => n,
             Err(why) => {
@@ -286,27 +274,31 @@ impl MotionModel<'_> {
         let score = |m: &FittedModel| bic(m.scores.chi2_fit, m.scores.n_fit, m.parameter_count());
         // What the candidate removes of χ² on the null, fitted and held-out steps (none when
         // it could not be fitted there, or made the null worse).
-        let (null_bic, null_gain, removed, removed_held, fitted_evals, how) = match outcome {
-            Ok(Outcome::Fitted(f)) => (
-                score(&f) - score(base),
+        let (on_null, how) = match outcome {
+            Ok(Outcome::Fitted(f)) => {
+                let how = format!(
+                    "the candidate takes it to {:.1} µm, held out {:.1} → {:.1} µm",
+                    1e6 * f.scores.rms_fit,
+                    1e6 * base.scores.rms_held,
+                    1e6 * f.scores.rms_held
+                );
+                (Some(f), how)
+            }
+            Ok(Outcome::NotFitted(why)) => {
+                (None, format!("the candidate is not fitted there: {why}"))
+            }
+            Ok(Outcome::Dropped) => (None, "the candidate is not fitted there".into()),
+            Err(e) => (None, format!("the candidate's fit failed there: {e}")),
+        };
+        let (null_bic, null_gain, removed, removed_held, fitted_evals) = match &on_null {
+            Some(f) => (
+                score(f) - score(base),
                 f.scores.rms_held / base.scores.rms_held - 1.0,
                 (base.scores.chi2_fit - f.scores.chi2_fit).max(0.0),
                 (base.scores.chi2_held - f.scores.chi2_held).max(0.0),
                 f.evaluations,
-                String::new(),
             ),
-            Ok(Outcome::NotFitted(why)) => {
-                (0.0, 0.0, 0.0, 0.0, 0, format!(" (not fitted there: {why})"))
-            }
-            Ok(Outcome::Dropped) => (0.0, 0.0, 0.0, 0.0, 0, " (not fitted there)".into()),
-            Err(e) => (
-                0.0,
-                0.0,
-                0.0,
-                0.0,
-                0,
-                format!(" (its fit failed there: {e})"),
-            ),
+            None => (0.0, 0.0, 0.0, 0.0, 0),
         };
         // The candidate's fit on the data with the null's removal handed back: the χ² it
         // lowers beyond what the mesh's own error lets it lower, charged the same parameters.
@@ -333,18 +325,15 @@ impl MotionModel<'_> {
         };
         let statement = format!(
             "on the mesh's own null (the current model on the mesh refined once, {} tets, \
-             σ {:.0} µm; refitted there from the moduli × {:.3} to {:.1} µm) ΔBIC {null_bic:.1}, held-out RMS {:+.1} %{how}; \
-             {verdict}",
+             noise-free, refitted there from the moduli × {:.3} to {:.1} µm; {how}): {verdict}",
             null.refined_tets,
-            1e6 * null.sigma,
             null.scale,
             1e6 * base.scores.rms_fit,
-            100.0 * null_gain
         );
         log(&format!("round {round}: {}: {statement}", c.name()));
         Some(NullCheck {
             refined_tets: null.refined_tets,
-            sigma: null.sigma,
+            noise_floor,
             base_rms_fit: base.scores.rms_fit,
             modulus_scale: null.scale,
             delta_bic: null_bic,

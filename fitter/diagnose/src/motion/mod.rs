@@ -273,12 +273,20 @@ impl MotionDiagnosis {
                     names.push(n);
                 }
             }
-            v.push_str(&format!(
-                "; the mesh's own null, refitted, leaves {:.2}× the floor by itself ({} refused \
-                 against it): much of what is left is this mesh's discretisation error",
-                last.base_rms_fit / (last.sigma * 3f64.sqrt()),
-                names.join(", ")
-            ));
+            if let Some(floor) = last.noise_floor {
+                // The null holds no noise: its residual is the mesh's alone, set against what
+                // stands above the floor here (the excess over the noise, in quadrature).
+                let above = floor * (worse.ratio * worse.ratio - 1.0).max(0.0).sqrt();
+                v.push_str(&format!(
+                    "; the mesh's own error left on its null ({} refused against it; the current \
+                     model refitted there, noise-free, to {:.1} µm) is {:.0} % of what stands \
+                     above the floor here ({:.1} µm in quadrature)",
+                    names.join(", "),
+                    1e6 * last.base_rms_fit,
+                    100.0 * (last.base_rms_fit / above).powi(2),
+                    1e6 * above
+                ));
+            }
         }
         v
     }
