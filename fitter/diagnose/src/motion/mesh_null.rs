@@ -363,30 +363,18 @@ mod tests {
         let obs = record(&model, &scaled(&current, 0.5), 0.0, 1).unwrap();
         let ds = MotionDataset {
             config: DatasetToml {
-                name: None,
-                description: None,
-                units: None,
-                marker_noise: None,
-                mesh: "mesh.msh".into(),
-                dt: EXAMPLE_DT,
                 steps: Some(steps),
                 substeps: Some(1),
-                scheme: None,
                 density: Some(47.0),
                 gravity: Some(model.gravity),
-                clamps: vec!["front".into()],
-                mass: None,
-                static_start: None,
-                marker_weight: None,
-                force_weight: None,
                 initial: Initial {
                     lambda: 4.0e4,
                     mu: 2.0e4,
                     nu: 0.0,
                     h: 1.0,
                 },
-                loads: Vec::new(),
                 initial_declared: true,
+                ..DatasetToml::new(EXAMPLE_DT, vec!["front".into()])
             },
             mesh,
             model,

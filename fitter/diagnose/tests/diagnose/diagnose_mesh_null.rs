@@ -36,30 +36,20 @@ fn refined_mesh_data(seed: u64) -> MotionDataset {
         .for_each(|r| r.iter_mut().for_each(|f| *f = None));
     MotionDataset {
         config: DatasetToml {
-            name: None,
-            description: None,
-            units: None,
             marker_noise: Some(SIGMA),
-            mesh: "mesh.msh".into(),
-            dt: DT,
             steps: Some(STEPS),
             substeps: Some(1),
-            scheme: None,
             density: Some(DENSITY),
             gravity: Some(model.gravity),
-            clamps: vec!["front".into()],
-            mass: None,
             static_start: Some(true),
-            marker_weight: None,
-            force_weight: None,
             initial: Initial {
                 lambda: 1.0e5,
                 mu: 1.0e4,
                 nu: 6.0,
                 h: 1.3,
             },
-            loads: Vec::new(),
             initial_declared: true,
+            ..DatasetToml::new(DT, vec!["front".into()])
         },
         mesh,
         model,
