@@ -103,6 +103,11 @@ pub struct FitResult {
     pub history: Vec<f64>,
     /// Evaluation of each run at the fitted parameters (one entry for a one-run fit).
     pub runs: Vec<Evaluation>,
+    /// Levenberg–Marquardt's Gauss–Newton matrix at the fitted parameters, in z = ln q
+    /// (row-major, `q.len()`²): the marker term's Σ_n Δt w_m Σ_i J_inᵀ J_in summed over the runs
+    /// ([`crate::gradient::evaluate_gauss_newton`]), from the simulation the fit ended on — so a
+    /// caller's Gauss–Newton 1σ needs no simulation of its own. `None` from LBFGS.
+    pub gauss_newton: Option<Vec<f64>>,
 }
 
 /// Automatic neighbour-smoothness weight: 1e-3 · Φ(q₀) / #pairs, i.e. a log-ratio of e ≈ 2.7
@@ -578,6 +583,7 @@ pub fn fit_runs(
         failures,
         history: cache.history,
         runs: per_run,
+        gauss_newton: None,
     })
 }
 
@@ -749,14 +755,14 @@ fn levenberg_marquardt(
     let mut failures: Vec<String> = Vec::new();
     // Every simulated point with its runs' evaluations: the fit's result is one of them, so it
     // needs no simulation of its own.
-    let mut evaluated: Vec<(Vec<f64>, Vec<Evaluation>)> = Vec::new();
+    let mut evaluated: Vec<(Vec<f64>, Vec<Evaluation>, Vec<f64>)> = Vec::new();
     let mut eval = |z: &[f64], history: &mut Vec<f64>, failures: &mut Vec<String>| {
         evaluations += 1;
         match gauss_newton_runs(runs, base, params, z, tie) {
             Ok((phi, grad, gn, per_run)) if phi.is_finite() => {
                 history.push(phi);
                 progress(evaluations, phi);
-                evaluated.push((z.to_vec(), per_run));
+                evaluated.push((z.to_vec(), per_run, gn.clone()));
                 Some(Normal { phi, grad, gn })
             }
             Ok(_) => {
@@ -815,11 +821,12 @@ fn levenberg_marquardt(
         .expect("an accepted point has h > 0");
     let (phi, iterations) = (out.normal.phi, iterations as u64);
     let q: Vec<f64> = z.iter().map(|v| v.exp()).collect();
-    let (ev, per_run) = match evaluated.into_iter().rev().find(|(at, _)| *at == z) {
-        Some((_, parts)) => (Evaluation::combine(&parts), parts),
+    let (ev, per_run, gauss_newton) = match evaluated.into_iter().rev().find(|(at, ..)| *at == z) {
+        Some((_, parts, gn)) => (Evaluation::combine(&parts), parts, Some(gn)),
         None => {
             let mat = problem_material(base, params, &q, tie);
-            evaluate_runs(runs, &mat, params, None)?
+            let (ev, parts) = evaluate_runs(runs, &mat, params, None)?;
+            (ev, parts, None)
         }
     };
     if !out.converged {
@@ -838,6 +845,7 @@ fn levenberg_marquardt(
         failures,
         history,
         runs: per_run,
+        gauss_newton,
     })
 }
 

@@ -110,6 +110,10 @@ pub struct MeshError {
     pub max: f64,
     /// Tetrahedra of the refined mesh.
     pub refined_tets: usize,
+    /// `refined[n][i]`: marker i at step n + 1 on the refined mesh (m) — the refined
+    /// simulation's own output, so that data made of the same material on that mesh need no
+    /// simulation of their own.
+    pub refined: Vec<Vec<[f64; 3]>>,
 }
 
 /// Every marker's simulated place at every step 1..=steps.
@@ -155,6 +159,7 @@ pub fn mesh_error(model: &Model, fine: &Model, mat: &Material) -> Result<MeshErr
         rms: (sum2 / count.max(1) as f64).sqrt(),
         max,
         refined_tets: fine.tets.len(),
+        refined,
     })
 }
 

@@ -31,14 +31,21 @@ pub struct MotionModel<'a> {
     pub(in crate::motion) screen_simulations: usize,
     /// The round's candidates fitted ahead of their turn, side by side, each with its log lines.
     pub(in crate::motion) ahead: select::Ahead<Candidate, AheadFit>,
-    /// The dataset's model on the mesh refined once, built at the first check against the
-    /// mesh's own null (`Err`: why it could not be).
-    pub(in crate::motion) fine: Option<Result<palpate_motion::model::Model, String>>,
-    /// The current round's null ([`super::mesh_null`]).
-    pub(in crate::motion) null: Option<super::mesh_null::NullRound>,
+    /// The dataset's model on the mesh refined once, from the mesh's note
+    /// ([`super::mesh::estimate`]), for the checks against the mesh's own null (`Err`: why there
+    /// is none).
+    pub(in crate::motion) fine: Result<super::mesh::Refined, String>,
+    /// The null of a round ([`super::mesh_null`]), made once per round (`Err`: why there is
+    /// none).
+    pub(in crate::motion) null: Option<(usize, Result<super::mesh_null::NullRound, String>)>,
+    /// The candidates the screen of a round predicted to pass the ΔBIC threshold.
+    pub(in crate::motion) promising: (usize, Vec<Candidate>),
     /// Every check against the null: round, candidate, what it found.
     pub(in crate::motion) null_checks: Vec<(usize, Candidate, super::mesh_null::NullCheck)>,
 }
+
+/// Why a fitter has no refined model: only the diagnosis' own engine is handed one.
+const NOT_MADE: &str = "the mesh refined once was not made for this fitter";
 
 /// A candidate's fit done ahead of its turn, and its log lines in order.
 type AheadFit = (
@@ -75,8 +82,9 @@ impl<'a> MotionModel<'a> {
             log,
             screen_simulations: 0,
             ahead: select::Ahead::default(),
-            fine: None,
+            fine: Err(NOT_MADE.into()),
             null: None,
+            promising: (0, Vec::new()),
             null_checks: Vec::new(),
         }
     }
@@ -86,18 +94,7 @@ impl<'a> MotionModel<'a> {
     where
         'a: 'b,
     {
-        MotionModel {
-            ds: self.ds,
-            split: self.split,
-            o,
-            has_forces: self.has_forces,
-            log: self.log,
-            screen_simulations: 0,
-            ahead: select::Ahead::default(),
-            fine: None,
-            null: None,
-            null_checks: Vec::new(),
-        }
+        MotionModel::new(self.ds, self.split, o, self.log)
     }
 
     /// The fit of `c` on top of `cur` on the data `ds` split at `split`: with the marker offsets
@@ -218,35 +215,39 @@ impl CandidateModel for MotionModel<'_> {
 
     fn prefit(&mut self, round: usize, cur: &FittedModel, batch: &[Candidate]) {
         (self.log)(&select::side_by_side_line(round, batch));
+        // The round's null, should a passing candidate need it, is made beside the fits: it
+        // reads only the current model, and the fits seldom keep both cores busy to the end.
+        let null = self.wants_null(round, batch).then_some(&self.fine);
         let this = &*self;
-        let results = select::fit_ahead(
-            batch,
-            |_, _| false,
-            |c, _| {
-                let lines = std::sync::Mutex::new(Vec::new());
-                let log = |line: &str| {
-                    lines
-                        .lock()
-                        .expect("a fit's log lines")
-                        .push(line.to_string())
-                };
-                let fitter = MotionModel {
-                    ds: this.ds,
-                    split: this.split,
-                    o: this.o,
-                    has_forces: this.has_forces,
-                    log: &log,
-                    screen_simulations: 0,
-                    ahead: select::Ahead::default(),
-                    fine: None,
-                    null: None,
-                    null_checks: Vec::new(),
-                };
-                let outcome = c.effect().fit(&fitter, c, cur);
-                (outcome, lines.into_inner().expect("a fit's log lines"))
-            },
-        );
+        let fits = || {
+            select::fit_ahead(
+                batch,
+                |_, _| false,
+                |c, _| {
+                    let lines = std::sync::Mutex::new(Vec::new());
+                    let log = |line: &str| {
+                        lines
+                            .lock()
+                            .expect("a fit's log lines")
+                            .push(line.to_string())
+                    };
+                    let mut fitter = this.with_options(this.o);
+                    fitter.log = &log;
+                    let outcome = c.effect().fit(&fitter, c, cur);
+                    (outcome, lines.into_inner().expect("a fit's log lines"))
+                },
+            )
+        };
+        let (results, made) = rayon::join(fits, || match null {
+            Some(Ok(fine)) => Some(super::mesh_null::make_null(
+                this.ds, this.split, this.o, fine, cur,
+            )),
+            _ => None,
+        });
         self.ahead = select::Ahead::new(round, batch, results);
+        if let Some(made) = made {
+            self.null = Some((round, made));
+        }
     }
 
     fn score(&self, m: &FittedModel) -> select::Score {
@@ -346,6 +347,13 @@ impl CandidateModel for MotionModel<'_> {
     ) -> Result<Vec<Prediction>, MotionDiagnoseError> {
         let (p, simulations) = super::screen::predict(self, round, cur, open)?;
         self.screen_simulations += simulations;
+        let promising = open
+            .iter()
+            .zip(&p)
+            .filter(|(_, p)| p.delta_bic.is_some_and(|d| d < -self.o.bic_threshold))
+            .map(|(&c, _)| c)
+            .collect();
+        self.promising = (round, promising);
         Ok(p)
     }
 

@@ -346,15 +346,16 @@ pub fn fit_model(
     } else {
         0
     };
-    let sigma = uncertainty(
-        &model,
-        &obs,
-        base,
-        kinds,
-        &r.q,
-        sc.chi2_fit,
-        sc.n_fit.saturating_sub(offset_dof),
-    );
+    let dof = sc.n_fit.saturating_sub(offset_dof);
+    let sigma = match &r.gauss_newton {
+        // Levenberg–Marquardt ended on a simulation with the sensitivities: its Gauss–Newton
+        // matrix is the JᵀJ the central differences would estimate, at no simulation's cost.
+        Some(h) => {
+            let wdt = obs.marker_weight * model.observation_interval();
+            gauss_newton_sigma(h, wdt, &r.q, sc.chi2_fit, dof)
+        }
+        None => uncertainty(&model, &obs, base, kinds, &r.q, sc.chi2_fit, dof),
+    };
     Ok(FittedModel {
         kinds: kinds.to_vec(),
         values: r.q,
@@ -420,6 +421,31 @@ fn residual_vector(
         .collect())
 }
 
+/// Gauss–Newton 1σ of the values from the fit's own Gauss–Newton matrix `h` in z = ln q
+/// ([`palpate_motion::optimize::FitResult::gauss_newton`]), which is JᵀJ weighted by `wdt`
+/// (the marker term's weight times the observation interval): cov(z) = s² (h / wdt)⁻¹ with
+/// s² = χ²/(n − k), σ_q = q σ_z — [`uncertainty`]'s figure, its J exact instead of differenced.
+/// `None` when h is singular (an unidentified parameter) or n ≤ k.
+fn gauss_newton_sigma(h: &[f64], wdt: f64, q: &[f64], chi2: f64, n: usize) -> Option<Vec<f64>> {
+    let k = q.len();
+    if n <= k || h.len() != k * k || wdt <= 0.0 {
+        return None;
+    }
+    sigma_of(DMatrix::from_row_slice(k, k, h) / wdt, q, chi2, n)
+}
+
+/// σ_q = q σ_z with cov(z) = s² (JᵀJ)⁻¹, s² = χ²/(n − k) (n > k); `None` when JᵀJ is singular.
+fn sigma_of(jtj: DMatrix<f64>, q: &[f64], chi2: f64, n: usize) -> Option<Vec<f64>> {
+    let s2 = chi2 / (n - q.len()) as f64;
+    let inv = jtj.cholesky()?.inverse();
+    Some(
+        q.iter()
+            .enumerate()
+            .map(|(i, v)| v * (s2 * inv[(i, i)]).max(0.0).sqrt())
+            .collect(),
+    )
+}
+
 /// Gauss–Newton 1σ of the values: cov(z) = s²(JᵀJ)⁻¹ with z = ln q, J by central differences
 /// (step 1e-3 in z, i.e. 0.1 % of each value), s² = χ²/(n − k); σ_q = q σ_z. `None` when a
 /// perturbed simulation fails or JᵀJ is singular (an unidentified parameter).
@@ -457,12 +483,58 @@ fn uncertainty(
     }
     let rows = cols[0].len();
     let j = DMatrix::from_fn(rows, k, |i, c| cols[c][i]);
-    let jtj = j.transpose() * &j;
-    let s2 = chi2 / (n - k) as f64;
-    let inv = jtj.cholesky()?.inverse();
-    Some(
-        (0..k)
-            .map(|i| q[i] * (s2 * inv[(i, i)]).max(0.0).sqrt())
-            .collect(),
-    )
+    sigma_of(j.transpose() * &j, q, chi2, n)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use palpate_motion::scenario::{example_bar, example_truth, record};
+
+    /// The 1σ read off Levenberg–Marquardt's own Gauss–Newton matrix against central
+    /// differences of the residual (the independent reference, [`uncertainty`]): the example
+    /// bar's λ, μ and viscosity fitted to noisy data, both within 1 % of each other.
+    #[test]
+    fn the_fits_gauss_newton_sigma_is_the_differenced_one() {
+        let (_, mut model) = example_bar([1, 4, 1], 30).unwrap();
+        model.newton.tol = 1e-11;
+        let truth = example_truth(&model);
+        let mut obs = record(&model, &truth, 2e-4, 5).unwrap();
+        obs.forces.clear();
+        let kinds = [ParamKind::Lambda, ParamKind::Mu, ParamKind::Nu];
+        let params = params_for(&kinds, &truth);
+        let settings = FitSettings {
+            optimizer: palpate_motion::optimize::Optimizer::LevenbergMarquardt,
+            ..Default::default()
+        };
+        let quiet = |_: usize, _: f64| {};
+        let r = fit(
+            &model,
+            &truth,
+            &params,
+            &[1.5e4, 1.5e4, 20.0],
+            &obs,
+            &settings,
+            &[],
+            &quiet,
+        )
+        .unwrap();
+        let h = r
+            .gauss_newton
+            .as_deref()
+            .expect("Levenberg–Marquardt's matrix");
+        let mut mat = truth.clone();
+        mat.set(&params, &r.q);
+        let res = residual_vector(&model, &obs, &mat).unwrap();
+        let chi2: f64 = res.iter().map(|v| v * v).sum();
+        let wdt = obs.marker_weight * model.observation_interval();
+        let exact = gauss_newton_sigma(h, wdt, &r.q, chi2, res.len()).unwrap();
+        let differenced = uncertainty(&model, &obs, &truth, &kinds, &r.q, chi2, res.len()).unwrap();
+        for (k, (a, b)) in exact.iter().zip(&differenced).enumerate() {
+            assert!(
+                (a / b - 1.0).abs() < 0.01,
+                "parameter {k}: σ {a:e} from the fit's matrix, {b:e} differenced"
+            );
+        }
+    }
 }

@@ -18,6 +18,7 @@
 use super::fit::FittedModel;
 use super::MotionOptions;
 use palpate_motion::dataset::MotionDataset;
+use palpate_motion::model::{Material, Model};
 use palpate_motion::refine::mesh_error;
 use serde::Serialize;
 
@@ -34,16 +35,28 @@ pub struct MeshNote {
     pub statement: String,
 }
 
+/// The dataset's model on the mesh refined once, built for the note and kept for the checks
+/// against the mesh's own null ([`super::mesh_null`]), with what the simplest model does on it.
+pub(super) struct Refined {
+    /// The model on the refined mesh.
+    pub model: Model,
+    /// The material simulated on it (the simplest fit's, on the dataset mesh's elements).
+    pub material: Material,
+    /// Its markers' places at every step ([`palpate_motion::refine::MeshError::refined`]): the
+    /// first round's null, made at the simplest fit.
+    pub paths: Vec<Vec<[f64; 3]>>,
+}
+
 /// Measures δ at the simplest fit's material (two simulations: the dataset mesh's and the
 /// refined mesh's) and says what it means against the noise floor σ√3 (`floor`, NaN when not
-/// declared).
+/// declared); with it the refined model and its simulation, when they could be made.
 pub(super) fn estimate(
     ds: &MotionDataset,
     simplest: &FittedModel,
     floor: f64,
     o: &MotionOptions,
     log: &(dyn Fn(&str) + Sync),
-) -> MeshNote {
+) -> (MeshNote, Option<Refined>) {
     let refined_tets = 8 * ds.model.tets.len();
     let note = |rms, max, statement| MeshNote {
         rms,
@@ -52,36 +65,38 @@ pub(super) fn estimate(
         statement,
     };
     if !o.mesh_error {
-        return note(None, None, "not estimated (as asked)".into());
+        return (note(None, None, "not estimated (as asked)".into()), None);
     }
     if refined_tets > o.refine_max_tets {
-        return note(
-            None,
-            None,
-            format!(
-                "not estimated: the mesh refined once would have {refined_tets} tetrahedra \
-                 (limit {})",
-                o.refine_max_tets
+        return (
+            note(
+                None,
+                None,
+                format!(
+                    "not estimated: the mesh refined once would have {refined_tets} tetrahedra \
+                     (limit {})",
+                    o.refine_max_tets
+                ),
             ),
+            None,
         );
     }
     log(&format!(
         "estimating the mesh's discretisation error: the simplest model on the mesh refined once \
          ({refined_tets} tets)"
     ));
-    let e = match ds
-        .model
-        .refined()
-        .and_then(|fine| mesh_error(&ds.model, &fine, &simplest.material))
-    {
-        Ok(e) => e,
+    let (fine, e) = match ds.model.refined().and_then(|fine| {
+        let e = mesh_error(&ds.model, &fine, &simplest.material)?;
+        Ok((fine, e))
+    }) {
+        Ok(r) => r,
         Err(err) => {
             let s = format!(
                 "not estimated: the simplest model did not simulate on the mesh refined once \
                  ({err})"
             );
             log(&s);
-            return note(None, None, s);
+            return (note(None, None, s), None);
         }
     };
     let size = format!(
@@ -112,5 +127,10 @@ pub(super) fn estimate(
         )
     };
     log(&statement);
-    note(Some(e.rms), Some(e.max), statement)
+    let refined = Refined {
+        model: fine,
+        material: simplest.material.clone(),
+        paths: e.refined,
+    };
+    (note(Some(e.rms), Some(e.max), statement), Some(refined))
 }

@@ -10,7 +10,7 @@
 //! stiffening adopted on data whose only effect was a viscous damping).
 //!
 //! Before a passing candidate is adopted it is therefore fitted a second time, on the null: the
-//! current model simulated on the mesh refined once ([`Model::refined`]), observed at the same
+//! current model simulated on the mesh refined once ([`palpate_motion::model::Model::refined`]), observed at the same
 //! markers and steps without noise. On
 //! the null the current model is refitted first, from its moduli scaled to the softer refined
 //! object (a golden-section search over one scale of the moduli), then the candidate on top of
@@ -32,7 +32,7 @@
 //! candidate is not checked ([`super::candidates::MotionEffect::mimics_mesh_error`]).
 
 use palpate_motion::dataset::MotionDataset;
-use palpate_motion::model::{Material, Model, ParamKind};
+use palpate_motion::model::{Material, ParamKind};
 use palpate_motion::refine::marker_paths;
 use serde::Serialize;
 
@@ -42,6 +42,8 @@ use super::fit::{
     fit_model, fit_with_offsets, fitted_part, remove_marker_means, run_trajectory, FittedModel,
     Split,
 };
+use super::mesh::Refined;
+use super::MotionOptions;
 use crate::select::{bic, Outcome};
 
 /// A candidate checked against the mesh's own null.
@@ -78,7 +80,6 @@ pub struct NullCheck {
 /// A round's null: the data the current model makes on the refined mesh, and the current model
 /// refitted on them.
 pub(super) struct NullRound {
-    round: usize,
     data: MotionDataset,
     base: FittedModel,
     refined_tets: usize,
@@ -88,15 +89,26 @@ pub(super) struct NullRound {
     uncharged: usize,
 }
 
-/// The null data of `cur` on `fine` (the refined model): its simulated marker places wherever
-/// `ds` observed a marker, without noise. The data's noise is not added: a candidate fitted to
-/// noise removes about σ² per parameter by chance, on the data as on a noisy null, and the rule
-/// charges that once already (k ln n); the null is to measure what the mesh's error alone lets
-/// a candidate remove.
-fn null_data(ds: &MotionDataset, fine: &Model, cur: &FittedModel) -> Result<MotionDataset, String> {
-    let paths = marker_paths(fine, &cur.material.refined()).map_err(|e| e.to_string())?;
+/// The null data of `cur` on the refined model `fine`: its simulated marker places wherever
+/// `ds` observed a marker, without noise (the simulation the mesh's note made when `cur` is the
+/// simplest fit). The data's noise is not added: a candidate fitted to noise removes about σ²
+/// per parameter by chance, on the data as on a noisy null, and the rule charges that once
+/// already (k ln n); the null is to measure what the mesh's error alone lets a candidate remove.
+/// With the data, the simulations it took (0 or 1).
+fn null_data(
+    ds: &MotionDataset,
+    fine: &Refined,
+    cur: &FittedModel,
+) -> Result<(MotionDataset, usize), String> {
+    let made;
+    let (paths, simulations) = if cur.material == fine.material {
+        (&fine.paths, 0)
+    } else {
+        made = marker_paths(&fine.model, &cur.material.refined()).map_err(|e| e.to_string())?;
+        (&made, 1)
+    };
     let mut null = ds.clone();
-    for (row, sim) in null.obs.markers.iter_mut().zip(&paths) {
+    for (row, sim) in null.obs.markers.iter_mut().zip(paths) {
         for (p, s) in row.iter_mut().zip(sim) {
             if let Some(p) = p {
                 *p = *s;
@@ -106,7 +118,7 @@ fn null_data(ds: &MotionDataset, fine: &Model, cur: &FittedModel) -> Result<Moti
     for row in &mut null.obs.forces {
         row.iter_mut().for_each(|f| *f = None);
     }
-    Ok(null)
+    Ok((null, simulations))
 }
 
 /// The moduli that scale with the mesh's stiffness: λ, μ (a region's μ too) and the
@@ -170,74 +182,92 @@ fn modulus_scale(null: &MotionDataset, split: Split, cur: &FittedModel) -> (f64,
     (ln_s.exp(), SEARCHES + 2)
 }
 
+/// The null at the current model `cur` on the refined model `fine`, and the current model
+/// refitted on it ([`NullRound`]); `Err` says why there is none. It reads only the data and the
+/// current model, so a round can make it beside its candidates' fits
+/// ([`MotionModel::wants_null`]).
+pub(super) fn make_null(
+    ds: &MotionDataset,
+    split: Split,
+    o: &MotionOptions,
+    fine: &Refined,
+    cur: &FittedModel,
+) -> Result<NullRound, String> {
+    let refined_tets = fine.model.tets.len();
+    let (data, made) = null_data(ds, fine, cur)
+        .map_err(|e| format!("the current model did not simulate on the refined mesh: {e}"))?;
+    // On the null the markers are in step with the simulation and carry no offset: the
+    // current model is refitted as it stands, its offsets (if adopted) free again, from its
+    // moduli scaled to the softer refined object.
+    let (scale, scans) = modulus_scale(&data, split, cur);
+    let material = scaled(&cur.material, scale);
+    let start: Vec<f64> = cur
+        .values
+        .iter()
+        .enumerate()
+        .map(|(i, &v)| match cur.kinds.get(i) {
+            Some(k) if !SCALED.contains(k) => v,
+            _ => v * scale,
+        })
+        .collect();
+    let base = if cur.offsets.is_some() {
+        fit_with_offsets(&data, split, &material, &cur.kinds, &start, o.max_iters)
+    } else {
+        fit_model(
+            &data,
+            split,
+            &material,
+            &cur.kinds,
+            &[start],
+            o.max_iters,
+            o.screen_iters,
+        )
+    }
+    .map_err(|e| format!("the current model did not refit on the null: {e}"))?;
+    let uncharged = made + scans + base.evaluations;
+    Ok(NullRound {
+        data,
+        base,
+        refined_tets,
+        scale,
+        uncharged,
+    })
+}
+
 impl MotionModel<'_> {
+    /// Whether a round fitting `batch` is likely to check a candidate against the null, so
+    /// that the null is worth making beside the fits: the check is on, the refined model was
+    /// made, and the screen predicted a candidate of the batch that the mesh's error can mimic
+    /// to pass. Elsewhere the null is made only when a candidate passes (on the independent
+    /// 1,267-tetrahedron cylinder, made beside every round's fits it gained 11 s in the first
+    /// round and lost 10 s in the two after, where nothing was checked).
+    pub(super) fn wants_null(&self, round: usize, batch: &[Candidate]) -> bool {
+        let (screened, promising) = &self.promising;
+        self.o.mesh_error
+            && self.o.mesh_null
+            && self.fine.is_ok()
+            && self.null.as_ref().is_none_or(|(r, _)| *r != round)
+            && *screened == round
+            && batch
+                .iter()
+                .any(|c| c.effect().mimics_mesh_error() && promising.contains(c))
+    }
+
     /// The null of round `round` at the current model `cur`, made and refitted once per round;
     /// `Err` says why there is none.
     fn null_round(&mut self, round: usize, cur: &FittedModel) -> Result<&mut NullRound, String> {
-        if self.null.as_ref().is_some_and(|n| n.round == round) {
-            return Ok(self.null.as_mut().expect("checked"));
+        if self.null.as_ref().is_none_or(|(r, _)| *r != round) {
+            let made = match &self.fine {
+                Ok(fine) => make_null(self.ds, self.split, self.o, fine, cur),
+                Err(why) => Err(format!("the mesh's error was not estimated: {why}")),
+            };
+            self.null = Some((round, made));
         }
-        let refined_tets = 8 * self.ds.model.tets.len();
-        if refined_tets > self.o.refine_max_tets {
-            return Err(format!(
-                "the mesh refined once would have {refined_tets} tetrahedra (limit {})",
-                self.o.refine_max_tets
-            ));
+        match self.null.as_mut() {
+            Some((_, Ok(n))) => Ok(n),
+            Some((_, Err(why))) => Err(why.clone()),
+            None => Err("no null".into()),
         }
-        if self.fine.is_none() {
-            self.fine = Some(self.ds.model.refined().map_err(|e| e.to_string()));
-        }
-        let fine = match self.fine.as_ref().expect("built above") {
-            Ok(f) => f,
-            Err(e) => return Err(format!("the refined mesh could not be built: {e}")),
-        };
-        let data = null_data(self.ds, fine, cur)
-            .map_err(|e| format!("the current model did not simulate on the refined mesh: {e}"))?;
-        // On the null the markers are in step with the simulation and carry no offset: the
-        // current model is refitted as it stands, its offsets (if adopted) free again, from its
-        // moduli scaled to the softer refined object.
-        let (scale, scans) = modulus_scale(&data, self.split, cur);
-        let material = scaled(&cur.material, scale);
-        let start: Vec<f64> = cur
-            .values
-            .iter()
-            .enumerate()
-            .map(|(i, &v)| match cur.kinds.get(i) {
-                Some(k) if !SCALED.contains(k) => v,
-                _ => v * scale,
-            })
-            .collect();
-        let base = if cur.offsets.is_some() {
-            fit_with_offsets(
-                &data,
-                self.split,
-                &material,
-                &cur.kinds,
-                &start,
-                self.o.max_iters,
-            )
-        } else {
-            fit_model(
-                &data,
-                self.split,
-                &material,
-                &cur.kinds,
-                &[start],
-                self.o.max_iters,
-                self.o.screen_iters,
-            )
-        }
-        .map_err(|e| format!("the current model did not refit on the null: {e}"))?;
-        let uncharged = 1 + scans + base.evaluations;
-        self.null = Some(NullRound {
-            round,
-            data,
-            base,
-            refined_tets,
-            scale,
-            uncharged,
-        });
-        Ok(self.null.as_mut().expect("just set"))
     }
 
     /// Checks candidate `c`, fitted on the data as `fitted` on top of `cur` with fitted ΔBIC

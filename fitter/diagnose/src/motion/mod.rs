@@ -379,8 +379,9 @@ pub fn diagnose(
         Some(s) => (s * 3f64.sqrt(), true),
         None => (f64::NAN, false),
     };
-    let mesh_note = mesh::estimate(ds, &simplest, floor, o, log);
+    let (mesh_note, refined) = mesh::estimate(ds, &simplest, floor, o, log);
     let mut engine = MotionModel::new(ds, split, o, log);
+    engine.fine = refined.ok_or_else(|| mesh_note.statement.clone());
     let rounds_max = o.max_effects.max(1);
     let policy = Policy {
         rounds: rounds_max,

@@ -204,9 +204,9 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
     md.push_str("\n## Final model\n\n");
     value_table(&mut md, &r.after_values);
     md.push_str(
-        "\n1σ: Gauss–Newton s²(JᵀJ)⁻¹ on the fitted steps (J by central differences in log \
-         parameters, s² = χ²/(n − k)); marker errors within a trajectory are correlated in time, \
-         so these are lower bounds. Values are those fitted on the fitted steps (the model whose \
+        "\n1σ: Gauss–Newton s²(JᵀJ)⁻¹ on the fitted steps (J the markers' sensitivities to the \
+         log parameters at the fit's last simulation, s² = χ²/(n − k)); marker errors within a \
+         trajectory are correlated in time, so these are lower bounds. Values are those fitted on the fitted steps (the model whose \
          forecast is scored).\n",
     );
     let _ = writeln!(
