@@ -40,6 +40,9 @@ pub struct MotionModel<'a> {
     pub(in crate::motion) null: Option<(usize, Result<super::mesh_null::NullRound, String>)>,
     /// The candidates the screen of a round predicted to pass the ΔBIC threshold.
     pub(in crate::motion) promising: (usize, Vec<Candidate>),
+    /// Where the current round's screen stepped the candidates' new parameters: a start
+    /// ([`super::candidates::MotionEffect::screened_start`]).
+    pub(in crate::motion) stepped: Vec<(ParamKind, f64)>,
     /// Every check against the null: round, candidate, what it found.
     pub(in crate::motion) null_checks: Vec<(usize, Candidate, super::mesh_null::NullCheck)>,
 }
@@ -56,11 +59,18 @@ type AheadFit = (
 /// Starting values of a candidate's parameters, given the current fit: the global values, the
 /// candidate's new ones ([`MotionEffect::new_starts`](super::candidates::MotionEffect::new_starts)),
 /// then each region's μ ([`fit::params_for`]).
-fn starts(c: Candidate, cur: &FittedModel, ds: &MotionDataset) -> Vec<Vec<f64>> {
+fn starts(
+    c: Candidate,
+    cur: &FittedModel,
+    ds: &MotionDataset,
+    stepped: &[(ParamKind, f64)],
+) -> Vec<Vec<f64>> {
     let globals = cur.kinds.len();
     let (base, regions) = cur.values.split_at(globals);
+    let at = |k: ParamKind| stepped.iter().find(|(j, _)| *j == k).map(|(_, v)| *v);
     c.effect()
-        .new_starts(cur, ds.model.dt)
+        .screened_start(&at)
+        .map_or_else(|| c.effect().new_starts(cur, ds.model.dt), |s| vec![s])
         .into_iter()
         .map(|new| [base, new.as_slice(), regions].concat())
         .collect()
@@ -85,6 +95,7 @@ impl<'a> MotionModel<'a> {
             fine: Err(NOT_MADE.into()),
             null: None,
             promising: (0, Vec::new()),
+            stepped: Vec::new(),
             null_checks: Vec::new(),
         }
     }
@@ -108,7 +119,7 @@ impl<'a> MotionModel<'a> {
         c: Candidate,
         kinds: &[ParamKind],
     ) -> Result<FittedModel, MotionDiagnoseError> {
-        let starts = starts(c, cur, ds);
+        let starts = starts(c, cur, ds, &self.stepped);
         if c.effect().frees_marker_offsets() || cur.offsets.is_some() {
             fit_with_offsets(
                 ds,
@@ -233,6 +244,7 @@ impl CandidateModel for MotionModel<'_> {
                     };
                     let mut fitter = this.with_options(this.o);
                     fitter.log = &log;
+                    fitter.stepped.clone_from(&this.stepped);
                     let outcome = c.effect().fit(&fitter, c, cur);
                     (outcome, lines.into_inner().expect("a fit's log lines"))
                 },
@@ -345,8 +357,9 @@ impl CandidateModel for MotionModel<'_> {
         cur: &FittedModel,
         open: &[Candidate],
     ) -> Result<Vec<Prediction>, MotionDiagnoseError> {
-        let (p, simulations) = super::screen::predict(self, round, cur, open)?;
+        let (p, simulations, stepped) = super::screen::predict(self, round, cur, open)?;
         self.screen_simulations += simulations;
+        self.stepped = stepped;
         let promising = open
             .iter()
             .zip(&p)
@@ -454,4 +467,33 @@ pub(in crate::motion) fn motion_rounds(
             }
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use palpate_motion::model::Material;
+
+    /// A Newtonian viscosity starts once, where the screen's step put ν, when that is positive;
+    /// the power law, and a Newtonian viscosity the step put at ν ≤ 0 or did not place, start
+    /// from the three viscous times.
+    #[test]
+    fn a_newtonian_viscosity_starts_where_the_screen_stepped_it() {
+        let base =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/motion-example");
+        let ds = palpate_motion::dataset::load(&base).unwrap();
+        let ne = ds.model.tets.len();
+        let material = Material::uniform(ne, 4.0e4, 2.0e4, 0.0, 1.0, 47.0);
+        let cur = FittedModel::elastic(material, [4.0e4, 2.0e4]);
+        let stepped = [(ParamKind::Nu, 12.5)];
+        let one = starts(Candidate::ViscosityNewtonian, &cur, &ds, &stepped);
+        assert_eq!(one, vec![vec![4.0e4, 2.0e4, 12.5]]);
+        for stepped in [&[(ParamKind::Nu, -3.0)][..], &[]] {
+            let three = starts(Candidate::ViscosityNewtonian, &cur, &ds, stepped);
+            assert_eq!(three.len(), 3, "{stepped:?}: {three:?}");
+        }
+        let power_law = starts(Candidate::Viscosity, &cur, &ds, &stepped);
+        assert_eq!(power_law.len(), 3);
+        assert!(power_law.iter().all(|s| s.len() == 4 && s[3] == 1.0));
+    }
 }

@@ -487,6 +487,26 @@ fn uncertainty(
 }
 
 #[cfg(test)]
+impl FittedModel {
+    /// An elastic fit of `material`'s global λ and μ at `values`, nothing simulated: the current
+    /// model of a unit test.
+    pub(crate) fn elastic(material: Material, values: [f64; 2]) -> Self {
+        Self {
+            kinds: vec![ParamKind::Lambda, ParamKind::Mu],
+            values: values.to_vec(),
+            sigma: None,
+            material,
+            scores: Default::default(),
+            traj: Default::default(),
+            evaluations: 0,
+            failures: Vec::new(),
+            offsets: None,
+            time_offset: None,
+        }
+    }
+}
+
+#[cfg(test)]
 mod tests {
     use super::*;
     use palpate_motion::scenario::{example_bar, example_truth, record};

@@ -411,18 +411,7 @@ mod tests {
             obs,
             timestep: palpate_motion::timestep::TimeStep::capture_rate(EXAMPLE_DT),
         };
-        let cur = FittedModel {
-            kinds: vec![ParamKind::Lambda, ParamKind::Mu],
-            values: vec![4.0e4, 2.0e4],
-            sigma: None,
-            material: current,
-            scores: Default::default(),
-            traj: Default::default(),
-            evaluations: 0,
-            failures: Vec::new(),
-            offsets: None,
-            time_offset: None,
-        };
+        let cur = FittedModel::elastic(current, [4.0e4, 2.0e4]);
         let split = Split {
             fit_steps: 20,
             steps,

@@ -36,6 +36,10 @@ pub struct Screening<'m, 'a> {
     chi2_sim: f64,
     /// The global parameters linearised: the current model's, then the candidates'.
     kinds: Vec<ParamKind>,
+    /// Their values at the linearisation (the candidates' at their neutral values).
+    at: Vec<f64>,
+    /// Where the predictions' Gauss–Newton steps took the candidates' new parameters.
+    stepped: std::cell::RefCell<Vec<(ParamKind, f64)>>,
     /// Simulations run for the round's predictions.
     simulations: Cell<usize>,
 }
@@ -62,12 +66,15 @@ impl<'m, 'a> Screening<'m, 'a> {
                 }
             }
         }
+        let at = mat.read(&Param::globals(&kinds));
         let mut screening = Self {
             model,
             cur,
             normal: None,
             chi2_sim: 0.0,
             kinds,
+            at,
+            stepped: Default::default(),
             simulations: Cell::new(0),
         };
         if screening.kinds.len() == cur.kinds.len() {
@@ -117,6 +124,12 @@ impl<'m, 'a> Screening<'m, 'a> {
         );
         let parts = std::slice::from_ref(normal);
         let delta = screen::step(parts, &cols);
+        let mut stepped = self.stepped.borrow_mut();
+        for (&col, d) in cols.iter().zip(&delta) {
+            if col >= own && col < globals && !stepped.iter().any(|(k, _)| *k == self.kinds[col]) {
+                stepped.push((self.kinds[col], self.at[col] + d));
+            }
+        }
         let change = screen::change(parts, &cols, &delta)[0];
         let chi2 = stepped_chi2(self.cur, normal, self.chi2_sim, change);
         Prediction {
@@ -170,14 +183,14 @@ pub(in crate::motion) fn stepped_chi2(
     cur.scores.chi2_fit * stepped / chi2_sim.max(f64::MIN_POSITIVE)
 }
 
-/// Every open candidate's prediction on top of `cur` (one each, in order), and the simulations
-/// they took.
+/// Every open candidate's prediction on top of `cur` (one each, in order), the simulations
+/// they took, and where their Gauss–Newton steps took the candidates' new parameters.
 pub(in crate::motion) fn predict(
     model: &MotionModel<'_>,
     round: usize,
     cur: &FittedModel,
     open: &[Candidate],
-) -> Result<(Vec<Prediction>, usize), MotionDiagnoseError> {
+) -> Result<(Vec<Prediction>, usize, Vec<(ParamKind, f64)>), MotionDiagnoseError> {
     let s = Screening::new(model, cur, open)?;
     let mut out = Vec::with_capacity(open.len());
     for &c in open {
@@ -190,5 +203,6 @@ pub(in crate::motion) fn predict(
         ));
         out.push(p);
     }
-    Ok((out, s.simulations.get()))
+    let simulations = s.simulations.get();
+    Ok((out, simulations, s.stepped.into_inner()))
 }

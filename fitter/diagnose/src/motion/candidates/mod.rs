@@ -101,6 +101,13 @@ pub trait MotionEffect: Sync {
         vec![Vec::new()]
     }
 
+    /// One start of its [`Self::kinds`] from where the round's screen stepped them (`stepped`
+    /// of a kind: its value after the prediction's Gauss–Newton step, `None` when not
+    /// screened), in place of [`Self::new_starts`]; `None` (the default): the new starts.
+    fn screened_start(&self, _stepped: &dyn Fn(ParamKind) -> Option<f64>) -> Option<Vec<f64>> {
+        None
+    }
+
     /// Whether its fit frees a constant offset per marker (eliminated in closed form,
     /// [`super::fit::fit_with_offsets`]).
     fn frees_marker_offsets(&self) -> bool {

@@ -3,7 +3,7 @@
 
 use palpate_motion::model::ParamKind;
 
-use super::viscosity::viscosity_starts;
+use super::viscosity::{screened_viscosity, viscosity_starts};
 use super::{Candidate, MotionEffect};
 use crate::motion::fit::FittedModel;
 
@@ -32,6 +32,10 @@ impl MotionEffect for ViscosityNewtonian {
 
     fn screened_params(&self) -> &'static [(ParamKind, Option<f64>)] {
         &[(ParamKind::Nu, Some(0.0))]
+    }
+
+    fn screened_start(&self, stepped: &dyn Fn(ParamKind) -> Option<f64>) -> Option<Vec<f64>> {
+        screened_viscosity(stepped).map(|nu| vec![nu])
     }
 
     fn new_starts(&self, cur: &FittedModel, dt: f64) -> Vec<Vec<f64>> {
