@@ -264,7 +264,7 @@ pub fn check(
 
 /// RMS over the markers of their scatter about their own mean in the last `window` seconds of
 /// `ds` (m): ≈ the noise where the body is at rest.
-fn scatter_in_window(ds: &MotionDataset, window: f64) -> f64 {
+pub(crate) fn scatter_in_window(ds: &MotionDataset, window: f64) -> f64 {
     let rows = &ds.obs.markers;
     let end = ds.model.steps.min(rows.len());
     let first = end.saturating_sub((window / ds.model.dt).round() as usize);

@@ -160,6 +160,7 @@ impl DatasetToml {
 /// mass = 0.052       # kg: the force is mass × gravity; or force = [fx, fy, fz] in N
 /// from_t = 0.0       # s: acts from this time on (default 0, i.e. already at the start)
 /// inertia = false    # whether the mass also moves with its nodes (default: a force only)
+/// lever_m = 0.006    # the force acts 6 mm beyond the nodes along the long axis (default 0)
 /// ```
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -180,6 +181,10 @@ pub struct LoadToml {
     /// Whether the hanging `mass` also adds inertia (default false: a force only).
     #[serde(default)]
     pub inertia: bool,
+    /// The force acts this far (m) beyond its nodes along the body's long axis, as from a hook
+    /// standing off the end ([`crate::load_point`]); default 0, on the nodes.
+    #[serde(default)]
+    pub lever_m: Option<f64>,
 }
 
 /// Initial parameter guesses.
@@ -521,6 +526,7 @@ fn dead_load(
         from_step,
         mass: l.mass,
         inertia: l.inertia,
+        lever: None,
     })
 }
 

@@ -75,6 +75,11 @@ pub struct FittedModel {
     /// new capture has its own release instant) and reports it.
     #[serde(default)]
     pub time_offset: bool,
+    /// How far beyond their nodes the hanging weights acted along the body's long axis (m;
+    /// [`super::load_point`]), absent when they acted on their nodes; a prediction moves the
+    /// hanging weights of the run it predicts by the same lever.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub load_lever_m: Option<f64>,
     /// The fitted parameter kinds (the others were held at their dataset values).
     pub fitted: Vec<String>,
     /// The thesis coefficients (λ_F, α_G) of each element as exported to the runtime (Pa; not

@@ -27,6 +27,7 @@ mod force_lanes;
 pub mod forces;
 pub mod gradient;
 pub mod hyperelastic;
+pub mod load_point;
 pub mod model;
 pub mod objective;
 pub mod optimize;

@@ -615,6 +615,9 @@ pub struct DeadLoad {
     /// moved with its attachment (a weight on a taut string follows the vertical motion; its
     /// pendulum swing across is not modelled).
     pub inertia: bool,
+    /// Where the force acts when not on its nodes: a hook's lever ([`crate::load_point`]); its
+    /// nodal shares replace the equal ones.
+    pub lever: Option<crate::load_point::Lever>,
 }
 
 impl DeadLoad {
@@ -863,9 +866,17 @@ impl Model {
     }
 
     /// Adds the dead loads acting at step `n` to `f` (full dofs): each load's force split
-    /// equally over its nodes.
+    /// equally over its nodes, or by its lever's shares.
     pub fn add_dead_loads(&self, n: usize, f: &mut [f64]) {
         for l in self.loads.iter().filter(|l| n >= l.from_step) {
+            if let Some(lever) = &l.lever {
+                for &(node, share) in &lever.shares {
+                    for i in 0..3 {
+                        f[3 * node + i] += share * l.force[i];
+                    }
+                }
+                continue;
+            }
             let share = 1.0 / l.nodes.len().max(1) as f64;
             for &node in &l.nodes {
                 for i in 0..3 {

@@ -68,9 +68,16 @@ impl Model {
             .iter()
             .map(|l| crate::model::DeadLoad {
                 nodes: grow(&l.nodes),
+                lever: None,
                 ..l.clone()
             })
             .collect();
+        // A lever's shares name this mesh's nodes: carried again on the refined one.
+        for (i, l) in self.loads.iter().enumerate() {
+            if let Some(lv) = &l.lever {
+                m.loads[i].lever = Some(crate::load_point::lever(&m, &m.loads[i], lv.offset_m)?);
+            }
+        }
         m.substeps = self.substeps;
         // Newton stops on ‖r‖₂ over every free dof: the same accuracy per dof on 8× the dofs is
         // a √(n_h/2 / n_h) larger norm (and a norm the refined solve's round-off can reach).

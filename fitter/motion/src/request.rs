@@ -346,6 +346,10 @@ fn record(
                 .iter()
                 .any(|r| r.dataset.model.loads.iter().any(|l| l.inertia)),
         time_offset: false,
+        load_lever_m: runs
+            .iter()
+            .map(|r| r.dataset.model.load_lever())
+            .find(|d| *d != 0.0),
         fitted: params
             .iter()
             .map(|p| p.kind.name().to_string())

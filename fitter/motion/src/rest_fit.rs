@@ -11,6 +11,7 @@
 
 use super::dataset::MotionDataset;
 use super::hyperelastic::HyperParams;
+use super::model::Model;
 use super::quadratic_statics::{quadratic_sensitivity, solve_static_quadratic, value_at};
 use super::statics::{solve_static, static_sensitivity, StaticProblem};
 use super::MotionError;
@@ -126,12 +127,7 @@ impl RestState {
             markers.push((e, bary));
         }
         let ndof = 3 * ds.mesh.nodes.len();
-        let mut f = vec![0.0; ndof];
-        model.add_dead_loads(end, &mut f);
-        let forces = (0..ds.mesh.nodes.len())
-            .filter(|&n| f[3 * n..3 * n + 3].iter().any(|v| *v != 0.0))
-            .map(|n| (n, [f[3 * n], f[3 * n + 1], f[3 * n + 2]]))
-            .collect();
+        let forces = dead_load_forces(model);
         let mut x = vec![0.0; ndof];
         model.apply_clamps(end, &mut x);
         let fixed: Vec<usize> = model
@@ -156,6 +152,15 @@ impl RestState {
         })
     }
 
+    /// This rest state under `model`'s dead loads at its last step (the same run's model with
+    /// its hanging weights moved, say: [`crate::load_point`]).
+    pub fn with_loads_of(&self, model: &Model) -> Self {
+        Self {
+            forces: dead_load_forces(model),
+            ..self.clone()
+        }
+    }
+
     /// The static problem of this rest state for `material`.
     fn problem(&self, material: HyperParams, solve: &RestSolve) -> StaticProblem<'_> {
         let mut p = StaticProblem::new(&self.mesh, material, self.fixed.clone());
@@ -167,6 +172,16 @@ impl RestState {
         p.tol = solve.tol;
         p
     }
+}
+
+/// The nodal forces of `model`'s dead loads at its last step, on the nodes they load.
+fn dead_load_forces(model: &Model) -> Vec<(usize, [f64; 3])> {
+    let mut f = vec![0.0; 3 * model.nodes.len()];
+    model.add_dead_loads(model.steps, &mut f);
+    (0..model.nodes.len())
+        .filter(|&n| f[3 * n..3 * n + 3].iter().any(|v| *v != 0.0))
+        .map(|n| (n, [f[3 * n], f[3 * n + 1], f[3 * n + 2]]))
+        .collect()
 }
 
 /// How each rest state is solved: load increments and Newton tolerance on the residual (N).

@@ -253,6 +253,7 @@ mod tests {
             from_step: 10,
             mass: None,
             inertia: false,
+            lever: None,
         });
         let mat = Material::uniform(model.tets.len(), 2.0e4, 1.0e4, 3.0, 1.0, 47.0);
         let long = Trajectory::simulate(&shifted_model(&model, -12).unwrap(), &mat).unwrap();

@@ -64,6 +64,14 @@ pub enum ValidationError {
         /// The simulator's error.
         source: MotionError,
     },
+    /// The model's lever of the hanging weights could not be put on the run's loads.
+    #[error("moving the hanging weights of {} by the model's lever", dataset.display())]
+    Lever {
+        /// The dataset.
+        dataset: PathBuf,
+        /// Why.
+        source: MotionError,
+    },
     /// The run could not be simulated with the model's material.
     #[error("simulating {}", dataset.display())]
     Simulate {
@@ -129,6 +137,14 @@ pub fn validate(
     let mut ds = crate::dataset::load(dataset)?;
     if fit.hanging_inertia {
         crate::fitted::set_hanging_inertia(&mut ds.model, true);
+    }
+    if let Some(d) = fit.load_lever_m {
+        ds.model
+            .set_load_lever(d)
+            .map_err(|source| ValidationError::Lever {
+                dataset: dataset.into(),
+                source,
+            })?;
     }
     let mut carried = None;
     let carried_fit;

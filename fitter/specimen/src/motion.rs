@@ -212,6 +212,7 @@ pub fn hung_weight(ds: &MotionDataset, mass: f64) -> Result<DeadLoad, MotionErro
         from_step: 0,
         mass: Some(mass),
         inertia: true,
+        lever: None,
     })
 }
 

@@ -41,6 +41,9 @@ pub(in crate::runs) struct RunsModel<'a> {
     pub(in crate::runs) simulations: std::cell::Cell<Simulations>,
     /// The round's candidates fitted ahead of their turn, side by side.
     pub(in crate::runs) ahead: crate::select::Ahead<Effect, super::select::AheadFit>,
+    /// The hanging weights' lever read from the fitted runs' rest states (the `load-point`
+    /// candidate's), when they hang a weight and give one.
+    pub(in crate::runs) lever: Option<palpate_motion::load_point::LeverFit>,
 }
 
 impl RunsModel<'_> {
@@ -92,7 +95,7 @@ impl RunsModel<'_> {
         effects: &[Effect],
         offsets: &[i64],
     ) -> Result<Vec<(palpate_motion::model::Model, Observations)>, MotionError> {
-        Self::models(self.fit, effects)
+        self.models(self.fit, effects)
             .into_iter()
             .zip(self.fit)
             .enumerate()
@@ -107,6 +110,7 @@ impl RunsModel<'_> {
 
     /// The runs' models with the effects' changes ([`RunsEffect::change_model`](super::candidates::RunsEffect::change_model)) applied.
     pub(in crate::runs) fn models(
+        &self,
         sets: &[(String, MotionDataset)],
         effects: &[Effect],
     ) -> Vec<palpate_motion::model::Model> {
@@ -116,7 +120,7 @@ impl RunsModel<'_> {
                 // The simplest model: hanging weights as forces only.
                 set_hanging_inertia(&mut m, false);
                 for e in effects {
-                    e.effect().change_model(&mut m);
+                    e.effect().change_model(self, &mut m);
                 }
                 m
             })
@@ -126,12 +130,13 @@ impl RunsModel<'_> {
     /// The residual of every run of `sets` under `mat`, run i's markers `offsets[i]` steps late
     /// (none when `offsets` is empty).
     pub(in crate::runs) fn residuals(
+        &self,
         sets: &[(String, MotionDataset)],
         effects: &[Effect],
         mat: &Material,
         offsets: &[i64],
     ) -> Result<Vec<RunResidual>, MotionError> {
-        let models = Self::models(sets, effects);
+        let models = self.models(sets, effects);
         use rayon::prelude::*;
         sets.par_iter()
             .zip(models.par_iter())
@@ -148,11 +153,12 @@ impl RunsModel<'_> {
 
     /// Each run's time offset under `mat`, scanned ([`time_offset::scan`]).
     pub(in crate::runs) fn scan_offsets(
+        &self,
         sets: &[(String, MotionDataset)],
         effects: &[Effect],
         mat: &Material,
     ) -> Result<Vec<i64>, MotionError> {
-        let models = Self::models(sets, effects);
+        let models = self.models(sets, effects);
         use rayon::prelude::*;
         sets.par_iter()
             .zip(models.par_iter())
@@ -218,7 +224,7 @@ impl RunsModel<'_> {
             &[Param::global(ParamKind::Lambda)],
             &[2.0 * nu / (1.0 - 2.0 * nu) * material.get(ParamKind::Mu, 0)],
         );
-        let fitted = Self::residuals(self.fit, effects, &material, offsets)?;
+        let fitted = self.residuals(self.fit, effects, &material, offsets)?;
         Ok(RunsFit {
             effects: effects.to_vec(),
             material,
@@ -243,7 +249,7 @@ impl RunsModel<'_> {
         max_iters: u64,
     ) -> Result<RunsFit, MotionError> {
         let mut f = self.fit(effects, start, &offsets, max_iters)?;
-        let again = Self::scan_offsets(self.fit, effects, &f.material)?;
+        let again = self.scan_offsets(self.fit, effects, &f.material)?;
         self.count(self.fit.len(), false);
         if again != offsets {
             offsets = again;

@@ -270,6 +270,8 @@ pub struct RunsDiagnosis {
     /// Whether the fitted modulus is the material's or the mesh's ([`crate::convergence`]); `None`
     /// when not asked for.
     pub mesh_convergence: Option<crate::convergence::MeshConvergence>,
+    /// The hanging weights' lever, when `load-point` was adopted.
+    pub load_lever: Option<palpate_motion::load_point::LeverFit>,
     /// Seconds the diagnosis took.
     pub seconds: f64,
     /// Simulations of one run the diagnosis made.
@@ -371,6 +373,7 @@ pub fn diagnose_runs_with(
         density,
     );
     base.set(&[Param::global(ParamKind::Nu)], &[0.0]);
+    let lever = read_lever(fit, o, log);
     let mut m = RunsModel {
         fit,
         held,
@@ -383,6 +386,7 @@ pub fn diagnose_runs_with(
         progress,
         simulations: Default::default(),
         ahead: Default::default(),
+        lever,
     };
     for c in &o.candidates {
         let e = c.effect();
@@ -399,7 +403,7 @@ pub fn diagnose_runs_with(
     let start_held = Held {
         runs: {
             m.count(held.len(), false);
-            RunsModel::residuals(held, &[], &start.material, &[])?
+            m.residuals(held, &[], &start.material, &[])?
         },
         offsets: Vec::new(),
     };
@@ -416,8 +420,13 @@ pub fn diagnose_runs_with(
         .cloned()
         .expect("the start is on the path");
     let adopted = verdict.adopted();
+    let lever_adopted = if adopted.contains(&Effect::LoadPoint) {
+        m.lever.clone()
+    } else {
+        None
+    };
     // Uncertainty of μ (hence E) on the final model (the runs at their offsets).
-    let models = RunsModel::models(fit, &last.effects);
+    let models = m.models(fit, &last.effects);
     let retimed: Vec<(palpate_motion::model::Model, Observations)> = models
         .iter()
         .zip(fit)
@@ -437,7 +446,20 @@ pub fn diagnose_runs_with(
     let mut model = fitted_model(fit, &models, &last, nu);
     let mesh_convergence = o.mesh_convergence.then(|| {
         let mu = last.material.get(ParamKind::Mu, 0);
-        let named: Vec<(&str, &MotionDataset)> = fit.iter().map(|(n, d)| (n.as_str(), d)).collect();
+        // The runs with the final model's loads (a lever moves the weights).
+        let changed: Vec<MotionDataset> = fit
+            .iter()
+            .zip(&models)
+            .map(|((_, d), model)| MotionDataset {
+                model: model.clone(),
+                ..d.clone()
+            })
+            .collect();
+        let named: Vec<(&str, &MotionDataset)> = fit
+            .iter()
+            .zip(&changed)
+            .map(|((n, _), d)| (n.as_str(), d))
+            .collect();
         crate::convergence::check(&named, nu, mu, rms_of(&last.fitted), log)
     });
     // fit.json carries the converged modulus, so `palpate validate` can take the material to
@@ -460,9 +482,63 @@ pub fn diagnose_runs_with(
         values,
         model,
         mesh_convergence,
+        load_lever: lever_adopted,
         seconds: t0.elapsed().as_secs_f64(),
         simulations: m.simulations.get(),
     })
+}
+
+/// The `load-point` candidate's lever: read from the fitted runs' rest states when it is asked
+/// for and some fitted run hangs a weight ([`palpate_motion::load_point::fit_lever`] on the
+/// dataset's linear elements at the held Poisson's ratio), logged either way.
+fn read_lever(
+    fit: &[(String, MotionDataset)],
+    o: &RunsOptions,
+    log: &dyn Fn(&str),
+) -> Option<palpate_motion::load_point::LeverFit> {
+    let hangs = fit
+        .iter()
+        .any(|(_, d)| d.model.loads.iter().any(|l| l.mass.is_some()));
+    if !o.candidates.contains(&Effect::LoadPoint) || !hangs {
+        return None;
+    }
+    let sets: Vec<&MotionDataset> = fit.iter().map(|(_, d)| d).collect();
+    match palpate_motion::load_point::fit_lever(
+        &sets,
+        palpate_motion::rest_fit::Design::Linear,
+        o.poisson,
+        o.start_mu,
+        0.5,
+    ) {
+        Ok(l) => {
+            // As the mesh-convergence check: a run whose markers scatter in the window by more
+            // than the rest states' misfit has not come to rest, and its mean is no equilibrium.
+            let moving = fit.iter().find_map(|(name, d)| {
+                let scatter = crate::convergence::scatter_in_window(d, 0.5);
+                (scatter.is_nan() || scatter > l.rms_on_nodes_m).then_some((name, scatter))
+            });
+            if let Some((name, scatter)) = moving {
+                log(&format!(
+                    "load-point: {name}'s markers still move in its last 0.5 s (scatter {:.3} mm, above the rest states' misfit {:.3} mm): no lever read",
+                    1e3 * scatter,
+                    1e3 * l.rms_on_nodes_m
+                ));
+                return None;
+            }
+            log(&format!(
+                "the hanging weights' point from the rest states: {:.1} mm ± {:.1} mm beyond their nodes (rest RMS {:.3} → {:.3} mm)",
+                1e3 * l.offset_m,
+                1e3 * l.sigma_m,
+                1e3 * l.rms_on_nodes_m,
+                1e3 * l.rms_m
+            ));
+            Some(l)
+        }
+        Err(e) => {
+            log(&format!("load-point: no lever from the rest states: {e}"));
+            None
+        }
+    }
 }
 
 /// Whether the runs and the options can be diagnosed: runs on both sides, one mesh, a Poisson's
@@ -562,6 +638,7 @@ fn fitted_model(
         poisson_fixed: Some(nu),
         hanging_inertia: false,
         time_offset: false,
+        load_lever_m: models.iter().map(|m| m.load_lever()).find(|d| *d != 0.0),
         fitted: last.kinds.iter().map(|k| k.name().to_string()).collect(),
         runtime_lambda_alpha: mat.values[0]
             .iter()

@@ -139,6 +139,7 @@ impl CandidateModel for RunsModel<'_> {
         (self.log)(&select::side_by_side_line(round, batch));
         let (fit, held, o) = (self.fit, self.held, self.o);
         let (fitted, predicted, scanned) = (&self.fitted, &self.predicted, &self.scanned);
+        let lever = &self.lever;
         // A candidate that nests one of the batch starts from its fit (`fit_candidate`).
         let results = select::fit_ahead(
             batch,
@@ -158,6 +159,7 @@ impl CandidateModel for RunsModel<'_> {
                     progress: &|_| {},
                     simulations: Default::default(),
                     ahead: Default::default(),
+                    lever: lever.clone(),
                 };
                 for (d, a) in earlier {
                     if let Ok(Outcome::Fitted(f)) = &a.outcome {
@@ -190,7 +192,7 @@ impl CandidateModel for RunsModel<'_> {
 
     fn heldout(&mut self, round: usize, _: Effect, f: &RunsFit) -> Result<Held, RunsError> {
         let offsets = if Effect::retimed(&f.effects) {
-            let o = Self::scan_offsets(self.held, &f.effects, &f.material)?;
+            let o = self.scan_offsets(self.held, &f.effects, &f.material)?;
             self.count(self.held.len(), false);
             (self.log)(&format!(
                 "round {round}: held-out time offsets (each run its own): {}",
@@ -202,7 +204,7 @@ impl CandidateModel for RunsModel<'_> {
         };
         self.count(self.held.len(), false);
         Ok(Held {
-            runs: Self::residuals(self.held, &f.effects, &f.material, &offsets)?,
+            runs: self.residuals(self.held, &f.effects, &f.material, &offsets)?,
             offsets,
         })
     }

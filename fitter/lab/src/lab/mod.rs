@@ -3,6 +3,7 @@
 use clap::{Parser, Subcommand};
 
 pub mod beam_convergence;
+pub mod beam_load_point;
 pub mod bench;
 pub mod bench_discretisation;
 pub mod bench_fit;
@@ -53,6 +54,9 @@ pub enum Command {
     /// tetrahedra on two meshes: how converged the fitted material is
     /// (docs/results/beam/convergence.md).
     BeamConvergence(beam_convergence::Args),
+    /// Where a hanging weight acts: the beam's modulus fitted to its rest states with each loaded
+    /// run's force moved to a point off its nodes (a hook's lever), per run and jointly.
+    BeamLoadPoint(beam_load_point::Args),
     /// The runtime and probe firmware on an emulated Cortex-M4F: the bundled models, the
     /// comparison with the host and the board's cost model (firmware/m4-emu).
     M4Emu(m4_emu::Args),
@@ -71,6 +75,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::NonlinearEvidence(a) => nonlinear_evidence::run(a),
         Command::ModelForm(a) => model_form::run(a),
         Command::BeamConvergence(a) => beam_convergence::run(a),
+        Command::BeamLoadPoint(a) => beam_load_point::run(a),
         Command::M4Emu(a) => m4_emu::run(a),
         Command::ScanStrip(a) => scan_strip::run(a),
     }

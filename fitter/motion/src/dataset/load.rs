@@ -134,6 +134,18 @@ fn configure_model(
         .enumerate()
         .map(|(i, l)| dead_load(tf, i, l, mesh, model))
         .collect::<Result<_, _>>()?;
+    for (i, l) in config.loads.iter().enumerate() {
+        if let Some(d) = l.lever_m.filter(|d| *d != 0.0) {
+            let lever = crate::load_point::lever(model, &model.loads[i], d).map_err(|e| {
+                bad(
+                    tf,
+                    0,
+                    format!("loads[{i}] (group {:?}): field lever_m: {e}", l.group),
+                )
+            })?;
+            model.loads[i].lever = Some(lever);
+        }
+    }
     model.markers = marker_pts
         .iter()
         .map(|(n, p)| model.marker_at(n, *p))

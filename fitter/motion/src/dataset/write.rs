@@ -203,6 +203,7 @@ fn load_table(l: &LoadToml) -> String {
     key("mass", l.mass.map(toml_number));
     key("from_t", (l.from_t != 0.0).then(|| toml_number(l.from_t)));
     key("inertia", l.inertia.then(|| "true".to_string()));
+    key("lever_m", l.lever_m.filter(|d| *d != 0.0).map(toml_number));
     s
 }
 

@@ -120,6 +120,7 @@ fn a_suddenly_loaded_bar_creeps_as_the_standard_linear_solid() {
         from_step: 1,
         mass: None,
         inertia: false,
+        lever: None,
     }];
     let mut mat = Material::uniform(model.tets.len(), 1.0e4, 2.0e4, 0.0, 1.0, 1e-3);
     mat.set_uniform(ParamKind::CreepFraction, g);
@@ -176,6 +177,7 @@ fn creep_error(scheme: Scheme, dt: f64) -> f64 {
         from_step: 1,
         mass: None,
         inertia: false,
+        lever: None,
     }];
     // ρ = 10⁻⁶ kg/m³: the inertia term c M (v − b) is ~1e-10 of the load even where the
     // midpoint rule's end positions alternate about its force states.

@@ -47,6 +47,7 @@ fn everything() -> (palpate_fem::mesh::Mesh, MotionDatasetFiles) {
             mass: Some(0.052),
             from_t: 0.0,
             inertia: true,
+            lever_m: None,
         },
         LoadToml {
             name: None,
@@ -56,6 +57,7 @@ fn everything() -> (palpate_fem::mesh::Mesh, MotionDatasetFiles) {
             mass: None,
             from_t: 2.0 * dt,
             inertia: false,
+            lever_m: None,
         },
     ];
     let markers: Vec<(String, [f64; 3])> = nine_markers(EXAMPLE_BAR_SIZE)
@@ -178,6 +180,7 @@ fn dataset_toml_has_its_keys_in_the_format_order() {
         mass: Some(0.052),
         from_t: 0.0,
         inertia: false,
+        lever_m: None,
     }];
     let text = dataset_toml(&["Imported from beam.c3d.".into()], &c);
     assert_eq!(

@@ -112,6 +112,7 @@ fn a_dead_load_changes_nothing_before_its_step_and_deflects_linearly_at_small_lo
             from_step,
             mass: None,
             inertia: false,
+            lever: None,
         }];
         m
     };
@@ -132,6 +133,7 @@ fn a_dead_load_changes_nothing_before_its_step_and_deflects_linearly_at_small_lo
             from_step: 0,
             mass: None,
             inertia: false,
+            lever: None,
         }];
         let (x, _) = equilibrium(&still, &mat, 0).unwrap();
         let rest: Vec<f64> = still.nodes.iter().flatten().copied().collect();
@@ -168,6 +170,7 @@ fn two_runs(mu: f64, nu: f64) -> (Vec<Model>, Material) {
         // A weight that moves with its nodes: its inertia enters M, and so the adjoint.
         mass: Some(2e-3 / 9.81),
         inertia: true,
+        lever: None,
     }];
     (vec![ds.model, loaded], mat)
 }

@@ -12,6 +12,7 @@ mod dataset_write;
 mod fit;
 mod gauss_newton;
 mod gradients;
+mod load_point;
 mod loads;
 mod quadratic_statics;
 mod schemes;

@@ -272,6 +272,7 @@ fn dataset_files(a: &C3dArgs, r: &Imported) -> MotionDatasetFiles {
             mass: Some(*m),
             from_t: 0.0,
             inertia: false,
+            lever_m: None,
         })
         .collect();
     MotionDatasetFiles::captured(

@@ -33,7 +33,7 @@ impl RunsEffect for HangingInertia {
         "no run hangs a weight from its start"
     }
 
-    fn change_model(&self, model: &mut Model) {
+    fn change_model(&self, _room: &RunsModel, model: &mut Model) {
         set_hanging_inertia(model, true);
     }
 

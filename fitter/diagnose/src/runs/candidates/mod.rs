@@ -20,6 +20,7 @@ pub(in crate::runs) mod creep;
 mod damping;
 mod damping_power_law;
 mod hanging_inertia;
+mod load_point;
 mod stiffening;
 mod time_offset;
 
@@ -44,16 +45,20 @@ pub enum Effect {
     /// The elastic stress relaxes: one generalised-Maxwell branch, relaxed fraction g and time
     /// τ free (2 parameters; `creep.rs`).
     Creep,
+    /// The hanging weights act at a point beyond their nodes, a hook's lever read from the rest
+    /// states (1 parameter; `load_point.rs`).
+    LoadPoint,
 }
 
 /// Every effect, in the order tried.
-pub const ALL_EFFECTS: [Effect; 6] = [
+pub const ALL_EFFECTS: [Effect; 7] = [
     Effect::Damping,
     Effect::DampingPowerLaw,
     Effect::HangingInertia,
     Effect::TimeOffset,
     Effect::Stiffening,
     Effect::Creep,
+    Effect::LoadPoint,
 ];
 
 /// What a candidate effect of the runs is: its parameters, its part of the runs' models and of
@@ -90,8 +95,9 @@ pub(in crate::runs) trait RunsEffect: Sync {
         false
     }
 
-    /// Changes a run's model from the simplest one's (hanging weights as forces only).
-    fn change_model(&self, _model: &mut Model) {}
+    /// Changes a run's model from the simplest one's (hanging weights as forces on their nodes),
+    /// with what the room has read from the runs (`room`).
+    fn change_model(&self, _room: &RunsModel, _model: &mut Model) {}
 
     /// Sets the start of its material parameters in `start` (the current model's material, or
     /// the fit of a candidate nested in it this round) before its fit on top of `cur`.
@@ -147,6 +153,7 @@ impl Effect {
             Effect::TimeOffset => &time_offset::TimeOffset,
             Effect::Stiffening => &stiffening::Stiffening,
             Effect::Creep => &creep::Creep,
+            Effect::LoadPoint => &load_point::LoadPoint,
         }
     }
     /// Name on the command line and in reports.

@@ -47,7 +47,7 @@ impl RunsEffect for TimeOffset {
             Some((r, o)) if r == round => o,
             _ => {
                 room.count(room.fit.len(), false);
-                RunsModel::scan_offsets(room.fit, effects, start)?
+                room.scan_offsets(room.fit, effects, start)?
             }
         };
         (room.log)(&format!(
@@ -68,7 +68,7 @@ impl RunsEffect for TimeOffset {
     fn predict(&self, room: &mut RunsModel, at: &ScreenPoint) -> Result<Prediction, RunsError> {
         let mut effects = at.cur.effects.clone();
         effects.push(Effect::TimeOffset);
-        let models = RunsModel::models(room.fit, &effects);
+        let models = room.models(room.fit, &effects);
         use rayon::prelude::*;
         let scans: Vec<(i64, Vec<(i64, f64)>)> = room
             .fit
