@@ -342,6 +342,9 @@ pub enum FitScreen {
         /// A screened-out candidate is fitted after all when nothing fitted passes and its
         /// predicted ΔBIC is below this (the gate's −threshold: it is predicted to pay).
         fallback_below: f64,
+        /// The `least` best and those near the best are fitted only when their predicted ΔBIC
+        /// is below this (∞: always; the gate's −threshold: only those predicted to pay).
+        least_below: f64,
     },
 }
 
@@ -356,6 +359,26 @@ impl FitScreen {
             least,
             margin,
             fallback_below: -threshold,
+            least_below: f64::INFINITY,
+        }
+    }
+
+    /// This screen with its `least` best fitted only when they are predicted to pay (ΔBIC below
+    /// the fallback's bound, the gate's −threshold).
+    pub fn least_only_paying(self) -> Self {
+        match self {
+            Self::Predicted {
+                least,
+                margin,
+                fallback_below,
+                ..
+            } => Self::Predicted {
+                least,
+                margin,
+                fallback_below,
+                least_below: fallback_below,
+            },
+            off => off,
         }
     }
 }
@@ -1039,6 +1062,7 @@ fn plan_fits(screen: &FitScreen, predictions: &[Option<Prediction>]) -> (Vec<usi
         least,
         margin,
         fallback_below,
+        least_below,
     } = *screen
     else {
         return (all, Vec::new());
@@ -1065,7 +1089,7 @@ fn plan_fits(screen: &FitScreen, predictions: &[Option<Prediction>]) -> (Vec<usi
     for (rank, &i) in order.iter().enumerate() {
         let d = predicted(i).unwrap_or(f64::NAN);
         let near = best.is_some_and(|b| d <= b + margin * b.abs());
-        if rank < least || near || !d.is_finite() {
+        if ((rank < least || near) && d < least_below) || !d.is_finite() {
             batch.push(i);
         } else if d < fallback_below {
             reserve.push(i);
@@ -1418,6 +1442,7 @@ mod tests {
         least: 2,
         margin: 0.5,
         fallback_below: -10.0,
+        least_below: f64::INFINITY,
     };
 
     /// The screen fits the two best predicted (and those near the best), reports the others
@@ -1433,6 +1458,28 @@ mod tests {
         assert!(full_toy.screened.is_empty());
         // Round 1 fits c2 and c3 (predicted −150, −60); round 2 c3 and c0.
         assert_eq!(toy.screened, [(1, 0), (1, 1), (2, 1)]);
+    }
+
+    /// A screen whose `least` fits only candidates predicted to pay leaves a round of
+    /// candidates predicted not to pay unfitted (the beam's last round: +9.8 and +16.8), where
+    /// the plain screen fits its two best whatever they are predicted; both fit a candidate
+    /// predicted to pay, and one that is not predicted at all.
+    #[test]
+    fn least_only_paying_fits_no_candidate_predicted_not_to_pay() {
+        let p = |d: Option<f64>| {
+            Some(Prediction {
+                delta_bic: d,
+                how: String::new(),
+            })
+        };
+        let lose = [p(Some(16.8)), p(Some(9.8))];
+        let plain = FitScreen::from_options(true, 2, 0.5, 10.0);
+        assert_eq!(plan_fits(&plain, &lose).0, [0, 1]);
+        let paying = plain.least_only_paying();
+        assert_eq!(plan_fits(&paying, &lose), (vec![], vec![]));
+        let mixed = [p(Some(9.8)), p(Some(-300.0)), p(None)];
+        assert_eq!(plan_fits(&paying, &mixed).0, [1, 2]);
+        assert_eq!(plan_fits(&plain, &mixed).0, [0, 1, 2]);
     }
 
     /// When nothing fitted passes, the next predicted to pay is fitted before the round gives

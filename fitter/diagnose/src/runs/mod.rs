@@ -42,9 +42,11 @@
 //! Newtonian damping with one more parameter. The hanging weights' inertia, a switch with no
 //! neutral value to linearise about, is always fitted; the time offset is predicted by its scan
 //! at the current material (its fit starts from that scan, which is not repeated), without the
-//! material's refit. The best predicted are fitted in full
-//! (the screen's `least`, and those within its `margin` of the best); the rest are reported with
-//! their predicted ΔBIC, and fitted after all if nothing fitted passes the gate.
+//! material's refit. A step that takes a parameter bounded at its neutral value (ν, c, g ≥ 0)
+//! below its bound is taken again with that parameter held there. The best predicted are fitted
+//! in full (the screen's `least`, and those within its `margin` of the best), among them only
+//! those predicted to pay (ΔBIC below the gate's −threshold); the rest are reported with their
+//! predicted ΔBIC, and fitted after all if nothing fitted passes the gate.
 //!
 //! **The residual's signature** ([`RunResidual`], `signature.rs`): per run, the RMS per marker, in the first and
 //! last quarter of the run, and — on the marker that moves most — the ring-down's period and its

@@ -142,7 +142,22 @@ impl<'a> ScreenPoint<'a> {
                 .filter_map(|k| self.kinds.iter().position(|j| j == k))
                 .filter(|&i| i >= self.own),
         );
-        let delta = screen::step(&self.normals, &cols);
+        let mut delta = screen::step(&self.normals, &cols);
+        // A parameter whose neutral value is its bound (a viscosity, a stiffening coefficient,
+        // a relaxed fraction: none can go below 0) cannot follow a step below it: the candidate
+        // then does best at the bound, and the step is taken again without that column.
+        let below: Vec<usize> = (self.own..cols.len())
+            .filter(|&a| delta[a] < 0.0 && bounded_at_neutral(self.kinds[cols[a]]))
+            .collect();
+        let mut how = how.to_string();
+        if !below.is_empty() {
+            let names: Vec<&str> = below.iter().map(|&a| self.kinds[cols[a]].name()).collect();
+            how = format!("{how}; {} stepped below 0, held there", names.join(", "));
+            for &a in below.iter().rev() {
+                cols.remove(a);
+            }
+            delta = screen::step(&self.normals, &cols);
+        }
         let change = screen::change(&self.normals, &cols, &delta);
         // Each run's χ² and its Φ in proportion (the marker term's weight is the run's).
         let stepped: f64 = self
@@ -161,7 +176,15 @@ impl<'a> ScreenPoint<'a> {
         let chi2 = self.chi2.0 * stepped / sim.max(f64::MIN_POSITIVE);
         Prediction {
             delta_bic: Some(self.delta_bic(chi2, k)),
-            how: how.into(),
+            how,
         }
     }
+}
+
+/// Whether a candidate's parameter kind has its neutral value at its lower bound (0).
+fn bounded_at_neutral(kind: ParamKind) -> bool {
+    matches!(
+        kind,
+        ParamKind::Nu | ParamKind::Stiffening | ParamKind::CreepFraction
+    )
 }
