@@ -139,6 +139,45 @@ pub fn step(parts: &[Normal], cols: &[usize]) -> Vec<f64> {
     y.iter().zip(&s).map(|(y, s)| y * s).collect()
 }
 
+/// Whether a candidate's parameter kind has its neutral value at its lower bound (0): a
+/// viscosity, a stiffening coefficient, a relaxed fraction. A screen's step that takes one below
+/// it predicts a gain the candidate cannot give.
+pub fn bounded_at_neutral(kind: palpate_motion::model::ParamKind) -> bool {
+    use palpate_motion::model::ParamKind;
+    matches!(
+        kind,
+        ParamKind::Nu | ParamKind::Stiffening | ParamKind::CreepFraction
+    )
+}
+
+/// [`step`] over `cols` with a candidate's parameters bounded at their neutral values
+/// ([`bounded_at_neutral`]) held there: a column that `candidate` names as such a parameter (its
+/// kind) and whose step goes below 0 is dropped from `cols` and the step taken again. Returns the
+/// step and the names of the parameters held.
+pub fn step_within_bounds(
+    parts: &[Normal],
+    cols: &mut Vec<usize>,
+    candidate: impl Fn(usize) -> Option<palpate_motion::model::ParamKind>,
+) -> (Vec<f64>, Vec<&'static str>) {
+    let delta = step(parts, cols);
+    let below: Vec<(usize, &'static str)> = (0..cols.len())
+        .filter_map(|a| {
+            let kind = candidate(cols[a]).filter(|k| bounded_at_neutral(*k))?;
+            (delta[a] < 0.0).then(|| (a, kind.name()))
+        })
+        .collect();
+    if below.is_empty() {
+        return (delta, Vec::new());
+    }
+    for &(a, _) in below.iter().rev() {
+        cols.remove(a);
+    }
+    (
+        step(parts, cols),
+        below.into_iter().map(|(_, n)| n).collect(),
+    )
+}
+
 /// The change of each run's Φ along the step `delta` over `cols` on its Gauss–Newton model:
 /// g_r·δ + ½ δᵀ H_r δ (negative: the run fits better).
 pub fn change(parts: &[Normal], cols: &[usize], delta: &[f64]) -> Vec<f64> {
@@ -215,6 +254,41 @@ mod tests {
             grad,
             gn,
         }
+    }
+
+    /// A candidate column bounded at 0 whose step goes below 0 is held there: the step over the
+    /// rest is the fit of the rest alone (its Φ the projection onto them), the held name is
+    /// reported, and a column whose step is positive is kept.
+    #[test]
+    fn a_step_below_a_bound_is_taken_again_without_that_column() {
+        use palpate_motion::model::ParamKind;
+        // y wants column 2 negative: y = j·(1, 0.5, −2) exactly.
+        let j = [
+            [1.0, 0.0, 0.3],
+            [0.0, 1.0, 0.2],
+            [0.5, 0.5, 1.0],
+            [0.2, 0.1, 0.7],
+        ];
+        let y: Vec<f64> = j.iter().map(|r| r[0] + 0.5 * r[1] - 2.0 * r[2]).collect();
+        let n = linear(&j, &y);
+        let parts = std::slice::from_ref(&n);
+        let stiff = |c: usize| (c == 2).then_some(ParamKind::Stiffening);
+        let mut cols = vec![0, 1, 2];
+        let (delta, held) = step_within_bounds(parts, &mut cols, stiff);
+        assert_eq!(held, ["stiffening"]);
+        assert_eq!(cols, [0, 1]);
+        let after = n.phi + change(parts, &cols, &delta)[0];
+        let fit = projected_phi(&j, &y, &[0, 1]);
+        assert!((after - fit).abs() < 1e-3 * n.phi, "{after} vs {fit}");
+        // The same data wanting column 2 positive keep it.
+        let y: Vec<f64> = j.iter().map(|r| r[0] + 0.5 * r[1] + 2.0 * r[2]).collect();
+        let n = linear(&j, &y);
+        let mut cols = vec![0, 1, 2];
+        let (delta, held) = step_within_bounds(std::slice::from_ref(&n), &mut cols, stiff);
+        assert!(
+            held.is_empty() && cols == [0, 1, 2] && delta[2] > 0.0,
+            "{delta:?}"
+        );
     }
 
     /// ½‖y − P y‖² by Gram–Schmidt over the columns `cols` of `j`: the least-squares residual

@@ -123,7 +123,16 @@ impl<'m, 'a> Screening<'m, 'a> {
                 .filter(|i| *i >= own),
         );
         let parts = std::slice::from_ref(normal);
-        let delta = screen::step(parts, &cols);
+        // A viscosity or a stiffening coefficient cannot go below 0: a step that takes one there
+        // is taken again with it held at 0, where the candidate does best.
+        let (delta, held) = screen::step_within_bounds(parts, &mut cols, |col| {
+            (col >= own && col < globals).then(|| self.kinds[col])
+        });
+        let how = if held.is_empty() {
+            how.to_string()
+        } else {
+            format!("{how}; {} stepped below 0, held there", held.join(", "))
+        };
         let mut stepped = self.stepped.borrow_mut();
         for (&col, d) in cols.iter().zip(&delta) {
             if col >= own && col < globals && !stepped.iter().any(|(k, _)| *k == self.kinds[col]) {
@@ -134,7 +143,7 @@ impl<'m, 'a> Screening<'m, 'a> {
         let chi2 = stepped_chi2(self.cur, normal, self.chi2_sim, change);
         Prediction {
             delta_bic: Some(self.delta_bic(chi2, extra)),
-            how: how.into(),
+            how,
         }
     }
 }

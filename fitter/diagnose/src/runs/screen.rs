@@ -142,22 +142,17 @@ impl<'a> ScreenPoint<'a> {
                 .filter_map(|k| self.kinds.iter().position(|j| j == k))
                 .filter(|&i| i >= self.own),
         );
-        let mut delta = screen::step(&self.normals, &cols);
-        // A parameter whose neutral value is its bound (a viscosity, a stiffening coefficient,
-        // a relaxed fraction: none can go below 0) cannot follow a step below it: the candidate
-        // then does best at the bound, and the step is taken again without that column.
-        let below: Vec<usize> = (self.own..cols.len())
-            .filter(|&a| delta[a] < 0.0 && bounded_at_neutral(self.kinds[cols[a]]))
-            .collect();
-        let mut how = how.to_string();
-        if !below.is_empty() {
-            let names: Vec<&str> = below.iter().map(|&a| self.kinds[cols[a]].name()).collect();
-            how = format!("{how}; {} stepped below 0, held there", names.join(", "));
-            for &a in below.iter().rev() {
-                cols.remove(a);
-            }
-            delta = screen::step(&self.normals, &cols);
-        }
+        // A viscosity, a stiffening coefficient or a relaxed fraction cannot go below 0: a step
+        // that takes one there is taken again with it held at 0, where the candidate does best.
+        let own = self.own;
+        let (delta, held) = screen::step_within_bounds(&self.normals, &mut cols, |col| {
+            (col >= own).then(|| self.kinds[col])
+        });
+        let how = if held.is_empty() {
+            how.to_string()
+        } else {
+            format!("{how}; {} stepped below 0, held there", held.join(", "))
+        };
         let change = screen::change(&self.normals, &cols, &delta);
         // Each run's χ² and its Φ in proportion (the marker term's weight is the run's).
         let stepped: f64 = self
@@ -179,12 +174,4 @@ impl<'a> ScreenPoint<'a> {
             how,
         }
     }
-}
-
-/// Whether a candidate's parameter kind has its neutral value at its lower bound (0).
-fn bounded_at_neutral(kind: ParamKind) -> bool {
-    matches!(
-        kind,
-        ParamKind::Nu | ParamKind::Stiffening | ParamKind::CreepFraction
-    )
 }
