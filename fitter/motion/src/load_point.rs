@@ -220,7 +220,7 @@ pub fn fit_lever(
         tried.push((d, c, fit.mu));
         Ok(c)
     };
-    let (lo, hi) = bounds(&sets[0].model);
+    let (lo, hi) = sets[0].mesh.bounds();
     let diagonal = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
     let step = 0.025 * diagonal;
     let c0 = cost(0.0, &mut mu)?;
@@ -271,18 +271,6 @@ pub fn fit_lever(
         rms_on_nodes_m: rms(c0),
         evaluations: tried.len(),
     })
-}
-
-fn bounds(model: &Model) -> ([f64; 3], [f64; 3]) {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for p in &model.nodes {
-        for k in 0..3 {
-            lo[k] = lo[k].min(p[k]);
-            hi[k] = hi[k].max(p[k]);
-        }
-    }
-    (lo, hi)
 }
 
 #[cfg(test)]
