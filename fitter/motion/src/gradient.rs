@@ -21,6 +21,7 @@
 use super::forces::{param_derivatives, SPLIT_ASSEMBLY_ELEMENTS};
 use super::model::{Material, Model, Observations, Param};
 use super::objective::{clamp_force_derivatives, step_term, StepTerm};
+use super::pipeline::simulate_pipelined;
 use super::relaxation::Sensitivities as CreepSensitivities;
 use super::sim::{simulate_solving, simulate_states, SimStats, StepSolve, StepSolver, StepView};
 use super::sparse::Factor;
@@ -452,6 +453,26 @@ fn zeros_acc(kinds: &[bool], ne: usize) -> Vec<Vec<f64>> {
         .collect()
 }
 
+/// A lock that a panic on the other thread does not poison for this one (that panic is resumed
+/// where the threads join).
+fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// The two halves of an element pass side by side on rayon's pool, or one after the other on a
+/// thread outside it (the step observer of [`simulate_pipelined`], whose pass would otherwise
+/// wait, idle, for a worker of the pool to take it). The same sums either way.
+fn join_halves<A: Send, B: Send>(
+    a: impl FnOnce() -> A + Send,
+    b: impl FnOnce() -> B + Send,
+) -> (A, B) {
+    if rayon::current_thread_index().is_some() {
+        rayon::join(a, b)
+    } else {
+        (a(), b())
+    }
+}
+
 /// The split point of an element pass: meshes of at least
 /// [`forces::SPLIT_ASSEMBLY_ELEMENTS`](super::forces) elements run it in two halves side by side
 /// (`rayon::join`), as the force assembly does; below that, one pass (the split index is the
@@ -500,7 +521,7 @@ fn g_columns(
     if half == ne {
         return part(0..ne);
     }
-    let (first, second) = rayon::join(|| part(0..half), || part(half..ne));
+    let (first, second) = join_halves(|| part(0..half), || part(half..ne));
     let (mut g, g2) = (first?, second?);
     for (col, col2) in g.iter_mut().zip(&g2) {
         col.iter_mut().zip(col2).for_each(|(a, b)| *a += b);
@@ -542,7 +563,7 @@ fn add_param_dots(
     if half == ne {
         return pass(0..ne, first);
     }
-    let (a, b) = rayon::join(|| pass(0..half, first), || pass(half..ne, second));
+    let (a, b) = join_halves(|| pass(0..half, first), || pass(half..ne, second));
     a.and(b)
 }
 
@@ -672,8 +693,10 @@ fn direct(
     let two = scheme.two_step();
     let (hist_a0, hist_a1, hist_e) = two.force_history(dt);
     // s_x⁰ from the elastostatic start (§3.4): K₀ s_x⁰ = ∂f₀/∂q; zero for a rest-shape start.
-    let init: std::cell::RefCell<Option<Result<Vec<Vec<f64>>, MotionError>>> =
-        std::cell::RefCell::new(None);
+    // Shared by the start (on the simulation's thread) and the steps (on the observer's,
+    // `simulate_pipelined`): a lock, taken once at each end.
+    let init: std::sync::Mutex<Option<Result<Vec<Vec<f64>>, MotionError>>> =
+        std::sync::Mutex::new(None);
     let mut state: Option<(Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<Vec<f64>>, Vec<Vec<f64>>)> = None;
     let mut total = StepTerm::default();
     let mut grad = vec![0.0; np];
@@ -684,7 +707,7 @@ fn direct(
         refuse_creep_forces(mat, obs)?;
     }
     // The start positions, kept for the creep branch's start (its S⁰ and dS⁰ at x⁰).
-    let creep_x0: std::cell::RefCell<Option<Vec<f64>>> = std::cell::RefCell::new(None);
+    let creep_x0: std::sync::Mutex<Option<Vec<f64>>> = std::sync::Mutex::new(None);
     let mut creep: Option<CreepSensitivities> = None;
     let mut means = obs
         .free_marker_offsets
@@ -695,13 +718,13 @@ fn direct(
         StepSolve::None => step_solve(),
         other => other,
     };
-    let stats = simulate_solving(
+    let stats = simulate_pipelined(
         model,
         mat,
         solve,
         |x0, k0| {
             if mat.has_creep() {
-                *creep_x0.borrow_mut() = Some(x0.to_vec());
+                *lock(&creep_x0) = Some(x0.to_vec());
             }
             let r = match k0 {
                 Some(k0) => g_columns(model, mat, &table, &kinds, np, x0, &vec![0.0; ndof], None)
@@ -715,15 +738,14 @@ fn direct(
                     }),
                 None => Ok(vec![vec![0.0; nf]; np]),
             };
-            *init.borrow_mut() = Some(r);
+            *lock(&init) = Some(r);
         },
         |s| {
             if state.is_none() {
-                let sx0 = init
-                    .borrow_mut()
+                let sx0 = lock(&init)
                     .take()
                     .unwrap_or_else(|| Ok(vec![vec![0.0; nf]; np]))?;
-                if let Some(x0) = creep_x0.borrow_mut().take() {
+                if let Some(x0) = lock(&creep_x0).take() {
                     creep = Some(CreepSensitivities::start(model, mat, &table, &x0, &sx0)?);
                 }
                 state = Some((

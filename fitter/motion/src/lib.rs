@@ -31,6 +31,7 @@ pub mod load_point;
 pub mod model;
 pub mod objective;
 pub mod optimize;
+mod pipeline;
 pub mod predict;
 pub mod quadratic_statics;
 pub mod refine;
