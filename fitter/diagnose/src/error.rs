@@ -47,6 +47,9 @@ pub enum Error {
     /// The motion simulator or optimiser failed (motion and runs diagnoses).
     #[error(transparent)]
     Motion(#[from] palpate_motion::MotionError),
+    /// A scan dataset could not be read, or a scan fit failed (the file, the state, the solve).
+    #[error(transparent)]
+    Scan(#[from] palpate_scan::ScanError),
     /// A static dataset could not be read.
     #[error("reading {}: {source}", path.display())]
     StaticDataset {

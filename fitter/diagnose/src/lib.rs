@@ -1,5 +1,5 @@
 //! The closed loop of palpate: fit the simplest model, trace the residual to the effects it lacks,
-//! adopt the candidates that earn their parameters, and report before/after — for four kinds of
+//! adopt the candidates that earn their parameters, and report before/after — for five kinds of
 //! data, each in a room of the same shape.
 //!
 //! | room | data | candidates | fit | signature | report |
@@ -8,6 +8,7 @@
 //! | [`motion`] | one motion dataset (`docs/motion-dataset.md`) | [`motion::Candidate`] | [`motion::fit`] | [`motion::signature`] | [`motion::report`] |
 //! | [`runs`] | several runs of one object, some held out | [`runs::Effect`] | [`runs`] | [`runs::RunResidual`] | [`runs::report`] |
 //! | [`curve`] | measured curves (tension tests, CSV) | [`curve::candidates`] | [`curve::fit`] | [`curve::signature`] | [`curve::report`] |
+//! | [`scans`] | scan datasets (`docs/scan-dataset.md`) | [`scans::Effect`] | [`scans::fit`] | the residual on the surface ([`scans::report`]) | [`scans::report`] |
 //!
 //! Each room has a `run.rs` that diagnoses one input on request and hands back a
 //! [`run::Summary`]. Shared above the rooms: the selection engine every room drives
@@ -33,6 +34,7 @@ mod json;
 pub mod motion;
 pub mod run;
 pub mod runs;
+pub mod scans;
 pub mod screen;
 pub mod select;
 pub mod statics;

@@ -1,5 +1,5 @@
-//! One diagnosis request, whatever the input: a static dataset, a motion dataset, measured
-//! curves, or a folder of these — recognised, dispatched to its diagnosis, reported, and (for
+//! One diagnosis request, whatever the input: a static dataset, a motion dataset, a scan dataset,
+//! measured curves, or a folder of these — recognised, dispatched to its diagnosis, reported, and (for
 //! static and motion datasets) exported as the diagnosed model. Each input diagnosed hands back a
 //! [`Summary`]; `palpate diagnose` is a thin shell over [`run_with`] that prints them.
 
@@ -32,6 +32,8 @@ pub struct Request {
     pub held_out: Vec<PathBuf>,
     /// Poisson's ratio the runs diagnosis holds fixed (default 0.49).
     pub poisson: Option<f64>,
+    /// Element design of scan datasets' fits (P2 when `None`).
+    pub design: Option<crate::scans::Design>,
 }
 
 pub use crate::summary::Summary;
@@ -41,6 +43,7 @@ pub use crate::summary::Summary;
 fn diagnosable(path: &Path) -> bool {
     crate::curve::read::is_curve_input(path)
         || (path.is_dir() && path.join("dataset.toml").exists())
+        || (path.is_dir() && palpate_scan::dataset::is_scan_dataset(path))
 }
 
 /// Runs the diagnosis and returns the summaries of every input diagnosed, in order.
@@ -119,6 +122,17 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<Vec<Summar
     }
     if !path.exists() {
         return Err(Error::NotFound { path: path.into() });
+    }
+    // scans.toml: a scan dataset (docs/scan-dataset.md).
+    if palpate_scan::dataset::is_scan_dataset(path) {
+        return Ok(vec![crate::scans::run::run(
+            path,
+            output,
+            &args.candidates,
+            args.max_effects.unwrap_or(DEFAULT_MAX_EFFECTS),
+            args.design,
+            args.mesh,
+        )?]);
     }
     if path.is_dir() && !path.join("dataset.toml").exists() {
         return Err(Error::NotDiagnosable { path: path.into() });

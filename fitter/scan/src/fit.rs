@@ -110,6 +110,10 @@ pub struct LoadedObject<'a> {
     pub load_steps: usize,
     /// Each element's part, 0 or 1, each part with its own μ; empty: one material.
     pub regions: Vec<usize>,
+    /// Added to every equilibrium's positions, per node of the design (m); empty: nothing. A
+    /// correction held through a fit: the discretisation error of this mesh measured against
+    /// the mesh refined once (the approximation-error approach of the static diagnosis).
+    pub offset: Vec<[f64; 3]>,
 }
 
 /// The object's equilibrium at its moduli, on its design's nodes.
@@ -151,6 +155,7 @@ impl<'a> LoadedObject<'a> {
             tol,
             load_steps: 10,
             regions: Vec::new(),
+            offset: Vec::new(),
         }
     }
 }
@@ -162,6 +167,55 @@ impl LoadedObject<'_> {
             1
         } else {
             2
+        }
+    }
+
+    /// The same object on `fine`, the mesh refined once (`refine_with_midpoints`, whose
+    /// midpoint of each coarse edge is `mid`): a midpoint of two fixed nodes is fixed, moved by
+    /// the mean of their moves (a grip's motion is rigid, so exactly its own); the dead loads
+    /// stay on their nodes (coarse nodes keep their indices); element e's part is its eight
+    /// children's (8e..8e + 8); no offset.
+    pub fn refined<'b>(
+        &self,
+        fine: &'b Mesh,
+        mid: &std::collections::HashMap<(usize, usize), usize>,
+    ) -> LoadedObject<'b> {
+        let at: std::collections::HashMap<usize, usize> = self
+            .fixed
+            .iter()
+            .enumerate()
+            .map(|(k, &n)| (n, k))
+            .collect();
+        let mut fixed = self.fixed.clone();
+        let mut moved = self.fixed_displacement.clone();
+        let mut edges: Vec<(&(usize, usize), &usize)> = mid.iter().collect();
+        edges.sort_unstable();
+        for (&(a, b), &m) in edges {
+            if let (Some(&ka), Some(&kb)) = (at.get(&a), at.get(&b)) {
+                fixed.push(m);
+                if !moved.is_empty() {
+                    let (da, db) = (moved[ka], moved[kb]);
+                    moved.push([0, 1, 2].map(|k| 0.5 * (da[k] + db[k])));
+                }
+            }
+        }
+        LoadedObject {
+            mesh: fine,
+            fixed,
+            fixed_displacement: moved,
+            forces: self.forces.clone(),
+            density: self.density,
+            gravity: self.gravity,
+            poisson: self.poisson,
+            design: self.design,
+            tol: self.tol,
+            load_steps: self.load_steps,
+            regions: self
+                .regions
+                .iter()
+                .flat_map(|&r| std::iter::repeat_n(r, 8))
+                .collect(),
+            offset: Vec::new(),
         }
     }
 
@@ -201,7 +255,7 @@ impl LoadedObject<'_> {
             )));
         }
         let uniform = self.materials() == 1;
-        let (rest, positions, surface, analytic) = self.solve(mu, sensitivity && uniform)?;
+        let (rest, mut positions, surface, analytic) = self.solve(mu, sensitivity && uniform)?;
         let dln_mu = if !sensitivity {
             Vec::new()
         } else if let Some(d) = analytic {
@@ -219,6 +273,18 @@ impl LoadedObject<'_> {
                 })
                 .collect::<Result<_, ScanError>>()?
         };
+        if !self.offset.is_empty() {
+            if self.offset.len() != positions.len() {
+                return Err(ScanError::Invalid(format!(
+                    "an offset of {} nodes for an equilibrium of {}",
+                    self.offset.len(),
+                    positions.len()
+                )));
+            }
+            for (x, o) in positions.iter_mut().zip(&self.offset) {
+                *x = [0, 1, 2].map(|k| x[k] + o[k]);
+            }
+        }
         Ok(Equilibrium {
             mu: mu.to_vec(),
             rest,
@@ -585,29 +651,10 @@ fn e_kpa(theta: &[f64], poisson: f64) -> String {
 /// Fits the moduli of the states' object (one, or two with [`LoadedObject::regions`]; every
 /// state's object the same but for how it is held and loaded) to all their scans at once.
 pub fn fit_states(states: &[ScanState<'_>], settings: &FitSettings) -> Result<JointFit, ScanError> {
-    let Some(first) = states.first() else {
-        return Err(ScanError::Invalid("scan fit: no state to fit".into()));
-    };
-    let k = first.object.materials();
+    let k = check_states(states)?;
+    let first = &states[0];
     let poisson = first.object.poisson;
     let design = first.object.design.name();
-    for s in states {
-        if s.scan.points.len() != s.scan.sigma.len() {
-            return Err(ScanError::Invalid(format!(
-                "state {:?}: {} points but {} noise values, expected one per point",
-                s.name,
-                s.scan.points.len(),
-                s.scan.sigma.len()
-            )));
-        }
-        if s.object.materials() != k {
-            return Err(ScanError::Invalid(format!(
-                "state {:?}: {} material(s), the first state has {k}",
-                s.name,
-                s.object.materials()
-            )));
-        }
-    }
     let start = if let [mu] = settings.starts[..] {
         Some(mu.ln())
     } else {
@@ -647,7 +694,26 @@ pub fn fit_states(states: &[ScanState<'_>], settings: &FitSettings) -> Result<Jo
             "scan fit: no trial modulus to start from".into(),
         ));
     };
-    let mut theta = vec![start; k];
+    fit_states_from(states, settings, &vec![start; k])
+}
+
+/// Fits the moduli of the states' object from ln μ = `theta` (one per part): [`fit_states`]
+/// after its start is chosen — a refit from where an earlier fit of the same parts ended (the
+/// scans corrected by a nuisance, a split's two moduli).
+pub fn fit_states_from(
+    states: &[ScanState<'_>],
+    settings: &FitSettings,
+    theta: &[f64],
+) -> Result<JointFit, ScanError> {
+    let k = check_states(states)?;
+    let poisson = states[0].object.poisson;
+    let design = states[0].object.design.name();
+    if theta.len() != k || theta.iter().any(|t| !t.is_finite()) {
+        return Err(ScanError::Invalid(format!(
+            "scan fit: start ln μ {theta:?}, expected {k} finite value(s)"
+        )));
+    }
+    let mut theta = theta.to_vec();
     let mut lins = linearise_all(states, &theta, settings.max_distance)?;
     for it in 1..=settings.max_iter {
         let (g, h, points) = sums(&lins, k);
@@ -719,6 +785,33 @@ pub fn fit_states(states: &[ScanState<'_>], settings: &FitSettings) -> Result<Jo
         settings.max_iter,
         e_kpa(&theta, poisson)
     )))
+}
+
+/// The moduli the states fit (1 or 2); refused when there is no state, a scan's noise values are
+/// not one per point, or the states' objects differ in their parts.
+fn check_states(states: &[ScanState<'_>]) -> Result<usize, ScanError> {
+    let Some(first) = states.first() else {
+        return Err(ScanError::Invalid("scan fit: no state to fit".into()));
+    };
+    let k = first.object.materials();
+    for s in states {
+        if s.scan.points.len() != s.scan.sigma.len() {
+            return Err(ScanError::Invalid(format!(
+                "state {:?}: {} points but {} noise values, expected one per point",
+                s.name,
+                s.scan.points.len(),
+                s.scan.sigma.len()
+            )));
+        }
+        if s.object.materials() != k {
+            return Err(ScanError::Invalid(format!(
+                "state {:?}: {} material(s), the first state has {k}",
+                s.name,
+                s.object.materials()
+            )));
+        }
+    }
+    Ok(k)
 }
 
 /// The states' gradients and Gauss–Newton matrices summed, and the points near the surface.

@@ -21,7 +21,9 @@
 //! - [`record`]: a scan on disk (points in metres in the mesh's frame with their noise, and
 //!   where they came from), imported from a depth image and its camera or from a point cloud;
 //! - [`noise`]: a scan's noise estimated from its points' local scatter;
-//! - [`residual_vtu`]: a fit's residual on the points and on the deformed surface, for ParaView.
+//! - [`residual_vtu`]: a fit's residual on the points and on the deformed surface, for ParaView;
+//! - [`synthetic`]: a strip's scan dataset written to disk with an effect it does not declare, to
+//!   test the scan diagnosis;
 //! - [`residual_map`]: a fit's residual on the deformed surface projected along its thinnest axis,
 //!   per triangle in painter's order, for a figure.
 //!
@@ -41,6 +43,7 @@ pub mod render;
 pub mod residual_map;
 pub mod residual_vtu;
 pub mod surface;
+pub mod synthetic;
 
 /// What goes wrong reading or using a scan. Every message names the file and where in it.
 #[derive(Debug, thiserror::Error)]

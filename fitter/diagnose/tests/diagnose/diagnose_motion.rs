@@ -314,6 +314,7 @@ fn cli_args(dataset: &std::path::Path, out: &std::path::Path) -> palpate_diagnos
         more_runs: Vec::new(),
         held_out: Vec::new(),
         poisson: None,
+        design: None,
     }
 }
 

@@ -18,5 +18,6 @@ mod diagnose_noise;
 mod diagnose_power;
 mod diagnose_runs;
 mod diagnose_runs_creep;
+mod diagnose_scans;
 mod diagnose_sensitivity;
 mod specimen_viscous;

@@ -20,6 +20,7 @@ pub mod motion_evidence_spline;
 pub mod nonlinear_evidence;
 pub mod peer_export;
 pub mod roofline;
+pub mod scan_confusion;
 pub mod scan_strip;
 
 /// palpate-lab: benchmarks and evidence runs of the palpate project.
@@ -63,6 +64,9 @@ pub enum Command {
     /// A hanging strip's modulus fitted to one rendered depth image (the scan residual end to
     /// end) with linear or quadratic tetrahedra, against truths on its own mesh and on a finer one.
     ScanStrip(scan_strip::Args),
+    /// The scan diagnosis on strips with one undeclared effect each (a depth bias, a camera
+    /// moved, a second material, or none): what it adopts, before and after.
+    ScanConfusion(scan_confusion::Args),
 }
 
 /// Runs a parsed command line.
@@ -78,5 +82,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::BeamLoadPoint(a) => beam_load_point::run(a),
         Command::M4Emu(a) => m4_emu::run(a),
         Command::ScanStrip(a) => scan_strip::run(a),
+        Command::ScanConfusion(a) => scan_confusion::run(a),
     }
 }

@@ -10,7 +10,7 @@ use palpate_diagnose::MeshChoice;
 /// Options.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Static or motion dataset directory, or measured curves (CSV file or directory).
+    /// Static, motion or scan dataset directory, or measured curves (CSV file or directory).
     pub dataset: PathBuf,
     /// Output: the report folder written (diagnosis.md, diagnosis.json, evidence plots, model.palp
     /// for the runtime).
@@ -49,6 +49,10 @@ pub struct Args {
     /// Poisson's ratio the runs diagnosis holds fixed.
     #[arg(long, default_value_t = 0.49)]
     pub poisson: f64,
+    /// Element design of a scan dataset's fits: p2 (quadratic tetrahedra on the mesh's corners;
+    /// linear ones lock in bending near incompressibility) or p1 (the mesh's own).
+    #[arg(long, default_value = "p2", value_parser = ["p1", "p2"])]
+    pub design: String,
     /// Figure format.
     #[command(flatten)]
     pub plots: super::output::PlotArgs,
@@ -74,8 +78,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     {
         if !p.exists() {
             anyhow::bail!(
-                "{}: no such file or folder (expected a static or motion dataset folder, a \
-                 folder of runs, or a measured curve)",
+                "{}: no such file or folder (expected a static, motion or scan dataset \
+                 folder, a folder of runs, or a measured curve)",
                 p.display()
             );
         }
@@ -100,6 +104,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         more_runs: args.with,
         held_out: args.held_out,
         poisson: Some(args.poisson),
+        design: Some(if args.design == "p1" {
+            palpate_scan::fit::Design::Linear
+        } else {
+            palpate_scan::fit::Design::Quadratic
+        }),
     };
     // Each input's summary is printed as soon as it is written: a folder of inputs takes minutes
     // per input.

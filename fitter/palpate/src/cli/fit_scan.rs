@@ -7,10 +7,10 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use palpate_diagnose::scans::report::file_stem;
 use palpate_scan::dataset::ScanDataset;
 use palpate_scan::dataset_fit::{fit_dataset, DatasetFit, DatasetFitOptions, StateSummary};
 use palpate_scan::fit::Design;
-use palpate_scan::residual_map::residual_map;
 use palpate_scan::residual_vtu::write_fit_residual;
 
 /// Options.
@@ -45,19 +45,6 @@ pub struct Args {
     pub output: PathBuf,
     #[command(flatten)]
     pub plots: super::output::PlotArgs,
-}
-
-/// A state's name as a file name: letters, digits, `-` and `_` kept, the rest `_`.
-fn file_stem(name: &str) -> String {
-    name.chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect()
 }
 
 /// Runs the fit and writes its folder.
@@ -156,25 +143,12 @@ fn write(
     Ok(files)
 }
 
-/// A state's residual drawn on its fitted surface (`palpate_scan::residual_map`): seen along the
-/// rest surface's thinnest axis, each triangle coloured by the mean signed distance of the points
-/// nearest it, in mm.
+/// A state's residual drawn on its fitted surface, titled with its RMS against its noise.
 fn residual_figure(
     path: &Path,
     state: &StateSummary,
     fit: &palpate_scan::fit::ScanFit,
 ) -> anyhow::Result<Vec<PathBuf>> {
-    let map = residual_map(fit).context("the fitted surface has fewer than three nodes")?;
-    let mm = |p: (f64, f64)| (1e3 * p.0, 1e3 * p.1);
-    let triangles: Vec<[(f64, f64); 3]> = map.triangles.iter().map(|t| t.map(mm)).collect();
-    let values: Vec<f64> = map.mean_m.iter().map(|v| 1e3 * v).collect();
-    let axis = |a: [f64; 3]| {
-        format!(
-            "along ({:.2}, {:.2}, {:.2}) of the mesh's frame (mm)",
-            a[0], a[1], a[2]
-        )
-        .replace("-0.00", "0.00")
-    };
     let title = format!(
         "{}: scan residual on the fitted surface, RMS {:.3} mm, noise {:.3} mm ({:.2}×)",
         state.name,
@@ -182,18 +156,7 @@ fn residual_figure(
         1e3 * state.noise_m,
         state.ratio()
     );
-    let (x_label, y_label) = (axis(map.axes[0]), axis(map.axes[1]));
-    Ok(palpate_plot::surface_map(
-        path,
-        &palpate_plot::SurfaceMap {
-            title: &title,
-            x_label: &x_label,
-            y_label: &y_label,
-            value_label: "mean signed residual (mm)",
-            triangles: &triangles,
-            values: &values,
-        },
-    )?)
+    palpate_diagnose::scans::report::residual_figure(path, &title, fit).map_err(anyhow::Error::msg)
 }
 
 /// The lines printed on stdout before the JSON.

@@ -8,6 +8,7 @@ mod common;
 mod cli_for_people;
 mod csv_readers;
 mod demo_readme;
+mod diagnose_scan;
 mod fit_scan;
 mod hostile_fuzz;
 mod hostile_inputs;

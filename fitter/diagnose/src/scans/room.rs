@@ -1,0 +1,246 @@
+//! The scan room's side of the selection engine ([`CandidateModel`]): a candidate fitted on top
+//! of the current model, scored on the fitted points, predicted on the held-out ones, gated.
+
+use palpate_scan::regions::search_regions;
+
+use super::fit::{Evidence, Problem, ScanModel};
+use super::{Effect, RoundRecord, ScanOptions, Tried, MIN_RATIO};
+use crate::select::{
+    heldout_delta_bic, Candidate, CandidateModel, Current, Gate, GateDetail, HeldoutGate, Outcome,
+    PassWords, Score, Verdict,
+};
+use crate::Error;
+
+/// What the verdict keeps of a fitted candidate.
+#[derive(Debug, Clone)]
+pub struct Fitted {
+    young_pa: Vec<f64>,
+    bias_m: Option<f64>,
+    scale: Option<f64>,
+    largest_move_m: Option<f64>,
+    split: Option<(String, f64)>,
+    ratio: f64,
+}
+
+pub(super) struct ScanRoom<'p, 'a> {
+    problem: &'p Problem<'a>,
+    library: Vec<Effect>,
+    gate: HeldoutGate,
+}
+
+impl<'p, 'a> ScanRoom<'p, 'a> {
+    pub(super) fn new(problem: &'p Problem<'a>, options: &ScanOptions) -> Self {
+        let library = if options.candidates.is_empty() {
+            <Effect as crate::select::CandidateEffect>::library()
+        } else {
+            options.candidates.clone()
+        };
+        Self {
+            problem,
+            library,
+            gate: HeldoutGate {
+                bic_threshold: options.bic_threshold,
+                min_holdout_gain: options.min_holdout_gain,
+            },
+        }
+    }
+}
+
+impl CandidateModel for ScanRoom<'_, '_> {
+    type Candidate = Effect;
+    type Fitted = ScanModel;
+    type Held = Evidence;
+    type Observed = ();
+    type Summary = Fitted;
+    type Detail = GateDetail;
+    type Adoption = ();
+    type Error = Error;
+
+    fn observe(&mut self, _round: usize, _fitted: &ScanModel, _held: &Evidence) {}
+
+    fn candidates(&mut self, current: &ScanModel, _adopted: &[Effect]) -> Vec<Effect> {
+        self.library
+            .iter()
+            .copied()
+            .filter(|e| !current.effects.contains(e))
+            .collect()
+    }
+
+    fn fit_with(
+        &mut self,
+        _round: usize,
+        current: &ScanModel,
+        candidate: Effect,
+    ) -> Result<Outcome<ScanModel>, Error> {
+        let p = self.problem;
+        if let Some(why) = p.not_identifiable(candidate) {
+            return Ok(Outcome::NotFitted(why));
+        }
+        let mut effects = current.effects.clone();
+        effects.push(candidate);
+        let fitted = match candidate {
+            Effect::SecondMaterial => {
+                let states = p.states_with(None, &current.nuisance);
+                let search = search_regions(&states, &current.fit, &p.settings)?;
+                let Some(best) = search.best else {
+                    return Ok(Outcome::NotFitted(
+                        "no split of the object into two parts could be fitted".into(),
+                    ));
+                };
+                p.fit(
+                    &effects,
+                    Some(&best.split),
+                    Some((&ln_mu_of(&best.fit.mu), &current.nuisance)),
+                )
+            }
+            _ => p.fit(
+                &effects,
+                current.split.as_ref(),
+                Some((&ln_mu_of(&current.fit.mu), &current.nuisance)),
+            ),
+        };
+        Ok(match fitted {
+            Ok(m) => Outcome::Fitted(m),
+            Err(e) => Outcome::NotFitted(format!("no fit: {e}")),
+        })
+    }
+
+    fn score(&self, fitted: &ScanModel) -> Score {
+        Score {
+            chi2: fitted.score.chi2,
+            n: fitted.score.n,
+            k: self.problem.parameters(fitted),
+        }
+    }
+
+    fn summarise(&self, f: &ScanModel) -> Fitted {
+        let nodes: Vec<nalgebra::Vector3<f64>> = self
+            .problem
+            .dataset
+            .mesh
+            .nodes
+            .iter()
+            .map(|p| nalgebra::Vector3::from(*p))
+            .collect();
+        Fitted {
+            young_pa: (0..f.fit.mu.len())
+                .map(|k| f.fit.young_modulus(k))
+                .collect(),
+            bias_m: f
+                .effects
+                .contains(&Effect::DepthBias)
+                .then_some(f.nuisance.bias_m),
+            scale: f
+                .effects
+                .contains(&Effect::DepthScale)
+                .then_some(f.nuisance.scale),
+            largest_move_m: f.effects.contains(&Effect::CameraMoved).then(|| {
+                f.nuisance
+                    .rigid
+                    .iter()
+                    .map(|r| r.largest_move(&nodes))
+                    .fold(0.0, f64::max)
+            }),
+            split: f
+                .split
+                .as_ref()
+                .map(|s| (s.label.clone(), f.fit.mu[1] / f.fit.mu[0])),
+            ratio: f.score.ratio(),
+        }
+    }
+
+    fn heldout(
+        &mut self,
+        _round: usize,
+        _candidate: Effect,
+        fitted: &ScanModel,
+    ) -> Result<Evidence, Error> {
+        Ok(self.problem.held_out(fitted))
+    }
+
+    fn gate(&mut self, current: &Current<'_, Self>, c: &Candidate<'_, Self>) -> Gate<GateDetail> {
+        let extra = self.problem.parameters(c.fitted) - self.problem.parameters(current.fitted);
+        let held_dbic = heldout_delta_bic(current.held.chi2, c.held.chi2, c.held.n, extra);
+        let gain = c.held.scaled_rms() / current.held.scaled_rms() - 1.0;
+        let (mut passes, mut detail) =
+            self.gate
+                .judge(c.delta_bic, held_dbic, gain, PassWords::WithThresholds);
+        if c.candidate == Effect::SecondMaterial {
+            let ratio = c.fitted.fit.mu[1] / c.fitted.fit.mu[0];
+            if ratio.ln().abs() <= MIN_RATIO.ln() {
+                passes = false;
+                detail.reason = format!(
+                    "fails: the two moduli are {ratio:.3}× apart, not more than {MIN_RATIO}× (a \
+                     mesh's own error fits as a few per cent of stiffness){}",
+                    detail
+                        .reason
+                        .strip_prefix("fails")
+                        .or_else(|| detail.reason.strip_prefix("passes"))
+                        .map(|r| format!("; gate{r}"))
+                        .unwrap_or_default()
+                );
+            }
+        }
+        Gate {
+            passes,
+            heldout_delta_bic: held_dbic,
+            heldout_rank: c.held.chi2,
+            detail,
+        }
+    }
+
+    fn adopt(
+        &mut self,
+        _current: &Current<'_, Self>,
+        _candidate: Effect,
+        fitted: ScanModel,
+        held: Evidence,
+    ) -> Result<(ScanModel, Evidence, ()), Error> {
+        Ok((fitted, held, ()))
+    }
+}
+
+fn ln_mu_of(mu: &[f64]) -> Vec<f64> {
+    mu.iter().map(|m| m.ln()).collect()
+}
+
+/// The verdict's rounds as the report keeps them.
+pub(super) fn records(verdict: &Verdict<ScanRoom<'_, '_>>) -> Vec<RoundRecord> {
+    verdict
+        .rounds
+        .iter()
+        .map(|r| {
+            let adopted_dbic = r.adopted_attempt().map(|a| a.delta_bic);
+            RoundRecord {
+                round: r.round,
+                model: r.model.clone(),
+                tried: r
+                    .attempts
+                    .iter()
+                    .enumerate()
+                    .map(|(i, a)| {
+                        let s = a.summary.as_ref();
+                        Tried {
+                            effect: a.candidate,
+                            not_fitted: a.not_fitted.clone(),
+                            delta_bic: a.delta_bic.is_finite().then_some(a.delta_bic),
+                            young_pa: s.map(|s| s.young_pa.clone()).unwrap_or_default(),
+                            bias_m: s.and_then(|s| s.bias_m),
+                            scale: s.and_then(|s| s.scale),
+                            largest_move_m: s.and_then(|s| s.largest_move_m),
+                            split: s.and_then(|s| s.split.clone()),
+                            fitted_ratio: s.map(|s| s.ratio),
+                            heldout_ratio: a.held.map(|h| h.ratio()),
+                            gate: a.gate.as_ref().map(|g| g.detail.clone()),
+                            adopted: r.adopted == Some(i),
+                            not_told_apart: r.adopted != Some(i)
+                                && a.gate.as_ref().is_some_and(|g| g.passes)
+                                && adopted_dbic
+                                    .is_some_and(|b| (a.delta_bic - b).abs() < super::TOLD_APART),
+                        }
+                    })
+                    .collect(),
+            }
+        })
+        .collect()
+}
