@@ -165,6 +165,10 @@ impl CandidateModel for ScanRoom<'_, '_> {
         let (mut passes, mut detail) =
             self.gate
                 .judge(c.delta_bic, held_dbic, gain, PassWords::WithThresholds);
+        if let Some(why) = implausible(self.problem, c.fitted) {
+            passes = false;
+            detail.reason = format!("fails: implausible, {why}; {}", detail.reason);
+        }
         if c.candidate == Effect::SecondMaterial {
             let ratio = c.fitted.fit.mu[1] / c.fitted.fit.mu[0];
             if ratio.ln().abs() <= MIN_RATIO.ln() {
@@ -198,6 +202,47 @@ impl CandidateModel for ScanRoom<'_, '_> {
     ) -> Result<(ScanModel, Evidence, ()), Error> {
         Ok((fitted, held, ()))
     }
+}
+
+/// A depth camera's scale error beyond this (relative) is outside any sensor's calibration: a
+/// fit that wants it has traded it against the scans' turns.
+pub const MAX_DEPTH_SCALE: f64 = 0.02;
+/// A depth bias beyond this (m) likewise.
+pub const MAX_DEPTH_BIAS_M: f64 = 5e-3;
+/// A scan turned further than this (degrees) from its declared pose has paired the wrong faces
+/// (the registration's own limit).
+pub const MAX_TURN_DEG: f64 = 10.0;
+
+/// Why a fitted model's nuisances are not a camera's, if they are not: a scale or bias of depth
+/// beyond a sensor's calibration, a scan turned by more than [`MAX_TURN_DEG`].
+fn implausible(p: &Problem<'_>, m: &ScanModel) -> Option<String> {
+    let n = &m.nuisance;
+    if m.effects.contains(&Effect::DepthScale) && n.scale.abs() > MAX_DEPTH_SCALE {
+        return Some(format!(
+            "a depth scale error of {:+.2} % (beyond ±{:.0} %)",
+            100.0 * n.scale,
+            100.0 * MAX_DEPTH_SCALE
+        ));
+    }
+    if m.effects.contains(&Effect::DepthBias) && n.bias_m.abs() > MAX_DEPTH_BIAS_M {
+        return Some(format!(
+            "a depth bias of {:.2} mm (beyond ±{:.0} mm)",
+            1e3 * n.bias_m,
+            1e3 * MAX_DEPTH_BIAS_M
+        ));
+    }
+    if m.effects.contains(&Effect::CameraMoved) {
+        for (r, s) in n.rigid.iter().zip(&p.states) {
+            if r.angle_deg() > MAX_TURN_DEG {
+                return Some(format!(
+                    "the scan of {:?} turned {:.1}° (beyond {MAX_TURN_DEG}°)",
+                    s.name,
+                    r.angle_deg()
+                ));
+            }
+        }
+    }
+    None
 }
 
 fn ln_mu_of(mu: &[f64]) -> Vec<f64> {
@@ -243,4 +288,47 @@ pub(super) fn records(verdict: &Verdict<ScanRoom<'_, '_>>) -> Vec<RoundRecord> {
             }
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use palpate_scan::dataset::ScanDataset;
+    use palpate_scan::fit::Design;
+    use palpate_scan::synthetic::{write_strip_dataset, StripCase};
+
+    /// A fitted model whose depth scale, bias or turn lies beyond a camera's is refused, saying
+    /// which and by how much; within the limits it is not.
+    #[test]
+    fn nuisances_beyond_a_cameras_are_implausible() {
+        let tmp = tempfile::tempdir().unwrap();
+        let case = StripCase {
+            cells: [4, 1, 1],
+            design: Design::Linear,
+            ..StripCase::default()
+        };
+        write_strip_dataset(tmp.path(), &case).unwrap();
+        let ds = ScanDataset::read(tmp.path()).unwrap();
+        let p = Problem::new(&ds, Design::Linear, &[300e3], 10).unwrap();
+        let mut m = p.fit(&[], None, None).unwrap();
+        m.effects = vec![Effect::DepthScale, Effect::DepthBias, Effect::CameraMoved];
+        m.nuisance.scale = 0.019;
+        m.nuisance.bias_m = 0.004;
+        assert_eq!(implausible(&p, &m), None);
+        m.nuisance.scale = 0.05;
+        let why = implausible(&p, &m).unwrap();
+        assert!(why.contains("+5.00 %"), "{why}");
+        m.nuisance.scale = 0.0;
+        m.nuisance.bias_m = -0.008;
+        assert!(implausible(&p, &m).unwrap().contains("-8.00 mm"));
+        m.nuisance.bias_m = 0.0;
+        m.nuisance.rigid[1] = palpate_scan::registration::RigidTransform::about(
+            nalgebra::Vector3::z(),
+            12f64.to_radians(),
+            nalgebra::Vector3::zeros(),
+            nalgebra::Vector3::zeros(),
+        );
+        let why = implausible(&p, &m).unwrap();
+        assert!(why.contains("\"twisted\" turned 12.0°"), "{why}");
+    }
 }
