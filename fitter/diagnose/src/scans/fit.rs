@@ -22,7 +22,8 @@
 //!   (what `register = "fixed-part"` starts from) rests on the few points near a clamp: on a
 //!   strip's scans it moved them by a quarter of a millimetre where the camera had not moved.
 //! - **The mesh's own error** ([`Problem::mesh_error`]): each state solved again on the mesh
-//!   refined once; the difference at the design's nodes is added to every later equilibrium.
+//!   refined once; the difference at the design's nodes is added to every later equilibrium,
+//!   measured again when a second material is adopted.
 //! - **Score**: χ² = Σ min(rᵢ², [`CAP`]²) over the points with a surface within the search
 //!   radius, rᵢ the signed distance over the noise along the normal: a truncated square, so that
 //!   the background (the clamp, the table) counts the same under every model and the fit's own
@@ -70,8 +71,9 @@ pub struct Problem<'a> {
     /// The registration's.
     pub icp: RegistrationSettings,
     /// Each state's correction for the mesh's own discretisation error ([`Self::mesh_error`]),
-    /// held in every fit once set.
-    pub correction: Option<Vec<Vec<[f64; 3]>>>,
+    /// held in every fit once set, and measured again when an adopted effect changes the
+    /// object's field (a second material).
+    pub correction: std::cell::RefCell<Option<Vec<Vec<[f64; 3]>>>>,
 }
 
 /// The dataset mesh's discretisation error at a fitted model: each state's equilibrium on the
@@ -237,7 +239,7 @@ impl<'a> Problem<'a> {
             parts,
             settings,
             icp,
-            correction: None,
+            correction: std::cell::RefCell::new(None),
         })
     }
 
@@ -381,7 +383,7 @@ impl<'a> Problem<'a> {
                 let mut s = s.clone();
                 s.scan = self.corrected(i, &s.scan, nz);
                 s.object.regions = split.map(|p| p.regions.clone()).unwrap_or_default();
-                if let Some(c) = &self.correction {
+                if let Some(c) = self.correction.borrow().as_ref() {
                     s.object.offset = c[i].clone();
                 }
                 s

@@ -186,6 +186,9 @@ pub struct ScanDiagnosis {
     /// RMS at the weighted points (m), their noise (m), the refined mesh's elements, and the
     /// modulus fitted without the correction (Pa).
     pub mesh_error: Option<(f64, f64, usize, f64)>,
+    /// The mesh's error measured again at an adoption that changes the field: the effect, its
+    /// RMS at the weighted points and their noise (m).
+    pub mesh_error_again: Vec<(Effect, f64, f64)>,
 }
 
 impl ScanDiagnosis {
@@ -230,7 +233,7 @@ pub fn diagnose(problem: &mut Problem<'_>, options: &ScanOptions) -> Result<Scan
             e.rms_m / e.noise_m
         );
         mesh_error = Some((e.rms_m, e.noise_m, e.elements, start.fit.young_modulus(0)));
-        problem.correction = Some(e.offsets);
+        *problem.correction.borrow_mut() = Some(e.offsets);
         let theta: Vec<f64> = start.fit.mu.iter().map(|m| m.ln()).collect();
         start = problem.fit(&base, None, Some((&theta, &start.nuisance.clone())))?;
     }
@@ -262,5 +265,6 @@ pub fn diagnose(problem: &mut Problem<'_>, options: &ScanOptions) -> Result<Scan
         poisson: (dataset.poisson, dataset.poisson_declared),
         states: problem.states.iter().map(|s| s.name.clone()).collect(),
         mesh_error,
+        mesh_error_again: room.remeasured,
     })
 }

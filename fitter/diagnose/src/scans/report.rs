@@ -160,6 +160,9 @@ pub fn to_json(name: &str, d: &ScanDiagnosis) -> serde_json::Value {
             "rms_m": rms, "noise_m": noise, "refined_elements": elements,
             "young_modulus_uncorrected_pa": e, "corrected": true,
         })),
+        "mesh_error_again": d.mesh_error_again.iter().map(|(e, rms, noise)| serde_json::json!({
+            "adopted": e, "rms_m": rms, "noise_m": noise,
+        })).collect::<Vec<_>>(),
     })
 }
 
@@ -202,6 +205,15 @@ pub fn markdown(name: &str, d: &ScanDiagnosis, maps: &[(String, String, String)]
                 1e3 * noise,
                 e / 1e3
             );
+            for (effect, rms, noise) in &d.mesh_error_again {
+                let _ = writeln!(
+                    s,
+                    "Measured again once {} was adopted: {:.3} mm RMS ({:.2}× the noise).\n",
+                    effect.label(),
+                    1e3 * rms,
+                    rms / noise
+                );
+            }
         }
         None => {
             let _ = writeln!(

@@ -5,6 +5,7 @@ use palpate_scan::regions::search_regions;
 
 use super::fit::{Evidence, Problem, ScanModel};
 use super::{Effect, RoundRecord, ScanOptions, Tried, MIN_RATIO};
+use crate::select::CandidateEffect as _;
 use crate::select::{
     heldout_delta_bic, Candidate, CandidateModel, Current, Gate, GateDetail, HeldoutGate, Outcome,
     PassWords, Score, Verdict,
@@ -26,6 +27,9 @@ pub(super) struct ScanRoom<'p, 'a> {
     problem: &'p Problem<'a>,
     library: Vec<Effect>,
     gate: HeldoutGate,
+    /// The mesh's error measured again at each adoption that changes the field: the effect, the
+    /// RMS at the points and their noise (m).
+    pub(super) remeasured: Vec<(Effect, f64, f64)>,
 }
 
 impl<'p, 'a> ScanRoom<'p, 'a> {
@@ -42,6 +46,7 @@ impl<'p, 'a> ScanRoom<'p, 'a> {
                 bic_threshold: options.bic_threshold,
                 min_holdout_gain: options.min_holdout_gain,
             },
+            remeasured: Vec::new(),
         }
     }
 }
@@ -193,14 +198,36 @@ impl CandidateModel for ScanRoom<'_, '_> {
         }
     }
 
+    /// A second material changes the object's field, and with it the mesh's error: the
+    /// correction is measured again at the adopted model and the model refitted under it (the
+    /// nuisances only move the scans, and leave it).
     fn adopt(
         &mut self,
         _current: &Current<'_, Self>,
-        _candidate: Effect,
+        candidate: Effect,
         fitted: ScanModel,
         held: Evidence,
     ) -> Result<(ScanModel, Evidence, ()), Error> {
-        Ok((fitted, held, ()))
+        let p = self.problem;
+        if candidate != Effect::SecondMaterial || p.correction.borrow().is_none() {
+            return Ok((fitted, held, ()));
+        }
+        let e = p.mesh_error(&fitted)?;
+        log::info!(
+            "mesh error measured again with {}: {:.4} mm RMS at the points ({:.2}× their noise)",
+            candidate.label(),
+            1e3 * e.rms_m,
+            e.rms_m / e.noise_m
+        );
+        self.remeasured.push((candidate, e.rms_m, e.noise_m));
+        *p.correction.borrow_mut() = Some(e.offsets);
+        let refit = p.fit(
+            &fitted.effects,
+            fitted.split.as_ref(),
+            Some((&ln_mu_of(&fitted.fit.mu), &fitted.nuisance)),
+        )?;
+        let held = p.held_out(&refit);
+        Ok((refit, held, ()))
     }
 }
 

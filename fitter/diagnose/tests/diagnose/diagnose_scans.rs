@@ -155,3 +155,39 @@ fn a_point_cloud_has_no_depth_bias_to_fit() {
     let why = p.not_identifiable(Effect::DepthBias).unwrap();
     assert!(why.contains("\"twisted\" has no camera"), "{why}");
 }
+
+/// The truth on a mesh twice as fine (P2, 192 tets) and a second material 3× as stiff beyond half
+/// the length, on a 4 × 1 × 1 dataset mesh: the mesh's error is corrected, the second material
+/// adopted, and the correction measured again once it is (a second material changes the field).
+#[test]
+fn the_mesh_error_is_measured_again_when_a_second_material_is_adopted() {
+    let tmp = tempfile::tempdir().unwrap();
+    let case = StripCase {
+        cells: [4, 1, 1],
+        design: Design::Quadratic,
+        refine: 2,
+        injected: Injected::SecondMaterial {
+            fraction: 0.5,
+            ratio: 3.0,
+        },
+        ..StripCase::default()
+    };
+    write_strip_dataset(tmp.path(), &case).unwrap();
+    let ds = ScanDataset::read(tmp.path()).unwrap();
+    let o = ScanOptions {
+        design: Design::Quadratic,
+        ..ScanOptions::default()
+    };
+    let mut p = Problem::new(&ds, o.design, &o.start_young, o.max_iter).unwrap();
+    let d = diagnose(&mut p, &o).unwrap();
+    assert!(d.mesh_error.is_some());
+    assert_eq!(d.after.effects, [Effect::SecondMaterial]);
+    assert!(d.explained());
+    assert_eq!(d.mesh_error_again.len(), 1);
+    assert_eq!(d.mesh_error_again[0].0, Effect::SecondMaterial);
+    let (lo, hi) = (
+        d.after.fit.mu[0].min(d.after.fit.mu[1]),
+        d.after.fit.mu[0].max(d.after.fit.mu[1]),
+    );
+    assert!(hi / lo > 2.4 && hi / lo < 3.6, "E₂/E₁ {}", hi / lo);
+}
