@@ -250,6 +250,7 @@ mod tests {
             markers,
             frames: 1,
             mesh,
+            stand_off: Default::default(),
         }
     }
 

@@ -11,7 +11,9 @@
 use anyhow::Context as _;
 use palpate_motion::dataset::{self, MotionDataset};
 use palpate_motion::load_point::fit_lever;
-use palpate_motion::rest_fit::{fit_shear_modulus, predict_rest, Design, RestSolve, RestState};
+use palpate_motion::rest_fit::{
+    fit_shear_modulus, predict_rest, Design, RestSolve, RestState, StandOff,
+};
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -39,6 +41,10 @@ pub struct Args {
     /// The rest state is the markers' mean over this many final seconds of each capture.
     #[arg(long, default_value_t = 0.5)]
     pub window: f64,
+    /// How the markers on stand-offs follow the beam: `extrapolated` (the element's
+    /// interpolation carried out to the marker) or `rigid-post`.
+    #[arg(long, default_value = "extrapolated")]
+    pub stand_off: String,
 }
 
 #[derive(Debug, Serialize)]
@@ -71,11 +77,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "P2" => Design::Quadratic,
         d => anyhow::bail!("--design: expected P1 or P2, found {d:?}"),
     };
+    let stand_off = match a.stand_off.as_str() {
+        "extrapolated" => StandOff::Extrapolated,
+        "rigid-post" => StandOff::RigidPost,
+        s => anyhow::bail!("--stand-off: expected extrapolated or rigid-post, found {s:?}"),
+    };
     let load = |r: &String| -> anyhow::Result<(String, MotionDataset, RestState)> {
         let dir = a.datasets.join(r);
         let ds = dataset::load(&dir).with_context(|| format!("reading {}", dir.display()))?;
-        let s = RestState::of_dataset(&ds, a.window)
+        let mut s = RestState::of_dataset(&ds, a.window)
             .with_context(|| format!("rest state of {}", dir.display()))?;
+        s.stand_off = stand_off;
         Ok((r.clone(), ds, s))
     };
     let fitted: Vec<_> = a.fit.iter().map(load).collect::<Result<_, _>>()?;
