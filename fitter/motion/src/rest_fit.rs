@@ -304,48 +304,56 @@ pub fn predict_rest(
         None => linear_at(v, e, l),
     };
     let posts = state.posts();
-    let marker_at = |v: &[[f64; 3]], i: usize| -> [f64; 3] {
+    let marker_at = |v: &[[f64; 3]], i: usize| -> Result<[f64; 3], MotionError> {
         let (e, l) = &state.markers[i];
         match &posts[i] {
-            Some(post) => post.position(&|l: &[f64; 4]| at(v, *e, l)),
-            None => at(v, *e, l),
+            Some(post) => post.position(&|l: &[f64; 4]| at(v, *e, l)).ok_or_else(|| {
+                MotionError::NonFinite(format!(
+                    "the rotation at the foot of marker {i}'s post (element {e})"
+                ))
+            }),
+            None => Ok(at(v, *e, l)),
         }
     };
     let n = state.markers.len();
-    let markers: Vec<[f64; 3]> = (0..n).map(|i| marker_at(&solution.positions, i)).collect();
-    let dmarkers = sens.map(|ds| {
-        // ∂x/∂ln μ at fixed ν of every node, then of each marker: the interpolation's own where
-        // it is linear in the nodes, a central difference along that nodal field for a rigid
-        // post (R depends on the positions; the difference of a smooth map, no solve).
-        let dx: Vec<[f64; 3]> = ds
-            .dlambda
-            .iter()
-            .zip(&ds.dmu)
-            .map(|(dl, dm)| [0, 1, 2].map(|d| material.lambda * dl[d] + material.mu * dm[d]))
-            .collect();
-        let h = 1e-4;
-        let moved = |sign: f64| -> Vec<[f64; 3]> {
-            solution
-                .positions
+    let markers: Vec<[f64; 3]> = (0..n)
+        .map(|i| marker_at(&solution.positions, i))
+        .collect::<Result<_, _>>()?;
+    let dmarkers = sens
+        .map(|ds| -> Result<Vec<[f64; 3]>, MotionError> {
+            // ∂x/∂ln μ at fixed ν of every node, then of each marker: the interpolation's own where
+            // it is linear in the nodes, a central difference along that nodal field for a rigid
+            // post (R depends on the positions; the difference of a smooth map, no solve).
+            let dx: Vec<[f64; 3]> = ds
+                .dlambda
                 .iter()
-                .zip(&dx)
-                .map(|(x, d)| [0, 1, 2].map(|k| x[k] + sign * h * d[k]))
-                .collect()
-        };
-        let (plus, minus) = (moved(1.0), moved(-1.0));
-        (0..n)
-            .map(|i| {
-                let (e, l) = &state.markers[i];
-                match posts[i] {
-                    Some(_) => {
-                        let (a, b) = (marker_at(&plus, i), marker_at(&minus, i));
-                        [0, 1, 2].map(|k| (a[k] - b[k]) / (2.0 * h))
+                .zip(&ds.dmu)
+                .map(|(dl, dm)| [0, 1, 2].map(|d| material.lambda * dl[d] + material.mu * dm[d]))
+                .collect();
+            let h = 1e-4;
+            let moved = |sign: f64| -> Vec<[f64; 3]> {
+                solution
+                    .positions
+                    .iter()
+                    .zip(&dx)
+                    .map(|(x, d)| [0, 1, 2].map(|k| x[k] + sign * h * d[k]))
+                    .collect()
+            };
+            let (plus, minus) = (moved(1.0), moved(-1.0));
+            (0..n)
+                .map(|i| {
+                    let (e, l) = &state.markers[i];
+                    match posts[i] {
+                        Some(_) => {
+                            let (a, b) = (marker_at(&plus, i)?, marker_at(&minus, i)?);
+                            Ok([0, 1, 2].map(|k| (a[k] - b[k]) / (2.0 * h)))
+                        }
+                        None => Ok(at(&dx, *e, l)),
                     }
-                    None => at(&dx, *e, l),
-                }
-            })
-            .collect()
-    });
+                })
+                .collect()
+        })
+        .transpose()?;
     Ok(RestPrediction {
         markers,
         dmarkers,
@@ -367,7 +375,8 @@ impl Post {
     /// element (`at`): the foot's, plus the offset turned by the rotation of F at the foot.
     /// F = ∂x/∂ξ · D⁻¹ with ∂x/∂ξ by central differences of step 10⁻³ in the local coordinates
     /// — exact for interpolations of degree ≤ 2, as the linear and quadratic ones are.
-    fn position(&self, at: &dyn Fn(&[f64; 4]) -> [f64; 3]) -> [f64; 3] {
+    /// `None` where F has no polar decomposition to give (not finite).
+    fn position(&self, at: &dyn Fn(&[f64; 4]) -> [f64; 3]) -> Option<[f64; 3]> {
         let h = 1e-3;
         let mut dxi = Matrix3::zeros();
         for k in 1..4 {
@@ -382,8 +391,11 @@ impl Post {
             }
         }
         let f = dxi * self.dm_inv;
-        let svd = f.svd(true, true);
-        let (u, v_t) = (svd.u.expect("asked for"), svd.v_t.expect("asked for"));
+        if !f.iter().all(|v| v.is_finite()) {
+            return None;
+        }
+        let svd = f.try_svd(true, true, f64::EPSILON, 200)?;
+        let (u, v_t) = (svd.u?, svd.v_t?);
         let mut r = u * v_t;
         if r.determinant() < 0.0 {
             // An inverted element has no rotation to give: the reflection's nearest rotation.
@@ -394,7 +406,7 @@ impl Post {
         }
         let x = at(&self.foot);
         let turned = r * self.offset;
-        [x[0] + turned[0], x[1] + turned[1], x[2] + turned[2]]
+        Some([x[0] + turned[0], x[1] + turned[1], x[2] + turned[2]])
     }
 }
 
@@ -587,7 +599,7 @@ mod tests {
             let p = (0..4).fold(Vector3::zeros(), |acc, a| acc + moved[a] * l[a]);
             [p[0], p[1], p[2]]
         };
-        let got = Vector3::from(post.position(&at));
+        let got = Vector3::from(post.position(&at).expect("a rotation"));
         let foot = Vector3::from(at(&post.foot));
         let d = Vector3::from(x_rest(&l)) - Vector3::from(x_rest(&post.foot));
         assert!((post.offset - d).norm() < 1e-15);
@@ -598,6 +610,8 @@ mod tests {
         let extrapolated = Vector3::from(at(&l));
         assert!((extrapolated - (foot + f * d)).norm() < 1e-12);
         assert!((extrapolated - expected).norm() > 5e-4);
+        // A state that is not finite has no rotation: no position, where the caller says so.
+        assert!(post.position(&|_| [f64::NAN; 3]).is_none());
     }
 
     /// The rest states of a cantilever with markers on 6 mm posts, made under rigid posts on
