@@ -45,6 +45,8 @@ pub struct MotionModel<'a> {
     pub(in crate::motion) stepped: Vec<(ParamKind, f64)>,
     /// Every check against the null: round, candidate, what it found.
     pub(in crate::motion) null_checks: Vec<(usize, Candidate, super::mesh_null::NullCheck)>,
+    /// What the first null made says of the fitted parameters ([`super::mesh_null::MeshBias`]).
+    pub(in crate::motion) mesh_bias: Option<super::mesh_null::MeshBias>,
 }
 
 /// Why a fitter has no refined model: only the diagnosis' own engine is handed one.
@@ -94,6 +96,7 @@ impl<'a> MotionModel<'a> {
             ahead: select::Ahead::default(),
             fine: Err(NOT_MADE.into()),
             null: None,
+            mesh_bias: None,
             promising: (0, Vec::new()),
             stepped: Vec::new(),
             null_checks: Vec::new(),
@@ -258,7 +261,7 @@ impl CandidateModel for MotionModel<'_> {
         });
         self.ahead = select::Ahead::new(round, batch, results);
         if let Some(made) = made {
-            self.null = Some((round, made));
+            self.keep_null(round, cur, made);
         }
     }
 

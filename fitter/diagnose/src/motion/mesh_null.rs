@@ -77,6 +77,131 @@ pub struct NullCheck {
     pub statement: String,
 }
 
+/// Relative change of a parameter under one refinement above which the fitted value is the mesh's
+/// and not the material's: the 5 % a converged parameter is held to across two discretisations
+/// ([`crate::convergence::TOLERANCE`]).
+pub const BIAS_TOLERANCE: f64 = crate::convergence::TOLERANCE;
+
+/// What the mesh's own null says of the fitted parameters, where no rest state can: the current
+/// model of a round simulated on the mesh refined once and read back on the dataset's mesh. A
+/// parameter this mesh reads at r times its value on the refined mesh's motion reads the data at
+/// r times the refined mesh's reading too, to first order; the refined mesh would read the data
+/// at about value / r. Measured at the first null a diagnosis makes (usually the first round's,
+/// at the simplest fit), so it costs nothing beyond the checks.
+#[derive(Debug, Clone, Serialize)]
+pub struct MeshBias {
+    /// The round whose current model the null was made at.
+    pub round: usize,
+    /// Tetrahedra of the refined mesh.
+    pub refined_tets: usize,
+    /// Each fitted positive parameter of that model.
+    pub parameters: Vec<BiasedValue>,
+    /// Whether every one moves by at most [`BIAS_TOLERANCE`] in the refinement.
+    pub converged: bool,
+    /// What it means, in words for the report.
+    pub statement: String,
+}
+
+/// One parameter read through the dataset mesh and through the mesh refined once.
+#[derive(Debug, Clone, Serialize)]
+pub struct BiasedValue {
+    /// The parameter ([`ParamKind::name`]).
+    pub name: String,
+    /// Its value in the round's current model: the data read on the dataset mesh (SI).
+    pub fitted: f64,
+    /// What the dataset mesh reads from that model's motion on the mesh refined once.
+    pub on_null: f64,
+    /// The first-order estimate of the data read on the refined mesh: fitted² / on_null.
+    pub refined_estimate: f64,
+    /// The SI unit of the three values.
+    pub unit: &'static str,
+}
+
+/// The parameters of `kinds` with their values `fitted` and their readings `on_null` (the same
+/// order), those positive in both, and whether each stays within [`BIAS_TOLERANCE`].
+pub fn biased_values(
+    kinds: &[ParamKind],
+    fitted: &[f64],
+    on_null: &[f64],
+) -> (Vec<BiasedValue>, bool) {
+    let values: Vec<BiasedValue> = kinds
+        .iter()
+        .zip(fitted.iter().zip(on_null))
+        .filter(|(_, (a, b))| **a > 0.0 && **b > 0.0 && a.is_finite() && b.is_finite())
+        .map(|(k, (&a, &b))| BiasedValue {
+            name: k.name().to_string(),
+            fitted: a,
+            on_null: b,
+            refined_estimate: a * a / b,
+            unit: match k {
+                ParamKind::Lambda | ParamKind::Mu | ParamKind::Stiffening => "Pa",
+                ParamKind::Nu => "Pa·s^h",
+                ParamKind::Density => "kg/m³",
+                ParamKind::CreepTime => "s",
+                _ => "",
+            },
+        })
+        .collect();
+    let converged = values
+        .iter()
+        .all(|v| (v.on_null / v.fitted - 1.0).abs() <= BIAS_TOLERANCE);
+    (values, converged)
+}
+
+impl MeshBias {
+    /// The bias the null of round `round` (the current model `cur` refitted there as `base`, on
+    /// `refined_tets` tetrahedra) shows; `None` when no parameter of `cur` is positive in both.
+    fn of(
+        round: usize,
+        refined_tets: usize,
+        cur: &FittedModel,
+        base: &FittedModel,
+    ) -> Option<Self> {
+        if base.kinds != cur.kinds {
+            return None;
+        }
+        let n = cur.kinds.len();
+        let (parameters, converged) =
+            biased_values(&cur.kinds, &cur.values[..n], &base.values[..n]);
+        if parameters.is_empty() {
+            return None;
+        }
+        let list = |f: &dyn Fn(&BiasedValue) -> String| {
+            parameters.iter().map(f).collect::<Vec<_>>().join(", ")
+        };
+        let read = list(&|v| format!("{} × {:.3}", v.name, v.on_null / v.fitted));
+        let statement = if converged {
+            format!(
+                "round {round}'s model simulated on the mesh refined once ({refined_tets} \
+                 tetrahedra) is read back on this mesh at {read}: every parameter within {:.0} % \
+                 of its value under one refinement",
+                100.0 * BIAS_TOLERANCE
+            )
+        } else {
+            format!(
+                "round {round}'s model simulated on the mesh refined once ({refined_tets} \
+                 tetrahedra) is read back on this mesh at {read}: NOT converged — the fitted \
+                 values move by more than {:.0} % in one refinement and are this mesh's; read on \
+                 the mesh refined once, the same data would give about {} (first order: value² \
+                 / its reading on the null; that mesh is not converged either)",
+                100.0 * BIAS_TOLERANCE,
+                list(&|v| format!(
+                    "{} {}",
+                    v.name,
+                    palpate_fem::numbers::quantity(v.refined_estimate, v.unit)
+                ))
+            )
+        };
+        Some(Self {
+            round,
+            refined_tets,
+            parameters,
+            converged,
+            statement,
+        })
+    }
+}
+
 /// A round's null: the data the current model makes on the refined mesh, and the current model
 /// refitted on them.
 pub(super) struct NullRound {
@@ -253,6 +378,20 @@ impl MotionModel<'_> {
                 .any(|c| c.effect().mimics_mesh_error() && promising.contains(c))
     }
 
+    /// Keeps round `round`'s null (made at the current model `cur`) and, from the first one made,
+    /// what it says of the fitted parameters ([`MeshBias`]).
+    pub(super) fn keep_null(
+        &mut self,
+        round: usize,
+        cur: &FittedModel,
+        made: Result<NullRound, String>,
+    ) {
+        if let (None, Ok(n)) = (&self.mesh_bias, &made) {
+            self.mesh_bias = MeshBias::of(round, n.refined_tets, cur, &n.base);
+        }
+        self.null = Some((round, made));
+    }
+
     /// The null of round `round` at the current model `cur`, made and refitted once per round;
     /// `Err` says why there is none.
     fn null_round(&mut self, round: usize, cur: &FittedModel) -> Result<&mut NullRound, String> {
@@ -261,7 +400,7 @@ impl MotionModel<'_> {
                 Ok(fine) => make_null(self.ds, self.split, self.o, fine, cur),
                 Err(why) => Err(format!("the mesh's error was not estimated: {why}")),
             };
-            self.null = Some((round, made));
+            self.keep_null(round, cur, made);
         }
         match self.null.as_mut() {
             Some((_, Ok(n))) => Ok(n),
@@ -382,6 +521,24 @@ mod tests {
     use super::*;
     use palpate_motion::dataset::{DatasetToml, Initial};
     use palpate_motion::scenario::{example_bar, record, EXAMPLE_DT};
+
+    /// The parameters under one refinement: each value's reading on the null, the first-order
+    /// estimate value² / reading, non-positive values left out, and "converged" only when every
+    /// one stays within 5 %.
+    #[test]
+    fn the_bias_of_each_parameter_is_read_from_the_null() {
+        let kinds = [ParamKind::Lambda, ParamKind::Mu, ParamKind::Stiffening];
+        let (v, converged) = biased_values(&kinds, &[2.0e6, 1.0e6, 0.0], &[1.8e6, 0.8e6, 0.0]);
+        assert!(!converged);
+        assert_eq!(v.len(), 2, "{v:?}");
+        assert_eq!((v[1].name.as_str(), v[1].unit), ("mu", "Pa"));
+        assert!((v[1].refined_estimate - 1.25e6).abs() < 1e-6);
+        assert!((v[0].refined_estimate - 2.0e6 * 2.0e6 / 1.8e6).abs() < 1e-6);
+        let (_, converged) = biased_values(&kinds[..2], &[2.0e6, 1.0e6], &[1.95e6, 1.04e6]);
+        assert!(converged);
+        let (_, converged) = biased_values(&kinds[..2], &[2.0e6, 1.0e6], &[1.95e6, 1.06e6]);
+        assert!(!converged);
+    }
 
     /// Data made by the bar at half the current moduli: the search finds the half.
     #[test]

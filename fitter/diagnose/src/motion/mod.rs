@@ -235,6 +235,9 @@ pub struct MotionDiagnosis {
     /// Whether the fitted modulus is the material's or the mesh's ([`crate::convergence`]);
     /// `None` when not asked for.
     pub mesh_convergence: Option<crate::convergence::MeshConvergence>,
+    /// What the mesh's own null says of the fitted parameters under one refinement
+    /// ([`mesh_null::MeshBias`]); `None` when no null was made.
+    pub mesh_bias: Option<mesh_null::MeshBias>,
     /// Final material (for export; not serialised).
     #[serde(skip)]
     pub material: Option<Material>,
@@ -467,6 +470,7 @@ pub fn diagnose(
         screen_simulations,
         mesh: mesh_note,
         mesh_convergence,
+        mesh_bias: engine.mesh_bias.clone(),
         material: Some(cur.material.clone()),
     })
 }

@@ -218,7 +218,27 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
     if let Some(c) = &r.mesh_convergence {
         md.push_str(&c.markdown());
     }
+    if r.options.mesh_null {
+        let _ = writeln!(
+            md,
+            "\n### The parameters under one refinement (from the mesh's own null)\n\n{}",
+            match &r.mesh_bias {
+                Some(b) => format!("{}.", capitalised(&b.statement)),
+                None => "Not measured: no null was made (no candidate the mesh's error could \
+                         imitate passed, or the mesh refined once was not made)."
+                    .to_string(),
+            }
+        );
+    }
     md
+}
+
+/// `s` with its first letter in upper case.
+fn capitalised(s: &str) -> String {
+    let mut c = s.chars();
+    c.next()
+        .map(|f| f.to_uppercase().chain(c).collect())
+        .unwrap_or_default()
 }
 
 /// The unit of a [`Value`] by its name.

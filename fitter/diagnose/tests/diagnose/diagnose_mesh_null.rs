@@ -12,7 +12,9 @@
 //! With it, the marker offsets remove as much χ² on the (noise-free) null, refitted there to
 //! 241.9 µm, as on the data: beyond the null their ΔBIC is +326.5 and they are refused; nothing
 //! else passes, and the verdict says the residual (1.67× the floor) is not explained and about
-//! what the mesh leaves on its null with the noise (1.72×).
+//! what the mesh leaves on its null with the noise (1.72×). The null's refit also says how the
+//! parameters move under one refinement: μ is read × 0.724 there, so the fit's 13.7 kPa would be
+//! about 18.9 kPa on the refined mesh, where the data were made at 20 kPa.
 
 use crate::support::{bar, DT};
 use palpate_diagnose::motion::{diagnose, MotionDiagnosis, MotionOptions};
@@ -110,5 +112,30 @@ fn effects_the_refined_mesh_makes_are_refused() {
         with.verdict().contains("NOT clean") && with.verdict().contains("left on its null"),
         "the residual is left unexplained, said to be, and set beside the null's: {}",
         with.verdict()
+    );
+    // The null's refit says how the parameters move under one refinement: the data were made
+    // on the refined mesh, so value² / its reading on the null must come nearer the truth's μ
+    // than this mesh's own fit, and the report must call the fit not converged.
+    assert!(without.mesh_bias.is_none());
+    let bias = with.mesh_bias.as_ref().expect("a null was made");
+    assert!(!bias.converged, "{}", bias.statement);
+    let mu = bias
+        .parameters
+        .iter()
+        .find(|v| v.name == "mu")
+        .expect("μ is fitted");
+    let truth = 2.0e4;
+    assert!(mu.on_null < mu.fitted, "the refined mesh is softer: {mu:?}");
+    assert!(
+        (mu.refined_estimate / truth).ln().abs() < (mu.fitted / truth).ln().abs(),
+        "the estimate on the refined mesh {} is no nearer the truth {truth} than the fit {}",
+        mu.refined_estimate,
+        mu.fitted
+    );
+    eprintln!("{}; μ {mu:?}", bias.statement);
+    let md = palpate_diagnose::motion::report::markdown(&with);
+    assert!(
+        md.contains("under one refinement") && md.contains("NOT converged"),
+        "{md}"
     );
 }
