@@ -87,7 +87,9 @@ pub const BIAS_TOLERANCE: f64 = crate::convergence::TOLERANCE;
 /// parameter this mesh reads at r times its value on the refined mesh's motion reads the data at
 /// r times the refined mesh's reading too, to first order; the refined mesh would read the data
 /// at about value / r. Measured at the first null a diagnosis makes (usually the first round's,
-/// at the simplest fit), so it costs nothing beyond the checks.
+/// at the simplest fit, at no cost beyond the checks); where no check made one and the capture
+/// has no rest state to check the modulus on, the first round's null is made for it
+/// (`MotionModel::first_null_bias`).
 #[derive(Debug, Clone, Serialize)]
 pub struct MeshBias {
     /// The round whose current model the null was made at.
@@ -390,6 +392,20 @@ impl MotionModel<'_> {
             self.mesh_bias = MeshBias::of(round, n.refined_tets, cur, &n.base);
         }
         self.null = Some((round, made));
+    }
+
+    /// Makes the first round's null at the simplest fit `simplest` when no null was made and the
+    /// refined model exists, for [`MeshBias`] alone (its reason logged when it cannot be made).
+    pub(super) fn first_null_bias(&mut self, simplest: &FittedModel) {
+        if self.mesh_bias.is_some() || self.fine.is_err() {
+            return;
+        }
+        (self.log)("the parameters under one refinement: the first round's null, made for them");
+        if let Err(why) = self.null_round(1, simplest) {
+            (self.log)(&format!(
+                "no null for the parameters under one refinement: {why}"
+            ));
+        }
     }
 
     /// The null of round `round` at the current model `cur`, made and refitted once per round;

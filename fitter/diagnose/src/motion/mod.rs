@@ -414,6 +414,16 @@ pub fn diagnose(
         let poisson = lambda / (2.0 * (lambda + mu));
         crate::convergence::check(&[(label, ds)], poisson, mu, cur.scores.rms_fit, log)
     });
+    // Where the capture has no rest state to check the modulus on and no check made a null,
+    // the first round's null is made now, for what it says of the parameters under one
+    // refinement ([`mesh_null::MeshBias`]): one refined simulation and one refit.
+    let rest_checked = matches!(
+        mesh_convergence,
+        Some(crate::convergence::MeshConvergence::Checked { .. })
+    );
+    if o.mesh_convergence && o.mesh_null && !rest_checked {
+        engine.first_null_bias(&simplest);
+    }
     let mut sp_b = Vec::new();
     let final_signature = signature(ds, split, &cur);
     sp_b.extend(signature(ds, split, &simplest).speed_bins);

@@ -224,8 +224,8 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
             "\n### The parameters under one refinement (from the mesh's own null)\n\n{}",
             match &r.mesh_bias {
                 Some(b) => format!("{}.", capitalised(&b.statement)),
-                None => "Not measured: no null was made (no candidate the mesh's error could \
-                         imitate passed, or the mesh refined once was not made)."
+                None => "Not measured: no null was made (the mesh refined once was not made, \
+                         or the current model did not refit on it; the log says which)."
                     .to_string(),
             }
         );
