@@ -375,7 +375,7 @@ impl Post {
     /// element (`at`): the foot's, plus the offset turned by the rotation of F at the foot.
     /// F = ∂x/∂ξ · D⁻¹ with ∂x/∂ξ by central differences of step 10⁻³ in the local coordinates
     /// — exact for interpolations of degree ≤ 2, as the linear and quadratic ones are.
-    /// `None` where F has no polar decomposition to give (not finite).
+    /// `None` where F is not finite.
     fn position(&self, at: &dyn Fn(&[f64; 4]) -> [f64; 3]) -> Option<[f64; 3]> {
         let h = 1e-3;
         let mut dxi = Matrix3::zeros();
@@ -394,16 +394,8 @@ impl Post {
         if !f.iter().all(|v| v.is_finite()) {
             return None;
         }
-        let svd = f.try_svd(true, true, f64::EPSILON, 200)?;
-        let (u, v_t) = (svd.u?, svd.v_t?);
-        let mut r = u * v_t;
-        if r.determinant() < 0.0 {
-            // An inverted element has no rotation to give: the reflection's nearest rotation.
-            let mut u = u;
-            let smallest = svd.singular_values.imin();
-            u.set_column(smallest, &(-u.column(smallest)));
-            r = u * v_t;
-        }
+        // The warped FEM's own polar rotation (an inverted element: the SVD's nearest rotation).
+        let r = palpate_runtime::rotation::warp_rotation_polar(&f);
         let x = at(&self.foot);
         let turned = r * self.offset;
         Some([x[0] + turned[0], x[1] + turned[1], x[2] + turned[2]])

@@ -425,6 +425,15 @@ pub struct Linearisation {
     pub hessian: Vec<f64>,
 }
 
+/// Each state's ωᵢ at its linearisation ([`Linearisation::omegas`]): the weights a Gauss–Newton
+/// step's line search holds while it tries shorter steps.
+pub fn state_omegas(lins: &[Linearisation], states: &[ScanState<'_>]) -> Vec<Vec<f64>> {
+    lins.iter()
+        .zip(states)
+        .map(|(l, s)| l.omegas(s.scan.points.len()))
+        .collect()
+}
+
 impl Linearisation {
     /// Each point's ωᵢ, by point index (0 for a point without a closest point).
     pub fn omegas(&self, count: usize) -> Vec<f64> {
@@ -732,11 +741,7 @@ pub fn fit_states_from(
         if largest > 0.5 {
             step *= 0.5 / largest;
         }
-        let omegas: Vec<Vec<f64>> = lins
-            .iter()
-            .zip(states)
-            .map(|(l, s)| l.omegas(s.scan.points.len()))
-            .collect();
+        let omegas = state_omegas(&lins, states);
         let cost: f64 = lins.iter().map(|l| l.cost).sum();
         // A step under 1 % is taken as it is: Gauss–Newton converges there, and what it gains
         // (½ JᵀJ step²) falls below the jumps of the cost where closest points switch between

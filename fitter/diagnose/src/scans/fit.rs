@@ -32,8 +32,8 @@
 use nalgebra::{DMatrix, DVector, Vector3};
 use palpate_scan::dataset::ScanDataset;
 use palpate_scan::fit::{
-    fit_states, fit_states_from, linearise, residuals, weighted_cost, Design, FitSettings,
-    JointFit, Linearisation, ScanPoints, ScanState,
+    fit_states, fit_states_from, linearise, residuals, state_omegas, weighted_cost, Design,
+    FitSettings, JointFit, Linearisation, ScanPoints, ScanState,
 };
 use palpate_scan::regions::Split;
 use palpate_scan::registration::{register, RegistrationSettings, RigidTransform};
@@ -505,11 +505,7 @@ impl<'a> Problem<'a> {
             if largest > 0.5 {
                 step *= 0.5 / largest;
             }
-            let omegas: Vec<Vec<f64>> = lins
-                .iter()
-                .zip(states)
-                .map(|(l, s)| l.omegas(s.scan.points.len()))
-                .collect();
+            let omegas = state_omegas(&lins, states);
             let cost: f64 = lins.iter().map(|l| l.cost).sum();
             let mut accepted = false;
             let mut moved = 0.0;
