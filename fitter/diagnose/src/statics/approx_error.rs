@@ -73,7 +73,9 @@ impl Correction {
                 xs.len()
             )));
         }
-        let sim = model.simulate(&self.fine, theta, &all, self.x.as_deref())?;
+        // δ compares the solves' states; a profiled effect's responses (the per-measurement
+        // tilt's two more solves per measurement) are not part of it.
+        let x = model.solve_states(&self.fine, theta, &all, self.x.as_deref())?;
         let delta = all
             .iter()
             .map(|&i| {
@@ -81,14 +83,14 @@ impl Correction {
                     .observed
                     .iter()
                     .map(|&(k, _)| {
-                        let f = self.fine.markers[k].interpolate(|n| sim.x[i][n]);
+                        let f = self.fine.markers[k].interpolate(|n| x[i][n]);
                         let c = coarse.markers[k].interpolate(|n| xs[i][n]);
                         [0, 1, 2].map(|d| f[d] - c[d])
                     })
                     .collect()
             })
             .collect();
-        self.x = Some(sim.x);
+        self.x = Some(x);
         Ok(delta)
     }
 }

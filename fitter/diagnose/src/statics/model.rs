@@ -16,7 +16,7 @@ use palpate_runtime::material::LambdaAlpha;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::candidates::{At, StaticEffect};
+use super::candidates::{At, ResponseStates, ResponsesNear, StaticEffect};
 use super::DiagnoseError;
 
 pub use super::candidates::{Candidate, ALL_CANDIDATES, TILT_PROBE};
@@ -57,6 +57,9 @@ pub struct Simulated {
     /// [`Candidate::TiltEach`]: per measurement, the simulated markers' response to a unit
     /// tangential coefficient along t₁ and t₂ (m per unit of |f|).
     pub tilt: Option<Vec<[Vec<[f64; 3]>; 2]>>,
+    /// The node positions of the solves `tilt` was read from (where nearby simulations start
+    /// theirs).
+    pub tilted: Option<ResponseStates>,
     /// The factorisation of K' each measurement's solve ended with (start of nearby solves).
     pub factors: Vec<Arc<Factorised>>,
 }
@@ -262,7 +265,7 @@ impl Model {
         subset: &[usize],
         warm: Option<&[Vec<[f64; 3]>]>,
     ) -> Result<Simulated, DiagnoseError> {
-        self.simulate_with(ctx, theta, subset, warm, None)
+        self.simulate_with(ctx, theta, subset, warm, None, None)
     }
 
     /// [`Model::simulate`] near `base` (a Jacobian column, a Levenberg–Marquardt trial):
@@ -276,7 +279,12 @@ impl Model {
         base: &Simulated,
     ) -> Result<Simulated, DiagnoseError> {
         let hints = (base.factors.len() == subset.len()).then_some(base.factors.as_slice());
-        self.simulate_with(ctx, theta, subset, Some(&base.x), hints)
+        let near = base
+            .tilted
+            .as_deref()
+            .filter(|t| t.len() == subset.len() && base.x.len() == subset.len())
+            .map(|t| (base.x.as_slice(), t));
+        self.simulate_with(ctx, theta, subset, Some(&base.x), hints, near)
     }
 
     fn simulate_with(
@@ -286,34 +294,25 @@ impl Model {
         subset: &[usize],
         warm: Option<&[Vec<[f64; 3]>]>,
         hints: Option<&[Arc<Factorised>]>,
+        near: Option<ResponsesNear>,
     ) -> Result<Simulated, DiagnoseError> {
         let log_e = self.log_e_field(ctx, theta);
-        let at = At {
-            model: self,
-            ctx,
-            theta,
-            log_e: log_e.as_deref(),
-        };
-        // Measurements are independent solves: one per core (the refined mesh of the
-        // approximation-error correction spends most of its time here).
-        let (xs, factors): (Vec<Vec<[f64; 3]>>, Vec<Arc<Factorised>>) = subset
-            .par_iter()
-            .enumerate()
-            .map(|(k, &i)| {
-                let start = warm.map(|w| w[k].as_slice());
-                self.solve_one(at, i, start, hints.and_then(|h| h.get(k)))
-            })
-            .collect::<Result<Vec<_>, _>>()?
-            .into_iter()
-            .unzip();
+        let at = self.at(ctx, theta, log_e.as_deref());
+        let (xs, factors) = self.solve_all(at, subset, warm, hints)?;
         let embedding = self
             .held(theta, ctx.grid)
             .find_map(|(e, b)| e.marker_embedding(at, b))
             .transpose()?;
-        let tilt = self
+        let (tilt, tilted) = match self
             .held(theta, ctx.grid)
-            .find_map(|(e, _)| e.responses(at, subset, (&xs, &factors, embedding.as_deref())))
-            .transpose()?;
+            .find_map(|(e, _)| e.responses(at, subset, (&xs, &factors, embedding.as_deref()), near))
+        {
+            Some(r) => {
+                let (t, s) = r?;
+                (Some(t), Some(s))
+            }
+            None => (None, None),
+        };
         Ok(Simulated {
             markers: self.markers_from(
                 ctx,
@@ -327,7 +326,56 @@ impl Model {
             factors,
             embedding,
             tilt,
+            tilted,
         })
+    }
+
+    /// The model at `theta` on `ctx`, with its stiffness field `log_e`, as the hooks see it.
+    fn at<'a>(&'a self, ctx: &'a Context, theta: &'a [f64], log_e: Option<&'a [f64]>) -> At<'a> {
+        At {
+            model: self,
+            ctx,
+            theta,
+            log_e,
+        }
+    }
+
+    /// The node positions of the measurements in `subset` at `theta` (warm-started from `warm`,
+    /// one x per measurement in `subset` order), without the markers and the extra solves a
+    /// profiled effect reads its responses from: what the approximation-error correction
+    /// compares between meshes.
+    pub fn solve_states(
+        &self,
+        ctx: &Context,
+        theta: &[f64],
+        subset: &[usize],
+        warm: Option<&[Vec<[f64; 3]>]>,
+    ) -> Result<Vec<Vec<[f64; 3]>>, DiagnoseError> {
+        let log_e = self.log_e_field(ctx, theta);
+        let at = self.at(ctx, theta, log_e.as_deref());
+        Ok(self.solve_all(at, subset, warm, None)?.0)
+    }
+
+    /// Every measurement's solve ([`Model::solve_one`]) and the factorisation it ended with.
+    fn solve_all(
+        &self,
+        at: At,
+        subset: &[usize],
+        warm: Option<&[Vec<[f64; 3]>]>,
+        hints: Option<&[Arc<Factorised>]>,
+    ) -> Result<(Vec<Vec<[f64; 3]>>, Vec<Arc<Factorised>>), DiagnoseError> {
+        // Measurements are independent solves: one per core (the refined mesh of the
+        // approximation-error correction spends most of its time here).
+        Ok(subset
+            .par_iter()
+            .enumerate()
+            .map(|(k, &i)| {
+                let start = warm.map(|w| w[k].as_slice());
+                self.solve_one(at, i, start, hints.and_then(|h| h.get(k)))
+            })
+            .collect::<Result<Vec<_>, _>>()?
+            .into_iter()
+            .unzip())
     }
 
     /// Solves measurement `i` at `at` (warm-started from `start`, from the factorisation `hint`):
@@ -375,17 +423,14 @@ impl Model {
         sim: &Simulated,
     ) -> Result<Vec<[Vec<[f64; 3]>; 2]>, DiagnoseError> {
         let log_e = self.log_e_field(ctx, theta);
-        let at = At {
-            model: self,
-            ctx,
-            theta,
-            log_e: log_e.as_deref(),
-        };
+        let at = self.at(ctx, theta, log_e.as_deref());
         super::candidates::tilt_each_responses(
             at,
             subset,
             (&sim.x, &sim.factors, sim.embedding.as_deref()),
+            None,
         )
+        .map(|(responses, _)| responses)
     }
 
     /// The material the model uses at the solved state `x` (the secant moduli of the

@@ -20,4 +20,5 @@ mod diagnose_runs;
 mod diagnose_runs_creep;
 mod diagnose_scans;
 mod diagnose_sensitivity;
+mod diagnose_tilt_responses;
 mod specimen_viscous;

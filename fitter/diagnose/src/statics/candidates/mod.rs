@@ -108,6 +108,14 @@ pub type ParamName = (String, &'static str, f64);
 /// response to each of its directions).
 pub type Responses = Vec<[Vec<[f64; 3]>; 2]>;
 
+/// The node positions of the solves a profiled candidate's [`Responses`] were read from (per
+/// measurement and direction): the start of the same solves at a nearby parameter point.
+pub type ResponseStates = Vec<[Vec<[f64; 3]>; 2]>;
+
+/// A nearby simulation's node positions and its [`ResponseStates`] (per measurement of the
+/// same subset): where a Jacobian column's or a trial's response solves start.
+pub type ResponsesNear<'a> = (&'a [Vec<[f64; 3]>], &'a [[Vec<[f64; 3]>; 2]]);
+
 /// A kind of profiled parameter for the power statement: (name, unit, its residual columns in
 /// units of σ, one per measurement and direction).
 pub type ProfiledKind = (&'static str, &'static str, Vec<Vec<f64>>);
@@ -295,13 +303,16 @@ pub trait StaticEffect: Sync {
         p
     }
 
-    /// Extra marker responses its profile needs, solved at `xs` (per measurement of `subset`).
+    /// Extra marker responses its profile needs, solved at `xs` (per measurement of `subset`;
+    /// started from `near`'s states moved with xs where given), and the states they were read
+    /// from.
     fn responses(
         &self,
         _at: At,
         _subset: &[usize],
         _sim: (&[Vec<[f64; 3]>], &[Arc<Factorised>], Option<&[Marker]>),
-    ) -> Option<Result<Responses, DiagnoseError>> {
+        _near: Option<ResponsesNear>,
+    ) -> Option<Result<(Responses, ResponseStates), DiagnoseError>> {
         None
     }
 

@@ -13,7 +13,7 @@ use palpate_fem::dataset::Marker;
 use palpate_fem::forward::Factorised;
 use rayon::prelude::*;
 
-use super::{At, PowerPoint, ProfiledKind, Responses, StaticEffect};
+use super::{At, PowerPoint, ProfiledKind, ResponseStates, Responses, ResponsesNear, StaticEffect};
 use crate::statics::context::Context;
 use crate::statics::power::row_offsets;
 use crate::statics::signature::{EvidencePoints, Residual};
@@ -59,8 +59,9 @@ impl StaticEffect for TiltEach {
         at: At,
         subset: &[usize],
         sim: (&[Vec<[f64; 3]>], &[Arc<Factorised>], Option<&[Marker]>),
-    ) -> Option<Result<Responses, DiagnoseError>> {
-        Some(responses(at, subset, sim))
+        near: Option<ResponsesNear>,
+    ) -> Option<Result<(Responses, ResponseStates), DiagnoseError>> {
+        Some(responses(at, subset, sim, near))
     }
 
     fn profile(
@@ -78,15 +79,21 @@ impl StaticEffect for TiltEach {
 }
 
 /// The marker responses: for each measurement, two more solves with the force tilted by
-/// [`TILT_PROBE`]·|f| along t₁ and t₂ (warm-started from `xs` and from the factorisation of K'
-/// that measurement's own solve ended with: the tilted load changes the rotations by a tenth of
-/// the load's, so the kept factor serves and no new factorisation is made), their markers minus
-/// the untilted ones, per unit coefficient. Measurements in parallel.
+/// [`TILT_PROBE`]·|f| along t₁ and t₂ (from the factorisation of K' that measurement's own
+/// solve ended with: the tilted load changes the rotations by a tenth of the load's, so the
+/// kept factor serves and no new factorisation is made), their markers minus the untilted ones,
+/// per unit coefficient, and the tilted states. Measurements in parallel.
+///
+/// Each tilted solve starts from `xs` moved by the tilt's displacement at `near` (a Jacobian
+/// column's or a trial's base simulation), x + (x_t − x)_near, which is within the parameter
+/// step of its fixed point; without `near` it starts from `xs`, a tenth of the load away. The
+/// fixed point is the same either way (the solve's tolerance, 10⁻⁹ m, is what separates them).
 pub(in crate::statics) fn responses(
     at: At,
     subset: &[usize],
     (xs, factors, embedding): (&[Vec<[f64; 3]>], &[Arc<Factorised>], Option<&[Marker]>),
-) -> Result<Responses, DiagnoseError> {
+    near: Option<ResponsesNear>,
+) -> Result<(Responses, ResponseStates), DiagnoseError> {
     let (ctx, model, theta) = (at.ctx, at.model, at.theta);
     let mat = model.material(ctx, theta, at.log_e, None)?;
     subset
@@ -99,6 +106,7 @@ pub(in crate::statics) fn responses(
             let fm = Vector3::from(m.force).norm();
             let base = model.physical_markers(ctx, theta, i, x, embedding);
             let mut cols: [Vec<[f64; 3]>; 2] = [Vec::new(), Vec::new()];
+            let mut states: [Vec<[f64; 3]>; 2] = [x.clone(), x.clone()];
             for (j, t) in ctx.tangents.iter().enumerate() {
                 if fm == 0.0 {
                     cols[j] = vec![[0.0; 3]; base.len()];
@@ -106,9 +114,22 @@ pub(in crate::statics) fn responses(
                 }
                 let ft = [0, 1, 2].map(|d| f[d] + TILT_PROBE * fm * t[d]);
                 let fvec = model.full_load(ctx, theta, i, ft)?;
+                let start: Vec<[f64; 3]> = match near {
+                    Some((x_near, tilted_near))
+                        if x_near.get(k).is_some_and(|v| v.len() == x.len())
+                            && tilted_near.get(k).is_some_and(|v| v[j].len() == x.len()) =>
+                    {
+                        x.iter()
+                            .zip(&x_near[k])
+                            .zip(&tilted_near[k][j])
+                            .map(|((p, q), r)| [0, 1, 2].map(|d| p[d] + (r[d] - q[d])))
+                            .collect()
+                    }
+                    _ => x.clone(),
+                };
                 let xt = model
                     .problem(ctx)
-                    .solve_forces_with(&mat, &fvec, Some(x), &ctx.solve, factors.get(k))?
+                    .solve_forces_with(&mat, &fvec, Some(&start), &ctx.solve, factors.get(k))?
                     .solution
                     .x;
                 let tilted = model.physical_markers(ctx, theta, i, &xt, embedding);
@@ -117,10 +138,12 @@ pub(in crate::statics) fn responses(
                     .zip(&base)
                     .map(|(a, b)| [0, 1, 2].map(|d| (a[d] - b[d]) / TILT_PROBE))
                     .collect();
+                states[j] = xt;
             }
-            Ok(cols)
+            Ok((cols, states))
         })
-        .collect()
+        .collect::<Result<Vec<_>, DiagnoseError>>()
+        .map(|v| v.into_iter().unzip())
 }
 
 /// The profile on measurement `i`: the coefficients (a, b) of the responses `cols` that best
