@@ -106,30 +106,34 @@ pub(in crate::statics) fn responses(
             let fm = Vector3::from(m.force).norm();
             let base = model.physical_markers(ctx, theta, i, x, embedding);
             let mut cols: [Vec<[f64; 3]>; 2] = [Vec::new(), Vec::new()];
-            let mut states: [Vec<[f64; 3]>; 2] = [x.clone(), x.clone()];
+            let mut states: [Vec<[f64; 3]>; 2] = [Vec::new(), Vec::new()];
             for (j, t) in ctx.tangents.iter().enumerate() {
                 if fm == 0.0 {
                     cols[j] = vec![[0.0; 3]; base.len()];
+                    states[j] = x.clone();
                     continue;
                 }
                 let ft = [0, 1, 2].map(|d| f[d] + TILT_PROBE * fm * t[d]);
                 let fvec = model.full_load(ctx, theta, i, ft)?;
-                let start: Vec<[f64; 3]> = match near {
+                let moved: Option<Vec<[f64; 3]>> = match near {
                     Some((x_near, tilted_near))
                         if x_near.get(k).is_some_and(|v| v.len() == x.len())
                             && tilted_near.get(k).is_some_and(|v| v[j].len() == x.len()) =>
                     {
-                        x.iter()
-                            .zip(&x_near[k])
-                            .zip(&tilted_near[k][j])
-                            .map(|((p, q), r)| [0, 1, 2].map(|d| p[d] + (r[d] - q[d])))
-                            .collect()
+                        Some(
+                            x.iter()
+                                .zip(&x_near[k])
+                                .zip(&tilted_near[k][j])
+                                .map(|((p, q), r)| [0, 1, 2].map(|d| p[d] + (r[d] - q[d])))
+                                .collect(),
+                        )
                     }
-                    _ => x.clone(),
+                    _ => None,
                 };
+                let start = moved.as_deref().unwrap_or(x);
                 let xt = model
                     .problem(ctx)
-                    .solve_forces_with(&mat, &fvec, Some(&start), &ctx.solve, factors.get(k))?
+                    .solve_forces_with(&mat, &fvec, Some(start), &ctx.solve, factors.get(k))?
                     .solution
                     .x;
                 let tilted = model.physical_markers(ctx, theta, i, &xt, embedding);
