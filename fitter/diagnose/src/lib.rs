@@ -34,6 +34,7 @@ mod json;
 pub mod motion;
 pub mod run;
 pub mod runs;
+pub mod runtime_match;
 pub mod scans;
 pub mod screen;
 pub mod select;

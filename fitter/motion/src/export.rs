@@ -89,7 +89,20 @@ pub fn model_buffers(
     mat: &Material,
     prov: &ProvenanceInfo,
 ) -> Result<ModelBuffers, ExportError> {
-    let params = runtime_parameters(mat);
+    model_buffers_with(mesh, model, mat, &runtime_parameters(mat), None, prov)
+}
+
+/// [`model_buffers`] with the runtime's parameters given (`params`: thesis (λ, α), one pair or
+/// one per element) instead of the fit's own at rest — the runtime matched to the converged
+/// material, whose provenance `matched` says (appended to the notes).
+pub fn model_buffers_with(
+    mesh: &Mesh,
+    model: &Model,
+    mat: &Material,
+    params: &ThesisMaterial,
+    matched: Option<&str>,
+    prov: &ProvenanceInfo,
+) -> Result<ModelBuffers, ExportError> {
     for (e, (&lambda, &alpha)) in params.lambda.iter().zip(&params.alpha).enumerate() {
         if !(LambdaAlpha { lambda, alpha }).is_physical() {
             return Err(ExportError::Sets(format!(
@@ -99,11 +112,11 @@ pub fn model_buffers(
         }
     }
     let mut p = prov.clone();
-    let lost = lost_in_export(mat);
-    p.notes = if p.notes.is_empty() {
-        lost
-    } else {
-        format!("{}; {lost}", p.notes)
-    };
-    ModelBuffers::from_mesh(mesh, &clamp_nodes(model), &params, &p)
+    let mut notes: Vec<String> = [p.notes.clone(), lost_in_export(mat)]
+        .into_iter()
+        .filter(|s| !s.is_empty())
+        .collect();
+    notes.extend(matched.map(str::to_string));
+    p.notes = notes.join("; ");
+    ModelBuffers::from_mesh(mesh, &clamp_nodes(model), params, &p)
 }

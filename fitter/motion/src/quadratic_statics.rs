@@ -221,6 +221,15 @@ fn setup(
     p: &StaticProblem<'_>,
     q: &QuadraticMesh,
 ) -> Result<(Vec<[QuadPoint; 4]>, Prepared), MotionError> {
+    setup_with(p, q, &[])
+}
+
+/// [`setup`] with forces on any node of the quadratic mesh beside `p`'s corner forces.
+fn setup_with(
+    p: &StaticProblem<'_>,
+    q: &QuadraticMesh,
+    extra: &[(usize, [f64; 3])],
+) -> Result<(Vec<[QuadPoint; 4]>, Prepared), MotionError> {
     let is_fixed = check_problem(p)?;
     let rest = RestTet::of_mesh(p.mesh)?;
     let bary = quadrature_points();
@@ -240,7 +249,13 @@ fn setup(
         .collect();
     let dofs = Dofs::new(&q.lift_flags(&is_fixed), &blocks)?;
     let mut fext = vec![0.0; 3 * q.nodes.len()];
-    for &(n, f) in &p.forces {
+    for &(n, f) in p.forces.iter().chain(extra) {
+        if n >= q.nodes.len() {
+            return Err(MotionError::Invalid(format!(
+                "a force on node {n} of a quadratic mesh of {} nodes",
+                q.nodes.len()
+            )));
+        }
         for i in 0..3 {
             fext[3 * n + i] += f[i];
         }
@@ -286,11 +301,79 @@ fn setup(
 
 /// Solves `p` on the quadratic lift of its mesh.
 pub fn solve_static_quadratic(p: &StaticProblem<'_>) -> Result<QuadraticSolution, MotionError> {
+    solve_static_quadratic_loaded(p, &[])
+}
+
+/// [`solve_static_quadratic`] with `extra` forces (N) on nodes of the quadratic lift (corner or
+/// edge nodes, by their index in [`QuadraticMesh::from_linear`]) beside `p`'s corner forces:
+/// a surface traction's consistent load ([`consistent_traction_load`]).
+pub fn solve_static_quadratic_loaded(
+    p: &StaticProblem<'_>,
+    extra: &[(usize, [f64; 3])],
+) -> Result<QuadraticSolution, MotionError> {
     let q = QuadraticMesh::from_linear(p.mesh);
-    let (points, prepared) = setup(p, &q)?;
+    let (points, prepared) = setup_with(p, &q, extra)?;
     let ctx = Ctx { p, q: &q, points };
     let solution = prepared.solve(&ctx, p)?;
     Ok(QuadraticSolution { mesh: q, solution })
+}
+
+/// The consistent load on the quadratic lift of `mesh` of the traction that a set of lumped
+/// nodal forces on its boundary stands for: `force` (3 per linear node) is read as the traction
+/// t_i = f_i / A_i at each boundary node (A_i a third of the area of its boundary triangles, the
+/// lumping of the runtime's contact rule), linear over each triangle of `surface`, and
+/// integrated against the six quadratic shape functions of the triangle:
+///
+///   ∫ N_a L_a dA = A/30, ∫ N_a L_b dA = −A/60 (b ≠ a), ∫ N_ab L_a dA = 2A/15, ∫ N_ab L_c dA = A/15
+///
+/// (∫ L_a^i L_b^j L_c^k dA = 2A i! j! k! / (i + j + k + 2)!). Its total is Σ f_i, and lumped back
+/// onto the corners it is `force` again. Loaded on the corners only, a quadratic mesh sees point
+/// loads, whose displacement grows without bound as the mesh is refined; this load is the
+/// traction itself. Nodal forces off the boundary are kept on their corner as they are.
+/// Returns (quadratic node index, N).
+pub fn consistent_traction_load(
+    mesh: &palpate_fem::mesh::Mesh,
+    surface: &[[usize; 3]],
+    force: &[f64],
+) -> Vec<(usize, [f64; 3])> {
+    let q = QuadraticMesh::from_linear(mesh);
+    let n = mesh.nodes.len();
+    let v = |i: usize| Vector3::from(mesh.nodes[i]);
+    let area = |t: &[usize; 3]| 0.5 * (v(t[1]) - v(t[0])).cross(&(v(t[2]) - v(t[0]))).norm();
+    let mut lumped = vec![0.0; n];
+    for t in surface {
+        let a = area(t);
+        t.iter().for_each(|&i| lumped[i] += a / 3.0);
+    }
+    let f = |i: usize| Vector3::new(force[3 * i], force[3 * i + 1], force[3 * i + 2]);
+    let traction = |i: usize| {
+        if lumped[i] > 0.0 {
+            f(i) / lumped[i]
+        } else {
+            Vector3::zeros()
+        }
+    };
+    let mut out = vec![Vector3::zeros(); q.nodes.len()];
+    for (i, o) in out.iter_mut().enumerate().take(n) {
+        if lumped[i] == 0.0 {
+            *o += f(i);
+        }
+    }
+    for (t, l) in surface.iter().zip(q.lift_triangles(surface)) {
+        let a = area(t);
+        let tr = t.map(traction);
+        for k in 0..3 {
+            let (b, c) = ((k + 1) % 3, (k + 2) % 3);
+            out[l[k]] += a * (tr[k] / 30.0 - (tr[b] + tr[c]) / 60.0);
+            // Edge node k of the lifted triangle joins corners k and k + 1.
+            out[l[3 + k]] += a * ((tr[k] + tr[b]) * (2.0 / 15.0) + tr[c] / 15.0);
+        }
+    }
+    out.into_iter()
+        .enumerate()
+        .filter(|(_, f)| f.iter().any(|c| *c != 0.0))
+        .map(|(i, f)| (i, [f.x, f.y, f.z]))
+        .collect()
 }
 
 /// The sensitivities of an equilibrium found by [`solve_static_quadratic`] to the (uniform)
@@ -335,6 +418,47 @@ mod tests {
             })
             .collect();
         (mesh, x)
+    }
+
+    /// A uniform traction on the top face of a block, lumped onto its corners as the contact
+    /// rule lumps a press: its consistent quadratic load is the textbook one of a constant
+    /// traction on 6-node triangles, nothing on any corner (each triangle gives its corners 0
+    /// and its edge nodes A/3 each), the total unchanged.
+    #[test]
+    fn a_uniform_traction_loads_the_edge_nodes_and_no_inner_corner() {
+        let mesh = palpate_fem::mesh::boxmesh::box_mesh([0.03, 0.02, 0.01], [3, 2, 1]);
+        let top = 0.01 - 1e-12;
+        let surface: Vec<[usize; 3]> = mesh
+            .boundary_triangles()
+            .into_iter()
+            .filter(|t| t.iter().all(|&i| mesh.nodes[i][2] > top))
+            .collect();
+        let t = [0.5, -1.0, -30.0];
+        let mut lumped = vec![0.0; 3 * mesh.nodes.len()];
+        for tri in &surface {
+            let p = tri.map(|i| Vector3::from(mesh.nodes[i]));
+            let a = 0.5 * (p[1] - p[0]).cross(&(p[2] - p[0])).norm();
+            for &i in tri {
+                for d in 0..3 {
+                    lumped[3 * i + d] += a / 3.0 * t[d];
+                }
+            }
+        }
+        let load = consistent_traction_load(&mesh, &surface, &lumped);
+        let q = QuadraticMesh::from_linear(&mesh);
+        for d in 0..3 {
+            let total: f64 = load.iter().map(|(_, f)| f[d]).sum();
+            let want = 0.03 * 0.02 * t[d];
+            assert!(
+                (total - want).abs() < 1e-12 * want.abs().max(1.0),
+                "{total} {want}"
+            );
+        }
+        // A constant traction gives every corner of the face 0, inside it and on its rim (to
+        // round-off: 30 N/m² on triangles of 10⁻⁴ m²).
+        for (i, f) in load.iter().filter(|(i, _)| *i < q.vertex_count) {
+            assert!(f.iter().all(|c| c.abs() < 1e-15), "corner {i}: {f:?}");
+        }
     }
 
     fn material() -> HyperParams {

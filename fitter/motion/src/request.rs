@@ -229,11 +229,14 @@ pub fn fit(
 impl FitOutcome {
     /// The fit as a runtime model (`.palp`) on `run`'s mesh and clamps (the first of the runs
     /// fitted: they share them), its provenance naming `tool` (the command line that made it),
-    /// the runs and the fit's errors and effort.
+    /// the runs and the fit's errors and effort. `matched`: the runtime's parameters fitted to
+    /// the converged material and what their provenance says; `None` exports the fit's own
+    /// moduli at rest.
     pub fn runtime_model(
         &self,
         run: &MotionDataset,
         tool: String,
+        matched: Option<(&palpate_fem::forward::Material, &str)>,
     ) -> Result<ModelBuffers, ExportError> {
         let r = &self.result;
         let prov = ProvenanceInfo {
@@ -244,7 +247,17 @@ impl FitOutcome {
                 r.eval.rms_marker, r.eval.rms_force, r.evaluations
             ),
         };
-        crate::export::model_buffers(&run.mesh, &run.model, &self.fitted, &prov)
+        match matched {
+            None => crate::export::model_buffers(&run.mesh, &run.model, &self.fitted, &prov),
+            Some((params, how)) => crate::export::model_buffers_with(
+                &run.mesh,
+                &run.model,
+                &self.fitted,
+                params,
+                Some(how),
+                &prov,
+            ),
+        }
     }
 }
 

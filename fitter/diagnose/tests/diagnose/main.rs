@@ -21,4 +21,5 @@ mod diagnose_runs_creep;
 mod diagnose_scans;
 mod diagnose_sensitivity;
 mod diagnose_tilt_responses;
+mod runtime_match;
 mod specimen_viscous;

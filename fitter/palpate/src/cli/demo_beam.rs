@@ -6,6 +6,7 @@
 use anyhow::Context;
 use palpate_diagnose::convergence::MeshConvergence;
 use palpate_diagnose::runs::{diagnose_runs, report::write_report, RunsDiagnosis, RunsOptions};
+use palpate_diagnose::runtime_match::{match_motion_fit, MatchOptions};
 use palpate_fem::export::ProvenanceInfo;
 use palpate_link::replay::settle_contact_force;
 use palpate_motion::dataset::MotionDataset;
@@ -162,9 +163,50 @@ fn tip_deflection(
         .model
         .material()
         .map_err(|e| anyhow::anyhow!("the beam's fit: {e}"))?;
+    // The runtime replays the material, not the coarse mesh's locked modulus: its parameters are
+    // fitted to the material on quadratic tetrahedra under probe presses when the diagnosis
+    // measured it (`palpate_diagnose::runtime_match`).
+    let matched = match d
+        .mesh_convergence
+        .as_ref()
+        .and_then(|c| c.converged_modulus())
+    {
+        Some(c) => {
+            let m = match_motion_fit(ds, &mat, &c, &MatchOptions::default())
+                .context("matching the runtime's model to the converged material")?;
+            let md = out.join("runtime-match.md");
+            palpate_fem::io::atomic::write_atomic(
+                &md,
+                format!(
+                    "# The runtime's model matched to the material\n\n{}",
+                    m.markdown()
+                )
+                .as_bytes(),
+            )?;
+            for d in &m.designs {
+                log::info!(
+                    "      runtime model {:<12} E {:>6.1} kPa, ν {:.3}: held-out presses {:>5.1} % off the material{}",
+                    d.design,
+                    d.mean_young_pa / 1e3,
+                    d.mean_poisson,
+                    100.0 * d.held_out_relative,
+                    if d.design == m.chosen { " (exported)" } else { "" }
+                );
+            }
+            log::info!("      {}", md.display());
+            Some(m)
+        }
+        None => None,
+    };
+    let params = matched.as_ref().map_or_else(
+        || palpate_motion::export::runtime_parameters(&mat),
+        |m| m.material.clone(),
+    );
+    let how = matched.as_ref().map(|m| m.provenance());
     let palp = out.join("beam.palp");
     let weight = WEIGHT_KG * 9.81;
-    let (runtime_tip_m, bytes) = runtime_tip(ds, &mat, &prov, weight, &palp)?;
+    let (runtime_tip_m, bytes) =
+        runtime_tip(ds, &mat, &params, how.as_deref(), &prov, weight, &palp)?;
     let rest = predict::rest_markers(&ds.model);
     let tips = tip_markers(ds);
     let finals = |name: &str| -> Vec<f64> {
@@ -194,18 +236,20 @@ fn tip_deflection(
     // The warped-linear static fit of the runtime's model to that measured deflection: the warped
     // solve is linear in 1/E up to its rotations, so one rescale, checked by solving again.
     let scale = runtime_tip_m / measured_tip_m;
-    let mut soft = mat.clone();
-    for k in [0, 1] {
-        soft.values[k].iter_mut().for_each(|v| *v *= scale);
+    let mut soft = params.clone();
+    for v in soft.lambda.iter_mut().chain(soft.alpha.iter_mut()) {
+        *v *= scale;
     }
     let (check_m, _) = runtime_tip(
         ds,
+        &mat,
         &soft,
+        how.as_deref(),
         &prov,
         weight,
         &out.join("beam-warped-linear.palp"),
     )?;
-    let e_fit = d.values[0].value;
+    let e_fit = mean_young(&params);
     log::info!(
         "      warped-linear static fit to the measured deflection: E = {:.0} Pa (runtime tip {} mm, measured {} mm)",
         e_fit * scale,
@@ -291,17 +335,31 @@ fn tip_markers(ds: &MotionDataset) -> Vec<usize> {
         .collect()
 }
 
-/// Exports `mat` on the beam to `palp`, plays it in the runtime with `weight` (N) hung on the top
-/// edge of the free end as a contact force (1 cm radius) until it settles, and returns the tip
-/// markers' mean deflection along gravity and the file's size.
+/// The mean Young's modulus of thesis parameters (Pa).
+fn mean_young(m: &palpate_fem::forward::Material) -> f64 {
+    m.lambda
+        .iter()
+        .zip(&m.alpha)
+        .map(|(&lambda, &alpha)| palpate_runtime::material::LambdaAlpha { lambda, alpha }.young())
+        .sum::<f64>()
+        / m.lambda.len().max(1) as f64
+}
+
+/// Exports the fit `mat` with the runtime parameters `params` (provenance `how`) on the beam to
+/// `palp`, plays it in the runtime with `weight` (N) hung on the top edge of the free end as a
+/// contact force (1 cm radius) until it settles, and returns the tip markers' mean deflection
+/// along gravity and the file's size.
 fn runtime_tip(
     ds: &MotionDataset,
     mat: &palpate_motion::model::Material,
+    params: &palpate_fem::forward::Material,
+    how: Option<&str>,
     prov: &ProvenanceInfo,
     weight: f64,
     palp: &Path,
 ) -> anyhow::Result<(f64, usize)> {
-    let buffers = palpate_motion::export::model_buffers(&ds.mesh, &ds.model, mat, prov)?;
+    let buffers =
+        palpate_motion::export::model_buffers_with(&ds.mesh, &ds.model, mat, params, how, prov)?;
     let bytes = buffers.write(palp)?;
     let cfg = RuntimeConfig {
         max_iterations: 200,

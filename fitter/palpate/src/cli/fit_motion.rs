@@ -5,6 +5,7 @@
 
 use anyhow::Context;
 use indicatif::ProgressStyle;
+use palpate_diagnose::runtime_match::{match_motion_fit, MatchOptions};
 use palpate_motion::gradient::Method;
 use palpate_motion::model::ParamKind;
 use palpate_motion::optimize::{FitSettings, Optimizer};
@@ -55,7 +56,8 @@ pub struct Args {
     /// After the fit, fit the runs' rest states on linear and on quadratic elements of the same
     /// mesh and say whether the fitted modulus is the material's or the mesh's (linear tetrahedra
     /// lock in bending near incompressibility; docs/diagnose.md, "Mesh convergence"). The
-    /// output's `converged` then lets `palpate validate` carry the material to another mesh.
+    /// output's `converged` then lets `palpate validate` carry the material to another mesh,
+    /// and `--export` fits the runtime's parameters to that material.
     #[arg(long)]
     pub mesh_convergence: bool,
     /// Optimiser iteration cap.
@@ -75,8 +77,10 @@ pub struct Args {
     )]
     pub output: Option<PathBuf>,
     /// Export the fit as a runtime model (.palp): Lamé's (λ, μ) → the coefficients
-    /// (λ_F, α_G) the runtime stores, per element, clamp groups fixed; viscosity, density and the large-strain response are not kept (stated in the
-    /// model's provenance).
+    /// (λ_F, α_G) the runtime stores, per element, clamp groups fixed; viscosity, density and the
+    /// large-strain response are not kept (stated in the model's provenance). With
+    /// --mesh-convergence, the runtime's parameters are instead fitted to the material on
+    /// quadratic elements under probe presses, and the runtime's error against it is printed.
     #[arg(long)]
     pub export: Option<PathBuf>,
 }
@@ -233,8 +237,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             env!("CARGO_PKG_VERSION"),
             std::env::args().collect::<Vec<_>>().join(" ")
         );
+        // With the mesh-convergence check's modulus, the runtime replays the material: its
+        // parameters fitted to it under probe presses (`palpate_diagnose::runtime_match`).
+        let matched = match &outcome.record.converged {
+            Some(c) => {
+                let m = match_motion_fit(
+                    &runs[0].dataset,
+                    &outcome.fitted,
+                    c,
+                    &MatchOptions::default(),
+                )
+                .context("matching the runtime's model to the converged material")?;
+                println!("{}", m.markdown());
+                Some((m.material.clone(), m.provenance()))
+            }
+            None => None,
+        };
         let n = outcome
-            .runtime_model(&runs[0].dataset, tool)
+            .runtime_model(
+                &runs[0].dataset,
+                tool,
+                matched.as_ref().map(|(m, how)| (m, how.as_str())),
+            )
             .with_context(|| format!("exporting {}", path.display()))?
             .write(path)?;
         log::info!(
