@@ -54,8 +54,30 @@ pub fn run(
                 r.after.rms_held
             ),
         };
+        // The runtime replays the material, not the mesh's locked modulus, where the check
+        // found them apart (`crate::runtime_match`).
+        let converged = r
+            .mesh_convergence
+            .as_ref()
+            .and_then(|c| c.converged_modulus());
+        let (params, matched) =
+            crate::runtime_match::export_parameters(&ds, mat, converged.as_ref())?;
+        let how = matched.as_ref().map(|m| m.provenance());
+        if let Some(m) = &matched {
+            let path = output.join("runtime-match.md");
+            palpate_fem::io::atomic::write_atomic(&path, m.report().as_bytes())
+                .map_err(|e| Error::Write(format!("{}: {e}", path.display())))?;
+            files.push(path);
+        }
         let path = output.join("model.palp");
-        match palpate_motion::export::model_buffers(&ds.mesh, &ds.model, mat, &prov) {
+        match palpate_motion::export::model_buffers_with(
+            &ds.mesh,
+            &ds.model,
+            mat,
+            &params,
+            how.as_deref(),
+            &prov,
+        ) {
             Ok(b) => {
                 b.write(&path).map_err(|source| Error::WriteModel {
                     path: path.clone(),

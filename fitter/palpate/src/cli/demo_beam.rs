@@ -6,7 +6,7 @@
 use anyhow::Context;
 use palpate_diagnose::convergence::MeshConvergence;
 use palpate_diagnose::runs::{diagnose_runs, report::write_report, RunsDiagnosis, RunsOptions};
-use palpate_diagnose::runtime_match::{match_motion_fit, MatchOptions};
+use palpate_diagnose::runtime_match::export_parameters;
 use palpate_fem::export::ProvenanceInfo;
 use palpate_link::replay::settle_contact_force;
 use palpate_motion::dataset::MotionDataset;
@@ -166,42 +166,27 @@ fn tip_deflection(
     // The runtime replays the material, not the coarse mesh's locked modulus: its parameters are
     // fitted to the material on quadratic tetrahedra under probe presses when the diagnosis
     // measured it (`palpate_diagnose::runtime_match`).
-    let matched = match d
+    let converged = d
         .mesh_convergence
         .as_ref()
-        .and_then(|c| c.converged_modulus())
-    {
-        Some(c) => {
-            let m = match_motion_fit(ds, &mat, &c, &MatchOptions::default())
-                .context("matching the runtime's model to the converged material")?;
-            let md = out.join("runtime-match.md");
-            palpate_fem::io::atomic::write_atomic(
-                &md,
-                format!(
-                    "# The runtime's model matched to the material\n\n{}",
-                    m.markdown()
-                )
-                .as_bytes(),
-            )?;
-            for d in &m.designs {
-                log::info!(
-                    "      runtime model {:<12} E {:>6.1} kPa, ν {:.3}: held-out presses {:>5.1} % off the material{}",
-                    d.design,
-                    d.mean_young_pa / 1e3,
-                    d.mean_poisson,
-                    100.0 * d.held_out_relative,
-                    if d.design == m.chosen { " (exported)" } else { "" }
-                );
-            }
-            log::info!("      {}", md.display());
-            Some(m)
+        .and_then(|c| c.converged_modulus());
+    let (params, matched) = export_parameters(ds, &mat, converged.as_ref())
+        .context("matching the runtime's model to the converged material")?;
+    if let Some(m) = &matched {
+        let md = out.join("runtime-match.md");
+        palpate_fem::io::atomic::write_atomic(&md, m.report().as_bytes())?;
+        for d in &m.designs {
+            log::info!(
+                "      runtime model {:<12} E {:>6.1} kPa, ν {:.3}: held-out presses {:>5.1} % off the material{}",
+                d.design,
+                d.mean_young_pa / 1e3,
+                d.mean_poisson,
+                100.0 * d.held_out_relative,
+                if d.design == m.chosen { " (exported)" } else { "" }
+            );
         }
-        None => None,
-    };
-    let params = matched.as_ref().map_or_else(
-        || palpate_motion::export::runtime_parameters(&mat),
-        |m| m.material.clone(),
-    );
+        log::info!("      {}", md.display());
+    }
     let how = matched.as_ref().map(|m| m.provenance());
     let palp = out.join("beam.palp");
     let weight = WEIGHT_KG * 9.81;

@@ -5,7 +5,7 @@
 
 use anyhow::Context;
 use indicatif::ProgressStyle;
-use palpate_diagnose::runtime_match::{match_motion_fit, MatchOptions};
+use palpate_diagnose::runtime_match::export_parameters;
 use palpate_motion::gradient::Method;
 use palpate_motion::model::ParamKind;
 use palpate_motion::optimize::{FitSettings, Optimizer};
@@ -239,26 +239,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
         // With the mesh-convergence check's modulus, the runtime replays the material: its
         // parameters fitted to it under probe presses (`palpate_diagnose::runtime_match`).
-        let matched = match &outcome.record.converged {
-            Some(c) => {
-                let m = match_motion_fit(
-                    &runs[0].dataset,
-                    &outcome.fitted,
-                    c,
-                    &MatchOptions::default(),
-                )
-                .context("matching the runtime's model to the converged material")?;
-                println!("{}", m.markdown());
-                Some((m.material.clone(), m.provenance()))
-            }
-            None => None,
-        };
+        let (params, matched) = export_parameters(
+            &runs[0].dataset,
+            &outcome.fitted,
+            outcome.record.converged.as_ref(),
+        )
+        .context("matching the runtime's model to the converged material")?;
+        if let Some(m) = &matched {
+            println!("{}", m.markdown());
+        }
+        let how = matched.as_ref().map(|m| m.provenance());
         let n = outcome
-            .runtime_model(
-                &runs[0].dataset,
-                tool,
-                matched.as_ref().map(|(m, how)| (m, how.as_str())),
-            )
+            .runtime_model(&runs[0].dataset, tool, how.as_deref().map(|h| (&params, h)))
             .with_context(|| format!("exporting {}", path.display()))?
             .write(path)?;
         log::info!(
