@@ -61,7 +61,9 @@ pub struct MatchOptions {
     pub displacement_fraction: f64,
     /// The contact radius in mean boundary edge lengths.
     pub radius_edges: f64,
-    /// Levenberg–Marquardt iterations of each fit at most.
+    /// Levenberg–Marquardt iterations of each fit at most. On the beam the per-element fit
+    /// reaches 20 with 0.7 % error left on the fitting presses; 40 leave its held-out error
+    /// where it was (3.9 % against 3.6 %) at 1.5× the time.
     pub max_iterations: usize,
     /// Points of the per-element fit's L-curve in γ.
     pub l_curve_points: usize,
@@ -177,15 +179,17 @@ pub fn match_runtime(
 
     let mut candidates: Vec<(String, Material)> = vec![("as fitted".into(), as_fitted.clone())];
     let input = fit_input(mesh, &problem, &contacts, &probes)?;
-    let start = {
-        let (lambda, alpha) = as_fitted.at(0);
+    let pair = |m: &Material| {
+        let (lambda, alpha) = m.at(0);
         LambdaAlpha { lambda, alpha }
     };
+    let mut start = pair(as_fitted);
     for (name, layout) in [
         ("one pair", Layout::Homogeneous),
         ("per element", Layout::Inhomogeneous),
     ] {
         let mut fo = FitOptions::new(Method::Displacement, layout, Sets::Single);
+        // The per-element fit starts from the fitted pair, the nearest homogeneous material.
         fo.initial = start;
         fo.solve = RUNTIME_SOLVE;
         fo.max_iterations = o.max_iterations;
@@ -198,6 +202,9 @@ pub fn match_runtime(
                     r.history.len(),
                     t.elapsed().as_secs_f64()
                 );
+                if layout == Layout::Homogeneous {
+                    start = pair(&r.params[0]);
+                }
                 candidates.push((name.into(), r.params[0].clone()));
             }
             Ok(_) => log::warn!("runtime match, {name}: not a physical material; not offered"),
