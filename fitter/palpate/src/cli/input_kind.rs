@@ -37,15 +37,18 @@ impl Kind {
             }
             Kind::Palp => "`palpate simulate --model`, `palpate haptic --model` or `palpate info`",
             Kind::FitJson => {
-                "`palpate validate --model`, `palpate simulate --model`, `palpate haptic \
-                 --model` or `palpate info`"
+                "`palpate validate --model`, `palpate export --model`, `palpate simulate \
+                 --model`, `palpate haptic --model` or `palpate info`"
             }
             Kind::C3d => "`palpate import c3d` or `palpate info`",
             Kind::Stl => {
                 "`python3 models/mesh_stl.py` first (palpate reads tetrahedral Gmsh meshes, not \
                  surfaces)"
             }
-            Kind::Gmsh => "`palpate import c3d --mesh`, a dataset's `mesh` key, or `palpate info`",
+            Kind::Gmsh => {
+                "`palpate import c3d --mesh`, `palpate export --mesh`, a dataset's `mesh` key, or \
+                 `palpate info`"
+            }
         }
     }
 }

@@ -7,6 +7,7 @@ pub mod demo;
 pub mod demo_beam;
 pub mod demo_readme;
 pub mod diagnose;
+pub mod export;
 pub mod fit;
 pub mod fit_motion;
 pub mod fit_scan;
@@ -74,6 +75,8 @@ pub enum Command {
     Haptic(haptic::Args),
     /// Fit visco-elastic parameters to a motion dataset (Real2Sim).
     FitMotion(fit_motion::Args),
+    /// Export a fitted material as a runtime model for any object of it, matched to the material.
+    Export(export::Args),
     /// Fit Young's modulus to scans of an object hanging, held or twisted (a scan dataset); find a second material.
     FitScan(fit_scan::Args),
     /// What a model, a fitted motion model or a dataset is and where it came from.
@@ -116,6 +119,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::ProbeSim(a) => probe_sim::run(a),
         Command::Haptic(a) => haptic::run(a),
         Command::FitMotion(a) => fit_motion::run(a),
+        Command::Export(a) => export::run(a),
         Command::FitScan(a) => fit_scan::run(a),
         Command::Validate(a) => validate::run(a),
         Command::Info(a) => info::run(a),

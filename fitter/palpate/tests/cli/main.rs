@@ -9,6 +9,7 @@ mod cli_for_people;
 mod csv_readers;
 mod demo_readme;
 mod diagnose_scan;
+mod export_runtime;
 mod fit_scan;
 mod hostile_fuzz;
 mod hostile_inputs;
