@@ -2,7 +2,8 @@
 //! apart by content (the `PALP` magic, a JSON object), never by the file's name. A command that
 //! plays a model in the runtime (`simulate`, `haptic`) takes both: a fit is exported for the
 //! runtime in memory, on the mesh of a run it was fitted on, by the export path
-//! `fit-motion --export` writes files with. A command that needs the fit itself (`validate`)
+//! `fit-motion --export` writes files with (matched to the material where the fit recorded its
+//! modulus as the mesh's). A command that needs the fit itself (`validate`)
 //! refuses a `.palp`: it holds the runtime's linear material only, not the fit's viscosity,
 //! density or loads. Which kind was read is logged.
 
@@ -110,9 +111,24 @@ impl ModelFile {
             source: path.display().to_string(),
             notes: format!("exported from the fit on the mesh of {}", run.display()),
         };
-        let bytes = palpate_motion::export::model_buffers(&ds.mesh, &ds.model, &mat, &prov)
-            .and_then(|b| b.encode())
-            .with_context(|| format!("exporting {} for the runtime", path.display()))?;
+        // The material, not the mesh's locked modulus, where the fit recorded them apart.
+        let (params, matched) =
+            palpate_diagnose::runtime_match::export_parameters(&ds, &mat, fit.converged.as_ref())
+                .with_context(|| format!("matching {} to its material", path.display()))?;
+        if let Some(m) = &matched {
+            log::info!("{}", m.provenance());
+        }
+        let how = matched.as_ref().map(|m| m.provenance());
+        let bytes = palpate_motion::export::model_buffers_with(
+            &ds.mesh,
+            &ds.model,
+            &mat,
+            &params,
+            how.as_deref(),
+            &prov,
+        )
+        .and_then(|b| b.encode())
+        .with_context(|| format!("exporting {} for the runtime", path.display()))?;
         log::info!(
             "{}: exported for the runtime on the mesh and clamps of {} ({} nodes, {} tets); {}",
             path.display(),
