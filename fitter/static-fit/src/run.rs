@@ -1,6 +1,7 @@
 //! One entry point for every static fit: method × layout × sets, γ given or chosen by the L-curve,
 //! residuals per marker and measurement from the forward model driven with each measured contact.
 
+use rayon::prelude::*;
 use std::time::Instant;
 
 use palpate_runtime::material::LambdaAlpha;
@@ -326,7 +327,7 @@ pub fn check_force_method_markers(input: &FitInput) -> Result<(), FitError> {
 pub fn fit_static(
     input: &FitInput,
     o: &FitOptions,
-    mut progress: impl FnMut(&str, &IterationRecord),
+    mut progress: impl FnMut(&str, &IterationRecord) + Send,
 ) -> Result<FitResult, FitError> {
     if o.method == Method::Force {
         check_force_method_markers(input)?;
@@ -358,14 +359,27 @@ pub fn fit_static(
         Method::Force => (-3.0, 3.0),
         Method::Displacement => (-2.0, 2.0),
     };
+    // The grid's fits are independent: they run side by side, their progress reported in turn,
+    // and are read in grid order as a sequential run would (the same choice, the same first
+    // error).
+    let progress = std::sync::Mutex::new(&mut progress);
+    let outcomes: Vec<(f64, Result<FitResult, FitError>)> = (0..k)
+        .into_par_iter()
+        .map(|j| {
+            let g = base * 10f64.powf(lo + (hi - lo) * j as f64 / (k - 1) as f64);
+            let label = format!("L-curve {}/{k} γ={g:.3e}", j + 1);
+            let r = fit_with(input, o, Gammas::uniform(g), &mut |rec| {
+                if let Ok(mut p) = progress.lock() {
+                    p(&label, rec)
+                }
+            });
+            (g, r)
+        })
+        .collect();
     let mut grid = Vec::with_capacity(k);
     let mut fits = Vec::with_capacity(k);
-    for j in 0..k {
-        let g = base * 10f64.powf(lo + (hi - lo) * j as f64 / (k - 1) as f64);
-        let label = format!("L-curve {}/{k} γ={g:.3e}", j + 1);
-        match fit_with(input, o, Gammas::uniform(g), &mut |rec| {
-            progress(&label, rec)
-        }) {
+    for (g, outcome) in outcomes {
+        match outcome {
             Ok(r) => {
                 let rho = r
                     .per_measurement
