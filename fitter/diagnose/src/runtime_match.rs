@@ -148,6 +148,13 @@ pub fn match_runtime(
     converged: &ConvergedModulus,
     o: &MatchOptions,
 ) -> Result<RuntimeMatch, Error> {
+    let (mu, nu) = (converged.shear_modulus_pa, converged.poisson);
+    if !(mu.is_finite() && mu > 0.0 && nu > -1.0 && nu < 0.5) {
+        return Err(Error::Input(format!(
+            "the converged material is not one: shear modulus {mu:e} Pa (expected > 0), \
+             Poisson's ratio {nu} (expected between -1 and 0.5)"
+        )));
+    }
     if o.probes < 2 {
         return Err(Error::Input(format!(
             "the runtime match needs at least 2 probes (one fitted, one held out), found {}",
@@ -532,6 +539,23 @@ pub fn export_parameters(
     }
 }
 
+/// [`export_parameters`] for an export that is a by-product (a diagnosis' `model.palp`, a fit
+/// played in memory): a match that cannot be made is said in a warning, and the fit's own moduli
+/// are exported, rather than the work before it lost.
+pub fn export_parameters_or_own(
+    ds: &palpate_motion::dataset::MotionDataset,
+    mat: &palpate_motion::model::Material,
+    converged: Option<&ConvergedModulus>,
+) -> (Material, Option<RuntimeMatch>) {
+    export_parameters(ds, mat, converged).unwrap_or_else(|e| {
+        log::warn!(
+            "the runtime's model is not matched to the material ({e}); the fit's own moduli are \
+             exported"
+        );
+        (palpate_motion::export::runtime_parameters(mat), None)
+    })
+}
+
 impl RuntimeMatch {
     /// The match as a page of its own (`runtime-match.md`).
     pub fn report(&self) -> String {
@@ -638,5 +662,32 @@ mod tests {
         assert!(!needed(&record(104.0, 100.0)));
         assert!(!needed(&record(96.0, 100.0)));
         assert!(needed(&record(106.0, 100.0)));
+    }
+
+    /// A match that cannot be made (here a record whose material is no material: μ < 0 on
+    /// quadratic elements) is an error where the export was asked for, and where it is a
+    /// by-product the fit's own moduli are exported instead, not the work before it lost.
+    #[test]
+    fn a_match_that_cannot_be_made_falls_back_to_the_fits_own_moduli() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let ds = palpate_motion::dataset::load(&root.join("models/motion-example"))
+            .expect("the example's motion dataset");
+        let mat = palpate_motion::model::Material::uniform(
+            ds.mesh.tets.len(),
+            8_000.0,
+            2_000.0,
+            0.0,
+            1.0,
+            1_000.0,
+        );
+        let bad = record(-4_000.0, 2_000.0);
+        assert!(needed(&bad));
+        let err = export_parameters(&ds, &mat, Some(&bad))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("shear modulus -4e3 Pa"), "{err}");
+        let (params, matched) = export_parameters_or_own(&ds, &mat, Some(&bad));
+        assert!(matched.is_none());
+        assert_eq!(params, palpate_motion::export::runtime_parameters(&mat));
     }
 }

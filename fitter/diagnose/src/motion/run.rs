@@ -61,7 +61,7 @@ pub fn run(
             .as_ref()
             .and_then(|c| c.converged_modulus());
         let (params, matched) =
-            crate::runtime_match::export_parameters(&ds, mat, converged.as_ref())?;
+            crate::runtime_match::export_parameters_or_own(&ds, mat, converged.as_ref());
         let how = matched.as_ref().map(|m| m.provenance());
         if let Some(m) = &matched {
             let path = output.join("runtime-match.md");

@@ -112,9 +112,11 @@ impl ModelFile {
             notes: format!("exported from the fit on the mesh of {}", run.display()),
         };
         // The material, not the mesh's locked modulus, where the fit recorded them apart.
-        let (params, matched) =
-            palpate_diagnose::runtime_match::export_parameters(&ds, &mat, fit.converged.as_ref())
-                .with_context(|| format!("matching {} to its material", path.display()))?;
+        let (params, matched) = palpate_diagnose::runtime_match::export_parameters_or_own(
+            &ds,
+            &mat,
+            fit.converged.as_ref(),
+        );
         if let Some(m) = &matched {
             log::info!("{}", m.provenance());
         }
