@@ -15,6 +15,7 @@ mod mesh_error;
 mod motion_export;
 mod runtime_anticipation;
 mod runtime_evidence;
+mod runtime_match_replay;
 mod runtime_model_checks;
 mod runtime_solver;
 mod runtime_storage;

@@ -35,13 +35,15 @@ fn the_beams_runtime_matched_to_its_quadratic_modulus_predicts_held_out_presses_
         palpate_fem::mesh::gmsh::read_msh(repo().join("models/silicone-beam/beam-coarse.msh"))
             .expect("the beam's mesh");
     let fixed = mesh.node_groups["clamp"].clone();
-    let converged = ConvergedModulus {
-        design: "P2".into(),
-        poisson: 0.49,
-        shear_modulus_pa: 86_004.0,
-        mesh_shear_modulus_pa: 44_726.0,
-    };
-    let m = matched(&mesh, &fixed, 44_858.0, &converged);
+    let fit: palpate_motion::fitted::FittedModel = serde_json::from_str(
+        &std::fs::read_to_string(repo().join("docs/results/beam/diagnosis/fit.json")).unwrap(),
+    )
+    .expect("the diagnosed beam's fit");
+    let converged = fit
+        .converged
+        .clone()
+        .expect("its modulus on quadratic elements");
+    let m = matched(&mesh, &fixed, fit.mu[0], &converged);
     let (own, chosen) = (&m.designs[0], m.chosen_error().expect("a chosen design"));
     assert_eq!(own.design, "as fitted");
     assert_ne!(m.chosen, "as fitted", "{}", m.markdown());
