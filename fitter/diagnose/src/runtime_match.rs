@@ -192,7 +192,7 @@ pub fn match_runtime(
     let held: Vec<&Probe> = probes.iter().skip(1).step_by(2).collect();
 
     let mut candidates: Vec<(String, Material)> = vec![("as fitted".into(), as_fitted.clone())];
-    let input = fit_input(mesh, &problem, &contacts, &probes)?;
+    let input = fit_input(mesh, &problem, &contacts, &probes);
     let pair = |m: &Material| {
         let (lambda, alpha) = m.at(0);
         LambdaAlpha { lambda, alpha }
@@ -210,7 +210,7 @@ pub fn match_runtime(
         fo.l_curve_points = o.l_curve_points;
         let t = std::time::Instant::now();
         match fit_static(&input, &fo, |_, _| {}) {
-            Ok(r) if physical(&r.params[0]) => {
+            Ok(r) if r.params[0].check(mesh.tets.len()).is_ok() => {
                 log::debug!(
                     "runtime match, {name}: {} iterations, {:.1} s",
                     r.history.len(),
@@ -235,8 +235,8 @@ pub fn match_runtime(
             fitted_relative,
             held_out_relative,
             held_out_max_m,
-            mean_young_pa: mean_of(m, LambdaAlpha::young),
-            mean_poisson: mean_of(m, LambdaAlpha::poisson),
+            mean_young_pa: m.mean(LambdaAlpha::young),
+            mean_poisson: m.mean(LambdaAlpha::poisson),
         });
     }
     // The fitting probes choose, the designs in order of their parameters: a richer one is
@@ -268,7 +268,7 @@ fn fit_input(
     problem: &StaticProblem,
     contacts: &[Contact],
     probes: &[Probe],
-) -> Result<FitInput, Error> {
+) -> FitInput {
     let mut on: Vec<Option<[usize; 3]>> = vec![None; mesh.nodes.len()];
     for t in &problem.surface {
         for (k, &i) in t.iter().enumerate() {
@@ -313,33 +313,16 @@ fn fit_input(
                 .collect(),
         })
         .collect();
-    Ok(FitInput {
+    FitInput {
         problem: problem.clone(),
         markers,
         measurements,
         marker_noise: None,
-    })
+    }
 }
 
 fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     (0..3).map(|d| (a[d] - b[d]).powi(2)).sum::<f64>().sqrt()
-}
-
-/// Every element's pair is a physical linear material.
-fn physical(m: &Material) -> bool {
-    m.lambda
-        .iter()
-        .zip(&m.alpha)
-        .all(|(&lambda, &alpha)| LambdaAlpha { lambda, alpha }.is_physical())
-}
-
-fn mean_of(m: &Material, f: impl Fn(&LambdaAlpha) -> f64) -> f64 {
-    m.lambda
-        .iter()
-        .zip(&m.alpha)
-        .map(|(&lambda, &alpha)| f(&LambdaAlpha { lambda, alpha }))
-        .sum::<f64>()
-        / m.lambda.len().max(1) as f64
 }
 
 /// The converged model's deformed node positions (the runtime mesh's nodes: the quadratic lift's
@@ -453,15 +436,7 @@ fn probe_contacts(
             *d = d.min((v(i) - v(next)).norm());
         }
     }
-    let (lo, hi) = mesh.nodes.iter().fold(
-        ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
-        |(lo, hi), p| {
-            (
-                std::array::from_fn(|d| lo[d].min(p[d])),
-                std::array::from_fn(|d| hi[d].max(p[d])),
-            )
-        },
-    );
+    let (lo, hi) = mesh.bounds();
     let diagonal = dist(&lo, &hi);
     let linear = SolveOptions {
         increments: 1,
@@ -513,6 +488,36 @@ pub fn match_motion_fit(
         converged,
         o,
     )
+}
+
+/// A fitted motion model's material matched on another object's `mesh` held at `fixed` (what
+/// `palpate export` writes): the fit's moduli taken as they are stand as "as fitted". Refused,
+/// with the reason, when the fit records no modulus on quadratic elements (there is then no
+/// material to match, only the fit mesh's locking) or its moduli vary between the elements of
+/// its own mesh, which another mesh does not have.
+pub fn match_fit_on(
+    fit: &palpate_motion::fitted::FittedModel,
+    mesh: &Mesh,
+    fixed: &[usize],
+) -> Result<RuntimeMatch, Error> {
+    let converged = fit.converged.as_ref().ok_or_else(|| {
+        Error::Input(
+            "the fit records no converged modulus: fit it with `palpate fit-motion \
+             --mesh-convergence` (or `palpate diagnose`, which checks it), so that its material, \
+             not its mesh's, is what another mesh is given"
+                .into(),
+        )
+    })?;
+    let uniform = |v: &[f64]| palpate_motion::transfer::uniform(v).flatten();
+    let (Some(lambda), Some(mu)) = (uniform(&fit.lambda), uniform(&fit.mu)) else {
+        return Err(Error::Input(
+            "the fit's moduli vary between the elements of its own mesh, which another mesh \
+             does not have; only a uniform material is carried"
+                .into(),
+        ));
+    };
+    let as_fitted = Material::homogeneous(LambdaAlpha::from_lame(lambda, mu));
+    match_runtime(mesh, fixed, &as_fitted, converged, &MatchOptions::default())
 }
 
 /// Whether a fit with this record needs the match: its modulus differs from the material's by

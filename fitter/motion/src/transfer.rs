@@ -65,7 +65,7 @@ pub struct Carried {
 
 /// The single value of a per-element field that holds one (or the same in every element);
 /// `None` for a field that varies.
-fn uniform(v: &[f64]) -> Option<Option<f64>> {
+pub fn uniform(v: &[f64]) -> Option<Option<f64>> {
     match v.first() {
         None => Some(None),
         Some(&a) => v

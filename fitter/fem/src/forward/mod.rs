@@ -259,6 +259,16 @@ impl Material {
             (self.lambda[e], self.alpha[e])
         }
     }
+    /// The mean over the stored pairs of a property of each (Young's modulus, Poisson's ratio):
+    /// the value itself for a homogeneous material.
+    pub fn mean(&self, f: impl Fn(&LambdaAlpha) -> f64) -> f64 {
+        self.lambda
+            .iter()
+            .zip(&self.alpha)
+            .map(|(&lambda, &alpha)| f(&LambdaAlpha { lambda, alpha }))
+            .sum::<f64>()
+            / self.lambda.len().max(1) as f64
+    }
     /// Checks the length against `elements` and that every pair is physical.
     pub fn check(&self, elements: usize) -> Result<(), ForwardError> {
         let (nl, na) = (self.lambda.len(), self.alpha.len());

@@ -234,7 +234,7 @@ fn tip_deflection(
         weight,
         &out.join("beam-warped-linear.palp"),
     )?;
-    let e_fit = mean_young(&params);
+    let e_fit = params.mean(palpate_runtime::material::LambdaAlpha::young);
     log::info!(
         "      warped-linear static fit to the measured deflection: E = {:.0} Pa (runtime tip {} mm, measured {} mm)",
         e_fit * scale,
@@ -318,16 +318,6 @@ fn tip_markers(ds: &MotionDataset) -> Vec<usize> {
         .filter(|(_, m)| m.name.starts_with("Tip"))
         .map(|(i, _)| i)
         .collect()
-}
-
-/// The mean Young's modulus of thesis parameters (Pa).
-fn mean_young(m: &palpate_fem::forward::Material) -> f64 {
-    m.lambda
-        .iter()
-        .zip(&m.alpha)
-        .map(|(&lambda, &alpha)| palpate_runtime::material::LambdaAlpha { lambda, alpha }.young())
-        .sum::<f64>()
-        / m.lambda.len().max(1) as f64
 }
 
 /// Exports the fit `mat` with the runtime parameters `params` (provenance `how`) on the beam to

@@ -8,11 +8,8 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use palpate_diagnose::runtime_match::{match_runtime, MatchOptions};
+use palpate_diagnose::runtime_match::match_fit_on;
 use palpate_fem::export::{ModelBuffers, ProvenanceInfo};
-use palpate_fem::forward::Material;
-use palpate_motion::model::ParamKind;
-use palpate_runtime::material::LambdaAlpha;
 
 use super::input_kind::{self, Kind};
 
@@ -46,46 +43,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .into_fit("export --model")?;
     input_kind::expect(&args.mesh, Kind::Gmsh, "export --mesh")?;
     super::output::check_writable(&args.output)?;
-    let converged = fit.converged.clone().with_context(|| {
-        format!(
-            "{} records no converged modulus: fit it with `palpate fit-motion \
-             --mesh-convergence` (or `palpate diagnose`, which checks it), so that its material, \
-             not its mesh's, is what another mesh is given",
-            args.model.display()
-        )
-    })?;
-    let mat = fit
-        .material()
-        .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?;
-    let uniform = |k: ParamKind| {
-        let v = &mat.values[k as usize];
-        v.iter()
-            .all(|x| (x - v[0]).abs() <= 1e-12 * v[0].abs())
-            .then_some(v[0])
-    };
-    let (Some(lambda), Some(mu)) = (uniform(ParamKind::Lambda), uniform(ParamKind::Mu)) else {
-        anyhow::bail!(
-            "{}: its moduli vary between the elements of its own mesh, which another mesh does \
-             not have; only a uniform material is carried",
-            args.model.display()
-        );
-    };
     let mesh = palpate_fem::mesh::gmsh::read_msh(&args.mesh)
         .with_context(|| format!("reading {}", args.mesh.display()))?;
     let mut fixed = Vec::new();
     for g in &args.clamps {
-        let nodes = mesh.node_groups.get(g).with_context(|| {
-            format!(
-                "{}: no physical group {g:?}; it has {:?}",
-                args.mesh.display(),
-                mesh.node_groups.keys().collect::<Vec<_>>()
-            )
-        })?;
-        fixed.extend_from_slice(nodes);
+        fixed.extend_from_slice(
+            mesh.group(g)
+                .with_context(|| format!("{}", args.mesh.display()))?,
+        );
     }
     fixed.sort_unstable();
     fixed.dedup();
-    let as_fitted = Material::homogeneous(LambdaAlpha::from_lame(lambda, mu));
     log::info!(
         "matching the runtime on {} ({} nodes, {} tets) to the material: 16 presses on \
          quadratic elements, then the static inverse",
@@ -93,14 +61,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         mesh.nodes.len(),
         mesh.tets.len()
     );
-    let m = match_runtime(
-        &mesh,
-        &fixed,
-        &as_fitted,
-        &converged,
-        &MatchOptions::default(),
-    )
-    .context("matching the runtime's model to the material")?;
+    let m = match_fit_on(&fit, &mesh, &fixed).with_context(|| {
+        format!(
+            "exporting {} on {}",
+            args.model.display(),
+            args.mesh.display()
+        )
+    })?;
     println!("{}", m.markdown());
     let prov = ProvenanceInfo {
         tool: format!(
@@ -112,7 +79,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         notes: format!(
             "the fitted material on {}; {}; {}",
             args.mesh.display(),
-            palpate_motion::export::lost_in_export(&mat),
+            palpate_motion::export::lost_in_export(
+                &fit.material()
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", args.model.display()))?
+            ),
             m.provenance()
         ),
     };
