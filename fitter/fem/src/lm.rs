@@ -308,11 +308,19 @@ fn model_step(
 /// each accepted step, keeps the model whose predicted decrease was nearer the actual one; a
 /// rejected step returns to H. With a residual that does not vanish plain Gauss–Newton converges
 /// only linearly, or crawls where Φ is not convex; H + S restores a superlinear finish.
+///
+/// θ is held on or above `lower` (−∞ where free): a step that would take a coordinate below its
+/// bound stops it on the bound, and a coordinate on its bound whose gradient points below it is
+/// held there (its gradient and its row and column of the model removed) while the others move —
+/// a projected Gauss–Newton iteration in the manner of the active-set methods for
+/// bound-constrained least squares: the bound becomes active in one step instead of being
+/// approached a fraction at a time.
 pub fn minimise_trust_region(
     theta0: Vec<f64>,
     first: Normal,
     mut eval: impl FnMut(&[f64]) -> Option<Normal>,
     o: &TrustOptions,
+    lower: &[f64],
 ) -> TrustOutcome {
     let np = theta0.len();
     let mut theta = theta0;
@@ -332,16 +340,23 @@ pub fn minimise_trust_region(
         iterations += 1;
         let (g, h, phi) = (&cur.grad, &cur.gn, cur.phi);
         let with_s: Vec<f64> = h.iter().zip(&sc).map(|(a, b)| a + b).collect();
-        let step;
-        (step, augmented) = model_step(h, &with_s, g, phi, radius, augmented, concave);
+        let held = held_model(&theta, lower, g, [h, &with_s]);
+        let (gm, hm, sm) = match &held {
+            Some(m) => (&m.g, &m.h, &m.s),
+            None => (g, h, &with_s),
+        };
+        let free_step;
+        (free_step, augmented) = model_step(hm, sm, gm, phi, radius, augmented, concave);
+        let (step, hit) = within_bounds(&theta, lower, free_step);
         let length = norm(&step);
-        let model = if augmented { &with_s } else { h };
-        let predicted = model_decrease(model, g, &step);
-        let other = model_decrease(if augmented { h } else { &with_s }, g, &step);
-        // A NaN prediction (a model that cannot say) counts as no decrease.
-        let small =
-            predicted.partial_cmp(&(o.rel_tolerance * phi)) != Some(std::cmp::Ordering::Greater);
-        if (trusted && small) || length < 1e-8 || radius < 1e-8 {
+        let model = if augmented { sm } else { hm };
+        let predicted = model_decrease(model, gm, &step);
+        let other = model_decrease(if augmented { hm } else { sm }, gm, &step);
+        // A NaN prediction (a model that cannot say) counts as no decrease. A step stopped on a
+        // bound says nothing of the minimum: the next iteration starts on the bound.
+        let small = hit.is_empty()
+            && predicted.partial_cmp(&(o.rel_tolerance * phi)) != Some(std::cmp::Ordering::Greater);
+        if (trusted && small) || (length < 1e-8 && hit.is_empty()) || radius < 1e-8 {
             converged = true;
             break;
         }
@@ -349,7 +364,10 @@ pub fn minimise_trust_region(
             "trust-region Levenberg–Marquardt {iterations}: Φ {phi:.6e}, predicted decrease {predicted:.3e}, step {step:?}, radius {radius:.2e}, {}",
             if augmented { "H + S" } else { "H" }
         );
-        let trial: Vec<f64> = theta.iter().zip(&step).map(|(a, b)| a + b).collect();
+        let mut trial: Vec<f64> = theta.iter().zip(&step).map(|(a, b)| a + b).collect();
+        for &k in &hit {
+            trial[k] = lower[k];
+        }
         match eval(&trial) {
             Some(next) if next.phi < phi => {
                 let actual = phi - next.phi;
@@ -399,6 +417,57 @@ pub fn minimise_trust_region(
     }
 }
 
+/// Whether θ_k sits on its lower bound (to rounding).
+fn on_bound(theta: f64, lower: f64) -> bool {
+    theta <= lower + 1e-12 * lower.abs().max(1.0)
+}
+
+/// The model (g, B) with the coordinates held at their lower bounds removed: a coordinate on its
+/// bound whose gradient points below it (g_k > 0: Φ falls as θ_k falls) gets g_k = 0 and a unit
+/// row and column in B, so every step leaves it where it is. `None` when nothing is held.
+fn held_model(theta: &[f64], lower: &[f64], g: &[f64], bs: [&[f64]; 2]) -> Option<HeldModel> {
+    let np = theta.len();
+    let held: Vec<usize> = (0..np)
+        .filter(|&k| on_bound(theta[k], lower[k]) && g[k] > 0.0)
+        .collect();
+    if held.is_empty() {
+        return None;
+    }
+    let mut g = g.to_vec();
+    let [mut h, mut s] = bs.map(<[f64]>::to_vec);
+    for &k in &held {
+        g[k] = 0.0;
+        for b in [&mut h, &mut s] {
+            for j in 0..np {
+                b[k * np + j] = 0.0;
+                b[j * np + k] = 0.0;
+            }
+            b[k * np + k] = 1.0;
+        }
+    }
+    Some(HeldModel { g, h, s })
+}
+
+/// [`held_model`]'s gradient, Gauss–Newton matrix and H + S.
+struct HeldModel {
+    g: Vec<f64>,
+    h: Vec<f64>,
+    s: Vec<f64>,
+}
+
+/// `step` projected onto the bounds: a coordinate that θ + step would take below `lower` stops on
+/// it (the other coordinates keep their step). Returns the step and the coordinates it stopped.
+fn within_bounds(theta: &[f64], lower: &[f64], mut step: Vec<f64>) -> (Vec<f64>, Vec<usize>) {
+    let mut hit = Vec::new();
+    for k in 0..theta.len() {
+        if theta[k] + step[k] < lower[k] {
+            step[k] = (lower[k] - theta[k]).min(0.0);
+            hit.push(k);
+        }
+    }
+    (step, hit)
+}
+
 /// [`minimise_trust_region`], started again from where it stopped while a convergence test fired
 /// that is not the minimum's. Rejected steps (a simulation that fails, a secant model that
 /// misled) shrink the radius until the step is too short to count or the little the model
@@ -406,19 +475,26 @@ pub fn minimise_trust_region(
 /// and a fresh radius ([`TrustOptions::initial_radius`]) decide: while its step promises more
 /// than Φ's noise (`noise_tolerance` of Φ) the iteration goes on, and it ends when a restart
 /// gains less than the precision asked (`rel_tolerance` of Φ) or the iteration limit, counted
-/// over every restart, is reached.
+/// over every restart, is reached. θ is held on or above `lower` as in [`minimise_trust_region`].
 pub fn minimise_restarting(
     theta0: Vec<f64>,
     first: Normal,
     mut eval: impl FnMut(&[f64]) -> Option<Normal>,
     o: &TrustOptions,
+    lower: &[f64],
 ) -> TrustOutcome {
-    let mut out = minimise_trust_region(theta0, first, &mut eval, o);
+    let mut out = minimise_trust_region(theta0, first, &mut eval, o, lower);
     let mut iterations = out.iterations;
     while out.converged && iterations < o.max_iterations {
         let phi = out.normal.phi;
         let (g, h) = (&out.normal.grad, &out.normal.gn);
-        let promised = model_decrease(h, g, &trust_region_step(h, g, o.initial_radius));
+        let held = held_model(&out.theta, lower, g, [h, h]);
+        let (g, h) = match &held {
+            Some(m) => (&m.g, &m.h),
+            None => (g, h),
+        };
+        let (step, _) = within_bounds(&out.theta, lower, trust_region_step(h, g, o.initial_radius));
+        let promised = model_decrease(h, g, &step);
         if promised.is_nan() || promised <= o.noise_tolerance * phi {
             break;
         }
@@ -433,6 +509,7 @@ pub fn minimise_restarting(
                 max_iterations: o.max_iterations - iterations,
                 ..*o
             },
+            lower,
         );
         iterations += out.iterations;
         if phi - out.normal.phi <= o.rel_tolerance * phi {
@@ -445,6 +522,10 @@ pub fn minimise_restarting(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// No bounds on one or two parameters.
+    const FREE1: [f64; 1] = [f64::NEG_INFINITY];
+    const FREE2: [f64; 2] = [f64::NEG_INFINITY; 2];
 
     /// Φ, ∇Φ and JᵀJ of residuals `f` with Jacobian `jac` (row-major n × p).
     fn normal(r: &[f64], j: &[f64], p: usize) -> Normal {
@@ -479,7 +560,13 @@ mod tests {
             initial_radius: 1.0,
             max_radius: 10.0,
         };
-        let out = minimise_trust_region(vec![-1.2, 1.0], eval(&[-1.2, 1.0]), |t| Some(eval(t)), &o);
+        let out = minimise_trust_region(
+            vec![-1.2, 1.0],
+            eval(&[-1.2, 1.0]),
+            |t| Some(eval(t)),
+            &o,
+            &FREE2,
+        );
         assert!(out.converged);
         assert!(
             (out.theta[0] - 1.0).abs() < 1e-6 && (out.theta[1] - 1.0).abs() < 1e-6,
@@ -542,7 +629,7 @@ mod tests {
             initial_radius: 0.5,
             max_radius: 1.0,
         };
-        let tr = minimise_trust_region(vec![2.0], eval(&[2.0]), |th| Some(eval(th)), &o);
+        let tr = minimise_trust_region(vec![2.0], eval(&[2.0]), |th| Some(eval(th)), &o, &FREE1);
         let tr_evals = evals.get();
         let lo = LmOptions {
             max_iterations: 200,
@@ -612,10 +699,11 @@ mod tests {
             calls.set(calls.get() + 1);
             (calls.get() > 20).then(|| eval(t))
         };
-        let once = minimise_trust_region(vec![0.0, 0.0], eval(&[0.0, 0.0]), failing_first, &o);
+        let once =
+            minimise_trust_region(vec![0.0, 0.0], eval(&[0.0, 0.0]), failing_first, &o, &FREE2);
         assert!(once.converged && once.theta == [0.0, 0.0], "{once:?}");
         calls.set(0);
-        let out = minimise_restarting(vec![0.0, 0.0], eval(&[0.0, 0.0]), failing_first, &o);
+        let out = minimise_restarting(vec![0.0, 0.0], eval(&[0.0, 0.0]), failing_first, &o, &FREE2);
         assert!(out.converged, "{out:?}");
         assert!(
             (out.theta[0] - 1.0).abs() < 1e-9 && (out.theta[1] + 3.0).abs() < 1e-9,
@@ -623,6 +711,60 @@ mod tests {
             out.theta
         );
         assert!(out.iterations > once.iterations, "{out:?}");
+    }
+
+    /// Correlated linear residuals r = A θ − b (a₀ and a₁ correlated), whose unconstrained
+    /// minimum (1, −3) lies below a floor θ₀ ≥ 2: the bounded fit stops on the floor with θ₁ at
+    /// its conditional minimum θ₁ = a₁ᵀ(b − 2 a₀) / a₁ᵀa₁ (the bound-constrained least-squares
+    /// solution; the coupling moves θ₁ off −3), in a few iterations instead of crawling toward
+    /// the bound. With the floor below the minimum the fit is the unbounded one, to the bit.
+    #[test]
+    fn a_floor_below_the_minimum_holds_the_fit_on_it() {
+        let (c, sn) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
+        // Row-major 3 × 2: columns a₀ = (1, 0, 0) and a₁ = (c, s, 1).
+        let a = [1.0, c, 0.0, sn, 0.0, 1.0];
+        let truth = [1.0, -3.0];
+        let b: Vec<f64> = (0..3)
+            .map(|i| a[2 * i] * truth[0] + a[2 * i + 1] * truth[1])
+            .collect();
+        let eval = |t: &[f64]| {
+            let r: Vec<f64> = (0..3)
+                .map(|i| a[2 * i] * t[0] + a[2 * i + 1] * t[1] - b[i])
+                .collect();
+            normal(&r, &a, 2)
+        };
+        let o = TrustOptions {
+            max_iterations: 50,
+            rel_tolerance: 1e-14,
+            noise_tolerance: 0.0,
+            initial_radius: 1.0,
+            max_radius: 10.0,
+        };
+        let start = vec![5.0, 0.0];
+        let lower = [2.0, f64::NEG_INFINITY];
+        let some = |t: &[f64]| Some(eval(t));
+        let out = minimise_restarting(start.clone(), eval(&start), some, &o, &lower);
+        let a1: Vec<f64> = (0..3).map(|i| a[2 * i + 1]).collect();
+        let rest: Vec<f64> = (0..3).map(|i| b[i] - a[2 * i] * 2.0).collect();
+        let dot = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(p, q)| p * q).sum::<f64>();
+        let theta1 = dot(&a1, &rest) / dot(&a1, &a1);
+        assert_eq!(out.theta[0], 2.0, "{out:?}");
+        assert!(
+            (out.theta[1] - theta1).abs() < 1e-9,
+            "{out:?} against {theta1}"
+        );
+        assert!(
+            (theta1 + 3.0).abs() > 0.1,
+            "the coupling moves θ₁: {theta1}"
+        );
+        assert!(out.converged && out.iterations <= 8, "{out:?}");
+        // The floor not reached: the same iterates as the unbounded fit.
+        let free = minimise_restarting(start.clone(), eval(&start), some, &o, &FREE2);
+        let low = [-10.0, f64::NEG_INFINITY];
+        let within = minimise_restarting(start.clone(), eval(&start), some, &o, &low);
+        assert_eq!(free.theta, within.theta);
+        assert_eq!(free.iterations, within.iterations);
+        assert!((free.theta[0] - 1.0).abs() < 1e-9 && (free.theta[1] + 3.0).abs() < 1e-9);
     }
 
     /// A secant model that promises more than Φ is not tried: H's step instead. One parameter,
@@ -678,7 +820,8 @@ mod tests {
             initial_radius: 1.0,
             max_radius: 3.0,
         };
-        let out = minimise_trust_region(vec![1.505], eval(&[1.505]), |th| Some(eval(th)), &o);
+        let out =
+            minimise_trust_region(vec![1.505], eval(&[1.505]), |th| Some(eval(th)), &o, &FREE1);
         assert!(out.converged);
         assert!((out.theta[0] - 2.3).abs() < 0.05, "{}", out.theta[0]);
         assert!(evals.get() <= 10, "{} evaluations", evals.get());

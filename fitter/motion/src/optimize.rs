@@ -65,6 +65,12 @@ pub struct FitSettings {
     /// not be a parameter itself). For a bending test whose markers see the deflection but not
     /// the volume change, λ is not identifiable; a nearly incompressible material is declared.
     pub poisson: Option<f64>,
+    /// Lower bounds (floors) of global parameters, by kind: for a parameter whose values below
+    /// some bound describe another effect than the one fitted. A step that would cross a floor
+    /// stops on it, and a parameter on its floor stays there while Φ falls below it
+    /// ([`palpate_fem::lm::minimise_restarting`]). Levenberg–Marquardt only; the start
+    /// must not lie below the floor.
+    pub floors: Vec<(ParamKind, f64)>,
 }
 
 impl Default for FitSettings {
@@ -78,6 +84,7 @@ impl Default for FitSettings {
             tol_cost: 1e-10,
             smoothness: None,
             poisson: None,
+            floors: Vec::new(),
         }
     }
 }
@@ -488,6 +495,37 @@ pub fn fit_runs(
         .all(|p| p.element.is_none() && !p.kind.is_spline())
         && base.spline.is_none()
         && pairs.is_empty();
+    for &(kind, floor) in &settings.floors {
+        if !(floor.is_finite() && floor > 0.0) {
+            return Err(MotionError::Invalid(format!(
+                "the floor of {} must be positive and finite, found {floor}",
+                kind.name()
+            )));
+        }
+        if matches!(kind, ParamKind::Nu | ParamKind::PowerH) {
+            // Their coordinates are read at the data's strain rate ([`RateReference`]), not ln q.
+            return Err(MotionError::Invalid(format!(
+                "a floor on {} is not supported",
+                kind.name()
+            )));
+        }
+        if !lm_applies || settings.optimizer == Optimizer::Lbfgs {
+            return Err(MotionError::Invalid(format!(
+                "a floor on {} needs Levenberg–Marquardt on global parameters",
+                kind.name()
+            )));
+        }
+        if let Some((p, q)) = params
+            .iter()
+            .zip(q0)
+            .find(|(p, q)| p.kind == kind && **q < floor)
+        {
+            return Err(MotionError::Invalid(format!(
+                "{} starts at {q}, below its floor {floor}",
+                p.kind.name()
+            )));
+        }
+    }
     match settings.optimizer {
         Optimizer::LevenbergMarquardt if !lm_applies => {
             return Err(MotionError::Invalid(
@@ -738,8 +776,8 @@ impl RateReference {
 
 /// Levenberg–Marquardt in z = ln q, a fitted viscosity with its index read at the data's strain
 /// rate ([`RateReference`]): palpate's trust-region form of it
-/// ([`palpate_fem::lm::minimise_restarting`]) on Φ, ∇Φ and the Gauss–Newton matrix of every
-/// simulation ([`gauss_newton_runs`]), radius in log space (a factor e to start), stopping at a
+/// ([`palpate_fem::lm::minimise_restarting`], held above [`FitSettings::floors`]) on Φ,
+/// ∇Φ and the Gauss–Newton matrix of every simulation ([`gauss_newton_runs`]), radius in log space (a factor e to start), stopping at a
 /// relative precision max(`tol_cost`, 1e-6) of Φ or after `max_iters` iterations.
 fn levenberg_marquardt(
     runs: &[Run<'_>],
@@ -795,6 +833,20 @@ fn levenberg_marquardt(
     }
     let w0 = reference.coordinates(z0);
     let first = reference.normal_in_coordinates(&w0, first);
+    // The floors in the fit's coordinates: ln f on a global log-parameter outside the rate pairs
+    // (a coordinate w = z = ln q there).
+    let paired = |i: usize| reference.pairs.iter().any(|&(n, h, _)| i == n || i == h);
+    let lower: Vec<f64> = params
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            settings
+                .floors
+                .iter()
+                .find(|(k, _)| *k == p.kind && p.is_global() && !paired(i))
+                .map_or(f64::NEG_INFINITY, |(_, f)| f.ln())
+        })
+        .collect();
     let options = TrustOptions {
         max_iterations: settings.max_iters as usize,
         // The precision the fit is worth: a relative change of 1e-6 in Φ moves a BIC over 10⁴
@@ -814,7 +866,7 @@ fn levenberg_marquardt(
         eval(&z, &mut history, &mut failures)
             .map(|normal| reference.normal_in_coordinates(w, normal))
     };
-    let out = minimise_restarting(w0, first, &mut in_w, &options);
+    let out = minimise_restarting(w0, first, &mut in_w, &options, &lower);
     let iterations = out.iterations;
     let z = reference
         .log_params(&out.theta)

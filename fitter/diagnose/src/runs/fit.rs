@@ -44,6 +44,11 @@ pub(in crate::runs) struct RunsModel<'a> {
     /// The hanging weights' lever read from the fitted runs' rest states (the `load-point`
     /// candidate's), when they hang a weight and give one.
     pub(in crate::runs) lever: Option<palpate_motion::load_point::LeverFit>,
+    /// The floor of the creep branch's relaxation time: the longest ring-down period measured
+    /// in the fitted runs (`None` when none rings). A branch that relaxes within a period of the
+    /// ring-down acts on it as a dashpot, which the damping candidates are; held above it, the
+    /// branch is what the creep candidate says it is, relaxation slower than the ring-down.
+    pub(in crate::runs) creep_floor: Option<f64>,
 }
 
 impl RunsModel<'_> {
@@ -209,9 +214,25 @@ impl RunsModel<'_> {
             .iter()
             .map(|(model, obs)| Run { model, obs })
             .collect();
+        let floors: Vec<(ParamKind, f64)> = self
+            .creep_floor
+            .filter(|_| kinds.contains(&ParamKind::CreepTime))
+            .map(|f| (ParamKind::CreepTime, f))
+            .into_iter()
+            .collect();
+        let mut q0 = q0;
+        for &(kind, f) in &floors {
+            // A start below the floor (a material fitted without it) begins above it.
+            if let Some(i) = params.iter().position(|p| p.kind == kind) {
+                if q0[i] < f {
+                    q0[i] = 2.0 * f;
+                }
+            }
+        }
         let settings = FitSettings {
             max_iters,
             poisson: Some(self.o.poisson),
+            floors,
             ..Default::default()
         };
         let r = fit_runs(&runs, &base, &params, &q0, &settings, &[], &|_, _| {})?;

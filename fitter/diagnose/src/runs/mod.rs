@@ -274,6 +274,9 @@ pub struct RunsDiagnosis {
     pub mesh_convergence: Option<crate::convergence::MeshConvergence>,
     /// The hanging weights' lever, when `load-point` was adopted.
     pub load_lever: Option<palpate_motion::load_point::LeverFit>,
+    /// The floor the creep branch's relaxation time was held above (s): the longest ring-down
+    /// period measured in the fitted runs; `None` when none rings.
+    pub creep_floor_s: Option<f64>,
     /// Seconds the diagnosis took.
     pub seconds: f64,
     /// Simulations of one run the diagnosis made.
@@ -389,6 +392,7 @@ pub fn diagnose_runs_with(
         simulations: Default::default(),
         ahead: Default::default(),
         lever,
+        creep_floor: None,
     };
     for c in &o.candidates {
         let e = c.effect();
@@ -402,6 +406,12 @@ pub fn diagnose_runs_with(
     }
     log("fitting the simplest model (Neo-Hookean, fixed Poisson's ratio, no damping)");
     let start = m.fit(&[], &base, &[], o.max_iters)?;
+    m.creep_floor = start
+        .fitted
+        .iter()
+        .filter_map(|r| r.period_s.0)
+        .filter(|t| t.is_finite() && *t > 0.0)
+        .reduce(f64::max);
     let start_held = Held {
         runs: {
             m.count(held.len(), false);
@@ -485,6 +495,7 @@ pub fn diagnose_runs_with(
         model,
         mesh_convergence,
         load_lever: lever_adopted,
+        creep_floor_s: m.creep_floor,
         seconds: t0.elapsed().as_secs_f64(),
         simulations: m.simulations.get(),
     })

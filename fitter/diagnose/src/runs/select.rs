@@ -139,7 +139,7 @@ impl CandidateModel for RunsModel<'_> {
         (self.log)(&select::side_by_side_line(round, batch));
         let (fit, held, o) = (self.fit, self.held, self.o);
         let (fitted, predicted, scanned) = (&self.fitted, &self.predicted, &self.scanned);
-        let lever = &self.lever;
+        let (lever, creep_floor) = (&self.lever, self.creep_floor);
         // A candidate that nests one of the batch starts from its fit (`fit_candidate`).
         let results = select::fit_ahead(
             batch,
@@ -160,6 +160,7 @@ impl CandidateModel for RunsModel<'_> {
                     simulations: Default::default(),
                     ahead: Default::default(),
                     lever: lever.clone(),
+                    creep_floor,
                 };
                 for (d, a) in earlier {
                     if let Ok(Outcome::Fitted(f)) = &a.outcome {

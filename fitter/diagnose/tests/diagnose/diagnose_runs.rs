@@ -18,6 +18,11 @@ fn example() -> MotionDataset {
     load(&crate::support::example()).unwrap()
 }
 
+/// The example's dataset, for tests that record their own runs from it.
+pub(crate) fn example_dataset() -> MotionDataset {
+    example()
+}
+
 /// The truth: the example's Lamé pair (Poisson's ratio 1/3), Newtonian damping.
 fn truth(ds: &MotionDataset) -> Material {
     Material::uniform(ds.model.tets.len(), 2.0e4, 1.0e4, 6.0, 1.0, 47.0)

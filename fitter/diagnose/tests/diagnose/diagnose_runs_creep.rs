@@ -189,3 +189,62 @@ fn runs_that_weigh_clamp_forces_are_not_offered_creep() {
         d.adopted
     );
 }
+
+/// A body that rings, lightly damped (Newtonian viscosity 0.1 Pa·s, no branch): the creep fit is
+/// held above the longest ring-down period measured in the fitted runs (the diagnosis records
+/// it, the log says so), where a branch is relaxation slower than the ring-down and not a second
+/// name for its damping; the damping is what is named.
+#[test]
+fn creep_is_held_above_the_ring_down_period() {
+    let t = |ds: &MotionDataset| {
+        let mut m = truth(0.0)(ds);
+        m.set_uniform(ParamKind::Nu, 0.1);
+        m
+    };
+    // Six times the example's length, so that the weight's swing rings down within the run.
+    let ring = |name: &str, seed: u64| {
+        let mut ds = crate::diagnose_runs::example_dataset();
+        ds.model.steps *= 6;
+        for cl in &mut ds.model.clamps {
+            // Held where the example leaves them.
+            let last = cl.poses[cl.poses.len() - 1];
+            cl.poses.resize(ds.model.steps + 1, last);
+        }
+        ds.model.loads = vec![palpate_specimen::motion::hung_weight(&ds, 0.005).unwrap()];
+        ds.obs = crate::support::record_late(&ds.model, &t(&ds), 2e-5, seed, 0, 4).unwrap();
+        ds.obs.forces.clear();
+        for l in &mut ds.model.loads {
+            l.inertia = false;
+        }
+        (name.to_string(), ds)
+    };
+    let fit = vec![ring("ring-a", 1), ring("ring-b", 2)];
+    let held = vec![ring("ring-c", 3), ring("ring-d", 4)];
+    let options = RunsOptions {
+        poisson: 1.0 / 3.0,
+        start_mu: 2.0e4,
+        candidates: vec![Effect::Damping, Effect::HangingInertia, Effect::Creep],
+        ..RunsOptions::default()
+    };
+    let lines = std::cell::RefCell::new(Vec::new());
+    let log = |m: &str| {
+        eprintln!("{m}");
+        lines.borrow_mut().push(m.to_string());
+    };
+    let d = diagnose_runs(&fit, &held, &options, &log).unwrap();
+    let period = d
+        .before
+        .0
+        .iter()
+        .filter_map(|r| r.period_s.0)
+        .reduce(f64::max)
+        .expect("the runs ring");
+    assert_eq!(d.creep_floor_s, Some(period));
+    let held_above = format!("τ held above {period:.3} s");
+    assert!(
+        lines.borrow().iter().any(|l| l.contains(&held_above)),
+        "no line says {held_above}"
+    );
+    assert!(d.adopted.contains(&Effect::Damping), "{:?}", d.adopted);
+    assert!(!d.adopted.contains(&Effect::Creep), "{:?}", d.adopted);
+}

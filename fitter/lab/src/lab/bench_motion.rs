@@ -159,6 +159,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             tol_cost: 1e-12,
             smoothness: None,
             poisson: None,
+            floors: Vec::new(),
         };
         let r = fit(
             &model,

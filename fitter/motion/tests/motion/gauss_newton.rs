@@ -312,3 +312,55 @@ fn free_marker_offsets_are_eliminated_exactly() {
         );
     }
 }
+
+/// A floor above the truth's μ holds the fit on it (`FitSettings::floors`): started at twice the
+/// truth with the floor at 1.3 times it, Levenberg–Marquardt ends with μ on the floor (to the
+/// rounding of ln μ) and the viscosity refitted beside it. A floor the optimiser cannot keep (LBFGS), a floor on
+/// the viscosity (whose coordinate is read at the data's strain rate) and a start below the floor
+/// are refused, each naming the parameter.
+#[test]
+fn a_floor_above_the_minimum_holds_the_fit_on_it() {
+    let (_, model) = bar([1, 4, 1], 10);
+    let t = truth(&model);
+    let obs = record(&model, &t, 0.0, 1).unwrap();
+    let (mu, visc) = (t.get(ParamKind::Mu, 0), t.get(ParamKind::Nu, 0));
+    let params = Param::globals(&[ParamKind::Mu, ParamKind::Nu]);
+    let floor = 1.3 * mu;
+    let settings = FitSettings {
+        optimizer: Optimizer::LevenbergMarquardt,
+        max_iters: 30,
+        floors: vec![(ParamKind::Mu, floor)],
+        ..FitSettings::default()
+    };
+    let q0 = [2.0 * mu, visc];
+    let r = fit(&model, &t, &params, &q0, &obs, &settings, &[], &|_, _| {}).unwrap();
+    assert!((r.q[0] / floor - 1.0).abs() < 1e-12, "{:?}", r.q);
+    assert!(r.q[1] > 0.0 && r.failures.is_empty(), "{:?}", r.failures);
+    // Unbounded, the same fit finds the truth: the floor is what held μ.
+    let free = FitSettings {
+        floors: Vec::new(),
+        ..settings.clone()
+    };
+    let u = fit(&model, &t, &params, &q0, &obs, &free, &[], &|_, _| {}).unwrap();
+    assert!((u.q[0] / mu - 1.0).abs() < 1e-3, "{:?}", u.q);
+    let refused = |s: &FitSettings, q0: &[f64]| {
+        fit(&model, &t, &params, q0, &obs, s, &[], &|_, _| {})
+            .unwrap_err()
+            .to_string()
+    };
+    let lbfgs = FitSettings {
+        optimizer: Optimizer::Lbfgs,
+        ..settings.clone()
+    };
+    assert!(refused(&lbfgs, &q0).contains("needs Levenberg–Marquardt"));
+    let on_viscosity = FitSettings {
+        floors: vec![(ParamKind::Nu, 1.0)],
+        ..settings.clone()
+    };
+    assert!(refused(&on_viscosity, &q0).contains("not supported"));
+    let e = refused(&settings, &[mu, visc]);
+    assert!(
+        e.contains("below its floor") && e.contains(ParamKind::Mu.name()),
+        "{e}"
+    );
+}

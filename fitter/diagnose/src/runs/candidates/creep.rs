@@ -5,8 +5,12 @@
 //! whose markers go on sinking after the ring-down, and a model that settles short of where the
 //! capture ends, point to it.
 //!
-//! Its fit starts at g = 0.05 and τ a quarter of the shortest fitted run (creep slower than the
-//! ring-down but seen within the capture). The fit screen predicts it by one Gauss–Newton step
+//! τ is held above the longest ring-down period measured in the fitted runs (the room's
+//! `creep_floor`; the fit's coordinate is ln(τ − floor)): a branch that relaxes within a period
+//! acts on the ring-down as a dashpot of viscosity ≈ gμτ, which is what the damping candidates
+//! are, and a report that called it creep would name the wrong effect. Its fit starts at
+//! g = 0.05 and τ a quarter of the shortest fitted run, or twice the floor where that is
+//! longer (creep slower than the ring-down but seen within the capture). The fit screen predicts it by one Gauss–Newton step
 //! in g itself from g = 0 with τ held at that start (at g = 0, τ has no effect: there is no slope
 //! in τ, nor in ln g, the fit's coordinate). A step with τ held can only under-state the gain of
 //! the fit, which frees τ; the screen's own rule then decides (fitted when among the best
@@ -34,8 +38,14 @@ const START_FRACTION: f64 = 0.05;
 pub(in crate::runs) const SCREEN_FRACTION: f64 = 1e-6;
 
 /// The relaxation time the fit starts from (s): a quarter of the shortest fitted run (1 s when
-/// the runs have no length).
+/// the runs have no length), or twice the floor ([`RunsModel::creep_floor`]) where that is longer.
 pub(in crate::runs) fn start_time(room: &RunsModel) -> f64 {
+    let floor = room.creep_floor.map_or(0.0, |f| 2.0 * f);
+    quarter_run(room).max(floor)
+}
+
+/// A quarter of the shortest fitted run (s; 1 s when the runs have no length).
+fn quarter_run(room: &RunsModel) -> f64 {
     let shortest = room
         .fit
         .iter()
@@ -79,9 +89,16 @@ impl RunsEffect for Creep {
             return;
         }
         let tau = start_time(room);
+        let why = if tau > quarter_run(room) {
+            "twice its floor"
+        } else {
+            "a quarter of the shortest fitted run"
+        };
+        let floor = room.creep_floor.map_or(String::new(), |f| {
+            format!("; τ held above {f:.3} s, the longest measured ring-down period")
+        });
         (room.log)(&format!(
-            "round {round}: creep starts at g = {START_FRACTION}, τ = {tau:.3} s (a quarter of \
-             the shortest fitted run)"
+            "round {round}: creep starts at g = {START_FRACTION}, τ = {tau:.3} s ({why}){floor}"
         ));
         start.set_uniform(ParamKind::CreepFraction, START_FRACTION);
         start.set_uniform(ParamKind::CreepTime, tau);
@@ -124,11 +141,22 @@ impl RunsEffect for Creep {
     fn report(&self, r: &RunsDiagnosis) -> Option<String> {
         let c = r.model.creep.as_ref()?;
         let (g, tau) = (*c.fraction.first()?, *c.time_s.first()?);
+        let floor = match r.creep_floor_s {
+            Some(f) if tau <= f * (1.0 + 1e-9) => format!(
+                " τ sits on its floor, the longest ring-down period measured ({f:.3} s): the \
+                 data ask for a faster branch, which would act on the ring-down as damping."
+            ),
+            Some(f) => format!(
+                " τ was held above the longest ring-down period measured ({f:.3} s), below \
+                 which a branch acts on the ring-down as damping."
+            ),
+            None => String::new(),
+        };
         Some(format!(
             "\n**Creep.** Just after a change of strain the elastic stress is {:.3} times the fitted \
              law's (relaxed fraction g = {g:.3}), relaxing to it in τ = {tau:.3} s: under a \
              constant load the body creeps on by g/(1 + g) = {:.1} % of its deflection, with \
-             creep time (1 + g) τ = {:.3} s (the standard linear solid at small strain).",
+             creep time (1 + g) τ = {:.3} s (the standard linear solid at small strain).{floor}",
             1.0 + g,
             100.0 * g / (1.0 + g),
             (1.0 + g) * tau
