@@ -19,6 +19,7 @@ pub mod motion_evidence;
 pub mod motion_evidence_spline;
 pub mod nonlinear_evidence;
 pub mod peer_export;
+pub mod reduced_basis;
 pub mod roofline;
 pub mod scan_confusion;
 pub mod scan_strip;
@@ -67,6 +68,9 @@ pub enum Command {
     /// The scan diagnosis on strips with one undeclared effect each (a depth bias, a camera
     /// moved, a second material, or none): what it adopts, before and after.
     ScanConfusion(scan_confusion::Args),
+    /// How well a small subspace (vibration modes, with static load shapes, or the run's own
+    /// principal components) holds a motion run: the first gate of a reduced-order motion model.
+    ReducedBasis(reduced_basis::Args),
 }
 
 /// Runs a parsed command line.
@@ -83,5 +87,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::M4Emu(a) => m4_emu::run(a),
         Command::ScanStrip(a) => scan_strip::run(a),
         Command::ScanConfusion(a) => scan_confusion::run(a),
+        Command::ReducedBasis(a) => reduced_basis::run(a),
     }
 }
