@@ -14,13 +14,9 @@ use palpate_diagnose::runs::{diagnose_runs, Effect, RunsDiagnosis, RunsOptions};
 use palpate_motion::dataset::{load, MotionDataset};
 use palpate_motion::model::Material;
 
-fn example() -> MotionDataset {
+/// The bundled motion example's dataset (its own runs recorded by each test).
+pub(crate) fn example() -> MotionDataset {
     load(&crate::support::example()).unwrap()
-}
-
-/// The example's dataset, for tests that record their own runs from it.
-pub(crate) fn example_dataset() -> MotionDataset {
-    example()
 }
 
 /// The truth: the example's Lamé pair (Poisson's ratio 1/3), Newtonian damping.

@@ -203,7 +203,7 @@ fn creep_is_held_above_the_ring_down_period() {
     };
     // Six times the example's length, so that the weight's swing rings down within the run.
     let ring = |name: &str, seed: u64| {
-        let mut ds = crate::diagnose_runs::example_dataset();
+        let mut ds = crate::diagnose_runs::example();
         ds.model.steps *= 6;
         for cl in &mut ds.model.clamps {
             // Held where the example leaves them.

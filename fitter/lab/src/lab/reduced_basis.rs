@@ -107,7 +107,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let model = &ds.model;
     let n = model.nfree;
     // The full run: x⁰ and the free dofs of every step.
-    let (x0, steps, full_seconds) = full_run(model, &mat)?;
+    let (x0, states, full_seconds) = full_states(model, &mat)?;
+    let steps: Vec<&Vec<f64>> = states.iter().map(|s| &s.0).collect();
     let free = |x: &[f64]| DVector::from_vec(model.restrict(x));
     let u: Vec<DVector<f64>> = steps.iter().map(|x| free(x) - free(&x0)).collect();
     // K₀ and M at the start; M = L Lᵀ, and the modes from L⁻¹ K₀ L⁻ᵀ.
@@ -241,7 +242,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
     }
     // Hyper-reduction: ECSW elements trained on the full run at the basis' own material.
-    let (_, states, _) = full_states(model, &mat)?;
     for &r in &a.sizes {
         let basis: Vec<DVector<f64>> = pod.iter().take(r).cloned().collect();
         let phi = DMatrix::from_columns(&basis);
