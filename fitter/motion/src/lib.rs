@@ -20,6 +20,7 @@
 //!   baseline; a fitted model validated on a run, its table, JSON line and files.
 
 pub mod dataset;
+pub mod difference_fit;
 pub mod elastic;
 pub mod export;
 pub mod fitted;
@@ -33,6 +34,7 @@ pub mod objective;
 pub mod optimize;
 mod pipeline;
 pub mod predict;
+pub mod quadratic_motion;
 pub mod quadratic_statics;
 pub mod refine;
 pub mod relaxation;

@@ -796,6 +796,49 @@ impl Model {
         p
     }
 
+    /// Each marker's element and its barycentric coordinates there (in the element's node
+    /// order): what a field other than the linear one (quadratic elements' shape functions) is
+    /// read at. A marker whose four weights are not one element's corners is refused.
+    pub fn marker_elements(&self) -> Result<Vec<(usize, [f64; 4])>, MotionError> {
+        let element: std::collections::HashMap<[usize; 4], usize> = self
+            .tets
+            .iter()
+            .enumerate()
+            .map(|(e, t)| {
+                let mut k = *t;
+                k.sort_unstable();
+                (k, e)
+            })
+            .collect();
+        self.markers
+            .iter()
+            .map(|m| {
+                if m.weights.len() != 4 {
+                    return Err(MotionError::Invalid(format!(
+                        "marker {:?}: {} weights, expected 4 (one tetrahedron)",
+                        m.name,
+                        m.weights.len()
+                    )));
+                }
+                let mut key: [usize; 4] = std::array::from_fn(|k| m.weights[k].0);
+                key.sort_unstable();
+                let e = *element.get(&key).ok_or_else(|| {
+                    MotionError::Invalid(format!(
+                        "marker {:?}: its nodes {key:?} are no element of the mesh",
+                        m.name
+                    ))
+                })?;
+                let bary = self.tets[e].map(|n| {
+                    m.weights
+                        .iter()
+                        .find(|(w, _)| *w == n)
+                        .map_or(0.0, |(_, w)| *w)
+                });
+                Ok((e, bary))
+            })
+            .collect()
+    }
+
     /// Barycentric marker at rest point `p`: the containing tet (or, outside the mesh, the tet
     /// whose smallest barycentric coordinate is largest — linear extrapolation a hair outside).
     pub fn marker_at(&self, name: &str, p: [f64; 3]) -> Marker {
@@ -930,21 +973,27 @@ impl Model {
             let me = self.element_mass(mat.get(ParamKind::Density, e) * self.rest[e].volume);
             self.pattern.add_element(e, &me, 1.0, &mut v);
         }
+        self.add_load_masses(&self.free, &self.pattern, &mut v);
+        v
+    }
+
+    /// Adds the carried masses of the loads with inertia to the diagonal of a mass matrix on
+    /// `pattern`, whose dof numbering is `free` (the loads' nodes keep their indices in it).
+    pub fn add_load_masses(&self, free: &[usize], pattern: &Pattern, values: &mut [f64]) {
         for l in &self.loads {
             let m = l.mass_per_node();
             if m > 0.0 {
                 for &n in &l.nodes {
                     for i in 0..3 {
                         // Loads sit on free nodes only (the dataset reader refuses clamped ones).
-                        let d = self.free[3 * n + i];
+                        let d = free[3 * n + i];
                         if d != usize::MAX {
-                            self.pattern.add_diagonal(d, m, &mut v);
+                            pattern.add_diagonal(d, m, values);
                         }
                     }
                 }
             }
         }
-        v
     }
 
     /// Gathers the four nodes' 3-vectors of element `e` from a full-dof vector.

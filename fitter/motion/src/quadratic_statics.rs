@@ -27,7 +27,7 @@ const QUADRATURE_A: f64 = 0.585_410_196_624_968_5;
 const QUADRATURE_B: f64 = 0.138_196_601_125_010_5;
 
 /// The quadrature points' barycentric coordinates.
-fn quadrature_points() -> [[f64; 4]; 4] {
+pub(crate) fn quadrature_points() -> [[f64; 4]; 4] {
     std::array::from_fn(|q| {
         std::array::from_fn(|a| if a == q { QUADRATURE_A } else { QUADRATURE_B })
     })
@@ -48,7 +48,7 @@ pub fn shape_functions(l: &[f64; 4]) -> [f64; 10] {
 
 /// Gradients of the ten shape functions at `l`, from the linear element's constant ∇L_a:
 /// ∇N_a = (4 L_a − 1) ∇L_a, ∇N_ab = 4 (L_b ∇L_a + L_a ∇L_b).
-fn shape_gradients(grad: &[Vector3<f64>; 4], l: &[f64; 4]) -> [Vector3<f64>; 10] {
+pub(crate) fn shape_gradients(grad: &[Vector3<f64>; 4], l: &[f64; 4]) -> [Vector3<f64>; 10] {
     std::array::from_fn(|k| {
         if k < 4 {
             grad[k] * (4.0 * l[k] - 1.0)
@@ -65,7 +65,7 @@ fn shape_gradients(grad: &[Vector3<f64>; 4], l: &[f64; 4]) -> [Vector3<f64>; 10]
 /// {0,1}, {2,3}, …, {8,9} and block (g, h) holds pairs g and h. A pair of nodes from different
 /// groups lies in exactly one block; a pair within one group lies in four, so its entries are
 /// added at a quarter ([`BLOCK_SHARE`]).
-const BLOCKS: [[usize; 4]; 10] = {
+pub(crate) const BLOCKS: [[usize; 4]; 10] = {
     let mut out = [[0; 4]; 10];
     let mut k = 0;
     let mut g = 0;
@@ -82,7 +82,7 @@ const BLOCKS: [[usize; 4]; 10] = {
 };
 
 /// The share of a block's local entry (r, c): ¼ when both dofs' nodes are in one group.
-fn block_share(r: usize, c: usize) -> f64 {
+pub(crate) fn block_share(r: usize, c: usize) -> f64 {
     if r / 6 == c / 6 {
         0.25
     } else {

@@ -51,6 +51,21 @@ pub fn coefficients(g: f64, tau: f64, dt: f64) -> (f64, f64) {
     ((-dt / tau).exp(), g * (-0.5 * dt / tau).exp())
 }
 
+/// [`coefficients`] of element `e`'s branch, its g ≥ 0 and τ > 0 checked.
+pub fn element_coefficients(mat: &Material, e: usize, dt: f64) -> Result<(f64, f64), MotionError> {
+    let (g, tau) = (
+        mat.get(ParamKind::CreepFraction, e),
+        mat.get(ParamKind::CreepTime, e),
+    );
+    if !(g >= 0.0 && g.is_finite() && tau > 0.0 && tau.is_finite()) {
+        return Err(MotionError::Invalid(format!(
+            "element {e}: the creep branch needs a relaxed fraction g ≥ 0 and a time τ > 0 (s), \
+             found g = {g}, τ = {tau}"
+        )));
+    }
+    Ok(coefficients(g, tau, dt))
+}
+
 /// ∂(a, g b)/∂g and ∂(a, g b)/∂τ (see [`coefficients`]).
 pub fn coefficient_derivatives(g: f64, tau: f64, dt: f64) -> [(f64, f64); 2] {
     let (a, gb) = coefficients(g, tau, dt);
@@ -135,17 +150,7 @@ impl Relaxation {
         let mut s0 = Vec::with_capacity(ne);
         let (mut decay, mut gain) = (Vec::with_capacity(ne), Vec::with_capacity(ne));
         for e in 0..ne {
-            let (g, tau) = (
-                mat.get(ParamKind::CreepFraction, e),
-                mat.get(ParamKind::CreepTime, e),
-            );
-            if !(g >= 0.0 && g.is_finite() && tau > 0.0 && tau.is_finite()) {
-                return Err(MotionError::Invalid(format!(
-                    "element {e}: the creep branch needs a relaxed fraction g ≥ 0 and a time \
-                     τ > 0 (s), found g = {g}, τ = {tau}"
-                )));
-            }
-            let (a, gb) = coefficients(g, tau, model.dt);
+            let (a, gb) = element_coefficients(mat, e, model.dt)?;
             decay.push(a);
             gain.push(gb);
             s0.push(elastic_pk2(model, mat, e, x0)?.0);

@@ -17,7 +17,6 @@ use super::statics::{solve_static, static_sensitivity, StaticProblem};
 use super::MotionError;
 use nalgebra::{Matrix3, Vector3};
 use palpate_fem::mesh::Mesh;
-use std::collections::HashMap;
 
 /// The element design a rest state is solved with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -103,46 +102,12 @@ impl RestState {
         })?;
         let end = model.steps;
         let first = end.saturating_sub((window / model.dt).round() as usize);
-        let element: HashMap<[usize; 4], usize> = ds
-            .mesh
-            .tets
-            .iter()
-            .enumerate()
-            .map(|(e, t)| {
-                let mut k = *t;
-                k.sort_unstable();
-                (k, e)
-            })
-            .collect();
+        let located = model.marker_elements()?;
         let mut markers = Vec::with_capacity(model.markers.len());
         let mut observed = Vec::with_capacity(model.markers.len());
         let mut frames = usize::MAX;
         for (i, m) in model.markers.iter().enumerate() {
-            let mut key: [usize; 4] = [0; 4];
-            if m.weights.len() != 4 {
-                return Err(MotionError::Invalid(format!(
-                    "marker {:?}: {} weights, expected 4 (one tetrahedron)",
-                    m.name,
-                    m.weights.len()
-                )));
-            }
-            for (k, (n, _)) in key.iter_mut().zip(&m.weights) {
-                *k = *n;
-            }
-            key.sort_unstable();
-            let e = *element.get(&key).ok_or_else(|| {
-                MotionError::Invalid(format!(
-                    "marker {:?}: its nodes {key:?} are no element of the mesh",
-                    m.name
-                ))
-            })?;
-            let t = ds.mesh.tets[e];
-            let bary = t.map(|n| {
-                m.weights
-                    .iter()
-                    .find(|(w, _)| *w == n)
-                    .map_or(0.0, |(_, w)| *w)
-            });
+            let (e, bary) = located[i];
             // Steps first+1..=end are observation rows first..end.
             let seen: Vec<[f64; 3]> = model_rows(&ds.obs.markers, first, end, i);
             if seen.is_empty() {

@@ -167,6 +167,20 @@ pub fn example_bar(cells: [usize; 3], steps: usize) -> Result<(Mesh, Model), Mot
     )
 }
 
+/// Noise-free observations of simulated marker paths (`paths[n][i]`: marker i at step n + 1), on
+/// any discretisation: data a fit should give its truth back from.
+pub fn observed(paths: &[Vec<[f64; 3]>]) -> Observations {
+    Observations {
+        markers: paths
+            .iter()
+            .map(|row| row.iter().map(|p| Some(*p)).collect())
+            .collect(),
+        marker_weight: 1.0,
+        force_weight: 1.0,
+        ..Default::default()
+    }
+}
+
 /// The example bar's material, the truth of `models/motion-example`: λ = 10 kPa, μ = 20 kPa,
 /// viscosity 12 Pa·s^h, h = 1, ρ = 47 kg/m³ in every element of `model`.
 pub fn example_truth(model: &Model) -> Material {

@@ -429,8 +429,8 @@ fn newton_static(
                 .ok_or(MotionError::NotPositiveDefinite { step: n })?;
             return Ok((x, factor));
         }
-        let factor =
-            shifted_factor(model, &mut k).ok_or(MotionError::NotPositiveDefinite { step: n })?;
+        let factor = shifted_factor(&model.pattern, model.nfree, &mut k)
+            .ok_or(MotionError::NotPositiveDefinite { step: n })?;
         let mut dx = r.clone();
         factor.solve_in_place(&mut dx);
         let g0 = -dot(&dx, &r);
@@ -565,23 +565,19 @@ const NEWTON_STATIC_ITERATIONS: usize = 60;
 
 /// Cholesky factor of K, or of K + τ I with τ growing tenfold from 1e-8 of the mean diagonal when
 /// K is not positive definite (the values in `k` are left shifted).
-fn shifted_factor(model: &Model, k: &mut [f64]) -> Option<Factor> {
-    if let Some(f) = model.pattern.factor(k) {
+pub(crate) fn shifted_factor(pattern: &Pattern, nf: usize, k: &mut [f64]) -> Option<Factor> {
+    if let Some(f) = pattern.factor(k) {
         return Some(f);
     }
-    let nf = model.nfree;
-    let mean = (0..nf)
-        .map(|r| model.pattern.diagonal(r, k).abs())
-        .sum::<f64>()
-        / nf.max(1) as f64;
+    let mean = (0..nf).map(|r| pattern.diagonal(r, k).abs()).sum::<f64>() / nf.max(1) as f64;
     let mut tau = 1e-8 * mean;
     let mut added = 0.0;
     for _ in 0..12 {
         for r in 0..nf {
-            model.pattern.add_diagonal(r, tau - added, k);
+            pattern.add_diagonal(r, tau - added, k);
         }
         added = tau;
-        if let Some(f) = model.pattern.factor(k) {
+        if let Some(f) = pattern.factor(k) {
             return Some(f);
         }
         tau *= 10.0;
@@ -1007,7 +1003,7 @@ pub fn simulate_solving(
                 // During the iterations S may be indefinite (an element compressed far from
                 // the step's answer); a shift keeps the update a descent direction.
                 carried = Some(
-                    shifted_factor(model, &mut sv)
+                    shifted_factor(&model.pattern, model.nfree, &mut sv)
                         .ok_or(MotionError::NotPositiveDefinite { step: n })?,
                 );
                 stats.factorisations += 1;

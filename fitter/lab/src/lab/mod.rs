@@ -15,6 +15,7 @@ pub mod diagnose_evidence;
 pub mod m4_emu;
 pub mod model_form;
 pub mod motion_confusion;
+pub mod motion_convergence;
 pub mod motion_evidence;
 pub mod motion_evidence_spline;
 pub mod nonlinear_evidence;
@@ -71,6 +72,10 @@ pub enum Command {
     /// How well a small subspace (vibration modes, with static load shapes, or the run's own
     /// principal components) holds a motion run: the first gate of a reduced-order motion model.
     ReducedBasis(reduced_basis::Args),
+    /// The motion's modulus and viscosity fitted on linear and quadratic tetrahedra on several
+    /// meshes of one object, by one method: how converged a fitted material is
+    /// (docs/results/beam/convergence.md).
+    MotionConvergence(motion_convergence::Args),
 }
 
 /// Runs a parsed command line.
@@ -88,5 +93,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::ScanStrip(a) => scan_strip::run(a),
         Command::ScanConfusion(a) => scan_confusion::run(a),
         Command::ReducedBasis(a) => reduced_basis::run(a),
+        Command::MotionConvergence(a) => motion_convergence::run(a),
     }
 }

@@ -14,6 +14,7 @@ mod gauss_newton;
 mod gradients;
 mod load_point;
 mod loads;
+mod quadratic_motion;
 mod quadratic_statics;
 mod schemes;
 mod spline;
