@@ -32,6 +32,7 @@ pub mod curve;
 mod error;
 mod json;
 pub mod motion;
+pub mod motion_convergence;
 pub mod run;
 pub mod runs;
 pub mod runtime_match;

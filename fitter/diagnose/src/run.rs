@@ -34,6 +34,9 @@ pub struct Request {
     pub poisson: Option<f64>,
     /// Element design of scan datasets' fits (P2 when `None`).
     pub design: Option<crate::scans::Design>,
+    /// Runs of one object: refit the final model on quadratic elements too
+    /// ([`crate::motion_convergence`]).
+    pub motion_convergence: bool,
 }
 
 pub use crate::summary::Summary;
@@ -169,6 +172,7 @@ fn run_runs(args: &Request) -> Result<Summary, Error> {
         &args.candidates,
         args.max_effects,
         args.poisson,
+        args.motion_convergence,
     )
 }
 

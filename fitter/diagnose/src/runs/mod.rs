@@ -114,6 +114,10 @@ pub struct RunsOptions {
     /// Fit the fitted runs' rest states on linear and quadratic elements after the diagnosis
     /// ([`crate::convergence`]): whether the fitted modulus is the material's or the mesh's.
     pub mesh_convergence: bool,
+    /// Refit the final model on quadratic elements ([`crate::motion_convergence`]): whether the
+    /// fitted modulus and viscosity are the material's or the mesh's. About a minute on the
+    /// beam's coarse mesh (two cores), more than the rest of a diagnosis: off by default.
+    pub motion_convergence: bool,
 }
 
 impl Default for RunsOptions {
@@ -134,6 +138,7 @@ impl Default for RunsOptions {
             screen_least: 2,
             screen_margin: 0.5,
             mesh_convergence: true,
+            motion_convergence: false,
         }
     }
 }
@@ -272,6 +277,9 @@ pub struct RunsDiagnosis {
     /// Whether the fitted modulus is the material's or the mesh's ([`crate::convergence`]); `None`
     /// when not asked for.
     pub mesh_convergence: Option<crate::convergence::MeshConvergence>,
+    /// The final model refitted on quadratic elements ([`crate::motion_convergence`]); `None`
+    /// when not asked for.
+    pub motion_convergence: Option<crate::motion_convergence::MotionConvergence>,
     /// The hanging weights' lever, when `load-point` was adopted.
     pub load_lever: Option<palpate_motion::load_point::LeverFit>,
     /// The floor the creep branch's relaxation time was held above (s): the longest ring-down
@@ -474,6 +482,28 @@ pub fn diagnose_runs_with(
             .collect();
         crate::convergence::check(&named, nu, mu, rms_of(&last.fitted), log)
     });
+    let motion_convergence = o.motion_convergence.then(|| {
+        // From the rest states' quadratic-to-linear modulus ratio when known; the runs at
+        // their offsets and with the final model's loads.
+        let scale = mesh_convergence
+            .as_ref()
+            .and_then(|c| c.converged_modulus())
+            .map_or(1.0, |c| c.shear_modulus_pa / c.mesh_shear_modulus_pa);
+        let named: Vec<crate::motion_convergence::FittedRun<'_>> = fit
+            .iter()
+            .zip(&retimed)
+            .map(|((n, _), (model, obs))| (n.as_str(), model, obs))
+            .collect();
+        crate::motion_convergence::check(
+            &named,
+            &last.material,
+            &last.kinds,
+            Some(nu),
+            scale,
+            rms_of(&last.fitted),
+            log,
+        )
+    });
     // fit.json carries the converged modulus, so `palpate validate` can take the material to
     // another mesh.
     model.converged = mesh_convergence
@@ -494,6 +524,7 @@ pub fn diagnose_runs_with(
         values,
         model,
         mesh_convergence,
+        motion_convergence,
         load_lever: lever_adopted,
         creep_floor_s: m.creep_floor,
         seconds: t0.elapsed().as_secs_f64(),

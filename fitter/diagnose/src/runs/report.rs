@@ -181,6 +181,9 @@ fn mesh_convergence(md: &mut String, r: &RunsDiagnosis) {
     if let Some(c) = &r.mesh_convergence {
         md.push_str(&c.markdown());
     }
+    if let Some(c) = &r.motion_convergence {
+        md.push_str(&c.markdown());
+    }
 }
 
 /// The final model's parameters and elastic constants, and the figures.

@@ -15,6 +15,7 @@ pub fn run(
     candidates: &[String],
     max_effects: Option<usize>,
     poisson: Option<f64>,
+    motion_convergence: bool,
 ) -> Result<Summary, Error> {
     let load = |p: &PathBuf| -> Result<(String, palpate_motion::dataset::MotionDataset), Error> {
         let ds = palpate_motion::dataset::load(p).map_err(|source| Error::MotionDataset {
@@ -32,6 +33,7 @@ pub fn run(
     if let Some(nu) = poisson {
         o.poisson = nu;
     }
+    o.motion_convergence = motion_convergence;
     if !candidates.is_empty() {
         o.candidates = crate::select::pick_candidates::<super::Effect>(candidates)?;
     }

@@ -442,6 +442,7 @@ fn a_folder_of_instrument_folders_is_diagnosed_one_by_one() {
         held_out: Vec::new(),
         poisson: None,
         design: None,
+        motion_convergence: false,
     };
     palpate_diagnose::run::run(&args(root.path(), out.path())).unwrap();
     for name in ["strip-a", "strip-b"] {

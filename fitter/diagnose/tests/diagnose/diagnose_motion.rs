@@ -315,6 +315,7 @@ fn cli_args(dataset: &std::path::Path, out: &std::path::Path) -> palpate_diagnos
         held_out: Vec::new(),
         poisson: None,
         design: None,
+        motion_convergence: false,
     }
 }
 

@@ -55,9 +55,10 @@ pub struct Args {
     pub equilibria: bool,
     /// After the fit, fit the runs' rest states on linear and on quadratic elements of the same
     /// mesh and say whether the fitted modulus is the material's or the mesh's (linear tetrahedra
-    /// lock in bending near incompressibility; docs/diagnose.md, "Mesh convergence"). The
-    /// output's `converged` then lets `palpate validate` carry the material to another mesh,
-    /// and `--export` fits the runtime's parameters to that material.
+    /// lock in bending near incompressibility; docs/diagnose.md, "Mesh convergence"); then refit
+    /// the motion itself on quadratic elements and set every fitted parameter beside the linear
+    /// one. The output's `converged` then lets `palpate validate` carry the material to another
+    /// mesh, and `--export` fits the runtime's parameters to that material.
     #[arg(long)]
     pub mesh_convergence: bool,
     /// Optimiser iteration cap.
@@ -217,10 +218,30 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
         let (lambda, mu) = (mean(&r.lambda), mean(&r.mu));
         let poisson = r.poisson_fixed.unwrap_or(lambda / (2.0 * (lambda + mu)));
-        let c = print_convergence(&runs, poisson, mu, r.rms_marker_m);
+        let (held_poisson, rms_m) = (r.poisson_fixed, r.rms_marker_m);
+        let c = print_convergence(&runs, poisson, mu, rms_m);
         // fit.json carries the converged modulus: `palpate validate` can then take the material
         // to another mesh.
         outcome.record.converged = c.converged_modulus();
+        // The motion itself refitted on quadratic elements, from the rest states' modulus.
+        let scale = c
+            .converged_modulus()
+            .map_or(1.0, |m| m.shear_modulus_pa / m.mesh_shear_modulus_pa);
+        let named: Vec<palpate_diagnose::motion_convergence::FittedRun<'_>> = runs
+            .iter()
+            .map(|r| (r.name.as_str(), &r.dataset.model, &r.dataset.obs))
+            .collect();
+        let kinds: Vec<ParamKind> = outcome.params.iter().map(|p| p.kind).collect();
+        let m = palpate_diagnose::motion_convergence::check(
+            &named,
+            &outcome.fitted,
+            &kinds,
+            held_poisson,
+            scale,
+            rms_m,
+            &|l| log::info!("{l}"),
+        );
+        print!("{}", m.markdown());
     }
     let findings = outcome.findings.clone().into_result()?;
     if let Some(out) = &args.output {
