@@ -40,10 +40,41 @@ pub struct Parameter {
     pub quadratic_sigma: f64,
 }
 
+/// A quadratic value whose 1σ exceeds this fraction of it is not determined by the data: the
+/// fit may land anywhere along a valley (the viscosity against its index, λ against μ in
+/// bending), and its difference from the linear value says nothing of the mesh.
+pub const UNDETERMINED: f64 = 0.2;
+
+/// How one parameter compares across the two discretisations.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Agreement {
+    /// Within [`TOLERANCE`], or within two of the quadratic value's σ.
+    Converged,
+    /// Further apart than both.
+    NotConverged,
+    /// The quadratic value's 1σ is above [`UNDETERMINED`] of it.
+    Undetermined,
+}
+
 impl Parameter {
     /// quadratic / linear − 1.
     pub fn difference(&self) -> f64 {
         self.quadratic / self.linear - 1.0
+    }
+
+    /// Whether the two values agree, beyond the tolerance and the quadratic fit's uncertainty.
+    pub fn agreement(&self) -> Agreement {
+        let sigma = self.quadratic_sigma.abs();
+        if !sigma.is_finite() || sigma > UNDETERMINED * self.quadratic.abs() {
+            Agreement::Undetermined
+        } else if self.difference().abs() <= TOLERANCE
+            || (self.quadratic - self.linear).abs() <= 2.0 * sigma
+        {
+            Agreement::Converged
+        } else {
+            Agreement::NotConverged
+        }
     }
 }
 
@@ -70,12 +101,18 @@ pub enum MotionConvergence {
 }
 
 impl MotionConvergence {
-    /// Whether every parameter is within [`TOLERANCE`] on both discretisations; `None` when not
-    /// checked.
+    /// Whether every determined parameter agrees on both discretisations
+    /// ([`Parameter::agreement`]); `None` when not checked or when none is determined.
     pub fn converged(&self) -> Option<bool> {
         match self {
             Self::Checked { parameters, .. } => {
-                Some(parameters.iter().all(|p| p.difference().abs() <= TOLERANCE))
+                let determined: Vec<Agreement> = parameters
+                    .iter()
+                    .map(Parameter::agreement)
+                    .filter(|a| *a != Agreement::Undetermined)
+                    .collect();
+                (!determined.is_empty())
+                    .then(|| determined.iter().all(|a| *a == Agreement::Converged))
             }
             Self::Skipped { .. } => None,
         }
@@ -110,10 +147,10 @@ impl MotionConvergence {
                 p.name,
                 numbers::plain(p.linear),
                 100.0 * p.difference(),
-                if p.difference().abs() > TOLERANCE {
-                    " (not converged)"
-                } else {
-                    ""
+                match p.agreement() {
+                    Agreement::Converged => "",
+                    Agreement::NotConverged => " (not converged)",
+                    Agreement::Undetermined => " (not determined by the data)",
                 }
             );
         }
@@ -124,16 +161,27 @@ impl MotionConvergence {
             1e3 * quadratic_rms_m
         );
         let tol = 100.0 * TOLERANCE;
+        let undetermined = 100.0 * UNDETERMINED;
         let _ = if self.converged() == Some(true) {
             writeln!(
                 md,
-                "**Converged**: every parameter within {tol:.0} % on both discretisations: the \
-                 fitted material is the object's, not this mesh's.\n"
+                "**Converged**: every parameter the data determine within {tol:.0} % (or two of \
+                 its σ) on both discretisations: the fitted material is the object's, not this \
+                 mesh's.\n"
+            )
+        } else if self.converged().is_none() {
+            writeln!(
+                md,
+                "**Not determined**: on quadratic elements every parameter's 1σ is above \
+                 {undetermined:.0} % of it; the data do not say whether the material is this \
+                 mesh's. Hold what bending cannot tell (Poisson's ratio, the viscosity's index) \
+                 and check again.\n"
             )
         } else {
             writeln!(
                 md,
-                "**Not converged**: the parameters marked differ by more than {tol:.0} %. The \
+                "**Not converged**: the parameters marked differ by more than {tol:.0} % and two \
+                 of their σ. The \
                  linear fit's are this mesh's effective values (right on this mesh, what the \
                  runtime replays); the quadratic ones are the material's, to carry to another \
                  mesh or object.\n"
@@ -322,6 +370,19 @@ mod tests {
         assert_eq!(close.converged(), Some(true));
         assert!(close.markdown().contains("**Converged**"));
         assert_eq!(checked(0.0, 1.1 * TOLERANCE).converged(), Some(false));
+        // Within two σ is within the fit's own uncertainty; a σ above a fifth of the value is
+        // not determined, and with nothing determined there is no verdict.
+        let mut wide = checked(0.0, 0.3);
+        if let MotionConvergence::Checked { parameters, .. } = &mut wide {
+            parameters[1].quadratic_sigma = 40.0;
+            assert_eq!(parameters[1].agreement(), Agreement::Converged);
+            parameters[1].quadratic_sigma = 60.0;
+            assert_eq!(parameters[1].agreement(), Agreement::Undetermined);
+            parameters[0].quadratic_sigma = 30e3;
+        }
+        assert_eq!(wide.converged(), None);
+        let md = wide.markdown();
+        assert!(md.contains("(not determined by the data)") && md.contains("**Not determined**"));
         let skipped = MotionConvergence::Skipped {
             reason: "density is fitted".into(),
         };

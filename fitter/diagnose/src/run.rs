@@ -148,6 +148,7 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<Vec<Summar
             &args.candidates,
             args.max_effects.unwrap_or(DEFAULT_MAX_EFFECTS),
             args.mesh,
+            args.motion_convergence,
         )?]);
     }
     Ok(vec![crate::statics::run::run(

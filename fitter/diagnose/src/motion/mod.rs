@@ -101,6 +101,10 @@ pub struct MotionOptions {
     /// diagnosis ([`crate::convergence`]): whether the fitted modulus is the material's or the
     /// mesh's. Skipped, saying why, where the markers have not settled.
     pub mesh_convergence: bool,
+    /// Refit the final model on quadratic elements of the same mesh over the fitted steps
+    /// ([`crate::motion_convergence`]): every parameter beside the linear one. Off by default
+    /// (a quadratic model costs several times a linear one).
+    pub motion_convergence: bool,
 }
 
 impl Default for MotionOptions {
@@ -120,6 +124,7 @@ impl Default for MotionOptions {
             refine_max_tets: 50_000,
             mesh_null: true,
             mesh_convergence: true,
+            motion_convergence: false,
         }
     }
 }
@@ -235,6 +240,9 @@ pub struct MotionDiagnosis {
     /// Whether the fitted modulus is the material's or the mesh's ([`crate::convergence`]);
     /// `None` when not asked for.
     pub mesh_convergence: Option<crate::convergence::MeshConvergence>,
+    /// The final model refitted on quadratic elements ([`crate::motion_convergence`]); `None`
+    /// when not asked for.
+    pub motion_convergence: Option<crate::motion_convergence::MotionConvergence>,
     /// What the mesh's own null says of the fitted parameters under one refinement
     /// ([`mesh_null::MeshBias`]); `None` when no null was made.
     pub mesh_bias: Option<mesh_null::MeshBias>,
@@ -414,6 +422,36 @@ pub fn diagnose(
         let poisson = lambda / (2.0 * (lambda + mu));
         crate::convergence::check(&[(label, ds)], poisson, mu, cur.scores.rms_fit, log)
     });
+    let motion_convergence = o.motion_convergence.then(|| {
+        let scale = mesh_convergence
+            .as_ref()
+            .and_then(|c| c.converged_modulus())
+            .map_or(1.0, |c| c.shear_modulus_pa / c.mesh_shear_modulus_pa);
+        // The fitted rows only, on the final model's clock, its markers' offsets eliminated.
+        let timed = match cur.time_offset {
+            Some(r) if r != 0 => fit::retimed(ds, split, r),
+            _ => Ok((ds.clone(), split)),
+        };
+        match timed {
+            Err(e) => crate::motion_convergence::MotionConvergence::Skipped {
+                reason: format!("the final model's time offset could not be applied: {e}"),
+            },
+            Ok((mut d, s)) => {
+                d.model.steps = s.fit_steps;
+                d.obs.markers.truncate(s.fit_steps);
+                d.obs.free_marker_offsets |= cur.offsets.is_some();
+                crate::motion_convergence::check(
+                    &[(label, &d.model, &d.obs)],
+                    &cur.material,
+                    &cur.kinds,
+                    None,
+                    scale,
+                    cur.scores.rms_fit,
+                    log,
+                )
+            }
+        }
+    });
     // Where the capture has no rest state to check the modulus on and no check made a null,
     // the first round's null is made now, for what it says of the parameters under one
     // refinement ([`mesh_null::MeshBias`]): one refined simulation and one refit.
@@ -480,6 +518,7 @@ pub fn diagnose(
         screen_simulations,
         mesh: mesh_note,
         mesh_convergence,
+        motion_convergence,
         mesh_bias: engine.mesh_bias.clone(),
         material: Some(cur.material.clone()),
     })

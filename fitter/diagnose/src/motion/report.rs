@@ -218,6 +218,9 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
     if let Some(c) = &r.mesh_convergence {
         md.push_str(&c.markdown());
     }
+    if let Some(c) = &r.motion_convergence {
+        md.push_str(&c.markdown());
+    }
     if r.options.mesh_null {
         let _ = writeln!(
             md,

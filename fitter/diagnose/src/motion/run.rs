@@ -15,6 +15,7 @@ pub fn run(
     candidates: &[String],
     max_effects: usize,
     mesh: crate::MeshChoice,
+    motion_convergence: bool,
 ) -> Result<Summary, Error> {
     if mesh == crate::MeshChoice::Refined {
         return Err(Error::Input(format!(
@@ -35,6 +36,7 @@ pub fn run(
         max_effects,
         mesh_error: refined,
         mesh_null: refined,
+        motion_convergence,
         ..Default::default()
     };
     if !candidates.is_empty() {

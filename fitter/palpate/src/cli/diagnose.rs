@@ -53,10 +53,10 @@ pub struct Args {
     /// linear ones lock in bending near incompressibility) or p1 (the mesh's own).
     #[arg(long, default_value = "p2", value_parser = ["p1", "p2"])]
     pub design: String,
-    /// Runs of one object: after the diagnosis, refit the final model's material on quadratic
-    /// elements of the same mesh (which do not lock in bending) and set every parameter beside
-    /// the linear one, with a verdict (docs/diagnose.md, "Mesh convergence"). About a minute on
-    /// the beam's coarse mesh, so not by default.
+    /// Motion datasets and runs of one object: after the diagnosis, refit the final model's
+    /// material on quadratic elements of the same mesh (which do not lock in bending) and set
+    /// every parameter beside the linear one, with a verdict (docs/diagnose.md, "Mesh
+    /// convergence of the motion"). About a minute on the beam's coarse mesh, so not by default.
     #[arg(long)]
     pub motion_convergence: bool,
     /// Figure format.
