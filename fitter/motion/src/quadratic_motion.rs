@@ -40,6 +40,7 @@ use super::quadratic_statics::{
     solve_static_quadratic_loaded, BLOCKS,
 };
 use super::relaxation::{element_coefficients, StepBranch};
+use super::rest_fit::{Post, StandOff};
 use super::sim::shifted_factor;
 use super::sparse::{Factor, Pattern};
 use super::statics::StaticProblem;
@@ -133,6 +134,8 @@ pub struct QuadraticMotion<'a> {
     pattern: Pattern,
     /// Each marker's element and the ten shape functions at its barycentric coordinates.
     markers: Vec<(usize, [f64; 10])>,
+    /// Under [`StandOff::RigidPost`], the post of each marker outside its element.
+    posts: Vec<Option<Post>>,
     /// Every clamped node of the quadratic mesh, with its corners (the same node twice for a
     /// corner).
     clamped: Vec<(usize, [usize; 2])>,
@@ -197,10 +200,10 @@ impl<'a> QuadraticMotion<'a> {
             .collect();
         let pattern =
             Pattern::new(&blocks, &free, nfree).map_err(|e| MotionError::Invalid(e.to_string()))?;
-        let markers = model
-            .marker_elements()?
-            .into_iter()
-            .map(|(e, l)| (e, shape_functions(&l)))
+        let located = model.marker_elements()?;
+        let markers = located
+            .iter()
+            .map(|(e, l)| (*e, shape_functions(l)))
             .collect();
         let load_shares = model.loads.iter().map(|l| load_shares(&mesh, l)).collect();
         Ok(Self {
@@ -215,6 +218,7 @@ impl<'a> QuadraticMotion<'a> {
             nfree,
             pattern,
             markers,
+            posts: located.iter().map(|_| None).collect(),
             clamped,
         })
     }
@@ -229,18 +233,43 @@ impl<'a> QuadraticMotion<'a> {
         &self.mesh
     }
 
+    /// How markers off the body follow it ([`StandOff`]; extrapolated by default): under
+    /// [`StandOff::RigidPost`] a marker outside its element rides a rigid post from the
+    /// nearest point of the element, turned by the rotation of F there, instead of the quadratic
+    /// field extrapolated millimetres out with its curvature.
+    pub fn with_stand_off(mut self, stand_off: StandOff) -> Self {
+        self.posts = match stand_off {
+            StandOff::Extrapolated => self.markers.iter().map(|_| None).collect(),
+            StandOff::RigidPost => self
+                .model
+                .marker_elements()
+                .unwrap_or_default()
+                .iter()
+                .map(|(e, l)| Post::of_marker(&self.model.nodes, self.model.tets[*e], l))
+                .collect(),
+        };
+        self
+    }
+
     /// Marker positions in the nodal positions `x` (every dof of the quadratic mesh).
     pub fn marker_positions(&self, x: &[f64]) -> Vec<[f64; 3]> {
         self.markers
             .iter()
-            .map(|(e, n)| {
-                let mut p = [0.0; 3];
-                for (a, &node) in self.mesh.tets[*e].iter().enumerate() {
-                    for d in 0..3 {
-                        p[d] += n[a] * x[3 * node + d];
+            .zip(&self.posts)
+            .map(|((e, n), post)| {
+                let nodes = &self.mesh.tets[*e];
+                let at = |n: &[f64; 10]| {
+                    let mut p = [0.0; 3];
+                    for (a, &node) in nodes.iter().enumerate() {
+                        for d in 0..3 {
+                            p[d] += n[a] * x[3 * node + d];
+                        }
                     }
-                }
-                p
+                    p
+                };
+                post.as_ref()
+                    .and_then(|p| p.position(&|l: &[f64; 4]| at(&shape_functions(l))))
+                    .unwrap_or_else(|| at(n))
             })
             .collect()
     }
@@ -892,6 +921,58 @@ mod tests {
             .map(|(a, b)| u[a] * t[a][b] * u[b])
             .sum();
         assert!((utu - 0.1).abs() < 1e-15, "{utu}");
+    }
+
+    /// A marker 5 mm off a bar's side: under a rigid rotation both the extrapolated field and
+    /// the rigid post carry it rigidly; under a bent field (z += c x²) the extrapolated marker
+    /// follows the bent map out to where it sits, the post does not.
+    #[test]
+    fn a_rigid_post_moves_rigidly_and_does_not_stretch() {
+        let (_, model) = crate::scenario::bar_model(
+            [0.01, 0.04, 0.01],
+            [1, 4, 1],
+            0.01,
+            1,
+            &|_| [0.0; 3],
+            &[[0.015, 0.03, 0.005]],
+        )
+        .unwrap();
+        let rest = [0.015, 0.03, 0.005];
+        let extrapolated = QuadraticMotion::new(&model).unwrap();
+        let posted = QuadraticMotion::new(&model)
+            .unwrap()
+            .with_stand_off(StandOff::RigidPost);
+        let (c, s) = (0.3f64.cos(), 0.3f64.sin());
+        let turn = |p: [f64; 3]| [c * p[0] - s * p[1], s * p[0] + c * p[1], p[2] + 0.01];
+        let turned: Vec<f64> = extrapolated
+            .mesh
+            .nodes
+            .iter()
+            .flat_map(|&p| turn(p))
+            .collect();
+        let want = turn(rest);
+        for q in [&extrapolated, &posted] {
+            let got = q.marker_positions(&turned)[0];
+            for d in 0..3 {
+                assert!((got[d] - want[d]).abs() < 1e-12, "{got:?} against {want:?}");
+            }
+        }
+        let bent: Vec<f64> = extrapolated
+            .mesh
+            .nodes
+            .iter()
+            .flat_map(|&p| [p[0], p[1], p[2] + 20.0 * p[0] * p[0]])
+            .collect();
+        let (e, p) = (
+            extrapolated.marker_positions(&bent)[0],
+            posted.marker_positions(&bent)[0],
+        );
+        // The extrapolated field is the bent map itself at the marker: z + 20 x².
+        assert!(
+            (e[2] - (rest[2] + 20.0 * rest[0] * rest[0])).abs() < 1e-12,
+            "{e:?}"
+        );
+        assert!((p[2] - e[2]).abs() > 1e-5, "{p:?} against {e:?}");
     }
 
     /// Equal shares on four evenly spaced nodes of an edge are the line load of density 1/(2ℓ)

@@ -329,19 +329,48 @@ pub fn predict_rest(
 /// A marker's rigid post ([`StandOff::RigidPost`]): its foot in barycentric coordinates, the
 /// foot-to-marker vector at rest and the inverse of its element's rest edge matrix.
 #[derive(Debug, Clone)]
-struct Post {
+pub(crate) struct Post {
     foot: [f64; 4],
     offset: Vector3<f64>,
     dm_inv: Matrix3<f64>,
 }
 
 impl Post {
+    /// The post of a marker at barycentric `l` of the element with corners `t` of `nodes`
+    /// (rest positions), when it sits outside the element; `None` inside it (the interpolation
+    /// follows it) or for a degenerate element.
+    pub(crate) fn of_marker(nodes: &[[f64; 3]], t: [usize; 4], l: &[f64; 4]) -> Option<Self> {
+        if l.iter().all(|w| *w >= 0.0) {
+            return None;
+        }
+        let x = |l: &[f64; 4]| -> Vector3<f64> {
+            (0..4).fold(Vector3::zeros(), |acc, a| {
+                acc + Vector3::from(nodes[t[a]]) * l[a]
+            })
+        };
+        let clamped = l.map(|w| w.max(0.0));
+        let sum: f64 = clamped.iter().sum();
+        let foot = clamped.map(|w| w / sum);
+        let corner = |a: usize| Vector3::from(nodes[t[a]]);
+        let dm = Matrix3::from_columns(&[
+            corner(1) - corner(0),
+            corner(2) - corner(0),
+            corner(3) - corner(0),
+        ]);
+        let dm_inv = dm.try_inverse()?;
+        Some(Post {
+            foot,
+            offset: x(l) - x(&foot),
+            dm_inv,
+        })
+    }
+
     /// The marker's position, given the deformed position at any barycentric point of its
     /// element (`at`): the foot's, plus the offset turned by the rotation of F at the foot.
     /// F = ∂x/∂ξ · D⁻¹ with ∂x/∂ξ by central differences of step 10⁻³ in the local coordinates
     /// — exact for interpolations of degree ≤ 2, as the linear and quadratic ones are.
     /// `None` where F is not finite.
-    fn position(&self, at: &dyn Fn(&[f64; 4]) -> [f64; 3]) -> Option<[f64; 3]> {
+    pub(crate) fn position(&self, at: &dyn Fn(&[f64; 4]) -> [f64; 3]) -> Option<[f64; 3]> {
         let h = 1e-3;
         let mut dxi = Matrix3::zeros();
         for k in 1..4 {
@@ -374,30 +403,10 @@ impl RestState {
         self.markers
             .iter()
             .map(|(e, l)| {
-                if self.stand_off != StandOff::RigidPost || l.iter().all(|w| *w >= 0.0) {
+                if self.stand_off != StandOff::RigidPost {
                     return None;
                 }
-                let t = self.mesh.tets[*e];
-                let x = |l: &[f64; 4]| -> Vector3<f64> {
-                    (0..4).fold(Vector3::zeros(), |acc, a| {
-                        acc + Vector3::from(self.mesh.nodes[t[a]]) * l[a]
-                    })
-                };
-                let clamped = l.map(|w| w.max(0.0));
-                let sum: f64 = clamped.iter().sum();
-                let foot = clamped.map(|w| w / sum);
-                let corner = |a: usize| Vector3::from(self.mesh.nodes[t[a]]);
-                let dm = Matrix3::from_columns(&[
-                    corner(1) - corner(0),
-                    corner(2) - corner(0),
-                    corner(3) - corner(0),
-                ]);
-                let dm_inv = dm.try_inverse()?;
-                Some(Post {
-                    foot,
-                    offset: x(l) - x(&foot),
-                    dm_inv,
-                })
+                Post::of_marker(&self.mesh.nodes, self.mesh.tets[*e], l)
             })
             .collect()
     }

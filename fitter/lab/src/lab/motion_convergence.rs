@@ -18,6 +18,7 @@ use palpate_motion::fitted::set_hanging_inertia;
 use palpate_motion::model::{Material, ParamKind};
 use palpate_motion::quadratic_motion::QuadraticMotion;
 use palpate_motion::refine::marker_paths;
+use palpate_motion::rest_fit::StandOff;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -53,6 +54,10 @@ pub struct Args {
     /// The hanging weights carry their mass (the diagnosis' hanging-inertia effect).
     #[arg(long)]
     pub hanging_inertia: bool,
+    /// How the quadratic model's markers off the body follow it: extrapolated (the element's
+    /// field) or rigid-post (`palpate_motion::rest_fit::StandOff`); linear elements extrapolate.
+    #[arg(long, default_value = "extrapolated", value_parser = ["extrapolated", "rigid-post"])]
+    pub stand_off: String,
     /// Levenberg–Marquardt iterations per fit.
     #[arg(long, default_value_t = 12)]
     pub max_iterations: usize,
@@ -136,6 +141,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     } else {
         starts(&a.initial_quadratic, &a.params)?
     };
+    let stand_off = if a.stand_off == "rigid-post" {
+        StandOff::RigidPost
+    } else {
+        StandOff::Extrapolated
+    };
     let mut rows = Vec::new();
     println!(
         "| mesh | design | tets | free dofs | {} | E (kPa) | ν | fitted RMS (mm) | held-out RMS (mm) | simulations | time (s) |",
@@ -164,7 +174,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 fitted
                     .iter()
                     .chain(&held)
-                    .map(|d| QuadraticMotion::new(&d.model))
+                    .map(|d| QuadraticMotion::new(&d.model).map(|q| q.with_stand_off(stand_off)))
                     .collect::<Result<_, _>>()?
             } else {
                 Vec::new()
