@@ -343,7 +343,8 @@ impl<'a> QuadraticMotion<'a> {
             fixed_displacement,
             forces: Vec::new(),
             load_steps: 10,
-            tol: self.model.newton.tol.min(1e-9),
+            // The linear model's static start's own tolerance ([`crate::sim::static_start`]).
+            tol: self.model.newton.tol,
             max_iter: 50,
         };
         Ok(solve_static_quadratic_loaded(&p, &extra)?

@@ -127,3 +127,38 @@ fn the_beams_modulus_on_linear_tets_is_the_meshs_and_carries_to_a_finer_mesh() {
     let rest = v["final_rms_m"].as_f64().unwrap();
     assert!(rest < 0.4e-3, "rest RMS {rest} m: {v}");
 }
+
+/// `fit-motion --mesh-convergence` on the example bar (shaken at its base, so no rest state to
+/// check the modulus on, said so) refits the motion on quadratic elements and prints every fitted
+/// parameter beside the linear one with a verdict. The example's data were made on its own
+/// coarse linear mesh, so the quadratic modulus must come out well above the linear one.
+#[test]
+fn fit_motion_refits_the_motion_on_quadratic_elements() {
+    let out = common::palpate()
+        .arg("fit-motion")
+        .arg(common::repo().join("models/motion-example"))
+        .args(["--params", "mu,viscosity", "--poisson", "0.1667"])
+        .args(["--max-iterations", "10", "--mesh-convergence"])
+        .output()
+        .unwrap();
+    assert_succeeded(&out);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let section = stdout
+        .split("## Mesh convergence of the motion")
+        .nth(1)
+        .unwrap_or_else(|| panic!("no motion convergence section in {stdout}"));
+    assert!(stdout.contains("mesh convergence not checked"), "{stdout}");
+    let row = section
+        .lines()
+        .find(|l| l.starts_with("| mu |"))
+        .unwrap_or_else(|| panic!("no μ row in {section}"));
+    let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+    let number = |s: &str| s.split_whitespace().next().unwrap().parse::<f64>().unwrap();
+    let (linear, quadratic) = (number(cells[2]), number(cells[3]));
+    assert!(quadratic > 1.5 * linear, "{row}");
+    assert!(section.contains("| viscosity |"), "{section}");
+    assert!(
+        section.contains("**Not converged**") || section.contains("**Not determined**"),
+        "{section}"
+    );
+}
