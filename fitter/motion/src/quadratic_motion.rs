@@ -36,8 +36,8 @@ use super::elastic::ElasticState;
 use super::hyperelastic::{HyperParams, RestTet};
 use super::model::{DeadLoad, Material, Model, ParamKind};
 use super::quadratic_statics::{
-    block_share, quadrature_points, shape_functions, shape_gradients,
-    solve_static_quadratic_loaded, BLOCKS,
+    block_tets, element_points, shape_functions, share, solve_static_quadratic_loaded, QuadPoint,
+    BLOCKS,
 };
 use super::relaxation::{element_coefficients, StepBranch};
 use super::rest_fit::{Post, StandOff};
@@ -58,13 +58,6 @@ const REFACTOR_CONTRACTION: f64 = 0.25;
 
 /// Halvings of a Newton update that inverted an element before the step gives up.
 const HALVINGS: usize = 12;
-
-/// One quadrature point of one element: the ten shape-function gradients and its weight.
-#[derive(Debug, Clone, Copy)]
-struct Point {
-    grad: [Vector3<f64>; 10],
-    weight: f64,
-}
 
 /// (1/V) ∫ N_a N_b dV over a straight-sided quadratic tetrahedron, exactly: each N is a
 /// polynomial in the barycentric coordinates (N_a = 2L_a² − L_a, N_ab = 4 L_a L_b) and
@@ -126,7 +119,7 @@ pub struct QuadraticMotion<'a> {
     model: &'a Model,
     linear: Mesh,
     mesh: QuadraticMesh,
-    points: Vec<[Point; 4]>,
+    points: Vec<[QuadPoint; 4]>,
     volumes: Vec<f64>,
     table: [[f64; 10]; 10],
     free: Vec<usize>,
@@ -134,6 +127,8 @@ pub struct QuadraticMotion<'a> {
     pattern: Pattern,
     /// Each marker's element and the ten shape functions at its barycentric coordinates.
     markers: Vec<(usize, [f64; 10])>,
+    /// Each marker's element and barycentric coordinates ([`Model::marker_elements`]).
+    located: Vec<(usize, [f64; 4])>,
     /// Under [`StandOff::RigidPost`], the post of each marker outside its element.
     posts: Vec<Option<Post>>,
     /// Every clamped node of the quadratic mesh, with its corners (the same node twice for a
@@ -159,17 +154,7 @@ impl<'a> QuadraticMotion<'a> {
             node_groups: Default::default(),
         };
         let mesh = QuadraticMesh::from_linear(&linear);
-        let bary = quadrature_points();
-        let points: Vec<[Point; 4]> = model
-            .rest
-            .iter()
-            .map(|r| {
-                bary.map(|l| Point {
-                    grad: shape_gradients(&r.grad, &l),
-                    weight: r.volume / 4.0,
-                })
-            })
-            .collect();
+        let points = element_points(&model.rest);
         let volumes = model.rest.iter().map(|r| r.volume).collect();
         let corner_clamped: Vec<bool> = (0..model.nodes.len())
             .map(|n| model.free[3 * n] == usize::MAX)
@@ -193,13 +178,8 @@ impl<'a> QuadraticMotion<'a> {
                 nfree += 1;
             }
         }
-        let blocks: Vec<[usize; 4]> = mesh
-            .tets
-            .iter()
-            .flat_map(|t| BLOCKS.map(|b| b.map(|a| t[a])))
-            .collect();
-        let pattern =
-            Pattern::new(&blocks, &free, nfree).map_err(|e| MotionError::Invalid(e.to_string()))?;
+        let pattern = Pattern::new(&block_tets(&mesh), &free, nfree)
+            .map_err(|e| MotionError::Invalid(e.to_string()))?;
         let located = model.marker_elements()?;
         let markers = located
             .iter()
@@ -219,6 +199,7 @@ impl<'a> QuadraticMotion<'a> {
             pattern,
             markers,
             posts: located.iter().map(|_| None).collect(),
+            located,
             clamped,
         })
     }
@@ -241,9 +222,7 @@ impl<'a> QuadraticMotion<'a> {
         self.posts = match stand_off {
             StandOff::Extrapolated => self.markers.iter().map(|_| None).collect(),
             StandOff::RigidPost => self
-                .model
-                .marker_elements()
-                .unwrap_or_default()
+                .located
                 .iter()
                 .map(|(e, l)| Post::of_marker(&self.model.nodes, self.model.tets[*e], l))
                 .collect(),
@@ -836,7 +815,7 @@ fn on_one_line(mesh: &QuadraticMesh, nodes: &[usize]) -> Option<Vec<usize>> {
 }
 
 /// F = Σ_a x_a ∇N_aᵀ at a quadrature point.
-fn point_gradient(xe: &[Vector3<f64>; 10], qp: &Point) -> Matrix3<f64> {
+fn point_gradient(xe: &[Vector3<f64>; 10], qp: &QuadPoint) -> Matrix3<f64> {
     let mut f = Matrix3::zeros();
     for a in 0..10 {
         f += xe[a] * qp.grad[a].transpose();
@@ -878,15 +857,6 @@ impl PointRelaxation {
             self.s0[k] = s;
         }
         Ok(())
-    }
-}
-
-/// Scales a block's entries by their share ([`block_share`]).
-fn share(m: &mut [[f64; 12]; 12]) {
-    for (r, row) in m.iter_mut().enumerate() {
-        for (c, v) in row.iter_mut().enumerate() {
-            *v *= block_share(r, c);
-        }
     }
 }
 

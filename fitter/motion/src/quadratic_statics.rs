@@ -92,9 +92,40 @@ pub(crate) fn block_share(r: usize, c: usize) -> f64 {
 
 /// One quadrature point of one element: shape-function gradients and weight (volume share).
 #[derive(Debug, Clone, Copy)]
-struct QuadPoint {
-    grad: [Vector3<f64>; 10],
-    weight: f64,
+pub(crate) struct QuadPoint {
+    pub(crate) grad: [Vector3<f64>; 10],
+    pub(crate) weight: f64,
+}
+
+/// Every element's four quadrature points, from its linear rest geometry.
+pub(crate) fn element_points(rest: &[RestTet]) -> Vec<[QuadPoint; 4]> {
+    let bary = quadrature_points();
+    rest.iter()
+        .map(|r| {
+            bary.map(|l| QuadPoint {
+                grad: shape_gradients(&r.grad, &l),
+                weight: r.volume / 4.0,
+            })
+        })
+        .collect()
+}
+
+/// The ten 4-node blocks of every element ([`BLOCKS`]), as the tetrahedra of the tangent's
+/// [`Pattern`]; block b of element e is entry 10e + b.
+pub(crate) fn block_tets(q: &QuadraticMesh) -> Vec<[usize; 4]> {
+    q.tets
+        .iter()
+        .flat_map(|t| BLOCKS.map(|b| b.map(|a| t[a])))
+        .collect()
+}
+
+/// Scales a block's entries by their share ([`block_share`]).
+pub(crate) fn share(m: &mut [[f64; 12]; 12]) {
+    for (r, row) in m.iter_mut().enumerate() {
+        for (c, v) in row.iter_mut().enumerate() {
+            *v *= block_share(r, c);
+        }
+    }
 }
 
 /// The equilibrium found on quadratic tetrahedra.
@@ -190,11 +221,7 @@ impl Discretised for Ctx<'_> {
                         volume: qp.weight,
                     };
                     let mut kb = he::element_tangent(&block, &s, self.mat(e));
-                    for (r, row) in kb.iter_mut().enumerate() {
-                        for (c, v) in row.iter_mut().enumerate() {
-                            *v *= block_share(r, c);
-                        }
-                    }
+                    share(&mut kb);
                     pattern.add_element(BLOCKS.len() * e + b, &kb, 1.0, k);
                 }
             }
@@ -233,20 +260,8 @@ fn setup_with(
     let is_fixed = check_problem(p)?;
     let rest = RestTet::of_mesh(p.mesh)?;
     let bary = quadrature_points();
-    let points: Vec<[QuadPoint; 4]> = rest
-        .iter()
-        .map(|r| {
-            bary.map(|l| QuadPoint {
-                grad: shape_gradients(&r.grad, &l),
-                weight: r.volume / 4.0,
-            })
-        })
-        .collect();
-    let blocks: Vec<[usize; 4]> = q
-        .tets
-        .iter()
-        .flat_map(|t| BLOCKS.map(|b| b.map(|a| t[a])))
-        .collect();
+    let points = element_points(&rest);
+    let blocks = block_tets(q);
     let dofs = Dofs::new(&q.lift_flags(&is_fixed), &blocks)?;
     let mut fext = vec![0.0; 3 * q.nodes.len()];
     for &(n, f) in p.forces.iter().chain(extra) {
