@@ -19,7 +19,7 @@
 //! α_0 s_x^{n−2})/α_2.
 
 use super::forces::{param_derivatives, SPLIT_ASSEMBLY_ELEMENTS};
-use super::model::{Material, Model, Observations, Param};
+use super::model::{Material, Model, Observations, Param, Tie};
 use super::objective::{clamp_force_derivatives, step_term, StepTerm};
 use super::pipeline::simulate_pipelined;
 use super::relaxation::Sensitivities as CreepSensitivities;
@@ -366,7 +366,63 @@ pub fn evaluate(
     obs: &Observations,
     method: Option<Method>,
 ) -> Result<Evaluation, MotionError> {
-    in_pool(|| evaluate_here(model, mat, params, obs, method))
+    let (all, ties) = with_ties(mat, params)?;
+    let mut ev = in_pool(|| evaluate_here(model, mat, &all, obs, method))?;
+    if let Some(g) = ev.grad.as_mut() {
+        fold_gradient(g, params.len(), &ties);
+    }
+    Ok(ev)
+}
+
+/// The parameters evaluated for `params` on `mat`: its own, then each λ that follows some of
+/// them ([`Material::ties`]), whose derivative is folded into theirs by the chain rule,
+/// dΦ/dq|tied = ∂Φ/∂q + (∂λ/∂q) ∂Φ/∂λ ([`fold_gradient`], [`fold_gauss_newton`]).
+fn with_ties(mat: &Material, params: &[Param]) -> Result<(Vec<Param>, Vec<Tie>), MotionError> {
+    let ties = mat.ties(params)?;
+    let all = params
+        .iter()
+        .copied()
+        .chain(ties.iter().map(|t| t.lambda))
+        .collect();
+    Ok((all, ties))
+}
+
+/// The gradient over `params` and their tied λs folded onto the first `np` ([`with_ties`]).
+fn fold_gradient(g: &mut Vec<f64>, np: usize, ties: &[Tie]) {
+    for (t, dl) in ties.iter().zip(g.split_off(np)) {
+        for &(i, w) in &t.weights {
+            g[i] += w * dl;
+        }
+    }
+}
+
+/// The Gauss–Newton matrix over `params` and their tied λs (row-major, `np + ties.len()`
+/// square) folded onto the first `np`: Tᵀ H T, T the identity on the parameters with each
+/// tied λ's row carrying its weights.
+fn fold_gauss_newton(h: &[f64], np: usize, ties: &[Tie]) -> Vec<f64> {
+    if ties.is_empty() {
+        return h.to_vec();
+    }
+    let na = np + ties.len();
+    // The evaluated index i reaches the fitted indices `into(i)` with their weights T[i][a].
+    let own: Vec<Vec<(usize, f64)>> = (0..np).map(|i| vec![(i, 1.0)]).collect();
+    let into = |i: usize| -> &[(usize, f64)] {
+        match i.checked_sub(np) {
+            None => &own[i],
+            Some(k) => &ties[k].weights,
+        }
+    };
+    let mut out = vec![0.0; np * np];
+    for i in 0..na {
+        for &(a, wa) in into(i) {
+            for j in 0..na {
+                for &(b, wb) in into(j) {
+                    out[a * np + b] += wa * h[i * na + j] * wb;
+                }
+            }
+        }
+    }
+    out
 }
 
 /// Runs `op` on a worker of rayon's pool (at once when called from one): the element passes
@@ -442,8 +498,13 @@ pub fn evaluate_gauss_newton_with(
     obs: &Observations,
     solve: StepSolve,
 ) -> Result<(Evaluation, Vec<f64>), MotionError> {
-    let (ev, h) = in_pool(|| direct(model, mat, params, obs, true, solve))?;
-    Ok((ev, h.unwrap_or_default()))
+    let (all, ties) = with_ties(mat, params)?;
+    let (mut ev, h) = in_pool(|| direct(model, mat, &all, obs, true, solve))?;
+    if let Some(g) = ev.grad.as_mut() {
+        fold_gradient(g, params.len(), &ties);
+    }
+    let h = h.map_or_else(Vec::new, |h| fold_gauss_newton(&h, params.len(), &ties));
+    Ok((ev, h))
 }
 
 fn zeros_acc(kinds: &[bool], ne: usize) -> Vec<Vec<f64>> {

@@ -222,6 +222,22 @@ pub struct Material {
     /// Element sets that a region parameter ([`Param::in_region`]) gives one value of its own:
     /// the second material of a two-material body. Empty for one material.
     pub regions: Vec<Vec<usize>>,
+    /// Regions scaled as a whole: the body's Lamé moduli times one factor, the region's μ over
+    /// the body's, so that the region keeps the body's Poisson's ratio (a compliant layer at a
+    /// clamp): λ_r = μ_r λ_b/μ_b, with λ_b and μ_b the values outside every region. Setting
+    /// values ([`Self::set`]) sets the region's λ; the parameters its λ depends on carry its
+    /// derivative by the chain rule ([`Self::ties`]), and it is no parameter of its own.
+    pub scaled_regions: Vec<usize>,
+}
+
+/// A region's λ that follows parameters ([`Material::scaled_regions`]): dλ = Σ w dq\[i\] over
+/// `weights` (i, w) ([`Material::ties`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Tie {
+    /// The λ that follows (a region's).
+    pub lambda: Param,
+    /// (index in the parameter list, ∂λ/∂q) of each parameter it depends on.
+    pub weights: Vec<(usize, f64)>,
 }
 
 impl Material {
@@ -241,7 +257,54 @@ impl Material {
             ],
             spline: None,
             regions: Vec::new(),
+            scaled_regions: Vec::new(),
         }
+    }
+    /// The body's (λ, μ): the values outside every region (the means there).
+    pub fn body_moduli(&self) -> (f64, f64) {
+        let v = self.read(&[
+            Param::global(ParamKind::Lambda),
+            Param::global(ParamKind::Mu),
+        ]);
+        (v[0], v[1])
+    }
+    /// The λ of each scaled region ([`Self::scaled_regions`]) as it follows `params`:
+    /// λ_r = μ_r λ_b/μ_b, so ∂λ_r/∂μ_r = λ_b/μ_b, ∂λ_r/∂λ_b = μ_r/μ_b and
+    /// ∂λ_r/∂μ_b = −μ_r λ_b/μ_b², each where that value is a parameter. A scaled region's λ
+    /// among `params` is refused: it is no parameter of its own.
+    pub fn ties(&self, params: &[Param]) -> Result<Vec<Tie>, MotionError> {
+        if let Some((i, p)) = params.iter().enumerate().find(|(_, p)| {
+            p.kind == ParamKind::Lambda
+                && p.region.is_some_and(|r| self.scaled_regions.contains(&r))
+        }) {
+            return Err(MotionError::Invalid(format!(
+                "parameter {i}: region {}'s λ follows its μ at the body's Poisson's ratio and is \
+                 no parameter of its own",
+                p.region.unwrap_or_default()
+            )));
+        }
+        let (lb, mb) = self.body_moduli();
+        let at = |p: Param| params.iter().position(|q| *q == p);
+        Ok(self
+            .scaled_regions
+            .iter()
+            .map(|&r| {
+                let mr = self.read(&[Param::in_region(ParamKind::Mu, r)])[0];
+                let weights = [
+                    (at(Param::in_region(ParamKind::Mu, r)), lb / mb),
+                    (at(Param::global(ParamKind::Lambda)), mr / mb),
+                    (at(Param::global(ParamKind::Mu)), -mr * lb / (mb * mb)),
+                ]
+                .into_iter()
+                .filter_map(|(i, w)| Some((i?, w)))
+                .collect();
+                Tie {
+                    lambda: Param::in_region(ParamKind::Lambda, r),
+                    weights,
+                }
+            })
+            .filter(|t| !t.weights.is_empty())
+            .collect())
     }
     /// Whether any element has a creep branch (a relaxed fraction other than 0,
     /// [`super::relaxation`]).
@@ -264,6 +327,14 @@ impl Material {
     }
     /// Checks that every parameter refers to something this material has.
     pub fn check_params(&self, params: &[Param]) -> Result<(), MotionError> {
+        for &r in &self.scaled_regions {
+            if r >= self.regions.len() {
+                return Err(MotionError::Invalid(format!(
+                    "region {r} is scaled as a whole, but the material has {} region(s)",
+                    self.regions.len()
+                )));
+            }
+        }
         for (i, p) in params.iter().enumerate() {
             if let Some(r) = p.region {
                 let Some(elements) = self.regions.get(r) else {
@@ -355,6 +426,14 @@ impl Material {
     /// the noise floor).
     pub fn overridden(&self, params: &[Param], kind: ParamKind) -> Vec<bool> {
         let mut inside = vec![false; self.values[0].len()];
+        if kind == ParamKind::Lambda {
+            // A region whose λ follows its μ is never reached by the global λ.
+            for &r in &self.scaled_regions {
+                if let Some(elements) = self.regions.get(r) {
+                    elements.iter().for_each(|&e| inside[e] = true);
+                }
+            }
+        }
         for p in params {
             if let (Some(r), None) = (p.region, p.element) {
                 if p.kind == kind {
@@ -369,8 +448,25 @@ impl Material {
 
     /// Writes the parameter values `q` (linear, not log) into the material: a global parameter
     /// into every element but those of the regions `params` gives that kind of their own
-    /// ([`Self::overridden`]), then the regions' and the elements' own values.
+    /// ([`Self::overridden`]), then the regions' and the elements' own values; last, each scaled
+    /// region's λ from its μ at the body's ratio ([`Self::scaled_regions`]).
     pub fn set(&mut self, params: &[Param], q: &[f64]) {
+        self.set_values(params, q);
+        if self.scaled_regions.is_empty() {
+            return;
+        }
+        let (lb, mb) = self.body_moduli();
+        for &r in &self.scaled_regions {
+            let Some(elements) = self.regions.get(r) else {
+                continue;
+            };
+            for &e in elements {
+                self.values[ParamKind::Lambda as usize][e] =
+                    self.values[ParamKind::Mu as usize][e] * lb / mb;
+            }
+        }
+    }
+    fn set_values(&mut self, params: &[Param], q: &[f64]) {
         for global in [true, false] {
             for (p, &v) in params.iter().zip(q) {
                 if p.is_global() != global {

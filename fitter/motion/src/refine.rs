@@ -102,6 +102,7 @@ impl Material {
                 .iter()
                 .map(|r| r.iter().flat_map(|&e| 8 * e..8 * e + 8).collect())
                 .collect(),
+            scaled_regions: self.scaled_regions.clone(),
         }
     }
 }

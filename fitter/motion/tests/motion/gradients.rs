@@ -3,6 +3,7 @@
 //! observations, from an elastostatic start.
 
 use crate::support::{assert_gradients_agree, bar, truth};
+use palpate_motion::gradient::evaluate_gauss_newton;
 use palpate_motion::model::{MassKind, Material, Param, ParamKind};
 use palpate_motion::scenario::record;
 
@@ -142,4 +143,88 @@ fn region_parameters_match_finite_differences() {
         Some(palpate_motion::gradient::Method::Adjoint)
     )
     .is_err());
+}
+
+/// A region scaled as a whole (`Material::scaled_regions`, a layer at the body's Poisson's
+/// ratio): its λ = μ_r λ_b/μ_b follows the region's μ and the body's two moduli, against central
+/// differences of Φ with the tie in place (adjoint and direct), and the global λ does not reach
+/// the region otherwise. The Gauss–Newton matrix over (global μ, region μ, global λ) is the one
+/// over the four Lamé values with the region's λ folded by hand.
+#[test]
+fn a_region_scaled_as_a_whole_matches_finite_differences() {
+    let (model, mut mat, obs) = setup(MassKind::Lumped);
+    mat.regions = vec![(8..16).collect()];
+    mat.scaled_regions = vec![0];
+    let ratio = 3.1e4 / 1.7e4;
+    let params = [
+        Param::global(ParamKind::Mu),
+        Param::in_region(ParamKind::Mu, 0),
+        Param::global(ParamKind::Lambda),
+    ];
+    mat.set(&params, &[1.7e4, 0.6e4, 3.1e4]);
+    for (e, (&l, &m)) in mat.values[ParamKind::Lambda as usize]
+        .iter()
+        .zip(&mat.values[ParamKind::Mu as usize])
+        .enumerate()
+    {
+        let expected = if (8..16).contains(&e) {
+            (ratio * 0.6e4, 0.6e4)
+        } else {
+            (3.1e4, 1.7e4)
+        };
+        assert!(
+            (l - expected.0).abs() <= 1e-12 * l && m == expected.1,
+            "element {e}: {:?}",
+            (l, m)
+        );
+    }
+    let (g, _) = assert_gradients_agree(&model, &mat, &params, &obs, |_, q0| 1e-5 * q0);
+    assert!(g.iter().all(|&x| x != 0.0), "{g:?}");
+    // The region's λ is no parameter of its own.
+    let twice = [Param::in_region(ParamKind::Lambda, 0)];
+    assert!(mat.ties(&twice).is_err());
+    // The folded Gauss–Newton matrix against the untied one folded here.
+    let (tied_ev, tied) = evaluate_gauss_newton(&model, &mat, &params, &obs).unwrap();
+    let mut free = mat.clone();
+    free.scaled_regions.clear();
+    let four = [
+        params[0],
+        params[1],
+        params[2],
+        Param::in_region(ParamKind::Lambda, 0),
+    ];
+    let (free_ev, h4) = evaluate_gauss_newton(&model, &free, &four, &obs).unwrap();
+    assert_eq!(tied_ev.phi, free_ev.phi);
+    let (mb, mr) = (1.7e4, 0.6e4);
+    let t = |i: usize, a: usize| match (i, a) {
+        (3, 0) => -mr * ratio / mb,
+        (3, 1) => ratio,
+        (3, 2) => mr / mb,
+        _ if i == a => 1.0,
+        _ => 0.0,
+    };
+    for a in 0..3 {
+        for b in 0..3 {
+            let mut want = 0.0;
+            for i in 0..4 {
+                for j in 0..4 {
+                    want += t(i, a) * h4[i * 4 + j] * t(j, b);
+                }
+            }
+            let got = tied[a * 3 + b];
+            assert!(
+                (got - want).abs() <= 1e-12 * want.abs().max(tied[a * 3 + a].abs()),
+                "H[{a}][{b}]: {got:e} folded, {want:e} by hand"
+            );
+        }
+    }
+    let (gt, gf) = (tied_ev.grad.unwrap(), free_ev.grad.unwrap());
+    let want = [
+        gf[0] - mr * ratio / mb * gf[3],
+        gf[1] + ratio * gf[3],
+        gf[2] + mr / mb * gf[3],
+    ];
+    for (a, b) in gt.iter().zip(want) {
+        assert!((a - b).abs() <= 1e-12 * b.abs(), "{gt:?} vs {want:?}");
+    }
 }
