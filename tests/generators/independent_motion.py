@@ -8,6 +8,11 @@ moved (a smooth up-and-sideways translation of 1-3 cm over 0.2-0.4 s, then held)
 swings and rings down. Writes palpate's motion dataset (docs/motion-dataset.md: dataset.toml, mesh.msh,
 markers.csv, trajectories.csv, clamps.csv) + truth.json.
 
+`--clamp-compliance ELL` (metres) holds the clamped face by springs instead of rigidly: each clamped node
+is tied to where the clamp puts it by k_n = E/ELL across the face and k_t = mu/ELL along it (Pa/m, per
+area; the face's area shared equally by its nodes), the give of a layer ELL thick of the body's own
+material. The dataset still declares the face clamped, as a user who does not know the clamp gives would.
+
 Truth (own code, truthfem.py + this file): compressible Neo-Hookean (ln J form) on a Gmsh P1 mesh, lumped
 mass, Kelvin-Voigt damping with second Piola-Kirchhoff viscous stress S_v = 2 eta sym(F^T Fdot) (objective:
 a rigid rotation dissipates nothing), implicit BDF2 in time (implicit Euler for the first step), Newton
@@ -103,7 +108,8 @@ def check_viscous_tangent(rng):
 
 
 class Dynamic:
-    def __init__(self, X, T, E, nu, rho, eta, clamp, g):
+    def __init__(self, X, T, E, nu, rho, eta, clamp, g, spring=None):
+        """`spring`: per-dof stiffness (N/m) tying the clamped nodes to the clamp; None: held rigidly."""
         self.body = tf.Body(X, T, tf.Material.from_E_nu(E, nu, len(T)))
         self.eta = np.full(len(self.body.T), float(eta))
         n = len(X)
@@ -113,8 +119,10 @@ class Dynamic:
         self.fg = np.zeros(3 * n)
         self.fg.reshape(-1, 3)[:] = np.outer(rho * w, g)
         self.clamp = clamp
+        self.spring = spring
         fixed = np.zeros(3 * n, bool)
-        fixed[(3 * clamp[:, None] + np.arange(3)).ravel()] = True
+        if spring is None:
+            fixed[(3 * clamp[:, None] + np.arange(3)).ravel()] = True
         self.free = np.flatnonzero(~fixed)
         self.cdofs = np.flatnonzero(fixed)
 
@@ -145,6 +153,8 @@ class Dynamic:
             u_part, v_part = -u_hist[0] / dt, -v_hist[0] / dt
         u = u_hist[0] + dt * v_hist[0]  # predictor
         u.reshape(-1, 3)[self.clamp] = uc
+        anchor = np.zeros_like(u)
+        anchor.reshape(-1, 3)[self.clamp] = uc
         # F-dot = cu F + (terms of the history): F(u) is affine in u
         def Fdot_fn(F, up=u_part):
             Fp = np.einsum("eai,eaJ->eiJ", up.reshape(-1, 3)[b.T], b.B)  # grad of the history part
@@ -154,6 +164,9 @@ class Dynamic:
             a = cv * v + v_part
             f, K = self.forces(u, Fdot_fn, cu)
             r = self.m * a + f - self.fg
+            if self.spring is not None:
+                r = r + self.spring * (u - anchor)
+                K = K + sp.diags(self.spring)
             return r, K
         r, K = residual(u)
         for it in range(30):
@@ -199,6 +212,8 @@ def main():
                          "period error and numerical damping become part of the 'truth'; default 8)")
     ap.add_argument("--check", action="store_true")
     ap.add_argument("--damping-ratio", type=float, default=None, help="override the drawn damping ratio (0 = no Kelvin-Voigt damping)")
+    ap.add_argument("--clamp-compliance", type=float, default=0.0, metavar="ELL",
+                    help="hold the clamped face by springs of a layer ELL metres thick of the body's material (0 = rigid)")
     a = ap.parse_args()
     t_start = time.time()
     rng = np.random.default_rng([a.seed, 44])
@@ -226,9 +241,17 @@ def main():
     Xd, Td, _ = mesh_cylinder(R, R / 1.6, seed=int(rng.integers(1, 9999)), algo3d=10, out_msh=os.path.join(a.out, "mesh.msh"))
     print(f"E={E:.4g} Pa nu={nu:.3f} rho={rho:.0f} R={R * 1e3:.1f} mm eta={eta:.3g} Pa s, truth {len(Tt)} tets, dataset {len(Td)} tets")
     g = np.array([0, 0, -9.81])
-    dyn = Dynamic(Xt, Tt, E, nu, rho, eta, clamp_t, g)
-    # static start
-    prob = tf.Problem(dyn.body, fixed_nodes=clamp_t)
+    spring = None
+    if a.clamp_compliance > 0:
+        area = math.pi * R**2 / len(clamp_t)
+        spring = np.zeros(3 * len(Xt))
+        k = spring.reshape(-1, 3)
+        k[clamp_t, 0] = E / a.clamp_compliance * area
+        k[clamp_t, 1:] = mu / a.clamp_compliance * area
+        print(f"clamp held by springs: a layer {a.clamp_compliance * 1e3:.1f} mm thick of the body's material")
+    dyn = Dynamic(Xt, Tt, E, nu, rho, eta, clamp_t, g, spring)
+    # static start (the springs tie the clamped nodes to where they rest)
+    prob = tf.Problem(dyn.body, spring=spring) if spring is not None else tf.Problem(dyn.body, fixed_nodes=clamp_t)
     u0, it0 = prob.solve(dyn.fg, steps=4)
     tip = np.argmax(Xt[:, 0] - 10 * np.abs(Xt[:, 1]) - 10 * np.abs(Xt[:, 2]))
     sag = -u0.reshape(-1, 3)[tip, 2]
@@ -309,6 +332,7 @@ def main():
              "lambda_Pa": E * nu / ((1 + nu) * (1 - 2 * nu)), "mu_Pa": mu, "density": rho,
              "kelvin_voigt_eta_Pa_s": eta, "damping_ratio_target": zeta, "radius_m": R, "length_m": L_CYL,
              "static_tip_sag_m": float(sag), "clamp_amplitude_m": amp.tolist(), "clamp_ramp_s": [0.05, 0.05 + t_ramp],
+             "clamp_compliance_layer_m": a.clamp_compliance,
              "marker_noise_m": sigma, "dt": dt, "steps": n_steps, "truth_substeps": sub, "markers": nm,
              "truth_tets": int(len(Tt)), "dataset_tets": int(len(Td)), "newton_iterations_per_step": iters,
              "checks": checks, "seconds": time.time() - t_start}

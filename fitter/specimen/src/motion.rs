@@ -18,6 +18,7 @@
 //! | two-material | the bar cut across its length at 30–70 %, one side 2–4× stiffer or softer (μ) |
 //! | marker-offsets | every marker 0.2–0.6 mm off its declared place, in a random direction |
 //! | time-offset | the markers recorded 1–3 steps late or early against the base's record |
+//! | clamp-compliance | the elements at the shaken face softened as a whole (λ and μ) to 0.15–0.5× |
 //!
 //! The truth is palpate's own simulator: this tests the diagnosis' search and selection, not
 //! the model class (the independent generators of `tests/generators/` do that).
@@ -47,17 +48,20 @@ pub enum MotionEffect {
     MarkerOffsets,
     /// Markers recorded out of step with the base.
     TimeOffset,
+    /// The clamp gives: the elements at the clamped face softer, both moduli by one factor.
+    ClampCompliance,
 }
 
 impl MotionEffect {
     /// Every effect, in table order.
-    pub const ALL: [MotionEffect; 6] = [
+    pub const ALL: [MotionEffect; 7] = [
         Self::None,
         Self::Viscosity,
         Self::Stiffening,
         Self::TwoMaterial,
         Self::MarkerOffsets,
         Self::TimeOffset,
+        Self::ClampCompliance,
     ];
 
     /// The name of the diagnosis' candidate that is this effect (`None`: nothing to name).
@@ -69,6 +73,7 @@ impl MotionEffect {
             Self::TwoMaterial => "two-material",
             Self::MarkerOffsets => "marker-offsets",
             Self::TimeOffset => "time-offset",
+            Self::ClampCompliance => "clamp-compliance",
         }
     }
 }
@@ -161,6 +166,22 @@ pub fn motion_specimen(
             let steps = 1 + (3.0 * rng.uniform()) as i64;
             late = if rng.uniform() < 0.5 { steps } else { -steps };
             format!("{late:+} steps")
+        }
+        MotionEffect::ClampCompliance => {
+            let factor = log_uniform(&mut rng, 0.15, 0.5);
+            let m = &ds.model;
+            let layer: Vec<usize> = (0..ne)
+                .filter(|&e| m.tets[e].iter().any(|&n| m.node_clamp[n] != usize::MAX))
+                .collect();
+            for &e in &layer {
+                for k in [ParamKind::Lambda, ParamKind::Mu] {
+                    truth.values[k as usize][e] *= factor;
+                }
+            }
+            format!(
+                "λ and μ × {factor:.2} in the {} elements at the clamp",
+                layer.len()
+            )
         }
     };
     ds.obs = record_late(&ds.model, &truth, SIGMA, seed, late, 4)?;

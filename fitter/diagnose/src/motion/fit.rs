@@ -83,11 +83,13 @@ pub struct FittedModel {
 }
 
 impl FittedModel {
-    /// Free parameters: the material's (a region's μ included), the shape of each region
-    /// ([`REGION_SHAPE_PARAMS`]), three per marker offset and one time offset.
+    /// Free parameters: the material's (a region's μ included), the shape of each region chosen
+    /// from the data ([`REGION_SHAPE_PARAMS`]; a clamp layer's place is the clamps'), three per
+    /// marker offset and one time offset.
     pub fn parameter_count(&self) -> usize {
+        let chosen = self.material.regions.len() - self.material.scaled_regions.len();
         self.values.len()
-            + REGION_SHAPE_PARAMS * self.material.regions.len()
+            + REGION_SHAPE_PARAMS * chosen
             + self.offsets.as_ref().map_or(0, |o| 3 * o.len())
             + usize::from(self.time_offset.is_some())
     }
@@ -292,6 +294,7 @@ pub fn fit_model(
     let (model, obs) = fitted_part(ds, split);
     let params = params_for(kinds, base);
     let quiet = |_: usize, _: f64| {};
+    let starts: Vec<Vec<f64>> = starts.iter().map(|q0| lambda_raised(kinds, q0)).collect();
     let run = |q0: &[f64], iters: u64| {
         let settings = FitSettings {
             max_iters: iters,
@@ -303,7 +306,7 @@ pub fn fit_model(
     let mut evaluations = 0;
     let mut notes = Vec::new();
     if starts.len() > 1 {
-        for q0 in starts {
+        for q0 in &starts {
             match run(q0, screen_iters) {
                 Ok(r) => {
                     evaluations += r.evaluations;
@@ -368,6 +371,26 @@ pub fn fit_model(
         offsets,
         time_offset: None,
     })
+}
+
+/// The smallest λ/μ a fit of λ and μ starts from: Poisson's ratio 0.005. λ is fitted in ln λ,
+/// whose gradient λ ∂Φ/∂λ vanishes as λ does: a misfit that a fit of the simplest model
+/// explained by a body that does not resist a change of volume (λ → 10⁻⁸ Pa on a bar whose
+/// clamp gives) left λ there for every later fit, the candidate that explains the misfit
+/// included. From this start λ is within a few trust-region steps of any solid's, and a fit
+/// whose data want it lower takes it there again. (A floor held during the fit, relative to
+/// the start's μ, was tried: after a simplest fit that made the body rigid, μ 2·10¹² Pa on a
+/// bar recorded out of step, it held λ where the time offset's refit could not bring μ back.)
+pub const LAMBDA_START_RATIO: f64 = 0.01;
+
+/// `q0` with λ raised to [`LAMBDA_START_RATIO`] × μ where `kinds` fits both and it lies below.
+fn lambda_raised(kinds: &[ParamKind], q0: &[f64]) -> Vec<f64> {
+    let mut q = q0.to_vec();
+    let at = |k| kinds.iter().position(|&j| j == k);
+    if let (Some(l), Some(m)) = (at(ParamKind::Lambda), at(ParamKind::Mu)) {
+        q[l] = q[l].max(LAMBDA_START_RATIO * q[m]);
+    }
+    q
 }
 
 /// What choosing a second material's region from the data is charged, in parameters: as the

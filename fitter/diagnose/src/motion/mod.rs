@@ -40,7 +40,7 @@ use crate::select::{select, Policy, Rank, Screen};
 use engine::{motion_rounds, MotionModel};
 use fit::{fit_model, FittedModel, Scores, Split};
 use palpate_motion::dataset::MotionDataset;
-use palpate_motion::model::{Material, ParamKind};
+use palpate_motion::model::{Material, Param, ParamKind};
 use serde::Serialize;
 use signature::{signature, Signature};
 use std::path::Path;
@@ -308,9 +308,10 @@ impl MotionDiagnosis {
 fn values_of(m: &FittedModel, model: &palpate_motion::model::Model) -> Vec<Value> {
     let material = ParamKind::ALL.iter().filter_map(|&k| {
         let i = m.kinds.iter().position(|&x| x == k);
+        // A fixed value is read outside every region (element 0 may be in one).
         let value = match i {
             Some(i) => m.values[i],
-            None => m.material.get(k, 0),
+            None => m.material.read(&[Param::global(k)])[0],
         };
         // The stiffening term is listed where it is in the model, not as a fixed 0.
         if k == ParamKind::Stiffening && i.is_none() && value == 0.0 {

@@ -590,3 +590,41 @@ fn a_bar_of_two_materials_is_given_its_second_material() {
         r.after
     );
 }
+
+/// A clamp that gives: the drawn specimen whose elements at the shaken face are softened as a
+/// whole (`palpate_specimen::motion`, clamp-compliance, seed 4: λ and μ × 0.17 there). The
+/// diagnosis must name the clamp's give first and alone, put the layer within the drawn range
+/// (0.15–0.5× the body; measured 0.170×), recover the body's μ within 2 % (measured 7,498.7 Pa
+/// for 7,493.0) and forecast at the noise floor (measured 32.0 µm held out, floor σ√3 =
+/// 34.6 µm). The simplest model fitted to this bar drives λ down to explain the soft root;
+/// before every fit started λ at 1 % of μ or more
+/// (`palpate_diagnose::motion::fit::LAMBDA_START_RATIO`) it stayed at 10⁻⁸ Pa in every later
+/// fit and the layer's fit stopped at 3.2 mm.
+#[test]
+fn a_clamp_that_gives_is_named() {
+    use palpate_specimen::motion::{motion_specimen, MotionEffect};
+    let base = crate::diagnose_runs::example();
+    let (ds, truth) = motion_specimen(&base, MotionEffect::ClampCompliance, 4).unwrap();
+    eprintln!("{}", truth.detail);
+    let r = run(&ds, "clamp-compliance");
+    assert_eq!(r.adopted, ["clamp-compliance"]);
+    let value = |start: &str| {
+        r.after_values
+            .iter()
+            .find(|v| v.name.starts_with(start))
+            .unwrap_or_else(|| panic!("{start}: {:?}", r.after_values))
+            .value
+    };
+    let (mu, layer) = (value("mu"), value("mu of the layer"));
+    assert!(
+        (mu / truth.mu - 1.0).abs() < 0.02,
+        "μ {mu} for {}",
+        truth.mu
+    );
+    assert!(
+        (0.15..0.5).contains(&(layer / mu)),
+        "layer {layer}, body {mu}"
+    );
+    let floor = 2e-5 * 3f64.sqrt();
+    assert!(r.after.rms_held < 1.2 * floor, "{:?}", r.after);
+}

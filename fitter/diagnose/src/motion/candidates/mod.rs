@@ -18,6 +18,7 @@ use super::screen::Screening;
 use super::{MotionDiagnoseError, Value};
 use crate::select::{Outcome, Prediction};
 
+mod clamp_compliance;
 mod density;
 mod marker_offsets;
 mod stiffening;
@@ -44,10 +45,12 @@ pub enum Candidate {
     Stiffening,
     /// A body of two materials (`two_material.rs`).
     TwoMaterial,
+    /// A clamp that gives: the layer at the clamps softened as a whole (`clamp_compliance.rs`).
+    ClampCompliance,
 }
 
 /// Every candidate, in the order they are tried.
-pub const ALL_CANDIDATES: [Candidate; 7] = [
+pub const ALL_CANDIDATES: [Candidate; 8] = [
     Candidate::Viscosity,
     Candidate::ViscosityNewtonian,
     Candidate::Density,
@@ -55,18 +58,20 @@ pub const ALL_CANDIDATES: [Candidate; 7] = [
     Candidate::TimeOffset,
     Candidate::Stiffening,
     Candidate::TwoMaterial,
+    Candidate::ClampCompliance,
 ];
 
 /// The order in which a fitted model's effect values are listed after the material's
 /// ([`MotionEffect::values`], [`MotionEffect::summary_values`]): a second material's μ is a
 /// material value and sits beside the global ones; the offsets, which read the data rather than
 /// the body, come last.
-pub const REPORT_ORDER: [Candidate; 7] = [
+pub const REPORT_ORDER: [Candidate; 8] = [
     Candidate::Viscosity,
     Candidate::ViscosityNewtonian,
     Candidate::Density,
     Candidate::Stiffening,
     Candidate::TwoMaterial,
+    Candidate::ClampCompliance,
     Candidate::TimeOffset,
     Candidate::MarkerOffsets,
 ];
@@ -190,6 +195,7 @@ impl Candidate {
             Candidate::TimeOffset => &time_offset::TimeOffset,
             Candidate::Stiffening => &stiffening::Stiffening,
             Candidate::TwoMaterial => &two_material::TwoMaterial,
+            Candidate::ClampCompliance => &clamp_compliance::ClampCompliance,
         }
     }
 
@@ -228,15 +234,18 @@ impl crate::select::CandidateEffect for Candidate {
 mod tests {
     use super::*;
 
-    /// Every candidate is listed once in the report's order, and the two viscosity laws (and
-    /// only they) exclude each other, both ways.
+    /// Every candidate is listed once in the report's order, and the two viscosity laws and the
+    /// two region effects (and only they) exclude each other, both ways.
     #[test]
     fn the_library_is_listed_once_and_the_viscosity_laws_conflict() {
         for c in ALL_CANDIDATES {
             assert_eq!(REPORT_ORDER.iter().filter(|&&r| r == c).count(), 1, "{c:?}");
             for d in ALL_CANDIDATES {
                 let laws = [Candidate::Viscosity, Candidate::ViscosityNewtonian];
-                let expected = c != d && laws.contains(&c) && laws.contains(&d);
+                let regions = [Candidate::TwoMaterial, Candidate::ClampCompliance];
+                let expected = c != d
+                    && ((laws.contains(&c) && laws.contains(&d))
+                        || (regions.contains(&c) && regions.contains(&d)));
                 assert_eq!(c.conflicts(d), expected, "{c:?} vs {d:?}");
             }
         }

@@ -41,6 +41,11 @@ impl MotionEffect for TwoMaterial {
         1 + REGION_SHAPE_PARAMS
     }
 
+    /// One region effect at a time ([`super::clamp_compliance`]).
+    fn conflicts(&self, other: Candidate) -> bool {
+        other == Candidate::ClampCompliance
+    }
+
     fn fit(
         &self,
         m: &MotionModel<'_>,
@@ -62,7 +67,8 @@ impl MotionEffect for TwoMaterial {
         refine_boundary(m, gated)
     }
 
-    /// The shear modulus of each region of the material, named with where the region is.
+    /// The shear modulus of each second material's region, named with where the region is (a
+    /// clamp layer is the clamp's give, [`super::clamp_compliance`]).
     fn values(&self, fitted: &FittedModel, model: &Model) -> Vec<Value> {
         let first = fitted.values.len() - fitted.material.regions.len();
         let mu_rest = fitted.material.read(&[Param::global(ParamKind::Mu)])[0];
@@ -71,6 +77,7 @@ impl MotionEffect for TwoMaterial {
             .regions
             .iter()
             .enumerate()
+            .filter(|&(r, _)| !super::clamp_compliance::is_layer(&fitted.material, r))
             .map(|(r, elements)| Value {
                 name: format!(
                     "mu of the second material ({})",
