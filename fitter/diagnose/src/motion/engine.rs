@@ -360,7 +360,22 @@ impl CandidateModel for MotionModel<'_> {
         cur: &FittedModel,
         open: &[Candidate],
     ) -> Result<Vec<Prediction>, MotionDiagnoseError> {
-        let (p, simulations, stepped) = super::screen::predict(self, round, cur, open)?;
+        // A linearisation that does not simulate (a current model on the edge of stability)
+        // predicts nothing: every open candidate is fitted, as without the screen.
+        let (p, simulations, stepped) = match super::screen::predict(self, round, cur, open) {
+            Ok(r) => r,
+            Err(e) => {
+                (self.log)(&format!(
+                    "round {round}: screen failed ({e}): every open candidate is fitted"
+                ));
+                let why = format!("the screen failed: {e}");
+                (
+                    open.iter().map(|_| Prediction::none(&why)).collect(),
+                    0,
+                    Vec::new(),
+                )
+            }
+        };
         self.screen_simulations += simulations;
         self.stepped = stepped;
         let promising = open

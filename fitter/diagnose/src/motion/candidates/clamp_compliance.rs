@@ -62,7 +62,7 @@ impl MotionEffect for ClampCompliance {
         c: Candidate,
         cur: &FittedModel,
     ) -> Result<Outcome<FittedModel>, MotionDiagnoseError> {
-        let start = match with_layer(&m.ds.model, cur) {
+        let (start, r) = match with_layer(&m.ds.model, cur) {
             Ok(s) => s,
             Err(why) => return Ok(Outcome::NotFitted(why)),
         };
@@ -77,7 +77,7 @@ impl MotionEffect for ClampCompliance {
         let screener = m.with_options(&short);
         let fits: Vec<Result<FittedModel, MotionDiagnoseError>> = LAYER_STARTS
             .par_iter()
-            .map(|&k| screener.fit_from(&scaled(&start, k), c))
+            .map(|&k| screener.fit_from(&scaled(&start, r, k), c))
             .collect();
         let mut evaluations = 0;
         let mut best: Option<FittedModel> = None;
@@ -107,7 +107,9 @@ impl MotionEffect for ClampCompliance {
             Err(e) => return Ok(Outcome::NotFitted(format!("fit failed: {e}"))),
         };
         f.evaluations += evaluations;
-        let layer = layer_of(&f).expect("the fit keeps the layer");
+        let Some(layer) = layer_of(&f) else {
+            return Ok(Outcome::NotFitted("the fit lost the clamp layer".into()));
+        };
         let ratio = layer.mu / layer.body_mu;
         if ratio >= 1.0 {
             return Ok(Outcome::NotFitted(format!(
@@ -123,14 +125,21 @@ impl MotionEffect for ClampCompliance {
     /// the body's μ (the current model): a simulation with sensitivities of its own. A step that
     /// stiffens the layer predicts nothing for a clamp that gives: the refit alone.
     fn predict(&self, s: &Screening<'_, '_>) -> Result<Prediction, MotionDiagnoseError> {
-        let start = match with_layer(&s.model.ds.model, s.cur) {
+        let (start, _) = match with_layer(&s.model.ds.model, s.cur) {
             Ok(start) => start,
             Err(why) => return Ok(Prediction::none(&why)),
         };
         let params = fit::params_for(&start.kinds, &start.material);
-        let (normal, chi2_sim) =
-            motion_screen::linearise(s.model, s.cur, &start.material, &params)?;
         s.count(1);
+        let (normal, chi2_sim) =
+            match motion_screen::linearise(s.model, s.cur, &start.material, &params) {
+                Ok(l) => l,
+                Err(e) => {
+                    return Ok(Prediction::none(&format!(
+                        "its linearisation did not simulate ({e}): always fitted"
+                    )))
+                }
+            };
         let parts = std::slice::from_ref(&normal);
         let layer_col = params.len() - 1;
         let mut cols: Vec<usize> = (0..params.len()).collect();
@@ -215,9 +224,9 @@ pub fn clamp_layer(model: &Model) -> Vec<usize> {
 }
 
 /// `cur` with the clamp layer as a region of its own at the body's moduli (scaled as a whole),
-/// its μ a parameter: the start of the candidate's fit, where it is the current model. `Err`:
-/// why there is no layer to soften.
-fn with_layer(model: &Model, cur: &FittedModel) -> Result<FittedModel, String> {
+/// its μ a parameter — the start of the candidate's fit, where it is the current model — and
+/// the layer's index among the regions. `Err`: why there is no layer to soften.
+fn with_layer(model: &Model, cur: &FittedModel) -> Result<(FittedModel, usize), String> {
     if layer_of(cur).is_some() {
         return Err("the clamp layer is already in the model".into());
     }
@@ -254,17 +263,12 @@ fn with_layer(model: &Model, cur: &FittedModel) -> Result<FittedModel, String> {
     if let Some(s) = start.sigma.as_mut() {
         s.push(f64::NAN);
     }
-    Ok(start)
+    Ok((start, r))
 }
 
-/// `start` with its clamp layer's μ (and so its λ) at `k` times the body's.
-fn scaled(start: &FittedModel, k: f64) -> FittedModel {
+/// `start` with its clamp layer, region `r`, at `k` times the body's μ (and so λ).
+fn scaled(start: &FittedModel, r: usize, k: f64) -> FittedModel {
     let mut s = start.clone();
-    let &r = s
-        .material
-        .scaled_regions
-        .last()
-        .expect("the start has its layer");
     let mu = k * s.material.body_moduli().1;
     s.material.set(&[Param::in_region(ParamKind::Mu, r)], &[mu]);
     let first = s.values.len() - s.material.regions.len();
