@@ -123,7 +123,8 @@ impl MotionEffect for ClampCompliance {
 
     /// One Gauss–Newton step over the current parameters and the layer's μ, from the layer at
     /// the body's μ (the current model): a simulation with sensitivities of its own. A step that
-    /// stiffens the layer predicts nothing for a clamp that gives: the refit alone.
+    /// stiffens the layer predicts no gain (the candidate's charge alone): a refit of the current
+    /// parameters, which the step also holds, is no gain of the clamp's give.
     fn predict(&self, s: &Screening<'_, '_>) -> Result<Prediction, MotionDiagnoseError> {
         let (start, _) = match with_layer(&s.model.ds.model, s.cur) {
             Ok(start) => start,
@@ -142,19 +143,24 @@ impl MotionEffect for ClampCompliance {
             };
         let parts = std::slice::from_ref(&normal);
         let layer_col = params.len() - 1;
-        let mut cols: Vec<usize> = (0..params.len()).collect();
-        let mut delta = screen::step(parts, &cols);
-        let mut how = "one Gauss–Newton step from the layer at the body's μ".to_string();
+        let cols: Vec<usize> = (0..params.len()).collect();
+        let delta = screen::step(parts, &cols);
+        let extra = self.extra_params(0);
         if delta[layer_col] >= 0.0 {
-            cols.pop();
-            delta = screen::step(parts, &cols);
-            how.push_str("; the step stiffens the layer: held at the body's μ");
+            // Held at the body's μ the layer adds nothing; what a refit of the current
+            // parameters alone would gain is no gain of this candidate's.
+            return Ok(Prediction {
+                delta_bic: Some(s.delta_bic(s.cur.scores.chi2_fit, extra)),
+                how: "one Gauss–Newton step from the layer at the body's μ stiffens the layer: \
+                      no clamp that gives is predicted"
+                    .into(),
+            });
         }
         let change = screen::change(parts, &cols, &delta)[0];
         let chi2 = motion_screen::stepped_chi2(s.cur, &normal, chi2_sim, change);
         Ok(Prediction {
-            delta_bic: Some(s.delta_bic(chi2, self.extra_params(0))),
-            how,
+            delta_bic: Some(s.delta_bic(chi2, extra)),
+            how: "one Gauss–Newton step from the layer at the body's μ".into(),
         })
     }
 
