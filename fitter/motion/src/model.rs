@@ -273,6 +273,9 @@ impl Material {
     /// ∂λ_r/∂μ_b = −μ_r λ_b/μ_b², each where that value is a parameter. A scaled region's λ
     /// among `params` is refused: it is no parameter of its own.
     pub fn ties(&self, params: &[Param]) -> Result<Vec<Tie>, MotionError> {
+        if self.scaled_regions.is_empty() {
+            return Ok(Vec::new());
+        }
         if let Some((i, p)) = params.iter().enumerate().find(|(_, p)| {
             p.kind == ParamKind::Lambda
                 && p.region.is_some_and(|r| self.scaled_regions.contains(&r))
@@ -892,6 +895,26 @@ impl Model {
         p
     }
 
+    /// The elements that touch a clamp's nodes and have a free node (an element held at all four
+    /// does not deform), once each, in ascending order: the layer through which a clamp holds
+    /// the body.
+    pub fn clamp_layer(&self) -> Vec<usize> {
+        let free = |e: usize| {
+            self.tets[e]
+                .iter()
+                .any(|&n| self.node_clamp[n] == usize::MAX)
+        };
+        let mut layer: Vec<usize> = self
+            .clamp_elems
+            .iter()
+            .flatten()
+            .copied()
+            .filter(|&e| free(e))
+            .collect();
+        layer.sort_unstable();
+        layer.dedup();
+        layer
+    }
     /// Each marker's element and its barycentric coordinates there (in the element's node
     /// order): what a field other than the linear one (quadratic elements' shape functions) is
     /// read at. A marker whose four weights are not one element's corners is refused.

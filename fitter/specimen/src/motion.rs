@@ -169,10 +169,7 @@ pub fn motion_specimen(
         }
         MotionEffect::ClampCompliance => {
             let factor = log_uniform(&mut rng, 0.15, 0.5);
-            let m = &ds.model;
-            let layer: Vec<usize> = (0..ne)
-                .filter(|&e| m.tets[e].iter().any(|&n| m.node_clamp[n] != usize::MAX))
-                .collect();
+            let layer = ds.model.clamp_layer();
             for &e in &layer {
                 for k in [ParamKind::Lambda, ParamKind::Mu] {
                     truth.values[k as usize][e] *= factor;

@@ -4,7 +4,6 @@
 //! parameters ("step 0: Newton did not converge (residual 8.2e-4 N)" on this very mesh).
 
 use palpate_fem::mesh::boxmesh::cylinder_mesh;
-use palpate_motion::hyperelastic::HyperParams;
 use palpate_motion::model::{
     Clamp, MassKind, Material, Model, Observations, Param, ParamKind, Pose,
 };
@@ -12,7 +11,7 @@ use palpate_motion::optimize::{fit, FitSettings, Optimizer};
 use palpate_motion::scenario::record;
 use palpate_motion::sim::{simulate_states, static_start};
 use palpate_motion::start::from_rest_sag;
-use palpate_motion::statics::{solve_static, StaticProblem};
+use palpate_motion::statics::solve_static;
 
 /// 20 cm long, 1 cm radius, 1,100 kg/m³, ν = 0.45: E = 3.3 MPa sags it about 26 mm by
 /// Euler–Bernoulli (ρ g L⁴ / (2 E r²)); the coarse linear tets lock and sag less.
@@ -111,17 +110,7 @@ fn horizontal_cantilever_static_start_converges_for_any_plausible_stiffness() {
         let (x, _) = static_start(&model, &mat).unwrap_or_else(|err| panic!("E = {e}: {err}"));
         let sag = tip_sag(&model, &x);
         sags.push(sag);
-        let mut p = StaticProblem::new(
-            &mesh,
-            HyperParams {
-                lambda,
-                mu,
-                stiffening: 0.0,
-            },
-            mesh.node_groups["front"].clone(),
-        );
-        p.density = DENSITY;
-        p.gravity = [0.0, 0.0, -9.81];
+        let mut p = crate::support::clamped_under_gravity(&mesh, "front", lambda, mu, DENSITY);
         p.load_steps = 40;
         // Its default 1e-9 N is below what rounding allows at E = 3.3 MPa.
         p.tol = 1e-7;

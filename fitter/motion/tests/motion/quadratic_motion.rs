@@ -10,7 +10,6 @@ use palpate_fem::mesh::Mesh;
 use palpate_motion::difference_fit::{
     fit_by_differences, DifferenceFit, DifferenceRun, Forward, GlobalParam,
 };
-use palpate_motion::hyperelastic::HyperParams;
 use palpate_motion::model::{
     Clamp, DeadLoad, MassKind, Material, Model, Observations, Param, ParamKind, Pose,
 };
@@ -59,18 +58,7 @@ fn beam(cells: [usize; 3], dt: f64, steps: usize) -> (Mesh, Model) {
 
 /// The beam's static problem: clamped at x = 0, under its own weight.
 fn clamped_under_gravity(mesh: &Mesh, lambda: f64, mu: f64) -> StaticProblem<'_> {
-    let mut p = StaticProblem::new(
-        mesh,
-        HyperParams {
-            lambda,
-            mu,
-            stiffening: 0.0,
-        },
-        mesh.node_groups["left"].clone(),
-    );
-    p.density = DENSITY;
-    p.gravity = [0.0, 0.0, -9.81];
-    p
+    crate::support::clamped_under_gravity(mesh, "left", lambda, mu, DENSITY)
 }
 
 /// The period of the tip's swing about `centre` (its static sag): twice the time between its

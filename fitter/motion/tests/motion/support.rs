@@ -88,3 +88,27 @@ pub fn assert_gradients_agree(
     }
     (ga, scale)
 }
+
+/// The static problem of `mesh` held at its node group `clamp` under its own weight (density
+/// `density`, gravity along −z), Neo-Hookean with (λ, μ): the reference the motion's static
+/// start and rest are checked against.
+pub fn clamped_under_gravity<'m>(
+    mesh: &'m Mesh,
+    clamp: &str,
+    lambda: f64,
+    mu: f64,
+    density: f64,
+) -> palpate_motion::statics::StaticProblem<'m> {
+    let mut p = palpate_motion::statics::StaticProblem::new(
+        mesh,
+        palpate_motion::hyperelastic::HyperParams {
+            lambda,
+            mu,
+            stiffening: 0.0,
+        },
+        mesh.node_groups[clamp].clone(),
+    );
+    p.density = density;
+    p.gravity = [0.0, 0.0, -9.81];
+    p
+}

@@ -209,26 +209,6 @@ impl MotionEffect for ClampCompliance {
     }
 }
 
-/// The elements that touch any clamp's nodes and have a free node (an element held at all four
-/// does not deform), once each, in ascending order.
-pub fn clamp_layer(model: &Model) -> Vec<usize> {
-    let free = |e: usize| {
-        model.tets[e]
-            .iter()
-            .any(|&n| model.node_clamp[n] == usize::MAX)
-    };
-    let mut layer: Vec<usize> = model
-        .clamp_elems
-        .iter()
-        .flatten()
-        .copied()
-        .filter(|&e| free(e))
-        .collect();
-    layer.sort_unstable();
-    layer.dedup();
-    layer
-}
-
 /// `cur` with the clamp layer as a region of its own at the body's moduli (scaled as a whole),
 /// its μ a parameter — the start of the candidate's fit, where it is the current model — and
 /// the layer's index among the regions. `Err`: why there is no layer to soften.
@@ -236,7 +216,7 @@ fn with_layer(model: &Model, cur: &FittedModel) -> Result<(FittedModel, usize), 
     if layer_of(cur).is_some() {
         return Err("the clamp layer is already in the model".into());
     }
-    let layer = clamp_layer(model);
+    let layer = model.clamp_layer();
     if layer.is_empty() {
         return Err("no element touches a clamp: no clamp to give".into());
     }
