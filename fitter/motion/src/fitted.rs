@@ -80,6 +80,11 @@ pub struct FittedModel {
     /// hanging weights of the run it predicts by the same lever.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub load_lever_m: Option<f64>,
+    /// The gravity's turn from its declared direction, (tan toward e_a, tan toward e_b) of
+    /// [`super::model::Model::gravity_axes`] ([`ParamKind::GRAVITY`]); absent when it acted as
+    /// declared. A prediction turns the gravity of the run it predicts by the same.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gravity_turn: Option<[f64; 2]>,
     /// The fitted parameter kinds (the others were held at their dataset values).
     pub fitted: Vec<String>,
     /// The thesis coefficients (λ_F, α_G) of each element as exported to the runtime (Pa; not
@@ -168,7 +173,17 @@ impl FittedModel {
                 self.creep.as_ref().map_or(&[][..], |c| &c.time_s),
                 Some(1.0),
             )?,
+            vec![self.gravity_turn.map_or(1.0, |t| t[0].exp()); ne],
+            vec![self.gravity_turn.map_or(1.0, |t| t[1].exp()); ne],
         ];
+        if let Some(t) = self
+            .gravity_turn
+            .filter(|t| !t.iter().all(|z| z.is_finite()))
+        {
+            return Err(format!(
+                "field gravity_turn: {t:?}, expected two finite tangents"
+            ));
+        }
         // A hand-edited or corrupt record must not be simulated: each value within what it
         // means (moduli and density > 0, the stiffening ≥ 0).
         // λ may be negative (an auxetic material) and h is any exponent: those only finite.
@@ -222,6 +237,16 @@ impl FittedModel {
         } else {
             c.clone()
         }
+    }
+
+    /// The gravity turn to record for `mat` ([`Self::gravity_turn`]): `None` where it acts as
+    /// declared.
+    pub fn gravity_turn_of(mat: &Material) -> Option<[f64; 2]> {
+        if mat.values[0].is_empty() {
+            return None;
+        }
+        let t = ParamKind::GRAVITY.map(|k| mat.get(k, 0).ln());
+        (t != [0.0; 2]).then_some(t)
     }
 
     /// The JSON text of `fit.json`: `schema_version` first, then the record.

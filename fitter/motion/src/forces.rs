@@ -315,6 +315,27 @@ fn forces_in_lanes(
     Ok(())
 }
 
+/// The hanging weights' part of ∂F/∂q for the gravity's turn ([`ParamKind::GRAVITY`] set in
+/// `kinds`): `sink(slot, node, d)` with d = m ∂g/∂q for each node of a hanging mass that turns
+/// with gravity ([`Model::turned_weights`]). Nodal, not of an element: the passes that call
+/// [`param_derivatives`] add it once beside it.
+pub fn weight_derivatives(
+    model: &Model,
+    mat: &Material,
+    kinds: &[bool],
+    mut sink: impl FnMut(usize, usize, [f64; 3]),
+) {
+    for kind in ParamKind::GRAVITY {
+        if !kinds[kind as usize] {
+            continue;
+        }
+        let dg = model.gravity_derivative(mat, kind);
+        for (node, m) in model.turned_weights() {
+            sink(kind as usize, node, dg.map(|d| m * d));
+        }
+    }
+}
+
 /// Calls `sink(e, slot, ∂F_e/∂q_slot)` for every element and every derivative slot with
 /// `slots[slot]` set (slots: the material kinds, then the spline control values, see
 /// [`super::model::Param::slot`]), where
@@ -413,6 +434,20 @@ pub fn param_derivatives(
                 }
             }
             sink(e, ParamKind::Density as usize, &g);
+        }
+        for kind in ParamKind::GRAVITY {
+            if kinds[kind as usize] {
+                // ∂/∂q of f_ext: ρ_e V_e/4 ∂g/∂q per node ([`Model::gravity_derivative`]).
+                let dg = model.gravity_derivative(mat, kind);
+                let m = mat.get(ParamKind::Density, e) * t.volume / 4.0;
+                let mut g = [0.0; 12];
+                for a in 0..4 {
+                    for i in 0..3 {
+                        g[3 * a + i] = m * dg[i];
+                    }
+                }
+                sink(e, kind as usize, &g);
+            }
         }
     }
     Ok(())

@@ -18,7 +18,7 @@
 //! s_b = −(α_1 s_v^{n−1} + α_0 s_v^{n−2})/α_2, s_x^n = (Δt Σ β_j s_v − α_1 s_x^{n−1} −
 //! α_0 s_x^{n−2})/α_2.
 
-use super::forces::{param_derivatives, SPLIT_ASSEMBLY_ELEMENTS};
+use super::forces::{param_derivatives, weight_derivatives, SPLIT_ASSEMBLY_ELEMENTS};
 use super::model::{Material, Model, Observations, Param, Tie};
 use super::objective::{clamp_force_derivatives, step_term, StepTerm};
 use super::pipeline::simulate_pipelined;
@@ -579,14 +579,30 @@ fn g_columns(
         Ok(g)
     };
     let (ne, half) = (model.tets.len(), element_split(model));
-    if half == ne {
-        return part(0..ne);
-    }
-    let (first, second) = join_halves(|| part(0..half), || part(half..ne));
-    let (mut g, g2) = (first?, second?);
-    for (col, col2) in g.iter_mut().zip(&g2) {
-        col.iter_mut().zip(col2).for_each(|(a, b)| *a += b);
-    }
+    let mut g = if half == ne {
+        part(0..ne)?
+    } else {
+        let (first, second) = join_halves(|| part(0..half), || part(half..ne));
+        let (mut g, g2) = (first?, second?);
+        for (col, col2) in g.iter_mut().zip(&g2) {
+            col.iter_mut().zip(col2).for_each(|(a, b)| *a += b);
+        }
+        g
+    };
+    // The hanging weights' share of the gravity's turn, at their nodes (a global parameter:
+    // any element's entry of the table names it).
+    weight_derivatives(model, mat, kinds, |kind, node, d| {
+        let p = table.first().map_or(usize::MAX, |row| row[kind]);
+        if p == usize::MAX {
+            return;
+        }
+        for (i, di) in d.iter().enumerate() {
+            let fr = model.free[3 * node + i];
+            if fr != usize::MAX {
+                g[p][fr] += di;
+            }
+        }
+    });
     Ok(g)
 }
 
@@ -622,10 +638,19 @@ fn add_param_dots(
         })
     };
     if half == ne {
-        return pass(0..ne, first);
+        pass(0..ne, first)?;
+    } else {
+        let (a, b) = join_halves(|| pass(0..half, first), || pass(half..ne, second));
+        a.and(b)?;
     }
-    let (a, b) = join_halves(|| pass(0..half, first), || pass(half..ne, second));
-    a.and(b)
+    // The hanging weights' share of the gravity's turn, on element 0's entry: the turn is a
+    // global parameter, whose gradient sums every element's.
+    weight_derivatives(model, mat, kinds, |kind, node, d| {
+        if let Some(first) = acc[kind].first_mut() {
+            *first += (0..3).map(|i| lambda[3 * node + i] * d[i]).sum::<f64>();
+        }
+    });
+    Ok(())
 }
 
 /// What both gradient methods start from: the parameter table, the sizes, the scheme's

@@ -40,16 +40,24 @@ pub enum ParamKind {
     CreepFraction = 6,
     /// Relaxation time τ of the creep branch (s; [`super::relaxation`]).
     CreepTime = 7,
+    /// Gravity turned from its declared direction toward the first axis across it
+    /// ([`Model::gravity_axes`]): the value q carries the tangent of the turn as ln q, so that
+    /// the fitter's z = ln q is the turn itself, of either sign, and q = 1 is the declared
+    /// gravity ([`Model::gravity_of`]). Global only; not a property of the material, but of
+    /// where the material sits, carried beside it so that a fit can free it like one.
+    GravityTiltA = 8,
+    /// The same toward the second axis across the declared gravity.
+    GravityTiltB = 9,
     /// A control value of the spline f′ of §4.2 (Pa); `Param::element` holds the control index.
-    SplineF = 8,
+    SplineF = 10,
     /// A control value J·h′(J) of the spline h′ of §4.2 (Pa); `Param::element` holds the
     /// control index.
-    SplineH = 9,
+    SplineH = 11,
 }
 
-/// Number of per-element material kinds ([`ParamKind::EVERY`]): the derivative slots before
-/// the spline control values.
-pub const MATERIAL_KINDS: usize = 8;
+/// Number of per-element kinds ([`ParamKind::EVERY`]): the derivative slots before the spline
+/// control values.
+pub const MATERIAL_KINDS: usize = 10;
 
 impl ParamKind {
     /// The elastic, viscous and inertial kinds of Real2Sim's model (eqs. 16–17) in index order,
@@ -66,20 +74,26 @@ impl ParamKind {
     ];
     /// The creep branch's kinds ([`super::relaxation`]).
     pub const CREEP: [ParamKind; 2] = [Self::CreepFraction, Self::CreepTime];
-    /// Every per-element material kind in index order (the spline kinds are separate: their
-    /// parameters are control points, see [`Param`]): [`Self::ALL`], then [`Self::CREEP`],
-    /// joined here so that a kind added to either is in it.
+    /// The gravity's turn across its declared direction ([`Model::gravity_of`]).
+    pub const GRAVITY: [ParamKind; 2] = [Self::GravityTiltA, Self::GravityTiltB];
+    /// Every per-element kind in index order (the spline kinds are separate: their parameters
+    /// are control points, see [`Param`]): [`Self::ALL`], then [`Self::CREEP`], then
+    /// [`Self::GRAVITY`], joined here so that a kind added to any is in it.
     pub const EVERY: [ParamKind; MATERIAL_KINDS] = {
-        // A kind added to ALL or CREEP without MATERIAL_KINDS following stops the build here.
-        assert!(Self::ALL.len() + Self::CREEP.len() == MATERIAL_KINDS);
+        // A kind added to a group without MATERIAL_KINDS following stops the build here.
+        assert!(Self::ALL.len() + Self::CREEP.len() + Self::GRAVITY.len() == MATERIAL_KINDS);
         let mut every = [Self::Lambda; MATERIAL_KINDS];
         let mut i = 0;
         while i < Self::ALL.len() {
             every[i] = Self::ALL[i];
             i += 1;
         }
-        while i < MATERIAL_KINDS {
+        while i < Self::ALL.len() + Self::CREEP.len() {
             every[i] = Self::CREEP[i - Self::ALL.len()];
+            i += 1;
+        }
+        while i < MATERIAL_KINDS {
+            every[i] = Self::GRAVITY[i - Self::ALL.len() - Self::CREEP.len()];
             i += 1;
         }
         every
@@ -96,6 +110,8 @@ impl ParamKind {
             Self::Stiffening => "stiffening",
             Self::CreepFraction => "creep_fraction",
             Self::CreepTime => "creep_time",
+            Self::GravityTiltA => "gravity_tilt_a",
+            Self::GravityTiltB => "gravity_tilt_b",
             Self::SplineF => "spline_f",
             Self::SplineH => "spline_h",
         }
@@ -111,6 +127,10 @@ impl ParamKind {
             Self::Stiffening => "strain-stiffening c (Pa)",
             Self::CreepFraction => "creep: relaxed fraction g",
             Self::CreepTime => "creep: relaxation time τ (s)",
+            Self::GravityTiltA => "gravity turned toward its first cross axis (exp of the tangent)",
+            Self::GravityTiltB => {
+                "gravity turned toward its second cross axis (exp of the tangent)"
+            }
             Self::SplineF => "spline f′ control value (Pa)",
             Self::SplineH => "spline J·h′ control value (Pa)",
         }
@@ -253,6 +273,9 @@ impl Material {
                 vec![0.0; n],
                 vec![0.0; n],
                 // Any positive time: without a relaxed fraction it has no effect.
+                vec![1.0; n],
+                // The declared gravity: no turn (ln 1 = 0).
+                vec![1.0; n],
                 vec![1.0; n],
             ],
             spline: None,
@@ -720,6 +743,17 @@ pub struct DeadLoad {
 }
 
 impl DeadLoad {
+    /// Each node's share of the force: its lever's shares, or equal.
+    pub fn shares(&self) -> Vec<(usize, f64)> {
+        match &self.lever {
+            Some(lever) => lever.shares.clone(),
+            None => {
+                let share = 1.0 / self.nodes.len().max(1) as f64;
+                self.nodes.iter().map(|&n| (n, share)).collect()
+            }
+        }
+    }
+
     /// The mass each of the load's nodes carries (kg): 0 without inertia.
     pub fn mass_per_node(&self) -> f64 {
         match (self.inertia, self.mass) {
@@ -1006,18 +1040,107 @@ impl Model {
         me
     }
 
-    /// Gravity load (full dofs): ρ_e V_e g / 4 per node of each element.
+    /// Gravity load (full dofs): ρ_e V_e g / 4 per node of each element, g the gravity as
+    /// `mat` turns it ([`Self::gravity_of`]); where it is turned, the hanging masses acting
+    /// from the start turn with it ([`Self::turned_weights`]).
     pub fn gravity_load(&self, mat: &Material) -> Vec<f64> {
+        let g = self.gravity_of(mat);
         let mut f = vec![0.0; 3 * self.nodes.len()];
         for (e, t) in self.tets.iter().enumerate() {
             let m = mat.get(ParamKind::Density, e) * self.rest[e].volume / 4.0;
             for &n in t {
                 for i in 0..3 {
-                    f[3 * n + i] += m * self.gravity[i];
+                    f[3 * n + i] += m * g[i];
+                }
+            }
+        }
+        if g != self.gravity {
+            let turn: [f64; 3] = std::array::from_fn(|i| g[i] - self.gravity[i]);
+            for (node, m) in self.turned_weights() {
+                for i in 0..3 {
+                    f[3 * node + i] += m * turn[i];
                 }
             }
         }
         f
+    }
+
+    /// (node, mass) of the hanging masses that act from the start: a declared mass hangs along
+    /// the gravity acting, so its force turns with it (m (g − g₀) on its nodes beside the
+    /// declared m g₀, [`Self::gravity_load`]). A mass that comes on later is not among them.
+    pub fn turned_weights(&self) -> Vec<(usize, f64)> {
+        self.loads
+            .iter()
+            .filter(|l| l.from_step == 0)
+            .filter_map(|l| l.mass.map(|m| (l, m)))
+            .flat_map(|(l, m)| l.shares().into_iter().map(move |(n, s)| (n, s * m)))
+            .collect()
+    }
+
+    /// Two unit axes across the declared gravity ĝ: e_a, the coordinate axis least aligned with
+    /// ĝ made orthogonal to it, and e_b = ĝ × e_a, so that a gravity along a coordinate axis
+    /// turns toward coordinate axes. `None` without gravity.
+    pub fn gravity_axes(&self) -> Option<([f64; 3], [f64; 3])> {
+        let g = Vector3::from(self.gravity);
+        let n = g.norm();
+        if n.is_nan() || n <= 0.0 {
+            return None;
+        }
+        let gh = g / n;
+        let k = (0..3)
+            .min_by(|&i, &j| gh[i].abs().total_cmp(&gh[j].abs()))
+            .unwrap_or(0);
+        let mut a = Vector3::zeros();
+        a[k] = 1.0;
+        let ea = (a - gh * a.dot(&gh)).normalize();
+        let eb = gh.cross(&ea);
+        Some((ea.into(), eb.into()))
+    }
+
+    /// The turned gravity's tangents (z_a, z_b) = (ln q_a, ln q_b) of `mat`'s
+    /// [`ParamKind::GRAVITY`] values (global: read at element 0).
+    fn gravity_tangents(&self, mat: &Material) -> [f64; 2] {
+        if mat.values[0].is_empty() {
+            return [0.0; 2];
+        }
+        ParamKind::GRAVITY.map(|k| mat.get(k, 0).ln())
+    }
+
+    /// The gravity acting (m/s²): the declared one turned by `mat`'s
+    /// [`ParamKind::GRAVITY`] values, its magnitude kept: g = |g₀| u/|u| with
+    /// u = ĝ₀ + z_a e_a + z_b e_b ([`Self::gravity_axes`]); the declared one when both are 1.
+    pub fn gravity_of(&self, mat: &Material) -> [f64; 3] {
+        let [za, zb] = self.gravity_tangents(mat);
+        let Some((ea, eb)) = self.gravity_axes() else {
+            return self.gravity;
+        };
+        if za == 0.0 && zb == 0.0 {
+            return self.gravity;
+        }
+        let g = Vector3::from(self.gravity);
+        let u = g / g.norm() + za * Vector3::from(ea) + zb * Vector3::from(eb);
+        (u * (g.norm() / u.norm())).into()
+    }
+
+    /// ∂g/∂q of one of the [`ParamKind::GRAVITY`] kinds at `mat` ([`Self::gravity_of`]):
+    /// |g₀|/|u| (e − û (û·e)) / q with e that kind's axis; zero for another kind or without
+    /// gravity.
+    pub fn gravity_derivative(&self, mat: &Material, kind: ParamKind) -> [f64; 3] {
+        let Some((ea, eb)) = self.gravity_axes() else {
+            return [0.0; 3];
+        };
+        let axis = match kind {
+            ParamKind::GravityTiltA => ea,
+            ParamKind::GravityTiltB => eb,
+            _ => return [0.0; 3],
+        };
+        let [za, zb] = self.gravity_tangents(mat);
+        let g = Vector3::from(self.gravity);
+        let u = g / g.norm() + za * Vector3::from(ea) + zb * Vector3::from(eb);
+        let (un, e) = (u.norm(), Vector3::from(axis));
+        let uh = u / un;
+        let q = mat.get(kind, 0);
+        ((e - uh * uh.dot(&e)) * (g.norm() / un / q)).into()
     }
 
     /// External load at step `n` (full dofs): gravity plus the dead loads acting at `n`.
@@ -1031,16 +1154,7 @@ impl Model {
     /// equally over its nodes, or by its lever's shares.
     pub fn add_dead_loads(&self, n: usize, f: &mut [f64]) {
         for l in self.loads.iter().filter(|l| n >= l.from_step) {
-            if let Some(lever) = &l.lever {
-                for &(node, share) in &lever.shares {
-                    for i in 0..3 {
-                        f[3 * node + i] += share * l.force[i];
-                    }
-                }
-                continue;
-            }
-            let share = 1.0 / l.nodes.len().max(1) as f64;
-            for &node in &l.nodes {
+            for (node, share) in l.shares() {
                 for i in 0..3 {
                     f[3 * node + i] += share * l.force[i];
                 }
@@ -1148,12 +1262,58 @@ mod tests {
     use super::*;
 
     /// `Material::values` is indexed by `kind as usize` and derivative slots follow `EVERY`: the
-    /// joined list must be the discriminants 0..8 in order, each kind once.
+    /// joined list must be the discriminants 0..10 in order, each kind once, and the spline
+    /// kinds' slots begin after them.
     #[test]
-    fn every_kind_is_all_then_creep_in_index_order() {
+    fn every_kind_is_all_then_creep_then_gravity_in_index_order() {
         assert_eq!(
             ParamKind::EVERY.map(|k| k as usize),
-            [0, 1, 2, 3, 4, 5, 6, 7]
+            [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]
         );
+        assert_eq!(ParamKind::SplineF as usize, MATERIAL_KINDS);
+    }
+
+    /// The turned gravity keeps its magnitude, turns toward the axes across the declared one by
+    /// the angle whose tangent is ln q, and its derivative is the central difference's.
+    #[test]
+    fn the_gravity_turns_by_the_tangent_and_keeps_its_size() {
+        let mesh = Mesh {
+            nodes: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            node_tags: vec![1, 2, 3, 4],
+            tets: vec![[0, 1, 2, 3]],
+            node_groups: Default::default(),
+        };
+        let model = Model::new(
+            &mesh,
+            Vec::new(),
+            Vec::new(),
+            0.01,
+            1,
+            [0.0, 0.0, -9.81],
+            MassKind::Lumped,
+        )
+        .unwrap();
+        let (ea, eb) = model.gravity_axes().unwrap();
+        assert_eq!((ea, eb), ([1.0, 0.0, 0.0], [0.0, -1.0, 0.0]));
+        let mut mat = Material::uniform(1, 1.0, 1.0, 0.0, 1.0, 1.0);
+        let angle = 5f64.to_radians();
+        mat.set_uniform(ParamKind::GravityTiltA, angle.tan().exp());
+        let g = model.gravity_of(&mat);
+        assert!((g[0] - 9.81 * angle.sin()).abs() < 1e-12, "{g:?}");
+        assert!((g[2] + 9.81 * angle.cos()).abs() < 1e-12, "{g:?}");
+        for kind in ParamKind::GRAVITY {
+            let q = mat.get(kind, 0);
+            let at = |v: f64| {
+                let mut m = mat.clone();
+                m.set_uniform(kind, v);
+                model.gravity_of(&m)
+            };
+            let (h, d) = (1e-6 * q, model.gravity_derivative(&mat, kind));
+            let (up, down) = (at(q + h), at(q - h));
+            for i in 0..3 {
+                let fd = (up[i] - down[i]) / (2.0 * h);
+                assert!((fd - d[i]).abs() < 1e-6, "{kind:?} {i}: {fd} vs {}", d[i]);
+            }
+        }
     }
 }

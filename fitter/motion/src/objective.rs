@@ -97,7 +97,11 @@ pub fn clamp_force_derivatives(
         }
     }
     let mut k2 = kinds.to_vec();
-    k2[ParamKind::Density as usize] = false; // F_c holds internal forces only
+    // F_c holds internal forces only: the weight's parameters do not reach it directly.
+    k2[ParamKind::Density as usize] = false;
+    for k in ParamKind::GRAVITY {
+        k2[k as usize] = false;
+    }
     param_derivatives(
         model,
         mat,

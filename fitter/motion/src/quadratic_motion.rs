@@ -317,7 +317,7 @@ impl<'a> QuadraticMotion<'a> {
             mesh: &self.linear,
             material,
             density,
-            gravity: self.model.gravity,
+            gravity: self.model.gravity_of(mat),
             fixed,
             fixed_displacement,
             forces: Vec::new(),
@@ -527,12 +527,13 @@ impl<'a> QuadraticMotion<'a> {
     /// Gravity's consistent load ∫ ρ g N_a dV (every dof).
     fn gravity_load(&self, mat: &Material) -> Vec<f64> {
         let sums: [f64; 10] = std::array::from_fn(|a| self.table[a].iter().sum());
+        let g = self.model.gravity_of(mat);
         let mut f = vec![0.0; 3 * self.mesh.nodes.len()];
         for (e, nodes) in self.mesh.tets.iter().enumerate() {
             let m = mat.get(ParamKind::Density, e) * self.volumes[e];
             for (a, &n) in nodes.iter().enumerate() {
                 for i in 0..3 {
-                    f[3 * n + i] += m * sums[a] * self.model.gravity[i];
+                    f[3 * n + i] += m * sums[a] * g[i];
                 }
             }
         }

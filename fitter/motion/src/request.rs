@@ -363,6 +363,7 @@ fn record(
             .iter()
             .map(|r| r.dataset.model.load_lever())
             .find(|d| *d != 0.0),
+        gravity_turn: FittedModel::gravity_turn_of(fitted),
         fitted: params
             .iter()
             .map(|p| p.kind.name().to_string())

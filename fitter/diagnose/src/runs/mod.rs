@@ -683,6 +683,7 @@ fn fitted_model(
         hanging_inertia: false,
         time_offset: false,
         load_lever_m: models.iter().map(|m| m.load_lever()).find(|d| *d != 0.0),
+        gravity_turn: palpate_motion::fitted::FittedModel::gravity_turn_of(mat),
         fitted: last.kinds.iter().map(|k| k.name().to_string()).collect(),
         runtime_lambda_alpha: mat.values[0]
             .iter()
