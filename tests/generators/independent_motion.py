@@ -13,6 +13,9 @@ is tied to where the clamp puts it by k_n = E/ELL across the face and k_t = mu/E
 area; the face's area shared equally by its nodes), the give of a layer ELL thick of the body's own
 material. The dataset still declares the face clamped, as a user who does not know the clamp gives would.
 
+`--gravity-tilt DEG` turns the truth's gravity by DEG degrees about the cylinder's axis: the object mounted
+turned, or the lab's vertical registered wrong. The dataset still declares gravity along -z.
+
 Truth (own code, truthfem.py + this file): compressible Neo-Hookean (ln J form) on a Gmsh P1 mesh, lumped
 mass, Kelvin-Voigt damping with second Piola-Kirchhoff viscous stress S_v = 2 eta sym(F^T Fdot) (objective:
 a rigid rotation dissipates nothing), implicit BDF2 in time (implicit Euler for the first step), Newton
@@ -214,6 +217,9 @@ def main():
     ap.add_argument("--damping-ratio", type=float, default=None, help="override the drawn damping ratio (0 = no Kelvin-Voigt damping)")
     ap.add_argument("--clamp-compliance", type=float, default=0.0, metavar="ELL",
                     help="hold the clamped face by springs of a layer ELL metres thick of the body's material (0 = rigid)")
+    ap.add_argument("--gravity-tilt", type=float, default=0.0, metavar="DEG",
+                    help="turn the truth's gravity by DEG degrees about the cylinder's axis (toward +y); the "
+                         "dataset still declares (0, 0, -9.81)")
     a = ap.parse_args()
     t_start = time.time()
     rng = np.random.default_rng([a.seed, 44])
@@ -240,7 +246,10 @@ def main():
     Xt, Tt, clamp_t = mesh_cylinder(R, R / 2.5, seed=int(rng.integers(1, 9999)), algo3d=1)
     Xd, Td, _ = mesh_cylinder(R, R / 1.6, seed=int(rng.integers(1, 9999)), algo3d=10, out_msh=os.path.join(a.out, "mesh.msh"))
     print(f"E={E:.4g} Pa nu={nu:.3f} rho={rho:.0f} R={R * 1e3:.1f} mm eta={eta:.3g} Pa s, truth {len(Tt)} tets, dataset {len(Td)} tets")
-    g = np.array([0, 0, -9.81])
+    tilt = math.radians(a.gravity_tilt)
+    g = 9.81 * np.array([0.0, math.sin(tilt), -math.cos(tilt)])
+    if a.gravity_tilt:
+        print(f"gravity turned by {a.gravity_tilt:g} deg about the axis: {g.round(4).tolist()} m/s^2")
     spring = None
     if a.clamp_compliance > 0:
         area = math.pi * R**2 / len(clamp_t)
@@ -333,6 +342,7 @@ def main():
              "kelvin_voigt_eta_Pa_s": eta, "damping_ratio_target": zeta, "radius_m": R, "length_m": L_CYL,
              "static_tip_sag_m": float(sag), "clamp_amplitude_m": amp.tolist(), "clamp_ramp_s": [0.05, 0.05 + t_ramp],
              "clamp_compliance_layer_m": a.clamp_compliance,
+             "gravity_truth_m_s2": g.tolist(), "gravity_tilt_deg": a.gravity_tilt,
              "marker_noise_m": sigma, "dt": dt, "steps": n_steps, "truth_substeps": sub, "markers": nm,
              "truth_tets": int(len(Tt)), "dataset_tets": int(len(Td)), "newton_iterations_per_step": iters,
              "checks": checks, "seconds": time.time() - t_start}

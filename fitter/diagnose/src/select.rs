@@ -227,10 +227,24 @@ pub struct Gate<D> {
 }
 
 /// The order candidates are considered in for adoption.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Rank {
-    /// By fitted ΔBIC, lowest first (static and motion diagnoses).
+    /// By fitted ΔBIC, lowest first (static and runs diagnoses).
     FittedBic,
+    /// By fitted ΔBIC, lowest first, but a candidate that passes too with fewer free parameters
+    /// and predicts the held-out data better ([`Judgement::Ambiguous`]) by more than `margin`
+    /// in held-out ΔBIC (which charges the parameters) is adopted instead of the best, the one
+    /// among such with the lowest held-out ΔBIC (the motion diagnosis, with its gate's ΔBIC
+    /// threshold as the margin: a forecast better by less is no evidence either way). Two criteria of the gate then
+    /// agree against the fitted ΔBIC alone: a constant offset of each marker (three parameters
+    /// a marker) fits the static part of a turned gravity or of a clamp that gives as well as
+    /// the effect itself and fits the rest scan's own noise too, so it leads on the fitted steps
+    /// while the effect forecasts better; adopted first, it leaves the effect only its dynamic
+    /// part, too small to pass.
+    FittedBicOrSimplerForecast {
+        /// How much lower the simpler candidate's held-out ΔBIC must be.
+        margin: f64,
+    },
     /// By [`Gate::heldout_rank`], lowest first (curve diagnosis).
     Heldout,
 }
@@ -988,7 +1002,7 @@ fn judge_round<M: CandidateModel>(
     // Stable sorts: ties keep the order tried, as every diagnosis did before the engine.
     let mut ranked: Vec<usize> = (0..attempts.len()).collect();
     match rank {
-        Rank::FittedBic => {
+        Rank::FittedBic | Rank::FittedBicOrSimplerForecast { .. } => {
             ranked.sort_by(|&a, &b| attempts[a].delta_bic.total_cmp(&attempts[b].delta_bic))
         }
         Rank::Heldout => {
@@ -1018,6 +1032,29 @@ fn judge_round<M: CandidateModel>(
             _ => Judgement::Rejected,
         };
         attempts[i].judgement = Some(j);
+    }
+    if let (Rank::FittedBicOrSimplerForecast { margin }, Some(b)) = (rank, best) {
+        let k = |i: usize| attempts[i].score.map_or(usize::MAX, |s| s.k);
+        let held = |i: usize| {
+            attempts[i]
+                .gate
+                .as_ref()
+                .map_or(f64::NAN, |g| g.heldout_delta_bic)
+        };
+        let simpler = ranked
+            .iter()
+            .copied()
+            .filter(|&i| {
+                attempts[i].judgement == Some(Judgement::Ambiguous)
+                    && k(i) < k(b)
+                    && held(i) < held(b) - margin
+            })
+            .min_by(|&x, &y| held(x).total_cmp(&held(y)));
+        if let Some(s) = simpler {
+            attempts[s].judgement = Some(Judgement::Best);
+            attempts[b].judgement = Some(Judgement::AlsoPasses);
+            best = Some(s);
+        }
     }
     (ranked, best)
 }

@@ -19,6 +19,7 @@
 //! | marker-offsets | every marker 0.2–0.6 mm off its declared place, in a random direction |
 //! | time-offset | the markers recorded 1–3 steps late or early against the base's record |
 //! | clamp-compliance | the elements at the shaken face softened as a whole (λ and μ) to 0.15–0.5× |
+//! | gravity-direction | the gravity turned by 2–6° (log-uniform) toward a random direction across it, the declared one kept |
 //!
 //! The truth is palpate's own simulator: this tests the diagnosis' search and selection, not
 //! the model class (the independent generators of `tests/generators/` do that).
@@ -50,11 +51,13 @@ pub enum MotionEffect {
     TimeOffset,
     /// The clamp gives: the elements at the clamped face softer, both moduli by one factor.
     ClampCompliance,
+    /// The gravity acts along another direction than the declared one.
+    GravityDirection,
 }
 
 impl MotionEffect {
     /// Every effect, in table order.
-    pub const ALL: [MotionEffect; 7] = [
+    pub const ALL: [MotionEffect; 8] = [
         Self::None,
         Self::Viscosity,
         Self::Stiffening,
@@ -62,6 +65,7 @@ impl MotionEffect {
         Self::MarkerOffsets,
         Self::TimeOffset,
         Self::ClampCompliance,
+        Self::GravityDirection,
     ];
 
     /// The name of the diagnosis' candidate that is this effect (`None`: nothing to name).
@@ -74,6 +78,7 @@ impl MotionEffect {
             Self::MarkerOffsets => "marker-offsets",
             Self::TimeOffset => "time-offset",
             Self::ClampCompliance => "clamp-compliance",
+            Self::GravityDirection => "gravity-direction",
         }
     }
 }
@@ -178,6 +183,20 @@ pub fn motion_specimen(
             format!(
                 "λ and μ × {factor:.2} in the {} elements at the clamp",
                 layer.len()
+            )
+        }
+        MotionEffect::GravityDirection => {
+            let angle = log_uniform(&mut rng, 2.0, 6.0);
+            let toward = std::f64::consts::TAU * rng.uniform();
+            let tan = angle.to_radians().tan();
+            let turn = [tan * toward.cos(), tan * toward.sin()];
+            for (k, z) in ParamKind::GRAVITY.into_iter().zip(turn) {
+                truth.set_uniform(k, z.exp());
+            }
+            let g = ds.model.gravity_of(&truth);
+            format!(
+                "gravity turned by {angle:.2}° to ({:.3}, {:.3}, {:.3}) m/s²",
+                g[0], g[1], g[2]
             )
         }
     };

@@ -78,6 +78,28 @@ fn starts(
         .collect()
 }
 
+/// `cur` with the parameters of `held` kinds no longer free: their values stay in its material,
+/// out of its kinds, values and 1σ ([`MotionEffect::holds`](super::candidates::MotionEffect::holds)).
+fn holding<'c>(cur: &'c FittedModel, held: &[ParamKind]) -> std::borrow::Cow<'c, FittedModel> {
+    if !cur.kinds.iter().any(|k| held.contains(k)) {
+        return std::borrow::Cow::Borrowed(cur);
+    }
+    let globals = cur.kinds.len();
+    let keep = |i: usize| i >= globals || !held.contains(&cur.kinds[i]);
+    let pick = |v: &[f64]| -> Vec<f64> {
+        v.iter()
+            .enumerate()
+            .filter(|(i, _)| keep(*i))
+            .map(|(_, x)| *x)
+            .collect()
+    };
+    let mut out = cur.clone();
+    out.kinds.retain(|k| !held.contains(k));
+    out.values = pick(&cur.values);
+    out.sigma = cur.sigma.as_deref().map(pick);
+    std::borrow::Cow::Owned(out)
+}
+
 impl<'a> MotionModel<'a> {
     /// The engine of the diagnosis of `ds` split at `split`.
     pub(in crate::motion) fn new(
@@ -180,6 +202,8 @@ impl<'a> MotionModel<'a> {
         cur: &FittedModel,
         c: Candidate,
     ) -> Result<FittedModel, MotionDiagnoseError> {
+        let held = holding(cur, c.effect().holds());
+        let cur = held.as_ref();
         let mut kinds = cur.kinds.clone();
         kinds.extend_from_slice(c.kinds());
         match cur.time_offset {

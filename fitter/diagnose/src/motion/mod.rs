@@ -398,7 +398,9 @@ pub fn diagnose(
     let policy = Policy {
         rounds: rounds_max,
         max_adopted: rounds_max,
-        rank: Rank::FittedBic,
+        rank: Rank::FittedBicOrSimplerForecast {
+            margin: o.bic_threshold,
+        },
         // The held-out steps are simulated with every fit (a forecast): gating is free.
         screen: Screen::All,
     };

@@ -7,11 +7,12 @@
 //! length, starting from its sagged equilibrium) and shaken at its base, simulated on its mesh
 //! refined once (192 tets) with a nearly incompressible elastic material (λ = 10 μ) and observed
 //! at the same nine markers with σ = 0.1 mm. The coarse mesh's linear tetrahedra are too stiff
-//! there, most at the clamp. Measured: without the check the diagnosis adopts marker offsets
-//! (fitted ΔBIC −140.9, held-out RMS −26.9 %) and then a second material (ΔBIC −70.0, −9.5 %).
+//! there, most at the clamp. Measured: without the check the diagnosis adopts a turned gravity
+//! (held-out RMS −10.7 %; before that candidate, marker offsets and then a second material).
 //! With it, the marker offsets remove as much χ² on the (noise-free) null, refitted there to
-//! 241.9 µm, as on the data: beyond the null their ΔBIC is +326.5 and they are refused; nothing
-//! else passes, and the verdict says the residual (1.67× the floor) is not explained and about
+//! 241.9 µm, as on the data: beyond the null their ΔBIC is +326.5 and they are refused; the turn
+//! gains more on the data than on the null but forecasts only 2.5 % better beyond it and is
+//! refused; nothing else passes, and the verdict says the residual (1.67× the floor) is not explained and about
 //! what the mesh leaves on its null with the noise (1.72×). The null's refit also says how the
 //! parameters move under one refinement: μ is read × 0.724 there, so the fit's 13.7 kPa would be
 //! about 18.9 kPa on the refined mesh, where the data were made at 20 kPa.
@@ -75,9 +76,15 @@ fn run(ds: &MotionDataset, label: &str, mesh_null: bool) -> MotionDiagnosis {
 fn effects_the_refined_mesh_makes_are_refused() {
     let ds = refined_mesh_data(5);
     let without = run(&ds, "refined-mesh data, no null check", false);
+    // Without the check the mesh's error is taken for an effect: a turned gravity (the bar's
+    // coarse mesh bends sideways unlike its refinement), where before that candidate a second
+    // material.
     assert!(
-        without.adopted.iter().any(|a| a == "two-material"),
-        "without the check the mesh's error is taken for a second material: adopted {:?}",
+        without
+            .adopted
+            .iter()
+            .any(|a| a == "two-material" || a == "gravity-direction"),
+        "without the check the mesh's error is taken for an effect: adopted {:?}",
         without.adopted
     );
     assert!(without
@@ -98,14 +105,20 @@ fn effects_the_refined_mesh_makes_are_refused() {
         .filter_map(|t| t.mesh_null.as_ref().map(|c| (t, c)))
         .collect();
     assert!(!checked.is_empty(), "a passing candidate was checked");
+    // The marker offsets gain on the null what they gain on the data; every checked candidate
+    // is refused because what it gains beyond the null misses the rule's ΔBIC or held-out
+    // threshold.
+    assert!(
+        checked.iter().any(|(_, c)| c.delta_bic < -10.0),
+        "a candidate gains on the null too"
+    );
     for (t, c) in checked {
         assert!(c.refused && !t.passed, "{}", t.reason);
         assert!(
-            c.delta_bic < -10.0,
-            "it gains on the null too: {}",
+            c.excess_delta_bic > -10.0 || c.excess_heldout_gain > -0.05,
+            "{}",
             c.statement
         );
-        assert!(c.excess_delta_bic > -10.0, "{}", c.statement);
         assert!(t.reason.contains("mesh's own null"), "{}", t.reason);
     }
     assert!(

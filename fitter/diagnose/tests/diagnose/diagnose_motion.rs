@@ -81,6 +81,15 @@ fn late_specimen(nu: f64, seed: u64, late: i64) -> MotionDataset {
     ds
 }
 
+/// The final model's value whose name starts with `start`.
+fn final_value(r: &MotionDiagnosis, start: &str) -> f64 {
+    r.after_values
+        .iter()
+        .find(|v| v.name.starts_with(start))
+        .unwrap_or_else(|| panic!("{start}: {:?}", r.after_values))
+        .value
+}
+
 fn run(ds: &MotionDataset, label: &str) -> MotionDiagnosis {
     // The specimens are simulated on the dataset's own mesh, so they hold no discretisation
     // error: the check against the mesh's own null (a truth finer than the mesh) is off, as in
@@ -608,13 +617,7 @@ fn a_clamp_that_gives_is_named() {
     eprintln!("{}", truth.detail);
     let r = run(&ds, "clamp-compliance");
     assert_eq!(r.adopted, ["clamp-compliance"]);
-    let value = |start: &str| {
-        r.after_values
-            .iter()
-            .find(|v| v.name.starts_with(start))
-            .unwrap_or_else(|| panic!("{start}: {:?}", r.after_values))
-            .value
-    };
+    let value = |start: &str| final_value(&r, start);
     let (mu, layer) = (value("mu"), value("mu of the layer"));
     assert!(
         (mu / truth.mu - 1.0).abs() < 0.02,
@@ -624,6 +627,39 @@ fn a_clamp_that_gives_is_named() {
     assert!(
         (0.15..0.5).contains(&(layer / mu)),
         "layer {layer}, body {mu}"
+    );
+    let floor = 2e-5 * 3f64.sqrt();
+    assert!(r.after.rms_held < 1.2 * floor, "{:?}", r.after);
+}
+
+/// A gravity turned by 2.2° from the declared one (the drawn specimen of seed 4: toward +x) is
+/// named first and alone, the turn and the gravity acting read back, and the forecast comes to
+/// the noise floor.
+#[test]
+fn a_turned_gravity_is_named() {
+    use palpate_specimen::motion::{motion_specimen, MotionEffect};
+    let base = crate::diagnose_runs::example();
+    let (ds, truth) = motion_specimen(&base, MotionEffect::GravityDirection, 4).unwrap();
+    eprintln!("{}", truth.detail);
+    let r = run(&ds, "gravity-direction");
+    assert_eq!(r.adopted, ["gravity-direction"]);
+    let value = |start: &str| final_value(&r, start);
+    // The truth's gravity, as the specimen's detail gives it.
+    let g_truth = [0.383, -9.803, -0.018];
+    assert!(
+        truth.detail.contains("(0.383, -9.803, -0.018)"),
+        "{}",
+        truth.detail
+    );
+    for (axis, want) in ["x", "y", "z"].into_iter().zip(g_truth) {
+        let got = value(&format!("gravity acting, {axis}"));
+        assert!((got - want).abs() < 0.01, "g_{axis} {got} for {want}");
+    }
+    let mu = value("mu");
+    assert!(
+        (mu / truth.mu - 1.0).abs() < 0.02,
+        "μ {mu} for {}",
+        truth.mu
     );
     let floor = 2e-5 * 3f64.sqrt();
     assert!(r.after.rms_held < 1.2 * floor, "{:?}", r.after);

@@ -20,6 +20,7 @@ use crate::select::{Outcome, Prediction};
 
 mod clamp_compliance;
 mod density;
+mod gravity_direction;
 mod marker_offsets;
 mod stiffening;
 mod time_offset;
@@ -47,10 +48,12 @@ pub enum Candidate {
     TwoMaterial,
     /// A clamp that gives: the layer at the clamps softened as a whole (`clamp_compliance.rs`).
     ClampCompliance,
+    /// Gravity along another direction than the declared one (`gravity_direction.rs`).
+    GravityDirection,
 }
 
 /// Every candidate, in the order they are tried.
-pub const ALL_CANDIDATES: [Candidate; 8] = [
+pub const ALL_CANDIDATES: [Candidate; 9] = [
     Candidate::Viscosity,
     Candidate::ViscosityNewtonian,
     Candidate::Density,
@@ -59,19 +62,21 @@ pub const ALL_CANDIDATES: [Candidate; 8] = [
     Candidate::Stiffening,
     Candidate::TwoMaterial,
     Candidate::ClampCompliance,
+    Candidate::GravityDirection,
 ];
 
 /// The order in which a fitted model's effect values are listed after the material's
 /// ([`MotionEffect::values`], [`MotionEffect::summary_values`]): a second material's μ is a
 /// material value and sits beside the global ones; the offsets, which read the data rather than
 /// the body, come last.
-pub const REPORT_ORDER: [Candidate; 8] = [
+pub const REPORT_ORDER: [Candidate; 9] = [
     Candidate::Viscosity,
     Candidate::ViscosityNewtonian,
     Candidate::Density,
     Candidate::Stiffening,
     Candidate::TwoMaterial,
     Candidate::ClampCompliance,
+    Candidate::GravityDirection,
     Candidate::TimeOffset,
     Candidate::MarkerOffsets,
 ];
@@ -95,7 +100,8 @@ pub trait MotionEffect: Sync {
         self.kinds().len()
     }
 
-    /// Whether it excludes `other` (two laws of one effect).
+    /// Whether, adopted, it excludes `other`: two laws of one effect, or an effect its own
+    /// parameters would leave unidentified.
     fn conflicts(&self, _other: Candidate) -> bool {
         false
     }
@@ -119,18 +125,31 @@ pub trait MotionEffect: Sync {
         false
     }
 
+    /// Parameters of the current model that its fit holds at their values, and every fit after
+    /// its adoption: those its own parameters leave unidentified (the default: none).
+    fn holds(&self) -> &'static [ParamKind] {
+        &[]
+    }
+
+    /// Why it is not offered on the dataset of `m`, if it is not (the default: it is): the
+    /// default [`Self::predict`] and [`Self::fit`] then say so instead of predicting or fitting.
+    fn refusal(&self, _m: &MotionModel<'_>) -> Option<String> {
+        None
+    }
+
     /// Fits the candidate `c` (this effect) on top of `cur`. The default refits the current
-    /// model's parameters and the effect's own (at the current model's time offset, if any); a
-    /// failed fit is a finding about this candidate, not the end of the diagnosis.
+    /// model's parameters and the effect's own (at the current model's time offset, if any),
+    /// unless [`Self::refusal`] says why not; a failed fit is a finding about this candidate,
+    /// not the end of the diagnosis.
     fn fit(
         &self,
         m: &MotionModel<'_>,
         c: Candidate,
         cur: &FittedModel,
     ) -> Result<Outcome<FittedModel>, MotionDiagnoseError> {
-        Ok(match m.fit_from(cur, c) {
-            Ok(f) => Outcome::Fitted(f),
-            Err(e) => Outcome::NotFitted(format!("fit failed: {e}")),
+        Ok(match self.refusal(m) {
+            Some(why) => Outcome::NotFitted(why),
+            None => refit(m, c, cur),
         })
     }
 
@@ -146,6 +165,9 @@ pub trait MotionEffect: Sync {
     /// [`Self::screened_params`], charged [`Self::extra_params`]; not predicted (always fitted)
     /// without such parameters.
     fn predict(&self, s: &Screening<'_, '_>) -> Result<Prediction, MotionDiagnoseError> {
+        if let Some(why) = self.refusal(s.model) {
+            return Ok(Prediction::none(&why));
+        }
         let kinds: Vec<ParamKind> = self.screened_params().iter().map(|p| p.0).collect();
         if kinds.is_empty() {
             return Ok(Prediction::none(
@@ -184,6 +206,15 @@ pub trait MotionEffect: Sync {
     }
 }
 
+/// The default fit of [`MotionEffect::fit`]: the current model's parameters and the candidate's
+/// refitted through the room's fitter, a failure a finding about the candidate.
+fn refit(m: &MotionModel<'_>, c: Candidate, cur: &FittedModel) -> Outcome<FittedModel> {
+    match m.fit_from(cur, c) {
+        Ok(f) => Outcome::Fitted(f),
+        Err(e) => Outcome::NotFitted(format!("fit failed: {e}")),
+    }
+}
+
 impl Candidate {
     /// What the candidate is.
     pub fn effect(self) -> &'static dyn MotionEffect {
@@ -196,6 +227,7 @@ impl Candidate {
             Candidate::Stiffening => &stiffening::Stiffening,
             Candidate::TwoMaterial => &two_material::TwoMaterial,
             Candidate::ClampCompliance => &clamp_compliance::ClampCompliance,
+            Candidate::GravityDirection => &gravity_direction::GravityDirection,
         }
     }
 
@@ -234,8 +266,9 @@ impl crate::select::CandidateEffect for Candidate {
 mod tests {
     use super::*;
 
-    /// Every candidate is listed once in the report's order, and the two viscosity laws and the
-    /// two region effects (and only they) exclude each other, both ways.
+    /// Every candidate is listed once in the report's order; the two viscosity laws and the two
+    /// region effects exclude each other, both ways, and the marker offsets, adopted, exclude a
+    /// turned gravity (but not the other way); nothing else is excluded.
     #[test]
     fn the_library_is_listed_once_and_the_viscosity_laws_conflict() {
         for c in ALL_CANDIDATES {
@@ -245,7 +278,8 @@ mod tests {
                 let regions = [Candidate::TwoMaterial, Candidate::ClampCompliance];
                 let expected = c != d
                     && ((laws.contains(&c) && laws.contains(&d))
-                        || (regions.contains(&c) && regions.contains(&d)));
+                        || (regions.contains(&c) && regions.contains(&d))
+                        || (c, d) == (Candidate::MarkerOffsets, Candidate::GravityDirection));
                 assert_eq!(c.conflicts(d), expected, "{c:?} vs {d:?}");
             }
         }
