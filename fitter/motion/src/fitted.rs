@@ -176,12 +176,14 @@ impl FittedModel {
             vec![self.gravity_turn.map_or(1.0, |t| t[0].exp()); ne],
             vec![self.gravity_turn.map_or(1.0, |t| t[1].exp()); ne],
         ];
+        // A tangent of 100 is a turn of 89.4°: beyond it the record is not a turn of gravity
+        // (and exp of it, the value carried, would overflow).
         if let Some(t) = self
             .gravity_turn
-            .filter(|t| !t.iter().all(|z| z.is_finite()))
+            .filter(|t| !t.iter().all(|z| z.is_finite() && z.abs() <= 100.0))
         {
             return Err(format!(
-                "field gravity_turn: {t:?}, expected two finite tangents"
+                "field gravity_turn: {t:?}, expected two finite tangents of at most 100 in size"
             ));
         }
         // A hand-edited or corrupt record must not be simulated: each value within what it
@@ -303,6 +305,27 @@ mod tests {
         }
         let back: FittedModel = serde_json::from_str(&text).unwrap();
         assert_eq!(back, f);
+    }
+
+    /// A gravity turn reads back into the material as exp of its tangents; one that is no turn
+    /// (not finite, or beyond 89.4°) is refused with its field.
+    #[test]
+    fn a_gravity_turn_reads_back_and_a_wild_one_is_refused() {
+        let text = r#"{"format": "palpate-motion-fit/1", "datasets": ["a"], "nodes": 4, "tets": 1,
+            "lambda": [1e4], "mu": [2e4], "viscosity": [3.0], "h": [1.0], "density": [47.0],
+            "poisson_fixed": null, "hanging_inertia": false, "fitted": ["mu"],
+            "runtime_lambda_alpha": [[6e4, 1e4]], "rms_marker_m": 1e-4, "rms_force_n": 0.0,
+            "evaluations": 3, "runs": [], "gravity_turn": [0.05, -0.02]}"#;
+        let f: FittedModel = serde_json::from_str(text).unwrap();
+        let mat = f.material().unwrap();
+        let back = FittedModel::gravity_turn_of(&mat).unwrap();
+        assert!((back[0] - 0.05).abs() < 1e-15 && (back[1] + 0.02).abs() < 1e-15);
+        for bad in [[1e3, 0.0], [0.0, f64::NAN]] {
+            let mut g = f.clone();
+            g.gravity_turn = Some(bad);
+            let e = g.material().unwrap_err();
+            assert!(e.contains("field gravity_turn: "), "{e}");
+        }
     }
 
     #[test]
