@@ -268,6 +268,28 @@ impl MotionDiagnosis {
             ""
         };
         let mut v = format!("{}{which}", worse.verdict(&adopted));
+        // A candidate that passed beside the one adopted, whose parameters the adopted one holds
+        // (it leaves them unidentified): it cannot be tested after that adoption, so the verdict
+        // says it is not ruled out.
+        for r in &self.rounds {
+            let Some(a) = r.adopted.as_deref().and_then(candidates::Candidate::named) else {
+                continue;
+            };
+            let held = a.effect().holds();
+            for t in r.trials.iter().filter(|t| t.passed) {
+                let unidentified = candidates::Candidate::named(&t.candidate)
+                    .is_some_and(|b| b.kinds().iter().any(|k| held.contains(k)));
+                if unidentified {
+                    v.push_str(&format!(
+                        "; {} passed too in round {}, and with {} in the model it cannot be told \
+                         from them: it is not ruled out",
+                        t.candidate,
+                        r.round,
+                        a.name()
+                    ));
+                }
+            }
+        }
         // Candidates refused against the mesh's own null: what the mesh leaves by itself there
         // is the scale of what is left here.
         let refused: Vec<(&str, &mesh_null::NullCheck)> = self

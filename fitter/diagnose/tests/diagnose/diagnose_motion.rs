@@ -664,3 +664,21 @@ fn a_turned_gravity_is_named() {
     let floor = 2e-5 * 3f64.sqrt();
     assert!(r.after.rms_held < 1.2 * floor, "{:?}", r.after);
 }
+
+/// Marker offsets hold a turned gravity's parameters: where a turn passed beside the offsets
+/// adopted (the drawn marker-offsets specimen of seed 2), the verdict says it is not ruled out
+/// instead of leaving it unmentioned.
+#[test]
+fn a_turn_the_offsets_hide_is_not_ruled_out() {
+    use palpate_specimen::motion::{motion_specimen, MotionEffect};
+    let base = crate::diagnose_runs::example();
+    let (ds, _) = motion_specimen(&base, MotionEffect::MarkerOffsets, 2).unwrap();
+    let r = run(&ds, "marker-offsets");
+    assert_eq!(r.adopted, ["marker-offsets"]);
+    let v = r.verdict();
+    assert!(
+        v.contains("gravity-direction passed too in round 1")
+            && v.contains("it cannot be told from them: it is not ruled out"),
+        "{v}"
+    );
+}

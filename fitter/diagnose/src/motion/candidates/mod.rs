@@ -231,6 +231,11 @@ impl Candidate {
         }
     }
 
+    /// The candidate of that name ([`Self::name`]), if any.
+    pub fn named(name: &str) -> Option<Self> {
+        ALL_CANDIDATES.into_iter().find(|c| c.name() == name)
+    }
+
     /// Name used on the command line and in reports.
     pub fn name(self) -> &'static str {
         self.effect().name()
