@@ -355,6 +355,13 @@ pub fn param_derivatives(
 ) -> Result<(), MotionError> {
     let nf = mat.spline.as_ref().map_or(0, |s| s.len(Response::F));
     let any_spline = kinds.iter().skip(MATERIAL_KINDS).any(|&b| b);
+    // ∂g/∂q of the gravity's turns, the same in every element ([`Model::gravity_derivative`]).
+    let turns = ParamKind::GRAVITY.map(|kind| {
+        (
+            kind,
+            kinds[kind as usize].then(|| model.gravity_derivative(mat, kind)),
+        )
+    });
     for e in elems {
         let t = &model.rest[e];
         let fgrad = he::deformation_gradient(t, &model.gather(e, x));
@@ -435,10 +442,9 @@ pub fn param_derivatives(
             }
             sink(e, ParamKind::Density as usize, &g);
         }
-        for kind in ParamKind::GRAVITY {
-            if kinds[kind as usize] {
-                // ∂/∂q of f_ext: ρ_e V_e/4 ∂g/∂q per node ([`Model::gravity_derivative`]).
-                let dg = model.gravity_derivative(mat, kind);
+        for (kind, dg) in turns {
+            if let Some(dg) = dg {
+                // ∂/∂q of f_ext: ρ_e V_e/4 ∂g/∂q per node.
                 let m = mat.get(ParamKind::Density, e) * t.volume / 4.0;
                 let mut g = [0.0; 12];
                 for a in 0..4 {

@@ -16,6 +16,7 @@ use palpate_motion::dataset::{
 };
 use palpate_motion::model::{Material, Model};
 use palpate_motion::scenario::{nine_markers, record, two_sinusoids};
+use palpate_specimen::motion::{motion_specimen, MotionEffect, MotionTruth};
 
 const SIGMA: f64 = 1e-4;
 const STEPS: usize = 45;
@@ -79,6 +80,28 @@ fn late_specimen(nu: f64, seed: u64, late: i64) -> MotionDataset {
         .iter_mut()
         .for_each(|r| r.iter_mut().for_each(|f| *f = None));
     ds
+}
+
+/// The drawn specimen of `effect` and `seed` (`palpate_specimen::motion`, on the example bar),
+/// diagnosed.
+fn drawn(effect: MotionEffect, seed: u64) -> (MotionDiagnosis, MotionTruth) {
+    let base = crate::diagnose_runs::example();
+    let (ds, truth) = motion_specimen(&base, effect, seed).unwrap();
+    eprintln!("{}", truth.detail);
+    (run(&ds, effect.name()), truth)
+}
+
+/// The body's μ within 2 % of the drawn truth's and the forecast under 1.2× the specimens'
+/// noise floor σ√3.
+fn assert_body_and_floor(r: &MotionDiagnosis, truth: &MotionTruth) {
+    let mu = final_value(r, "mu");
+    assert!(
+        (mu / truth.mu - 1.0).abs() < 0.02,
+        "μ {mu} for {}",
+        truth.mu
+    );
+    let floor = palpate_specimen::motion::SIGMA * 3f64.sqrt();
+    assert!(r.after.rms_held < 1.2 * floor, "{:?}", r.after);
 }
 
 /// The final model's value whose name starts with `start`.
@@ -611,25 +634,14 @@ fn a_bar_of_two_materials_is_given_its_second_material() {
 /// fit and the layer's fit stopped at 3.2 mm.
 #[test]
 fn a_clamp_that_gives_is_named() {
-    use palpate_specimen::motion::{motion_specimen, MotionEffect};
-    let base = crate::diagnose_runs::example();
-    let (ds, truth) = motion_specimen(&base, MotionEffect::ClampCompliance, 4).unwrap();
-    eprintln!("{}", truth.detail);
-    let r = run(&ds, "clamp-compliance");
+    let (r, truth) = drawn(MotionEffect::ClampCompliance, 4);
     assert_eq!(r.adopted, ["clamp-compliance"]);
-    let value = |start: &str| final_value(&r, start);
-    let (mu, layer) = (value("mu"), value("mu of the layer"));
-    assert!(
-        (mu / truth.mu - 1.0).abs() < 0.02,
-        "μ {mu} for {}",
-        truth.mu
-    );
+    let (mu, layer) = (final_value(&r, "mu"), final_value(&r, "mu of the layer"));
     assert!(
         (0.15..0.5).contains(&(layer / mu)),
         "layer {layer}, body {mu}"
     );
-    let floor = 2e-5 * 3f64.sqrt();
-    assert!(r.after.rms_held < 1.2 * floor, "{:?}", r.after);
+    assert_body_and_floor(&r, &truth);
 }
 
 /// A gravity turned by 2.2° from the declared one (the drawn specimen of seed 4: toward +x) is
@@ -637,13 +649,8 @@ fn a_clamp_that_gives_is_named() {
 /// the noise floor.
 #[test]
 fn a_turned_gravity_is_named() {
-    use palpate_specimen::motion::{motion_specimen, MotionEffect};
-    let base = crate::diagnose_runs::example();
-    let (ds, truth) = motion_specimen(&base, MotionEffect::GravityDirection, 4).unwrap();
-    eprintln!("{}", truth.detail);
-    let r = run(&ds, "gravity-direction");
+    let (r, truth) = drawn(MotionEffect::GravityDirection, 4);
     assert_eq!(r.adopted, ["gravity-direction"]);
-    let value = |start: &str| final_value(&r, start);
     // The truth's gravity, as the specimen's detail gives it.
     let g_truth = [0.383, -9.803, -0.018];
     assert!(
@@ -652,17 +659,10 @@ fn a_turned_gravity_is_named() {
         truth.detail
     );
     for (axis, want) in ["x", "y", "z"].into_iter().zip(g_truth) {
-        let got = value(&format!("gravity acting, {axis}"));
+        let got = final_value(&r, &format!("gravity acting, {axis}"));
         assert!((got - want).abs() < 0.01, "g_{axis} {got} for {want}");
     }
-    let mu = value("mu");
-    assert!(
-        (mu / truth.mu - 1.0).abs() < 0.02,
-        "μ {mu} for {}",
-        truth.mu
-    );
-    let floor = 2e-5 * 3f64.sqrt();
-    assert!(r.after.rms_held < 1.2 * floor, "{:?}", r.after);
+    assert_body_and_floor(&r, &truth);
 }
 
 /// Marker offsets hold a turned gravity's parameters: where a turn passed beside the offsets
@@ -670,10 +670,7 @@ fn a_turned_gravity_is_named() {
 /// instead of leaving it unmentioned.
 #[test]
 fn a_turn_the_offsets_hide_is_not_ruled_out() {
-    use palpate_specimen::motion::{motion_specimen, MotionEffect};
-    let base = crate::diagnose_runs::example();
-    let (ds, _) = motion_specimen(&base, MotionEffect::MarkerOffsets, 2).unwrap();
-    let r = run(&ds, "marker-offsets");
+    let (r, _) = drawn(MotionEffect::MarkerOffsets, 2);
     assert_eq!(r.adopted, ["marker-offsets"]);
     let v = r.verdict();
     assert!(
