@@ -48,27 +48,49 @@ fn floor(t: &serde_json::Value) -> f64 {
     t["marker_noise_m"].as_f64().expect("marker_noise_m") * 3f64.sqrt()
 }
 
-/// A known miss, asserted as one: the residual left is well above the noise floor, and the
-/// verdict says so instead of calling the data explained. Palpate's library has no candidate for
-/// what is left: the truth's Kelvin–Voigt damping acts on the Green-strain rate (palpate's
-/// viscosity: a power law on the velocity gradient), and the dataset's 312 tetrahedra are stiff
-/// in bending (the fits land μ at 387–481 kPa against the truth's 533 kPa, λ anywhere from 0 to
-/// 414 kPa against 827 kPa). Measured on both datasets: held out 1.59–1.65× the floor, the
-/// verdict "more is missing than the library explains" on the held-out forecast; asserted above
-/// 1.2× the floor (the margin a forecast at the floor keeps in `palpate_diagnose`'s own motion
-/// tests).
-fn assert_honest_known_miss(r: &MotionDiagnosis, floor: f64) {
+/// What the dataset mesh leaves, asserted as the mesh's: the residual stays well above the
+/// noise floor alone (the dataset's 312 tetrahedra are stiff in bending: the fits land μ at
+/// 387–481 kPa against the truth's 533 kPa, λ anywhere from 0 to 414 kPa against 827 kPa, and
+/// the truth's Kelvin–Voigt damping acts on the Green-strain rate where palpate's viscosity is a
+/// power law on the velocity gradient), and the final model refitted on its own null (the mesh
+/// refined once, noise-free) leaves as much: the verdict widens its floor by that share, says
+/// how far above the noise alone the residual stands, and that effects smaller than the mesh's
+/// error cannot be told from it. Measured on both datasets: 1.26× the noise floor alone fitted,
+/// 1.59× held out; the null's 141.5–141.9 µm fitted and 233.5–253.6 µm held out; against the
+/// widened floor 1.05× / 1.02–1.07×. Asserted: above 1.2× the floor alone held out (the margin
+/// a forecast at the floor keeps in `palpate_diagnose`'s own motion tests), the mesh's share
+/// measured and below the data's own residual, and within 1.1× of the widened floor and not 3σ
+/// below it.
+fn assert_the_mesh_leaves_the_rest(r: &MotionDiagnosis, floor: f64) {
     let verdict = r.verdict();
     assert!(
         r.after.rms_held > 1.2 * floor,
-        "held out {:.1} µm against a floor of {:.1} µm: the miss is gone, update this test",
+        "held out {:.1} µm against a floor of {:.1} µm: the mesh's share is gone, update this test",
         1e6 * r.after.rms_held,
         1e6 * floor
     );
+    let share = r
+        .mesh_floor
+        .as_ref()
+        .expect("the mesh's share of the residual measured");
     assert!(
-        r.heldout_check.judged && !r.heldout_check.explained,
-        "{verdict}: {:?}",
-        r.heldout_check
+        share.null_rms_fit > 0.0 && share.null_rms_fit < r.after.rms_fit,
+        "{share:?} against {:.1} µm fitted",
+        1e6 * r.after.rms_fit
+    );
+    for c in [&r.residual_check, &r.heldout_check] {
+        // Not far below the widened floor either: a share over-stated (the refined mesh's
+        // difference extrapolated by Richardson's 4/3 put both checks 3.1σ below it).
+        assert!(
+            c.discretisation_m > 0.0 && c.ratio < 1.1 && c.z > -3.0,
+            "{verdict}: {c:?}"
+        );
+        assert!(c.ratio_noise > 1.2, "{verdict}: {c:?}");
+    }
+    assert!(
+        verdict.contains("widened by the mesh's remaining discretisation error")
+            && verdict.contains("cannot be told from the mesh's"),
+        "{verdict}"
     );
     assert!(!verdict.starts_with("clean"), "{verdict}");
 }
@@ -77,7 +99,7 @@ fn assert_honest_known_miss(r: &MotionDiagnosis, floor: f64) {
 /// recovered to the step (measured −40.0 ms, asserted within half a capture frame of the
 /// injected −40 ms), the forecast improves tenfold (measured 3,450.8 → 350.4 µm held out,
 /// asserted below a fifth), viscosity follows (the truth is damped), and the residual left is
-/// the known miss of [`assert_honest_known_miss`] (measured 1.65× the 212.8 µm floor).
+/// what the mesh leaves ([`assert_the_mesh_leaves_the_rest`]).
 #[test]
 fn independent_clamp_recorded_late_is_given_its_time_offset() {
     let name = "cylinder-s2-clamps-late-2";
@@ -112,12 +134,12 @@ fn independent_clamp_recorded_late_is_given_its_time_offset() {
         "{:?}",
         r.adopted
     );
-    assert_honest_known_miss(&r, floor(&t));
+    assert_the_mesh_leaves_the_rest(&r, floor(&t));
 }
 
 /// The same draw as generated: no time offset (the scan finds none), viscosity adopted (the
-/// truth is damped at a 3.7 % ratio; measured 850.7 → 338.5 µm held out), and the same known
-/// miss (measured 1.59× the floor).
+/// truth is damped at a 3.7 % ratio; measured 850.7 → 338.5 µm held out), and the rest the
+/// mesh's ([`assert_the_mesh_leaves_the_rest`]).
 #[test]
 fn independent_cylinder_as_generated_is_given_its_damping_and_no_offset() {
     let name = "cylinder-s2";
@@ -133,5 +155,5 @@ fn independent_cylinder_as_generated_is_given_its_damping_and_no_offset() {
         "{:?}",
         r.adopted
     );
-    assert_honest_known_miss(&r, floor(&t));
+    assert_the_mesh_leaves_the_rest(&r, floor(&t));
 }

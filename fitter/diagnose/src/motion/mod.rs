@@ -246,6 +246,10 @@ pub struct MotionDiagnosis {
     /// What the mesh's own null says of the fitted parameters under one refinement
     /// ([`mesh_null::MeshBias`]); `None` when no null was made.
     pub mesh_bias: Option<mesh_null::MeshBias>,
+    /// What the dataset mesh's own error leaves in the final residual, by which both checks'
+    /// floor is widened ([`mesh_null::MeshFloor`]); `None` when the residual is the noise's
+    /// alone, the check is off, or no null could be made.
+    pub mesh_floor: Option<mesh_null::MeshFloor>,
     /// Final material (for export; not serialised).
     #[serde(skip)]
     pub material: Option<Material>,
@@ -441,6 +445,39 @@ pub fn diagnose(
         .last()
         .map(|p| p.0.clone())
         .expect("the start is on the path");
+    // The final residual against the noise floor, and where either check finds more than the
+    // noise, against the floor widened by what the dataset mesh's own error leaves
+    // ([`mesh_null::MeshFloor`]): a residual the mesh alone would leave is not an effect.
+    let check = |rms: f64, n: usize, k: usize, remaining: f64| {
+        if remaining > 0.0 {
+            crate::ResidualCheck::with_discretisation(rms, floor, remaining, n, k, judged)
+        } else {
+            crate::ResidualCheck::new(rms, floor, n, k, judged)
+        }
+    };
+    let (s, k) = (cur.scores, cur.values.len());
+    let unexplained = !check(s.rms_fit, s.n_fit, k, 0.0).explained
+        || !check(s.rms_held, s.n_held, 0, 0.0).explained;
+    let mesh_floor = if unexplained && o.mesh_error && o.mesh_null {
+        log("the final residual stands above the noise floor: what the mesh's own error leaves of it");
+        let f = engine.mesh_floor(adopted.len() + 1, &cur);
+        if let Some(f) = &f {
+            log(&format!(
+                "the final model refitted on its null ({} tetrahedra) leaves {:.1} µm fitted, \
+                 {:.1} µm held out: the floor is widened by them",
+                f.refined_tets,
+                1e6 * f.null_rms_fit,
+                1e6 * f.null_rms_held
+            ));
+        }
+        f
+    } else {
+        None
+    };
+    let (remaining_fit, remaining_held) = mesh_floor
+        .as_ref()
+        .map_or((0.0, 0.0), |f| (f.remaining_fit, f.remaining_held));
+    let evaluations = evaluations + mesh_floor.as_ref().map_or(0, |f| f.evaluations);
     let mesh_convergence = o.mesh_convergence.then(|| {
         let mean = |k| (0..ne).map(|e| cur.material.get(k, e)).sum::<f64>() / ne.max(1) as f64;
         let (lambda, mu) = (mean(ParamKind::Lambda), mean(ParamKind::Mu));
@@ -525,20 +562,9 @@ pub fn diagnose(
         speed_before: sp_b,
         speed_after: final_signature.speed_bins.clone(),
         final_signature,
-        residual_check: crate::ResidualCheck::new(
-            cur.scores.rms_fit,
-            floor,
-            cur.scores.n_fit,
-            cur.values.len(),
-            judged,
-        ),
-        heldout_check: crate::ResidualCheck::new(
-            cur.scores.rms_held,
-            floor,
-            cur.scores.n_held,
-            0,
-            judged,
-        ),
+        residual_check: check(s.rms_fit, s.n_fit, k, remaining_fit),
+        heldout_check: check(s.rms_held, s.n_held, 0, remaining_held),
+        mesh_floor,
         evaluations,
         screen_simulations,
         mesh: mesh_note,

@@ -215,6 +215,25 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
         r.final_signature.reading,
         palpate_plot::shown("residual-vs-speed.svg")
     );
+    if let Some(f) = &r.mesh_floor {
+        let _ = writeln!(
+            md,
+            "\n### The mesh's share of the residual\n\nThe final model simulated on the mesh \
+             refined once ({} tetrahedra) and refitted on this mesh there, noise-free (its own \
+             null), leaves {:.1} µm RMS on the fitted steps and {:.1} µm held out: what no \
+             parameter of the model can take from this mesh's own error, which joins the noise \
+             floor in quadrature in the verdict (the refined mesh's difference, not extrapolated \
+             to the material: against a material this mesh errs by more). The residual is \
+             {:.2}× / {:.2}× the noise floor alone; what stands above it by less than the mesh's \
+             share cannot be told from the mesh's error on this mesh (refine it, or fit on \
+             quadratic elements: `--motion-convergence`).",
+            f.refined_tets,
+            1e6 * f.null_rms_fit,
+            1e6 * f.null_rms_held,
+            r.residual_check.ratio_noise,
+            r.heldout_check.ratio_noise
+        );
+    }
     if let Some(c) = &r.mesh_convergence {
         md.push_str(&c.markdown());
     }
@@ -287,6 +306,16 @@ pub fn json_text(r: &MotionDiagnosis) -> Result<String, serde_json::Error> {
         &[
             ("speed_before", "speed_before_m_per_s_m"),
             ("speed_after", "speed_after_m_per_s_m"),
+        ],
+    );
+    json::rename(
+        &mut v,
+        "mesh_floor",
+        &[
+            ("null_rms_fit", "null_rms_fit_m"),
+            ("null_rms_held", "null_rms_held_m"),
+            ("remaining_fit", "remaining_fit_m"),
+            ("remaining_held", "remaining_held_m"),
         ],
     );
     for path in [

@@ -14,6 +14,9 @@ use crate::motion::engine::MotionModel;
 use crate::motion::fit::FittedModel;
 use crate::motion::Value;
 
+/// The largest turn (degrees) a fit starts from ([`MotionEffect::screened_start`]).
+pub const MAX_START_TURN: f64 = 10.0;
+
 /// See the module.
 pub struct GravityDirection;
 
@@ -65,12 +68,22 @@ impl MotionEffect for GravityDirection {
     }
 
     /// From where the screen's step turned it: the screen steps q from 1, where dq = d(ln q),
-    /// so the step is the turn's tangent itself and the start exp of it (q stays positive).
+    /// so the step is the turn's tangent itself and the start exp of it (q stays positive). A
+    /// step that turns gravity by more than [`MAX_START_TURN`] is shortened to it, its
+    /// direction kept: one Gauss–Newton step from the declared gravity is a linearisation, and
+    /// where the misfit is the mesh's (on the independent generator's coarse cylinders it
+    /// stepped the turn far enough that the start no longer simulated: "system matrix not
+    /// positive definite" at the third step) the fit starts where the linearisation still
+    /// holds and goes further itself if the data ask for it.
     fn screened_start(&self, stepped: &dyn Fn(ParamKind) -> Option<f64>) -> Option<Vec<f64>> {
-        ParamKind::GRAVITY
+        let z: Vec<f64> = ParamKind::GRAVITY
             .iter()
-            .map(|&k| stepped(k).map(|q| (q - 1.0).exp()))
-            .collect()
+            .map(|&k| stepped(k).map(|q| q - 1.0))
+            .collect::<Option<_>>()?;
+        let turn = z.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let cap = MAX_START_TURN.to_radians().tan();
+        let shorten = if turn > cap { cap / turn } else { 1.0 };
+        Some(z.iter().map(|v| (shorten * v).exp()).collect())
     }
 
     /// The turn toward each cross axis (degrees, with its 1σ; "held" where a later effect holds
@@ -112,5 +125,33 @@ impl MotionEffect for GravityDirection {
             });
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The screen's step is the start where it turns gravity by less than the cap; beyond, the
+    /// start turns by the cap in the step's direction.
+    #[test]
+    fn a_screened_turn_starts_at_most_the_cap_away() {
+        let start = |za: f64, zb: f64| {
+            let stepped = move |k: ParamKind| match k {
+                ParamKind::GravityTiltA => Some(1.0 + za),
+                ParamKind::GravityTiltB => Some(1.0 + zb),
+                _ => None,
+            };
+            GravityDirection
+                .screened_start(&stepped)
+                .expect("both turns stepped")
+        };
+        let small = start(0.03, -0.04);
+        assert!((small[0].ln() - 0.03).abs() < 1e-15 && (small[1].ln() + 0.04).abs() < 1e-15);
+        let large = start(3.0, -4.0);
+        let z = [large[0].ln(), large[1].ln()];
+        let turn = z[0].hypot(z[1]).atan().to_degrees();
+        assert!((turn - MAX_START_TURN).abs() < 1e-9, "{turn}");
+        assert!((z[0] / z[1] + 0.75).abs() < 1e-12, "{z:?}");
     }
 }
