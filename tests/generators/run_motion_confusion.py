@@ -162,6 +162,13 @@ def make_dataset(d, a, work, log):
     return base
 
 
+def mesh_share(diag):
+    """The widening of the held-out check's floor by the mesh's share (m), None without one (the field
+    carries its unit since diagnosis.json's `mesh_floor` was named; the bare name before)."""
+    f = diag.get("mesh_floor") or {}
+    return f.get("remaining_held_m", f.get("remaining_held"))
+
+
 def score(row, diag):
     adopted = list(diag["adopted"])
     rc, hc = diag["residual_check"], diag["heldout_check"]
@@ -169,6 +176,9 @@ def score(row, diag):
     background = BACKGROUND - {x for x, e in EXACT.items() if e == eff}
     physical = [x for x in adopted if x not in DAMPING | background]
     row.update(adopted=adopted, fitted_ratio=rc["ratio"], heldout_ratio=hc["ratio"],
+               fitted_ratio_noise=rc.get("ratio_noise", rc["ratio"]),
+               heldout_ratio_noise=hc.get("ratio_noise", hc["ratio"]),
+               mesh_share_m=mesh_share(diag),
                explained=bool(rc["explained"] and hc["explained"]),
                mu_fit=diag["elastic"]["shear_modulus_pa"], nu_fit=diag["elastic"]["poisson_ratio"])
     if eff == "none":
@@ -204,15 +214,21 @@ def write_tables(rows, a, out):
         f"Draws done: {n} of {len(rows)}. **Named first: {nf} of {n}**; named at all: {nn}; held-out RMS within "
         f"1.5× the floor: {w}; both named first and within 1.5×: {both}; honest verdicts: {h} of {n}.",
         "",
-        "| draw | effect | magnitude | truth μ (kPa), ν | palpate adopted (in order) | named first | held-out / floor | fitted / floor | explained | μ fit / true | ν fit | s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "'held-out / floor' and 'fitted / floor' are over palpate's floor: the noise floor σ√3, widened in quadrature by "
+        "the mesh's share where the final residual stood above the noise and its null could be refitted ('mesh share', "
+        "held out); 'noise alone' is over σ√3 without it. 'within 1.5×' reads the held-out ratio over palpate's floor.",
+        "",
+        "| draw | effect | magnitude | truth μ (kPa), ν | palpate adopted (in order) | named first | held-out / floor | fitted / floor | noise alone: held-out, fitted | mesh share (µm) | explained | μ fit / true | ν fit | s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in done:
         lines.append(
             f"| {r['id']} | {r['effect']} | {magnitude_text(r['effect'], r['magnitude'])} | "
             f"{r['mu_true'] / 1e3:.0f}, {r['nu_true']:.3f} | {', '.join(r['adopted']) or '–'} | "
             f"{'✔' if r['named_first'] else ('named later' if r['named'] else '✘')} | {r['heldout_ratio']:.2f} | "
-            f"{r['fitted_ratio']:.2f} | {'yes' if r['explained'] else 'no'} | {r['mu_fit'] / r['mu_true']:.2f} | "
+            f"{r['fitted_ratio']:.2f} | {r['heldout_ratio_noise']:.2f}, {r['fitted_ratio_noise']:.2f} | "
+            f"{'–' if r['mesh_share_m'] is None else format(1e6 * r['mesh_share_m'], '.0f')} | "
+            f"{'yes' if r['explained'] else 'no'} | {r['mu_fit'] / r['mu_true']:.2f} | "
             f"{r['nu_fit']:.3f} | {r['palpate_seconds']:.0f} |")
     failed = [r for r in rows if r.get("error")]
     if failed:
@@ -262,8 +278,11 @@ def main():
                 if rc != 0:
                     raise RuntimeError(f"palpate diagnose exited {rc} (see {log})")
                 row["palpate_seconds"] = secs
+                with open(os.path.join(out, "wall_seconds.txt"), "w") as fh:
+                    fh.write(f"{secs:.1f}\n")
             else:
-                row["palpate_seconds"] = float("nan")
+                timed = os.path.join(out, "wall_seconds.txt")
+                row["palpate_seconds"] = float(open(timed).read()) if os.path.exists(timed) else float("nan")
             diag = json.load(open(os.path.join(out, "diagnosis.json")))
             score(row, diag)
             keep = os.path.join(a.out, "draws", row["id"])
