@@ -163,10 +163,10 @@ def make_dataset(d, a, work, log):
 
 
 def mesh_share(diag):
-    """The widening of the held-out check's floor by the mesh's share (m), None without one (the field
-    carries its unit since diagnosis.json's `mesh_floor` was named; the bare name before)."""
-    f = diag.get("mesh_floor") or {}
-    return f.get("remaining_held_m", f.get("remaining_held"))
+    """The widening of the held-out check's floor by the mesh's share (m), None without one: the
+    held-out check's `discretisation_m`, which every build that widens the floor writes."""
+    d = diag["heldout_check"].get("discretisation_m") or 0.0
+    return d if d > 0 else None
 
 
 def score(row, diag):

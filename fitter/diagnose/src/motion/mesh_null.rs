@@ -218,14 +218,12 @@ impl MeshBias {
 pub struct MeshFloor {
     /// Tetrahedra of the refined mesh that made the null.
     pub refined_tets: usize,
-    /// RMS of the final model refitted on its null, fitted steps (m).
+    /// RMS of the final model refitted on its null, fitted steps (m): the widening of the
+    /// fitted check's floor.
     pub null_rms_fit: f64,
-    /// The same on the held-out steps, the refit's parameters kept (m).
+    /// The same on the held-out steps, the refit's parameters kept (m): the widening of the
+    /// held-out check's floor.
     pub null_rms_held: f64,
-    /// The widening of the fitted steps' floor: `null_rms_fit` (m).
-    pub remaining_fit: f64,
-    /// The same on the held-out steps: `null_rms_held` (m).
-    pub remaining_held: f64,
     /// Simulations it took (none when the last round's null was made at the final model).
     pub evaluations: usize,
 }
@@ -454,53 +452,43 @@ impl MotionModel<'_> {
     /// unless that round made it already); `None`, its reason logged, when there is no null.
     pub(super) fn mesh_floor(&mut self, round: usize, cur: &FittedModel) -> Option<MeshFloor> {
         let log = self.log;
-        match self.null_round(round, cur) {
-            Ok(n) => {
-                let (fit, held) = (n.base.scores.rms_fit, n.base.scores.rms_held);
-                // A refit that ended on the scale search's bound found no softer object that
-                // fits, and a noise-free null left with more than the data's own residual
-                // (which holds the noise and the mesh's error and any effect) is a refit that
-                // failed: neither measures the mesh's share, and the floor stays the noise's.
-                let (lo, hi) = SCALE_BOUNDS;
-                // (ten golden sections leave the search within e^0.03 of where it ends)
-                let failed = if n.scale <= lo * 1.06 || n.scale >= hi / 1.06 {
-                    Some(format!(
-                        "the refit on the null started from the moduli × {:.3}, the scale \
-                         search's bound",
-                        n.scale
-                    ))
-                } else if fit > cur.scores.rms_fit {
-                    Some(format!(
-                        "the final model refitted on its null leaves {:.1} µm, more than the \
-                         data's own {:.1} µm",
-                        1e6 * fit,
-                        1e6 * cur.scores.rms_fit
-                    ))
-                } else {
-                    None
-                };
-                if let Some(why) = failed {
-                    log(&format!(
-                        "the final residual's floor is not widened by the mesh's own error: {why}"
-                    ));
-                    return None;
-                }
-                Some(MeshFloor {
-                    refined_tets: n.refined_tets,
-                    null_rms_fit: fit,
-                    null_rms_held: held,
-                    remaining_fit: fit,
-                    remaining_held: held,
-                    evaluations: std::mem::take(&mut n.uncharged),
-                })
+        let measured = self.null_round(round, cur).and_then(|n| {
+            let (fit, held) = (n.base.scores.rms_fit, n.base.scores.rms_held);
+            // A refit that ended on the scale search's bound found no softer object that fits,
+            // and a noise-free null left with more than the data's own residual (which holds the
+            // noise and the mesh's error and any effect) is a refit that failed: neither
+            // measures the mesh's share, and the floor stays the noise's. (Ten golden sections
+            // leave the search within e^0.03 of where it ends.)
+            let (lo, hi) = SCALE_BOUNDS;
+            if n.scale <= lo * 1.06 || n.scale >= hi / 1.06 {
+                return Err(format!(
+                    "the refit on the null started from the moduli × {:.3}, the scale search's \
+                     bound",
+                    n.scale
+                ));
             }
-            Err(why) => {
+            if fit > cur.scores.rms_fit {
+                return Err(format!(
+                    "the final model refitted on its null leaves {:.1} µm, more than the data's \
+                     own {:.1} µm",
+                    1e6 * fit,
+                    1e6 * cur.scores.rms_fit
+                ));
+            }
+            Ok(MeshFloor {
+                refined_tets: n.refined_tets,
+                null_rms_fit: fit,
+                null_rms_held: held,
+                evaluations: std::mem::take(&mut n.uncharged),
+            })
+        });
+        measured
+            .map_err(|why| {
                 log(&format!(
                     "the final residual's floor is not widened by the mesh's own error: {why}"
-                ));
-                None
-            }
-        }
+                ))
+            })
+            .ok()
     }
 
     /// Checks candidate `c`, fitted on the data as `fitted` on top of `cur` with fitted ΔBIC

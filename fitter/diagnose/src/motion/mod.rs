@@ -476,7 +476,7 @@ pub fn diagnose(
     };
     let (remaining_fit, remaining_held) = mesh_floor
         .as_ref()
-        .map_or((0.0, 0.0), |f| (f.remaining_fit, f.remaining_held));
+        .map_or((0.0, 0.0), |f| (f.null_rms_fit, f.null_rms_held));
     let evaluations = evaluations + mesh_floor.as_ref().map_or(0, |f| f.evaluations);
     let mesh_convergence = o.mesh_convergence.then(|| {
         let mean = |k| (0..ne).map(|e| cur.material.get(k, e)).sum::<f64>() / ne.max(1) as f64;

@@ -314,8 +314,6 @@ pub fn json_text(r: &MotionDiagnosis) -> Result<String, serde_json::Error> {
         &[
             ("null_rms_fit", "null_rms_fit_m"),
             ("null_rms_held", "null_rms_held_m"),
-            ("remaining_fit", "remaining_fit_m"),
-            ("remaining_held", "remaining_held_m"),
         ],
     );
     for path in [
