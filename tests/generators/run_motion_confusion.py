@@ -59,7 +59,7 @@ EXACT = {
     "clamp-compliance": "clamp-compliance",
     "gravity-direction": "gravity-tilt",
 }
-DAMPING = {"viscosity", "viscosity-newtonian"}
+DAMPING = {"viscosity", "viscosity-newtonian", "viscosity-objective"}
 # Present in every draw whatever its effect: the generator's rest scan (markers.csv) is the mean of ten
 # noisy frames (sigma/sqrt(10) per axis, never declared to palpate), a constant offset of every marker
 # from its declared place that a 270-frame capture resolves; naming it is right in any draw and is

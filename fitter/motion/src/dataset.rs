@@ -91,6 +91,11 @@ pub struct DatasetToml {
     /// ([`crate::timestep::Scheme`]); the substeps chosen from the capture follow its rule.
     #[serde(default)]
     pub scheme: Option<String>,
+    /// How the viscosity reads the velocity gradient: `"rest-gradient"` (default, Real2Sim's
+    /// public code) or `"objective"` (the Green–Lagrange strain rate;
+    /// [`crate::viscosity::Form`]).
+    #[serde(default)]
+    pub viscosity_form: Option<String>,
     /// Density (kg/m³), if known.
     pub density: Option<f64>,
     /// Gravity (m/s²). Not declared: (0, 0, −9.81), with a warning — a static dataset without
@@ -135,6 +140,7 @@ impl DatasetToml {
             steps: None,
             substeps: None,
             scheme: None,
+            viscosity_form: None,
             density: None,
             gravity: None,
             clamps,

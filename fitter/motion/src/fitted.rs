@@ -63,6 +63,10 @@ pub struct FittedModel {
     /// The creep branch ([`super::relaxation`]), absent without one (and in older records).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub creep: Option<CreepRecord>,
+    /// How the viscosity read the velocity gradient ([`crate::viscosity::Form`]): absent in
+    /// records of the rest-gradient law, the only one before the objective form.
+    #[serde(default, skip_serializing_if = "is_rest_gradient")]
+    pub viscosity_form: crate::viscosity::Form,
     /// Poisson's ratio, when it was held fixed (λ followed μ).
     #[serde(rename = "poisson_ratio_fixed", alias = "poisson_fixed")]
     pub poisson_fixed: Option<f64>,
@@ -143,6 +147,11 @@ impl CreepRecord {
     }
 }
 
+/// Whether `f` is the rest-gradient law (not written to a record).
+fn is_rest_gradient(f: &crate::viscosity::Form) -> bool {
+    *f == crate::viscosity::Form::RestGradient
+}
+
 impl FittedModel {
     /// The fitted material on its `tets` elements: each field holds one value (the same in
     /// every element) or one per element; the stiffening may be absent (0). The error names
@@ -156,6 +165,7 @@ impl FittedModel {
             (n, _) => Err(format!("field {name}: {n} values, expected 1 or {ne}")),
         };
         let mut mat = Material::uniform(ne, 1.0, 1.0, 1.0, 1.0, 1.0);
+        mat.viscous_form = self.viscosity_form;
         mat.values = [
             per_element("lame_lambda_pa", &self.lambda, None)?,
             per_element("shear_modulus_pa", &self.mu, None)?,
@@ -278,6 +288,7 @@ pub struct FittedRun {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::viscosity::Form;
 
     /// A `fit.json` of format 1 (names without units) still reads, into the same record that
     /// format 2 writes with units in its names and `schema_version` first.
@@ -326,6 +337,32 @@ mod tests {
             let e = g.material().unwrap_err();
             assert!(e.contains("field gravity_turn: "), "{e}");
         }
+    }
+
+    /// The viscosity law reads back into the material, is written only when it is the
+    /// objective one, and an unknown name is refused.
+    #[test]
+    fn the_viscosity_form_reads_back_and_is_written_only_when_objective() {
+        let text = r#"{"format": "palpate-motion-fit/1", "datasets": ["a"], "nodes": 4, "tets": 1,
+            "lambda": [1e4], "mu": [2e4], "viscosity": [3.0], "h": [1.0], "density": [47.0],
+            "poisson_fixed": null, "hanging_inertia": false, "fitted": ["mu"],
+            "runtime_lambda_alpha": [[6e4, 1e4]], "rms_marker_m": 1e-4, "rms_force_n": 0.0,
+            "evaluations": 3, "runs": []}"#;
+        let mut f: FittedModel = serde_json::from_str(text).unwrap();
+        assert_eq!(f.material().unwrap().viscous_form, Form::RestGradient);
+        assert!(!serde_json::to_string(&f)
+            .unwrap()
+            .contains("viscosity_form"));
+        f.viscosity_form = Form::Objective;
+        let written = serde_json::to_string(&f).unwrap();
+        assert!(
+            written.contains(r#""viscosity_form":"objective""#),
+            "{written}"
+        );
+        let back: FittedModel = serde_json::from_str(&written).unwrap();
+        assert_eq!(back.material().unwrap().viscous_form, Form::Objective);
+        let wrong = written.replace(r#""objective""#, r#""spatial""#);
+        assert!(serde_json::from_str::<FittedModel>(&wrong).is_err());
     }
 
     #[test]

@@ -48,7 +48,7 @@ fn element_internal_relaxing(
     if let Some(b) = branch {
         p = b.stress(e, &fgrad, &p);
     }
-    if let Some(r) = rate(model, mat, e, v) {
+    if let Some(r) = rate(model, mat, e, &fgrad, v) {
         p += visc::stress(&r, mat.get(ParamKind::Nu, e));
     }
     let mut fe = [0.0; 12];
@@ -62,13 +62,77 @@ fn element_internal_relaxing(
 /// damping tangent, which were zeros: the same forces and tangents to the last bit
 /// (`lane_forces_are_the_element_forces_to_the_last_bit`), and about a tenth less time in those
 /// simulations (BENCHMARKS.md).
-fn rate(model: &Model, mat: &Material, e: usize, v: &[f64]) -> Option<visc::Rate> {
+pub(crate) fn rate(
+    model: &Model,
+    mat: &Material,
+    e: usize,
+    fgrad: &nalgebra::Matrix3<f64>,
+    v: &[f64],
+) -> Option<visc::Rate> {
     let nu = mat.get(ParamKind::Nu, e);
     if nu == 0.0 {
         return None;
     }
     let l = visc::velocity_gradient(&model.rest[e], &model.gather(e, v));
-    visc::Rate::new(&l, mat.get(ParamKind::PowerH, e))
+    visc::Rate::of(mat.viscous_form, fgrad, &l, mat.get(ParamKind::PowerH, e))
+}
+
+/// The antisymmetric part A = ½(K_v − K_vᵀ) of the objective viscosity's position tangent
+/// K_v = −∂f_v/∂x at one state ([`visc::element_stiffness`]): the part a symmetric system matrix
+/// cannot hold, assembled once on the model's pattern so that the iterations of a step's solve
+/// apply it without evaluating it again.
+pub struct ViscousSkew {
+    values: Vec<f64>,
+}
+
+impl ViscousSkew {
+    /// A at (x, v); `None` under the rest-gradient form (its viscous force does not depend on
+    /// the positions) or where no element has a rate.
+    pub fn at(
+        model: &Model,
+        mat: &Material,
+        x: &[f64],
+        v: &[f64],
+    ) -> Result<Option<Self>, MotionError> {
+        if mat.viscous_form != visc::Form::Objective {
+            return Ok(None);
+        }
+        let mut values = vec![0.0; model.pattern.nnz()];
+        let mut any = false;
+        for e in 0..model.tets.len() {
+            let t = &model.rest[e];
+            let fgrad = he::deformation_gradient(t, &model.gather(e, x));
+            let Some(r) = rate(model, mat, e, &fgrad, v) else {
+                continue;
+            };
+            let Some(k) = visc::element_stiffness(t, &r, mat.get(ParamKind::Nu, e)) else {
+                continue;
+            };
+            let tet = &model.tets[e];
+            let free: [usize; 12] = std::array::from_fn(|l| model.free[3 * tet[l / 3] + l % 3]);
+            let skew = std::array::from_fn(|a| std::array::from_fn(|b| 0.5 * (k[a][b] - k[b][a])));
+            model.pattern.add_element_skew(e, &free, &skew, &mut values);
+            any = true;
+        }
+        if values.iter().any(|z| !z.is_finite()) {
+            return Err(MotionError::NonFinite("viscous position tangent".into()));
+        }
+        Ok(any.then_some(Self { values }))
+    }
+
+    /// Y += `scale` A X over `np` columns of the free dofs (stored column after column).
+    pub fn mul_add(&self, model: &Model, xs: &[f64], np: usize, scale: f64, y: &mut [f64]) {
+        model.pattern.mul_add_skew(&self.values, xs, y, np, scale);
+    }
+}
+
+/// Adds the 12 × 12 matrix `b` into `a`.
+pub(crate) fn add_to(a: &mut [[f64; 12]; 12], b: &[[f64; 12]; 12]) {
+    for (ra, rb) in a.iter_mut().zip(b) {
+        for (x, y) in ra.iter_mut().zip(rb) {
+            *x += y;
+        }
+    }
 }
 
 /// Meshes with at least this many elements are assembled in two halves, the second into its own
@@ -228,7 +292,11 @@ fn assemble_into(
     mut kvals: Option<&mut [f64]>,
     mut dvals: Option<&mut [f64]>,
 ) -> Result<(), MotionError> {
-    if let (None, None, None, Some(f)) = (&kvals, &dvals, &mat.spline, f.as_deref_mut()) {
+    // The lanes carry the rest-gradient viscosity only.
+    let lanes = mat.viscous_form == visc::Form::RestGradient;
+    if let (true, None, None, None, Some(f)) =
+        (lanes, &kvals, &dvals, &mat.spline, f.as_deref_mut())
+    {
         return forces_in_lanes(model, mat, x, v, branch, range, f);
     }
     for e in range {
@@ -237,10 +305,20 @@ fn assemble_into(
         let fgrad = he::deformation_gradient(t, &model.gather(e, x));
         let s = ElasticState::new(mat, e, fgrad)?;
         let nu = mat.get(ParamKind::Nu, e);
-        let rate = rate(model, mat, e, v);
-        let tangent = || match branch {
-            Some(b) => b.tangent(e, t, &s.tangent(t)),
-            None => s.tangent(t),
+        let rate = rate(model, mat, e, &fgrad, v);
+        let tangent = || {
+            let mut k = match branch {
+                Some(b) => b.tangent(e, t, &s.tangent(t)),
+                None => s.tangent(t),
+            };
+            // The objective viscosity's force depends on the positions too.
+            if let Some(kv) = rate
+                .as_ref()
+                .and_then(|r| visc::element_stiffness_symmetric(t, r, nu))
+            {
+                add_to(&mut k, &kv);
+            }
+            k
         };
         match (kvals.as_deref_mut(), dvals.as_deref_mut(), &rate) {
             (Some(k), Some(d), Some(r)) => model.pattern.add_element_pair(
@@ -404,7 +482,13 @@ pub fn param_derivatives(
         }
         if kinds[ParamKind::Nu as usize] || kinds[ParamKind::PowerH as usize] {
             let (nu, h) = (mat.get(ParamKind::Nu, e), mat.get(ParamKind::PowerH, e));
-            let r = visc::Rate::new(&visc::velocity_gradient(t, &model.gather(e, v)), h);
+            let fgrad = he::deformation_gradient(t, &model.gather(e, x));
+            let r = visc::Rate::of(
+                mat.viscous_form,
+                &fgrad,
+                &visc::velocity_gradient(t, &model.gather(e, v)),
+                h,
+            );
             if kinds[ParamKind::Nu as usize] {
                 let mut g = [0.0; 12];
                 if let Some(r) = &r {

@@ -18,7 +18,7 @@
 //! s_b = −(α_1 s_v^{n−1} + α_0 s_v^{n−2})/α_2, s_x^n = (Δt Σ β_j s_v − α_1 s_x^{n−1} −
 //! α_0 s_x^{n−2})/α_2.
 
-use super::forces::{param_derivatives, weight_derivatives, SPLIT_ASSEMBLY_ELEMENTS};
+use super::forces::{param_derivatives, weight_derivatives, ViscousSkew, SPLIT_ASSEMBLY_ELEMENTS};
 use super::model::{Material, Model, Observations, Param, Tie};
 use super::objective::{clamp_force_derivatives, step_term, StepTerm};
 use super::pipeline::simulate_pipelined;
@@ -26,6 +26,7 @@ use super::relaxation::Sensitivities as CreepSensitivities;
 use super::sim::{simulate_solving, simulate_states, SimStats, StepSolve, StepSolver, StepView};
 use super::sparse::Factor;
 use super::timestep::Scheme;
+use super::viscosity::Form;
 use super::MotionError;
 
 /// How the gradients solve with each converged step's S. Factorising every step afresh stays
@@ -547,6 +548,53 @@ fn element_split(model: &Model) -> usize {
     }
 }
 
+/// Largest number of [`solve_with_skew`] iterations.
+const SKEW_ITERATIONS: usize = 50;
+
+/// The relative change at which [`solve_with_skew`] stops: far below what the Newton
+/// tolerance leaves in the sensitivities (finite differences agree with them to 10⁻⁷).
+const SKEW_TOLERANCE: f64 = 1e-10;
+
+/// Solves (S + a_x A) Y = B in place for `np` columns, where S (the step's symmetric system
+/// matrix, `solver`) holds the symmetric part of the objective viscosity's position tangent and
+/// A = ½(K_v − K_vᵀ) the rest ([`ViscousSkew`]): Y ← S⁻¹(B − a_x A Y) from Y = S⁻¹B, to a
+/// relative change of [`SKEW_TOLERANCE`]. It contracts by ‖a_x S⁻¹A‖, small where the viscous stiffness is
+/// a small part of the step's matrix; an iteration that does not reach the tolerance is an
+/// error, not a silent approximation.
+fn solve_with_skew(
+    model: &Model,
+    skew: &ViscousSkew,
+    ax: f64,
+    solver: &StepSolver,
+    b: &mut [f64],
+    np: usize,
+) -> Result<(), MotionError> {
+    let rhs = b.to_vec();
+    solver.solve_columns(&model.pattern, b, np)?;
+    let norm = |v: &[f64]| v.iter().map(|z| z * z).sum::<f64>().sqrt();
+    for _ in 0..SKEW_ITERATIONS {
+        let mut next = rhs.clone();
+        skew.mul_add(model, b, np, -ax, &mut next);
+        solver.solve_columns(&model.pattern, &mut next, np)?;
+        let change: f64 = norm(
+            &next
+                .iter()
+                .zip(b.iter())
+                .map(|(a, c)| a - c)
+                .collect::<Vec<_>>(),
+        );
+        let size = norm(&next);
+        b.copy_from_slice(&next);
+        if change <= SKEW_TOLERANCE * size {
+            return Ok(());
+        }
+    }
+    Err(MotionError::Invalid(format!(
+        "the sensitivities under the objective viscosity did not converge in {SKEW_ITERATIONS} \
+         iterations (its position tangent is too large a part of the step's matrix)"
+    )))
+}
+
 /// G_p (free dofs) for every parameter at a state: ∂F/∂q of the residual's force part. The two
 /// halves of the elements ([`element_split`]) scatter into their own columns, added afterwards:
 /// the split depends on the mesh only, so the result is the same wherever the halves ran.
@@ -893,7 +941,15 @@ fn direct(
             if let (Some(cs), Some((branch, _))) = (creep.as_mut(), s.relaxation) {
                 cs.add_history(model, mat, &table, branch, xf, np, &mut rhs)?;
             }
-            solver.solve_columns(&model.pattern, &mut rhs, np)?;
+            // K's antisymmetric part under the objective viscosity, which S's symmetric values
+            // do not hold: in the history term, and in S itself by `solve_with_skew`.
+            match ViscousSkew::at(model, mat, xf, vf)? {
+                Some(skew) => {
+                    skew.mul_add(model, &sa, np, -1.0, &mut rhs);
+                    solve_with_skew(model, &skew, ax, solver, &mut rhs, np)?;
+                }
+                None => solver.solve_columns(&model.pattern, &mut rhs, np)?,
+            }
             // The creep branch advances at the force state: its sensitivity s_xa + a_x s_v.
             let sxf: Vec<Vec<f64>> = match &creep {
                 None => Vec::new(),
@@ -1019,6 +1075,14 @@ fn adjoint(
     obs: &Observations,
     solve: StepSolve,
 ) -> Result<Evaluation, MotionError> {
+    if mat.viscous_form == Form::Objective {
+        return Err(MotionError::Invalid(
+            "the adjoint gradient solves with S's symmetric values, which do not hold the \
+             objective viscosity's position tangent: use the direct method \
+             (Levenberg–Marquardt's, or --gradient direct)"
+                .into(),
+        ));
+    }
     if mat.has_creep() {
         return Err(MotionError::Invalid(
             "the adjoint gradient does not carry the creep branch's internal variables: use the \

@@ -248,6 +248,9 @@ pub struct Material {
     /// values ([`Self::set`]) sets the region's λ; the parameters its λ depends on carry its
     /// derivative by the chain rule ([`Self::ties`]), and it is no parameter of its own.
     pub scaled_regions: Vec<usize>,
+    /// How the viscosity reads the velocity gradient ([`crate::viscosity::Form`]): a property
+    /// of the law, as the spline's choice is.
+    pub viscous_form: crate::viscosity::Form,
 }
 
 /// A region's λ that follows parameters ([`Material::scaled_regions`]): dλ = Σ w dq\[i\] over
@@ -281,6 +284,7 @@ impl Material {
             spline: None,
             regions: Vec::new(),
             scaled_regions: Vec::new(),
+            viscous_form: crate::viscosity::Form::RestGradient,
         }
     }
     /// The body's (λ, μ): the values outside every region (the means there).
@@ -716,6 +720,9 @@ pub struct Model {
     pub loads: Vec<DeadLoad>,
     /// Time integration scheme (default BDF2, eq. 2).
     pub scheme: crate::timestep::Scheme,
+    /// The viscosity law a fit of this model's data starts from (`viscosity_form` in
+    /// dataset.toml): what is simulated is the material's own ([`Material::viscous_form`]).
+    pub viscous_form: crate::viscosity::Form,
 }
 
 /// A known dead load: a constant total force shared equally by `nodes`, acting from step
@@ -851,6 +858,7 @@ impl Model {
             static_start: true,
             loads: Vec::new(),
             scheme: crate::timestep::Scheme::Bdf2,
+            viscous_form: crate::viscosity::Form::RestGradient,
         })
     }
 

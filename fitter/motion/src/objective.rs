@@ -69,13 +69,23 @@ pub fn clamp_force_derivatives(
     for &el in &model.clamp_elems[c] {
         let tet = model.tets[el];
         let rt = &model.rest[el];
-        let s = ElasticState::new(mat, el, he::deformation_gradient(rt, &model.gather(el, x)))?;
-        let ke = s.tangent(rt);
-        let de = visc::Rate::new(
+        let fgrad = he::deformation_gradient(rt, &model.gather(el, x));
+        let s = ElasticState::new(mat, el, fgrad)?;
+        let mut ke = s.tangent(rt);
+        let nu = mat.get(ParamKind::Nu, el);
+        let rate = visc::Rate::of(
+            mat.viscous_form,
+            &fgrad,
             &visc::velocity_gradient(rt, &model.gather(el, v)),
             mat.get(ParamKind::PowerH, el),
-        )
-        .map(|r| visc::element_damping(rt, &r, mat.get(ParamKind::Nu, el)));
+        );
+        if let Some(kv) = rate
+            .as_ref()
+            .and_then(|r| visc::element_stiffness(rt, r, nu))
+        {
+            super::forces::add_to(&mut ke, &kv);
+        }
+        let de = rate.map(|r| visc::element_damping(rt, &r, nu));
         for a in 0..4 {
             if model.node_clamp[tet[a]] != c {
                 continue;

@@ -378,6 +378,7 @@ impl<'a> QuadraticMotion<'a> {
                         gamma: 1.0,
                         h,
                         power: 1.0,
+                        at: None,
                     }))
                 };
                 if let Some(r) = &rate {
@@ -551,6 +552,13 @@ impl<'a> QuadraticMotion<'a> {
         mat: &Material,
         mut on_step: impl FnMut(usize, &[f64]),
     ) -> Result<QuadraticRun, MotionError> {
+        if mat.viscous_form != visc::Form::RestGradient {
+            return Err(MotionError::Invalid(format!(
+                "quadratic tetrahedra carry the rest-gradient viscosity only; the material asks \
+                 for the {} form",
+                mat.viscous_form.name()
+            )));
+        }
         let model = self.model;
         let ndof = 3 * self.mesh.nodes.len();
         let (c, ax, av) = Scheme::Bdf2.coefficients(model.dt);

@@ -85,6 +85,7 @@ impl Model {
         m.newton.tol *= (m.nfree as f64 / self.nfree.max(1) as f64).sqrt();
         m.static_start = self.static_start;
         m.scheme = self.scheme;
+        m.viscous_form = self.viscous_form;
         Ok(m)
     }
 }
@@ -103,6 +104,7 @@ impl Material {
                 .map(|r| r.iter().flat_map(|&e| 8 * e..8 * e + 8).collect())
                 .collect(),
             scaled_regions: self.scaled_regions.clone(),
+            viscous_form: self.viscous_form,
         }
     }
 }

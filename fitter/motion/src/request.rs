@@ -126,6 +126,7 @@ fn starting_material(ds: &MotionDataset, req: &FitRequest) -> Material {
         init.h,
         density,
     );
+    base.viscous_form = ds.model.viscous_form;
     // The stiffening is 0 (eq. 16) unless given or fitted; fitted in ln c, it needs a start
     // above 0: c = μ unless given (at 10 % strain that adds about 6 % to the Neo-Hookean energy).
     let fits_stiffening = req.params.contains(&ParamKind::Stiffening);
@@ -353,6 +354,7 @@ fn record(
         density: fitted.values[4].clone(),
         stiffening: FittedModel::stiffening_of(fitted),
         creep: crate::fitted::CreepRecord::of(fitted),
+        viscosity_form: fitted.viscous_form,
         poisson_fixed: req.settings.poisson,
         hanging_inertia: req.hanging_inertia
             || runs
@@ -542,7 +544,7 @@ pub fn fit_equilibria(runs: &[NamedRun], req: &FitRequest) -> Result<Equilibria,
         .iter()
         .find(|(k, _)| *k == ParamKind::Mu)
         .map_or(init.mu, |(_, v)| *v);
-    let base = Material::uniform(
+    let mut base = Material::uniform(
         ds.model.tets.len(),
         init.lambda,
         mu0,
@@ -550,6 +552,7 @@ pub fn fit_equilibria(runs: &[NamedRun], req: &FitRequest) -> Result<Equilibria,
         1.0,
         ds.config.density.unwrap_or(DEFAULT_DENSITY),
     );
+    base.viscous_form = ds.model.viscous_form;
     let pairs: Vec<_> = runs
         .iter()
         .map(|r| (&r.dataset.model, &r.dataset.obs))

@@ -285,6 +285,48 @@ impl Pattern {
         }
     }
 
+    /// Adds an antisymmetric element block A = −Aᵀ of element `e` (its dofs' free indices
+    /// `free`, `usize::MAX` where clamped) into `values`: each stored entry holds A at its own
+    /// (row, column) in the caller's numbering, the mirror being its negative
+    /// ([`Self::mul_add_skew`]).
+    pub fn add_element_skew(
+        &self,
+        e: usize,
+        free: &[usize; 12],
+        a: &[[f64; 12]; 12],
+        values: &mut [f64],
+    ) {
+        for &(local, idx) in &self.elem_entries[self.elem_ptr[e]..self.elem_ptr[e + 1]] {
+            let (lr, lc) = (local as usize / 12, local as usize % 12);
+            if lr == lc {
+                continue;
+            }
+            let idx = idx as usize;
+            values[idx] += if self.row_free[idx] == free[lr] {
+                a[lr][lc]
+            } else {
+                a[lc][lr]
+            };
+        }
+    }
+
+    /// Y += `scale` A X for the antisymmetric A that [`Self::add_element_skew`] stored in
+    /// `values`, over `m` columns stored column after column.
+    pub fn mul_add_skew(&self, values: &[f64], x: &[f64], y: &mut [f64], m: usize, scale: f64) {
+        let n = self.n;
+        for ((&v, &r), &c) in values.iter().zip(&self.row_free).zip(&self.col_free) {
+            if r == c || v == 0.0 {
+                continue;
+            }
+            let v = scale * v;
+            for p in 0..m {
+                let o = p * n;
+                y[o + r] += v * x[o + c];
+                y[o + c] -= v * x[o + r];
+            }
+        }
+    }
+
     /// Adds a diagonal entry (lumped mass) at free dof `r`.
     pub fn add_diagonal(&self, r: usize, v: f64, values: &mut [f64]) {
         values[self.diag[r]] += v;

@@ -281,7 +281,7 @@ pub fn initial_values(ds: &crate::dataset::MotionDataset, poisson: Option<f64>) 
         return declared;
     }
     let nu = poisson.unwrap_or(ASSUMED_POISSON);
-    let base = Material::uniform(
+    let mut base = Material::uniform(
         ds.model.tets.len(),
         init.lambda,
         init.mu,
@@ -289,6 +289,7 @@ pub fn initial_values(ds: &crate::dataset::MotionDataset, poisson: Option<f64>) 
         init.h,
         ds.config.density.unwrap_or(1000.0),
     );
+    base.viscous_form = ds.model.viscous_form;
     let noise = ds.config.marker_noise.unwrap_or(1e-4);
     match from_rest_sag(&ds.model, &ds.obs, &base, nu, noise) {
         Ok(e) if e.viscosity.is_finite() && e.viscosity > 0.0 => StartValues {

@@ -1,10 +1,50 @@
 //! Power-law viscosity (Real2Sim eq. 17): σ = ν γ̇^(h−1) (∇v + ∇vᵀ), γ̇ = √½ ‖∇v + ∇vᵀ‖_F.
 //!
-//! h = 1 is Newtonian, h < 1 shear thinning, h > 1 shear thickening. ∇v is taken with the rest
-//! shape-function gradients (Ḟ = Σ_a v_a ∇φ_aᵀ) as in the paper's public code, so the viscous
-//! force depends on the velocities only (its position derivative is zero) and the stress acts
-//! like a first Piola–Kirchhoff stress: f_a = −V σ ∇φ_a. Elements whose ‖∇v‖_F ≤ f64::MIN_POSITIVE
-//! are skipped, as the paper does (the shear-thinning stress is undefined there but tends to 0).
+//! h = 1 is Newtonian, h < 1 shear thinning, h > 1 shear thickening. Two readings of ∇v
+//! ([`Form`]):
+//! - **Rest gradient** (the default): ∇v is taken with the rest shape-function gradients
+//!   (Ḟ = Σ_a v_a ∇φ_aᵀ) as in the paper's public code, so the viscous force depends on the
+//!   velocities only (its position derivative is zero) and the stress acts like a first
+//!   Piola–Kirchhoff stress: f_a = −V σ ∇φ_a. It is not objective: an element already turned by
+//!   θ and turning at θ̇ has Ḟ + Ḟᵀ ≈ 2θθ̇ W² ≠ 0, so a cantilever hanging at its static slope
+//!   is damped for swinging as a rigid body.
+//! - **Objective**: the same law on the Green–Lagrange strain rate Ė = ½(FᵀḞ + ḞᵀF), the second
+//!   Piola–Kirchhoff stress S = ν γ̇^(h−1) 2Ė with γ̇ = √½ ‖2Ė‖_F, and P = F S (the finite-strain
+//!   Kelvin–Voigt solid; Holzapfel, *Nonlinear Solid Mechanics*, §6.10): a rigid motion of any
+//!   element dissipates nothing, and at small strain it is the rest-gradient law. Its force
+//!   depends on the positions too, and [`element_stiffness`] is that derivative.
+//!
+//! Elements whose ‖Ḟ‖_F ≤ f64::MIN_POSITIVE are skipped, as the paper does (the shear-thinning
+//! stress is undefined there but tends to 0), and so, under the objective form, are rigidly
+//! moving elements (γ̇ = 0).
+
+/// How ∇v of eq. 17 is read (see the module's documentation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Form {
+    /// Ḟ through the rest gradients, as Real2Sim's public code: not objective.
+    #[default]
+    RestGradient,
+    /// The Green–Lagrange strain rate, P = F S: objective.
+    Objective,
+}
+
+impl Form {
+    /// Its name in dataset.toml and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::RestGradient => "rest-gradient",
+            Self::Objective => "objective",
+        }
+    }
+
+    /// Parses [`Self::name`].
+    pub fn parse(s: &str) -> Option<Self> {
+        [Self::RestGradient, Self::Objective]
+            .into_iter()
+            .find(|f| f.name() == s)
+    }
+}
 
 use super::hyperelastic::RestTet;
 use nalgebra::{Matrix3, Vector3};
@@ -31,6 +71,8 @@ pub struct Rate {
     /// γ̇^(h−1), evaluated once here: the stress, the damping tangent and the parameter
     /// derivatives of one element all need it, and pow was a tenth of a simulation's time.
     pub power: f64,
+    /// Under the objective form, F and Ḟ (E is then FᵀḞ + ḞᵀF and the stress F S).
+    pub at: Option<(Matrix3<f64>, Matrix3<f64>)>,
 }
 
 impl Rate {
@@ -49,8 +91,98 @@ impl Rate {
             gamma,
             h,
             power: rate_power(gamma, h),
+            at: None,
         })
     }
+
+    /// Under the objective form: from the deformation gradient F, the velocity gradient Ḟ and h;
+    /// `None` where the element moves rigidly (γ̇ = 0) or not at all.
+    pub fn objective(f: &Matrix3<f64>, l: &Matrix3<f64>, h: f64) -> Option<Self> {
+        if l.norm() <= f64::MIN_POSITIVE {
+            return None;
+        }
+        let ftl = f.transpose() * l;
+        let e = ftl + ftl.transpose();
+        let gamma = (0.5f64).sqrt() * e.norm();
+        if gamma <= f64::MIN_POSITIVE {
+            return None;
+        }
+        Some(Self {
+            e,
+            gamma,
+            h,
+            power: rate_power(gamma, h),
+            at: Some((*f, *l)),
+        })
+    }
+
+    /// In the form `form`, from F, Ḟ and h.
+    pub fn of(form: Form, f: &Matrix3<f64>, l: &Matrix3<f64>, h: f64) -> Option<Self> {
+        match form {
+            Form::RestGradient => Self::new(l, h),
+            Form::Objective => Self::objective(f, l, h),
+        }
+    }
+
+    /// The first Piola–Kirchhoff form of a stress `s` of this rate's form: F s under the
+    /// objective form (s a second Piola–Kirchhoff stress), s itself otherwise.
+    fn pk1(&self, s: Matrix3<f64>) -> Matrix3<f64> {
+        match &self.at {
+            Some((f, _)) => f * s,
+            None => s,
+        }
+    }
+
+    /// dS (the rest-gradient form: dσ) for a change dE of E at fixed ν: ν [(h−1) γ̇^(h−2) dγ̇ E +
+    /// γ̇^(h−1) dE], dγ̇ = E : dE / (2γ̇).
+    fn stress_change(&self, nu: f64, de: &Matrix3<f64>) -> Matrix3<f64> {
+        let dgamma = self.e.dot(de) / (2.0 * self.gamma);
+        let dpower = (self.h - 1.0) * self.power / self.gamma * dgamma;
+        (self.e * dpower + de * self.power) * nu
+    }
+}
+
+/// The 12 × 12 matrix M\[3a+i\]\[3b+j\] = V (dP(e_j ∇φ_bᵀ) ∇φ_a)_i of a map dP that is linear in
+/// a change of F or Ḟ made by node b's dof j: −∂f/∂x or −∂f/∂v for the forces f_a = −V P ∇φ_a.
+fn element_matrix(t: &RestTet, dp: impl Fn(&Matrix3<f64>) -> Matrix3<f64>) -> [[f64; 12]; 12] {
+    let mut m = [[0.0; 12]; 12];
+    for b in 0..4 {
+        for j in 0..3 {
+            let mut dl = Matrix3::zeros();
+            for c in 0..3 {
+                dl[(j, c)] = t.grad[b][c];
+            }
+            let d = dp(&dl);
+            for a in 0..4 {
+                let col = d * t.grad[a] * t.volume;
+                for i in 0..3 {
+                    m[3 * a + i][3 * b + j] = col[i];
+                }
+            }
+        }
+    }
+    m
+}
+
+/// Under the objective form, −∂f_e/∂x_e of the viscous forces at fixed velocities (12 × 12,
+/// row-major): dP = dF S + F dS with dE = dFᵀḞ + ḞᵀdF; `None` under the rest-gradient form,
+/// whose viscous force does not depend on the positions.
+pub fn element_stiffness(t: &RestTet, r: &Rate, nu: f64) -> Option<[[f64; 12]; 12]> {
+    let (f, l) = r.at?;
+    let s = r.e * (nu * r.power);
+    Some(element_matrix(t, |df| {
+        let dftl = df.transpose() * l;
+        df * s + f * r.stress_change(nu, &(dftl + dftl.transpose()))
+    }))
+}
+
+/// The symmetric part ½(K + Kᵀ) of [`element_stiffness`]: what a symmetric system matrix can
+/// hold of it.
+pub fn element_stiffness_symmetric(t: &RestTet, r: &Rate, nu: f64) -> Option<[[f64; 12]; 12]> {
+    let k = element_stiffness(t, r, nu)?;
+    Some(std::array::from_fn(|i| {
+        std::array::from_fn(|j| 0.5 * (k[i][j] + k[j][i]))
+    }))
 }
 
 /// γ̇^(h−1), exactly 1 for the Newtonian h = 1 without calling pow (a tenth of a motion
@@ -63,19 +195,19 @@ fn rate_power(gamma: f64, h: f64) -> f64 {
     }
 }
 
-/// σ = ν γ̇^(h−1) E.
+/// σ = ν γ̇^(h−1) E (under the objective form P = F S, S = ν γ̇^(h−1) E).
 pub fn stress(r: &Rate, nu: f64) -> Matrix3<f64> {
-    r.e * (nu * r.power)
+    r.pk1(r.e * (nu * r.power))
 }
 
 /// ∂σ/∂ν = γ̇^(h−1) E.
 pub fn stress_dnu(r: &Rate) -> Matrix3<f64> {
-    r.e * r.power
+    r.pk1(r.e * r.power)
 }
 
 /// ∂σ/∂h = ν ln γ̇ γ̇^(h−1) E.
 pub fn stress_dh(r: &Rate, nu: f64) -> Matrix3<f64> {
-    r.e * (nu * r.gamma.ln() * r.power)
+    r.pk1(r.e * (nu * r.gamma.ln() * r.power))
 }
 
 /// Damping tangent D_e = −∂f_e/∂v_e (12 × 12, row-major).
@@ -84,6 +216,13 @@ pub fn stress_dh(r: &Rate, nu: f64) -> Matrix3<f64> {
 /// dḞ = e_j ∇φ_bᵀ, w_b = E ∇φ_b and g_ab = ∇φ_a·∇φ_b this is, in closed form,
 /// D\[3a+i\]\[3b+j\] = V ν [ (h−1) γ̇^(h−3) w_a,i w_b,j + γ̇^(h−1) (δ_ij g_ab + ∇φ_b,i ∇φ_a,j) ].
 pub fn element_damping(t: &RestTet, r: &Rate, nu: f64) -> [[f64; 12]; 12] {
+    // Under the objective form dE = FᵀdḞ + dḞᵀF and dP = F dS.
+    if let Some((f, _)) = r.at {
+        return element_matrix(t, |dl| {
+            let ftdl = f.transpose() * dl;
+            f * r.stress_change(nu, &(ftdl + ftdl.transpose()))
+        });
+    }
     let mut d = [[0.0; 12]; 12];
     let (gh1, h) = (r.power, r.h);
     let c1 = t.volume * nu * (h - 1.0) * gh1 / (r.gamma * r.gamma);
@@ -148,5 +287,111 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Deformed corners of the sample element (a stretch, a shear and a turn) and velocities.
+    fn deformed() -> (RestTet, [Vector3<f64>; 4], [Vector3<f64>; 4]) {
+        let (t, x0) = tet();
+        let turn = nalgebra::Rotation3::from_euler_angles(0.3, -0.2, 0.5);
+        let stretch = Matrix3::new(1.1, 0.05, 0.0, 0.0, 0.95, 0.08, 0.02, 0.0, 1.03);
+        let x = x0.map(|p| turn * (stretch * p));
+        let v = [
+            Vector3::new(0.1, -0.05, 0.02),
+            Vector3::new(-0.03, 0.08, 0.0),
+            Vector3::new(0.0, 0.01, -0.07),
+            Vector3::new(0.05, 0.0, 0.04),
+        ];
+        (t, x, v)
+    }
+
+    /// The objective form's forces at (x, v).
+    fn objective_forces(
+        t: &RestTet,
+        x: &[Vector3<f64>; 4],
+        v: &[Vector3<f64>; 4],
+        nu: f64,
+        h: f64,
+    ) -> [f64; 12] {
+        let mut f = [0.0; 12];
+        let fgrad = super::super::hyperelastic::deformation_gradient(t, x);
+        if let Some(r) = Rate::objective(&fgrad, &velocity_gradient(t, v), h) {
+            add_stress_forces(t, &stress(&r, nu), 1.0, &mut f);
+        }
+        f
+    }
+
+    /// Under the objective form both tangents are minus the Jacobians of the viscous forces, in
+    /// the velocities (D) and in the positions (K), on an element stretched, sheared and turned
+    /// (central differences as above).
+    #[test]
+    fn objective_tangents_match_finite_differences() {
+        let (t, x0, v0) = deformed();
+        let fgrad = super::super::hyperelastic::deformation_gradient(&t, &x0);
+        for (nu, h) in [(8.0, 0.8), (12.0, 1.0), (5.0, 1.4)] {
+            let r = Rate::objective(&fgrad, &velocity_gradient(&t, &v0), h).unwrap();
+            let d = element_damping(&t, &r, nu);
+            let k = element_stiffness(&t, &r, nu).expect("the objective form depends on x");
+            let eps = 1e-9;
+            for c in 0..12 {
+                let (vp, vm) = central_pair(&v0, c, eps);
+                let (xp, xm) = central_pair(&x0, c, eps);
+                let (fvp, fvm) = (
+                    objective_forces(&t, &x0, &vp, nu, h),
+                    objective_forces(&t, &x0, &vm, nu, h),
+                );
+                let (fxp, fxm) = (
+                    objective_forces(&t, &xp, &v0, nu, h),
+                    objective_forces(&t, &xm, &v0, nu, h),
+                );
+                for row in 0..12 {
+                    let fd = -(fvp[row] - fvm[row]) / (2.0 * eps);
+                    assert!(
+                        (d[row][c] - fd).abs() < 1e-5 * (d[row][c].abs() + 1e-3),
+                        "h={h} D[{row}][{c}] {} against {fd}",
+                        d[row][c]
+                    );
+                    let fd = -(fxp[row] - fxm[row]) / (2.0 * eps);
+                    assert!(
+                        (k[row][c] - fd).abs() < 1e-5 * (k[row][c].abs() + 1e-3),
+                        "h={h} K[{row}][{c}] {} against {fd}",
+                        k[row][c]
+                    );
+                }
+            }
+        }
+    }
+
+    /// A rigid spin of a deformed element (Ḟ = W F) dissipates nothing under the objective form,
+    /// and is damped under the rest-gradient form: the reason the objective form exists.
+    #[test]
+    fn a_rigid_spin_is_damped_only_by_the_rest_gradient_form() {
+        let (t, x, _) = deformed();
+        let fgrad = super::super::hyperelastic::deformation_gradient(&t, &x);
+        let w = Matrix3::new(0.0, -2.0, 0.5, 2.0, 0.0, -1.0, -0.5, 1.0, 0.0);
+        let v = x.map(|p| w * p);
+        let l = velocity_gradient(&t, &v);
+        assert!((l - w * fgrad).norm() < 1e-12 * l.norm());
+        assert!(Rate::objective(&fgrad, &l, 1.0).is_none_or(|r| stress(&r, 1.0).norm() < 1e-12));
+        let r = Rate::new(&l, 1.0).expect("the rest-gradient form sees a rate");
+        assert!(
+            stress(&r, 1.0).norm() > 0.1 * l.norm(),
+            "{}",
+            stress(&r, 1.0)
+        );
+        // At rest (F = I) the two forms agree.
+        let l = velocity_gradient(
+            &t,
+            &[
+                Vector3::new(0.1, 0.0, 0.02),
+                Vector3::zeros(),
+                Vector3::new(0.0, -0.04, 0.0),
+                Vector3::new(0.01, 0.0, 0.0),
+            ],
+        );
+        let (a, b) = (
+            Rate::new(&l, 0.8).unwrap(),
+            Rate::objective(&Matrix3::identity(), &l, 0.8).unwrap(),
+        );
+        assert!((stress(&a, 3.0) - stress(&b, 3.0)).norm() < 1e-14 * stress(&a, 3.0).norm());
     }
 }

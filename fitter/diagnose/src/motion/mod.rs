@@ -389,7 +389,8 @@ pub fn diagnose(
     log(&format!("{label}: {}", start.note));
     let (lambda0, mu0) = (start.lambda, start.mu);
     let density = ds.config.density.unwrap_or(1000.0);
-    let base = Material::uniform(ne, lambda0, mu0, 0.0, 1.0, density);
+    let mut base = Material::uniform(ne, lambda0, mu0, 0.0, 1.0, density);
+    base.viscous_form = ds.model.viscous_form;
     log(&format!(
         "{label}: {ne} tets, {} markers, {steps} steps of {:.4} s; fitting steps 1..={fit_steps}, \
          forecasting {}..={steps}",

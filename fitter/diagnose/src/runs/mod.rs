@@ -679,6 +679,7 @@ fn fitted_model(
         density: mat.values[4].clone(),
         stiffening: palpate_motion::fitted::FittedModel::stiffening_of(mat),
         creep: palpate_motion::fitted::CreepRecord::of(mat),
+        viscosity_form: mat.viscous_form,
         poisson_fixed: Some(nu),
         hanging_inertia: false,
         time_offset: false,

@@ -17,9 +17,9 @@
 //! parameters move under one refinement: μ is read × 0.724 there, so the fit's 13.7 kPa would be
 //! about 18.9 kPa on the refined mesh, where the data were made at 20 kPa.
 
-use crate::support::{bar, DT};
+use crate::support::{cantilever, cantilever_dataset};
 use palpate_diagnose::motion::{diagnose, MotionDiagnosis, MotionOptions};
-use palpate_motion::dataset::{DatasetToml, Initial, MotionDataset};
+use palpate_motion::dataset::{Initial, MotionDataset};
 use palpate_motion::model::Material;
 use palpate_motion::scenario::record;
 
@@ -28,37 +28,17 @@ const STEPS: usize = 45;
 const DENSITY: f64 = 300.0;
 
 fn refined_mesh_data(seed: u64) -> MotionDataset {
-    let (mesh, mut model) = bar([1, 4, 1], STEPS);
-    model.gravity = [0.0, 0.0, -9.81];
-    model.static_start = true;
+    let (mesh, model) = cantilever([1, 4, 1], STEPS);
     let fine = model.refined().unwrap();
     let truth = Material::uniform(fine.tets.len(), 2.0e5, 2.0e4, 0.0, 1.0, DENSITY);
-    let mut obs = record(&fine, &truth, SIGMA, seed).unwrap();
-    obs.forces
-        .iter_mut()
-        .for_each(|r| r.iter_mut().for_each(|f| *f = None));
-    MotionDataset {
-        config: DatasetToml {
-            marker_noise: Some(SIGMA),
-            steps: Some(STEPS),
-            substeps: Some(1),
-            density: Some(DENSITY),
-            gravity: Some(model.gravity),
-            static_start: Some(true),
-            initial: Initial {
-                lambda: 1.0e5,
-                mu: 1.0e4,
-                nu: 6.0,
-                h: 1.3,
-            },
-            initial_declared: true,
-            ..DatasetToml::new(DT, vec!["front".into()])
-        },
-        mesh,
-        model,
-        obs,
-        timestep: palpate_motion::timestep::TimeStep::capture_rate(DT),
-    }
+    let obs = record(&fine, &truth, SIGMA, seed).unwrap();
+    let initial = Initial {
+        lambda: 1.0e5,
+        mu: 1.0e4,
+        nu: 6.0,
+        h: 1.3,
+    };
+    cantilever_dataset((mesh, model), obs, SIGMA, DENSITY, initial)
 }
 
 fn run(ds: &MotionDataset, label: &str, mesh_null: bool) -> MotionDiagnosis {

@@ -46,6 +46,7 @@ fn specimen(nu: f64, seed: u64) -> MotionDataset {
             // the time discretisation).
             substeps: Some(1),
             scheme: None,
+            viscosity_form: None,
             density: Some(47.0),
             gravity: Some([0.0, -9.81, 0.0]),
             clamps: vec!["front".into()],

@@ -21,5 +21,6 @@ mod diagnose_runs_creep;
 mod diagnose_scans;
 mod diagnose_sensitivity;
 mod diagnose_tilt_responses;
+mod diagnose_viscosity_form;
 mod runtime_match;
 mod specimen_viscous;

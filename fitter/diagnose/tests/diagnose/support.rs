@@ -7,7 +7,8 @@ use std::sync::{Mutex, OnceLock};
 
 use palpate_diagnose::DiagnosisReport;
 use palpate_fem::mesh::Mesh;
-use palpate_motion::model::Model;
+use palpate_motion::dataset::{DatasetToml, Initial, MotionDataset};
+use palpate_motion::model::{Model, Observations};
 use palpate_motion::scenario::{example_bar, EXAMPLE_BAR_SIZE, EXAMPLE_DT};
 use palpate_specimen::{generate, Effect, EffectSpec, Specimen, SpecimenError, SpecimenOptions};
 
@@ -76,6 +77,46 @@ pub const DT: f64 = EXAMPLE_DT;
 /// The example bar ([`example_bar`]) in `cells` hexahedra for `steps` steps.
 pub fn bar(cells: [usize; 3], steps: usize) -> (Mesh, Model) {
     example_bar(cells, steps).unwrap()
+}
+
+/// The example bar (`cells` hexahedra, `steps` steps) turned into a cantilever: gravity across
+/// its length, starting from its sagged equilibrium, to be shaken at its clamp.
+pub fn cantilever(cells: [usize; 3], steps: usize) -> (Mesh, Model) {
+    let (mesh, mut model) = bar(cells, steps);
+    model.gravity = [0.0, 0.0, -9.81];
+    model.static_start = true;
+    (mesh, model)
+}
+
+/// The motion dataset of a [`cantilever`] observed as `obs` (markers only: the forces are
+/// dropped) with marker noise `sigma`, density `density` and the fit's start `initial`.
+pub fn cantilever_dataset(
+    (mesh, model): (Mesh, Model),
+    mut obs: Observations,
+    sigma: f64,
+    density: f64,
+    initial: Initial,
+) -> MotionDataset {
+    obs.forces
+        .iter_mut()
+        .for_each(|r| r.iter_mut().for_each(|f| *f = None));
+    MotionDataset {
+        config: DatasetToml {
+            marker_noise: Some(sigma),
+            steps: Some(model.steps),
+            substeps: Some(1),
+            density: Some(density),
+            gravity: Some(model.gravity),
+            static_start: Some(true),
+            initial,
+            initial_declared: true,
+            ..DatasetToml::new(DT, vec!["front".into()])
+        },
+        mesh,
+        model,
+        obs,
+        timestep: palpate_motion::timestep::TimeStep::capture_rate(DT),
+    }
 }
 
 /// The recording of a run observed out of step with its base, shared with the motion specimens.

@@ -46,11 +46,10 @@ impl Row {
     fn named(&self) -> bool {
         match self.truth.effect {
             MotionEffect::None => self.adopted.is_empty(),
-            // Either viscosity law names a Newtonian damping.
-            MotionEffect::Viscosity => self
-                .adopted
-                .iter()
-                .any(|a| a == "viscosity" || a == "viscosity-newtonian"),
+            // Any viscosity law names a Newtonian damping.
+            MotionEffect::Viscosity => self.adopted.iter().any(|a| {
+                a == "viscosity" || a == "viscosity-newtonian" || a == "viscosity-objective"
+            }),
             e => self.adopted.iter().any(|a| a == e.name()),
         }
     }

@@ -128,6 +128,18 @@ fn configure_model(
             )
         })?;
     }
+    if let Some(name) = config.viscosity_form.as_deref() {
+        model.viscous_form = crate::viscosity::Form::parse(name).ok_or_else(|| {
+            bad(
+                tf,
+                0,
+                format!(
+                    "field viscosity_form: expected \"rest-gradient\" or \"objective\", found \
+                     {name:?}"
+                ),
+            )
+        })?;
+    }
     model.loads = config
         .loads
         .iter()

@@ -153,6 +153,10 @@ pub fn dataset_toml(comments: &[String], c: &DatasetToml) -> String {
     key("steps", c.steps.map(|n| n.to_string()));
     key("substeps", c.substeps.map(|n| n.to_string()));
     key("scheme", c.scheme.as_deref().map(toml_string));
+    key(
+        "viscosity_form",
+        c.viscosity_form.as_deref().map(toml_string),
+    );
     key("static_start", c.static_start.map(|b| b.to_string()));
     key("mesh", Some(toml_string(&c.mesh)));
     key(

@@ -192,6 +192,38 @@ fn toml_keys_missing_or_unknown_are_named_on_their_line() {
     );
 }
 
+/// `viscosity_form` sets the law a fit starts from (the rest-gradient one without it); an
+/// unknown name is refused with the field and the names it takes.
+#[test]
+fn viscosity_form_key_sets_the_law_a_fit_starts_from() {
+    use palpate_motion::viscosity::Form;
+    let dir = tempfile::tempdir().unwrap();
+    copy_example(dir.path());
+    edit(dir.path(), "dataset.toml", |t| {
+        format!("viscosity_form = \"objective\"\n{t}")
+    });
+    assert_eq!(
+        load(dir.path()).unwrap().model.viscous_form,
+        Form::Objective
+    );
+    assert_eq!(
+        load(&example()).unwrap().model.viscous_form,
+        Form::RestGradient
+    );
+    let e = broken(|d| {
+        edit(d, "dataset.toml", |t| {
+            format!("viscosity_form = \"spatial\"\n{t}")
+        })
+    });
+    assert!(
+        e.contains("dataset.toml")
+            && e.contains("field viscosity_form")
+            && e.contains("\"spatial\"")
+            && e.contains("\"objective\""),
+        "{e}"
+    );
+}
+
 /// `scheme` picks the integrator, and the substeps chosen from the capture follow its rule; an
 /// unknown name is refused with the field and the names it takes.
 #[test]

@@ -25,6 +25,7 @@ fn everything() -> (palpate_fem::mesh::Mesh, MotionDatasetFiles) {
     c.steps = Some(STEPS);
     c.substeps = Some(2);
     c.scheme = Some("midpoint".into());
+    c.viscosity_form = Some("objective".into());
     c.static_start = Some(false);
     c.density = Some(47.5);
     c.gravity = Some([0.0, -9.81, 1e-20]);

@@ -9,6 +9,7 @@ use palpate_motion::objective::clamp_force;
 use palpate_motion::optimize::{fit, FitSettings, Optimizer};
 use palpate_motion::scenario::record;
 use palpate_motion::sim::simulate_states;
+use palpate_motion::viscosity::Form;
 
 /// The weighted residual vector whose half squared norm is Φ: √(Δt w_m)(x̄_i − x_i*) for every
 /// observed marker and √(Δt w_f)(F_c − F_c*) for every observed clamp force, step by step.
@@ -38,16 +39,18 @@ fn residuals(model: &Model, mat: &Material, obs: &Observations) -> Vec<f64> {
     r
 }
 
-/// The Jacobian of `residuals` by central differences, relative step 1e-5 of each parameter.
+/// The Jacobian of `residuals` by central differences, relative step `rel_step` of each
+/// parameter.
 fn fd_columns(
     params: &[Param],
     at: &Material,
+    rel_step: f64,
     residuals: impl Fn(&Material) -> Vec<f64>,
 ) -> Vec<Vec<f64>> {
     let q0 = at.read(params);
     (0..params.len())
         .map(|p| {
-            let step = 1e-5 * q0[p];
+            let step = rel_step * q0[p];
             let shifted = |d: f64| {
                 let mut q = q0.clone();
                 q[p] += d;
@@ -85,19 +88,51 @@ fn assert_gauss_newton_is_jtj(h: &[f64], cols: &[Vec<f64>]) {
 /// viscous and elastic columns both matter): every entry within 1e-5 of the largest.
 #[test]
 fn gauss_newton_matrix_matches_finite_difference_jacobian() {
+    gauss_newton_matches_finite_differences(
+        Form::RestGradient,
+        &[ParamKind::Lambda, ParamKind::Mu, ParamKind::Nu],
+        &[1.3e4, 1.7e4, 9.0],
+        1e-5,
+    );
+}
+
+/// The same under the objective viscosity (its force depends on the positions too, so its
+/// tangent enters the sensitivities' matrix), the power-law index among the parameters.
+#[test]
+fn gauss_newton_matrix_matches_finite_differences_under_the_objective_viscosity() {
+    gauss_newton_matches_finite_differences(
+        Form::Objective,
+        &[
+            ParamKind::Lambda,
+            ParamKind::Mu,
+            ParamKind::Nu,
+            ParamKind::PowerH,
+        ],
+        &[1.3e4, 1.7e4, 9.0, 0.8],
+        1e-5,
+    );
+}
+
+fn gauss_newton_matches_finite_differences(
+    form: Form,
+    kinds: &[ParamKind],
+    at_values: &[f64],
+    rel_step: f64,
+) {
     let (_, mut model) = bar([1, 4, 1], 30);
     // Newton solved far below its default 1e-6 N, so that the finite differences see the
     // discrete scheme's derivative and not the solver's stopping noise.
     model.newton.tol = 1e-11;
-    let t = truth(&model);
+    let mut t = truth(&model);
+    t.viscous_form = form;
     let obs = record(&model, &t, 1e-4, 3).unwrap();
     assert!(obs.forces.iter().flatten().any(Option::is_some));
-    let params = Param::globals(&[ParamKind::Lambda, ParamKind::Mu, ParamKind::Nu]);
+    let params = Param::globals(kinds);
     let mut at = t.clone();
-    at.set(&params, &[1.3e4, 1.7e4, 9.0]);
+    at.set(&params, at_values);
     let (ev, h) = evaluate_gauss_newton(&model, &at, &params, &obs).unwrap();
     let np = params.len();
-    let cols = fd_columns(&params, &at, |m| residuals(&model, m, &obs));
+    let cols = fd_columns(&params, &at, rel_step, |m| residuals(&model, m, &obs));
     let r0 = residuals(&model, &at, &obs);
     let phi: f64 = 0.5 * r0.iter().map(|v| v * v).sum::<f64>();
     assert!((phi - ev.phi).abs() <= 1e-8 * phi, "Φ {phi} vs {}", ev.phi);
@@ -282,7 +317,7 @@ fn free_marker_offsets_are_eliminated_exactly() {
     let r0 = centred_residuals(&model, &at, &obs);
     let phi: f64 = 0.5 * r0.iter().map(|v| v * v).sum::<f64>();
     assert!((phi - ev.phi).abs() <= 1e-8 * phi, "Φ {phi} vs {}", ev.phi);
-    let cols = fd_columns(&params, &at, |m| centred_residuals(&model, m, &obs));
+    let cols = fd_columns(&params, &at, 1e-5, |m| centred_residuals(&model, m, &obs));
     assert_gauss_newton_is_jtj(&h, &cols);
     assert_gradients_agree(&model, &at, &params, &obs, |_, q0| 1e-5 * q0);
 

@@ -49,6 +49,12 @@ pub struct Args {
     /// Hanging weights (`[[loads]]` with a mass) also add their inertia, lumped on their nodes.
     #[arg(long)]
     pub hanging_inertia: bool,
+    /// How the viscosity reads the velocity gradient, overriding each dataset's
+    /// `viscosity_form`: `rest-gradient` (Real2Sim's public code; damps a turned element that
+    /// swings rigidly) or `objective` (the Green–Lagrange strain rate: a rigid motion dissipates
+    /// nothing). docs/motion-dataset.md.
+    #[arg(long, value_parser = ["rest-gradient", "objective"])]
+    pub viscosity_form: Option<String>,
     /// Fit only μ (Poisson's ratio held by --poisson) to where the runs came to rest — their
     /// equilibria under their loads, no dynamics — and print E with its 1σ.
     #[arg(long, requires = "poisson")]
@@ -196,6 +202,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .iter()
         .map(|d| NamedRun::load(d))
         .collect::<Result<Vec<_>, _>>()?;
+    if let Some(form) = args
+        .viscosity_form
+        .as_deref()
+        .and_then(palpate_motion::viscosity::Form::parse)
+    {
+        for r in &mut runs {
+            r.dataset.model.viscous_form = form;
+        }
+    }
     if args.equilibria {
         let eq = request::fit_equilibria(&runs, &req)?;
         println!("{eq}");

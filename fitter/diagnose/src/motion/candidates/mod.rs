@@ -27,6 +27,7 @@ mod time_offset;
 mod two_material;
 mod viscosity;
 mod viscosity_newtonian;
+mod viscosity_objective;
 
 /// A candidate effect the simplest motion model lacks. The identity the reports serialise; what
 /// each is lives in its file, reached by [`Candidate::effect`].
@@ -36,6 +37,8 @@ pub enum Candidate {
     Viscosity,
     /// Newtonian viscosity, ν free and h = 1 (`viscosity_newtonian.rs`).
     ViscosityNewtonian,
+    /// The power law on the Green–Lagrange strain rate, ν and h free (`viscosity_objective.rs`).
+    ViscosityObjective,
     /// Density free, identifiable only with measured clamp forces (`density.rs`).
     Density,
     /// A constant offset of each marker from its declared place (`marker_offsets.rs`).
@@ -53,9 +56,10 @@ pub enum Candidate {
 }
 
 /// Every candidate, in the order they are tried.
-pub const ALL_CANDIDATES: [Candidate; 9] = [
+pub const ALL_CANDIDATES: [Candidate; 10] = [
     Candidate::Viscosity,
     Candidate::ViscosityNewtonian,
+    Candidate::ViscosityObjective,
     Candidate::Density,
     Candidate::MarkerOffsets,
     Candidate::TimeOffset,
@@ -69,9 +73,10 @@ pub const ALL_CANDIDATES: [Candidate; 9] = [
 /// ([`MotionEffect::values`], [`MotionEffect::summary_values`]): a second material's μ is a
 /// material value and sits beside the global ones; the offsets, which read the data rather than
 /// the body, come last.
-pub const REPORT_ORDER: [Candidate; 9] = [
+pub const REPORT_ORDER: [Candidate; 10] = [
     Candidate::Viscosity,
     Candidate::ViscosityNewtonian,
+    Candidate::ViscosityObjective,
     Candidate::Density,
     Candidate::Stiffening,
     Candidate::TwoMaterial,
@@ -221,6 +226,7 @@ impl Candidate {
         match self {
             Candidate::Viscosity => &viscosity::Viscosity,
             Candidate::ViscosityNewtonian => &viscosity_newtonian::ViscosityNewtonian,
+            Candidate::ViscosityObjective => &viscosity_objective::ViscosityObjective,
             Candidate::Density => &density::Density,
             Candidate::MarkerOffsets => &marker_offsets::MarkerOffsets,
             Candidate::TimeOffset => &time_offset::TimeOffset,
@@ -251,7 +257,7 @@ impl Candidate {
         self.effect().kinds()
     }
 
-    /// Effects that exclude each other (the two viscosity laws).
+    /// Effects that exclude each other (the viscosity laws).
     pub fn conflicts(self, other: Candidate) -> bool {
         self.effect().conflicts(other)
     }
@@ -271,7 +277,7 @@ impl crate::select::CandidateEffect for Candidate {
 mod tests {
     use super::*;
 
-    /// Every candidate is listed once in the report's order; the two viscosity laws and the two
+    /// Every candidate is listed once in the report's order; the three viscosity laws and the two
     /// region effects exclude each other, both ways, and the marker offsets, adopted, exclude a
     /// turned gravity (but not the other way); nothing else is excluded.
     #[test]
@@ -279,7 +285,11 @@ mod tests {
         for c in ALL_CANDIDATES {
             assert_eq!(REPORT_ORDER.iter().filter(|&&r| r == c).count(), 1, "{c:?}");
             for d in ALL_CANDIDATES {
-                let laws = [Candidate::Viscosity, Candidate::ViscosityNewtonian];
+                let laws = [
+                    Candidate::Viscosity,
+                    Candidate::ViscosityNewtonian,
+                    Candidate::ViscosityObjective,
+                ];
                 let regions = [Candidate::TwoMaterial, Candidate::ClampCompliance];
                 let expected = c != d
                     && ((laws.contains(&c) && laws.contains(&d))

@@ -43,7 +43,10 @@ impl MotionEffect for Viscosity {
     }
 
     fn conflicts(&self, other: Candidate) -> bool {
-        other == Candidate::ViscosityNewtonian
+        matches!(
+            other,
+            Candidate::ViscosityNewtonian | Candidate::ViscosityObjective
+        )
     }
 
     /// A loss of energy: the mesh's error cannot make one. Refining the mesh changes an elastic

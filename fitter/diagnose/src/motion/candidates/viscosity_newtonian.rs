@@ -20,7 +20,7 @@ impl MotionEffect for ViscosityNewtonian {
     }
 
     fn conflicts(&self, other: Candidate) -> bool {
-        other == Candidate::Viscosity
+        matches!(other, Candidate::Viscosity | Candidate::ViscosityObjective)
     }
 
     /// A loss of energy: the mesh's error cannot make one. Refining the mesh changes an elastic
