@@ -584,13 +584,12 @@ fn solve_with_skew(
         skew.mul_add(model, b, np, ax, &mut w);
         solver.solve_columns(&model.pattern, &mut w, np)?;
         let next: Vec<f64> = pre.iter().zip(&w).map(|(p, c)| p - c).collect();
-        let change = norm(
-            &next
-                .iter()
-                .zip(b.iter())
-                .map(|(a, c)| a - c)
-                .collect::<Vec<_>>(),
-        );
+        let change = next
+            .iter()
+            .zip(b.iter())
+            .map(|(a, c)| (a - c) * (a - c))
+            .sum::<f64>()
+            .sqrt();
         let size = norm(&next);
         let finite = next.iter().all(|z| z.is_finite());
         if finite {

@@ -64,10 +64,7 @@ impl MotionEffect for ViscosityObjective {
         }
         let mut base = cur.clone();
         base.material.viscous_form = Form::Objective;
-        Ok(match m.fit_from(&base, c) {
-            Ok(f) => Outcome::Fitted(f),
-            Err(e) => Outcome::NotFitted(format!("fit failed: {e}")),
-        })
+        Ok(super::refit(m, c, &base))
     }
 
     fn screened_params(&self) -> &'static [(ParamKind, Option<f64>)] {
