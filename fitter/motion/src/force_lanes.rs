@@ -3,7 +3,8 @@
 //! motion simulation (three or more per step against one tangent pass), in 256-bit lanes.
 //!
 //! The arithmetic is that of the scalar path ([`super::hyperelastic::FParts::new`],
-//! [`super::hyperelastic::pk1`], [`super::viscosity::Rate::new`], [`super::viscosity::stress`],
+//! [`super::hyperelastic::pk1`], [`super::viscosity::Rate::new`] or, under the objective reading,
+//! [`super::viscosity::Rate::objective`], [`super::viscosity::stress`],
 //! [`super::hyperelastic::add_stress_forces`]) term by term in nalgebra's order, so the forces
 //! are the same to the last bit (Rust does not contract a·b + c into fused multiply-adds); a test
 //! holds the two paths to it. A creep branch's step stress (1 + g b) P⁰ + F C_n
@@ -13,6 +14,7 @@
 use super::hyperelastic::RestTet;
 use super::model::{Material, Model, ParamKind};
 use super::relaxation::StepBranch;
+use super::viscosity::Form;
 use super::MotionError;
 
 /// Elements per lane group (four f64: one AVX2 register).
@@ -56,6 +58,15 @@ fn cross(p: &[L; 3], q: &[L; 3]) -> [L; 3] {
         lanes(|l| p[2][l] * q[0][l] - p[0][l] * q[2][l]),
         lanes(|l| p[0][l] * q[1][l] - p[1][l] * q[0][l]),
     ]
+}
+
+/// Entry (r, c) of A B, or of Aᵀ B when `transpose_a`, summed (a_0 b_0 + a_1 b_1) + a_2 b_2
+/// as nalgebra's 3 × 3 product sums it.
+#[inline(always)]
+fn product(a: &M, b: &M, r: usize, c: usize, transpose_a: bool) -> L {
+    let at = |k: usize| if transpose_a { a[k][r] } else { a[r][k] };
+    let (a0, a1, a2) = (at(0), at(1), at(2));
+    lanes(|l| (a0[l] * b[0][c][l] + a1[l] * b[1][c][l]) + a2[l] * b[2][c][l])
 }
 
 /// nalgebra's `norm_squared` of a 3 × 3 matrix: column by column, each (a² + b²) + c².
@@ -134,8 +145,16 @@ pub(crate) fn element_forces(
     // viscosity vanish (as `forces::rate` skips it).
     let ld = gradient(&node(v), &g);
     let l_norm = norm_squared(&ld).map(f64::sqrt);
-    let e: M =
-        std::array::from_fn(|r| std::array::from_fn(|c| map2(&ld[r][c], &ld[c][r], |a, b| a + b)));
+    // E = Ḟ + Ḟᵀ, or under the objective form FᵀḞ + ḞᵀF (Rate::objective).
+    let objective = mat.viscous_form == Form::Objective;
+    let rate = if objective {
+        std::array::from_fn(|r| std::array::from_fn(|c| product(&f, &ld, r, c, true)))
+    } else {
+        ld
+    };
+    let e: M = std::array::from_fn(|r| {
+        std::array::from_fn(|c| map2(&rate[r][c], &rate[c][r], |a, b| a + b))
+    });
     let gamma = norm_squared(&e).map(|s| 0.5f64.sqrt() * s.sqrt());
     for l in 0..LANES {
         if nu[l] == 0.0 || l_norm[l] <= f64::MIN_POSITIVE || gamma[l] <= f64::MIN_POSITIVE {
@@ -147,6 +166,17 @@ pub(crate) fn element_forces(
             gamma[l].powf(h[l] - 1.0)
         };
         let s = nu[l] * power;
+        if objective {
+            // P = F S, S = ν γ̇^(h−1) E, as nalgebra's product sums it.
+            for r in 0..3 {
+                for c in 0..3 {
+                    let fs = (f[r][0][l] * (e[0][c][l] * s) + f[r][1][l] * (e[1][c][l] * s))
+                        + f[r][2][l] * (e[2][c][l] * s);
+                    p[r][c][l] += fs;
+                }
+            }
+            continue;
+        }
         for r in 0..3 {
             for c in 0..3 {
                 p[r][c][l] += e[r][c][l] * s;
@@ -249,7 +279,9 @@ mod tests {
             ElasticState::new(mat, e, he::deformation_gradient(t, &model.gather(e, x))).unwrap();
         let mut p = s.pk1();
         let l = visc::velocity_gradient(t, &model.gather(e, v));
-        if let Some(r) = visc::Rate::new(&l, mat.get(ParamKind::PowerH, e)) {
+        let fgrad = he::deformation_gradient(t, &model.gather(e, x));
+        if let Some(r) = visc::Rate::of(mat.viscous_form, &fgrad, &l, mat.get(ParamKind::PowerH, e))
+        {
             p += visc::stress(&r, mat.get(ParamKind::Nu, e));
         }
         let mut fe = [0.0; 12];
@@ -261,12 +293,19 @@ mod tests {
     /// λ, μ, ν, h and a stiffening term on every third element, some elements at rest and every
     /// fifth without viscosity: the lanes' forces equal the element-by-element ones to the last
     /// bit, one by one and assembled, and skipping the viscous stress where the viscosity is 0
-    /// changes no bit either.
+    /// changes no bit either; under both readings of the viscosity.
     #[test]
     fn lane_forces_are_the_element_forces_to_the_last_bit() {
+        for form in [Form::RestGradient, Form::Objective] {
+            lane_forces_match(form);
+        }
+    }
+
+    fn lane_forces_match(form: Form) {
         let (mesh, model) = bar();
         let ne = model.tets.len();
         let mut mat = Material::uniform(ne, 3e5, 2e4, 15.0, 0.8, 1100.0);
+        mat.viscous_form = form;
         for e in 0..ne {
             let s = 1.0 + 0.01 * e as f64;
             mat.values[ParamKind::Lambda as usize][e] *= s;
@@ -310,7 +349,7 @@ mod tests {
                     element_forces(&model, &mat, None, [e, e + 1, e + 2, e + 3], &x, &v).unwrap();
                 for (l, got) in lanes.iter().enumerate() {
                     let want = element_internal(&model, &mat, e + l, &x, &v).unwrap();
-                    assert_eq!(got, &want, "element {}", e + l);
+                    assert_eq!(got, &want, "{form:?}: element {}", e + l);
                 }
             }
         }
@@ -329,9 +368,16 @@ mod tests {
     /// With a creep branch (per-element gain g b and history C_n, as after some steps) on a bar
     /// whose element count leaves a remainder past the last group of four, the forces-only pass
     /// (lanes, then the remainder one by one) equals the element-by-element assembly to the last
-    /// bit, and each lane equals (1 + g b) P⁰ + F C_n plus the viscous stress mapped to forces.
+    /// bit, and each lane equals (1 + g b) P⁰ + F C_n plus the viscous stress mapped to forces;
+    /// under both readings of the viscosity.
     #[test]
     fn lane_forces_with_a_creep_branch_are_the_element_forces_to_the_last_bit() {
+        for form in [Form::RestGradient, Form::Objective] {
+            lane_forces_with_branch_match(form);
+        }
+    }
+
+    fn lane_forces_with_branch_match(form: Form) {
         use super::super::elastic::ElasticState;
         use super::super::forces::assemble_relaxing;
         use super::super::hyperelastic as he;
@@ -353,6 +399,7 @@ mod tests {
             mat.values[ParamKind::Nu as usize][e] *= if e % 5 == 0 { 0.0 } else { 1.0 };
             mat.values[ParamKind::Stiffening as usize][e] = if e % 3 == 0 { 4e4 } else { 0.0 };
         }
+        mat.viscous_form = form;
         let mut rng = Gauss::new(13);
         let x = jiggled(&mesh, &mut rng);
         let v: Vec<f64> = x.iter().map(|_| 0.05 * rng.next()).collect();
@@ -375,7 +422,9 @@ mod tests {
                 let fgrad = he::deformation_gradient(t, &model.gather(e, &x));
                 let s = ElasticState::new(&mat, e, fgrad).unwrap();
                 let mut p = branch.stress(e, &fgrad, &s.pk1());
-                let rate = visc::Rate::new(
+                let rate = visc::Rate::of(
+                    form,
+                    &fgrad,
                     &visc::velocity_gradient(t, &model.gather(e, &v)),
                     mat.get(ParamKind::PowerH, e),
                 );
@@ -384,7 +433,7 @@ mod tests {
                 }
                 let mut want = [0.0; 12];
                 he::add_stress_forces(t, &p, 1.0, &mut want);
-                assert_eq!(got, &want, "element {e}");
+                assert_eq!(got, &want, "{form:?}: element {e}");
             }
         }
         // The element-by-element loop (it runs when K is asked for) against the forces-only pass.

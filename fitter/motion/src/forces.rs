@@ -292,11 +292,7 @@ fn assemble_into(
     mut kvals: Option<&mut [f64]>,
     mut dvals: Option<&mut [f64]>,
 ) -> Result<(), MotionError> {
-    // The lanes carry the rest-gradient viscosity only.
-    let lanes = mat.viscous_form == visc::Form::RestGradient;
-    if let (true, None, None, None, Some(f)) =
-        (lanes, &kvals, &dvals, &mat.spline, f.as_deref_mut())
-    {
+    if let (None, None, None, Some(f)) = (&kvals, &dvals, &mat.spline, f.as_deref_mut()) {
         return forces_in_lanes(model, mat, x, v, branch, range, f);
     }
     for e in range {

@@ -579,6 +579,7 @@ fn solve_with_skew(
     solver.solve_columns(&model.pattern, b, np)?;
     let pre = b.to_vec();
     let norm = |v: &[f64]| v.iter().map(|z| z * z).sum::<f64>().sqrt();
+    let mut last_change = f64::INFINITY;
     for _ in 0..SKEW_FIXED_POINT {
         let mut w = vec![0.0; n * np];
         skew.mul_add(model, b, np, ax, &mut w);
@@ -595,9 +596,19 @@ fn solve_with_skew(
         if finite {
             b.copy_from_slice(&next);
         }
-        if finite && change <= SKEW_TOLERANCE * size {
+        // A contraction by ρ leaves at most ρ/(1 − ρ) times the last change in the iterate
+        // (ρ estimated by the ratio of the last two changes): one solve less than waiting for
+        // the change itself to fall below the tolerance.
+        let rho = change / last_change;
+        let left = if rho < 0.5 {
+            change * rho / (1.0 - rho)
+        } else {
+            change
+        };
+        if finite && left <= SKEW_TOLERANCE * size {
             return Ok(());
         }
+        last_change = change;
         if !finite || change > size {
             // Diverging: a_x S⁻¹A is not small here.
             break;

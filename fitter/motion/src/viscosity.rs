@@ -132,48 +132,45 @@ impl Rate {
             None => s,
         }
     }
-
-    /// dS (the rest-gradient form: dσ) for a change dE of E at fixed ν: ν [(h−1) γ̇^(h−2) dγ̇ E +
-    /// γ̇^(h−1) dE], dγ̇ = E : dE / (2γ̇).
-    fn stress_change(&self, nu: f64, de: &Matrix3<f64>) -> Matrix3<f64> {
-        let dgamma = self.e.dot(de) / (2.0 * self.gamma);
-        let dpower = (self.h - 1.0) * self.power / self.gamma * dgamma;
-        (self.e * dpower + de * self.power) * nu
-    }
 }
 
-/// The 12 × 12 matrix M\[3a+i\]\[3b+j\] = V (dP(e_j ∇φ_bᵀ) ∇φ_a)_i of a map dP that is linear in
-/// a change of F or Ḟ made by node b's dof j: −∂f/∂x or −∂f/∂v for the forces f_a = −V P ∇φ_a.
-fn element_matrix(t: &RestTet, dp: impl Fn(&Matrix3<f64>) -> Matrix3<f64>) -> [[f64; 12]; 12] {
-    let mut m = [[0.0; 12]; 12];
-    for b in 0..4 {
-        for j in 0..3 {
-            let mut dl = Matrix3::zeros();
-            for c in 0..3 {
-                dl[(j, c)] = t.grad[b][c];
-            }
-            let d = dp(&dl);
-            for a in 0..4 {
-                let col = d * t.grad[a] * t.volume;
-                for i in 0..3 {
-                    m[3 * a + i][3 * b + j] = col[i];
+/// Under the objective form, −∂f_e/∂x_e of the viscous forces at fixed velocities (12 × 12,
+/// row-major); `None` under the rest-gradient form, whose viscous force does not depend on the
+/// positions.
+///
+/// dP = dF S + F dS with dE = dFᵀḞ + ḞᵀdF. With dF = e_j ∇φ_bᵀ, g_a = ∇φ_a, g_ab = g_a·g_b,
+/// u_a = F g_a, z_a = F E g_a, q_a = Ḟ g_a, y_a = Ḟ E g_a and C = F Ḟᵀ this is, in closed form,
+/// K\[3a+i\]\[3b+j\] = V ν [ γ̇^(h−1) (δ_ij g_a·E g_b + u_b,i q_a,j + C_ij g_ab)
+/// + (h−1) γ̇^(h−3) z_a,i y_b,j ] — not symmetric.
+pub fn element_stiffness(t: &RestTet, r: &Rate, nu: f64) -> Option<[[f64; 12]; 12]> {
+    let (f, l) = r.at?;
+    let g = &t.grad;
+    let c1 = t.volume * nu * (r.h - 1.0) * r.power / (r.gamma * r.gamma);
+    let c2 = t.volume * nu * r.power;
+    let w: [Vector3<f64>; 4] = std::array::from_fn(|a| r.e * g[a]);
+    let u: [Vector3<f64>; 4] = std::array::from_fn(|a| f * g[a]);
+    let z: [Vector3<f64>; 4] = std::array::from_fn(|a| f * w[a]);
+    let q: [Vector3<f64>; 4] = std::array::from_fn(|a| l * g[a]);
+    let y: [Vector3<f64>; 4] = std::array::from_fn(|a| l * w[a]);
+    let c = f * l.transpose();
+    let mut k = [[0.0; 12]; 12];
+    for a in 0..4 {
+        for b in 0..4 {
+            let gab = g[a].dot(&g[b]);
+            let sab = c2 * g[a].dot(&w[b]);
+            for i in 0..3 {
+                for j in 0..3 {
+                    let mut val =
+                        c1 * z[a][i] * y[b][j] + c2 * (u[b][i] * q[a][j] + c[(i, j)] * gab);
+                    if i == j {
+                        val += sab;
+                    }
+                    k[3 * a + i][3 * b + j] = val;
                 }
             }
         }
     }
-    m
-}
-
-/// Under the objective form, −∂f_e/∂x_e of the viscous forces at fixed velocities (12 × 12,
-/// row-major): dP = dF S + F dS with dE = dFᵀḞ + ḞᵀdF; `None` under the rest-gradient form,
-/// whose viscous force does not depend on the positions.
-pub fn element_stiffness(t: &RestTet, r: &Rate, nu: f64) -> Option<[[f64; 12]; 12]> {
-    let (f, l) = r.at?;
-    let s = r.e * (nu * r.power);
-    Some(element_matrix(t, |df| {
-        let dftl = df.transpose() * l;
-        df * s + f * r.stress_change(nu, &(dftl + dftl.transpose()))
-    }))
+    Some(k)
 }
 
 /// The symmetric part ½(K + Kᵀ) of [`element_stiffness`]: what a symmetric system matrix can
@@ -216,12 +213,10 @@ pub fn stress_dh(r: &Rate, nu: f64) -> Matrix3<f64> {
 /// dḞ = e_j ∇φ_bᵀ, w_b = E ∇φ_b and g_ab = ∇φ_a·∇φ_b this is, in closed form,
 /// D\[3a+i\]\[3b+j\] = V ν [ (h−1) γ̇^(h−3) w_a,i w_b,j + γ̇^(h−1) (δ_ij g_ab + ∇φ_b,i ∇φ_a,j) ].
 pub fn element_damping(t: &RestTet, r: &Rate, nu: f64) -> [[f64; 12]; 12] {
-    // Under the objective form dE = FᵀdḞ + dḞᵀF and dP = F dS.
+    // Under the objective form dE = FᵀdḞ + dḞᵀF and dP = F dS: the same two terms with
+    // w_a → z_a = F E ∇φ_a, ∇φ_a → u_a = F ∇φ_a and δ_ij → B_ij = (F Fᵀ)_ij.
     if let Some((f, _)) = r.at {
-        return element_matrix(t, |dl| {
-            let ftdl = f.transpose() * dl;
-            f * r.stress_change(nu, &(ftdl + ftdl.transpose()))
-        });
+        return objective_damping(t, r, nu, &f);
     }
     let mut d = [[0.0; 12]; 12];
     let (gh1, h) = (r.power, r.h);
@@ -238,6 +233,32 @@ pub fn element_damping(t: &RestTet, r: &Rate, nu: f64) -> [[f64; 12]; 12] {
                     if i == j {
                         val += c2 * gab;
                     }
+                    d[3 * a + i][3 * b + j] = val;
+                    d[3 * b + j][3 * a + i] = val;
+                }
+            }
+        }
+    }
+    d
+}
+
+/// [`element_damping`] under the objective form, in closed form:
+/// D\[3a+i\]\[3b+j\] = V ν [ (h−1) γ̇^(h−3) z_a,i z_b,j + γ̇^(h−1) (B_ij g_ab + u_b,i u_a,j) ]
+/// with z_a = F E ∇φ_a, u_a = F ∇φ_a, B = F Fᵀ (symmetric, as the rest-gradient form's).
+fn objective_damping(t: &RestTet, r: &Rate, nu: f64, f: &Matrix3<f64>) -> [[f64; 12]; 12] {
+    let g = &t.grad;
+    let c1 = t.volume * nu * (r.h - 1.0) * r.power / (r.gamma * r.gamma);
+    let c2 = t.volume * nu * r.power;
+    let u: [Vector3<f64>; 4] = std::array::from_fn(|a| f * g[a]);
+    let z: [Vector3<f64>; 4] = std::array::from_fn(|a| f * (r.e * g[a]));
+    let bb = f * f.transpose();
+    let mut d = [[0.0; 12]; 12];
+    for a in 0..4 {
+        for b in a..4 {
+            let gab = g[a].dot(&g[b]);
+            for i in 0..3 {
+                for j in if a == b { i..3 } else { 0..3 } {
+                    let val = c1 * z[a][i] * z[b][j] + c2 * (bb[(i, j)] * gab + u[b][i] * u[a][j]);
                     d[3 * a + i][3 * b + j] = val;
                     d[3 * b + j][3 * a + i] = val;
                 }
@@ -356,6 +377,75 @@ mod tests {
                         "h={h} K[{row}][{c}] {} against {fd}",
                         k[row][c]
                     );
+                }
+            }
+        }
+    }
+
+    /// dS for a change dE of E at fixed ν: ν [(h−1) γ̇^(h−2) dγ̇ E + γ̇^(h−1) dE],
+    /// dγ̇ = E : dE / (2γ̇).
+    fn stress_change(r: &Rate, nu: f64, de: &Matrix3<f64>) -> Matrix3<f64> {
+        let dgamma = r.e.dot(de) / (2.0 * r.gamma);
+        let dpower = (r.h - 1.0) * r.power / r.gamma * dgamma;
+        (r.e * dpower + de * r.power) * nu
+    }
+
+    /// M\[3a+i\]\[3b+j\] = V (dP(e_j ∇φ_bᵀ) ∇φ_a)_i of a map dP linear in a change of F or Ḟ
+    /// made by node b's dof j: the tangents built from twelve directional derivatives.
+    fn directional(t: &RestTet, dp: impl Fn(&Matrix3<f64>) -> Matrix3<f64>) -> [[f64; 12]; 12] {
+        let mut m = [[0.0; 12]; 12];
+        for b in 0..4 {
+            for j in 0..3 {
+                let mut dl = Matrix3::zeros();
+                for c in 0..3 {
+                    dl[(j, c)] = t.grad[b][c];
+                }
+                let d = dp(&dl);
+                for a in 0..4 {
+                    let col = d * t.grad[a] * t.volume;
+                    for i in 0..3 {
+                        m[3 * a + i][3 * b + j] = col[i];
+                    }
+                }
+            }
+        }
+        m
+    }
+
+    /// The closed forms of the objective tangents are the directional derivatives dP = F dS
+    /// (velocities) and dP = dF S + F dS (positions), assembled column by column, to round-off.
+    #[test]
+    fn objective_closed_forms_are_the_directional_derivatives() {
+        let (t, x0, v0) = deformed();
+        let fgrad = super::super::hyperelastic::deformation_gradient(&t, &x0);
+        for (nu, h) in [(8.0, 0.8), (12.0, 1.0), (5.0, 1.4)] {
+            let r = Rate::objective(&fgrad, &velocity_gradient(&t, &v0), h).unwrap();
+            let (f, l) = r.at.unwrap();
+            let s = r.e * (nu * r.power);
+            let d_ref = directional(&t, |dl| {
+                let ftdl = f.transpose() * dl;
+                f * stress_change(&r, nu, &(ftdl + ftdl.transpose()))
+            });
+            let k_ref = directional(&t, |df| {
+                let dftl = df.transpose() * l;
+                df * s + f * stress_change(&r, nu, &(dftl + dftl.transpose()))
+            });
+            let (d, k) = (
+                element_damping(&t, &r, nu),
+                element_stiffness(&t, &r, nu).unwrap(),
+            );
+            let scale =
+                |m: &[[f64; 12]; 12]| m.iter().flatten().fold(0.0f64, |a, z| a.max(z.abs()));
+            for (got, want, name) in [(&d, &d_ref, "D"), (&k, &k_ref, "K")] {
+                for (row, (g, w)) in got.iter().zip(want).enumerate() {
+                    for c in 0..12 {
+                        assert!(
+                            (g[c] - w[c]).abs() <= 1e-12 * scale(want),
+                            "h={h} {name}[{row}][{c}] {} against {}",
+                            g[c],
+                            w[c]
+                        );
+                    }
                 }
             }
         }
