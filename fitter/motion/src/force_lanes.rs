@@ -14,7 +14,7 @@
 use super::hyperelastic::RestTet;
 use super::model::{Material, Model, ParamKind};
 use super::relaxation::StepBranch;
-use super::viscosity::Form;
+use super::viscosity::{rate_power, Form};
 use super::MotionError;
 
 /// Elements per lane group (four f64: one AVX2 register).
@@ -160,11 +160,7 @@ pub(crate) fn element_forces(
         if nu[l] == 0.0 || l_norm[l] <= f64::MIN_POSITIVE || gamma[l] <= f64::MIN_POSITIVE {
             continue;
         }
-        let power = if h[l] == 1.0 {
-            1.0
-        } else {
-            gamma[l].powf(h[l] - 1.0)
-        };
+        let power = rate_power(gamma[l], h[l]);
         let s = nu[l] * power;
         if objective {
             // P = F S, S = ν γ̇^(h−1) E, as nalgebra's product sums it.

@@ -692,6 +692,14 @@ fn gauss_newton_runs(
     Ok((phi, gz, hz, per_run))
 }
 
+/// The lowest power-law index a Levenberg–Marquardt fit of a viscosity with its index takes
+/// (from a start above it; a start below is its own floor). As h → 0 the power law becomes a
+/// rate-independent, friction-like loss (σ ≈ ν E/γ̇: a stress of fixed size whatever the rate),
+/// another effect than a dashpot, and its near-step in the rate makes every Newton solve crawl.
+/// Most shear-thinning materials measured in rheology have h between about 0.2 and 0.9. A fit
+/// that ends on the floor reports h = 0.1 with the Gauss–Newton σ of that point.
+pub const POWER_INDEX_FLOOR: f64 = 0.1;
+
 /// Where the power law's prefactor is read: the fit's coordinates for a viscosity ν with its
 /// index h are ln ν_ref = ln ν + (h − 1) ln γ̇_ref, the viscosity at a strain rate γ̇_ref of the
 /// data instead of at 1/s, and h itself. The data pin the stress at the rates they contain,
@@ -836,7 +844,7 @@ fn levenberg_marquardt(
     // The floors in the fit's coordinates: ln f on a global log-parameter outside the rate pairs
     // (a coordinate w = z = ln q there).
     let paired = |i: usize| reference.pairs.iter().any(|&(n, h, _)| i == n || i == h);
-    let lower: Vec<f64> = params
+    let mut lower: Vec<f64> = params
         .iter()
         .enumerate()
         .map(|(i, p)| {
@@ -847,6 +855,10 @@ fn levenberg_marquardt(
                 .map_or(f64::NEG_INFINITY, |(_, f)| f.ln())
         })
         .collect();
+    // A paired h's coordinate is h itself.
+    for &(_, h, _) in &reference.pairs {
+        lower[h] = POWER_INDEX_FLOOR.min(w0[h]);
+    }
     let options = TrustOptions {
         max_iterations: settings.max_iters as usize,
         // The precision the fit is worth: a relative change of 1e-6 in Φ moves a BIC over 10⁴

@@ -16,7 +16,9 @@
 //!
 //! Elements whose ‖Ḟ‖_F ≤ f64::MIN_POSITIVE are skipped, as the paper does (the shear-thinning
 //! stress is undefined there but tends to 0), and so, under the objective form, are rigidly
-//! moving elements (γ̇ = 0).
+//! moving elements (γ̇ = 0). A shear-thinning law is Newtonian below γ̇₀ = [`RATE_FLOOR`], at
+//! the viscosity it has there (the truncated power law), so that an element at rest does not
+//! get an unbounded viscosity from its round-off rate.
 
 /// How ∇v of eq. 17 is read (see the module's documentation).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -124,6 +126,16 @@ impl Rate {
         }
     }
 
+    /// `scale` (h−1) γ̇^(h−3): the power's change d(γ̇^(h−1)) = (h−1) γ̇^(h−3) (E : dE / 2) per change
+    /// of E, the tangents' second term; 0 where the law is truncated (Newtonian there).
+    fn power_slope(&self, scale: f64) -> f64 {
+        if truncated(self.gamma, self.h) {
+            0.0
+        } else {
+            scale * (self.h - 1.0) * self.power / (self.gamma * self.gamma)
+        }
+    }
+
     /// The first Piola–Kirchhoff form of a stress `s` of this rate's form: F s under the
     /// objective form (s a second Piola–Kirchhoff stress), s itself otherwise.
     fn pk1(&self, s: Matrix3<f64>) -> Matrix3<f64> {
@@ -145,7 +157,7 @@ impl Rate {
 pub fn element_stiffness(t: &RestTet, r: &Rate, nu: f64) -> Option<[[f64; 12]; 12]> {
     let (f, l) = r.at?;
     let g = &t.grad;
-    let c1 = t.volume * nu * (r.h - 1.0) * r.power / (r.gamma * r.gamma);
+    let c1 = r.power_slope(t.volume * nu);
     let c2 = t.volume * nu * r.power;
     let w: [Vector3<f64>; 4] = std::array::from_fn(|a| r.e * g[a]);
     let u: [Vector3<f64>; 4] = std::array::from_fn(|a| f * g[a]);
@@ -182,11 +194,29 @@ pub fn element_stiffness_symmetric(t: &RestTet, r: &Rate, nu: f64) -> Option<[[f
     }))
 }
 
-/// γ̇^(h−1), exactly 1 for the Newtonian h = 1 without calling pow (a tenth of a motion
-/// simulation's time went to pow(γ̇, 0) in every element of every assembly).
-fn rate_power(gamma: f64, h: f64) -> f64 {
+/// The strain rate (1/s) below which a shear-thinning law (h < 1) turns Newtonian at the
+/// viscosity it has there: the truncated power law (Bird, Armstrong & Hassager, *Dynamics of
+/// Polymeric Liquids* vol. 1, §5.2). The pure law's viscosity ν γ̇^(h−1) grows without bound as
+/// γ̇ → 0, and an element at rest has a rate of round-off size (10⁻¹⁶/s): at h = 0.2 its damping
+/// tangent was 10¹³ times its moving neighbours', and its round-off outweighed the mass matrix,
+/// so a step's system matrix failed to factorise at rest. A rate of 10⁻⁶/s strains a body by
+/// 10⁻⁶ a second, far below what a marker resolves in a capture of seconds; the stress there is
+/// the same up to γ̇₀ and below ν γ̇₀^h under either law.
+pub const RATE_FLOOR: f64 = 1e-6;
+
+/// Whether the rate `gamma` is below the truncation of a shear-thinning law of index `h`.
+fn truncated(gamma: f64, h: f64) -> bool {
+    h < 1.0 && gamma < RATE_FLOOR
+}
+
+/// γ̇^(h−1) (at γ̇₀ = [`RATE_FLOOR`] where the law is truncated), exactly 1 for the Newtonian
+/// h = 1 without calling pow (a tenth of a motion simulation's time went to pow(γ̇, 0) in every
+/// element of every assembly).
+pub(crate) fn rate_power(gamma: f64, h: f64) -> f64 {
     if h == 1.0 {
         1.0
+    } else if truncated(gamma, h) {
+        RATE_FLOOR.powf(h - 1.0)
     } else {
         gamma.powf(h - 1.0)
     }
@@ -202,9 +232,14 @@ pub fn stress_dnu(r: &Rate) -> Matrix3<f64> {
     r.pk1(r.e * r.power)
 }
 
-/// ∂σ/∂h = ν ln γ̇ γ̇^(h−1) E.
+/// ∂σ/∂h = ν ln γ̇ γ̇^(h−1) E (γ̇₀ for γ̇ where the law is truncated).
 pub fn stress_dh(r: &Rate, nu: f64) -> Matrix3<f64> {
-    r.pk1(r.e * (nu * r.gamma.ln() * r.power))
+    let gamma = if truncated(r.gamma, r.h) {
+        RATE_FLOOR
+    } else {
+        r.gamma
+    };
+    r.pk1(r.e * (nu * gamma.ln() * r.power))
 }
 
 /// Damping tangent D_e = −∂f_e/∂v_e (12 × 12, row-major).
@@ -219,8 +254,8 @@ pub fn element_damping(t: &RestTet, r: &Rate, nu: f64) -> [[f64; 12]; 12] {
         return objective_damping(t, r, nu, &f);
     }
     let mut d = [[0.0; 12]; 12];
-    let (gh1, h) = (r.power, r.h);
-    let c1 = t.volume * nu * (h - 1.0) * gh1 / (r.gamma * r.gamma);
+    let gh1 = r.power;
+    let c1 = r.power_slope(t.volume * nu);
     let c2 = t.volume * nu * gh1;
     let w: [Vector3<f64>; 4] = std::array::from_fn(|a| r.e * t.grad[a]);
     // Symmetric: the upper triangle is evaluated and mirrored.
@@ -247,7 +282,7 @@ pub fn element_damping(t: &RestTet, r: &Rate, nu: f64) -> [[f64; 12]; 12] {
 /// with z_a = F E ∇φ_a, u_a = F ∇φ_a, B = F Fᵀ (symmetric, as the rest-gradient form's).
 fn objective_damping(t: &RestTet, r: &Rate, nu: f64, f: &Matrix3<f64>) -> [[f64; 12]; 12] {
     let g = &t.grad;
-    let c1 = t.volume * nu * (r.h - 1.0) * r.power / (r.gamma * r.gamma);
+    let c1 = r.power_slope(t.volume * nu);
     let c2 = t.volume * nu * r.power;
     let u: [Vector3<f64>; 4] = std::array::from_fn(|a| f * g[a]);
     let z: [Vector3<f64>; 4] = std::array::from_fn(|a| f * (r.e * g[a]));
@@ -448,6 +483,52 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// Below [`RATE_FLOOR`] a shear-thinning law is Newtonian at ν γ̇₀^(h−1) under both
+    /// readings: the stress is linear in the velocities there, its tangent is their Jacobian,
+    /// and the stress is continuous across γ̇₀. A shear-thickening law is not truncated.
+    #[test]
+    fn below_the_rate_floor_shear_thinning_is_newtonian() {
+        let (t, x, v_unit) = deformed();
+        let fgrad = super::super::hyperelastic::deformation_gradient(&t, &x);
+        let (nu, h) = (30.0, 0.15);
+        let rate_of = |v: &[Vector3<f64>; 4], form: Form, h: f64| {
+            Rate::of(form, &fgrad, &velocity_gradient(&t, v), h).unwrap()
+        };
+        for form in [Form::RestGradient, Form::Objective] {
+            // Scaled so that γ̇ is a hundredth of the floor.
+            let g1 = rate_of(&v_unit, form, h).gamma;
+            let v = v_unit.map(|p| p * (0.01 * RATE_FLOOR / g1));
+            let r = rate_of(&v, form, h);
+            assert!(r.gamma < RATE_FLOOR);
+            let newtonian = rate_of(&v, form, 1.0);
+            let want = stress(&newtonian, nu * RATE_FLOOR.powf(h - 1.0));
+            assert!(
+                (stress(&r, nu) - want).norm() <= 1e-14 * want.norm(),
+                "{form:?}"
+            );
+            let d = element_damping(&t, &r, nu);
+            let dn = element_damping(&t, &newtonian, nu * RATE_FLOOR.powf(h - 1.0));
+            let scale = dn.iter().flatten().fold(0.0f64, |a, z| a.max(z.abs()));
+            assert!(
+                d.iter()
+                    .flatten()
+                    .zip(dn.iter().flatten())
+                    .all(|(a, b)| (a - b).abs() <= 1e-12 * scale),
+                "{form:?}: the damping tangent is not the Newtonian one"
+            );
+            // Continuous across the floor: just below and just above.
+            let at = |k: f64| stress(&rate_of(&v.map(|p| p * k), form, h), nu);
+            let (below, above) = (at(100.0 * (1.0 - 1e-9)), at(100.0 * (1.0 + 1e-9)));
+            assert!(
+                (below - above).norm() <= 1e-8 * above.norm(),
+                "{form:?}: {below} {above}"
+            );
+            // Shear thickening keeps the pure law.
+            let thick = rate_of(&v, form, 1.4);
+            assert!((thick.power - thick.gamma.powf(0.4)).abs() <= 1e-12 * thick.power);
         }
     }
 

@@ -17,6 +17,7 @@ mod loads;
 mod quadratic_motion;
 mod quadratic_statics;
 mod schemes;
+mod shear_thinning;
 mod spline;
 mod statics;
 mod step_solve;
