@@ -319,15 +319,7 @@ impl Pattern {
         for first in (0..m).step_by(8) {
             let w = (m - first).min(8);
             let cols = first * n..(first + w) * n;
-            let rows = |v: &[f64]| {
-                let mut t = vec![0.0; n * w];
-                for (j, col) in v[cols.clone()].chunks_exact(n).enumerate() {
-                    for (r, &val) in col.iter().enumerate() {
-                        t[r * w + j] = val;
-                    }
-                }
-                t
-            };
+            let rows = |v: &[f64]| row_major(&v[cols.clone()], n, w);
             let (xt, mut yt) = (rows(x), rows(y));
             match w {
                 1 => self.skew_rows::<1>(values, scale, &xt, &mut yt),
@@ -339,11 +331,7 @@ impl Pattern {
                 7 => self.skew_rows::<7>(values, scale, &xt, &mut yt),
                 _ => self.skew_rows::<8>(values, scale, &xt, &mut yt),
             }
-            for (j, col) in y[cols].chunks_exact_mut(n).enumerate() {
-                for (r, val) in col.iter_mut().enumerate() {
-                    *val = yt[r * w + j];
-                }
-            }
+            column_major(&yt, w, &mut y[cols]);
         }
     }
 
@@ -408,15 +396,7 @@ impl Pattern {
         for first in (0..m).step_by(8) {
             let w = (m - first).min(8);
             let cols = first * n..(first + w) * n;
-            let rows = |v: &[f64]| {
-                let mut t = vec![0.0; n * w];
-                for (j, col) in v[cols.clone()].chunks_exact(n).enumerate() {
-                    for (r, &val) in col.iter().enumerate() {
-                        t[r * w + j] = val;
-                    }
-                }
-                t
-            };
+            let rows = |v: &[f64]| row_major(&v[cols.clone()], n, w);
             let (xt, zt, mut yt) = (rows(x), rows(z), rows(y));
             let pass = (a, a_values, b_values, (&xt[..], &zt[..]));
             match w {
@@ -429,11 +409,7 @@ impl Pattern {
                 7 => self.difference_rows::<7>(pass, &mut yt),
                 _ => self.difference_rows::<8>(pass, &mut yt),
             }
-            for (j, col) in y[cols].chunks_exact_mut(n).enumerate() {
-                for (r, val) in col.iter_mut().enumerate() {
-                    *val = yt[r * w + j];
-                }
-            }
+            column_major(&yt, w, &mut y[cols]);
         }
     }
 
@@ -504,6 +480,28 @@ impl Pattern {
     /// Bytes of one numeric factor (L's stored values; the adjoint tape keeps one per step).
     pub fn factor_bytes(&self) -> usize {
         self.factor_len * std::mem::size_of::<f64>()
+    }
+}
+
+/// The `w` columns of length `n` stored one after the other in `cols`, row-major: entry (r, j)
+/// at r w + j.
+fn row_major(cols: &[f64], n: usize, w: usize) -> Vec<f64> {
+    let mut t = vec![0.0; n * w];
+    for (j, col) in cols.chunks_exact(n).enumerate() {
+        for (r, &val) in col.iter().enumerate() {
+            t[r * w + j] = val;
+        }
+    }
+    t
+}
+
+/// [`row_major`] undone: the `w` row-major columns `rows` stored column after column in `cols`.
+fn column_major(rows: &[f64], w: usize, cols: &mut [f64]) {
+    let n = rows.len() / w;
+    for (j, col) in cols.chunks_exact_mut(n).enumerate() {
+        for (r, val) in col.iter_mut().enumerate() {
+            *val = rows[r * w + j];
+        }
     }
 }
 
