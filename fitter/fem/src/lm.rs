@@ -144,8 +144,8 @@ pub struct Normal {
 pub struct TrustOptions {
     /// Iterations (one evaluation each).
     pub max_iterations: usize,
-    /// Converged when a model that predicted its last accepted step to 25 % predicts a decrease
-    /// below this fraction of Φ.
+    /// Converged when a model that predicted its last accepted step to 25 %, or whose last
+    /// accepted step gained less than this fraction of Φ, predicts a decrease below it.
     pub rel_tolerance: f64,
     /// Converged too when such a model's step, predicted to gain less than this fraction of Φ,
     /// gains nothing: Φ's own noise (an iterative solve's tolerance) is reached.
@@ -331,6 +331,12 @@ pub fn minimise_trust_region(
     // small predicted decrease a sign of the minimum (Gauss–Newton alone can predict almost
     // nothing where Φ is not convex, and crawl).
     let mut trusted = false;
+    // What the last accepted step gained (∞ before the first): a model that predicts almost
+    // nothing after a step that gained almost nothing is at the minimum too, however poorly it
+    // predicted that step — a parameter running to its neutral value in log space (each step
+    // halves an effect that is no longer there) gains a round-off-sized amount its model cannot
+    // predict to 25 %, and would otherwise step on until the iteration limit.
+    let mut gained = f64::INFINITY;
     // Whether the last accepted step gained at least UNDER_PREDICTED times its prediction.
     let mut concave = false;
     let mut radius = o.initial_radius;
@@ -356,7 +362,8 @@ pub fn minimise_trust_region(
         // bound says nothing of the minimum: the next iteration starts on the bound.
         let small = hit.is_empty()
             && predicted.partial_cmp(&(o.rel_tolerance * phi)) != Some(std::cmp::Ordering::Greater);
-        if (trusted && small) || (length < 1e-8 && hit.is_empty()) || radius < 1e-8 {
+        let stalled = gained <= o.rel_tolerance * phi;
+        if ((trusted || stalled) && small) || (length < 1e-8 && hit.is_empty()) || radius < 1e-8 {
             converged = true;
             break;
         }
@@ -371,6 +378,7 @@ pub fn minimise_trust_region(
         match eval(&trial) {
             Some(next) if next.phi < phi => {
                 let actual = phi - next.phi;
+                gained = actual;
                 let rho = actual / predicted;
                 trusted = (rho - 1.0).abs() < 0.25;
                 concave = rho >= UNDER_PREDICTED;
@@ -573,6 +581,42 @@ mod tests {
             "{:?}",
             out.theta
         );
+    }
+
+    /// A parameter running to its neutral value in log space: r = (z₀ − 1, e^{z₁}, 1), whose
+    /// minimum in z₁ lies at −∞ (the effect e^{z₁} is not in the data), with the reported Φ
+    /// carrying that effect's share twice (a Φ whose own error the model cannot predict, as a
+    /// simulated misfit's Newton tolerance). Every step then gains 1.7 times its prediction, so
+    /// the model is never trusted to 25 %; without the rule that a step gaining less than the
+    /// tolerance ends it, the iteration steps on to its limit, halving an effect no longer there.
+    #[test]
+    fn a_fit_whose_steps_gain_nothing_stops() {
+        let eval = |t: &[f64]| {
+            let e = t[1].exp();
+            let mut n = normal(&[t[0] - 1.0, e, 1.0], &[1.0, 0.0, 0.0, e, 0.0, 0.0], 2);
+            n.phi += 0.5 * e * e;
+            n
+        };
+        let o = TrustOptions {
+            max_iterations: 200,
+            rel_tolerance: 1e-6,
+            noise_tolerance: 1e-7,
+            initial_radius: 1.0,
+            max_radius: 3.0,
+        };
+        let out = minimise_trust_region(
+            vec![0.0, 0.0],
+            eval(&[0.0, 0.0]),
+            |t| Some(eval(t)),
+            &o,
+            &FREE2,
+        );
+        assert!(out.converged, "{out:?}");
+        assert!(out.iterations < 20, "{} iterations", out.iterations);
+        assert!((out.theta[0] - 1.0).abs() < 1e-9, "{:?}", out.theta);
+        // Stopped where the effect's share is below the tolerance asked, not before.
+        let share = out.theta[1].exp().powi(2);
+        assert!(share < 2.0 * 1e-6 * out.normal.phi, "e^(2 z₁) {share:e}");
     }
 
     /// The phase of a sampled sinusoid: r_i = sin(ω t_i) − d_i, d from ω = 2.3 plus a fixed

@@ -59,6 +59,10 @@ pub struct FitSettings {
     pub tol_grad: f64,
     /// Stop when the relative change of Φ falls below this.
     pub tol_cost: f64,
+    /// Levenberg–Marquardt stops at the precision the data are worth ([`precision`]: a tenth of
+    /// one residual's share of Φ) where that is coarser than `tol_cost`. Off, it stops at
+    /// max(`tol_cost`, 10⁻⁶) of Φ: for a comparison of optimisers on one minimum.
+    pub data_precision: bool,
     /// Neighbour-smoothness weight; `None` = automatic (see [`auto_smoothness_weight`]).
     pub smoothness: Option<f64>,
     /// Poisson's ratio held fixed: λ = 2μν/(1 − 2ν) follows the fitted global μ (λ must then
@@ -82,6 +86,7 @@ impl Default for FitSettings {
             max_iters: 150,
             tol_grad: 1e-12,
             tol_cost: 1e-10,
+            data_precision: true,
             smoothness: None,
             poisson: None,
             floors: Vec::new(),
@@ -782,11 +787,32 @@ impl RateReference {
     }
 }
 
+/// The fraction of Φ below which a fit's remaining decrease is not worth a simulation, for
+/// `residuals` scalar residuals: a tenth of one residual's share, 0.1/n (and never below 10⁻⁶,
+/// the precision of Φ itself: the Newton solves of every step leave a relative 10⁻⁷–10⁻⁶ on a
+/// long run).
+///
+/// Why a tenth of a share: with s² = 2Φ/n the residuals' own variance, the Gauss–Newton 1σ of
+/// the parameters is where Φ has grown by Φ/n, so a minimum whose model promises less than
+/// 0.1 Φ/n lies within √0.1 ≈ 0.3 of the parameters' 1σ, and a BIC (2Φ/s² = n at the minimum)
+/// moves by less than 0.2. A fit along a flat valley — a parameter the data hardly determine,
+/// such as a shear-thinning index on a Newtonian body — otherwise took 20 more simulations, each
+/// gaining a hundredth of that share (measured on the independent 1,267-tetrahedron cylinder:
+/// BENCHMARKS.md, "The fit's precision in units of its own noise"). A noise-free fit (Φ → 0 at
+/// the truth) is unaffected: the relative rule still runs it to the truth.
+pub fn precision(residuals: usize) -> f64 {
+    if residuals == 0 {
+        return 1e-6;
+    }
+    (0.1 / residuals as f64).max(1e-6)
+}
+
 /// Levenberg–Marquardt in z = ln q, a fitted viscosity with its index read at the data's strain
 /// rate ([`RateReference`]): palpate's trust-region form of it
 /// ([`palpate_fem::lm::minimise_restarting`], held above [`FitSettings::floors`]) on Φ,
 /// ∇Φ and the Gauss–Newton matrix of every simulation ([`gauss_newton_runs`]), radius in log space (a factor e to start), stopping at a
-/// relative precision max(`tol_cost`, 1e-6) of Φ or after `max_iters` iterations.
+/// relative precision max(`tol_cost`, [`precision`]) of Φ (10⁻⁶ for [`precision`] without
+/// [`FitSettings::data_precision`]) or after `max_iters` iterations.
 fn levenberg_marquardt(
     runs: &[Run<'_>],
     base: &Material,
@@ -802,10 +828,19 @@ fn levenberg_marquardt(
     // Every simulated point with its runs' evaluations: the fit's result is one of them, so it
     // needs no simulation of its own.
     let mut evaluated: Vec<(Vec<f64>, Vec<Evaluation>, Vec<f64>)> = Vec::new();
+    let first_counts = std::cell::Cell::new(0usize);
     let mut eval = |z: &[f64], history: &mut Vec<f64>, failures: &mut Vec<String>| {
         evaluations += 1;
         match gauss_newton_runs(runs, base, params, z, tie) {
             Ok((phi, grad, gn, per_run)) if phi.is_finite() => {
+                if history.is_empty() {
+                    first_counts.set(
+                        per_run
+                            .iter()
+                            .map(|p| 3 * (p.marker_count + p.force_count))
+                            .sum(),
+                    );
+                }
                 history.push(phi);
                 progress(evaluations, phi);
                 evaluated.push((z.to_vec(), per_run, gn.clone()));
@@ -859,12 +894,15 @@ fn levenberg_marquardt(
     for &(_, h, _) in &reference.pairs {
         lower[h] = POWER_INDEX_FLOOR.min(w0[h]);
     }
+    // Scalar residuals: three per observed marker position and clamp force.
+    let residuals = first_counts.get();
     let options = TrustOptions {
         max_iterations: settings.max_iters as usize,
-        // The precision the fit is worth: a relative change of 1e-6 in Φ moves a BIC over 10⁴
-        // residuals by 0.01 and the parameters by a fraction of their 1σ, and Φ itself is only
-        // as exact as the Newton solves of every step (a relative 1e-7–1e-6 on a long run).
-        rel_tolerance: settings.tol_cost.max(1e-6),
+        rel_tolerance: settings.tol_cost.max(if settings.data_precision {
+            precision(residuals)
+        } else {
+            1e-6
+        }),
         noise_tolerance: 1e-5,
         // A factor e per log-parameter to start, e³ at most.
         initial_radius: 1.0,

@@ -157,6 +157,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             max_iters: 100,
             tol_grad: 1e-14,
             tol_cost: 1e-12,
+            data_precision: true,
             smoothness: None,
             poisson: None,
             floors: Vec::new(),

@@ -161,6 +161,7 @@ fn levenberg_marquardt_reaches_the_lbfgs_minimum_in_fewer_simulations() {
         let settings = FitSettings {
             optimizer,
             tol_cost: 1e-14,
+            data_precision: false,
             ..FitSettings::default()
         };
         fit(
