@@ -187,6 +187,10 @@ pub struct Round {
     pub trials: Vec<Trial>,
     /// Adopted candidate, if any.
     pub adopted: Option<String>,
+    /// Why no candidate was tried in this round, when the current forecast leaves none a chance
+    /// to pass the held-out gate (`forecast_at_floor` in `engine.rs`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub settled: Option<String>,
 }
 
 /// The diagnosis of a motion dataset.
@@ -433,7 +437,12 @@ pub fn diagnose(
     };
     let verdict = select(&mut engine, &policy, simplest.clone(), simplest.scores)?;
     let screen_simulations = engine.screen_simulations;
-    let rounds = motion_rounds(&verdict, ds.model.markers.len(), &engine.null_checks);
+    let rounds = motion_rounds(
+        &verdict,
+        ds.model.markers.len(),
+        &engine.null_checks,
+        &engine.settled,
+    );
     let evaluations = simplest.evaluations
         + rounds
             .iter()

@@ -153,6 +153,9 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
                 .join(", "),
             s.worst_marker_ratio
         );
+        if let Some(why) = &rd.settled {
+            let _ = writeln!(md, "No candidate tried: {why}.\n");
+        }
         md.push_str("| candidate | k | predicted ΔBIC | RMS fitted (µm) | RMS held out (µm) | ΔBIC | held-out ΔBIC | held-out RMS | decision |\n|---|---|---|---|---|---|---|---|---|\n");
         for t in &rd.trials {
             if t.fitted {
