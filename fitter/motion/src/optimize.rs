@@ -798,7 +798,8 @@ impl RateReference {
 /// moves by less than 0.2. A fit along a flat valley — a parameter the data hardly determine,
 /// such as a shear-thinning index on a Newtonian body — otherwise took 20 more simulations, each
 /// gaining a hundredth of that share (measured on the independent 1,267-tetrahedron cylinder:
-/// BENCHMARKS.md, "The fit's precision in units of its own noise"). A noise-free fit (Φ → 0 at
+/// BENCHMARKS.md, "A fit's precision in its own noise, and a screen that fits only what
+/// pays"). A noise-free fit (Φ → 0 at
 /// the truth) is unaffected: the relative rule still runs it to the truth.
 pub fn precision(residuals: usize) -> f64 {
     if residuals == 0 {

@@ -267,11 +267,7 @@ impl CandidateModel for MotionModel<'_> {
     fn candidates(&mut self, current: &FittedModel, adopted: &[Candidate]) -> Vec<Candidate> {
         // Each round before the last adopts one effect: this is round `adopted.len() + 1`.
         let round = adopted.len() + 1;
-        let floor = self
-            .ds
-            .config
-            .marker_noise
-            .map_or(f64::NAN, |s| s * 3f64.sqrt());
+        let floor = super::noise_floor(self.ds).unwrap_or(f64::NAN);
         let s = current.scores;
         if let Some(why) = forecast_at_floor(s.rms_held, s.n_held, floor, self.o.min_holdout_gain) {
             (self.log)(&format!("round {round}: {why}"));

@@ -507,7 +507,7 @@ impl MotionModel<'_> {
         }
         let log = self.log;
         let (split, o) = (self.split, self.o);
-        let noise_floor = self.ds.config.marker_noise.map(|s| s * 3f64.sqrt());
+        let noise_floor = super::noise_floor(self.ds);
         let null = match self.null_round(round, cur) {
             Ok(n) => n,
             Err(why) => {

@@ -193,6 +193,12 @@ pub struct Round {
     pub settled: Option<String>,
 }
 
+/// The declared noise floor of a marker error: σ√3, the RMS of a 3-D error whose axes carry
+/// the declared σ (`marker_noise` in dataset.toml); `None` when none is declared.
+pub(in crate::motion) fn noise_floor(ds: &MotionDataset) -> Option<f64> {
+    ds.config.marker_noise.map(|s| s * 3f64.sqrt())
+}
+
 /// The diagnosis of a motion dataset.
 #[derive(Debug, Clone, Serialize)]
 pub struct MotionDiagnosis {
@@ -417,9 +423,8 @@ pub fn diagnose(
         1e6 * simplest.scores.rms_fit,
         1e6 * simplest.scores.rms_held
     ));
-    // The declared marker noise σ per axis: the RMS of a 3-D marker error is σ√3 at the floor.
-    let (floor, judged) = match ds.config.marker_noise {
-        Some(s) => (s * 3f64.sqrt(), true),
+    let (floor, judged) = match noise_floor(ds) {
+        Some(f) => (f, true),
         None => (f64::NAN, false),
     };
     let (mesh_note, refined) = mesh::estimate(ds, &simplest, floor, o, log);
