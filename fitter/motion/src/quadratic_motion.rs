@@ -16,8 +16,8 @@
 //!   on nodes along one edge is read as the line load its equal shares stand for
 //!   (`load_shares`).
 //! - The elastic law ([`ElasticState`]: Neo-Hookean with its stiffening, or the splines) and the
-//!   power-law viscosity ([`visc`]) are evaluated at the four points of the degree-2 rule, with
-//!   the same kernels; their 30 × 30 tangents are assembled as ten 4-node blocks
+//!   power-law viscosity ([`visc`], in either reading of ∇v) are evaluated at the four points of
+//!   the degree-2 rule, with the same kernels; their 30 × 30 tangents are assembled as ten 4-node blocks
 //!   (`BLOCKS`), as the quadratic statics do.
 //! - The mass is consistent, M_ab = ∫ ρ N_a N_b dV integrated exactly ([`mass_table`]): the
 //!   row sums of the quadratic element's mass are negative at its corners, so it has no
@@ -136,6 +136,8 @@ pub struct QuadraticMotion<'a> {
     clamped: Vec<(usize, [usize; 2])>,
     /// Each dead load's shares of its force on the quadratic mesh's nodes ([`load_shares`]).
     load_shares: Vec<Vec<(usize, f64)>>,
+    /// Stop at the first step Newton leaves above its tolerance ([`Self::strict`]).
+    strict: bool,
 }
 
 impl<'a> QuadraticMotion<'a> {
@@ -201,7 +203,17 @@ impl<'a> QuadraticMotion<'a> {
             posts: located.iter().map(|_| None).collect(),
             located,
             clamped,
+            strict: false,
         })
+    }
+
+    /// A run stops with [`MotionError::NoConvergence`] at the first step Newton leaves above its
+    /// tolerance, instead of going on and counting it ([`QuadraticRun::unconverged_steps`]):
+    /// for a caller that needs the converged motion or none, and should not pay for the rest
+    /// of a run it will refuse.
+    pub fn strict(mut self) -> Self {
+        self.strict = true;
+        self
     }
 
     /// Free dofs of the quadratic model.
@@ -372,14 +384,18 @@ impl<'a> QuadraticMotion<'a> {
                         l += ve[a] * qp.grad[a].transpose();
                     }
                     // At rest a Newtonian dashpot still has its damping tangent (the power
-                    // law's is 0 or unbounded there): Newton's first step from rest needs it.
-                    visc::Rate::new(&l, h).or((h == 1.0).then_some(visc::Rate {
-                        e: Matrix3::zeros(),
-                        gamma: 1.0,
-                        h,
-                        power: 1.0,
-                        at: None,
-                    }))
+                    // law's is 0 or unbounded there): Newton's first step from rest needs it
+                    // (the rest-gradient one; under the objective form only Newton's matrix
+                    // differs, not the force, which is 0 at rest in either form).
+                    visc::Rate::of(mat.viscous_form, &fg, &l, h).or((h == 1.0).then_some(
+                        visc::Rate {
+                            e: Matrix3::zeros(),
+                            gamma: 1.0,
+                            h,
+                            power: 1.0,
+                            at: None,
+                        },
+                    ))
                 };
                 if let Some(r) = &rate {
                     p += visc::stress(r, nu);
@@ -401,6 +417,17 @@ impl<'a> QuadraticMotion<'a> {
                     let mut kb = s.tangent(&block);
                     if let Some(br) = branch {
                         kb = br.tangent(4 * e + q, &block, &kb);
+                    }
+                    // The objective viscosity's force depends on the positions too; a
+                    // symmetric matrix holds the symmetric part of that tangent, as the linear
+                    // model's does ([`crate::forces`]), and Newton's residual stays exact.
+                    if let Some(kv) = rate
+                        .as_ref()
+                        .and_then(|r| visc::element_stiffness_symmetric(&block, r, nu))
+                    {
+                        for (row, add) in kb.iter_mut().zip(&kv) {
+                            row.iter_mut().zip(add).for_each(|(a, b)| *a += b);
+                        }
                     }
                     share(&mut kb);
                     self.pattern.add_element(BLOCKS.len() * e + b, &kb, 1.0, k);
@@ -552,13 +579,6 @@ impl<'a> QuadraticMotion<'a> {
         mat: &Material,
         mut on_step: impl FnMut(usize, &[f64]),
     ) -> Result<QuadraticRun, MotionError> {
-        if mat.viscous_form != visc::Form::RestGradient {
-            return Err(MotionError::Invalid(format!(
-                "quadratic tetrahedra carry the rest-gradient viscosity only; the material asks \
-                 for the {} form",
-                mat.viscous_form.name()
-            )));
-        }
         let model = self.model;
         let ndof = 3 * self.mesh.nodes.len();
         let (c, ax, av) = Scheme::Bdf2.coefficients(model.dt);
@@ -580,6 +600,7 @@ impl<'a> QuadraticMotion<'a> {
         let mut carried: Option<Factor> = None;
         let tol = model.newton.tol;
         for n in 1..=model.steps {
+            let unconverged = run.unconverged_steps;
             fext.copy_from_slice(&fgrav);
             self.add_dead_loads(n, &mut fext);
             let mut x = vec![0.0; ndof];
@@ -720,6 +741,12 @@ impl<'a> QuadraticMotion<'a> {
                 fresh = false;
                 iter += 1;
                 run.newton_iterations += 1;
+            }
+            if self.strict && run.unconverged_steps > unconverged {
+                return Err(MotionError::NoConvergence {
+                    step: n,
+                    residual: run.max_residual,
+                });
             }
             if let (Some(r), Some(b)) = (relax.as_mut(), branch) {
                 // BDF2's force state is x^n itself.
