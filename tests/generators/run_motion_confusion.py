@@ -3,7 +3,7 @@
     python run_motion_confusion.py --draws 24 --seed 1 [--effects none,clamps-late,...]
                                    [--palpate target/release/palpate] [--timeout 1800]
                                    [-o docs/results/diagnose/motion-independent/confusion]
-                                   [--work /tmp/palpate-motion-indep] [--resume [--rediagnose]]
+                                   [--work /tmp/palpate-motion-indep] [--resume [--rediagnose]] [--only 2,3,7]
 
 For every draw: make a dataset with `independent_motion.py` (a horizontally clamped cylinder, shaken at
 its clamp, 270 frames at 180 Hz by default; its own truth code, mesh and markers), inject the draw's
@@ -257,6 +257,9 @@ def main():
     ap.add_argument("--resume", action="store_true", help="keep datasets and diagnoses already made under --work")
     ap.add_argument("--rediagnose", action="store_true",
                     help="with --resume: keep the datasets made under --work, diagnose every one again")
+    ap.add_argument("--only", default=None,
+                    help="comma-separated draw indices (e.g. 2,3,7): run only these draws of the plan; "
+                         "the others are left out of the tables")
     a = ap.parse_args()
     effects = a.effects.split(",")
     unknown = sorted(set(effects) - set(EFFECTS))
@@ -265,6 +268,9 @@ def main():
     os.makedirs(a.out, exist_ok=True)
     os.makedirs(a.work, exist_ok=True)
     rows = draw_plan(a.seed, a.draws, effects)
+    if a.only:
+        only = {int(i) for i in a.only.split(",")}
+        rows = [r for r in rows if r["index"] in only]
     for row in rows:
         log = os.path.join(a.work, row["id"] + ".log")
         try:
