@@ -17,8 +17,8 @@
 //!   (`load_shares`).
 //! - The elastic law ([`ElasticState`]: Neo-Hookean with its stiffening, or the splines) and the
 //!   power-law viscosity ([`visc`], in either reading of ∇v) are evaluated at the four points of
-//!   the degree-2 rule, with the same kernels; their 30 × 30 tangents are assembled as ten 4-node blocks
-//!   (`BLOCKS`), as the quadratic statics do.
+//!   the degree-2 rule, with the same kernels; their 30 × 30 tangents are assembled as ten 4-node
+//!   blocks (`BLOCKS`), as the quadratic statics do.
 //! - The mass is consistent, M_ab = ∫ ρ N_a N_b dV integrated exactly ([`mass_table`]): the
 //!   row sums of the quadratic element's mass are negative at its corners, so it has no
 //!   positive lumped form by row sums.
@@ -136,8 +136,6 @@ pub struct QuadraticMotion<'a> {
     clamped: Vec<(usize, [usize; 2])>,
     /// Each dead load's shares of its force on the quadratic mesh's nodes ([`load_shares`]).
     load_shares: Vec<Vec<(usize, f64)>>,
-    /// Stop at the first step Newton leaves above its tolerance ([`Self::strict`]).
-    strict: bool,
 }
 
 impl<'a> QuadraticMotion<'a> {
@@ -203,17 +201,7 @@ impl<'a> QuadraticMotion<'a> {
             posts: located.iter().map(|_| None).collect(),
             located,
             clamped,
-            strict: false,
         })
-    }
-
-    /// A run stops with [`MotionError::NoConvergence`] at the first step Newton leaves above its
-    /// tolerance, instead of going on and counting it ([`QuadraticRun::unconverged_steps`]):
-    /// for a caller that needs the converged motion or none, and should not pay for the rest
-    /// of a run it will refuse.
-    pub fn strict(mut self) -> Self {
-        self.strict = true;
-        self
     }
 
     /// Free dofs of the quadratic model.
@@ -600,7 +588,6 @@ impl<'a> QuadraticMotion<'a> {
         let mut carried: Option<Factor> = None;
         let tol = model.newton.tol;
         for n in 1..=model.steps {
-            let unconverged = run.unconverged_steps;
             fext.copy_from_slice(&fgrav);
             self.add_dead_loads(n, &mut fext);
             let mut x = vec![0.0; ndof];
@@ -741,12 +728,6 @@ impl<'a> QuadraticMotion<'a> {
                 fresh = false;
                 iter += 1;
                 run.newton_iterations += 1;
-            }
-            if self.strict && run.unconverged_steps > unconverged {
-                return Err(MotionError::NoConvergence {
-                    step: n,
-                    residual: run.max_residual,
-                });
             }
             if let (Some(r), Some(b)) = (relax.as_mut(), branch) {
                 // BDF2's force state is x^n itself.
