@@ -179,6 +179,17 @@ fn solve_increments(
                 .sum();
             Some(d.energy(x)? - w)
         };
+        // The free dofs' residual f + s f_ext of the internal forces `f`.
+        let free_residual = |f: &[f64]| {
+            let mut r = vec![0.0; nfree];
+            for (d, &fr) in free.iter().enumerate() {
+                if fr != usize::MAX {
+                    r[fr] = f[d] + s * fext[d];
+                }
+            }
+            r
+        };
+        let norm = |r: &[f64]| r.iter().map(|v| v * v).sum::<f64>().sqrt();
         let mut converged = false;
         for _ in 0..p.max_iter {
             let f = d
@@ -187,13 +198,8 @@ fn solve_increments(
                     step,
                     residual: f64::INFINITY,
                 })?;
-            let mut r = vec![0.0; nfree];
-            for (d, &fr) in free.iter().enumerate() {
-                if fr != usize::MAX {
-                    r[fr] = f[d] + s * fext[d];
-                }
-            }
-            residual = r.iter().map(|v| v * v).sum::<f64>().sqrt();
+            let r = free_residual(&f);
+            residual = norm(&r);
             if !residual.is_finite() {
                 return Err(MotionError::NonFinite(format!(
                     "force residual at load step {step} (a material or load too large for f64)"
@@ -258,14 +264,7 @@ fn solve_increments(
                         e1 <= e0 + 1e-4 * alpha * slope
                             || (e1 - e0).abs() <= 1e-12 * e0.abs().max(1e-30)
                             || d.forces(&xt, None).is_some_and(|f| {
-                                let r1: f64 = free
-                                    .iter()
-                                    .enumerate()
-                                    .filter(|(_, &fr)| fr != usize::MAX)
-                                    .map(|(d, _)| (f[d] + s * fext[d]).powi(2))
-                                    .sum::<f64>()
-                                    .sqrt();
-                                r1 <= (1.0 - 1e-4 * alpha) * residual
+                                norm(&free_residual(&f)) <= (1.0 - 1e-4 * alpha) * residual
                             })
                     }
                     None => false,
