@@ -1,6 +1,6 @@
 //! A strongly shear-thinning material (h = 0.15) on a body that starts at rest: the elements'
 //! rates are of round-off size until the clamp moves, where the pure power law's viscosity
-//! ν γ̇^(h−1) has no bound (`palpate_motion::viscosity::RATE_FLOOR`).
+//! ν γ̇^(h−1) would have no bound (its Carreau form's plateau: `palpate_motion::viscosity::RATE_FLOOR`).
 
 use palpate_motion::gradient::evaluate_gauss_newton;
 use palpate_motion::model::{Material, Param, ParamKind};
@@ -88,4 +88,34 @@ fn the_power_law_index_stops_on_its_floor() {
         "h {}",
         below.q[1]
     );
+}
+
+/// A strongly shear-thinning material (h = 0.15) on a bar shaken at its clamp and left to ring:
+/// every element's rate passes through zero at each turn, and Newton's iteration converges
+/// every step to the paper's tolerance under both readings, in fewer than nine iterations a
+/// step on average (591 and 722 for the 90 steps; the pure power law's kink at γ̇ → 0 took 1,110
+/// under the objective reading and left 6 steps unconverged).
+#[test]
+fn a_strongly_shear_thinning_ring_down_converges_every_step() {
+    use palpate_motion::sim::simulate_states;
+    let size = [0.02, 0.1, 0.02];
+    let dt = 1.0 / 180.0;
+    // Shaken for a fifth of a second, then held: the bar rings down.
+    let shaken = |t: f64| two_sinusoids(t.min(0.2));
+    let steps = 90;
+    let (_, model) = bar_model(size, [2, 8, 2], dt, steps, &shaken, &nine_markers(size)).unwrap();
+    for form in [Form::RestGradient, Form::Objective] {
+        let mut mat: Material = example_truth(&model);
+        mat.viscous_form = form;
+        let params = Param::globals(&[ParamKind::Nu, ParamKind::PowerH]);
+        mat.set(&params, &[30.0, 0.15]);
+        let stats =
+            simulate_states(&model, &mat, |_| Ok(())).unwrap_or_else(|e| panic!("{form:?}: {e}"));
+        assert_eq!(stats.unconverged_steps, 0, "{form:?}: {stats:?}");
+        assert!(
+            stats.newton_iterations < 9 * steps,
+            "{form:?}: {} Newton iterations for {steps} steps",
+            stats.newton_iterations
+        );
+    }
 }
