@@ -152,6 +152,9 @@ impl Rate {
 /// u_a = F g_a, z_a = F E g_a, q_a = Ḟ g_a, y_a = Ḟ E g_a and C = F Ḟᵀ this is, in closed form,
 /// K\[3a+i\]\[3b+j\] = V ν [ γ̇^(h−1) (δ_ij g_a·E g_b + u_b,i q_a,j + C_ij g_ab)
 /// + (h−1) γ̇^(h−3) z_a,i y_b,j ] — not symmetric.
+///
+/// Written for the pure law; in Carreau's form γ̇^(h−1) is the power p = (γ̇² + γ̇₀²)^((h−1)/2)
+/// and (h−1) γ̇^(h−3) is (h−1) p / (γ̇² + γ̇₀²), as in [`element_damping`].
 pub fn element_stiffness(t: &RestTet, r: &Rate, nu: f64) -> Option<[[f64; 12]; 12]> {
     let (f, l) = r.at?;
     let g = &t.grad;
@@ -240,6 +243,9 @@ pub fn stress_dh(r: &Rate, nu: f64) -> Matrix3<f64> {
 /// dσ = ν [ (h−1) γ̇^(h−2) dγ̇ E + γ̇^(h−1) dE ], dE = dḞ + dḞᵀ, dγ̇ = E : dE / (2γ̇). With
 /// dḞ = e_j ∇φ_bᵀ, w_b = E ∇φ_b and g_ab = ∇φ_a·∇φ_b this is, in closed form,
 /// D\[3a+i\]\[3b+j\] = V ν [ (h−1) γ̇^(h−3) w_a,i w_b,j + γ̇^(h−1) (δ_ij g_ab + ∇φ_b,i ∇φ_a,j) ].
+///
+/// Written for the pure law; in Carreau's form ([`RATE_FLOOR`]) γ̇^(h−1) is the power
+/// p = (γ̇² + γ̇₀²)^((h−1)/2) and (h−1) γ̇^(h−3) is its slope factor (h−1) p / (γ̇² + γ̇₀²).
 pub fn element_damping(t: &RestTet, r: &Rate, nu: f64) -> [[f64; 12]; 12] {
     // Under the objective form dE = FᵀdḞ + dḞᵀF and dP = F dS: the same two terms with
     // w_a → z_a = F E ∇φ_a, ∇φ_a → u_a = F ∇φ_a and δ_ij → B_ij = (F Fᵀ)_ij.
