@@ -17,9 +17,13 @@
 //! Elements whose ‖Ḟ‖_F ≤ f64::MIN_POSITIVE are skipped, as the paper does (the shear-thinning
 //! stress is undefined there but tends to 0), and so, under the objective form, are rigidly
 //! moving elements (γ̇ = 0). The power γ̇^(h−1) is read in Carreau's form (γ̇² + γ̇₀²)^((h−1)/2)
-//! with γ̇₀ = [`RATE_FLOOR`]: the power law above γ̇₀, a Newtonian plateau at ν γ̇₀^(h−1) below
+//! with γ̇₀ = [`CARREAU_RATE`]: the power law above γ̇₀, a Newtonian plateau at ν γ̇₀^(h−1) below
 //! it, smooth between, so that an element at rest does not get an unbounded viscosity from its
 //! round-off rate and Newton's iteration does not meet a kink in the tangent.
+//!
+//! In the closed forms below p = (γ̇² + γ̇₀²)^((h−1)/2) is that power ([`Rate::power`], γ̇^(h−1)
+//! of the pure law) and p′ = (h−1) p / (γ̇² + γ̇₀²) its slope factor ((h−1) γ̇^(h−3) of the pure
+//! law): dp = p′ γ̇ dγ̇.
 
 /// How ∇v of eq. 17 is read (see the module's documentation).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -127,11 +131,10 @@ impl Rate {
         }
     }
 
-    /// `scale` (h−1) p / (γ̇² + γ̇₀²) with p = (γ̇² + γ̇₀²)^((h−1)/2): the power's change
-    /// dp = (h−1) p / (γ̇² + γ̇₀²) (E : dE / 2) per change of E, the tangents' second term
-    /// ((h−1) γ̇^(h−3) of the pure law where γ̇ ≫ γ̇₀).
+    /// `scale` p′ with p′ = (h−1) p / (γ̇² + γ̇₀²) (see the module): the power's change
+    /// dp = p′ (E : dE / 2) per change of E, the tangents' second term.
     fn power_slope(&self, scale: f64) -> f64 {
-        scale * (self.h - 1.0) * self.power / (self.gamma * self.gamma + RATE_FLOOR * RATE_FLOOR)
+        scale * (self.h - 1.0) * self.power / carreau_square(self.gamma)
     }
 
     /// The first Piola–Kirchhoff form of a stress `s` of this rate's form: F s under the
@@ -150,11 +153,8 @@ impl Rate {
 ///
 /// dP = dF S + F dS with dE = dFᵀḞ + ḞᵀdF. With dF = e_j ∇φ_bᵀ, g_a = ∇φ_a, g_ab = g_a·g_b,
 /// u_a = F g_a, z_a = F E g_a, q_a = Ḟ g_a, y_a = Ḟ E g_a and C = F Ḟᵀ this is, in closed form,
-/// K\[3a+i\]\[3b+j\] = V ν [ γ̇^(h−1) (δ_ij g_a·E g_b + u_b,i q_a,j + C_ij g_ab)
-/// + (h−1) γ̇^(h−3) z_a,i y_b,j ] — not symmetric.
-///
-/// Written for the pure law; in Carreau's form γ̇^(h−1) is the power p = (γ̇² + γ̇₀²)^((h−1)/2)
-/// and (h−1) γ̇^(h−3) is (h−1) p / (γ̇² + γ̇₀²), as in [`element_damping`].
+/// K\[3a+i\]\[3b+j\] = V ν [ p (δ_ij g_a·E g_b + u_b,i q_a,j + C_ij g_ab) + p′ z_a,i y_b,j ]
+/// — not symmetric (p and p′: the module's notation).
 pub fn element_stiffness(t: &RestTet, r: &Rate, nu: f64) -> Option<[[f64; 12]; 12]> {
     let (f, l) = r.at?;
     let g = &t.grad;
@@ -209,17 +209,22 @@ pub fn element_stiffness_symmetric(t: &RestTet, r: &Rate, nu: f64) -> Option<[[f
 /// on a 1,300-tet cylinder's capture the Carreau form moves the simulated markers by 0.27 µm RMS
 /// against the pure law, with a third of the Newton iterations' factorisations (BENCHMARKS.md,
 /// "The power law at a small index").
-pub const RATE_FLOOR: f64 = 1e-4;
+pub const CARREAU_RATE: f64 = 1e-4;
 
-/// The power (γ̇² + γ̇₀²)^((h−1)/2) (γ̇^(h−1) above γ̇₀ = [`RATE_FLOOR`]), exactly 1 for the
+/// The power (γ̇² + γ̇₀²)^((h−1)/2) (γ̇^(h−1) above γ̇₀ = [`CARREAU_RATE`]), exactly 1 for the
 /// Newtonian h = 1 without calling pow (a tenth of a motion simulation's time went to pow(γ̇, 0) in every
 /// element of every assembly).
 pub(crate) fn rate_power(gamma: f64, h: f64) -> f64 {
     if h == 1.0 {
         1.0
     } else {
-        (gamma * gamma + RATE_FLOOR * RATE_FLOOR).powf(0.5 * (h - 1.0))
+        carreau_square(gamma).powf(0.5 * (h - 1.0))
     }
+}
+
+/// γ̇² + γ̇₀² of Carreau's form ([`CARREAU_RATE`]).
+fn carreau_square(gamma: f64) -> f64 {
+    gamma * gamma + CARREAU_RATE * CARREAU_RATE
 }
 
 /// σ = ν γ̇^(h−1) E (under the objective form P = F S, S = ν γ̇^(h−1) E).
@@ -234,18 +239,14 @@ pub fn stress_dnu(r: &Rate) -> Matrix3<f64> {
 
 /// ∂σ/∂h = ν ½ ln(γ̇² + γ̇₀²) (γ̇² + γ̇₀²)^((h−1)/2) E (ν ln γ̇ γ̇^(h−1) E above γ̇₀).
 pub fn stress_dh(r: &Rate, nu: f64) -> Matrix3<f64> {
-    let g2 = r.gamma * r.gamma + RATE_FLOOR * RATE_FLOOR;
-    r.pk1(r.e * (nu * 0.5 * g2.ln() * r.power))
+    r.pk1(r.e * (nu * 0.5 * carreau_square(r.gamma).ln() * r.power))
 }
 
 /// Damping tangent D_e = −∂f_e/∂v_e (12 × 12, row-major).
 ///
-/// dσ = ν [ (h−1) γ̇^(h−2) dγ̇ E + γ̇^(h−1) dE ], dE = dḞ + dḞᵀ, dγ̇ = E : dE / (2γ̇). With
-/// dḞ = e_j ∇φ_bᵀ, w_b = E ∇φ_b and g_ab = ∇φ_a·∇φ_b this is, in closed form,
-/// D\[3a+i\]\[3b+j\] = V ν [ (h−1) γ̇^(h−3) w_a,i w_b,j + γ̇^(h−1) (δ_ij g_ab + ∇φ_b,i ∇φ_a,j) ].
-///
-/// Written for the pure law; in Carreau's form ([`RATE_FLOOR`]) γ̇^(h−1) is the power
-/// p = (γ̇² + γ̇₀²)^((h−1)/2) and (h−1) γ̇^(h−3) is its slope factor (h−1) p / (γ̇² + γ̇₀²).
+/// dσ = ν [ p′ γ̇ dγ̇ E + p dE ], dE = dḞ + dḞᵀ, dγ̇ = E : dE / (2γ̇) (p and p′: the module's
+/// notation). With dḞ = e_j ∇φ_bᵀ, w_b = E ∇φ_b and g_ab = ∇φ_a·∇φ_b this is, in closed form,
+/// D\[3a+i\]\[3b+j\] = V ν [ p′ w_a,i w_b,j + p (δ_ij g_ab + ∇φ_b,i ∇φ_a,j) ].
 pub fn element_damping(t: &RestTet, r: &Rate, nu: f64) -> [[f64; 12]; 12] {
     // Under the objective form dE = FᵀdḞ + dḞᵀF and dP = F dS: the same two terms with
     // w_a → z_a = F E ∇φ_a, ∇φ_a → u_a = F ∇φ_a and δ_ij → B_ij = (F Fᵀ)_ij.
@@ -277,7 +278,7 @@ pub fn element_damping(t: &RestTet, r: &Rate, nu: f64) -> [[f64; 12]; 12] {
 }
 
 /// [`element_damping`] under the objective form, in closed form:
-/// D\[3a+i\]\[3b+j\] = V ν [ (h−1) γ̇^(h−3) z_a,i z_b,j + γ̇^(h−1) (B_ij g_ab + u_b,i u_a,j) ]
+/// D\[3a+i\]\[3b+j\] = V ν [ p′ z_a,i z_b,j + p (B_ij g_ab + u_b,i u_a,j) ]
 /// with z_a = F E ∇φ_a, u_a = F ∇φ_a, B = F Fᵀ (symmetric, as the rest-gradient form's).
 fn objective_damping(t: &RestTet, r: &Rate, nu: f64, f: &Matrix3<f64>) -> [[f64; 12]; 12] {
     let g = &t.grad;
@@ -420,8 +421,7 @@ mod tests {
     /// dp = (h−1) p γ̇ dγ̇ / (γ̇² + γ̇₀²), dγ̇ = E : dE / (2γ̇).
     fn stress_change(r: &Rate, nu: f64, de: &Matrix3<f64>) -> Matrix3<f64> {
         let dgamma = r.e.dot(de) / (2.0 * r.gamma);
-        let g2 = r.gamma * r.gamma + RATE_FLOOR * RATE_FLOOR;
-        let dpower = (r.h - 1.0) * r.power * r.gamma / g2 * dgamma;
+        let dpower = (r.h - 1.0) * r.power * r.gamma / carreau_square(r.gamma) * dgamma;
         (r.e * dpower + de * r.power) * nu
     }
 
@@ -486,7 +486,7 @@ mod tests {
         }
     }
 
-    /// The Carreau form under both readings: well below γ̇₀ = [`RATE_FLOOR`] the law is
+    /// The Carreau form under both readings: well below γ̇₀ = [`CARREAU_RATE`] the law is
     /// Newtonian at ν γ̇₀^(h−1) (stress and damping tangent), well above it the pure power law,
     /// for a shear-thinning and a shear-thickening index.
     #[test]
@@ -501,10 +501,10 @@ mod tests {
             for h in [0.15, 1.4] {
                 let g1 = rate_of(&v_unit, form, h).gamma;
                 // γ̇ = γ̇₀/100: (1 + 10⁻⁴)^((h−1)/2) off the plateau, a relative 5e-5 at most.
-                let v = v_unit.map(|p| p * (0.01 * RATE_FLOOR / g1));
+                let v = v_unit.map(|p| p * (0.01 * CARREAU_RATE / g1));
                 let r = rate_of(&v, form, h);
                 let newtonian = rate_of(&v, form, 1.0);
-                let plateau = nu * RATE_FLOOR.powf(h - 1.0);
+                let plateau = nu * CARREAU_RATE.powf(h - 1.0);
                 let want = stress(&newtonian, plateau);
                 assert!(
                     (stress(&r, nu) - want).norm() <= 1e-4 * want.norm(),
@@ -545,7 +545,7 @@ mod tests {
                 .unwrap()
                 .gamma;
             for k in [0.3, 1.0, 3.0] {
-                let v0 = v_unit.map(|p| p * (k * RATE_FLOOR / g1));
+                let v0 = v_unit.map(|p| p * (k * CARREAU_RATE / g1));
                 let forces = |v: &[Vector3<f64>; 4], h: f64| {
                     let mut f = [0.0; 12];
                     let r = Rate::of(form, &fgrad, &velocity_gradient(&t, v), h).unwrap();

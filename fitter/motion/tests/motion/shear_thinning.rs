@@ -1,6 +1,6 @@
 //! A strongly shear-thinning material (h = 0.15) on a body that starts at rest: the elements'
 //! rates are of round-off size until the clamp moves, where the pure power law's viscosity
-//! ν γ̇^(h−1) would have no bound (its Carreau form's plateau: `palpate_motion::viscosity::RATE_FLOOR`).
+//! ν γ̇^(h−1) would have no bound (its Carreau form's plateau: `palpate_motion::viscosity::CARREAU_RATE`).
 
 use palpate_motion::gradient::evaluate_gauss_newton;
 use palpate_motion::model::{Material, Param, ParamKind};
