@@ -6,6 +6,7 @@
 use palpate_motion::dataset::MotionDataset;
 use palpate_motion::model::ParamKind;
 
+use super::candidates::two_material::RegionSearch;
 use super::candidates::{Candidate, REPORT_ORDER};
 use super::fit::{self, fit_model, fit_with_offsets, with_offsets, FittedModel, Scores, Split};
 use super::signature::{signature, Signature};
@@ -43,6 +44,9 @@ pub struct MotionModel<'a> {
     /// Where the current round's screen stepped the candidates' new parameters: a start
     /// ([`super::candidates::MotionEffect::screened_start`]).
     pub(in crate::motion) stepped: Vec<(ParamKind, f64)>,
+    /// The second material's region search the current round's screen ran at the current fit
+    /// ([`super::candidates::two_material`]): its fit reads it instead of searching again.
+    pub(in crate::motion) region_search: Option<std::sync::Arc<RegionSearch>>,
     /// Every check against the null: round, candidate, what it found.
     pub(in crate::motion) null_checks: Vec<(usize, Candidate, super::mesh_null::NullCheck)>,
     /// What the first null made says of the fitted parameters ([`super::mesh_null::MeshBias`]).
@@ -155,6 +159,7 @@ impl<'a> MotionModel<'a> {
             mesh_bias: None,
             promising: (0, Vec::new()),
             stepped: Vec::new(),
+            region_search: None,
             null_checks: Vec::new(),
             settled: Vec::new(),
         }
@@ -316,6 +321,7 @@ impl CandidateModel for MotionModel<'_> {
                     let mut fitter = this.with_options(this.o);
                     fitter.log = &log;
                     fitter.stepped.clone_from(&this.stepped);
+                    fitter.region_search.clone_from(&this.region_search);
                     let outcome = c.effect().fit(&fitter, c, cur);
                     (outcome, lines.into_inner().expect("a fit's log lines"))
                 },
@@ -438,7 +444,7 @@ impl CandidateModel for MotionModel<'_> {
     ) -> Result<Vec<Prediction>, MotionDiagnoseError> {
         // A linearisation that does not simulate (a current model on the edge of stability)
         // predicts nothing: every open candidate is fitted, as without the screen.
-        let (p, simulations, stepped) = match super::screen::predict(self, round, cur, open) {
+        let (p, simulations, found) = match super::screen::predict(self, round, cur, open) {
             Ok(r) => r,
             Err(e) => {
                 (self.log)(&format!(
@@ -448,12 +454,13 @@ impl CandidateModel for MotionModel<'_> {
                 (
                     open.iter().map(|_| Prediction::none(&why)).collect(),
                     0,
-                    Vec::new(),
+                    super::screen::Found::default(),
                 )
             }
         };
         self.screen_simulations += simulations;
-        self.stepped = stepped;
+        self.stepped = found.stepped;
+        self.region_search = found.region_search;
         let promising = open
             .iter()
             .zip(&p)

@@ -12,10 +12,12 @@
 //! passes the gate.
 
 use std::cell::Cell;
+use std::sync::Arc;
 
 use palpate_motion::gradient::evaluate_gauss_newton;
 use palpate_motion::model::{Material, Param, ParamKind};
 
+use super::candidates::two_material::RegionSearch;
 use super::candidates::Candidate;
 use super::engine::MotionModel;
 use super::fit::{self, FittedModel};
@@ -42,6 +44,8 @@ pub struct Screening<'m, 'a> {
     stepped: std::cell::RefCell<Vec<(ParamKind, f64)>>,
     /// Simulations run for the round's predictions.
     simulations: Cell<usize>,
+    /// The second material's region search the prediction ran, for the round's fit.
+    region_search: std::cell::RefCell<Option<Arc<RegionSearch>>>,
 }
 
 impl<'m, 'a> Screening<'m, 'a> {
@@ -76,6 +80,7 @@ impl<'m, 'a> Screening<'m, 'a> {
             at,
             stepped: Default::default(),
             simulations: Cell::new(0),
+            region_search: Default::default(),
         };
         if screening.kinds.len() == cur.kinds.len() {
             return Ok(screening);
@@ -91,6 +96,11 @@ impl<'m, 'a> Screening<'m, 'a> {
     /// Counts `n` more simulations run for the predictions (a candidate's own scan).
     pub(in crate::motion) fn count(&self, n: usize) {
         self.simulations.set(self.simulations.get() + n);
+    }
+
+    /// Keeps the second material's region search for the round's fit.
+    pub(in crate::motion) fn keep_region_search(&self, search: RegionSearch) {
+        *self.region_search.borrow_mut() = Some(Arc::new(search));
     }
 
     /// ΔBIC of a model with χ² = `chi2` on the fitted steps and `extra` more parameters than the
@@ -192,14 +202,25 @@ pub(in crate::motion) fn stepped_chi2(
     cur.scores.chi2_fit * stepped / chi2_sim.max(f64::MIN_POSITIVE)
 }
 
+/// What a round's screen found besides its predictions, for the round's fits: where the
+/// predictions' Gauss–Newton steps took the candidates' new parameters, and the second
+/// material's region search.
+#[derive(Default)]
+pub(in crate::motion) struct Found {
+    /// Each stepped parameter's value.
+    pub stepped: Vec<(ParamKind, f64)>,
+    /// The region search, when the prediction ranked its cuts.
+    pub region_search: Option<Arc<RegionSearch>>,
+}
+
 /// Every open candidate's prediction on top of `cur` (one each, in order), the simulations
-/// they took, and where their Gauss–Newton steps took the candidates' new parameters.
+/// they took, and what they found for the round's fits.
 pub(in crate::motion) fn predict(
     model: &MotionModel<'_>,
     round: usize,
     cur: &FittedModel,
     open: &[Candidate],
-) -> Result<(Vec<Prediction>, usize, Vec<(ParamKind, f64)>), MotionDiagnoseError> {
+) -> Result<(Vec<Prediction>, usize, Found), MotionDiagnoseError> {
     let s = Screening::new(model, cur, open)?;
     let mut out = Vec::with_capacity(open.len());
     for &c in open {
@@ -213,5 +234,9 @@ pub(in crate::motion) fn predict(
         out.push(p);
     }
     let simulations = s.simulations.get();
-    Ok((out, simulations, s.stepped.into_inner()))
+    let found = Found {
+        stepped: s.stepped.into_inner(),
+        region_search: s.region_search.into_inner(),
+    };
+    Ok((out, simulations, found))
 }

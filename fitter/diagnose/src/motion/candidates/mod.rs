@@ -24,7 +24,7 @@ mod gravity_direction;
 mod marker_offsets;
 mod stiffening;
 mod time_offset;
-mod two_material;
+pub(in crate::motion) mod two_material;
 mod viscosity;
 mod viscosity_newtonian;
 mod viscosity_objective;

@@ -55,12 +55,43 @@ impl MotionEffect for TwoMaterial {
         fit_two_material(m, c, cur)
     }
 
-    /// Not predicted: where the region sits is searched by short fits of its own
-    /// ([`fit_two_material`]), which no linearisation at the one-material fit replaces.
-    fn predict(&self, _s: &Screening<'_, '_>) -> Result<Prediction, MotionDiagnoseError> {
-        Ok(Prediction::none(
-            "its region is searched by its own short fits: always fitted",
-        ))
+    /// The best ranked level set's prediction ([`region_rank`]): one Gauss–Newton step over
+    /// the current parameters and a second material on each of the map's cuts, the best one's
+    /// χ² charged the region's parameters. The best of many cuts is an optimistic prediction,
+    /// which a screen can afford: it fits the candidate where the best cut promises a gain.
+    /// The search it ran is kept for the round's fit ([`MotionModel::region_search`]). Where
+    /// the cuts are not ranked (a region is already adopted, or μ is not fitted) the short fits
+    /// are the search: always fitted.
+    fn predict(&self, s: &Screening<'_, '_>) -> Result<Prediction, MotionDiagnoseError> {
+        let extra = self.extra_params(0);
+        let located = search(s.model, s.cur);
+        // The map's simulation with its adjoint, and the ranking's when it ranked.
+        s.count(1 + usize::from(matches!(located, Located::Ranked(_))));
+        match located {
+            Located::Nothing(why) => Ok(Prediction {
+                delta_bic: Some(s.delta_bic(s.cur.scores.chi2_fit, extra)),
+                how: why,
+            }),
+            Located::Failed(why) => Ok(Prediction::none(&why)),
+            Located::Unranked { why, .. } => Ok(Prediction::none(&format!(
+                "{why}: its region is searched by short fits of its own, always fitted"
+            ))),
+            Located::Ranked(ranked) => {
+                let Some(&(cut, chi2)) = ranked.ranked.first() else {
+                    return Ok(Prediction::none("no cut ranked: always fitted"));
+                };
+                let how = format!(
+                    "one Gauss–Newton step with a second material on the best of {} level sets \
+                     of the sensitivity map (cut {cut})",
+                    ranked.ranked.len()
+                );
+                s.keep_region_search(ranked);
+                Ok(Prediction {
+                    delta_bic: Some(s.delta_bic(chi2, extra)),
+                    how,
+                })
+            }
+        }
     }
 
     fn adopt(&self, m: &MotionModel<'_>, gated: FittedModel) -> FittedModel {
@@ -90,29 +121,96 @@ impl MotionEffect for TwoMaterial {
     }
 }
 
-/// Where first ([`region::locate`]: the sensitivity map's nested level sets); then every cut the
-/// map offers — the coarse ones and, between each and its neighbours, up to
-/// [`region::FINE_LEVELS`] finer ones — ranked by one linearisation ([`region_rank`]), and the
-/// [`RANKED_SHORT_FITS`] best ranked fitted beside the global parameters from the current model
-/// for [`region::SCREEN_ITERS`] iterations; the region whose short fit has the lowest χ² on the
-/// fitted steps is fitted in full. Where the ranking does not apply (a region already adopted)
-/// every coarse cut is fitted short, then the cuts between the best one's neighbours. The
-/// held-out steps choose nothing.
+/// The second material's candidate regions at a current fit: the sensitivity map's level sets
+/// ([`region::locate`]) and, where one linearisation ranks them ([`region_rank`]), every cut
+/// the coarse-then-fine scan could reach in the order of its predicted χ². Made by the round's
+/// screen for its prediction and read by the round's fit ([`MotionModel::region_search`]).
+#[derive(Debug)]
+pub(in crate::motion) struct RegionSearch {
+    /// The map's level sets.
+    family: region::Family,
+    /// Cuts, best predicted first, each with its predicted χ² on the fitted steps (m²).
+    ranked: Vec<(usize, f64)>,
+}
+
+/// What the search for a second material's region found at a current fit.
+enum Located {
+    /// No region to place, and why.
+    Nothing(String),
+    /// The map could not be made, and why.
+    Failed(String),
+    /// Level sets the linearisation does not rank (why not): the short fits search them.
+    Unranked { family: region::Family, why: String },
+    /// Level sets ranked by the linearisation.
+    Ranked(RegionSearch),
+}
+
+/// The search at `cur`: the map's level sets ([`region::locate`]), and their cuts ranked by one
+/// linearisation ([`region_rank`]) where that applies.
+fn search(m: &MotionModel<'_>, cur: &FittedModel) -> Located {
+    let family = match region::locate(m.ds, m.split, cur) {
+        Ok(Some(f)) => f,
+        Ok(None) => {
+            return Located::Nothing(
+                "the misfit's sensitivity to each element's μ has one sign everywhere: no \
+                 second material to place"
+                    .into(),
+            )
+        }
+        Err(e) => return Located::Failed(format!("locating it failed: {e}")),
+    };
+    let coarse = family.coarse();
+    if coarse.is_empty() {
+        return Located::Nothing(format!(
+            "no level set of the sensitivity map leaves a region of at least {} elements and \
+             {:.0} % of the volume on both sides",
+            region::MIN_REGION_ELEMENTS,
+            100.0 * region::MIN_REGION_VOLUME
+        ));
+    }
+    let mut cuts: Vec<usize> = coarse
+        .iter()
+        .flat_map(|&k| family.between(&coarse, k, region::FINE_LEVELS))
+        .chain(coarse.iter().copied())
+        .collect();
+    cuts.sort_unstable();
+    cuts.dedup();
+    let why = match region_rank::predicted_chi2(m, cur, &family, &cuts) {
+        Ok(Some(chi2)) => {
+            let mut ranked: Vec<(usize, f64)> = cuts.into_iter().zip(chi2).collect();
+            ranked.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+            return Located::Ranked(RegionSearch { family, ranked });
+        }
+        Ok(None) => "the cuts are not ranked with a region adopted or μ held".to_string(),
+        Err(e) => format!("ranking the cuts failed ({e})"),
+    };
+    Located::Unranked { family, why }
+}
+
+/// Where first: the round's [`RegionSearch`], or the search made here ([`search`]); the
+/// [`RANKED_SHORT_FITS`] best ranked cuts fitted beside the global parameters from the current
+/// model for [`region::SCREEN_ITERS`] iterations; the region whose short fit has the lowest χ²
+/// on the fitted steps is fitted in full. Where the ranking does not apply (a region already
+/// adopted) every coarse cut is fitted short, then the cuts between the best one's neighbours.
+/// The held-out steps choose nothing.
 fn fit_two_material(
     m: &MotionModel<'_>,
     c: Candidate,
     cur: &FittedModel,
 ) -> Result<Outcome<FittedModel>, MotionDiagnoseError> {
-    let family = match region::locate(m.ds, m.split, cur) {
-        Ok(Some(f)) => f,
-        Ok(None) => {
-            return Ok(Outcome::NotFitted(
-                "the misfit's sensitivity to each element's μ has one sign everywhere: no \
-                 second material to place"
-                    .into(),
-            ))
+    let made;
+    let located = match &m.region_search {
+        Some(kept) => Ok(kept.as_ref()),
+        None => {
+            made = search(m, cur);
+            match &made {
+                Located::Nothing(why) | Located::Failed(why) => {
+                    return Ok(Outcome::NotFitted(why.clone()))
+                }
+                Located::Unranked { family, why } => Err((family, why)),
+                Located::Ranked(r) => Ok(r),
+            }
         }
-        Err(e) => return Ok(Outcome::NotFitted(format!("locating it failed: {e}"))),
     };
     // Each region starts at the current μ: the fit starts from the current model (its χ²),
     // where the map says which way the region's μ goes, and can only improve on it. (A start
@@ -127,6 +225,10 @@ fn fit_two_material(
         ..m.o.clone()
     };
     let screener = m.with_options(&screen);
+    let family = match located {
+        Ok(r) => &r.family,
+        Err((f, _)) => f,
+    };
     let mut best: Option<(FittedModel, usize)> = None;
     let (mut screened, mut evaluations) = (0, 0);
     let mut failures = Vec::new();
@@ -162,47 +264,24 @@ fn fit_two_material(
             }
         }
     };
-    let coarse = family.coarse();
-    if coarse.is_empty() {
-        return Ok(Outcome::NotFitted(format!(
-            "no level set of the sensitivity map leaves a region of at least {} elements and \
-             {:.0} % of the volume on both sides",
-            region::MIN_REGION_ELEMENTS,
-            100.0 * region::MIN_REGION_VOLUME
-        )));
-    }
-    // Every cut the coarse-then-fine scan could reach, ranked by one linearisation; the short
-    // fits run on the best ranked only. Where the ranking does not apply, the scan itself.
-    let mut cuts: Vec<usize> = coarse
-        .iter()
-        .flat_map(|&k| family.between(&coarse, k, region::FINE_LEVELS))
-        .chain(coarse.iter().copied())
-        .collect();
-    cuts.sort_unstable();
-    cuts.dedup();
-    let ranked = match region_rank::predicted_chi2(m, cur, &family, &cuts) {
-        Ok(r) => r,
-        Err(e) => {
-            (m.log)(&format!(
-                "  two-material: ranking the cuts failed ({e}); every cut is fitted short"
-            ));
-            None
-        }
-    };
-    let ranked_once = ranked.is_some();
     // The level sets the search chose among: every ranked cut, or every cut fitted short.
-    let offered = match ranked {
-        Some(chi2) => {
-            let mut order: Vec<(usize, f64)> = cuts.iter().copied().zip(chi2).collect();
-            order.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-            let top: Vec<usize> = order.iter().take(RANKED_SHORT_FITS).map(|o| o.0).collect();
-            for (rank, (k, chi2)) in order.iter().enumerate() {
+    let offered = match located {
+        Ok(ranked) => {
+            for (rank, (k, chi2)) in ranked.ranked.iter().enumerate() {
                 log::debug!("two-material: rank {rank}: cut {k}: predicted χ² {chi2:.6e} m²");
             }
+            let top: Vec<usize> = ranked
+                .ranked
+                .iter()
+                .take(RANKED_SHORT_FITS)
+                .map(|r| r.0)
+                .collect();
             scan(&top, &mut best);
-            cuts.len()
+            ranked.ranked.len()
         }
-        None => {
+        Err((family, why)) => {
+            (m.log)(&format!("  two-material: {why}; every cut is fitted short"));
+            let coarse = family.coarse();
             scan(&coarse, &mut best);
             if let Some(k) = best.as_ref().map(|b| b.1) {
                 scan(&family.between(&coarse, k, region::FINE_LEVELS), &mut best);
@@ -236,8 +315,10 @@ fn fit_two_material(
         Ok(f) => f,
         Err(e) => return Ok(Outcome::NotFitted(format!("fit failed: {e}"))),
     };
-    // The ranking's one simulation with the short fits' evaluations.
-    best.evaluations += evaluations + usize::from(ranked_once);
+    // The short fits' evaluations (the search's own simulations are the screen's, or the
+    // ranking's one when it ran here).
+    let ranked_here = m.region_search.is_none() && located.is_ok();
+    best.evaluations += evaluations + usize::from(ranked_here);
     Ok(Outcome::Fitted(best))
 }
 
