@@ -65,8 +65,12 @@ impl MotionEffect for TwoMaterial {
     fn predict(&self, s: &Screening<'_, '_>) -> Result<Prediction, MotionDiagnoseError> {
         let extra = self.extra_params(0);
         let located = search(s.model, s.cur);
-        // The map's simulation with its adjoint, and the ranking's when it ranked.
-        s.count(1 + usize::from(matches!(located, Located::Ranked(_))));
+        // The map's simulation with its adjoint when it was made, and the ranking's.
+        s.count(match located {
+            Located::Failed(_) => 0,
+            Located::Ranked(_) => 2,
+            Located::Nothing(_) | Located::Unranked { .. } => 1,
+        });
         match located {
             Located::Nothing(why) => Ok(Prediction {
                 delta_bic: Some(s.delta_bic(s.cur.scores.chi2_fit, extra)),
