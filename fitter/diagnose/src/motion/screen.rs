@@ -209,7 +209,7 @@ pub(in crate::motion) fn stepped_chi2(
 pub(in crate::motion) struct Found {
     /// Each stepped parameter's value.
     pub stepped: Vec<(ParamKind, f64)>,
-    /// The region search, when the prediction ranked its cuts.
+    /// The second material's region search, when the prediction made its map (ranked or not).
     pub region_search: Option<Arc<RegionSearch>>,
 }
 

@@ -66,36 +66,39 @@ impl MotionEffect for TwoMaterial {
         let extra = self.extra_params(0);
         let located = search(s.model, s.cur);
         // The map's simulation with its adjoint when it was made, and the ranking's.
-        s.count(match located {
+        s.count(match &located {
             Located::Failed(_) => 0,
-            Located::Ranked(_) => 2,
-            Located::Nothing(_) | Located::Unranked { .. } => 1,
+            Located::Nothing(_) => 1,
+            Located::Found(r) => 1 + usize::from(r.ranked.is_ok()),
         });
-        match located {
-            Located::Nothing(why) => Ok(Prediction {
-                delta_bic: Some(s.delta_bic(s.cur.scores.chi2_fit, extra)),
-                how: why,
-            }),
-            Located::Failed(why) => Ok(Prediction::none(&why)),
-            Located::Unranked { why, .. } => Ok(Prediction::none(&format!(
-                "{why}: its region is searched by short fits of its own, always fitted"
-            ))),
-            Located::Ranked(ranked) => {
-                let Some(&(cut, chi2)) = ranked.ranked.first() else {
-                    return Ok(Prediction::none("no cut ranked: always fitted"));
-                };
-                let how = format!(
-                    "one Gauss–Newton step with a second material on the best of {} level sets \
-                     of the sensitivity map (cut {cut})",
-                    ranked.ranked.len()
-                );
-                s.keep_region_search(ranked);
-                Ok(Prediction {
-                    delta_bic: Some(s.delta_bic(chi2, extra)),
-                    how,
+        let found = match located {
+            Located::Nothing(why) => {
+                return Ok(Prediction {
+                    delta_bic: Some(s.delta_bic(s.cur.scores.chi2_fit, extra)),
+                    how: why,
                 })
             }
-        }
+            Located::Failed(why) => return Ok(Prediction::none(&why)),
+            Located::Found(found) => found,
+        };
+        let prediction = match &found.ranked {
+            Ok(ranked) => match ranked.first() {
+                Some(&(cut, chi2)) => Prediction {
+                    delta_bic: Some(s.delta_bic(chi2, extra)),
+                    how: format!(
+                        "one Gauss–Newton step with a second material on the best of {} level \
+                         sets of the sensitivity map (cut {cut})",
+                        ranked.len()
+                    ),
+                },
+                None => Prediction::none("no cut ranked: always fitted"),
+            },
+            Err(why) => Prediction::none(&format!(
+                "{why}: its region is searched by short fits of its own, always fitted"
+            )),
+        };
+        s.keep_region_search(found);
+        Ok(prediction)
     }
 
     fn adopt(&self, m: &MotionModel<'_>, gated: FittedModel) -> FittedModel {
@@ -133,8 +136,9 @@ impl MotionEffect for TwoMaterial {
 pub(in crate::motion) struct RegionSearch {
     /// The map's level sets.
     family: region::Family,
-    /// Cuts, best predicted first, each with its predicted χ² on the fitted steps (m²).
-    ranked: Vec<(usize, f64)>,
+    /// Cuts, best predicted first, each with its predicted χ² on the fitted steps (m²); or why
+    /// the linearisation does not rank them (the short fits then search them).
+    ranked: Result<Vec<(usize, f64)>, String>,
 }
 
 /// What the search for a second material's region found at a current fit.
@@ -143,10 +147,8 @@ enum Located {
     Nothing(String),
     /// The map could not be made, and why.
     Failed(String),
-    /// Level sets the linearisation does not rank (why not): the short fits search them.
-    Unranked { family: region::Family, why: String },
-    /// Level sets ranked by the linearisation.
-    Ranked(RegionSearch),
+    /// The map's level sets.
+    Found(RegionSearch),
 }
 
 /// The search at `cur`: the map's level sets ([`region::locate`]), and their cuts ranked by one
@@ -179,16 +181,16 @@ fn search(m: &MotionModel<'_>, cur: &FittedModel) -> Located {
         .collect();
     cuts.sort_unstable();
     cuts.dedup();
-    let why = match region_rank::predicted_chi2(m, cur, &family, &cuts) {
+    let ranked = match region_rank::predicted_chi2(m, cur, &family, &cuts) {
         Ok(Some(chi2)) => {
             let mut ranked: Vec<(usize, f64)> = cuts.into_iter().zip(chi2).collect();
             ranked.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-            return Located::Ranked(RegionSearch { family, ranked });
+            Ok(ranked)
         }
-        Ok(None) => "the cuts are not ranked with a region adopted or μ held".to_string(),
-        Err(e) => format!("ranking the cuts failed ({e})"),
+        Ok(None) => Err("the cuts are not ranked with a region adopted or μ held".to_string()),
+        Err(e) => Err(format!("ranking the cuts failed ({e})")),
     };
-    Located::Unranked { family, why }
+    Located::Found(RegionSearch { family, ranked })
 }
 
 /// Where first: the round's [`RegionSearch`], or the search made here ([`search`]); the
@@ -203,19 +205,19 @@ fn fit_two_material(
     cur: &FittedModel,
 ) -> Result<Outcome<FittedModel>, MotionDiagnoseError> {
     let made;
-    let located = match &m.region_search {
-        Some(kept) => Ok(kept.as_ref()),
+    let found = match &m.region_search {
+        Some(kept) => kept.as_ref(),
         None => {
             made = search(m, cur);
             match &made {
                 Located::Nothing(why) | Located::Failed(why) => {
                     return Ok(Outcome::NotFitted(why.clone()))
                 }
-                Located::Unranked { family, why } => Err((family, why)),
-                Located::Ranked(r) => Ok(r),
+                Located::Found(found) => found,
             }
         }
     };
+    let family = &found.family;
     // Each region starts at the current μ: the fit starts from the current model (its χ²),
     // where the map says which way the region's μ goes, and can only improve on it. (A start
     // 1.5× off that way, and a 5 × 5 grid of starting contrasts with the rest's λ moving with
@@ -229,10 +231,6 @@ fn fit_two_material(
         ..m.o.clone()
     };
     let screener = m.with_options(&screen);
-    let family = match located {
-        Ok(r) => &r.family,
-        Err((f, _)) => f,
-    };
     let mut best: Option<(FittedModel, usize)> = None;
     let (mut screened, mut evaluations) = (0, 0);
     let mut failures = Vec::new();
@@ -269,21 +267,16 @@ fn fit_two_material(
         }
     };
     // The level sets the search chose among: every ranked cut, or every cut fitted short.
-    let offered = match located {
+    let offered = match &found.ranked {
         Ok(ranked) => {
-            for (rank, (k, chi2)) in ranked.ranked.iter().enumerate() {
+            for (rank, (k, chi2)) in ranked.iter().enumerate() {
                 log::debug!("two-material: rank {rank}: cut {k}: predicted χ² {chi2:.6e} m²");
             }
-            let top: Vec<usize> = ranked
-                .ranked
-                .iter()
-                .take(RANKED_SHORT_FITS)
-                .map(|r| r.0)
-                .collect();
+            let top: Vec<usize> = ranked.iter().take(RANKED_SHORT_FITS).map(|r| r.0).collect();
             scan(&top, &mut best);
-            ranked.ranked.len()
+            ranked.len()
         }
-        Err((family, why)) => {
+        Err(why) => {
             (m.log)(&format!("  two-material: {why}; every cut is fitted short"));
             let coarse = family.coarse();
             scan(&coarse, &mut best);
@@ -321,7 +314,7 @@ fn fit_two_material(
     };
     // The short fits' evaluations (the search's own simulations are the screen's, or the
     // ranking's one when it ran here).
-    let ranked_here = m.region_search.is_none() && located.is_ok();
+    let ranked_here = m.region_search.is_none() && found.ranked.is_ok();
     best.evaluations += evaluations + usize::from(ranked_here);
     Ok(Outcome::Fitted(best))
 }
