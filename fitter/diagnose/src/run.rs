@@ -37,6 +37,9 @@ pub struct Request {
     /// Runs of one object: refit the final model on quadratic elements too
     /// ([`crate::motion_convergence`]).
     pub motion_convergence: bool,
+    /// Fit every open candidate in every round (static, motion and runs diagnoses): the fit
+    /// screen off, for a check of what it left unfitted.
+    pub full_search: bool,
 }
 
 pub use crate::summary::Summary;
@@ -149,6 +152,7 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<Vec<Summar
             args.max_effects.unwrap_or(DEFAULT_MAX_EFFECTS),
             args.mesh,
             args.motion_convergence,
+            args.full_search,
         )?]);
     }
     Ok(vec![crate::statics::run::run(
@@ -157,6 +161,7 @@ fn diagnose_one(args: &Request, path: &Path, output: &Path) -> Result<Vec<Summar
         &args.candidates,
         args.max_effects.unwrap_or(DEFAULT_MAX_EFFECTS),
         args.mesh,
+        args.full_search,
     )?])
 }
 
@@ -174,6 +179,7 @@ fn run_runs(args: &Request) -> Result<Summary, Error> {
         args.max_effects,
         args.poisson,
         args.motion_convergence,
+        args.full_search,
     )
 }
 

@@ -377,6 +377,13 @@ impl FitScreen {
         }
     }
 
+    /// [`Self::from_options`] with its `least` best fitted only when they are predicted to pay
+    /// ([`Self::least_only_paying`]): the rooms' screen, whose predictions are good enough that a
+    /// candidate predicted not to pay is not fitted only to make up the `least`.
+    pub fn paying(on: bool, least: usize, margin: f64, threshold: f64) -> Self {
+        Self::from_options(on, least, margin, threshold).least_only_paying()
+    }
+
     /// This screen with its `least` best fitted only when they are predicted to pay (ΔBIC below
     /// the fallback's bound, the gate's −threshold).
     pub fn least_only_paying(self) -> Self {

@@ -427,13 +427,12 @@ impl CandidateModel for MotionModel<'_> {
         // passed the gate (the third round's stiffening, +9.2 to +9.7, in five draws; −3.9 on
         // seed 7, where its fit at a shear-thinning index near its floor took 24–33 of the
         // diagnosis' ≈ 190 simulations).
-        FitScreen::from_options(
+        FitScreen::paying(
             self.o.screen,
             self.o.screen_least,
             self.o.screen_margin,
             self.o.bic_threshold,
         )
-        .least_only_paying()
     }
 
     fn predict(

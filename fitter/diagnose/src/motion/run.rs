@@ -8,7 +8,8 @@ use crate::summary::Summary;
 use palpate_fem::export::ProvenanceInfo;
 use std::path::Path;
 
-/// Runs the motion diagnosis of `dataset` into `output`.
+/// Runs the motion diagnosis of `dataset` into `output` (`full_search`: every open candidate
+/// fitted, the fit screen off).
 pub fn run(
     dataset: &Path,
     output: &Path,
@@ -16,6 +17,7 @@ pub fn run(
     max_effects: usize,
     mesh: crate::MeshChoice,
     motion_convergence: bool,
+    full_search: bool,
 ) -> Result<Summary, Error> {
     if mesh == crate::MeshChoice::Refined {
         return Err(Error::Input(format!(
@@ -37,6 +39,7 @@ pub fn run(
         mesh_error: refined,
         mesh_null: refined,
         motion_convergence,
+        screen: !full_search,
         ..Default::default()
     };
     if !candidates.is_empty() {

@@ -7,7 +7,8 @@ use crate::error::Error;
 use crate::summary::Summary;
 
 /// Runs the runs diagnosis: `fitted` fitted together, `held_out` predicted, the report into
-/// `output`; `max_effects` and `poisson` override [`super::RunsOptions`]'s defaults.
+/// `output`; `max_effects` and `poisson` override [`super::RunsOptions`]'s defaults, and
+/// `full_search` turns its fit screen off.
 pub fn run(
     fitted: &[PathBuf],
     held_out: &[PathBuf],
@@ -16,6 +17,7 @@ pub fn run(
     max_effects: Option<usize>,
     poisson: Option<f64>,
     motion_convergence: bool,
+    full_search: bool,
 ) -> Result<Summary, Error> {
     let load = |p: &PathBuf| -> Result<(String, palpate_motion::dataset::MotionDataset), Error> {
         let ds = palpate_motion::dataset::load(p).map_err(|source| Error::MotionDataset {
@@ -34,6 +36,7 @@ pub fn run(
         o.poisson = nu;
     }
     o.motion_convergence = motion_convergence;
+    o.screen = !full_search;
     if !candidates.is_empty() {
         o.candidates = crate::select::pick_candidates::<super::Effect>(candidates)?;
     }

@@ -297,13 +297,12 @@ impl CandidateModel for RunsModel<'_> {
         // The room's predictions of its continuous candidates are one Gauss–Newton step held at
         // their parameters' bounds (`screen.rs`), the time offset's its scan: a candidate they
         // predict not to pay is not fitted only to make up the `least`.
-        FitScreen::from_options(
+        FitScreen::paying(
             self.o.screen,
             self.o.screen_least,
             self.o.screen_margin,
             self.o.bic_threshold,
         )
-        .least_only_paying()
     }
 
     fn predict(

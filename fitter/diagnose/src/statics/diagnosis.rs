@@ -57,6 +57,10 @@ pub struct Tried {
     /// under one of the loads): `rms` and `delta_bic` are then NaN.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub not_fitted: Option<String>,
+    /// ΔBIC the fit screen predicted before any fit (`None`: not predicted, or the screen off).
+    pub predicted_delta_bic: Option<f64>,
+    /// Left unfitted by the fit screen (its prediction ranked it out).
+    pub screened_out: bool,
 }
 
 /// Evidence plot data of an adopted effect: x label, y label, points before and after adoption.

@@ -13,7 +13,7 @@ use super::DiagnoseError;
 /// Forward-difference step on the dimensionless θ. The fixed-point tolerance is 1e-10 m, so the
 /// solver noise in a residual column is ≈ 1e-10 / (σ h) ≈ 1e-2 (for σ = 100 µm) against columns of
 /// order u/σ ≈ 10–100: negligible; the truncation error is O(h) relative.
-const FD_STEP: f64 = 1e-4;
+pub(super) const FD_STEP: f64 = 1e-4;
 
 /// A fitted model.
 #[derive(Debug, Clone)]

@@ -50,6 +50,7 @@ pub mod power;
 pub mod report;
 pub mod rest_noise;
 pub mod run;
+mod screen;
 mod select;
 pub mod sensitivity;
 pub mod signature;

@@ -29,6 +29,15 @@ pub struct DiagnoseOptions {
 
     /// How many BIC-ranked candidates are cross-validated per round.
     pub cv_candidates: usize,
+    /// Predict every open candidate's gain by one Gauss–Newton step before fitting any (the
+    /// static fit screen, `statics/screen.rs`) and fit in full only those ranked first; `false`:
+    /// fit every open candidate (the full search).
+    pub screen: bool,
+    /// With the screen: the fewest candidates fitted per round (when predicted to pay).
+    pub screen_least: usize,
+    /// With the screen: a candidate is fitted when its predicted ΔBIC is within this fraction of
+    /// the best predicted one.
+    pub screen_margin: f64,
     /// The marker-noise test run after the structural loop.
     pub noise: NoiseOptions,
     /// The rest-scan noise test run after the marker-noise test.
@@ -124,6 +133,9 @@ impl Default for DiagnoseOptions {
             bic_threshold: 10.0,
             min_holdout_gain: 0.10,
             cv_candidates: 2,
+            screen: true,
+            screen_least: 3,
+            screen_margin: 0.5,
             noise: NoiseOptions::default(),
             rest_noise: RestNoiseOptions::default(),
             mesh: MeshChoice::Auto,

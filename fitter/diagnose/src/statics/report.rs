@@ -240,12 +240,21 @@ fn signature_lines(s: &mut String, sig: &Signature) {
 /// The table of the candidates a round tried, and why any was not fitted.
 fn tried_table(s: &mut String, st: &Step) {
     if !st.tried.is_empty() {
-        let _ = writeln!(s, "| candidate | extra params | refit RMS µm | ΔBIC | held-out RMS µm | held-out ΔBIC | held-out paired t |\n|---|---|---|---|---|---|---|");
+        let _ = writeln!(s, "| candidate | extra params | predicted ΔBIC | refit RMS µm | ΔBIC | held-out RMS µm | held-out ΔBIC | held-out paired t |\n|---|---|---|---|---|---|---|---|");
         for t in &st.tried {
+            let predicted = t
+                .predicted_delta_bic
+                .map(|v| format!("{v:.1}"))
+                .unwrap_or_else(|| "–".into());
             if t.not_fitted.is_some() {
+                let why = if t.screened_out {
+                    "screened out"
+                } else {
+                    "not fitted"
+                };
                 let _ = writeln!(
                     s,
-                    "| {} | {} | not fitted | – | – | – | – |",
+                    "| {} | {} | {predicted} | {why} | – | – | – | – |",
                     t.candidate.name(),
                     t.extra_params
                 );
@@ -253,7 +262,7 @@ fn tried_table(s: &mut String, st: &Step) {
             }
             let _ = writeln!(
                 s,
-                "| {} | {} | {} | {:.1} | {} | {} | {} |",
+                "| {} | {} | {predicted} | {} | {:.1} | {} | {} | {} |",
                 t.candidate.name(),
                 t.extra_params,
                 um(t.rms),
@@ -268,7 +277,20 @@ fn tried_table(s: &mut String, st: &Step) {
             );
         }
     }
-    for t in st.tried.iter().filter(|t| t.not_fitted.is_some()) {
+    // A screened-out candidate's prediction is in the table; what it means is said once.
+    if st.tried.iter().any(|t| t.screened_out) {
+        let _ = writeln!(
+            s,
+            "\nScreened out: predicted by one Gauss–Newton step at the current fit not to rank \
+             among those fitted (the best predicted, those within the margin of the best, each \
+             only when predicted to pay for its parameters); `--full-search` fits every one."
+        );
+    }
+    for t in st
+        .tried
+        .iter()
+        .filter(|t| t.not_fitted.is_some() && !t.screened_out)
+    {
         let _ = writeln!(
             s,
             "\nNot fitted: {} — {}",

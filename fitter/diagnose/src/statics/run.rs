@@ -12,13 +12,15 @@ use crate::error::Error;
 use crate::select::pick_candidates;
 use crate::summary::Summary;
 
-/// Runs the static diagnosis of the dataset at `path` into `output`.
+/// Runs the static diagnosis of the dataset at `path` into `output` (`full_search`: every open
+/// candidate fitted, the fit screen off).
 pub fn run(
     path: &Path,
     output: &Path,
     candidates: &[String],
     max_effects: usize,
     mesh: MeshChoice,
+    full_search: bool,
 ) -> Result<Summary, Error> {
     let ds = StaticDataset::read(path).map_err(|source| Error::StaticDataset {
         path: path.into(),
@@ -27,6 +29,7 @@ pub fn run(
     let mut o = DiagnoseOptions {
         max_effects,
         mesh,
+        screen: !full_search,
         ..Default::default()
     };
     if !candidates.is_empty() {

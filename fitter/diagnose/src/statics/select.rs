@@ -7,10 +7,13 @@ use super::fit::{fit, Fitted};
 use super::holdout::{errors, heldout_delta_bic, holdout, marker_norms, paired_t, stats, Held};
 use super::model::{Candidate, Context};
 use super::params::effect_params;
+use super::screen;
 use super::signature::{evidence_points, signature, Signature};
 use super::{DiagnoseError, DiagnoseOptions, Errors, Evidence, Step, Tried};
 use crate::select::ParamValue;
-use crate::select::{self, CandidateModel as _, Current, Gate, Outcome, Score, Verdict};
+use crate::select::{
+    self, CandidateModel as _, Current, Gate, Outcome, Prediction, Score, Verdict,
+};
 
 /// The static diagnosis as the selection engine sees it: the context it solves in, the
 /// approximation-error correction refreshed after each adoption, and its options (gate numbers).
@@ -247,6 +250,50 @@ impl select::CandidateModel for StaticModel<'_> {
         }
     }
 
+    fn fit_screen(&self) -> select::FitScreen {
+        // Only candidates predicted to pay for their parameters are fitted to make up the
+        // `least`: one predicted not to can still be fitted as the round's reserve.
+        select::FitScreen::paying(
+            self.o.screen,
+            self.o.screen_least,
+            self.o.screen_margin,
+            self.o.bic_threshold,
+        )
+    }
+
+    fn predict(
+        &mut self,
+        round: usize,
+        current: &Fitted,
+        open: &[Candidate],
+    ) -> Result<Vec<Prediction>, DiagnoseError> {
+        (self.progress)(&format!(
+            "round {round}: predicting the gain of {} candidates (one Gauss–Newton step each)",
+            open.len()
+        ));
+        open.iter()
+            .map(|&c| {
+                match screen::predict(&self.ctx, current, c, &self.all, self.o.grid) {
+                    Ok(p) => Ok(p),
+                    // A start the augmented model cannot be simulated at is not a finding: the
+                    // candidate is fitted, as without the screen, and its fit says why.
+                    Err(DiagnoseError::Diverged(why)) => Ok(Prediction::none(&format!(
+                        "not predicted: its start could not be simulated ({why})"
+                    ))),
+                    Err(e) => Err(e),
+                }
+            })
+            .collect()
+    }
+
+    fn screened_out(&mut self, round: usize, c: Candidate, p: &Prediction) {
+        (self.progress)(&format!(
+            "round {round}: {} screened out (predicted ΔBIC {:.1})",
+            c.name(),
+            p.delta_bic.unwrap_or(f64::NAN)
+        ));
+    }
+
     fn summarise(&self, f: &Fitted) -> f64 {
         stats(&marker_norms(&self.ctx, f)).0
     }
@@ -472,7 +519,21 @@ pub(super) fn static_steps(
                         b.candidate.name(),
                         o.bic_threshold
                     ),
-                    None => "no candidate could be fitted: stop".to_string(),
+                    // Every open candidate screened out: none was predicted to pay.
+                    None => match r
+                        .ranked()
+                        .filter_map(|a| Some((a, a.prediction.as_ref()?.delta_bic?)))
+                        .filter(|(a, _)| a.screened_out)
+                        .min_by(|x, y| x.1.total_cmp(&y.1))
+                    {
+                        Some((b, d)) => format!(
+                            "nothing predicted to pay for its parameters (best predicted ΔBIC \
+                             {d:.1} for {}; threshold −{})",
+                            b.candidate.name(),
+                            o.bic_threshold
+                        ),
+                        None => "no candidate could be fitted: stop".to_string(),
+                    },
                 });
             }
             let (signature, before) = r.observed.clone();
@@ -495,6 +556,8 @@ pub(super) fn static_steps(
                             heldout_delta_bic: a.gate.as_ref().map(|g| g.heldout_delta_bic),
                             heldout_force_rms: g.map(|g| g.heldout_force_rms),
                             not_fitted: a.not_fitted.clone(),
+                            predicted_delta_bic: a.prediction.as_ref().and_then(|p| p.delta_bic),
+                            screened_out: a.screened_out,
                         }
                     })
                     .collect(),

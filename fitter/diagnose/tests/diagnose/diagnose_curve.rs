@@ -443,6 +443,7 @@ fn a_folder_of_instrument_folders_is_diagnosed_one_by_one() {
         poisson: None,
         design: None,
         motion_convergence: false,
+        full_search: false,
     };
     palpate_diagnose::run::run(&args(root.path(), out.path())).unwrap();
     for name in ["strip-a", "strip-b"] {

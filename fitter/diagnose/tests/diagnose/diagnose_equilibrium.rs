@@ -68,6 +68,8 @@ fn the_report_shows_a_not_fitted_attempt_in_the_round_table() {
         candidates: vec![Candidate::Gravity],
         max_effects: 1,
         mesh: MeshChoice::Dataset,
+        // Fitted, not screened out: the mark set below is that of a fit.
+        screen: false,
         ..Default::default()
     };
     let mut r = run_diagnosis(&s.dataset, &o).expect("diagnosis");
@@ -78,7 +80,7 @@ fn the_report_shows_a_not_fitted_attempt_in_the_round_table() {
     let name = t.candidate.name();
     let md = palpate_diagnose::report::markdown(&r, &[]);
     assert!(
-        md.contains(&format!("| {name} | 1 | not fitted | – |")),
+        md.contains(&format!("| {name} | 1 | – | not fitted | – |")),
         "the table row:\n{md}"
     );
     assert!(

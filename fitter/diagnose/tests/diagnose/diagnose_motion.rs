@@ -349,6 +349,7 @@ fn cli_args(dataset: &std::path::Path, out: &std::path::Path) -> palpate_diagnos
         poisson: None,
         design: None,
         motion_convergence: false,
+        full_search: false,
     }
 }
 

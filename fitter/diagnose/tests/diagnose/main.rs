@@ -19,6 +19,7 @@ mod diagnose_power;
 mod diagnose_runs;
 mod diagnose_runs_creep;
 mod diagnose_scans;
+mod diagnose_screen;
 mod diagnose_sensitivity;
 mod diagnose_tilt_responses;
 mod diagnose_viscosity_form;

@@ -35,12 +35,17 @@ pub struct Args {
     /// Mesh the diagnoses solve on (as `palpate diagnose --mesh`).
     #[arg(long, value_enum, default_value = "auto")]
     pub mesh: MeshChoice,
+    /// Fit every open candidate in every round (as `palpate diagnose --full-search`): the fit
+    /// screen off, for the table it is checked against.
+    #[arg(long)]
+    pub full_search: bool,
 }
 
 impl Args {
     fn options(&self) -> DiagnoseOptions {
         DiagnoseOptions {
             mesh: self.mesh,
+            screen: !self.full_search,
             ..Default::default()
         }
     }
@@ -60,6 +65,9 @@ impl Args {
         }
         if self.mesh != MeshChoice::Auto {
             c += &format!(" --mesh {:?}", self.mesh).to_lowercase();
+        }
+        if self.full_search {
+            c += " --full-search";
         }
         c
     }

@@ -59,6 +59,12 @@ pub struct Args {
     /// convergence of the motion"). About a minute on the beam's coarse mesh, so not by default.
     #[arg(long)]
     pub motion_convergence: bool,
+    /// Fit every open candidate in every round. By default a round first predicts each
+    /// candidate's gain by one Gauss–Newton step at the current fit and fits in full only those
+    /// ranked first (the others are listed as screened out with their prediction); this turns
+    /// that screen off, for a check of what it left unfitted (static, motion and runs).
+    #[arg(long)]
+    pub full_search: bool,
     /// Figure format.
     #[command(flatten)]
     pub plots: super::output::PlotArgs,
@@ -116,6 +122,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             palpate_scan::fit::Design::Quadratic
         }),
         motion_convergence: args.motion_convergence,
+        full_search: args.full_search,
     };
     // Each input's summary is printed as soon as it is written: a folder of inputs takes minutes
     // per input.
