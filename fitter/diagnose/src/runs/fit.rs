@@ -207,7 +207,8 @@ impl RunsModel<'_> {
             }
         }
         let base = start.clone();
-        let params: Vec<Param> = kinds.iter().map(|k| Param::global(*k)).collect();
+        let mut params: Vec<Param> = kinds.iter().map(|k| Param::global(*k)).collect();
+        params.extend(region_params(start));
         let q0 = base.read(&params);
         let retimed = self.retimed(effects, offsets)?;
         let runs: Vec<Run> = retimed
@@ -243,7 +244,7 @@ impl RunsModel<'_> {
         let nu = self.o.poisson;
         material.set(
             &[Param::global(ParamKind::Lambda)],
-            &[2.0 * nu / (1.0 - 2.0 * nu) * material.get(ParamKind::Mu, 0)],
+            &[2.0 * nu / (1.0 - 2.0 * nu) * material.body_moduli().1],
         );
         let fitted = self.residuals(self.fit, effects, &material, offsets)?;
         Ok(RunsFit {
@@ -311,6 +312,16 @@ impl RunsModel<'_> {
         }
     }
 }
+/// The parameters of `material`'s regions: each scaled region's μ (a clamp layer's, whose λ
+/// follows at the body's Poisson's ratio), fitted beside the global kinds.
+pub(in crate::runs) fn region_params(material: &Material) -> Vec<Param> {
+    material
+        .scaled_regions
+        .iter()
+        .map(|&r| Param::in_region(ParamKind::Mu, r))
+        .collect()
+}
+
 /// A fit's result as the selection takes it: a fit that fails is a candidate not fitted, and
 /// the report says why.
 pub(in crate::runs) fn fitted(f: Result<RunsFit, MotionError>) -> Outcome<RunsFit> {

@@ -16,8 +16,10 @@
 //! free, eq. 17), the inertia of hanging weights (no new parameter: the declared mass moves
 //! with its nodes), and a time offset of each run's markers against the simulation's clock (one
 //! integer number of steps per run, [`palpate_motion::time_offset`]: the release instant an import
-//! reads off the capture is uncertain by a frame or two). Each is fitted on top of the current
-//! model (all its material parameters refitted).
+//! reads off the capture is uncertain by a frame or two), a strain stiffening, a creep branch,
+//! where the hanging weights act, and a clamp that gives (the elements at the clamps softened as
+//! a whole, their μ fitted beside the global kinds: `fit.rs`'s `region_params`). Each is fitted on top
+//! of the current model (all its material parameters refitted).
 //!
 //! **The time offset** is found by a scan, not a descent (the misfit of a ring-down has a minimum
 //! every period): each fitted run's offset is scanned with the current material, the material
@@ -42,7 +44,8 @@
 //! Newtonian damping with one more parameter. The hanging weights' inertia, a switch with no
 //! neutral value to linearise about, is always fitted; the time offset is predicted by its scan
 //! at the current material (its fit starts from that scan, which is not repeated), without the
-//! material's refit. A step that takes a parameter bounded at its neutral value (ν, c, g ≥ 0)
+//! material's refit; the clamp's give by the column of the layer's own μ in the same evaluation
+//! (the layer held there at the body's moduli). A step that takes a parameter bounded at its neutral value (ν, c, g ≥ 0)
 //! below its bound is taken again with that parameter held there. The best predicted are fitted
 //! in full (the screen's `least`, and those within its `margin` of the best), among them only
 //! those predicted to pay (ΔBIC below the gate's −threshold); the rest are reported with their
@@ -72,6 +75,7 @@ use palpate_motion::time_offset;
 use palpate_motion::MotionError;
 use serde::Serialize;
 
+pub use candidates::clamp_compliance::ClampLayer;
 pub use candidates::{Effect, ALL_EFFECTS};
 pub use signature::{residual, ring_down, viscosity_from_ring_down, RunResidual};
 
@@ -169,9 +173,11 @@ impl RunsFit {
             .iter()
             .fold((0.0, 0), |(c, n), r| (c + r.chi2, n + 3 * r.count))
     }
-    /// Free parameters: the material kinds and, with the time offset, one per run.
+    /// Free parameters: the material kinds, the regions' μ (a clamp layer's) and, with the time
+    /// offset, one per run.
     fn parameters(&self) -> usize {
         self.kinds.len()
+            + self.material.scaled_regions.len()
             + if Effect::retimed(&self.effects) {
                 self.offsets.len()
             } else {
@@ -180,7 +186,7 @@ impl RunsFit {
     }
     /// Young's modulus from μ at the fixed Poisson's ratio (Pa).
     pub fn young(&self, poisson: f64) -> f64 {
-        2.0 * (1.0 + poisson) * self.material.get(ParamKind::Mu, 0)
+        2.0 * (1.0 + poisson) * self.material.body_moduli().1
     }
 }
 
@@ -282,6 +288,8 @@ pub struct RunsDiagnosis {
     pub motion_convergence: Option<crate::motion_convergence::MotionConvergence>,
     /// The hanging weights' lever, when `load-point` was adopted.
     pub load_lever: Option<palpate_motion::load_point::LeverFit>,
+    /// The softened layer at the clamps, when `clamp-compliance` was adopted.
+    pub clamp_layer: Option<candidates::clamp_compliance::ClampLayer>,
     /// The floor the creep branch's relaxation time was held above (s): the longest ring-down
     /// period measured in the fitted runs; `None` when none rings.
     pub creep_floor_s: Option<f64>,
@@ -329,15 +337,21 @@ fn mu_sd(
     k: usize,
 ) -> Result<f64, MotionError> {
     let ratio = 2.0 * poisson / (1.0 - 2.0 * poisson);
-    let mu = mat.get(ParamKind::Mu, 0);
-    let params = [
+    let mu = mat.body_moduli().1;
+    // The body's μ varied, a clamp layer's held where it is.
+    let mut params = vec![
         Param::global(ParamKind::Mu),
         Param::global(ParamKind::Lambda),
     ];
+    let regions = fit::region_params(mat);
+    let held = mat.read(&regions);
+    params.extend(regions);
     let phi = |z: f64| -> Result<f64, MotionError> {
         let mut m = mat.clone();
         let v = mu * z.exp();
-        m.set(&params, &[v, ratio * v]);
+        let mut q = vec![v, ratio * v];
+        q.extend(&held);
+        m.set(&params, &q);
         Ok(
             palpate_motion::optimize::evaluate_runs(runs, &m, &params, None)?
                 .0
@@ -465,7 +479,7 @@ pub fn diagnose_runs_with(
     let values = final_values(&last, nu, sd_mu);
     let mut model = fitted_model(fit, &models, &last, nu);
     let mesh_convergence = o.mesh_convergence.then(|| {
-        let mu = last.material.get(ParamKind::Mu, 0);
+        let mu = last.material.body_moduli().1;
         // The runs with the final model's loads (a lever moves the weights).
         let changed: Vec<MotionDataset> = fit
             .iter()
@@ -526,6 +540,7 @@ pub fn diagnose_runs_with(
         mesh_convergence,
         motion_convergence,
         load_lever: lever_adopted,
+        clamp_layer: candidates::clamp_compliance::clamp_layer(&fit[0].1.model, &last.material),
         creep_floor_s: m.creep_floor,
         seconds: t0.elapsed().as_secs_f64(),
         simulations: m.simulations.get(),
@@ -618,7 +633,7 @@ fn check_runs(
 /// The final model's parameters as reported: E and μ (1σ `sd_mu`), the held Poisson's ratio,
 /// then each adopted effect's in library order.
 fn final_values(last: &RunsFit, nu: f64, sd_mu: f64) -> Vec<ParamValue> {
-    let mu = last.material.get(ParamKind::Mu, 0);
+    let mu = last.material.body_moduli().1;
     let mut values = vec![
         ParamValue {
             name: "E (Young's modulus)".into(),

@@ -12,8 +12,8 @@ use palpate_motion::gradient::evaluate_gauss_newton;
 use palpate_motion::model::{Param, ParamKind};
 use palpate_motion::MotionError;
 
-use super::candidates::{creep, Effect};
-use super::fit::RunsModel;
+use super::candidates::{clamp_compliance, creep, Effect};
+use super::fit::{region_params, RunsModel};
 use super::RunsFit;
 use crate::screen::{self, Normal};
 use crate::select::{heldout_delta_bic, Prediction};
@@ -29,13 +29,18 @@ pub(in crate::runs) struct ScreenPoint<'a> {
     pub(in crate::runs) runs: usize,
     /// The current fit's χ² (m²) and its scalar residual count.
     chi2: (f64, usize),
-    /// The current parameters (the first `own`), then every open candidate's.
-    kinds: Vec<ParamKind>,
+    /// The columns of `normals`: the current parameters (the first `own`: its global kinds, then
+    /// its regions' μ), then every open candidate's.
+    cols: Vec<Param>,
     /// The current model's parameters.
     own: usize,
-    /// Each fitted run's Φ, gradient and Gauss–Newton matrix over `kinds` (empty when no open
+    /// Each fitted run's Φ, gradient and Gauss–Newton matrix over `cols` (empty when no open
     /// candidate has a material parameter).
     normals: Vec<Normal>,
+    /// With the clamp's give open: the same over `cols` and, last, the clamp layer's μ, the layer
+    /// held at the body's moduli (so the current model); `normals` is this with the layer's
+    /// column folded into μ's. Empty otherwise.
+    layer_normals: Vec<Normal>,
     /// Each fitted run's marker χ² (m²) at the same evaluation.
     run_chi2: Vec<f64>,
     /// Whether the creep branch's relaxed fraction has its slope in `normals` (creep is open and
@@ -45,32 +50,40 @@ pub(in crate::runs) struct ScreenPoint<'a> {
 
 impl<'a> ScreenPoint<'a> {
     /// Linearises the fitted runs at `cur` over its parameters and those of `open` (at their
-    /// neutral values: no viscosity, h = 1, no stiffening), when any of them has one.
+    /// neutral values: no viscosity, h = 1, no stiffening, the clamp layer as stiff as the
+    /// body), when any of them has one.
     pub(in crate::runs) fn new(
         room: &RunsModel,
         round: usize,
         cur: &'a RunsFit,
         open: &[Effect],
     ) -> Result<Self, MotionError> {
-        let mut kinds = cur.kinds.clone();
+        let mut cols = Param::globals(&cur.kinds);
+        cols.extend(region_params(&cur.material));
+        let own = cols.len();
         for c in open {
             for k in c.kinds() {
-                if !kinds.contains(k) {
-                    kinds.push(*k);
+                if !cols.contains(&Param::global(*k)) {
+                    cols.push(Param::global(*k));
                 }
             }
         }
         let mut mat = cur.material.clone();
-        for k in &kinds[cur.kinds.len()..] {
-            let neutral = match k {
+        for p in &cols[own..] {
+            let neutral = match p.kind {
                 ParamKind::PowerH => 1.0,
                 _ => 0.0,
             };
-            mat.set(&[Param::global(*k)], &[neutral]);
+            mat.set(&[*p], &[neutral]);
         }
-        let (mut normals, mut run_chi2) = (Vec::new(), Vec::new());
+        let layer = if open.contains(&Effect::ClampCompliance) {
+            clamp_compliance::open_layer(room, &cur.material).ok()
+        } else {
+            None
+        };
+        let (mut normals, mut layer_normals, mut run_chi2) = (Vec::new(), Vec::new(), Vec::new());
         let mut creep_slope = false;
-        if open.iter().any(|c| !c.kinds().is_empty()) {
+        if open.iter().any(|c| !c.kinds().is_empty()) || layer.is_some() {
             let runs = room.retimed(&cur.effects, &cur.offsets)?;
             room.count(runs.len(), true);
             creep_slope = open.contains(&Effect::Creep) && !cur.material.has_creep();
@@ -78,9 +91,19 @@ impl<'a> ScreenPoint<'a> {
                 mat.set_uniform(ParamKind::CreepFraction, creep::SCREEN_FRACTION);
                 mat.set_uniform(ParamKind::CreepTime, creep::start_time(room));
             }
+            let mut params = cols.clone();
+            if let Some(layer) = layer.clone() {
+                // The layer a region of its own at the body's moduli: the same material.
+                let r = mat.regions.len();
+                let body_mu = mat.body_moduli().1;
+                mat.regions.push(layer);
+                mat.scaled_regions.push(r);
+                mat.set(&[Param::in_region(ParamKind::Mu, r)], &[body_mu]);
+                params.push(Param::in_region(ParamKind::Mu, r));
+            }
             // λ is tied to μ at the held Poisson's ratio: its column is folded into μ's.
-            let mut params: Vec<Param> = kinds.iter().map(|k| Param::global(*k)).collect();
             params.push(Param::global(ParamKind::Lambda));
+            let lambda_col = params.len() - 1;
             let nu = room.o.poisson;
             let ratio = 2.0 * nu / (1.0 - 2.0 * nu);
             use rayon::prelude::*;
@@ -94,19 +117,30 @@ impl<'a> ScreenPoint<'a> {
                         grad: ev.grad.unwrap_or_default(),
                         gn,
                     };
-                    Ok((all.tie(0, kinds.len(), ratio), chi2))
+                    Ok((all.tie(0, lambda_col, ratio), chi2))
                 })
                 .collect::<Result<_, MotionError>>()?;
             (normals, run_chi2) = parts.into_iter().unzip();
+            if layer.is_some() {
+                // Moving the body's μ and the layer's together is moving the one μ of the
+                // current model: the other candidates are predicted over that column.
+                let layer_col = cols.len();
+                layer_normals = normals;
+                normals = layer_normals
+                    .iter()
+                    .map(|n| n.tie(0, layer_col, 1.0))
+                    .collect();
+            }
         }
         Ok(Self {
             round,
             cur,
             runs: room.fit.len(),
             chi2: cur.chi2(),
-            own: cur.kinds.len(),
-            kinds,
+            own,
+            cols,
             normals,
+            layer_normals,
             run_chi2,
             creep_slope,
         })
@@ -139,14 +173,14 @@ impl<'a> ScreenPoint<'a> {
         cols.extend(
             kinds
                 .iter()
-                .filter_map(|k| self.kinds.iter().position(|j| j == k))
+                .filter_map(|k| self.cols.iter().position(|j| *j == Param::global(*k)))
                 .filter(|&i| i >= self.own),
         );
         // A viscosity, a stiffening coefficient or a relaxed fraction cannot go below 0: a step
         // that takes one there is taken again with it held at 0, where the candidate does best.
         let own = self.own;
         let (delta, held) = screen::step_within_bounds(&self.normals, &mut cols, |col| {
-            (col >= own).then(|| self.kinds[col])
+            (col >= own).then(|| self.cols[col].kind)
         });
         let how = if held.is_empty() {
             how.to_string()
@@ -154,9 +188,43 @@ impl<'a> ScreenPoint<'a> {
             format!("{how}; {} stepped below 0, held there", held.join(", "))
         };
         let change = screen::change(&self.normals, &cols, &delta);
+        Prediction {
+            delta_bic: Some(self.delta_bic(self.chi2_after(&self.normals, change), k)),
+            how,
+        }
+    }
+
+    /// The clamp's give (`k` parameters) as one Gauss–Newton step over the current parameters
+    /// and the clamp layer's μ from the body's: nothing predicted where the step stiffens the
+    /// layer (a refit of the current parameters, which the step also holds, is no gain of a
+    /// clamp that gives).
+    pub(in crate::runs) fn layer_stepped(&self, k: usize) -> Prediction {
+        let Some(n) = self.layer_normals.first().map(Normal::len) else {
+            return Prediction::none("no clamp layer to linearise: always fitted");
+        };
+        let layer = n - 1;
+        let mut cols: Vec<usize> = (0..self.own).collect();
+        cols.push(layer);
+        let delta = screen::step(&self.layer_normals, &cols);
+        if delta.last().is_none_or(|d| *d >= 0.0) {
+            return Prediction {
+                delta_bic: Some(self.delta_bic(self.chi2.0, k)),
+                how: "one Gauss–Newton step from the layer at the body's μ stiffens the layer: no \
+                      clamp that gives is predicted"
+                    .into(),
+            };
+        }
+        let change = screen::change(&self.layer_normals, &cols, &delta);
+        Prediction {
+            delta_bic: Some(self.delta_bic(self.chi2_after(&self.layer_normals, change), k)),
+            how: "one Gauss–Newton step from the layer at the body's μ".into(),
+        }
+    }
+
+    /// The fitted runs' χ² after a step that changes each run's Φ by `change` (m²).
+    fn chi2_after(&self, normals: &[Normal], change: Vec<f64>) -> f64 {
         // Each run's χ² and its Φ in proportion (the marker term's weight is the run's).
-        let stepped: f64 = self
-            .normals
+        let stepped: f64 = normals
             .iter()
             .zip(&self.run_chi2)
             .zip(change)
@@ -168,10 +236,6 @@ impl<'a> ScreenPoint<'a> {
         // χ² in proportion to the current fit's, so that an evaluation's own rounding does not
         // count as a gain.
         let sim: f64 = self.run_chi2.iter().sum();
-        let chi2 = self.chi2.0 * stepped / sim.max(f64::MIN_POSITIVE);
-        Prediction {
-            delta_bic: Some(self.delta_bic(chi2, k)),
-            how,
-        }
+        self.chi2.0 * stepped / sim.max(f64::MIN_POSITIVE)
     }
 }

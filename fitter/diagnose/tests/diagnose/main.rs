@@ -17,6 +17,7 @@ mod diagnose_motion;
 mod diagnose_noise;
 mod diagnose_power;
 mod diagnose_runs;
+mod diagnose_runs_clamp;
 mod diagnose_runs_creep;
 mod diagnose_scans;
 mod diagnose_screen;

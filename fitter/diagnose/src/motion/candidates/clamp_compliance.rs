@@ -216,21 +216,7 @@ fn with_layer(model: &Model, cur: &FittedModel) -> Result<(FittedModel, usize), 
     if layer_of(cur).is_some() {
         return Err("the clamp layer is already in the model".into());
     }
-    let layer = model.clamp_layer();
-    if layer.is_empty() {
-        return Err("no element touches a clamp: no clamp to give".into());
-    }
-    let volume =
-        |es: &mut dyn Iterator<Item = usize>| es.map(|e| model.rest[e].volume).sum::<f64>();
-    let share = volume(&mut layer.iter().copied()) / volume(&mut (0..model.tets.len()));
-    if share > MAX_LAYER_SHARE {
-        return Err(format!(
-            "the elements at the clamps hold {:.0} % of the volume (at most {:.0} %): the mesh is \
-             too coarse at the clamps to soften a layer there",
-            100.0 * share,
-            100.0 * MAX_LAYER_SHARE
-        ));
-    }
+    let layer = softenable_layer(model)?;
     if layer
         .iter()
         .any(|e| cur.material.regions.iter().flatten().any(|r| r == e))
@@ -250,6 +236,28 @@ fn with_layer(model: &Model, cur: &FittedModel) -> Result<(FittedModel, usize), 
         s.push(f64::NAN);
     }
     Ok((start, r))
+}
+
+/// The layer of elements at the clamps ([`Model::clamp_layer`]) when there is one to soften:
+/// `Err` says why not (no element at a clamp, or a mesh so coarse there that the layer is more
+/// than [`MAX_LAYER_SHARE`] of the body). The runs room's candidate asks the same of its mesh.
+pub(crate) fn softenable_layer(model: &Model) -> Result<Vec<usize>, String> {
+    let layer = model.clamp_layer();
+    if layer.is_empty() {
+        return Err("no element touches a clamp: no clamp to give".into());
+    }
+    let volume =
+        |es: &mut dyn Iterator<Item = usize>| es.map(|e| model.rest[e].volume).sum::<f64>();
+    let share = volume(&mut layer.iter().copied()) / volume(&mut (0..model.tets.len()));
+    if share > MAX_LAYER_SHARE {
+        return Err(format!(
+            "the elements at the clamps hold {:.0} % of the volume (at most {:.0} %): the mesh is \
+             too coarse at the clamps to soften a layer there",
+            100.0 * share,
+            100.0 * MAX_LAYER_SHARE
+        ));
+    }
+    Ok(layer)
 }
 
 /// `start` with its clamp layer, region `r`, at `k` times the body's μ (and so λ).
@@ -297,7 +305,7 @@ pub fn is_layer(mat: &Material, r: usize) -> bool {
 
 /// The layer's volume over the area of its faces on the clamps (the faces whose three nodes are
 /// all clamped): its mean thickness. `None` when no face lies on a clamp.
-fn layer_thickness(model: &Model, layer: &[usize]) -> Option<f64> {
+pub(crate) fn layer_thickness(model: &Model, layer: &[usize]) -> Option<f64> {
     let clamped = |n: usize| model.node_clamp[n] != usize::MAX;
     let mut area = 0.0;
     let mut volume = 0.0;

@@ -18,7 +18,7 @@ use super::screen::Screening;
 use super::{MotionDiagnoseError, Value};
 use crate::select::{Outcome, Prediction};
 
-mod clamp_compliance;
+pub(crate) mod clamp_compliance;
 mod density;
 mod gravity_direction;
 mod marker_offsets;

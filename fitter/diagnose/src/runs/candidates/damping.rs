@@ -44,8 +44,7 @@ pub(super) fn start_viscosity(
     if start.get(ParamKind::Nu, 0) <= 0.0 {
         let (nu, source) = match room.o.start_viscosity {
             Some(v) => (v, "given"),
-            None => match viscosity_from_ring_down(&cur.fitted, cur.material.get(ParamKind::Mu, 0))
-            {
+            None => match viscosity_from_ring_down(&cur.fitted, cur.material.body_moduli().1) {
                 Some(v) => (v, "from the measured ring-downs"),
                 None => (10.0, "no run rings down: the default"),
             },

@@ -16,6 +16,7 @@ use super::screen::ScreenPoint;
 use super::{RunsDiagnosis, RunsError, RunsFit};
 use crate::select::{Outcome, ParamValue, Prediction};
 
+pub(in crate::runs) mod clamp_compliance;
 pub(in crate::runs) mod creep;
 mod damping;
 mod damping_power_law;
@@ -48,10 +49,13 @@ pub enum Effect {
     /// The hanging weights act at a point beyond their nodes, a hook's lever read from the rest
     /// states (1 parameter; `load_point.rs`).
     LoadPoint,
+    /// The clamp gives: the layer of elements at the clamps softened as a whole (1 parameter,
+    /// its μ; `clamp_compliance.rs`).
+    ClampCompliance,
 }
 
 /// Every effect, in the order tried.
-pub const ALL_EFFECTS: [Effect; 7] = [
+pub const ALL_EFFECTS: [Effect; 8] = [
     Effect::Damping,
     Effect::DampingPowerLaw,
     Effect::HangingInertia,
@@ -59,6 +63,7 @@ pub const ALL_EFFECTS: [Effect; 7] = [
     Effect::Stiffening,
     Effect::Creep,
     Effect::LoadPoint,
+    Effect::ClampCompliance,
 ];
 
 /// What a candidate effect of the runs is: its parameters, its part of the runs' models and of
@@ -154,6 +159,7 @@ impl Effect {
             Effect::Stiffening => &stiffening::Stiffening,
             Effect::Creep => &creep::Creep,
             Effect::LoadPoint => &load_point::LoadPoint,
+            Effect::ClampCompliance => &clamp_compliance::ClampCompliance,
         }
     }
     /// Name on the command line and in reports.

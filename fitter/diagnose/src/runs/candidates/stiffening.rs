@@ -24,7 +24,7 @@ impl RunsEffect for Stiffening {
 
     fn start(&self, room: &RunsModel, round: usize, _cur: &RunsFit, start: &mut Material) {
         if start.get(ParamKind::Stiffening, 0) <= 0.0 {
-            let mu = start.get(ParamKind::Mu, 0);
+            let mu = start.body_moduli().1;
             (room.log)(&format!(
                 "round {round}: stiffening starts at c = μ = {mu:.3e} Pa"
             ));
