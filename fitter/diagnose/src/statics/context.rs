@@ -113,6 +113,24 @@ pub struct LayerDepth {
     pub maps: Vec<(LayerAxis, Vec<f64>, f64)>,
     /// Edge of a regular tetrahedron of the mean element volume (m): the layer scan's step width.
     pub element_size: f64,
+    /// Starting (log contrast, thickness θ_t) of the layer candidate from the sensitivity scan
+    /// (`None`: the default start, [`super::candidates::Candidate::start`]).
+    pub seed: Option<[f64; 2]>,
+}
+
+impl LayerDepth {
+    /// Width of the layer's edge as a fraction of the current axis' depth range: the logistic
+    /// step 1 / (1 + e^{−(t − d)/w}) rises from 10 to 90 % over about one element (a quarter of
+    /// the element size each side), so the field is smooth in the thickness t at the mesh's
+    /// own resolution; the sensitivity scan steps with the same width.
+    pub fn edge_width(&self) -> f64 {
+        let range = self
+            .maps
+            .iter()
+            .find(|(a, _, _)| *a == self.axis)
+            .map_or(1.0, |(_, _, r)| *r);
+        0.25 * self.element_size / range
+    }
 }
 
 /// Where the inclusion candidate starts.
@@ -229,6 +247,7 @@ impl Context {
                 axis: LayerAxis::Push,
                 maps: depth_maps,
                 element_size,
+                seed: None,
             },
             inclusion: InclusionStart {
                 centre: inclusion_start,
@@ -381,9 +400,6 @@ fn trilinear(c: [f64; 3], lo: [f64; 3], hi: [f64; 3], g: [usize; 3]) -> Vec<(usi
     }
     out
 }
-
-/// Depth nodes of the layer candidate.
-pub const LAYER_NODES: usize = 4;
 
 /// The direction a layered body's layers are stacked along: which surface the layer candidate's
 /// depth is measured from.

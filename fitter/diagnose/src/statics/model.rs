@@ -21,7 +21,7 @@ use super::DiagnoseError;
 
 pub use super::candidates::{Candidate, ALL_CANDIDATES, TILT_PROBE};
 pub use super::context::{
-    BlobScan, Context, Frame, InclusionStart, LayerAxis, LayerDepth, MeasData, LAYER_NODES,
+    BlobScan, Context, Frame, InclusionStart, LayerAxis, LayerDepth, MeasData,
 };
 use palpate_fem::dataset::Marker;
 use palpate_fem::forward::{Factorised, Load, Material, StaticProblem};

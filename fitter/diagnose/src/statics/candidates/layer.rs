@@ -1,11 +1,19 @@
-//! Layered material: log E varies with depth below the probed face ([`LayerDepth::depth`](crate::statics::context::LayerDepth::depth), along
-//! [`LayerDepth::axis`](crate::statics::context::LayerDepth::axis)), piecewise linear over [`LAYER_NODES`] equally spaced depths, the
-//! deepest node the reference. LAYER_NODES − 1 params, each a dimensionless Δlog E. A property
-//! of the object: the runtime model carries it per element.
+//! A layer: log E += a s_e, s_e = 1 / (1 + e^{−(t − d_e)/w}) — the material from the surface
+//! the depth is measured from ([`LayerDepth::axis`](crate::statics::context::LayerDepth::axis))
+//! down to the thickness t differs from the body's below it by the log contrast a. d_e is the
+//! element centroid's depth and t = 1 / (1 + e^{−θ_t}) the thickness, both as fractions of the
+//! axis' depth range; w the edge's width ([`LayerDepth::edge_width`](crate::statics::context::LayerDepth::edge_width),
+//! about one element), which keeps the field smooth in t. 2 params (a, θ_t, dimensionless),
+//! started where the sensitivity scan puts the best layer. E is the body's below the layer: the
+//! part of the object most measurements load. A property of the object: the runtime model
+//! carries it per element.
 
 use super::{ParamName, StaticEffect};
-use crate::statics::context::{Context, LAYER_NODES};
+use crate::statics::context::Context;
 use crate::statics::signature::{EvidencePoints, Residual};
+
+/// Thickness of the default start, as a fraction of the depth range: a quarter.
+const START_THICKNESS: f64 = 0.25;
 
 /// See the module.
 pub struct Layer;
@@ -16,13 +24,32 @@ impl StaticEffect for Layer {
     }
 
     fn params(&self, _grid: [usize; 3]) -> usize {
-        LAYER_NODES - 1
+        2
+    }
+
+    /// The thickness is invisible at zero contrast, so the layer starts at a modest (softer)
+    /// one, a quarter of the depth thick.
+    fn start(&self, _grid: [usize; 3]) -> Vec<f64> {
+        vec![-0.5, (START_THICKNESS / (1.0 - START_THICKNESS)).ln()]
+    }
+
+    /// The sensitivity scan's best layer: its thickness and Gauss–Newton contrast.
+    fn fit_start(&self, ctx: &Context, grid: [usize; 3]) -> Vec<f64> {
+        match ctx.layer.seed {
+            Some(seed) => seed.to_vec(),
+            None => self.start(grid),
+        }
     }
 
     fn param_names(&self, _grid: [usize; 3]) -> Vec<ParamName> {
-        (0..LAYER_NODES - 1)
-            .map(|k| (format!("Δlog E at depth {k}/{}", LAYER_NODES - 1), "", 1.0))
-            .collect()
+        vec![
+            ("log contrast a of the layer".into(), "", 1.0),
+            (
+                "layer thickness θ_t (t = depth range / (1 + e^−θ_t))".into(),
+                "",
+                1.0,
+            ),
+        ]
     }
 
     fn in_runtime_model(&self) -> bool {
@@ -33,19 +60,32 @@ impl StaticEffect for Layer {
         r.error_against_distance()
     }
 
+    /// At zero contrast, at its starting thickness.
+    fn power_start(&self, grid: [usize; 3]) -> Option<Vec<f64>> {
+        let mut block = self.start(grid);
+        block[0] = 0.0;
+        Some(block)
+    }
+
+    /// Only the contrast: the thickness is invisible at zero contrast (the contrast is stated
+    /// at the starting thickness).
+    fn live_columns(&self, _grid: [usize; 3]) -> Vec<usize> {
+        vec![0]
+    }
+
+    fn power_note(&self) -> Option<&'static str> {
+        Some("a layer a quarter of the depth thick: its starting thickness")
+    }
+
     fn material_field(&self) -> bool {
         true
     }
 
     fn add_log_e(&self, ctx: &Context, b: &[f64], out: &mut [f64]) {
-        // Nodes at depth k/(L−1); the deepest (k = L−1) is the reference.
-        let last = (LAYER_NODES - 1) as f64;
+        let t = 1.0 / (1.0 + (-b[1].clamp(-20.0, 20.0)).exp());
+        let w = ctx.layer.edge_width();
         for (o, &d) in out.iter_mut().zip(&ctx.layer.depth) {
-            let t = (d.clamp(0.0, 1.0) * last).min(last - 1e-12);
-            let k = t.floor() as usize;
-            let w = t - k as f64;
-            let at = |j: usize| if j < LAYER_NODES - 1 { b[j] } else { 0.0 };
-            *o += (1.0 - w) * at(k) + w * at(k + 1);
+            *o += b[0] / (1.0 + (-(t - d) / w).exp());
         }
     }
 }
