@@ -131,6 +131,29 @@ impl LayerDepth {
             .map_or(1.0, |(_, _, r)| *r);
         0.25 * self.element_size / range
     }
+
+    /// The layer candidate's least thickness as a fraction of the current axis' depth range:
+    /// half an element. A thinner layer only softens the surface row of elements in part, and
+    /// that is what the mesh's own error under a probe looks like (an effect-free independent
+    /// dome fitted one 0.02 of its depth thick, its thickness undetermined, and adopted it).
+    pub fn least_thickness(&self) -> f64 {
+        (2.0 * self.edge_width()).min(0.5)
+    }
+
+    /// The thickness (fraction of the depth range) of the layer candidate's parameter θ_t:
+    /// t = t₀ + (1 − t₀) / (1 + e^{−θ_t}), t₀ the [least thickness](Self::least_thickness).
+    pub fn thickness(&self, theta_t: f64) -> f64 {
+        let least = self.least_thickness();
+        least + (1.0 - least) / (1.0 + (-theta_t.clamp(-20.0, 20.0)).exp())
+    }
+
+    /// The θ_t of thickness `t` (the inverse of [`Self::thickness`]), `t` kept within 2 % of
+    /// the free range from either end.
+    pub fn theta_of_thickness(&self, t: f64) -> f64 {
+        let least = self.least_thickness();
+        let u = ((t - least) / (1.0 - least)).clamp(0.02, 0.98);
+        (u / (1.0 - u)).ln()
+    }
 }
 
 /// Where the inclusion candidate starts.

@@ -385,8 +385,7 @@ fn locate_candidates(
             // The layer candidate starts at the scan's thickness and Gauss–Newton contrast,
             // its size kept between 0.3 (the thickness is invisible at zero contrast) and ln 10.
             let a = scan.contrast.signum() * scan.contrast.abs().clamp(0.3, 10f64.ln());
-            let t = scan.thickness.clamp(0.02, 0.98);
-            ctx.layer.seed = Some([a, (t / (1.0 - t)).ln()]);
+            ctx.layer.seed = Some([a, ctx.layer.theta_of_thickness(scan.thickness)]);
             if let Some(c) = correction.as_mut() {
                 c.set_layer_axis(axis);
             }

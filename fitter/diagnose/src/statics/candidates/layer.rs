@@ -1,18 +1,21 @@
 //! A layer: log E += a s_e, s_e = 1 / (1 + e^{−(t − d_e)/w}) — the material from the surface
 //! the depth is measured from ([`LayerDepth::axis`](crate::statics::context::LayerDepth::axis))
 //! down to the thickness t differs from the body's below it by the log contrast a. d_e is the
-//! element centroid's depth and t = 1 / (1 + e^{−θ_t}) the thickness, both as fractions of the
-//! axis' depth range; w the edge's width ([`LayerDepth::edge_width`](crate::statics::context::LayerDepth::edge_width),
-//! about one element), which keeps the field smooth in t. 2 params (a, θ_t, dimensionless),
-//! started where the sensitivity scan puts the best layer. E is the body's below the layer: the
-//! part of the object most measurements load. A property of the object: the runtime model
-//! carries it per element.
+//! element centroid's depth and t the thickness, both as fractions of the axis' depth range; w
+//! the edge's width ([`LayerDepth::edge_width`](crate::statics::context::LayerDepth::edge_width),
+//! about one element), which keeps the field smooth in t. t = t₀ + (1 − t₀) / (1 + e^{−θ_t})
+//! ([`LayerDepth::thickness`](crate::statics::context::LayerDepth::thickness)) is never thinner
+//! than half an element, t₀: a thinner one is the mesh's own error at the surface. 2 params (a,
+//! θ_t, dimensionless), started where the sensitivity scan puts the best layer. E is the body's
+//! below the layer: the part of the object most measurements load. A property of the object:
+//! the runtime model carries it per element.
 
 use super::{ParamName, StaticEffect};
 use crate::statics::context::Context;
 use crate::statics::signature::{EvidencePoints, Residual};
 
-/// Thickness of the default start, as a fraction of the depth range: a quarter.
+/// Thickness of the default start beyond the least one, as a fraction of the rest of the depth
+/// range: a quarter.
 const START_THICKNESS: f64 = 0.25;
 
 /// See the module.
@@ -28,7 +31,7 @@ impl StaticEffect for Layer {
     }
 
     /// The thickness is invisible at zero contrast, so the layer starts at a modest (softer)
-    /// one, a quarter of the depth thick.
+    /// one, half an element and a quarter of the rest of the depth thick.
     fn start(&self, _grid: [usize; 3]) -> Vec<f64> {
         vec![-0.5, (START_THICKNESS / (1.0 - START_THICKNESS)).ln()]
     }
@@ -45,7 +48,7 @@ impl StaticEffect for Layer {
         vec![
             ("log contrast a of the layer".into(), "", 1.0),
             (
-                "layer thickness θ_t (t = depth range / (1 + e^−θ_t))".into(),
+                "layer thickness θ_t (t = t₀ + (1 − t₀) / (1 + e^−θ_t) of the depth range, t₀ half an element)".into(),
                 "",
                 1.0,
             ),
@@ -74,7 +77,7 @@ impl StaticEffect for Layer {
     }
 
     fn power_note(&self) -> Option<&'static str> {
-        Some("a layer a quarter of the depth thick: its starting thickness")
+        Some("a layer half an element and a quarter of the rest of the depth thick: its starting thickness")
     }
 
     fn material_field(&self) -> bool {
@@ -82,7 +85,7 @@ impl StaticEffect for Layer {
     }
 
     fn add_log_e(&self, ctx: &Context, b: &[f64], out: &mut [f64]) {
-        let t = 1.0 / (1.0 + (-b[1].clamp(-20.0, 20.0)).exp());
+        let t = ctx.layer.thickness(b[1]);
         let w = ctx.layer.edge_width();
         for (o, &d) in out.iter_mut().zip(&ctx.layer.depth) {
             *o += b[0] / (1.0 + (-(t - d) / w).exp());
