@@ -113,8 +113,9 @@ pub struct LayerDepth {
     pub maps: Vec<(LayerAxis, Vec<f64>, f64)>,
     /// Edge of a regular tetrahedron of the mean element volume (m): the layer scan's step width.
     pub element_size: f64,
-    /// Starting (log contrast, thickness θ_t) of the layer candidate from the sensitivity scan
-    /// (`None`: the default start, [`super::candidates::Candidate::start`]).
+    /// The sensitivity scan's best layer on the current axis, (Gauss–Newton log contrast,
+    /// thickness as a fraction of the depth range), where the layer candidate starts (`None`:
+    /// the default start, [`super::candidates::Candidate::start`]).
     pub seed: Option<[f64; 2]>,
 }
 

@@ -382,10 +382,7 @@ fn locate_candidates(
             });
         if let Some((axis, scan)) = best {
             ctx.set_layer_axis(axis);
-            // The layer candidate starts at the scan's thickness and Gauss–Newton contrast,
-            // its size kept between 0.3 (the thickness is invisible at zero contrast) and ln 10.
-            let a = scan.contrast.signum() * scan.contrast.abs().clamp(0.3, 10f64.ln());
-            ctx.layer.seed = Some([a, ctx.layer.theta_of_thickness(scan.thickness)]);
+            ctx.layer.seed = Some([scan.contrast, scan.thickness]);
             if let Some(c) = correction.as_mut() {
                 c.set_layer_axis(axis);
             }

@@ -7,20 +7,12 @@
 //! threshold, a known miss reported as "NOT clean" rather than as clean, and an effect-free
 //! dome on which no effect is named.
 
+use crate::support::independent;
 use palpate_diagnose::model::Candidate;
 use palpate_diagnose::{run_diagnosis, DiagnoseOptions, DiagnosisReport};
-use palpate_fem::dataset::StaticDataset;
-use std::path::PathBuf;
-
-fn dataset(name: &str) -> StaticDataset {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/data/independent")
-        .join(name);
-    StaticDataset::read(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
-}
 
 fn diagnose(name: &str) -> DiagnosisReport {
-    let r = run_diagnosis(&dataset(name), &DiagnoseOptions::default()).expect("diagnosis");
+    let r = run_diagnosis(&independent(name), &DiagnoseOptions::default()).expect("diagnosis");
     let adopted: Vec<&str> = r.adopted.iter().map(|c| c.name()).collect();
     eprintln!("{name}: {}", r.residual_check.verdict(&adopted.join(", ")));
     r

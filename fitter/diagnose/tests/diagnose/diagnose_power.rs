@@ -4,7 +4,7 @@
 //! candidate's Jacobian block against the fitted parameters, a secant Jacobian); here the
 //! models are refitted for real.
 
-use crate::support::drawn;
+use crate::support::{drawn, independent};
 use palpate_diagnose::fit::{fit, initial_theta, Fitted};
 use palpate_diagnose::model::{Candidate, Context, Model};
 use palpate_diagnose::power::detectable;
@@ -252,9 +252,7 @@ const UNTRUE_ON_THE_DOME: [Candidate; 2] = [Candidate::Inhomogeneity, Candidate:
 /// statement.
 #[test]
 fn the_statements_hold_on_an_independent_effect_free_dome() {
-    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/data/independent/none-dome-s1021");
-    let dataset = palpate_fem::dataset::StaticDataset::read(&dir).expect("dataset");
+    let dataset = independent("none-dome-s1021");
     let grid = palpate_diagnose::DiagnoseOptions::default().grid;
     let ctx = Context::new(&dataset, grid).unwrap();
     let all: Vec<usize> = (0..ctx.meas.len()).collect();

@@ -1,11 +1,12 @@
-//! What the diagnosis tests share: static specimens, the summary line of a report, and the
-//! motion example bar.
+//! What the diagnosis tests share: static specimens, the independent generator's committed
+//! datasets, the summary line of a report, and the motion example bar.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, OnceLock};
 
 use palpate_diagnose::DiagnosisReport;
+use palpate_fem::dataset::StaticDataset;
 use palpate_fem::mesh::Mesh;
 use palpate_motion::dataset::{DatasetToml, Initial, MotionDataset};
 use palpate_motion::model::{Model, Observations};
@@ -61,6 +62,14 @@ pub fn summary(r: &DiagnosisReport) -> String {
         1e6 * r.after.heldout_rms,
         1e6 * r.noise_floor,
     )
+}
+
+/// The independent generator's static dataset `name` under `tests/data/independent/`.
+pub fn independent(name: &str) -> StaticDataset {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/data/independent")
+        .join(name);
+    StaticDataset::read(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
 }
 
 /// The bundled motion dataset (`models/motion-example`: a 24-tet bar, front face clamped and

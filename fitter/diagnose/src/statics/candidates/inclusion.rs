@@ -3,7 +3,7 @@
 //! contact point at a quarter of the depth) and radius r = ½ h exp(θ_r). 5 params (a, p/h, θ_r,
 //! dimensionless). A property of the object: the runtime model carries it per element.
 
-use super::{ParamName, StaticEffect};
+use super::{at_zero_contrast, ParamName, StaticEffect};
 use crate::statics::context::Context;
 use crate::statics::signature::{EvidencePoints, Residual};
 
@@ -54,9 +54,7 @@ impl StaticEffect for Inclusion {
 
     /// At zero contrast: its starting place.
     fn power_start(&self, grid: [usize; 3]) -> Option<Vec<f64>> {
-        let mut block = self.start(grid);
-        block[0] = 0.0;
-        Some(block)
+        at_zero_contrast(self.start(grid))
     }
 
     /// Only the contrast: the position and radius are invisible at zero contrast (the contrast

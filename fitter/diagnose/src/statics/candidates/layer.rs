@@ -10,7 +10,7 @@
 //! below the layer: the part of the object most measurements load. A property of the object:
 //! the runtime model carries it per element.
 
-use super::{ParamName, StaticEffect};
+use super::{at_zero_contrast, ParamName, StaticEffect};
 use crate::statics::context::Context;
 use crate::statics::signature::{EvidencePoints, Residual};
 
@@ -36,10 +36,14 @@ impl StaticEffect for Layer {
         vec![-0.5, (START_THICKNESS / (1.0 - START_THICKNESS)).ln()]
     }
 
-    /// The sensitivity scan's best layer: its thickness and Gauss–Newton contrast.
+    /// The sensitivity scan's best layer: its thickness and Gauss–Newton contrast, the
+    /// contrast's size kept between 0.3 (the thickness is invisible at zero contrast) and ln 10.
     fn fit_start(&self, ctx: &Context, grid: [usize; 3]) -> Vec<f64> {
         match ctx.layer.seed {
-            Some(seed) => seed.to_vec(),
+            Some([a, t]) => vec![
+                a.signum() * a.abs().clamp(0.3, 10f64.ln()),
+                ctx.layer.theta_of_thickness(t),
+            ],
             None => self.start(grid),
         }
     }
@@ -65,9 +69,7 @@ impl StaticEffect for Layer {
 
     /// At zero contrast, at its starting thickness.
     fn power_start(&self, grid: [usize; 3]) -> Option<Vec<f64>> {
-        let mut block = self.start(grid);
-        block[0] = 0.0;
-        Some(block)
+        at_zero_contrast(self.start(grid))
     }
 
     /// Only the contrast: the thickness is invisible at zero contrast (the contrast is stated

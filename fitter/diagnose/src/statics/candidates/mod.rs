@@ -104,6 +104,14 @@ pub const ALL_CANDIDATES: [Candidate; 14] = [
 /// A name, unit and scale of one parameter for reports: the physical value is θ_j × scale.
 pub type ParamName = (String, &'static str, f64);
 
+/// The power statement's block of a candidate whose first parameter is a log contrast and whose
+/// others (where it is, how thick or how large) are invisible at zero contrast: its start with
+/// the contrast at zero, the others where the statement assumes them.
+fn at_zero_contrast(mut start: Vec<f64>) -> Option<Vec<f64>> {
+    start[0] = 0.0;
+    Some(start)
+}
+
 /// Measurement-to-measurement responses of a profiled candidate (per measurement, its markers'
 /// response to each of its directions).
 pub type Responses = Vec<[Vec<[f64; 3]>; 2]>;
