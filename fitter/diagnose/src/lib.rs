@@ -50,7 +50,8 @@ pub use select::ParamValue;
 
 // The static room's modules and items under the paths the other crates use.
 pub use statics::{
-    approx_error, export, fit, model, noise, power, report, rest_noise, sensitivity, signature,
+    approx_error, export, fit, model, noise, power, power_check, report, rest_noise, sensitivity,
+    signature,
 };
 pub use statics::{
     base_params, effect_params, run_diagnosis, run_diagnosis_with, DiagnoseError, DiagnoseOptions,

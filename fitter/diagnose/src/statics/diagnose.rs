@@ -15,7 +15,7 @@ use super::noise::{self, estimate_noise, NoiseFinding};
 use super::params::{base_params, effect_params, identifiability};
 use super::rest_noise::{estimate_rest_noise, RestNoiseFinding};
 use super::select::{static_steps, StaticModel};
-use super::{power, sensitivity, signature};
+use super::{power, power_check, sensitivity, signature};
 use super::{
     DiagnoseError, DiagnoseOptions, Diagnosed, DiagnosisReport, Errors, Kept, MeshChoice,
     MeshErrorSummary, ResidualCheck, SolvedOn, Step, MESH_ERROR_MAX_TETS,
@@ -309,7 +309,7 @@ fn solve_on_chosen_mesh(
 /// candidate where the residual asks for a stiffer or softer blob (its default start, under the
 /// mean contact point, sees nothing of an inclusion elsewhere), and chooses the surface the layer
 /// candidate's depth is measured from.
-fn locate_candidates(
+pub(in crate::statics) fn locate_candidates(
     ctx: &mut Context,
     mut correction: Option<&mut Correction>,
     current: &Fitted,
@@ -592,7 +592,10 @@ fn power_statement(
     let detectable = if residual_check.judged && residual_check.explained {
         progress("stating the smallest effects this dataset could have detected");
         match power::detectable(ctx, current, o.bic_threshold) {
-            Ok(d) => d,
+            Ok(mut d) => {
+                power_check::check_statements(ctx, current, &mut d, o, progress)?;
+                d
+            }
             // A secant step that leaves the physical range (a stiffening final model) leaves
             // the statement out; the verdict stands without it.
             Err(DiagnoseError::Diverged(why)) => {

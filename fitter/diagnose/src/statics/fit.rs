@@ -158,6 +158,30 @@ pub(crate) fn jacobian_columns(
     Ok(j)
 }
 
+/// Where a fit stops: after `max_iterations`, or when an accepted step lowers χ² by less than
+/// `rel_tolerance` of the larger of χ² and `chi2_floor`.
+#[derive(Debug, Clone, Copy)]
+pub struct Stop {
+    /// Levenberg–Marquardt iterations at most.
+    pub max_iterations: usize,
+    /// The relative gain of a step below which the fit has converged.
+    pub rel_tolerance: f64,
+    /// The χ² the gain is measured against when χ² is below it (data a model holds exactly drive
+    /// χ² toward zero, where every step gains much of what is left).
+    pub chi2_floor: f64,
+}
+
+impl Stop {
+    /// The diagnosis' fits: to 10⁻⁷ of χ².
+    pub fn after(max_iterations: usize) -> Self {
+        Stop {
+            max_iterations,
+            rel_tolerance: 1e-7,
+            chi2_floor: 1e-300,
+        }
+    }
+}
+
 /// Fits `model` to the measurements `subset` from `theta0` (warm-started from `warm`).
 pub fn fit(
     ctx: &Context,
@@ -167,16 +191,35 @@ pub fn fit(
     warm: Option<&[Vec<[f64; 3]>]>,
     max_iterations: usize,
 ) -> Result<Fitted, DiagnoseError> {
+    fit_until(
+        ctx,
+        model,
+        theta0,
+        subset,
+        warm,
+        Stop::after(max_iterations),
+    )
+}
+
+/// [`fit`], stopping where `stop` says.
+pub fn fit_until(
+    ctx: &Context,
+    model: &Model,
+    theta0: Vec<f64>,
+    subset: &[usize],
+    warm: Option<&[Vec<[f64; 3]>]>,
+    stop: Stop,
+) -> Result<Fitted, DiagnoseError> {
     let sim = model.simulate(ctx, &theta0, subset, warm)?;
     let r = model.residuals(ctx, subset, &sim.markers);
     let o = LmOptions {
-        max_iterations,
+        max_iterations: stop.max_iterations,
         tries: 10,
         initial_damping: 1e-3,
         min_damping: 1e-9,
         reject_factor: 4.0,
-        rel_tolerance: 1e-7,
-        cost_floor: 1e-300,
+        rel_tolerance: stop.rel_tolerance,
+        cost_floor: stop.chi2_floor,
     };
     let out = minimise(
         theta0,

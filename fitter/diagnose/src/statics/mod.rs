@@ -47,6 +47,7 @@ pub mod noise;
 mod options;
 mod params;
 pub mod power;
+pub mod power_check;
 pub mod report;
 pub mod rest_noise;
 pub mod run;

@@ -27,12 +27,12 @@
 //! (two more solves per measurement, made only for the statement).
 
 use nalgebra::DMatrix;
-use palpate_fem::numbers;
 use serde::Serialize;
 
 use super::candidates::{At, PowerPoint};
 use super::fit::{jacobian_columns, Fitted};
 use super::model::{Candidate, Context, Model, Simulated, ALL_CANDIDATES};
+use super::power_check::{Checked, FACTORS};
 use super::DiagnoseError;
 
 /// Secant step on the dimensionless θ (scaled so that 1 is a large effect: 1000 kg/m³, a factor
@@ -53,6 +53,8 @@ pub struct DetectableParam {
     /// Smallest |value| detectable in that unit (`None`: the dataset cannot tell this parameter
     /// from the fitted ones at any magnitude).
     pub min: Option<f64>,
+    /// What the injected refits made of it ([`super::power_check`]).
+    pub checked: Checked,
 }
 
 /// The power statement for one candidate.
@@ -71,7 +73,7 @@ impl Detectable {
     /// parameters of the same kind).
     pub fn describe(&self) -> String {
         let fmt = |p: &DetectableParam| match p.min {
-            Some(v) => format!("{} ≥ {}", p.name, numbers::quantity(v, p.unit)),
+            Some(v) => p.checked.statement(&p.name, v, p.unit),
             None => format!("{}: not separable from the fitted parameters", p.name),
         };
         let body = if self.params.len() > 6 {
@@ -88,7 +90,7 @@ impl Detectable {
                 format!("{kind}: not separable from the fitted parameters")
             } else {
                 format!(
-                    "{kind} ≥ {}–{} over its {} nodes{}",
+                    "{kind} ≥ {}–{} over its {} nodes{}{}",
                     sig3(lo),
                     sig3(hi),
                     self.params.len(),
@@ -96,9 +98,26 @@ impl Detectable {
                         format!(" ({} not separable)", self.params.len() - mins.len())
                     } else {
                         String::new()
-                    }
+                    },
+                    checked_counts(&self.params)
                 )
             }
+        } else if self
+            .params
+            .iter()
+            .all(|p| p.min.is_some() && p.checked.found_first())
+        {
+            // Each found at the first factor: the linearised figures, said once.
+            let each = if self.params.len() > 1 { "each " } else { "" };
+            let plain = self
+                .params
+                .iter()
+                .map(|p| Checked::NotChecked.statement(&p.name, p.min.unwrap_or(0.0), p.unit));
+            format!(
+                "{}; {each}found when put in at {}×",
+                plain.collect::<Vec<_>>().join(", "),
+                FACTORS[0]
+            )
         } else {
             self.params.iter().map(fmt).collect::<Vec<_>>().join(", ")
         };
@@ -106,6 +125,45 @@ impl Detectable {
             Some(n) => format!("{}: {body} ({n})", self.candidate.name()),
             None => format!("{}: {body}", self.candidate.name()),
         }
+    }
+}
+
+/// The injected checks of many parameters of one kind, counted: "; checked: 3 found at 2×, …".
+fn checked_counts(params: &[DetectableParam]) -> String {
+    let mut found = [0usize; FACTORS.len()];
+    let (mut missed, mut implausible) = (0, 0);
+    for p in params {
+        match &p.checked {
+            Checked::Found { factor, .. } => {
+                if let Some(k) = FACTORS.iter().position(|f| f == factor) {
+                    found[k] += 1;
+                }
+            }
+            Checked::NotFound { .. } => missed += 1,
+            Checked::Implausible { .. } => implausible += 1,
+            Checked::NotChecked => {}
+        }
+    }
+    let mut parts: Vec<String> = FACTORS
+        .iter()
+        .zip(found)
+        .filter(|(_, k)| *k > 0)
+        .map(|(f, k)| format!("{k} found at {f}×"))
+        .collect();
+    if missed > 0 {
+        let largest = FACTORS[FACTORS.len() - 1];
+        parts.push(format!("{missed} **not found** at {largest}×"));
+    }
+    if implausible > 0 {
+        parts.push(format!(
+            "{implausible} beyond a plausible size at {}× (not put in)",
+            FACTORS[0]
+        ));
+    }
+    if parts.is_empty() {
+        String::new()
+    } else {
+        format!("; checked: {}", parts.join(", "))
     }
 }
 
@@ -189,6 +247,7 @@ pub fn detectable(
                     name: name.into(),
                     unit,
                     min: (t > 0.0 && t.is_finite()).then(|| (need / t).sqrt()),
+                    checked: Checked::NotChecked,
                 }
             })
             .collect();
@@ -287,6 +346,7 @@ fn block_statement(
                 name,
                 unit,
                 min: var.map(|v| (need * v).sqrt() * scale),
+                checked: Checked::NotChecked,
             }
         })
         .collect();
@@ -368,6 +428,7 @@ mod tests {
                 name: "density ρ".into(),
                 unit: "kg/m³",
                 min: Some(412.3),
+                checked: Checked::NotChecked,
             }],
             note: None,
         };

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 
 use super::json;
 use super::model::Candidate;
+use super::power_check::FACTORS;
 use super::signature::Signature;
 use super::{DiagnoseError, DiagnosisReport, Errors, Step};
 use palpate_fem::io::atomic::write_atomic;
@@ -101,8 +102,10 @@ fn detectable(s: &mut String, r: &DiagnosisReport) {
         let _ = writeln!(s, "## What this dataset could have detected\n");
         let _ = writeln!(
             s,
-            "The residual is the noise's, so no further effect was adopted — but only effects at least this large would have been shortlisted (ΔBIC < −{}; linearised at the final fit, each parameter with the rest of its block free; the held-out gate asks more). Smaller effects of these kinds may be present:\n",
-            r.options.bic_threshold
+            "The residual is the noise's, so no further effect was adopted — but only effects at least this large would have been shortlisted (ΔBIC < −{}; linearised at the final fit, each parameter with the rest of its block free; the held-out gate asks more). Smaller effects of these kinds may be present. Each single-magnitude statement was checked: the effect put alone into noise-free data at {}× (then {}×) its size, the final model refitted with and without it; a statement the refits do not bear out says so, and one beyond a plausible size is not put in:\n",
+            r.options.bic_threshold,
+            FACTORS[0],
+            FACTORS[1]
         );
         for d in &r.detectable {
             let _ = writeln!(s, "- {}", d.describe());

@@ -51,6 +51,12 @@ impl StaticEffect for Gravity {
         r.vertical_against_height()
     }
 
+    /// The rest scan shares the preload, so the statement is about what the probe loads change
+    /// of the sag, not the sag itself.
+    fn power_note(&self) -> Option<&'static str> {
+        Some("the rest scan taken under the same weight: only what the weight changes of the probes' displacements is seen")
+    }
+
     fn body_force(&self, ctx: &Context, b: &[f64], fvec: &mut [f64]) {
         add_gravity(ctx, b[0], fvec);
     }

@@ -33,6 +33,10 @@ impl StaticEffect for Inclusion {
         }
     }
 
+    fn placed_by_scan(&self) -> bool {
+        true
+    }
+
     fn param_names(&self, _grid: [usize; 3]) -> Vec<ParamName> {
         let v = |n: &str| (n.to_string(), "", 1.0);
         vec![

@@ -48,6 +48,10 @@ impl StaticEffect for Layer {
         }
     }
 
+    fn placed_by_scan(&self) -> bool {
+        true
+    }
+
     fn param_names(&self, _grid: [usize; 3]) -> Vec<ParamName> {
         vec![
             ("log contrast a of the layer".into(), "", 1.0),

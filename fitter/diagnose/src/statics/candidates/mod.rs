@@ -180,6 +180,12 @@ pub trait StaticEffect: Sync {
         self.start(grid)
     }
 
+    /// Whether [`StaticEffect::fit_start`] is where the diagnosis' sensitivity scan of the data
+    /// places it (else it starts at zero effect, or at a fixed start).
+    fn placed_by_scan(&self) -> bool {
+        false
+    }
+
     /// Whether the dataset can hold the effect at all.
     fn available(&self, _ctx: &Context) -> bool {
         true
@@ -222,6 +228,13 @@ pub trait StaticEffect: Sync {
     /// What its power statement assumes beyond the linearisation.
     fn power_note(&self) -> Option<&'static str> {
         None
+    }
+
+    /// The largest |θ| of a live parameter at which the effect is still a plausible one of its
+    /// kind (`None`: no limit); a power statement beyond it is not checked by injection
+    /// ([`crate::statics::power_check`]). A field of log E: a factor 10 from the body's modulus.
+    fn plausible_magnitude(&self) -> Option<f64> {
+        self.material_field().then_some(std::f64::consts::LN_10)
     }
 
     /// A profiled candidate's residual columns by kind at the power statement's point (`None`:

@@ -1,0 +1,335 @@
+//! The power statements checked by injected refits. A statement of [`super::power`] is the
+//! linearisation's at the final fit, and it is true only where the candidate's response is
+//! linear up to its magnitude: on data palpate did not make, a stiffening whose response
+//! saturates gained a ninth of the linearised χ² at twice its statement, and a 7-node stiffness
+//! field was stated at factors e⁴–e¹¹ in modulus. So the report does not print a θ-candidate's
+//! statement on the linearisation's word alone.
+//!
+//! Each parameter of each θ-candidate statement is put alone, at [`FACTORS`]`[0]` (twice) its
+//! stated magnitude, into noise-free data: the final fit's own simulation with the candidate's
+//! block moved from zero effect by that much, so the data hold the final model exactly plus the
+//! effect's true, nonlinear signature. The selection rule's refits then judge it, the final
+//! model's absorption linear and the candidate's search not:
+//! - without the candidate: the final model's parameters take up what they can of the signature
+//!   by a Gauss–Newton step on the final fit's Jacobian (one Jacobian for every check; the
+//!   parameters move little, and a refit from the optimum crawls for many iterations in the
+//!   directions the data barely fix, gaining nothing that moves ΔBIC);
+//! - with it: a candidate the diagnosis places by its sensitivity scan (the layer, the
+//!   inclusion) is searched for as the diagnosis searches — the final model refitted, the scan
+//!   of the residual it leaves, the candidate refitted from there; any other starts at the effect
+//!   put in (from zero effect, Levenberg–Marquardt on its one or two parameters reaches the same
+//!   optimum in more iterations). Each refit stops when a step gains less than 10⁻⁵ of the final
+//!   fit's χ² (data a model holds exactly would otherwise drive χ² toward zero to the cap).
+//!
+//! ΔBIC = −Δχ²/s² + k ln n with s² the final fit's residual variance per entry: the effect on
+//! top of this dataset's own residual, as the statement means it, without a draw of noise to
+//! move it. Found (ΔBIC < −T, the shortlist): the statement stands, and larger effects move the
+//! markers more. Not found: tried once more at four times; not found then, the report says this
+//! dataset cannot be said to see the effect at that size.
+//!
+//! Twice the statement beyond [`StaticEffect::plausible_magnitude`](super::candidates::StaticEffect::plausible_magnitude)
+//! (a material field more than a factor 10 from the body) is not put in: such a statement says
+//! only that the dataset cannot see the effect at a plausible size.
+//!
+//! The per-measurement statements (`force-scale-each`, `registration-each`, `tilt-each`) are
+//! expectations over random patterns and are not checked here; their tests put alternating
+//! patterns into palpate's specimens.
+
+use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::diagnose::locate_candidates;
+use super::fit::{fit_until, jacobian_columns, Fitted, Stop, FD_STEP};
+use super::model::{Candidate, Context};
+use super::power::Detectable;
+use super::{DiagnoseError, DiagnoseOptions};
+
+/// The multiples of the linearised statement at which an effect is put in, in turn until found.
+pub const FACTORS: [f64; 2] = [2.0, 4.0];
+
+/// LM iterations of each refit at most.
+const REFIT_ITERATIONS: usize = 40;
+
+/// A refit has converged when a step gains less than this fraction of the final fit's χ²: a
+/// ΔBIC known to 10⁻⁵ n, a few hundredths on a dataset of thousands of entries.
+const REFIT_TOLERANCE: f64 = 1e-5;
+
+/// What the injected refits made of one parameter's statement.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "check", rename_all = "snake_case")]
+pub enum Checked {
+    /// Not checked (no statement, or one with no single magnitude).
+    NotChecked,
+    /// Shortlisted when put in at `value` (in the parameter's unit), `factor` × the statement.
+    Found {
+        /// The magnitude put in.
+        value: f64,
+        /// Its multiple of the linearised statement.
+        factor: f64,
+        /// The rule's ΔBIC on the refits.
+        delta_bic: f64,
+    },
+    /// Not shortlisted at any factor tried; the largest tried and its ΔBIC (`None`: a refit left
+    /// the physical range).
+    NotFound {
+        /// The largest magnitude put in.
+        value: f64,
+        /// Its multiple of the linearised statement.
+        factor: f64,
+        /// The rule's ΔBIC on the refits there.
+        delta_bic: Option<f64>,
+    },
+    /// Twice the statement is beyond the plausible size of the effect (θ units), not put in.
+    Implausible {
+        /// The plausible limit of |θ|.
+        limit: f64,
+    },
+}
+
+impl Checked {
+    /// Found at the first factor tried.
+    pub fn found_first(&self) -> bool {
+        matches!(self, Checked::Found { factor, .. } if *factor == FACTORS[0])
+    }
+
+    /// The statement of parameter `name` whose linearised least magnitude is `min` (in `unit`),
+    /// as the checks leave it true.
+    pub fn statement(&self, name: &str, min: f64, unit: &str) -> String {
+        let q = |v: f64| palpate_fem::numbers::quantity(v, unit);
+        match self {
+            Checked::NotChecked => format!("{name} ≥ {}", q(min)),
+            Checked::Found { factor, .. } if *factor == FACTORS[0] => {
+                format!("{name} ≥ {}, found when put in at {factor}×", q(min))
+            }
+            Checked::Found { value, factor, .. } => format!(
+                "{name} ≥ {} by the linearisation, but found only at {factor}×, {}",
+                q(min),
+                q(*value)
+            ),
+            Checked::NotFound {
+                value,
+                factor,
+                delta_bic,
+            } => format!(
+                "{name}: **not found** when put in at {factor}× the linearisation's {}, {}{}",
+                q(min),
+                q(*value),
+                delta_bic.map_or(" (a refit diverged)".to_string(), |d| format!(
+                    " (ΔBIC {d:.1})"
+                ))
+            ),
+            Checked::Implausible { .. } => format!(
+                "{name}: ≥ {} by the linearisation, beyond a plausible size",
+                q(min)
+            ),
+        }
+    }
+}
+
+/// One statement to check: the candidate, which live parameter, its column in the block, the
+/// linearised magnitude (θ units).
+struct Job {
+    statement: usize,
+    param: usize,
+    candidate: Candidate,
+    column: usize,
+    theta_min: f64,
+}
+
+/// Checks every θ-candidate statement of `detectable` (made at the final fit `f` with the
+/// shortlist threshold of `o`) by injected refits, and records the outcome on each parameter.
+/// `progress` hears how many checks there are.
+pub fn check_statements(
+    ctx: &Context,
+    f: &Fitted,
+    detectable: &mut [Detectable],
+    o: &DiagnoseOptions,
+    progress: &mut dyn FnMut(&str),
+) -> Result<(), DiagnoseError> {
+    let grid = ctx.grid;
+    let mut jobs = Vec::new();
+    for (s, d) in detectable.iter().enumerate() {
+        let effect = d.candidate.effect();
+        if effect.power_start(grid).is_none() || effect.profiled(1) > 0 {
+            continue;
+        }
+        let names = d.candidate.param_names(grid);
+        for (p, (param, &column)) in d.params.iter().zip(&effect.live_columns(grid)).enumerate() {
+            if let Some(min) = param.min {
+                jobs.push(Job {
+                    statement: s,
+                    param: p,
+                    candidate: d.candidate,
+                    column,
+                    theta_min: min / names[column].2,
+                });
+            }
+        }
+    }
+    if jobs.is_empty() {
+        return Ok(());
+    }
+    progress(&format!(
+        "checking {} statements by injected refits (each twice the size, refitted with and without)",
+        jobs.len()
+    ));
+    let absorb = Absorption::at(ctx, f)?;
+    let outcomes: Vec<Result<Checked, DiagnoseError>> = jobs
+        .par_iter()
+        .map(|job| check_one(ctx, f, &absorb, job, o))
+        .collect();
+    for (job, outcome) in jobs.iter().zip(outcomes) {
+        detectable[job.statement].params[job.param].checked = outcome?;
+    }
+    Ok(())
+}
+
+/// One parameter's check: put in at each of [`FACTORS`] in turn until the rule finds it.
+fn check_one(
+    ctx: &Context,
+    f: &Fitted,
+    absorb: &Absorption,
+    job: &Job,
+    o: &DiagnoseOptions,
+) -> Result<Checked, DiagnoseError> {
+    let effect = job.candidate.effect();
+    let grid = ctx.grid;
+    if let Some(limit) = effect.plausible_magnitude() {
+        if FACTORS[0] * job.theta_min > limit {
+            return Ok(Checked::Implausible { limit });
+        }
+    }
+    let scale = job.candidate.param_names(grid)[job.column].2;
+    let k = job.candidate.params(grid) as f64;
+    let with = f.model.with(job.candidate);
+    let start = effect.power_start(grid).expect("a θ statement");
+    let mut data = ctx.clone();
+    let mut last = None;
+    for factor in FACTORS {
+        let mut block = start.clone();
+        block[job.column] += factor * job.theta_min;
+        let mut theta = f.theta.clone();
+        theta.extend(&block);
+        let value = factor * job.theta_min * scale;
+        let delta_bic = match with.simulate_near(ctx, &theta, &f.subset, &f.sim) {
+            Ok(sim) => {
+                for (&i, markers) in f.subset.iter().zip(&sim.markers) {
+                    for ((_, p), q) in data.meas[i].observed.iter_mut().zip(markers) {
+                        *p = *q;
+                    }
+                }
+                refit_gain(&mut data, f, absorb, (job.candidate, &block), k, o)?
+            }
+            Err(DiagnoseError::Diverged(_)) => None,
+            Err(e) => return Err(e),
+        };
+        if let Some(d) = delta_bic.filter(|d| *d < -o.bic_threshold) {
+            return Ok(Checked::Found {
+                value,
+                factor,
+                delta_bic: d,
+            });
+        }
+        last = Some(Checked::NotFound {
+            value,
+            factor,
+            delta_bic,
+        });
+    }
+    Ok(last.expect("FACTORS is not empty"))
+}
+
+/// The final model's Jacobian at its fit and the pseudo-inverse of its normal matrix: what a
+/// Gauss–Newton step of its parameters takes up of a residual.
+struct Absorption {
+    j: DMatrix<f64>,
+    h_inv: Option<DMatrix<f64>>,
+}
+
+impl Absorption {
+    fn at(ctx: &Context, f: &Fitted) -> Result<Self, DiagnoseError> {
+        let r = f.model.residuals(ctx, &f.subset, &f.sim.markers);
+        let all: Vec<usize> = (0..f.theta.len()).collect();
+        let j = jacobian_columns(
+            ctx, &f.model, &f.theta, &f.subset, &f.sim, &r, &all, FD_STEP,
+        )?;
+        let h = j.transpose() * &j;
+        let h_inv = h.clone().pseudo_inverse(1e-12 * h.norm()).ok();
+        Ok(Absorption { j, h_inv })
+    }
+
+    /// The χ² the parameters' Gauss–Newton step leaves of residual `r`.
+    fn left(&self, r: &[f64]) -> f64 {
+        let r = DVector::from_column_slice(r);
+        match &self.h_inv {
+            Some(inv) => (&r - &self.j * (inv * (self.j.transpose() * &r))).norm_squared(),
+            None => r.norm_squared(),
+        }
+    }
+}
+
+/// The rule's ΔBIC on `data` for the final model of `f` with and without `c` (k its
+/// parameters, `injected` its block in the data), measured in the final fit's residual variance
+/// per entry; `None` where a refit leaves the physical range.
+///
+/// A candidate the diagnosis starts where its sensitivity scan places it (the layer, the
+/// inclusion: [`StaticEffect::placed_by_scan`](super::candidates::StaticEffect::placed_by_scan))
+/// is searched for as the diagnosis searches: the final model refitted to these data, the scan
+/// of the residual it leaves ([`locate_candidates`]), the candidate refitted from there — whether
+/// the search finds the effect is part of the statement. Any other starts from zero effect in
+/// the diagnosis, where Levenberg–Marquardt on its one or two parameters reaches the optimum it
+/// reaches from the effect put in: it starts there, a few iterations from the end, and the
+/// final model's refit without it is the Gauss–Newton step of `absorb`.
+fn refit_gain(
+    data: &mut Context,
+    f: &Fitted,
+    absorb: &Absorption,
+    (c, injected): (Candidate, &[f64]),
+    k: f64,
+    o: &DiagnoseOptions,
+) -> Result<Option<f64>, DiagnoseError> {
+    let stop = Stop {
+        max_iterations: REFIT_ITERATIONS,
+        rel_tolerance: REFIT_TOLERANCE,
+        chi2_floor: f.chi2,
+    };
+    let effect = c.effect();
+    let (chi2_without, theta, warm) = if effect.placed_by_scan() {
+        let without = match fit_until(
+            data,
+            &f.model,
+            f.theta.clone(),
+            &f.subset,
+            Some(&f.sim.x),
+            stop,
+        ) {
+            Ok(r) => r,
+            Err(DiagnoseError::Diverged(_)) => return Ok(None),
+            Err(e) => return Err(e),
+        };
+        locate_candidates(data, None, &without, o, &mut |_| {});
+        let mut theta = without.theta.clone();
+        theta.extend(effect.fit_start(data, data.grid));
+        (without.chi2, theta, without.sim.x)
+    } else {
+        // The final model's per-measurement effects (if any) profiled against these data.
+        let at_fit = match f.model.simulate_near(data, &f.theta, &f.subset, &f.sim) {
+            Ok(sim) => sim,
+            Err(DiagnoseError::Diverged(_)) => return Ok(None),
+            Err(e) => return Err(e),
+        };
+        let r = f.model.residuals(data, &f.subset, &at_fit.markers);
+        let mut theta = f.theta.clone();
+        theta.extend(injected);
+        (absorb.left(&r), theta, at_fit.x)
+    };
+    let with = match fit_until(data, &f.model.with(c), theta, &f.subset, Some(&warm), stop) {
+        Ok(r) => r,
+        Err(DiagnoseError::Diverged(_)) => return Ok(None),
+        Err(e) => return Err(e),
+    };
+    let n = f.n as f64;
+    let s2 = f.chi2 / n.max(1.0);
+    Ok(Some(-(chi2_without - with.chi2) / s2 + k * n.ln()))
+}
