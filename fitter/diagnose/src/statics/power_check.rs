@@ -32,17 +32,21 @@
 //! only that the dataset cannot see the effect at a plausible size.
 //!
 //! The per-measurement statements (`force-scale-each`, `registration-each`, `tilt-each`) are
-//! expectations over random patterns and are not checked here; their tests put alternating
-//! patterns into palpate's specimens.
+//! expectations over effects that differ at random from measurement to measurement with RMS ε.
+//! Each kind is put in as one such effect: its residual columns at the final fit (one per
+//! measurement and direction) with alternating signs, at 2ε (then 4ε), and judged the same way,
+//! the final model with the candidate refitted (its per-measurement parameters profiled in
+//! closed form, as always).
 
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::candidates::{At, PowerPoint};
 use super::diagnose::locate_candidates;
 use super::fit::{fit_until, jacobian_columns, Fitted, Stop, FD_STEP};
 use super::model::{Candidate, Context};
-use super::power::Detectable;
+use super::power::{row_offsets, Detectable};
 use super::{DiagnoseError, DiagnoseOptions};
 
 /// The multiples of the linearised statement at which an effect is put in, in turn until found.
@@ -127,14 +131,21 @@ impl Checked {
     }
 }
 
-/// One statement to check: the candidate, which live parameter, its column in the block, the
-/// linearised magnitude (θ units).
+/// One statement to check: where it is in the list, the candidate and what is put in.
 struct Job {
     statement: usize,
     param: usize,
     candidate: Candidate,
-    column: usize,
-    theta_min: f64,
+    what: Put,
+}
+
+/// What a check puts into the data.
+enum Put {
+    /// A θ parameter of the candidate's block: its column, the linearised magnitude (θ units).
+    Theta { column: usize, theta_min: f64 },
+    /// A per-measurement kind: its residual columns at the final fit (units of σ, one per
+    /// measurement and direction) and the stated RMS ε.
+    Profiled { columns: Vec<Vec<f64>>, eps: f64 },
 }
 
 /// Checks every θ-candidate statement of `detectable` (made at the final fit `f` with the
@@ -148,21 +159,47 @@ pub fn check_statements(
     progress: &mut dyn FnMut(&str),
 ) -> Result<(), DiagnoseError> {
     let grid = ctx.grid;
+    let point = PowerPoint {
+        at: At {
+            model: &f.model,
+            ctx,
+            theta: &f.theta,
+            log_e: None,
+        },
+        subset: &f.subset,
+        sim: &f.sim,
+    };
     let mut jobs = Vec::new();
     for (s, d) in detectable.iter().enumerate() {
-        let effect = d.candidate.effect();
-        if effect.power_start(grid).is_none() || effect.profiled(1) > 0 {
+        let c = d.candidate;
+        let effect = c.effect();
+        if let Some(kinds) = effect.profiled_columns(&point) {
+            for (p, ((_, _, columns), param)) in kinds?.into_iter().zip(&d.params).enumerate() {
+                if let Some(eps) = param.min {
+                    let what = Put::Profiled { columns, eps };
+                    jobs.push(Job {
+                        statement: s,
+                        param: p,
+                        candidate: c,
+                        what,
+                    });
+                }
+            }
             continue;
         }
-        let names = d.candidate.param_names(grid);
+        if effect.power_start(grid).is_none() {
+            continue;
+        }
+        let names = c.param_names(grid);
         for (p, (param, &column)) in d.params.iter().zip(&effect.live_columns(grid)).enumerate() {
             if let Some(min) = param.min {
+                let theta_min = min / names[column].2;
+                let what = Put::Theta { column, theta_min };
                 jobs.push(Job {
                     statement: s,
                     param: p,
-                    candidate: d.candidate,
-                    column,
-                    theta_min: min / names[column].2,
+                    candidate: c,
+                    what,
                 });
             }
         }
@@ -177,7 +214,14 @@ pub fn check_statements(
     let absorb = Absorption::at(ctx, f)?;
     let outcomes: Vec<Result<Checked, DiagnoseError>> = jobs
         .par_iter()
-        .map(|job| check_one(ctx, f, &absorb, job, o))
+        .map(|job| match &job.what {
+            Put::Theta { column, theta_min } => {
+                check_theta(ctx, f, &absorb, (job.candidate, *column, *theta_min), o)
+            }
+            Put::Profiled { columns, eps } => {
+                check_profiled(ctx, f, &absorb, (job.candidate, columns, *eps), o)
+            }
+        })
         .collect();
     for (job, outcome) in jobs.iter().zip(outcomes) {
         detectable[job.statement].params[job.param].checked = outcome?;
@@ -185,33 +229,32 @@ pub fn check_statements(
     Ok(())
 }
 
-/// One parameter's check: put in at each of [`FACTORS`] in turn until the rule finds it.
-fn check_one(
+/// A θ parameter's check: column `column` of `c`'s block put in at each of [`FACTORS`] times
+/// `theta_min` in turn until the rule finds it.
+fn check_theta(
     ctx: &Context,
     f: &Fitted,
     absorb: &Absorption,
-    job: &Job,
+    (c, column, theta_min): (Candidate, usize, f64),
     o: &DiagnoseOptions,
 ) -> Result<Checked, DiagnoseError> {
-    let effect = job.candidate.effect();
+    let effect = c.effect();
     let grid = ctx.grid;
     if let Some(limit) = effect.plausible_magnitude() {
-        if FACTORS[0] * job.theta_min > limit {
+        if FACTORS[0] * theta_min > limit {
             return Ok(Checked::Implausible { limit });
         }
     }
-    let scale = job.candidate.param_names(grid)[job.column].2;
-    let k = job.candidate.params(grid) as f64;
-    let with = f.model.with(job.candidate);
+    let scale = c.param_names(grid)[column].2;
+    let k = c.params(grid) as f64;
+    let with = f.model.with(c);
     let start = effect.power_start(grid).expect("a θ statement");
     let mut data = ctx.clone();
-    let mut last = None;
-    for factor in FACTORS {
+    first_found(o, |factor| {
         let mut block = start.clone();
-        block[job.column] += factor * job.theta_min;
+        block[column] += factor * theta_min;
         let mut theta = f.theta.clone();
         theta.extend(&block);
-        let value = factor * job.theta_min * scale;
         let delta_bic = match with.simulate_near(ctx, &theta, &f.subset, &f.sim) {
             Ok(sim) => {
                 for (&i, markers) in f.subset.iter().zip(&sim.markers) {
@@ -219,11 +262,66 @@ fn check_one(
                         *p = *q;
                     }
                 }
-                refit_gain(&mut data, f, absorb, (job.candidate, &block), k, o)?
+                refit_gain(&mut data, f, absorb, (c, &block), k, o)?
             }
             Err(DiagnoseError::Diverged(_)) => None,
             Err(e) => return Err(e),
         };
+        Ok((factor * theta_min * scale, delta_bic))
+    })
+}
+
+/// A per-measurement kind's check: its residual columns `columns` (at the final fit) summed
+/// with alternating signs — over the measurements, and over the directions, so that the
+/// pattern has RMS ε per parameter and no common part the fitted parameters would take up —
+/// and put in at each of [`FACTORS`] times `eps` in turn until the rule finds it. Along the
+/// candidate's own response: exact for a force scale and a translation, the linear response
+/// for a rotation and a tilt.
+fn check_profiled(
+    ctx: &Context,
+    f: &Fitted,
+    absorb: &Absorption,
+    (c, columns, eps): (Candidate, &[Vec<f64>], f64),
+    o: &DiagnoseOptions,
+) -> Result<Checked, DiagnoseError> {
+    let m = f.subset.len().max(1);
+    let n = columns.first().map_or(0, |c| c.len());
+    let mut pattern = vec![0.0; n];
+    for (j, col) in columns.iter().enumerate() {
+        let sign = if (j % m + j / m).is_multiple_of(2) {
+            1.0
+        } else {
+            -1.0
+        };
+        pattern
+            .iter_mut()
+            .zip(col)
+            .for_each(|(p, v)| *p += sign * v);
+    }
+    let (offset, _) = row_offsets(ctx, &f.subset);
+    let k = c.profiled(f.subset.len()) as f64;
+    let mut data = ctx.clone();
+    first_found(o, |factor| {
+        let size = factor * eps * ctx.sigma;
+        for (a, (&i, markers)) in f.subset.iter().zip(&f.sim.markers).enumerate() {
+            for (j, ((_, p), q)) in data.meas[i].observed.iter_mut().zip(markers).enumerate() {
+                *p = [0, 1, 2].map(|d| q[d] + size * pattern[offset[a] + 3 * j + d]);
+            }
+        }
+        let delta_bic = refit_gain(&mut data, f, absorb, (c, &[]), k, o)?;
+        Ok((factor * eps, delta_bic))
+    })
+}
+
+/// The first of [`FACTORS`] at which `put_in` (the magnitude put in and the rule's ΔBIC, `None`
+/// where a refit diverged) is shortlisted, or the last tried.
+fn first_found(
+    o: &DiagnoseOptions,
+    mut put_in: impl FnMut(f64) -> Result<(f64, Option<f64>), DiagnoseError>,
+) -> Result<Checked, DiagnoseError> {
+    let mut last = Checked::NotChecked;
+    for factor in FACTORS {
+        let (value, delta_bic) = put_in(factor)?;
         if let Some(d) = delta_bic.filter(|d| *d < -o.bic_threshold) {
             return Ok(Checked::Found {
                 value,
@@ -231,13 +329,13 @@ fn check_one(
                 delta_bic: d,
             });
         }
-        last = Some(Checked::NotFound {
+        last = Checked::NotFound {
             value,
             factor,
             delta_bic,
-        });
+        };
     }
-    Ok(last.expect("FACTORS is not empty"))
+    Ok(last)
 }
 
 /// The final model's Jacobian at its fit and the pseudo-inverse of its normal matrix: what a

@@ -102,7 +102,7 @@ fn detectable(s: &mut String, r: &DiagnosisReport) {
         let _ = writeln!(s, "## What this dataset could have detected\n");
         let _ = writeln!(
             s,
-            "The residual is the noise's, so no further effect was adopted — but only effects at least this large would have been shortlisted (ΔBIC < −{}; linearised at the final fit, each parameter with the rest of its block free; the held-out gate asks more). Smaller effects of these kinds may be present. Each single-magnitude statement was checked: the effect put alone into noise-free data at {}× (then {}×) its size, the final model refitted with and without it; a statement the refits do not bear out says so, and one beyond a plausible size is not put in:\n",
+            "The residual is the noise's, so no further effect was adopted — but only effects at least this large would have been shortlisted (ΔBIC < −{}; linearised at the final fit, each parameter with the rest of its block free; the held-out gate asks more). Smaller effects of these kinds may be present. Each statement was checked: the effect put alone into noise-free data at {}× (then {}×) its size (a per-measurement one with signs alternating over the measurements), the final model refitted with and without it; a statement the refits do not bear out says so, and one beyond a plausible size is not put in:\n",
             r.options.bic_threshold,
             FACTORS[0],
             FACTORS[1]
