@@ -148,8 +148,8 @@ enum Put {
     Profiled { columns: Vec<Vec<f64>>, eps: f64 },
 }
 
-/// Checks every θ-candidate statement of `detectable` (made at the final fit `f` with the
-/// shortlist threshold of `o`) by injected refits, and records the outcome on each parameter.
+/// Checks every statement of `detectable` (made at the final fit `f` with the shortlist
+/// threshold of `o`) by injected refits, and records the outcome on each parameter.
 /// `progress` hears how many checks there are.
 pub fn check_statements(
     ctx: &Context,
@@ -255,8 +255,8 @@ fn check_theta(
         block[column] += factor * theta_min;
         let mut theta = f.theta.clone();
         theta.extend(&block);
-        let delta_bic = match with.simulate_near(ctx, &theta, &f.subset, &f.sim) {
-            Ok(sim) => {
+        let delta_bic = match unless_diverged(with.simulate_near(ctx, &theta, &f.subset, &f.sim))? {
+            Some(sim) => {
                 for (&i, markers) in f.subset.iter().zip(&sim.markers) {
                     for ((_, p), q) in data.meas[i].observed.iter_mut().zip(markers) {
                         *p = *q;
@@ -264,8 +264,7 @@ fn check_theta(
                 }
                 refit_gain(&mut data, f, absorb, (c, &block), k, o)?
             }
-            Err(DiagnoseError::Diverged(_)) => None,
-            Err(e) => return Err(e),
+            None => None,
         };
         Ok((factor * theta_min * scale, delta_bic))
     })
@@ -394,17 +393,16 @@ fn refit_gain(
     };
     let effect = c.effect();
     let (chi2_without, theta, warm) = if effect.placed_by_scan() {
-        let without = match fit_until(
+        let refit = fit_until(
             data,
             &f.model,
             f.theta.clone(),
             &f.subset,
             Some(&f.sim.x),
             stop,
-        ) {
-            Ok(r) => r,
-            Err(DiagnoseError::Diverged(_)) => return Ok(None),
-            Err(e) => return Err(e),
+        );
+        let Some(without) = unless_diverged(refit)? else {
+            return Ok(None);
         };
         locate_candidates(data, None, &without, o, &mut |_| {});
         let mut theta = without.theta.clone();
@@ -412,22 +410,30 @@ fn refit_gain(
         (without.chi2, theta, without.sim.x)
     } else {
         // The final model's per-measurement effects (if any) profiled against these data.
-        let at_fit = match f.model.simulate_near(data, &f.theta, &f.subset, &f.sim) {
-            Ok(sim) => sim,
-            Err(DiagnoseError::Diverged(_)) => return Ok(None),
-            Err(e) => return Err(e),
+        let sim = f.model.simulate_near(data, &f.theta, &f.subset, &f.sim);
+        let Some(at_fit) = unless_diverged(sim)? else {
+            return Ok(None);
         };
         let r = f.model.residuals(data, &f.subset, &at_fit.markers);
         let mut theta = f.theta.clone();
         theta.extend(injected);
         (absorb.left(&r), theta, at_fit.x)
     };
-    let with = match fit_until(data, &f.model.with(c), theta, &f.subset, Some(&warm), stop) {
-        Ok(r) => r,
-        Err(DiagnoseError::Diverged(_)) => return Ok(None),
-        Err(e) => return Err(e),
+    let refit = fit_until(data, &f.model.with(c), theta, &f.subset, Some(&warm), stop);
+    let Some(with) = unless_diverged(refit)? else {
+        return Ok(None);
     };
     let n = f.n as f64;
     let s2 = f.chi2 / n.max(1.0);
     Ok(Some(-(chi2_without - with.chi2) / s2 + k * n.ln()))
+}
+
+/// `Ok(None)` where a simulation or a refit left the physical range (no figure for the check,
+/// which says so), the other errors as they are.
+fn unless_diverged<T>(r: Result<T, DiagnoseError>) -> Result<Option<T>, DiagnoseError> {
+    match r {
+        Ok(v) => Ok(Some(v)),
+        Err(DiagnoseError::Diverged(_)) => Ok(None),
+        Err(e) => Err(e),
+    }
 }
