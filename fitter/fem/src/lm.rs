@@ -79,8 +79,11 @@ pub fn minimise<S, E>(
     let mut mu = o.initial_damping;
     let mut jtj = DMatrix::zeros(p, p);
     let mut iterations = 0;
-    let mut converged = false;
-    while iterations < o.max_iterations {
+    // A start whose cost is below rel_tolerance × cost_floor has converged: no step can lower
+    // it by more than that (the cost is ≥ 0), so no Jacobian is spent to find it out. Data a
+    // model holds exactly, refitted from where they were made, start there.
+    let mut converged = cost <= o.rel_tolerance * o.cost_floor;
+    while iterations < o.max_iterations && !converged {
         iterations += 1;
         let j = jacobian(&theta, &state, &r)?;
         jtj = j.transpose() * &j;
@@ -552,6 +555,47 @@ mod tests {
     }
 
     /// The trust-region form on Rosenbrock (a zero residual): the minimum (1, 1).
+    /// Data a model holds exactly, refitted from where they were made: the start's cost is below
+    /// the tolerance's share of the floor, so no step can gain more than the tolerance, and no
+    /// Jacobian is spent to find that out. A start above it is fitted as before.
+    #[test]
+    fn a_start_below_the_tolerance_of_the_floor_is_converged_without_a_jacobian() {
+        // r(θ) = θ − 1: cost (θ − 1)².
+        let o = LmOptions {
+            max_iterations: 20,
+            tries: 10,
+            initial_damping: 1e-3,
+            min_damping: 1e-9,
+            reject_factor: 4.0,
+            rel_tolerance: 1e-5,
+            cost_floor: 100.0,
+        };
+        let run = |theta0: f64| {
+            let jacobians = std::cell::Cell::new(0);
+            let out = minimise(
+                vec![theta0],
+                vec![theta0 - 1.0],
+                (),
+                |_, _, _| {
+                    jacobians.set(jacobians.get() + 1);
+                    Ok::<_, ()>(DMatrix::from_element(1, 1, 1.0))
+                },
+                |th, _| Some((vec![th[0] - 1.0], ())),
+                &o,
+            )
+            .unwrap();
+            (out, jacobians.get())
+        };
+        // Cost 10⁻⁶ ≤ 10⁻⁵ × 100: converged where it starts.
+        let (out, jacobians) = run(1.0 + 1e-3);
+        assert!(out.converged && out.iterations == 0 && jacobians == 0);
+        assert_eq!(out.theta, vec![1.0 + 1e-3]);
+        // Cost 10⁻² > 10⁻³: stepped to the minimum as before.
+        let (out, jacobians) = run(1.1);
+        assert!(out.converged && jacobians >= 1, "{out:?}");
+        assert!((out.theta[0] - 1.0).abs() < 1e-3, "{:?}", out.theta);
+    }
+
     #[test]
     fn trust_region_finds_the_rosenbrock_minimum() {
         let eval = |t: &[f64]| {

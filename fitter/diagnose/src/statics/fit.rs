@@ -211,6 +211,18 @@ pub fn fit_until(
     stop: Stop,
 ) -> Result<Fitted, DiagnoseError> {
     let sim = model.simulate(ctx, &theta0, subset, warm)?;
+    fit_from(ctx, model, theta0, subset, sim, stop)
+}
+
+/// [`fit_until`] from `sim`, the simulation of `model` at `theta0` on `ctx` already made.
+pub fn fit_from(
+    ctx: &Context,
+    model: &Model,
+    theta0: Vec<f64>,
+    subset: &[usize],
+    sim: Simulated,
+    stop: Stop,
+) -> Result<Fitted, DiagnoseError> {
     let r = model.residuals(ctx, subset, &sim.markers);
     let o = LmOptions {
         max_iterations: stop.max_iterations,

@@ -19,7 +19,9 @@
 //!   of the residual it leaves, the candidate refitted from there; any other starts at the effect
 //!   put in (from zero effect, Levenberg–Marquardt on its one or two parameters reaches the same
 //!   optimum in more iterations). Each refit stops when a step gains less than 10⁻⁵ of the final
-//!   fit's χ² (data a model holds exactly would otherwise drive χ² toward zero to the cap).
+//!   fit's χ² (data a model holds exactly would otherwise drive χ² toward zero to the cap). Such
+//!   a start is where the data were made: its simulation is the one that made them, its χ² is
+//!   zero, and the refit ends there without a Jacobian.
 //!
 //! ΔBIC = −Δχ²/s² + k ln n with s² the final fit's residual variance per entry: the effect on
 //! top of this dataset's own residual, as the statement means it, without a draw of noise to
@@ -44,8 +46,8 @@ use serde::Serialize;
 
 use super::candidates::{At, PowerPoint};
 use super::diagnose::locate_candidates;
-use super::fit::{fit_until, jacobian_columns, Fitted, Stop, FD_STEP};
-use super::model::{Candidate, Context};
+use super::fit::{fit_from, fit_until, jacobian_columns, Fitted, Stop, FD_STEP};
+use super::model::{Candidate, Context, Model, Simulated};
 use super::power::{row_offsets, Detectable};
 use super::{DiagnoseError, DiagnoseOptions};
 
@@ -262,7 +264,7 @@ fn check_theta(
                         *p = *q;
                     }
                 }
-                refit_gain(&mut data, f, absorb, (c, &block), k, o)?
+                refit_gain(&mut data, f, absorb, (c, &block, Some(&sim)), k, o)?
             }
             None => None,
         };
@@ -307,7 +309,7 @@ fn check_profiled(
                 *p = [0, 1, 2].map(|d| q[d] + size * pattern[offset[a] + 3 * j + d]);
             }
         }
-        let delta_bic = refit_gain(&mut data, f, absorb, (c, &[]), k, o)?;
+        let delta_bic = refit_gain(&mut data, f, absorb, (c, &[], None), k, o)?;
         Ok((factor * eps, delta_bic))
     })
 }
@@ -367,8 +369,9 @@ impl Absorption {
 }
 
 /// The rule's ΔBIC on `data` for the final model of `f` with and without `c` (k its
-/// parameters, `injected` its block in the data), measured in the final fit's residual variance
-/// per entry; `None` where a refit leaves the physical range.
+/// parameters, `injected` its block in the data, `made` the simulation that made the data when
+/// they are one), measured in the final fit's residual variance per entry; `None` where a refit
+/// leaves the physical range.
 ///
 /// A candidate the diagnosis starts where its sensitivity scan places it (the layer, the
 /// inclusion: [`StaticEffect::placed_by_scan`](super::candidates::StaticEffect::placed_by_scan))
@@ -382,7 +385,7 @@ fn refit_gain(
     data: &mut Context,
     f: &Fitted,
     absorb: &Absorption,
-    (c, injected): (Candidate, &[f64]),
+    (c, injected, made): (Candidate, &[f64], Option<&Simulated>),
     k: f64,
     o: &DiagnoseOptions,
 ) -> Result<Option<f64>, DiagnoseError> {
@@ -409,23 +412,45 @@ fn refit_gain(
         theta.extend(effect.fit_start(data, data.grid));
         (without.chi2, theta, without.sim.x)
     } else {
-        // The final model's per-measurement effects (if any) profiled against these data.
-        let sim = f.model.simulate_near(data, &f.theta, &f.subset, &f.sim);
-        let Some(at_fit) = unless_diverged(sim)? else {
-            return Ok(None);
+        // The final model's per-measurement effects (if any) profiled against these data; a
+        // model that profiles nothing simulates these data as it simulated the dataset.
+        let profiled;
+        let at_fit = if profiles_nothing(&f.model, f.subset.len()) {
+            &f.sim
+        } else {
+            let sim = f.model.simulate_near(data, &f.theta, &f.subset, &f.sim);
+            let Some(sim) = unless_diverged(sim)? else {
+                return Ok(None);
+            };
+            profiled = sim;
+            &profiled
         };
         let r = f.model.residuals(data, &f.subset, &at_fit.markers);
         let mut theta = f.theta.clone();
         theta.extend(injected);
-        (absorb.left(&r), theta, at_fit.x)
+        (absorb.left(&r), theta, at_fit.x.clone())
     };
-    let refit = fit_until(data, &f.model.with(c), theta, &f.subset, Some(&warm), stop);
+    let augmented = f.model.with(c);
+    let refit = match made {
+        // Started where the data were made, by a model that profiles nothing against them: the
+        // simulation that made them is the refit's first, to the bit.
+        Some(sim) if !effect.placed_by_scan() && profiles_nothing(&augmented, f.subset.len()) => {
+            fit_from(data, &augmented, theta, &f.subset, sim.clone(), stop)
+        }
+        _ => fit_until(data, &augmented, theta, &f.subset, Some(&warm), stop),
+    };
     let Some(with) = unless_diverged(refit)? else {
         return Ok(None);
     };
     let n = f.n as f64;
     let s2 = f.chi2 / n.max(1.0);
     Ok(Some(-(chi2_without - with.chi2) / s2 + k * n.ln()))
+}
+
+/// Whether `model`'s markers are its simulation's alone: no per-measurement effect profiled
+/// against the observations of `measurements` measurements.
+fn profiles_nothing(model: &Model, measurements: usize) -> bool {
+    model.effects.iter().all(|e| e.profiled(measurements) == 0)
 }
 
 /// `Ok(None)` where a simulation or a refit left the physical range (no figure for the check,
