@@ -554,7 +554,6 @@ mod tests {
         }
     }
 
-    /// The trust-region form on Rosenbrock (a zero residual): the minimum (1, 1).
     /// Data a model holds exactly, refitted from where they were made: the start's cost is below
     /// the tolerance's share of the floor, so no step can gain more than the tolerance, and no
     /// Jacobian is spent to find that out. A start above it is fitted as before.
@@ -596,6 +595,7 @@ mod tests {
         assert!((out.theta[0] - 1.0).abs() < 1e-3, "{:?}", out.theta);
     }
 
+    /// The trust-region form on Rosenbrock (a zero residual): the minimum (1, 1).
     #[test]
     fn trust_region_finds_the_rosenbrock_minimum() {
         let eval = |t: &[f64]| {

@@ -264,7 +264,7 @@ fn check_theta(
                         *p = *q;
                     }
                 }
-                refit_gain(&mut data, f, absorb, (c, &block, Some(&sim)), k, o)?
+                refit_gain(&mut data, f, absorb, (c, &block, Some(sim)), k, o)?
             }
             None => None,
         };
@@ -385,7 +385,7 @@ fn refit_gain(
     data: &mut Context,
     f: &Fitted,
     absorb: &Absorption,
-    (c, injected, made): (Candidate, &[f64], Option<&Simulated>),
+    (c, injected, made): (Candidate, &[f64], Option<Simulated>),
     k: f64,
     o: &DiagnoseOptions,
 ) -> Result<Option<f64>, DiagnoseError> {
@@ -395,7 +395,8 @@ fn refit_gain(
         chi2_floor: f.chi2,
     };
     let effect = c.effect();
-    let (chi2_without, theta, warm) = if effect.placed_by_scan() {
+    let augmented = f.model.with(c);
+    let (chi2_without, theta, start) = if effect.placed_by_scan() {
         let refit = fit_until(
             data,
             &f.model,
@@ -410,7 +411,7 @@ fn refit_gain(
         locate_candidates(data, None, &without, o, &mut |_| {});
         let mut theta = without.theta.clone();
         theta.extend(effect.fit_start(data, data.grid));
-        (without.chi2, theta, without.sim.x)
+        (without.chi2, theta, Start::Near(without.sim.x))
     } else {
         // The final model's per-measurement effects (if any) profiled against these data; a
         // model that profiles nothing simulates these data as it simulated the dataset.
@@ -428,16 +429,17 @@ fn refit_gain(
         let r = f.model.residuals(data, &f.subset, &at_fit.markers);
         let mut theta = f.theta.clone();
         theta.extend(injected);
-        (absorb.left(&r), theta, at_fit.x.clone())
-    };
-    let augmented = f.model.with(c);
-    let refit = match made {
         // Started where the data were made, by a model that profiles nothing against them: the
         // simulation that made them is the refit's first, to the bit.
-        Some(sim) if !effect.placed_by_scan() && profiles_nothing(&augmented, f.subset.len()) => {
-            fit_from(data, &augmented, theta, &f.subset, sim.clone(), stop)
-        }
-        _ => fit_until(data, &augmented, theta, &f.subset, Some(&warm), stop),
+        let start = match made {
+            Some(sim) if profiles_nothing(&augmented, f.subset.len()) => Start::Made(sim),
+            _ => Start::Near(at_fit.x.clone()),
+        };
+        (absorb.left(&r), theta, start)
+    };
+    let refit = match start {
+        Start::Made(sim) => fit_from(data, &augmented, theta, &f.subset, sim, stop),
+        Start::Near(x) => fit_until(data, &augmented, theta, &f.subset, Some(&x), stop),
     };
     let Some(with) = unless_diverged(refit)? else {
         return Ok(None);
@@ -445,6 +447,14 @@ fn refit_gain(
     let n = f.n as f64;
     let s2 = f.chi2 / n.max(1.0);
     Ok(Some(-(chi2_without - with.chi2) / s2 + k * n.ln()))
+}
+
+/// Where a check's refit with the candidate starts from.
+enum Start {
+    /// The simulation that made the data, at the refit's first parameters.
+    Made(Simulated),
+    /// Node positions to warm-start its first simulation from.
+    Near(Vec<Vec<[f64; 3]>>),
 }
 
 /// Whether `model`'s markers are its simulation's alone: no per-measurement effect profiled
