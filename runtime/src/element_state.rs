@@ -249,19 +249,25 @@ impl<'a> ElementState<'a> {
     /// The largest rotation angle (rad) of the R_e in force, 2 acos(|w| / ‖q‖) over the elements'
     /// quaternions (0 at rest): one scan of one value in four, for the load-increment rule of a
     /// tick whose load change is large ([`crate::tick`]).
+    ///
+    /// The scan takes the least w² / ‖q‖² and one square root at the end, not a square root per
+    /// element: `libm::sqrtf` is a legacy-SSE `sqrtss`, and between the 256-bit loads of the
+    /// blocks each one paid the AVX–SSE transition of Intel cores — about 300 cycles an element,
+    /// 0.6 ms of a 5k-tet crossing tick (BENCHMARKS.md, "Runtime: one haptic tick against
+    /// VegaFEM").
     pub(crate) fn largest_rotation(&self) -> f32 {
-        let mut min_cos = 1.0f32;
+        let mut min_cos2 = 1.0f32;
         for b in 0..self.tp / LANES {
             let q = block::<4>(self.quat, b);
             for l in 0..LANES.min(self.t.saturating_sub(b * LANES)) {
-                let n2 =
-                    q[0][l] * q[0][l] + q[1][l] * q[1][l] + q[2][l] * q[2][l] + q[3][l] * q[3][l];
+                let w2 = q[0][l] * q[0][l];
+                let n2 = w2 + q[1][l] * q[1][l] + q[2][l] * q[2][l] + q[3][l] * q[3][l];
                 if n2 > 0.0 && n2.is_finite() {
-                    min_cos = min_cos.min(q[0][l].abs() / libm::sqrtf(n2));
+                    min_cos2 = min_cos2.min(w2 / n2);
                 }
             }
         }
-        2.0 * libm::acosf(min_cos.clamp(0.0, 1.0))
+        2.0 * libm::acosf(libm::sqrtf(min_cos2).clamp(0.0, 1.0))
     }
 
     /// Node ids of the elements of block `b` and the nodal values of `src` (3 per node) there.

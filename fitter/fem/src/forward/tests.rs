@@ -489,6 +489,20 @@ fn load_increments_follow_the_predicted_rotation() {
             push(&mut rt, load);
             settle(&mut rt);
             let theta = rt.largest_rotation();
+            // The angle the rule reads is the largest element rotation, read here from each
+            // R_e's trace (cos θ = (tr R − 1)/2) rather than from the quaternions it scans.
+            let from_trace = (0..rt.element_count())
+                .filter_map(|e| rt.element_rotation(e))
+                .map(|r| {
+                    (0.5 * ((r[0] + r[4] + r[8]) as f64 - 1.0))
+                        .clamp(-1.0, 1.0)
+                        .acos()
+                })
+                .fold(0.0f64, f64::max);
+            assert!(
+                (theta as f64 - from_trace).abs() <= 1e-3 * from_trace.max(1e-3),
+                "{load} N: θ_max {theta} rad, from the rotations' traces {from_trace} rad"
+            );
             push(&mut rt, 0.5 * load);
             let first = rt.tick().increments;
             settle(&mut rt);

@@ -103,6 +103,11 @@ pub struct Args {
     /// `fitter/lab/peers/vegafem/run.sh`).
     #[arg(long)]
     pub export_peer: Option<std::path::PathBuf>,
+    /// Write the first variant's ticks to this CSV file (tick, wall and CPU µs, PCG iterations
+    /// of its own and spent ahead, whether it started from an anticipated solve, load
+    /// increments): which ticks are the slow ones.
+    #[arg(long)]
+    pub tick_log: Option<std::path::PathBuf>,
 }
 
 /// Which model the bench plays.
@@ -267,6 +272,10 @@ struct Record {
     ahead: Vec<u32>,
     /// Ticks that started from anticipated solves.
     anticipated: usize,
+    /// Whether each tick started from an anticipated solve.
+    anticipated_ticks: Vec<bool>,
+    /// Load increments of each tick.
+    increments: Vec<u32>,
     capped: Vec<bool>,
     rel_res: Vec<f32>,
     /// ‖u − u_conv‖/‖u_conv‖ against a converged solve (tolerance 1e-9) of the same tick from
@@ -328,6 +337,8 @@ fn timed_pass(
         rec.iters.push(rep.iterations);
         rec.ahead.push(rep.iterations_ahead);
         rec.anticipated += rep.anticipated as usize;
+        rec.anticipated_ticks.push(rep.anticipated);
+        rec.increments.push(rep.increments);
         rec.capped.push(rep.status == SolveStatus::BudgetExhausted);
         rec.rel_res.push(rep.rel_residual);
         Ok(())
@@ -617,6 +628,26 @@ fn run_direct(model: &BlockModel, args: &Args, p: LambdaAlpha) -> anyhow::Result
     Ok(times)
 }
 
+/// The ticks of one record as CSV (`--tick-log`).
+fn write_tick_log(path: &std::path::Path, r: &Record) -> anyhow::Result<()> {
+    use std::fmt::Write as _;
+    let mut out =
+        String::from("tick,wall_us,cpu_us,iterations,iterations_ahead,anticipated,increments\n");
+    for k in 0..r.wall_us.len() {
+        writeln!(
+            out,
+            "{k},{:.1},{:.1},{},{},{},{}",
+            r.wall_us[k],
+            r.cpu_us[k],
+            r.iters[k],
+            r.ahead[k],
+            r.anticipated_ticks[k] as u8,
+            r.increments[k]
+        )?;
+    }
+    std::fs::write(path, out).map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))
+}
+
 /// Runs the benchmark.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let p = LambdaAlpha::from_young_poisson(10_000.0, 0.3);
@@ -703,6 +734,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         vary("packed".into(), &|c| c.kernel = Kernel::Packed);
     }
     let mut recs = timed_pass(&model, args.touch, &variants, args.ticks, args.compare)?;
+    if let Some(path) = &args.tick_log {
+        write_tick_log(path, &recs[0])?;
+    }
     for (v, r) in variants.iter().zip(recs.iter_mut()) {
         accuracy_pass(&model, args.touch, v, args.ticks, r)?;
     }
