@@ -251,10 +251,10 @@ impl<'a> ElementState<'a> {
     /// tick whose load change is large ([`crate::tick`]).
     ///
     /// The scan takes the least w² / ‖q‖² and one square root at the end, not a square root per
-    /// element: `libm::sqrtf` is a legacy-SSE `sqrtss`, and between the 256-bit loads of the
-    /// blocks each one paid the AVX–SSE transition of Intel cores — about 300 cycles an element,
-    /// 0.6 ms of a 5k-tet crossing tick (BENCHMARKS.md, "Runtime: one haptic tick against
-    /// VegaFEM").
+    /// element: with a `libm::sqrtf` (a legacy-SSE `sqrtss`) between the blocks' 256-bit loads
+    /// the scan took about 300 cycles an element on an Intel core, 0.6 ms of a 5k-tet crossing
+    /// tick — the cost of an AVX–SSE transition, which AMD cores do not charge (BENCHMARKS.md,
+    /// "Five rounds on an Intel machine of the kind").
     pub(crate) fn largest_rotation(&self) -> f32 {
         let mut min_cos2 = 1.0f32;
         for b in 0..self.tp / LANES {
