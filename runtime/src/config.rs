@@ -88,7 +88,8 @@ pub struct RuntimeConfig {
     /// only when K' has moved by more than this since it was last built (an upper bound summed
     /// over ticks): the rotations by this angle (rad), or a non-linear material's blended λ_e,
     /// α_e by this fraction of λ_e. A preconditioner only needs to be close: this changes
-    /// iteration counts, never the solution. 0 rebuilds it every tick.
+    /// iteration counts, never the solution. After a tick that ran PCG iterations a due rebuild
+    /// waits for a tick after a quiet one, up to four times this move. 0 rebuilds it every tick.
     pub precond_refresh_angle: f32,
     /// Start each solve from the energy-optimal multiple of the previous tick's increment
     /// (a one-dimensional Galerkin predictor, one extra K' product; see `tick.rs`).

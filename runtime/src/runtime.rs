@@ -36,6 +36,9 @@ pub struct Runtime<'a> {
     /// The energy slope s(0) at the start of the last step, while the line search has yet to
     /// check that step (see [`crate::tick`]).
     pub(crate) pending_slope: Option<f32>,
+    /// Whether the last tick ran PCG iterations (a preconditioner refresh that is due waits for
+    /// a tick after one that did not, [`crate::tick`]).
+    pub(crate) last_solved: bool,
 }
 
 fn shape(what: &'static str, expected: usize, found: usize) -> Result<(), RuntimeError> {
@@ -117,6 +120,7 @@ impl<'a> Runtime<'a> {
             anticipation: Anticipation::carve(anticipation, &mut fc, &mut uc)?,
             tick_count: 0,
             pending_slope: None,
+            last_solved: false,
         };
         rt.load(&dims)?;
         rt.reset();
@@ -169,6 +173,7 @@ impl<'a> Runtime<'a> {
         self.anticipation.reset();
         self.tick_count = 0;
         self.pending_slope = None;
+        self.last_solved = false;
         self.precond.valid = false;
     }
 

@@ -108,7 +108,9 @@ impl Runtime<'_> {
     /// r_full = f_app − f_int(u), with R_e first when `rotate` (fused), and the preconditioner's
     /// node blocks when they are due.
     fn assemble(&mut self, rotate: Option<(usize, f32)>) {
-        let diag = self.precond.due(self.config.precond_refresh_angle);
+        let diag = self
+            .precond
+            .due_after(self.config.precond_refresh_angle, self.last_solved);
         if diag {
             self.precond.begin_assembly();
         }
@@ -415,6 +417,7 @@ impl Runtime<'_> {
             }
         };
         self.pending_slope = pending;
+        self.last_solved = iterations > 0;
         let reaction = self.contact.update_reaction(self.nodes.r_full);
         self.tick_count += 1;
         // A crossing that happened hands on its plan; a moved state is a new operator. Only a

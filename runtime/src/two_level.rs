@@ -59,6 +59,19 @@ impl<'a> TwoLevel<'a> {
         !self.valid || self.drift > refresh_angle
     }
 
+    /// [`Self::due`] in a tick after one that `busy` ran PCG iterations: a refresh that is due
+    /// waits for a tick after a quiet one (its solve starts from the blocks it has), unless K'
+    /// moved by more than [`DEFER_LIMIT`] times the angle. A lumped probe's crossing moves the
+    /// state in three ticks; the third, where the rotations settle, is the slowest of a 10k
+    /// block's ticks, and the refresh then falls in the quiet ticks after it instead.
+    pub(crate) fn due_after(&self, refresh_angle: f32, busy: bool) -> bool {
+        if busy && refresh_angle > 0.0 && self.valid {
+            self.drift > DEFER_LIMIT * refresh_angle
+        } else {
+            self.due(refresh_angle)
+        }
+    }
+
     /// Zeroes the node blocks before an assembly pass adds the element blocks into them.
     pub(crate) fn begin_assembly(&mut self) {
         self.blocks.iter_mut().for_each(|v| *v = 0.0);
@@ -104,6 +117,10 @@ impl<'a> TwoLevel<'a> {
     }
 }
 
+/// How far past its refresh angle K' may move while the refresh waits for a quiet tick
+/// ([`TwoLevel::due_after`]).
+pub(crate) const DEFER_LIMIT: f32 = 4.0;
+
 /// z = S M⁻¹ r: the two-level preconditioner with the rest positions its coarse modes need and
 /// the constraint filter, borrowed for one solve.
 pub(crate) struct TwoLevelApply<'r, 'a> {
@@ -134,5 +151,38 @@ impl Preconditioner for TwoLevelApply<'_, '_> {
     fn finish(&mut self, r: &[f32], z: &mut [f32]) {
         self.precond.coarse.apply(self.x0, r, z);
         self.contact.project(z);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A due refresh waits after a busy tick while K' moved by at most `DEFER_LIMIT` times the
+    /// angle; never-built blocks, a quiet tick before, a larger move, or an angle of 0 (refresh
+    /// every tick) do not wait.
+    #[test]
+    fn a_due_refresh_waits_for_a_quiet_tick_within_its_limit() {
+        let (mut blocks, mut agg, mut coarse) = ([0.0f32; 6], [0u32; 1], [0.0f32; 16]);
+        let mut p = TwoLevel {
+            blocks: &mut blocks,
+            valid: false,
+            drift: 0.0,
+            coarse: Coarse::new(1, &mut agg, &mut coarse),
+        };
+        let angle = 0.05;
+        assert!(p.due_after(angle, true), "never built");
+        p.valid = true;
+        p.drift = 0.5 * angle;
+        assert!(
+            !p.due_after(angle, false) && !p.due_after(angle, true),
+            "not due"
+        );
+        p.drift = 2.0 * angle;
+        assert!(p.due_after(angle, false), "due after a quiet tick");
+        assert!(!p.due_after(angle, true), "due, but waits after a busy one");
+        assert!(p.due_after(0.0, true), "an angle of 0 refreshes every tick");
+        p.drift = 1.01 * DEFER_LIMIT * angle;
+        assert!(p.due_after(angle, true), "past the limit it does not wait");
     }
 }
