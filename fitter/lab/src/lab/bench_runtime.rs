@@ -270,8 +270,6 @@ struct Record {
     iters: Vec<u32>,
     /// PCG iterations each tick spent ahead, on a lumped probe's planned rim crossings.
     ahead: Vec<u32>,
-    /// Ticks that started from anticipated solves.
-    anticipated: usize,
     /// Whether each tick started from an anticipated solve.
     anticipated_ticks: Vec<bool>,
     /// Load increments of each tick.
@@ -336,7 +334,6 @@ fn timed_pass(
         rec.wall_us.push(wall);
         rec.iters.push(rep.iterations);
         rec.ahead.push(rep.iterations_ahead);
-        rec.anticipated += rep.anticipated as usize;
         rec.anticipated_ticks.push(rep.anticipated);
         rec.increments.push(rep.increments);
         rec.capped.push(rep.status == SolveStatus::BudgetExhausted);
@@ -505,7 +502,7 @@ fn summarise(r: &Record) -> Summary {
             &r.cpu_us,
         ),
         ahead_mean: r.ahead.iter().map(|v| *v as f64).sum::<f64>() / r.ahead.len().max(1) as f64,
-        anticipated: r.anticipated,
+        anticipated: r.anticipated_ticks.iter().filter(|&&a| a).count(),
     }
 }
 
