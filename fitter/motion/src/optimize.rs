@@ -705,6 +705,18 @@ fn gauss_newton_runs(
 /// that ends on the floor reports h = 0.1 with the Gauss–Newton σ of that point.
 pub const POWER_INDEX_FLOOR: f64 = 0.1;
 
+/// The least ratio λ/μ a Levenberg–Marquardt fit with a free global Lamé λ takes (from a start
+/// above it; a start below is its own floor), against μ at the start: Poisson's ratio 0.0005.
+/// Below it the model barely changes — the bulk modulus λ + 2μ/3 is within 0.15 % of its value
+/// at λ = 0 — while each step of ln λ toward −∞ costs a simulation for a gain of Φ the data
+/// cannot tell from noise. Data that push λ there are those of a mesh that locks in bending
+/// (its cylinders read a lower ν than the material's): in the diagnosis of one of the
+/// independent generator's cylinders (1,300 tets), 128 of the 231 simulations with
+/// sensitivities were steps of ln λ alone toward zero, and the floor takes that diagnosis from
+/// 312 s to 264 s with the same verdict (BENCHMARKS.md, "A free λ held at its floor"). A fit
+/// that ends on the floor reports λ there with the Gauss–Newton σ of that point.
+pub const LAMBDA_FLOOR_RATIO: f64 = 1e-3;
+
 /// Where the power law's prefactor is read: the fit's coordinates for a viscosity ν with its
 /// index h are ln ν_ref = ln ν + (h − 1) ln γ̇_ref, the viscosity at a strain rate γ̇_ref of the
 /// data instead of at 1/s, and h itself. The data pin the stress at the rates they contain,
@@ -894,6 +906,14 @@ fn levenberg_marquardt(
     // A paired h's coordinate is h itself.
     for &(_, h, _) in &reference.pairs {
         lower[h] = POWER_INDEX_FLOOR.min(w0[h]);
+    }
+    // A free global λ stays at or above LAMBDA_FLOOR_RATIO μ (μ at the start).
+    let global = |k: ParamKind| params.iter().position(|p| p.kind == k && p.is_global());
+    if let Some(l) = global(ParamKind::Lambda).filter(|&l| !paired(l)) {
+        let mu0 = global(ParamKind::Mu).map_or_else(|| base.get(ParamKind::Mu, 0), |m| z0[m].exp());
+        if mu0.is_finite() && mu0 > 0.0 {
+            lower[l] = lower[l].max((LAMBDA_FLOOR_RATIO * mu0).ln().min(w0[l]));
+        }
     }
     // Scalar residuals: three per observed marker position and clamp force.
     let residuals = first_counts.get();

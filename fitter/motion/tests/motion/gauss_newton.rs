@@ -6,7 +6,7 @@ use crate::support::{assert_gradients_agree, bar, truth};
 use palpate_motion::gradient::{evaluate, evaluate_gauss_newton};
 use palpate_motion::model::{Material, Model, Observations, Param, ParamKind};
 use palpate_motion::objective::clamp_force;
-use palpate_motion::optimize::{fit, FitSettings, Optimizer};
+use palpate_motion::optimize::{fit, FitSettings, Optimizer, LAMBDA_FLOOR_RATIO};
 use palpate_motion::scenario::record;
 use palpate_motion::sim::simulate_states;
 use palpate_motion::viscosity::Form;
@@ -347,6 +347,36 @@ fn free_marker_offsets_are_eliminated_exactly() {
             truth_q[p]
         );
     }
+}
+
+/// A free λ is held at `LAMBDA_FLOOR_RATIO` μ: noise-free runs of a bar whose λ is 10⁻⁴ μ
+/// (Poisson's ratio 0.00005), fitted in (λ, μ) from λ = μ, end with λ on the floor — 10⁻³ of μ
+/// at the start, to the rounding of ln λ — not below it, and μ within 10⁻³ of the truth's: below
+/// the floor the bulk modulus changes by less than 0.15 %, which moves this bar's markers by
+/// less than the fit's own precision (the tolerance is the other fits' here).
+#[test]
+fn a_free_lambda_stops_on_its_floor() {
+    let (_, model) = bar([1, 4, 1], 10);
+    let mut t = truth(&model);
+    let mu = t.get(ParamKind::Mu, 0);
+    t.set(&Param::globals(&[ParamKind::Lambda]), &[1e-4 * mu]);
+    let obs = record(&model, &t, 0.0, 1).unwrap();
+    let params = Param::globals(&[ParamKind::Lambda, ParamKind::Mu]);
+    let settings = FitSettings {
+        optimizer: Optimizer::LevenbergMarquardt,
+        max_iters: 60,
+        ..FitSettings::default()
+    };
+    let q0 = [mu, mu];
+    let r = fit(&model, &t, &params, &q0, &obs, &settings, &[], &|_, _| {}).unwrap();
+    let floor = LAMBDA_FLOOR_RATIO * q0[1];
+    assert!(
+        (r.q[0] / floor - 1.0).abs() < 1e-12,
+        "λ {} floor {floor}",
+        r.q[0]
+    );
+    assert!((r.q[1] / mu - 1.0).abs() < 1e-3, "μ {} truth {mu}", r.q[1]);
+    assert!(r.failures.is_empty(), "{:?}", r.failures);
 }
 
 /// A floor above the truth's μ holds the fit on it (`FitSettings::floors`): started at twice the
