@@ -110,7 +110,7 @@ impl Runtime<'_> {
     fn assemble(&mut self, rotate: Option<(usize, f32)>) {
         let diag = self
             .precond
-            .due_after(self.config.precond_refresh_angle, self.last_solved);
+            .due(self.config.precond_refresh_angle, self.last_solved);
         if diag {
             self.precond.begin_assembly();
         }

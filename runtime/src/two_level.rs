@@ -55,21 +55,19 @@ impl<'a> TwoLevel<'a> {
     /// by that angle, or a blended material's λ_e, α_e by that fraction of λ_e. A stale block
     /// only costs PCG iterations — the solve's residual is K' of the tick's own state — so a
     /// slowly sliding probe on a blended model no longer rebuilds it every tick.
-    pub(crate) fn due(&self, refresh_angle: f32) -> bool {
-        !self.valid || self.drift > refresh_angle
-    }
-
-    /// [`Self::due`] in a tick after one that `busy` ran PCG iterations: a refresh that is due
-    /// waits for a tick after a quiet one (its solve starts from the blocks it has), unless K'
-    /// moved by more than [`DEFER_LIMIT`] times the angle. A lumped probe's crossing moves the
-    /// state in three ticks; the third, where the rotations settle, is the slowest of a 10k
-    /// block's ticks, and the refresh then falls in the quiet ticks after it instead.
-    pub(crate) fn due_after(&self, refresh_angle: f32, busy: bool) -> bool {
-        if busy && refresh_angle > 0.0 && self.valid {
-            self.drift > DEFER_LIMIT * refresh_angle
+    ///
+    /// After a tick that ran PCG iterations (`busy`) a refresh that is due waits for a tick after
+    /// a quiet one (its solve starts from the blocks it has), unless K' moved by more than
+    /// [`DEFER_LIMIT`] times the angle. A lumped probe's crossing moves the state in three
+    /// ticks; the third, where the rotations settle, is the slowest of a 10k block's ticks, and
+    /// the refresh then falls in the quiet ticks after it instead.
+    pub(crate) fn due(&self, refresh_angle: f32, busy: bool) -> bool {
+        let limit = if busy && refresh_angle > 0.0 {
+            DEFER_LIMIT * refresh_angle
         } else {
-            self.due(refresh_angle)
-        }
+            refresh_angle
+        };
+        !self.valid || self.drift > limit
     }
 
     /// Zeroes the node blocks before an assembly pass adds the element blocks into them.
@@ -118,7 +116,7 @@ impl<'a> TwoLevel<'a> {
 }
 
 /// How far past its refresh angle K' may move while the refresh waits for a quiet tick
-/// ([`TwoLevel::due_after`]).
+/// ([`TwoLevel::due`]).
 pub(crate) const DEFER_LIMIT: f32 = 4.0;
 
 /// z = S M⁻¹ r: the two-level preconditioner with the rest positions its coarse modes need and
@@ -171,18 +169,15 @@ mod tests {
             coarse: Coarse::new(1, &mut agg, &mut coarse),
         };
         let angle = 0.05;
-        assert!(p.due_after(angle, true), "never built");
+        assert!(p.due(angle, true), "never built");
         p.valid = true;
         p.drift = 0.5 * angle;
-        assert!(
-            !p.due_after(angle, false) && !p.due_after(angle, true),
-            "not due"
-        );
+        assert!(!p.due(angle, false) && !p.due(angle, true), "not due");
         p.drift = 2.0 * angle;
-        assert!(p.due_after(angle, false), "due after a quiet tick");
-        assert!(!p.due_after(angle, true), "due, but waits after a busy one");
-        assert!(p.due_after(0.0, true), "an angle of 0 refreshes every tick");
+        assert!(p.due(angle, false), "due after a quiet tick");
+        assert!(!p.due(angle, true), "due, but waits after a busy one");
+        assert!(p.due(0.0, true), "an angle of 0 refreshes every tick");
         p.drift = 1.01 * DEFER_LIMIT * angle;
-        assert!(p.due_after(angle, true), "past the limit it does not wait");
+        assert!(p.due(angle, true), "past the limit it does not wait");
     }
 }
