@@ -18,6 +18,9 @@ pub(crate) struct NodeState<'a> {
     pub x0: &'a mut [f32],
     /// Displacements u = x − x₀.
     pub u: &'a mut [f32],
+    /// u at the last residual pass over the elements (a quiet tick at the same u, loads and
+    /// settled rotations reuses that pass's residual, [`crate::tick`]).
+    pub u_pass: &'a mut [f32],
     /// u at the start of the tick: a rejected solve returns to it.
     pub u_good: &'a mut [f32],
     /// Commanded load.
@@ -40,27 +43,28 @@ pub(crate) struct NodeState<'a> {
 
 impl<'a> NodeState<'a> {
     /// The room's arrays, in carving order (see [`crate::storage::Layout`]).
-    pub(crate) const fn layout(d: &Dims) -> RoomLayout<10, 0> {
+    pub(crate) const fn layout(d: &Dims) -> RoomLayout<11, 0> {
         let v = 3 * d.nodes;
         RoomLayout {
-            f32s: [v, v, v, v, v, v, v, v, v, d.nodes],
+            f32s: [v, v, v, v, v, v, v, v, v, v, d.nodes],
             u32s: [],
         }
     }
 
     /// Cuts the room from the pools (zeroed).
     pub(crate) fn carve(
-        layout: RoomLayout<10, 0>,
+        layout: RoomLayout<11, 0>,
         n: usize,
         f: &mut Carver<'a, f32>,
         u32s: &mut Carver<'a, u32>,
     ) -> Result<Self, RuntimeError> {
-        let ([x0, u, u_good, f_cmd, f_app, r_full, delta, delta_prev, r_start, area], []) =
+        let ([x0, u, u_pass, u_good, f_cmd, f_app, r_full, delta, delta_prev, r_start, area], []) =
             layout.carve(f, u32s)?;
         Ok(Self {
             n,
             x0,
             u,
+            u_pass,
             u_good,
             f_cmd,
             f_app,

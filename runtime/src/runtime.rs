@@ -39,6 +39,13 @@ pub struct Runtime<'a> {
     /// Whether the last tick ran PCG iterations (a preconditioner refresh that is due waits for
     /// a tick after one that did not, [`crate::tick`]).
     pub(crate) last_solved: bool,
+    /// `r_full` is the residual of the last pass over the elements, made at `u_pass` and the
+    /// applied load of now, and that pass turned no rotation by more than the rotation
+    /// tolerance: a pass at the same state would change the residual by less than the solve
+    /// can see, so a tick there reuses it ([`crate::tick`]).
+    pub(crate) pass_settled: bool,
+    /// Residual passes over the elements this tick ([`crate::TickReport::passes`]).
+    pub(crate) passes: u32,
 }
 
 fn shape(what: &'static str, expected: usize, found: usize) -> Result<(), RuntimeError> {
@@ -121,6 +128,8 @@ impl<'a> Runtime<'a> {
             tick_count: 0,
             pending_slope: None,
             last_solved: false,
+            pass_settled: false,
+            passes: 0,
         };
         rt.load(&dims)?;
         rt.reset();
@@ -174,6 +183,7 @@ impl<'a> Runtime<'a> {
         self.tick_count = 0;
         self.pending_slope = None;
         self.last_solved = false;
+        self.pass_settled = false;
         self.precond.valid = false;
     }
 
@@ -335,6 +345,7 @@ impl<'a> Runtime<'a> {
         self.elements.copy_state_from(&other.elements);
         self.tick_count = other.tick_count;
         self.pending_slope = other.pending_slope;
+        self.pass_settled = false;
         self.precond.valid = false;
         self.anticipation.reset();
         Ok(())
@@ -370,6 +381,7 @@ impl<'a> Runtime<'a> {
     /// Recomputes rotations, strains and blended parameters for the current displacements.
     pub(crate) fn refresh_state(&mut self) {
         self.precond.valid = false;
+        self.pass_settled = false;
         self.pending_slope = None;
         // A jump makes the solves done ahead stale; they restart from their iterates.
         self.anticipation.operator_changed();
@@ -463,6 +475,8 @@ impl<'a> Runtime<'a> {
     pub fn set_budget(&mut self, max_iterations: u32, tolerance: f32) {
         self.config.max_iterations = max_iterations;
         self.config.tolerance = tolerance;
+        // The rotations settled to the old tolerance may not be settled to the new one.
+        self.pass_settled = false;
     }
     /// Changes the per-tick caps of the load ramp (N) and the probe's travel (m) (see
     /// [`RuntimeConfig::load_step`]).

@@ -162,7 +162,7 @@ const fn sum<const K: usize>(lens: &[usize; K]) -> usize {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Layout {
     /// [`crate::nodes::NodeState`].
-    pub nodes: RoomLayout<10, 0>,
+    pub nodes: RoomLayout<11, 0>,
     /// [`crate::contact_set::ContactSet`].
     pub contact: RoomLayout<3, 1>,
     /// [`crate::pcg::PcgWork`].

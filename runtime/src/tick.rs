@@ -40,6 +40,15 @@
 //! x + tδ. So the check costs nothing while steps do not overshoot (every haptic steady tick), one
 //! residual pass when they do. The offline solver does the same (`palpate_fem::forward::solve`).
 //!
+//! **The quiet tick.** Steps 2–3 are a pass over every element, most of the cost of a tick that
+//! solves nothing. When the last pass was made at the same u and applied load, its rotations had
+//! settled — none turned by more than the rotation tolerance, where the extraction itself stops
+//! ([`crate::RuntimeConfig::rotation_tolerance`]) — and no preconditioner refresh is due, another
+//! pass would only turn them by less and leave a residual the solve cannot tell from the one it
+//! has, so the tick reuses that residual ([`TickReport::passes`] 0). Such ticks are the still
+//! ticks of a sliding lumped probe between its rim crossings and every tick of a load held still.
+//! A blended material's parameters move with its blend, so it always gets its pass.
+//!
 //! Constraints are filters on the CG vectors (modified PCG, Baraff & Witkin 1998): fixed nodes
 //! have no free direction; probe-held nodes keep their two tangential directions (frictionless).
 
@@ -94,6 +103,10 @@ pub struct TickReport {
     /// PCG iterations (a residual recomputed counting as one) the tick spent after its own solve
     /// on the planned crossings ([`crate::RuntimeConfig::anticipation_iterations`]).
     pub iterations_ahead: u32,
+    /// Passes over the elements that formed the residual (rotations and internal forces): one
+    /// per load increment and line-search cut, none in a quiet tick that reused the last pass's
+    /// (module docs, "The quiet tick").
+    pub passes: u32,
 }
 
 /// Where a tick's first solve starts besides the last increment: the planned direction of a
@@ -106,8 +119,8 @@ struct Start {
 
 impl Runtime<'_> {
     /// r_full = f_app − f_int(u), with R_e first when `rotate` (fused), and the preconditioner's
-    /// node blocks when they are due.
-    fn assemble(&mut self, rotate: Option<(usize, f32)>) {
+    /// node blocks when they are due. Returns how far any rotation moved (rad, an upper bound).
+    fn assemble(&mut self, rotate: Option<(usize, f32)>) -> f32 {
         let diag = self
             .precond
             .due(self.config.precond_refresh_angle, self.last_solved);
@@ -133,6 +146,7 @@ impl Runtime<'_> {
             self.precond.invert(self.config.preconditioner);
             self.anticipation.operator_changed();
         }
+        moved
     }
 
     /// Solves K' δ = r_full on the filtered space (δ from zero, or from the predictor: along the
@@ -153,6 +167,8 @@ impl Runtime<'_> {
             // ticks).
             return (0, rnorm0, SolveStatus::Converged);
         }
+        // The predictor and the PCG track r_full from here: it is no longer the pass's.
+        self.pass_settled = false;
         let mut k = Stiffness {
             elements: &self.elements,
             forces: &mut self.forces,
@@ -231,14 +247,26 @@ impl Runtime<'_> {
     }
 
     /// Rotations (and, for non-linear materials, blended parameters) from the current state, then
-    /// the residual r_full = f_app − f_int(u) and the preconditioner when due.
+    /// the residual r_full = f_app − f_int(u) and the preconditioner when due — or nothing in a
+    /// quiet tick (module docs, "The quiet tick").
     fn refresh(&mut self) {
         let iters = self.config.rotation_iterations as usize;
         let tolerance = self.config.rotation_tolerance * self.config.tolerance;
+        let linear_material = matches!(self.record.blend, Blend::None);
+        if linear_material
+            && self.pass_settled
+            && !self
+                .precond
+                .due(self.config.precond_refresh_angle, self.last_solved)
+            && self.nodes.u == self.nodes.u_pass
+        {
+            return;
+        }
+        self.passes += 1;
         // `%` rather than `is_multiple_of`: the workspace's MSRV is 1.85.
         #[allow(clippy::manual_is_multiple_of)]
         let due = self.tick_count % self.config.blend_every.max(1) as u64 == 0;
-        match (self.config.warp, &self.record.blend) {
+        let moved = match (self.config.warp, &self.record.blend) {
             // Linear material: rotations and internal forces in one pass.
             (true, Blend::None) => self.assemble(Some((iters, tolerance))),
             // Deformation-space blending reads the node positions only, so it goes first and
@@ -249,23 +277,27 @@ impl Runtime<'_> {
                     self.precond.drift +=
                         blend_parameters(&self.record, &self.nodes, &mut self.elements);
                 }
-                self.assemble(Some((iters, tolerance)));
+                self.assemble(Some((iters, tolerance)))
             }
             _ => {
                 // Strain-space blending needs every element's strain before any force.
-                self.precond.drift += self.elements.update_rotations(
+                let moved = self.elements.update_rotations(
                     self.nodes.u,
                     self.config.warp,
                     iters,
                     tolerance,
                 );
+                self.precond.drift += moved;
                 if due {
                     self.precond.drift +=
                         blend_parameters(&self.record, &self.nodes, &mut self.elements);
                 }
                 self.assemble(None);
+                moved
             }
-        }
+        };
+        self.nodes.u_pass.copy_from_slice(self.nodes.u);
+        self.pass_settled = linear_material && moved <= tolerance;
     }
 
     /// The line search's check of the last step δ (`delta_prev`) with r_full just refreshed at its
@@ -308,6 +340,7 @@ impl Runtime<'_> {
 
     /// Runs one tick. Never allocates; never panics on any state.
     pub fn tick(&mut self) -> TickReport {
+        self.passes = 0;
         self.nodes.u_good.copy_from_slice(self.nodes.u);
         self.contact.advance_probe(self.config.probe_step);
         // The contact set and the probe-held positions use u and last tick's reactions only, so
@@ -357,6 +390,8 @@ impl Runtime<'_> {
                 };
                 let inc = (gap / n).min(allowance);
                 allowance -= inc;
+                // The pass's residual was for the load before.
+                self.pass_settled = false;
                 self.nodes.advance_load(inc)
             } else {
                 0.0
@@ -446,6 +481,7 @@ impl Runtime<'_> {
             step,
             anticipated: planned || correction_due,
             iterations_ahead: ahead,
+            passes: self.passes,
         }
     }
 }

@@ -196,6 +196,95 @@ fn warped_solution_satisfies_f64_equilibrium() {
     assert!(rel < 1e-3, "relative equilibrium residual {rel:e}");
 }
 
+/// A tick at the state and load of a settled residual pass reuses that residual (no pass over
+/// the elements), and what it reuses is what a pass made anew finds: rotations within the
+/// rotation tolerance of the polar ones (f64, SVD) and a residual the solve cannot see (no PCG
+/// iteration). A change of load or of state passes again. At the default rotation tolerance and
+/// at one a hundred times tighter, where the last pass's own settling decides.
+#[test]
+fn a_quiet_tick_reuses_a_settled_pass_and_a_change_passes_again() {
+    for rotation_tolerance in [1.0, 0.01] {
+        quiet_tick_case(RuntimeConfig {
+            rotation_tolerance,
+            ..Default::default()
+        });
+    }
+}
+
+fn quiet_tick_case(cfg: RuntimeConfig) {
+    let (m, fixed) = sponge([6, 6, 3]);
+    let p = LambdaAlpha::from_young_poisson(E, NU);
+    let buf = model::homogeneous(&m, &fixed, p.lambda, p.alpha);
+    let mut storage = Storage::for_model(&buf.record(), &cfg);
+    let mut rt = storage.runtime(buf.record(), cfg).unwrap();
+    // The load of the equilibrium test: rotations that take several ticks to settle.
+    rt.set_contact_force([0.05, 0.05, 0.05], [0.8, 0.0, -3.0], 0.02)
+        .unwrap();
+    let quiet_after = |rt: &mut Runtime<'_>| {
+        (1..=200)
+            .find(|_| rt.tick().passes == 0)
+            .expect("no quiet tick in 200 ticks of a load held still")
+    };
+    let settled_in = quiet_after(&mut rt);
+    assert!(settled_in > 1, "the first tick after a load is never quiet");
+    let u = rt.displacements().to_vec();
+    let mut off = 0.0f64;
+    for (e, t) in m.tets.iter().enumerate() {
+        let x0 = t.map(|i| Vector3::from(m.nodes[i]));
+        let g = tet_geometry(&x0).unwrap();
+        let x = t.map(|i| {
+            let d = Vector3::new(u[3 * i], u[3 * i + 1], u[3 * i + 2]).cast::<f64>();
+            Vector3::from(m.nodes[i]) + d
+        });
+        let polar = warp_rotation_svd(&palpate_runtime::element::deformation_gradient(&g, &x));
+        let kept = Matrix3::from_row_slice(&rt.element_rotation(e).unwrap().map(|v| v as f64));
+        // The axial vector of the small rotation between them (the trace's arccos loses such
+        // angles to f32 round-off).
+        let d = kept.transpose() * polar;
+        let w = Vector3::new(
+            d[(2, 1)] - d[(1, 2)],
+            d[(0, 2)] - d[(2, 0)],
+            d[(1, 0)] - d[(0, 1)],
+        );
+        off = off.max(0.5 * w.norm());
+    }
+    let settled = cfg.rotation_tolerance * cfg.tolerance;
+    assert!(
+        off <= settled as f64,
+        "a quiet tick kept rotations {off:e} rad from the polar ones (settled: {settled:e})"
+    );
+    let quiet = rt.tick();
+    assert_eq!(quiet.passes, 0);
+    assert_eq!((quiet.iterations, quiet.step), (0, 0.0));
+    assert_eq!(rt.displacements(), &u[..]);
+
+    // A pass made anew at the same state (a new budget clears the settled pass).
+    rt.set_budget(cfg.max_iterations, cfg.tolerance);
+    let fresh = rt.tick();
+    assert_eq!(fresh.passes, 1);
+    assert_eq!(
+        fresh.iterations, 0,
+        "the reused residual hid one the solve can see (relative {:e})",
+        fresh.rel_residual
+    );
+    assert!(fresh.rel_residual <= cfg.tolerance);
+
+    // A load change passes again, and so does a state set from outside.
+    let node = (0..m.nodes.len()).find(|i| !fixed.contains(i)).unwrap();
+    rt.add_nodal_force(node, [0.0, 0.0, -0.05]).unwrap();
+    assert!(
+        rt.tick().passes >= 1,
+        "a load change reused the old residual"
+    );
+    quiet_after(&mut rt);
+    let u = rt.displacements().to_vec();
+    rt.set_displacements(&u).unwrap();
+    assert!(
+        rt.tick().passes >= 1,
+        "a state set from outside reused the old residual"
+    );
+}
+
 /// Consistent nodal loads of the uniform stress σ = λ_L tr(ε) I + 2μ ε (Hooke's law, written
 /// here from E and ν) on the boundary faces: each outward triangle's traction σn, constant over
 /// the triangle, shared equally by its three corners (exact for linear shape functions). No

@@ -274,6 +274,8 @@ struct Record {
     anticipated_ticks: Vec<bool>,
     /// Load increments of each tick.
     increments: Vec<u32>,
+    /// Residual passes over the elements of each tick (0: a quiet tick).
+    passes: Vec<u32>,
     capped: Vec<bool>,
     rel_res: Vec<f32>,
     /// ‖u − u_conv‖/‖u_conv‖ against a converged solve (tolerance 1e-9) of the same tick from
@@ -336,6 +338,7 @@ fn timed_pass(
         rec.ahead.push(rep.iterations_ahead);
         rec.anticipated_ticks.push(rep.anticipated);
         rec.increments.push(rep.increments);
+        rec.passes.push(rep.passes);
         rec.capped.push(rep.status == SolveStatus::BudgetExhausted);
         rec.rel_res.push(rep.rel_residual);
         Ok(())
@@ -439,6 +442,8 @@ struct Summary {
     ahead_mean: f64,
     /// Ticks that started from anticipated solves.
     anticipated: usize,
+    /// Quiet ticks: no residual pass over the elements (`palpate_runtime::TickReport::passes`).
+    quiet: usize,
 }
 
 /// Least-squares line y = a + b x: (b, a, R²).
@@ -503,6 +508,7 @@ fn summarise(r: &Record) -> Summary {
         ),
         ahead_mean: r.ahead.iter().map(|v| *v as f64).sum::<f64>() / r.ahead.len().max(1) as f64,
         anticipated: r.anticipated_ticks.iter().filter(|&&a| a).count(),
+        quiet: r.passes.iter().filter(|&&p| p == 0).count(),
     }
 }
 
@@ -628,18 +634,20 @@ fn run_direct(model: &BlockModel, args: &Args, p: LambdaAlpha) -> anyhow::Result
 /// The ticks of one record as CSV (`--tick-log`).
 fn write_tick_log(path: &std::path::Path, r: &Record) -> anyhow::Result<()> {
     use std::fmt::Write as _;
-    let mut out =
-        String::from("tick,wall_us,cpu_us,iterations,iterations_ahead,anticipated,increments\n");
+    let mut out = String::from(
+        "tick,wall_us,cpu_us,iterations,iterations_ahead,anticipated,increments,passes\n",
+    );
     for k in 0..r.wall_us.len() {
         writeln!(
             out,
-            "{k},{:.1},{:.1},{},{},{},{}",
+            "{k},{:.1},{:.1},{},{},{},{},{}",
             r.wall_us[k],
             r.cpu_us[k],
             r.iters[k],
             r.ahead[k],
             r.anticipated_ticks[k] as u8,
-            r.increments[k]
+            r.increments[k],
+            r.passes[k]
         )?;
     }
     std::fs::write(path, out).map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))
@@ -825,6 +833,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 "cpu_p50_us": s.cpu[0], "cpu_p99_us": s.cpu[1], "cpu_max_us": s.cpu[2],
                 "mean_pcg_iters": s.iters_mean, "p99_pcg_iters": s.iters[1], "max_pcg_iters": s.iters[2],
                 "mean_pcg_iters_ahead": s.ahead_mean, "anticipated_ticks": s.anticipated,
+                "quiet_ticks": s.quiet,
                 "capped_ticks": s.capped,
                 "rel_residual": s.max_res_converged,
                 "max_rel_error_vs_converged": s.err_converged,
@@ -856,6 +865,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "max_pcg_iters": g.iters[2],
             "mean_pcg_iters_ahead": g.ahead_mean,
             "anticipated_ticks": g.anticipated,
+            "quiet_ticks": g.quiet,
             "cpu_us_per_pcg_iteration": g.per_iteration.0,
             "cpu_us_outside_pcg": g.per_iteration.1,
             "per_iteration_fit_r2": g.per_iteration.2,
