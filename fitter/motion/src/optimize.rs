@@ -706,7 +706,9 @@ fn gauss_newton_runs(
 pub const POWER_INDEX_FLOOR: f64 = 0.1;
 
 /// The least ratio λ/μ a Levenberg–Marquardt fit with a free global Lamé λ takes (from a start
-/// above it; a start below is its own floor), against μ at the start: Poisson's ratio 0.0005.
+/// above it; a start below is its own floor): Poisson's ratio 0.0005. Against μ where the fit is
+/// when μ is free too (the fit's coordinate ln(λ/μ), `ElasticPair`), else against μ at the
+/// start.
 /// Below it the model barely changes — the bulk modulus λ + 2μ/3 is within 0.15 % of its value
 /// at λ = 0 — while each step of ln λ toward −∞ costs a simulation for a gain of Φ the data
 /// cannot tell from noise. Data that push λ there are those of a mesh that locks in bending
@@ -794,6 +796,102 @@ impl RateReference {
             for j in 0..np {
                 gn[h * np + j] = th * gn[h * np + j] + tn * gn[n * np + j];
             }
+        }
+        normal
+    }
+}
+
+/// The fit's coordinates for a free global μ and Lamé λ: a = ln E (Young's modulus) in μ's place
+/// and b = ln(λ/μ) in λ's. A bending or ringing body's markers pin E (E = μ(3λ + 2μ)/(λ + μ))
+/// far better than λ/μ, so μ and λ trade off along E ≈ const: a curved valley in (ln μ, ln λ),
+/// which Gauss–Newton steps follow a short chord at a time (each longer step leaves the valley
+/// and is rejected), and an axis in (a, b) (BENCHMARKS.md, "The elastic pair in ln E and
+/// ln(λ/μ)"). The floor of λ ([`LAMBDA_FLOOR_RATIO`]) is b ≥ ln 10⁻³ there: λ against μ where
+/// the fit is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct ElasticPair {
+    /// Index of μ.
+    mu: usize,
+    /// Index of λ.
+    lambda: usize,
+}
+
+impl ElasticPair {
+    /// The pair when both μ and λ are free global parameters (not tied, no floor of their own).
+    fn find(
+        params: &[Param],
+        tie: Option<(usize, f64)>,
+        floors: &[(ParamKind, f64)],
+    ) -> Option<Self> {
+        let global = |k: ParamKind| params.iter().position(|p| p.kind == k && p.is_global());
+        let floored = |k: ParamKind| floors.iter().any(|(f, _)| *f == k);
+        if tie.is_some() || floored(ParamKind::Mu) || floored(ParamKind::Lambda) {
+            return None;
+        }
+        Some(Self {
+            mu: global(ParamKind::Mu)?,
+            lambda: global(ParamKind::Lambda)?,
+        })
+    }
+
+    /// ln(E/μ) at λ/μ = e^b, ln((3 e^b + 2)/(e^b + 1)), written in e^(−|b|) so it neither
+    /// overflows nor loses its digits at either end.
+    fn ln_e_over_mu(b: f64) -> f64 {
+        if b > 0.0 {
+            let t = (-b).exp();
+            (3.0 + 2.0 * t).ln() - (1.0 + t).ln()
+        } else {
+            let t = b.exp();
+            (3.0 * t + 2.0).ln() - (t + 1.0).ln()
+        }
+    }
+
+    /// d ln(E/μ) / db = 3e^b/(3e^b + 2) − e^b/(e^b + 1), in e^(−|b|) likewise.
+    fn slope(b: f64) -> f64 {
+        if b > 0.0 {
+            let t = (-b).exp();
+            3.0 / (3.0 + 2.0 * t) - 1.0 / (1.0 + t)
+        } else {
+            let t = b.exp();
+            3.0 * t / (3.0 * t + 2.0) - t / (t + 1.0)
+        }
+    }
+
+    /// (ln μ, ln λ) in `w` to (a, b) in place.
+    fn write_fit_coordinates(&self, w: &mut [f64]) {
+        let b = w[self.lambda] - w[self.mu];
+        w[self.mu] += Self::ln_e_over_mu(b);
+        w[self.lambda] = b;
+    }
+
+    /// (a, b) in `v` to (ln μ, ln λ) in place.
+    fn write_log_params(&self, v: &mut [f64]) {
+        let (a, b) = (v[self.mu], v[self.lambda]);
+        let ln_mu = a - Self::ln_e_over_mu(b);
+        v[self.mu] = ln_mu;
+        v[self.lambda] = ln_mu + b;
+    }
+
+    /// ∇Φ and the Gauss–Newton matrix in (ln μ, ln λ) carried to (a, b) at `v` by the chain
+    /// rule: T = ∂(ln μ, ln λ)/∂(a, b) = [[1, −s], [1, 1 − s]] with s the [`Self::slope`] at b,
+    /// so ∇_v Φ = Tᵀ ∇_w Φ and H_v = Tᵀ H_w T (the other coordinates unchanged).
+    fn normal_in_fit(&self, v: &[f64], mut normal: Normal) -> Normal {
+        let (m, l) = (self.mu, self.lambda);
+        let s = Self::slope(v[l]);
+        let np = v.len();
+        let (gm, gl) = (normal.grad[m], normal.grad[l]);
+        normal.grad[m] = gm + gl;
+        normal.grad[l] = -s * gm + (1.0 - s) * gl;
+        let gn = &mut normal.gn;
+        for i in 0..np {
+            let (cm, cl) = (gn[i * np + m], gn[i * np + l]);
+            gn[i * np + m] = cm + cl;
+            gn[i * np + l] = -s * cm + (1.0 - s) * cl;
+        }
+        for j in 0..np {
+            let (rm, rl) = (gn[m * np + j], gn[l * np + j]);
+            gn[m * np + j] = rm + rl;
+            gn[l * np + j] = -s * rm + (1.0 - s) * rl;
         }
         normal
     }
@@ -889,9 +987,19 @@ fn levenberg_marquardt(
     }
     let w0 = reference.coordinates(z0);
     let first = reference.normal_in_coordinates(&w0, first);
+    let paired = |i: usize| reference.pairs.iter().any(|&(n, h, _)| i == n || i == h);
+    let elastic = ElasticPair::find(params, tie, &settings.floors)
+        .filter(|e| !paired(e.mu) && !paired(e.lambda));
+    let mut v0 = w0.clone();
+    let first = match elastic {
+        Some(e) => {
+            e.write_fit_coordinates(&mut v0);
+            e.normal_in_fit(&v0, first)
+        }
+        None => first,
+    };
     // The floors in the fit's coordinates: ln f on a global log-parameter outside the rate pairs
     // (a coordinate w = z = ln q there).
-    let paired = |i: usize| reference.pairs.iter().any(|&(n, h, _)| i == n || i == h);
     let mut lower: Vec<f64> = params
         .iter()
         .enumerate()
@@ -907,9 +1015,12 @@ fn levenberg_marquardt(
     for &(_, h, _) in &reference.pairs {
         lower[h] = POWER_INDEX_FLOOR.min(w0[h]);
     }
-    // A free global λ stays at or above LAMBDA_FLOOR_RATIO μ (μ at the start).
+    // A free global λ stays at or above LAMBDA_FLOOR_RATIO μ: μ where the fit is when the two
+    // are fitted as (ln E, ln(λ/μ)) (b ≥ ln 10⁻³), else μ at the start.
     let global = |k: ParamKind| params.iter().position(|p| p.kind == k && p.is_global());
-    if let Some(l) = global(ParamKind::Lambda).filter(|&l| !paired(l)) {
+    if let Some(e) = elastic {
+        lower[e.lambda] = lower[e.lambda].max(LAMBDA_FLOOR_RATIO.ln().min(v0[e.lambda]));
+    } else if let Some(l) = global(ParamKind::Lambda).filter(|&l| !paired(l)) {
         let mu0 = global(ParamKind::Mu).map_or_else(|| base.get(ParamKind::Mu, 0), |m| z0[m].exp());
         if mu0.is_finite() && mu0 > 0.0 {
             lower[l] = lower[l].max((LAMBDA_FLOOR_RATIO * mu0).ln().min(w0[l]));
@@ -929,18 +1040,30 @@ fn levenberg_marquardt(
         initial_radius: 1.0,
         max_radius: 3.0,
     };
-    let mut in_w = |w: &[f64]| {
-        let Some(z) = reference.log_params(w) else {
+    let to_w = |v: &[f64]| {
+        let mut w = v.to_vec();
+        if let Some(e) = elastic {
+            e.write_log_params(&mut w);
+        }
+        w
+    };
+    let mut in_v = |v: &[f64]| {
+        let w = to_w(v);
+        let Some(z) = reference.log_params(&w) else {
             log::debug!("a step to a power-law index h ≤ 0: rejected unsimulated");
             return None;
         };
         eval(&z, &mut history, &mut failures)
-            .map(|normal| reference.normal_in_coordinates(w, normal))
+            .map(|normal| reference.normal_in_coordinates(&w, normal))
+            .map(|normal| match elastic {
+                Some(e) => e.normal_in_fit(v, normal),
+                None => normal,
+            })
     };
-    let out = minimise_restarting(w0, first, &mut in_w, &options, &lower);
+    let out = minimise_restarting(v0, first, &mut in_v, &options, &lower);
     let iterations = out.iterations;
     let z = reference
-        .log_params(&out.theta)
+        .log_params(&to_w(&out.theta))
         .expect("an accepted point has h > 0");
     let (phi, iterations) = (out.normal.phi, iterations as u64);
     let q: Vec<f64> = z.iter().map(|v| v.exp()).collect();
@@ -1069,5 +1192,91 @@ mod tests {
         }
         let corr = at_w.gn[n * np + h] / (at_w.gn[n * np + n] * at_w.gn[h * np + h]).sqrt();
         assert!(corr.abs() < 1e-9, "ν and h columns correlate: {corr}");
+    }
+
+    /// The (ln E, ln(λ/μ)) coordinates: a = ln E with E = μ(3λ + 2μ)/(λ + μ), (a, b) ↔ (ln μ,
+    /// ln λ) round-trips from λ/μ = 10⁻⁶ to 10⁶, and the gradient and Gauss–Newton matrix carried
+    /// to (a, b) are those of central differences of residuals r(ln μ, ln λ, x) made of them
+    /// (a nonlinear r with a third coordinate the pair leaves alone).
+    #[test]
+    fn elastic_pair_coordinates_match_finite_differences() {
+        let pair = ElasticPair { mu: 2, lambda: 0 };
+        for ratio in [1e-6f64, 1e-3, 0.5, 9.0, 1e3, 1e6] {
+            let (mu, lambda) = (7.0e5f64, 7.0e5 * ratio);
+            let w = [lambda.ln(), 0.3, mu.ln()];
+            let mut v = w;
+            pair.write_fit_coordinates(&mut v);
+            let e = mu * (3.0 * lambda + 2.0 * mu) / (lambda + mu);
+            assert!(
+                (v[2] - e.ln()).abs() < 1e-12,
+                "a = {} against ln E {}",
+                v[2],
+                e.ln()
+            );
+            assert!((v[0] - ratio.ln()).abs() < 1e-12);
+            assert_eq!(v[1], 0.3);
+            let mut back = v;
+            pair.write_log_params(&mut back);
+            for k in 0..3 {
+                assert!((back[k] - w[k]).abs() < 1e-12, "{back:?} against {w:?}");
+            }
+        }
+        // r(w): five residuals, nonlinear in each coordinate.
+        let r = |w: &[f64]| -> Vec<f64> {
+            let (l, x, m) = (w[0], w[1], w[2]);
+            vec![
+                (m + 0.3 * l).sin() - 0.2,
+                m * m - 0.1 * l,
+                (0.5 * l).exp() - x,
+                x * m + l,
+                (l - m).cos() * x,
+            ]
+        };
+        let jac = |f: &dyn Fn(&[f64]) -> Vec<f64>, at: &[f64]| -> Vec<Vec<f64>> {
+            (0..3)
+                .map(|k| {
+                    let (mut p, mut q) = (at.to_vec(), at.to_vec());
+                    p[k] += 1e-6;
+                    q[k] -= 1e-6;
+                    let (fp, fq) = (f(&p), f(&q));
+                    fp.iter().zip(&fq).map(|(a, b)| (a - b) / 2e-6).collect()
+                })
+                .collect()
+        };
+        let normal_of = |res: &[f64], j: &[Vec<f64>]| Normal {
+            phi: 0.5 * res.iter().map(|v| v * v).sum::<f64>(),
+            grad: (0..3)
+                .map(|a| j[a].iter().zip(res).map(|(x, y)| x * y).sum())
+                .collect(),
+            gn: (0..9)
+                .map(|ab| j[ab / 3].iter().zip(&j[ab % 3]).map(|(x, y)| x * y).sum())
+                .collect(),
+        };
+        let w = [1.1f64, 0.4, 0.7];
+        let mut v = w;
+        pair.write_fit_coordinates(&mut v);
+        let carried = pair.normal_in_fit(&v, normal_of(&r(&w), &jac(&r, &w)));
+        let r_v = |v: &[f64]| {
+            let mut w = v.to_vec();
+            pair.write_log_params(&mut w);
+            r(&w)
+        };
+        let direct = normal_of(&r_v(&v), &jac(&r_v, &v));
+        for k in 0..3 {
+            assert!(
+                (carried.grad[k] - direct.grad[k]).abs() < 1e-7,
+                "∇ {k}: {} against {}",
+                carried.grad[k],
+                direct.grad[k]
+            );
+        }
+        for k in 0..9 {
+            assert!(
+                (carried.gn[k] - direct.gn[k]).abs() < 1e-7,
+                "H {k}: {} against {}",
+                carried.gn[k],
+                direct.gn[k]
+            );
+        }
     }
 }

@@ -350,8 +350,8 @@ fn free_marker_offsets_are_eliminated_exactly() {
 }
 
 /// A free λ is held at `LAMBDA_FLOOR_RATIO` μ: noise-free runs of a bar whose λ is 10⁻⁴ μ
-/// (Poisson's ratio 0.00005), fitted in (λ, μ) from λ = μ, end with λ on the floor — 10⁻³ of μ
-/// at the start, to the rounding of ln λ — not below it, and μ within 10⁻³ of the truth's: below
+/// (Poisson's ratio 0.00005), fitted in (λ, μ) from λ = μ, end with λ on the floor — 10⁻³ of the
+/// fitted μ, to the rounding of ln(λ/μ) — not below it, and μ within 10⁻³ of the truth's: below
 /// the floor the bulk modulus changes by less than 0.15 %, which moves this bar's markers by
 /// less than the fit's own precision (the tolerance is the other fits' here).
 #[test]
@@ -369,7 +369,7 @@ fn a_free_lambda_stops_on_its_floor() {
     };
     let q0 = [mu, mu];
     let r = fit(&model, &t, &params, &q0, &obs, &settings, &[], &|_, _| {}).unwrap();
-    let floor = LAMBDA_FLOOR_RATIO * q0[1];
+    let floor = LAMBDA_FLOOR_RATIO * r.q[1];
     assert!(
         (r.q[0] / floor - 1.0).abs() < 1e-12,
         "λ {} floor {floor}",
