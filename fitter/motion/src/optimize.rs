@@ -1262,21 +1262,13 @@ mod tests {
             r(&w)
         };
         let direct = normal_of(&r_v(&v), &jac(&r_v, &v));
-        for k in 0..3 {
-            assert!(
-                (carried.grad[k] - direct.grad[k]).abs() < 1e-7,
-                "∇ {k}: {} against {}",
-                carried.grad[k],
-                direct.grad[k]
-            );
-        }
-        for k in 0..9 {
-            assert!(
-                (carried.gn[k] - direct.gn[k]).abs() < 1e-7,
-                "H {k}: {} against {}",
-                carried.gn[k],
-                direct.gn[k]
-            );
+        for (what, a, b) in [
+            ("∇", &carried.grad, &direct.grad),
+            ("H", &carried.gn, &direct.gn),
+        ] {
+            for (k, (x, y)) in a.iter().zip(b.iter()).enumerate() {
+                assert!((x - y).abs() < 1e-7, "{what} {k}: {x} against {y}");
+            }
         }
     }
 }
