@@ -296,8 +296,12 @@ impl Runtime<'_> {
                 moved
             }
         };
-        self.nodes.u_pass.copy_from_slice(self.nodes.u);
+        // Only a settled pass (of a linear material) is ever reused: only then is u kept for the
+        // check.
         self.pass_settled = linear_material && moved <= tolerance;
+        if self.pass_settled {
+            self.nodes.u_pass.copy_from_slice(self.nodes.u);
+        }
     }
 
     /// The line search's check of the last step δ (`delta_prev`) with r_full just refreshed at its

@@ -988,8 +988,9 @@ fn levenberg_marquardt(
     let w0 = reference.coordinates(z0);
     let first = reference.normal_in_coordinates(&w0, first);
     let paired = |i: usize| reference.pairs.iter().any(|&(n, h, _)| i == n || i == h);
-    let elastic = ElasticPair::find(params, tie, &settings.floors)
-        .filter(|e| !paired(e.mu) && !paired(e.lambda));
+    // The rate pairs are (viscosity, index): they never hold μ or λ, so the two coordinate
+    // changes act on disjoint parameters.
+    let elastic = ElasticPair::find(params, tie, &settings.floors);
     let mut v0 = w0.clone();
     let first = match elastic {
         Some(e) => {
@@ -1020,7 +1021,7 @@ fn levenberg_marquardt(
     let global = |k: ParamKind| params.iter().position(|p| p.kind == k && p.is_global());
     if let Some(e) = elastic {
         lower[e.lambda] = lower[e.lambda].max(LAMBDA_FLOOR_RATIO.ln().min(v0[e.lambda]));
-    } else if let Some(l) = global(ParamKind::Lambda).filter(|&l| !paired(l)) {
+    } else if let Some(l) = global(ParamKind::Lambda) {
         let mu0 = global(ParamKind::Mu).map_or_else(|| base.get(ParamKind::Mu, 0), |m| z0[m].exp());
         if mu0.is_finite() && mu0 > 0.0 {
             lower[l] = lower[l].max((LAMBDA_FLOOR_RATIO * mu0).ln().min(w0[l]));
