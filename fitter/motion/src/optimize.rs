@@ -988,9 +988,10 @@ fn levenberg_marquardt(
     let w0 = reference.coordinates(z0);
     let first = reference.normal_in_coordinates(&w0, first);
     let paired = |i: usize| reference.pairs.iter().any(|&(n, h, _)| i == n || i == h);
+    let elastic = ElasticPair::find(params, tie, &settings.floors);
     // The rate pairs are (viscosity, index): they never hold μ or λ, so the two coordinate
     // changes act on disjoint parameters.
-    let elastic = ElasticPair::find(params, tie, &settings.floors);
+    debug_assert!(elastic.is_none_or(|e| !paired(e.mu) && !paired(e.lambda)));
     let mut v0 = w0.clone();
     let first = match elastic {
         Some(e) => {
