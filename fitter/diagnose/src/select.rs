@@ -19,8 +19,9 @@
 //! before fitting it ([`CandidateModel::predict`], e.g. by one linearisation at the current fit:
 //! [`crate::screen`]) fits in full only those the prediction ranks first; the others are
 //! reported as screened out with their predicted ΔBIC. If none of the fitted ones passes the
-//! gate, the next predicted to pay for its parameters is fitted, one at a time, so that a poor
-//! prediction costs fits, not the verdict.
+//! gate, or every one that passes is refused by the diagnosis' last check
+//! ([`CandidateModel::confirm`]), the next predicted to pay for its parameters is fitted, one at
+//! a time, so that a poor prediction costs fits, not the verdict.
 //!
 //! **Fits side by side** ([`CandidateModel::prefit`]): the fits of a round are independent given
 //! the current model (but for a candidate that starts from another's fit, which waits for it:
@@ -346,8 +347,9 @@ pub enum FitScreen {
     Off,
     /// By [`CandidateModel::predict`]: the `least` best predicted, every one whose predicted
     /// ΔBIC is within `margin` × |best| of the best, and every one not predicted. If none of
-    /// those passes the gate, the next in predicted order with a predicted ΔBIC below
-    /// `fallback_below` is fitted, one at a time, until one passes or none is left.
+    /// those passes the gate (or its last check, [`CandidateModel::confirm`]), the next in
+    /// predicted order with a predicted ΔBIC below `fallback_below` is fitted, one at a time,
+    /// until one passes or none is left.
     Predicted {
         /// Fewest fitted (when that many are open).
         least: usize,
@@ -574,7 +576,8 @@ pub trait CandidateModel {
     fn prefit(&mut self, _round: usize, _current: &Self::Fitted, _batch: &[Self::Candidate]) {}
     /// A last check of the round's best passing candidate before it is adopted: the diagnosis
     /// may refuse it by setting `gate.passes` to false (and saying why in its detail); the next
-    /// best that passes is then checked in turn. The default confirms every candidate.
+    /// best that passes is then checked in turn, and when every one is refused the screen's
+    /// reserve is fitted as when none passes the gate. The default confirms every candidate.
     fn confirm(
         &mut self,
         _current: &Current<'_, Self>,
@@ -701,14 +704,35 @@ pub fn select<M: CandidateModel>(
             held: cur_held,
             observed: &observed,
         };
-        let (mut attempts, mut fits) =
+        let (mut attempts, mut fits, mut reserve) =
             fit_round(model, policy, &fit_screen, &now, bic0, &open, &predictions)?;
         let (mut ranked, mut best) = judge_round(policy.rank, &mut attempts);
-        while let Some(i) = best {
-            if !confirm_one(model, &now, &mut attempts[i], fits[i].as_ref())? {
+        loop {
+            while let Some(i) = best {
+                if !confirm_one(model, &now, &mut attempts[i], fits[i].as_ref())? {
+                    break;
+                }
+                // Refused: the next best that passes is judged and checked in its turn.
+                (ranked, best) = judge_round(policy.rank, &mut attempts);
+            }
+            if best.is_some() || reserve.is_empty() {
                 break;
             }
-            // Refused: the next best that passes is judged and checked in its turn.
+            // Every candidate that passed the gate was refused by the last check: as when none
+            // passes the gate, the next the screen predicted to pay for itself is fitted before
+            // the round gives up (the screen ranked the others below candidates the check then
+            // refused).
+            let k = reserve.remove(0);
+            fit_reserve(
+                model,
+                policy,
+                &now,
+                bic0,
+                open[k],
+                &predictions[k],
+                &mut attempts,
+                &mut fits,
+            )?;
             (ranked, best) = judge_round(policy.rank, &mut attempts);
         }
         let mut this = Round {
@@ -778,7 +802,9 @@ type Slot<M> = (Attempt<M>, Option<<M as CandidateModel>::Fitted>);
 
 /// A round's fits: the planned ones ([`plan_fits`]), each gated as it is fitted or the
 /// shortlist after them ([`Screen`]); if none passes, the screen's reserve one at a time. Returns
-/// every attempt in the order tried (the screened out among them) beside its fit.
+/// every attempt in the order tried (the screened out among them) beside its fit, and what is
+/// left of the reserve (indices into `open`) for a round whose passing candidates the last check
+/// refuses ([`fit_reserve`]).
 #[allow(clippy::type_complexity)]
 fn fit_round<M: CandidateModel>(
     model: &mut M,
@@ -788,7 +814,7 @@ fn fit_round<M: CandidateModel>(
     bic0: f64,
     open: &[M::Candidate],
     predictions: &[Option<Prediction>],
-) -> Result<(Vec<Attempt<M>>, Vec<Option<M::Fitted>>), M::Error> {
+) -> Result<(Vec<Attempt<M>>, Vec<Option<M::Fitted>>, Vec<usize>), M::Error> {
     let (mut batch, mut reserve) = plan_fits(fit_screen, predictions);
     // One slot per open candidate, in the order tried: the report's order and the ranking's
     // tie-break do not depend on which fits the screen chose.
@@ -867,7 +893,56 @@ fn fit_round<M: CandidateModel>(
             }
         }
     }
-    Ok((attempts, fits))
+    Ok((attempts, fits, reserve))
+}
+
+/// Fits a candidate of the screen's reserve after a round's passing candidates were all refused
+/// ([`CandidateModel::confirm`]), gates it as the round's screen would have, and puts its
+/// attempt in place of its "screened out" record.
+#[allow(clippy::too_many_arguments)]
+fn fit_reserve<M: CandidateModel>(
+    model: &mut M,
+    policy: &Policy,
+    now: &Current<'_, M>,
+    bic0: f64,
+    c: M::Candidate,
+    prediction: &Option<Prediction>,
+    attempts: &mut Vec<Attempt<M>>,
+    fits: &mut Vec<Option<M::Fitted>>,
+) -> Result<(), M::Error> {
+    let index = 1 + attempts.iter().filter(|a| !a.screened_out).count();
+    model.progress(&Progress::Fitting {
+        round: now.round,
+        index,
+        of: index,
+        candidate: c.label(),
+    });
+    let Some((mut a, f)) = fit_one(model, policy, now, bic0, c, prediction)? else {
+        return Ok(());
+    };
+    if let (None, Some(f)) = (&a.gate, &f) {
+        let gated = match policy.screen {
+            Screen::Shortlist { bic_threshold, .. } => a.delta_bic < -bic_threshold,
+            Screen::All => true,
+        };
+        if gated {
+            gate_one(model, now, &mut a, f)?;
+        }
+    }
+    match attempts
+        .iter()
+        .position(|x| x.candidate == c && x.screened_out)
+    {
+        Some(i) => {
+            attempts[i] = a;
+            fits[i] = f;
+        }
+        None => {
+            attempts.push(a);
+            fits.push(f);
+        }
+    }
+    Ok(())
 }
 
 /// Fits candidate `c` on top of the current model and scores it (gated at once when every
@@ -1326,6 +1401,9 @@ mod tests {
         /// c1 starts from c0's fit of the same round (as the power law from the Newtonian
         /// damping it nests): each fit recorded, by round.
         fitted: Vec<(usize, C, f64)>,
+        /// Candidates that pass the gate but are refused by the last check
+        /// ([`CandidateModel::confirm`]).
+        refused: Vec<usize>,
     }
 
     impl Toy {
@@ -1341,6 +1419,7 @@ mod tests {
                 ahead: None,
                 events: Vec::new(),
                 fitted: Vec::new(),
+                refused: Vec::new(),
             }
         }
         /// The fit proper: read-only, as a fit done ahead must be; `nested` is c0's fit this
@@ -1468,6 +1547,17 @@ mod tests {
         fn screened_out(&mut self, round: usize, c: C, _: &Prediction) {
             self.screened.push((round, c.0));
         }
+        fn confirm(
+            &mut self,
+            _: &Current<'_, Self>,
+            c: &Candidate<'_, Self>,
+            g: &mut Gate<()>,
+        ) -> Result<(), ()> {
+            if self.refused.contains(&c.candidate.0) {
+                g.passes = false;
+            }
+            Ok(())
+        }
     }
 
     fn run_toy(fails: &[usize], screen: FitScreen) -> (Vec<C>, Toy) {
@@ -1538,6 +1628,40 @@ mod tests {
         // is never fitted in round 1.
         assert!(toy.screened.contains(&(1, 1)));
         assert!(!toy.screened.contains(&(1, 0)));
+    }
+
+    /// When every candidate that passed the gate is refused by the last check (the motion
+    /// diagnosis' check against the mesh's own null), the reserve is fitted as when nothing
+    /// passes the gate: the round adopts what the full search adopts, and the reserve's attempt
+    /// replaces its "screened out" record.
+    #[test]
+    fn every_passing_candidate_refused_so_the_reserve_is_fitted() {
+        let policy = Policy {
+            rounds: 1,
+            max_adopted: 1,
+            rank: Rank::FittedBic,
+            screen: Screen::All,
+        };
+        let run = |screen: FitScreen| {
+            let mut toy = Toy::new(&[], screen, &[]);
+            toy.refused = vec![2, 3];
+            let v = select(&mut toy, &policy, 0.0, ()).unwrap();
+            let screened_out: Vec<usize> = v.rounds[0]
+                .attempts
+                .iter()
+                .filter(|a| a.screened_out)
+                .map(|a| a.candidate.0)
+                .collect();
+            (v.adopted(), screened_out, toy)
+        };
+        let (full, _, _) = run(FitScreen::Off);
+        assert_eq!(full, [C(0)]);
+        let (screened, out, toy) = run(PREDICTED);
+        assert_eq!(screened, full);
+        // c2 and c3 (predicted −150, −60) fitted and refused, then c0 from the reserve; c1
+        // (predicted −1) is left screened out.
+        assert_eq!(out, [1]);
+        assert_eq!(toy.fits, 3);
     }
 
     /// A candidate whose fit diverges is not a finding, but it was tried: the engine itself (no
