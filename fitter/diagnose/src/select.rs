@@ -586,7 +586,8 @@ pub trait CandidateModel {
     ) -> Result<(), Self::Error> {
         Ok(())
     }
-    /// Records a candidate the screen left unfitted (the default records nothing).
+    /// Records a candidate the screen left unfitted, once the round's fits are done (the
+    /// default records nothing).
     fn screened_out(&mut self, _round: usize, _candidate: Self::Candidate, _p: &Prediction) {}
     /// Receives what the loop is doing (the default ignores it).
     fn progress(&mut self, _event: &Progress) {}
@@ -735,6 +736,12 @@ pub fn select<M: CandidateModel>(
             )?;
             (ranked, best) = judge_round(policy.rank, &mut attempts);
         }
+        // Told once the round's fits are done: a reserve fitted after a refusal is not.
+        for a in attempts.iter().filter(|a| a.screened_out) {
+            if let Some(p) = &a.prediction {
+                model.screened_out(round, a.candidate, p);
+            }
+        }
         let mut this = Round {
             round,
             model: adopted.clone(),
@@ -872,7 +879,6 @@ fn fit_round<M: CandidateModel>(
                 let Some(p) = predictions[i].clone().filter(|_| !tried[i]) else {
                     continue;
                 };
-                model.screened_out(now.round, open[i], &p);
                 attempts.push(Attempt {
                     candidate: open[i],
                     not_fitted: Some(format!(
@@ -1661,6 +1667,7 @@ mod tests {
         // c2 and c3 (predicted −150, −60) fitted and refused, then c0 from the reserve; c1
         // (predicted −1) is left screened out.
         assert_eq!(out, [1]);
+        assert_eq!(toy.screened, [(1, 1)]);
         assert_eq!(toy.fits, 3);
     }
 
