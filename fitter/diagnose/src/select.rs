@@ -674,9 +674,10 @@ impl<M: CandidateModel + ?Sized> Verdict<M> {
 /// try every open candidate, adopt the best one that passes the gate, stop when none passes, none
 /// is left or the policy's limits are reached.
 ///
-/// A round is four steps: the fit screen predicts the open candidates (`screen_round`), the
-/// planned ones are fitted and gated (`fit_round`), the gated ones are ranked and judged
-/// (`judge_round`), and the best is adopted (`adopt_best`) or the loop stops.
+/// A round is three steps: the fit screen predicts the open candidates (`screen_round`); the
+/// planned ones are fitted and gated, the gated ones ranked and judged and the best checked, the
+/// screen's reserve fitted while none passes (`fit_round`); and the best is adopted
+/// (`adopt_best`) or the loop stops.
 pub fn select<M: CandidateModel>(
     model: &mut M,
     policy: &Policy,
@@ -705,38 +706,9 @@ pub fn select<M: CandidateModel>(
             held: cur_held,
             observed: &observed,
         };
-        let (mut attempts, mut fits, mut reserve) =
+        let (attempts, mut fits, ranked, best) =
             fit_round(model, policy, &fit_screen, &now, bic0, &open, &predictions)?;
-        let (mut ranked, mut best) = judge_round(policy.rank, &mut attempts);
-        loop {
-            while let Some(i) = best {
-                if !confirm_one(model, &now, &mut attempts[i], fits[i].as_ref())? {
-                    break;
-                }
-                // Refused: the next best that passes is judged and checked in its turn.
-                (ranked, best) = judge_round(policy.rank, &mut attempts);
-            }
-            if best.is_some() || reserve.is_empty() {
-                break;
-            }
-            // Every candidate that passed the gate was refused by the last check: as when none
-            // passes the gate, the next the screen predicted to pay for itself is fitted before
-            // the round gives up (the screen ranked the others below candidates the check then
-            // refused).
-            let k = reserve.remove(0);
-            fit_reserve(
-                model,
-                policy,
-                &now,
-                bic0,
-                open[k],
-                &predictions[k],
-                &mut attempts,
-                &mut fits,
-            )?;
-            (ranked, best) = judge_round(policy.rank, &mut attempts);
-        }
-        // Told once the round's fits are done: a reserve fitted after a refusal is not.
+        // Told once the round's fits and checks are done: a reserve fitted then is not.
         for a in attempts.iter().filter(|a| a.screened_out) {
             if let Some(p) = &a.prediction {
                 model.screened_out(round, a.candidate, p);
@@ -804,14 +776,35 @@ fn screen_round<M: CandidateModel>(
     })
 }
 
-/// A fitted candidate's slot of a round: its attempt and its fit (`None`: not fitted).
+/// A fitted candidate's attempt and its fit (`None`: not fitted).
 type Slot<M> = (Attempt<M>, Option<<M as CandidateModel>::Fitted>);
 
-/// A round's fits: the planned ones ([`plan_fits`]), each gated as it is fitted or the
-/// shortlist after them ([`Screen`]); if none passes, the screen's reserve one at a time. Returns
-/// every attempt in the order tried (the screened out among them) beside its fit, and what is
-/// left of the reserve (indices into `open`) for a round whose passing candidates the last check
-/// refuses ([`fit_reserve`]).
+/// A round's attempts in the order tried (by index into the open candidates), each beside its fit
+/// (`None`: not fitted).
+struct RoundFits<M: CandidateModel> {
+    open: Vec<usize>,
+    attempts: Vec<Attempt<M>>,
+    fits: Vec<Option<M::Fitted>>,
+}
+
+impl<M: CandidateModel> RoundFits<M> {
+    /// Puts open candidate `i`'s attempt in its place: the report's order and the ranking's
+    /// tie-break do not depend on which fits the screen chose, nor when.
+    fn place(&mut self, i: usize, a: Attempt<M>, f: Option<M::Fitted>) {
+        let p = self.open.partition_point(|&j| j < i);
+        self.open.insert(p, i);
+        self.attempts.insert(p, a);
+        self.fits.insert(p, f);
+    }
+}
+
+/// A round's fits and verdict: the planned fits ([`plan_fits`]), each gated as it is fitted or
+/// the shortlist after them ([`Screen`]), the gated ones judged ([`judge_round`]) and the best
+/// that passes checked ([`CandidateModel::confirm`]). When none passes the gate, or the check
+/// refuses every one that does, the screen's reserve is fitted one at a time, each gated as the
+/// full search would have gated it, until one passes both or the reserve is spent. Returns every
+/// attempt in the order tried (the screened out among them) beside its fit, the rank order and
+/// the best that passes (indices into the attempts).
 #[allow(clippy::type_complexity)]
 fn fit_round<M: CandidateModel>(
     model: &mut M,
@@ -821,134 +814,107 @@ fn fit_round<M: CandidateModel>(
     bic0: f64,
     open: &[M::Candidate],
     predictions: &[Option<Prediction>],
-) -> Result<(Vec<Attempt<M>>, Vec<Option<M::Fitted>>, Vec<usize>), M::Error> {
-    let (mut batch, mut reserve) = plan_fits(fit_screen, predictions);
-    // One slot per open candidate, in the order tried: the report's order and the ranking's
-    // tie-break do not depend on which fits the screen chose.
-    let mut slots: Vec<Option<Slot<M>>> = (0..open.len()).map(|_| None).collect();
-    let mut planned = batch.len();
+) -> Result<
+    (
+        Vec<Attempt<M>>,
+        Vec<Option<M::Fitted>>,
+        Vec<usize>,
+        Option<usize>,
+    ),
+    M::Error,
+> {
+    let (batch, mut reserve) = plan_fits(fit_screen, predictions);
+    let mut round = RoundFits {
+        open: Vec::new(),
+        attempts: Vec::new(),
+        fits: Vec::new(),
+    };
     let mut tried = vec![false; open.len()];
+    // On one thread, fits ahead would only delay their log lines.
+    if batch.len() > 1 && rayon::current_num_threads() > 1 {
+        let cands: Vec<M::Candidate> = batch.iter().map(|&i| open[i]).collect();
+        model.prefit(now.round, now.fitted, &cands);
+    }
+    for (n, &i) in batch.iter().enumerate() {
+        tried[i] = true;
+        model.progress(&Progress::Fitting {
+            round: now.round,
+            index: n + 1,
+            of: batch.len(),
+            candidate: open[i].label(),
+        });
+        if let Some((a, f)) = fit_one(model, policy, now, bic0, open[i], &predictions[i])? {
+            round.place(i, a, f);
+        }
+    }
+    gate_shortlist(model, policy, now, &mut round)?;
+    let mut fitted = batch.len();
     loop {
-        // On one thread, fits ahead would only delay their log lines.
-        if batch.len() > 1 && rayon::current_num_threads() > 1 {
-            let cands: Vec<M::Candidate> = batch.iter().map(|&i| open[i]).collect();
-            model.prefit(now.round, now.fitted, &cands);
-        }
-        for &i in &batch {
-            tried[i] = true;
-            let done = tried.iter().filter(|&&t| t).count();
-            model.progress(&Progress::Fitting {
-                round: now.round,
-                index: done,
-                of: planned,
-                candidate: open[i].label(),
-            });
-            if let Some(slot) = fit_one(model, policy, now, bic0, open[i], &predictions[i])? {
-                slots[i] = Some(slot);
-            }
-        }
-        if let Screen::Shortlist {
-            bic_threshold,
-            size,
-        } = policy.screen
-        {
-            gate_shortlist(model, now, &mut slots, bic_threshold, size)?;
-        }
-        let passes = slots
-            .iter()
-            .flatten()
-            .any(|(a, _)| a.gate.as_ref().is_some_and(|g| g.passes));
-        if passes || reserve.is_empty() {
+        let best = best_confirmed(model, policy.rank, now, &mut round)?;
+        if best.is_some() || reserve.is_empty() {
             break;
         }
-        // Nothing fitted passes: the screen may have ranked a winner too low. The next
+        // Nothing fitted passes both the gate and the last check: the screen may have ranked a
+        // winner too low, below candidates the gate failed or the check refused. The next
         // predicted to pay for itself is fitted before the round gives up.
-        batch = vec![reserve.remove(0)];
-        planned += 1;
-    }
-    let mut attempts: Vec<Attempt<M>> = Vec::new();
-    let mut fits: Vec<Option<M::Fitted>> = Vec::new();
-    for (i, slot) in slots.into_iter().enumerate() {
-        match slot {
-            Some((a, f)) => {
-                attempts.push(a);
-                fits.push(f);
-            }
-            None => {
-                // Dropped by the diagnosis, or left out by the screen.
-                let Some(p) = predictions[i].clone().filter(|_| !tried[i]) else {
-                    continue;
-                };
-                attempts.push(Attempt {
-                    candidate: open[i],
-                    not_fitted: Some(format!(
-                        "screened out: predicted ΔBIC {:.1} ({})",
-                        p.delta_bic.unwrap_or(f64::NAN),
-                        p.how
-                    )),
-                    prediction: Some(p),
-                    screened_out: true,
-                    score: None,
-                    summary: None,
-                    delta_bic: f64::NAN,
-                    held: None,
-                    gate: None,
-                    judgement: None,
-                });
-                fits.push(None);
-            }
+        let i = reserve.remove(0);
+        tried[i] = true;
+        fitted += 1;
+        model.progress(&Progress::Fitting {
+            round: now.round,
+            index: fitted,
+            of: fitted,
+            candidate: open[i].label(),
+        });
+        if let Some((a, f)) = fit_one(model, policy, now, bic0, open[i], &predictions[i])? {
+            round.place(i, a, f);
+            gate_shortlist(model, policy, now, &mut round)?;
         }
     }
-    Ok((attempts, fits, reserve))
+    for (i, p) in predictions.iter().enumerate() {
+        // Left out by the screen (a candidate the diagnosis dropped has no record).
+        let (false, Some(p)) = (tried[i], p) else {
+            continue;
+        };
+        let a = Attempt {
+            candidate: open[i],
+            not_fitted: Some(format!(
+                "screened out: predicted ΔBIC {:.1} ({})",
+                p.delta_bic.unwrap_or(f64::NAN),
+                p.how
+            )),
+            prediction: Some(p.clone()),
+            screened_out: true,
+            score: None,
+            summary: None,
+            delta_bic: f64::NAN,
+            held: None,
+            gate: None,
+            judgement: None,
+        };
+        round.place(i, a, None);
+    }
+    let (ranked, best) = judge_round(policy.rank, &mut round.attempts);
+    Ok((round.attempts, round.fits, ranked, best))
 }
 
-/// Fits a candidate of the screen's reserve after a round's passing candidates were all refused
-/// ([`CandidateModel::confirm`]), gates it as the round's screen would have, and puts its
-/// attempt in place of its "screened out" record.
-#[allow(clippy::too_many_arguments)]
-fn fit_reserve<M: CandidateModel>(
+/// The best gated attempt that passes and that the diagnosis' last check does not refuse: the
+/// gated attempts judged in rank order, the best checked, and when refused the next best judged
+/// and checked in its turn.
+fn best_confirmed<M: CandidateModel>(
     model: &mut M,
-    policy: &Policy,
+    rank: Rank,
     now: &Current<'_, M>,
-    bic0: f64,
-    c: M::Candidate,
-    prediction: &Option<Prediction>,
-    attempts: &mut Vec<Attempt<M>>,
-    fits: &mut Vec<Option<M::Fitted>>,
-) -> Result<(), M::Error> {
-    let index = 1 + attempts.iter().filter(|a| !a.screened_out).count();
-    model.progress(&Progress::Fitting {
-        round: now.round,
-        index,
-        of: index,
-        candidate: c.label(),
-    });
-    let Some((mut a, f)) = fit_one(model, policy, now, bic0, c, prediction)? else {
-        return Ok(());
-    };
-    if let (None, Some(f)) = (&a.gate, &f) {
-        let gated = match policy.screen {
-            Screen::Shortlist { bic_threshold, .. } => a.delta_bic < -bic_threshold,
-            Screen::All => true,
-        };
-        if gated {
-            gate_one(model, now, &mut a, f)?;
+    round: &mut RoundFits<M>,
+) -> Result<Option<usize>, M::Error> {
+    let (_, mut best) = judge_round(rank, &mut round.attempts);
+    while let Some(i) = best {
+        if !confirm_one(model, now, &mut round.attempts[i], round.fits[i].as_ref())? {
+            break;
         }
+        (_, best) = judge_round(rank, &mut round.attempts);
     }
-    match attempts
-        .iter()
-        .position(|x| x.candidate == c && x.screened_out)
-    {
-        Some(i) => {
-            attempts[i] = a;
-            fits[i] = f;
-        }
-        None => {
-            attempts.push(a);
-            fits.push(f);
-        }
-    }
-    Ok(())
+    Ok(best)
 }
 
 /// Fits candidate `c` on top of the current model and scores it (gated at once when every
@@ -991,39 +957,35 @@ fn fit_one<M: CandidateModel>(
     Ok(Some((a, Some(f))))
 }
 
-/// Gates the first `size` fitted candidates in ΔBIC order with ΔBIC < −`bic_threshold` that
-/// are not gated yet ([`Screen::Shortlist`]).
+/// Under [`Screen::Shortlist`], gates the first `size` fitted candidates in ΔBIC order with
+/// ΔBIC < −`bic_threshold` that are not gated yet: the round's shortlist, whichever fits the
+/// screen chose, as the full search would gate them (under [`Screen::All`] each fit was gated as
+/// it was made).
 fn gate_shortlist<M: CandidateModel>(
     model: &mut M,
+    policy: &Policy,
     now: &Current<'_, M>,
-    slots: &mut [Option<Slot<M>>],
-    bic_threshold: f64,
-    size: usize,
+    round: &mut RoundFits<M>,
 ) -> Result<(), M::Error> {
-    let mut fitted: Vec<usize> = (0..slots.len())
-        .filter(|&i| matches!(&slots[i], Some((_, Some(_)))))
+    let Screen::Shortlist {
+        bic_threshold,
+        size,
+    } = policy.screen
+    else {
+        return Ok(());
+    };
+    let d = |i: usize| round.attempts[i].delta_bic;
+    let mut fitted: Vec<usize> = (0..round.attempts.len())
+        .filter(|&i| round.fits[i].is_some())
         .collect();
-    fitted.sort_by(|&a, &b| {
-        let d = |i: usize| slots[i].as_ref().map_or(f64::NAN, |s| s.0.delta_bic);
-        d(a).total_cmp(&d(b))
-    });
-    let shortlist: Vec<usize> = fitted
-        .into_iter()
-        .filter(|&i| {
-            slots[i]
-                .as_ref()
-                .is_some_and(|s| s.0.delta_bic < -bic_threshold)
-        })
-        .take(size)
-        .collect();
-    for i in shortlist {
-        let Some((a, Some(f))) = &mut slots[i] else {
+    fitted.sort_by(|&a, &b| d(a).total_cmp(&d(b)));
+    fitted.retain(|&i| d(i) < -bic_threshold);
+    fitted.truncate(size);
+    for i in fitted {
+        let (Some(f), None) = (&round.fits[i], &round.attempts[i].gate) else {
             continue;
         };
-        if a.gate.is_some() {
-            continue;
-        }
-        gate_one(model, now, a, f)?;
+        gate_one(model, now, &mut round.attempts[i], f)?;
     }
     Ok(())
 }
@@ -1669,6 +1631,52 @@ mod tests {
         assert_eq!(out, [1]);
         assert_eq!(toy.screened, [(1, 1)]);
         assert_eq!(toy.fits, 3);
+    }
+
+    /// Under a shortlist (the static diagnosis: only the `size` best by fitted ΔBIC are gated),
+    /// a reserve fitted after the shortlisted ones were refused is gated as the full search
+    /// would gate it: when it ranks into the shortlist (c0 at −50, above the refused c3's −30)
+    /// it is gated and adopted, as by the full search; when it ranks below the refused ones (c0
+    /// at −20) it is not gated, and the round adopts nothing, as the full search does.
+    #[test]
+    fn a_reserve_fit_is_gated_as_the_full_search_gates_it() {
+        let policy = Policy {
+            rounds: 1,
+            max_adopted: 1,
+            rank: Rank::FittedBic,
+            screen: Screen::Shortlist {
+                bic_threshold: 10.0,
+                size: 2,
+            },
+        };
+        let run = |screen: FitScreen, c0: f64| {
+            let mut toy = Toy::new(&[], screen, &[]);
+            toy.gain[0] = c0;
+            toy.refused = vec![2, 3];
+            let v = select(&mut toy, &policy, 0.0, ()).unwrap();
+            let gated: Vec<usize> = v.rounds[0]
+                .attempts
+                .iter()
+                .filter(|a| a.gate.is_some())
+                .map(|a| a.candidate.0)
+                .collect();
+            (v.adopted(), gated, toy.fits)
+        };
+        for (c0, adopted, gated) in [(-50.0, vec![C(0)], vec![0, 2]), (-20.0, vec![], vec![2, 3])] {
+            let (full, full_gated, full_fits) = run(FitScreen::Off, c0);
+            let (screened, screened_gated, fits) = run(PREDICTED, c0);
+            assert_eq!(full, adopted, "c0 at {c0}: the full search");
+            assert_eq!(screened, full, "c0 at {c0}: the screen");
+            assert_eq!(full_gated, gated, "c0 at {c0}");
+            assert_eq!(full_fits, 4);
+            // c2 and c3, then c0 from the reserve; c1 (predicted −1) is never fitted.
+            assert_eq!(fits, 3, "c0 at {c0}");
+            if c0 < -30.0 {
+                assert_eq!(screened_gated, [0, 2, 3]);
+            } else {
+                assert_eq!(screened_gated, gated);
+            }
+        }
     }
 
     /// A candidate whose fit diverges is not a finding, but it was tried: the engine itself (no
