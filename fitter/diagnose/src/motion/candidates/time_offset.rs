@@ -125,7 +125,7 @@ pub(in crate::motion) fn scan(
 /// offsets are refitted while that lowers χ² on the fitted steps (at most [`OFFSET_NEIGHBOURS`]
 /// steps each way): the scan runs at a material fitted without the offset, and on a strongly
 /// loaded run it can settle a step off (−2 for −3 on drawn specimens, the fit then far above the
-/// floor).
+/// floor). Each offset is fitted once.
 fn fit_timed(
     m: &MotionModel<'_>,
     c: Candidate,
@@ -134,9 +134,21 @@ fn fit_timed(
 ) -> Result<FittedModel, MotionDiagnoseError> {
     let kinds: &[ParamKind] = &cur.kinds;
     let mut evaluations = 0;
+    // Every fit starts from `cur`, so an offset fitted once is not fitted again: the first
+    // scan's offset, which a rescan moved by a step, is the new offset's neighbour.
+    let mut fits: Vec<FittedModel> = Vec::new();
+    let mut fit_at =
+        |r: i64, evaluations: &mut usize| -> Result<FittedModel, MotionDiagnoseError> {
+            if let Some(f) = fits.iter().find(|f| f.time_offset == Some(r)) {
+                return Ok(f.clone());
+            }
+            let f = m.fit_at(cur, c, kinds, r, evaluations)?;
+            fits.push(f.clone());
+            Ok(f)
+        };
     let mut rescanned = false;
     let mut best = loop {
-        let f = m.fit_at(cur, c, kinds, r, &mut evaluations)?;
+        let f = fit_at(r, &mut evaluations)?;
         if rescanned {
             break f;
         }
@@ -149,7 +161,7 @@ fn fit_timed(
     for dir in [-1, 1] {
         for _ in 0..OFFSET_NEIGHBOURS {
             let next = best.time_offset.unwrap_or(r) + dir;
-            match m.fit_at(cur, c, kinds, next, &mut evaluations) {
+            match fit_at(next, &mut evaluations) {
                 Ok(n) if n.scores.chi2_fit < best.scores.chi2_fit => best = n,
                 _ => break,
             }
