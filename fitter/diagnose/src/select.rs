@@ -617,6 +617,24 @@ pub struct Attempt<M: CandidateModel + ?Sized> {
     pub judgement: Option<Judgement>,
 }
 
+impl<M: CandidateModel + ?Sized> Attempt<M> {
+    /// Candidate `c` with its prediction and nothing else yet: not fitted, scored or gated.
+    fn untried(candidate: M::Candidate, prediction: Option<Prediction>) -> Self {
+        Self {
+            candidate,
+            not_fitted: None,
+            prediction,
+            screened_out: false,
+            score: None,
+            summary: None,
+            delta_bic: f64::NAN,
+            held: None,
+            gate: None,
+            judgement: None,
+        }
+    }
+}
+
 /// One round of the loop.
 pub struct Round<M: CandidateModel + ?Sized> {
     /// Round (1-based).
@@ -876,22 +894,13 @@ fn fit_round<M: CandidateModel>(
         let (false, Some(p)) = (tried[i], p) else {
             continue;
         };
-        let a = Attempt {
-            candidate: open[i],
-            not_fitted: Some(format!(
-                "screened out: predicted ΔBIC {:.1} ({})",
-                p.delta_bic.unwrap_or(f64::NAN),
-                p.how
-            )),
-            prediction: Some(p.clone()),
-            screened_out: true,
-            score: None,
-            summary: None,
-            delta_bic: f64::NAN,
-            held: None,
-            gate: None,
-            judgement: None,
-        };
+        let mut a = Attempt::untried(open[i], Some(p.clone()));
+        a.not_fitted = Some(format!(
+            "screened out: predicted ΔBIC {:.1} ({})",
+            p.delta_bic.unwrap_or(f64::NAN),
+            p.how
+        ));
+        a.screened_out = true;
         round.place(i, a, None);
     }
     let (ranked, best) = judge_round(policy.rank, &mut round.attempts);
@@ -927,18 +936,7 @@ fn fit_one<M: CandidateModel>(
     c: M::Candidate,
     prediction: &Option<Prediction>,
 ) -> Result<Option<Slot<M>>, M::Error> {
-    let mut a = Attempt {
-        candidate: c,
-        not_fitted: None,
-        prediction: prediction.clone(),
-        screened_out: false,
-        score: None,
-        summary: None,
-        delta_bic: f64::NAN,
-        held: None,
-        gate: None,
-        judgement: None,
-    };
+    let mut a = Attempt::untried(c, prediction.clone());
     let f = match model.fit_with(now.round, now.fitted, c)? {
         Outcome::Dropped => return Ok(None),
         Outcome::NotFitted(why) => {
