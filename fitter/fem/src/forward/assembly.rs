@@ -2,14 +2,13 @@
 //! f + K'' x₀ (K'' = Σ R_e K_e, eq. 3.54) with the fixed nodes eliminated, element force vectors,
 //! and the sparse Cholesky factorisation (symbolic part computed once per problem).
 
-use faer::linalg::solvers::Solve;
-use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
 use faer::sparse::{SparseColMat, SparseColMatRef, Triplet};
-use faer::{MatMut, Side};
+use faer::MatMut;
 use nalgebra::{Matrix3, SVector, Vector3};
 use palpate_runtime::element::{deformation_gradient, warped_strain, ElementMatrix};
 use palpate_runtime::rotation::warp_rotation_polar;
 
+use super::cholesky::{Llt, Symbolic};
 use super::{ForwardError, Material, StaticProblem};
 
 /// The sparsity pattern over the free dofs of a sum of dense element blocks (each block the 3
@@ -71,7 +70,7 @@ pub(super) struct Pattern {
     /// `u32::MAX` when either dof is fixed. 144 entries per element.
     scatter: Vec<u32>,
     /// Symbolic Cholesky of the pattern (lower triangle), reused by every factorisation.
-    symbolic: SymbolicLlt<usize>,
+    symbolic: Symbolic,
 }
 
 impl Pattern {
@@ -82,8 +81,7 @@ impl Pattern {
     ) -> Result<Self, ForwardError> {
         let (matrix, scatter, _) =
             block_pattern(tets.iter().map(|t| t.as_slice()), free_index, free_count)?;
-        let symbolic = SymbolicLlt::try_new(matrix.symbolic(), Side::Lower)
-            .map_err(|e| ForwardError::Sparse(format!("symbolic Cholesky: {e:?}")))?;
+        let symbolic = Symbolic::new(matrix.symbolic())?;
         Ok(Self {
             matrix,
             scatter,
@@ -106,7 +104,7 @@ impl Pattern {
 /// assembled values, so that one factorisation serves the solve and any number of Jacobian
 /// products (§5.3, eq. 5.71).
 pub struct Factorised {
-    llt: Llt<usize, f64>,
+    llt: Llt,
     values: Vec<f64>,
     n: usize,
 }
@@ -252,8 +250,7 @@ impl StaticProblem {
     ) -> Result<Factorised, ForwardError> {
         let values = self.stiffness_values(material, rotations);
         let m = SparseColMatRef::new(self.pattern.matrix.symbolic(), &values);
-        let llt = Llt::try_new_with_symbolic(self.pattern.symbolic.clone(), m, Side::Lower)
-            .map_err(|e| ForwardError::Factorisation(format!("{e:?}")))?;
+        let llt = self.pattern.symbolic.factor(m)?;
         Ok(Factorised {
             llt,
             values,

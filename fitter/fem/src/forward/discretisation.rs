@@ -11,12 +11,11 @@
 //! model's. The linear mesh's nodes come first in every design, so fixed nodes, loads and
 //! marker positions named on the linear mesh keep their meaning.
 
-use faer::linalg::solvers::Solve;
-use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
 use faer::sparse::{SparseColMat, SparseColMatRef};
-use faer::{MatMut, Side};
+use faer::MatMut;
 use nalgebra::{DMatrix, Vector3};
 
+use super::cholesky::{Llt, Symbolic};
 use super::{ForwardError, Material, StaticProblem};
 use crate::mesh::quadratic::QuadraticMesh;
 
@@ -81,7 +80,7 @@ struct BlockPattern {
     scatter: Vec<u32>,
     /// Start of block b's entries in `scatter`.
     starts: Vec<usize>,
-    symbolic: SymbolicLlt<usize>,
+    symbolic: Symbolic,
 }
 
 impl BlockPattern {
@@ -91,8 +90,7 @@ impl BlockPattern {
             free_index,
             free_count,
         )?;
-        let symbolic = SymbolicLlt::try_new(matrix.symbolic(), Side::Lower)
-            .map_err(|e| ForwardError::Sparse(format!("symbolic Cholesky: {e:?}")))?;
+        let symbolic = Symbolic::new(matrix.symbolic())?;
         Ok(Self {
             matrix,
             scatter,
@@ -125,7 +123,7 @@ pub struct DiscretisedModel {
 
 /// One numeric factorisation of a [`DiscretisedModel`]'s stiffness for one material.
 pub struct DiscretisedFactor {
-    llt: Llt<usize, f64>,
+    llt: Llt,
     n: usize,
 }
 
@@ -286,8 +284,7 @@ impl DiscretisedModel {
             }
         }
         let mref = SparseColMatRef::new(self.pattern.matrix.symbolic(), &values);
-        let llt = Llt::try_new_with_symbolic(self.pattern.symbolic.clone(), mref, Side::Lower)
-            .map_err(|e| ForwardError::Factorisation(format!("{e:?}")))?;
+        let llt = self.pattern.symbolic.factor(mref)?;
         Ok(DiscretisedFactor {
             llt,
             n: self.free_dofs(),

@@ -21,6 +21,7 @@
 
 mod assembly;
 pub mod cantilever;
+mod cholesky;
 mod discretisation;
 mod load;
 mod nodal_pressure;
