@@ -4,9 +4,10 @@
 //! faer's automatic choice (`SymbolicLlt::try_new`) takes the simplicial form for these 3D
 //! tetrahedral systems, whose flops per stored entry of L fall below its threshold; the
 //! supernodal form factorises them 3.1–3.4× faster at 716 and 1,512 tets
-//! (`palpate-lab bench motion-step`, BENCHMARKS.md "A step with sensitivities"), and the static
-//! diagnosis, whose largest item is this factorisation, runs faster with it
-//! (BENCHMARKS.md "The static solver's factorisation").
+//! (`palpate-lab bench motion-step`, BENCHMARKS.md "A step with sensitivities"). On the
+//! specimens' and the blocks' meshes the simplicial factorisation was the largest item of a static
+//! diagnosis; on larger meshes faer chooses the supernodal form itself (BENCHMARKS.md "The static
+//! solver's factorisation").
 
 use std::sync::Arc;
 
