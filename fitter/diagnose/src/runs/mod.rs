@@ -46,7 +46,8 @@
 //! at the current material (its fit starts from that scan, which is not repeated), without the
 //! material's refit; the clamp's give by the column of the layer's own μ in the same evaluation
 //! (the layer held there at the body's moduli). A step that takes a parameter bounded at its neutral value (ν, c, g ≥ 0)
-//! below its bound is taken again with that parameter held there. The best predicted are fitted
+//! below its bound is taken again with that parameter held there; a candidate whose every new
+//! parameter is so held is the current model and predicts no gain. The best predicted are fitted
 //! in full (the screen's `least`, and those within its `margin` of the best), among them only
 //! those predicted to pay (ΔBIC below the gate's −threshold); the rest are reported with their
 //! predicted ΔBIC, and fitted after all if nothing fitted passes the gate.

@@ -646,6 +646,41 @@ fn a_clamp_that_gives_is_named() {
     assert_body_and_floor(&r, &truth);
 }
 
+/// A candidate whose screen step holds every new parameter at its neutral value is the current
+/// model: its prediction is its BIC charge alone (a whole number of ln n), not the gain the
+/// current parameters' own step promises. On the drawn bar whose clamp gives, the simplest fit
+/// stops far from its minimum (17.7 mm RMS), where that step promises 61 % of Φ; the stiffening
+/// and the objective viscosity are held there in round 1.
+#[test]
+fn a_candidate_held_at_its_neutral_value_predicts_its_charge_alone() {
+    let (r, _) = drawn(MotionEffect::ClampCompliance, 4);
+    let ln_n = (r.before.n_fit as f64).ln();
+    let mut held: Vec<(&str, f64)> = r
+        .rounds
+        .iter()
+        .flat_map(|rd| &rd.trials)
+        .filter(|t| t.reason.contains("the current model, no gain predicted"))
+        .map(|t| (t.candidate.as_str(), t.predicted_delta_bic.unwrap()))
+        .collect();
+    // Round 1's, by name: the two whose step goes below 0 there.
+    for name in ["stiffening", "viscosity-objective"] {
+        let t = r.rounds[0]
+            .trials
+            .iter()
+            .find(|t| t.candidate == name)
+            .unwrap();
+        assert!(t.reason.contains("held there"), "{name}: {}", t.reason);
+        held.push((name, t.predicted_delta_bic.unwrap()));
+    }
+    for (c, d) in held {
+        let charged = (d / ln_n).round();
+        assert!(
+            charged >= 1.0 && (d - charged * ln_n).abs() < 1e-9 * d,
+            "{c}: predicted {d} is not a charge of whole parameters (ln n = {ln_n})"
+        );
+    }
+}
+
 /// A gravity turned by 2.2° from the declared one (the drawn specimen of seed 4: toward +x) is
 /// named first and alone, the turn and the gravity acting read back, and the forecast comes to
 /// the noise floor.
