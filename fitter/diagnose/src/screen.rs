@@ -150,6 +150,14 @@ pub fn bounded_at_neutral(kind: palpate_motion::model::ParamKind) -> bool {
     )
 }
 
+/// The prediction's `how` for a candidate whose step held every new parameter at its neutral
+/// value ([`step_within_bounds`]): that candidate is the current model, and what the step of the
+/// current parameters alone would gain (a refit of the current model, which its fit would make
+/// and the gate refuse) is not its gain, so it is charged its parameters alone.
+pub fn held_at_neutral(how: &str) -> String {
+    format!("{how}: the current model, no gain predicted")
+}
+
 /// [`step`] over `cols` with a candidate's parameters bounded at their neutral values
 /// ([`bounded_at_neutral`]) held there: a column that `candidate` names as such a parameter (its
 /// kind) and whose step goes below 0 is dropped from `cols` and the step taken again. Returns the

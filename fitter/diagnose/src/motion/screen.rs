@@ -5,8 +5,9 @@
 //! density at its current value) — [`crate::screen`]. A candidate's predicted gain is the χ²
 //! drop of one Gauss–Newton step over the current parameters and its own (the score statistic),
 //! charged its parameters as BIC charges them (nothing but that charge where the step holds
-//! every new parameter at its neutral value: the candidate is then the current model). The candidates without such a column say how they
-//! are predicted in their files ([`super::MotionEffect::predict`]): the marker offsets in closed form
+//! every new parameter at its neutral value: the candidate is then the current model,
+//! [`screen::held_at_neutral`]). The candidates without such a column say how they are
+//! predicted in their files ([`super::MotionEffect::predict`]): the marker offsets in closed form
 //! at the current material, the time offset by its scan, the second material not at all (its
 //! region search is a screen of its own: always fitted). The best predicted are fitted in full;
 //! the rest are reported with their predicted ΔBIC and fitted after all if nothing fitted
@@ -145,12 +146,9 @@ impl<'m, 'a> Screening<'m, 'a> {
             format!("{how}; {} stepped below 0, held there", held.join(", "))
         };
         if !cols.iter().any(|&c| c >= own && c < globals) {
-            // Every new parameter held at its neutral value: the candidate is the current model,
-            // and what the step of the current parameters alone would gain is not its gain
-            // (a refit of the current model, which its fit would make and the gate refuse).
             return Prediction {
                 delta_bic: Some(self.delta_bic(self.cur.scores.chi2_fit, extra)),
-                how: format!("{how}: the current model, no gain predicted"),
+                how: screen::held_at_neutral(&how),
             };
         }
         let mut stepped = self.stepped.borrow_mut();

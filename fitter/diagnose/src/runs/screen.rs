@@ -188,11 +188,9 @@ impl<'a> ScreenPoint<'a> {
             format!("{how}; {} stepped below 0, held there", held.join(", "))
         };
         if cols.len() == self.own {
-            // Every new parameter held at its neutral value: the candidate is the current model,
-            // and what the step of the current parameters alone would gain is not its gain.
             return Prediction {
                 delta_bic: Some(self.delta_bic(self.chi2.0, k)),
-                how: format!("{how}: the current model, no gain predicted"),
+                how: screen::held_at_neutral(&how),
             };
         }
         let change = screen::change(&self.normals, &cols, &delta);
