@@ -657,6 +657,13 @@ pub struct Observations {
     /// residual over its observed steps — so Φ, its gradient and the Gauss–Newton matrix are
     /// those of the residuals with each marker's mean removed ([`super::gradient`]).
     pub free_marker_offsets: bool,
+    /// Φ's absolute precision: a Levenberg–Marquardt fit to these observations also stops
+    /// where its steps gain less than this (0: its own Φ's relative precision alone,
+    /// [`super::optimize::precision`]). For data made without noise that stand in for measured
+    /// ones (the mesh's own null of a diagnosis), the measured data's precision: held to the
+    /// relative precision of their own small Φ, their fits run on for gains a hundredth of what
+    /// the measured data can tell apart.
+    pub phi_precision: f64,
 }
 
 /// Newton settings (paper §4.3: residual < 1e-6 N or 20 iterations).

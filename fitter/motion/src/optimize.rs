@@ -1068,6 +1068,8 @@ fn levenberg_marquardt(
             1e-6
         }),
         noise_tolerance: 1e-5,
+        // Φ sums the runs' terms, and so their absolute precisions.
+        abs_tolerance: runs.iter().map(|r| r.obs.phi_precision).sum(),
         // A factor e per log-parameter to start, e³ at most.
         initial_radius: 1.0,
         max_radius: 3.0,

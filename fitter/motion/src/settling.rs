@@ -237,6 +237,7 @@ mod tests {
             marker_weight: 1.0,
             force_weight: 1.0,
             free_marker_offsets: false,
+            phi_precision: 0.0,
         };
         let simulated = (0..steps).map(|n| at(n, 0.0)).collect();
         (model, obs, simulated, weights)

@@ -272,6 +272,7 @@ mod tests {
             marker_weight: 1.0,
             force_weight: 1.0,
             free_marker_offsets: false,
+            phi_precision: 0.0,
         };
         for reach in [0i64, 3, 6] {
             let short =
@@ -308,6 +309,7 @@ mod tests {
                 marker_weight: 1.0,
                 force_weight: 1.0,
                 free_marker_offsets: false,
+                phi_precision: 0.0,
             };
             let (best, tried) = scan(&model, &mat, &obs).unwrap();
             assert_eq!(best, r, "{tried:?}");

@@ -33,6 +33,7 @@
 
 use palpate_motion::dataset::MotionDataset;
 use palpate_motion::model::{Material, ParamKind};
+use palpate_motion::optimize::precision;
 use palpate_motion::refine::marker_paths;
 use serde::Serialize;
 
@@ -269,6 +270,13 @@ fn null_data(
     for row in &mut null.obs.forces {
         row.iter_mut().for_each(|f| *f = None);
     }
+    // The null's fits are held to the precision of the data's (a tenth of one residual's share
+    // of the current fit's Φ = ½ w Δt χ²), not to their own Φ's, which is the mesh's error
+    // alone and a small fraction of it: a candidate's gain on the null is set against the data's
+    // χ², where a finer gain cannot move a verdict.
+    let s = &cur.scores;
+    let weight = ds.obs.marker_weight * ds.model.observation_interval();
+    null.obs.phi_precision = precision(s.n_fit) * 0.5 * weight * s.chi2_fit;
     Ok((null, simulations))
 }
 

@@ -355,6 +355,7 @@ fn strip(data: &[(f64, f64, f64)], dt: f64) -> anyhow::Result<(Model, Observatio
         marker_weight: 1.0,
         force_weight: 1.0,
         free_marker_offsets: false,
+        phi_precision: 0.0,
     };
     Ok((model, obs))
 }

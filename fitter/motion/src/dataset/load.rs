@@ -75,6 +75,7 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
         marker_weight: config.marker_weight.unwrap_or(1.0),
         force_weight: config.force_weight.unwrap_or(1.0),
         free_marker_offsets: false,
+        phi_precision: 0.0,
     };
     if let Some((_, rows)) = &traj {
         read_series(&jf, rows, dt, &MARKER_POSITIONS, &mut obs.markers, |name| {

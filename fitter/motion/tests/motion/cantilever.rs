@@ -327,6 +327,7 @@ fn substeps_chosen_from_the_ring_down_remove_bdf2s_period_error() {
         marker_weight: 1.0,
         force_weight: 1.0,
         free_marker_offsets: false,
+        phi_precision: 0.0,
     };
     // The tip's vertical motion at every capture frame, integrated with k substeps.
     let ring = |k: usize| {
