@@ -167,6 +167,14 @@ pub struct TrustOptions {
     pub probe_bounds: u64,
 }
 
+impl TrustOptions {
+    /// The smallest decrease of Φ that counts at Φ = `phi` for a tolerance of `fraction` of Φ:
+    /// that fraction, or Φ's absolute precision where it is larger.
+    fn least_gain(&self, fraction: f64, phi: f64) -> f64 {
+        (fraction * phi).max(self.abs_tolerance)
+    }
+}
+
 /// Where [`minimise_trust_region`] stopped.
 #[derive(Debug, Clone)]
 pub struct TrustOutcome {
@@ -400,7 +408,7 @@ pub fn minimise_trust_region(
         let other = model_decrease(if augmented { hm } else { sm }, gm, &step);
         // A NaN prediction (a model that cannot say) counts as no decrease. A step stopped on a
         // bound says nothing of the minimum: the next iteration starts on the bound.
-        let tolerance = (o.rel_tolerance * phi).max(o.abs_tolerance);
+        let tolerance = o.least_gain(o.rel_tolerance, phi);
         let small = hit.is_empty()
             && predicted.partial_cmp(&tolerance) != Some(std::cmp::Ordering::Greater);
         let stalled = gained <= tolerance;
@@ -471,7 +479,7 @@ pub fn minimise_trust_region(
                     }
                 }
             }
-            Some(_) if trusted && predicted < (o.noise_tolerance * phi).max(o.abs_tolerance) => {
+            Some(_) if trusted && predicted < o.least_gain(o.noise_tolerance, phi) => {
                 converged = true;
                 break;
             }
@@ -635,7 +643,7 @@ pub fn minimise_restarting(
         };
         let (step, _) = within_bounds(&out.theta, lower, trust_region_step(h, g, o.initial_radius));
         let promised = model_decrease(h, g, &step);
-        if promised.is_nan() || promised <= (o.noise_tolerance * phi).max(o.abs_tolerance) {
+        if promised.is_nan() || promised <= o.least_gain(o.noise_tolerance, phi) {
             break;
         }
         log::debug!(
@@ -652,7 +660,7 @@ pub fn minimise_restarting(
             lower,
         );
         iterations += out.iterations;
-        if phi - out.normal.phi <= (o.rel_tolerance * phi).max(o.abs_tolerance) {
+        if phi - out.normal.phi <= o.least_gain(o.rel_tolerance, phi) {
             break;
         }
     }
@@ -724,16 +732,19 @@ mod tests {
         assert!((out.theta[0] - 1.0).abs() < 1e-3, "{:?}", out.theta);
     }
 
+    /// Rosenbrock's function as residuals r = (10 (θ₁ − θ₀²), 1 − θ₀), minimum 0 at (1, 1).
+    fn rosenbrock(t: &[f64]) -> Normal {
+        normal(
+            &[10.0 * (t[1] - t[0] * t[0]), 1.0 - t[0]],
+            &[-20.0 * t[0], 10.0, -1.0, 0.0],
+            2,
+        )
+    }
+
     /// The trust-region form on Rosenbrock (a zero residual): the minimum (1, 1).
     #[test]
     fn trust_region_finds_the_rosenbrock_minimum() {
-        let eval = |t: &[f64]| {
-            normal(
-                &[10.0 * (t[1] - t[0] * t[0]), 1.0 - t[0]],
-                &[-20.0 * t[0], 10.0, -1.0, 0.0],
-                2,
-            )
-        };
+        let eval = rosenbrock;
         let o = TrustOptions {
             max_iterations: 200,
             rel_tolerance: 1e-14,
@@ -764,13 +775,7 @@ mod tests {
     /// a restart does not step on below it.
     #[test]
     fn an_absolute_tolerance_stops_a_noise_free_fit_at_its_precision() {
-        let eval = |t: &[f64]| {
-            normal(
-                &[10.0 * (t[1] - t[0] * t[0]), 1.0 - t[0]],
-                &[-20.0 * t[0], 10.0, -1.0, 0.0],
-                2,
-            )
-        };
+        let eval = rosenbrock;
         let run = |abs_tolerance: f64| {
             let o = TrustOptions {
                 max_iterations: 200,
