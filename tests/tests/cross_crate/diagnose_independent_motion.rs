@@ -100,6 +100,30 @@ fn assert_the_mesh_leaves_the_rest(r: &MotionDiagnosis, floor: f64) {
     assert!(!verdict.starts_with("clean"), "{verdict}");
 }
 
+/// The screen keeps its promises: each candidate fitted that the screen predicted to gain at
+/// least the gate's threshold gains at least half the ΔBIC predicted, or comes within twice the
+/// threshold of it. At the simplest fit of the late clamp record the current parameters' own
+/// Gauss–Newton step promises ΔBIC −330.5 and does not simulate; with that promise in every
+/// candidate's, the stiffening was predicted −706.9 for a fit that gains −200.7, and is now
+/// predicted by its gain beyond that step, −293.3.
+fn assert_the_screen_keeps_its_promises(r: &MotionDiagnosis) {
+    let threshold = MotionOptions::default().bic_threshold;
+    for round in &r.rounds {
+        for t in round.trials.iter().filter(|t| t.fitted) {
+            let Some(p) = t.predicted_delta_bic.filter(|p| *p < -threshold) else {
+                continue;
+            };
+            assert!(
+                t.delta_bic <= 0.5 * p || t.delta_bic <= p + 2.0 * threshold,
+                "round {}: {} predicted ΔBIC {p:.1}, its fit gains {:.1}",
+                round.round,
+                t.candidate,
+                t.delta_bic
+            );
+        }
+    }
+}
+
 /// The clamp's record two capture frames (40 ms) late: the time offset is adopted first and
 /// recovered to the step (measured −40.0 ms, asserted within half a capture frame of the
 /// injected −40 ms), the forecast improves tenfold (measured 3,450.8 → 350.4 µm held out,
@@ -140,6 +164,7 @@ fn independent_clamp_recorded_late_is_given_its_time_offset() {
         r.adopted
     );
     assert_the_mesh_leaves_the_rest(&r, floor(&t));
+    assert_the_screen_keeps_its_promises(&r);
 }
 
 /// The same draw as generated: no time offset (the scan finds none), viscosity adopted (the
@@ -162,4 +187,5 @@ fn independent_cylinder_as_generated_is_given_its_damping_and_no_offset() {
         r.adopted
     );
     assert_the_mesh_leaves_the_rest(&r, floor(&t));
+    assert_the_screen_keeps_its_promises(&r);
 }

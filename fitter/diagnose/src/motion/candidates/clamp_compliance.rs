@@ -157,10 +157,12 @@ impl MotionEffect for ClampCompliance {
             });
         }
         let change = screen::change(parts, &cols, &delta)[0];
-        let chi2 = motion_screen::stepped_chi2(s.cur, &normal, chi2_sim, change);
+        let chi2 = s.beyond_own(motion_screen::stepped_chi2(
+            s.cur, &normal, chi2_sim, change,
+        ));
         Ok(Prediction {
             delta_bic: Some(s.delta_bic(chi2, extra)),
-            how: "one Gauss–Newton step from the layer at the body's μ".into(),
+            how: s.how_beyond_own("one Gauss–Newton step from the layer at the body's μ"),
         })
     }
 

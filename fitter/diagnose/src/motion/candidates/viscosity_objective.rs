@@ -78,7 +78,12 @@ impl MotionEffect for ViscosityObjective {
     fn predict(&self, s: &Screening<'_, '_>) -> Result<Prediction, MotionDiagnoseError> {
         let mut cur = s.cur.clone();
         cur.material.viscous_form = Form::Objective;
-        let own = Screening::new(s.model, &cur, &[Candidate::ViscosityObjective])?;
+        let own = Screening::linearised_at(
+            s.model,
+            &cur,
+            &[Candidate::ViscosityObjective],
+            Some(s.unrealised()),
+        )?;
         s.count(1);
         Ok(own.linearised(
             &[ParamKind::Nu],
