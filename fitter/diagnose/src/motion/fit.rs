@@ -529,6 +529,42 @@ impl FittedModel {
     }
 }
 
+/// For tests: a drawn specimen of the example bar (`models/motion-example`) with `effect`, its
+/// split (the last quarter held out) and its one-material fit of λ and μ from the starting
+/// values, as a round's current fit.
+#[cfg(test)]
+pub(crate) fn fitted_specimen(
+    effect: palpate_specimen::motion::MotionEffect,
+    seed: u64,
+) -> (MotionDataset, Split, FittedModel) {
+    let base = palpate_motion::dataset::load(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/motion-example"),
+    )
+    .unwrap();
+    let (ds, _) = palpate_specimen::motion::motion_specimen(&base, effect, seed).unwrap();
+    let steps = ds.model.steps;
+    let split = Split {
+        fit_steps: steps * 3 / 4,
+        steps,
+    };
+    let ne = ds.model.tets.len();
+    let start = palpate_motion::start::initial_values(&ds, None);
+    let density = ds.config.density.unwrap_or(1000.0);
+    let mat = Material::uniform(ne, start.lambda, start.mu, 0.0, 1.0, density);
+    let kinds = [ParamKind::Lambda, ParamKind::Mu];
+    let cur = fit_model(
+        &ds,
+        split,
+        &mat,
+        &kinds,
+        &[vec![start.lambda, start.mu]],
+        30,
+        15,
+    )
+    .unwrap();
+    (ds, split, cur)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -83,12 +83,10 @@ pub(in crate::motion) fn predicted_chi2(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::motion::fit::{fit_model, Split};
+    use crate::motion::fit::fitted_specimen;
     use crate::motion::region::locate;
     use crate::motion::MotionOptions;
-    use palpate_motion::dataset::load;
-    use palpate_motion::model::Material;
-    use palpate_specimen::motion::{motion_specimen, MotionEffect};
+    use palpate_specimen::motion::MotionEffect;
 
     /// The prediction of a cut folded from the bands is the one the cut's own region gives:
     /// the one-material fit of a drawn two-material bar, linearised once with every band's μ
@@ -97,31 +95,8 @@ mod tests {
     /// so the agreement checks the folding, not a shared computation.
     #[test]
     fn a_cut_folded_from_the_bands_is_predicted_as_its_own_region() {
-        let base = load(
-            &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/motion-example"),
-        )
-        .unwrap();
-        let (ds, _) = motion_specimen(&base, MotionEffect::TwoMaterial, 2).unwrap();
-        let steps = ds.model.steps;
-        let split = Split {
-            fit_steps: steps * 3 / 4,
-            steps,
-        };
-        let ne = ds.model.tets.len();
-        let start = palpate_motion::start::initial_values(&ds, None);
-        let density = ds.config.density.unwrap_or(1000.0);
-        let mat = Material::uniform(ne, start.lambda, start.mu, 0.0, 1.0, density);
-        let kinds = [ParamKind::Lambda, ParamKind::Mu];
-        let cur = fit_model(
-            &ds,
-            split,
-            &mat,
-            &kinds,
-            &[vec![start.lambda, start.mu]],
-            30,
-            15,
-        )
-        .unwrap();
+        let (ds, split, cur) = fitted_specimen(MotionEffect::TwoMaterial, 2);
+        let kinds = cur.kinds.clone();
         let family = locate(&ds, split, &cur)
             .unwrap()
             .expect("a map of two signs");

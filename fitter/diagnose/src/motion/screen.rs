@@ -414,10 +414,9 @@ pub(in crate::motion) fn predict(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::motion::fit::{fit_model, Split};
+    use crate::motion::fit::fitted_specimen;
     use crate::motion::MotionOptions;
-    use palpate_motion::dataset::load;
-    use palpate_specimen::motion::{motion_specimen, MotionEffect};
+    use palpate_specimen::motion::MotionEffect;
 
     /// The simulation that checks the current parameters' own step reads the same Φ as the
     /// linearisation it checks: at the linearisation's own point (a step of length 0) the two
@@ -428,31 +427,7 @@ mod tests {
     /// (measured: 4·10⁻⁶ of Φ, a ΔBIC of 0.004; the smallest promise checked is ΔBIC 10).
     #[test]
     fn a_step_of_length_zero_simulates_the_linearisations_misfit() {
-        let base = load(
-            &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/motion-example"),
-        )
-        .unwrap();
-        let (ds, _) = motion_specimen(&base, MotionEffect::Viscosity, 1).unwrap();
-        let steps = ds.model.steps;
-        let split = Split {
-            fit_steps: steps * 3 / 4,
-            steps,
-        };
-        let ne = ds.model.tets.len();
-        let start = palpate_motion::start::initial_values(&ds, None);
-        let density = ds.config.density.unwrap_or(1000.0);
-        let mat = Material::uniform(ne, start.lambda, start.mu, 0.0, 1.0, density);
-        let kinds = [ParamKind::Lambda, ParamKind::Mu];
-        let cur = fit_model(
-            &ds,
-            split,
-            &mat,
-            &kinds,
-            &[vec![start.lambda, start.mu]],
-            30,
-            15,
-        )
-        .unwrap();
+        let (ds, split, cur) = fitted_specimen(MotionEffect::Viscosity, 1);
         let o = MotionOptions::default();
         let log = |_: &str| {};
         let m = MotionModel::new(&ds, split, &o, &log);
