@@ -305,6 +305,7 @@ impl CandidateModel for MotionModel<'_> {
         // The round's null, should a passing candidate need it, is made beside the fits: it
         // reads only the current model, and the fits seldom keep both cores busy to the end.
         let null = self.wants_null(round, batch).then_some(&self.fine);
+        let prior_scale = self.null_scale();
         let this = &*self;
         let fits = || {
             select::fit_ahead(
@@ -329,7 +330,12 @@ impl CandidateModel for MotionModel<'_> {
         };
         let (results, made) = rayon::join(fits, || match null {
             Some(Ok(fine)) => Some(super::mesh_null::make_null(
-                this.ds, this.split, this.o, fine, cur,
+                this.ds,
+                this.split,
+                this.o,
+                fine,
+                cur,
+                prior_scale,
             )),
             _ => None,
         });

@@ -296,17 +296,37 @@ fn scaled(m: &Material, s: f64) -> Material {
     m
 }
 
+/// The half-width in ln s of the bracket [`modulus_scale`] searches about an earlier null's
+/// scale: the refined mesh's softness is the mesh's, and moves little with the model fitted on
+/// it (by 0.6–1.7 % from one round's null to the next on draws 001, 002 and 007 of the motion
+/// confusion plan, about × 0.8).
+const PRIOR_BRACKET: f64 = 0.1;
+
+/// Golden sections of the bracket about an earlier null's scale: its width 0.2 falls to
+/// 0.2 · 0.618⁴ ≈ 0.03 in ln s, where [`SEARCHES`] leave the whole range's 3.7.
+const PRIOR_SEARCHES: usize = 4;
+
+/// Golden sections of the whole range [`SCALE_BOUNDS`].
+const SEARCHES: usize = 10;
+
 /// The scale of the current model's moduli at which the dataset mesh best fits the null, and
-/// the simulations it took: a golden-section search in ln s over [`SCALE_BOUNDS`] on the
-/// fitted steps' χ², forward simulations only. The refined mesh is softer than the dataset's,
-/// by as much as locking makes it (× 0.81 and × 0.72 at the current fits of the independent
-/// generator's 1,267- and 1,412-tet cylinders): the refit of the current model on the null
-/// starts there instead of crawling from the dataset mesh's moduli. The markers' means stay in
-/// the χ² even where the model frees their offsets (the null has none): the static sag is what
-/// pins the scale, and with it removed the search ran to its bound of 1/20 on seven of the
-/// independent generator's 24 cylinders with offsets adopted (a body too soft to swing leaves
-/// less than one swinging out of phase).
-fn modulus_scale(null: &MotionDataset, split: Split, cur: &FittedModel) -> (f64, usize) {
+/// the simulations it took: a golden-section search in ln s on the fitted steps' χ², forward
+/// simulations only, over a bracket about `prior` (an earlier round's null's scale) where
+/// there is one and the search does not end at the bracket's edge, otherwise over
+/// [`SCALE_BOUNDS`]. The refined mesh is softer than the dataset's, by as much as locking makes
+/// it (× 0.81 and × 0.72 at the current fits of the independent generator's 1,267- and
+/// 1,412-tet cylinders): the refit of the current model on the null starts there instead of
+/// crawling from the dataset mesh's moduli. The markers' means stay in the χ² even where the
+/// model frees their offsets (the null has none): the static sag is what pins the scale, and
+/// with it removed the search ran to its bound of 1/20 on seven of the independent generator's
+/// 24 cylinders with offsets adopted (a body too soft to swing leaves less than one swinging out
+/// of phase).
+fn modulus_scale(
+    null: &MotionDataset,
+    split: Split,
+    cur: &FittedModel,
+    prior: Option<f64>,
+) -> (f64, usize) {
     let (model, obs) = fitted_part(null, split);
     let chi2 = |ln_s: f64| -> f64 {
         let Ok(t) = run_trajectory(&model, &scaled(&cur.material, ln_s.exp()), &obs) else {
@@ -319,25 +339,44 @@ fn modulus_scale(null: &MotionDataset, split: Split, cur: &FittedModel) -> (f64,
             .map(|e| e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
             .sum()
     };
-    const GOLDEN: f64 = 0.618_033_988_749_895;
-    const SEARCHES: usize = 10;
-    let (mut a, mut b) = (SCALE_BOUNDS.0.ln(), SCALE_BOUNDS.1.ln());
+    let (lo, hi) = (SCALE_BOUNDS.0.ln(), SCALE_BOUNDS.1.ln());
+    let mut simulations = 0;
+    if let Some(p) = prior.filter(|p| p.ln() - PRIOR_BRACKET > lo && p.ln() + PRIOR_BRACKET < hi) {
+        let (a, b) = (p.ln() - PRIOR_BRACKET, p.ln() + PRIOR_BRACKET);
+        let (ln_s, n) = golden_section(&chi2, a, b, PRIOR_SEARCHES);
+        simulations += n;
+        // Ended within its last section of an edge: the minimum may lie outside the bracket.
+        let last = (b - a) * GOLDEN.powi(PRIOR_SEARCHES as i32);
+        if ln_s - a > last && b - ln_s > last {
+            return (ln_s.exp(), simulations);
+        }
+    }
+    let (ln_s, n) = golden_section(&chi2, lo, hi, SEARCHES);
+    (ln_s.exp(), simulations + n)
+}
+
+/// The golden ratio's conjugate, the share of a bracket each section keeps.
+const GOLDEN: f64 = 0.618_033_988_749_895;
+
+/// The better of the two interior points after `searches` golden sections of [a, b] on `f`,
+/// and the evaluations it took (`searches` + 2).
+fn golden_section(f: &dyn Fn(f64) -> f64, a: f64, b: f64, searches: usize) -> (f64, usize) {
+    let (mut a, mut b) = (a, b);
     let mut c = b - GOLDEN * (b - a);
     let mut d = a + GOLDEN * (b - a);
-    let (mut fc, mut fd) = (chi2(c), chi2(d));
-    for _ in 0..SEARCHES {
+    let (mut fc, mut fd) = (f(c), f(d));
+    for _ in 0..searches {
         if fc <= fd {
             (b, d, fd) = (d, c, fc);
             c = b - GOLDEN * (b - a);
-            fc = chi2(c);
+            fc = f(c);
         } else {
             (a, c, fc) = (c, d, fd);
             d = a + GOLDEN * (b - a);
-            fd = chi2(d);
+            fd = f(d);
         }
     }
-    let ln_s = if fc <= fd { c } else { d };
-    (ln_s.exp(), SEARCHES + 2)
+    (if fc <= fd { c } else { d }, searches + 2)
 }
 
 /// The null at the current model `cur` on the refined model `fine`, and the current model
@@ -350,6 +389,7 @@ pub(super) fn make_null(
     o: &MotionOptions,
     fine: &Refined,
     cur: &FittedModel,
+    prior_scale: Option<f64>,
 ) -> Result<NullRound, String> {
     let refined_tets = fine.model.tets.len();
     let (data, made) = null_data(ds, fine, cur)
@@ -357,7 +397,11 @@ pub(super) fn make_null(
     // On the null the markers are in step with the simulation and carry no offset: the
     // current model is refitted as it stands, its offsets (if adopted) free again, from its
     // moduli scaled to the softer refined object.
-    let (scale, scans) = modulus_scale(&data, split, cur);
+    let (scale, scans) = modulus_scale(&data, split, cur, prior_scale);
+    log::debug!(
+        "mesh null: the moduli × {scale:.4} ({scans} simulations; the last null's × {})",
+        prior_scale.map_or("none".into(), |p| format!("{p:.4}"))
+    );
     let material = scaled(&cur.material, scale);
     let start: Vec<f64> = cur
         .values
@@ -411,6 +455,15 @@ impl MotionModel<'_> {
                 .any(|c| c.effect().mimics_mesh_error() && promising.contains(c))
     }
 
+    /// The modulus scale of the last null made, where one was made: where the next null's
+    /// search starts ([`modulus_scale`]).
+    pub(super) fn null_scale(&self) -> Option<f64> {
+        match &self.null {
+            Some((_, Ok(n))) => Some(n.scale),
+            _ => None,
+        }
+    }
+
     /// Keeps round `round`'s null (made at the current model `cur`) and, from the first one made,
     /// what it says of the fitted parameters ([`MeshBias`]).
     pub(super) fn keep_null(
@@ -444,7 +497,7 @@ impl MotionModel<'_> {
     fn null_round(&mut self, round: usize, cur: &FittedModel) -> Result<&mut NullRound, String> {
         if self.null.as_ref().is_none_or(|(r, _)| *r != round) {
             let made = match &self.fine {
-                Ok(fine) => make_null(self.ds, self.split, self.o, fine, cur),
+                Ok(fine) => make_null(self.ds, self.split, self.o, fine, cur, self.null_scale()),
                 Err(why) => Err(format!("the mesh's error was not estimated: {why}")),
             };
             self.keep_null(round, cur, made);
@@ -663,8 +716,17 @@ mod tests {
             fit_steps: 20,
             steps,
         };
-        let (s, simulations) = modulus_scale(&ds, split, &cur);
+        let (s, simulations) = modulus_scale(&ds, split, &cur, None);
         assert!((s / 0.5 - 1.0).abs() < 0.03, "scale {s}");
         assert_eq!(simulations, 12);
+        // About an earlier null's scale near the half: the half again, in half the simulations.
+        let (near, simulations) = modulus_scale(&ds, split, &cur, Some(0.53));
+        assert!((near / 0.5 - 1.0).abs() < 0.03, "scale {near} from 0.53");
+        assert_eq!(simulations, 6);
+        // About a scale whose bracket misses the half: the search ends at its edge and the whole
+        // range is searched after it.
+        let (far, simulations) = modulus_scale(&ds, split, &cur, Some(0.8));
+        assert!((far / 0.5 - 1.0).abs() < 0.03, "scale {far} from 0.8");
+        assert_eq!(simulations, 18);
     }
 }
