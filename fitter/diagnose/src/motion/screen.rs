@@ -19,7 +19,7 @@
 //! that step promises a gain no refit finds, and each candidate's prediction carries it. The
 //! screen simulates that step once a round where it promises more than the gate's threshold
 //! (`Screening::new`); where it realises less than a quarter of its promise (`POOR_STEP`),
-//! each candidate is predicted by its gain beyond it (`Screening::beyond_own`), the score
+//! each candidate is predicted by its gain beyond it (`Screening::predicted`), the score
 //! statistic's increment over the current parameters' own.
 
 use std::cell::Cell;
@@ -117,12 +117,13 @@ impl<'m, 'a> Screening<'m, 'a> {
             return Ok(screening);
         }
         let params = fit::params_for(&screening.kinds, &mat);
-        let (normal, chi2_sim) = linearise(model, cur, &mat, &params)?;
+        let seen = as_seen(model, cur)?;
+        let (normal, chi2_sim) = linearise_seen(&seen, &mat, &params)?;
         screening.count(1);
         screening.chi2_sim = chi2_sim;
         if unrealised.is_none() {
             (screening.unrealised, screening.own_step) =
-                screening.own_step_unrealised(&normal, &mat, &params)?;
+                screening.own_step_unrealised(&seen, &normal, &mat, &params)?;
         }
         screening.normal = Some(normal);
         Ok(screening)
@@ -136,6 +137,7 @@ impl<'m, 'a> Screening<'m, 'a> {
     /// simulate realises nothing.
     fn own_step_unrealised(
         &self,
+        seen: &(Model, Observations),
         normal: &Normal,
         mat: &Material,
         params: &[Param],
@@ -161,7 +163,7 @@ impl<'m, 'a> Screening<'m, 'a> {
                 q[col] += t * d;
             }
             self.count(1);
-            match simulated_phi(self.model, self.cur, mat, params, &q) {
+            match simulated_phi(seen, mat, params, &q) {
                 Ok(phi) => {
                     let chi2 = stepped_chi2(self.cur, normal, self.chi2_sim, phi - normal.phi);
                     realised = realised.max(chi2_fit - chi2);
@@ -196,26 +198,25 @@ impl<'m, 'a> Screening<'m, 'a> {
         Ok((if unrealised { promised } else { 0.0 }, Some(note)))
     }
 
-    /// The χ² predicted for a candidate (`chi2`, from a step over the current parameters and its
-    /// own) less the current parameters' unrealised drop: its gain beyond their own step, no
-    /// lower than none.
-    pub(in crate::motion) fn beyond_own(&self, chi2: f64) -> f64 {
-        if self.unrealised > 0.0 {
-            (chi2 + self.unrealised).min(self.cur.scores.chi2_fit)
-        } else {
-            chi2
-        }
-    }
-
-    /// `how` a prediction was made, saying so where it is the gain beyond the current
-    /// parameters' own step ([`Self::beyond_own`]).
-    pub(in crate::motion) fn how_beyond_own(&self, how: &str) -> String {
-        if self.unrealised > 0.0 {
-            format!(
-                "{how}; its gain beyond the current parameters' own step, which does not realise"
+    /// The prediction of a candidate that adds `extra` parameters, whose step over the current
+    /// parameters and its own leaves χ² = `chi2` on the fitted steps ([`stepped_chi2`]), made as
+    /// `how` says: where the current parameters' own step does not realise, its gain beyond that
+    /// step (the unrealised drop added back, no worse than the current fit), and `how` says so.
+    pub(in crate::motion) fn predicted(&self, chi2: f64, extra: usize, how: &str) -> Prediction {
+        let (chi2, how) = if self.unrealised > 0.0 {
+            (
+                (chi2 + self.unrealised).min(self.cur.scores.chi2_fit),
+                format!(
+                    "{how}; its gain beyond the current parameters' own step, which does not \
+                     realise"
+                ),
             )
         } else {
-            how.to_string()
+            (chi2, how.to_string())
+        };
+        Prediction {
+            delta_bic: Some(self.delta_bic(chi2, extra)),
+            how,
         }
     }
 
@@ -288,11 +289,11 @@ impl<'m, 'a> Screening<'m, 'a> {
             }
         }
         let change = screen::change(parts, &cols, &delta)[0];
-        let chi2 = self.beyond_own(stepped_chi2(self.cur, normal, self.chi2_sim, change));
-        Prediction {
-            delta_bic: Some(self.delta_bic(chi2, extra)),
-            how: self.how_beyond_own(&how),
-        }
+        self.predicted(
+            stepped_chi2(self.cur, normal, self.chi2_sim, change),
+            extra,
+            &how,
+        )
     }
 }
 
@@ -305,8 +306,17 @@ pub(in crate::motion) fn linearise(
     mat: &Material,
     params: &[Param],
 ) -> Result<(Normal, f64), MotionDiagnoseError> {
-    let (m, obs) = as_seen(model, cur)?;
-    let (ev, gn) = evaluate_gauss_newton(&m, mat, params, &obs)?;
+    linearise_seen(&as_seen(model, cur)?, mat, params)
+}
+
+/// [`linearise`] on the fitted steps' model and observations `seen` as the current fit sees them
+/// ([`as_seen`]).
+fn linearise_seen(
+    (m, obs): &(Model, Observations),
+    mat: &Material,
+    params: &[Param],
+) -> Result<(Normal, f64), MotionDiagnoseError> {
+    let (ev, gn) = evaluate_gauss_newton(m, mat, params, obs)?;
     let chi2_sim = ev.rms_marker * ev.rms_marker * ev.marker_count as f64;
     let normal = Normal {
         phi: ev.phi,
@@ -317,7 +327,7 @@ pub(in crate::motion) fn linearise(
 }
 
 /// The share of its promised χ² drop below which the current parameters' own Gauss–Newton step
-/// is taken not to be realised ([`Screening::beyond_own`]): the trust region's ratio for a poor
+/// is taken not to be realised ([`Screening::predicted`]): the trust region's ratio for a poor
 /// step.
 const POOR_STEP: f64 = 0.25;
 
@@ -336,19 +346,17 @@ fn as_seen(
     Ok(fit::fitted_part(&ds, split))
 }
 
-/// Φ simulated with `params` at `q` on `mat`, on the data as the current fit `cur` sees them:
-/// one simulation, no sensitivities.
+/// Φ simulated with `params` at `q` on `mat`, on the fitted steps' model and observations `seen`
+/// as the current fit sees them ([`as_seen`]): one simulation, no sensitivities.
 fn simulated_phi(
-    model: &MotionModel<'_>,
-    cur: &FittedModel,
+    (m, obs): &(Model, Observations),
     mat: &Material,
     params: &[Param],
     q: &[f64],
 ) -> Result<f64, MotionDiagnoseError> {
     let mut mat = mat.clone();
     mat.set(params, q);
-    let (m, obs) = as_seen(model, cur)?;
-    Ok(evaluate(&m, &mat, params, &obs, None)?.phi)
+    Ok(evaluate(m, &mat, params, obs, None)?.phi)
 }
 
 /// χ² on the fitted steps after a Gauss–Newton step that changes the linearisation's Φ by
@@ -434,7 +442,8 @@ mod tests {
         let params = fit::params_for(&cur.kinds, &cur.material);
         let (normal, chi2_sim) = linearise(&m, &cur, &cur.material, &params).unwrap();
         let at = cur.material.read(&params);
-        let phi = simulated_phi(&m, &cur, &cur.material, &params, &at).unwrap();
+        let seen = as_seen(&m, &cur).unwrap();
+        let phi = simulated_phi(&seen, &cur.material, &params, &at).unwrap();
         assert!(
             (phi / normal.phi - 1.0).abs() < 2e-5,
             "Φ {phi:e} simulated, {:e} linearised",

@@ -157,13 +157,11 @@ impl MotionEffect for ClampCompliance {
             });
         }
         let change = screen::change(parts, &cols, &delta)[0];
-        let chi2 = s.beyond_own(motion_screen::stepped_chi2(
-            s.cur, &normal, chi2_sim, change,
-        ));
-        Ok(Prediction {
-            delta_bic: Some(s.delta_bic(chi2, extra)),
-            how: s.how_beyond_own("one Gauss–Newton step from the layer at the body's μ"),
-        })
+        Ok(s.predicted(
+            motion_screen::stepped_chi2(s.cur, &normal, chi2_sim, change),
+            extra,
+            "one Gauss–Newton step from the layer at the body's μ",
+        ))
     }
 
     /// The layer's μ, its thickness, and the interface it stands for.

@@ -83,14 +83,15 @@ impl MotionEffect for TwoMaterial {
         };
         let prediction = match &found.ranked {
             Ok(ranked) => match ranked.first() {
-                Some(&(cut, chi2)) => Prediction {
-                    delta_bic: Some(s.delta_bic(s.beyond_own(chi2), extra)),
-                    how: s.how_beyond_own(&format!(
+                Some(&(cut, chi2)) => s.predicted(
+                    chi2,
+                    extra,
+                    &format!(
                         "one Gauss–Newton step with a second material on the best of {} level \
                          sets of the sensitivity map (cut {cut})",
                         ranked.len()
-                    )),
-                },
+                    ),
+                ),
                 None => Prediction::none("no cut ranked: always fitted"),
             },
             Err(why) => Prediction::none(&format!(
