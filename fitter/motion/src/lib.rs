@@ -16,6 +16,7 @@
 //! - [`spline`], [`elastic`]: the principal-stretch spline material of §4.2 (eqs. 18–20) and the
 //!   per-element switch between it and Neo-Hookean;
 //! - [`export`]: a motion fit as a runtime model (Lamé → thesis (λ, α));
+//! - [`golden_section`]: a one-parameter search without gradients;
 //! - [`predict`], [`validation`]: a run predicted from a fitted material and its linear
 //!   baseline; a fitted model validated on a run, its table, JSON line and files.
 
@@ -26,6 +27,7 @@ pub mod export;
 pub mod fitted;
 mod force_lanes;
 pub mod forces;
+pub mod golden_section;
 pub mod gradient;
 pub mod hyperelastic;
 pub mod load_point;

@@ -282,6 +282,7 @@ pub fn fit_equilibria(
     poisson: f64,
     mu0: f64,
 ) -> Result<(f64, f64, f64), MotionError> {
+    use super::golden_section::{golden_section, Stop};
     use super::model::{Param, ParamKind};
     let ratio = 2.0 * poisson / (1.0 - 2.0 * poisson);
     let targets: Vec<Vec<Option<[f64; 3]>>> =
@@ -310,27 +311,7 @@ pub fn fit_equilibria(
         }
         Ok((sq, n))
     };
-    let phi = 0.5 * (5f64.sqrt() - 1.0);
-    let (mut a, mut b) = (-2.0f64, 2.0f64);
-    let mut c = b - phi * (b - a);
-    let mut d = a + phi * (b - a);
-    let (mut fc, mut fd) = (cost(c)?.0, cost(d)?.0);
-    while b - a > 1e-4 {
-        if fc < fd {
-            b = d;
-            d = c;
-            fd = fc;
-            c = b - phi * (b - a);
-            fc = cost(c)?.0;
-        } else {
-            a = c;
-            c = d;
-            fc = fd;
-            d = a + phi * (b - a);
-            fd = cost(d)?.0;
-        }
-    }
-    let z = 0.5 * (a + b);
+    let z = golden_section(|z| Ok(cost(z)?.0), -2.0, 2.0, Stop::Width(1e-4))?.midpoint();
     let (s0, n) = cost(z)?;
     let h = 2e-2;
     let (sp, sm) = (cost(z + h)?.0, cost(z - h)?.0);

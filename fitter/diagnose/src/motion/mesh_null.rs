@@ -32,10 +32,12 @@
 //! candidate is not checked ([`super::candidates::MotionEffect::mimics_mesh_error`]).
 
 use palpate_motion::dataset::MotionDataset;
+use palpate_motion::golden_section::{golden_section, Stop, GOLDEN};
 use palpate_motion::model::{Material, ParamKind};
 use palpate_motion::optimize::precision;
 use palpate_motion::refine::marker_paths;
 use serde::Serialize;
+use std::convert::Infallible;
 
 use super::candidates::Candidate;
 use super::engine::MotionModel;
@@ -328,22 +330,26 @@ fn modulus_scale(
     prior: Option<f64>,
 ) -> (f64, usize) {
     let (model, obs) = fitted_part(null, split);
-    let chi2 = |ln_s: f64| -> f64 {
+    let chi2 = |ln_s: f64| -> Result<f64, Infallible> {
         let Ok(t) = run_trajectory(&model, &scaled(&cur.material, ln_s.exp()), &obs) else {
-            return f64::INFINITY;
+            return Ok(f64::INFINITY);
         };
-        t.res
+        Ok(t.res
             .iter()
             .flatten()
             .flatten()
             .map(|e| e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
-            .sum()
+            .sum())
+    };
+    let search = |a, b, n| {
+        let Ok(s) = golden_section(&chi2, a, b, Stop::Sections(n));
+        (s.best(), s.evaluations)
     };
     let (lo, hi) = (SCALE_BOUNDS.0.ln(), SCALE_BOUNDS.1.ln());
     let mut simulations = 0;
     if let Some(p) = prior.filter(|p| p.ln() - PRIOR_BRACKET > lo && p.ln() + PRIOR_BRACKET < hi) {
         let (a, b) = (p.ln() - PRIOR_BRACKET, p.ln() + PRIOR_BRACKET);
-        let (ln_s, n) = golden_section(&chi2, a, b, PRIOR_SEARCHES);
+        let (ln_s, n) = search(a, b, PRIOR_SEARCHES);
         simulations += n;
         // Ended within its last section of an edge: the minimum may lie outside the bracket.
         let last = (b - a) * GOLDEN.powi(PRIOR_SEARCHES as i32);
@@ -351,32 +357,8 @@ fn modulus_scale(
             return (ln_s.exp(), simulations);
         }
     }
-    let (ln_s, n) = golden_section(&chi2, lo, hi, SEARCHES);
+    let (ln_s, n) = search(lo, hi, SEARCHES);
     (ln_s.exp(), simulations + n)
-}
-
-/// The golden ratio's conjugate, the share of a bracket each section keeps.
-const GOLDEN: f64 = 0.618_033_988_749_895;
-
-/// The better of the two interior points after `searches` golden sections of [a, b] on `f`,
-/// and the evaluations it took (`searches` + 2).
-fn golden_section(f: &dyn Fn(f64) -> f64, a: f64, b: f64, searches: usize) -> (f64, usize) {
-    let (mut a, mut b) = (a, b);
-    let mut c = b - GOLDEN * (b - a);
-    let mut d = a + GOLDEN * (b - a);
-    let (mut fc, mut fd) = (f(c), f(d));
-    for _ in 0..searches {
-        if fc <= fd {
-            (b, d, fd) = (d, c, fc);
-            c = b - GOLDEN * (b - a);
-            fc = f(c);
-        } else {
-            (a, c, fc) = (c, d, fd);
-            d = a + GOLDEN * (b - a);
-            fd = f(d);
-        }
-    }
-    (if fc <= fd { c } else { d }, searches + 2)
 }
 
 /// The null at the current model `cur` on the refined model `fine`, and the current model
