@@ -63,6 +63,8 @@ pub struct Screening<'m, 'a> {
     simulations: Cell<usize>,
     /// The second material's region search the prediction ran, for the round's fit.
     region_search: std::cell::RefCell<Option<Arc<RegionSearch>>>,
+    /// The fitted steps as the current fit sees them ([`as_seen`]), made once a round.
+    seen: std::cell::OnceCell<(Model, Observations)>,
 }
 
 impl<'m, 'a> Screening<'m, 'a> {
@@ -112,18 +114,17 @@ impl<'m, 'a> Screening<'m, 'a> {
             own_step: None,
             simulations: Cell::new(0),
             region_search: Default::default(),
+            seen: Default::default(),
         };
         if screening.kinds.len() == cur.kinds.len() {
             return Ok(screening);
         }
         let params = fit::params_for(&screening.kinds, &mat);
-        let seen = as_seen(model, cur)?;
-        let (normal, chi2_sim) = linearise_seen(&seen, &mat, &params)?;
-        screening.count(1);
+        let (normal, chi2_sim) = screening.linearise(&mat, &params)?;
         screening.chi2_sim = chi2_sim;
         if unrealised.is_none() {
             (screening.unrealised, screening.own_step) =
-                screening.own_step_unrealised(&seen, &normal, &mat, &params)?;
+                screening.own_step_unrealised(screening.seen()?, &normal, &mat, &params)?;
         }
         screening.normal = Some(normal);
         Ok(screening)
@@ -241,6 +242,29 @@ impl<'m, 'a> Screening<'m, 'a> {
     pub(in crate::motion) fn delta_bic(&self, chi2: f64, extra: usize) -> f64 {
         let s = &self.cur.scores;
         select::heldout_delta_bic(s.chi2_fit, chi2, s.n_fit, extra)
+    }
+
+    /// The fitted steps as the current fit sees them ([`as_seen`]), made on first use.
+    fn seen(&self) -> Result<&(Model, Observations), MotionDiagnoseError> {
+        match self.seen.get() {
+            Some(seen) => Ok(seen),
+            None => {
+                let seen = as_seen(self.model, self.cur)?;
+                Ok(self.seen.get_or_init(|| seen))
+            }
+        }
+    }
+
+    /// One simulation with the direct sensitivities of `params` at `mat` on the data as the
+    /// current fit sees them, counted among the round's ([`linearise`]).
+    pub(in crate::motion) fn linearise(
+        &self,
+        mat: &Material,
+        params: &[Param],
+    ) -> Result<(Normal, f64), MotionDiagnoseError> {
+        let seen = self.seen()?;
+        self.count(1);
+        linearise_seen(seen, mat, params)
     }
 
     /// The prediction of a candidate whose new parameters are `kinds` (columns of the

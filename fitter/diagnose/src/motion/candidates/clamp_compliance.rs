@@ -131,16 +131,14 @@ impl MotionEffect for ClampCompliance {
             Err(why) => return Ok(Prediction::none(&why)),
         };
         let params = fit::params_for(&start.kinds, &start.material);
-        s.count(1);
-        let (normal, chi2_sim) =
-            match motion_screen::linearise(s.model, s.cur, &start.material, &params) {
-                Ok(l) => l,
-                Err(e) => {
-                    return Ok(Prediction::none(&format!(
-                        "its linearisation did not simulate ({e}): always fitted"
-                    )))
-                }
-            };
+        let (normal, chi2_sim) = match s.linearise(&start.material, &params) {
+            Ok(l) => l,
+            Err(e) => {
+                return Ok(Prediction::none(&format!(
+                    "its linearisation did not simulate ({e}): always fitted"
+                )))
+            }
+        };
         let parts = std::slice::from_ref(&normal);
         let layer_col = params.len() - 1;
         let cols: Vec<usize> = (0..params.len()).collect();
