@@ -32,7 +32,7 @@
 //! candidate is not checked ([`super::candidates::MotionEffect::mimics_mesh_error`]).
 
 use palpate_motion::dataset::MotionDataset;
-use palpate_motion::golden_section::{golden_section, Stop, GOLDEN};
+use palpate_motion::golden_section::{golden_section, Stop};
 use palpate_motion::model::{Material, ParamKind};
 use palpate_motion::optimize::precision;
 use palpate_motion::refine::marker_paths;
@@ -343,22 +343,22 @@ fn modulus_scale(
     };
     let search = |a, b, n| {
         let Ok(s) = golden_section(&chi2, a, b, Stop::Sections(n));
-        (s.best(), s.evaluations)
+        s
     };
     let (lo, hi) = (SCALE_BOUNDS.0.ln(), SCALE_BOUNDS.1.ln());
     let mut simulations = 0;
     if let Some(p) = prior.filter(|p| p.ln() - PRIOR_BRACKET > lo && p.ln() + PRIOR_BRACKET < hi) {
         let (a, b) = (p.ln() - PRIOR_BRACKET, p.ln() + PRIOR_BRACKET);
-        let (ln_s, n) = search(a, b, PRIOR_SEARCHES);
-        simulations += n;
+        let s = search(a, b, PRIOR_SEARCHES);
+        simulations += s.evaluations;
         // Ended within its last section of an edge: the minimum may lie outside the bracket.
-        let last = (b - a) * GOLDEN.powi(PRIOR_SEARCHES as i32);
+        let (ln_s, last) = (s.best(), s.b - s.a);
         if ln_s - a > last && b - ln_s > last {
             return (ln_s.exp(), simulations);
         }
     }
-    let (ln_s, n) = search(lo, hi, SEARCHES);
-    (ln_s.exp(), simulations + n)
+    let s = search(lo, hi, SEARCHES);
+    (s.best().exp(), simulations + s.evaluations)
 }
 
 /// The null at the current model `cur` on the refined model `fine`, and the current model
