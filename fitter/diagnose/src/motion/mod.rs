@@ -25,6 +25,7 @@
 pub mod candidates;
 mod engine;
 pub mod fit;
+pub mod floors;
 pub mod mesh;
 pub mod mesh_null;
 pub mod region;
@@ -213,6 +214,9 @@ pub struct MotionDiagnosis {
     /// Figures these data determine only relative to another, in words: with neither a measured
     /// force nor a known load, the moduli and the viscosity relative to the density held.
     pub relative: Vec<String>,
+    /// The final model's fitted parameters that ended on their floors, and what that means
+    /// ([`floors`]).
+    pub on_floor: Vec<floors::OnFloor>,
     /// Options used.
     pub options: MotionOptions,
     /// The rule, in words.
@@ -542,12 +546,14 @@ pub fn diagnose(
     let mut sp_b = Vec::new();
     let final_signature = signature(ds, split, &cur);
     sp_b.extend(signature(ds, split, &simplest).speed_bins);
+    let after_values = values_of(&cur, &ds.model);
     Ok(MotionDiagnosis {
         dataset: label.to_string(),
         size: (ne, ds.model.markers.len(), steps, ds.model.dt),
         split,
         density_declared: ds.config.density.is_some(),
         relative: relative_figures(ds, &adopted, &cur),
+        on_floor: floors::of_values(&after_values),
         options: o.clone(),
         rule: format!(
             "BIC = n ln(χ²/n) + k ln n over the n scalar marker residuals (unknown noise \
@@ -572,7 +578,7 @@ pub fn diagnose(
         adopted: adopted.iter().map(|c| c.name().to_string()).collect(),
         before_values: values_of(&simplest, &ds.model),
         before: simplest.scores,
-        after_values: values_of(&cur, &ds.model),
+        after_values,
         after: cur.scores,
         speed_before: sp_b,
         speed_after: final_signature.speed_bins.clone(),

@@ -1,5 +1,6 @@
 //! Report of a motion diagnosis: `diagnosis.md`, `diagnosis.json`, `residual-vs-speed.svg`.
 
+use super::floors::{of_values, OnFloor};
 use super::{MotionDiagnoseError, MotionDiagnosis, Value};
 use crate::json;
 use palpate_fem::names::Elastic;
@@ -43,15 +44,21 @@ fn value_sd(v: &Value) -> (String, String, Option<String>) {
     (name, value, v.sigma.map(|_| sd))
 }
 
-fn value_table(md: &mut String, vals: &[Value]) {
+/// A table of `vals`; a value named in `on_floor` is marked as on its floor, its 1σ too.
+fn value_table(md: &mut String, vals: &[Value], on_floor: &[OnFloor]) {
     md.push_str("| parameter | value | 1σ |\n|---|---|---|\n");
+    let floored = |v: &Value| on_floor.iter().any(|f| f.parameter == v.name);
     for v in vals {
         let (name, value, sd) = value_sd(v);
-        let _ = writeln!(
-            md,
-            "| {name} | {value} | {} |",
-            sd.as_deref().unwrap_or("—")
-        );
+        let (value, sd) = match (floored(v), sd) {
+            (true, Some(sd)) => (
+                format!("{value} (on its floor)"),
+                format!("{sd} (the curvature there)"),
+            ),
+            (true, None) => (format!("{value} (on its floor)"), "—".into()),
+            (false, sd) => (value, sd.unwrap_or_else(|| "—".into())),
+        };
+        let _ = writeln!(md, "| {name} | {value} | {sd} |");
     }
     let value = |kind: ParamKind| {
         vals.iter()
@@ -60,11 +67,19 @@ fn value_table(md: &mut String, vals: &[Value]) {
     };
     if let (Some(l), Some(m)) = (value(ParamKind::Lambda), value(ParamKind::Mu)) {
         let e = Elastic::from_lame(l, m);
+        let lambda_floored = on_floor
+            .iter()
+            .any(|f| f.parameter == ParamKind::Lambda.name());
         let _ = writeln!(
             md,
-            "\nYoung's modulus E = {}, Poisson's ratio ν = {:.4} (from Lamé's λ and μ).",
+            "\nYoung's modulus E = {}, Poisson's ratio ν = {:.4} (from Lamé's λ and μ{}).",
             numbers::pressure(e.young_modulus_pa),
-            e.poisson_ratio
+            e.poisson_ratio,
+            if lambda_floored {
+                "; λ on its floor: ν is not measured"
+            } else {
+                ""
+            }
         );
     }
 }
@@ -91,6 +106,9 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
     for w in &r.relative {
         let _ = writeln!(md, "**Relative figures**: {w}.\n");
     }
+    for f in &r.on_floor {
+        let _ = writeln!(md, "**On a floor**: {}.\n", f.statement);
+    }
     md.push_str("| marker error | simplest (elastic) | final | \n|---|---|---|\n");
     let _ = writeln!(
         md,
@@ -106,7 +124,7 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
     );
     let _ = writeln!(md, "**Rule**: {}\n", r.rule);
     md.push_str("## Simplest model: Neo-Hookean, viscosity = 0 held fixed\n\n");
-    value_table(&mut md, &r.before_values);
+    value_table(&mut md, &r.before_values, &of_values(&r.before_values));
     for rd in &r.rounds {
         let _ = writeln!(
             md,
@@ -205,7 +223,7 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
         );
     }
     md.push_str("\n## Final model\n\n");
-    value_table(&mut md, &r.after_values);
+    value_table(&mut md, &r.after_values, &r.on_floor);
     md.push_str(
         "\n1σ: Gauss–Newton s²(JᵀJ)⁻¹ on the fitted steps (J the markers' sensitivities to the \
          log parameters at the fit's last simulation, s² = χ²/(n − k)); marker errors within a \

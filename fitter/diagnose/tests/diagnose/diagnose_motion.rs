@@ -226,6 +226,9 @@ fn elastic_specimen_comes_back_clean() {
         );
         let md = palpate_diagnose::motion::report::markdown(&r);
         assert!(md.contains("**Relative figures**: the moduli"), "{md}");
+        // The fit lands λ where the data put it, not on its floor, and no value is marked.
+        assert!(r.on_floor.is_empty(), "seed {seed}: {:?}", r.on_floor);
+        assert!(!md.contains("on its floor"), "{md}");
     }
 }
 
