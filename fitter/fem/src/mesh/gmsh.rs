@@ -1,7 +1,8 @@
 //! Gmsh MSH input (4.1 ASCII and binary, 2.2 ASCII) and MSH 4.1 output.
 //!
-//! [`read_msh`] reads linear tetrahedral meshes (element type 4) written by Gmsh or by other tools
-//! (meshio, older pipelines) into a [`Mesh`]. The version and file type on the `$MeshFormat` line
+//! [`read_msh`] reads tetrahedral meshes written by Gmsh or by other tools (meshio, older
+//! pipelines) into a [`Mesh`] of linear tetrahedra: 4-node tetrahedra (element type 4), and
+//! 10-node ones (type 11, `gmsh -order 2`) as their four corners. The version and file type on the `$MeshFormat` line
 //! choose the parser:
 //!
 //! - **MSH 4.1 ASCII** files are parsed here, line by line, so that every error names the file,
@@ -26,8 +27,13 @@
 //!   (|V| ≤ [`ZERO_VOLUME_RATIO`] · ℓ³, ℓ its longest edge) is an error. An element is *inverted*
 //!   when, after orientation, it lies on the same side of a face it shares with a neighbour (the mesh
 //!   folds over itself): also an error, naming both element tags.
-//! - Other volume element types (hexahedra, prisms, pyramids, quadratic tetrahedra, …) are rejected;
-//!   lower-dimensional elements (points, lines, triangles, quads) only feed the physical groups.
+//! - A 10-node tetrahedron's edge nodes are set aside ([`MshReport::edge_nodes`]): palpate's
+//!   linear models use the corners, and its quadratic ones (`mesh::quadratic`) put edge nodes
+//!   back at the midpoints. How far the file's edge nodes stood off those midpoints is measured
+//!   ([`MshReport::largest_edge_bow`]) and logged, as a warning above [`CURVED_EDGE`]: a curved
+//!   boundary is then read with straight edges.
+//! - Other volume element types (hexahedra, prisms, pyramids, …) are rejected; lower-dimensional
+//!   elements (points, lines, triangles, quads, of either order) only feed the physical groups.
 //! - Physical groups of dimension 0–3 become [`Mesh::node_groups`]: all nodes of all elements (and
 //!   all nodes classified) on every entity of the group, by name (`$PhysicalNames`); a group without
 //!   a name is called `group-<tag>`. Groups of the same name in different dimensions are merged.
@@ -92,9 +98,9 @@ pub enum MeshError {
         /// mshio's error chain.
         message: String,
     },
-    /// A volume element of a type other than the 4-node tetrahedron.
+    /// A volume element of a type other than the 4- or 10-node tetrahedron.
     #[error(
-        "{file}: element {element_tag} has Gmsh type {type_id} ({type_name}) in a volume; only linear tetrahedra (type 4) are supported"
+        "{file}: element {element_tag} has Gmsh type {type_id} ({type_name}) in a volume; only tetrahedra are supported (type 4, or type 11 read as its corners)"
     )]
     UnsupportedElement {
         /// The file.
@@ -107,7 +113,7 @@ pub enum MeshError {
         type_name: &'static str,
     },
     /// The file holds no tetrahedra.
-    #[error("{file}: no linear tetrahedra (type 4) in the file")]
+    #[error("{file}: no tetrahedra (type 4 or 11) in the file")]
     NoTetrahedra {
         /// The file.
         file: PathBuf,
@@ -209,22 +215,35 @@ pub enum MeshError {
     },
 }
 
+/// The edge bow ([`MshReport::largest_edge_bow`]) above which a 10-node mesh's edges are curved
+/// enough for a warning: a per-cent of an edge's length is about what a tenth of a millimetre
+/// is to a 1 cm element, the size of a capture's marker noise.
+pub const CURVED_EDGE: f64 = 0.01;
+
 /// What [`read_msh_with_report`] did besides reading.
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct MshReport {
     /// Tetrahedra listed with negative orientation and re-oriented (two nodes swapped).
     pub reoriented: usize,
-    /// Nodes used by no tetrahedron, dropped.
+    /// Nodes used by no tetrahedron, dropped (a 10-node tetrahedron's edge nodes apart).
     pub dropped_nodes: usize,
+    /// 10-node tetrahedra (Gmsh type 11) read as their four corners.
+    pub quadratic_tets: usize,
+    /// Their edge nodes, set aside (no linear tetrahedron uses them).
+    pub edge_nodes: usize,
+    /// The largest distance of an edge node from its edge's midpoint, over the edge's length:
+    /// 0 for straight edges; what reading the corners with straight edges drops.
+    pub largest_edge_bow: f64,
     /// Lower-dimensional elements (points, lines, surface elements) read for the groups.
     pub boundary_elements: usize,
     /// Whether the file was binary.
     pub binary: bool,
 }
 
-/// Reads a Gmsh mesh of linear tetrahedra: MSH 4.1 (ASCII or binary) or MSH 2.2 ASCII (also 2.1
-/// and 2.0), told apart by the `$MeshFormat` line. MSH 2 binary and other versions are errors that
-/// name the version found. See the module docs for what is read and how groups are formed.
+/// Reads a Gmsh mesh of tetrahedra (4-node; 10-node as their corners): MSH 4.1 (ASCII or
+/// binary) or MSH 2.2 ASCII (also 2.1 and 2.0), told apart by the `$MeshFormat` line. MSH 2
+/// binary and other versions are errors that name the version found. See the module docs for
+/// what is read and how groups are formed.
 pub fn read_msh(path: impl AsRef<Path>) -> Result<Mesh, MeshError> {
     read_msh_with_report(path).map(|(m, _)| m)
 }
@@ -244,6 +263,28 @@ pub fn read_msh_with_report(path: impl AsRef<Path>) -> Result<(Mesh, MshReport),
     };
     let (mesh, mut report) = assemble::assemble(&file, raw)?;
     report.binary = format == ascii::MshFormat::V41Binary;
+    if report.quadratic_tets > 0 {
+        let read = format!(
+            "{}: {} 10-node tetrahedra read as their corners ({} edge nodes set aside)",
+            file.display(),
+            report.quadratic_tets,
+            report.edge_nodes
+        );
+        if report.largest_edge_bow > CURVED_EDGE {
+            log::warn!(
+                "{read}; their edges are curved, an edge node up to {:.1} % of its edge's length \
+                 off the midpoint, and palpate takes them straight: the boundary's curvature \
+                 between corners is lost (a finer mesh keeps more of it in its corners)",
+                100.0 * report.largest_edge_bow
+            );
+        } else {
+            log::info!(
+                "{read}; their edges are straight (edge nodes within {:.2e} of an edge's length \
+                 of its midpoint)",
+                report.largest_edge_bow
+            );
+        }
+    }
     Ok((mesh, report))
 }
 

@@ -80,8 +80,24 @@ fn mesh(path: &std::path::Path) -> anyhow::Result<()> {
         .iter()
         .map(|t| palpate_fem::mesh::signed_volume(t.map(|n| m.nodes[n])))
         .sum();
+    let quadratic = if report.quadratic_tets > 0 {
+        format!(
+            "; {} 10-node tetrahedra read as their corners ({} edge nodes set aside, an edge \
+             node up to {:.2} % of its edge's length off the midpoint: {})",
+            report.quadratic_tets,
+            report.edge_nodes,
+            100.0 * report.largest_edge_bow,
+            if report.largest_edge_bow > palpate_fem::mesh::gmsh::CURVED_EDGE {
+                "curved edges taken straight"
+            } else {
+                "straight edges"
+            }
+        )
+    } else {
+        String::new()
+    };
     println!(
-        "{}: Gmsh mesh ({}); {} nodes, {} tetrahedra; extent {:.1} × {:.1} × {:.1} mm; volume {:.3e} m³; {} tetrahedra re-oriented, {} unused nodes dropped",
+        "{}: Gmsh mesh ({}); {} nodes, {} tetrahedra; extent {:.1} × {:.1} × {:.1} mm; volume {:.3e} m³; {} tetrahedra re-oriented, {} unused nodes dropped{quadratic}",
         path.display(),
         if report.binary { "binary" } else { "ASCII" },
         m.nodes.len(),
@@ -104,7 +120,7 @@ fn mesh(path: &std::path::Path) -> anyhow::Result<()> {
         .collect();
     println!(
         "{}",
-        serde_json::json!({"schema_version": SCHEMA_VERSION, "kind": "mesh", "format": "msh", "nodes": m.nodes.len(), "tets": m.tets.len(), "extent_m": extent, "volume_m3": volume, "reoriented": report.reoriented, "dropped_nodes": report.dropped_nodes, "groups": groups})
+        serde_json::json!({"schema_version": SCHEMA_VERSION, "kind": "mesh", "format": "msh", "nodes": m.nodes.len(), "tets": m.tets.len(), "extent_m": extent, "volume_m3": volume, "reoriented": report.reoriented, "dropped_nodes": report.dropped_nodes, "quadratic_tets": report.quadratic_tets, "edge_nodes": report.edge_nodes, "largest_edge_bow": report.largest_edge_bow, "groups": groups})
     );
     Ok(())
 }

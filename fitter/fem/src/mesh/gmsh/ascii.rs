@@ -333,6 +333,7 @@ fn elements(t: &mut Tokens, raw: &mut RawMsh) -> Result<(), MeshError> {
             1 => Some(2),
             2 => Some(3),
             3 | 4 => Some(4),
+            11 => Some(10),
             _ => None,
         };
         let mut elements = Vec::with_capacity(prealloc(n));

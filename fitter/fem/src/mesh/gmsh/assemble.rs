@@ -2,9 +2,13 @@
 //! and validity, physical groups.
 
 use super::{element_type_name, MeshError, MshReport, RawMsh, ZERO_VOLUME_RATIO};
+use crate::mesh::quadratic::QUADRATIC_EDGES;
 use crate::mesh::Mesh;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::Path;
+
+/// Gmsh's element type of the 10-node (quadratic) tetrahedron.
+const QUADRATIC_TET: i32 = 11;
 
 pub(super) fn assemble(file: &Path, raw: RawMsh) -> Result<(Mesh, MshReport), MeshError> {
     let f = || file.to_path_buf();
@@ -42,15 +46,31 @@ pub(super) fn assemble(file: &Path, raw: RawMsh) -> Result<(Mesh, MshReport), Me
             })
     };
 
-    // Tetrahedra (file node indices) and their tags; reject other volume elements.
+    // Tetrahedra (file node indices) and their tags; reject other volume elements. A 10-node
+    // tetrahedron is read as its four corners (Gmsh lists them first), its edge nodes set
+    // aside: palpate's linear models are built on the corners, and its quadratic ones lift the
+    // corners' mesh with straight edges (`mesh::quadratic`), so how far an edge node stands off
+    // its edge's midpoint is measured and reported — the curvature that straight edges drop.
     let mut tets: Vec<[usize; 4]> = Vec::new();
     let mut tet_tags: Vec<u64> = Vec::new();
+    let mut edge_nodes: BTreeSet<usize> = BTreeSet::new();
     for b in &raw.element_blocks {
-        if b.type_id == 4 {
+        if b.type_id == 4 || b.type_id == QUADRATIC_TET {
             for (tag, nodes) in &b.elements {
                 let mut t = [0; 4];
                 for (k, &n) in nodes.iter().enumerate().take(4) {
                     t[k] = lookup(*tag, n)?;
+                }
+                if b.type_id == QUADRATIC_TET {
+                    report.quadratic_tets += 1;
+                    for (k, &n) in nodes.iter().enumerate().skip(4).take(6) {
+                        let m = lookup(*tag, n)?;
+                        edge_nodes.insert(m);
+                        let [a, c] = QUADRATIC_EDGES[k - 4].map(|v| file_nodes[t[v]].1);
+                        let mid = [0, 1, 2].map(|d| 0.5 * (a[d] + c[d]));
+                        let bow = dist(file_nodes[m].1, mid) / dist(a, c).max(f64::MIN_POSITIVE);
+                        report.largest_edge_bow = report.largest_edge_bow.max(bow);
+                    }
                 }
                 tets.push(t);
                 tet_tags.push(*tag);
@@ -110,7 +130,8 @@ pub(super) fn assemble(file: &Path, raw: RawMsh) -> Result<(Mesh, MshReport), Me
             node_tags.push(tag);
         }
     }
-    report.dropped_nodes = file_nodes.len() - nodes.len();
+    report.edge_nodes = edge_nodes.iter().filter(|&&i| !used[i]).count();
+    report.dropped_nodes = file_nodes.len() - nodes.len() - report.edge_nodes;
     let tets = tets.into_iter().map(|t| t.map(|i| new_index[i])).collect();
 
     // Physical groups → node sets by name.

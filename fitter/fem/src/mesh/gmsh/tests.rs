@@ -322,3 +322,76 @@ fn bundled_beam_mesh_reads() {
         vols.iter().sum::<f64>()
     );
 }
+
+/// A mesh raised to 10-node tetrahedra by Gmsh (`make_order2.py`: the same cylinder written at
+/// order 1 and at order 2) reads as the order-1 mesh, corner for corner and group for group, in each
+/// format Gmsh writes it; the report counts the 10-node tetrahedra and their edge nodes, and
+/// measures the curved surface's edge nodes off their edges' midpoints (Gmsh's script printed
+/// 0.158148 of an edge's length).
+#[test]
+fn ten_node_tetrahedra_are_read_as_their_corners() {
+    let (linear, r1) = read_msh_with_report(fixture("cyl-order1.msh")).unwrap();
+    assert_eq!(linear.tets.len(), 99);
+    assert_eq!((r1.quadratic_tets, r1.edge_nodes), (0, 0));
+    assert_eq!(r1.largest_edge_bow, 0.0);
+    for name in [
+        "cyl-order2.msh",
+        "cyl-order2-binary.msh",
+        "cyl-order2-22.msh",
+    ] {
+        let (m, r) = read_msh_with_report(fixture(name)).unwrap();
+        // The same corners in the same order (Gmsh gives them new tags as it raises the order),
+        // to the last digit an ASCII file keeps against the binary file's exact doubles.
+        assert_eq!(m.nodes.len(), linear.nodes.len(), "{name}");
+        for (a, b) in m.nodes.iter().flatten().zip(linear.nodes.iter().flatten()) {
+            assert!(
+                (a - b).abs() <= 1e-15 * b.abs().max(1e-3),
+                "{name}: {a} against {b}"
+            );
+        }
+        assert_eq!(m.tets, linear.tets, "{name}");
+        assert_eq!(m.node_groups, linear.node_groups, "{name}");
+        assert_eq!(r.quadratic_tets, 99, "{name}");
+        // Gmsh's script: 242 nodes in all, so 242 − corners on edges; no other node dropped.
+        assert_eq!(r.edge_nodes, 242 - linear.nodes.len(), "{name}");
+        assert_eq!(r.dropped_nodes, r1.dropped_nodes, "{name}");
+        assert!(
+            (r.largest_edge_bow - 0.158148).abs() < 1e-5,
+            "{name}: {}",
+            r.largest_edge_bow
+        );
+        assert!(r.largest_edge_bow > CURVED_EDGE);
+    }
+}
+
+/// One 10-node tetrahedron with its edge nodes at the midpoints: straight edges, bow 0 to
+/// round-off; one edge node moved off its edge is measured; a line one node short is an error
+/// that names what it expected.
+#[test]
+fn a_ten_node_tetrahedron_is_measured_and_checked() {
+    let text = |edge4: &str, count: usize, nodes: &str| {
+        format!(
+            "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n\
+             $Nodes\n1 10 1 10\n3 1 0 10\n1\n2\n3\n4\n5\n6\n7\n8\n9\n10\n\
+             0 0 0\n1 0 0\n0 1 0\n0 0 1\n{edge4}\n0.5 0.5 0\n0 0.5 0\n0 0 0.5\n0 0.5 0.5\n\
+             0.5 0 0.5\n$EndNodes\n$Elements\n1 {count} 1 {count}\n3 1 11 {count}\n{nodes}\n\
+             $EndElements\n"
+        )
+    };
+    let (m, r) = read_text(&text("0.5 0 0", 1, "1 1 2 3 4 5 6 7 8 9 10")).unwrap();
+    assert_eq!((m.nodes.len(), m.tets.len()), (4, 1));
+    assert_eq!((r.quadratic_tets, r.edge_nodes, r.dropped_nodes), (1, 6, 0));
+    assert!(r.largest_edge_bow < 1e-15, "{}", r.largest_edge_bow);
+    // Node 5 sits on edge (1, 2) of length 1: moved 0.05 off, it bows 5 % of the edge.
+    let (_, r) = read_text(&text("0.5 0.05 0", 1, "1 1 2 3 4 5 6 7 8 9 10")).unwrap();
+    assert!(
+        (r.largest_edge_bow - 0.05).abs() < 1e-12,
+        "{}",
+        r.largest_edge_bow
+    );
+    let e = err_text(&text("0.5 0 0", 1, "1 1 2 3 4 5 6 7 8 9"));
+    assert!(
+        e.contains("expected 10 node tags for element 1 of type 11, found \"9 node tags\""),
+        "{e}"
+    );
+}
