@@ -336,6 +336,7 @@ impl CandidateModel for MotionModel<'_> {
                 fine,
                 cur,
                 prior_scale,
+                None,
             )),
             _ => None,
         });

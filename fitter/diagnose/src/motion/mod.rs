@@ -479,7 +479,8 @@ pub fn diagnose(
         || !check(s.rms_held, s.n_held, 0, 0.0).explained;
     let mesh_floor = if unexplained && o.mesh_error && o.mesh_null {
         log("the final residual stands above the noise floor: what the mesh's own error leaves of it");
-        let f = engine.mesh_floor(adopted.len() + 1, &cur);
+        let last = adopted.last().map(|&c| (adopted.len(), c));
+        let f = engine.mesh_floor(adopted.len() + 1, &cur, last);
         if let Some(f) = &f {
             log(&format!(
                 "the final model refitted on its null ({} tetrahedra) leaves {:.1} µm fitted, \
