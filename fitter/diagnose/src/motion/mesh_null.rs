@@ -480,16 +480,21 @@ impl MotionModel<'_> {
             return;
         }
         (self.log)("the parameters under one refinement: the first round's null, made for them");
-        if let Err(why) = self.null_round(1, simplest) {
+        if let Err(why) = self.null_round(1, simplest, None) {
             (self.log)(&format!(
                 "no null for the parameters under one refinement: {why}"
             ));
         }
     }
 
-    /// The null of round `round` at the current model `cur`, made and refitted once per round;
-    /// `Err` says why there is none.
-    fn null_round(&mut self, round: usize, cur: &FittedModel) -> Result<&mut NullRound, String> {
+    /// The null of round `round` at the current model `cur`, made and refitted once per round
+    /// (the refit from `warm` when given, [`make_null`]); `Err` says why there is none.
+    fn null_round(
+        &mut self,
+        round: usize,
+        cur: &FittedModel,
+        warm: Option<(f64, &[f64])>,
+    ) -> Result<&mut NullRound, String> {
         if self.null.as_ref().is_none_or(|(r, _)| *r != round) {
             let made = match &self.fine {
                 Ok(fine) => make_null(
@@ -499,7 +504,7 @@ impl MotionModel<'_> {
                     fine,
                     cur,
                     self.null_scale(),
-                    None,
+                    warm,
                 ),
                 Err(why) => Err(format!("the mesh's error was not estimated: {why}")),
             };
@@ -537,24 +542,16 @@ impl MotionModel<'_> {
                         .then(|| (check.modulus_scale, values.clone()))
                 })
         });
-        if let (false, Some((scale, values)), Ok(fine)) = (made_here, &warm, &self.fine) {
+        if let (false, Some(_), Some((k, _))) = (made_here, &warm, last) {
             log(&format!(
-                "the final model's null: its refit started where the last adoption's check \
-                 left it on round {}'s null",
-                last.map_or(0, |(k, _)| k)
+                "the final model's null: its refit starts where the last adoption's check left \
+                 it on round {k}'s null"
             ));
-            let made = make_null(
-                self.ds,
-                self.split,
-                self.o,
-                fine,
-                cur,
-                self.null_scale(),
-                Some((*scale, values)),
-            );
-            self.keep_null(round, cur, made);
         }
-        let measured = self.null_round(round, cur).and_then(|n| {
+        let warm = warm
+            .as_ref()
+            .map(|(scale, values)| (*scale, values.as_slice()));
+        let measured = self.null_round(round, cur, warm).and_then(|n| {
             let (fit, held) = (n.base.scores.rms_fit, n.base.scores.rms_held);
             // A refit that ended on the scale search's bound found no softer object that fits,
             // and a noise-free null left with more than the data's own residual (which holds the
@@ -610,7 +607,7 @@ impl MotionModel<'_> {
         let log = self.log;
         let (split, o) = (self.split, self.o);
         let noise_floor = super::noise_floor(self.ds);
-        let null = match self.null_round(round, cur) {
+        let null = match self.null_round(round, cur, None) {
             Ok(n) => n,
             Err(why) => {
                 log(&format!(
