@@ -42,8 +42,9 @@ pub fn on_floors(lambda: Option<f64>, mu: f64, h: Option<f64>) -> Vec<OnFloor> {
                  {:.4}): the data would have lowered it further, where the model no longer \
                  changes. Poisson's ratio is not measured here, and λ's 1σ is the misfit's \
                  curvature at the floor, not an interval. Linear elements that lock in bending \
-                 are fitted best with no volume stiffness whatever the material's: the mesh \
-                 convergence below says whether this mesh does",
+                 are fitted best with no volume stiffness whatever the material's, so the floor \
+                 may be this mesh's: the sections on the mesh below say how far the fitted \
+                 values are from converged",
                 nu_of(l, mu)
             ),
         });
