@@ -11,6 +11,7 @@
 //! ν = 0.0005" or "h 0.1000 ± 0.037" without a word.
 
 use super::Value;
+use palpate_fem::names::Elastic;
 use palpate_motion::model::ParamKind;
 use palpate_motion::optimize::{LAMBDA_FLOOR_RATIO, POWER_INDEX_FLOOR};
 use serde::Serialize;
@@ -45,7 +46,7 @@ pub fn on_floors(lambda: Option<f64>, mu: f64, h: Option<f64>) -> Vec<OnFloor> {
                  are fitted best with no volume stiffness whatever the material's, so the floor \
                  may be this mesh's: the sections on the mesh below say how far the fitted \
                  values are from converged",
-                nu_of(l, mu)
+                Elastic::from_lame(l, mu).poisson_ratio
             ),
         });
     }
@@ -80,11 +81,6 @@ pub fn of_values(vals: &[Value]) -> Vec<OnFloor> {
         find(ParamKind::Mu, false).unwrap_or(0.0),
         find(ParamKind::PowerH, true),
     )
-}
-
-/// Poisson's ratio λ / (2(λ + μ)).
-fn nu_of(lambda: f64, mu: f64) -> f64 {
-    lambda / (2.0 * (lambda + mu))
 }
 
 #[cfg(test)]
