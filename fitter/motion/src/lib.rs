@@ -50,6 +50,7 @@ pub mod spline;
 pub mod start;
 mod static_newton;
 pub mod statics;
+pub mod step_error;
 pub mod time_offset;
 pub mod timestep;
 pub mod transfer;

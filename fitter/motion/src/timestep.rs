@@ -15,9 +15,13 @@
 //! material damping — errors a fit then absorbs into the stiffness and the viscosity. The rule
 //! here asks for [`STEPS_PER_PERIOD`] steps per period of the fastest oscillation the capture
 //! shows (its ring-down, [`capture_period`]): the period error stays near 1 % and the numerical
-//! damping near 1 % per cycle, below what the captures here can see.
+//! damping near 1 % per cycle, below what the captures here can see. A body shaken at its clamp
+//! rings in higher modes too, which that period does not see: the loader then measures the
+//! chosen step's own error on the capture and makes it finer where the declared noise would see
+//! it ([`crate::step_error`]).
 
 use crate::model::{Model, Observations};
+use crate::step_error::StepError;
 use nalgebra::Complex;
 
 /// The time integration scheme of a simulation's steps.
@@ -294,6 +298,9 @@ pub struct TimeStep {
     pub declared: bool,
     /// The integration scheme the step was chosen for.
     pub scheme: Scheme,
+    /// The step's own error measured on the capture ([`crate::step_error`]) when the step was
+    /// chosen, not declared; `Err` says why it could not be.
+    pub step_error: Option<Result<StepError, String>>,
 }
 
 impl TimeStep {
@@ -305,6 +312,7 @@ impl TimeStep {
             period_s: None,
             declared: true,
             scheme: Scheme::Bdf2,
+            step_error: None,
         }
     }
 
@@ -317,8 +325,14 @@ impl TimeStep {
     /// One sentence for reports: the step, why, and the scheme's error at it.
     pub fn describe(&self) -> String {
         let step_ms = 1e3 * self.capture_dt / self.substeps as f64;
+        let raised = match &self.step_error {
+            Some(Ok(e)) if e.substeps > e.from_substeps => Some(e.from_substeps),
+            _ => None,
+        };
         let why = if self.declared {
             "as declared (`substeps`)".to_string()
+        } else if let Some(k) = raised {
+            format!("raised from the period rule's {k} by the step's measured error")
         } else {
             match self.period_s {
                 Some(_) => format!(
@@ -341,8 +355,13 @@ impl TimeStep {
             }
             _ => String::new(),
         };
+        let checked = match &self.step_error {
+            Some(Ok(e)) => format!("; {}", e.describe()),
+            Some(Err(why)) => format!("; the step's own error not measured: {why}"),
+            None => String::new(),
+        };
         format!(
-            "simulated every {step_ms:.3} ms ({} substep{} of the {:.3} ms capture interval, {why}){error}",
+            "simulated every {step_ms:.3} ms ({} substep{} of the {:.3} ms capture interval, {why}){error}{checked}",
             self.substeps,
             if self.substeps == 1 { "" } else { "s" },
             1e3 * self.capture_dt
@@ -502,6 +521,7 @@ pub fn choose(model: &Model, obs: &Observations, declared: Option<usize>) -> Tim
         period_s,
         declared,
         scheme: model.scheme,
+        step_error: None,
     }
 }
 

@@ -251,6 +251,9 @@ pub struct MotionDiagnosis {
     pub screen_simulations: usize,
     /// The dataset mesh's own discretisation error at the simplest fit, stated.
     pub mesh: mesh::MeshNote,
+    /// The simulation step and why, with its own error measured on the capture
+    /// ([`palpate_motion::timestep::TimeStep::describe`]).
+    pub time_step: String,
     /// Whether the fitted modulus is the material's or the mesh's ([`crate::convergence`]);
     /// `None` when not asked for.
     pub mesh_convergence: Option<crate::convergence::MeshConvergence>,
@@ -553,6 +556,7 @@ pub fn diagnose(
         size: (ne, ds.model.markers.len(), steps, ds.model.dt),
         split,
         density_declared: ds.config.density.is_some(),
+        time_step: ds.timestep.describe(),
         relative: relative_figures(ds, &adopted, &cur),
         on_floor: floors::of_values(&after_values),
         options: o.clone(),

@@ -103,6 +103,7 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
     );
     let _ = writeln!(md, "**Result**: {}.\n", r.verdict());
     let _ = writeln!(md, "**Mesh**: {}.\n", r.mesh.statement);
+    let _ = writeln!(md, "**Time step**: {}.\n", r.time_step);
     for w in &r.relative {
         let _ = writeln!(md, "**Relative figures**: {w}.\n");
     }

@@ -294,6 +294,9 @@ pub struct RunsDiagnosis {
     /// The floor the creep branch's relaxation time was held above (s): the longest ring-down
     /// period measured in the fitted runs; `None` when none rings.
     pub creep_floor_s: Option<f64>,
+    /// Each run's simulation step and why, with its own error measured on the capture
+    /// ([`palpate_motion::timestep::TimeStep::describe`]): fitted runs, then held-out runs.
+    pub time_steps: Vec<(String, String)>,
     /// Seconds the diagnosis took.
     pub seconds: f64,
     /// Simulations of one run the diagnosis made.
@@ -543,6 +546,11 @@ pub fn diagnose_runs_with(
         load_lever: lever_adopted,
         clamp_layer: candidates::clamp_compliance::clamp_layer(&fit[0].1.model, &last.material),
         creep_floor_s: m.creep_floor,
+        time_steps: fit
+            .iter()
+            .chain(held)
+            .map(|(n, d)| (n.clone(), d.timestep.describe()))
+            .collect(),
         seconds: t0.elapsed().as_secs_f64(),
         simulations: m.simulations.get(),
     })

@@ -117,6 +117,11 @@ fn verdict(md: &mut String, r: &RunsDiagnosis) {
     } else {
         Ok(())
     };
+    let _ = writeln!(md, "Time steps:\n");
+    for (run, step) in &r.time_steps {
+        let _ = writeln!(md, "- {run}: {step}.");
+    }
+    let _ = writeln!(md);
     let _ = writeln!(
         md,
         "The simplest model: Neo-Hookean, Poisson's ratio held at {} (the markers see bending, not \

@@ -98,14 +98,50 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
     check_weights(&tf, &obs, traj.is_some(), forces.is_some())?;
     check_substeps(&tf, &config, model.steps)?;
     let timestep = crate::timestep::choose(&model, &obs, config.substeps);
-    let (model, obs) = model.resampled(&obs, timestep.substeps);
-    Ok(MotionDataset {
+    let (fine, fine_obs) = model.resampled(&obs, timestep.substeps);
+    let ds = MotionDataset {
         config,
         mesh,
+        model: fine,
+        obs: fine_obs,
+        timestep,
+    };
+    Ok(if ds.timestep.declared {
+        ds
+    } else {
+        checked_step(ds, &model, &obs)
+    })
+}
+
+/// `ds` on a step whose own error is within tolerance ([`crate::step_error`]): measured at the
+/// data's start estimate, and `ds` resampled finer from the capture's `model` and `obs` when it
+/// is not.
+fn checked_step(mut ds: MotionDataset, model: &Model, obs: &Observations) -> MotionDataset {
+    let start = crate::start::initial_values(&ds, None);
+    let mut mat = crate::model::Material::uniform(
+        ds.model.tets.len(),
+        start.lambda,
+        start.mu,
+        start.viscosity,
+        start.h,
+        ds.config.density.unwrap_or(1000.0),
+    );
+    mat.viscous_form = ds.model.viscous_form;
+    let measured = crate::step_error::measure(
         model,
         obs,
-        timestep,
-    })
+        ds.timestep.substeps,
+        ds.config.marker_noise,
+        &mat,
+    );
+    if let Ok(e) = &measured {
+        if e.substeps > e.from_substeps {
+            (ds.model, ds.obs) = model.resampled(obs, e.substeps);
+            ds.timestep.substeps = e.substeps;
+        }
+    }
+    ds.timestep.step_error = Some(measured);
+    ds
 }
 
 /// What `dataset.toml` says of the model beyond its clamps: a static start or not, the time

@@ -202,6 +202,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .iter()
         .map(|d| NamedRun::load(d))
         .collect::<Result<Vec<_>, _>>()?;
+    for r in &runs {
+        log::info!("{}: {}", r.name, r.dataset.timestep.describe());
+    }
     if let Some(form) = args
         .viscosity_form
         .as_deref()

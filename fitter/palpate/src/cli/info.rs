@@ -324,6 +324,7 @@ fn dataset(dir: &std::path::Path) -> anyhow::Result<()> {
             ds.model.loads.len(),
             ds.model.gravity
         );
+        println!("time step: {}", ds.timestep.describe());
         println!(
             "{}",
             serde_json::json!({"schema_version": SCHEMA_VERSION, "kind": "motion-dataset", "nodes": ds.mesh.nodes.len(), "tets": ds.mesh.tets.len(), "steps": ds.capture_steps(), "dt_s": ds.config.dt, "substeps": ds.model.substeps, "markers": ds.model.markers.len(), "loads": ds.model.loads.len()})
