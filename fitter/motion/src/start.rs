@@ -265,6 +265,23 @@ pub struct StartValues {
     pub note: String,
 }
 
+impl StartValues {
+    /// These values on every element of `ds`, at its declared density (1000 kg/m³ without
+    /// one) and with its viscosity's form.
+    pub fn material(&self, ds: &crate::dataset::MotionDataset) -> Material {
+        let mut m = Material::uniform(
+            ds.model.tets.len(),
+            self.lambda,
+            self.mu,
+            self.viscosity,
+            self.h,
+            ds.config.density.unwrap_or(1000.0),
+        );
+        m.viscous_form = ds.model.viscous_form;
+        m
+    }
+}
+
 /// The start of a fit of `ds`: its `[initial]` table when it has one; otherwise the rest-sag
 /// estimate at `poisson` (default [`ASSUMED_POISSON`]) with the viscosity on the scale of the
 /// first mode (h = 1), or the format's defaults when the data do not show the scale.
@@ -281,15 +298,7 @@ pub fn initial_values(ds: &crate::dataset::MotionDataset, poisson: Option<f64>) 
         return declared;
     }
     let nu = poisson.unwrap_or(ASSUMED_POISSON);
-    let mut base = Material::uniform(
-        ds.model.tets.len(),
-        init.lambda,
-        init.mu,
-        init.nu,
-        init.h,
-        ds.config.density.unwrap_or(1000.0),
-    );
-    base.viscous_form = ds.model.viscous_form;
+    let base = declared.material(ds);
     let noise = ds.config.marker_noise.unwrap_or(1e-4);
     match from_rest_sag(&ds.model, &ds.obs, &base, nu, noise) {
         Ok(e) if e.viscosity.is_finite() && e.viscosity > 0.0 => StartValues {

@@ -117,16 +117,7 @@ pub fn load(dir: &Path) -> Result<MotionDataset, DatasetError> {
 /// data's start estimate, and `ds` resampled finer from the capture's `model` and `obs` when it
 /// is not.
 fn checked_step(mut ds: MotionDataset, model: &Model, obs: &Observations) -> MotionDataset {
-    let start = crate::start::initial_values(&ds, None);
-    let mut mat = crate::model::Material::uniform(
-        ds.model.tets.len(),
-        start.lambda,
-        start.mu,
-        start.viscosity,
-        start.h,
-        ds.config.density.unwrap_or(1000.0),
-    );
-    mat.viscous_form = ds.model.viscous_form;
+    let mat = crate::start::initial_values(&ds, None).material(&ds);
     let measured = crate::step_error::measure(
         model,
         obs,
