@@ -189,3 +189,41 @@ fn independent_cylinder_as_generated_is_given_its_damping_and_no_offset() {
     assert_the_mesh_leaves_the_rest(&r, floor(&t));
     assert_the_screen_keeps_its_promises(&r);
 }
+
+/// The generator's cylinder rings in modes its dominant period does not show: the period rule's
+/// 3 substeps leave a step error its declared noise would see, the loader takes more, and the
+/// chosen step's error against one 4 times finer is within the tolerance.
+#[test]
+fn the_generators_cylinder_is_stepped_finer_than_its_period_asks() {
+    let dir = folder("cylinder-s2");
+    let ds =
+        palpate_motion::dataset::load(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+    let e = ds
+        .timestep
+        .step_error
+        .clone()
+        .expect("measured")
+        .expect("measured");
+    eprintln!("{}", ds.timestep.describe());
+    let tol = e.tolerance_m.expect("marker_noise is declared");
+    assert!(e.first_error_m > tol && e.substeps > e.from_substeps);
+    assert_eq!(ds.model.substeps, e.substeps);
+    assert!(ds
+        .timestep
+        .describe()
+        .contains("raised from the period rule's"));
+    let mat = palpate_motion::start::initial_values(&ds, None).material(&ds);
+    let (finer, _) = ds.model.resampled(&ds.obs, 4);
+    let at = palpate_motion::refine::marker_paths(&ds.model, &mat).unwrap();
+    let reference = palpate_motion::refine::marker_paths(&finer, &mat).unwrap();
+    let k = ds.model.substeps;
+    let (mut d2, mut n) = (0.0, 0);
+    for s in 1..=ds.capture_steps() {
+        for (p, q) in at[s * k - 1].iter().zip(&reference[4 * s * k - 1]) {
+            d2 += (0..3).map(|j| (p[j] - q[j]).powi(2)).sum::<f64>();
+            n += 1;
+        }
+    }
+    let error = (d2 / n as f64).sqrt();
+    assert!(error <= tol, "{error:e} m against 4× finer > {tol:e} m");
+}
