@@ -827,7 +827,7 @@ struct Setup {
 impl Setup {
     fn new(model: &Model, mat: &Material, params: &[Param]) -> Result<Self, MotionError> {
         let (table, kinds) = param_table(model, mat, params)?;
-        let (c, ax, av) = model.scheme.coefficients(model.dt);
+        let (c, ax, av) = model.scheme_for(mat).coefficients(model.dt);
         Ok(Self {
             table,
             kinds,
@@ -932,7 +932,7 @@ fn direct(
         av,
         mvals,
     } = Setup::new(model, mat, params)?;
-    let (scheme, dt) = (model.scheme, model.dt);
+    let (scheme, dt) = (model.scheme_for(mat), model.dt);
     let two = scheme.two_step();
     let (hist_a0, hist_a1, hist_e) = two.force_history(dt);
     // s_x⁰ from the elastostatic start (§3.4): K₀ s_x⁰ = ∂f₀/∂q; zero for a rest-shape start.
@@ -1214,7 +1214,7 @@ fn adjoint(
         av,
         mvals,
     } = Setup::new(model, mat, params)?;
-    let (scheme, dt) = (model.scheme, model.dt);
+    let (scheme, dt) = (model.scheme_for(mat), model.dt);
     let two = scheme.two_step();
     let (hist_a0, hist_a1, hist_e) = two.force_history(dt);
     let mut acc = zeros_acc(&kinds, model.tets.len());

@@ -343,6 +343,12 @@ impl Material {
             .iter()
             .any(|&g| g != 0.0)
     }
+    /// Whether the material damps a fast motion: a power-law viscosity (eq. 17) in some element.
+    /// A creep branch alone does not: its relaxation is slow, and to a mode much faster than its
+    /// time it is a stiffness.
+    pub fn damps(&self) -> bool {
+        self.values[ParamKind::Nu as usize].iter().any(|&v| v > 0.0)
+    }
     /// Sets `kind` to `value` in every element.
     pub fn set_uniform(&mut self, kind: ParamKind, value: f64) {
         self.values[kind as usize].fill(value);
@@ -778,6 +784,22 @@ impl DeadLoad {
 }
 
 impl Model {
+    /// The scheme a simulation of `mat` integrates with: the model's own, except that a
+    /// material without viscosity ([`Material::damps`]) is integrated by BDF2 where
+    /// the model asks for the implicit midpoint rule. The midpoint rule damps no mode, and on a
+    /// nonlinear elastic body with no viscosity the energy of the modes it cannot
+    /// resolve can grow until an element inverts (Simo & Tarnow 1992): the measured beam's
+    /// undamped model, released under gravity at the midpoint rule's step, inverts an element
+    /// within the run. An undamped model is a diagnosis' baseline, never its answer; BDF2's
+    /// damping of the unresolved modes keeps it simulating.
+    pub fn scheme_for(&self, mat: &Material) -> crate::timestep::Scheme {
+        use crate::timestep::Scheme;
+        match self.scheme {
+            Scheme::Midpoint if !mat.damps() => Scheme::Bdf2,
+            scheme => scheme,
+        }
+    }
+
     /// Builds a model; clamps must not share nodes and each must have `steps + 1` poses.
     pub fn new(
         mesh: &Mesh,

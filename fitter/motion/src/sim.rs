@@ -641,12 +641,13 @@ struct SchemeTerms {
 }
 
 impl SchemeTerms {
-    fn new(model: &Model) -> Self {
-        let (c, ax, av) = model.scheme.coefficients(model.dt);
-        let two = model.scheme.two_step();
+    fn new(model: &Model, mat: &Material) -> Self {
+        let scheme = model.scheme_for(mat);
+        let (c, ax, av) = scheme.coefficients(model.dt);
+        let two = scheme.two_step();
         let hist = two.force_history(model.dt);
         Self {
-            scheme: model.scheme,
+            scheme,
             dt: model.dt,
             c,
             ax,
@@ -824,7 +825,7 @@ pub fn simulate_solving(
     drop(k0);
     // The creep branch starts fully relaxed at x⁰ ([`super::relaxation`]).
     let mut relax = Relaxation::start(model, mat, &x0)?;
-    let terms = SchemeTerms::new(model);
+    let terms = SchemeTerms::new(model, mat);
     let (c, ax, av) = (terms.c, terms.ax, terms.av);
     // Gravity once; the dead loads switch on at their step.
     let fgrav = model.gravity_load(mat);

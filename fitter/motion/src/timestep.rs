@@ -44,7 +44,8 @@ use nalgebra::Complex;
 /// damping, so a fitted viscosity is the material's and not partly the integrator's. Its highest
 /// modes are not damped by the scheme either (|z| = 1 at any ωΔt); the material viscosity damps
 /// them (D enters S and the residual at full weight), and an undamped model of a released body
-/// can blow up with it.
+/// can blow up with it: a model that asks for the midpoint rule integrates a material without
+/// viscosity by BDF2 ([`Model::scheme_for`](crate::model::Model::scheme_for)).
 ///
 /// The generalised-α scheme ([`Scheme::Alpha`], ρ∞ = [`ALPHA_RHO_INF`]) sits between the two:
 /// second order, a period error near the midpoint rule's, little damping in the resolved band,
@@ -360,8 +361,14 @@ impl TimeStep {
             Some(Err(why)) => format!("; the step's own error not measured: {why}"),
             None => String::new(),
         };
+        let undamped = if self.scheme == Scheme::Midpoint {
+            "; a model without viscosity (a diagnosis' simplest) is integrated by BDF2 at this \
+             step, whose numerical damping is then part of its figures (docs/motion-dataset.md)"
+        } else {
+            ""
+        };
         format!(
-            "simulated every {step_ms:.3} ms ({} substep{} of the {:.3} ms capture interval, {why}){error}{checked}",
+            "simulated every {step_ms:.3} ms ({} substep{} of the {:.3} ms capture interval, {why}){error}{checked}{undamped}",
             self.substeps,
             if self.substeps == 1 { "" } else { "s" },
             1e3 * self.capture_dt

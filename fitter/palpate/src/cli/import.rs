@@ -49,7 +49,8 @@ pub struct C3dArgs {
     pub density: Option<f64>,
     /// Time integration written into the dataset: `bdf2` (Real2Sim's, ≥ 32 steps per period of
     /// the capture's ring-down) or `midpoint` (the implicit midpoint rule: no numerical damping,
-    /// ≥ 15 steps per period, but an undamped model of a released body can blow up with it) or
+    /// ≥ 15 steps per period; a model without viscosity is integrated by BDF2 at that step, since
+    /// an undamped released body can blow up under the midpoint rule) or
     /// `alpha` (generalised-α, ρ∞ = 0.8: ≥ 16 steps per period, damps only the unresolved modes);
     /// docs/motion-dataset.md.
     #[arg(long, default_value = "bdf2", value_parser = ["bdf2", "midpoint", "alpha"])]
