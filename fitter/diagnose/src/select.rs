@@ -1171,11 +1171,19 @@ fn plan_fits(screen: &FitScreen, predictions: &[Option<Prediction>]) -> (Vec<usi
         .filter(|&i| predicted(i).is_none())
         .collect();
     let mut reserve = Vec::new();
+    // The prediction cannot rank two candidates it predicts within the gate's threshold of
+    // each other (a nested pair above all: the power-law index adds nothing to one Gauss–Newton
+    // step from zero viscosity, so the power law is predicted at the plain damping's gain less
+    // one parameter's penalty): one next to a fitted one is fitted too.
+    let tie = -fallback_below;
+    let mut last_fitted: Option<f64> = None;
     for (rank, &i) in order.iter().enumerate() {
         let d = predicted(i).unwrap_or(f64::NAN);
         let near = best.is_some_and(|b| d <= b + margin * b.abs());
-        if ((rank < least || near) && d < least_below) || !d.is_finite() {
+        let tied = last_fitted.is_some_and(|l| d - l <= tie);
+        if ((rank < least || near || tied) && d < least_below) || !d.is_finite() {
             batch.push(i);
+            last_fitted = Some(d);
         } else if d < fallback_below {
             reserve.push(i);
         }
@@ -1580,6 +1588,32 @@ mod tests {
         let mixed = [p(Some(9.8)), p(Some(-300.0)), p(None)];
         assert_eq!(plan_fits(&paying, &mixed).0, [1, 2]);
         assert_eq!(plan_fits(&plain, &mixed).0, [0, 1, 2]);
+    }
+
+    /// Two candidates the prediction cannot tell apart (within the gate's threshold) are both
+    /// fitted, though the second lies beyond the `least` and the margin: the measured beam's
+    /// plain damping (predicted −10,795.3) and its power law (−10,785.5, the same step less one
+    /// parameter's penalty) behind the creep (−23,358.7), stepped finely.
+    #[test]
+    fn candidates_predicted_alike_are_fitted_alike() {
+        let p = |d: Option<f64>| {
+            Some(Prediction {
+                delta_bic: d,
+                how: String::new(),
+            })
+        };
+        let round = [
+            p(Some(-10_785.5)),
+            p(Some(-23_358.7)),
+            p(Some(-10_795.3)),
+            p(Some(-156.3)),
+            p(None),
+        ];
+        let screen = FitScreen::paying(true, 2, 0.5, 10.0);
+        assert_eq!(plan_fits(&screen, &round), (vec![0, 1, 2, 4], vec![3]));
+        // Apart by more than the threshold, the third waits in the reserve.
+        let apart = [p(Some(-10_700.0)), round[1].clone(), round[2].clone()];
+        assert_eq!(plan_fits(&screen, &apart), (vec![1, 2], vec![0]));
     }
 
     /// When nothing fitted passes, the next predicted to pay is fitted before the round gives
