@@ -27,6 +27,7 @@
 use crate::model::{Material, Model, Observations};
 use crate::refine::marker_paths;
 use crate::timestep::MAX_SUBSTEPS;
+use serde::Serialize;
 
 /// The tolerance on the step's error, as a fraction of the declared noise floor σ√3.
 pub const TOLERANCE_OF_FLOOR: f64 = 0.3;
@@ -87,6 +88,77 @@ impl StepError {
     }
 }
 
+/// The step's own error at a fitted model: what the step puts into the fit's residual, measured
+/// where the fit ended rather than at the data's start estimate — a fitted viscosity damps the
+/// higher modes that make most of the error at the start estimate, and a capture that declares
+/// no noise has only its residual to hold the error to.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct FittedStepError {
+    /// Substeps per capture interval of the fit.
+    pub substeps: usize,
+    /// The markers' RMS error at that step (m), by Richardson's rule.
+    pub error_m: f64,
+    /// The fitted model's marker RMS on the run (m).
+    pub residual_m: f64,
+    /// Whether the error is within [`TOLERANCE_OF_FLOOR`] of the residual: then it adds at most
+    /// 4.4 % to the residual in quadrature.
+    pub converged: bool,
+}
+
+impl FittedStepError {
+    /// The measured `error_m` at `substeps` against the run's `residual_m`.
+    pub fn new(substeps: usize, error_m: f64, residual_m: f64) -> Self {
+        Self {
+            substeps,
+            error_m,
+            residual_m,
+            converged: error_m <= TOLERANCE_OF_FLOOR * residual_m,
+        }
+    }
+
+    /// The substeps that bring the error within the tolerance by the square law of a
+    /// second-order scheme.
+    pub fn substeps_for_tolerance(&self) -> usize {
+        let ratio = self.error_m / (TOLERANCE_OF_FLOOR * self.residual_m);
+        ((self.substeps as f64 * ratio.sqrt()).ceil() as usize).max(self.substeps + 1)
+    }
+
+    /// One clause for reports.
+    pub fn describe(&self) -> String {
+        let at = format!(
+            "{:.1} µm RMS at the fitted model, {:.0} % of its residual {:.3} mm",
+            1e6 * self.error_m,
+            100.0 * self.error_m / self.residual_m,
+            1e3 * self.residual_m
+        );
+        if self.converged {
+            format!("{at}: converged in time (within 0.3 of the residual)")
+        } else {
+            format!(
+                "{at}: not converged in time (above 0.3 of the residual, so the step is part \
+                 of what the fit absorbed; about {} substeps would bring it within — declare \
+                 `substeps`)",
+                self.substeps_for_tolerance()
+            )
+        }
+    }
+}
+
+/// The step's own error at a fitted material `mat` on a run's `model` (at its fitted step) and
+/// `obs`, whose residual there is `residual_m`.
+pub fn at_fitted(
+    model: &Model,
+    obs: &Observations,
+    mat: &Material,
+    residual_m: f64,
+) -> Result<FittedStepError, String> {
+    Ok(FittedStepError::new(
+        model.substeps.max(1),
+        error_at(model, obs, 1, mat)?,
+        residual_m,
+    ))
+}
+
 /// Rounds of refinement the check makes at most: the error falls as the step squared only once
 /// the step resolves what moves, so each predicted step is measured again.
 pub const MAX_ROUNDS: usize = 3;
@@ -126,16 +198,18 @@ pub fn measure(
     })
 }
 
-/// The markers' RMS error at `k` substeps (m): their RMS difference at the capture's frames from
-/// `2k` substeps, times 2²/(2² − 1).
+/// The markers' RMS error of `model` stepped `k` times finer (m): their RMS difference at the
+/// capture's frames from `2k` times finer, times 2²/(2² − 1). `model` may already be finer than
+/// the capture ([`Model::substeps`]); the frames compared are the capture's either way.
 fn error_at(model: &Model, obs: &Observations, k: usize, mat: &Material) -> Result<f64, String> {
+    let q = model.substeps.max(1);
     let (at, _) = model.resampled(obs, k);
     let (half, _) = model.resampled(obs, 2 * k);
-    let at = marker_paths(&at, mat).map_err(|e| format!("at {k} substeps: {e}"))?;
-    let half = marker_paths(&half, mat).map_err(|e| format!("at {} substeps: {e}", 2 * k))?;
+    let at = marker_paths(&at, mat).map_err(|e| format!("at {} substeps: {e}", q * k))?;
+    let half = marker_paths(&half, mat).map_err(|e| format!("at {} substeps: {e}", 2 * q * k))?;
     let (mut d2, mut count) = (0.0, 0usize);
-    for s in 1..=model.steps {
-        let (Some(a), Some(b)) = (at.get(s * k - 1), half.get(2 * s * k - 1)) else {
+    for s in 1..=model.steps / q {
+        let (Some(a), Some(b)) = (at.get(s * q * k - 1), half.get(2 * s * q * k - 1)) else {
             break;
         };
         for (p, q) in a.iter().zip(b) {
@@ -269,5 +343,28 @@ mod tests {
         let kept = measure(&model, &obs, 1, Some(10.0 * e1), &mat).unwrap();
         assert_eq!(kept.substeps, 1);
         assert!(kept.describe().contains("within the tolerance"));
+    }
+
+    /// At a fitted model already stepped finer than the capture, the check compares the
+    /// capture's frames: the model at 2 substeps gives the error the capture-rate model gives
+    /// at 2, and that error against a residual of 10× it is converged, against 2× it is not,
+    /// with the square law's substeps to bring it within.
+    #[test]
+    fn a_fitted_model_is_measured_at_its_own_step() {
+        let (model, obs, mat) = shaken_bar();
+        let at_two = error_at(&model, &obs, 2, &mat).unwrap();
+        let (fine, fine_obs) = model.resampled(&obs, 2);
+        let fitted = at_fitted(&fine, &fine_obs, &mat, 10.0 * at_two).unwrap();
+        assert_eq!(fitted.substeps, 2);
+        assert!(
+            (fitted.error_m / at_two - 1.0).abs() < 1e-12,
+            "{} against {at_two}",
+            fitted.error_m
+        );
+        assert!(fitted.converged && fitted.describe().contains("converged in time"));
+        let coarse = at_fitted(&fine, &fine_obs, &mat, 2.0 * at_two).unwrap();
+        assert!(!coarse.converged && coarse.describe().contains("not converged in time"));
+        // e / (0.3 r) = 1/0.6: 2 · √1.67 = 2.58 → 3 substeps.
+        assert_eq!(coarse.substeps_for_tolerance(), 3);
     }
 }

@@ -254,6 +254,9 @@ pub struct MotionDiagnosis {
     /// The simulation step and why, with its own error measured on the capture
     /// ([`palpate_motion::timestep::TimeStep::describe`]).
     pub time_step: String,
+    /// The step's error at the final model against its fitted residual
+    /// ([`palpate_motion::step_error::at_fitted`]).
+    pub fitted_step_error: crate::runs::RunStepError,
     /// Whether the fitted modulus is the material's or the mesh's ([`crate::convergence`]);
     /// `None` when not asked for.
     pub mesh_convergence: Option<crate::convergence::MeshConvergence>,
@@ -547,6 +550,25 @@ pub fn diagnose(
     if o.mesh_convergence && o.mesh_null && !rest_checked {
         engine.first_null_bias(&simplest);
     }
+    // What the step puts into the final residual, measured at the final material on the final
+    // model's clock (marker offsets cancel in the difference of two simulations).
+    let measured = match cur.time_offset {
+        Some(r) if r != 0 => fit::retimed(ds, split, r).map(|(d, _)| d),
+        _ => Ok(ds.clone()),
+    }
+    .map_err(|e| e.to_string())
+    .and_then(|d| {
+        palpate_motion::step_error::at_fitted(&d.model, &d.obs, &cur.material, cur.scores.rms_fit)
+    });
+    match &measured {
+        Ok(e) => log(&format!("the step's own error {}", e.describe())),
+        Err(why) => log(&format!("the step's own error not measured: {why}")),
+    }
+    let fitted_step_error = crate::runs::RunStepError {
+        run: label.to_string(),
+        not_measured: measured.as_ref().err().cloned(),
+        measured: measured.ok(),
+    };
     let mut sp_b = Vec::new();
     let final_signature = signature(ds, split, &cur);
     sp_b.extend(signature(ds, split, &simplest).speed_bins);
@@ -557,6 +579,7 @@ pub fn diagnose(
         split,
         density_declared: ds.config.density.is_some(),
         time_step: ds.timestep.describe(),
+        fitted_step_error,
         relative: relative_figures(ds, &adopted, &cur),
         on_floor: floors::of_values(&after_values),
         options: o.clone(),

@@ -104,6 +104,16 @@ pub fn markdown(r: &MotionDiagnosis) -> String {
     let _ = writeln!(md, "**Result**: {}.\n", r.verdict());
     let _ = writeln!(md, "**Mesh**: {}.\n", r.mesh.statement);
     let _ = writeln!(md, "**Time step**: {}.\n", r.time_step);
+    let e = &r.fitted_step_error;
+    let _ = writeln!(
+        md,
+        "**The step at the final model** (the markers at this step against half of it, by \
+         Richardson's rule): {}.\n",
+        match (&e.measured, &e.not_measured) {
+            (Some(m), _) => m.describe(),
+            (None, why) => format!("not measured: {}", why.as_deref().unwrap_or("")),
+        }
+    );
     for w in &r.relative {
         let _ = writeln!(md, "**Relative figures**: {w}.\n");
     }

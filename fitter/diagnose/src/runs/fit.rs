@@ -7,6 +7,7 @@ use palpate_motion::fitted::set_hanging_inertia;
 use palpate_motion::model::{Material, Observations, Param, ParamKind};
 use palpate_motion::optimize::{fit_runs, FitSettings, Run};
 use palpate_motion::predict;
+use palpate_motion::step_error::{self, FittedStepError};
 use palpate_motion::time_offset;
 use palpate_motion::MotionError;
 
@@ -152,6 +153,31 @@ impl RunsModel<'_> {
                 let mut ds = d.clone();
                 ds.model = m.clone();
                 Ok(read_residual(name, &ds, &p, r))
+            })
+            .collect()
+    }
+
+    /// Each run's step error at the fitted `mat` ([`palpate_motion::step_error::at_fitted`]), the
+    /// run at its offset, held to its residual `residuals`: `Err` says why it was not measured.
+    pub(in crate::runs) fn step_errors(
+        &self,
+        sets: &[(String, MotionDataset)],
+        effects: &[Effect],
+        mat: &Material,
+        offsets: &[i64],
+        residuals: &[RunResidual],
+    ) -> Vec<Result<FittedStepError, String>> {
+        let models = self.models(sets, effects);
+        use rayon::prelude::*;
+        sets.par_iter()
+            .zip(models.par_iter())
+            .zip(residuals.par_iter())
+            .enumerate()
+            .map(|(i, (((_, d), m), r))| {
+                let offset = offsets.get(i).copied().unwrap_or(0);
+                let (m, obs) =
+                    time_offset::shifted(m, &d.obs, offset).map_err(|e| e.to_string())?;
+                step_error::at_fitted(&m, &obs, mat, r.rms_m)
             })
             .collect()
     }

@@ -297,10 +297,26 @@ pub struct RunsDiagnosis {
     /// Each run's simulation step and why, with its own error measured on the capture
     /// ([`palpate_motion::timestep::TimeStep::describe`]): fitted runs, then held-out runs.
     pub time_steps: Vec<(String, String)>,
+    /// Each run's step error at the final model, against its residual there
+    /// ([`palpate_motion::step_error::at_fitted`]): fitted runs, then held-out runs; `Err` says
+    /// why it was not measured.
+    pub fitted_step_errors: Vec<RunStepError>,
     /// Seconds the diagnosis took.
     pub seconds: f64,
     /// Simulations of one run the diagnosis made.
     pub simulations: Simulations,
+}
+
+/// A run's step error at the final model ([`palpate_motion::step_error::at_fitted`]).
+#[derive(Debug, Clone, Serialize)]
+pub struct RunStepError {
+    /// The run (its dataset directory).
+    pub run: String,
+    /// The error against the run's final residual; `None` when not measured.
+    pub measured: Option<palpate_motion::step_error::FittedStepError>,
+    /// Why it was not measured.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub not_measured: Option<String>,
 }
 
 /// Simulations of one run (a fit's evaluation of two runs is two), by kind: what the
@@ -481,6 +497,44 @@ pub fn diagnose_runs_with(
     let sd_mu = mu_sd(&runs, &last.material, nu, n, last.parameters())?;
     m.count(3 * runs.len(), false);
     let values = final_values(&last, nu, sd_mu);
+    // What the step puts into the final residual of each run, measured at the final material.
+    let fitted_step_errors: Vec<RunStepError> = fit
+        .iter()
+        .chain(held)
+        .zip(
+            m.step_errors(
+                fit,
+                &last.effects,
+                &last.material,
+                &last.offsets,
+                &last.fitted,
+            )
+            .into_iter()
+            .chain(m.step_errors(
+                held,
+                &last.effects,
+                &last.material,
+                &last_held.offsets,
+                &last_held.runs,
+            )),
+        )
+        .map(|((run, _), e)| RunStepError {
+            run: run.clone(),
+            not_measured: e.as_ref().err().cloned(),
+            measured: e.ok(),
+        })
+        .collect();
+    m.count(2 * (fit.len() + held.len()), false);
+    for e in &fitted_step_errors {
+        match (&e.measured, &e.not_measured) {
+            (Some(m), _) => log(&format!("{}: the step's own error {}", e.run, m.describe())),
+            (None, why) => log(&format!(
+                "{}: the step's own error not measured: {}",
+                e.run,
+                why.as_deref().unwrap_or("")
+            )),
+        }
+    }
     let mut model = fitted_model(fit, &models, &last, nu);
     let mesh_convergence = o.mesh_convergence.then(|| {
         let mu = last.material.body_moduli().1;
@@ -551,6 +605,7 @@ pub fn diagnose_runs_with(
             .chain(held)
             .map(|(n, d)| (n.clone(), d.timestep.describe()))
             .collect(),
+        fitted_step_errors,
         seconds: t0.elapsed().as_secs_f64(),
         simulations: m.simulations.get(),
     })

@@ -121,6 +121,18 @@ fn verdict(md: &mut String, r: &RunsDiagnosis) {
     for (run, step) in &r.time_steps {
         let _ = writeln!(md, "- {run}: {step}.");
     }
+    let _ = writeln!(
+        md,
+        "\nThe step's own error at the final model (the markers at this step against half of it, \
+         by Richardson's rule), against the run's final residual:\n"
+    );
+    for e in &r.fitted_step_errors {
+        let said = match (&e.measured, &e.not_measured) {
+            (Some(m), _) => m.describe(),
+            (None, why) => format!("not measured: {}", why.as_deref().unwrap_or("")),
+        };
+        let _ = writeln!(md, "- {}: {said}.", e.run);
+    }
     let _ = writeln!(md);
     let _ = writeln!(
         md,
