@@ -1138,7 +1138,7 @@ mod tests {
         let terms = SchemeTerms::new(&model, &mat);
         let (ndof, h) = (3 * mesh.nodes.len(), model.dt);
         let smooth = |t: f64| 0.3 + 2.0 * t - 40.0 * t * t;
-        let alternation = |i: usize| if i % 2 == 0 { 0.05 } else { -0.05 };
+        let alternation = |i: usize| if i.is_multiple_of(2) { 0.05 } else { -0.05 };
         let past: Vec<Vec<f64>> = (1..=4)
             .map(|i| vec![smooth(-(i as f64) * h) + alternation(i); ndof])
             .collect();
