@@ -275,7 +275,7 @@ impl StartValues {
             self.mu,
             self.viscosity,
             self.h,
-            ds.config.density.unwrap_or(1000.0),
+            ds.config.density.unwrap_or(crate::request::DEFAULT_DENSITY),
         );
         m.viscous_form = ds.model.viscous_form;
         m

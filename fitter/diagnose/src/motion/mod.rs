@@ -552,14 +552,17 @@ pub fn diagnose(
     }
     // What the step puts into the final residual, measured at the final material on the final
     // model's clock (marker offsets cancel in the difference of two simulations).
-    let measured = match cur.time_offset {
-        Some(r) if r != 0 => fit::retimed(ds, split, r).map(|(d, _)| d),
-        _ => Ok(ds.clone()),
-    }
-    .map_err(|e| e.to_string())
-    .and_then(|d| {
+    let measured = (|| {
+        let retimed;
+        let d = match cur.time_offset {
+            Some(r) if r != 0 => {
+                retimed = fit::retimed(ds, split, r).map_err(|e| e.to_string())?.0;
+                &retimed
+            }
+            _ => ds,
+        };
         palpate_motion::step_error::at_fitted(&d.model, &d.obs, &cur.material, cur.scores.rms_fit)
-    });
+    })();
     match &measured {
         Ok(e) => log(&format!("the step's own error {}", e.describe())),
         Err(why) => log(&format!("the step's own error not measured: {why}")),
