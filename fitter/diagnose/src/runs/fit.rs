@@ -123,8 +123,9 @@ impl RunsModel<'_> {
         sets.iter()
             .map(|(_, d)| {
                 let mut m = d.model.clone();
-                // The simplest model: hanging weights as forces only.
-                set_hanging_inertia(&mut m, false);
+                // The simplest model: hung weights move with their nodes unless their inertia is
+                // a candidate (`RunsOptions::weights_move`).
+                set_hanging_inertia(&mut m, self.o.weights_move());
                 for e in effects {
                     e.effect().change_model(self, &mut m);
                 }

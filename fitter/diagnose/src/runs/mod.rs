@@ -10,16 +10,18 @@
 //! **The simplest model.** Neo-Hookean with Poisson's ratio held at
 //! [`RunsOptions::poisson`] (the markers of a bending test see the deflection, not the volume
 //! change: λ is not identifiable, and silicone is nearly incompressible), μ fitted, no
-//! viscosity (held at 0), density and loads as declared, hanging weights as forces only.
+//! viscosity (held at 0), density and loads as declared, a weight hung from the release moving
+//! with its nodes (its declared mass lumped on them; [`RunsOptions::weights_move`]).
 //!
 //! **Candidates** ([`Effect`], one file each in `candidates/`): Newtonian viscosity (ν free, h = 1), power-law viscosity (ν and h
-//! free, eq. 17), the inertia of hanging weights (no new parameter: the declared mass moves
-//! with its nodes), and a time offset of each run's markers against the simulation's clock (one
+//! free, eq. 17), a time offset of each run's markers against the simulation's clock (one
 //! integer number of steps per run, [`palpate_motion::time_offset`]: the release instant an import
 //! reads off the capture is uncertain by a frame or two), a strain stiffening, a creep branch,
 //! where the hanging weights act, and a clamp that gives (the elements at the clamps softened as
 //! a whole, their μ fitted beside the global kinds: `fit.rs`'s `region_params`). Each is fitted on top
-//! of the current model (all its material parameters refitted).
+//! of the current model (all its material parameters refitted). On request the weights' inertia
+//! too (`hanging-inertia`, no new parameter): the simplest model then holds the weights as
+//! forces only.
 //!
 //! **The time offset** is found by a scan, not a descent (the misfit of a ring-down has a minimum
 //! every period): each fitted run's offset is scanned with the current material, the material
@@ -41,8 +43,8 @@
 //! stiffening's parameters at their neutral values (ν = 0, h = 1, c = 0: the current model),
 //! predicts each of them by the χ² drop of one Gauss–Newton step over the current parameters
 //! and its own. The power-law index has no effect at ν = 0, so the power law is predicted as
-//! Newtonian damping with one more parameter. The hanging weights' inertia, a switch with no
-//! neutral value to linearise about, is always fitted; the time offset is predicted by its scan
+//! Newtonian damping with one more parameter. The hanging weights' inertia (on request), a
+//! switch with no neutral value to linearise about, is always fitted; the time offset is predicted by its scan
 //! at the current material (its fit starts from that scan, which is not repeated), without the
 //! material's refit; the clamp's give by the column of the layer's own μ in the same evaluation
 //! (the layer held there at the body's moduli). A step that takes a parameter bounded at its neutral value (ν, c, g ≥ 0)
@@ -55,7 +57,7 @@
 //! **The residual's signature** ([`RunResidual`], `signature.rs`): per run, the RMS per marker, in the first and
 //! last quarter of the run, and — on the marker that moves most — the ring-down's period and its
 //! amplitude ratio per cycle, measured and simulated. A period the model gets wrong points at the
-//! mass (the hanging weight's inertia); a decay it gets wrong at the damping.
+//! stiffness or the mass; a decay it gets wrong at the damping.
 
 mod candidates;
 mod fit;
@@ -77,7 +79,7 @@ use palpate_motion::MotionError;
 use serde::Serialize;
 
 pub use candidates::clamp_compliance::ClampLayer;
-pub use candidates::{Effect, ALL_EFFECTS};
+pub use candidates::{Effect, ALL_EFFECTS, DEFAULT_EFFECTS};
 pub use signature::{residual, ring_down, viscosity_from_ring_down, RunResidual};
 
 /// The runs diagnosis's errors: the crate's one [`crate::Error`] (the name kept for its callers).
@@ -86,7 +88,8 @@ pub type RunsError = crate::Error;
 /// Options of [`diagnose_runs`].
 #[derive(Debug, Clone, Serialize)]
 pub struct RunsOptions {
-    /// Candidates to try.
+    /// Candidates to try ([`DEFAULT_EFFECTS`]; naming [`Effect::HangingInertia`] among them
+    /// takes the weights' inertia out of the simplest model, [`Self::weights_move`]).
     pub candidates: Vec<Effect>,
     /// Most effects adopted.
     pub max_effects: usize,
@@ -125,12 +128,25 @@ pub struct RunsOptions {
     pub motion_convergence: bool,
 }
 
+impl RunsOptions {
+    /// Whether the simplest model moves each hung weight with its nodes (its declared mass), as
+    /// it does unless the candidates name the weights' inertia: then the simplest model holds
+    /// the weights as forces only and the diagnosis is asked to find their mass in the
+    /// ring-down's period. A weight hung from the release is declared with its mass; that it
+    /// moves with the body is no effect to find. Held as a candidate it cost the measured beam's
+    /// diagnosis a quarter of its simulations (an undamped model with the mass fitted in the
+    /// first round only to fail, adopted in the second) for the same final model.
+    pub fn weights_move(&self) -> bool {
+        !self.candidates.contains(&Effect::HangingInertia)
+    }
+}
+
 impl Default for RunsOptions {
     fn default() -> Self {
         Self {
-            candidates: ALL_EFFECTS.to_vec(),
-            // Damping (one of its two laws), the weights' inertia, the time offset and the
-            // stiffening can all be in one model.
+            candidates: DEFAULT_EFFECTS.to_vec(),
+            // Damping (one of its two laws), the time offset, the stiffening and the creep can
+            // all be in one model.
             max_effects: 4,
             max_iters: 40,
             screen_max_iters: 15,
@@ -446,7 +462,14 @@ pub fn diagnose_runs_with(
             ));
         }
     }
-    log("fitting the simplest model (Neo-Hookean, fixed Poisson's ratio, no damping)");
+    log(&format!(
+        "fitting the simplest model (Neo-Hookean, fixed Poisson's ratio, no damping{})",
+        if weights_moving(o, fit, held) {
+            ", the hung weights moving with their nodes"
+        } else {
+            ""
+        }
+    ));
     let start = m.fit(&[], &base, &[], o.max_iters)?;
     m.creep_floor = start
         .fitted
@@ -536,6 +559,7 @@ pub fn diagnose_runs_with(
         }
     }
     let mut model = fitted_model(fit, &models, &last, nu);
+    model.hanging_inertia |= weights_moving(o, fit, held);
     let mesh_convergence = o.mesh_convergence.then(|| {
         let mu = last.material.body_moduli().1;
         // The runs with the final model's loads (a lever moves the weights).
@@ -736,8 +760,34 @@ fn rms_of(v: &[RunResidual]) -> f64 {
     }
 }
 
+/// Whether the simplest model of these runs moves hung weights with their nodes: the options ask
+/// it ([`RunsOptions::weights_move`]) and some run, fitted or held out, hangs a weight with a
+/// declared mass from its start.
+pub(in crate::runs) fn weights_moving(
+    o: &RunsOptions,
+    fit: &[(String, MotionDataset)],
+    held: &[(String, MotionDataset)],
+) -> bool {
+    o.weights_move() && hangs_a_weight(fit.iter().chain(held))
+}
+
+/// Whether some run of `runs` hangs a weight with a declared mass from its start.
+pub(in crate::runs) fn hangs_a_weight<'a>(
+    runs: impl IntoIterator<Item = &'a (String, MotionDataset)>,
+) -> bool {
+    runs.into_iter().any(|(_, d)| {
+        d.model
+            .loads
+            .iter()
+            .any(|l| l.mass.is_some() && l.from_step == 0)
+    })
+}
+
 /// The final model `last` of the runs `fit` (their `models` with its effects' changes) as the
 /// record `palpate validate` reads.
+///
+/// Its `hanging_inertia` is the adopted candidate's; the caller sets it when the simplest model
+/// moved the weights ([`weights_moving`]).
 fn fitted_model(
     fit: &[(String, MotionDataset)],
     models: &[palpate_motion::model::Model],

@@ -134,10 +134,19 @@ fn verdict(md: &mut String, r: &RunsDiagnosis) {
         let _ = writeln!(md, "- {}: {said}.", e.run);
     }
     let _ = writeln!(md);
+    // The final record moves the weights when the simplest model did or the candidate was
+    // adopted; asked as a candidate, the simplest model held them as forces.
+    let weights = if !r.options.weights_move() {
+        ", hanging weights as forces only"
+    } else if r.model.hanging_inertia {
+        ", each hung weight moving with its nodes (its declared mass)"
+    } else {
+        ""
+    };
     let _ = writeln!(
         md,
         "The simplest model: Neo-Hookean, Poisson's ratio held at {} (the markers see bending, not \
-         volume change), μ fitted, no damping, hanging weights as forces only. Adoption rule: ΔBIC \
+         volume change), μ fitted, no damping{weights}. Adoption rule: ΔBIC \
          < −{} on the fitted runs, held-out ΔBIC < 0 and the held-out RMS down by ≥ {:.0} %.\n",
         r.options.poisson,
         r.options.bic_threshold,

@@ -1,16 +1,17 @@
 //! The runs diagnosis on runs whose truth is known: the bundled example bar (24 tets, shaken at
 //! its clamped front face), four runs — two without and two with a weight hung from the top edge
 //! of its back face whose mass moves with it — recorded from a damped truth with noise. Fitted on
-//! one run of each kind, held out the other two: the diagnosis must name the damping and the
-//! hanging weight's inertia, and predict the held-out runs far better than the simplest model.
-//! Without any hanging weight the inertia candidate is not offered at all. Runs whose markers
+//! one run of each kind, held out the other two: the diagnosis must name the damping — its
+//! simplest model moving the weight with its nodes — and predict the held-out runs far better
+//! than the simplest model; asked to find the weight's inertia as a candidate, it must name it
+//! too. Without any hanging weight the inertia is neither in the model nor offered. Runs whose markers
 //! were recorded a few steps out of step with the simulation's clock (a release instant misread,
 //! a marker stream out of sync with the rig) must be found out by the time-offset candidate, each
 //! run's offset recovered; runs in step must not be given one. A body that stiffens at larger
 //! strains, hung with a light and a heavy weight, must be found out by the stiffening candidate.
 
 use crate::support::record_late;
-use palpate_diagnose::runs::{diagnose_runs, Effect, RunsDiagnosis, RunsOptions};
+use palpate_diagnose::runs::{diagnose_runs, Effect, RunsDiagnosis, RunsOptions, ALL_EFFECTS};
 use palpate_motion::dataset::{load, MotionDataset};
 use palpate_motion::model::Material;
 
@@ -48,7 +49,7 @@ pub(crate) fn run_of(
         ds.model.loads = vec![palpate_specimen::motion::hung_weight(&ds, m).unwrap()];
     }
     ds.obs = record_late(&ds.model, &truth(&ds), 2e-5, seed, late, 4).unwrap();
-    // The diagnosis' simplest model treats the weight as a force only: it must find the inertia.
+    // Declared with its mass, its inertia left to the diagnosis (`RunsOptions::weights_move`).
     for l in &mut ds.model.loads {
         l.inertia = false;
     }
@@ -77,12 +78,41 @@ fn options() -> RunsOptions {
     }
 }
 
+/// [`options`] with the weights' inertia among the candidates: the simplest model holds the
+/// weights as forces only.
+fn options_asking_the_inertia() -> RunsOptions {
+    RunsOptions {
+        candidates: ALL_EFFECTS.to_vec(),
+        ..options()
+    }
+}
+
+/// By default the simplest model moves a declared weight with its nodes: the diagnosis names
+/// the damping alone, offers no inertia candidate, records the inertia for `palpate validate`,
+/// predicts the held-out runs and recovers μ.
+#[test]
+fn the_simplest_model_moves_a_declared_weight() {
+    let fit = vec![run("plain-a", None, 1), run("weight-a", Some(0.002), 2)];
+    let held = vec![run("plain-b", None, 3), run("weight-b", Some(0.002), 4)];
+    let d = diagnose_runs(&fit, &held, &options(), &|m| eprintln!("{m}")).unwrap();
+    assert_eq!(d.adopted, vec![Effect::Damping], "{:?}", d.adopted);
+    assert!(d.trials.iter().all(|t| t.effect != Effect::HangingInertia));
+    assert!(d.model.hanging_inertia);
+    let md = palpate_diagnose::runs::report::markdown(&d);
+    assert!(
+        md.contains("each hung weight moving with its nodes"),
+        "{md}"
+    );
+    assert_predicts_and_recovers_mu(&d);
+}
+
 #[test]
 fn names_damping_and_the_hanging_weights_inertia_on_held_out_runs() {
     // The bar weighs 47 kg/m³ × its volume; the weight is comparable to it.
     let fit = vec![run("plain-a", None, 1), run("weight-a", Some(0.002), 2)];
     let held = vec![run("plain-b", None, 3), run("weight-b", Some(0.002), 4)];
-    let d = diagnose_runs(&fit, &held, &options(), &|m| eprintln!("{m}")).unwrap();
+    let o = options_asking_the_inertia();
+    let d = diagnose_runs(&fit, &held, &o, &|m| eprintln!("{m}")).unwrap();
     eprintln!(
         "adopted {:?}; held-out RMS {:.2e} -> {:.2e} m",
         d.adopted, d.heldout_rms_m.0, d.heldout_rms_m.1
@@ -97,6 +127,7 @@ fn names_damping_and_the_hanging_weights_inertia_on_held_out_runs() {
     assert!(d.held_out_loads_beyond_fitted().is_empty());
     let md = palpate_diagnose::runs::report::markdown(&d);
     assert!(md.contains("not extrapolation to other loads"), "{md}");
+    assert!(md.contains("hanging weights as forces only"), "{md}");
     // The parameters in plain numbers with their units (`shear modulus μ = 10.02 kPa`), never in
     // exponent notation (`1.00200e4 Pa`).
     let exponent = |l: &str| {
@@ -141,9 +172,14 @@ fn names_damping_and_the_hanging_weights_inertia_on_held_out_runs() {
 fn without_a_hanging_weight_the_inertia_candidate_is_not_offered() {
     let fit = vec![run("plain-a", None, 1)];
     let held = vec![run("plain-b", None, 3)];
-    let d = diagnose_runs(&fit, &held, &options(), &|_| {}).unwrap();
+    let d = diagnose_runs(&fit, &held, &options_asking_the_inertia(), &|_| {}).unwrap();
     assert!(d.trials.iter().all(|t| t.effect != Effect::HangingInertia));
     assert!(!d.model.hanging_inertia);
+    // Nor is it recorded where the simplest model would move a weight: there is none.
+    let d = diagnose_runs(&fit, &held, &options(), &|_| {}).unwrap();
+    assert!(!d.model.hanging_inertia);
+    let md = palpate_diagnose::runs::report::markdown(&d);
+    assert!(!md.contains("hung weight"), "{md}");
     // Runs on different meshes are refused.
     let mut other = run("other", None, 5);
     other.1.mesh.nodes[0][0] += 1e-3;
@@ -221,11 +257,7 @@ fn names_a_stiffening_material_from_runs_under_different_weights() {
         d.model.stiffening.first()
     );
     assert!(d.adopted.contains(&Effect::Stiffening), "{:?}", d.adopted);
-    assert!(
-        d.adopted.contains(&Effect::HangingInertia),
-        "{:?}",
-        d.adopted
-    );
+    assert!(d.model.hanging_inertia);
     // c and μ recovered; the held-out repeats predicted at the noise (σ = 20 µm per coordinate:
     // 35 µm per marker position) — without the stiffening the same runs stay above 0.1 mm.
     let c = d.model.stiffening[0];

@@ -245,18 +245,21 @@ fn tip_deflection(
 }
 
 /// The beam's expected decisions: the effects its diagnosis adopts, in any order
-/// (`docs/results/beam/README.md`, the round table).
-const EXPECTED_ADOPTED: [&str; 3] = ["creep", "damping-power-law", "hanging-inertia"];
+/// (`docs/results/beam/README.md`, the round table): damping by either law — with the weight's
+/// inertia in the simplest model the power law fits the beam as the Newtonian law does (fitted
+/// ΔBIC −63,751 against −63,759 at the import's steps, −53,413 against −53,410 under the
+/// midpoint rule), so which law is taken says nothing of the silicone — and the creep.
+const EXPECTED_ADOPTED: [&[&str]; 2] = [&["damping", "damping-power-law"], &["creep"]];
 
 /// Upper bounds of the final model's held-out errors (m): per held-out run, the trajectory RMS
-/// and the rest-state RMS. Measured 0.313 / 0.265 mm (gravity_V2_b) and 0.555 / 0.412 mm
+/// and the rest-state RMS. Measured 0.313 / 0.264 mm (gravity_V2_b) and 0.550 / 0.413 mm
 /// (load52_V2_b) (`docs/results/beam/README.md`, "Before → after on the held-out runs"), each
 /// bound 15 % above: the diagnosis is deterministic up to its last printed digits, and losing
-/// the creep costs more (the model without it, with stiffening and the time offset, predicts
-/// 0.699 / 0.613 mm on the loaded run).
+/// the creep costs more (the model without it, with stiffening, predicts 0.655 mm over both
+/// held-out runs against 0.460 mm with it).
 const HELD_OUT_BOUNDS_M: [(&str, f64, f64); 2] = [
-    ("gravity_V2_b", 1.15 * 0.313e-3, 1.15 * 0.265e-3),
-    ("load52_V2_b", 1.15 * 0.555e-3, 1.15 * 0.412e-3),
+    ("gravity_V2_b", 1.15 * 0.313e-3, 1.15 * 0.264e-3),
+    ("load52_V2_b", 1.15 * 0.550e-3, 1.15 * 0.413e-3),
 ];
 
 /// Checks the beam's diagnosis against its expected decisions and held-out errors; an error
@@ -265,9 +268,12 @@ const HELD_OUT_BOUNDS_M: [(&str, f64, f64); 2] = [
 pub fn check_expected(b: &BeamOutcome) -> anyhow::Result<()> {
     let d = &b.diagnosis;
     let mut misses = Vec::new();
-    let mut adopted: Vec<&str> = d.adopted.iter().map(|e| e.name()).collect();
-    adopted.sort_unstable();
-    if adopted != EXPECTED_ADOPTED {
+    let adopted: Vec<&str> = d.adopted.iter().map(|e| e.name()).collect();
+    let expected = adopted.len() == EXPECTED_ADOPTED.len()
+        && EXPECTED_ADOPTED
+            .iter()
+            .all(|either| adopted.iter().any(|a| either.contains(a)));
+    if !expected {
         misses.push(format!(
             "adopted effects: expected {EXPECTED_ADOPTED:?}, found {adopted:?}"
         ));

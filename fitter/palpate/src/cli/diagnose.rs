@@ -22,7 +22,9 @@ pub struct Args {
         default_value = "diagnosis"
     )]
     pub output: PathBuf,
-    /// Candidates to try (default: all).
+    /// Candidates to try (default: all; for runs of one object all but `hanging-inertia`, whose
+    /// declared weights the simplest model moves with their nodes — name it to have the diagnosis
+    /// find their mass, the simplest model then holding the weights as forces only).
     #[arg(long, value_delimiter = ',')]
     pub candidates: Vec<String>,
     /// Most effects to adopt (default 3; 4 for runs of one object, whose library holds four

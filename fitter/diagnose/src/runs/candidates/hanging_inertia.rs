@@ -1,7 +1,9 @@
 //! The inertia of hanging weights: a weight hung with a declared mass from the release moves with
-//! its nodes, the mass lumped on them (no new parameter: the declared mass). The simplest model
-//! treats the weights as forces only; a ring-down period it gets wrong points to the mass.
-//! Offered only when some run, fitted or held out, hangs such a weight.
+//! its nodes, the mass lumped on them (no new parameter: the declared mass). Tried only when
+//! named among the candidates: the simplest model then treats the weights as forces only, and a
+//! ring-down period it gets wrong points to the mass ([`crate::runs::RunsOptions::weights_move`];
+//! by default the simplest model moves them). Offered only when some run, fitted or held out,
+//! hangs such a weight.
 
 use palpate_motion::fitted::{set_hanging_inertia, FittedModel};
 use palpate_motion::model::Model;
@@ -21,12 +23,7 @@ impl RunsEffect for HangingInertia {
     }
 
     fn available(&self, room: &RunsModel) -> bool {
-        room.fit.iter().chain(room.held).any(|(_, d)| {
-            d.model
-                .loads
-                .iter()
-                .any(|l| l.mass.is_some() && l.from_step == 0)
-        })
+        crate::runs::hangs_a_weight(room.fit.iter().chain(room.held))
     }
 
     fn unavailable_because(&self) -> &'static str {

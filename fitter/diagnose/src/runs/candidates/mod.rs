@@ -54,11 +54,23 @@ pub enum Effect {
     ClampCompliance,
 }
 
-/// Every effect, in the order tried.
+/// Every effect, in the order tried: the names `--candidates` accepts.
 pub const ALL_EFFECTS: [Effect; 8] = [
     Effect::Damping,
     Effect::DampingPowerLaw,
     Effect::HangingInertia,
+    Effect::TimeOffset,
+    Effect::Stiffening,
+    Effect::Creep,
+    Effect::LoadPoint,
+    Effect::ClampCompliance,
+];
+
+/// The effects a diagnosis tries by default: [`ALL_EFFECTS`] but the hanging weights' inertia,
+/// which the simplest model holds ([`super::RunsOptions::weights_move`]).
+pub const DEFAULT_EFFECTS: [Effect; 7] = [
+    Effect::Damping,
+    Effect::DampingPowerLaw,
     Effect::TimeOffset,
     Effect::Stiffening,
     Effect::Creep,
@@ -100,7 +112,7 @@ pub(in crate::runs) trait RunsEffect: Sync {
         false
     }
 
-    /// Changes a run's model from the simplest one's (hanging weights as forces on their nodes),
+    /// Changes a run's model from the simplest one's,
     /// with what the room has read from the runs (`room`).
     fn change_model(&self, _room: &RunsModel, _model: &mut Model) {}
 
