@@ -103,6 +103,12 @@ fn the_simplest_model_moves_a_declared_weight() {
         md.contains("each hung weight moving with its nodes"),
         "{md}"
     );
+    // The Newtonian law's viscosity in its own unit, its index held, not called a power law.
+    assert!(
+        md.contains("| viscosity (Newtonian) |") && md.contains(" Pa·s |"),
+        "{md}"
+    );
+    assert!(!md.contains("viscosity (power law)"), "{md}");
     assert_predicts_and_recovers_mu(&d);
 }
 

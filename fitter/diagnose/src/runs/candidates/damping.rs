@@ -27,7 +27,7 @@ impl RunsEffect for Damping {
     }
 
     fn values(&self, material: &Material) -> Vec<ParamValue> {
-        viscosity_values(material)
+        viscosity_values(material, true)
     }
 }
 
@@ -58,17 +58,27 @@ pub(super) fn start_viscosity(
 }
 
 /// The viscosity and the power-law index of the final material, as the report lists them for
-/// either damping law (Newtonian damping holds h at 1).
-pub(super) fn viscosity_values(material: &Material) -> Vec<ParamValue> {
+/// either damping law: `newtonian`, the law that holds h at 1, its viscosity in Pa·s and its
+/// index said to be held (the names before the parenthesis are the same for both laws).
+pub(super) fn viscosity_values(material: &Material, newtonian: bool) -> Vec<ParamValue> {
+    let (law, unit, index) = if newtonian {
+        (
+            "viscosity (Newtonian)",
+            "Pa·s",
+            "power-law index h (held: Newtonian)",
+        )
+    } else {
+        ("viscosity (power law)", "Pa·s^h", "power-law index h")
+    };
     vec![
         ParamValue {
-            name: "viscosity (power law)".into(),
+            name: law.into(),
             value: material.get(ParamKind::Nu, 0),
             sd: f64::NAN,
-            unit: "Pa·s^h".into(),
+            unit: unit.into(),
         },
         ParamValue {
-            name: "power-law index h".into(),
+            name: index.into(),
             value: material.get(ParamKind::PowerH, 0),
             sd: f64::NAN,
             unit: "".into(),

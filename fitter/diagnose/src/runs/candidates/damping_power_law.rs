@@ -28,6 +28,6 @@ impl RunsEffect for DampingPowerLaw {
     }
 
     fn values(&self, material: &Material) -> Vec<ParamValue> {
-        viscosity_values(material)
+        viscosity_values(material, false)
     }
 }
