@@ -79,7 +79,7 @@ use palpate_motion::MotionError;
 use serde::Serialize;
 
 pub use candidates::clamp_compliance::ClampLayer;
-pub use candidates::{Effect, ALL_EFFECTS, DEFAULT_EFFECTS};
+pub use candidates::{default_effects, Effect, ALL_EFFECTS};
 pub use signature::{residual, ring_down, viscosity_from_ring_down, RunResidual};
 
 /// The runs diagnosis's errors: the crate's one [`crate::Error`] (the name kept for its callers).
@@ -88,7 +88,7 @@ pub type RunsError = crate::Error;
 /// Options of [`diagnose_runs`].
 #[derive(Debug, Clone, Serialize)]
 pub struct RunsOptions {
-    /// Candidates to try ([`DEFAULT_EFFECTS`]; naming [`Effect::HangingInertia`] among them
+    /// Candidates to try ([`default_effects`]; naming [`Effect::HangingInertia`] among them
     /// takes the weights' inertia out of the simplest model, [`Self::weights_move`]).
     pub candidates: Vec<Effect>,
     /// Most effects adopted.
@@ -144,7 +144,7 @@ impl RunsOptions {
 impl Default for RunsOptions {
     fn default() -> Self {
         Self {
-            candidates: DEFAULT_EFFECTS.to_vec(),
+            candidates: default_effects(),
             // Damping (one of its two laws), the time offset, the stiffening and the creep can
             // all be in one model.
             max_effects: 4,
@@ -462,9 +462,10 @@ pub fn diagnose_runs_with(
             ));
         }
     }
+    let weights_moved = weights_moving(o, fit, held);
     log(&format!(
         "fitting the simplest model (Neo-Hookean, fixed Poisson's ratio, no damping{})",
-        if weights_moving(o, fit, held) {
+        if weights_moved {
             ", the hung weights moving with their nodes"
         } else {
             ""
@@ -558,8 +559,7 @@ pub fn diagnose_runs_with(
             )),
         }
     }
-    let mut model = fitted_model(fit, &models, &last, nu);
-    model.hanging_inertia |= weights_moving(o, fit, held);
+    let mut model = fitted_model(fit, &models, &last, nu, weights_moved);
     let mesh_convergence = o.mesh_convergence.then(|| {
         let mu = last.material.body_moduli().1;
         // The runs with the final model's loads (a lever moves the weights).
@@ -785,14 +785,14 @@ pub(in crate::runs) fn hangs_a_weight<'a>(
 
 /// The final model `last` of the runs `fit` (their `models` with its effects' changes) as the
 /// record `palpate validate` reads.
-///
-/// Its `hanging_inertia` is the adopted candidate's; the caller sets it when the simplest model
-/// moved the weights ([`weights_moving`]).
+/// `weights_moved`: the simplest model moved the hung weights ([`weights_moving`]); else their
+/// inertia is recorded only when its candidate was adopted.
 fn fitted_model(
     fit: &[(String, MotionDataset)],
     models: &[palpate_motion::model::Model],
     last: &RunsFit,
     nu: f64,
+    weights_moved: bool,
 ) -> FittedModel {
     let first = &fit[0].1;
     let mat = &last.material;
@@ -810,7 +810,7 @@ fn fitted_model(
         creep: palpate_motion::fitted::CreepRecord::of(mat),
         viscosity_form: mat.viscous_form,
         poisson_fixed: Some(nu),
-        hanging_inertia: false,
+        hanging_inertia: weights_moved,
         time_offset: false,
         load_lever_m: models.iter().map(|m| m.load_lever()).find(|d| *d != 0.0),
         gravity_turn: palpate_motion::fitted::FittedModel::gravity_turn_of(mat),

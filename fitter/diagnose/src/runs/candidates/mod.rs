@@ -68,15 +68,12 @@ pub const ALL_EFFECTS: [Effect; 8] = [
 
 /// The effects a diagnosis tries by default: [`ALL_EFFECTS`] but the hanging weights' inertia,
 /// which the simplest model holds ([`super::RunsOptions::weights_move`]).
-pub const DEFAULT_EFFECTS: [Effect; 7] = [
-    Effect::Damping,
-    Effect::DampingPowerLaw,
-    Effect::TimeOffset,
-    Effect::Stiffening,
-    Effect::Creep,
-    Effect::LoadPoint,
-    Effect::ClampCompliance,
-];
+pub fn default_effects() -> Vec<Effect> {
+    ALL_EFFECTS
+        .into_iter()
+        .filter(|e| *e != Effect::HangingInertia)
+        .collect()
+}
 
 /// What a candidate effect of the runs is: its parameters, its part of the runs' models and of
 /// their fit, its prediction by the fit screen, and its report words. Every method but the name
