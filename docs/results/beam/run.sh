@@ -3,7 +3,7 @@
 # the diagnosed model (Neo-Hookean, Poisson's ratio held at 0.49, Newtonian damping, the hanging
 # weight's inertia) on all four runs -> models/silicone-beam/fit.json, then leave one run out:
 # fit three, predict the fourth with `palpate validate`. Run from the repository root:
-#     bash docs/results/beam/run.sh            (≈ 6 min on 2 cores)
+#     bash docs/results/beam/run.sh            (≈ 1 min on 2 cores)
 set -euo pipefail
 P=${PALPATE:-target/release/palpate}
 B=models/silicone-beam

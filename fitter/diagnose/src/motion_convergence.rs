@@ -9,14 +9,13 @@
 //! The quadratic model has no sensitivities of its own: it is fitted by Levenberg–Marquardt on
 //! forward differences ([`palpate_motion::difference_fit`]), from the linear fit's values with
 //! the moduli scaled by the rest states' quadratic-to-linear ratio when that is known. What it
-//! does not carry (a creep branch, the spline material, per-element or per-region values,
-//! schemes other than BDF2) is not checked, and the report says which.
+//! does not carry (the spline material, per-element or per-region values, a parameter it cannot
+//! refit) is not checked, and the report says which.
 
 use palpate_fem::numbers;
 use palpate_motion::difference_fit::{fit_by_differences, DifferenceRun, Forward, GlobalParam};
 use palpate_motion::model::{Material, Model, Observations, ParamKind};
 use palpate_motion::quadratic_motion::QuadraticMotion;
-use palpate_motion::timestep::Scheme;
 use serde::Serialize;
 use std::fmt::Write as _;
 
@@ -250,14 +249,6 @@ pub fn check(
     }
     if params.is_empty() {
         return skipped("no material parameter was fitted".into());
-    }
-    for &(name, model, _) in fit {
-        if model.scheme != Scheme::Bdf2 {
-            return skipped(format!(
-                "{name} is integrated with {}; quadratic elements integrate with BDF2",
-                model.scheme.name()
-            ));
-        }
     }
     let lifted: Vec<QuadraticMotion<'_>> = match fit
         .iter()

@@ -1,5 +1,7 @@
-//! The motion of [`crate::sim`] on quadratic (10-node) tetrahedra: BDF2 (eq. 2) with the same
-//! residual c M (v − b) = f(x, v) + f_ext, on the quadratic lift of a model's linear mesh.
+//! The motion of [`crate::sim`] on quadratic (10-node) tetrahedra: the same step (BDF2, eq. 2,
+//! the implicit midpoint rule or generalised-α, [`crate::timestep::Scheme`], as
+//! [`Model::scheme_for`] chooses it, through [`crate::sim`]'s own scheme terms) with the same
+//! residual c M (v − b) = f(x_f, v_f) + f_ext, on the quadratic lift of a model's linear mesh.
 //!
 //! Linear tetrahedra lock in bending as Poisson's ratio nears ½ (docs/results/discretisation),
 //! so a modulus and a viscosity fitted through them belong to the mesh: a cantilever of them
@@ -29,8 +31,7 @@
 //! - The creep branch ([`crate::relaxation`]) is held at every quadrature point instead of every
 //!   element, with the same update.
 //!
-//! Not carried: schemes other than BDF2, clamp reaction forces; a model that needs them is
-//! refused with the reason.
+//! Not carried: clamp reaction forces.
 
 use super::elastic::ElasticState;
 use super::hyperelastic::{HyperParams, RestTet};
@@ -41,10 +42,9 @@ use super::quadratic_statics::{
 };
 use super::relaxation::{element_coefficients, StepBranch};
 use super::rest_fit::{Post, StandOff};
-use super::sim::shifted_factor;
+use super::sim::{shifted_factor, SchemeTerms};
 use super::sparse::{Factor, Pattern};
 use super::statics::StaticProblem;
-use super::timestep::Scheme;
 use super::viscosity as visc;
 use super::MotionError;
 use nalgebra::{Matrix3, Vector3};
@@ -139,14 +139,8 @@ pub struct QuadraticMotion<'a> {
 }
 
 impl<'a> QuadraticMotion<'a> {
-    /// Lifts `model`; refused when it asks for what this model does not carry.
+    /// Lifts `model`; refused when its mesh cannot be lifted.
     pub fn new(model: &'a Model) -> Result<Self, MotionError> {
-        if model.scheme != Scheme::Bdf2 {
-            return Err(MotionError::Invalid(format!(
-                "quadratic tetrahedra integrate with BDF2 only; the model asks for {}",
-                model.scheme.name()
-            )));
-        }
         let linear = Mesh {
             nodes: model.nodes.clone(),
             node_tags: (1..=model.nodes.len() as u64).collect(),
@@ -569,7 +563,8 @@ impl<'a> QuadraticMotion<'a> {
     ) -> Result<QuadraticRun, MotionError> {
         let model = self.model;
         let ndof = 3 * self.mesh.nodes.len();
-        let (c, ax, av) = Scheme::Bdf2.coefficients(model.dt);
+        let terms = SchemeTerms::new(model, mat);
+        let (c, ax, av) = terms.coefficients();
         let fgrav = self.gravity_load(mat);
         let mut fext = fgrav.clone();
         let mvals = self.mass_values(mat);
@@ -577,7 +572,7 @@ impl<'a> QuadraticMotion<'a> {
         // The creep branch starts fully relaxed at x⁰ ([`crate::relaxation`]).
         let mut relax = self.relaxation(mat, &x0)?;
         let (mut xm2, mut xm1) = (x0.clone(), x0);
-        let (mut vm3, mut vm2, mut vm1) = (vec![0.0; ndof], vec![0.0; ndof], vec![0.0; ndof]);
+        let mut vm: [Vec<f64>; 4] = std::array::from_fn(|_| vec![0.0; ndof]);
         let mut f = vec![0.0; ndof];
         let (mut kv, mut dv) = (vec![0.0; self.pattern.nnz()], vec![0.0; self.pattern.nnz()]);
         let mut sv = vec![0.0; self.pattern.nnz()];
@@ -592,25 +587,21 @@ impl<'a> QuadraticMotion<'a> {
             self.add_dead_loads(n, &mut fext);
             let mut x = vec![0.0; ndof];
             self.apply_clamps(n, &mut corners, &mut x);
-            let xa: Vec<f64> = (0..ndof).map(|d| (4.0 * xm1[d] - xm2[d]) / 3.0).collect();
-            let b: Vec<f64> = (0..ndof).map(|d| (4.0 * vm1[d] - vm2[d]) / 3.0).collect();
-            // Newton's start: v extrapolated quadratically; the clamped dofs' velocities are
-            // those of their prescribed positions.
-            let mut v: Vec<f64> = (0..ndof)
-                .map(|d| {
-                    if self.free[d] == usize::MAX {
-                        (x[d] - xa[d]) / ax
-                    } else {
-                        3.0 * vm1[d] - 3.0 * vm2[d] + vm3[d]
-                    }
-                })
-                .collect();
-            let position = |v: &[f64], x: &mut [f64]| {
-                for d in 0..ndof {
-                    x[d] = xa[d] + ax * v[d];
-                }
-            };
-            position(&v, &mut x);
+            // Newton's start: the linear model's predictor, the clamped dofs' velocities those
+            // of their prescribed positions and their force state the scheme's own there.
+            let (map, b) = terms.step_map([&xm1, &xm2], [&vm[0], &vm[1]]);
+            let (mut xf, mut vf) = (vec![0.0; ndof], vec![0.0; ndof]);
+            let mut v = terms.predictor(
+                &self.free,
+                &x,
+                [&xm1, &xm2],
+                [&vm[0], &vm[1], &vm[2], &vm[3]],
+                &mut xf,
+                &mut vf,
+            );
+            let free = &self.free;
+            let force_state = |v: &[f64], xf: &mut [f64], vf: &mut [f64]| map.fill(free, v, xf, vf);
+            force_state(&v, &mut xf, &mut vf);
             let step_branch = relax.as_ref().map(PointRelaxation::step_branch);
             let branch = step_branch.as_ref();
             let mut fresh = carried.is_none();
@@ -622,9 +613,9 @@ impl<'a> QuadraticMotion<'a> {
             let mut halvings = 0;
             loop {
                 let assembled = if fresh {
-                    self.assemble(mat, branch, &x, &v, &mut f, Some((&mut kv, &mut dv)))
+                    self.assemble(mat, branch, &xf, &vf, &mut f, Some((&mut kv, &mut dv)))
                 } else {
-                    self.assemble(mat, branch, &x, &v, &mut f, None)
+                    self.assemble(mat, branch, &xf, &vf, &mut f, None)
                 };
                 let nrm = match assembled {
                     Ok(()) => {
@@ -674,15 +665,15 @@ impl<'a> QuadraticMotion<'a> {
                         // No part of the update lowers the residual: round-off's floor. The
                         // step ends where the update started, unconverged if above tol.
                         v.copy_from_slice(v0);
-                        position(&v, &mut x);
-                        self.assemble(mat, branch, &x, &v, &mut f, None)?;
+                        force_state(&v, &mut xf, &mut vf);
+                        self.assemble(mat, branch, &xf, &vf, &mut f, None)?;
                         run.max_residual = run.max_residual.max(prev_nrm);
                         if prev_nrm >= tol {
                             run.unconverged_steps += 1;
                         }
                         break;
                     }
-                    position(&v, &mut x);
+                    force_state(&v, &mut xf, &mut vf);
                     continue;
                 }
                 if nrm < tol || iter >= model.newton.max_iter {
@@ -694,7 +685,7 @@ impl<'a> QuadraticMotion<'a> {
                 }
                 if !fresh && nrm > REFACTOR_CONTRACTION * prev_nrm {
                     // The kept factor no longer contracts: the tangent here, factorised.
-                    self.assemble(mat, branch, &x, &v, &mut f, Some((&mut kv, &mut dv)))?;
+                    self.assemble(mat, branch, &xf, &vf, &mut f, Some((&mut kv, &mut dv)))?;
                     fresh = true;
                 }
                 if fresh {
@@ -721,7 +712,7 @@ impl<'a> QuadraticMotion<'a> {
                         v[d] += step[fr];
                     }
                 }
-                position(&v, &mut x);
+                force_state(&v, &mut xf, &mut vf);
                 last = Some((v0, step, fresh));
                 halvings = 0;
                 prev_nrm = nrm;
@@ -730,13 +721,14 @@ impl<'a> QuadraticMotion<'a> {
                 run.newton_iterations += 1;
             }
             if let (Some(r), Some(b)) = (relax.as_mut(), branch) {
-                // BDF2's force state is x^n itself.
-                r.advance(self, mat, b, &x)?;
+                r.advance(self, mat, b, &xf)?;
             }
+            terms.end_positions(&self.free, &xf, &v, [&xm1, &xm2], [&vm[0], &vm[1]], &mut x);
             on_step(n, &x);
             run.markers.push(self.marker_positions(&x));
             xm2 = std::mem::replace(&mut xm1, x);
-            vm3 = std::mem::replace(&mut vm2, std::mem::replace(&mut vm1, v));
+            vm.rotate_right(1);
+            vm[0] = v;
         }
         log::debug!(
             "quadratic run: {} steps, {} Newton iterations, {} factorisations, {} steps unconverged (largest residual {:.1e} N)",

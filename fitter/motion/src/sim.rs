@@ -454,7 +454,7 @@ fn newton_static(
 /// The affine map from a step's velocities v to the state its forces are evaluated at: on free
 /// dofs x_f = x_a + a_x v, v_f = v_a + a_v v ([`Scheme::coefficients`]); clamped dofs keep the
 /// values the step prescribes them.
-struct ForceMap {
+pub(crate) struct ForceMap {
     xa: Vec<f64>,
     va: Vec<f64>,
     ax: f64,
@@ -463,7 +463,7 @@ struct ForceMap {
 
 impl ForceMap {
     /// Writes the free entries of (`xf`, `vf`) from `v`.
-    fn fill(&self, free: &[usize], v: &[f64], xf: &mut [f64], vf: &mut [f64]) {
+    pub(crate) fn fill(&self, free: &[usize], v: &[f64], xf: &mut [f64], vf: &mut [f64]) {
         for (d, &fr) in free.iter().enumerate() {
             if fr != usize::MAX {
                 xf[d] = self.xa[d] + self.ax * v[d];
@@ -630,7 +630,7 @@ fn start_state(model: &Model, mat: &Material) -> Result<(Vec<f64>, Option<Factor
 
 /// A scheme's constants over a run: S = c M + a_x K + a_v D ([`Scheme::coefficients`]) and
 /// generalised-α's two-step weights with their force-state history coefficients.
-struct SchemeTerms {
+pub(crate) struct SchemeTerms {
     scheme: Scheme,
     dt: f64,
     c: f64,
@@ -641,7 +641,7 @@ struct SchemeTerms {
 }
 
 impl SchemeTerms {
-    fn new(model: &Model, mat: &Material) -> Self {
+    pub(crate) fn new(model: &Model, mat: &Material) -> Self {
         let scheme = model.scheme_for(mat);
         let (c, ax, av) = scheme.coefficients(model.dt);
         let two = scheme.two_step();
@@ -657,6 +657,11 @@ impl SchemeTerms {
         }
     }
 
+    /// The step's (c, a_x, a_v) ([`Scheme::coefficients`]).
+    pub(crate) fn coefficients(&self) -> (f64, f64, f64) {
+        (self.c, self.ax, self.av)
+    }
+
     /// BDF2's extrapolated position (4x^{n−1} − x^{n−2})/3 of dof `d`.
     fn bdf2_xa(xm1: &[f64], xm2: &[f64], d: usize) -> f64 {
         (4.0 * xm1[d] - xm2[d]) / 3.0
@@ -664,7 +669,7 @@ impl SchemeTerms {
 
     /// The step's force state as a function of v ([`ForceMap`]) and its inertia base b, from
     /// the two steps before it.
-    fn step_map(&self, xm: [&[f64]; 2], vm: [&[f64]; 2]) -> (ForceMap, Vec<f64>) {
+    pub(crate) fn step_map(&self, xm: [&[f64]; 2], vm: [&[f64]; 2]) -> (ForceMap, Vec<f64>) {
         let ([xm1, xm2], [vm1, vm2]) = (xm, vm);
         let (ax, av, two) = (self.ax, self.av, &self.two);
         let (hist_a0, hist_a1, hist_e) = self.hist;
@@ -719,10 +724,11 @@ impl SchemeTerms {
     /// quadratically multiplies that alternation by 7. Its step means u^n = (v^{n−1} + v^n)/2 =
     /// (x^n − x^{n−1})/Δt carry no alternation, so they are what is extrapolated, quadratically,
     /// and v^n = 2u^n − v^{n−1}: v = 2v^{n−1} − 2v^{n−3} + v^{n−4}, exact on the alternation and
-    /// O(Δt³) on a smooth motion.
-    fn predictor(
+    /// O(Δt³) on a smooth motion. `free` maps each dof to its free index, or `usize::MAX` where
+    /// it is clamped.
+    pub(crate) fn predictor(
         &self,
-        model: &Model,
+        free: &[usize],
         x: &[f64],
         xm: [&[f64]; 2],
         vm: [&[f64]; 4],
@@ -741,7 +747,7 @@ impl SchemeTerms {
                 .collect(),
         };
         for d in 0..x.len() {
-            if model.free[d] == usize::MAX {
+            if free[d] == usize::MAX {
                 v[d] = (x[d] - Self::bdf2_xa(xm1, xm2, d)) / a2;
                 (xf[d], vf[d]) = match self.scheme {
                     Scheme::Bdf2 => (x[d], v[d]),
@@ -758,10 +764,10 @@ impl SchemeTerms {
     }
 
     /// Writes the free dofs' end-of-step positions into `x` from the converged velocities `v`
-    /// and force state `xf`.
-    fn end_positions(
+    /// and force state `xf` (`free` as in [`Self::predictor`]).
+    pub(crate) fn end_positions(
         &self,
-        model: &Model,
+        free: &[usize],
         xf: &[f64],
         v: &[f64],
         xm: [&[f64]; 2],
@@ -769,7 +775,7 @@ impl SchemeTerms {
         x: &mut [f64],
     ) {
         let ([xm1, xm2], [vm1, vm2]) = (xm, vm);
-        for (d, &fr) in model.free.iter().enumerate() {
+        for (d, &fr) in free.iter().enumerate() {
             if fr != usize::MAX {
                 x[d] = match self.scheme {
                     Scheme::Bdf2 => xf[d],
@@ -875,7 +881,7 @@ pub fn simulate_solving(
         let (mut xf, mut vf) = (vec![0.0; ndof], vec![0.0; ndof]);
         let branch = relax.as_ref().map(Relaxation::step_branch);
         let mut v = terms.predictor(
-            model,
+            &model.free,
             &x,
             [&xm1, &xm2],
             [&vm1, &vm2, &vm3, &vm4],
@@ -1042,7 +1048,7 @@ pub fn simulate_solving(
             iter += 1;
             stats.newton_iterations += 1;
         }
-        terms.end_positions(model, &xf, &v, [&xm1, &xm2], [&vm1, &vm2], &mut x);
+        terms.end_positions(&model.free, &xf, &v, [&xm1, &xm2], [&vm1, &vm2], &mut x);
         // Fresh solves are exact: the settings only steer CG on a kept factor.
         let settings = match solve {
             StepSolve::Kept(k) => k,
@@ -1145,7 +1151,7 @@ mod tests {
         let x: Vec<f64> = model.nodes.iter().flatten().copied().collect();
         let (mut xf, mut vf) = (vec![0.0; ndof], vec![0.0; ndof]);
         let v = terms.predictor(
-            &model,
+            &model.free,
             &x,
             [&x, &x],
             [&past[0], &past[1], &past[2], &past[3]],

@@ -15,7 +15,7 @@ use palpate_runtime::RuntimeConfig;
 use std::path::{Path, PathBuf};
 
 use super::demo_readme::{figures_in, Part, Table};
-use super::import::{import_c3d, C3dArgs};
+use super::import::{import_c3d, C3dArgs, DEFAULT_SCHEME};
 
 /// The measured beam's folder (the bundled capture and the mesh the demo fits on), relative to
 /// the repository root.
@@ -59,7 +59,7 @@ fn import(run: &str, out: &Path) -> anyhow::Result<(String, MotionDataset)> {
         clamps: vec!["clamp".into()],
         gravity: [-9.81, 0.0, 0.0],
         density: Some(1070.0),
-        scheme: "bdf2".into(),
+        scheme: DEFAULT_SCHEME.into(),
         hang,
         rest_frame: 0,
         release_frame: None,
