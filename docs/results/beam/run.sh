@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The measured-beam evidence: import the four bundled captures on the coarse mesh, fit
-# the diagnosed model (Neo-Hookean, Poisson's ratio held at 0.49, Newtonian damping, the hanging
-# weight's inertia) on all four runs -> models/silicone-beam/fit.json, then leave one run out:
+# the diagnosed model's elastic law and damping (Neo-Hookean, Poisson's ratio held at 0.49, a
+# Newtonian viscosity, the hanging weight's inertia; no creep branch) on all four runs ->
+# models/silicone-beam/fit.json, then leave one run out:
 # fit three, predict the fourth with `palpate validate`. Run from the repository root:
 #     bash docs/results/beam/run.sh            (≈ 1 min on 2 cores)
 set -euo pipefail
