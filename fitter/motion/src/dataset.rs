@@ -87,8 +87,9 @@ pub struct DatasetToml {
     /// oscillation, [`crate::timestep`]; 1 integrates at the capture rate).
     #[serde(default)]
     pub substeps: Option<usize>,
-    /// Time integration scheme: `"bdf2"` (default), `"midpoint"` or `"alpha"`
-    /// ([`crate::timestep::Scheme`]); the substeps chosen from the capture follow its rule.
+    /// Time integration scheme: `"bdf2"`, `"midpoint"` (default:
+    /// [`crate::timestep::DATASET_DEFAULT`]) or `"alpha"` ([`crate::timestep::Scheme`]); the
+    /// substeps chosen from the capture follow its rule.
     #[serde(default)]
     pub scheme: Option<String>,
     /// How the viscosity reads the velocity gradient: `"rest-gradient"` (default, Real2Sim's

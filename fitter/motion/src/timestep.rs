@@ -73,6 +73,15 @@ pub enum Scheme {
     Alpha,
 }
 
+/// The scheme a dataset is integrated with when it names none (its `scheme` key), and what
+/// `palpate import c3d` writes: the implicit midpoint rule. Data from another simulator or a
+/// capture carry no numerical damping, and BDF2's, at the capture's own rate, is a loss and a
+/// period error the fit must explain with something: with it, the motion diagnosis of the
+/// independent generator's cylinders adopted stiffening and marker offsets on draws that hold no
+/// effect, which under the midpoint rule it does not (docs/motion-dataset.md, "The simulation
+/// step"). [`Scheme::default`] stays Real2Sim's BDF2 for a model built in code.
+pub const DATASET_DEFAULT: Scheme = Scheme::Midpoint;
+
 /// The spectral radius at infinity of [`Scheme::Alpha`]: every mode with ωΔt ≫ 1 loses 1 − ρ∞ =
 /// 20 % of its amplitude per step, while a mode resolved by 13 steps per period loses 0.02 % per
 /// cycle ([`Scheme::oscillator_error`]).
@@ -130,7 +139,7 @@ impl TwoStep {
 
 impl Scheme {
     /// The name in dataset files and reports (`"bdf2"`, `"midpoint"`).
-    pub fn name(self) -> &'static str {
+    pub const fn name(self) -> &'static str {
         match self {
             Scheme::Bdf2 => "bdf2",
             Scheme::Midpoint => "midpoint",

@@ -449,6 +449,9 @@ fn example(dir: &Path) -> anyhow::Result<()> {
     let truth = example_truth(&m);
     let obs = record(&m, &truth, 2e-4, 11)?;
     let mut config = DatasetToml::new(dt, vec!["front".into()]);
+    // Recorded by BDF2 at the capture step (the model's own scheme): said, so that the dataset
+    // is read with the integrator that made it and not a dataset's default.
+    config.scheme = Some(m.scheme.name().into());
     config.density = Some(47.0);
     config.gravity = Some([0.0, -9.81, 0.0]);
     // A start away from the truth, so the example shows the fit moving.

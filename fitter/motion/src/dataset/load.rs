@@ -145,6 +145,7 @@ fn configure_model(
     model: &mut Model,
 ) -> Result<(), DatasetError> {
     model.static_start = config.static_start.unwrap_or(true);
+    model.scheme = crate::timestep::DATASET_DEFAULT;
     if let Some(name) = config.scheme.as_deref() {
         model.scheme = crate::timestep::Scheme::from_name(name).ok_or_else(|| {
             bad(

@@ -187,7 +187,7 @@ fn toml_keys_missing_or_unknown_are_named_on_their_line() {
     assert!(e.contains("dataset.toml:1: missing field `dt`"), "{e}");
     let e = with_toml("density = 47.0", "densty = 47.0");
     assert!(
-        e.contains("dataset.toml:4: unknown field `densty`") && !e.contains(":0:"),
+        e.contains("dataset.toml:5: unknown field `densty`") && !e.contains(":0:"),
         "{e}"
     );
 }
@@ -224,21 +224,34 @@ fn viscosity_form_key_sets_the_law_a_fit_starts_from() {
     );
 }
 
-/// `scheme` picks the integrator, and the substeps chosen from the capture follow its rule; an
-/// unknown name is refused with the field and the names it takes.
+/// `scheme` picks the integrator, and the substeps chosen from the capture follow its rule; a
+/// dataset without the key is read under the midpoint rule; an unknown name is refused with the
+/// field and the names it takes.
 #[test]
 fn scheme_key_selects_the_integrator() {
     use palpate_motion::timestep::Scheme;
+    let example_scheme = "scheme = \"bdf2\"\n";
+    assert_eq!(load(&example()).unwrap().model.scheme, Scheme::Bdf2);
     let dir = tempfile::tempdir().unwrap();
     copy_example(dir.path());
     edit(dir.path(), "dataset.toml", |t| {
-        format!("scheme = \"midpoint\"\n{t}")
+        assert!(t.contains(example_scheme));
+        t.replace(example_scheme, "scheme = \"midpoint\"\n")
     });
     let ds = load(dir.path()).unwrap();
     assert_eq!(ds.model.scheme, Scheme::Midpoint);
     assert_eq!(ds.timestep.scheme, Scheme::Midpoint);
-    assert_eq!(load(&example()).unwrap().model.scheme, Scheme::Bdf2);
-    let e = broken(|d| edit(d, "dataset.toml", |t| format!("scheme = \"rk4\"\n{t}")));
+    edit(dir.path(), "dataset.toml", |t| {
+        t.replace("scheme = \"midpoint\"\n", "")
+    });
+    let ds = load(dir.path()).unwrap();
+    assert_eq!(ds.model.scheme, Scheme::Midpoint);
+    assert_eq!(palpate_motion::timestep::DATASET_DEFAULT, Scheme::Midpoint);
+    let e = broken(|d| {
+        edit(d, "dataset.toml", |t| {
+            t.replace(example_scheme, "scheme = \"rk4\"\n")
+        })
+    });
     assert!(
         e.contains("dataset.toml") && e.contains("field scheme") && e.contains("\"rk4\""),
         "{e}"

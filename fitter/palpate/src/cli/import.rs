@@ -21,8 +21,9 @@ pub enum ImportCommand {
     Cloud(super::import_scan::CloudArgs),
 }
 
-/// The time integration `palpate import c3d` writes when `--scheme` is not given.
-pub const DEFAULT_SCHEME: &str = "midpoint";
+/// The time integration `palpate import c3d` writes when `--scheme` is not given: a dataset's
+/// own default.
+pub const DEFAULT_SCHEME: &str = palpate_motion::timestep::DATASET_DEFAULT.name();
 
 /// Options of `palpate import c3d`.
 #[derive(Debug, Clone, clap::Args)]
