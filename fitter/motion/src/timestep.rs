@@ -77,9 +77,10 @@ pub enum Scheme {
 /// `palpate import c3d` writes: the implicit midpoint rule. Data from another simulator or a
 /// capture carry no numerical damping, and BDF2's, at the capture's own rate, is a loss and a
 /// period error the fit must explain with something: with it, the motion diagnosis of the
-/// independent generator's cylinders adopted stiffening and marker offsets on draws that hold no
-/// effect, which under the midpoint rule it does not (docs/motion-dataset.md, "The simulation
-/// step"). [`Scheme::default`] stays Real2Sim's BDF2 for a model built in code.
+/// independent generator's cylinders named the injected effect first in 31 of 46 draws, under the
+/// midpoint rule in 38 of 48, and effect-free draws lost stiffenings and marker offsets that had
+/// taken up BDF2's error (docs/motion-dataset.md, "The simulation step").
+/// [`Scheme::default`] stays Real2Sim's BDF2 for a model built in code.
 pub const DATASET_DEFAULT: Scheme = Scheme::Midpoint;
 
 /// The spectral radius at infinity of [`Scheme::Alpha`]: every mode with ωΔt ≫ 1 loses 1 − ρ∞ =
