@@ -26,8 +26,18 @@ pub fn run(
         })?;
         Ok((p.display().to_string(), ds))
     };
-    let fit: Vec<_> = fitted.iter().map(load).collect::<Result<_, _>>()?;
-    let held: Vec<_> = held_out.iter().map(load).collect::<Result<_, _>>()?;
+    // Each run's reading checks its own simulation step (two simulations): side by side, and the
+    // first failing run in the order given is the one reported.
+    use rayon::prelude::*;
+    let paths: Vec<&PathBuf> = fitted.iter().chain(held_out).collect();
+    let mut loaded: Vec<_> = paths
+        .par_iter()
+        .map(|p| load(p))
+        .collect::<Vec<_>>()
+        .into_iter()
+        .collect::<Result<Vec<_>, _>>()?;
+    let held = loaded.split_off(fitted.len());
+    let fit = loaded;
     let mut o = super::RunsOptions::default();
     if let Some(n) = max_effects {
         o.max_effects = n;

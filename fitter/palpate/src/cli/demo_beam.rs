@@ -52,7 +52,7 @@ fn import(run: &str, out: &Path) -> anyhow::Result<(String, MotionDataset)> {
     } else {
         Vec::new()
     };
-    import_c3d(&C3dArgs {
+    let ds = import_c3d(&C3dArgs {
         capture: PathBuf::from(BEAM).join(format!("beam_{run}.c3d")),
         mesh: PathBuf::from(BEAM).join(MESH),
         places: PathBuf::from(BEAM).join("marker-places.csv"),
@@ -67,9 +67,8 @@ fn import(run: &str, out: &Path) -> anyhow::Result<(String, MotionDataset)> {
         last_frame: None,
         declared_only: false,
         output: dir.clone(),
-    })?;
-    let ds = palpate_motion::dataset::load(&dir)
-        .with_context(|| format!("reading the imported {}", dir.display()))?;
+    })
+    .with_context(|| format!("importing {}", dir.display()))?;
     Ok((run.to_string(), ds))
 }
 

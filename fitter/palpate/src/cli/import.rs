@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use palpate_capture::import::{import_motion, ImportOptions, Imported};
 use palpate_fem::io::parse_vec3_f64;
-use palpate_motion::dataset::{DatasetToml, LoadToml, MotionDatasetFiles};
+use palpate_motion::dataset::{DatasetToml, LoadToml, MotionDataset, MotionDatasetFiles};
 
 /// What to import.
 #[derive(Debug, clap::Subcommand)]
@@ -127,7 +127,7 @@ fn read_places(path: &Path) -> anyhow::Result<Vec<(String, [f64; 3])>> {
 /// Runs the command.
 pub fn run(cmd: ImportCommand) -> anyhow::Result<()> {
     match cmd {
-        ImportCommand::C3d(a) => import_c3d(&a),
+        ImportCommand::C3d(a) => import_c3d(&a).map(|_| ()),
         ImportCommand::Depth(a) => super::import_scan::run_depth(&a),
         ImportCommand::Cloud(a) => super::import_scan::run_cloud(&a),
     }
@@ -158,8 +158,10 @@ fn check_args(a: &C3dArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Imports one capture as `palpate import c3d` does (also the demo's first step).
-pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
+/// Imports one capture as `palpate import c3d` does (also the demo's first step), and returns the
+/// dataset as it read back from what was written (its step checked), so that a caller need not
+/// read it again.
+pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<MotionDataset> {
     check_args(a)?;
     let capture = palpate_capture::read_c3d(&a.capture)?;
     let places = read_places(&a.places)?;
@@ -255,7 +257,7 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<()> {
     for f in files {
         log::info!("wrote {}", f.display());
     }
-    Ok(())
+    Ok(ds)
 }
 
 /// The imported capture as the files of a motion dataset: the flags' clamps, gravity, density
