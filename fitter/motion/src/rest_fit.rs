@@ -532,7 +532,7 @@ mod tests {
 
     /// Markers displaced c times the measured amount by a linear response ask for ln c in ln μ:
     /// the step in the compliance gives it exactly, where ln μ's own linearisation, (c − 1)/c,
-    /// falls short; near the minimum the two agree to second order in the step.
+    /// falls short; near the minimum the two differ by a term of second order in the step.
     #[test]
     fn the_compliance_step_is_exact_for_a_linear_response() {
         for c in [0.2, 0.7, 1.3, 1.93, 5.0] {
