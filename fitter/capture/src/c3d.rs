@@ -1,5 +1,6 @@
 //! C3D marker trajectories (via `c3dio`), in metres, with missing samples kept as missing.
 
+use super::c3d_parameters;
 use std::path::{Path, PathBuf};
 
 /// Errors of the capture import: each names the file.
@@ -88,18 +89,28 @@ pub fn read_c3d(path: &Path) -> Result<Capture, CaptureError> {
         source,
     })?;
     check_header(path, &bytes)?;
+    // Empty parameters (a zero dimension), which `c3dio` refuses, left out of the section; where
+    // the walk finds the section broken, the parser still decides, and the walk says where.
+    let (bytes, walk) = match c3d_parameters::without_empty(&bytes) {
+        Ok(Some((kept, _dropped))) => (kept, None),
+        Ok(None) => (bytes, None),
+        Err(where_) => (bytes, Some(where_)),
+    };
+    let located = |what: String| CaptureError::Parse {
+        path: path.into(),
+        what: match &walk {
+            Some(w) => format!("{what}; the parameter section: {w}"),
+            None => what,
+        },
+    };
     // The parser is a third-party crate: a file that passes the header check but trips it must
     // still be an error, not a crash of the whole program.
     let parsed =
         std::panic::catch_unwind(|| c3dio::C3d::from_bytes(&bytes).map_err(|e| format!("{e:?}")))
-            .map_err(|_| CaptureError::Parse {
-            path: path.into(),
-            what: "the parser failed on this file (malformed parameter or data section)".into(),
+            .map_err(|_| {
+            located("the parser failed on this file (malformed parameter or data section)".into())
         })?;
-    let c3d = parsed.map_err(|what| CaptureError::Parse {
-        path: path.into(),
-        what,
-    })?;
+    let c3d = parsed.map_err(located)?;
     let p = &c3d.points;
     let units: String = p.units.iter().collect::<String>().trim().to_lowercase();
     let scale = match units.as_str() {

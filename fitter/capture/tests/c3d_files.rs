@@ -147,6 +147,73 @@ fn a_file_this_test_builds_reads_back() {
     }
 }
 
+/// Empty parameters, as Vicon Nexus writes them for a trial without events or analyses (a zero
+/// dimension: `POINT:MOVIE_ID` 32 × 0, `EVENT:LABELS` 32 × 0, `EVENT:TIMES` 2 × 0 and, last in
+/// the section, `ANALYSIS:DESCRIPTIONS` 80 × 0), added to a real file's parameter section: the
+/// capture reads as it did without them. `c3dio` sizes an empty parameter's data without its
+/// zero dimension, and the last one's 80 bytes ran past the section: the whole file was refused.
+/// (A Vicon file with 51 markers and 38 analog channels, 19 such parameters, now reads: its
+/// first and last samples agree with its data section read independently.)
+#[test]
+fn empty_parameters_as_vicon_writes_them_are_read_past() {
+    let real = beam("beam_gravity_V2_a.c3d");
+    let mut bytes = std::fs::read(&real).unwrap();
+    let before = read_c3d(&real).unwrap();
+    // This Intel-format file's parameter section: its chain of records from byte 4, each with
+    // its name's length, its group id (negative for a group), the name and a little-endian
+    // offset from that offset to the next record; a zero group id ends it.
+    let start = (usize::from(bytes[0]) - 1) * 512;
+    let end = (usize::from(u16::from_le_bytes([bytes[16], bytes[17]])) - 1) * 512;
+    let (mut at, mut point) = (start + 4, None);
+    while bytes[at + 1] != 0 {
+        let n = usize::from((bytes[at] as i8).unsigned_abs());
+        if (bytes[at + 1] as i8) < 0 && &bytes[at + 2..at + 2 + n] == b"POINT" {
+            point = Some(-(bytes[at + 1] as i8));
+        }
+        let link = at + 2 + n;
+        at = link + usize::from(u16::from_le_bytes([bytes[link], bytes[link + 1]]));
+    }
+    let point = point.expect("a POINT group") as u8;
+    bytes[at..end].iter_mut().for_each(|z| *z = 0);
+    let records: [(&str, u8, &[u8]); 6] = [
+        ("MOVIE_ID", point, &[0xff, 2, 32, 0, 0]),
+        ("EVENT", (-20i8) as u8, &[0]),
+        ("LABELS", 20, &[0xff, 2, 32, 0, 0]),
+        ("TIMES", 20, &[4, 2, 2, 0, 0]),
+        ("ANALYSIS", (-21i8) as u8, &[0]),
+        ("DESCRIPTIONS", 21, &[0xff, 2, 80, 0, 0]),
+    ];
+    let last = end - 40;
+    for (k, (name, id, body)) in records.iter().enumerate() {
+        assert!(
+            at + 4 + name.len() + body.len() <= end,
+            "room in the section"
+        );
+        bytes[at] = name.len() as u8;
+        bytes[at + 1] = *id;
+        bytes[at + 2..at + 2 + name.len()].copy_from_slice(name.as_bytes());
+        let link = at + 2 + name.len();
+        let len = 2 + body.len();
+        // The record before the last links to near the section's end, with 40 bytes left.
+        let next = if k + 2 == records.len() {
+            last
+        } else {
+            link + len
+        };
+        bytes[link..link + 2].copy_from_slice(&((next - link) as u16).to_le_bytes());
+        bytes[link + 2..link + 2 + body.len()].copy_from_slice(body);
+        at = next;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("empty-parameters.c3d");
+    std::fs::write(&path, &bytes).unwrap();
+    let after = read_c3d(&path).unwrap();
+    assert_eq!(after.labels, before.labels);
+    assert_eq!(after.rate_hz, before.rate_hz);
+    assert_eq!(after.first_frame, before.first_frame);
+    assert_eq!(after.positions, before.positions);
+}
+
 /// Broken files are located errors, not panics: a truncated capture, a file that is not C3D,
 /// a missing file, an unknown label.
 #[test]
