@@ -219,13 +219,7 @@ fn check_header(path: &Path, b: &[u8]) -> Result<(), CaptureError> {
         return Err(bad(format!("last frame {last} before first frame {first}")));
     }
     let frames = usize::from(last - first) + 1;
-    let scale_word = [b[12], b[13], b[14], b[15]];
-    let scale = if big_endian {
-        f32::from_be_bytes(scale_word)
-    } else {
-        f32::from_le_bytes(scale_word)
-    };
-    let per_point = if scale <= 0.0 {
+    let per_point = if float_points([b[12], b[13], b[14], b[15]], processor) {
         POINT_BYTES_FLOAT
     } else {
         POINT_BYTES_INTEGER
@@ -241,17 +235,42 @@ fn check_header(path: &Path, b: &[u8]) -> Result<(), CaptureError> {
     Ok(())
 }
 
+/// Whether the header's point scale (bytes 13–16), in the file's processor format, is zero or
+/// negative: the points are then stored as floats, otherwise as scaled integers. Intel writes an
+/// IEEE float little-endian, MIPS big-endian, DEC its F-float: two little-endian 16-bit halves,
+/// the first holding the sign (its bit 15) and the exponent (bits 14–7; 0 is zero), so the sign
+/// is in the second byte, where an IEEE little-endian read finds a fraction bit.
+fn float_points(w: [u8; 4], processor: u8) -> bool {
+    match processor {
+        85 => w[1] & 0x80 != 0 || (u16::from(w[1] & 0x7f) << 1 | u16::from(w[0] >> 7)) == 0,
+        86 => f32::from_be_bytes(w) <= 0.0,
+        _ => f32::from_le_bytes(w) <= 0.0,
+    }
+}
+
 impl Capture {
     /// The index of marker `label`.
+    ///
+    /// A label the file does not hold is also found under one subject's prefix: Vicon Nexus
+    /// labels each marker `Subject:Marker`, and a places file written for the object says
+    /// `Marker`. Only a single such match counts; two subjects with the marker are an error.
     pub fn marker(&self, label: &str) -> Result<usize, CaptureError> {
-        self.labels
+        if let Some(k) = self.labels.iter().position(|l| l == label) {
+            return Ok(k);
+        }
+        let mut prefixed = self
+            .labels
             .iter()
-            .position(|l| l == label)
-            .ok_or_else(|| CaptureError::Label {
+            .enumerate()
+            .filter(|(_, l)| l.rsplit_once(':').is_some_and(|(_, m)| m == label));
+        match (prefixed.next(), prefixed.next()) {
+            (Some((k, _)), None) => Ok(k),
+            _ => Err(CaptureError::Label {
                 path: self.source.clone(),
                 label: label.into(),
                 known: self.labels.clone(),
-            })
+            }),
+        }
     }
 
     /// Seconds from the first frame to frame `f`.
@@ -322,6 +341,40 @@ mod tests {
         assert!(what.contains("data section start"), "{what}");
         let what = header_error(&beam_with(&[(16, 0xff), (17, 0xff)]));
         assert!(what.contains("block 65535"), "{what}");
+    }
+
+    /// A DEC file's scale is a DEC F-float: its sign is in byte 14, not byte 16. An integer
+    /// file (8 bytes a point) whose scale's byte 16 has its top bit set was read as a float
+    /// file needing twice its data, and refused as truncated.
+    #[test]
+    fn a_dec_files_scale_is_read_as_dec_writes_it() {
+        let b = beam_with(&[]);
+        let data = (usize::from(u16::from_le_bytes([b[16], b[17]])) - 1) * 512;
+        let points = usize::from(u16::from_le_bytes([b[2], b[3]]))
+            * (usize::from(u16::from_le_bytes([b[8], b[9]]))
+                - usize::from(u16::from_le_bytes([b[6], b[7]]))
+                + 1);
+        // DEC, scale +0.0025 as DEC writes it ([0x23, 0x3c, 0x0a, 0xd7]: exponent 120, positive),
+        // the data section just long enough for 8-byte points.
+        let mut dec = beam_with(&[
+            (512 + 3, 85),
+            (12, 0x23),
+            (13, 0x3c),
+            (14, 0x0a),
+            (15, 0xd7),
+        ]);
+        dec.truncate(data + points * POINT_BYTES_INTEGER);
+        assert!(!float_points([0x23, 0x3c, 0x0a, 0xd7], 85));
+        assert!(
+            float_points([0x23, 0x3c, 0x0a, 0xd7], 84),
+            "read as IEEE: negative"
+        );
+        check_header(Path::new("x.c3d"), &dec).unwrap();
+        // The same scale negative (float points, 16 bytes each) does not fit: truncated.
+        dec[13] |= 0x80;
+        let what = header_error(&dec);
+        assert!(what.contains("truncated"), "{what}");
+        assert!(float_points([0, 0, 0, 0], 85), "DEC zero");
     }
 
     #[test]

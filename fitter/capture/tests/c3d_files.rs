@@ -239,6 +239,21 @@ fn broken_files_are_clear_errors() {
     let c = read_c3d(&beam("beam_gravity_V2_a.c3d")).unwrap();
     let e = c.marker("Tip - 9").unwrap_err().to_string();
     assert!(e.contains("Tip - 9") && e.contains("Tip - 1"), "{e}");
+    // Labels under a subject's prefix (Vicon Nexus' `Subject:Marker`) are found by the marker's
+    // name when one subject has it, and refused when two do.
+    let mut prefixed = c.clone();
+    prefixed.labels = c.labels.iter().map(|l| format!("beam:{l}")).collect();
+    assert_eq!(
+        prefixed.marker("Tip - 2").unwrap(),
+        c.marker("Tip - 2").unwrap()
+    );
+    assert_eq!(
+        prefixed.marker("beam:Tip - 2").unwrap(),
+        c.marker("Tip - 2").unwrap()
+    );
+    prefixed.labels[0] = format!("other:{}", c.labels[1]);
+    let e = prefixed.marker(&c.labels[1]).unwrap_err().to_string();
+    assert!(e.contains("other:"), "{e}");
     // Every prefix of a real file is refused or read, never a crash.
     for cut in (0..bytes.len()).step_by(997) {
         let p = dir.path().join("prefix.c3d");
