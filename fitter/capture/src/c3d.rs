@@ -32,7 +32,7 @@ pub enum CaptureError {
         what: String,
     },
     /// `POINT:UNITS` is not a length unit palpate knows.
-    #[error("{path}: POINT:UNITS is {found:?}, expected m, cm or mm")]
+    #[error("{path}: POINT:UNITS is {found:?}, expected m, cm or mm (or the unit's name)")]
     Units {
         /// The file.
         path: PathBuf,
@@ -113,16 +113,11 @@ pub fn read_c3d(path: &Path) -> Result<Capture, CaptureError> {
     let c3d = parsed.map_err(located)?;
     let p = &c3d.points;
     let units: String = p.units.iter().collect::<String>().trim().to_lowercase();
-    let scale = match units.as_str() {
-        "m" => 1.0,
-        "cm" => 1e-2,
-        "mm" | "" => 1e-3,
-        _ => {
-            return Err(CaptureError::Units {
-                path: path.into(),
-                found: units,
-            })
-        }
+    let Some(scale) = metres_per_unit(&units) else {
+        return Err(CaptureError::Units {
+            path: path.into(),
+            found: units,
+        });
     };
     let (frames, markers) = p.points.size();
     let labels: Vec<String> = (0..markers)
@@ -154,6 +149,18 @@ pub fn read_c3d(path: &Path) -> Result<Capture, CaptureError> {
         rate_hz: f64::from(p.frame_rate),
         first_frame: usize::from(p.first_frame),
         positions,
+    })
+}
+
+/// Metres per unit of `POINT:UNITS` (trimmed, lower case): the standard's abbreviations, the
+/// words some exporters write instead, and millimetres where the parameter is empty (the
+/// standard's default).
+fn metres_per_unit(units: &str) -> Option<f64> {
+    Some(match units {
+        "m" | "meter" | "meters" | "metre" | "metres" => 1.0,
+        "cm" | "centimeter" | "centimeters" | "centimetre" | "centimetres" => 1e-2,
+        "mm" | "millimeter" | "millimeters" | "millimetre" | "millimetres" | "" => 1e-3,
+        _ => return None,
     })
 }
 
@@ -375,6 +382,16 @@ mod tests {
         let what = header_error(&dec);
         assert!(what.contains("truncated"), "{what}");
         assert!(float_points([0, 0, 0, 0], 85), "DEC zero");
+    }
+
+    #[test]
+    fn point_units_are_read_as_abbreviations_or_words() {
+        assert_eq!(metres_per_unit("mm"), Some(1e-3));
+        assert_eq!(metres_per_unit("millimetres"), Some(1e-3));
+        assert_eq!(metres_per_unit(""), Some(1e-3));
+        assert_eq!(metres_per_unit("meters"), Some(1.0));
+        assert_eq!(metres_per_unit("cm"), Some(1e-2));
+        assert_eq!(metres_per_unit("in"), None);
     }
 
     #[test]

@@ -14,7 +14,7 @@
 //! fy = 420.0
 //! cx = 159.5
 //! cy = 119.5
-//! depth_unit_m = 0.001  # metres per integer unit of the 16-bit PNG
+//! depth_unit_m = 0.001  # metres per integer unit of the 16-bit PNG or PGM
 //! sigma_m = 0.0002      # optional depth noise σ = sigma_m + sigma_per_m · z² (m);
 //! sigma_per_m = 0.001   # without them σ is estimated from the points' local scatter
 //! [pose]                # camera → mesh frame; either eye, target and up (m) …
@@ -113,7 +113,7 @@ pub struct CameraToml {
     pub cx: f64,
     /// Principal point y (px).
     pub cy: f64,
-    /// Metres per integer unit of a depth PNG.
+    /// Metres per integer unit of a depth image.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub depth_unit_m: Option<f64>,
     /// Depth noise at zero depth (m).
@@ -248,20 +248,21 @@ fn noise(
     })
 }
 
-/// A depth image (16-bit PNG) seen by the camera of `camera_file`, back-projected into the
-/// mesh's frame. The PNG's unit comes from the camera file's `depth_unit_m`.
+/// A depth image (16-bit PNG or binary PGM, [`DepthImage::read`]) seen by the camera of
+/// `camera_file`, back-projected into the mesh's frame. The image's unit comes from the camera
+/// file's `depth_unit_m`.
 pub fn import_depth(png: &Path, camera_file: &Path) -> Result<Scan, ScanError> {
     let toml = CameraToml::read(camera_file)?;
     let unit = toml.depth_unit_m.ok_or_else(|| {
         ScanError::format(
             camera_file,
-            "field depth_unit_m is missing (metres per integer unit of the depth PNG, 0.001 for millimetres)",
+            "field depth_unit_m is missing (metres per integer unit of the depth image, 0.001 for millimetres)",
         )
     })?;
     let camera = toml
         .camera()
         .map_err(|e| ScanError::format(camera_file, e))?;
-    let image = DepthImage::read_png(png, unit)?;
+    let image = DepthImage::read(png, unit)?;
     let points = camera.points(&image);
     if points.is_empty() {
         return Err(ScanError::format(png, "no pixel has a depth (all 0)"));

@@ -15,7 +15,7 @@ use palpate_motion::dataset::{DatasetToml, LoadToml, MotionDataset, MotionDatase
 pub enum ImportCommand {
     /// A C3D file (Qualisys, Vicon, OptiTrack, Motion Analysis export).
     C3d(C3dArgs),
-    /// A depth frame (16-bit PNG) and its camera (TOML), back-projected into a scan folder.
+    /// A depth frame (16-bit PNG or PGM) and its camera (TOML), back-projected into a scan folder.
     Depth(super::import_scan::DepthArgs),
     /// A point cloud (PLY, XYZ, CSV) in the mesh's frame, as a scan folder.
     Cloud(super::import_scan::CloudArgs),

@@ -10,10 +10,11 @@ use palpate_scan::record::{self, Scan};
 /// Options of `palpate import depth`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct DepthArgs {
-    /// The depth frame: a 16-bit greyscale PNG, 0 where the sensor saw nothing.
+    /// The depth frame: a 16-bit greyscale PNG or binary PGM (Netpbm P5), 0 where the sensor saw
+    /// nothing.
     pub frame: PathBuf,
-    /// The camera: a TOML file with fx, fy, cx, cy (pixels), depth_unit_m (metres per PNG
-    /// unit), optionally sigma_m and sigma_per_m (depth noise σ = sigma_m + sigma_per_m·z²;
+    /// The camera: a TOML file with fx, fy, cx, cy (pixels), depth_unit_m (metres per
+    /// image unit), optionally sigma_m and sigma_per_m (depth noise σ = sigma_m + sigma_per_m·z²;
     /// estimated from the points' local scatter when absent) and a `[pose]` table into the
     /// mesh's frame (eye, target, up; or rotation rows and translation). Format:
     /// fitter/scan/src/record.rs.
