@@ -24,7 +24,8 @@ const CAMERA: &str = "fx = 100.0\nfy = 200.0\ncx = 1.5\ncy = 1.0\ndepth_unit_m =
 
 /// The frame's 11 points, back-projected by hand: x = (u − 1.5)·0.5/100 for u = 0…3 (−7.5 to
 /// +7.5 mm), y = (v − 1)·0.5/200 for v = 0…2 (−2.5 to +2.5 mm), z = 0.5 + 1 (the pose's
-/// translation); each point's σ = 1 mm + 4 m⁻¹ · (0.5 m)² = 2 mm. `palpate info` says so.
+/// translation); each point's σ = 1 mm + 4 m⁻¹ · (0.5 m)² = 2 mm. `palpate info` says so. The
+/// same frame saved as a PGM gives the same points.
 #[test]
 fn a_depth_frame_lands_where_the_pinhole_puts_it() {
     let tmp = tempfile::tempdir().unwrap();
@@ -58,6 +59,29 @@ fn a_depth_frame_lands_where_the_pinhole_puts_it() {
     assert!(close(&j["bounds_max_m"], [7.5e-3, 2.5e-3, 1.5]), "{j}");
     assert_eq!(j["noise"]["origin"], "declared");
     assert_eq!(j["camera"]["fy_px"], 200.0);
+
+    // The same frame as a 16-bit binary PGM, written here by hand (header, then big-endian
+    // samples in millimetres): the same points.
+    let pgm = tmp.path().join("frame.pgm");
+    let mut bytes = b"P5\n4 3\n65535\n".to_vec();
+    for k in 0..12u16 {
+        bytes.extend(if k == 0 { 0u16 } else { 500 }.to_be_bytes());
+    }
+    std::fs::write(&pgm, bytes).unwrap();
+    let from_pgm = tmp.path().join("scan-pgm");
+    let o = palpate()
+        .args(["import", "depth"])
+        .arg(&pgm)
+        .arg("--camera")
+        .arg(&camera)
+        .arg("-o")
+        .arg(&from_pgm)
+        .output()
+        .unwrap();
+    assert_succeeded(&o);
+    let (again, _) =
+        palpate_scan::cloud::read_ply_with(&from_pgm.join("points.ply"), "sigma").unwrap();
+    assert_eq!(again, points);
 }
 
 /// A cloud in millimetres lands in metres; the σ given is kept.
