@@ -285,27 +285,56 @@ impl Capture {
         f as f64 / self.rate_hz
     }
 
-    /// The first frame at which any of `markers` has moved more than `threshold` (m) from its
-    /// position in frame 0, averaged over those markers (the release of a held object); `None`
-    /// if nothing moves that far. Frames where a marker is missing are skipped.
+    /// The first frame at which `markers`, averaged, have moved more than `threshold` (m) from
+    /// where each was first seen (the release of a held object); `None` if nothing moves that
+    /// far. At each frame the average is over the markers seen there: a marker the cameras lost
+    /// in frame 0, or in every frame, leaves the others to tell the release.
     pub fn release_frame(&self, markers: &[usize], threshold: f64) -> Option<usize> {
-        let mean = |f: usize| -> Option<[f64; 3]> {
-            let mut s = [0.0; 3];
-            for &k in markers {
-                let p = (*self.positions.get(f)?.get(k)?)?;
+        let first_seen: Vec<Option<[f64; 3]>> = markers
+            .iter()
+            .map(|&k| {
+                self.positions
+                    .iter()
+                    .find_map(|row| row.get(k).copied().flatten())
+            })
+            .collect();
+        // The mean position of the markers seen at frame f, and the mean of where those same
+        // markers were first seen.
+        let means = |f: usize| -> Option<([f64; 3], [f64; 3])> {
+            let row = self.positions.get(f)?;
+            let seen: Vec<([f64; 3], [f64; 3])> = markers
+                .iter()
+                .zip(&first_seen)
+                .filter_map(|(&k, start)| Some(((*row.get(k)?)?, (*start)?)))
+                .collect();
+            if seen.is_empty() {
+                return None;
+            }
+            let n = seen.len() as f64;
+            let (mut now, mut start) = ([0.0; 3], [0.0; 3]);
+            for (p, q) in &seen {
                 for d in 0..3 {
-                    s[d] += p[d] / markers.len() as f64;
+                    now[d] += p[d] / n;
+                    start[d] += q[d] / n;
                 }
             }
-            Some(s)
+            Some((now, start))
         };
-        let start = mean(0)?;
         (1..self.positions.len()).find(|&f| {
-            mean(f).is_some_and(|p| {
-                ((p[0] - start[0]).powi(2) + (p[1] - start[1]).powi(2) + (p[2] - start[2]).powi(2))
-                    .sqrt()
+            means(f).is_some_and(|(p, q)| {
+                ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
                     > threshold
             })
+        })
+    }
+
+    /// The first frame up to `before` in which every one of `markers` is seen: where a
+    /// registration can use them all.
+    pub fn first_frame_seeing_all(&self, markers: &[usize], before: usize) -> Option<usize> {
+        (0..=before.min(self.positions.len().saturating_sub(1))).find(|&f| {
+            markers
+                .iter()
+                .all(|&k| self.positions[f].get(k).is_some_and(Option::is_some))
         })
     }
 }

@@ -109,6 +109,30 @@ fn first_frame_registers_to_the_documented_marker_places() {
     );
 }
 
+/// Markers the cameras lost: one tip marker missing in frames 0–39 (before the release, frame
+/// 72), and one missing in every frame. The release is found from the markers seen, at the frame
+/// the whole set gives; the first frame that sees every marker is 40, and none sees a marker
+/// that is never there.
+#[test]
+fn lost_markers_leave_the_release_to_the_others() {
+    let c = read_c3d(&beam("beam_gravity_V2_a.c3d")).unwrap();
+    let tips: Vec<usize> = TIPS.iter().map(|l| c.marker(l).unwrap()).collect();
+    let mut lost = c.clone();
+    for row in &mut lost.positions[..40] {
+        row[tips[0]] = None;
+    }
+    assert_eq!(lost.release_frame(&tips, 0.5e-3), Some(72));
+    assert_eq!(lost.first_frame_seeing_all(&tips, 71), Some(40));
+    assert_eq!(c.first_frame_seeing_all(&tips, 71), Some(0));
+    let mut never = c.clone();
+    for row in &mut never.positions {
+        row[tips[2]] = None;
+    }
+    let release = never.release_frame(&tips, 0.5e-3).unwrap();
+    assert!((70..=74).contains(&release), "release at frame {release}");
+    assert_eq!(never.first_frame_seeing_all(&tips, release), None);
+}
+
 /// A C3D built here from a real one: a gap written the way capture software writes it (zero
 /// coordinates, fourth word −1) in frame 4 of marker 2, and one coordinate changed, read back
 /// where they were put; every other sample unchanged.

@@ -61,7 +61,7 @@ fn import(run: &str, out: &Path) -> anyhow::Result<(String, MotionDataset)> {
         density: Some(1070.0),
         scheme: DEFAULT_SCHEME.into(),
         hang,
-        rest_frame: 0,
+        rest_frame: Some(0),
         release_frame: None,
         release_threshold: 0.5e-3,
         last_frame: None,

@@ -66,9 +66,10 @@ pub struct C3dArgs {
     /// `[[loads]]` table of the dataset (docs/motion-dataset.md).
     #[arg(long = "hang", value_name = "KG@GROUP", value_parser = parse_hang)]
     pub hang: Vec<(f64, String)>,
-    /// Frame at rest used for the registration.
-    #[arg(long, default_value_t = 0)]
-    pub rest_frame: usize,
+    /// Frame at rest used for the registration [default: the first frame before the release
+    /// that sees every placed marker].
+    #[arg(long)]
+    pub rest_frame: Option<usize>,
     /// Release: the last frame held still (simulation starts there). Default: detected as the
     /// frame before the registration markers' mean first moves more than `--release-threshold`.
     #[arg(long)]
@@ -176,9 +177,32 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<MotionDataset> {
             .map(|f| f - 1)
             .with_context(|| {
                 format!(
-                    "{}: no release found (the markers never move {} m from frame 0); give --release-frame",
+                    "{}: no release found (the placed markers seen never move {} m, on average, \
+                     from where each was first seen); give --release-frame",
                     a.capture.display(),
                     a.release_threshold
+                )
+            })?,
+    };
+    let rest_frame = match a.rest_frame {
+        Some(f) => f,
+        None => capture
+            .first_frame_seeing_all(&ids, release_frame)
+            .with_context(|| {
+                let lost: Vec<&str> = ids
+                    .iter()
+                    .zip(&places)
+                    .filter(|(&k, _)| {
+                        (0..=release_frame.min(capture.positions.len().saturating_sub(1)))
+                            .all(|f| capture.positions[f][k].is_none())
+                    })
+                    .map(|(_, (l, _))| l.as_str())
+                    .collect();
+                format!(
+                    "{}: no frame up to the release (frame {release_frame}) sees every placed \
+                     marker (never seen there: {lost:?}); give --rest-frame, or leave those \
+                     markers out of the places",
+                    a.capture.display()
                 )
             })?,
     };
@@ -193,7 +217,7 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<MotionDataset> {
         &capture,
         &ImportOptions {
             places,
-            rest_frame: a.rest_frame,
+            rest_frame,
             release_frame,
             last_frame: a.last_frame,
             locate_undeclared: !a.declared_only,
@@ -231,7 +255,7 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<MotionDataset> {
         a.capture.display(),
         capture.labels.len(),
         capture.rate_hz,
-        a.rest_frame,
+        rest_frame,
         1e3 * r.transform.rms(),
         r.labels
             .iter()
@@ -244,7 +268,7 @@ pub fn import_c3d(a: &C3dArgs) -> anyhow::Result<MotionDataset> {
     if !r.located.is_empty() {
         log::info!(
             "located from frame {} (no declared place): {}",
-            a.rest_frame,
+            rest_frame,
             r.located.join(", ")
         );
     }
