@@ -17,6 +17,20 @@ fn frame(path: &Path) {
     image.write_png(path, 1e-3).unwrap();
 }
 
+/// `palpate import depth FRAME --camera CAMERA -o OUT`, which must succeed.
+fn import_depth(frame: &Path, camera: &Path, out: &Path) {
+    let o = palpate()
+        .args(["import", "depth"])
+        .arg(frame)
+        .arg("--camera")
+        .arg(camera)
+        .arg("-o")
+        .arg(out)
+        .output()
+        .unwrap();
+    assert_succeeded(&o);
+}
+
 const CAMERA: &str = "fx = 100.0\nfy = 200.0\ncx = 1.5\ncy = 1.0\ndepth_unit_m = 0.001\n\
                       sigma_m = 0.001\nsigma_per_m = 0.004\n\
                       [pose]\nrotation = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]\n\
@@ -34,16 +48,7 @@ fn a_depth_frame_lands_where_the_pinhole_puts_it() {
     let camera = tmp.path().join("camera.toml");
     std::fs::write(&camera, CAMERA).unwrap();
     let out = tmp.path().join("scan");
-    let o = palpate()
-        .args(["import", "depth"])
-        .arg(&png)
-        .arg("--camera")
-        .arg(&camera)
-        .arg("-o")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert_succeeded(&o);
+    import_depth(&png, &camera, &out);
     let (points, sigma) =
         palpate_scan::cloud::read_ply_with(&out.join("points.ply"), "sigma").unwrap();
     assert_eq!(points.len(), 11);
@@ -69,16 +74,7 @@ fn a_depth_frame_lands_where_the_pinhole_puts_it() {
     }
     std::fs::write(&pgm, bytes).unwrap();
     let from_pgm = tmp.path().join("scan-pgm");
-    let o = palpate()
-        .args(["import", "depth"])
-        .arg(&pgm)
-        .arg("--camera")
-        .arg(&camera)
-        .arg("-o")
-        .arg(&from_pgm)
-        .output()
-        .unwrap();
-    assert_succeeded(&o);
+    import_depth(&pgm, &camera, &from_pgm);
     let (again, _) =
         palpate_scan::cloud::read_ply_with(&from_pgm.join("points.ply"), "sigma").unwrap();
     assert_eq!(again, points);
