@@ -16,8 +16,8 @@
 //!   writes.
 //! - **MSH 2.2 ASCII** (and 2.1, 2.0, whose ASCII grammar is the same for what is read here:
 //!   `gmsh -format msh22`, meshio's `gmsh22`) is parsed here too, with the same line-precise
-//!   errors. MSH 2 binary is not read: the error says how to re-save the file. Other versions are
-//!   rejected naming the version found.
+//!   errors. MSH 2 binary (`-bin`) is rewritten as the ASCII it stands for and read the same way
+//!   (`binary22`; its errors name the byte). Other versions are rejected naming the version found.
 //!
 //! What is read:
 //! - Node tags are kept in [`Mesh::node_tags`]. Nodes used by no tetrahedron are dropped (they would
@@ -49,6 +49,7 @@ mod ascii;
 mod ascii22;
 mod assemble;
 mod binary;
+mod binary22;
 mod write;
 
 pub use write::write_msh;
@@ -240,10 +241,9 @@ pub struct MshReport {
     pub binary: bool,
 }
 
-/// Reads a Gmsh mesh of tetrahedra (4-node; 10-node as their corners): MSH 4.1 (ASCII or
-/// binary) or MSH 2.2 ASCII (also 2.1 and 2.0), told apart by the `$MeshFormat` line. MSH 2
-/// binary and other versions are errors that name the version found. See the module docs for
-/// what is read and how groups are formed.
+/// Reads a Gmsh mesh of tetrahedra (4-node; 10-node as their corners): MSH 4.1 or MSH 2.2 (also
+/// 2.1 and 2.0), ASCII or binary, told apart by the `$MeshFormat` line. Other versions are errors
+/// that name the version found. See the module docs for what is read and how groups are formed.
 pub fn read_msh(path: impl AsRef<Path>) -> Result<Mesh, MeshError> {
     read_msh_with_report(path).map(|(m, _)| m)
 }
@@ -260,9 +260,15 @@ pub fn read_msh_with_report(path: impl AsRef<Path>) -> Result<(Mesh, MshReport),
         ascii::MshFormat::V41Ascii => ascii::parse(&file, &bytes)?,
         ascii::MshFormat::V41Binary => binary::parse(&file, &bytes)?,
         ascii::MshFormat::V2Ascii => ascii22::parse(&file, &bytes)?,
+        ascii::MshFormat::V2Binary => {
+            ascii22::parse(&file, binary22::to_ascii(&file, &bytes)?.as_bytes())?
+        }
     };
     let (mesh, mut report) = assemble::assemble(&file, raw)?;
-    report.binary = format == ascii::MshFormat::V41Binary;
+    report.binary = matches!(
+        format,
+        ascii::MshFormat::V41Binary | ascii::MshFormat::V2Binary
+    );
     if report.quadratic_tets > 0 {
         let read = format!(
             "{}: {} 10-node tetrahedra read as their corners ({} edge nodes set aside)",

@@ -12,10 +12,12 @@ pub(super) enum MshFormat {
     V41Binary,
     /// MSH 2.0, 2.1 or 2.2 ASCII, read by `ascii22::parse`.
     V2Ascii,
+    /// MSH 2.0, 2.1 or 2.2 binary, rewritten as ASCII by `binary22::to_ascii`.
+    V2Binary,
 }
 
-/// Reads the `$MeshFormat` header and says which parser reads the file. Rejects non-MSH files,
-/// versions other than 4.1 and 2.0–2.2, and MSH 2 binary.
+/// Reads the `$MeshFormat` header and says which parser reads the file. Rejects non-MSH files
+/// and versions other than 4.1 and 2.0–2.2.
 pub(super) fn mesh_format(file: &Path, bytes: &[u8]) -> Result<MshFormat, MeshError> {
     // The header is ASCII in both flavours; look only at its first lines.
     let head = String::from_utf8_lossy(&bytes[..bytes.len().min(256)]);
@@ -40,7 +42,7 @@ pub(super) fn mesh_format(file: &Path, bytes: &[u8]) -> Result<MshFormat, MeshEr
         _ => {
             return Err(syntax(
                 2,
-                "MSH format version 4.1 (ASCII or binary) or 2.2, 2.1, 2.0 (ASCII) \
+                "MSH format version 4.1 or 2.2, 2.1, 2.0 (ASCII or binary) \
                  (save with Mesh.MshFileVersion = 4.1)",
                 version,
             ))
@@ -50,15 +52,7 @@ pub(super) fn mesh_format(file: &Path, bytes: &[u8]) -> Result<MshFormat, MeshEr
         (Some("0"), false) => Ok(MshFormat::V41Ascii),
         (Some("1"), false) => Ok(MshFormat::V41Binary),
         (Some("0"), true) => Ok(MshFormat::V2Ascii),
-        (Some("1"), true) => Err(syntax(
-            2,
-            &format!(
-                "file type 0 (ASCII): MSH {version} binary is not read; re-save the file as \
-                 MSH 4.1 (`gmsh in.msh -save -format msh41 -o out.msh`) or as MSH 2.2 ASCII \
-                 (`-format msh22`)"
-            ),
-            "1",
-        )),
+        (Some("1"), true) => Ok(MshFormat::V2Binary),
         (other, _) => Err(syntax(
             2,
             "file type 0 (ASCII) or 1 (binary)",

@@ -55,7 +55,7 @@ pub(super) fn parse(file: &Path, bytes: &[u8]) -> Result<RawMsh, MeshError> {
 /// Gmsh element type → (dimension, number of nodes), for every type MSH 2.2 defines (checked
 /// against `gmsh.model.mesh.getElementProperties` of Gmsh 4.15.2). An MSH 2 row does not say how
 /// many nodes it lists, so a type outside this table cannot be read.
-fn element_dim_and_nodes(type_id: i32) -> Option<(i32, usize)> {
+pub(super) fn element_dim_and_nodes(type_id: i32) -> Option<(i32, usize)> {
     Some(match type_id {
         15 => (0, 1),
         1 => (1, 2),

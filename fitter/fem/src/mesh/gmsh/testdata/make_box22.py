@@ -1,9 +1,10 @@
-"""Test fixtures for MSH 2.2 reading: one small box mesh (42 tetrahedra), written three times by
+"""Test fixtures for MSH 2.2 reading: one small box mesh (42 tetrahedra), written four times by
 tools palpate does not contain:
 
     box-41.msh         MSH 4.1 ASCII, Gmsh's writer
     box-22-gmsh.msh    MSH 2.2 ASCII, Gmsh's writer (Mesh.MshFileVersion = 2.2)
     box-22-meshio.msh  MSH 2.2 ASCII, meshio's writer (file_format="gmsh22"), from box-41.msh
+    box-22-binary.msh  MSH 2.2 binary, Gmsh's writer (Mesh.Binary = 1)
 
 Made with Python 3.11.7, gmsh 4.15.2 and meshio 5.3.5 (PyPI):
 
@@ -35,6 +36,9 @@ gmsh.option.setNumber("Mesh.Binary", 0)
 for version, name in [(4.1, "box-41.msh"), (2.2, "box-22-gmsh.msh")]:
     gmsh.option.setNumber("Mesh.MshFileVersion", version)
     gmsh.write(name)
+gmsh.option.setNumber("Mesh.Binary", 1)
+gmsh.write("box-22-binary.msh")
+gmsh.option.setNumber("Mesh.Binary", 0)
 for dim, tag in gmsh.model.getPhysicalGroups():
     nodes, _ = gmsh.model.mesh.getNodesForPhysicalGroup(dim, tag)
     print(dim, tag, repr(gmsh.model.getPhysicalName(dim, tag)), "nodes", len(nodes))
