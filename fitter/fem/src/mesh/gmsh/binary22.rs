@@ -94,22 +94,22 @@ impl<'a> Cursor<'a> {
         Ok(s)
     }
 
+    /// The next `N` bytes as a number in the file's byte order (`from`: little-, big-endian).
+    fn number<const N: usize, T>(
+        &mut self,
+        what: &str,
+        from: [fn([u8; N]) -> T; 2],
+    ) -> Result<T, MeshError> {
+        let b: [u8; N] = self.take(N, what)?.try_into().expect("N bytes");
+        Ok(if self.little { from[0](b) } else { from[1](b) })
+    }
+
     fn int(&mut self, what: &str) -> Result<i32, MeshError> {
-        let b: [u8; 4] = self.take(4, what)?.try_into().expect("four bytes");
-        Ok(if self.little {
-            i32::from_le_bytes(b)
-        } else {
-            i32::from_be_bytes(b)
-        })
+        self.number(what, [i32::from_le_bytes, i32::from_be_bytes])
     }
 
     fn double(&mut self, what: &str) -> Result<f64, MeshError> {
-        let b: [u8; 8] = self.take(8, what)?.try_into().expect("eight bytes");
-        Ok(if self.little {
-            f64::from_le_bytes(b)
-        } else {
-            f64::from_be_bytes(b)
-        })
+        self.number(what, [f64::from_le_bytes, f64::from_be_bytes])
     }
 }
 
