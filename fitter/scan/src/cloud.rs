@@ -1,7 +1,8 @@
 //! Point clouds from scanners: PLY (ASCII, binary little- and big-endian; the `vertex`
-//! element's `x`, `y`, `z`, any other properties and elements skipped) and XYZ/CSV text (three
-//! numbers per line, separated by commas or white space, a header line allowed). Points are in
-//! metres in the frame the file declares; bringing them into the mesh's frame is the caller's.
+//! element's `x`, `y`, `z`, any other properties and elements skipped), PCL's PCD (`pcd`) and
+//! XYZ/CSV text (three numbers per line, separated by commas or white space, a header line
+//! allowed). Points are in metres in the frame the file declares; bringing them into the mesh's
+//! frame is the caller's.
 
 use std::path::Path;
 
@@ -9,7 +10,7 @@ use nalgebra::Vector3;
 
 use crate::ScanError;
 
-/// Reads the points of a PLY, XYZ, CSV or TXT file, chosen by its extension.
+/// Reads the points of a PLY, PCD, XYZ, CSV or TXT file, chosen by its extension.
 pub fn read_points(path: &Path) -> Result<Vec<Vector3<f64>>, ScanError> {
     let ext = path
         .extension()
@@ -19,10 +20,11 @@ pub fn read_points(path: &Path) -> Result<Vec<Vector3<f64>>, ScanError> {
     let bytes = std::fs::read(path).map_err(|e| ScanError::io(path, e))?;
     match ext.as_str() {
         "ply" => Ok(read_ply(path, &bytes, None)?.0),
+        "pcd" => crate::pcd::read_pcd(path, &bytes),
         "xyz" | "csv" | "txt" => read_text(path, &bytes),
         _ => Err(ScanError::format(
             path,
-            format!("a point cloud is .ply, .xyz, .csv or .txt, found extension \"{ext}\""),
+            format!("a point cloud is .ply, .pcd, .xyz, .csv or .txt, found extension \"{ext}\""),
         )),
     }
 }

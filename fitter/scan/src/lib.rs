@@ -4,7 +4,7 @@
 //! - [`camera`]: the pinhole camera (intrinsics and pose) that back-projects a depth image into
 //!   points and projects points into pixels;
 //! - [`depth`]: depth images, 16-bit PNG in and out;
-//! - [`cloud`]: point clouds, PLY (ASCII and binary) and XYZ/CSV text;
+//! - [`cloud`]: point clouds, PLY (ASCII and binary), PCL's PCD (`pcd`) and XYZ/CSV text;
 //! - [`surface`]: the scan residual — each point's signed distance to the deformed surface along
 //!   the normal at its closest point, with its Jacobian in the node positions, a robust weight
 //!   for background and flying pixels and a weight that keeps a dense patch from drowning the
@@ -36,6 +36,7 @@ pub mod dataset_fit;
 pub mod depth;
 pub mod fit;
 pub mod noise;
+mod pcd;
 pub mod record;
 pub mod regions;
 pub mod registration;

@@ -17,7 +17,7 @@ pub enum ImportCommand {
     C3d(C3dArgs),
     /// A depth frame (16-bit PNG or PGM) and its camera (TOML), back-projected into a scan folder.
     Depth(super::import_scan::DepthArgs),
-    /// A point cloud (PLY, XYZ, CSV) in the mesh's frame, as a scan folder.
+    /// A point cloud (PLY, PCD, XYZ, CSV) in the mesh's frame, as a scan folder.
     Cloud(super::import_scan::CloudArgs),
 }
 

@@ -34,7 +34,8 @@ pub struct DepthArgs {
 /// Options of `palpate import cloud`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct CloudArgs {
-    /// The point cloud: PLY (ASCII or binary; the vertex element's x, y, z), or XYZ / CSV / TXT
+    /// The point cloud: PLY (ASCII or binary; the vertex element's x, y, z), PCD (ASCII or
+    /// binary; the x, y, z fields, NaN points dropped), or XYZ / CSV / TXT
     /// text (three numbers a line), in the mesh's frame.
     pub cloud: PathBuf,
     /// The coordinates' unit: m, cm, mm, um, or a number of metres per unit.
@@ -85,6 +86,16 @@ pub fn run_cloud(a: &CloudArgs) -> anyhow::Result<()> {
     write(&a.output, &scan)
 }
 
+/// Where a scan's noise acts, for a sentence: "along the camera ray", or "in any direction" for
+/// a cloud without a camera.
+fn direction(along: &str) -> String {
+    if along == "any direction" {
+        "in any direction".into()
+    } else {
+        format!("along the {along}")
+    }
+}
+
 /// Writes the scan folder through a staging folder, so that a failed write leaves the output as
 /// it was.
 fn write(output: &Path, scan: &Scan) -> anyhow::Result<()> {
@@ -92,12 +103,12 @@ fn write(output: &Path, scan: &Scan) -> anyhow::Result<()> {
     let written = record::write_scan(&staged.path, scan)?;
     let files = staged.commit(written)?;
     log::info!(
-        "{}: {} points, noise σ {:.3} mm + {:.3e} m⁻¹·z² along the {} ({})",
+        "{}: {} points, noise σ {:.3} mm + {:.3e} m⁻¹·z² {} ({})",
         scan.record.source,
         scan.record.points,
         1e3 * scan.record.noise.sigma_m,
         scan.record.noise.sigma_per_m,
-        scan.record.noise.along,
+        direction(&scan.record.noise.along),
         scan.record.noise.origin
     );
     for f in files {
@@ -136,7 +147,7 @@ pub fn info(path: &Path) -> anyhow::Result<()> {
         None => "no camera".into(),
     };
     println!(
-        "{}: scan of a {} ({}); {} points in {} in the mesh's frame, from ({:.4}, {:.4}, {:.4}) to ({:.4}, {:.4}, {:.4}) m; source unit {} m; {camera}; noise σ {:.3} mm + {:.3e} m⁻¹·z² along the {} ({})",
+        "{}: scan of a {} ({}); {} points in {} in the mesh's frame, from ({:.4}, {:.4}, {:.4}) to ({:.4}, {:.4}, {:.4}) m; source unit {} m; {camera}; noise σ {:.3} mm + {:.3e} m⁻¹·z² {} ({})",
         path.display(),
         r.kind,
         r.source,
@@ -151,7 +162,7 @@ pub fn info(path: &Path) -> anyhow::Result<()> {
         r.source_unit_m,
         1e3 * r.noise.sigma_m,
         r.noise.sigma_per_m,
-        r.noise.along,
+        direction(&r.noise.along),
         r.noise.origin
     );
     println!(

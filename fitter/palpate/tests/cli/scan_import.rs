@@ -80,21 +80,46 @@ fn a_depth_frame_lands_where_the_pinhole_puts_it() {
     assert_eq!(again, points);
 }
 
-/// A cloud in millimetres lands in metres; the σ given is kept.
+/// `palpate import cloud CLOUD --units mm --sigma 0.0005 -o OUT`, which must succeed.
+fn import_cloud_mm(cloud: &Path, out: &Path) {
+    let o = palpate()
+        .args(["import", "cloud"])
+        .arg(cloud)
+        .args(["--units", "mm", "--sigma", "0.0005", "-o"])
+        .arg(out)
+        .output()
+        .unwrap();
+    assert_succeeded(&o);
+}
+
+/// A cloud in millimetres lands in metres; the σ given is kept. The same points as PCL's
+/// binary PCD (with a colour field, and a NaN point that is no point) land in the same place.
 #[test]
 fn a_cloud_in_millimetres_lands_in_metres() {
     let tmp = tempfile::tempdir().unwrap();
     let xyz = tmp.path().join("cloud.xyz");
     std::fs::write(&xyz, "x y z\n1 2 3\n-4 5 6\n10,20,-30\n").unwrap();
+    let pcd = tmp.path().join("cloud.pcd");
+    let mut bytes = b"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F U\n\
+                      COUNT 1 1 1 1\nWIDTH 4\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 4\n\
+                      DATA binary\n"
+        .to_vec();
+    for p in [
+        [1f32, 2., 3.],
+        [-4., 5., 6.],
+        [f32::NAN; 3],
+        [10., 20., -30.],
+    ] {
+        p.iter().for_each(|v| bytes.extend(v.to_le_bytes()));
+        bytes.extend(0u32.to_le_bytes());
+    }
+    std::fs::write(&pcd, bytes).unwrap();
+    let from_pcd = tmp.path().join("scan-pcd");
+    import_cloud_mm(&pcd, &from_pcd);
+    let (from_pcd, _) =
+        palpate_scan::cloud::read_ply_with(&from_pcd.join("points.ply"), "sigma").unwrap();
     let out = tmp.path().join("scan");
-    let o = palpate()
-        .args(["import", "cloud"])
-        .arg(&xyz)
-        .args(["--units", "mm", "--sigma", "0.0005", "-o"])
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert_succeeded(&o);
+    import_cloud_mm(&xyz, &out);
     let info = palpate()
         .arg("info")
         .arg(out.join("scan.toml"))
@@ -108,6 +133,9 @@ fn a_cloud_in_millimetres_lands_in_metres() {
     assert_eq!(j["bounds_min_m"][2], -30e-3);
     assert_eq!(j["noise"]["sigma_m"], 5e-4);
     assert!(j["camera"].is_null(), "{j}");
+    let (from_xyz, _) =
+        palpate_scan::cloud::read_ply_with(&out.join("points.ply"), "sigma").unwrap();
+    assert_eq!(from_pcd, from_xyz);
 }
 
 /// Runs `palpate import <args…> -o <tmp>/scan` and returns its stderr, asserting it failed and
