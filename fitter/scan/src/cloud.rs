@@ -29,15 +29,18 @@ pub fn read_points(path: &Path) -> Result<Vec<Vector3<f64>>, ScanError> {
     }
 }
 
-/// A PLY scalar type and its size in bytes.
+/// A number type of a PLY property or a PCD field, and its size in bytes. The 64-bit integers
+/// are PCD's only (`TYPE I`/`U`, `SIZE 8`).
 #[derive(Debug, Clone, Copy, PartialEq)]
-enum Scalar {
+pub(crate) enum Scalar {
     I8,
     U8,
     I16,
     U16,
     I32,
     U32,
+    I64,
+    U64,
     F32,
     F64,
 }
@@ -57,25 +60,42 @@ impl Scalar {
         })
     }
 
-    fn size(self) -> usize {
+    /// A PCD field's type: its `TYPE` letter (I, U, F) and `SIZE` in bytes.
+    pub(crate) fn of_pcd(kind: char, size: usize) -> Option<Self> {
+        Some(match (kind, size) {
+            ('I', 1) => Self::I8,
+            ('U', 1) => Self::U8,
+            ('I', 2) => Self::I16,
+            ('U', 2) => Self::U16,
+            ('I', 4) => Self::I32,
+            ('U', 4) => Self::U32,
+            ('I', 8) => Self::I64,
+            ('U', 8) => Self::U64,
+            ('F', 4) => Self::F32,
+            ('F', 8) => Self::F64,
+            _ => return None,
+        })
+    }
+
+    pub(crate) fn size(self) -> usize {
         match self {
             Self::I8 | Self::U8 => 1,
             Self::I16 | Self::U16 => 2,
             Self::I32 | Self::U32 | Self::F32 => 4,
-            Self::F64 => 8,
+            Self::I64 | Self::U64 | Self::F64 => 8,
         }
     }
 
     /// The value of `b` (exactly `size()` bytes).
-    fn decode(self, b: &[u8], little: bool) -> f64 {
+    pub(crate) fn decode(self, b: &[u8], little: bool) -> f64 {
         macro_rules! num {
             ($t:ty) => {{
                 let a = b.try_into().expect("sized by the caller");
-                f64::from(if little {
+                (if little {
                     <$t>::from_le_bytes(a)
                 } else {
                     <$t>::from_be_bytes(a)
-                })
+                }) as f64
             }};
         }
         match self {
@@ -85,6 +105,8 @@ impl Scalar {
             Self::U16 => num!(u16),
             Self::I32 => num!(i32),
             Self::U32 => num!(u32),
+            Self::I64 => num!(i64),
+            Self::U64 => num!(u64),
             Self::F32 => num!(f32),
             Self::F64 => num!(f64),
         }

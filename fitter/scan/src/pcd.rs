@@ -9,41 +9,16 @@
 use nalgebra::Vector3;
 use std::path::Path;
 
+use crate::cloud::Scalar;
 use crate::ScanError;
 
-/// One field of a PCD record: its size in bytes, type letter (I, U, F) and element count.
+/// One field of a PCD record: its name, size in bytes, type letter (I, U, F) and element count.
 #[derive(Debug, Clone, PartialEq)]
 struct Field {
     name: String,
     size: usize,
     kind: char,
     count: usize,
-}
-
-impl Field {
-    /// Element `i` of this field in a little-endian record starting at `b`.
-    fn value(&self, b: &[u8], i: usize) -> Option<f64> {
-        let at = i * self.size;
-        let w = b.get(at..at + self.size)?;
-        macro_rules! le {
-            ($t:ty) => {
-                <$t>::from_le_bytes(w.try_into().ok()?) as f64
-            };
-        }
-        Some(match (self.kind, self.size) {
-            ('F', 4) => le!(f32),
-            ('F', 8) => le!(f64),
-            ('I', 1) => le!(i8),
-            ('I', 2) => le!(i16),
-            ('I', 4) => le!(i32),
-            ('I', 8) => le!(i64),
-            ('U', 1) => le!(u8),
-            ('U', 2) => le!(u16),
-            ('U', 4) => le!(u32),
-            ('U', 8) => le!(u64),
-            _ => return None,
-        })
-    }
 }
 
 /// The points of a PCD file; errors name the file and the header line or point.
@@ -188,12 +163,15 @@ pub(crate) fn read_pcd(path: &Path, bytes: &[u8]) -> Result<Vec<Vector3<f64>>, S
             for r in body[..need].chunks_exact(record.max(1)) {
                 let mut p = [0.0; 3];
                 for (d, &(i, _, offset)) in place.iter().enumerate() {
-                    p[d] = fields[i].value(&r[offset..], 0).ok_or_else(|| {
+                    let f = &fields[i];
+                    let scalar = Scalar::of_pcd(f.kind, f.size).ok_or_else(|| {
                         bad(format!(
                             "PCD field {:?}: type {}{} is not a number type PCD defines",
-                            fields[i].name, fields[i].kind, fields[i].size
+                            f.name, f.kind, f.size
                         ))
                     })?;
+                    // PCD's binary records are little-endian.
+                    p[d] = scalar.decode(&r[offset..offset + f.size], true);
                 }
                 if finite(p) {
                     out.push(Vector3::from(p));
