@@ -301,6 +301,90 @@ fn tangent_entries<const STIFFENING: bool>(
     k
 }
 
+/// [`element_tangent`]'s closed form at one quadrature point of a quadratic (10-node) element,
+/// ∇φ_a the ten shape-function gradients there and V the point's weight, added into the whole
+/// 30 × 30 `k` (row-major, node-major dofs). Each row (a, i) is
+///
+///   K\[3a+i\]\[3b+j\] += s_ai h_b,j + g_ai G_b,j + t_ai f_b,j + e (h_b,i h_a,j) + δ_ij V d g_ab
+///
+/// with s_ai = V((λJ² + ⁴⁄₉ k I₁) h_a,i − ⁴⁄₃ k f_a,i), g_ai = 2V c_s G_a,i, t_ai = −⁴⁄₃ V k h_a,i,
+/// e = V(⅔ k I₁ − c), d = μ + 2k and k = 2c_s (Ī₁ − 3) J^(−2/3) ([`element_tangent`]'s terms
+/// grouped by column): every row is a sum of whole 30-vectors, so the loops run over contiguous
+/// columns in SIMD lanes — the full matrix costs less this way than the upper triangle entry by
+/// entry.
+pub(crate) fn quadratic_point_tangent(
+    grad: &[Vector3<f64>; 10],
+    volume: f64,
+    s: &FParts,
+    p: &HyperParams,
+    k: &mut [[f64; 30]; 30],
+) {
+    if p.stiffening == 0.0 {
+        point_tangent_rows::<false>(grad, volume, s, p, k)
+    } else {
+        point_tangent_rows::<true>(grad, volume, s, p, k)
+    }
+}
+
+/// [`quadratic_point_tangent`]'s rows, with the stiffening terms when `STIFFENING`.
+#[inline(always)]
+fn point_tangent_rows<const STIFFENING: bool>(
+    grad: &[Vector3<f64>; 10],
+    v: f64,
+    s: &FParts,
+    p: &HyperParams,
+    k: &mut [[f64; 30]; 30],
+) {
+    // Node-major 30-vectors of h_b = F⁻ᵀ ∇φ_b, f_b = F ∇φ_b and G_b = (∂Ī₁/∂F) ∇φ_b, and for
+    // each direction i the vector (h_b,i) repeated over j.
+    let flat = |m: &Matrix3<f64>| -> [f64; 30] {
+        let mut out = [0.0; 30];
+        for (b, g) in grad.iter().enumerate() {
+            let w = m * g;
+            out[3 * b..3 * b + 3].copy_from_slice(w.as_slice());
+        }
+        out
+    };
+    let h = flat(&s.f_inv_t);
+    let hi: [[f64; 30]; 3] =
+        std::array::from_fn(|i| std::array::from_fn(|col| h[3 * (col / 3) + i]));
+    let j2 = s.j * s.j;
+    let c = 0.5 * p.lambda * (j2 - 1.0) - p.mu;
+    let (fg, gs, ks, kb) = if STIFFENING {
+        let ks = 2.0 * p.stiffening;
+        (flat(&s.f), flat(&s.dbar()), ks, ks * s.bar() * s.j23())
+    } else {
+        ([0.0; 30], [0.0; 30], 0.0, 0.0)
+    };
+    let sh = v * (p.lambda * j2 + 4.0 / 9.0 * kb * s.i1);
+    let e = v * (2.0 / 3.0 * kb * s.i1 - c);
+    let d = v * (p.mu + 2.0 * kb);
+    for a in 0..10 {
+        // (h_a,j) repeated over b.
+        let ha: [f64; 30] = std::array::from_fn(|col| h[3 * a + col % 3]);
+        for i in 0..3 {
+            let row = &mut k[3 * a + i];
+            let sa = sh * h[3 * a + i];
+            if STIFFENING {
+                let sa = sa - v * 4.0 / 3.0 * kb * fg[3 * a + i];
+                let ga = v * ks * gs[3 * a + i];
+                let ta = -v * 4.0 / 3.0 * kb * h[3 * a + i];
+                for col in 0..30 {
+                    row[col] +=
+                        sa * h[col] + ga * gs[col] + ta * fg[col] + e * hi[i][col] * ha[col];
+                }
+            } else {
+                for col in 0..30 {
+                    row[col] += sa * h[col] + e * hi[i][col] * ha[col];
+                }
+            }
+            for (b, gb) in grad.iter().enumerate() {
+                row[3 * b + i] += d * grad[a].dot(gb);
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;

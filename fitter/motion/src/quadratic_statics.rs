@@ -20,6 +20,9 @@ use super::statics::{StaticProblem, StaticSensitivity, StaticSolution};
 use super::MotionError;
 use nalgebra::{Matrix3, Vector3};
 use palpate_fem::mesh::quadratic::{QuadraticMesh, QUADRATIC_EDGES};
+use std::borrow::Cow;
+use std::cell::RefCell;
+use std::rc::Rc;
 
 /// The 4-point rule on a tetrahedron (degree 2): barycentric coordinates (a, b, b, b) and its
 /// permutations, weight ¼ of the volume each.
@@ -128,6 +131,43 @@ pub(crate) fn share(m: &mut [[f64; 12]; 12]) {
     }
 }
 
+/// For each of the ten blocks ([`BLOCKS`]) and each local entry 12 r + c of a block, the entry
+/// 30 R + C of the element's 30 × 30 matrix it holds.
+const BLOCK_ENTRIES: [[u16; 144]; 10] = {
+    let mut out = [[0; 144]; 10];
+    let mut b = 0;
+    while b < 10 {
+        let mut local = 0;
+        while local < 144 {
+            let (lr, lc) = (local / 12, local % 12);
+            let r = 3 * BLOCKS[b][lr / 3] + lr % 3;
+            let c = 3 * BLOCKS[b][lc / 3] + lc % 3;
+            out[b][local] = (30 * r + c) as u16;
+            local += 1;
+        }
+        b += 1;
+    }
+    out
+};
+
+/// Scatters element `e`'s symmetric 30 × 30 matrix `ke` into `values` through its ten blocks
+/// ([`BLOCKS`]), each entry at its block's share ([`block_share`]).
+pub(crate) fn add_element_blocks(
+    pattern: &Pattern,
+    e: usize,
+    ke: &[[f64; 30]; 30],
+    values: &mut [f64],
+) {
+    let flat = ke.as_flattened();
+    for (b, entries) in BLOCK_ENTRIES.iter().enumerate() {
+        pattern.add_element_with(
+            BLOCKS.len() * e + b,
+            |local| flat[entries[local] as usize] * block_share(local / 12, local % 12),
+            values,
+        );
+    }
+}
+
 /// The equilibrium found on quadratic tetrahedra.
 #[derive(Debug, Clone)]
 pub struct QuadraticSolution {
@@ -166,7 +206,7 @@ fn interpolate(t: &[usize; 10], n: &[f64; 10], v: &[[f64; 3]]) -> [f64; 3] {
 struct Ctx<'a> {
     p: &'a StaticProblem<'a>,
     q: &'a QuadraticMesh,
-    points: Vec<[QuadPoint; 4]>,
+    points: &'a [[QuadPoint; 4]],
 }
 
 impl Ctx<'_> {
@@ -208,22 +248,24 @@ impl Discretised for Ctx<'_> {
         if let Some((_, k)) = k.as_mut() {
             k.iter_mut().for_each(|v| *v = 0.0);
         }
+        // The element's 30 × 30 tangent, its upper triangle summed over the quadrature points
+        // and then scattered once through its ten blocks: a tenth of the entries of ten 12 × 12
+        // blocks evaluated at every point, and a quarter of the scatters.
+        let mut ke = [[0.0; 30]; 30];
+        let want_k = k.is_some();
         for (e, pts) in self.points.iter().enumerate() {
+            if want_k {
+                ke = [[0.0; 30]; 30];
+            }
             for qp in pts {
                 let s = FParts::new(self.deformation_gradient(e, qp, x))?;
                 self.add_stress(e, qp, &he::pk1(&s, self.mat(e)), &mut f);
-                let Some((pattern, k)) = k.as_mut() else {
-                    continue;
-                };
-                for (b, nodes) in BLOCKS.iter().enumerate() {
-                    let block = RestTet {
-                        grad: nodes.map(|a| qp.grad[a]),
-                        volume: qp.weight,
-                    };
-                    let mut kb = he::element_tangent(&block, &s, self.mat(e));
-                    share(&mut kb);
-                    pattern.add_element(BLOCKS.len() * e + b, &kb, 1.0, k);
+                if want_k {
+                    he::quadratic_point_tangent(&qp.grad, qp.weight, &s, self.mat(e), &mut ke);
                 }
+            }
+            if let Some((pattern, k)) = k.as_mut() {
+                add_element_blocks(pattern, e, &ke, k);
             }
         }
         Some(f)
@@ -243,26 +285,103 @@ impl Discretised for Ctx<'_> {
     }
 }
 
-/// The quadrature data of every element, and the dofs and loading.
-fn setup(
-    p: &StaticProblem<'_>,
-    q: &QuadraticMesh,
-) -> Result<(Vec<[QuadPoint; 4]>, Prepared), MotionError> {
-    setup_with(p, q, &[])
+/// What a problem's quadratic lift needs beside its material and loads: the lift of its linear
+/// mesh, the quadrature data of its rest geometry and the tangent's pattern on the dofs its
+/// fixed nodes leave free (with the fill-reducing order and symbolic factorisation). A fit
+/// solves one problem hundreds of times at other moduli; building these at every solve and
+/// every sensitivity was a tenth of a scan diagnosis, so a thread keeps the last few
+/// ([`lift_of`]).
+struct Lift {
+    /// The linear mesh's nodes, elements and fixed flags it was built for.
+    nodes: Vec<[f64; 3]>,
+    tets: Vec<[usize; 4]>,
+    fixed: Vec<bool>,
+    q: QuadraticMesh,
+    points: Vec<[QuadPoint; 4]>,
+    dofs: Dofs,
 }
 
-/// [`setup`] with forces on any node of the quadratic mesh beside `p`'s corner forces.
-fn setup_with(
+/// How many lifts a thread keeps, the most recently used: a scan diagnosis alternates between
+/// two states' fixed nodes on the dataset's mesh and on the mesh refined once.
+const KEPT_LIFTS: usize = 4;
+
+thread_local! {
+    static LIFTS: RefCell<Vec<Rc<Lift>>> = const { RefCell::new(Vec::new()) };
+}
+
+/// The lift of `p`'s mesh with the fixed flags `is_fixed` ([`check_problem`]'s): one kept from a
+/// solve of the same nodes, elements and fixed nodes (compared in full, not by a hash), or built
+/// and kept.
+fn lift_of(p: &StaticProblem<'_>, is_fixed: &[bool]) -> Result<Rc<Lift>, MotionError> {
+    let same = |l: &Lift| l.fixed == is_fixed && l.tets == p.mesh.tets && l.nodes == p.mesh.nodes;
+    let kept = LIFTS.with_borrow_mut(|kept| {
+        let i = kept.iter().position(|l| same(l))?;
+        let l = kept.remove(i);
+        kept.insert(0, Rc::clone(&l));
+        Some(l)
+    });
+    if let Some(l) = kept {
+        return Ok(l);
+    }
+    let q = QuadraticMesh::from_linear(p.mesh);
+    let points = element_points(&RestTet::of_mesh(p.mesh)?);
+    let dofs = Dofs::new(&q.lift_flags(is_fixed), &block_tets(&q))?;
+    let l = Rc::new(Lift {
+        nodes: p.mesh.nodes.clone(),
+        tets: p.mesh.tets.clone(),
+        fixed: is_fixed.to_vec(),
+        q,
+        points,
+        dofs,
+    });
+    LIFTS.with_borrow_mut(|kept| {
+        kept.insert(0, Rc::clone(&l));
+        kept.truncate(KEPT_LIFTS);
+    });
+    Ok(l)
+}
+
+/// `p`'s lift and its loading on it, with forces on any node of the quadratic mesh (`extra`)
+/// beside `p`'s corner forces.
+fn setup(
     p: &StaticProblem<'_>,
-    q: &QuadraticMesh,
     extra: &[(usize, [f64; 3])],
-) -> Result<(Vec<[QuadPoint; 4]>, Prepared), MotionError> {
+) -> Result<(Rc<Lift>, Loading), MotionError> {
     let is_fixed = check_problem(p)?;
-    let rest = RestTet::of_mesh(p.mesh)?;
+    let lift = lift_of(p, &is_fixed)?;
+    let loading = loading(p, &lift, &is_fixed, extra)?;
+    Ok((lift, loading))
+}
+
+/// A problem's loads on its lift: the full external load, the rest positions and each moving
+/// fixed dof's final displacement ([`Prepared`] without the dofs).
+struct Loading {
+    fext: Vec<f64>,
+    rest: Vec<f64>,
+    moved: Vec<(usize, f64)>,
+}
+
+impl Loading {
+    /// Ready to solve on `lift`'s dofs.
+    fn on(self, lift: &Lift) -> Prepared<'_> {
+        Prepared {
+            dofs: Cow::Borrowed(&lift.dofs),
+            fext: self.fext,
+            rest: self.rest,
+            moved: self.moved,
+        }
+    }
+}
+
+/// [`Loading`] of `p` on `lift`.
+fn loading(
+    p: &StaticProblem<'_>,
+    lift: &Lift,
+    is_fixed: &[bool],
+    extra: &[(usize, [f64; 3])],
+) -> Result<Loading, MotionError> {
+    let (q, points) = (&lift.q, &lift.points);
     let bary = quadrature_points();
-    let points = element_points(&rest);
-    let blocks = block_tets(q);
-    let dofs = Dofs::new(&q.lift_flags(&is_fixed), &blocks)?;
     let mut fext = vec![0.0; 3 * q.nodes.len()];
     for &(n, f) in p.forces.iter().chain(extra) {
         if n >= q.nodes.len() {
@@ -277,7 +396,7 @@ fn setup_with(
     }
     // Consistent gravity ∫ ρ g N_a dV: the rule is exact for the quadratic N_a.
     let n_at: [[f64; 10]; 4] = bary.map(|l| shape_functions(&l));
-    for (t, pts) in q.tets.iter().zip(&points) {
+    for (t, pts) in q.tets.iter().zip(points) {
         for (qp, n) in pts.iter().zip(&n_at) {
             for (a, &node) in t.iter().enumerate() {
                 for i in 0..3 {
@@ -292,7 +411,7 @@ fn setup_with(
     for (&n, u) in p.fixed.iter().zip(&p.fixed_displacement) {
         corner[n] = *u;
     }
-    let flags = q.lift_flags(&is_fixed);
+    let flags = q.lift_flags(is_fixed);
     let moved = (0..q.nodes.len())
         .filter(|&n| flags[n] && !p.fixed_displacement.is_empty())
         .flat_map(|n| {
@@ -305,13 +424,11 @@ fn setup_with(
             (0..3).map(move |d| (3 * n + d, u[d]))
         })
         .collect();
-    let prepared = Prepared {
-        dofs,
+    Ok(Loading {
         fext,
         rest: q.nodes.iter().flatten().copied().collect(),
         moved,
-    };
-    Ok((points, prepared))
+    })
 }
 
 /// Solves `p` on the quadratic lift of its mesh.
@@ -326,11 +443,17 @@ pub fn solve_static_quadratic_loaded(
     p: &StaticProblem<'_>,
     extra: &[(usize, [f64; 3])],
 ) -> Result<QuadraticSolution, MotionError> {
-    let q = QuadraticMesh::from_linear(p.mesh);
-    let (points, prepared) = setup_with(p, &q, extra)?;
-    let ctx = Ctx { p, q: &q, points };
-    let solution = prepared.solve(&ctx, p)?;
-    Ok(QuadraticSolution { mesh: q, solution })
+    let (lift, loading) = setup(p, extra)?;
+    let ctx = Ctx {
+        p,
+        q: &lift.q,
+        points: &lift.points,
+    };
+    let solution = loading.on(&lift).solve(&ctx, p)?;
+    Ok(QuadraticSolution {
+        mesh: lift.q.clone(),
+        solution,
+    })
 }
 
 /// The consistent load on the quadratic lift of `mesh` of the traction that a set of lumped
@@ -397,13 +520,15 @@ pub fn quadratic_sensitivity(
     p: &StaticProblem<'_>,
     solution: &QuadraticSolution,
 ) -> Result<StaticSensitivity, MotionError> {
-    let (points, prepared) = setup(p, &solution.mesh)?;
+    let (lift, loading) = setup(p, &[])?;
     let ctx = Ctx {
         p,
-        q: &solution.mesh,
-        points,
+        q: &lift.q,
+        points: &lift.points,
     };
-    prepared.sensitivity(&ctx, p, &solution.solution.positions)
+    loading
+        .on(&lift)
+        .sensitivity(&ctx, p, &solution.solution.positions)
 }
 
 #[cfg(test)]
@@ -485,17 +610,28 @@ mod tests {
     }
 
     /// Forces are minus the energy's gradient and the tangent minus the forces' Jacobian, by
-    /// central differences (h = 1e-8 m on a 1 cm element: ~1e-7 relative, asserted 1e-5).
+    /// central differences (h = 1e-8 m on a 1 cm element: ~1e-7 relative, asserted 1e-5), with
+    /// and without the stiffening term.
     #[test]
     fn element_forces_and_tangent_match_finite_differences() {
+        let stiffening = HyperParams {
+            stiffening: 5e3,
+            ..material()
+        };
+        for m in [material(), stiffening] {
+            forces_and_tangent_match_finite_differences(m);
+        }
+    }
+
+    fn forces_and_tangent_match_finite_differences(m: HyperParams) {
         let (mesh, x) = one_element();
-        let p = StaticProblem::new(&mesh, material(), Vec::new());
-        let q = QuadraticMesh::from_linear(&mesh);
-        let (points, prepared) = setup(&p, &q).unwrap();
+        let p = StaticProblem::new(&mesh, m, Vec::new());
+        let (lift, loading) = setup(&p, &[]).unwrap();
+        let prepared = loading.on(&lift);
         let ctx = Ctx {
             p: &p,
-            q: &q,
-            points,
+            q: &lift.q,
+            points: &lift.points,
         };
         let pattern = &prepared.dofs.pattern;
         let mut k = vec![0.0; pattern.nnz()];
@@ -533,6 +669,110 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The element matrix summed over its quadrature points and scattered once equals the ten
+    /// 4-node blocks of every point scattered one by one ([`he::element_tangent`] on each block,
+    /// at its share), to round-off, on a mesh of many elements with fixed nodes, with and without
+    /// the stiffening term.
+    #[test]
+    fn the_summed_element_tangent_is_the_blocks_of_its_points() {
+        let stiffening = HyperParams {
+            stiffening: 4e3,
+            ..material()
+        };
+        for m in [material(), stiffening] {
+            summed_tangent_is_the_blocks_of_its_points(m);
+        }
+    }
+
+    fn summed_tangent_is_the_blocks_of_its_points(m: HyperParams) {
+        let mesh = palpate_fem::mesh::boxmesh::box_mesh([0.03, 0.02, 0.01], [3, 2, 1]);
+        let fixed: Vec<usize> = (0..mesh.nodes.len())
+            .filter(|&n| mesh.nodes[n][0] < 1e-9)
+            .collect();
+        let p = StaticProblem {
+            fixed,
+            ..StaticProblem::new(&mesh, m, Vec::new())
+        };
+        let q = QuadraticMesh::from_linear(&mesh);
+        let (lift, loading) = setup(&p, &[]).unwrap();
+        let prepared = loading.on(&lift);
+        let x: Vec<f64> = q
+            .nodes
+            .iter()
+            .flat_map(|&[a, b, c]| [a + 0.1 * b * b * 40.0, b - 0.05 * a, c + 3.0 * a * a])
+            .collect();
+        let ctx = Ctx {
+            p: &p,
+            q: &q,
+            points: &lift.points,
+        };
+        let pattern = &prepared.dofs.pattern;
+        let mut k = vec![0.0; pattern.nnz()];
+        ctx.forces(&x, Some((pattern, &mut k))).unwrap();
+        let mut blocks = vec![0.0; pattern.nnz()];
+        for (e, pts) in ctx.points.iter().enumerate() {
+            for qp in pts {
+                let s = FParts::new(ctx.deformation_gradient(e, qp, &x)).unwrap();
+                for (b, nodes) in BLOCKS.iter().enumerate() {
+                    let block = RestTet {
+                        grad: nodes.map(|a| qp.grad[a]),
+                        volume: qp.weight,
+                    };
+                    let mut kb = he::element_tangent(&block, &s, &m);
+                    share(&mut kb);
+                    pattern.add_element(BLOCKS.len() * e + b, &kb, 1.0, &mut blocks);
+                }
+            }
+        }
+        let kmax = blocks.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+        assert!(kmax > 0.0);
+        for (i, (a, b)) in k.iter().zip(&blocks).enumerate() {
+            assert!((a - b).abs() <= 1e-12 * kmax, "entry {i}: {a} vs {b}");
+        }
+    }
+
+    /// A kept lift serves only its own mesh and fixed nodes: the same topology with other node
+    /// positions, or other fixed nodes, solves as it would in a thread that kept nothing, and a
+    /// solve repeated from a kept lift is the first one to the bit.
+    #[test]
+    fn a_kept_lift_serves_only_its_own_mesh_and_fixed_nodes() {
+        let a = palpate_fem::mesh::boxmesh::box_mesh([0.04, 0.01, 0.01], [4, 1, 1]);
+        let mut b = a.clone();
+        b.nodes.iter_mut().for_each(|n| n[2] *= 1.5);
+        let left = |m: &Mesh| -> Vec<usize> {
+            (0..m.nodes.len())
+                .filter(|&n| m.nodes[n][0] < 1e-9)
+                .collect()
+        };
+        let right: Vec<usize> = (0..a.nodes.len())
+            .filter(|&n| a.nodes[n][0] > 0.04 - 1e-9)
+            .collect();
+        let problem = |m: &'static Mesh, fixed: Vec<usize>| StaticProblem {
+            gravity: [0.0, 0.0, -9.81],
+            density: 1000.0,
+            ..StaticProblem::new(m, material(), fixed)
+        };
+        let (a, b): (&'static Mesh, &'static Mesh) =
+            (Box::leak(Box::new(a)), Box::leak(Box::new(b)));
+        let solve = |p: &StaticProblem<'_>| solve_static_quadratic(p).unwrap().solution.positions;
+        let fresh = std::thread::spawn(move || {
+            [
+                solve(&problem(b, left(b))),
+                solve(&problem(a, right.clone())),
+            ]
+        })
+        .join()
+        .unwrap();
+        let first = solve(&problem(a, left(a)));
+        assert_eq!(solve(&problem(b, left(b))), fresh[0]);
+        let right: Vec<usize> = (0..a.nodes.len())
+            .filter(|&n| a.nodes[n][0] > 0.04 - 1e-9)
+            .collect();
+        assert_eq!(solve(&problem(a, right)), fresh[1]);
+        assert_eq!(solve(&problem(a, left(a))), first);
+        assert_ne!(first, fresh[0]);
     }
 
     /// The shape functions are a partition of unity with N_a(corner b) = δ_ab, and the blocks

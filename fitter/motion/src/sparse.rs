@@ -265,8 +265,16 @@ impl Pattern {
     /// read) into `values`.
     pub fn add_element(&self, e: usize, k: &[[f64; 12]; 12], scale: f64, values: &mut [f64]) {
         let k = k.as_flattened();
+        self.add_element_with(e, |local| scale * k[local], values);
+    }
+
+    /// Adds element `e`'s block into `values`, its entry at local index 12 r + c (r ≤ c, the
+    /// upper triangle) given by `entry`: a block read out of a larger element's matrix without
+    /// copying it into a 12 × 12 one first.
+    #[inline]
+    pub fn add_element_with(&self, e: usize, entry: impl Fn(usize) -> f64, values: &mut [f64]) {
         for &(local, idx) in &self.elem_entries[self.elem_ptr[e]..self.elem_ptr[e + 1]] {
-            values[idx as usize] += scale * k[local as usize];
+            values[idx as usize] += entry(local as usize);
         }
     }
 

@@ -20,6 +20,7 @@ pub(crate) trait Discretised {
 }
 
 /// The free-dof numbering and pattern of a design.
+#[derive(Clone)]
 pub(crate) struct Dofs {
     /// dof → free index, `usize::MAX` for a fixed dof.
     pub free: Vec<usize>,
@@ -100,9 +101,9 @@ fn uniform_material(p: &StaticProblem<'_>) -> Result<HyperParams, MotionError> {
 
 /// A design's dofs and loading, ready to solve: the full external load, the rest positions and
 /// the final displacement of each fixed dof that moves (every dof of the design's mesh).
-pub(crate) struct Prepared {
-    /// The free-dof numbering and pattern.
-    pub dofs: Dofs,
+pub(crate) struct Prepared<'a> {
+    /// The free-dof numbering and pattern: the design's own, or one kept for many solves.
+    pub dofs: std::borrow::Cow<'a, Dofs>,
     /// External forces at full load.
     pub fext: Vec<f64>,
     /// Rest positions.
@@ -111,7 +112,7 @@ pub(crate) struct Prepared {
     pub moved: Vec<(usize, f64)>,
 }
 
-impl Prepared {
+impl Prepared<'_> {
     /// Solves `p` with design `d` ([`solve_increments`]).
     pub fn solve(
         &self,

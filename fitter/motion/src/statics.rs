@@ -153,7 +153,7 @@ impl Discretised for Ctx<'_> {
 }
 
 /// The linear design's context, dofs and loading.
-fn setup<'a>(p: &'a StaticProblem<'a>) -> Result<(Ctx<'a>, Prepared), MotionError> {
+fn setup<'a>(p: &'a StaticProblem<'a>) -> Result<(Ctx<'a>, Prepared<'static>), MotionError> {
     let mesh = p.mesh;
     let is_fixed = check_problem(p)?;
     let rest = RestTet::of_mesh(mesh)?;
@@ -179,7 +179,7 @@ fn setup<'a>(p: &'a StaticProblem<'a>) -> Result<(Ctx<'a>, Prepared), MotionErro
         .flat_map(|(&n, u)| (0..3).map(move |d| (3 * n + d, u[d])))
         .collect();
     let prepared = Prepared {
-        dofs,
+        dofs: std::borrow::Cow::Owned(dofs),
         fext,
         rest: mesh.nodes.iter().flatten().copied().collect(),
         moved,
