@@ -302,16 +302,16 @@ fn tangent_entries<const STIFFENING: bool>(
 }
 
 /// [`element_tangent`]'s closed form at one quadrature point of a quadratic (10-node) element,
-/// ∇φ_a the ten shape-function gradients there and V the point's weight, added into the whole
-/// 30 × 30 `k` (row-major, node-major dofs). Each row (a, i) is
+/// ∇φ_a the ten shape-function gradients there and V the point's weight, added into the 30 × 30
+/// `k` (row-major, node-major dofs) where b ≥ a: the node-block upper triangle, which holds the
+/// symmetric matrix (the entries below it are left as they are). Each row (a, i) is
 ///
 ///   K\[3a+i\]\[3b+j\] += s_ai h_b,j + g_ai G_b,j + t_ai f_b,j + e (h_b,i h_a,j) + δ_ij V d g_ab
 ///
 /// with s_ai = V((λJ² + ⁴⁄₉ k I₁) h_a,i − ⁴⁄₃ k f_a,i), g_ai = 2V c_s G_a,i, t_ai = −⁴⁄₃ V k h_a,i,
 /// e = V(⅔ k I₁ − c), d = μ + 2k and k = 2c_s (Ī₁ − 3) J^(−2/3) ([`element_tangent`]'s terms
-/// grouped by column): every row is a sum of whole 30-vectors, so the loops run over contiguous
-/// columns in SIMD lanes — the full matrix costs less this way than the upper triangle entry by
-/// entry.
+/// grouped by column): every row is a sum of 30-vectors from column 3a on, so the loops run over
+/// contiguous columns in SIMD lanes — cheaper this way than the upper triangle entry by entry.
 pub(crate) fn quadratic_point_tangent(
     grad: &[Vector3<f64>; 10],
     volume: f64,
@@ -369,16 +369,16 @@ fn point_tangent_rows<const STIFFENING: bool>(
                 let sa = sa - v * 4.0 / 3.0 * kb * fg[3 * a + i];
                 let ga = v * ks * gs[3 * a + i];
                 let ta = -v * 4.0 / 3.0 * kb * h[3 * a + i];
-                for col in 0..30 {
+                for col in 3 * a..30 {
                     row[col] +=
                         sa * h[col] + ga * gs[col] + ta * fg[col] + e * hi[i][col] * ha[col];
                 }
             } else {
-                for col in 0..30 {
+                for col in 3 * a..30 {
                     row[col] += sa * h[col] + e * hi[i][col] * ha[col];
                 }
             }
-            for (b, gb) in grad.iter().enumerate() {
+            for (b, gb) in grad.iter().enumerate().skip(a) {
                 row[3 * b + i] += d * grad[a].dot(gb);
             }
         }

@@ -151,7 +151,9 @@ const BLOCK_ENTRIES: [[u16; 144]; 10] = {
 };
 
 /// Scatters element `e`'s symmetric 30 × 30 matrix `ke` into `values` through its ten blocks
-/// ([`BLOCKS`]), each entry at its block's share ([`block_share`]).
+/// ([`BLOCKS`]), each entry at its block's share ([`block_share`]). Only its node-block upper
+/// triangle is read: a block's nodes are in increasing order, so its upper-triangle entries
+/// (r ≤ c) lie there.
 pub(crate) fn add_element_blocks(
     pattern: &Pattern,
     e: usize,
