@@ -217,10 +217,12 @@ fn a_hanging_and_a_twisted_scan_give_the_modulus() {
 
 /// The camera's pose declared off by 2.4° and 3.5 mm (its eye 5 mm above, its target 3 mm
 /// below; no shift along the strip, which the surface near its clamp does not pin): fitted as
-/// declared, E is off by more than 8 % (measured −9.6 %); with `register = "fixed-part"`, by
-/// less than 4 % and half as much (measured −3.3 %, the residual at 1.1× its noise); with
-/// `register = "rest"` and a scan of the strip at rest, within 2 % (measured +0.29 %). `fit.json`
-/// and `report.md` give the state's registration.
+/// declared, E is off by more than 5 % and the residual, more than 5× its noise, says the fit is
+/// wrong (measured 13.6×, E −7.9 %; −9.6 % with the element sums in another order: that far
+/// from the data the cost's minimum is flat and its correspondences switch); with
+/// `register = "fixed-part"`, by less than 4 % and half as much (measured −3.3 %, the residual
+/// at 1.1× its noise); with `register = "rest"` and a scan of the strip at rest, within 2 %
+/// (measured +0.29 %). `fit.json` and `report.md` give the state's registration.
 #[test]
 fn a_misdeclared_camera_is_registered_on_the_clamp() {
     let tmp = tempfile::tempdir().unwrap();
@@ -256,6 +258,7 @@ fn a_misdeclared_camera_is_registered_on_the_clamp() {
         eprintln!("{}", text(&o.stdout));
         let j = last_json(&o);
         e.push(j["young_modulus_pa"].as_f64().unwrap() / E_TRUE - 1.0);
+        let ratio = j["states"][0]["rms_over_noise"].as_f64().unwrap();
         if !register.is_empty() {
             let r = &j["registration"];
             assert_eq!(
@@ -269,13 +272,16 @@ fn a_misdeclared_camera_is_registered_on_the_clamp() {
             );
             let angle = r["states"][0]["angle_deg"].as_f64().unwrap();
             assert!(angle > 1.0 && angle < 4.0, "{r}");
-            let ratio = j["states"][0]["rms_over_noise"].as_f64().unwrap();
             assert!(ratio < 1.5, "{j}");
             assert!(std::fs::read_to_string(out.join("report.md"))
                 .unwrap()
                 .contains("registered to the mesh"));
         } else {
             assert!(j["registration"].is_null(), "{j}");
+            assert!(
+                ratio > 5.0,
+                "as declared, the residual at {ratio}× its noise"
+            );
         }
     }
     eprintln!(
@@ -284,7 +290,7 @@ fn a_misdeclared_camera_is_registered_on_the_clamp() {
         100.0 * e[1],
         100.0 * e[2]
     );
-    assert!(e[0].abs() > 0.08, "as declared, E off by {}", e[0]);
+    assert!(e[0].abs() > 0.05, "as declared, E off by {}", e[0]);
     assert!(
         e[2].abs() < 0.02,
         "registered on the rest scan, E off by {}",
