@@ -250,9 +250,9 @@ impl Discretised for Ctx<'_> {
         if let Some((_, k)) = k.as_mut() {
             k.iter_mut().for_each(|v| *v = 0.0);
         }
-        // The element's 30 × 30 tangent, its upper triangle summed over the quadrature points
-        // and then scattered once through its ten blocks: a tenth of the entries of ten 12 × 12
-        // blocks evaluated at every point, and a quarter of the scatters.
+        // The element's 30 × 30 tangent, its node-block upper triangle summed over the
+        // quadrature points in SIMD rows and scattered once through its ten blocks: the ten
+        // 12 × 12 blocks of every point were entries one at a time and four times the scatters.
         let mut ke = [[0.0; 30]; 30];
         let want_k = k.is_some();
         for (e, pts) in self.points.iter().enumerate() {
@@ -304,7 +304,9 @@ struct Lift {
 }
 
 /// How many lifts a thread keeps, the most recently used: a scan diagnosis alternates between
-/// two states' fixed nodes on the dataset's mesh and on the mesh refined once.
+/// two states' fixed nodes on the dataset's mesh and on the mesh refined once. Each holds about
+/// the memory of its tangent's pattern (6 MB for a 768-tet lift) until the thread ends or newer
+/// lifts push it out.
 const KEPT_LIFTS: usize = 4;
 
 thread_local! {
