@@ -154,12 +154,7 @@ const BLOCK_ENTRIES: [[u16; 144]; 10] = {
 /// ([`BLOCKS`]), each entry at its block's share ([`block_share`]). Only its node-block upper
 /// triangle is read: a block's nodes are in increasing order, so its upper-triangle entries
 /// (r ≤ c) lie there.
-pub(crate) fn add_element_blocks(
-    pattern: &Pattern,
-    e: usize,
-    ke: &[[f64; 30]; 30],
-    values: &mut [f64],
-) {
+fn add_element_blocks(pattern: &Pattern, e: usize, ke: &[[f64; 30]; 30], values: &mut [f64]) {
     let flat = ke.as_flattened();
     for (b, entries) in BLOCK_ENTRIES.iter().enumerate() {
         pattern.add_element_with(
@@ -613,16 +608,23 @@ mod tests {
         }
     }
 
+    /// [`material`], and the same with the stiffening term at `stiffening` (Pa).
+    fn with_and_without_stiffening(stiffening: f64) -> [HyperParams; 2] {
+        [
+            material(),
+            HyperParams {
+                stiffening,
+                ..material()
+            },
+        ]
+    }
+
     /// Forces are minus the energy's gradient and the tangent minus the forces' Jacobian, by
     /// central differences (h = 1e-8 m on a 1 cm element: ~1e-7 relative, asserted 1e-5), with
     /// and without the stiffening term.
     #[test]
     fn element_forces_and_tangent_match_finite_differences() {
-        let stiffening = HyperParams {
-            stiffening: 5e3,
-            ..material()
-        };
-        for m in [material(), stiffening] {
+        for m in with_and_without_stiffening(5e3) {
             forces_and_tangent_match_finite_differences(m);
         }
     }
@@ -681,11 +683,7 @@ mod tests {
     /// the stiffening term.
     #[test]
     fn the_summed_element_tangent_is_the_blocks_of_its_points() {
-        let stiffening = HyperParams {
-            stiffening: 4e3,
-            ..material()
-        };
-        for m in [material(), stiffening] {
+        for m in with_and_without_stiffening(4e3) {
             summed_tangent_is_the_blocks_of_its_points(m);
         }
     }
