@@ -5,6 +5,7 @@
 use super::hyperelastic::{self as he, FParts, HyperParams, RestTet};
 use super::model::{Material, ParamKind};
 use super::spline::{SplineMaterial, StretchState};
+use super::viscosity::Moduli;
 use super::MotionError;
 use nalgebra::Matrix3;
 
@@ -64,6 +65,23 @@ impl<'a> ElasticState<'a> {
             Self::NeoHookean(s, p) => he::element_tangent(t, s, p),
             Self::Spline(s, m) => tangent_from(t, |df| m.dpk1(s, df)),
         }
+    }
+
+    /// The tangent's moduli V ∂P_ik/∂F_jl at a point of volume `volume` ([`Moduli`]), from
+    /// nine directional derivatives: what a quadratic element's point builds its tangent from
+    /// when the law has no row form of its own (the splines; Neo-Hookean has one in
+    /// [`he`]).
+    pub fn moduli(&self, volume: f64) -> Moduli {
+        let mut a = [[0.0; 9]; 9];
+        for col in 0..9 {
+            let mut df = Matrix3::zeros();
+            df[(col / 3, col % 3)] = 1.0;
+            let dp = self.dpk1(&df);
+            for (r, row) in a.iter_mut().enumerate() {
+                row[col] = volume * dp[(r / 3, r % 3)];
+            }
+        }
+        a
     }
 }
 

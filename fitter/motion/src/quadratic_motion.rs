@@ -19,8 +19,10 @@
 //!   (`load_shares`).
 //! - The elastic law ([`ElasticState`]: Neo-Hookean with its stiffening, or the splines) and the
 //!   power-law viscosity ([`visc`], in either reading of ∇v) are evaluated at the four points of
-//!   the degree-2 rule, with the same kernels; their 30 × 30 tangents are assembled as ten 4-node
-//!   blocks (`BLOCKS`), as the quadratic statics do.
+//!   the degree-2 rule, with the same kernels. Their 30 × 30 tangents are written at each
+//!   point as rows of 30-vectors: Neo-Hookean's closed form, every other term from its moduli
+//!   V ∂P/∂F or V ∂P/∂Ḟ ([`visc::Moduli`]); the element's sum is scattered once through its ten
+//!   4-node blocks (`BLOCKS`), as the quadratic statics do.
 //! - The mass is consistent, M_ab = ∫ ρ N_a N_b dV integrated exactly ([`mass_table`]): the
 //!   row sums of the quadratic element's mass are negative at its corners, so it has no
 //!   positive lumped form by row sums.
@@ -34,11 +36,11 @@
 //! Not carried: clamp reaction forces.
 
 use super::elastic::ElasticState;
-use super::hyperelastic::{HyperParams, RestTet};
+use super::hyperelastic::{self as he, HyperParams};
 use super::model::{DeadLoad, Material, Model, ParamKind};
 use super::quadratic_statics::{
-    block_tets, element_points, shape_functions, share, solve_static_quadratic_loaded, QuadPoint,
-    BLOCKS,
+    add_element_blocks, add_moduli_rows, add_symmetric_rows, block_tets, element_points,
+    shape_functions, share, solve_static_quadratic_loaded, QuadPoint, BLOCKS,
 };
 use super::relaxation::{element_coefficients, StepBranch};
 use super::rest_fit::{Post, StandOff};
@@ -346,11 +348,21 @@ impl<'a> QuadraticMotion<'a> {
             d.iter_mut().for_each(|z| *z = 0.0);
         }
         let at = |w: &[f64], n: usize| Vector3::new(w[3 * n], w[3 * n + 1], w[3 * n + 2]);
+        // The element's 30 × 30 K and D, their node-block upper triangles summed over the
+        // quadrature points in SIMD rows and scattered once each through the ten blocks
+        // (`add_element_blocks`), as the quadratic statics do.
+        let (mut ke, mut de) = ([[0.0; 30]; 30], [[0.0; 30]; 30]);
+        let want = tangents.is_some();
         for (e, (nodes, pts)) in self.mesh.tets.iter().zip(&self.points).enumerate() {
             let xe: [Vector3<f64>; 10] = std::array::from_fn(|a| at(x, nodes[a]));
             let ve: [Vector3<f64>; 10] = std::array::from_fn(|a| at(v, nodes[a]));
             let nu = mat.get(ParamKind::Nu, e);
             let h = mat.get(ParamKind::PowerH, e);
+            if want {
+                ke = [[0.0; 30]; 30];
+                de = [[0.0; 30]; 30];
+            }
+            let mut damped = false;
             for (q, qp) in pts.iter().enumerate() {
                 let fg = point_gradient(&xe, qp);
                 let s = ElasticState::new(mat, e, fg)?;
@@ -388,36 +400,43 @@ impl<'a> QuadraticMotion<'a> {
                         f[3 * node + i] += fa[i];
                     }
                 }
-                let Some((k, d)) = tangents.as_mut() else {
+                if !want {
                     continue;
-                };
-                for (b, local) in BLOCKS.iter().enumerate() {
-                    let block = RestTet {
-                        grad: local.map(|a| qp.grad[a]),
-                        volume: qp.weight,
-                    };
-                    let mut kb = s.tangent(&block);
-                    if let Some(br) = branch {
-                        kb = br.tangent(4 * e + q, &block, &kb);
+                }
+                // The creep branch's tangent (1 + g b) K⁰ + V (∇φ_a · C ∇φ_b) I₃
+                // ([`StepBranch::tangent`]).
+                let elastic_volume = branch.map_or(qp.weight, |br| {
+                    let k = 4 * e + q;
+                    add_symmetric_rows(&qp.grad, qp.weight, &br.c[k], &mut ke);
+                    qp.weight * (1.0 + br.gain[k])
+                });
+                match &s {
+                    ElasticState::NeoHookean(parts, params) => he::quadratic_point_tangent(
+                        &qp.grad,
+                        elastic_volume,
+                        parts,
+                        params,
+                        &mut ke,
+                    ),
+                    ElasticState::Spline(..) => {
+                        add_moduli_rows(&qp.grad, &s.moduli(elastic_volume), &mut ke)
                     }
+                }
+                if let Some(r) = &rate {
                     // The objective viscosity's force depends on the positions too; a
                     // symmetric matrix holds the symmetric part of that tangent, as the linear
                     // model's does ([`crate::forces`]), and Newton's residual stays exact.
-                    if let Some(kv) = rate
-                        .as_ref()
-                        .and_then(|r| visc::element_stiffness_symmetric(&block, r, nu))
-                    {
-                        for (row, add) in kb.iter_mut().zip(&kv) {
-                            row.iter_mut().zip(add).for_each(|(a, b)| *a += b);
-                        }
+                    if let Some(a) = r.stiffness_moduli_symmetric(nu, qp.weight) {
+                        add_moduli_rows(&qp.grad, &a, &mut ke);
                     }
-                    share(&mut kb);
-                    self.pattern.add_element(BLOCKS.len() * e + b, &kb, 1.0, k);
-                    if let Some(r) = &rate {
-                        let mut db = visc::element_damping(&block, r, nu);
-                        share(&mut db);
-                        self.pattern.add_element(BLOCKS.len() * e + b, &db, 1.0, d);
-                    }
+                    add_moduli_rows(&qp.grad, &r.damping_moduli(nu, qp.weight), &mut de);
+                    damped = true;
+                }
+            }
+            if let Some((k, d)) = tangents.as_mut() {
+                add_element_blocks(&self.pattern, e, &ke, k);
+                if damped {
+                    add_element_blocks(&self.pattern, e, &de, d);
                 }
             }
         }
@@ -901,6 +920,161 @@ mod tests {
             .map(|(a, b)| u[a] * t[a][b] * u[b])
             .sum();
         assert!((utu - 0.1).abs() < 1e-15, "{utu}");
+    }
+
+    /// K and D of the assembly against central differences of its forces on a 3-element bar
+    /// lifted to 30-node quadratics, bent, stretched and moving: uᵀ D w against the forces'
+    /// change with the velocities along w, and uᵀ K w against the symmetric part of their change
+    /// with the positions (what a symmetric K holds of the objective viscosity's), for random u
+    /// and w on the free dofs. Three materials, each term at a size of its own: Neo-Hookean with
+    /// its stiffening, a creep branch and the objective shear-thinning viscosity; the splines'
+    /// law with the rest-gradient thickening one; Neo-Hookean with a Newtonian dashpot at rest
+    /// (the tangent kept there). Central differences of step 1e-7 are good to ~1e-8 here;
+    /// asserted to 1e-6 of |u| |w| times the largest row sum.
+    #[test]
+    fn the_row_tangents_are_the_forces_derivatives() {
+        use crate::relaxation::StepBranch;
+        use crate::spline::{Spline, SplineMaterial};
+        let (_, model) =
+            crate::scenario::bar_model([0.01, 0.03, 0.01], [1, 3, 1], 0.01, 1, &|_| [0.0; 3], &[])
+                .unwrap();
+        let q = QuadraticMotion::new(&model).unwrap();
+        let ndof = 3 * q.mesh.nodes.len();
+        let ne = model.tets.len();
+        let mut seed = 7u64;
+        let mut rnd = move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let (lambda, mu) = (4e5, 1e5);
+        let bent: Vec<f64> = q
+            .mesh
+            .nodes
+            .iter()
+            .flat_map(|p| {
+                [
+                    1.05 * p[0],
+                    p[1] + 3.0 * p[1] * p[1],
+                    p[2] - 2.0 * p[1] * p[1],
+                ]
+            })
+            .collect();
+        let moving: Vec<f64> = (0..ndof).map(|_| 0.2 * rnd()).collect();
+        let mut stiffened = Material::uniform(ne, lambda, mu, 60.0, 0.7, 1100.0);
+        stiffened.set_uniform(ParamKind::Stiffening, 0.5 * mu);
+        stiffened.viscous_form = visc::Form::Objective;
+        let branch = StepBranch {
+            c: (0..4 * ne)
+                .map(|_| {
+                    let m = Matrix3::from_fn(|_, _| 0.3 * mu * rnd());
+                    m + m.transpose()
+                })
+                .collect(),
+            gain: (0..4 * ne).map(|_| 0.5 + 0.2 * rnd()).collect(),
+        };
+        let mut splines = Material::uniform(ne, lambda, mu, 40.0, 1.4, 1100.0);
+        let knots = Spline::uniform_knots(0.5, 1.5, 8);
+        splines.spline =
+            Some(SplineMaterial::neo_hookean(lambda, mu, knots.clone(), knots).unwrap());
+        let newtonian = Material::uniform(ne, lambda, mu, 60.0, 1.0, 1100.0);
+        let resting = vec![0.0; ndof];
+        let cases = [
+            (
+                &stiffened,
+                Some(&branch),
+                &moving,
+                "Neo-Hookean, stiffening, creep, objective",
+            ),
+            (&splines, None, &moving, "splines, rest gradient"),
+            (&newtonian, None, &resting, "Newtonian at rest"),
+        ];
+        let forces = |mat: &Material, br: Option<&StepBranch>, x: &[f64], v: &[f64]| {
+            let mut f = vec![0.0; ndof];
+            q.assemble(mat, br, x, v, &mut f, None).unwrap();
+            f
+        };
+        // A free-dof vector on every dof (0 on the clamped ones), and back.
+        let spread = |w: &[f64]| -> Vec<f64> {
+            q.free
+                .iter()
+                .map(|&fr| if fr == usize::MAX { 0.0 } else { w[fr] })
+                .collect()
+        };
+        let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+        for (mat, br, v, what) in cases {
+            let nnz = q.pattern.nnz();
+            let (mut kv, mut dv) = (vec![0.0; nnz], vec![0.0; nnz]);
+            let mut f = vec![0.0; ndof];
+            q.assemble(mat, br, &bent, v, &mut f, Some((&mut kv, &mut dv)))
+                .unwrap();
+            let row_scale = |values: &[f64]| {
+                let ones = vec![1.0; q.nfree];
+                let mut y = vec![0.0; q.nfree];
+                q.pattern.mul_add(
+                    &values.iter().map(|z| z.abs()).collect::<Vec<_>>(),
+                    &ones,
+                    &mut y,
+                );
+                y.iter().fold(0.0f64, |m, z| m.max(*z))
+            };
+            let (kscale, dscale) = (row_scale(&kv), row_scale(&dv));
+            assert!(kscale > 0.0 && dscale > 0.0, "{what}");
+            let eps = 1e-7;
+            for _ in 0..4 {
+                let (u, w): (Vec<f64>, Vec<f64>) = (
+                    (0..q.nfree).map(|_| rnd()).collect(),
+                    (0..q.nfree).map(|_| rnd()).collect(),
+                );
+                let (uf, wf) = (spread(&u), spread(&w));
+                let norms = dot(&u, &u).sqrt() * dot(&w, &w).sqrt();
+                // J z = −(f(· + εz) − f(· − εz)) / 2ε, on every dof.
+                let along_x = |z: &[f64]| -> Vec<f64> {
+                    let shifted = |s: f64| -> Vec<f64> {
+                        bent.iter().zip(z).map(|(a, b)| a + s * eps * b).collect()
+                    };
+                    let (fp, fm) = (
+                        forces(mat, br, &shifted(1.0), v),
+                        forces(mat, br, &shifted(-1.0), v),
+                    );
+                    fp.iter()
+                        .zip(&fm)
+                        .map(|(p, m)| -(p - m) / (2.0 * eps))
+                        .collect()
+                };
+                let along_v = |z: &[f64]| -> Vec<f64> {
+                    let shifted = |s: f64| -> Vec<f64> {
+                        v.iter().zip(z).map(|(a, b)| a + s * eps * b).collect()
+                    };
+                    let (fp, fm) = (
+                        forces(mat, br, &bent, &shifted(1.0)),
+                        forces(mat, br, &bent, &shifted(-1.0)),
+                    );
+                    fp.iter()
+                        .zip(&fm)
+                        .map(|(p, m)| -(p - m) / (2.0 * eps))
+                        .collect()
+                };
+                let bilinear = |values: &[f64]| {
+                    let mut y = vec![0.0; q.nfree];
+                    q.pattern.mul_add(values, &w, &mut y);
+                    dot(&u, &y)
+                };
+                let k_fd = 0.5 * (dot(&uf, &along_x(&wf)) + dot(&wf, &along_x(&uf)));
+                let k = bilinear(&kv);
+                assert!(
+                    (k - k_fd).abs() < 1e-6 * kscale * norms,
+                    "{what}: uᵀKw {k} against {k_fd}"
+                );
+                let d_fd = dot(&uf, &along_v(&wf));
+                let d = bilinear(&dv);
+                assert!(
+                    (d - d_fd).abs() < 1e-6 * dscale * norms,
+                    "{what}: uᵀDw {d} against {d_fd}"
+                );
+            }
+        }
     }
 
     /// A marker 5 mm off a bar's side: under a rigid rotation both the extrapolated field and

@@ -17,6 +17,7 @@ use super::hyperelastic::{self as he, FParts, HyperParams, RestTet};
 use super::sparse::Pattern;
 use super::static_newton::{check_problem, Discretised, Dofs, Prepared};
 use super::statics::{StaticProblem, StaticSensitivity, StaticSolution};
+use super::viscosity::Moduli;
 use super::MotionError;
 use nalgebra::{Matrix3, Vector3};
 use palpate_fem::mesh::quadratic::{QuadraticMesh, QUADRATIC_EDGES};
@@ -154,7 +155,12 @@ const BLOCK_ENTRIES: [[u16; 144]; 10] = {
 /// ([`BLOCKS`]), each entry at its block's share ([`block_share`]). Only its node-block upper
 /// triangle is read: a block's nodes are in increasing order, so its upper-triangle entries
 /// (r ≤ c) lie there.
-fn add_element_blocks(pattern: &Pattern, e: usize, ke: &[[f64; 30]; 30], values: &mut [f64]) {
+pub(crate) fn add_element_blocks(
+    pattern: &Pattern,
+    e: usize,
+    ke: &[[f64; 30]; 30],
+    values: &mut [f64],
+) {
     let flat = ke.as_flattened();
     for (b, entries) in BLOCK_ENTRIES.iter().enumerate() {
         pattern.add_element_with(
@@ -162,6 +168,50 @@ fn add_element_blocks(pattern: &Pattern, e: usize, ke: &[[f64; 30]; 30], values:
             |local| flat[entries[local] as usize] * block_share(local / 12, local % 12),
             values,
         );
+    }
+}
+
+/// Adds the tangent of the moduli `a` at one quadrature point ([`Moduli`], the point's volume
+/// in them), Σ_kl ∇φ_a,k A\[3i+k\]\[3j+l\] ∇φ_b,l, to `k`\[3a+i\]\[3b+j\] where b ≥ a (the
+/// node-block upper triangle [`add_element_blocks`] reads; `a` has A\[r\]\[c\] = A\[c\]\[r\]).
+/// First W\[3i+k\] = A\[3i+k\] ∇φ (nine 30-vectors), then each row a sum of three of them
+/// from column 3a on: the loops run over contiguous columns in SIMD lanes.
+pub(crate) fn add_moduli_rows(grad: &[Vector3<f64>; 10], a: &Moduli, k: &mut [[f64; 30]; 30]) {
+    let w: [[f64; 30]; 9] = std::array::from_fn(|r| {
+        let m = &a[r];
+        std::array::from_fn(|col| {
+            let (g, j) = (&grad[col / 3], 3 * (col % 3));
+            m[j] * g.x + m[j + 1] * g.y + m[j + 2] * g.z
+        })
+    });
+    for (na, g) in grad.iter().enumerate() {
+        for i in 0..3 {
+            let (w0, w1, w2) = (&w[3 * i], &w[3 * i + 1], &w[3 * i + 2]);
+            let row = &mut k[3 * na + i];
+            for col in 3 * na..30 {
+                row[col] += g.x * w0[col] + g.y * w1[col] + g.z * w2[col];
+            }
+        }
+    }
+}
+
+/// Adds V (∇φ_a · C ∇φ_b) δ_ij at one quadrature point (gradients `grad`, volume `volume`) to
+/// `k`\[3a+i\]\[3b+j\] where b ≥ a: a stress-like term whose force is F C ∇φ_a (the creep
+/// branch's, [`crate::relaxation::StepBranch::tangent`]), for a symmetric C.
+pub(crate) fn add_symmetric_rows(
+    grad: &[Vector3<f64>; 10],
+    volume: f64,
+    c: &Matrix3<f64>,
+    k: &mut [[f64; 30]; 30],
+) {
+    for (na, ga) in grad.iter().enumerate() {
+        let ca = c * ga * volume;
+        for (nb, gb) in grad.iter().enumerate().skip(na) {
+            let w = ca.dot(gb);
+            for i in 0..3 {
+                k[3 * na + i][3 * nb + i] += w;
+            }
+        }
     }
 }
 

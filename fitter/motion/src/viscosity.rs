@@ -195,6 +195,70 @@ pub fn element_stiffness_symmetric(t: &RestTet, r: &Rate, nu: f64) -> Option<[[f
     }))
 }
 
+/// A tangent's moduli at one point: `A[3i + k][3j + l]` holds V ∂P_ik/∂G_jl, G the variable
+/// (F for a stiffness, Ḟ for a damping) and V the point's volume, so that the tangent's entry of
+/// node a's dof i and node b's dof j is Σ_kl ∇φ_a,k A\[3i+k\]\[3j+l\] ∇φ_b,l for any number of
+/// nodes: how a quadratic element builds its 30 × 30 tangents (`add_moduli_rows` of the
+/// quadratic statics).
+pub type Moduli = [[f64; 9]; 9];
+
+impl Rate {
+    /// [`element_damping`]'s moduli at a point of volume `volume`, read off its closed forms:
+    /// rest gradient V ν [p′ E_ik E_jl + p (δ_ij δ_kl + δ_il δ_jk)]; objective
+    /// V ν [p′ (FE)_ik (FE)_jl + p ((FFᵀ)_ij δ_kl + F_il F_jk)]. Symmetric, as D is.
+    pub fn damping_moduli(&self, nu: f64, volume: f64) -> Moduli {
+        let c1 = self.power_slope(volume * nu);
+        let c2 = volume * nu * self.power;
+        let mut a = [[0.0; 9]; 9];
+        let delta = |i: usize, j: usize| f64::from(u8::from(i == j));
+        match &self.at {
+            None => {
+                let e = &self.e;
+                for (r, row) in a.iter_mut().enumerate() {
+                    let (i, k) = (r / 3, r % 3);
+                    for (col, v) in row.iter_mut().enumerate() {
+                        let (j, l) = (col / 3, col % 3);
+                        *v = c1 * e[(i, k)] * e[(j, l)]
+                            + c2 * (delta(i, j) * delta(k, l) + delta(i, l) * delta(j, k));
+                    }
+                }
+            }
+            Some((f, _)) => {
+                let (m, b) = (f * self.e, f * f.transpose());
+                for (r, row) in a.iter_mut().enumerate() {
+                    let (i, k) = (r / 3, r % 3);
+                    for (col, v) in row.iter_mut().enumerate() {
+                        let (j, l) = (col / 3, col % 3);
+                        *v = c1 * m[(i, k)] * m[(j, l)]
+                            + c2 * (b[(i, j)] * delta(k, l) + f[(i, l)] * f[(j, k)]);
+                    }
+                }
+            }
+        }
+        a
+    }
+
+    /// [`element_stiffness_symmetric`]'s moduli at a point of volume `volume`: the symmetric
+    /// part ½(A + Aᵀ) of [`element_stiffness`]'s,
+    /// V ν [p (δ_ij E_kl + F_il Ḟ_jk + (FḞᵀ)_ij δ_kl) + p′ (FE)_ik (ḞE)_jl]; `None` under the
+    /// rest-gradient form.
+    pub fn stiffness_moduli_symmetric(&self, nu: f64, volume: f64) -> Option<Moduli> {
+        let (f, l) = self.at?;
+        let c1 = self.power_slope(volume * nu);
+        let c2 = volume * nu * self.power;
+        let (m, y, c) = (f * self.e, l * self.e, f * l.transpose());
+        let delta = |i: usize, j: usize| f64::from(u8::from(i == j));
+        let entry = |r: usize, col: usize| {
+            let (i, k, j, l_) = (r / 3, r % 3, col / 3, col % 3);
+            c2 * (delta(i, j) * self.e[(k, l_)] + f[(i, l_)] * l[(j, k)] + c[(i, j)] * delta(k, l_))
+                + c1 * m[(i, k)] * y[(j, l_)]
+        };
+        Some(std::array::from_fn(|r| {
+            std::array::from_fn(|col| 0.5 * (entry(r, col) + entry(col, r)))
+        }))
+    }
+}
+
 /// The strain rate γ̇₀ (1/s) of the Carreau form of the power law (Carreau 1972; Bird,
 /// Armstrong & Hassager, *Dynamics of Polymeric Liquids* vol. 1, ch. 4): the viscosity is
 /// ν (γ̇² + γ̇₀²)^((h−1)/2), the power law ν γ̇^(h−1) well above γ̇₀ and a Newtonian plateau
@@ -586,6 +650,66 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    /// The 12 × 12 tangent Σ_kl ∇φ_a,k A\[3i+k\]\[3j+l\] ∇φ_b,l of moduli `a` on a linear
+    /// element (the moduli's contract, [`Moduli`]).
+    pub(crate) fn from_moduli(t: &RestTet, a: &Moduli) -> [[f64; 12]; 12] {
+        std::array::from_fn(|r| {
+            std::array::from_fn(|c| {
+                let (na, i, nb, j) = (r / 3, r % 3, c / 3, c % 3);
+                let mut sum = 0.0;
+                for k in 0..3 {
+                    for l in 0..3 {
+                        sum += t.grad[na][k] * a[3 * i + k][3 * j + l] * t.grad[nb][l];
+                    }
+                }
+                sum
+            })
+        })
+    }
+
+    /// The moduli give the closed-form tangents back on a linear element, under both forms and
+    /// for shear thinning, Newtonian and thickening indices, to round-off (1e-12 of the
+    /// largest entry).
+    #[test]
+    fn the_moduli_are_the_closed_form_tangents() {
+        let (t, x0, v0) = deformed();
+        let fgrad = super::super::hyperelastic::deformation_gradient(&t, &x0);
+        let close = |got: &[[f64; 12]; 12], want: &[[f64; 12]; 12], what: &str| {
+            let scale = want.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+            assert!(scale > 0.0, "{what}");
+            for r in 0..12 {
+                for c in 0..12 {
+                    assert!(
+                        (got[r][c] - want[r][c]).abs() < 1e-12 * scale,
+                        "{what} [{r}][{c}]: {} against {}",
+                        got[r][c],
+                        want[r][c]
+                    );
+                }
+            }
+        };
+        for (nu, h) in [(8.0, 0.8), (12.0, 1.0), (5.0, 1.4)] {
+            let l = velocity_gradient(&t, &v0);
+            let rest = Rate::new(&l, h).unwrap();
+            let objective = Rate::objective(&fgrad, &l, h).unwrap();
+            for (r, form) in [(&rest, "rest gradient"), (&objective, "objective")] {
+                let d = from_moduli(&t, &r.damping_moduli(nu, t.volume));
+                close(
+                    &d,
+                    &element_damping(&t, r, nu),
+                    &format!("D, {form}, h={h}"),
+                );
+            }
+            assert!(rest.stiffness_moduli_symmetric(nu, t.volume).is_none());
+            let k = from_moduli(
+                &t,
+                &objective.stiffness_moduli_symmetric(nu, t.volume).unwrap(),
+            );
+            let want = element_stiffness_symmetric(&t, &objective, nu).unwrap();
+            close(&k, &want, &format!("K, h={h}"));
         }
     }
 
