@@ -39,8 +39,8 @@ use super::elastic::ElasticState;
 use super::hyperelastic::{self as he, HyperParams};
 use super::model::{DeadLoad, Material, Model, ParamKind};
 use super::quadratic_statics::{
-    add_element_blocks, add_moduli_rows, add_symmetric_rows, block_tets, element_points,
-    shape_functions, share, solve_static_quadratic_loaded, QuadPoint, BLOCKS,
+    add_moduli_rows, add_symmetric_rows, block_tets, element_points, shape_functions, share,
+    solve_static_quadratic_loaded, ElementScatter, QuadPoint, BLOCKS,
 };
 use super::relaxation::{element_coefficients, StepBranch};
 use super::rest_fit::{Post, StandOff};
@@ -127,6 +127,8 @@ pub struct QuadraticMotion<'a> {
     free: Vec<usize>,
     nfree: usize,
     pattern: Pattern,
+    /// Where the element matrices go in `pattern`.
+    scatter: ElementScatter,
     /// Each marker's element and the ten shape functions at its barycentric coordinates.
     markers: Vec<(usize, [f64; 10])>,
     /// Each marker's element and barycentric coordinates ([`Model::marker_elements`]).
@@ -176,6 +178,7 @@ impl<'a> QuadraticMotion<'a> {
         }
         let pattern = Pattern::new(&block_tets(&mesh), &free, nfree)
             .map_err(|e| MotionError::Invalid(e.to_string()))?;
+        let scatter = ElementScatter::new(&pattern, mesh.tets.len());
         let located = model.marker_elements()?;
         let markers = located
             .iter()
@@ -193,6 +196,7 @@ impl<'a> QuadraticMotion<'a> {
             free,
             nfree,
             pattern,
+            scatter,
             markers,
             posts: located.iter().map(|_| None).collect(),
             located,
@@ -349,8 +353,8 @@ impl<'a> QuadraticMotion<'a> {
         }
         let at = |w: &[f64], n: usize| Vector3::new(w[3 * n], w[3 * n + 1], w[3 * n + 2]);
         // The element's 30 × 30 K and D, their node-block upper triangles summed over the
-        // quadrature points in SIMD rows and scattered once each through the ten blocks
-        // (`add_element_blocks`), as the quadratic statics do.
+        // quadrature points in SIMD rows and scattered once, each stored entry they touch once
+        // and both in one pass ([`ElementScatter`]), as the quadratic statics do.
         let (mut ke, mut de) = ([[0.0; 30]; 30], [[0.0; 30]; 30]);
         let want = tangents.is_some();
         for (e, (nodes, pts)) in self.mesh.tets.iter().zip(&self.points).enumerate() {
@@ -434,9 +438,10 @@ impl<'a> QuadraticMotion<'a> {
                 }
             }
             if let Some((k, d)) = tangents.as_mut() {
-                add_element_blocks(&self.pattern, e, &ke, k);
                 if damped {
-                    add_element_blocks(&self.pattern, e, &de, d);
+                    self.scatter.add_pair(e, (&ke, k), (&de, d));
+                } else {
+                    self.scatter.add(e, &ke, k);
                 }
             }
         }

@@ -151,29 +151,77 @@ const BLOCK_ENTRIES: [[u16; 144]; 10] = {
     out
 };
 
-/// Scatters element `e`'s symmetric 30 × 30 matrix `ke` into `values` through its ten blocks
-/// ([`BLOCKS`]), each entry at its block's share ([`block_share`]). Only its node-block upper
-/// triangle is read: a block's nodes are in increasing order, so its upper-triangle entries
-/// (r ≤ c) lie there.
-pub(crate) fn add_element_blocks(
-    pattern: &Pattern,
-    e: usize,
-    ke: &[[f64; 30]; 30],
-    values: &mut [f64],
-) {
-    let flat = ke.as_flattened();
-    for (b, entries) in BLOCK_ENTRIES.iter().enumerate() {
-        pattern.add_element_with(
-            BLOCKS.len() * e + b,
-            |local| flat[entries[local] as usize] * block_share(local / 12, local % 12),
-            values,
-        );
+/// Where each element's symmetric 30 × 30 matrix goes in a [`Pattern`] built on its ten blocks
+/// ([`block_tets`]): per element, each stored entry it touches once, with the entry 30 R + C of
+/// its node-block upper triangle that fills it. The blocks hold a pair of nodes of one group
+/// four times at a quarter ([`block_share`]); summed here, each pair is one read and one add
+/// instead of up to four scaled ones, and K and D go in one pass ([`Self::add_pair`]).
+#[derive(Debug, Clone)]
+pub(crate) struct ElementScatter {
+    ptr: Vec<usize>,
+    entries: Vec<(u16, u32)>,
+}
+
+impl ElementScatter {
+    /// The scatter of `elements` elements from `pattern`'s block lists (element e's blocks are
+    /// its entries 10e … 10e + 9). Sorted by stored entry, so the adds walk the values forward.
+    pub(crate) fn new(pattern: &Pattern, elements: usize) -> Self {
+        let mut ptr = Vec::with_capacity(elements + 1);
+        let mut entries = Vec::new();
+        ptr.push(0);
+        let mut merged: Vec<(u32, u16, f64)> = Vec::new();
+        for e in 0..elements {
+            merged.clear();
+            for (b, block) in BLOCK_ENTRIES.iter().enumerate() {
+                for &(local, idx) in pattern.element_entries(BLOCKS.len() * e + b) {
+                    let local = usize::from(local);
+                    merged.push((idx, block[local], block_share(local / 12, local % 12)));
+                }
+            }
+            merged.sort_unstable_by_key(|&(idx, entry, _)| (idx, entry));
+            let mut k = 0;
+            while k < merged.len() {
+                let (idx, entry, mut share) = merged[k];
+                k += 1;
+                while k < merged.len() && (merged[k].0, merged[k].1) == (idx, entry) {
+                    share += merged[k].2;
+                    k += 1;
+                }
+                // Every pair of nodes is held by blocks whose shares sum to one.
+                debug_assert!((share - 1.0).abs() < 1e-12, "share {share}");
+                entries.push((entry, idx));
+            }
+            ptr.push(entries.len());
+        }
+        Self { ptr, entries }
+    }
+
+    /// Adds element `e`'s `ke` (its node-block upper triangle read) into `values`.
+    pub(crate) fn add(&self, e: usize, ke: &[[f64; 30]; 30], values: &mut [f64]) {
+        let flat = ke.as_flattened();
+        for &(entry, idx) in &self.entries[self.ptr[e]..self.ptr[e + 1]] {
+            values[idx as usize] += flat[usize::from(entry)];
+        }
+    }
+
+    /// [`Self::add`] of two matrices of element `e` into two value arrays in one pass.
+    pub(crate) fn add_pair(
+        &self,
+        e: usize,
+        (ke, kvalues): (&[[f64; 30]; 30], &mut [f64]),
+        (de, dvalues): (&[[f64; 30]; 30], &mut [f64]),
+    ) {
+        let (kf, df) = (ke.as_flattened(), de.as_flattened());
+        for &(entry, idx) in &self.entries[self.ptr[e]..self.ptr[e + 1]] {
+            kvalues[idx as usize] += kf[usize::from(entry)];
+            dvalues[idx as usize] += df[usize::from(entry)];
+        }
     }
 }
 
 /// Adds the tangent of the moduli `a` at one quadrature point ([`Moduli`], the point's volume
 /// in them), Σ_kl ∇φ_a,k A\[3i+k\]\[3j+l\] ∇φ_b,l, to `k`\[3a+i\]\[3b+j\] where b ≥ a (the
-/// node-block upper triangle [`add_element_blocks`] reads; `a` has A\[r\]\[c\] = A\[c\]\[r\]).
+/// node-block upper triangle [`ElementScatter`] reads; `a` has A\[r\]\[c\] = A\[c\]\[r\]).
 /// First W\[3i+k\] = A\[3i+k\] ∇φ (nine 30-vectors), then each row a sum of three of them
 /// from column 3a on: the loops run over contiguous columns in SIMD lanes.
 pub(crate) fn add_moduli_rows(grad: &[Vector3<f64>; 10], a: &Moduli, k: &mut [[f64; 30]; 30]) {
@@ -254,6 +302,9 @@ struct Ctx<'a> {
     p: &'a StaticProblem<'a>,
     q: &'a QuadraticMesh,
     points: &'a [[QuadPoint; 4]],
+    /// Where the element tangents go in the lift's pattern, the one [`Discretised::forces`] is
+    /// handed.
+    scatter: &'a ElementScatter,
 }
 
 impl Ctx<'_> {
@@ -296,8 +347,9 @@ impl Discretised for Ctx<'_> {
             k.iter_mut().for_each(|v| *v = 0.0);
         }
         // The element's 30 × 30 tangent, its node-block upper triangle summed over the
-        // quadrature points in SIMD rows and scattered once through its ten blocks: the ten
-        // 12 × 12 blocks of every point were entries one at a time and four times the scatters.
+        // quadrature points in SIMD rows and scattered once, each stored entry it touches once
+        // ([`ElementScatter`]): the ten 12 × 12 blocks of every point were entries one at a
+        // time and four times the scatters.
         let mut ke = [[0.0; 30]; 30];
         let want_k = k.is_some();
         for (e, pts) in self.points.iter().enumerate() {
@@ -311,8 +363,8 @@ impl Discretised for Ctx<'_> {
                     he::quadratic_point_tangent(&qp.grad, qp.weight, &s, self.mat(e), &mut ke);
                 }
             }
-            if let Some((pattern, k)) = k.as_mut() {
-                add_element_blocks(pattern, e, &ke, k);
+            if let Some((_, k)) = k.as_mut() {
+                self.scatter.add(e, &ke, k);
             }
         }
         Some(f)
@@ -346,11 +398,12 @@ struct Lift {
     q: QuadraticMesh,
     points: Vec<[QuadPoint; 4]>,
     dofs: Dofs,
+    scatter: ElementScatter,
 }
 
 /// How many lifts a thread keeps, the most recently used: a scan diagnosis alternates between
-/// two states' fixed nodes on the dataset's mesh and on the mesh refined once. Each holds about
-/// the memory of its tangent's pattern (6 MB for a 768-tet lift) until the thread ends or newer
+/// two states' fixed nodes on the dataset's mesh and on the mesh refined once. Each holds its
+/// tangent's pattern and scatter (up to 9 MB for a 768-tet lift) until the thread ends or newer
 /// lifts push it out.
 const KEPT_LIFTS: usize = 4;
 
@@ -375,6 +428,7 @@ fn lift_of(p: &StaticProblem<'_>, is_fixed: &[bool]) -> Result<Rc<Lift>, MotionE
     let q = QuadraticMesh::from_linear(p.mesh);
     let points = element_points(&RestTet::of_mesh(p.mesh)?);
     let dofs = Dofs::new(&q.lift_flags(is_fixed), &block_tets(&q))?;
+    let scatter = ElementScatter::new(&dofs.pattern, q.tets.len());
     let l = Rc::new(Lift {
         nodes: p.mesh.nodes.clone(),
         tets: p.mesh.tets.clone(),
@@ -382,6 +436,7 @@ fn lift_of(p: &StaticProblem<'_>, is_fixed: &[bool]) -> Result<Rc<Lift>, MotionE
         q,
         points,
         dofs,
+        scatter,
     });
     LIFTS.with_borrow_mut(|kept| {
         kept.insert(0, Rc::clone(&l));
@@ -497,6 +552,7 @@ pub fn solve_static_quadratic_loaded(
         p,
         q: &lift.q,
         points: &lift.points,
+        scatter: &lift.scatter,
     };
     let solution = loading.on(&lift).solve(&ctx, p)?;
     Ok(QuadraticSolution {
@@ -574,6 +630,7 @@ pub fn quadratic_sensitivity(
         p,
         q: &lift.q,
         points: &lift.points,
+        scatter: &lift.scatter,
     };
     loading
         .on(&lift)
@@ -688,6 +745,7 @@ mod tests {
             p: &p,
             q: &lift.q,
             points: &lift.points,
+            scatter: &lift.scatter,
         };
         let pattern = &prepared.dofs.pattern;
         let mut k = vec![0.0; pattern.nnz()];
@@ -727,10 +785,10 @@ mod tests {
         }
     }
 
-    /// The element matrix summed over its quadrature points and scattered once equals the ten
-    /// 4-node blocks of every point scattered one by one ([`he::element_tangent`] on each block,
-    /// at its share), to round-off, on a mesh of many elements with fixed nodes, with and without
-    /// the stiffening term.
+    /// The element matrix summed over its quadrature points and scattered once, each stored
+    /// entry it touches once ([`ElementScatter`]), equals the ten 4-node blocks of every point
+    /// scattered one by one ([`he::element_tangent`] on each block, at its share), to round-off,
+    /// on a mesh of many elements with fixed nodes, with and without the stiffening term.
     #[test]
     fn the_summed_element_tangent_is_the_blocks_of_its_points() {
         for m in with_and_without_stiffening(4e3) {
@@ -759,6 +817,7 @@ mod tests {
             p: &p,
             q: &q,
             points: &lift.points,
+            scatter: &lift.scatter,
         };
         let pattern = &prepared.dofs.pattern;
         let mut k = vec![0.0; pattern.nnz()];

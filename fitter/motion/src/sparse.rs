@@ -268,6 +268,12 @@ impl Pattern {
         self.add_element_with(e, |local| scale * k[local], values);
     }
 
+    /// Element `e`'s scatter list: (local index 12 r + c with r ≤ c, value index) of each of its
+    /// block's stored entries.
+    pub fn element_entries(&self, e: usize) -> &[(u16, u32)] {
+        &self.elem_entries[self.elem_ptr[e]..self.elem_ptr[e + 1]]
+    }
+
     /// Adds element `e`'s block into `values`, its entry at local index 12 r + c (r ≤ c, the
     /// upper triangle) given by `entry`: a block read out of a larger element's matrix without
     /// copying it into a 12 × 12 one first.
