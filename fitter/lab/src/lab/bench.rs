@@ -17,6 +17,10 @@ pub enum BenchCommand {
     /// A time step with sensitivities on a captured run: faer's Cholesky variants on its S, the
     /// gradient with fresh factorisations against kept-factor CG at looser tolerances, whole fits.
     MotionStep(super::bench_motion_step::Args),
+    /// One simulation on quadratic tetrahedra (the motion's mesh-convergence refit's forward
+    /// model) on a captured run: wall and CPU time of whole runs, Newton iterations,
+    /// factorisations.
+    QuadraticMotion(super::bench_quadratic_motion::Args),
     /// The probe link over a pty: frames/s, written → solved latency at 1 kHz, host CPU.
     Link(super::bench_link::Args),
     /// This core's f32 FMA peak and read bandwidth by working set, against the flops and bytes of
@@ -35,6 +39,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Motion(a) => super::bench_motion::run(a),
         BenchCommand::MotionSchemes(a) => super::bench_motion::run_schemes(a),
         BenchCommand::MotionStep(a) => super::bench_motion_step::run(a),
+        BenchCommand::QuadraticMotion(a) => super::bench_quadratic_motion::run(a),
         BenchCommand::Link(a) => super::bench_link::run(a),
         BenchCommand::Roofline(a) => super::roofline::run(a),
         BenchCommand::Discretisation(a) => super::bench_discretisation::run(a),

@@ -10,6 +10,7 @@ pub mod bench_fit;
 pub mod bench_link;
 pub mod bench_motion;
 pub mod bench_motion_step;
+pub mod bench_quadratic_motion;
 pub mod bench_runtime;
 pub mod diagnose_evidence;
 pub mod m4_emu;
