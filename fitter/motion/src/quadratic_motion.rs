@@ -21,8 +21,9 @@
 //!   power-law viscosity ([`visc`], in either reading of ∇v) are evaluated at the four points of
 //!   the degree-2 rule, with the same kernels. Their 30 × 30 tangents are written at each
 //!   point as rows of 30-vectors: Neo-Hookean's closed form, every other term from its moduli
-//!   V ∂P/∂F or V ∂P/∂Ḟ ([`visc::Moduli`]); the element's sum is scattered once through its ten
-//!   4-node blocks (`BLOCKS`), as the quadratic statics do.
+//!   V ∂P/∂F or V ∂P/∂Ḟ ([`visc::Moduli`]); the element's sum goes into the tangent's pattern,
+//!   built on its ten 4-node blocks (`BLOCKS`), once per stored entry, as the quadratic statics'
+//!   does.
 //! - The mass is consistent, M_ab = ∫ ρ N_a N_b dV integrated exactly ([`mass_table`]): the
 //!   row sums of the quadratic element's mass are negative at its corners, so it has no
 //!   positive lumped form by row sums.
@@ -934,8 +935,8 @@ mod tests {
     /// and w on the free dofs. Three materials, each term at a size of its own: Neo-Hookean with
     /// its stiffening, a creep branch and the objective shear-thinning viscosity; the splines'
     /// law with the rest-gradient thickening one; Neo-Hookean with a Newtonian dashpot at rest
-    /// (the tangent kept there). Central differences of step 1e-7 are good to ~1e-8 here;
-    /// asserted to 1e-6 of |u| |w| times the largest row sum.
+    /// (the tangent kept there). Against |u| |w| times the largest row sum of |K| or |D| the
+    /// central differences (step 1e-7) differ by at most 1e-10 here; asserted to 1e-8.
     #[test]
     fn the_row_tangents_are_the_forces_derivatives() {
         use crate::relaxation::StepBranch;
@@ -1000,7 +1001,7 @@ mod tests {
             q.assemble(mat, br, x, v, &mut f, None).unwrap();
             f
         };
-        // A free-dof vector on every dof (0 on the clamped ones), and back.
+        // A free-dof vector on every dof (0 on the clamped ones).
         let spread = |w: &[f64]| -> Vec<f64> {
             q.free
                 .iter()
@@ -1069,13 +1070,13 @@ mod tests {
                 let k_fd = 0.5 * (dot(&uf, &along_x(&wf)) + dot(&wf, &along_x(&uf)));
                 let k = bilinear(&kv);
                 assert!(
-                    (k - k_fd).abs() < 1e-6 * kscale * norms,
+                    (k - k_fd).abs() < 1e-8 * kscale * norms,
                     "{what}: uᵀKw {k} against {k_fd}"
                 );
                 let d_fd = dot(&uf, &along_v(&wf));
                 let d = bilinear(&dv);
                 assert!(
-                    (d - d_fd).abs() < 1e-6 * dscale * norms,
+                    (d - d_fd).abs() < 1e-8 * dscale * norms,
                     "{what}: uᵀDw {d} against {d_fd}"
                 );
             }

@@ -265,23 +265,15 @@ impl Pattern {
     /// read) into `values`.
     pub fn add_element(&self, e: usize, k: &[[f64; 12]; 12], scale: f64, values: &mut [f64]) {
         let k = k.as_flattened();
-        self.add_element_with(e, |local| scale * k[local], values);
+        for &(local, idx) in self.element_entries(e) {
+            values[idx as usize] += scale * k[local as usize];
+        }
     }
 
     /// Element `e`'s scatter list: (local index 12 r + c with r ≤ c, value index) of each of its
     /// block's stored entries.
     pub fn element_entries(&self, e: usize) -> &[(u16, u32)] {
         &self.elem_entries[self.elem_ptr[e]..self.elem_ptr[e + 1]]
-    }
-
-    /// Adds element `e`'s block into `values`, its entry at local index 12 r + c (r ≤ c, the
-    /// upper triangle) given by `entry`: a block read out of a larger element's matrix without
-    /// copying it into a 12 × 12 one first.
-    #[inline]
-    pub fn add_element_with(&self, e: usize, entry: impl Fn(usize) -> f64, values: &mut [f64]) {
-        for &(local, idx) in &self.elem_entries[self.elem_ptr[e]..self.elem_ptr[e + 1]] {
-            values[idx as usize] += entry(local as usize);
-        }
     }
 
     /// Adds two symmetric element blocks into two value arrays in one pass over the element's
