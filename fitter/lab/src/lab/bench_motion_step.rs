@@ -45,7 +45,7 @@ pub struct Args {
 }
 
 /// CPU time (s) of the calling thread: the factorisations run on it alone.
-fn thread_cpu() -> f64 {
+pub(super) fn thread_cpu() -> f64 {
     let t = rustix::time::clock_gettime(rustix::time::ClockId::ThreadCPUTime);
     t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
 }
@@ -56,7 +56,8 @@ fn process_cpu() -> f64 {
     t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
 }
 
-fn quantile(v: &[f64], q: f64) -> f64 {
+/// The `q` quantile of `v` (nearest rank).
+pub(super) fn quantile(v: &[f64], q: f64) -> f64 {
     let mut s = v.to_vec();
     s.sort_by(|a, b| a.total_cmp(b));
     s[((s.len() - 1) as f64 * q).round() as usize]

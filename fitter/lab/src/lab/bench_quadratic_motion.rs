@@ -3,6 +3,7 @@
 //! refit, which runs it once per parameter and iteration): wall and CPU time of whole runs, one
 //! after the other on one thread, with the run's Newton iterations and factorisations.
 
+use super::bench_motion_step::{quantile, thread_cpu};
 use palpate_motion::fitted::FittedModel;
 use palpate_motion::quadratic_motion::QuadraticMotion;
 use std::time::Instant;
@@ -20,19 +21,6 @@ pub struct Args {
     /// Timed runs (the first, which also warms the caches, is timed too and reported apart).
     #[arg(long, default_value_t = 5)]
     pub rounds: usize,
-}
-
-/// CPU time (s) of the calling thread: each run is simulated on it alone.
-fn thread_cpu() -> f64 {
-    let t = rustix::time::clock_gettime(rustix::time::ClockId::ThreadCPUTime);
-    t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
-}
-
-/// The `q` quantile of `v` (nearest rank).
-fn quantile(v: &[f64], q: f64) -> f64 {
-    let mut s = v.to_vec();
-    s.sort_by(|a, b| a.total_cmp(b));
-    s[((s.len() - 1) as f64 * q).round() as usize]
 }
 
 /// Runs the benchmark and prints its JSON.
