@@ -869,6 +869,9 @@ pub fn simulate_solving(
     let mut carried: Option<Factor> = None;
     // StepSolve::Kept: the last solve's refactorisation, (stale factor, fresh factor).
     let mut refresh: Option<(Factor, Factor)> = None;
+    // ‖r‖ after / before the last iteration solved with a factor made at its own iterate: what a
+    // fresh factor buys here ([`refactor_pays`]); 0 until one has been measured.
+    let mut fresh_contraction = 0.0_f64;
     for n in 1..=model.steps {
         if !model.loads.is_empty() {
             fext.copy_from_slice(&fgrav);
@@ -898,6 +901,8 @@ pub fn simulate_solving(
         let mut last_step: Option<(Vec<f64>, Vec<f64>, f64)> = None;
         // Whether this iteration assembles K and D (and factorises S) at its own state.
         let mut fresh = carried.is_none();
+        // Whether the last update was solved with a factor made at its own iterate.
+        let mut solved_fresh = false;
         let mut prev_nrm = f64::INFINITY;
         loop {
             let assembled = if fresh {
@@ -969,6 +974,9 @@ pub fn simulate_solving(
             if !nrm.is_finite() {
                 return Err(MotionError::NonFinite(format!("residual at step {n}")));
             }
+            if solved_fresh {
+                fresh_contraction = nrm / prev_nrm;
+            }
             let done = nrm < model.newton.tol || iter >= model.newton.max_iter;
             if done && !factors {
                 stats.finish_step(nrm, model.newton.tol);
@@ -979,7 +987,14 @@ pub fn simulate_solving(
                 // Converged with a kept factor; the gradients need K, D and S at this state.
                 // Its forces are already assembled: the tangents alone.
                 assemble_tangents(model, mat, &xf, &vf, branch.as_ref(), &mut kv, &mut dv)?;
-            } else if !fresh && nrm > REFACTOR_CONTRACTION * prev_nrm {
+            } else if !fresh
+                && refactor_pays(
+                    nrm / prev_nrm,
+                    fresh_contraction,
+                    model.newton.max_iter - iter,
+                    nrm / model.newton.tol,
+                )
+            {
                 // The kept factor no longer contracts: assemble the tangent here and factorise.
                 // This state's forces and residual are already at hand (the same to the last bit
                 // as the tangent pass would give them again): the tangents alone.
@@ -1044,6 +1059,7 @@ pub fn simulate_solving(
             map.fill(&model.free, &v, &mut xf, &mut vf);
             last_step = Some((v_before, r, g0));
             prev_nrm = nrm;
+            solved_fresh = fresh;
             fresh = false;
             iter += 1;
             stats.newton_iterations += 1;
@@ -1104,9 +1120,33 @@ pub fn simulate_solving(
     Ok(stats)
 }
 
-/// Largest residual ratio ‖r_k‖/‖r_{k−1}‖ an iteration with a kept factor may show before S is
-/// factorised afresh.
+/// Residual ratio ‖r_k‖/‖r_{k−1}‖ up to which an iteration with a kept factor always goes on with
+/// it.
 const REFACTOR_CONTRACTION: f64 = 0.25;
+
+/// A fresh factor's cost in iterations with a kept one: the tangent pass and the numeric
+/// factorisation against a force pass and two triangular solves.
+const FACTORISATION_COST: f64 = 4.0;
+
+/// Whether factorising S afresh pays after an iteration with a kept factor contracted the
+/// residual by `kept` (‖r_k‖/‖r_{k−1}‖), where the last fresh factor contracted it by `fresh`,
+/// with `left` iterations left and the residual `to_go` times the tolerance. Per unit of work a
+/// kept iteration gains ln(1/kept), one with a fresh factor ln(1/fresh) / (1 + the factorisation's
+/// cost): where the law is nearly linear a fresh factor contracts by 10⁻² or less and any kept
+/// rate above `REFACTOR_CONTRACTION` loses; where a fresh factor itself contracts only by 0.5 (a
+/// shear-thinning law near its floor), refactorising after every slow iteration buys little.
+/// A kept factor is replaced all the same where its rate would need more than half the
+/// iterations left to reach the tolerance: a rate measured once may worsen (without that margin
+/// a soft cantilever's swing left a step unconverged).
+fn refactor_pays(kept: f64, fresh: f64, left: usize, to_go: f64) -> bool {
+    if kept <= REFACTOR_CONTRACTION {
+        return false;
+    }
+    if kept >= 1.0 || 2.0 * to_go.ln() > left as f64 * (1.0 / kept).ln() {
+        return true;
+    }
+    kept > fresh.powf(1.0 / (1.0 + FACTORISATION_COST))
+}
 
 #[cfg(test)]
 mod tests {
@@ -1270,5 +1310,30 @@ mod tests {
             next.cg_iterations()
         );
         assert!(relative_residual(&p, &s, &y, &b, 2) <= 1e-10);
+    }
+
+    /// The refactorisation rule: a kept factor that contracts by 4 or more always goes on; one
+    /// that does not is replaced where a fresh factor contracts far better (a nearly linear step),
+    /// kept where a fresh factor contracts little better (a shear-thinning law near its floor),
+    /// and replaced whatever the rates where the residual grows or its rate cannot reach the
+    /// tolerance in half the iterations left.
+    #[test]
+    fn a_kept_factor_is_replaced_where_a_fresh_one_pays_for_itself() {
+        let left = 20;
+        assert!(!refactor_pays(0.2, 1e-3, left, 1e2));
+        assert!(!refactor_pays(0.2, 0.5, left, 1e2));
+        // 10⁻³ ^ (1/5) = 0.25: a kept rate of 0.4 gains ln 2.5 per iteration's work where a
+        // fresh factor gains ln 10³ / 5.
+        assert!(refactor_pays(0.4, 1e-3, left, 1e2));
+        // 0.5 ^ (1/5) = 0.87.
+        assert!(!refactor_pays(0.6, 0.5, left, 2.0));
+        assert!(refactor_pays(0.9, 0.5, left, 2.0));
+        // 0.6 takes ln 10² / ln(1/0.6) = 9.0 iterations to gain 10²: at most half of 20 left,
+        // more than half of 16.
+        assert!(!refactor_pays(0.6, 0.5, 20, 1e2));
+        assert!(refactor_pays(0.6, 0.5, 16, 1e2));
+        assert!(refactor_pays(1.2, 0.9, left, 2.0));
+        // Before any fresh factor has been measured, the rule is the fixed ratio's.
+        assert!(refactor_pays(0.3, 0.0, left, 1e2));
     }
 }
