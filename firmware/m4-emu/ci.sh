@@ -11,12 +11,7 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 TARGET=thumbv7em-none-eabihf
 
-if ! command -v qemu-system-arm >/dev/null 2>&1; then
-  if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
-    echo "installing qemu-system-arm (Debian package)"
-    { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq qemu-system-arm; } >/dev/null 2>&1 || true
-  fi
-fi
+bash firmware/m4-emu/install-qemu.sh
 if ! command -v qemu-system-arm >/dev/null 2>&1; then
   echo "SKIPPED: qemu-system-arm is not installed and could not be installed (apt-get): the emulated Cortex-M4F run, its comparison with the host and the cost model check did NOT run"
   exit 0
