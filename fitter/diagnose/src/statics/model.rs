@@ -147,6 +147,18 @@ impl Model {
         force: [f64; 3],
     ) -> Result<Vec<f64>, DiagnoseError> {
         let m = &ctx.meas[i];
+        // The dataset's forces are finite (checked when read): a force that is not is the
+        // model's, at parameters where an effect's law leaves the numbers (a calibration power
+        // stepped far by a fit). The model is undefined there, as where it diverges: a trial step
+        // the fit refuses, a held-out measurement the refit cannot predict — not bad input that
+        // would end the diagnosis.
+        if !force.iter().all(|v| v.is_finite()) {
+            return Err(DiagnoseError::Diverged(format!(
+                "measurement {:?}: the model's probe force {force:?} is not finite at these \
+                 parameters",
+                m.id
+            )));
+        }
         let problem = self.problem(ctx);
         let mut f = problem
             .force_vector(&Load::contact(m.point, force, m.radius))
@@ -530,5 +542,36 @@ impl Model {
             }
         }
         r
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use palpate_fem::dataset::StaticDataset;
+
+    /// A calibration power stepped far makes the model's probe force infinite: the model is
+    /// undefined there, a divergence a fit refuses, not bad input that ends the diagnosis.
+    #[test]
+    fn a_non_finite_model_force_is_a_divergence() {
+        let dir =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/dataset-example");
+        let ds = StaticDataset::read(dir).unwrap();
+        let ctx = Context::new(&ds, [2, 2, 2]).unwrap();
+        let model = Model::base().with(Candidate::Calibration);
+        // The measurement whose force is below the largest: (|f| / f_ref)^p overflows for p ≪ 0.
+        let i = (0..ctx.meas.len())
+            .find(|&i| Vector3::from(ctx.meas[i].force).norm() < 0.99 * ctx.frame.f_ref)
+            .expect("the example's two pokes differ in force");
+        let theta = [(2e4f64).ln(), s_of(0.3), -1e4];
+        let force = model.model_force(&ctx, &theta, i);
+        assert!(!force.iter().all(|v| v.is_finite()), "{force:?}");
+        match model.simulate(&ctx, &theta, &[i], None) {
+            Err(DiagnoseError::Diverged(why)) => assert!(why.contains("not finite"), "{why}"),
+            other => panic!("expected a divergence, found {:?}", other.map(|_| ())),
+        }
+        // At a power the law keeps finite the same measurement solves.
+        let theta = [(2e4f64).ln(), s_of(0.3), 0.5];
+        model.simulate(&ctx, &theta, &[i], None).unwrap();
     }
 }
