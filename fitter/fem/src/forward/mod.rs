@@ -25,6 +25,7 @@ mod cholesky;
 mod discretisation;
 mod load;
 mod nodal_pressure;
+mod polar_lanes;
 mod quadratic;
 mod solve;
 
@@ -493,18 +494,22 @@ impl StaticProblem {
     }
 
     /// Per-element warp rotations R_e from the rest state to `x` (eqs. 3.55–3.58, via the shared
-    /// reflection-safe `warp_rotation_svd`), or identities when `warp` is false.
+    /// reflection-safe `warp_rotation_svd`; four elements at a time, `polar_lanes`), or identities when `warp` is false.
     pub fn rotations(&self, x: &[[f64; 3]], warp: bool) -> Vec<Matrix3<f64>> {
         if !warp {
             return vec![Matrix3::identity(); self.tets.len()];
         }
+        polar_lanes::polar_rotations(&self.deformation_gradients(x))
+    }
+
+    /// Each element's deformation gradient F_e at `x`.
+    fn deformation_gradients(&self, x: &[[f64; 3]]) -> Vec<Matrix3<f64>> {
         self.tets
             .iter()
             .zip(&self.geometry)
             .map(|(t, g)| {
                 let xe = t.map(|i| nalgebra::Vector3::from(x[i]));
-                let f = palpate_runtime::element::deformation_gradient(g, &xe);
-                palpate_runtime::rotation::warp_rotation_polar(&f)
+                palpate_runtime::element::deformation_gradient(g, &xe)
             })
             .collect()
     }
