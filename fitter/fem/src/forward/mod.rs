@@ -493,8 +493,9 @@ impl StaticProblem {
         3 * self.free_count
     }
 
-    /// Per-element warp rotations R_e from the rest state to `x` (eqs. 3.55–3.58, via the shared
-    /// reflection-safe `warp_rotation_svd`; four elements at a time, `polar_lanes`), or identities when `warp` is false.
+    /// Per-element warp rotations R_e from the rest state to `x` (eqs. 3.55–3.58: the polar
+    /// factor, four elements at a time, `polar_lanes`; the shared reflection-safe
+    /// `warp_rotation_svd` where F is inverted or flat), or identities when `warp` is false.
     pub fn rotations(&self, x: &[[f64; 3]], warp: bool) -> Vec<Matrix3<f64>> {
         if !warp {
             return vec![Matrix3::identity(); self.tets.len()];
