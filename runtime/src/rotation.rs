@@ -31,6 +31,15 @@ pub fn warp_rotation_svd<T: RealField + Copy>(f: &Matrix3<T>) -> Matrix3<T> {
     r
 }
 
+/// [`warp_rotation_polar`]'s switch: at a squared deviation ‖XᵀX − I‖²_F below it the
+/// inverse-free Newton–Schulz iteration is used (strains up to ≈ 20 %), above it the scaled Newton
+/// iteration.
+pub const POLAR_NEAR: f64 = 0.25;
+
+/// [`warp_rotation_polar`]'s convergence test: a squared deviation below it is followed by one last
+/// Newton–Schulz step, which leaves rounding.
+pub const POLAR_CONVERGED: f64 = 1e-18;
+
 /// [`warp_rotation_svd`] by iterations for the orthogonal polar factor (N. J. Higham, "Computing
 /// the polar decomposition — with applications", SIAM J. Sci. Stat. Comput. 7, 1986): the
 /// inverse-free Newton–Schulz iteration X ← X(3I − XᵀX)/2 while F is near orthogonal, else the
@@ -59,8 +68,8 @@ pub fn warp_rotation_polar<T: RealField + Copy>(f: &Matrix3<T>) -> Matrix3<T> {
     // squared Frobenius norm of the symmetric XᵀX − I (a sum, six entries): its largest entry
     // by nalgebra's `amax` was a chain of dependent compares that took half of this function's
     // time, and this function a quarter of a static diagnosis.
-    let near = T::from_f64(0.25).unwrap();
-    let done = T::from_f64(1e-18).unwrap();
+    let near = T::from_f64(POLAR_NEAR).unwrap();
+    let done = T::from_f64(POLAR_CONVERGED).unwrap();
     let mut x = *f;
     for _ in 0..8 {
         let xtx = x.transpose() * x;

@@ -14,7 +14,9 @@
 //! did (the SVD's reflection fix, or the scaled Newton iteration).
 
 use nalgebra::Matrix3;
-use palpate_runtime::rotation::warp_rotation_polar;
+use palpate_runtime::rotation::{
+    warp_rotation_polar, POLAR_CONVERGED as CONVERGED, POLAR_NEAR as NEAR,
+};
 
 /// Elements rotated side by side.
 const LANES: usize = 4;
@@ -26,14 +28,6 @@ type Lanes = [f64; LANES];
 fn lanes(value: impl Fn(usize) -> f64) -> Lanes {
     core::array::from_fn(value)
 }
-
-/// The Newton–Schulz iteration's test of convergence, as the scalar routine's: a squared
-/// deviation ‖XᵀX − I‖²_F below it is followed by one last step, which leaves rounding.
-const CONVERGED: f64 = 1e-18;
-
-/// The squared deviation from which the inverse-free iteration is not used (as the scalar
-/// routine's).
-const NEAR: f64 = 0.25;
 
 /// The polar rotations of four deformation gradients ([`warp_rotation_polar`]'s, to rounding).
 fn polar_rotations_x4(f: &[Matrix3<f64>; LANES]) -> [Matrix3<f64>; LANES] {
