@@ -16,6 +16,7 @@ pub mod lm;
 pub mod mesh;
 pub mod names;
 pub mod numbers;
+pub mod one_coordinate;
 pub mod rng;
 pub mod runtime_storage;
 pub mod sanity;

@@ -170,7 +170,7 @@ pub struct TrustOptions {
 impl TrustOptions {
     /// The smallest decrease of Φ that counts at Φ = `phi` for a tolerance of `fraction` of Φ:
     /// that fraction, or Φ's absolute precision where it is larger.
-    fn least_gain(&self, fraction: f64, phi: f64) -> f64 {
+    pub(crate) fn least_gain(&self, fraction: f64, phi: f64) -> f64 {
         (fraction * phi).max(self.abs_tolerance)
     }
 }
@@ -359,7 +359,25 @@ fn model_step(
 /// of the effect and its step runs to the radius, so the iteration walks one radius a step, each
 /// gaining less, until the gain is below the precision asked — a dozen simulations or more that
 /// the bound, where the walk ends, settles in one or two.
+///
+/// With one coordinate the search is [`crate::one_coordinate::minimise_one_coordinate`]'s
+/// instead: two evaluations determine a cubic model of Φ along the whole line, which the
+/// secant term would learn a step late and the radius would walk in steps.
 pub fn minimise_trust_region(
+    theta0: Vec<f64>,
+    first: Normal,
+    eval: impl FnMut(&[f64]) -> Option<Normal>,
+    o: &TrustOptions,
+    lower: &[f64],
+) -> TrustOutcome {
+    if let ([t0], [floor]) = (theta0.as_slice(), lower) {
+        return crate::one_coordinate::minimise_one_coordinate(*t0, first, eval, o, *floor);
+    }
+    trust_region_iteration(theta0, first, eval, o, lower)
+}
+
+/// [`minimise_trust_region`]'s iteration in any number of coordinates.
+fn trust_region_iteration(
     theta0: Vec<f64>,
     first: Normal,
     mut eval: impl FnMut(&[f64]) -> Option<Normal>,
@@ -1182,6 +1200,49 @@ mod tests {
         assert!(out.converged);
         assert!((out.theta[0] - 2.3).abs() < 0.05, "{}", out.theta[0]);
         assert!(evals.get() <= 10, "{} evaluations", evals.get());
+    }
+
+    /// One coordinate: the cubic search ([`crate::one_coordinate`]) and the trust-region
+    /// iteration reach the same minimum of the sinusoid's phase, from its side of the hump
+    /// (ω = 2.0: five evaluations each) and from just past the top of it (1.505, where Φ is
+    /// concave: six against eight).
+    #[test]
+    fn one_coordinate_takes_the_cubic_search() {
+        let phase = SinusoidPhase::new();
+        let o = TrustOptions {
+            max_iterations: 100,
+            rel_tolerance: 1e-12,
+            noise_tolerance: 0.0,
+            abs_tolerance: 0.0,
+            initial_radius: 1.0,
+            max_radius: 3.0,
+            probe_bounds: 0,
+        };
+        for start in [2.0, 1.505] {
+            let evals = std::cell::Cell::new(0);
+            let eval = |th: &[f64]| {
+                evals.set(evals.get() + 1);
+                Some(phase.normal(th[0]))
+            };
+            let first = phase.normal(start);
+            let search = minimise_trust_region(vec![start], first.clone(), eval, &o, &FREE1);
+            let searched = evals.replace(0);
+            let walk = trust_region_iteration(vec![start], first, eval, &o, &FREE1);
+            let walked = evals.get();
+            eprintln!(
+                "from {start}: search ω {} in {searched}, trust region {} in {walked}",
+                search.theta[0], walk.theta[0]
+            );
+            assert!(search.converged && walk.converged);
+            assert!(
+                (search.theta[0] - walk.theta[0]).abs() < 1e-7,
+                "{search:?} against {walk:?}"
+            );
+            assert!(
+                searched < walked || (start == 2.0 && searched == walked),
+                "{searched} against {walked} evaluations"
+            );
+        }
     }
 
     /// The subproblem: inside the radius the Newton step; on an indefinite B a step of exactly
