@@ -1231,9 +1231,14 @@ impl<C: Copy + PartialEq, T> Ahead<C, T> {
 /// Fits every candidate of `batch` with `fit`, in parallel on rayon's pool, and returns the
 /// results in `batch`'s order. A candidate waits for every one before it in `batch` it depends
 /// on (`waits_for(c, earlier)`: its fit starts from theirs), and `fit` is handed those results;
-/// the others run together in waves. A fit's own parallel loops share the pool: rayon's joins
-/// steal work rather than block a thread, so nesting neither deadlocks nor starts more threads
-/// than the pool has.
+/// it starts as soon as the last of them is done, beside whatever else is still fitting, not at
+/// the end of a wave of the others: in waves the measured beam's power law, nested in the
+/// Newtonian damping, would wait 12 s for the creep branch's longer fit while a core idles at
+/// the runs' unequal lengths. A fit's own parallel loops share the pool: rayon's joins steal
+/// work rather than block a thread, so nesting neither deadlocks nor starts more threads than
+/// the pool has.
+/// Each fit depends only on its own dependencies' results, so the results do not depend on the
+/// order the pool runs them in.
 pub fn fit_ahead<C, T>(
     batch: &[C],
     waits_for: impl Fn(C, C) -> bool + Sync,
@@ -1243,33 +1248,77 @@ where
     C: Copy + Send + Sync,
     T: Send + Sync,
 {
-    use rayon::prelude::*;
-    let waits_for = &waits_for;
-    let deps = |i: usize| (0..i).filter(move |&j| waits_for(batch[i], batch[j]));
-    let mut done: Vec<Option<T>> = batch.iter().map(|_| None).collect();
-    while done.iter().any(Option::is_none) {
-        let ready: Vec<usize> = (0..batch.len())
-            .filter(|&i| done[i].is_none() && deps(i).all(|j| done[j].is_some()))
-            .collect();
-        // Dependencies point only to earlier candidates, so the first one open is always ready.
-        assert!(!ready.is_empty(), "a candidate waits for none after it");
-        let wave: Vec<T> = {
-            let done = &done;
-            ready
-                .par_iter()
-                .map(|&i| {
-                    let earlier: Vec<(C, &T)> = deps(i)
-                        .filter_map(|j| done[j].as_ref().map(|t| (batch[j], t)))
-                        .collect();
-                    fit(batch[i], &earlier)
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::OnceLock;
+
+    /// What every launched fit reads: the batch, its dependencies, the results so far and which
+    /// fits have been claimed by a launch.
+    struct Flow<'a, C, T, W, F> {
+        batch: &'a [C],
+        waits_for: &'a W,
+        fit: &'a F,
+        done: Vec<OnceLock<T>>,
+        claimed: Vec<AtomicBool>,
+    }
+
+    impl<'a, C, T, W, F> Flow<'a, C, T, W, F>
+    where
+        C: Copy + Send + Sync,
+        T: Send + Sync,
+        W: Fn(C, C) -> bool + Sync,
+        F: Fn(C, &[(C, &T)]) -> T + Sync,
+    {
+        fn deps(&self, i: usize) -> impl Iterator<Item = usize> + '_ {
+            (0..i).filter(move |&j| (self.waits_for)(self.batch[i], self.batch[j]))
+        }
+
+        /// Spawns every fit not yet claimed whose dependencies are all done; the claim makes
+        /// each fit start once, whichever finishing dependency sees it ready first.
+        fn launch_ready<'s>(&'s self, scope: &rayon::Scope<'s>) {
+            for i in 0..self.batch.len() {
+                if self.claimed[i].load(Ordering::Acquire)
+                    || !self.deps(i).all(|j| self.done[j].get().is_some())
+                {
+                    continue;
+                }
+                if !self.claimed[i].swap(true, Ordering::AcqRel) {
+                    scope.spawn(move |scope| self.run(i, scope));
+                }
+            }
+        }
+
+        fn run<'s>(&'s self, i: usize, scope: &rayon::Scope<'s>) {
+            let earlier: Vec<(C, &T)> = self
+                .deps(i)
+                .map(|j| {
+                    (
+                        self.batch[j],
+                        self.done[j].get().expect("a dependency is done"),
+                    )
                 })
-                .collect()
-        };
-        for (i, t) in ready.into_iter().zip(wave) {
-            done[i] = Some(t);
+                .collect();
+            let result = (self.fit)(self.batch[i], &earlier);
+            if self.done[i].set(result).is_err() {
+                unreachable!("each fit is claimed once");
+            }
+            self.launch_ready(scope);
         }
     }
-    done.into_iter().flatten().collect()
+
+    let flow = Flow {
+        batch,
+        waits_for: &waits_for,
+        fit: &fit,
+        done: batch.iter().map(|_| OnceLock::new()).collect(),
+        claimed: batch.iter().map(|_| AtomicBool::new(false)).collect(),
+    };
+    // Dependencies point only to earlier candidates, so the first one is always ready and every
+    // fit is launched once all before it that it waits for are done.
+    rayon::scope(|scope| flow.launch_ready(scope));
+    flow.done
+        .into_iter()
+        .map(|slot| slot.into_inner().expect("every fit ran"))
+        .collect()
 }
 
 /// The line a room logs before [`fit_ahead`] fits `batch` in `round`: what is fitted side by
@@ -1788,6 +1837,44 @@ mod tests {
         let at = |c: usize| seen.iter().position(|&s| s == c).unwrap();
         assert!(at(0) < at(1) && at(1) < at(3), "{seen:?}");
         assert_eq!(seen.len(), 4);
+    }
+
+    /// A fit that waits for another starts when that one is done, not when every fit started
+    /// beside it is: on two threads c2, which cannot finish before c1 has (it waits for c1's
+    /// signal, at most 20 s), finishes at once; in waves c1 would wait for c2 and c2 time out.
+    #[test]
+    fn a_nested_fit_starts_when_its_own_dependency_is_done() {
+        use std::sync::{Condvar, Mutex};
+        use std::time::Duration;
+        let batch = [C(0), C(1), C(2)];
+        let waits = |c: C, e: C| (c.0, e.0) == (1, 0);
+        let signal = (Mutex::new(false), Condvar::new());
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        let out = pool.install(|| {
+            fit_ahead(&batch, waits, |c, _earlier: &[(C, &bool)]| match c.0 {
+                1 => {
+                    *signal.0.lock().unwrap() = true;
+                    signal.1.notify_all();
+                    true
+                }
+                2 => {
+                    let seen = signal
+                        .1
+                        .wait_timeout_while(
+                            signal.0.lock().unwrap(),
+                            Duration::from_secs(20),
+                            |s| !*s,
+                        )
+                        .unwrap();
+                    *seen.0
+                }
+                _ => true,
+            })
+        });
+        assert_eq!(out, [true, true, true], "c2 timed out waiting for c1");
     }
 
     /// The motion and runs rooms log this line before a batch; the words are the ones their
