@@ -1095,7 +1095,7 @@ fn direct(
                 svm2[p] = std::mem::replace(&mut svm1[p], svn);
             }
             if let (Some(cs), Some((branch, after))) = (creep.as_mut(), s.relaxation) {
-                cs.advance(model, mat, &table, branch, after, xf, &sxf)?;
+                cs.advance(model, &table, branch, after, &sxf);
             }
             if let Some(m) = means.as_mut() {
                 m.add_residuals(model, obs, s.n, s.x);

@@ -132,9 +132,13 @@ pub fn elastic_pk2<'a>(
 ) -> Result<(Matrix3<f64>, Matrix3<f64>, ElasticState<'a>), MotionError> {
     let f = he::deformation_gradient(&model.rest[e], &model.gather(e, x));
     let s = ElasticState::new(mat, e, f)?;
-    let finv = f
-        .try_inverse()
-        .ok_or(MotionError::Inverted { element: e })?;
+    // The Neo-Hookean state holds F⁻ᵀ already.
+    let finv = match &s {
+        ElasticState::NeoHookean(parts, _) => parts.f_inv_t.transpose(),
+        ElasticState::Spline(..) => f
+            .try_inverse()
+            .ok_or(MotionError::Inverted { element: e })?,
+    };
     Ok((finv * s.pk1(), f, s))
 }
 
@@ -225,7 +229,12 @@ pub fn pk2_change(
 /// branch. After the solve, dS⁰_{n+1} = F⁻¹(dP⁰ − dF S⁰) with dF from the force state's
 /// sensitivity s_xf = s_xa + a_x s_v^{n+1} (the branch lives at the force state; for BDF2 that
 /// is s_x^{n+1}), and dH_{n+1} = dC_n + ∂(g b)/∂q S⁰_{n+1} + g b dS⁰_{n+1}.
-pub(crate) struct Sensitivities {
+///
+/// What a step asks of every element is computed once per simulation or once per step: the
+/// coefficients (a, g b) and their derivatives per parameter hold for the whole simulation (the
+/// material and Δt do not change in it), and the elastic state at the step's force state serves
+/// both the history term before the solve and the advance after it (F⁻¹ from its own F⁻ᵀ).
+pub(crate) struct Sensitivities<'a> {
     /// H_n and S⁰_n per element (the state before the coming step).
     h: Vec<Matrix3<f64>>,
     s0: Vec<Matrix3<f64>>,
@@ -234,6 +243,12 @@ pub(crate) struct Sensitivities {
     ds0: Vec<Vec<Matrix3<f64>>>,
     /// dC_n/dq of the step under way.
     dc: Vec<Vec<Matrix3<f64>>>,
+    /// a per element, and ∂(a, g b)/∂q per element, then parameter.
+    decay: Vec<f64>,
+    dcoef: Vec<Vec<(f64, f64)>>,
+    /// The elastic state of every element at the step's force state ([`Self::add_history`]'s,
+    /// which [`Self::advance`] takes up).
+    at_force: Vec<ElasticState<'a>>,
 }
 
 /// The kinds whose explicit ∂P⁰/∂q the branch scales.
@@ -256,7 +271,7 @@ fn gradient_change(model: &Model, e: usize, sx: &[f64]) -> Matrix3<f64> {
     df
 }
 
-impl Sensitivities {
+impl<'a> Sensitivities<'a> {
     /// Refuses what the direct method does not carry through the branch: the spline material.
     pub(crate) fn check(mat: &Material) -> Result<(), MotionError> {
         if mat.spline.is_some() {
@@ -273,7 +288,7 @@ impl Sensitivities {
     /// parameter): H = 0, dH = 0, S⁰ and dS⁰ at x⁰.
     pub(crate) fn start(
         model: &Model,
-        mat: &Material,
+        mat: &'a Material,
         table: &[Vec<usize>],
         x0: &[f64],
         sx0: &[Vec<f64>],
@@ -286,66 +301,50 @@ impl Sensitivities {
             dh: vec![vec![Matrix3::zeros(); np]; ne],
             ds0: Vec::with_capacity(ne),
             dc: vec![vec![Matrix3::zeros(); np]; ne],
+            decay: Vec::with_capacity(ne),
+            dcoef: Vec::with_capacity(ne),
+            at_force: Vec::with_capacity(ne),
         };
         for e in 0..ne {
-            let (s0, ds0) = Self::pk2_sensitivity(model, mat, table, e, x0, sx0)?;
+            let st = elastic_state(model, mat, e, x0)?;
+            let (s0, ds0) = Self::pk2_sensitivity(model, table, e, &st, sx0);
             out.s0.push(s0);
             out.ds0.push(ds0);
+            out.decay.push(branch_decay(model, mat, e));
+            out.dcoef.push(
+                (0..np)
+                    .map(|p| coefficient_change(model, mat, table, e, p))
+                    .collect(),
+            );
+            out.at_force.push(st);
         }
         Ok(out)
     }
 
-    /// S⁰ of element `e` at `x` and its total derivative per parameter along `sx`.
+    /// S⁰ of element `e` at the state `st` and its total derivative per parameter along `sx`.
     fn pk2_sensitivity(
         model: &Model,
-        mat: &Material,
         table: &[Vec<usize>],
         e: usize,
-        x: &[f64],
+        st: &ElasticState,
         sx: &[Vec<f64>],
-    ) -> Result<(Matrix3<f64>, Vec<Matrix3<f64>>), MotionError> {
-        let (s0, f, st) = elastic_pk2(model, mat, e, x)?;
-        let finv = f
-            .try_inverse()
-            .ok_or(MotionError::Inverted { element: e })?;
+    ) -> (Matrix3<f64>, Vec<Matrix3<f64>>) {
+        let parts = neo_hookean(st);
+        let finv = parts.f_inv_t.transpose();
+        let s0 = finv * st.pk1();
         let ds0 = (0..sx.len())
             .map(|p| {
                 let df = gradient_change(model, e, &sx[p]);
                 let mut dp0 = st.dpk1(&df);
-                if let ElasticState::NeoHookean(parts, _) = &st {
-                    for k in ELASTIC_KINDS {
-                        if table[e][k as usize] == p {
-                            dp0 += pk1_dkind(parts, k).unwrap_or_else(Matrix3::zeros);
-                        }
+                for k in ELASTIC_KINDS {
+                    if table[e][k as usize] == p {
+                        dp0 += pk1_dkind(parts, k).unwrap_or_else(Matrix3::zeros);
                     }
                 }
                 pk2_change(&finv, &s0, &df, &dp0)
             })
             .collect();
-        Ok((s0, ds0))
-    }
-
-    /// ∂(a, g b)/∂q_p of element `e`: nonzero for its own creep fraction and time.
-    fn coefficient_change(
-        model: &Model,
-        mat: &Material,
-        table: &[Vec<usize>],
-        e: usize,
-        p: usize,
-    ) -> (f64, f64) {
-        let d = coefficient_derivatives(
-            mat.get(ParamKind::CreepFraction, e),
-            mat.get(ParamKind::CreepTime, e),
-            model.dt,
-        );
-        let mut out = (0.0, 0.0);
-        for (k, dk) in ParamKind::CREEP.into_iter().zip(d) {
-            if table[e][k as usize] == p {
-                out.0 += dk.0;
-                out.1 += dk.1;
-            }
-        }
-        out
+        (s0, ds0)
     }
 
     /// Adds the branch's explicit part of the step's ∂F/∂q (see the type's doc) at the step's
@@ -355,7 +354,7 @@ impl Sensitivities {
     pub(crate) fn add_history(
         &mut self,
         model: &Model,
-        mat: &Material,
+        mat: &'a Material,
         table: &[Vec<usize>],
         branch: &StepBranch,
         x: &[f64],
@@ -365,12 +364,12 @@ impl Sensitivities {
         let nf = model.nfree;
         for e in 0..model.tets.len() {
             let t = &model.rest[e];
-            let f = he::deformation_gradient(t, &model.gather(e, x));
-            let st = ElasticState::new(mat, e, f)?;
-            let p0 = st.pk1();
-            let (a, gb) = (branch_decay(model, mat, e), branch.gain[e]);
+            let st = elastic_state(model, mat, e, x)?;
+            self.at_force[e] = st;
+            let (f, p0) = (neo_hookean(&st).f, st.pk1());
+            let (a, gb) = (self.decay[e], branch.gain[e]);
             for p in 0..np {
-                let (da, dgb) = Self::coefficient_change(model, mat, table, e, p);
+                let (da, dgb) = self.dcoef[e][p];
                 let dc =
                     self.h[e] * da + self.dh[e][p] * a - self.s0[e] * dgb - self.ds0[e][p] * gb;
                 self.dc[e][p] = dc;
@@ -401,28 +400,72 @@ impl Sensitivities {
     /// derivatives from the sensitivities `sxf` of the step's force state (s_xf, free dofs per
     /// parameter) at its positions `xf` (the state [`Relaxation::advance`] took).
     #[allow(clippy::too_many_arguments)]
+    ///
+    /// The elastic states at `xf` are [`Self::add_history`]'s of the same step.
     pub(crate) fn advance(
         &mut self,
         model: &Model,
-        mat: &Material,
         table: &[Vec<usize>],
         branch: &StepBranch,
         after: &Relaxation,
-        xf: &[f64],
         sxf: &[Vec<f64>],
-    ) -> Result<(), MotionError> {
+    ) {
         for e in 0..model.tets.len() {
-            let (s0, ds0) = Self::pk2_sensitivity(model, mat, table, e, xf, sxf)?;
+            let (s0, ds0) = Self::pk2_sensitivity(model, table, e, &self.at_force[e], sxf);
             for p in 0..sxf.len() {
-                let (_, dgb) = Self::coefficient_change(model, mat, table, e, p);
+                let (_, dgb) = self.dcoef[e][p];
                 self.dh[e][p] = self.dc[e][p] + s0 * dgb + ds0[p] * branch.gain[e];
             }
             self.ds0[e] = ds0;
         }
         self.h.clone_from(&after.h);
         self.s0.clone_from(&after.s0);
-        Ok(())
     }
+}
+
+/// The Neo-Hookean parts of a state the branch's sensitivities carry ([`Sensitivities::check`]
+/// refuses the spline material before any is made).
+fn neo_hookean<'s>(st: &'s ElasticState) -> &'s FParts {
+    match st {
+        ElasticState::NeoHookean(parts, _) => parts,
+        ElasticState::Spline(..) => {
+            unreachable!("`Sensitivities::check` refuses the spline material")
+        }
+    }
+}
+
+/// The elastic state of element `e` at positions `x`.
+fn elastic_state<'a>(
+    model: &Model,
+    mat: &'a Material,
+    e: usize,
+    x: &[f64],
+) -> Result<ElasticState<'a>, MotionError> {
+    let f = he::deformation_gradient(&model.rest[e], &model.gather(e, x));
+    ElasticState::new(mat, e, f)
+}
+
+/// ∂(a, g b)/∂q_p of element `e`: nonzero for its own creep fraction and time.
+fn coefficient_change(
+    model: &Model,
+    mat: &Material,
+    table: &[Vec<usize>],
+    e: usize,
+    p: usize,
+) -> (f64, f64) {
+    let d = coefficient_derivatives(
+        mat.get(ParamKind::CreepFraction, e),
+        mat.get(ParamKind::CreepTime, e),
+        model.dt,
+    );
+    let mut out = (0.0, 0.0);
+    for (k, dk) in ParamKind::CREEP.into_iter().zip(d) {
+        if table[e][k as usize] == p {
+            out.0 += dk.0;
+            out.1 += dk.1;
+        }
+    }
+    out
 }
 
 /// a = e^{−Δt/τ} of element `e`'s branch.
