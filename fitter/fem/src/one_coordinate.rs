@@ -40,11 +40,11 @@ impl Far {
 
 /// Evaluations after which a bracket that has not halved is bisected: an interpolation that
 /// keeps landing beside the best point (one end of the bracket stuck far away) still gets there.
-const SHRINK_WITHIN: usize = 3;
+pub const SHRINK_WITHIN: usize = 3;
 
 /// Expansion of an unbracketed step whose cubic has no minimum ahead (Φ concave along the
 /// way): a multiple of the last step, at least Gauss–Newton's.
-const EXPAND: f64 = 4.0;
+pub const EXPAND: f64 = 4.0;
 
 /// The cubic p(s) = c₀ + c₁ s + c₂ s² + c₃ s³ through `a` (s = 0) and `b` (s = 1) with their
 /// values and slopes (in units of s: Φ' · (b − a)).
@@ -101,7 +101,7 @@ fn parabola_decrease(best: Point, h: f64, s: f64) -> f64 {
 ///
 /// The first step is Gauss–Newton's, −Φ'/JᵀJ, within [`TrustOptions::initial_radius`]. Each
 /// later one goes to the minimum of the cubic through the best point and the last one evaluated
-/// beside it ([`hermite`]); before the minimum is bracketed a step whose cubic has no minimum
+/// beside it (the Hermite cubic of their values and slopes); before the minimum is bracketed a step whose cubic has no minimum
 /// ahead is [`EXPAND`] times the last (Φ concave along the way), and no step is longer than
 /// [`TrustOptions::max_radius`]. The bracket is the best point and the nearest point seen on
 /// the far side of the minimum: one where Φ rose, or the last best when Φ' changed sign. Inside
