@@ -50,7 +50,17 @@ pub(super) fn mesh_format(file: &Path, bytes: &[u8]) -> Result<MshFormat, MeshEr
     };
     match (parts.next(), msh2) {
         (Some("0"), false) => Ok(MshFormat::V41Ascii),
-        (Some("1"), false) => Ok(MshFormat::V41Binary),
+        // mshio reads a binary file's size_t at the width this field gives and has no reader
+        // for widths other than its few (a corrupted "7" made it panic): Gmsh writes
+        // sizeof(size_t), 8 on a 64-bit machine and 4 on a 32-bit one.
+        (Some("1"), false) => match parts.next() {
+            Some("8" | "4") => Ok(MshFormat::V41Binary),
+            other => Err(syntax(
+                2,
+                "data size 8 or 4 (the bytes of a size_t, as Gmsh writes it)",
+                other.unwrap_or(""),
+            )),
+        },
         (Some("0"), true) => Ok(MshFormat::V2Ascii),
         (Some("1"), true) => Ok(MshFormat::V2Binary),
         (other, _) => Err(syntax(

@@ -5,8 +5,25 @@ use std::path::Path;
 
 /// Parses a binary MSH 4.1 file with mshio. `$PhysicalNames` (plain text even in binary files,
 /// and not read by mshio) is read from the text before the first binary section.
+///
+/// mshio has inputs it panics on (`unimplemented!` for a size_t width it has no reader for,
+/// `expect` on digits that are not UTF-8); the header's fields are checked before it is called
+/// (`ascii::mesh_format`), and a panic left in it is caught and reported as this file's error.
 pub(super) fn parse(file: &Path, bytes: &[u8]) -> Result<RawMsh, MeshError> {
-    let msh = mshio::parse_msh_bytes(bytes).map_err(|e| {
+    let parsed = std::panic::catch_unwind(|| mshio::parse_msh_bytes(bytes)).map_err(|panic| {
+        let why = panic
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| panic.downcast_ref::<String>().cloned())
+            .unwrap_or_default();
+        MeshError::Binary {
+            file: file.to_path_buf(),
+            offset: 0,
+            line: 0,
+            message: format!("the MSH 4.1 binary reader (mshio) failed on this file: {why}"),
+        }
+    })?;
+    let msh = parsed.map_err(|e| {
         // mshio's error holds the unparsed rest of the input: its length gives the offset.
         let offset = e
             .backtrace
