@@ -101,9 +101,9 @@ fn parabola_decrease(best: Point, h: f64, s: f64) -> f64 {
 ///
 /// The first step is Gauss–Newton's, −Φ'/JᵀJ, within [`TrustOptions::initial_radius`]. Each
 /// later one goes to the minimum of the cubic through the best point and the last one evaluated
-/// beside it (the Hermite cubic of their values and slopes); before the minimum is bracketed a step whose cubic has no minimum
-/// ahead is [`EXPAND`] times the last (Φ concave along the way), and no step is longer than
-/// [`TrustOptions::max_radius`]. The bracket is the best point and the nearest point seen on
+/// beside it (the Hermite cubic of their values and slopes); before the minimum is bracketed, a
+/// step whose cubic has no minimum ahead is [`EXPAND`] times the last (Φ concave along the
+/// way), and no step is longer than [`TrustOptions::max_radius`]. The bracket is the best point and the nearest point seen on
 /// the far side of the minimum: one where Φ rose, or the last best when Φ' changed sign. Inside
 /// it a step that leaves it, or a bracket that has not halved in [`SHRINK_WITHIN`]
 /// evaluations, bisects instead. A failed evaluation bounds the bracket where it was tried.
@@ -140,7 +140,7 @@ pub fn minimise_one_coordinate(
     while iterations < o.max_iterations {
         let (phi, g) = (best.phi, best.g);
         let tolerance = o.least_gain(o.rel_tolerance, phi);
-        if !(g != 0.0) || (best.t <= lower && g > 0.0) {
+        if g == 0.0 || g.is_nan() || (best.t <= lower && g > 0.0) {
             // At a stationary point, or held on the bound with Φ' pointing below it.
             converged = true;
             break;
@@ -181,10 +181,10 @@ pub fn minimise_one_coordinate(
             if !(inside > 0.0 && inside < 1.0) || stuck {
                 step = 0.5 * span;
                 predicted = match f {
-                    Far::Evaluated(q) => cubic_step(best, q)
-                        .map(|_| best.phi - cubic_at(hermite(best, q), 0.5))
-                        .unwrap_or(-g * step),
-                    Far::Failed(_) => -g * step,
+                    Far::Evaluated(q) if q.phi.is_finite() && q.g.is_finite() => {
+                        best.phi - cubic_at(hermite(best, q), 0.5)
+                    }
+                    _ => -g * step,
                 };
             }
             if span.abs() < 1e-8 {
