@@ -130,8 +130,7 @@ pub fn elastic_pk2<'a>(
     e: usize,
     x: &[f64],
 ) -> Result<(Matrix3<f64>, Matrix3<f64>, ElasticState<'a>), MotionError> {
-    let f = he::deformation_gradient(&model.rest[e], &model.gather(e, x));
-    let s = ElasticState::new(mat, e, f)?;
+    let (f, s) = elastic_state(model, mat, e, x)?;
     // The Neo-Hookean state holds F⁻ᵀ already.
     let finv = match &s {
         ElasticState::NeoHookean(parts, _) => parts.f_inv_t.transpose(),
@@ -306,7 +305,7 @@ impl<'a> Sensitivities<'a> {
             at_force: Vec::with_capacity(ne),
         };
         for e in 0..ne {
-            let st = elastic_state(model, mat, e, x0)?;
+            let (_, st) = elastic_state(model, mat, e, x0)?;
             let (s0, ds0) = Self::pk2_sensitivity(model, table, e, &st, sx0);
             out.s0.push(s0);
             out.ds0.push(ds0);
@@ -364,9 +363,9 @@ impl<'a> Sensitivities<'a> {
         let nf = model.nfree;
         for e in 0..model.tets.len() {
             let t = &model.rest[e];
-            let st = elastic_state(model, mat, e, x)?;
+            let (f, st) = elastic_state(model, mat, e, x)?;
             self.at_force[e] = st;
-            let (f, p0) = (neo_hookean(&st).f, st.pk1());
+            let p0 = st.pk1();
             let (a, gb) = (self.decay[e], branch.gain[e]);
             for p in 0..np {
                 let (da, dgb) = self.dcoef[e][p];
@@ -398,10 +397,8 @@ impl<'a> Sensitivities<'a> {
 
     /// The state after the step: the branch's own `after` (H_{n+1}, S⁰_{n+1}) and the
     /// derivatives from the sensitivities `sxf` of the step's force state (s_xf, free dofs per
-    /// parameter) at its positions `xf` (the state [`Relaxation::advance`] took).
-    #[allow(clippy::too_many_arguments)]
-    ///
-    /// The elastic states at `xf` are [`Self::add_history`]'s of the same step.
+    /// parameter). The elastic states at that force state are [`Self::add_history`]'s of the
+    /// same step (the state [`Relaxation::advance`] took).
     pub(crate) fn advance(
         &mut self,
         model: &Model,
@@ -434,15 +431,15 @@ fn neo_hookean<'s>(st: &'s ElasticState) -> &'s FParts {
     }
 }
 
-/// The elastic state of element `e` at positions `x`.
+/// The deformation gradient and elastic state of element `e` at positions `x`.
 fn elastic_state<'a>(
     model: &Model,
     mat: &'a Material,
     e: usize,
     x: &[f64],
-) -> Result<ElasticState<'a>, MotionError> {
+) -> Result<(Matrix3<f64>, ElasticState<'a>), MotionError> {
     let f = he::deformation_gradient(&model.rest[e], &model.gather(e, x));
-    ElasticState::new(mat, e, f)
+    Ok((f, ElasticState::new(mat, e, f)?))
 }
 
 /// ∂(a, g b)/∂q_p of element `e`: nonzero for its own creep fraction and time.
