@@ -33,6 +33,10 @@ pub(in crate::runs) struct RunsModel<'a> {
     pub(in crate::runs) fitted: Vec<(usize, Effect, Material)>,
     /// The fit screen's predictions, by round.
     pub(in crate::runs) predicted: Vec<(usize, Effect, f64)>,
+    /// Where the fit screen's step took a candidate's new parameter, by round
+    /// ([`ScreenPoint::landing`](super::screen::ScreenPoint::landing)): the start of its fit
+    /// where that is above the candidate's own start.
+    pub(in crate::runs) landed: Vec<(usize, ParamKind, f64)>,
     /// The time offsets the screen scanned at the current material, by round: the start of the
     /// time offset's fit in that round.
     pub(in crate::runs) scanned: Option<(usize, Vec<i64>)>,
@@ -92,6 +96,15 @@ impl RunsModel<'_> {
             .rev()
             .find(|(r, e, _)| *r == round && *e == effect)
             .map(|p| p.2)
+    }
+
+    /// Where the fit screen's step took `kind` in `round`, if it was predicted there.
+    pub(in crate::runs) fn landing(&self, round: usize, kind: ParamKind) -> Option<f64> {
+        self.landed
+            .iter()
+            .rev()
+            .find(|(r, k, _)| *r == round && *k == kind)
+            .map(|l| l.2)
     }
 
     /// The fitted runs with `effects`' structural changes, run i's markers `offsets[i]` steps

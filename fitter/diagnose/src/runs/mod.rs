@@ -445,6 +445,7 @@ pub fn diagnose_runs_with(
         trials: Vec::new(),
         fitted: Vec::new(),
         predicted: Vec::new(),
+        landed: Vec::new(),
         scanned: None,
         progress,
         simulations: Default::default(),

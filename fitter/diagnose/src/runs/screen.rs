@@ -169,19 +169,7 @@ impl<'a> ScreenPoint<'a> {
         if kinds.is_empty() || self.normals.is_empty() {
             return Prediction::none("no parameter to linearise: always fitted");
         }
-        let mut cols: Vec<usize> = (0..self.own).collect();
-        cols.extend(
-            kinds
-                .iter()
-                .filter_map(|k| self.cols.iter().position(|j| *j == Param::global(*k)))
-                .filter(|&i| i >= self.own),
-        );
-        // A viscosity, a stiffening coefficient or a relaxed fraction cannot go below 0: a step
-        // that takes one there is taken again with it held at 0, where the candidate does best.
-        let own = self.own;
-        let (delta, held) = screen::step_within_bounds(&self.normals, &mut cols, |col| {
-            (col >= own).then(|| self.cols[col].kind)
-        });
+        let (cols, delta, held) = self.step_over(kinds);
         let how = if held.is_empty() {
             how.to_string()
         } else {
@@ -198,6 +186,47 @@ impl<'a> ScreenPoint<'a> {
             delta_bic: Some(self.delta_bic(self.chi2_after(&self.normals, change), k)),
             how,
         }
+    }
+
+    /// One Gauss–Newton step over the current parameters and `kinds` from their neutral values:
+    /// the columns stepped, the step over them, and the names of the parameters held at their
+    /// neutral values. A viscosity, a stiffening coefficient or a relaxed fraction cannot go
+    /// below 0: a step that takes one there is taken again with it held at 0, where the
+    /// candidate does best.
+    fn step_over(&self, kinds: &[ParamKind]) -> (Vec<usize>, Vec<f64>, Vec<&'static str>) {
+        let mut cols: Vec<usize> = (0..self.own).collect();
+        cols.extend(
+            kinds
+                .iter()
+                .filter_map(|k| self.cols.iter().position(|j| *j == Param::global(*k)))
+                .filter(|&i| i >= self.own),
+        );
+        let own = self.own;
+        let (delta, held) = screen::step_within_bounds(&self.normals, &mut cols, |col| {
+            (col >= own).then(|| self.cols[col].kind)
+        });
+        (cols, delta, held)
+    }
+
+    /// Where [`Self::stepped`]'s step over `kinds` takes the new parameter `kind`, from `neutral`
+    /// (its value in the evaluation): `None` where the step holds it there or the screen has no
+    /// linearisation. A fit whose own start is an arbitrary small value of its effect can start
+    /// where the data point instead.
+    pub(in crate::runs) fn landing(
+        &self,
+        kinds: &[ParamKind],
+        kind: ParamKind,
+        neutral: f64,
+    ) -> Option<f64> {
+        if self.normals.is_empty() {
+            return None;
+        }
+        let (cols, delta, _) = self.step_over(kinds);
+        let a = cols
+            .iter()
+            .position(|&c| c >= self.own && self.cols[c] == Param::global(kind))?;
+        let value = neutral + delta[a];
+        (value.is_finite() && value > neutral).then_some(value)
     }
 
     /// The clamp's give (`k` parameters) as one Gauss–Newton step over the current parameters

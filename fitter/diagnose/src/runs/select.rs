@@ -139,6 +139,7 @@ impl CandidateModel for RunsModel<'_> {
         (self.log)(&select::side_by_side_line(round, batch));
         let (fit, held, o) = (self.fit, self.held, self.o);
         let (fitted, predicted, scanned) = (&self.fitted, &self.predicted, &self.scanned);
+        let landed = &self.landed;
         let (lever, creep_floor) = (&self.lever, self.creep_floor);
         // A candidate that nests one of the batch starts from its fit (`fit_candidate`).
         let results = select::fit_ahead(
@@ -155,6 +156,7 @@ impl CandidateModel for RunsModel<'_> {
                     trials: Vec::new(),
                     fitted: fitted.clone(),
                     predicted: predicted.clone(),
+                    landed: landed.clone(),
                     scanned: scanned.clone(),
                     progress: &|_| {},
                     simulations: Default::default(),

@@ -36,6 +36,15 @@ fn diagnose(g: f64) -> RunsDiagnosis {
 /// [`diagnose`] of runs recorded from `t` (relaxed fraction `g`, for the log) with `options`'
 /// screen.
 fn diagnose_with(t: &dyn Fn(&MotionDataset) -> Material, g: f64, o: RunsOptions) -> RunsDiagnosis {
+    diagnose_logged(t, g, o).0
+}
+
+/// [`diagnose_with`], with the diagnosis' log lines.
+fn diagnose_logged(
+    t: &dyn Fn(&MotionDataset) -> Material,
+    g: f64,
+    o: RunsOptions,
+) -> (RunsDiagnosis, Vec<String>) {
     let fit = vec![run("creep-a", 1, t), run("creep-b", 2, t)];
     let held = vec![run("creep-c", 3, t), run("creep-d", 4, t)];
     let options = RunsOptions {
@@ -44,17 +53,44 @@ fn diagnose_with(t: &dyn Fn(&MotionDataset) -> Material, g: f64, o: RunsOptions)
         candidates: vec![Effect::Damping, Effect::HangingInertia, Effect::Creep],
         ..o
     };
-    let d = diagnose_runs(&fit, &held, &options, &|m| eprintln!("{m}")).unwrap();
+    let lines = std::sync::Mutex::new(Vec::new());
+    let d = diagnose_runs(&fit, &held, &options, &|m| {
+        eprintln!("{m}");
+        lines.lock().unwrap().push(m.to_string());
+    })
+    .unwrap();
     eprintln!(
         "g = {g}: adopted {:?}; held-out RMS {:.2e} -> {:.2e} m; creep {:?}",
         d.adopted, d.heldout_rms_m.0, d.heldout_rms_m.1, d.model.creep
     );
-    d
+    (d, lines.into_inner().unwrap())
+}
+
+/// The relaxed fraction g each creep fit started from, and whether it was the fit screen's step.
+fn creep_starts(lines: &[String]) -> Vec<(f64, bool)> {
+    lines
+        .iter()
+        .filter_map(|l| {
+            let rest = l.split("creep starts at g = ").nth(1)?;
+            let g = rest.split_whitespace().next()?.parse().ok()?;
+            Some((g, rest.contains("(the fit screen's step)")))
+        })
+        .collect()
 }
 
 #[test]
 fn names_creep_in_a_body_whose_stress_relaxes() {
-    let d = diagnose(0.5);
+    let (d, lines) = diagnose_logged(&truth(0.5), 0.5, RunsOptions::default());
+    // The fit that adopts the branch starts where the screen's Gauss–Newton step in g took it,
+    // not at the default small branch (g = 0.05): a linearisation at g = 0 that points at the
+    // truth's g = 0.5 within a factor of two.
+    let starts = creep_starts(&lines);
+    assert!(
+        starts
+            .iter()
+            .any(|&(g, screened)| screened && (0.25..1.0).contains(&g)),
+        "creep's starts (g, from the screen): {starts:?}"
+    );
     assert!(d.adopted.contains(&Effect::Creep), "{:?}", d.adopted);
     let c = d
         .model
