@@ -7,20 +7,20 @@
 //!
 //! τ is held above the longest ring-down period measured in the fitted runs (the room's
 //! `creep_floor`; the fit's coordinate is ln(τ − floor)): a branch that relaxes within a period
-//! acts on the ring-down as a dashpot of viscosity ≈ gμτ, which is what the damping candidates
-//! are, and a report that called it creep would name the wrong effect. Its fit starts with τ a
-//! quarter of the shortest fitted run, or twice the floor where that is longer (creep slower
-//! than the ring-down but seen within the capture). The fit screen predicts it by one
-//! Gauss–Newton step in g itself from g = 0 with τ held at that start (at g = 0, τ has no effect:
-//! there is no slope in τ, nor in ln g, the fit's coordinate), and the fit starts at the g that
-//! step reaches — the branch's stress is linear in g at a fixed τ, so the step's g is the data's
-//! own estimate of the branch's size — or at g = 0.05, a small branch, where the step gives less
-//! (on the measured beam: g = 0.38 in round 1, its fit 5 simulations instead of 12 from 0.05;
-//! 0.14 in round 2, where the fit ends at 0.129). Stiffening's c, also linear in its stress,
-//! was started the same way and measured no better (9 simulations against 7 from c = μ). A step
-//! with τ held can only under-state the gain of the fit, which frees τ; the screen's own rule
-//! then decides (fitted when among the best predicted or within its margin of the best, or as a
-//! fall-back when nothing fitted passes and it is predicted to pay). Runs that weigh the clamp's reaction force, which a model with the
+//! acts on the ring-down as a dashpot of viscosity ≈ gμτ, which is what the damping candidates are,
+//! and a report that called it creep would name the wrong effect. Its fit starts with τ a quarter
+//! of the shortest fitted run, or twice the floor where that is longer (creep slower than the
+//! ring-down but seen within the capture). The fit screen predicts it by one Gauss–Newton step in g
+//! itself from g = 0 with τ held at that start (at g = 0, τ has no effect: there is no slope in τ,
+//! nor in ln g, the fit's coordinate), and the fit starts at the g that step reaches — the branch's
+//! stress is linear in g at a fixed τ, so the step's g is the data's own estimate of the branch's
+//! size, up to g = 1 — or at g = 0.05, a small branch, where the step gives less (on the measured
+//! beam: g = 0.38 in round 1, its fit 5 simulations instead of 12 from 0.05; 0.14 in round 2, where
+//! the fit ends at 0.129). Stiffening's c, also linear in its stress, was started the same way and
+//! measured no better (9 simulations against 7 from c = μ). A step with τ held can only under-state
+//! the gain of the fit, which frees τ; the screen's own rule then decides (fitted when among the
+//! best predicted or within its margin of the best, or as a fall-back when nothing fitted passes
+//! and it is predicted to pay). Runs that weigh the clamp's reaction force, which a model with the
 //! branch cannot predict, are not offered it.
 
 use palpate_motion::fitted::FittedModel;
@@ -35,6 +35,10 @@ use crate::select::{ParamValue, Prediction};
 /// The relaxed fraction the fit starts from: a small branch, so that the start is the current
 /// model nearly unchanged.
 const START_FRACTION: f64 = 0.05;
+
+/// The largest relaxed fraction a fit starts from at the fit screen's step: a branch as stiff as
+/// the relaxed law.
+const MAX_SCREENED_FRACTION: f64 = 1.0;
 
 /// The relaxed fraction the fit screen linearises at ([`ScreenPoint`]): at g = 0 the branch is
 /// absent and carries no sensitivity, while here the runs differ from the current model's by
@@ -103,8 +107,13 @@ impl RunsEffect for Creep {
             format!("; τ held above {f:.3} s, the longest measured ring-down period")
         });
         // Where the fit screen's step took g (τ at this start), when that is above the small
-        // branch of the default start: the data's own pointer to the branch's size.
+        // branch of the default start: the data's own pointer to the branch's size. A step
+        // beyond a branch as stiff as the relaxed law is a linearisation at g = 0 taken far out
+        // of its range: the start stops there.
         let (g, from) = match room.landing(round, ParamKind::CreepFraction) {
+            Some(g) if g > MAX_SCREENED_FRACTION => {
+                (MAX_SCREENED_FRACTION, "the fit screen's step, at most 1")
+            }
             Some(g) if g > START_FRACTION => (g, "the fit screen's step"),
             _ => (START_FRACTION, "a small branch"),
         };
