@@ -16,12 +16,12 @@
 //! stress is linear in g at a fixed τ, so the step's g is the data's own estimate of the branch's
 //! size, up to g = 1 — or at g = 0.05, a small branch, where the step gives less (on the measured
 //! beam: g = 0.38 in round 1, its fit 5 simulations instead of 12 from 0.05; 0.14 in round 2, where
-//! the fit ends at 0.129). Stiffening's c, also linear in its stress, was started the same way and
-//! measured no better (9 simulations against 7 from c = μ). A step with τ held can only under-state
-//! the gain of the fit, which frees τ; the screen's own rule then decides (fitted when among the
-//! best predicted or within its margin of the best, or as a fall-back when nothing fitted passes
-//! and it is predicted to pay). Runs that weigh the clamp's reaction force, which a model with the
-//! branch cannot predict, are not offered it.
+//! the fit ends at 0.129). Stiffening's c, also linear in its stress, keeps its start c = μ: from
+//! the screen's step its fit took 9 simulations on the measured beam against 7. A step with τ held
+//! can only under-state the gain of the fit, which frees τ; the screen's own rule then decides
+//! (fitted when among the best predicted or within its margin of the best, or as a fall-back when
+//! nothing fitted passes and it is predicted to pay). Runs that weigh the clamp's reaction force,
+//! which a model with the branch cannot predict, are not offered it.
 
 use palpate_motion::fitted::FittedModel;
 use palpate_motion::model::{Material, ParamKind};
