@@ -34,7 +34,7 @@ pub(in crate::runs) struct RunsModel<'a> {
     /// The fit screen's predictions, by round.
     pub(in crate::runs) predicted: Vec<(usize, Effect, f64)>,
     /// Where the fit screen's step took a candidate's new parameter, by round
-    /// ([`ScreenPoint::landing`](super::screen::ScreenPoint::landing)): the start of its fit
+    /// ([`ScreenPoint::stepped_to`](super::screen::ScreenPoint::stepped_to)): the start of its fit
     /// where that is above the candidate's own start.
     pub(in crate::runs) landed: Vec<(usize, ParamKind, f64)>,
     /// The time offsets the screen scanned at the current material, by round: the start of the
@@ -54,6 +54,14 @@ pub(in crate::runs) struct RunsModel<'a> {
     /// ring-down acts on it as a dashpot, which the damping candidates are; held above it, the
     /// branch is what the creep candidate says it is, relaxation slower than the ring-down.
     pub(in crate::runs) creep_floor: Option<f64>,
+}
+
+/// The last value recorded for `key` in `round` in a screen's per-round list.
+fn of_round<K: PartialEq>(list: &[(usize, K, f64)], round: usize, key: K) -> Option<f64> {
+    list.iter()
+        .rev()
+        .find(|(r, k, _)| *r == round && *k == key)
+        .map(|l| l.2)
 }
 
 impl RunsModel<'_> {
@@ -91,20 +99,12 @@ impl RunsModel<'_> {
     }
     /// The screen's prediction of `effect` in `round`.
     pub(in crate::runs) fn prediction(&self, round: usize, effect: Effect) -> Option<f64> {
-        self.predicted
-            .iter()
-            .rev()
-            .find(|(r, e, _)| *r == round && *e == effect)
-            .map(|p| p.2)
+        of_round(&self.predicted, round, effect)
     }
 
     /// Where the fit screen's step took `kind` in `round`, if it was predicted there.
     pub(in crate::runs) fn landing(&self, round: usize, kind: ParamKind) -> Option<f64> {
-        self.landed
-            .iter()
-            .rev()
-            .find(|(r, k, _)| *r == round && *k == kind)
-            .map(|l| l.2)
+        of_round(&self.landed, round, kind)
     }
 
     /// The fitted runs with `effects`' structural changes, run i's markers `offsets[i]` steps

@@ -166,26 +166,52 @@ impl<'a> ScreenPoint<'a> {
         k: usize,
         how: &str,
     ) -> Prediction {
+        self.stepped_to(kinds, k, how, None).0
+    }
+
+    /// [`Self::stepped_as`], and where its step takes the new parameter `land.0` from
+    /// `land.1`, its value in the evaluation: `None` where the step holds it there or the screen
+    /// has no linearisation. A fit whose own start is an arbitrary small value of its effect can
+    /// start where the data point instead.
+    pub(in crate::runs) fn stepped_to(
+        &self,
+        kinds: &[ParamKind],
+        k: usize,
+        how: &str,
+        land: Option<(ParamKind, f64)>,
+    ) -> (Prediction, Option<f64>) {
         if kinds.is_empty() || self.normals.is_empty() {
-            return Prediction::none("no parameter to linearise: always fitted");
+            return (
+                Prediction::none("no parameter to linearise: always fitted"),
+                None,
+            );
         }
         let (cols, delta, held) = self.step_over(kinds);
+        let landing = land.and_then(|(kind, neutral)| {
+            let a = cols
+                .iter()
+                .position(|&c| c >= self.own && self.cols[c] == Param::global(kind))?;
+            let value = neutral + delta[a];
+            (value.is_finite() && value > neutral).then_some(value)
+        });
         let how = if held.is_empty() {
             how.to_string()
         } else {
             format!("{how}; {} stepped below 0, held there", held.join(", "))
         };
         if cols.len() == self.own {
-            return Prediction {
+            let prediction = Prediction {
                 delta_bic: Some(self.delta_bic(self.chi2.0, k)),
                 how: screen::held_at_neutral(&how),
             };
+            return (prediction, landing);
         }
         let change = screen::change(&self.normals, &cols, &delta);
-        Prediction {
+        let prediction = Prediction {
             delta_bic: Some(self.delta_bic(self.chi2_after(&self.normals, change), k)),
             how,
-        }
+        };
+        (prediction, landing)
     }
 
     /// One Gauss–Newton step over the current parameters and `kinds` from their neutral values:
@@ -206,27 +232,6 @@ impl<'a> ScreenPoint<'a> {
             (col >= own).then(|| self.cols[col].kind)
         });
         (cols, delta, held)
-    }
-
-    /// Where [`Self::stepped`]'s step over `kinds` takes the new parameter `kind`, from `neutral`
-    /// (its value in the evaluation): `None` where the step holds it there or the screen has no
-    /// linearisation. A fit whose own start is an arbitrary small value of its effect can start
-    /// where the data point instead.
-    pub(in crate::runs) fn landing(
-        &self,
-        kinds: &[ParamKind],
-        kind: ParamKind,
-        neutral: f64,
-    ) -> Option<f64> {
-        if self.normals.is_empty() {
-            return None;
-        }
-        let (cols, delta, _) = self.step_over(kinds);
-        let a = cols
-            .iter()
-            .position(|&c| c >= self.own && self.cols[c] == Param::global(kind))?;
-        let value = neutral + delta[a];
-        (value.is_finite() && value > neutral).then_some(value)
     }
 
     /// The clamp's give (`k` parameters) as one Gauss–Newton step over the current parameters

@@ -134,11 +134,17 @@ impl RunsEffect for Creep {
             "one Gauss–Newton step in g from 0, τ held at {:.3} s",
             start_time(room)
         );
-        let kinds = [ParamKind::CreepFraction];
-        if let Some(g) = at.landing(&kinds, ParamKind::CreepFraction, SCREEN_FRACTION) {
-            room.landed.push((at.round, ParamKind::CreepFraction, g));
+        let kind = ParamKind::CreepFraction;
+        let (prediction, landing) = at.stepped_to(
+            &[kind],
+            self.parameters(at.runs),
+            &how,
+            Some((kind, SCREEN_FRACTION)),
+        );
+        if let Some(g) = landing {
+            room.landed.push((at.round, kind, g));
         }
-        Ok(at.stepped_as(&kinds, self.parameters(at.runs), &how))
+        Ok(prediction)
     }
 
     fn values(&self, material: &Material) -> Vec<ParamValue> {
