@@ -4,6 +4,12 @@
 //! over the current parameters and its own. The other candidates predict themselves
 //! ([`super::candidates`]).
 //!
+//! A damping law is predicted from no viscosity, where a ring-down's decay is far from linear in
+//! it: one step from there under-stated the measured beam's damping three times over, below a
+//! creep branch standing in for it. Its fit starts from the viscosity the measured ring-downs
+//! show, so the screen also simulates that start, once a round, and predicts the law by the
+//! better of the two: a gain the fit's own start already has.
+//!
 //! Creep's neutral value g = 0 is no branch at all, whose relaxed fraction has no sensitivity to
 //! carry; the evaluation holds it at [`creep::SCREEN_FRACTION`] instead (the runs are the current
 //! model's to about that fraction), where dr/dg is the slope at g = 0, and τ at its fit's start.
@@ -12,7 +18,7 @@ use palpate_motion::gradient::evaluate_gauss_newton;
 use palpate_motion::model::{Param, ParamKind};
 use palpate_motion::MotionError;
 
-use super::candidates::{clamp_compliance, creep, Effect};
+use super::candidates::{clamp_compliance, creep, damping, Effect};
 use super::fit::{region_params, RunsModel};
 use super::RunsFit;
 use crate::screen::{self, Normal};
@@ -46,6 +52,9 @@ pub(in crate::runs) struct ScreenPoint<'a> {
     /// Whether the creep branch's relaxed fraction has its slope in `normals` (creep is open and
     /// not yet in the model).
     pub(in crate::runs) creep_slope: bool,
+    /// With a damping law open on an undamped model: the fitted runs' marker χ² (m²) at the
+    /// damping fits' start ([`damping::start_of`]), that viscosity and whence it comes.
+    damping_start: Option<(f64, f64, &'static str)>,
 }
 
 impl<'a> ScreenPoint<'a> {
@@ -132,6 +141,18 @@ impl<'a> ScreenPoint<'a> {
                     .collect();
             }
         }
+        let damping_start = if open.iter().any(|c| c.kinds().contains(&ParamKind::Nu))
+            && cur.material.get(ParamKind::Nu, 0) <= 0.0
+        {
+            let (nu, source) = damping::start_of(room, cur);
+            let mut start = cur.material.clone();
+            start.set(&[Param::global(ParamKind::Nu)], &[nu]);
+            room.count(room.fit.len(), false);
+            let runs = room.residuals(room.fit, &cur.effects, &start, &cur.offsets)?;
+            Some((runs.iter().map(|r| r.chi2).sum(), nu, source))
+        } else {
+            None
+        };
         Ok(Self {
             round,
             cur,
@@ -143,7 +164,21 @@ impl<'a> ScreenPoint<'a> {
             layer_normals,
             run_chi2,
             creep_slope,
+            damping_start,
         })
+    }
+
+    /// `linear`, a damping law's prediction with `k` parameters, or its fit's start as simulated
+    /// where that gains more ([`better_of`]).
+    pub(in crate::runs) fn started(&self, linear: Prediction, k: usize) -> Prediction {
+        match self.damping_start {
+            Some((chi2, nu, source)) => better_of(
+                linear,
+                self.delta_bic(chi2, k),
+                &format!("viscosity {nu:.3e} Pa·s ({source})"),
+            ),
+            None => linear,
+        }
     }
 
     /// ΔBIC of a candidate with `k` parameters whose fit would reach `chi2` (m²) on the fitted
@@ -277,5 +312,58 @@ impl<'a> ScreenPoint<'a> {
         // count as a gain.
         let sim: f64 = self.run_chi2.iter().sum();
         self.chi2.0 * stepped / sim.max(f64::MIN_POSITIVE)
+    }
+}
+
+/// `linear`, a candidate's predicted ΔBIC, or `at_start`, the ΔBIC its fit's start (`start`)
+/// already has as simulated, where that is lower: the fit can only gain more than its start.
+fn better_of(linear: Prediction, at_start: f64, start: &str) -> Prediction {
+    match linear.delta_bic {
+        Some(d) if d <= at_start => linear,
+        d => Prediction {
+            delta_bic: Some(at_start),
+            how: format!(
+                "its fit's start simulated, {start}; one Gauss–Newton step from none predicted \
+                 {:.1}",
+                d.unwrap_or(f64::NAN)
+            ),
+        },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn step(d: Option<f64>) -> Prediction {
+        Prediction {
+            delta_bic: d,
+            how: "one Gauss–Newton step from the neutral value".into(),
+        }
+    }
+
+    /// The start replaces the step's prediction only where it gains more, and says both.
+    #[test]
+    fn a_damping_law_is_predicted_by_the_better_of_its_step_and_its_start() {
+        let p = better_of(
+            step(Some(-16692.1)),
+            -23514.4,
+            "viscosity 1.733e2 Pa·s (given)",
+        );
+        assert_eq!(p.delta_bic, Some(-23514.4));
+        assert_eq!(
+            p.how,
+            "its fit's start simulated, viscosity 1.733e2 Pa·s (given); one Gauss–Newton step \
+             from none predicted -16692.1"
+        );
+        let q = better_of(
+            step(Some(-4837.3)),
+            -1194.7,
+            "viscosity 2.000e1 Pa·s (given)",
+        );
+        assert_eq!(q.delta_bic, Some(-4837.3));
+        assert!(q.how.starts_with("one Gauss–Newton step"), "{}", q.how);
+        let r = better_of(step(None), -50.0, "viscosity 1.000e1 Pa·s (given)");
+        assert_eq!(r.delta_bic, Some(-50.0));
     }
 }

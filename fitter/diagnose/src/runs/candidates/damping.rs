@@ -7,8 +7,9 @@ use palpate_motion::model::{Material, Param, ParamKind};
 
 use super::RunsEffect;
 use crate::runs::fit::RunsModel;
-use crate::runs::{viscosity_from_ring_down, RunsFit};
-use crate::select::ParamValue;
+use crate::runs::screen::ScreenPoint;
+use crate::runs::{viscosity_from_ring_down, RunsError, RunsFit};
+use crate::select::{ParamValue, Prediction};
 
 /// See the module.
 pub struct Damping;
@@ -24,6 +25,10 @@ impl RunsEffect for Damping {
 
     fn start(&self, room: &RunsModel, round: usize, cur: &RunsFit, start: &mut Material) {
         start_viscosity(self, room, round, cur, start);
+    }
+
+    fn predict(&self, _room: &mut RunsModel, at: &ScreenPoint) -> Result<Prediction, RunsError> {
+        Ok(predict_damping(self, at))
     }
 
     fn values(&self, material: &Material) -> Vec<ParamValue> {
@@ -42,19 +47,32 @@ pub(super) fn start_viscosity(
     start: &mut Material,
 ) {
     if start.get(ParamKind::Nu, 0) <= 0.0 {
-        let (nu, source) = match room.o.start_viscosity {
-            Some(v) => (v, "given"),
-            None => match viscosity_from_ring_down(&cur.fitted, cur.material.body_moduli().1) {
-                Some(v) => (v, "from the measured ring-downs"),
-                None => (10.0, "no run rings down: the default"),
-            },
-        };
+        let (nu, source) = start_of(room, cur);
         (room.log)(&format!(
             "round {round}: {} starts at viscosity {nu:.3e} Pa·s ({source})",
             effect.name()
         ));
         start.set(&[Param::global(ParamKind::Nu)], &[nu]);
     }
+}
+
+/// Where a damping law's viscosity starts on top of `cur`, and whence: the option, else the
+/// ring-down estimate of the current model's runs, else 10 Pa·s.
+pub(in crate::runs) fn start_of(room: &RunsModel, cur: &RunsFit) -> (f64, &'static str) {
+    match room.o.start_viscosity {
+        Some(v) => (v, "given"),
+        None => match viscosity_from_ring_down(&cur.fitted, cur.material.body_moduli().1) {
+            Some(v) => (v, "from the measured ring-downs"),
+            None => (10.0, "no run rings down: the default"),
+        },
+    }
+}
+
+/// A damping law's prediction at `at`: one Gauss–Newton step from no viscosity, or its fit's
+/// start simulated where that gains more ([`ScreenPoint::started`]).
+pub(super) fn predict_damping(effect: &dyn RunsEffect, at: &ScreenPoint) -> Prediction {
+    let k = effect.parameters(at.runs);
+    at.started(at.stepped(effect.kinds(), k), k)
 }
 
 /// The viscosity and the power-law index of the final material, as the report lists them for

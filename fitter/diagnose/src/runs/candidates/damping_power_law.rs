@@ -5,11 +5,12 @@
 
 use palpate_motion::model::{Material, ParamKind};
 
-use super::damping::{start_viscosity, viscosity_values};
+use super::damping::{predict_damping, start_viscosity, viscosity_values};
 use super::RunsEffect;
 use crate::runs::fit::RunsModel;
-use crate::runs::RunsFit;
-use crate::select::ParamValue;
+use crate::runs::screen::ScreenPoint;
+use crate::runs::{RunsError, RunsFit};
+use crate::select::{ParamValue, Prediction};
 
 /// See the module.
 pub struct DampingPowerLaw;
@@ -25,6 +26,10 @@ impl RunsEffect for DampingPowerLaw {
 
     fn start(&self, room: &RunsModel, round: usize, cur: &RunsFit, start: &mut Material) {
         start_viscosity(self, room, round, cur, start);
+    }
+
+    fn predict(&self, _room: &mut RunsModel, at: &ScreenPoint) -> Result<Prediction, RunsError> {
+        Ok(predict_damping(self, at))
     }
 
     fn values(&self, material: &Material) -> Vec<ParamValue> {

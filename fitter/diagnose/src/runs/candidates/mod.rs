@@ -18,7 +18,7 @@ use crate::select::{Outcome, ParamValue, Prediction};
 
 pub(in crate::runs) mod clamp_compliance;
 pub(in crate::runs) mod creep;
-mod damping;
+pub(in crate::runs) mod damping;
 mod damping_power_law;
 mod hanging_inertia;
 mod load_point;
