@@ -191,21 +191,12 @@ impl<'a> ScreenPoint<'a> {
     /// The prediction of a continuous candidate that frees `kinds` (`k` parameters): χ² after one
     /// Gauss–Newton step over the current parameters and `kinds` from their neutral values.
     pub(in crate::runs) fn stepped(&self, kinds: &[ParamKind], k: usize) -> Prediction {
-        self.stepped_as(kinds, k, "one Gauss–Newton step from the neutral value")
-    }
-
-    /// [`Self::stepped`], its method told in `how`.
-    pub(in crate::runs) fn stepped_as(
-        &self,
-        kinds: &[ParamKind],
-        k: usize,
-        how: &str,
-    ) -> Prediction {
+        let how = "one Gauss–Newton step from the neutral value";
         self.stepped_to(kinds, k, how, None).0
     }
 
-    /// [`Self::stepped_as`], and where its step takes the new parameter `land.0` from
-    /// `land.1`, its value in the evaluation: `None` where the step holds it there or the screen
+    /// [`Self::stepped`], its method told in `how`, and where its step takes the new parameter
+    /// `land.0` from `land.1`, its value in the evaluation: `None` where the step holds it there or the screen
     /// has no linearisation. A fit whose own start is an arbitrary small value of its effect can
     /// start where the data point instead.
     pub(in crate::runs) fn stepped_to(
