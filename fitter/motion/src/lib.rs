@@ -17,6 +17,7 @@
 //!   per-element switch between it and Neo-Hookean;
 //! - [`export`]: a motion fit as a runtime model (Lamé → thesis (λ, α));
 //! - [`golden_section`]: a one-parameter search without gradients;
+//! - [`line_minimum`]: a one-coordinate minimum from values alone (a bracket, then Brent's method);
 //! - [`predict`], [`validation`]: a run predicted from a fitted material and its linear
 //!   baseline; a fitted model validated on a run, its table, JSON line and files.
 
@@ -30,6 +31,7 @@ pub mod forces;
 pub mod golden_section;
 pub mod gradient;
 pub mod hyperelastic;
+pub mod line_minimum;
 pub mod load_point;
 pub mod model;
 pub mod objective;

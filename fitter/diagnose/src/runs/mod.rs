@@ -400,7 +400,12 @@ fn mu_sd(
         )
     };
     let h = 1e-2;
-    let (p0, pp, pm) = (phi(0.0)?, phi(h)?, phi(-h)?);
+    use rayon::prelude::*;
+    let at: Vec<f64> = [0.0, h, -h]
+        .par_iter()
+        .map(|&z| phi(z))
+        .collect::<Result<_, MotionError>>()?;
+    let (p0, pp, pm) = (at[0], at[1], at[2]);
     let curv = (pp - 2.0 * p0 + pm) / (h * h);
     if curv <= 0.0 || n <= k {
         return Ok(f64::NAN);
@@ -524,30 +529,54 @@ pub fn diagnose_runs_with(
         .map(|(model, obs)| Run { model, obs })
         .collect();
     let (_, n) = last.chi2();
-    let sd_mu = mu_sd(&runs, &last.material, nu, n, last.parameters())?;
+    // What the step puts into the final residual of each run, measured at the final material,
+    // beside μ's curvature: independent simulations, side by side.
+    let mut measured = m.step_error_runs(fit, &last.effects, &last.offsets, &last.fitted);
+    measured.extend(m.step_error_runs(held, &last.effects, &last_held.offsets, &last_held.runs));
+    // Whether the fitted modulus is the mesh's: the rest states on quadratic elements, beside
+    // them too, its lines held and logged after the step errors'; the runs with the final
+    // model's loads (a lever moves the weights).
+    let changed: Vec<MotionDataset> = fit
+        .iter()
+        .zip(&models)
+        .map(|((_, d), model)| MotionDataset {
+            model: model.clone(),
+            ..d.clone()
+        })
+        .collect();
+    let named: Vec<(&str, &MotionDataset)> = fit
+        .iter()
+        .zip(&changed)
+        .map(|((n, _), d)| (n.as_str(), d))
+        .collect();
+    let mesh_lines = std::sync::Mutex::new(Vec::<String>::new());
+    let ((sd_mu, step_errors), mesh_convergence) = rayon::join(
+        || {
+            rayon::join(
+                || mu_sd(&runs, &last.material, nu, n, last.parameters()),
+                || fit::step_errors(&measured, &last.material),
+            )
+        },
+        || {
+            o.mesh_convergence.then(|| {
+                let hold = |line: &str| {
+                    mesh_lines
+                        .lock()
+                        .unwrap_or_else(|e| e.into_inner())
+                        .push(line.to_string())
+                };
+                let mu = last.material.body_moduli().1;
+                crate::convergence::check(&named, nu, mu, rms_of(&last.fitted), &hold)
+            })
+        },
+    );
+    let sd_mu = sd_mu?;
     m.count(3 * runs.len(), false);
     let values = final_values(&last, nu, sd_mu);
-    // What the step puts into the final residual of each run, measured at the final material.
     let fitted_step_errors: Vec<RunStepError> = fit
         .iter()
         .chain(held)
-        .zip(
-            m.step_errors(
-                fit,
-                &last.effects,
-                &last.material,
-                &last.offsets,
-                &last.fitted,
-            )
-            .into_iter()
-            .chain(m.step_errors(
-                held,
-                &last.effects,
-                &last.material,
-                &last_held.offsets,
-                &last_held.runs,
-            )),
-        )
+        .zip(step_errors)
         .map(|((run, _), e)| RunStepError {
             run: run.clone(),
             not_measured: e.as_ref().err().cloned(),
@@ -565,25 +594,10 @@ pub fn diagnose_runs_with(
             )),
         }
     }
+    for line in mesh_lines.into_inner().unwrap_or_else(|e| e.into_inner()) {
+        log(&line);
+    }
     let mut model = fitted_model(fit, &models, &last, nu, weights_moved);
-    let mesh_convergence = o.mesh_convergence.then(|| {
-        let mu = last.material.body_moduli().1;
-        // The runs with the final model's loads (a lever moves the weights).
-        let changed: Vec<MotionDataset> = fit
-            .iter()
-            .zip(&models)
-            .map(|((_, d), model)| MotionDataset {
-                model: model.clone(),
-                ..d.clone()
-            })
-            .collect();
-        let named: Vec<(&str, &MotionDataset)> = fit
-            .iter()
-            .zip(&changed)
-            .map(|((n, _), d)| (n.as_str(), d))
-            .collect();
-        crate::convergence::check(&named, nu, mu, rms_of(&last.fitted), log)
-    });
     let motion_convergence = o.motion_convergence.then(|| {
         // From the rest states' quadratic-to-linear modulus ratio when known; the runs at
         // their offsets and with the final model's loads.

@@ -7,15 +7,16 @@
 //! A damping law is predicted from no viscosity, where a ring-down's decay is far from linear in
 //! it: one step from there under-stated the measured beam's damping three times over, below a
 //! creep branch standing in for it. Its fit starts from the viscosity the measured ring-downs
-//! show, so the screen also simulates that start, once a round, and predicts the law by the
-//! better of the two: a gain the fit's own start already has.
+//! show, so the screen also linearises the runs there, once a round, and predicts the law by the
+//! better of the two steps: one Gauss–Newton step from its fit's own start, where the decay is
+//! near linear in the viscosity, gains at least what that start already has.
 //!
 //! Creep's neutral value g = 0 is no branch at all, whose relaxed fraction has no sensitivity to
 //! carry; the evaluation holds it at [`creep::SCREEN_FRACTION`] instead (the runs are the current
 //! model's to about that fraction), where dr/dg is the slope at g = 0, and τ at its fit's start.
 
 use palpate_motion::gradient::evaluate_gauss_newton;
-use palpate_motion::model::{Param, ParamKind};
+use palpate_motion::model::{Material, Model, Observations, Param, ParamKind};
 use palpate_motion::MotionError;
 
 use super::candidates::{clamp_compliance, creep, damping, Effect};
@@ -52,15 +53,31 @@ pub(in crate::runs) struct ScreenPoint<'a> {
     /// Whether the creep branch's relaxed fraction has its slope in `normals` (creep is open and
     /// not yet in the model).
     pub(in crate::runs) creep_slope: bool,
-    /// With a damping law open on an undamped model: the fitted runs' marker χ² (m²) at the
-    /// damping fits' start ([`damping::start_of`]), that viscosity and whence it comes.
-    damping_start: Option<(f64, f64, &'static str)>,
+    /// With a damping law open on an undamped model: the fitted runs linearised at the damping
+    /// fits' start ([`damping::start_of`]).
+    damping_start: Option<DampingStart>,
+}
+
+/// The fitted runs linearised at a damping law's start: the current model with the viscosity
+/// the measured ring-downs show.
+struct DampingStart {
+    /// The viscosity (Pa·s) and whence it comes.
+    nu: f64,
+    source: &'static str,
+    /// The columns of `normals`: the current parameters (as [`ScreenPoint`]'s first `own`), then
+    /// the viscosity and, with the power law open, its index.
+    cols: Vec<Param>,
+    /// Each fitted run's Φ, gradient and Gauss–Newton matrix over `cols`.
+    normals: Vec<Normal>,
+    /// Each fitted run's marker χ² (m²) at the same evaluation.
+    run_chi2: Vec<f64>,
 }
 
 impl<'a> ScreenPoint<'a> {
     /// Linearises the fitted runs at `cur` over its parameters and those of `open` (at their
     /// neutral values: no viscosity, h = 1, no stiffening, the clamp layer as stiff as the
-    /// body), when any of them has one.
+    /// body), when any of them has one; with a damping law open on an undamped model, also at
+    /// its fit's start, side by side.
     pub(in crate::runs) fn new(
         room: &RunsModel,
         round: usize,
@@ -90,69 +107,82 @@ impl<'a> ScreenPoint<'a> {
         } else {
             None
         };
-        let (mut normals, mut layer_normals, mut run_chi2) = (Vec::new(), Vec::new(), Vec::new());
-        let mut creep_slope = false;
-        if open.iter().any(|c| !c.kinds().is_empty()) || layer.is_some() {
-            let runs = room.retimed(&cur.effects, &cur.offsets)?;
-            room.count(runs.len(), true);
-            creep_slope = open.contains(&Effect::Creep) && !cur.material.has_creep();
-            if creep_slope {
-                mat.set_uniform(ParamKind::CreepFraction, creep::SCREEN_FRACTION);
-                mat.set_uniform(ParamKind::CreepTime, creep::start_time(room));
-            }
-            let mut params = cols.clone();
-            if let Some(layer) = layer.clone() {
-                // The layer a region of its own at the body's moduli: the same material.
-                let r = mat.regions.len();
-                let body_mu = mat.body_moduli().1;
-                mat.regions.push(layer);
-                mat.scaled_regions.push(r);
-                mat.set(&[Param::in_region(ParamKind::Mu, r)], &[body_mu]);
-                params.push(Param::in_region(ParamKind::Mu, r));
-            }
-            // λ is tied to μ at the held Poisson's ratio: its column is folded into μ's.
-            params.push(Param::global(ParamKind::Lambda));
-            let lambda_col = params.len() - 1;
-            let nu = room.o.poisson;
-            let ratio = 2.0 * nu / (1.0 - 2.0 * nu);
-            use rayon::prelude::*;
-            let parts: Vec<(Normal, f64)> = runs
-                .par_iter()
-                .map(|(m, obs)| {
-                    let (ev, gn) = evaluate_gauss_newton(m, &mat, &params, obs)?;
-                    let chi2 = ev.rms_marker * ev.rms_marker * ev.marker_count as f64;
-                    let all = Normal {
-                        phi: ev.phi,
-                        grad: ev.grad.unwrap_or_default(),
-                        gn,
-                    };
-                    Ok((all.tie(0, lambda_col, ratio), chi2))
-                })
-                .collect::<Result<_, MotionError>>()?;
-            (normals, run_chi2) = parts.into_iter().unzip();
-            if layer.is_some() {
-                // Moving the body's μ and the layer's together is moving the one μ of the
-                // current model: the other candidates are predicted over that column.
-                let layer_col = cols.len();
-                layer_normals = normals;
-                normals = layer_normals
-                    .iter()
-                    .map(|n| n.tie(0, layer_col, 1.0))
-                    .collect();
-            }
+        let linearised = open.iter().any(|c| !c.kinds().is_empty()) || layer.is_some();
+        let creep_slope = linearised && open.contains(&Effect::Creep) && !cur.material.has_creep();
+        if creep_slope {
+            mat.set_uniform(ParamKind::CreepFraction, creep::SCREEN_FRACTION);
+            mat.set_uniform(ParamKind::CreepTime, creep::start_time(room));
         }
-        let damping_start = if open.iter().any(|c| c.kinds().contains(&ParamKind::Nu))
-            && cur.material.get(ParamKind::Nu, 0) <= 0.0
-        {
-            let (nu, source) = damping::start_of(room, cur);
-            let mut start = cur.material.clone();
-            start.set(&[Param::global(ParamKind::Nu)], &[nu]);
-            room.count(room.fit.len(), false);
-            let runs = room.residuals(room.fit, &cur.effects, &start, &cur.offsets)?;
-            Some((runs.iter().map(|r| r.chi2).sum(), nu, source))
+        let mut params = cols.clone();
+        if let Some(layer) = layer.clone() {
+            // The layer a region of its own at the body's moduli: the same material.
+            let r = mat.regions.len();
+            let body_mu = mat.body_moduli().1;
+            mat.regions.push(layer);
+            mat.scaled_regions.push(r);
+            mat.set(&[Param::in_region(ParamKind::Mu, r)], &[body_mu]);
+            params.push(Param::in_region(ParamKind::Mu, r));
+        }
+        // The damping laws' start: the current model with the viscosity the ring-downs show,
+        // over the current parameters, the viscosity and (the power law open) its index.
+        let start = (open.iter().any(|c| c.kinds().contains(&ParamKind::Nu))
+            && cur.material.get(ParamKind::Nu, 0) <= 0.0)
+            .then(|| {
+                let (nu, source) = damping::start_of(room, cur);
+                let mut start = cur.material.clone();
+                start.set(&[Param::global(ParamKind::Nu)], &[nu]);
+                let mut start_cols = cols[..own].to_vec();
+                start_cols.push(Param::global(ParamKind::Nu));
+                if open.iter().any(|c| c.kinds().contains(&ParamKind::PowerH)) {
+                    start_cols.push(Param::global(ParamKind::PowerH));
+                }
+                (nu, source, start, start_cols)
+            });
+        let runs = if linearised || start.is_some() {
+            room.retimed(&cur.effects, &cur.offsets)?
         } else {
-            None
+            Vec::new()
         };
+        let nu = room.o.poisson;
+        let (here, at_start) = rayon::join(
+            || {
+                linearised
+                    .then(|| linearise(&runs, &mat, &params, nu))
+                    .transpose()
+            },
+            || {
+                start
+                    .as_ref()
+                    .map(|(_, _, m, c)| linearise(&runs, m, c, nu))
+                    .transpose()
+            },
+        );
+        let (mut normals, run_chi2) = here?.unwrap_or_default();
+        let damping_start = match (start, at_start?) {
+            (Some((nu, source, _, cols)), Some((normals, run_chi2))) => Some(DampingStart {
+                nu,
+                source,
+                cols,
+                normals,
+                run_chi2,
+            }),
+            _ => None,
+        };
+        room.count(
+            runs.len() * (usize::from(linearised) + usize::from(damping_start.is_some())),
+            true,
+        );
+        let mut layer_normals = Vec::new();
+        if layer.is_some() {
+            // Moving the body's μ and the layer's together is moving the one μ of the current
+            // model: the other candidates are predicted over that column.
+            let layer_col = cols.len();
+            layer_normals = normals;
+            normals = layer_normals
+                .iter()
+                .map(|n| n.tie(0, layer_col, 1.0))
+                .collect();
+        }
         Ok(Self {
             round,
             cur,
@@ -168,17 +198,46 @@ impl<'a> ScreenPoint<'a> {
         })
     }
 
-    /// `linear`, a damping law's prediction with `k` parameters, or its fit's start as simulated
-    /// where that gains more ([`better_of`]).
-    pub(in crate::runs) fn started(&self, linear: Prediction, k: usize) -> Prediction {
-        match self.damping_start {
-            Some((chi2, nu, source)) => better_of(
-                linear,
-                self.delta_bic(chi2, k),
-                &format!("viscosity {nu:.3e} Pa·s ({source})"),
-            ),
-            None => linear,
-        }
+    /// `linear`, the prediction of a damping law that frees `kinds` (`k` parameters), or one
+    /// Gauss–Newton step from its fit's start where that gains more ([`better_of`]).
+    pub(in crate::runs) fn started(
+        &self,
+        linear: Prediction,
+        kinds: &[ParamKind],
+        k: usize,
+    ) -> Prediction {
+        let Some(s) = &self.damping_start else {
+            return linear;
+        };
+        let mut cols: Vec<usize> = (0..self.own).collect();
+        cols.extend(
+            kinds
+                .iter()
+                .filter_map(|k| s.cols.iter().position(|c| *c == Param::global(*k))),
+        );
+        let delta = screen::step(&s.normals, &cols);
+        // A step that takes a modulus, the viscosity or the index to 0 or below leaves the law's
+        // domain: the start as simulated is what is known there.
+        let inside = cols.iter().zip(&delta).all(|(&c, d)| {
+            let from = match s.cols[c].kind {
+                ParamKind::Nu if c >= self.own => s.nu,
+                ParamKind::PowerH if c >= self.own => 1.0,
+                _ => self.cur.material.read(&[s.cols[c]])[0],
+            };
+            from + d > 0.0
+        });
+        let (chi2, how) = if inside {
+            let change = screen::change(&s.normals, &cols, &delta);
+            let chi2 = stepped_chi2(&s.normals, &s.run_chi2, change);
+            (chi2, "one Gauss–Newton step from its fit's start")
+        } else {
+            (s.run_chi2.iter().sum(), "its fit's start simulated")
+        };
+        better_of(
+            linear,
+            self.delta_bic(chi2, k),
+            &format!("{how}, viscosity {:.3e} Pa·s ({})", s.nu, s.source),
+        )
     }
 
     /// ΔBIC of a candidate with `k` parameters whose fit would reach `chi2` (m²) on the fitted
@@ -289,16 +348,7 @@ impl<'a> ScreenPoint<'a> {
 
     /// The fitted runs' χ² after a step that changes each run's Φ by `change` (m²).
     fn chi2_after(&self, normals: &[Normal], change: Vec<f64>) -> f64 {
-        // Each run's χ² and its Φ in proportion (the marker term's weight is the run's).
-        let stepped: f64 = normals
-            .iter()
-            .zip(&self.run_chi2)
-            .zip(change)
-            .map(|((n, chi2), d)| {
-                let scale = if n.phi > 0.0 { chi2 / n.phi } else { 0.0 };
-                (chi2 + scale * d).max(0.0)
-            })
-            .sum();
+        let stepped = stepped_chi2(normals, &self.run_chi2, change);
         // χ² in proportion to the current fit's, so that an evaluation's own rounding does not
         // count as a gain.
         let sim: f64 = self.run_chi2.iter().sum();
@@ -306,16 +356,60 @@ impl<'a> ScreenPoint<'a> {
     }
 }
 
-/// `linear`, a candidate's predicted ΔBIC, or `at_start`, the ΔBIC its fit's start (`start`)
-/// already has as simulated, where that is lower: the fit can only gain more than its start.
-fn better_of(linear: Prediction, at_start: f64, start: &str) -> Prediction {
+/// The runs' summed marker χ² (m²) after a step that changes each run's Φ by `change`, from
+/// their χ² `run_chi2` at the evaluation of `normals`.
+fn stepped_chi2(normals: &[Normal], run_chi2: &[f64], change: Vec<f64>) -> f64 {
+    // Each run's χ² and its Φ in proportion (the marker term's weight is the run's).
+    normals
+        .iter()
+        .zip(run_chi2)
+        .zip(change)
+        .map(|((n, chi2), d)| {
+            let scale = if n.phi > 0.0 { chi2 / n.phi } else { 0.0 };
+            (chi2 + scale * d).max(0.0)
+        })
+        .sum()
+}
+
+/// Each run of `runs` linearised under `mat` over `params`, λ tied to μ (the first) at the held
+/// Poisson's ratio `nu` (λ's column appended and folded into μ's): its Φ, gradient and
+/// Gauss–Newton matrix over `params`, and its marker χ² (m²).
+fn linearise(
+    runs: &[(Model, Observations)],
+    mat: &Material,
+    params: &[Param],
+    nu: f64,
+) -> Result<(Vec<Normal>, Vec<f64>), MotionError> {
+    let mut params = params.to_vec();
+    params.push(Param::global(ParamKind::Lambda));
+    let lambda_col = params.len() - 1;
+    let ratio = 2.0 * nu / (1.0 - 2.0 * nu);
+    use rayon::prelude::*;
+    let parts: Vec<(Normal, f64)> = runs
+        .par_iter()
+        .map(|(m, obs)| {
+            let (ev, gn) = evaluate_gauss_newton(m, mat, &params, obs)?;
+            let chi2 = ev.rms_marker * ev.rms_marker * ev.marker_count as f64;
+            let all = Normal {
+                phi: ev.phi,
+                grad: ev.grad.unwrap_or_default(),
+                gn,
+            };
+            Ok((all.tie(0, lambda_col, ratio), chi2))
+        })
+        .collect::<Result<_, MotionError>>()?;
+    Ok(parts.into_iter().unzip())
+}
+
+/// `linear`, a candidate's predicted ΔBIC, or `from_start`, the ΔBIC predicted from its fit's
+/// start (`start` says how), where that is lower: the fit starts there and only goes down.
+fn better_of(linear: Prediction, from_start: f64, start: &str) -> Prediction {
     match linear.delta_bic {
-        Some(d) if d <= at_start => linear,
+        Some(d) if d <= from_start => linear,
         d => Prediction {
-            delta_bic: Some(at_start),
+            delta_bic: Some(from_start),
             how: format!(
-                "its fit's start simulated, {start}; one Gauss–Newton step from none predicted \
-                 {:.1}",
+                "{start}; one Gauss–Newton step from none predicted {:.1}",
                 d.unwrap_or(f64::NAN)
             ),
         },
@@ -339,7 +433,7 @@ mod tests {
         let p = better_of(
             step(Some(-16692.1)),
             -23514.4,
-            "viscosity 1.733e2 Pa·s (given)",
+            "its fit's start simulated, viscosity 1.733e2 Pa·s (given)",
         );
         assert_eq!(p.delta_bic, Some(-23514.4));
         assert_eq!(
@@ -350,11 +444,11 @@ mod tests {
         let q = better_of(
             step(Some(-4837.3)),
             -1194.7,
-            "viscosity 2.000e1 Pa·s (given)",
+            "its fit's start simulated, viscosity 2.000e1 Pa·s (given)",
         );
         assert_eq!(q.delta_bic, Some(-4837.3));
         assert!(q.how.starts_with("one Gauss–Newton step"), "{}", q.how);
-        let r = better_of(step(None), -50.0, "viscosity 1.000e1 Pa·s (given)");
+        let r = better_of(step(None), -50.0, "its fit's start simulated");
         assert_eq!(r.delta_bic, Some(-50.0));
     }
 }

@@ -68,11 +68,11 @@ pub(in crate::runs) fn start_of(room: &RunsModel, cur: &RunsFit) -> (f64, &'stat
     }
 }
 
-/// A damping law's prediction at `at`: one Gauss–Newton step from no viscosity, or its fit's
-/// start simulated where that gains more ([`ScreenPoint::started`]).
+/// A damping law's prediction at `at`: one Gauss–Newton step from no viscosity, or one from its
+/// fit's start where that gains more ([`ScreenPoint::started`]).
 pub(super) fn predict_damping(effect: &dyn RunsEffect, at: &ScreenPoint) -> Prediction {
     let k = effect.parameters(at.runs);
-    at.started(at.stepped(effect.kinds(), k), k)
+    at.started(at.stepped(effect.kinds(), k), effect.kinds(), k)
 }
 
 /// The viscosity and the power-law index of the final material, as the report lists them for
