@@ -11,7 +11,8 @@
 //! [`RunsOptions::poisson`] (the markers of a bending test see the deflection, not the volume
 //! change: λ is not identifiable, and silicone is nearly incompressible), μ fitted, no
 //! viscosity (held at 0), density and loads as declared, a weight hung from the release moving
-//! with its nodes (its declared mass lumped on them; [`RunsOptions::weights_move`]).
+//! with its nodes (its declared mass lumped on them; [`RunsOptions::weights_move`]). Its one
+//! coordinate is searched on the misfit of plain simulations (`fit.rs`'s `search_modulus`).
 //!
 //! **Candidates** ([`Effect`], one file each in `candidates/`): Newtonian viscosity (ν free, h = 1), power-law viscosity (ν and h
 //! free, eq. 17), a time offset of each run's markers against the simulation's clock (one
@@ -43,7 +44,9 @@
 //! stiffening's parameters at their neutral values (ν = 0, h = 1, c = 0: the current model),
 //! predicts each of them by the χ² drop of one Gauss–Newton step over the current parameters
 //! and its own. The power-law index has no effect at ν = 0, so the power law is predicted as
-//! Newtonian damping with one more parameter. The hanging weights' inertia (on request), a
+//! Newtonian damping with one more parameter; on an undamped model a damping law is predicted
+//! by the better of that step and one from its fit's start, the runs linearised there too
+//! (`screen.rs`). The hanging weights' inertia (on request), a
 //! switch with no neutral value to linearise about, is always fitted; the time offset is predicted by its scan
 //! at the current material (its fit starts from that scan, which is not repeated), without the
 //! material's refit; the clamp's give by the column of the layer's own μ in the same evaluation
