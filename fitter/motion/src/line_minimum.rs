@@ -1,7 +1,7 @@
 //! The minimum of a misfit along one coordinate from its values alone: bracketed from a start by
-//! steps that grow by the golden ratio, then closed in by the parabola through the bracket,
-//! guarded by golden sections (successive parabolic interpolation in the manner of Brent 1973,
-//! ch. 5), until the parabola predicts less gain than the caller's precision.
+//! steps that grow by the golden ratio, then closed in by the parabola through the three least
+//! values, guarded by golden sections (Brent 1973, ch. 5), until a parabola that has just gained
+//! what it predicted predicts less gain than the caller's precision.
 //!
 //! Where each value is a simulation, one without sensitivities costs a fraction of one with
 //! them, and in one coordinate the sensitivities buy only the slope. Brent's own rule (argmin's
@@ -42,17 +42,20 @@ struct Point {
     f: f64,
 }
 
-/// Minimises `f` along one coordinate from `t0`: first a step of `step`, then steps of the
-/// golden ratio times the last, downhill (the other way when the first step rises), until the
-/// value rises — a bracket — then the vertex of the parabola through the bracket's three points
-/// until it predicts a gain of at most `least_gain`, at most `max_evaluations` values in all. A
-/// value that is not finite counts as far above every other. The first error of `f` ends the
-/// search with it.
+/// Minimises `f` (a misfit, ≥ 0) along one coordinate from `t0`: first a step of `step`, then
+/// steps of the golden ratio times the last, downhill (the other way when the first step
+/// rises), until the value rises — a bracket — then the vertex of the parabola through the three
+/// least values (Brent's x, w and v), or a golden section of the bracket's larger part where that
+/// vertex falls outside it, next to the least point or into a bracket that has not halved. It
+/// stops where the parabola predicts a gain of at most `precision` times the least value and is
+/// to be trusted there: its last step gained what it predicted to a quarter, or less than that
+/// gain. At most `max_evaluations` values in all. A value that is not finite counts as far above
+/// every other. The first error of `f` ends the search with it.
 pub fn line_minimum<E>(
     mut f: impl FnMut(f64) -> Result<f64, E>,
     t0: f64,
     step: f64,
-    least_gain: f64,
+    precision: f64,
     max_evaluations: usize,
 ) -> Result<LineMinimum, E> {
     let cap = max_evaluations.max(3);
@@ -68,83 +71,97 @@ pub fn line_minimum<E>(
     let (p0, p1) = (value(t0)?, value(t0 + step)?);
     // Uphill, the chain runs the other way: from the step's end through the start.
     let (mut prev, mut last) = if p1.f > p0.f { (p1, p0) } else { (p0, p1) };
-    let mut best = last;
-    let mut converged = false;
-    loop {
+    let next = loop {
         if evaluations.get() >= cap {
-            break;
+            return Ok(LineMinimum {
+                t: last.t,
+                value: last.f,
+                evaluations: evaluations.get(),
+                converged: false,
+            });
         }
         let next = value(last.t + (last.t - prev.t) / GOLDEN)?;
-        if next.f <= last.f {
-            (prev, last) = (last, next);
-            best = next;
-            continue;
+        if next.f > last.f {
+            break next;
         }
-        // The bracket (a, x, b) in ascending t, x the least.
-        let (mut a, mut x, mut b) = if prev.t < next.t {
-            (prev, last, next)
+        (prev, last) = (last, next);
+    };
+    // The bracket [a, b] holds the least point x; w and v are the next least (Brent's names).
+    let (mut a, mut b) = (prev.t.min(next.t), prev.t.max(next.t));
+    let (mut x, mut w, mut v) = (last, prev, next);
+    let mut width_at = (b - a, 0usize);
+    // Whether the last step was a parabola's that gained what it predicted, and what it gained.
+    let (mut trusted, mut gained) = (false, f64::INFINITY);
+    let mut converged = false;
+    let mut iteration = 0;
+    while evaluations.get() < cap {
+        iteration += 1;
+        let least = precision * x.f;
+        let (vertex_t, predicted) = vertex(x, w, v);
+        if predicted <= least && (trusted || gained <= least) {
+            converged = true;
+            break;
+        }
+        let tiny = 1e-12 * x.t.abs().max(1.0);
+        if b - a <= 4.0 * tiny {
+            converged = true;
+            break;
+        }
+        let stuck = iteration - width_at.1 > SHRINK_WITHIN && b - a > 0.5 * width_at.0;
+        let parabolic = predicted > 0.0
+            && !stuck
+            && vertex_t > a + tiny
+            && vertex_t < b - tiny
+            && (vertex_t - x.t).abs() > tiny;
+        let u = if parabolic {
+            vertex_t
+        } else if x.t - a > b - x.t {
+            // A golden section of the larger part.
+            x.t - (1.0 - GOLDEN) * (x.t - a)
         } else {
-            (next, last, prev)
+            x.t + (1.0 - GOLDEN) * (b - x.t)
         };
-        let mut width_at = (b.t - a.t, 0usize);
-        let mut iteration = 0;
-        while evaluations.get() < cap {
-            iteration += 1;
-            let (u, predicted) = vertex(a, x, b);
-            if predicted <= least_gain {
-                converged = true;
-                break;
-            }
-            let width = b.t - a.t;
-            let stuck = iteration - width_at.1 > SHRINK_WITHIN && width > 0.5 * width_at.0;
-            let tiny = 1e-12 * x.t.abs().max(1.0);
-            let u = if stuck || !(u > a.t + tiny && u < b.t - tiny) || (u - x.t).abs() < tiny {
-                // A golden section of the larger part.
-                if x.t - a.t > b.t - x.t {
-                    x.t - (1.0 - GOLDEN) * (x.t - a.t)
-                } else {
-                    x.t + (1.0 - GOLDEN) * (b.t - x.t)
-                }
+        let p = value(u)?;
+        let actual = x.f - p.f;
+        trusted = parabolic && actual > 0.0 && (actual / predicted - 1.0).abs() < 0.25;
+        gained = actual.max(0.0);
+        if p.f < x.f {
+            // The new least: the bracket closes on it from the side it left.
+            if p.t < x.t {
+                b = x.t;
             } else {
-                u
-            };
-            if (b.t - a.t) <= 4.0 * tiny {
-                converged = true;
-                break;
+                a = x.t;
             }
-            let p = value(u)?;
-            if p.f < x.f {
-                // The new least: the bracket closes on it from the side it left.
-                if p.t < x.t {
-                    (b, x) = (x, p);
-                } else {
-                    (a, x) = (x, p);
-                }
-            } else if p.t < x.t {
-                a = p;
+            (v, w, x) = (w, x, p);
+        } else {
+            if p.t < x.t {
+                a = p.t;
             } else {
-                b = p;
+                b = p.t;
             }
-            if b.t - a.t <= 0.5 * width_at.0 {
-                width_at = (b.t - a.t, iteration);
+            if p.f <= w.f || w.t == x.t {
+                (v, w) = (w, p);
+            } else if p.f <= v.f || v.t == x.t || v.t == w.t {
+                v = p;
             }
         }
-        best = x;
-        break;
+        if b - a <= 0.5 * width_at.0 {
+            width_at = (b - a, iteration);
+        }
     }
     Ok(LineMinimum {
-        t: best.t,
-        value: best.f,
+        t: x.t,
+        value: x.f,
         evaluations: evaluations.get(),
         converged,
     })
 }
 
-/// The vertex of the parabola through `a`, `x`, `b` (x the least, a < x < b) and the gain it
-/// predicts below `x`: (x, 0) where the three lie on a line.
-fn vertex(a: Point, x: Point, b: Point) -> (f64, f64) {
-    let (da, db) = (a.t - x.t, b.t - x.t);
-    let (fa, fb) = (a.f - x.f, b.f - x.f);
+/// The vertex of the parabola through `x`, `w`, `v` (three distinct points) and the gain it
+/// predicts below `x`: (x, 0) where they lie on a line, coincide or open downward.
+fn vertex(x: Point, w: Point, v: Point) -> (f64, f64) {
+    let (da, db) = (w.t - x.t, v.t - x.t);
+    let (fa, fb) = (w.f - x.f, v.f - x.f);
     // p(t) = x.f + g s + ½ h s², s = t − x.t, through (da, fa) and (db, fb).
     let det = da * db * (db - da);
     if det == 0.0 {
@@ -179,15 +196,38 @@ mod tests {
         }
     }
 
+    /// A misfit whose curvature falls away from its minimum on one side (as the measured beam's
+    /// undamped model's on its 2,600-tet mesh): the parabola through the first bracket puts its
+    /// vertex beside the least point, on the wrong side, predicting almost no gain. The search
+    /// goes on until a parabola's step has gained what it predicted.
+    #[test]
+    fn a_lopsided_minimum_is_not_taken_for_reached() {
+        let (t_star, floor) = (0.2895, 4.2185e-4);
+        let f = |t: f64| {
+            let d: f64 = t - t_star;
+            // The curvature 0.014 at the minimum, 0.006 far to its left.
+            let c = if d < 0.0 {
+                0.007 - 0.004 * (1.0 - (-(d / 0.05).powi(2)).exp())
+            } else {
+                0.007
+            };
+            floor + c * d * d
+        };
+        let precision = 7.9e-6;
+        let Ok(m) = line_minimum(|t| Ok::<_, Infallible>(f(t)), 0.0, 0.1, precision, 60);
+        assert!(m.converged, "{m:?}");
+        assert!(m.value / floor - 1.0 < 2.0 * precision, "{m:?}");
+    }
+
     /// A looser precision stops sooner, within what it asked for.
     #[test]
     fn the_precision_asked_for_ends_the_search() {
         let f = |t: f64| 4.0e-4 + 0.0073 * (t - 0.107).powi(2) + 0.01 * (t - 0.107).powi(4);
-        let Ok(tight) = line_minimum(|t| Ok::<_, Infallible>(f(t)), 0.0, 0.1, 1e-14, 60);
-        let Ok(loose) = line_minimum(|t| Ok::<_, Infallible>(f(t)), 0.0, 0.1, 2e-9, 60);
+        let Ok(tight) = line_minimum(|t| Ok::<_, Infallible>(f(t)), 0.0, 0.1, 1e-12, 60);
+        let Ok(loose) = line_minimum(|t| Ok::<_, Infallible>(f(t)), 0.0, 0.1, 1e-5, 60);
         assert!(loose.converged && tight.converged);
         assert!(loose.evaluations < tight.evaluations, "{loose:?} {tight:?}");
-        assert!(loose.value - 4.0e-4 < 2e-8, "{loose:?}");
+        assert!(loose.value / 4.0e-4 - 1.0 < 1e-4, "{loose:?}");
     }
 
     /// A failed value is far above the rest; an error ends the search with it; the cap holds.

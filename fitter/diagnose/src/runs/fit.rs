@@ -306,10 +306,9 @@ impl RunsModel<'_> {
     /// to `runs` from `mu0` by a search on Φ of plain simulations in ln μ ([`line_minimum`]): in
     /// one coordinate the sensitivities buy only the slope, and on the beam's undamped runs a
     /// plain simulation takes about half the time of one with them. Steps of 10 % bracket the
-    /// minimum; the search
-    /// stops where its parabola predicts less gain than the data's precision, as the gradient
-    /// fits do ([`precision`]); at most `max_iters` values. Returns μ, the values simulated and
-    /// whether the cap stopped the search.
+    /// minimum; the search stops where a trusted parabola predicts less gain than the data's
+    /// precision, the gradient fits' rule ([`precision`]); at most `max_iters` values. Returns μ,
+    /// the values simulated and whether the cap stopped the search.
     fn search_modulus(
         &self,
         runs: &[Run],
@@ -331,7 +330,6 @@ impl RunsModel<'_> {
         let first = at(z0)?;
         // Scalar residuals: three per observed marker position and clamp force.
         let residuals = 3 * (first.marker_count + first.force_count);
-        let least_gain = precision(residuals) * first.phi;
         // A modulus the runs do not simulate at (a static start that does not converge, an
         // inverted element) bounds the search there, as a failed step bounds a gradient fit's.
         let found = line_minimum(
@@ -352,7 +350,7 @@ impl RunsModel<'_> {
             },
             z0,
             0.1,
-            least_gain,
+            precision(residuals),
             max_iters as usize,
         )?;
         self.count(found.evaluations * runs.len(), false);
