@@ -536,22 +536,6 @@ pub fn diagnose_runs_with(
     // beside μ's curvature: independent simulations, side by side.
     let mut measured = m.step_error_runs(fit, &last.effects, &last.offsets, &last.fitted);
     measured.extend(m.step_error_runs(held, &last.effects, &last_held.offsets, &last_held.runs));
-    // Whether the fitted modulus is the mesh's: the rest states on quadratic elements, beside
-    // them too, its lines held and logged after the step errors'; the runs with the final
-    // model's loads (a lever moves the weights).
-    let changed: Vec<MotionDataset> = fit
-        .iter()
-        .zip(&models)
-        .map(|((_, d), model)| MotionDataset {
-            model: model.clone(),
-            ..d.clone()
-        })
-        .collect();
-    let named: Vec<(&str, &MotionDataset)> = fit
-        .iter()
-        .zip(&changed)
-        .map(|((n, _), d)| (n.as_str(), d))
-        .collect();
     let mesh_lines = std::sync::Mutex::new(Vec::<String>::new());
     let ((sd_mu, step_errors), mesh_convergence) = rayon::join(
         || {
@@ -561,7 +545,23 @@ pub fn diagnose_runs_with(
             )
         },
         || {
+            // Whether the fitted modulus is the mesh's: the rest states on quadratic elements,
+            // beside them too, its lines held and logged after the step errors'; the runs with
+            // the final model's loads (a lever moves the weights).
             o.mesh_convergence.then(|| {
+                let changed: Vec<MotionDataset> = fit
+                    .iter()
+                    .zip(&models)
+                    .map(|((_, d), model)| MotionDataset {
+                        model: model.clone(),
+                        ..d.clone()
+                    })
+                    .collect();
+                let named: Vec<(&str, &MotionDataset)> = fit
+                    .iter()
+                    .zip(&changed)
+                    .map(|((n, _), d)| (n.as_str(), d))
+                    .collect();
                 let hold = |line: &str| {
                     mesh_lines
                         .lock()
