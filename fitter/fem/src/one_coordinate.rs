@@ -252,6 +252,7 @@ pub fn minimise_one_coordinate(
         normal: best_normal,
         iterations,
         converged,
+        linearised_at: None,
     }
 }
 

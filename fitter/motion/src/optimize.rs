@@ -25,7 +25,7 @@ use super::MotionError;
 use argmin::core::{CostFunction, Error as ArgminError, Executor, Gradient, State};
 use argmin::solver::linesearch::MoreThuenteLineSearch;
 use argmin::solver::quasinewton::LBFGS;
-use palpate_fem::lm::{minimise_restarting, Normal, TrustOptions};
+use palpate_fem::lm::{minimise_restarting_confirmed, Normal, TrustOptions};
 use std::sync::Mutex;
 
 /// Which optimiser a fit runs.
@@ -105,6 +105,9 @@ pub struct FitResult {
     pub eval: Evaluation,
     /// Simulations run (each with gradient).
     pub evaluations: usize,
+    /// Simulations run without the gradient: Levenberg–Marquardt's last step confirmed by Φ
+    /// alone ([`palpate_fem::lm::CONFIRM_BELOW`]).
+    pub plain_evaluations: usize,
     /// Optimiser iterations (LBFGS, or accepted and rejected Levenberg–Marquardt steps).
     pub iterations: u64,
     /// The optimiser that ran.
@@ -117,8 +120,10 @@ pub struct FitResult {
     pub runs: Vec<Evaluation>,
     /// Levenberg–Marquardt's Gauss–Newton matrix at the fitted parameters, in z = ln q
     /// (row-major, `q.len()`²): the marker term's Σ_n Δt w_m Σ_i J_inᵀ J_in summed over the runs
-    /// ([`crate::gradient::evaluate_gauss_newton`]), from the simulation the fit ended on — so a
-    /// caller's Gauss–Newton 1σ needs no simulation of its own. `None` from LBFGS.
+    /// ([`crate::gradient::evaluate_gauss_newton`]), from the simulation the fit ended on, or
+    /// where that one was confirmed by Φ alone from the fit's last linearisation, a step within the
+    /// precision before it — so a caller's Gauss–Newton 1σ needs no simulation of its own.
+    /// `None` from LBFGS.
     pub gauss_newton: Option<Vec<f64>>,
 }
 
@@ -621,6 +626,7 @@ pub fn fit_runs(
         phi,
         eval,
         evaluations: cache.evaluations,
+        plain_evaluations: 0,
         iterations,
         optimizer: Optimizer::Lbfgs,
         failures,
@@ -933,18 +939,28 @@ fn levenberg_marquardt(
     tie: Option<(usize, f64)>,
     progress: &(dyn Fn(usize, f64) + Sync),
 ) -> Result<FitResult, MotionError> {
-    let mut evaluations = 0usize;
-    let mut history = Vec::new();
-    let mut failures: Vec<String> = Vec::new();
-    // Every simulated point with its runs' evaluations: the fit's result is one of them, so it
-    // needs no simulation of its own.
-    let mut evaluated: Vec<(Vec<f64>, Vec<Evaluation>, Vec<f64>)> = Vec::new();
-    let first_counts = std::cell::Cell::new(0usize);
-    let mut eval = |z: &[f64], history: &mut Vec<f64>, failures: &mut Vec<String>| {
-        evaluations += 1;
+    use std::cell::{Cell, RefCell};
+    let evaluations = Cell::new(0usize);
+    let plain_evaluations = Cell::new(0usize);
+    let history = RefCell::new(Vec::new());
+    let failures: RefCell<Vec<String>> = RefCell::new(Vec::new());
+    let fail = |msg: String| {
+        let mut f = failures.borrow_mut();
+        if !f.contains(&msg) {
+            f.push(msg);
+        }
+    };
+    // Every simulated point with its runs' evaluations and, where the sensitivities were
+    // simulated, its Gauss–Newton matrix: the fit's result is one of them, so it needs no
+    // simulation of its own.
+    let evaluated: RefCell<Vec<(Vec<f64>, Vec<Evaluation>, Option<Vec<f64>>)>> =
+        RefCell::new(Vec::new());
+    let first_counts = Cell::new(0usize);
+    let eval = |z: &[f64]| {
+        evaluations.set(evaluations.get() + 1);
         match gauss_newton_runs(runs, base, params, z, tie) {
             Ok((phi, grad, gn, per_run)) if phi.is_finite() => {
-                if history.is_empty() {
+                if history.borrow().is_empty() {
                     first_counts.set(
                         per_run
                             .iter()
@@ -952,28 +968,46 @@ fn levenberg_marquardt(
                             .sum(),
                     );
                 }
-                history.push(phi);
-                progress(evaluations, phi);
-                evaluated.push((z.to_vec(), per_run, gn.clone()));
+                history.borrow_mut().push(phi);
+                progress(evaluations.get(), phi);
+                evaluated
+                    .borrow_mut()
+                    .push((z.to_vec(), per_run, Some(gn.clone())));
                 Some(Normal { phi, grad, gn })
             }
             Ok(_) => {
-                failures.push("Φ is not finite".into());
+                failures.borrow_mut().push("Φ is not finite".into());
                 None
             }
             Err(e) => {
-                let msg = e.to_string();
-                if !failures.contains(&msg) {
-                    failures.push(msg);
-                }
+                fail(e.to_string());
                 None
             }
         }
     };
-    let Some(first) = eval(z0, &mut history, &mut failures) else {
+    // Φ alone, by simulations without the sensitivities: a last step's confirmation
+    // ([`palpate_fem::lm::CONFIRM_BELOW`]).
+    let value = |z: &[f64]| {
+        plain_evaluations.set(plain_evaluations.get() + 1);
+        let q: Vec<f64> = z.iter().map(|v| v.exp()).collect();
+        let mat = problem_material(base, params, &q, tie);
+        match evaluate_runs(runs, &mat, params, None) {
+            Ok((ev, per_run)) if ev.phi.is_finite() => {
+                history.borrow_mut().push(ev.phi);
+                evaluated.borrow_mut().push((z.to_vec(), per_run, None));
+                Some(ev.phi)
+            }
+            Ok(_) => None,
+            Err(e) => {
+                fail(e.to_string());
+                None
+            }
+        }
+    };
+    let Some(first) = eval(z0) else {
         return Err(MotionError::Invalid(format!(
             "the starting parameters do not simulate: {}",
-            failures.join("; ")
+            failures.borrow().join("; ")
         )));
     };
     let reference = RateReference::from_gauss_newton(params, z0, &first.gn);
@@ -1082,34 +1116,47 @@ fn levenberg_marquardt(
         }
         w
     };
+    let z_of = |v: &[f64]| {
+        let z = reference.log_params(&to_w(v));
+        if z.is_none() {
+            log::debug!("a step to a power-law index h ≤ 0: rejected unsimulated");
+        }
+        z
+    };
     let mut in_v = |v: &[f64]| {
         let w = to_w(v);
-        let Some(z) = reference.log_params(&w) else {
-            log::debug!("a step to a power-law index h ≤ 0: rejected unsimulated");
-            return None;
-        };
-        eval(&z, &mut history, &mut failures)
+        eval(&z_of(v)?)
             .map(|normal| reference.normal_in_coordinates(&w, normal))
             .map(|normal| match elastic {
                 Some(e) => e.normal_in_fit(v, normal),
                 None => normal,
             })
     };
-    let out = minimise_restarting(v0, first, &mut in_v, &options, &lower);
+    let mut value_in_v = |v: &[f64]| value(&z_of(v)?);
+    let out =
+        minimise_restarting_confirmed(v0, first, &mut in_v, &mut value_in_v, &options, &lower);
     let iterations = out.iterations;
-    let z = reference
-        .log_params(&to_w(&out.theta))
-        .expect("an accepted point has h > 0");
+    let z = z_of(&out.theta).expect("an accepted point has h > 0");
     let (phi, iterations) = (out.normal.phi, iterations as u64);
     let q: Vec<f64> = z.iter().map(|v| v.exp()).collect();
-    let (ev, per_run, gauss_newton) = match evaluated.into_iter().rev().find(|(at, ..)| *at == z) {
-        Some((_, parts, gn)) => (Evaluation::combine(&parts), parts, Some(gn)),
+    let evaluated = evaluated.into_inner();
+    let at = |z: &[f64]| evaluated.iter().rev().find(|(at, ..)| at == z);
+    // A result confirmed by Φ alone takes the Gauss–Newton matrix of the fit's last
+    // linearisation, a step within the precision before it.
+    let linearised = out.linearised_at.as_deref().and_then(z_of);
+    let gauss_newton = |own: &Option<Vec<f64>>| {
+        own.clone()
+            .or_else(|| linearised.as_deref().and_then(at).and_then(|e| e.2.clone()))
+    };
+    let (ev, per_run, gauss_newton) = match at(&z) {
+        Some((_, parts, gn)) => (Evaluation::combine(parts), parts.clone(), gauss_newton(gn)),
         None => {
             let mat = problem_material(base, params, &q, tie);
             let (ev, parts) = evaluate_runs(runs, &mat, params, None)?;
             (ev, parts, None)
         }
     };
+    let mut failures = failures.into_inner();
     if !out.converged {
         failures.push(format!(
             "optimiser stopped: the iteration cap ({}) was reached",
@@ -1120,11 +1167,12 @@ fn levenberg_marquardt(
         q,
         phi,
         eval: ev,
-        evaluations,
+        evaluations: evaluations.get(),
+        plain_evaluations: plain_evaluations.get(),
         iterations,
         optimizer: Optimizer::LevenbergMarquardt,
         failures,
-        history,
+        history: history.into_inner(),
         runs: per_run,
         gauss_newton,
     })

@@ -309,7 +309,7 @@ pub fn fit_model(
         for q0 in &starts {
             match run(q0, screen_iters) {
                 Ok(r) => {
-                    evaluations += r.evaluations;
+                    evaluations += r.evaluations + r.plain_evaluations;
                     if best.as_ref().is_none_or(|b| r.phi < b.phi) {
                         best = Some(r);
                     }
@@ -322,7 +322,7 @@ pub fn fit_model(
         .as_ref()
         .map_or_else(|| starts[0].clone(), |b| b.q.clone());
     let r = run(&q0, max_iters)?;
-    evaluations += r.evaluations;
+    evaluations += r.evaluations + r.plain_evaluations;
     notes.extend(r.failures.iter().cloned());
     let mut material = base.clone();
     material.set(&params, &r.q);

@@ -281,7 +281,9 @@ impl RunsModel<'_> {
             };
             let r = fit_runs(&runs, &base, &params, &q0, &settings, &[], &|_, _| {})?;
             self.count(r.evaluations * runs.len(), true);
-            (r.q, r.evaluations, r.iterations >= max_iters)
+            self.count(r.plain_evaluations * runs.len(), false);
+            let all = r.evaluations + r.plain_evaluations;
+            (r.q, all, r.iterations >= max_iters)
         };
         self.count(runs.len(), false);
         let mut material = base.clone();
