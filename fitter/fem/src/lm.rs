@@ -740,6 +740,7 @@ pub fn minimise_restarting_confirmed(
     restarting(theta0, first, eval, Some(value), o, lower)
 }
 
+/// [`minimise_restarting`]'s iteration, with Φ alone at hand or without it.
 fn restarting(
     theta0: Vec<f64>,
     first: Normal,
