@@ -1139,17 +1139,23 @@ fn levenberg_marquardt(
     let z = z_of(&out.theta).expect("an accepted point has h > 0");
     let (phi, iterations) = (out.normal.phi, iterations as u64);
     let q: Vec<f64> = z.iter().map(|v| v.exp()).collect();
-    let evaluated = evaluated.into_inner();
-    let at = |z: &[f64]| evaluated.iter().rev().find(|(at, ..)| at == z);
+    let mut evaluated = evaluated.into_inner();
+    let last_at = |evaluated: &[(Vec<f64>, _, _)], z: &[f64]| {
+        evaluated.iter().rposition(|(at, ..)| at.as_slice() == z)
+    };
     // A result confirmed by Φ alone takes the Gauss–Newton matrix of the fit's last
     // linearisation, a step within the precision before it.
-    let linearised = out.linearised_at.as_deref().and_then(z_of);
-    let gauss_newton = |own: &Option<Vec<f64>>| {
-        own.clone()
-            .or_else(|| linearised.as_deref().and_then(at).and_then(|e| e.2.clone()))
-    };
-    let (ev, per_run, gauss_newton) = match at(&z) {
-        Some((_, parts, gn)) => (Evaluation::combine(parts), parts.clone(), gauss_newton(gn)),
+    let linearised = out
+        .linearised_at
+        .as_deref()
+        .and_then(z_of)
+        .and_then(|zl| last_at(&evaluated, &zl))
+        .and_then(|i| evaluated[i].2.clone());
+    let (ev, per_run, gauss_newton) = match last_at(&evaluated, &z) {
+        Some(i) => {
+            let (_, parts, gn) = evaluated.swap_remove(i);
+            (Evaluation::combine(&parts), parts, gn.or(linearised))
+        }
         None => {
             let mat = problem_material(base, params, &q, tie);
             let (ev, parts) = evaluate_runs(runs, &mat, params, None)?;
