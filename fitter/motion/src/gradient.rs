@@ -22,6 +22,7 @@ use super::forces::{param_derivatives, weight_derivatives, ViscousSkew, SPLIT_AS
 use super::model::{Material, Model, Observations, Param, Tie};
 use super::objective::{clamp_force_derivatives, step_term, StepTerm};
 use super::pipeline::simulate_pipelined;
+use super::predict::Simulated;
 use super::relaxation::Sensitivities as CreepSensitivities;
 use super::sim::{simulate_solving, simulate_states, SimStats, StepSolve, StepSolver, StepView};
 use super::sparse::Factor;
@@ -91,6 +92,10 @@ pub struct Evaluation {
     pub marker_count: usize,
     /// Observed clamp forces the RMS is over.
     pub force_count: usize,
+    /// The simulation's markers at every step and its last state: the run's readings without
+    /// simulating it again ([`crate::predict::assess`]). `None` for evaluations combined over
+    /// runs.
+    pub simulated: Option<Simulated>,
 }
 
 impl Evaluation {
@@ -136,6 +141,7 @@ impl Evaluation {
             stored_bytes: parts.iter().map(|p| p.stored_bytes).max().unwrap_or(0),
             marker_count: parts.iter().map(|p| p.marker_count).sum(),
             force_count: parts.iter().map(|p| p.force_count).sum(),
+            simulated: None,
         }
     }
 }
@@ -196,6 +202,7 @@ fn finish(terms: &StepTerm, stats: SimStats, grad: Option<Vec<f64>>, stored: usi
         stored_bytes: stored,
         marker_count: terms.marker_count,
         force_count: terms.force_count,
+        simulated: None,
     }
 }
 
@@ -452,6 +459,7 @@ fn evaluate_here(
             let mut means = obs
                 .free_marker_offsets
                 .then(|| MarkerMeans::new(model.markers.len(), 0));
+            let mut simulated = Simulated::default();
             let stats = simulate_states(model, mat, |s| {
                 add(
                     &mut total,
@@ -460,12 +468,16 @@ fn evaluate_here(
                 if let Some(m) = means.as_mut() {
                     m.add_residuals(model, obs, s.n, s.x);
                 }
+                simulated.record(model, s.n, s.x);
                 Ok(())
             })?;
             if let Some(m) = &means {
                 m.project_terms(&mut total, obs.marker_weight * model.observation_interval());
             }
-            Ok(finish(&total, stats, None, 0))
+            Ok(Evaluation {
+                simulated: Some(simulated),
+                ..finish(&total, stats, None, 0)
+            })
         }
         Some(Method::Direct) => {
             direct(model, mat, params, obs, false, step_solve()).map(|(e, _)| e)
@@ -957,6 +969,7 @@ fn direct(
         .then(|| MarkerMeans::new(model.markers.len(), np));
     let wdt = obs.marker_weight * model.observation_interval();
     let wf = obs.force_weight * model.observation_interval();
+    let mut simulated = Simulated::default();
     let solve = match solve {
         StepSolve::None => step_solve(),
         other => other,
@@ -1004,6 +1017,7 @@ fn direct(
             let g = g_columns(model, mat, &table, &kinds, np, xf, vf, Some((c, &vb)))?;
             let solver = s.solver.expect("solves requested");
             let (gx, gv) = observe_step(model, mat, obs, s, &kinds, &mut total, &mut acc)?;
+            simulated.record(model, s.n, s.x);
             // Every parameter's sensitivity step at once, column after column: the history
             // parts s_xa, s_b (and the midpoint's s_va), then S s_v = g + c M s_b − K s_xa
             // (− D s_va) in one pass over the pattern and one multi-column solve, then s_x.
@@ -1160,7 +1174,11 @@ fn direct(
             m.project_gauss_newton(h, wdt);
         }
     }
-    Ok((finish(&total, stats, Some(grad), 4 * np * nf * 8), h))
+    let ev = Evaluation {
+        simulated: Some(simulated),
+        ..finish(&total, stats, Some(grad), 4 * np * nf * 8)
+    };
+    Ok((ev, h))
 }
 
 struct TapeStep {
@@ -1221,6 +1239,7 @@ fn adjoint(
     let mut total = StepTerm::default();
     let mut start: Option<(Vec<f64>, Option<Factor>)> = None;
     let mut tape: Vec<TapeStep> = Vec::with_capacity(model.steps);
+    let mut simulated = Simulated::default();
     let mut means = obs
         .free_marker_offsets
         .then(|| MarkerMeans::new(model.markers.len(), 0));
@@ -1234,6 +1253,7 @@ fn adjoint(
             if let Some(m) = means.as_mut() {
                 m.add_residuals(model, obs, s.n, s.x);
             }
+            simulated.record(model, s.n, s.x);
             let vb = inertia_velocity(s);
             tape.push(TapeStep {
                 solver: s.solver.expect("solves requested").clone(),
@@ -1378,7 +1398,10 @@ fn adjoint(
     }
     let mut grad = vec![0.0; np];
     reduce(&acc, &table, &mut grad);
-    Ok(finish(&total, stats, Some(grad), stored))
+    Ok(Evaluation {
+        simulated: Some(simulated),
+        ..finish(&total, stats, Some(grad), stored)
+    })
 }
 
 #[cfg(test)]

@@ -79,6 +79,33 @@ pub struct MarkerError {
     pub final_m: Option<f64>,
 }
 
+/// What one simulation of a run leaves for its readings: the markers at every step and the
+/// state at the last. A fit's simulations record it ([`crate::gradient::Evaluation::simulated`])
+/// so that the fitted run is read ([`assess`]) without being simulated again.
+#[derive(Debug, Clone, Default)]
+pub struct Simulated {
+    /// Markers at steps 1..=steps (m).
+    pub rows: Vec<Vec<[f64; 3]>>,
+    /// Full-dof positions at the last step (a start for the equilibrium after the run).
+    pub last: Vec<f64>,
+}
+
+impl Simulated {
+    /// Records step `n`'s positions `x` (full dofs) of a simulation of `model`.
+    pub fn record(&mut self, model: &Model, n: usize, x: &[f64]) {
+        self.rows.push(
+            model
+                .markers
+                .iter()
+                .map(|m| model.marker_position(m, x))
+                .collect(),
+        );
+        if n == model.steps {
+            self.last = x.to_vec();
+        }
+    }
+}
+
 /// A prediction of one run and its errors against the capture.
 #[derive(Debug, Clone)]
 pub struct Prediction {
@@ -137,14 +164,45 @@ pub fn predict_offset(
     } else {
         Trajectory::simulate(&shifted_model(model, offset)?, mat)?
     };
-    let simulated = traj.recorded(model.steps, offset).ok_or_else(|| {
+    let rows = traj.recorded(model.steps, offset).ok_or_else(|| {
         MotionError::Invalid(format!(
             "a time offset of {offset} steps reaches past the simulated horizon"
         ))
     })?;
+    assess(
+        model,
+        mat,
+        obs,
+        Simulated {
+            rows,
+            last: traj.last,
+        },
+    )
+}
+
+/// The prediction of a run from a simulation of it already made (its markers at every step of
+/// the run's clock and its last state, [`Simulated`]): the trajectory's errors against the
+/// capture, and the equilibrium after it against the rest state.
+pub fn assess(
+    model: &Model,
+    mat: &Material,
+    obs: &Observations,
+    sim: Simulated,
+) -> Result<Prediction, MotionError> {
+    let Simulated {
+        rows: simulated,
+        last,
+    } = sim;
+    if simulated.len() != model.steps {
+        return Err(MotionError::Invalid(format!(
+            "a simulation of {} steps read as a run of {}",
+            simulated.len(),
+            model.steps
+        )));
+    }
     // From the run's last state, near rest after a ring-down: Newton converges in a few steps
     // where a start from the undeformed shape would need load increments.
-    let (x_eq, _) = equilibrium_from(model, mat, model.steps, traj.last)?;
+    let (x_eq, _) = equilibrium_from(model, mat, model.steps, last)?;
     let eq: Vec<[f64; 3]> = model
         .markers
         .iter()
@@ -330,6 +388,29 @@ pub fn fit_equilibria(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A run read from the simulation a plain evaluation made ([`Simulated`]) is the run
+    /// predicted afresh, to the bit: the same steps recorded, the same equilibrium from the same
+    /// last state. A simulation of another length is refused, not read against the wrong steps.
+    #[test]
+    fn a_run_read_from_its_evaluation_is_the_run_predicted() {
+        let (_, model) = crate::scenario::example_bar([1, 3, 1], 24).unwrap();
+        let mat = crate::scenario::example_truth(&model);
+        let obs = crate::scenario::record(&model, &mat, 1e-4, 7).unwrap();
+        let ev = crate::gradient::evaluate(&model, &mat, &[], &obs, None).unwrap();
+        let sim = ev.simulated.expect("an evaluation records its simulation");
+        assert_eq!(sim.rows.len(), model.steps);
+        let read = assess(&model, &mat, &obs, sim.clone()).unwrap();
+        let fresh = predict(&model, &mat, &obs).unwrap();
+        assert_eq!(read.simulated, fresh.simulated);
+        assert_eq!(read.equilibrium, fresh.equilibrium);
+        assert_eq!(read.trajectory_rms_m, fresh.trajectory_rms_m);
+        assert_eq!(read.final_rms_m, fresh.final_rms_m);
+        assert_eq!(read.markers, fresh.markers);
+        let mut short = sim;
+        short.rows.pop();
+        assert!(assess(&model, &mat, &obs, short).is_err());
+    }
 
     #[test]
     fn linear_baseline_is_the_line_through_two_loads_and_refuses_one() {

@@ -152,9 +152,22 @@ pub fn at_fitted(
     mat: &Material,
     residual_m: f64,
 ) -> Result<FittedStepError, String> {
+    at_fitted_from(model, obs, mat, residual_m, None)
+}
+
+/// [`at_fitted`] with the run's markers at its own step already simulated (`at`: every step of
+/// `model` under `mat`, as [`crate::refine::marker_paths`] gives them): the halved step alone is
+/// simulated.
+pub fn at_fitted_from(
+    model: &Model,
+    obs: &Observations,
+    mat: &Material,
+    residual_m: f64,
+    at: Option<&[Vec<[f64; 3]>]>,
+) -> Result<FittedStepError, String> {
     Ok(FittedStepError::new(
         model.substeps.max(1),
-        error_at(model, obs, 1, mat)?,
+        compare_halved(model, obs, 1, mat, at)?,
         residual_m,
     ))
 }
@@ -202,11 +215,28 @@ pub fn measure(
 /// capture's frames from `2k` times finer, times 2²/(2² − 1). `model` may already be finer than
 /// the capture ([`Model::substeps`]); the frames compared are the capture's either way.
 fn error_at(model: &Model, obs: &Observations, k: usize, mat: &Material) -> Result<f64, String> {
+    compare_halved(model, obs, k, mat, None)
+}
+
+/// [`error_at`], the markers at `k` already simulated when `known` holds them (`k` = 1).
+fn compare_halved(
+    model: &Model,
+    obs: &Observations,
+    k: usize,
+    mat: &Material,
+    known: Option<&[Vec<[f64; 3]>]>,
+) -> Result<f64, String> {
     let q = model.substeps.max(1);
-    let (at, _) = model.resampled(obs, k);
     let (half, _) = model.resampled(obs, 2 * k);
+    let known = known.filter(|rows| k == 1 && rows.len() == model.steps);
     // The two simulations are independent: side by side, the check costs the finer one's time.
-    let (at, half) = rayon::join(|| marker_paths(&at, mat), || marker_paths(&half, mat));
+    let (at, half) = rayon::join(
+        || match known {
+            Some(rows) => Ok(rows.to_vec()),
+            None => marker_paths(&model.resampled(obs, k).0, mat),
+        },
+        || marker_paths(&half, mat),
+    );
     let at = at.map_err(|e| format!("at {} substeps: {e}", q * k))?;
     let half = half.map_err(|e| format!("at {} substeps: {e}", 2 * q * k))?;
     let (mut d2, mut count) = (0.0, 0usize);
@@ -368,5 +398,12 @@ mod tests {
         assert!(!coarse.converged && coarse.describe().contains("not converged in time"));
         // e / (0.3 r) = 1/0.6: 2 · √1.67 = 2.58 → 3 substeps.
         assert_eq!(coarse.substeps_for_tolerance(), 3);
+        // The run at its own step already simulated: the same error from the halved step
+        // alone; markers of another run length are not taken for it.
+        let own = crate::refine::marker_paths(&fine, &mat).unwrap();
+        let known = at_fitted_from(&fine, &fine_obs, &mat, 10.0 * at_two, Some(&own)).unwrap();
+        assert_eq!(known.error_m, fitted.error_m);
+        let wrong = at_fitted_from(&fine, &fine_obs, &mat, 10.0 * at_two, Some(&own[1..]));
+        assert_eq!(wrong.unwrap().error_m, fitted.error_m);
     }
 }

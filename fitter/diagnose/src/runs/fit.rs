@@ -4,10 +4,11 @@
 
 use palpate_motion::dataset::MotionDataset;
 use palpate_motion::fitted::set_hanging_inertia;
+use palpate_motion::gradient::Evaluation;
 use palpate_motion::line_minimum::line_minimum;
 use palpate_motion::model::{Material, Observations, Param, ParamKind};
 use palpate_motion::optimize::{evaluate_runs, fit_runs, precision, FitSettings, Run};
-use palpate_motion::predict;
+use palpate_motion::predict::{self, Simulated};
 use palpate_motion::step_error::{self, FittedStepError};
 use palpate_motion::time_offset;
 use palpate_motion::MotionError;
@@ -149,7 +150,7 @@ impl RunsModel<'_> {
     }
 
     /// The residual of every run of `sets` under `mat`, run i's markers `offsets[i]` steps late
-    /// (none when `offsets` is empty).
+    /// (none when `offsets` is empty); counts the simulations.
     pub(in crate::runs) fn residuals(
         &self,
         sets: &[(String, MotionDataset)],
@@ -157,17 +158,42 @@ impl RunsModel<'_> {
         mat: &Material,
         offsets: &[i64],
     ) -> Result<Vec<RunResidual>, MotionError> {
+        self.readings(sets, effects, mat, offsets, Vec::new())
+    }
+
+    /// [`Self::residuals`] with run i read from `simulated[i]`, a simulation of it under `mat`
+    /// already made, where there is one and the run is not offset in time (an offset run's
+    /// simulation is of the model run longer, [`time_offset::shifted`]); the others simulated,
+    /// and counted.
+    pub(in crate::runs) fn readings(
+        &self,
+        sets: &[(String, MotionDataset)],
+        effects: &[Effect],
+        mat: &Material,
+        offsets: &[i64],
+        mut simulated: Vec<Option<Simulated>>,
+    ) -> Result<Vec<RunResidual>, MotionError> {
         let models = self.models(sets, effects);
+        simulated.resize(sets.len(), None);
+        let offset = |i: usize| offsets.get(i).copied().unwrap_or(0);
+        let fresh = (0..sets.len())
+            .filter(|&i| offset(i) != 0 || simulated[i].is_none())
+            .count();
+        self.count(fresh, false);
         use rayon::prelude::*;
         sets.par_iter()
             .zip(models.par_iter())
+            .zip(simulated.into_par_iter())
             .enumerate()
-            .map(|(i, ((name, d), m))| {
-                let r = offsets.get(i).copied().unwrap_or(0);
-                let p = predict::predict_offset(m, mat, &d.obs, r)?;
+            .map(|(i, (((name, d), m), sim))| {
+                let r = offset(i);
+                let p = match sim.filter(|_| r == 0) {
+                    Some(sim) => predict::assess(m, mat, &d.obs, sim)?,
+                    None => predict::predict_offset(m, mat, &d.obs, r)?,
+                };
                 let mut ds = d.clone();
                 ds.model = m.clone();
-                Ok(read_residual(name, &ds, &p, r))
+                Ok(read_residual(name, &ds, p, r))
             })
             .collect()
     }
@@ -191,6 +217,7 @@ impl RunsModel<'_> {
                 obs: &d.obs,
                 offset: offsets.get(i).copied().unwrap_or(0),
                 rms_m: r.rms_m,
+                simulated: r.simulated.clone(),
             })
             .collect()
     }
@@ -270,7 +297,7 @@ impl RunsModel<'_> {
             }
         }
         let nu = self.o.poisson;
-        let (q, evaluations, capped) = if params == [Param::global(ParamKind::Mu)] {
+        let (q, evaluations, capped, phi, at_result) = if params == [Param::global(ParamKind::Mu)] {
             self.search_modulus(&runs, &base, q0[0], max_iters)?
         } else {
             let settings = FitSettings {
@@ -283,22 +310,25 @@ impl RunsModel<'_> {
             self.count(r.evaluations * runs.len(), true);
             self.count(r.plain_evaluations * runs.len(), false);
             let all = r.evaluations + r.plain_evaluations;
-            (r.q, all, r.iterations >= max_iters)
+            (r.q, all, r.iterations >= max_iters, r.eval.phi, r.runs)
         };
-        self.count(runs.len(), false);
         let mut material = base.clone();
         material.set(&params, &q);
         material.set(
             &[Param::global(ParamKind::Lambda)],
             &[2.0 * nu / (1.0 - 2.0 * nu) * material.body_moduli().1],
         );
-        let fitted = self.residuals(self.fit, effects, &material, offsets)?;
+        // The fit simulated every run at its result: read them from those simulations.
+        let simulated: Vec<Option<Simulated>> =
+            at_result.into_iter().map(|e| e.simulated).collect();
+        let fitted = self.readings(self.fit, effects, &material, offsets, simulated)?;
         Ok(RunsFit {
             effects: effects.to_vec(),
             material,
             kinds,
             offsets: offsets.to_vec(),
             fitted,
+            phi,
             evaluations,
             capped,
         })
@@ -310,22 +340,26 @@ impl RunsModel<'_> {
     /// plain simulation takes about half the time of one with them. Steps of 10 % bracket the
     /// minimum; the search stops where a trusted parabola predicts less gain than the data's
     /// precision, the gradient fits' rule ([`precision`]); at most `max_iters` values. Returns μ,
-    /// the values simulated and whether the cap stopped the search.
+    /// the values simulated, whether the cap stopped the search, Φ at μ and the runs' evaluations
+    /// there.
     fn search_modulus(
         &self,
         runs: &[Run],
         base: &Material,
         mu0: f64,
         max_iters: u64,
-    ) -> Result<(Vec<f64>, usize, bool), MotionError> {
+    ) -> Result<(Vec<f64>, usize, bool, f64, Vec<Evaluation>), MotionError> {
         let ratio = 2.0 * self.o.poisson / (1.0 - 2.0 * self.o.poisson);
         let elastic = Param::globals(&[ParamKind::Mu, ParamKind::Lambda]);
-        let at = |z: f64| -> Result<palpate_motion::gradient::Evaluation, MotionError> {
+        // Each value's runs, kept: the search ends on one of them.
+        let values: std::cell::RefCell<Vec<(f64, Vec<Evaluation>)>> = Default::default();
+        let at = |z: f64| -> Result<Evaluation, MotionError> {
             let mut m = base.clone();
             let mu = z.exp();
             m.set(&elastic, &[mu, ratio * mu]);
-            let (ev, _) = evaluate_runs(runs, &m, &[], None)?;
+            let (ev, parts) = evaluate_runs(runs, &m, &[], None)?;
             log::debug!("modulus search: μ {mu:.6e} Pa, Φ {:.6e}", ev.phi);
+            values.borrow_mut().push((z, parts));
             Ok(ev)
         };
         let z0 = mu0.ln();
@@ -356,7 +390,19 @@ impl RunsModel<'_> {
             max_iters as usize,
         )?;
         self.count(found.evaluations * runs.len(), false);
-        Ok((vec![found.t.exp()], found.evaluations, !found.converged))
+        let mut values = values.into_inner();
+        let at_found = values
+            .iter()
+            .rposition(|(z, _)| *z == found.t)
+            .map(|i| values.swap_remove(i).1)
+            .unwrap_or_default();
+        Ok((
+            vec![found.t.exp()],
+            found.evaluations,
+            !found.converged,
+            found.value,
+            at_found,
+        ))
     }
 
     /// A fit of `effects` with the runs offset in time ([`RunsEffect::retimes`](super::candidates::RunsEffect::retimes)), from `offsets`
@@ -439,6 +485,26 @@ pub(in crate::runs) struct StepErrorRun<'a> {
     obs: &'a Observations,
     offset: i64,
     rms_m: f64,
+    /// The markers the residual was read from: the run at its own step, simulated already.
+    simulated: std::sync::Arc<Vec<Vec<[f64; 3]>>>,
+}
+
+impl StepErrorRun<'_> {
+    /// The run's markers at its own step, when its residual was read from a simulation of this
+    /// model: an offset run's was read from the model run longer.
+    fn known(&self) -> Option<&[Vec<[f64; 3]>]> {
+        (self.offset == 0 && self.simulated.len() == self.model.steps)
+            .then_some(self.simulated.as_slice())
+    }
+
+    /// Simulations its step error takes: the halved step, and the run's own unless known.
+    pub(in crate::runs) fn simulations(&self) -> usize {
+        if self.known().is_some() {
+            1
+        } else {
+            2
+        }
+    }
 }
 
 /// Each run's step error at the fitted `mat` ([`palpate_motion::step_error::at_fitted`]), the
@@ -453,7 +519,7 @@ pub(in crate::runs) fn step_errors(
         .map(|r| {
             let (m, obs) =
                 time_offset::shifted(&r.model, r.obs, r.offset).map_err(|e| e.to_string())?;
-            step_error::at_fitted(&m, &obs, mat, r.rms_m)
+            step_error::at_fitted_from(&m, &obs, mat, r.rms_m, r.known())
         })
         .collect()
 }

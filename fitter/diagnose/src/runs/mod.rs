@@ -185,6 +185,8 @@ pub struct RunsFit {
     pub offsets: Vec<i64>,
     /// Residuals of the fitted runs.
     pub fitted: Vec<RunResidual>,
+    /// Φ of the fitted runs at the fitted material, as the fit simulated it.
+    pub phi: f64,
     /// Simulations of the fit.
     pub evaluations: usize,
     /// The optimiser stopped at the screening cap ([`RunsOptions::screen_max_iters`]), not at
@@ -376,6 +378,7 @@ impl RunsDiagnosis {
 fn mu_sd(
     runs: &[Run<'_>],
     mat: &Material,
+    phi: f64,
     poisson: f64,
     n: usize,
     k: usize,
@@ -390,7 +393,7 @@ fn mu_sd(
     let regions = fit::region_params(mat);
     let held = mat.read(&regions);
     params.extend(regions);
-    let phi = |z: f64| -> Result<f64, MotionError> {
+    let at = |z: f64| -> Result<f64, MotionError> {
         let mut m = mat.clone();
         let v = mu * z.exp();
         let mut q = vec![v, ratio * v];
@@ -403,12 +406,9 @@ fn mu_sd(
         )
     };
     let h = 1e-2;
-    use rayon::prelude::*;
-    let at: Vec<f64> = [0.0, h, -h]
-        .par_iter()
-        .map(|&z| phi(z))
-        .collect::<Result<_, MotionError>>()?;
-    let (p0, pp, pm) = (at[0], at[1], at[2]);
+    // Φ at the fitted μ is the fit's own: the two sides alone are simulated.
+    let (pp, pm) = rayon::join(|| at(h), || at(-h));
+    let (p0, pp, pm) = (phi, pp?, pm?);
     let curv = (pp - 2.0 * p0 + pm) / (h * h);
     if curv <= 0.0 || n <= k {
         return Ok(f64::NAN);
@@ -493,10 +493,7 @@ pub fn diagnose_runs_with(
         .filter(|t| t.is_finite() && *t > 0.0)
         .reduce(f64::max);
     let start_held = Held {
-        runs: {
-            m.count(held.len(), false);
-            m.residuals(held, &[], &start.material, &[])?
-        },
+        runs: m.residuals(held, &[], &start.material, &[])?,
         offsets: Vec::new(),
     };
     let policy = Policy {
@@ -540,7 +537,7 @@ pub fn diagnose_runs_with(
     let ((sd_mu, step_errors), mesh_convergence) = rayon::join(
         || {
             rayon::join(
-                || mu_sd(&runs, &last.material, nu, n, last.parameters()),
+                || mu_sd(&runs, &last.material, last.phi, nu, n, last.parameters()),
                 || fit::step_errors(&measured, &last.material),
             )
         },
@@ -574,7 +571,7 @@ pub fn diagnose_runs_with(
         },
     );
     let sd_mu = sd_mu?;
-    m.count(3 * runs.len(), false);
+    m.count(2 * runs.len(), false);
     let values = final_values(&last, nu, sd_mu);
     let fitted_step_errors: Vec<RunStepError> = fit
         .iter()
@@ -586,7 +583,7 @@ pub fn diagnose_runs_with(
             measured: e.ok(),
         })
         .collect();
-    m.count(2 * (fit.len() + held.len()), false);
+    m.count(measured.iter().map(|r| r.simulations()).sum(), false);
     for e in &fitted_step_errors {
         match (&e.measured, &e.not_measured) {
             (Some(m), _) => log(&format!("{}: the step's own error {}", e.run, m.describe())),

@@ -205,7 +205,6 @@ impl CandidateModel for RunsModel<'_> {
         } else {
             Vec::new()
         };
-        self.count(self.held.len(), false);
         Ok(Held {
             runs: self.residuals(self.held, &f.effects, &f.material, &offsets)?,
             offsets,

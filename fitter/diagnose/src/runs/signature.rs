@@ -44,6 +44,10 @@ pub struct RunResidual {
     /// simulated (m) — for the report's plots.
     #[serde(skip)]
     pub ring: (Vec<f64>, Vec<f64>),
+    /// The simulated markers at every step the readings were made from, for a check at the same
+    /// material that needs them again (the step error at the final model).
+    #[serde(skip)]
+    pub simulated: std::sync::Arc<Vec<Vec<[f64; 3]>>>,
 }
 
 /// The residual of one run under `mat`: simulated, compared, its ring-down read.
@@ -53,14 +57,14 @@ pub fn residual(
     mat: &Material,
 ) -> Result<RunResidual, MotionError> {
     let p = predict::predict(&ds.model, mat, &ds.obs)?;
-    Ok(read_residual(name, ds, &p, 0))
+    Ok(read_residual(name, ds, p, 0))
 }
 
 /// The residual of one run predicted as `p`, its markers compared `offset` steps late.
 pub(in crate::runs) fn read_residual(
     name: &str,
     ds: &MotionDataset,
-    p: &Prediction,
+    p: Prediction,
     offset: i64,
 ) -> RunResidual {
     let nm = ds.model.markers.len();
@@ -147,6 +151,7 @@ pub(in crate::runs) fn read_residual(
         decay_per_cycle: (ring_m.1, ring_s.1),
         time_offset_s: offset as f64 * ds.model.dt,
         ring: (measured, simulated),
+        simulated: std::sync::Arc::new(p.simulated),
     }
 }
 
@@ -216,6 +221,7 @@ mod tests {
             decay_per_cycle: (a, None),
             time_offset_s: 0.0,
             ring: (Vec::new(), Vec::new()),
+            simulated: Default::default(),
         };
         let mu = 4.6e4;
         let one = viscosity_from_ring_down(&[run(Some(0.13), Some(0.72))], mu).unwrap();

@@ -110,6 +110,28 @@ fn the_simplest_model_moves_a_declared_weight() {
     );
     assert!(!md.contains("viscosity (power law)"), "{md}");
     assert_predicts_and_recovers_mu(&d);
+    // The final model's residuals are read from the fit's own simulations: each is the run
+    // simulated afresh at the final material, run by run in order. To 10⁻⁴, not to the bit: a
+    // simulation with sensitivities reaches each step's tolerance along other Newton iterates
+    // (6·10⁻⁶ apart here); a run read as another, or a step late, is off by its whole size.
+    let mat = d.model.material().unwrap();
+    for ((name, ds), read) in fit
+        .iter()
+        .chain(&held)
+        .zip(d.after.0.iter().chain(&d.after.1))
+    {
+        let mut ds = ds.clone();
+        palpate_motion::fitted::set_hanging_inertia(&mut ds.model, true);
+        let fresh = palpate_diagnose::runs::residual(name, &ds, &mat).unwrap();
+        assert_eq!(read.run, fresh.run);
+        assert!(
+            (read.rms_m / fresh.rms_m - 1.0).abs() < 1e-4,
+            "{name}: {} read, {} fresh",
+            read.rms_m,
+            fresh.rms_m
+        );
+        assert!((read.final_rms_m / fresh.final_rms_m - 1.0).abs() < 1e-4);
+    }
 }
 
 #[test]
