@@ -297,21 +297,31 @@ impl RunsModel<'_> {
             }
         }
         let nu = self.o.poisson;
-        let (q, evaluations, capped, phi, at_result) = if params == [Param::global(ParamKind::Mu)] {
-            self.search_modulus(&runs, &base, q0[0], max_iters)?
-        } else {
-            let settings = FitSettings {
-                max_iters,
-                poisson: Some(nu),
-                floors,
-                ..Default::default()
+        let (q, evaluations, capped, phi, gauss_newton, at_result) =
+            if params == [Param::global(ParamKind::Mu)] {
+                let (q, evaluations, capped, phi, at_result) =
+                    self.search_modulus(&runs, &base, q0[0], max_iters)?;
+                (q, evaluations, capped, phi, None, at_result)
+            } else {
+                let settings = FitSettings {
+                    max_iters,
+                    poisson: Some(nu),
+                    floors,
+                    ..Default::default()
+                };
+                let r = fit_runs(&runs, &base, &params, &q0, &settings, &[], &|_, _| {})?;
+                self.count(r.evaluations * runs.len(), true);
+                self.count(r.plain_evaluations * runs.len(), false);
+                let all = r.evaluations + r.plain_evaluations;
+                (
+                    r.q,
+                    all,
+                    r.iterations >= max_iters,
+                    r.eval.phi,
+                    r.gauss_newton,
+                    r.runs,
+                )
             };
-            let r = fit_runs(&runs, &base, &params, &q0, &settings, &[], &|_, _| {})?;
-            self.count(r.evaluations * runs.len(), true);
-            self.count(r.plain_evaluations * runs.len(), false);
-            let all = r.evaluations + r.plain_evaluations;
-            (r.q, all, r.iterations >= max_iters, r.eval.phi, r.runs)
-        };
         let mut material = base.clone();
         material.set(&params, &q);
         material.set(
@@ -329,6 +339,7 @@ impl RunsModel<'_> {
             offsets: offsets.to_vec(),
             fitted,
             phi,
+            gauss_newton,
             evaluations,
             capped,
         })

@@ -187,6 +187,11 @@ pub struct RunsFit {
     pub fitted: Vec<RunResidual>,
     /// Φ of the fitted runs at the fitted material, as the fit simulated it.
     pub phi: f64,
+    /// Φ's Gauss–Newton matrix at the fitted material in z = ln q over the fitted parameters
+    /// (μ first; row-major), from the simulation the fit ended on
+    /// ([`palpate_motion::optimize::FitResult::gauss_newton`]); `None` for the simplest model's
+    /// search.
+    pub gauss_newton: Option<Vec<f64>>,
     /// Simulations of the fit.
     pub evaluations: usize,
     /// The optimiser stopped at the screening cap ([`RunsOptions::screen_max_iters`]), not at
@@ -373,18 +378,31 @@ impl RunsDiagnosis {
     }
 }
 
-/// 1σ of log μ from the curvature of Φ (central second difference) with independent residuals:
-/// σ² = 2Φ / ((n − k) Φ''). A lower bound: a ring-down's residuals are correlated in time.
+/// 1σ of log μ from the curvature of Φ with independent residuals: σ² = 2Φ / ((n − k) Φ''),
+/// the other parameters held. Φ'' in ln μ is the fit's own Gauss–Newton matrix's where the fit
+/// has one (`gauss_newton`, μ's diagonal entry: JᵀJ with J exact), else the central second
+/// difference. A lower bound: a ring-down's residuals are correlated in time.
 fn mu_sd(
     runs: &[Run<'_>],
     mat: &Material,
     phi: f64,
+    gauss_newton: Option<&[f64]>,
     poisson: f64,
     n: usize,
     k: usize,
 ) -> Result<f64, MotionError> {
-    let ratio = 2.0 * poisson / (1.0 - 2.0 * poisson);
     let mu = mat.body_moduli().1;
+    let sd = |curv: f64| {
+        if curv <= 0.0 || n <= k {
+            f64::NAN
+        } else {
+            mu * (2.0 * phi / ((n - k) as f64 * curv)).sqrt()
+        }
+    };
+    if let Some(&curv) = gauss_newton.and_then(<[f64]>::first) {
+        return Ok(sd(curv));
+    }
+    let ratio = 2.0 * poisson / (1.0 - 2.0 * poisson);
     // The body's μ varied, a clamp layer's held where it is.
     let mut params = vec![
         Param::global(ParamKind::Mu),
@@ -408,12 +426,7 @@ fn mu_sd(
     let h = 1e-2;
     // Φ at the fitted μ is the fit's own: the two sides alone are simulated.
     let (pp, pm) = rayon::join(|| at(h), || at(-h));
-    let (p0, pp, pm) = (phi, pp?, pm?);
-    let curv = (pp - 2.0 * p0 + pm) / (h * h);
-    if curv <= 0.0 || n <= k {
-        return Ok(f64::NAN);
-    }
-    Ok(mu * (2.0 * p0 / ((n - k) as f64 * curv)).sqrt())
+    Ok(sd((pp? - 2.0 * phi + pm?) / (h * h)))
 }
 
 /// Diagnoses the runs `fit` (fitted) against `held` (held out); `log` receives progress lines.
@@ -537,7 +550,17 @@ pub fn diagnose_runs_with(
     let ((sd_mu, step_errors), mesh_convergence) = rayon::join(
         || {
             rayon::join(
-                || mu_sd(&runs, &last.material, last.phi, nu, n, last.parameters()),
+                || {
+                    mu_sd(
+                        &runs,
+                        &last.material,
+                        last.phi,
+                        last.gauss_newton.as_deref(),
+                        nu,
+                        n,
+                        last.parameters(),
+                    )
+                },
                 || fit::step_errors(&measured, &last.material),
             )
         },
@@ -571,7 +594,9 @@ pub fn diagnose_runs_with(
         },
     );
     let sd_mu = sd_mu?;
-    m.count(2 * runs.len(), false);
+    if last.gauss_newton.is_none() {
+        m.count(2 * runs.len(), false);
+    }
     let values = final_values(&last, nu, sd_mu);
     let fitted_step_errors: Vec<RunStepError> = fit
         .iter()
@@ -872,4 +897,63 @@ fn fitted_model(
         e.effect().record(&mut model);
     }
     model
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use palpate_motion::optimize::{fit_runs, FitSettings};
+    use palpate_motion::scenario::{example_bar, example_truth, record};
+
+    /// μ's 1σ read off the fit's own Gauss–Newton matrix against the central second difference
+    /// of Φ (the independent reference): the example bar's μ and viscosity fitted to two noisy
+    /// runs at a held Poisson's ratio, both within 2 % of each other.
+    #[test]
+    fn mus_sigma_from_the_fits_matrix_is_the_differenced_one() {
+        // The truth's own Poisson's ratio (λ = μ/2).
+        let nu = 1.0 / 6.0;
+        let (_, mut model) = example_bar([1, 4, 1], 30).unwrap();
+        model.newton.tol = 1e-11;
+        let truth = example_truth(&model);
+        let data: Vec<Observations> = [5, 6]
+            .iter()
+            .map(|&seed| {
+                let mut obs = record(&model, &truth, 2e-4, seed).unwrap();
+                obs.forces.clear();
+                obs
+            })
+            .collect();
+        let runs: Vec<Run> = data.iter().map(|obs| Run { model: &model, obs }).collect();
+        let params = Param::globals(&[ParamKind::Mu, ParamKind::Nu]);
+        let settings = FitSettings {
+            poisson: Some(nu),
+            ..Default::default()
+        };
+        let r = fit_runs(
+            &runs,
+            &truth,
+            &params,
+            &[1.5e4, 20.0],
+            &settings,
+            &[],
+            &|_, _| {},
+        )
+        .unwrap();
+        let mut mat = truth.clone();
+        mat.set(&params, &r.q);
+        let ratio = 2.0 * nu / (1.0 - 2.0 * nu);
+        mat.set(&[Param::global(ParamKind::Lambda)], &[ratio * r.q[0]]);
+        let n = 3 * r.eval.marker_count;
+        let gn = r
+            .gauss_newton
+            .as_deref()
+            .expect("Levenberg–Marquardt's matrix");
+        let exact = mu_sd(&runs, &mat, r.eval.phi, Some(gn), nu, n, 2).unwrap();
+        let differenced = mu_sd(&runs, &mat, r.eval.phi, None, nu, n, 2).unwrap();
+        assert!(exact.is_finite() && exact > 0.0);
+        assert!(
+            (exact / differenced - 1.0).abs() < 0.02,
+            "σ_μ {exact:e} from the fit's matrix, {differenced:e} differenced"
+        );
+    }
 }
