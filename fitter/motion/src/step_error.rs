@@ -28,6 +28,7 @@ use crate::model::{Material, Model, Observations};
 use crate::refine::marker_paths;
 use crate::timestep::MAX_SUBSTEPS;
 use serde::Serialize;
+use std::borrow::Cow;
 
 /// The tolerance on the step's error, as a fraction of the declared noise floor σ√3.
 pub const TOLERANCE_OF_FLOOR: f64 = 0.3;
@@ -229,14 +230,19 @@ fn compare_halved(
     let q = model.substeps.max(1);
     let (half, _) = model.resampled(obs, 2 * k);
     let known = known.filter(|rows| k == 1 && rows.len() == model.steps);
-    // The two simulations are independent: side by side, the check costs the finer one's time.
-    let (at, half) = rayon::join(
-        || match known {
-            Some(rows) => Ok(rows.to_vec()),
-            None => marker_paths(&model.resampled(obs, k).0, mat),
-        },
-        || marker_paths(&half, mat),
-    );
+    let (at, half) = match known {
+        // The run at its own step is at hand: the halved step alone is simulated.
+        Some(rows) => (Ok(Cow::Borrowed(rows)), marker_paths(&half, mat)),
+        None => {
+            // The two simulations are independent: side by side, the check costs the finer
+            // one's time.
+            let (at, half) = rayon::join(
+                || marker_paths(&model.resampled(obs, k).0, mat),
+                || marker_paths(&half, mat),
+            );
+            (at.map(Cow::Owned), half)
+        }
+    };
     let at = at.map_err(|e| format!("at {} substeps: {e}", q * k))?;
     let half = half.map_err(|e| format!("at {} substeps: {e}", 2 * q * k))?;
     let (mut d2, mut count) = (0.0, 0usize);
