@@ -1,10 +1,11 @@
 //! The markers are recorded out of step with the clamps' record (1 parameter: an integer number
 //! of simulation steps, [`palpate_motion::time_offset`]): two capture streams on two clocks, or a
 //! start instant misread. Scanned on the fitted steps within ±3 capture frames (widened to ±12
-//! while the best lies at the edge) with the current material, the material refitted, scanned
+//! while the best lies at the edge) with the current material, the material refitted where one
+//! Gauss–Newton step predicts the scan's offset or a neighbour best ([`refit_first`]), scanned
 //! again (refitted once more if it moved), then the neighbouring offsets refitted while χ² falls
-//! (a scan at 0 has both ±1 fitted, [`fit_step_off`]); the held-out steps are forecast at the
-//! same offset.
+//! and one Gauss–Newton step there predicts it to (a scan at 0 has both ±1 predicted and fitted,
+//! [`fit_step_off`]); the held-out steps are forecast at the same offset.
 
 use palpate_motion::dataset::MotionDataset;
 use palpate_motion::model::{Material, ParamKind};
@@ -49,8 +50,12 @@ impl MotionEffect for TimeOffset {
         if r == 0 {
             return fit_step_off(m, c, cur, &tried);
         }
+        let (r, predictions) = refit_first(m, cur, r, &tried);
         Ok(match fit_timed(m, c, cur, r) {
-            Ok(f) => Outcome::Fitted(f),
+            Ok(mut f) => {
+                f.evaluations += predictions;
+                Outcome::Fitted(f)
+            }
             Err(e) => Outcome::NotFitted(format!("fit failed: {e}")),
         })
     }
@@ -119,13 +124,53 @@ pub(in crate::motion) fn scan(
     Ok(time_offset::scan(&model, mat, &obs)?)
 }
 
+/// Where the candidate is fitted first: of the scanned offset `r` and its two neighbours, the one
+/// one Gauss–Newton step of the current parameters there predicts the lowest χ² for (the scan's
+/// χ² at the current material times the step's relative gain, [`refit_gain`]; the three steps
+/// side by side). The scan runs at a material fitted without the offset, which has absorbed
+/// part of one, and its best offset is then a step short of where the refitted material puts
+/// it; a neighbour whose prediction fails, or that the scan did not try, is not chosen.
+/// Returns the offset and the simulations the predictions took.
+fn refit_first(
+    m: &MotionModel<'_>,
+    cur: &FittedModel,
+    r: i64,
+    tried: &[(i64, f64)],
+) -> (i64, usize) {
+    let at = |o: i64| tried.iter().find(|t| t.0 == o).map(|t| t.1);
+    let scanned: Vec<(i64, f64)> = [r - 1, r, r + 1]
+        .into_iter()
+        .filter_map(|o| Some((o, at(o)?)))
+        .collect();
+    let predicted: Vec<(i64, f64)> = scanned
+        .par_iter()
+        .filter_map(|&(o, chi2)| Some((o, chi2 * refit_gain(m, cur, o).ok()?)))
+        .collect();
+    let best = predicted
+        .iter()
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map_or(r, |p| p.0);
+    if best != r {
+        (m.log)(&format!(
+            "  time-offset: one Gauss–Newton step of the material predicts {:+.1} ms better than \
+             the scan's {:+.1} ms: fitted there first",
+            1e3 * best as f64 * m.ds.model.dt,
+            1e3 * r as f64 * m.ds.model.dt
+        ));
+    }
+    (best, scanned.len())
+}
+
 /// The candidate fitted at the scanned time offset `r`: the fit on the re-timed data, its
 /// trajectory and scores read back on the data's rows; the offset is scanned again with the
 /// refitted material and, if it moved, the material refitted once more; then the neighbouring
 /// offsets are refitted while that lowers χ² on the fitted steps (at most [`OFFSET_NEIGHBOURS`]
 /// steps each way): the scan runs at a material fitted without the offset, and on a strongly
 /// loaded run it can settle a step off (−2 for −3 on drawn specimens, the fit then far above the
-/// floor). Each offset is fitted once.
+/// floor). Each offset is fitted once, and a neighbour only where one Gauss–Newton step of the
+/// best fit's parameters there predicts a lower χ² than the best's ([`predicted_refit`]): on the
+/// independent generator's cylinder recorded two frames late the walk's last, worse, neighbour
+/// was a whole fit (25 of the candidate's 57 simulations), its prediction one.
 fn fit_timed(
     m: &MotionModel<'_>,
     c: Candidate,
@@ -137,18 +182,20 @@ fn fit_timed(
     // Every fit starts from `cur`, so an offset fitted once is not fitted again: the first
     // scan's offset, which a rescan moved by a step, is the new offset's neighbour.
     let mut fits: Vec<FittedModel> = Vec::new();
-    let mut fit_at =
-        |r: i64, evaluations: &mut usize| -> Result<FittedModel, MotionDiagnoseError> {
-            if let Some(f) = fits.iter().find(|f| f.time_offset == Some(r)) {
-                return Ok(f.clone());
-            }
-            let f = m.fit_at(cur, c, kinds, r, evaluations)?;
-            fits.push(f.clone());
-            Ok(f)
-        };
+    let fit_at = |fits: &mut Vec<FittedModel>,
+                  r: i64,
+                  evaluations: &mut usize|
+     -> Result<FittedModel, MotionDiagnoseError> {
+        if let Some(f) = fits.iter().find(|f| f.time_offset == Some(r)) {
+            return Ok(f.clone());
+        }
+        let f = m.fit_at(cur, c, kinds, r, evaluations)?;
+        fits.push(f.clone());
+        Ok(f)
+    };
     let mut rescanned = false;
     let mut best = loop {
-        let f = fit_at(r, &mut evaluations)?;
+        let f = fit_at(&mut fits, r, &mut evaluations)?;
         if rescanned {
             break f;
         }
@@ -161,7 +208,26 @@ fn fit_timed(
     for dir in [-1, 1] {
         for _ in 0..OFFSET_NEIGHBOURS {
             let next = best.time_offset.unwrap_or(r) + dir;
-            match fit_at(next, &mut evaluations) {
+            // A neighbour not fitted yet is fitted only where one Gauss–Newton step of the best
+            // fit's parameters there, from one simulation with sensitivities, predicts a lower
+            // χ² than the best's (as `fit_step_off` judges the steps off a scan at 0).
+            if !fits.iter().any(|f| f.time_offset == Some(next)) {
+                evaluations += 1;
+                match predicted_refit(m, &best, next) {
+                    Ok(chi2) if chi2 >= best.scores.chi2_fit => {
+                        (m.log)(&format!(
+                            "  time-offset: one Gauss–Newton step at {:+.1} ms predicts χ² \
+                             {:.4}× the fit's at {:+.1} ms: not fitted",
+                            1e3 * next as f64 * m.ds.model.dt,
+                            chi2 / best.scores.chi2_fit,
+                            1e3 * best.time_offset.unwrap_or(r) as f64 * m.ds.model.dt,
+                        ));
+                        break;
+                    }
+                    _ => {}
+                }
+            }
+            match fit_at(&mut fits, next, &mut evaluations) {
                 Ok(n) if n.scores.chi2_fit < best.scores.chi2_fit => best = n,
                 _ => break,
             }
@@ -169,6 +235,18 @@ fn fit_timed(
     }
     best.evaluations = evaluations;
     Ok(best)
+}
+
+/// χ² on the fitted steps after one Gauss–Newton step of `from`'s parameters with the markers
+/// `r` steps off the clamps' record ([`refit_step`]): the χ² of `from` there times the step's
+/// relative gain.
+fn predicted_refit(
+    m: &MotionModel<'_>,
+    from: &FittedModel,
+    r: i64,
+) -> Result<f64, MotionDiagnoseError> {
+    let (chi2, gain) = refit_step(m, from, r)?;
+    Ok(chi2 * gain)
 }
 
 /// The time offset when the scan says 0. The scan runs at a material fitted without an
@@ -267,19 +345,30 @@ fn fit_step_off(
 }
 
 /// The relative χ² gain of one Gauss–Newton step of the current parameters with the markers
-/// `r` steps off the clamps' record: (χ² after the step) / (χ² before), from one simulation with
-/// sensitivities at the current material on the data re-timed by `r`.
+/// `r` steps off the clamps' record: (χ² after the step) / (χ² before) ([`refit_step`]).
 fn refit_gain(m: &MotionModel<'_>, cur: &FittedModel, r: i64) -> Result<f64, MotionDiagnoseError> {
-    let mut at = cur.clone();
+    Ok(refit_step(m, cur, r)?.1)
+}
+
+/// One Gauss–Newton step of `from`'s parameters with the markers `r` steps off the clamps'
+/// record, from one simulation with sensitivities at `from`'s material on the data re-timed by
+/// `r`: χ² on the fitted steps there before the step, and (χ² after) / (χ² before) — 1 where
+/// the misfit is already 0.
+fn refit_step(
+    m: &MotionModel<'_>,
+    from: &FittedModel,
+    r: i64,
+) -> Result<(f64, f64), MotionDiagnoseError> {
+    let mut at = from.clone();
     at.time_offset = Some(r);
-    let params = fit::params_for(&cur.kinds, &cur.material);
-    let (normal, _) = screen::linearise(m, &at, &cur.material, &params)?;
+    let params = fit::params_for(&from.kinds, &from.material);
+    let (normal, chi2) = screen::linearise(m, &at, &from.material, &params)?;
     if normal.phi <= 0.0 {
-        return Ok(1.0);
+        return Ok((chi2, 1.0));
     }
     let cols: Vec<usize> = (0..normal.len()).collect();
     let parts = std::slice::from_ref(&normal);
     let delta = crate::screen::step(parts, &cols);
     let change = crate::screen::change(parts, &cols, &delta)[0];
-    Ok(((normal.phi + change) / normal.phi).max(0.0))
+    Ok((chi2, ((normal.phi + change) / normal.phi).max(0.0)))
 }
