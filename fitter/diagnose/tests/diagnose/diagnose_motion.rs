@@ -553,6 +553,34 @@ fn a_stiff_element_layer_at_the_clamp_is_refused_as_a_second_material() {
             t.reason
         );
     }
+    // Nor is the root taken for a clamp that gives. The screen steps the layer stiffer and does
+    // not fit it; fitted all the same (the screen off), its short fits from the body's μ and
+    // softer layers end stiffer than the body, and the fit is not continued.
+    let o = MotionOptions {
+        mesh_null: false,
+        screen: false,
+        candidates: vec![palpate_diagnose::motion::Candidate::ClampCompliance],
+        ..MotionOptions::default()
+    };
+    let r = diagnose(&ds, "stiff-root", &o, &|m| eprintln!("{m}")).unwrap();
+    assert!(r.adopted.is_empty(), "{:?}", r.adopted);
+    let fitted: Vec<&palpate_diagnose::motion::Trial> = r
+        .rounds
+        .iter()
+        .flat_map(|rd| &rd.trials)
+        .filter(|t| t.candidate == "clamp-compliance")
+        .collect();
+    assert!(!fitted.is_empty(), "clamp-compliance never tried");
+    for t in fitted {
+        assert!(
+            !t.fitted
+                && t.reason
+                    .contains("as stiff as the body in the best of 3 short fits")
+                && t.reason.contains("not a clamp that gives"),
+            "{}",
+            t.reason
+        );
+    }
 }
 
 /// A bar of two materials: the half next to its moving base three times as stiff as the rest

@@ -102,20 +102,27 @@ impl MotionEffect for ClampCompliance {
                 failures.join("; ")
             )));
         };
+        // The best of the short fits, from the body's μ and from softer layers, already stiffer
+        // than the body: the data pull the layer up from every start, and the fit continued from
+        // there is refused below for the same reason — it is not run.
+        if let Some(ratio) = stiffer(&best) {
+            return Ok(Outcome::NotFitted(format!(
+                "the layer at the clamp came out {ratio:.2}× as stiff as the body in the best of \
+                 {} short fits from its start at the body's μ and softer ones: {STIFFER_ROOT}",
+                LAYER_STARTS.len()
+            )));
+        }
         let mut f = match m.fit_from(&best, c) {
             Ok(f) => f,
             Err(e) => return Ok(Outcome::NotFitted(format!("fit failed: {e}"))),
         };
         f.evaluations += evaluations;
-        let Some(layer) = layer_of(&f) else {
+        if layer_of(&f).is_none() {
             return Ok(Outcome::NotFitted("the fit lost the clamp layer".into()));
-        };
-        let ratio = layer.mu / layer.body_mu;
-        if ratio >= 1.0 {
+        }
+        if let Some(ratio) = stiffer(&f) {
             return Ok(Outcome::NotFitted(format!(
-                "the layer at the clamp came out {ratio:.2}× as stiff as the body: a root \
-                 stiffer than the body is a coarse mesh's own error at a clamp, not a clamp that \
-                 gives"
+                "the layer at the clamp came out {ratio:.2}× as stiff as the body: {STIFFER_ROOT}"
             )));
         }
         Ok(Outcome::Fitted(f))
@@ -279,6 +286,17 @@ struct Layer {
     ratio: f64,
     /// The body's μ (Pa).
     body_mu: f64,
+}
+
+/// Why a layer stiffer than the body is refused (see the module).
+const STIFFER_ROOT: &str =
+    "a root stiffer than the body is a coarse mesh's own error at a clamp, not a clamp that gives";
+
+/// The layer's μ over the body's where it is at least 1: a layer no softer than the body.
+fn stiffer(f: &FittedModel) -> Option<f64> {
+    let layer = layer_of(f)?;
+    let ratio = layer.mu / layer.body_mu;
+    (ratio >= 1.0).then_some(ratio)
 }
 
 /// The clamp layer of `f`: the region scaled as a whole (the only kind of region this candidate
