@@ -130,7 +130,7 @@ fn assert_the_screen_keeps_its_promises(r: &MotionDiagnosis) {
 /// asserted below a fifth), viscosity follows (the truth is damped), and the residual left is
 /// what the mesh leaves ([`assert_the_mesh_leaves_the_rest`]). The offset is fitted once: the
 /// neighbours are predicted by one Gauss–Newton step each and not fitted (measured: 9 simulations
-/// for the candidate, where fitting each neighbour took 25).
+/// for the candidate; fitting each neighbour in full takes 25).
 #[test]
 fn independent_clamp_recorded_late_is_given_its_time_offset() {
     let name = "cylinder-s2-clamps-late-2";

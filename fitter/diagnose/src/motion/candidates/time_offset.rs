@@ -169,8 +169,8 @@ fn refit_first(
 /// loaded run it can settle a step off (−2 for −3 on drawn specimens, the fit then far above the
 /// floor). Each offset is fitted once, and a neighbour only where one Gauss–Newton step of the
 /// best fit's parameters there predicts a lower χ² than the best's ([`predicted_refit`]): on the
-/// independent generator's cylinder recorded two frames late the walk's last, worse, neighbour
-/// was a whole fit (25 of the candidate's 57 simulations), its prediction one.
+/// independent generator's cylinder recorded two frames late, fitting the walk's last, worse,
+/// neighbour in full takes 25 simulations with sensitivities; predicting it, one.
 fn fit_timed(
     m: &MotionModel<'_>,
     c: Candidate,
