@@ -500,6 +500,15 @@ fn a_stiffening_bar_is_given_its_stiffening() {
     assert!(r.before.rms_held > 10.0 * floor);
 }
 
+/// Every round's trial of candidate `name`, in round order.
+fn trials_of<'r>(r: &'r MotionDiagnosis, name: &str) -> Vec<&'r palpate_diagnose::motion::Trial> {
+    r.rounds
+        .iter()
+        .flat_map(|rd| &rd.trials)
+        .filter(|t| t.candidate == name)
+        .collect()
+}
+
 /// The bar of [`a_bar_of_two_materials_is_given_its_second_material`] with only the elements
 /// that touch its clamp nine times as stiff (μ 90 kPa against 10 kPa): what a coarse mesh's own
 /// error at a cantilever's root looks like to the sensitivity map. The two-material candidate
@@ -536,12 +545,7 @@ fn a_stiff_element_layer_at_the_clamp_is_refused_as_a_second_material() {
         "{:?}",
         r.adopted
     );
-    let tried: Vec<&palpate_diagnose::motion::Trial> = r
-        .rounds
-        .iter()
-        .flat_map(|rd| &rd.trials)
-        .filter(|t| t.candidate == "two-material")
-        .collect();
+    let tried = trials_of(&r, "two-material");
     assert!(!tried.is_empty(), "two-material never tried");
     for t in tried {
         assert!(
@@ -564,12 +568,7 @@ fn a_stiff_element_layer_at_the_clamp_is_refused_as_a_second_material() {
     };
     let r = diagnose(&ds, "stiff-root", &o, &|m| eprintln!("{m}")).unwrap();
     assert!(r.adopted.is_empty(), "{:?}", r.adopted);
-    let fitted: Vec<&palpate_diagnose::motion::Trial> = r
-        .rounds
-        .iter()
-        .flat_map(|rd| &rd.trials)
-        .filter(|t| t.candidate == "clamp-compliance")
-        .collect();
+    let fitted = trials_of(&r, "clamp-compliance");
     assert!(!fitted.is_empty(), "clamp-compliance never tried");
     for t in fitted {
         assert!(
