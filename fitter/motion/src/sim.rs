@@ -857,6 +857,7 @@ pub fn simulate_solving(
     let mut dv = vec![0.0; model.pattern.nnz()];
     let mut sv = vec![0.0; model.pattern.nnz()];
     let mut mw = vec![0.0; ndof];
+    let lumped = model.lumped_mass_diagonal(mat);
     let mut stats = SimStats::default();
     // Modified Newton: the factor of S = c M + a_x K + a_v D is kept across iterations and
     // steps while the residual contracts by at least `REFACTOR_CONTRACTION` per iteration; S
@@ -924,10 +925,18 @@ pub fn simulate_solving(
             // replaced by a line search from where it started (never on the first iteration,
             // whose state is the predictor, not a step).
             let residual = |f: &[f64], v: &[f64], mw: &mut Vec<f64>| -> Vec<f64> {
+                let mut r = vec![0.0; model.nfree];
+                if let Some(m) = &lumped {
+                    for (d, &fr) in model.free.iter().enumerate() {
+                        if fr != usize::MAX {
+                            r[fr] = f[d] + fext[d] - c * (m[d] * (v[d] - b[d]));
+                        }
+                    }
+                    return r;
+                }
                 let vb: Vec<f64> = (0..ndof).map(|d| v[d] - b[d]).collect();
                 mw.iter_mut().for_each(|z| *z = 0.0);
                 model.mass_mul(mat, &vb, mw);
-                let mut r = vec![0.0; model.nfree];
                 for (d, &fr) in model.free.iter().enumerate() {
                     if fr != usize::MAX {
                         r[fr] = f[d] + fext[d] - c * mw[d];
