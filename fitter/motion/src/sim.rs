@@ -1011,8 +1011,12 @@ pub fn simulate_solving(
                 fresh = true;
                 last_step = None;
             }
-            for i in 0..sv.len() {
-                sv[i] = c * mvals[i] + ax * kv[i] + av * dv[i];
+            // S is factorised (afresh, or at the converged state) or handed on only here; an
+            // iteration with a kept factor does not read it.
+            if done || fresh {
+                for i in 0..sv.len() {
+                    sv[i] = c * mvals[i] + ax * kv[i] + av * dv[i];
+                }
             }
             if let (true, StepSolve::Kept(_)) = (done, solve) {
                 stats.finish_step(nrm, model.newton.tol);
