@@ -1341,6 +1341,20 @@ mod tests {
         assert_eq!(ParamKind::SplineF as usize, MATERIAL_KINDS);
     }
 
+    /// A model of `mesh` with nothing clamped, gravity down z, lumped mass, one step of 10 ms.
+    fn unclamped(mesh: &Mesh) -> Model {
+        Model::new(
+            mesh,
+            Vec::new(),
+            Vec::new(),
+            0.01,
+            1,
+            [0.0, 0.0, -9.81],
+            MassKind::Lumped,
+        )
+        .unwrap()
+    }
+
     /// The lumped diagonal is the lumped mass: M w from it agrees with the element pass
     /// [`Model::mass_mul`] (two elements sharing a face, densities that differ, a hung weight
     /// whose inertia rides on two nodes), and the consistent mass has none.
@@ -1358,16 +1372,7 @@ mod tests {
             tets: vec![[0, 1, 2, 3], [1, 2, 3, 4]],
             node_groups: Default::default(),
         };
-        let mut model = Model::new(
-            &mesh,
-            Vec::new(),
-            Vec::new(),
-            0.01,
-            1,
-            [0.0, 0.0, -9.81],
-            MassKind::Lumped,
-        )
-        .unwrap();
+        let mut model = unclamped(&mesh);
         model.loads.push(DeadLoad {
             name: "weight".into(),
             nodes: vec![3, 4],
@@ -1405,16 +1410,7 @@ mod tests {
             tets: vec![[0, 1, 2, 3]],
             node_groups: Default::default(),
         };
-        let model = Model::new(
-            &mesh,
-            Vec::new(),
-            Vec::new(),
-            0.01,
-            1,
-            [0.0, 0.0, -9.81],
-            MassKind::Lumped,
-        )
-        .unwrap();
+        let model = unclamped(&mesh);
         let (ea, eb) = model.gravity_axes().unwrap();
         assert_eq!((ea, eb), ([1.0, 0.0, 0.0], [0.0, -1.0, 0.0]));
         let mut mat = Material::uniform(1, 1.0, 1.0, 0.0, 1.0, 1.0);
