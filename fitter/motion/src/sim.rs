@@ -944,12 +944,15 @@ pub fn simulate_solving(
                 }
                 r
             };
+            // The residual the check reads is this iteration's: kept for it.
+            let mut checked = None;
             let overshoot = match (&assembled, &last_step) {
                 (Err(MotionError::Inverted { .. }), Some(_)) => true,
                 (Err(_), _) => false,
                 (Ok(()), Some((_, dvec, g0))) => {
                     let r = residual(&f, &v, &mut mw);
                     let g1 = -dvec.iter().zip(&r).map(|(p, q)| p * q).sum::<f64>();
+                    checked = Some(r);
                     g1 > 0.5 * g0.abs()
                 }
                 (Ok(()), None) => false,
@@ -978,7 +981,7 @@ pub fn simulate_solving(
                 map.fill(&model.free, &v, &mut xf, &mut vf);
                 continue;
             }
-            let mut r = residual(&f, &v, &mut mw);
+            let mut r = checked.unwrap_or_else(|| residual(&f, &v, &mut mw));
             let nrm = r.iter().map(|z| z * z).sum::<f64>().sqrt();
             if !nrm.is_finite() {
                 return Err(MotionError::NonFinite(format!("residual at step {n}")));
